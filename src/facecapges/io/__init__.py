@@ -1,0 +1,1 @@
+"""Readers and writers of the file formats the project meets (BVH, WAV, BEAT face JSON)."""

@@ -1,0 +1,190 @@
+"""BVH reading and writing (hierarchy + motion), exactly as the file declares it.
+
+A BVH file is a joint tree (``ROOT``/``JOINT``/``End Site`` with ``OFFSET`` and
+``CHANNELS``) followed by ``MOTION``: ``Frames: T``, ``Frame Time: dt`` and T lines of
+channel values. Rotation channels are Euler angles in **degrees**, applied in the order
+the ``CHANNELS`` line lists them (see :mod:`facecapges.rotations`); positions and
+offsets are in the file's unit (BEAT: centimetres).
+
+:func:`read_bvh` returns a :class:`BVH` (a :class:`~facecapges.skeleton.Skeleton`, the
+motion as a (T, C) float array in file channel order, and the frame rate from the
+header). :func:`write_bvh` writes one back; the two round-trip.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.errors import file_error, require_file
+from facecapges.skeleton import Skeleton
+
+_VALID_CHANNELS = {"Xposition", "Yposition", "Zposition", "Xrotation", "Yrotation", "Zrotation"}
+
+
+@dataclass
+class BVH:
+    """A parsed BVH file: skeleton, motion (T, C) in file channel order, fps."""
+
+    skeleton: Skeleton
+    motion: np.ndarray
+    fps: float
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.motion.shape[0])
+
+
+def _parse_hierarchy(lines: list[str], path: Path) -> tuple[Skeleton, int]:
+    names: list[str] = []
+    parents: list[int] = []
+    offsets: list[list[float]] = []
+    channels: list[list[str]] = []
+    end_sites: dict[int, np.ndarray] = {}
+    stack: list[int] = []
+    i = 0
+    if not lines or lines[0].strip() != "HIERARCHY":
+        raise file_error(path, "not a BVH file (first line is not 'HIERARCHY')")
+    i = 1
+    pending_end = False
+    while i < len(lines):
+        tok = lines[i].split()
+        i += 1
+        if not tok:
+            continue
+        key = tok[0]
+        try:
+            if key in ("ROOT", "JOINT"):
+                if len(tok) < 2:
+                    raise ValueError(f"{key} without a name")
+                if key == "ROOT" and names:
+                    raise ValueError("more than one ROOT")
+                names.append(tok[1])
+                parents.append(stack[-1] if stack else -1)
+                offsets.append([0.0, 0.0, 0.0])
+                channels.append([])
+            elif key == "End":
+                pending_end = True
+            elif key == "{":
+                if pending_end:
+                    stack.append(-2)  # marker: inside an End Site
+                else:
+                    stack.append(len(names) - 1)
+            elif key == "}":
+                if not stack:
+                    raise ValueError("unbalanced '}'")
+                stack.pop()
+                pending_end = False
+            elif key == "OFFSET":
+                vals = [float(v) for v in tok[1:4]]
+                if len(vals) != 3:
+                    raise ValueError("OFFSET needs 3 numbers")
+                if stack and stack[-1] == -2:
+                    owner = [s for s in stack if s >= 0][-1]
+                    end_sites[owner] = np.array(vals)
+                else:
+                    offsets[-1] = vals
+            elif key == "CHANNELS":
+                n = int(tok[1])
+                ch = tok[2:2 + n]
+                if len(ch) != n or not set(ch) <= _VALID_CHANNELS:
+                    raise ValueError(f"bad CHANNELS line {' '.join(tok)!r}")
+                channels[-1] = ch
+            elif key == "MOTION":
+                if stack:
+                    raise ValueError("hierarchy not closed before MOTION")
+                break
+            else:
+                raise ValueError(f"unexpected token {key!r}")
+        except (ValueError, IndexError) as exc:
+            raise file_error(path, f"malformed BVH hierarchy at line {i}: {exc}") from None
+    else:
+        raise file_error(path, "truncated BVH: no MOTION section")
+    if not names:
+        raise file_error(path, "BVH hierarchy has no joints")
+    skel = Skeleton(names=names, parents=np.array(parents), offsets=np.array(offsets, dtype=np.float64),
+                    channels=channels, end_sites=end_sites)
+    return skel, i
+
+
+def read_bvh(path: str | Path) -> BVH:
+    """Read a BVH file. Raises :class:`~facecapges.errors.UserError` naming the file."""
+    path = require_file(path, "BVH file")
+    try:
+        text = path.read_text(encoding="utf-8", errors="strict")
+    except UnicodeDecodeError:
+        raise file_error(path, "not a text BVH file") from None
+    lines = text.splitlines()
+    skel, i = _parse_hierarchy(lines, path)
+    try:
+        n_frames = int(lines[i].split(":")[1])
+        frame_time = float(lines[i + 1].split(":")[1])
+    except (IndexError, ValueError):
+        raise file_error(path, "malformed MOTION header (expected 'Frames:' and 'Frame Time:')") from None
+    if frame_time <= 0:
+        raise file_error(path, f"Frame Time must be positive, got {frame_time}")
+    rows = [ln for ln in lines[i + 2:] if ln.strip()]
+    if len(rows) < n_frames:
+        raise file_error(path, f"truncated BVH: header says {n_frames} frames, file has {len(rows)}")
+    if n_frames == 0:
+        raise file_error(path, "BVH has no motion frames")
+    try:
+        motion = np.array([np.array(r.split(), dtype=np.float64) for r in rows[:n_frames]])
+    except ValueError:
+        raise file_error(path, "malformed motion line (not all numbers)") from None
+    if motion.ndim != 2 or motion.shape[1] != skel.n_channels:
+        widths = sorted({len(r.split()) for r in rows[:n_frames]})
+        raise file_error(path, f"motion lines have {widths} values, the hierarchy declares {skel.n_channels} channels")
+    if not np.isfinite(motion).all():
+        raise file_error(path, "motion contains NaN or infinite values")
+    fps = 1.0 / frame_time
+    if abs(fps - round(fps)) < 0.01:  # "0.0666667" means 15 fps, "0.008333" means 120
+        fps = float(round(fps))
+    return BVH(skeleton=skel, motion=motion, fps=fps)
+
+
+def write_bvh(path: str | Path, skeleton: Skeleton, motion: np.ndarray, fps: float) -> Path:
+    """Write ``motion`` (T, C) on ``skeleton`` as a BVH file at ``fps``. Returns the path.
+
+    The file is written to a temporary name and renamed, so a crash never leaves half
+    a file behind.
+    """
+    motion = np.asarray(motion, dtype=np.float64)
+    if motion.ndim != 2 or motion.shape[1] != skeleton.n_channels:
+        raise ValueError(f"motion must be (T, {skeleton.n_channels}), got {motion.shape}")
+    out: list[str] = ["HIERARCHY"]
+    children = skeleton.children()
+
+    def emit(j: int, depth: int) -> None:
+        ind = "\t" * depth
+        kind = "ROOT" if skeleton.parents[j] < 0 else "JOINT"
+        out.append(f"{ind}{kind} {skeleton.names[j]}")
+        out.append(f"{ind}{{")
+        o = skeleton.offsets[j]
+        out.append(f"{ind}\tOFFSET {o[0]:.6f} {o[1]:.6f} {o[2]:.6f}")
+        ch = skeleton.channels[j]
+        out.append(f"{ind}\tCHANNELS {len(ch)} {' '.join(ch)}".rstrip())
+        for c in children[j]:
+            emit(c, depth + 1)
+        if j in skeleton.end_sites:
+            e = skeleton.end_sites[j]
+            out.append(f"{ind}\tEnd Site")
+            out.append(f"{ind}\t{{")
+            out.append(f"{ind}\t\tOFFSET {e[0]:.6f} {e[1]:.6f} {e[2]:.6f}")
+            out.append(f"{ind}\t}}")
+        out.append(f"{ind}}}")
+
+    for root in (j for j in range(skeleton.n_joints) if skeleton.parents[j] < 0):
+        emit(root, 0)
+    out.append("MOTION")
+    out.append(f"Frames: {motion.shape[0]}")
+    out.append(f"Frame Time: {1.0 / fps:.7f}")
+    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in motion)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    tmp.write_text("\n".join(out) + "\n" + body + "\n", encoding="utf-8")
+    tmp.replace(path)
+    return path

@@ -1,0 +1,265 @@
+"""Rotation conventions for the whole project, stated once.
+
+Every function here is pure, batched over leading dimensions and works on both
+``numpy.ndarray`` and ``torch.Tensor`` (the output has the input's type).
+
+Conventions
+-----------
+* **Matrices act on column vectors**: ``v_world = R @ v_local``. A child's global
+  rotation is ``G_child = G_parent @ R_child`` (thesis eq. 2.2).
+* **rot6d** is the *first two columns* of the rotation matrix, concatenated:
+  ``r6 = [R[:, 0]; R[:, 1]] = (R00, R10, R20, R01, R11, R21)`` (thesis 2.3). It is
+  turned back into a matrix by Gram–Schmidt (eq. 2.6–2.9): ``u1 = a/|a|``,
+  ``u2 = normalise(b - (u1·b) u1)``, ``u3 = u1 × u2``, ``R = [u1 u2 u3]``.
+  Note that pytorch3d's ``matrix_to_rotation_6d`` takes the first two *rows*; ours
+  is the transpose of that choice.
+* **Euler angles** are BVH's: degrees in files (:func:`euler_to_matrix` takes
+  ``degrees=True`` for them), radians inside ARKit-style head angles. The order is a
+  string of axis letters as the BVH ``CHANNELS`` line declares them, e.g. ``"XYZ"``
+  for ``Xrotation Yrotation Zrotation``; the rotation is intrinsic in that order,
+  ``R = R_X(a0) @ R_Y(a1) @ R_Z(a2)``, which is how BVH, Blender and three.js's
+  BVHLoader read the channels.
+* **Quaternions** are ``(w, x, y, z)``, real part first, unit norm, and
+  :func:`matrix_to_quaternion` returns the one with ``w >= 0``.
+* **Handedness**: BEAT BVH, three.js and glTF are right-handed, Y up, +Z towards the
+  viewer, centimetres in BVH and metres in glTF. ARKit's face anchor is right-handed
+  too (Y up, +Z out of the face). Unity / VMC is left-handed (Y up, +Z forward):
+  :func:`quaternion_to_unity` converts a right-handed quaternion by mirroring the X
+  axis, ``(w, x, y, z) -> (w, x, -y, -z)`` (positions: ``x -> -x``).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+import torch
+
+Array = Any  # numpy.ndarray or torch.Tensor
+
+_EPS = 1e-8
+
+
+# --------------------------------------------------------------------------- helpers
+def _is_torch(x: Array) -> bool:
+    return isinstance(x, torch.Tensor)
+
+
+def _check_last(x: Array, shape: tuple[int, ...], what: str) -> None:
+    if tuple(x.shape[-len(shape):]) != shape:
+        raise ValueError(f"{what} must have shape (..., {', '.join(map(str, shape))}), got {tuple(x.shape)}")
+
+
+def _stack(items: list[Array], axis: int, like: Array) -> Array:
+    return torch.stack(items, dim=axis) if _is_torch(like) else np.stack(items, axis=axis)
+
+
+def _cross(a: Array, b: Array) -> Array:
+    return torch.linalg.cross(a, b, dim=-1) if _is_torch(a) else np.cross(a, b)
+
+
+def _norm(a: Array) -> Array:
+    if _is_torch(a):
+        return torch.linalg.norm(a, dim=-1, keepdim=True)
+    return np.linalg.norm(a, axis=-1, keepdims=True)
+
+
+def _maximum(a: Array, value: float) -> Array:
+    return torch.clamp(a, min=value) if _is_torch(a) else np.maximum(a, value)
+
+
+def _sqrt(a: Array) -> Array:
+    return torch.sqrt(a) if _is_torch(a) else np.sqrt(a)
+
+
+# ---------------------------------------------------------------- axis and Euler
+def axis_angle_matrix(axis: str, angle: Array) -> Array:
+    """Rotation matrices about one principal axis ``"X"``, ``"Y"`` or ``"Z"``.
+
+    ``angle`` in radians, shape (...); returns (..., 3, 3).
+    """
+    lib = torch if _is_torch(angle) else np
+    c, s = lib.cos(angle), lib.sin(angle)
+    one, zero = lib.ones_like(angle), lib.zeros_like(angle)
+    if axis == "X":
+        rows = (one, zero, zero, zero, c, -s, zero, s, c)
+    elif axis == "Y":
+        rows = (c, zero, s, zero, one, zero, -s, zero, c)
+    elif axis == "Z":
+        rows = (c, -s, zero, s, c, zero, zero, zero, one)
+    else:
+        raise ValueError(f"axis must be one of X, Y, Z, got {axis!r}")
+    flat = _stack(list(rows), -1, angle)
+    return flat.reshape(tuple(angle.shape) + (3, 3))
+
+
+def _check_order(order: str) -> str:
+    order = order.upper()
+    if len(order) != 3 or set(order) != {"X", "Y", "Z"}:
+        raise ValueError(f"Euler order must be a permutation of 'XYZ', got {order!r}")
+    return order
+
+
+def euler_to_matrix(euler: Array, order: str, degrees: bool = False) -> Array:
+    """Euler angles (..., 3), applied intrinsically in ``order`` → matrices (..., 3, 3).
+
+    ``euler[..., i]`` is the angle about axis ``order[i]``; the result is
+    ``R_order[0] @ R_order[1] @ R_order[2]``. BVH channels are in degrees: pass
+    ``degrees=True``.
+    """
+    order = _check_order(order)
+    _check_last(euler, (3,), "euler")
+    if degrees:
+        euler = euler * (math.pi / 180.0)
+    mats = [axis_angle_matrix(order[i], euler[..., i]) for i in range(3)]
+    return mats[0] @ mats[1] @ mats[2]
+
+
+def matrix_to_euler(matrix: Array, order: str, degrees: bool = False) -> Array:
+    """Inverse of :func:`euler_to_matrix` (principal branch, middle angle in [-90°, 90°]).
+
+    Near gimbal lock the first angle is set from the remaining freedom; the matrix
+    the angles give back is still the input matrix.
+    """
+    order = _check_order(order)
+    _check_last(matrix, (3, 3), "matrix")
+    lib = torch if _is_torch(matrix) else np
+    i, j, k = ("XYZ".index(a) for a in order)
+    # sign of the permutation: even permutations (XYZ, YZX, ZXY) give +1
+    sign = 1.0 if (j - i) % 3 == 1 else -1.0
+    m = matrix
+    # For R = R_i(a) R_j(b) R_k(c): R[i, k] = sign * sin(b)
+    sb = lib.clip(sign * m[..., i, k], -1.0, 1.0)
+    b = lib.arcsin(sb)
+    a = lib.arctan2(-sign * m[..., j, k], m[..., k, k])
+    c = lib.arctan2(-sign * m[..., i, j], m[..., i, i])
+    # gimbal lock: cos(b) ~ 0, put everything in a
+    cb = lib.sqrt(m[..., i, i] ** 2 + m[..., i, j] ** 2)
+    locked = cb < 1e-6
+    if bool(locked.any()):
+        a_locked = lib.arctan2(sign * m[..., k, j], m[..., j, j])
+        a = lib.where(locked, a_locked, a)
+        c = lib.where(locked, lib.zeros_like(c), c)
+    out = _stack([a, b, c], -1, matrix)
+    if degrees:
+        out = out * (180.0 / math.pi)
+    return out
+
+
+# ------------------------------------------------------------------------- rot6d
+def matrix_to_rot6d(matrix: Array) -> Array:
+    """Matrices (..., 3, 3) → rot6d (..., 6): first column then second column."""
+    _check_last(matrix, (3, 3), "matrix")
+    cols = [matrix[..., :, 0], matrix[..., :, 1]]
+    return torch.cat(cols, dim=-1) if _is_torch(matrix) else np.concatenate(cols, axis=-1)
+
+
+def rot6d_to_matrix(rot6d: Array) -> Array:
+    """rot6d (..., 6) → rotation matrices (..., 3, 3) by Gram–Schmidt (eq. 2.6–2.9).
+
+    Works for any non-degenerate 6-vector (network outputs need not be orthonormal).
+    """
+    _check_last(rot6d, (6,), "rot6d")
+    a, b = rot6d[..., :3], rot6d[..., 3:]
+    u1 = a / _maximum(_norm(a), _EPS)
+    dot = (u1 * b).sum(-1, keepdims=True) if not _is_torch(b) else (u1 * b).sum(-1, keepdim=True)
+    v2 = b - dot * u1
+    u2 = v2 / _maximum(_norm(v2), _EPS)
+    u3 = _cross(u1, u2)
+    return _stack([u1, u2, u3], -1, rot6d)
+
+
+def normalize_rot6d(rot6d: Array) -> Array:
+    """Project any 6-vector onto the valid rot6d manifold (orthonormal columns)."""
+    return matrix_to_rot6d(rot6d_to_matrix(rot6d))
+
+
+def euler_to_rot6d(euler: Array, order: str, degrees: bool = False) -> Array:
+    """Euler angles (..., 3) → rot6d (..., 6)."""
+    return matrix_to_rot6d(euler_to_matrix(euler, order, degrees))
+
+
+def rot6d_to_euler(rot6d: Array, order: str, degrees: bool = False) -> Array:
+    """rot6d (..., 6) → Euler angles (..., 3) in ``order``."""
+    return matrix_to_euler(rot6d_to_matrix(rot6d), order, degrees)
+
+
+def identity_rot6d(shape: tuple[int, ...] = ()) -> np.ndarray:
+    """The rest rotation as rot6d, float32, shape ``shape + (6,)``."""
+    return np.broadcast_to(np.array([1, 0, 0, 0, 1, 0], np.float32), tuple(shape) + (6,)).copy()
+
+
+# -------------------------------------------------------------------- quaternion
+def matrix_to_quaternion(matrix: Array) -> Array:
+    """Matrices (..., 3, 3) → unit quaternions (..., 4) as (w, x, y, z), w ≥ 0."""
+    _check_last(matrix, (3, 3), "matrix")
+    lib = torch if _is_torch(matrix) else np
+    m = matrix
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    # four candidate |components|, all computed, best-conditioned one picked
+    w2 = 1 + m00 + m11 + m22
+    x2 = 1 + m00 - m11 - m22
+    y2 = 1 - m00 + m11 - m22
+    z2 = 1 - m00 - m11 + m22
+    cands = _stack([w2, x2, y2, z2], -1, matrix)
+    best = cands.argmax(-1) if _is_torch(m) else np.argmax(cands, axis=-1)
+    r21, r12 = m[..., 2, 1], m[..., 1, 2]
+    r02, r20 = m[..., 0, 2], m[..., 2, 0]
+    r10, r01 = m[..., 1, 0], m[..., 0, 1]
+
+    def from_(s2: Array, comps: list[Array]) -> Array:
+        # the chosen component is sqrt(s2)/2; the others follow from off-diagonals
+        s = _sqrt(_maximum(s2, _EPS)) * 2.0
+        return _stack([c / s for c in comps], -1, matrix)
+
+    qw = from_(w2, [w2, r21 - r12, r02 - r20, r10 - r01])
+    qx = from_(x2, [r21 - r12, x2, r01 + r10, r02 + r20])
+    qy = from_(y2, [r02 - r20, r01 + r10, y2, r12 + r21])
+    qz = from_(z2, [r10 - r01, r02 + r20, r12 + r21, z2])
+    allq = _stack([qw, qx, qy, qz], -2, matrix)  # (..., 4 candidates, 4)
+    if _is_torch(m):
+        q = torch.gather(allq, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
+        q = torch.where(q[..., :1] < 0, -q, q)
+    else:
+        q = np.take_along_axis(allq, best[..., None, None], axis=-2)[..., 0, :]
+        q = np.where(q[..., :1] < 0, -q, q)
+    return q / _maximum(_norm(q), _EPS)
+
+
+def quaternion_to_matrix(quat: Array) -> Array:
+    """Quaternions (..., 4) as (w, x, y, z) → matrices (..., 3, 3). Normalises first."""
+    _check_last(quat, (4,), "quaternion")
+    q = quat / _maximum(_norm(quat), _EPS)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    rows = [
+        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
+        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
+        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+    ]
+    return _stack(rows, -1, quat).reshape(tuple(quat.shape[:-1]) + (3, 3))
+
+
+def rot6d_to_quaternion(rot6d: Array) -> Array:
+    """rot6d (..., 6) → quaternion (..., 4), (w, x, y, z)."""
+    return matrix_to_quaternion(rot6d_to_matrix(rot6d))
+
+
+def quaternion_to_unity(quat: Array) -> Array:
+    """Right-handed Y-up quaternion (w, x, y, z) → Unity's left-handed frame (X mirrored).
+
+    Returns (w, x, y, z) in Unity's axes; Unity/VMC messages list it as (x, y, z, w).
+    """
+    _check_last(quat, (4,), "quaternion")
+    sign = np.array([1.0, 1.0, -1.0, -1.0], dtype=np.float64)
+    if _is_torch(quat):
+        return quat * torch.as_tensor(sign, dtype=quat.dtype, device=quat.device)
+    return quat * sign.astype(np.asarray(quat).dtype)
+
+
+def geodesic_angle(r1: Array, r2: Array) -> Array:
+    """Angle in radians between rotation matrices (..., 3, 3), in [0, π]."""
+    lib = torch if _is_torch(r1) else np
+    rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
+    tr = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
+    return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
