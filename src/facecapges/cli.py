@@ -27,7 +27,8 @@ app = typer.Typer(
 # The areas along the data path, in the order a user's frame meets them.
 COMMAND_MODULES = [
     "facecapges.data.commands",  # prepare, export
-    "facecapges.model.commands",  # train, generate, bench
+    "facecapges.model.commands",  # train, generate
+    "facecapges.benchmarks",  # bench
 ]
 
 for _name in COMMAND_MODULES:

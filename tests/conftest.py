@@ -1,0 +1,52 @@
+"""Shared test fixtures.
+
+Real data lives in ``../shared`` beside the repository and is never copied here.
+Outside CI a missing shared file skips the test that needs it; in CI (``CI=true``) it
+fails the test, so a broken checkout can never pass by skipping.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED = REPO.parent / "shared"
+
+
+def shared_file(rel: str) -> Path:
+    """Path of ``../shared/<rel>``; fails in CI and skips elsewhere when it is missing."""
+    p = SHARED / rel
+    if not p.exists():
+        msg = f"shared file missing: {p}"
+        if os.environ.get("CI", "").lower() == "true":
+            pytest.fail(msg)
+        pytest.skip(msg)
+    return p
+
+
+@pytest.fixture
+def beat_bvh() -> Path:
+    return shared_file("data/beat/2_scott_0_1_1.bvh")
+
+
+@pytest.fixture
+def beat_wav() -> Path:
+    return shared_file("data/beat/2_scott_0_1_1.wav")
+
+
+@pytest.fixture
+def unseen_wav() -> Path:
+    return shared_file("data/beat/2_scott_0_2_2.wav")
+
+
+@pytest.fixture
+def face_video() -> Path:
+    return shared_file("data/face/WDA_KatieHill_000.mp4")
+
+
+@pytest.fixture
+def megamind_video() -> Path:
+    return shared_file("data/face/Megamind.avi")
