@@ -1,0 +1,1 @@
+"""BEAT data: file naming and splits, per-clip readers, the prepared cache."""
