@@ -1,0 +1,210 @@
+"""The prepared BEAT cache: what ``facecapges prepare`` writes and the model reads.
+
+Layout of a cache folder::
+
+    CACHE/index.json          # everything but the per-frame arrays
+    CACHE/clips/<name>.npz    # one compressed array file per clip
+
+Per-clip arrays (``numpy.savez_compressed``; :meth:`Cache.load` returns them as a
+dict). T is the number of motion frames at the cache's ``fps`` (15 by default):
+
+=================== ============== ======= ==============================================
+key                 shape          dtype   meaning
+=================== ============== ======= ==============================================
+``pose``            (T, 47, 6)     float32 local rot6d of the UPPER_BODY joints
+``head``            (T, 6)         float32 global head rot6d (skeleton.head_rot6d)
+``face``            (T, 52)        float32 ARKit weights (zeros when absent)
+``face_present``    ()             bool    a face JSON was found
+``semantic``        (T,)           float32 semantic relevance score per frame
+``semantic_present`` ()            bool
+``emotion``         (T,)           int16   emotion label per frame (beat.EMOTIONS)
+``emotion_present`` ()             bool
+``audio``           (S,)           float32 16 kHz mono, S = floor(T·sr/fps)
+``offsets``         (J, 3)         float64 this clip's BVH joint offsets (cm)
+=================== ============== ======= ==============================================
+
+``audio`` covers exactly the samples frames 0…T−1 own by
+:func:`facecapges.timing.frame_sample_bounds` (frame i owns
+``floor(i·sr/fps) … floor((i+1)·sr/fps) − 1``), so S = floor(T·sr/fps). The true
+recording is kept sample for sample: a longer recording is cut at S, a shorter one
+is padded with zeros (the clip entry records the original length as ``audio_s``).
+
+``index.json`` holds ``version``, ``fps``, ``sr``, ``source`` (the BEAT root), the
+``skeleton`` header of the first BVH (names, parents, offsets, channels, end_sites —
+the full 75-joint hierarchy; clips of other performers differ only in offsets, kept
+per clip in the npz), ``upper_body`` (the 47 names), ``clips`` (one entry per clip:
+``name, speaker, split, kind, n_frames, duration_s, audio_s, file, has_face,
+has_semantic, has_emotion``), ``skipped`` (files that are not training clips, with
+the reason, e.g. audio without motion) and ``stats``.
+
+``stats[str(speaker)]`` (and ``stats["all"]`` pooled over every speaker) has
+``pose_mean``/``pose_std`` (47·6 values, reshape to (47, 6)), ``head_mean``/``head_std``
+(6), ``face_mean``/``face_std`` (52), ``n_frames`` and ``source``. They are computed
+over the speaker's **train** clips (face only over clips that have face); a speaker
+with no train clip in the cache (e.g. the shared sample, whose only clip is a test
+clip) falls back to all of its clips and says so in ``source``. Standard deviations
+are floored at :data:`STD_FLOOR` so dividing by them is always safe; channels with no
+data at all get mean 0, std 1.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.errors import UserError, file_error
+from facecapges.skeleton import N_JOINTS, Skeleton
+
+CACHE_VERSION = 1
+INDEX_NAME = "index.json"
+CLIP_DIR = "clips"
+STD_FLOOR = 1e-3
+PRESENCE_KEYS = ("face_present", "semantic_present", "emotion_present")
+ARRAY_KEYS = ("pose", "head", "face", "semantic", "emotion", "audio", "offsets") + PRESENCE_KEYS
+
+
+# ------------------------------------------------------------ skeleton ↔ JSON
+def skeleton_to_dict(skel: Skeleton) -> dict:
+    """A JSON-able description of a full BVH hierarchy."""
+    return {
+        "names": list(skel.names),
+        "parents": [int(p) for p in skel.parents],
+        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
+        "channels": [list(c) for c in skel.channels],
+        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
+    }
+
+
+def skeleton_from_dict(d: dict) -> Skeleton:
+    """Inverse of :func:`skeleton_to_dict`."""
+    return Skeleton(
+        names=list(d["names"]),
+        parents=np.asarray(d["parents"], dtype=np.int64),
+        offsets=np.asarray(d["offsets"], dtype=np.float64),
+        channels=[list(c) for c in d["channels"]],
+        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
+    )
+
+
+# -------------------------------------------------------------------- statistics
+class RunningStats:
+    """Mean and standard deviation of (N, D) batches, accumulated in float64."""
+
+    def __init__(self, dim: int):
+        self.n = 0
+        self.sum = np.zeros(dim)
+        self.sumsq = np.zeros(dim)
+
+    def add(self, x: np.ndarray) -> None:
+        x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
+        self.n += len(x)
+        self.sum += x.sum(0)
+        self.sumsq += (x * x).sum(0)
+
+    def merge(self, other: "RunningStats") -> None:
+        self.n += other.n
+        self.sum += other.sum
+        self.sumsq += other.sumsq
+
+    def result(self) -> tuple[list[float], list[float]]:
+        if self.n == 0:
+            return np.zeros_like(self.sum).tolist(), np.ones_like(self.sum).tolist()
+        mean = self.sum / self.n
+        var = np.maximum(self.sumsq / self.n - mean * mean, 0.0)
+        return mean.tolist(), np.maximum(np.sqrt(var), STD_FLOOR).tolist()
+
+
+# ------------------------------------------------------------------------ loader
+class Cache:
+    """Read access to a prepared cache folder.
+
+    >>> cache = Cache("/tmp/c")                         # doctest: +SKIP
+    >>> [c["name"] for c in cache.clips(split="train")] # doctest: +SKIP
+    >>> clip = cache.load("2_scott_0_1_1"); clip["pose"].shape   # (T, 47, 6)  # doctest: +SKIP
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        index_path = self.path / INDEX_NAME
+        if not self.path.is_dir():
+            raise file_error(self.path, "cache folder not found (run `facecapges prepare` first)")
+        if not index_path.is_file():
+            raise file_error(self.path, f"not a facecapges cache (no {INDEX_NAME})")
+        try:
+            self.index: dict = json.loads(index_path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise file_error(index_path, f"malformed cache index ({exc})") from None
+        if self.index.get("version") != CACHE_VERSION:
+            raise file_error(index_path, f"cache version {self.index.get('version')} is not {CACHE_VERSION}; "
+                                         "prepare it again with --force")
+        self._by_name = {c["name"]: c for c in self.index["clips"]}
+
+    @property
+    def fps(self) -> float:
+        return float(self.index["fps"])
+
+    @property
+    def sr(self) -> int:
+        return int(self.index["sr"])
+
+    @property
+    def speakers(self) -> list[int]:
+        return sorted({int(c["speaker"]) for c in self.index["clips"]})
+
+    def __len__(self) -> int:
+        return len(self.index["clips"])
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._by_name
+
+    def clips(self, speaker: int | None = None, split: str | None = None) -> list[dict]:
+        """Index entries of the clips, optionally of one speaker and/or split (train/val/test)."""
+        return [c for c in self.index["clips"]
+                if (speaker is None or int(c["speaker"]) == int(speaker)) and (split is None or c["split"] == split)]
+
+    def entry(self, name: str) -> dict:
+        """The index entry of clip ``name``."""
+        try:
+            return self._by_name[name]
+        except KeyError:
+            some = ", ".join(list(self._by_name)[:5])
+            raise UserError(f"{self.path}: no clip {name!r} in this cache (it has: {some}"
+                            f"{', …' if len(self._by_name) > 5 else ''})") from None
+
+    def load(self, name: str) -> dict:
+        """All arrays of clip ``name`` (keys in the module docstring); ``*_present`` as Python bools."""
+        entry = self.entry(name)
+        path = self.path / entry["file"]
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                out = {k: z[k] for k in z.files}
+        except FileNotFoundError:
+            raise file_error(path, "clip file missing from the cache") from None
+        except (OSError, ValueError) as exc:
+            raise file_error(path, f"corrupt clip file ({exc})") from None
+        for k in PRESENCE_KEYS:
+            out[k] = bool(out[k])
+        return out
+
+    def skeleton(self, name: str | None = None) -> Skeleton:
+        """The full BVH hierarchy; with a clip ``name``, carrying that clip's own offsets."""
+        skel = skeleton_from_dict(self.index["skeleton"])
+        if name is not None:
+            self.entry(name)
+            with np.load(self.path / self._by_name[name]["file"], allow_pickle=False) as z:
+                skel.offsets = z["offsets"].astype(np.float64)
+        return skel
+
+    def stats(self, speaker: int | str | None = None) -> dict[str, np.ndarray]:
+        """Mean/std arrays of ``speaker`` (None: pooled over all): pose_* (47, 6), head_* (6,), face_* (52,)."""
+        key = "all" if speaker is None else str(int(speaker))
+        try:
+            s = self.index["stats"][key]
+        except KeyError:
+            raise UserError(f"{self.path}: no statistics for speaker {key} (speakers: {self.speakers})") from None
+        out = {k: np.asarray(v, dtype=np.float32) for k, v in s.items() if k.endswith(("_mean", "_std"))}
+        out["pose_mean"] = out["pose_mean"].reshape(N_JOINTS, 6)
+        out["pose_std"] = out["pose_std"].reshape(N_JOINTS, 6)
+        return out
