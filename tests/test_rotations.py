@@ -1,0 +1,173 @@
+"""Property tests of the rotation conventions (facecapges.rotations).
+
+Independent reference: scipy's ``Rotation.from_euler`` with upper-case axis letters
+is the intrinsic convention BVH uses, ``R = R_a(α) R_b(β) R_c(γ)``.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+from scipy.spatial.transform import Rotation
+
+from facecapges import rotations as rot
+from facecapges.io.bvh import read_bvh
+from facecapges.skeleton import local_matrices, motion_to_euler
+
+ORDERS = ["".join(p) for p in itertools.permutations("XYZ")]
+
+angle = st.floats(-179.9, 179.9)
+middle = st.floats(-89.0, 89.0)  # away from gimbal lock, where angles are not unique
+eulers = st.tuples(angle, middle, angle).map(np.array)
+vec6 = arrays(np.float64, (6,), elements=st.floats(-10, 10))
+
+
+def random_matrices(n: int, seed: int) -> np.ndarray:
+    return Rotation.random(n, random_state=seed).as_matrix()
+
+
+@settings(max_examples=60, deadline=None)
+@given(e=eulers, order=st.sampled_from(ORDERS))
+def test_euler_matches_scipy_intrinsic_and_round_trips(e, order):
+    m = rot.euler_to_matrix(e, order, degrees=True)
+    np.testing.assert_allclose(m, Rotation.from_euler(order, e, degrees=True).as_matrix(), atol=1e-12)
+    back = rot.matrix_to_euler(m, order, degrees=True)
+    np.testing.assert_allclose(back, e, atol=1e-7)
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_matrix_euler_matrix_for_every_order_including_gimbal_lock(order):
+    mats = random_matrices(200, seed=ORDERS.index(order))
+    # plus exact gimbal-lock cases: middle angle ±90°
+    locked = rot.euler_to_matrix(np.array([[30.0, 90.0, 10.0], [-50.0, -90.0, 70.0]]), order, degrees=True)
+    mats = np.concatenate([mats, locked])
+    e = rot.matrix_to_euler(mats, order)
+    assert np.all(np.abs(e[:, 1]) <= np.pi / 2 + 1e-9)
+    np.testing.assert_allclose(rot.euler_to_matrix(e, order), mats, atol=1e-6)
+
+
+def test_matrix_rot6d_quaternion_round_trips():
+    mats = random_matrices(500, seed=1)
+    r6 = rot.matrix_to_rot6d(mats)
+    np.testing.assert_array_equal(r6[:, :3], mats[:, :, 0])  # first column
+    np.testing.assert_array_equal(r6[:, 3:], mats[:, :, 1])  # second column
+    np.testing.assert_allclose(rot.rot6d_to_matrix(r6), mats, atol=1e-12)
+    q = rot.matrix_to_quaternion(mats)
+    assert np.all(q[:, 0] >= 0)
+    np.testing.assert_allclose(np.linalg.norm(q, axis=-1), 1.0, atol=1e-12)
+    ref = Rotation.from_matrix(mats).as_quat()[:, [3, 0, 1, 2]]  # scipy is (x, y, z, w)
+    ref *= np.sign(ref[:, :1] + 1e-300)
+    np.testing.assert_allclose(q, ref, atol=1e-9)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(q), mats, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(-q), mats, atol=1e-12)  # q and -q: same rotation
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.rot6d_to_quaternion(r6)), mats, atol=1e-9)
+
+
+def test_quaternion_of_near_180_degree_rotations():
+    # the trace is ~ -1 here: the branch choice inside matrix_to_quaternion matters
+    axes = np.array([[1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 0], [1, -2, 3]], dtype=float)
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    mats = Rotation.from_rotvec(axes * (np.pi - 1e-9)).as_matrix()
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.matrix_to_quaternion(mats)), mats, atol=1e-7)
+
+
+@settings(max_examples=40, deadline=None)
+@given(e=arrays(np.float64, (4, 3), elements=st.floats(-180, 180)), order=st.sampled_from(ORDERS))
+def test_numpy_and_torch_agree(e, order):
+    t = torch.from_numpy(e)
+    m_np, m_t = rot.euler_to_matrix(e, order, degrees=True), rot.euler_to_matrix(t, order, degrees=True)
+    assert isinstance(m_t, torch.Tensor)
+    np.testing.assert_allclose(m_t.numpy(), m_np, atol=1e-12)
+    np.testing.assert_allclose(rot.matrix_to_euler(m_t, order).numpy(), rot.matrix_to_euler(m_np, order),
+                               atol=1e-9)
+    r6 = rot.matrix_to_rot6d(m_np)
+    np.testing.assert_allclose(rot.matrix_to_rot6d(m_t).numpy(), r6, atol=1e-12)
+    np.testing.assert_allclose(rot.rot6d_to_matrix(torch.from_numpy(r6)).numpy(), rot.rot6d_to_matrix(r6),
+                               atol=1e-12)
+    np.testing.assert_allclose(rot.matrix_to_quaternion(m_t).numpy(), rot.matrix_to_quaternion(m_np), atol=1e-9)
+    q = rot.matrix_to_quaternion(m_np)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(torch.from_numpy(q)).numpy(), rot.quaternion_to_matrix(q),
+                               atol=1e-12)
+    np.testing.assert_allclose(rot.geodesic_angle(m_t, m_t.flip(0)).numpy(), rot.geodesic_angle(m_np, m_np[::-1]),
+                               atol=1e-6)
+
+
+def test_torch_gradients_flow_through_rot6d_to_matrix():
+    x = torch.randn(8, 6, dtype=torch.float64, requires_grad=True)
+    rot.rot6d_to_matrix(x).sum().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all()
+
+
+@settings(max_examples=100, deadline=None)
+@given(v=vec6)
+def test_gram_schmidt_of_any_6_vector_is_a_rotation(v):
+    a, b = v[:3], v[3:]
+    na = np.linalg.norm(a)
+    if na < 1e-3 or np.linalg.norm(np.cross(a, b)) < 1e-3 * na * max(np.linalg.norm(b), 1e-3):
+        return  # degenerate: the columns are (nearly) parallel or a vanishes
+    m = rot.rot6d_to_matrix(v)
+    np.testing.assert_allclose(m.T @ m, np.eye(3), atol=1e-9)
+    assert np.linalg.det(m) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(m[:, 0], a / na, atol=1e-12)  # u1 keeps the first column's direction
+
+
+def test_gram_schmidt_of_perturbed_rot6d_is_orthonormal_and_close():
+    rng = np.random.default_rng(0)
+    mats = random_matrices(300, seed=2)
+    noisy = rot.matrix_to_rot6d(mats) + rng.normal(0, 0.05, (300, 6))
+    m = rot.rot6d_to_matrix(noisy)
+    np.testing.assert_allclose(np.swapaxes(m, -1, -2) @ m, np.broadcast_to(np.eye(3), m.shape), atol=1e-9)
+    np.testing.assert_allclose(np.linalg.det(m), 1.0, atol=1e-9)
+    assert rot.geodesic_angle(m, mats).max() < 0.3  # the projection stays near the clean rotation
+    np.testing.assert_allclose(rot.normalize_rot6d(rot.matrix_to_rot6d(mats)), rot.matrix_to_rot6d(mats), atol=1e-12)
+
+
+@settings(max_examples=50, deadline=None)
+@given(theta=st.floats(-3.1, 3.1), order=st.sampled_from(ORDERS))
+def test_geodesic_angle_is_the_relative_rotation_angle(theta, order):
+    base = rot.euler_to_matrix(np.array([20.0, -40.0, 75.0]), order, degrees=True)
+    other = base @ rot.axis_angle_matrix("Y", np.array(theta))
+    assert float(rot.geodesic_angle(base, other)) == pytest.approx(abs(theta), abs=1e-6)
+
+
+def test_quaternion_to_unity_mirrors_x():
+    q = rot.matrix_to_quaternion(random_matrices(10, seed=3))
+    u = rot.quaternion_to_unity(q)
+    # mirroring X: M R M with M = diag(-1, 1, 1)
+    M = np.diag([-1.0, 1.0, 1.0])
+    np.testing.assert_allclose(rot.quaternion_to_matrix(u), M @ rot.quaternion_to_matrix(q) @ M, atol=1e-12)
+
+
+def test_bad_shapes_and_orders_raise():
+    with pytest.raises(ValueError, match="Euler order"):
+        rot.euler_to_matrix(np.zeros(3), "XXY")
+    with pytest.raises(ValueError, match="rot6d"):
+        rot.rot6d_to_matrix(np.zeros(5))
+    with pytest.raises(ValueError, match="matrix"):
+        rot.matrix_to_rot6d(np.zeros((3, 2)))
+
+
+def test_real_right_forearm_wraps_in_euler_but_is_continuous_in_rot6d(beat_bvh):
+    """The file's RightForeArm angles run past ±180° (they turn several times round);
+    any converter's principal-branch Euler then jumps by ~360° while rot6d stays smooth."""
+    bvh = read_bvh(beat_bvh)
+    skel = bvh.skeleton
+    j = skel.index("RightForeArm")
+    _, euler = motion_to_euler(skel, bvh.motion)
+    assert np.abs(euler[:, j]).max() > 180.0  # the stored track goes round
+    mats = local_matrices(skel, euler)[:, j]
+    principal = rot.matrix_to_euler(mats, skel.rotation_order(j), degrees=True)
+    jumps = np.abs(np.diff(principal, axis=0)).max(axis=1)
+    wraps = np.flatnonzero(jumps > 300)  # ~360° Euler jumps between neighbouring frames
+    assert len(wraps) >= 3
+    r6 = rot.matrix_to_rot6d(mats)
+    step = np.linalg.norm(np.diff(r6, axis=0), axis=1)
+    assert step[wraps].max() < 0.35  # a rot6d step of at most ~20°: no discontinuity
+    assert step[wraps].max() < np.percentile(step, 99)  # smaller than the arm's fast movements
+    assert np.degrees(rot.geodesic_angle(mats[wraps], mats[wraps + 1])).max() < 20.0
