@@ -1,0 +1,147 @@
+"""Every size and setting of the model and its training, in one place.
+
+A :class:`ModelConfig` and a :class:`TrainConfig` are saved inside every checkpoint;
+a checkpoint only loads into a model built from the same ``ModelConfig``. Values are
+the thesis's where it gives them (ch. 3, 4, 5.1); the rest are our choices, marked
+"(ours)" and explained.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, fields
+from pathlib import Path
+
+from facecapges.errors import UserError
+from facecapges.timing import AUDIO_SR, MODEL_FPS, samples_per_frame
+
+
+@dataclass
+class ModelConfig:
+    fps: int = MODEL_FPS
+    sr: int = AUDIO_SR
+    # audio representation: "raw" = each frame's own 16 kHz samples (CaMN), zero-padded
+    # to ceil(sr/fps) = 1067 and reduced to one vector by strided convolutions.
+    audio_repr: str = "raw"
+    n_history: int = 16  # N: history poses in the window; window = N + 1 frames
+    n_joints: int = 47
+    n_torso: int = 3
+    n_face: int = 52
+    # audio encoder (12-layer causal TCN with skips + 2-layer MLP -> 128)
+    audio_frontend_channels: tuple[int, ...] = (32, 64, 128)  # (ours) strided conv widths
+    audio_tcn_channels: int = 64  # (ours)
+    # kernel 2 everywhere; dilations sum to N so the receptive field is exactly N+1
+    # frames: an embedding depends on its own causal window only (eq. 3.2).
+    audio_tcn_dilations: tuple[int, ...] = (1, 1, 1, 1, 2, 2, 2, 2, 1, 1, 1, 1)
+    audio_dim: int = 128
+    # face encoder (8-layer causal TCN, audio embedding joined at layer 8, MLP -> 32)
+    face_tcn_channels: int = 32  # (ours)
+    face_tcn_dilations: tuple[int, ...] = (1, 1, 2, 2, 2, 2, 2, 4)
+    face_dim: int = 32
+    # head encoder MLP 6 -> 36 -> 12 (eq. 3.12-3.13)
+    head_hidden: int = 36
+    head_dim: int = 12
+    # decoders: torso LSTM, then upper-limb LSTM conditioned on torso outputs
+    lstm_hidden: int = 128  # (ours) chosen for the 2 ms/frame CPU budget
+    lstm_layers: int = 1  # (ours)
+    mlp_hidden: int = 192  # (ours) two-layer output heads
+    dropout: float = 0.1  # (ours) on the fused input, training only
+    # discriminator (ours: a small temporal conv net over the M generated frames)
+    disc_channels: int = 128
+
+    @property
+    def window(self) -> int:
+        return self.n_history + 1
+
+    @property
+    def samples_per_frame(self) -> int:
+        return samples_per_frame(self.fps, self.sr)
+
+    @property
+    def pose_dim(self) -> int:
+        return self.n_joints * 6
+
+    @property
+    def fuse_dim(self) -> int:
+        return self.audio_dim + self.face_dim + self.head_dim + self.pose_dim
+
+    def validate(self) -> "ModelConfig":
+        if self.audio_repr != "raw":
+            raise UserError(f"unsupported audio_repr {self.audio_repr!r} (only 'raw')")
+        for name, dil in (("audio", self.audio_tcn_dilations), ("face", self.face_tcn_dilations)):
+            if sum(dil) > self.n_history:
+                raise UserError(f"{name} TCN receptive field {sum(dil) + 1} exceeds the window N+1={self.window}")
+        if len(self.audio_tcn_dilations) != 12 or len(self.face_tcn_dilations) != 8:
+            raise UserError("the audio TCN has 12 layers and the face TCN 8 (thesis 3.2.3)")
+        return self
+
+
+@dataclass
+class TrainConfig:
+    clip_len: int = 34  # L = N + M
+    stride: int = 10
+    batch_size: int = 256
+    lr_base: float = 2.5e-4  # lr_g = lr_base * B / 128 (eq. 5.1)
+    d_lr_ratio: float = 0.2  # lr_d = 0.2 * lr_g (eq. 5.2)
+    momentum: float = 0.0  # plain SGD as in the thesis
+    epochs: int = 375
+    adv_start_epoch: int = 11  # discriminator from this (1-based) epoch on
+    huber_beta: float = 0.1
+    w_rec: float = 500.0
+    w_vel: float = 1000.0
+    w_acc: float = 1000.0
+    w_adv: float = 0.1
+    grad_clip: float = 1.0  # (ours) max grad norm, guards the closed-loop rollout
+    seed: int = 0
+    holdout_from: int | None = None  # frames >= this of every clip are held out
+    num_threads: int = 0  # 0 = torch default
+
+    def lr_g(self) -> float:
+        return self.lr_base * self.batch_size / 128.0
+
+    def lr_d(self) -> float:
+        return self.d_lr_ratio * self.lr_g()
+
+
+def _from_dict(cls, data: dict):
+    names = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise UserError(f"unknown {cls.__name__} setting(s): {', '.join(unknown)}")
+    kwargs = {}
+    for f in fields(cls):
+        if f.name in data:
+            v = data[f.name]
+            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
+    return cls(**kwargs)
+
+
+def model_config_from_dict(data: dict) -> ModelConfig:
+    return _from_dict(ModelConfig, data).validate()
+
+
+def train_config_from_dict(data: dict) -> TrainConfig:
+    return _from_dict(TrainConfig, data)
+
+
+def to_dict(cfg) -> dict:
+    return json.loads(json.dumps(asdict(cfg)))
+
+
+def load_config_file(path: str | Path) -> tuple[dict, dict]:
+    """Read a YAML/JSON file with optional ``model:`` and ``train:`` sections."""
+    import yaml
+
+    p = Path(path)
+    if not p.is_file():
+        raise UserError(f"{p}: config file not found")
+    try:
+        data = yaml.safe_load(p.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise UserError(f"{p}: not valid YAML/JSON ({exc.__class__.__name__})") from None
+    if not isinstance(data, dict) or set(data) - {"model", "train"}:
+        raise UserError(f"{p}: expected a mapping with 'model' and/or 'train' sections")
+    return dict(data.get("model") or {}), dict(data.get("train") or {})
+
+
+

@@ -1,0 +1,244 @@
+"""The FaceCapGes network (thesis ch. 3), top to bottom.
+
+Per frame τ the encoders give ``z_A`` (128), ``z_F`` (32) and ``z_H`` (12); the decoder
+sees the window τ = t−N … t of fused vectors ``[z_A; z_F; z_H; s_τ]`` (eq. 3.6) where
+``s_τ`` is the pose of frame τ for τ ≤ t−1 and zeros at τ = t (eq. 3.5), runs the torso
+LSTM and the upper-limb LSTM conditioned on it (eq. 3.8, 4.12–4.13), and decodes only
+the last window step with two MLP heads (eq. 3.9–3.11).
+
+Causality and caching. Both TCNs are causal with kernel 2 and dilations summing to N,
+so an embedding at frame τ depends on inputs τ−N … τ only — exactly "the encoder
+applied to that frame's own causal window" of eq. 3.2. Encoding a whole clip with
+causal (left zero) padding therefore gives, at every frame, the same embedding as the
+windowed encoder; the streaming generator computes each frame's embedding once and
+caches it. In the face TCN's 8th layer the audio embedding enters through a kernel-1
+path (the current frame's ``z_A`` only), so joining it does not widen the window.
+
+Shapes: B batch, T frames, S = samples per frame (1067), J = 47 joints.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+from facecapges.model.config import ModelConfig
+
+LSTMState = tuple[torch.Tensor, torch.Tensor]
+
+
+class AudioFrontend(nn.Module):
+    """One frame's raw samples (S,) → one vector, by strided convolutions (per frame)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        c1, c2, c3 = cfg.audio_frontend_channels
+        self.convs = nn.ModuleList([
+            nn.Conv1d(1, c1, 15, stride=5),
+            nn.Conv1d(c1, c2, 9, stride=4),
+            nn.Conv1d(c2, c3, 9, stride=4),
+        ])
+        length = cfg.samples_per_frame
+        for conv in self.convs:
+            length = (length - conv.kernel_size[0]) // conv.stride[0] + 1
+        self.collapse = nn.Conv1d(c3, cfg.audio_tcn_channels, length)  # remaining length -> 1
+
+    def forward(self, audio: torch.Tensor) -> torch.Tensor:  # (B, T, S) -> (B, T, C)
+        B, T, S = audio.shape
+        x = audio.reshape(B * T, 1, S)
+        for conv in self.convs:
+            x = F.leaky_relu(conv(x), 0.2)
+        x = self.collapse(x)  # (B*T, C, 1)
+        return x.reshape(B, T, -1)
+
+
+class CausalTCN(nn.Module):
+    """Causal temporal conv net: kernel-2 dilated convs with residual + skip connections.
+
+    Layer i computes ``y_t = act(W_i [x_{t-d_i}; x_t] + b_i)`` (a kernel-2 causal
+    convolution with dilation ``d_i``, written as one linear map over the two taps;
+    ``x_{t-d} = 0`` before the sequence start), then ``x ← x + y`` (residual) and adds
+    ``y`` to the skip sum it returns. ``extra_dim`` > 0 joins an extra per-frame input
+    at the last layer through a kernel-1 projection (the face encoder's audio
+    embedding at layer 8). Tensors are (B, T, C).
+    """
+
+    def __init__(self, channels: int, dilations: tuple[int, ...], extra_dim: int = 0):
+        super().__init__()
+        self.dilations = tuple(dilations)
+        self.layers = nn.ModuleList([nn.Linear(2 * channels, channels) for _ in dilations])
+        self.extra = nn.Linear(extra_dim, channels, bias=False) if extra_dim else None
+
+    def layer(self, i: int, x_past: torch.Tensor, x_now: torch.Tensor,
+              extra: torch.Tensor | None = None) -> torch.Tensor:
+        """Layer ``i``'s activation from its input d_i frames ago and now (…, C) each."""
+        y = self.layers[i](torch.cat([x_past, x_now], -1))
+        if i == len(self.layers) - 1 and self.extra is not None:
+            y = y + self.extra(extra)
+        return F.leaky_relu(y, 0.2)
+
+    def forward(self, x: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
+        skip = torch.zeros_like(x)
+        for i, d in enumerate(self.dilations):
+            past = F.pad(x, (0, 0, d, 0))[:, : x.shape[1]]  # x shifted d frames later, zeros first
+            y = self.layer(i, past, x, extra)
+            skip = skip + y
+            x = x + y
+        return skip
+
+
+def mlp(dims: list[int]) -> nn.Sequential:
+    layers: list[nn.Module] = []
+    for i in range(len(dims) - 1):
+        layers.append(nn.Linear(dims[i], dims[i + 1]))
+        if i < len(dims) - 2:
+            layers.append(nn.LeakyReLU(0.2))
+    return nn.Sequential(*layers)
+
+
+class AudioEncoder(nn.Module):
+    """E_A: frontend → 12-layer causal TCN with skips → 2-layer MLP → z_A (128)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.frontend = AudioFrontend(cfg)
+        self.tcn = CausalTCN(cfg.audio_tcn_channels, cfg.audio_tcn_dilations)
+        self.mlp = mlp([cfg.audio_tcn_channels, cfg.audio_dim, cfg.audio_dim])
+
+    def from_features(self, feats: torch.Tensor) -> torch.Tensor:  # (B, T, C) -> (B, T, 128)
+        return self.mlp(self.tcn(feats))
+
+    def forward(self, audio: torch.Tensor) -> torch.Tensor:  # (B, T, S) -> (B, T, 128)
+        return self.from_features(self.frontend(audio))
+
+
+class FaceEncoder(nn.Module):
+    """E_F: 8-layer causal TCN over 52 weights, z_A joined at layer 8, MLP → z_F (32)."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.inp = nn.Linear(cfg.n_face, cfg.face_tcn_channels)
+        self.tcn = CausalTCN(cfg.face_tcn_channels, cfg.face_tcn_dilations, extra_dim=cfg.audio_dim)
+        self.mlp = mlp([cfg.face_tcn_channels, cfg.face_dim * 2, cfg.face_dim])
+
+    def forward(self, face: torch.Tensor, z_audio: torch.Tensor) -> torch.Tensor:
+        # face (B, T, 52), z_audio (B, T, 128) -> (B, T, 32)
+        return self.mlp(self.tcn(self.inp(face), z_audio))
+
+
+class HeadEncoder(nn.Module):
+    """E_H (eq. 3.12–3.13): per-frame 6 → 36 (ReLU) → 12."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.fc1 = nn.Linear(6, cfg.head_hidden)
+        self.fc2 = nn.Linear(cfg.head_hidden, cfg.head_dim)
+
+    def forward(self, head: torch.Tensor) -> torch.Tensor:  # (B, T, 6) -> (B, T, 12)
+        return self.fc2(F.relu(self.fc1(head)))
+
+
+class Decoder(nn.Module):
+    """Torso LSTM then upper-limb LSTM over the N+1 window; last step → rot6d heads."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        H = cfg.lstm_hidden
+        self.cfg = cfg
+        self.lstm_t = nn.LSTM(cfg.fuse_dim, H, cfg.lstm_layers, batch_first=True)
+        self.lstm_u = nn.LSTM(cfg.fuse_dim + H, H, cfg.lstm_layers, batch_first=True)
+        self.head_t = mlp([H, cfg.mlp_hidden, cfg.n_torso * 6])
+        self.head_u = mlp([H, cfg.mlp_hidden, (cfg.n_joints - cfg.n_torso) * 6])
+        self.drop = nn.Dropout(cfg.dropout)
+
+    def zero_state(self, batch: int, device=None) -> tuple[LSTMState, LSTMState]:
+        shape = (self.cfg.lstm_layers, batch, self.cfg.lstm_hidden)
+        z = torch.zeros(shape, device=device)
+        return (z, z.clone()), (z.clone(), z.clone())
+
+    def forward(self, fuse: torch.Tensor, state: tuple[LSTMState, LSTMState]
+                ) -> tuple[torch.Tensor, tuple[LSTMState, LSTMState]]:
+        # fuse (B, N+1, D) -> pose (B, J*6) of the window's last frame, new states
+        fuse = self.drop(fuse)
+        o_t, st_t = self.lstm_t(fuse, state[0])  # (B, N+1, H)   eq. 4.12
+        o_u, st_u = self.lstm_u(torch.cat([fuse, o_t], -1), state[1])  # eq. 4.13
+        v_t = self.head_t(o_t[:, -1])  # only the last step is decoded (eq. 3.9-3.10)
+        v_u = self.head_u(o_u[:, -1])
+        return torch.cat([v_t, v_u], -1), (st_t, st_u)  # eq. 3.11
+
+
+class FaceCapGes(nn.Module):
+    """The generator: encoders + fusion + cascaded decoders."""
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.cfg = cfg.validate()
+        self.audio_enc = AudioEncoder(cfg)
+        self.face_enc = FaceEncoder(cfg)
+        self.head_enc = HeadEncoder(cfg)
+        self.decoder = Decoder(cfg)
+
+    # ---------------------------------------------------------------- encoding
+    def encode(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
+        """Per-frame embeddings [z_A; z_F; z_H] (B, T, 172) of whole sequences, causally."""
+        z_a = self.audio_enc(audio)
+        z_f = self.face_enc(face, z_a)
+        z_h = self.head_enc(head)
+        return torch.cat([z_a, z_f, z_h], -1)
+
+    # ---------------------------------------------------------------- decoding
+    def fuse_window(self, z_win: torch.Tensor, hist: torch.Tensor) -> torch.Tensor:
+        """Window embeddings (B, N+1, E) + history poses (B, N, J*6) → fused (B, N+1, D).
+
+        The current frame's pose slot is the zero placeholder of eq. 3.5.
+        """
+        s = torch.cat([hist, hist.new_zeros(hist.shape[0], 1, hist.shape[2])], 1)
+        return torch.cat([z_win, s], -1)
+
+    def step(self, z_win: torch.Tensor, hist: torch.Tensor, state) -> tuple[torch.Tensor, tuple]:
+        """One generation step: (B, N+1, E), (B, N, J*6), state → pose (B, J*6), state."""
+        return self.decoder(self.fuse_window(z_win, hist), state)
+
+    def rollout(self, z: torch.Tensor, warmup: torch.Tensor, state=None) -> torch.Tensor:
+        """Closed-loop autoregressive rollout (thesis 4.1.2), batched over clips.
+
+        ``z``: embeddings (B, N+M, E) of a segment; ``warmup``: its first N poses
+        (B, N, J*6). Each of the M steps writes its prediction back into the history the
+        next step sees; the LSTM state starts at zero (4.1.4) and is carried.
+        Returns the M generated poses (B, M, J*6).
+        """
+        N = self.cfg.n_history
+        B, L, _ = z.shape
+        if state is None:
+            state = self.decoder.zero_state(B, z.device)
+        hist = warmup
+        outs = []
+        for m in range(L - N):
+            pose, state = self.step(z[:, m:m + N + 1], hist[:, -N:], state)
+            outs.append(pose)
+            hist = torch.cat([hist[:, 1:], pose[:, None]], 1)
+        return torch.stack(outs, 1)
+
+
+class SegmentDiscriminator(nn.Module):
+    """Dis (eq. 4.21): M generated frames (B, M, J*6) → logit that they are real.
+
+    (ours) Input is the pose and its velocity; two strided temporal convs and a linear
+    layer. Only generated frames are judged, never the warm-up (thesis 4.3.1).
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        C = cfg.disc_channels
+        self.net = nn.Sequential(
+            nn.Conv1d(cfg.pose_dim * 2, C, 3, padding=1), nn.LeakyReLU(0.2),
+            nn.Conv1d(C, C, 3, stride=2, padding=1), nn.LeakyReLU(0.2),
+            nn.Conv1d(C, C, 3, stride=2, padding=1), nn.LeakyReLU(0.2),
+        )
+        self.out = nn.Linear(C, 1)
+
+    def forward(self, seq: torch.Tensor) -> torch.Tensor:  # (B, M, D) -> (B,)
+        vel = torch.cat([torch.zeros_like(seq[:, :1]), seq[:, 1:] - seq[:, :-1]], 1)
+        h = self.net(torch.cat([seq, vel], -1).transpose(1, 2))
+        return self.out(h.mean(-1)).squeeze(-1)
