@@ -1,0 +1,1 @@
+"""The avatar: blendshapes by AOI Laplacian deformation, a skinned BEAT body, glTF, rendering."""
