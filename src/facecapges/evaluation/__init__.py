@@ -1,0 +1,20 @@
+"""Objective evaluation of generated gestures (thesis 5.5–5.7).
+
+Every metric is a plain function over arrays of upper-body poses, (T, 47, 6) rot6d in
+``facecapges.skeleton.UPPER_BODY`` order, with frame rates and sample rates in the
+signatures:
+
+* :mod:`~facecapges.evaluation.fgd` — the skeleton-aware motion autoencoder and the
+  Fréchet Gesture Distance (eq. 5.3, 5.4, 5.6, 5.7).
+* :mod:`~facecapges.evaluation.srgr` — Semantic-Relevance Gesture Recall (eq. 5.8).
+* :mod:`~facecapges.evaluation.beat_align` — BeatAlign (eq. 5.9–5.10) and its
+  shifted-audio control.
+* :mod:`~facecapges.evaluation.l1div` — L1 diversity (eq. 5.11) and the per-sequence
+  deviation from the temporal mean.
+* :mod:`~facecapges.evaluation.regions` — the two evaluation regions (5.5.5).
+* :mod:`~facecapges.evaluation.baselines` — reference rows (ground truth, mean pose,
+  random real segment).
+* :mod:`~facecapges.evaluation.suite` — all metrics for several methods in both regions.
+* :mod:`~facecapges.evaluation.report` — ``metrics.json``, the Table 5.2 Markdown
+  table and the PNG plots.
+"""

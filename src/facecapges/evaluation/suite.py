@@ -1,0 +1,135 @@
+"""All metrics for several methods, in both regions — the API ``facecapges eval`` calls.
+
+:func:`evaluate_paired` scores methods whose output is aligned frame by frame with a
+real held-out motion (the same speech): FGD (against the real motion, or a larger
+real reference set), SRGR, BeatAlign with its shifted-audio control and L1DIV.
+:func:`evaluate_unpaired` scores motion generated for audio that has no real motion
+(unseen speech): BeatAlign (+ control), L1DIV and FGD against the speaker's real
+distribution.
+
+A method is given as one (T, 47, 6) array or a list of such arrays — several samples
+for the same input (seeds, initial poses). Per-sequence metrics (SRGR, BA, L1DIV
+temporal) are averaged over samples; FGD pools every sample's windows; eq. 5.11
+(``L1DIV_samples``) needs ≥ 2 samples and is ``None`` otherwise.
+
+Result layout (JSON-able dict)::
+
+    {"fps", "sr", "n_frames", "sigma_s", "srgr_delta", "srgr_weighted", "ba_mode",
+     "ba_offsets_s", "paired",
+     "regions": {region: {"joints": [...],
+                          "methods": {name: {"FGD", "SRGR", "BA", "BA_shifted_mean",
+                                             "BA_shifted_sd", "BA_gap", "L1DIV",
+                                             "L1DIV_samples", "n_samples"}}}}}
+
+FGD is ``None`` when no FGD autoencoder (or none for that region) is given.
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from facecapges.evaluation import beat_align as ba
+from facecapges.evaluation.fgd import FGDEvaluator
+from facecapges.evaluation.l1div import l1div_samples, l1div_temporal
+from facecapges.evaluation.regions import REGIONS, region_joints, select
+from facecapges.evaluation.srgr import DELTA, srgr
+from facecapges.skeleton import N_JOINTS
+
+Method = np.ndarray | Sequence[np.ndarray]
+DEFAULT_OFFSETS_S = tuple(float(x) for x in range(2, 61, 2))
+
+
+def _samples(name: str, m: Method, n_frames: int | None) -> list[np.ndarray]:
+    arrs = [np.asarray(m, np.float32)] if isinstance(m, np.ndarray) and np.asarray(m).ndim == 3 else \
+        [np.asarray(x, np.float32) for x in m]
+    for a in arrs:
+        if a.ndim != 3 or a.shape[1:] != (N_JOINTS, 6):
+            raise ValueError(f"method {name!r}: poses must be (T, {N_JOINTS}, 6), got {a.shape}")
+        if n_frames is not None and len(a) != n_frames:
+            raise ValueError(f"method {name!r}: {len(a)} frames, the real motion has {n_frames}")
+    if not arrs:
+        raise ValueError(f"method {name!r} has no samples")
+    return arrs
+
+
+def _progress(total: int, enabled: bool, what: str):
+    from rich.progress import Progress
+
+    bar = Progress(disable=not enabled, transient=True)
+    return bar, bar.add_task(what, total=total)
+
+
+def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr: int, fps: float,
+                  real: np.ndarray | None, weights: np.ndarray | None, fgd: FGDEvaluator | None,
+                  fgd_reference: Sequence[np.ndarray] | None, offsets_s: Sequence[float], sigma_s: float,
+                  ba_mode: str) -> dict:
+    reg = [select(s, region) for s in samples]
+    out: dict = {"n_samples": len(samples)}
+    if fgd is not None and region in fgd.models and fgd_reference:
+        out["FGD"] = fgd.fgd(list(fgd_reference), samples, region)
+    else:
+        out["FGD"] = None
+    out["SRGR"] = (float(np.mean([srgr(select(real, region), r, weights).value for r in reg]))
+                   if real is not None else None)
+    controls = [ba.beat_align_control(r, audio, sr, fps, offsets_s, sigma_s, mode=ba_mode) for r in reg]
+    out["BA"] = float(np.mean([c.matched for c in controls]))
+    out["BA_shifted_mean"] = float(np.mean([c.shifted_mean for c in controls]))
+    out["BA_shifted_sd"] = float(np.mean([c.shifted_sd for c in controls]))
+    out["BA_gap"] = out["BA"] - out["BA_shifted_mean"]
+    out["L1DIV"] = float(np.mean([l1div_temporal(r) for r in reg]))
+    same_len = len({len(r) for r in reg}) == 1
+    out["L1DIV_samples"] = l1div_samples(reg) if len(reg) >= 2 and same_len else None
+    return out
+
+
+def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float, real: np.ndarray | None,
+              fgd: FGDEvaluator | None, fgd_reference: Sequence[np.ndarray] | None,
+              semantic_weights: np.ndarray | None, regions: Sequence[str], offsets_s: Sequence[float],
+              sigma_s: float, ba_mode: str, progress: bool) -> dict:
+    n = len(real) if real is not None else None
+    samples = {k: _samples(k, v, n) for k, v in methods.items()}
+    if n is None:
+        n = len(next(iter(samples.values()))[0]) if samples else 0
+    result = {"fps": fps, "sr": sr, "n_frames": n, "sigma_s": sigma_s, "srgr_delta": DELTA,
+              "srgr_weighted": semantic_weights is not None, "ba_mode": ba_mode,
+              "ba_offsets_s": [float(o) for o in offsets_s], "paired": real is not None, "regions": {}}
+    bar, task = _progress(len(regions) * len(samples), progress, "evaluating")
+    with bar:
+        for region in regions:
+            rows = {}
+            for name, s in samples.items():
+                bar.update(task, description=f"evaluating {name} [{region}]")
+                rows[name] = _score_method(s, region, audio, sr, fps, real, semantic_weights, fgd, fgd_reference,
+                                           offsets_s, sigma_s, ba_mode)
+                bar.advance(task)
+            result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
+    return result
+
+
+def evaluate_paired(real: np.ndarray, methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
+                    fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
+                    semantic_weights: np.ndarray | None = None, regions: Sequence[str] = REGIONS,
+                    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S, sigma_s: float = ba.SIGMA_S,
+                    ba_mode: str = "mean", progress: bool = True) -> dict:
+    """Every metric for each method against the real motion ``real`` (T, 47, 6) and its audio.
+
+    ``fgd_reference`` defaults to ``[real]``; include a ``"ground truth"`` entry in
+    ``methods`` (e.g. :func:`facecapges.evaluation.baselines.ground_truth`) for its row.
+    """
+    real = np.asarray(real, np.float32)
+    if real.ndim != 3 or real.shape[1:] != (N_JOINTS, 6):
+        raise ValueError(f"real must be (T, {N_JOINTS}, 6), got {real.shape}")
+    ref = list(fgd_reference) if fgd_reference is not None else [real]
+    return _evaluate(methods, audio, sr, fps, real, fgd, ref, semantic_weights, regions, offsets_s, sigma_s,
+                     ba_mode, progress)
+
+
+def evaluate_unpaired(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
+                      fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
+                      regions: Sequence[str] = REGIONS, offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
+                      sigma_s: float = ba.SIGMA_S, ba_mode: str = "mean", progress: bool = True) -> dict:
+    """BeatAlign (+ control), L1DIV and FGD vs ``fgd_reference`` for motion without real counterpart."""
+    return _evaluate(methods, audio, sr, fps, None, fgd, fgd_reference, None, regions, offsets_s, sigma_s,
+                     ba_mode, progress)
