@@ -221,24 +221,27 @@ def read_emotion(path: str | Path, n_frames: int, fps: float) -> np.ndarray:
     rows = [[c for c in r if c.strip()] for r in csv.reader(lines, delimiter=delim)]
     rows = [r for r in rows if r]
     try:
-        if rows and all(_label(c) is None and not _is_number(c) for c in rows[0]):
-            rows = rows[1:]  # header
-        if not rows:
-            raise ValueError("no labels after the header")
+        if len(rows) > 1 and not any(_is_number(c) or c.strip().lower() in EMOTIONS for c in rows[0]):
+            rows = rows[1:]  # a header row
         width = {len(r) for r in rows}
         if width == {1}:
             labels = [_label(r[0]) for r in rows]
             if any(lab is None for lab in labels):
-                raise ValueError("unknown emotion label")
+                bad = next(r[0] for r, lab in zip(rows, labels) if lab is None)
+                raise ValueError(f"unknown emotion label {bad!r} (use 0-{len(EMOTIONS) - 1} or {', '.join(EMOTIONS)})")
             if len(labels) == 1:
                 return np.full(n_frames, labels[0], np.int16)
             arr = np.asarray(labels[:n_frames], np.int16)
             return np.concatenate([arr, np.full(n_frames - len(arr), arr[-1], np.int16)])
         if width == {2}:
+            if not all(_is_number(r[0]) for r in rows):
+                raise ValueError("two-column rows must be 'time_s, label'")
             t = np.array([float(r[0]) for r in rows])
-            labels = [_label(r[1]) for r in rows]
-            if any(lab is None for lab in labels) or np.any(np.diff(t) < 0):
+            if np.any(np.diff(t) < 0):
                 raise ValueError("rows must be 'time_s, label' with increasing times")
+            labels = [_label(r[1]) for r in rows]
+            if any(lab is None for lab in labels):
+                raise ValueError(f"unknown emotion label in {[r[1] for r in rows][:5]}")
             idx = np.searchsorted(t, np.arange(n_frames) / fps + 1e-9, side="right") - 1
             return np.asarray(labels, np.int16)[np.clip(idx, 0, len(labels) - 1)]
         raise ValueError(f"rows have {sorted(width)} columns; expected 1 (label) or 2 (time_s, label)")
