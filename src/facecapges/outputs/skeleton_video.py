@@ -1,0 +1,160 @@
+"""Side-by-side stick-figure videos of upper-body poses, with the speech muxed in.
+
+:func:`render_skeleton_video` takes one or more pose sequences (T, 47, 6) rot6d in
+:data:`~facecapges.skeleton.UPPER_BODY` order (e.g. real and generated), poses them
+on a BVH :class:`~facecapges.skeleton.Skeleton` by forward kinematics and writes an
+H.264 MP4 (yuv420p, plays in browsers) with an optional WAV as AAC.
+
+* **Pose → joints**: every skeleton joint starts at its rest rotation (identity);
+  the 47 UPPER_BODY joints take their rot6d; :func:`facecapges.skeleton.global_transforms`
+  gives positions (skeleton units, BEAT: cm). Same FK as
+  :func:`~facecapges.skeleton.pose_to_motion` + :func:`~facecapges.skeleton.joint_positions`,
+  without the lossy round trip through Euler angles.
+* **Drawn**: Hips and every descendant of Spine (torso, neck, Head/HeadEnd, arms,
+  fingers incl. the fingertip end joints) — not the legs. The head is a circle
+  around Head–HeadEnd.
+* **View**: front view, orthographic: screen x = world X, screen y = world Y (up);
+  the figure faces the viewer (BEAT: +Z towards the camera), so the character's right
+  hand is on the viewer's left. One scale for all panels and frames, so the panels
+  compare directly.
+* **Drawing** with OpenCV (``cv2.line``, anti-aliased) into one BGR frame per time
+  step, piped raw into the ``imageio-ffmpeg`` ffmpeg binary; nothing is held in
+  memory but the current frame. Colours: torso/head grey, right arm red, left arm
+  blue (BGR order internally).
+* Sequences of different lengths: the video lasts as long as the longest; a shorter
+  panel holds its last pose. With audio, ffmpeg stops at the shorter of video and
+  audio (``-shortest``).
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms, upper_body_indices
+
+_RIGHT = (60, 60, 220)  # BGR
+_LEFT = (220, 120, 40)
+_TORSO = (90, 90, 90)
+
+
+def pose_positions(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
+    """Joint positions (T, J_skel, 3) of upper-body poses (T, 47, 6) on ``skel`` (root at rest)."""
+    pose = np.asarray(pose, np.float64)
+    if pose.ndim != 3 or pose.shape[1:] != (N_JOINTS, 6):
+        raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {pose.shape}")
+    T = pose.shape[0]
+    mats = np.broadcast_to(np.eye(3), (T, skel.n_joints, 3, 3)).copy()
+    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(pose)
+    return global_transforms(skel, mats)[1]
+
+
+def drawn_bones(skel: Skeleton) -> list[tuple[int, int, tuple[int, int, int]]]:
+    """(parent, child, BGR colour) of every bone drawn: Hips and the Spine subtree."""
+    spine = skel.index("Spine")
+    bones = []
+    for j in range(skel.n_joints):
+        chain = skel.chain_to(skel.names[j])
+        p = int(skel.parents[j])
+        if p < 0 or spine not in chain:
+            continue
+        name = skel.names[j]
+        colour = _RIGHT if name.startswith("Right") else _LEFT if name.startswith("Left") else _TORSO
+        bones.append((p, j, colour))
+    return bones
+
+
+def _frame_mapper(all_xy: np.ndarray, panel_w: int, panel_h: int, margin: float, top: int):
+    lo, hi = all_xy.min(0), all_xy.max(0)
+    span = np.maximum(hi - lo, 1e-6)
+    scale = min((panel_w * (1 - 2 * margin)) / span[0], (panel_h - top) * (1 - 2 * margin) / span[1])
+    cx, cy = (lo + hi) / 2
+
+    def to_px(xy: np.ndarray) -> np.ndarray:
+        x = panel_w / 2 + (xy[..., 0] - cx) * scale
+        y = top + (panel_h - top) / 2 - (xy[..., 1] - cy) * scale
+        return np.stack([x, y], -1)
+
+    return to_px, scale
+
+
+def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], skeleton: Skeleton,
+                          out_path: str | Path, fps: float = 15.0, wav: str | Path | None = None,
+                          panel_size: tuple[int, int] = (480, 540), crf: int = 23,
+                          progress: bool = False) -> Path:
+    """Render poses side by side (titled) to an MP4 at ``out_path``; returns the path.
+
+    ``poses``: list of (T_i, 47, 6) rot6d; ``titles``: one per panel; ``wav``: optional
+    audio muxed in (AAC). ``panel_size`` (width, height) in pixels, rounded to even.
+    """
+    import cv2
+    import imageio_ffmpeg
+
+    if len(poses) == 0 or len(poses) != len(titles):
+        raise ValueError(f"need one title per pose sequence, got {len(poses)} poses and {len(titles)} titles")
+    pw, ph = (int(panel_size[0]) // 2) * 2, (int(panel_size[1]) // 2) * 2
+    top = 40
+    positions = [pose_positions(skeleton, p) for p in poses]
+    bones = drawn_bones(skeleton)
+    used = sorted({b[0] for b in bones} | {b[1] for b in bones})
+    all_xy = np.concatenate([pos[:, used, :2].reshape(-1, 2) for pos in positions])
+    to_px, scale = _frame_mapper(all_xy, pw, ph, 0.06, top)
+    pix = [np.round(to_px(pos[..., :2]) * 4).astype(np.int32) for pos in positions]  # 2 fractional bits
+    head, head_end = skeleton.names.index("Head") if "Head" in skeleton.names else None, \
+        skeleton.names.index("HeadEnd") if "HeadEnd" in skeleton.names else None
+    T = max(len(p) for p in positions)
+    W, H = pw * len(poses), ph
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "bgr24",
+           "-s", f"{W}x{H}", "-r", f"{fps:g}", "-i", "-"]
+    if wav is not None:
+        cmd += ["-i", str(wav), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k", "-shortest"]
+    cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", str(crf), "-pix_fmt", "yuv420p",
+            "-movflags", "+faststart", str(out)]
+    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    background = np.full((H, W, 3), 250, np.uint8)
+    for k, title in enumerate(titles):
+        cv2.putText(background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2,
+                    cv2.LINE_AA)
+        if k:
+            cv2.line(background, (k * pw, 0), (k * pw, H), (200, 200, 200), 1)
+    from rich.progress import Progress
+
+    try:
+        with Progress(disable=not progress, transient=True) as bar:
+            task = bar.add_task("rendering skeleton video", total=T)
+            for t in range(T):
+                frame = background.copy()
+                for k, px in enumerate(pix):
+                    f = px[min(t, len(px) - 1)]
+                    off = np.array([k * pw * 4, 0], np.int32)
+                    for a, b, colour in bones:
+                        cv2.line(frame, tuple(f[a] + off), tuple(f[b] + off), colour, 3, cv2.LINE_AA, shift=2)
+                    if head is not None and head_end is not None:
+                        c = (f[head] + f[head_end]) // 2 + off
+                        r = max(int(np.linalg.norm(f[head_end] - f[head]) * 0.6), 8)
+                        cv2.circle(frame, tuple(c), r, _TORSO, 3, cv2.LINE_AA, shift=2)
+                cv2.putText(frame, f"{t / fps:5.1f} s", (W - 110, H - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
+                            (80, 80, 80), 1, cv2.LINE_AA)
+                try:
+                    proc.stdin.write(frame.tobytes())
+                except BrokenPipeError:
+                    break
+                bar.advance(task)
+        try:
+            proc.stdin.close()
+        except BrokenPipeError:
+            pass
+        err = proc.stderr.read().decode(errors="replace")
+        if proc.wait() != 0:
+            raise RuntimeError(f"ffmpeg failed writing {out}: {err.strip()}")
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    return out
