@@ -15,6 +15,7 @@ import time
 import typer
 
 BENCHMARKS: dict[str, str] = {
+    "data": "facecapges.data.bench",
     "model": "facecapges.model.bench",
 }
 

@@ -1,0 +1,57 @@
+"""Benchmark of the data path: reading BEAT files, building a cache, loading a clip.
+
+Runs on the shared sample (``../shared/data/beat`` beside the repository); figures
+are wall-clock seconds on this machine. ``quick`` does one repetition instead of three.
+"""
+
+from __future__ import annotations
+
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+SAMPLE_DIR = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "beat"
+CLIP = "2_scott_0_1_1"
+
+
+def _best(fn, reps: int) -> float:
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def run(quick: bool = False) -> dict:
+    """Seconds for read_bvh, motion_to_pose, load_audio, a full prepare and Cache.load of the sample."""
+    from facecapges.data.cache import Cache
+    from facecapges.data.prepare import prepare
+    from facecapges.io.audio import load_audio
+    from facecapges.io.bvh import read_bvh
+    from facecapges.skeleton import motion_to_pose
+
+    bvh_path, wav_path = SAMPLE_DIR / f"{CLIP}.bvh", SAMPLE_DIR / f"{CLIP}.wav"
+    if not bvh_path.exists() or not wav_path.exists():
+        return {"skipped": f"shared sample missing at {SAMPLE_DIR}"}
+    reps = 1 if quick else 3
+    bvh = read_bvh(bvh_path)
+    result = {
+        "clip": CLIP, "frames": bvh.n_frames,
+        "read_bvh_s": round(_best(lambda: read_bvh(bvh_path), reps), 4),
+        "motion_to_pose_s": round(_best(lambda: motion_to_pose(bvh.skeleton, bvh.motion), reps), 4),
+        "load_audio_s": round(_best(lambda: load_audio(wav_path), reps), 4),
+    }
+    tmp = Path(tempfile.mkdtemp(prefix="facecapges-bench-"))
+    try:
+        out = tmp / "cache"
+        result["prepare_s"] = round(_best(lambda: prepare(SAMPLE_DIR, out, speakers=[2], force=True,
+                                                          progress=False), reps), 4)
+        result["prepare_frames_per_s"] = round(bvh.n_frames / result["prepare_s"], 1)
+        cache = Cache(out)
+        result["cache_load_ms"] = round(1000 * _best(lambda: cache.load(CLIP), reps), 2)
+        result["cache_mb"] = round(sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6, 2)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return result
