@@ -26,6 +26,7 @@ app = typer.Typer(
 
 # The areas along the data path, in the order a user's frame meets them.
 COMMAND_MODULES = [
+    "facecapges.capture.commands",  # capture, capture-eval
     "facecapges.data.commands",  # prepare, export
     "facecapges.model.commands",  # train, generate
     "facecapges.benchmarks",  # bench

@@ -1,0 +1,221 @@
+"""Expression units → 52 ARKit blendshape weights, without calibration (paper 3.2).
+
+Per face, :class:`ExpressionEstimator` keeps a :class:`samples.SampleSet` of the
+geometric metrics (:mod:`metrics`), re-estimates each unit's range from it
+(:mod:`ranges`), turns the current metrics into unit activations (eq. 8–9) and maps
+them to ARKit names.
+
+Units (:data:`UNITS`): each metric is one unit. ``sign = −1`` would mean the
+expression *decreases* the metric, so the unit works on ``−g``. The paper names eye
+closing a one-directional unit; here the eyelid gap is two-directional (rest in the
+middle, blink below, eyeWide above) because ARKit has eyeWide, and a talking face's
+open-eye level is a broad mode (gaze up/down moves the lids) rather than an end. The
+nostril height is two-directional for the same reason (only its lower side is used).
+``min_span`` is a population prior (in eye-corner distances): the smallest distance
+between rest and full activation the range estimate may report. It gives sensible
+values from the very first frame (cold start: one sample is both ends of the range,
+so the span is the prior and the first frame reads as rest) and keeps noise from being
+blown up while one side has not been seen yet; as real samples arrive the estimated
+span takes over. ``scale`` is the unit's typical half range (compensation samples).
+
+Mapping (:data:`MAPPING`, unit activation → ARKit channel):
+
+=====================  ===============================================================
+ARKit channel          from
+=====================  ===============================================================
+jawOpen                lip_gap (one-dir), response γ = 2 (below)
+mouthPucker            mouth_width below rest, × (1 − lip_gap activation)
+mouthFunnel            mouth_width below rest, × lip_gap activation
+mouthSmileLeft/Right   0.6 · mouth_width above rest + 0.4 · mouth_corner_L/R above rest
+mouthFrownLeft/Right   mouth_corner_L/R below rest
+mouthStretchLeft/Right mouth_width above rest × (1 − mouth_corner above rest)
+jawLeft / jawRight     lip_offset above / below rest (lower lip towards the subject's left/right)
+browOuterUpLeft/Right  brow_height_L/R above rest
+browDownLeft/Right     brow_height_L/R below rest
+browInnerUp            brow_inner above rest
+eyeBlinkLeft/Right     eyelid_L/R below rest, response γ = 1.5
+eyeWideLeft/Right      eyelid_L/R above rest
+noseSneerLeft/Right    nose_L/R below rest (nostril wing rising towards the eye)
+=====================  ===============================================================
+
+Response curves: ARKit / MediaPipe define jawOpen by the jaw, but the lip gap also
+grows when only the lips part (mouthUpperUp/LowerDown); measured against MediaPipe's
+learned jawOpen the relation is convex, near zero until the lips are a third open. A
+power curve ``w^γ`` on the clipped unit activation models that (γ = 2 for jawOpen,
+1.5 for blinks, whose lids cover the iris gradually). Every other channel is linear.
+
+Modes: ``geometric`` — the table above, every other channel 0; ``mediapipe`` —
+MediaPipe's learned blendshapes as they are; ``hybrid`` — the table above, every other
+channel (eye gaze, cheeks, mouth press/roll/shrug, …) from MediaPipe.
+Values beyond a range are kept unclipped in :attr:`ExpressionEstimator.activations`
+("exaggerated") and clipped to [0, 1] on output.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+from facecapges.capture.metrics import METRIC_NAMES
+from facecapges.capture.ranges import one_directional_range, two_directional_range
+from facecapges.capture.samples import SampleSet
+
+MODES = ("geometric", "mediapipe", "hybrid")
+
+
+@dataclass(frozen=True)
+class Unit:
+    metric: str
+    two_directional: bool
+    sign: float
+    min_span: float
+    scale: float
+
+
+UNITS: tuple[Unit, ...] = (
+    Unit("lip_gap", False, +1, 0.25, 0.15),
+    Unit("mouth_width", True, +1, 0.15, 0.15),
+    Unit("lip_offset", True, +1, 0.08, 0.03),
+    Unit("brow_height_L", True, +1, 0.08, 0.05),
+    Unit("brow_height_R", True, +1, 0.08, 0.05),
+    Unit("eyelid_L", True, +1, 0.10, 0.05),
+    Unit("eyelid_R", True, +1, 0.10, 0.05),
+    Unit("nose_L", True, +1, 0.10, 0.04),
+    Unit("nose_R", True, +1, 0.10, 0.04),
+    Unit("brow_inner", True, +1, 0.08, 0.05),
+    Unit("mouth_corner_L", True, +1, 0.06, 0.04),
+    Unit("mouth_corner_R", True, +1, 0.06, 0.04),
+)
+assert tuple(u.metric for u in UNITS) == METRIC_NAMES
+N_UNITS = len(UNITS)
+_U = {u.metric: i for i, u in enumerate(UNITS)}
+_A = {n: i for i, n in enumerate(ARKIT_NAMES)}
+
+JAW_GAMMA = 2.0
+BLINK_GAMMA = 1.5
+
+#: ARKit channels the geometric estimator writes (the rest are 0 or MediaPipe's)
+GEOMETRIC_CHANNELS: tuple[str, ...] = (
+    "jawOpen", "mouthPucker", "mouthFunnel", "mouthSmileLeft", "mouthSmileRight",
+    "mouthFrownLeft", "mouthFrownRight", "mouthStretchLeft", "mouthStretchRight", "jawLeft", "jawRight",
+    "browOuterUpLeft", "browOuterUpRight", "browDownLeft", "browDownRight", "browInnerUp",
+    "eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight", "noseSneerLeft", "noseSneerRight",
+)
+GEOMETRIC_MASK = np.zeros(N_BLENDSHAPES, bool)
+GEOMETRIC_MASK[[_A[n] for n in GEOMETRIC_CHANNELS]] = True
+
+
+def units_to_arkit(a: np.ndarray) -> np.ndarray:
+    """Unit activations (..., 12) (unclipped, :data:`UNITS` order) → (..., 52) ARKit weights in [0, 1].
+
+    Channels not in :data:`GEOMETRIC_CHANNELS` are 0.
+    """
+    a = np.asarray(a, np.float64)
+    pos = np.clip(a, 0.0, 1.0)
+    neg = np.clip(-a, 0.0, 1.0)
+    out = np.zeros(a.shape[:-1] + (N_BLENDSHAPES,))
+    jaw = pos[..., _U["lip_gap"]]
+    out[..., _A["jawOpen"]] = jaw ** JAW_GAMMA
+    narrow = neg[..., _U["mouth_width"]]
+    wide = pos[..., _U["mouth_width"]]
+    out[..., _A["mouthPucker"]] = narrow * (1.0 - jaw)
+    out[..., _A["mouthFunnel"]] = narrow * jaw
+    for side in ("Left", "Right"):
+        s = side[0]
+        corner_up = pos[..., _U[f"mouth_corner_{s}"]]
+        out[..., _A[f"mouthSmile{side}"]] = 0.6 * wide + 0.4 * corner_up
+        out[..., _A[f"mouthFrown{side}"]] = neg[..., _U[f"mouth_corner_{s}"]]
+        out[..., _A[f"mouthStretch{side}"]] = wide * (1.0 - corner_up)
+        out[..., _A[f"browOuterUp{side}"]] = pos[..., _U[f"brow_height_{s}"]]
+        out[..., _A[f"browDown{side}"]] = neg[..., _U[f"brow_height_{s}"]]
+        out[..., _A[f"eyeBlink{side}"]] = neg[..., _U[f"eyelid_{s}"]] ** BLINK_GAMMA
+        out[..., _A[f"eyeWide{side}"]] = pos[..., _U[f"eyelid_{s}"]]
+        out[..., _A[f"noseSneer{side}"]] = neg[..., _U[f"nose_{s}"]]
+    out[..., _A["jawLeft"]] = pos[..., _U["lip_offset"]]
+    out[..., _A["jawRight"]] = neg[..., _U["lip_offset"]]
+    out[..., _A["browInnerUp"]] = pos[..., _U["brow_inner"]]
+    return np.clip(out, 0.0, 1.0)
+
+
+class ExpressionEstimator:
+    """Calibration-free expression estimation for one face (module docstring).
+
+    Args:
+        mode: ``geometric``, ``mediapipe`` or ``hybrid``.
+        capacity: samples kept per unit.
+        update_every: ranges are re-estimated every this many frames (every frame
+            during the first ``warmup`` frames); the range moves slowly, so this only
+            bounds the per-frame cost.
+    """
+
+    def __init__(self, mode: str = "hybrid", capacity: int = 32, update_every: int = 6, warmup: int = 12):
+        if mode not in MODES:
+            raise ValueError(f"estimator mode must be one of {MODES}, got {mode!r}")
+        self.mode = mode
+        self.signs = np.array([u.sign for u in UNITS])
+        self.min_span = np.array([u.min_span for u in UNITS])
+        self.two_dir = np.array([u.two_directional for u in UNITS])
+        self.samples = SampleSet(N_UNITS, capacity, scales=np.array([u.scale for u in UNITS]))
+        self.update_every = max(1, int(update_every))
+        self.warmup = warmup
+        # nodes per unit in sign-adjusted metric space: (g_min, g_rest, g_max); one-dir units use g_min, g_max
+        self.nodes = np.full((N_UNITS, 3), np.nan)
+        self.activations = np.zeros(N_UNITS)
+        self._frame = 0
+
+    # -------------------------------------------------------------- ranges
+    def update_ranges(self) -> None:
+        """Re-estimate every unit's nodes from the sample set (with the min-span prior)."""
+        if self.samples.size == 0:
+            return
+        for u in range(N_UNITS):
+            v, w = self.samples.unit(u)
+            if self.signs[u] < 0:
+                v, w = -v[::-1], w[::-1]
+            span = self.min_span[u]
+            if self.two_dir[u]:
+                g0, g1, g2 = two_directional_range(v, w)
+                # the rest node is the heaviest cluster's side: keep it, widen thin sides
+                self.nodes[u] = (min(g0, g1 - span), g1, max(g2, g1 + span))
+            else:
+                lo, hi = one_directional_range(v, w)
+                self.nodes[u] = (lo, lo, max(hi, lo + span))
+
+    def activation(self, g: np.ndarray) -> np.ndarray:
+        """Unclipped unit activations (12,) for metrics ``g`` (eq. 8–9)."""
+        x = self.signs * np.asarray(g, np.float64)
+        g0, g1, g2 = self.nodes[:, 0], self.nodes[:, 1], self.nodes[:, 2]
+        up = (x - g1) / (g2 - g1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            down = (x - g1) / (g1 - g0)
+        a = np.where(x >= g1, up, down)
+        # one-directional: w = (g − g_min)/(g_max − g_min) on both sides of g_min (eq. 8)
+        return np.where(self.two_dir, a, up)
+
+    # -------------------------------------------------------------- frames
+    def update(self, g: np.ndarray, omega: float) -> np.ndarray:
+        """Add one frame's metrics ``g`` (12,) with sample weight ``omega``; return unit activations (12,)."""
+        g = np.asarray(g, np.float64)
+        if self.mode != "mediapipe":
+            added = self.samples.add(g, omega)
+            first = np.isnan(self.nodes[0, 0])
+            if first and not added:
+                # cold start on a poorly weighted frame: still give a range around it
+                self.samples.insert(g, max(omega, 1e-3))
+            if first or self._frame < self.warmup or self._frame % self.update_every == 0:
+                self.update_ranges()
+            self.activations = self.activation(g)
+        self._frame += 1
+        return self.activations
+
+    def weights(self, mp_blendshapes: np.ndarray | None = None) -> np.ndarray:
+        """The 52 ARKit weights for the last :meth:`update` (float32, [0, 1])."""
+        mp = np.zeros(N_BLENDSHAPES) if mp_blendshapes is None else np.asarray(mp_blendshapes, np.float64)
+        if self.mode == "mediapipe":
+            return np.clip(mp, 0, 1).astype(np.float32)
+        out = units_to_arkit(self.activations)
+        if self.mode == "hybrid":
+            out = np.where(GEOMETRIC_MASK, out, mp)
+        return np.clip(out, 0, 1).astype(np.float32)

@@ -1,0 +1,248 @@
+"""Head pose from 3D landmarks: rigid alignment to the canonical face mesh.
+
+Conventions
+-----------
+* **Camera frame** = OpenGL's (the frame of MediaPipe's facial transformation matrix):
+  X to the image's right, Y up, +Z from the scene towards the camera. Units: cm inside
+  this module, metres in ``distance_m``.
+* **Head frame** = the canonical mesh's: X to the subject's left, Y up, +Z out of the
+  face (see :mod:`canonical_mesh`).
+* ``R`` maps head-frame vectors to camera-frame vectors; a face looking straight into
+  the camera has ``R = I``. This is ARKit's face-anchor rotation relative to the camera
+  and the rotation part of MediaPipe's facial transformation matrix. ``head_rot6d`` is
+  ``matrix_to_rot6d(R)`` (first two columns, :mod:`facecapges.rotations`).
+* **ARKit-style angles** ``(yaw, pitch, roll)`` in radians, with
+  ``R = R_Y(yaw) @ R_X(pitch) @ R_Z(roll)``: yaw > 0 turns the face towards the image's
+  right (the subject's left), pitch > 0 tilts it up, roll > 0 tilts it counter-clockwise
+  as seen by the camera.
+
+Landmarks → metric points (:func:`landmarks_to_camera`): MediaPipe's normalised
+landmarks are a scaled-orthographic view. They are lifted to the camera frame with a
+pinhole camera (focal length from the intrinsics, or — like MediaPipe's geometry
+pipeline — a 63° vertical field of view when unknown): a first similarity fit to the
+canonical mesh gives the scale, hence the head's depth ``z = f / s``; each landmark is
+then unprojected along its own ray at that depth plus its relative depth. A second,
+rigid fit on those points gives ``R`` and ``t``. Both fits are weighted Kabsch /
+Umeyama alignments (:func:`procrustes`) on MediaPipe's own Procrustes landmark basis
+(the stable points listed in the model bundle), so expression barely moves the pose.
+
+Smoothing (paper 3.1.1 asks for window smoothing of the jitter):
+:class:`PoseSmoother` fits a straight line, per component, to the last ``window`` poses
+(rotation as a rotation vector relative to the newest raw pose, translation in cm) and
+takes the line's value *at the newest frame*. That is a causal window smoother whose
+lag is zero for constant-velocity motion (and under one frame for accelerating motion),
+unlike a moving average, which lags by ``(window − 1) / 2`` frames. A jump larger than
+``reset_deg`` restarts the window, so real fast turns are not smeared.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from facecapges import rotations as rot
+
+DEFAULT_VFOV_DEG = 63.0  # MediaPipe's geometry pipeline default
+
+
+def procrustes(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
+               with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+    """Weighted similarity alignment ``dst ≈ s · R @ src + t`` (Umeyama 1991).
+
+    Args:
+        src, dst: (N, 3) corresponding points.
+        weights: (N,) non-negative, or None for equal weights.
+        with_scale: fit ``s``; else ``s = 1`` (rigid Kabsch).
+    Returns:
+        ``(s, R (3, 3), t (3,))`` with ``det R = +1``.
+    """
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    mu_s = w @ src
+    mu_d = w @ dst
+    a = src - mu_s
+    b = dst - mu_d
+    cov = (b * w[:, None]).T @ a  # (3, 3) = Σ w b aᵀ
+    u, sig, vt = np.linalg.svd(cov)
+    d = np.sign(np.linalg.det(u @ vt))
+    if d == 0:
+        d = 1.0
+    D = np.array([1.0, 1.0, d])
+    R = (u * D) @ vt
+    if with_scale:
+        var_s = float(w @ (a * a).sum(axis=1))
+        s = float((sig * D).sum() / max(var_s, 1e-12))
+    else:
+        s = 1.0
+    t = mu_d - s * R @ mu_s
+    return s, R, t
+
+
+def focal_from_vfov(height_px: float, vfov_deg: float = DEFAULT_VFOV_DEG) -> float:
+    """Pinhole focal length in pixels for an image ``height_px`` tall."""
+    return 0.5 * height_px / math.tan(math.radians(vfov_deg) / 2)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics in pixels (image x right, y down)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+
+    @classmethod
+    def default(cls, width: int, height: int, vfov_deg: float = DEFAULT_VFOV_DEG) -> "Intrinsics":
+        f = focal_from_vfov(height, vfov_deg)
+        return cls(f, f, width / 2.0, height / 2.0)
+
+
+def landmarks_to_camera(landmarks: np.ndarray, width: int, height: int, canonical: np.ndarray,
+                        weights: np.ndarray, ids: np.ndarray, K: Intrinsics | None = None) -> np.ndarray:
+    """Normalised MediaPipe landmarks (N ≥ 468, 3) → camera-frame points (468, 3) in cm.
+
+    See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis.
+    """
+    K = K or Intrinsics.default(width, height)
+    lm = np.asarray(landmarks[:468], np.float64)
+    px = lm[:, 0] * width
+    py = lm[:, 1] * height
+    # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera)
+    ortho = np.stack([px, -py, -lm[:, 2] * width], axis=1)
+    s, _, t = procrustes(canonical[ids], ortho[ids], weights)
+    depth = K.fx / s  # cm from the camera to the fitted head origin
+    rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
+    z = depth - rel / s  # cm, distance along the optical axis
+    X = (px - K.cx) * z / K.fx
+    Y = -(py - K.cy) * z / K.fy
+    return np.stack([X, Y, -z], axis=1)
+
+
+@dataclass
+class HeadPose:
+    """One head pose: ``R`` head→camera (3, 3), ``t`` (3,) cm, camera frame (module docstring)."""
+
+    R: np.ndarray
+    t: np.ndarray
+    scale: float = 1.0
+
+    @property
+    def rot6d(self) -> np.ndarray:
+        return rot.matrix_to_rot6d(self.R).astype(np.float32)
+
+    @property
+    def angles(self) -> np.ndarray:
+        """(yaw, pitch, roll) radians, ``R = R_Y(yaw) R_X(pitch) R_Z(roll)``."""
+        return head_angles(self.R)
+
+    @property
+    def distance_m(self) -> float:
+        """Distance from the camera centre to the head origin, metres."""
+        return float(np.linalg.norm(self.t) / 100.0)
+
+    @property
+    def normal(self) -> np.ndarray:
+        """The face's unit normal in camera coordinates (``R @ +Z``)."""
+        return self.R[:, 2].copy()
+
+
+def head_angles(R: np.ndarray) -> np.ndarray:
+    """ARKit-style (yaw, pitch, roll) in radians from head→camera rotations (..., 3, 3)."""
+    return rot.matrix_to_euler(np.asarray(R, np.float64), "YXZ")
+
+
+def angles_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Inverse of :func:`head_angles`."""
+    return rot.euler_to_matrix(np.array([yaw, pitch, roll], np.float64), "YXZ")
+
+
+class HeadPoseEstimator:
+    """Landmarks → :class:`HeadPose` by alignment to the canonical mesh (module docstring)."""
+
+    def __init__(self, canonical_vertices: np.ndarray, basis_ids: np.ndarray, basis_weights: np.ndarray):
+        self.canonical = np.asarray(canonical_vertices, np.float64)
+        self.ids = np.asarray(basis_ids)
+        self.weights = np.asarray(basis_weights, np.float64)
+
+    def estimate(self, landmarks: np.ndarray, width: int, height: int, K: Intrinsics | None = None) -> tuple[HeadPose, np.ndarray]:
+        """Pose and the camera-frame points (468, 3) cm of one face."""
+        pts = landmarks_to_camera(landmarks, width, height, self.canonical, self.weights, self.ids, K)
+        s, R, t = procrustes(self.canonical[self.ids], pts[self.ids], self.weights)
+        return HeadPose(R, t, s), pts
+
+    def to_head_frame(self, pts: np.ndarray, pose: HeadPose) -> np.ndarray:
+        """Camera-frame points → head frame (canonical orientation and scale, cm)."""
+        return ((pts - pose.t) @ pose.R) / pose.scale
+
+
+def log_so3(R: np.ndarray) -> np.ndarray:
+    """Rotation matrix → rotation vector (axis × angle, radians)."""
+    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    ang = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if ang < 1e-6:
+        return 0.5 * v
+    if math.pi - ang < 1e-4:
+        # near 180°: axis from the diagonal
+        axis = np.sqrt(np.maximum((np.diag(R) + 1) / 2, 0))
+        axis *= np.sign(v) + (v == 0)
+        return axis / max(np.linalg.norm(axis), 1e-12) * ang
+    return v * (ang / (2 * math.sin(ang)))
+
+
+def exp_so3(v: np.ndarray) -> np.ndarray:
+    ang = float(np.linalg.norm(v))
+    if ang < 1e-12:
+        return np.eye(3)
+    k = v / ang
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(ang) * Kx + (1 - math.cos(ang)) * Kx @ Kx
+
+
+class PoseSmoother:
+    """Causal local-linear window smoother for poses (module docstring).
+
+    Args:
+        window: number of frames in the fit (1 = no smoothing).
+        reset_deg: a frame-to-frame rotation jump above this restarts the window.
+    """
+
+    def __init__(self, window: int = 5, reset_deg: float = 20.0):
+        self.window = max(1, int(window))
+        self.reset = math.radians(reset_deg)
+        self._R: deque = deque(maxlen=self.window)
+        self._t: deque = deque(maxlen=self.window)
+        n = self.window
+        # least-squares line through x = -(n-1)..0, evaluated at 0: fixed weights per length
+        self._coef = {m: self._endpoint_weights(m) for m in range(1, n + 1)}
+
+    @staticmethod
+    def _endpoint_weights(m: int) -> np.ndarray:
+        if m == 1:
+            return np.ones(1)
+        x = np.arange(-(m - 1), 1, dtype=np.float64)
+        A = np.stack([np.ones(m), x], axis=1)
+        return np.linalg.pinv(A)[0]  # intercept row: value at x = 0
+
+    def reset_state(self) -> None:
+        self._R.clear()
+        self._t.clear()
+
+    def __call__(self, pose: HeadPose) -> HeadPose:
+        if self._R:
+            jump = np.linalg.norm(log_so3(self._R[-1].T @ pose.R))
+            if jump > self.reset:
+                self.reset_state()
+        self._R.append(pose.R.copy())
+        self._t.append(np.asarray(pose.t, np.float64).copy())
+        m = len(self._R)
+        c = self._coef[m]
+        ref = pose.R
+        rv = np.stack([log_so3(ref.T @ Ri) for Ri in self._R])  # (m, 3) relative to newest
+        R = ref @ exp_so3(c @ rv)
+        t = c @ np.stack(self._t)
+        return HeadPose(R, t, pose.scale)

@@ -1,0 +1,191 @@
+"""MediaPipe FaceLandmarker in VIDEO mode, with face identities kept across frames.
+
+:class:`LandmarkDetector` wraps ``mediapipe.tasks.vision.FaceLandmarker`` (VIDEO running
+mode, several faces, blendshapes and facial transformation matrices on) and returns
+plain numpy :class:`FaceObservation` objects. :class:`FaceTracker` gives every face a
+stable integer identity: each frame's faces are matched to the tracks of the previous
+frames by the Hungarian method on the distance between face centres, measured in
+face sizes (a face that moved more than one face width is a new face).
+
+Conventions
+-----------
+* ``landmarks`` (478, 3): MediaPipe's normalised image coordinates — x of the image
+  width, y of the image height (down), z relative depth in the scale of x (smaller =
+  nearer the camera). Indices 0–467 follow the canonical mesh, 468–477 are the irises.
+* ``blendshapes`` (52,): MediaPipe's learned coefficients in :data:`ARKIT_NAMES` order
+  (its ``_neutral`` entry is dropped). Left/Right are the subject's sides.
+* ``transform`` (4, 4): MediaPipe's facial transformation matrix (canonical mesh,
+  cm → OpenGL camera space), or None when the model did not give one.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facecapges.arkit import ARKIT_NAMES, arkit_index
+from facecapges.errors import UserError
+
+N_LANDMARKS = 478
+
+
+@dataclass
+class FaceObservation:
+    """One detected face in one frame (see the module docstring for conventions)."""
+
+    landmarks: np.ndarray  # (478, 3) float32 normalised
+    blendshapes: np.ndarray  # (52,) float32, ARKIT_NAMES order
+    transform: np.ndarray | None  # (4, 4) float64
+    face_id: int = -1
+
+    @property
+    def center(self) -> np.ndarray:
+        """Mean of the landmarks' x, y (normalised image coordinates)."""
+        return self.landmarks[:, :2].mean(axis=0)
+
+    @property
+    def size(self) -> float:
+        """Face width: extent of the landmarks' x (normalised)."""
+        x = self.landmarks[:, 0]
+        return float(x.max() - x.min())
+
+
+class LandmarkDetector:
+    """FaceLandmarker in VIDEO mode. Use as a context manager or call :meth:`close`.
+
+    Args:
+        model_path: a face_landmarker.task (see :func:`models.resolve_model`).
+        num_faces: largest number of faces looked for per frame.
+        min_confidence: detection / presence / tracking thresholds.
+    """
+
+    def __init__(self, model_path, num_faces: int = 1, min_confidence: float = 0.5):
+        os.environ.setdefault("GLOG_minloglevel", "2")  # MediaPipe's C++ start-up chatter
+        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
+        from mediapipe.tasks.python.core.base_options import BaseOptions
+        from mediapipe.tasks.python.vision import face_landmarker as fl
+        from mediapipe.tasks.python.vision.core.vision_task_running_mode import VisionTaskRunningMode
+
+        opts = fl.FaceLandmarkerOptions(
+            base_options=BaseOptions(model_asset_path=str(model_path)),
+            running_mode=VisionTaskRunningMode.VIDEO,
+            num_faces=int(num_faces),
+            min_face_detection_confidence=min_confidence,
+            min_face_presence_confidence=min_confidence,
+            min_tracking_confidence=min_confidence,
+            output_face_blendshapes=True,
+            output_facial_transformation_matrixes=True,
+        )
+        try:
+            self._task = fl.FaceLandmarker.create_from_options(opts)
+        except (ValueError, RuntimeError) as exc:
+            raise UserError(f"{model_path}: MediaPipe cannot load the face landmarker model: {exc}") from None
+        self._last_ts = -1
+        self.last_ms = 0.0
+        self._bs_map: np.ndarray | None = None
+
+    def _blendshape_map(self, categories) -> np.ndarray:
+        # index into MediaPipe's category list for every ARKit name (-1: absent)
+        m = np.full(len(ARKIT_NAMES), -1, np.int64)
+        for k, c in enumerate(categories):
+            i = arkit_index(c.category_name or "")
+            if i is not None:
+                m[i] = k
+        return m
+
+    def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
+        """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
+        import cv2
+        import mediapipe as mp
+
+        if frame_bgr is None or frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
+            raise ValueError(f"expected an (H, W, 3) BGR frame, got {None if frame_bgr is None else frame_bgr.shape}")
+        ts = int(timestamp_ms)
+        if ts <= self._last_ts:
+            ts = self._last_ts + 1
+        self._last_ts = ts
+        rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
+        image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
+        t0 = time.perf_counter()
+        res = self._task.detect_for_video(image, ts)
+        faces = []
+        for k, lms in enumerate(res.face_landmarks):
+            pts = np.array([(p.x, p.y, p.z) for p in lms], np.float32)
+            bs = np.zeros(len(ARKIT_NAMES), np.float32)
+            if k < len(res.face_blendshapes):
+                cats = res.face_blendshapes[k]
+                if self._bs_map is None:
+                    self._bs_map = self._blendshape_map(cats)
+                scores = np.array([c.score for c in cats], np.float32)
+                ok = self._bs_map >= 0
+                bs[ok] = scores[self._bs_map[ok]]
+            tf = None
+            if k < len(res.facial_transformation_matrixes):
+                tf = np.asarray(res.facial_transformation_matrixes[k], np.float64).reshape(4, 4)
+            faces.append(FaceObservation(pts, bs, tf))
+        self.last_ms = (time.perf_counter() - t0) * 1000.0  # model + result conversion
+        return faces
+
+    def close(self) -> None:
+        if self._task is not None:
+            self._task.close()
+            self._task = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+@dataclass
+class _Track:
+    face_id: int
+    center: np.ndarray
+    size: float
+    last_seen_ms: float
+
+
+@dataclass
+class FaceTracker:
+    """Stable identities for the faces of consecutive frames.
+
+    Args:
+        max_jump: largest centre displacement, in face widths, still counted as the same face.
+        forget_ms: a track unseen for longer than this is dropped (its identity retired).
+    """
+
+    max_jump: float = 1.0
+    forget_ms: float = 3000.0
+    tracks: dict[int, _Track] = field(default_factory=dict)
+    _next_id: int = 0
+
+    def update(self, faces: list[FaceObservation], timestamp_ms: float) -> list[FaceObservation]:
+        """Set ``face_id`` on every face (in place) and return the faces."""
+        from scipy.optimize import linear_sum_assignment
+
+        for tid in [t for t, tr in self.tracks.items() if timestamp_ms - tr.last_seen_ms > self.forget_ms]:
+            del self.tracks[tid]
+        ids = list(self.tracks)
+        assigned: dict[int, int] = {}
+        if faces and ids:
+            cost = np.empty((len(faces), len(ids)))
+            for a, f in enumerate(faces):
+                for b, tid in enumerate(ids):
+                    tr = self.tracks[tid]
+                    cost[a, b] = np.linalg.norm(f.center - tr.center) / max(tr.size, 1e-6)
+            rows, cols = linear_sum_assignment(cost)
+            for a, b in zip(rows, cols):
+                if cost[a, b] <= self.max_jump:
+                    assigned[a] = ids[b]
+        for a, f in enumerate(faces):
+            tid = assigned.get(a)
+            if tid is None:
+                tid = self._next_id
+                self._next_id += 1
+            f.face_id = tid
+            self.tracks[tid] = _Track(tid, f.center.copy(), f.size, timestamp_ms)
+        return faces

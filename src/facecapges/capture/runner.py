@@ -1,0 +1,120 @@
+"""Whole-video capture: a source → BEAT-format face JSON (+ overlay video).
+
+Face JSON written (read back by ``facecapges.io.face_json``)::
+
+    {"names": [52 ARKIT_NAMES], "fps": 15,
+     "frames": [{"time": t_s, "weights": [52 floats], "head_rot6d": [6 floats],
+                 "face_found": bool, "distance_m": float}, ...]}
+
+``time`` is ``k / fps`` for output frame ``k``. Output frames are taken on the ``fps``
+grid: output frame ``k`` is the first source frame at or after ``k / fps`` (sources
+faster than ``fps`` are decimated before the landmark model runs, which is what a
+real-time runtime at ``fps`` does too). ``distance_m`` is ``null`` while no face has
+been seen yet. ``head_rot6d`` follows :mod:`head_pose` (identity = facing the camera).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.arkit import ARKIT_NAMES
+from facecapges.errors import UserError, refuse_overwrite
+
+
+def face_json_document(records: list[dict], fps: float) -> dict:
+    return {"names": list(ARKIT_NAMES), "fps": fps, "frames": records}
+
+
+def result_record(res, time_s: float) -> dict:
+    d = float(res.distance_m)
+    return {
+        "time": round(float(time_s), 6),
+        "weights": [round(float(x), 5) for x in res.weights52],
+        "head_rot6d": [round(float(x), 6) for x in res.head_rot6d],
+        "face_found": bool(res.face_found),
+        "distance_m": None if not math.isfinite(d) else round(d, 4),
+    }
+
+
+def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: float = 15.0,
+                  overlay: str | Path | None = None, depth_dir=None, intrinsics=None, model=None,
+                  force: bool = False, max_frames: int | None = None, progress: bool = True) -> dict:
+    """Run the capture over ``source`` and write ``out`` (face JSON); returns a summary dict."""
+    from facecapges.capture.video import open_source
+
+    if not (0 < fps <= 120):
+        raise UserError(f"--fps must be in (0, 120], got {fps}")
+    out = refuse_overwrite(out, force)
+    if overlay is not None:
+        refuse_overwrite(overlay, force)
+    depth_files, K = (None, None)
+    if depth_dir is not None or intrinsics is not None:
+        from facecapges.capture.depth import check_depth_inputs
+
+        depth_files, K = check_depth_inputs(depth_dir, intrinsics)
+    src = open_source(source)
+    from facecapges.capture.pipeline import FaceCapture
+
+    try:
+        cap = FaceCapture(estimator=estimator, fps=fps, model=model, intrinsics=K)
+    except BaseException:
+        src.close()
+        raise
+    if depth_files is not None:
+        from facecapges.capture.depth import DepthHeadTracker
+
+        cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
+    writer = None
+    records: list[dict] = []
+    n_found = 0
+    try:
+        if overlay is not None:
+            from facecapges.capture.overlay import OverlayWriter
+
+            writer = OverlayWriter(overlay, src.width, src.height, fps)
+        total = None
+        if src.n_frames:
+            total = int(math.floor((src.n_frames - 1) / src.fps * fps)) + 1
+            if max_frames:
+                total = min(total, max_frames)
+        from rich.progress import Progress
+
+        with Progress(disable=not progress, transient=True) as bar:
+            task = bar.add_task(f"capture {Path(str(source)).name}", total=total)
+            k = 0
+            for i, ts, frame in src.frames():
+                if max_frames is not None and k >= max_frames:
+                    break
+                if ts + 1e-6 < k * 1000.0 / fps:
+                    continue  # not yet at the next output tick
+                depth = None
+                if depth_files is not None:
+                    from facecapges.capture.depth import read_depth
+
+                    if i < len(depth_files):
+                        depth = read_depth(depth_files[i])
+                res = cap.process(frame, ts, depth)
+                n_found += bool(res.face_found)
+                # a slow source (fps below --fps) repeats the frame on the skipped ticks
+                while (k * 1000.0 / fps) <= ts + 1e-6:
+                    records.append(result_record(res, k / fps))
+                    if writer is not None:
+                        from facecapges.capture.overlay import draw_overlay
+
+                        writer.write(draw_overlay(frame, res))
+                    k += 1
+                    bar.advance(task)
+    finally:
+        cap.close()
+        src.close()
+        if writer is not None:
+            writer.close()
+    if not records:
+        raise UserError(f"{source}: no frames could be read")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(face_json_document(records, fps)))
+    return {"frames": len(records), "face_found": n_found, "fps": fps, "out": str(out)}
