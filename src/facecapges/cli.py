@@ -29,6 +29,7 @@ COMMAND_MODULES = [
     "facecapges.capture.commands",  # capture, capture-eval
     "facecapges.data.commands",  # prepare, export
     "facecapges.model.commands",  # train, generate
+    "facecapges.avatar.commands",  # blendshapes, avatar build, render
     "facecapges.benchmarks",  # bench
 ]
 

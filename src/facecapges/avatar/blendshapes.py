@@ -97,3 +97,17 @@ def build_blendshapes(mesh: TriMesh, table: ControlTable, aoi: bool = True, comp
                       targets_compared=len(far_aoi))
     report["targets"] = per_target
     return Blendshapes(mesh, list(table.targets), out, report)
+
+
+def arkit_blendshapes(aoi: bool = True, compare: bool = False, progress=None) -> Blendshapes:
+    """The 52 ARKit targets of MediaPipe's canonical face from the shipped control table,
+    in :data:`facecapges.arkit.ARKIT_NAMES` order."""
+    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.avatar.blendshape_table import default_table_path, load_table, require_arkit
+    from facecapges.avatar.mesh import canonical_face
+
+    neutral = canonical_face()
+    table = load_table(default_table_path(), neutral.n_vertices)
+    require_arkit(table, default_table_path())
+    table.targets = {n: table.targets[n] for n in ARKIT_NAMES}
+    return build_blendshapes(neutral, table, aoi=aoi, compare=compare, progress=progress)

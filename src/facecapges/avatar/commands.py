@@ -1,0 +1,165 @@
+"""Commands of the avatar area: ``blendshapes``, ``avatar build``, ``render``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def _skeleton(bvh: Path | None):
+    """The BEAT skeleton from ``bvh``, else the one stored with the default checkpoint."""
+    from facecapges.errors import UserError
+
+    if bvh is not None:
+        from facecapges.io.bvh import read_bvh
+
+        return read_bvh(bvh).skeleton, str(bvh)
+    try:
+        from facecapges.model.checkpoint import load_skeleton
+    except ImportError:
+        load_skeleton = None
+    if load_skeleton is not None:
+        try:
+            return load_skeleton(), "the default checkpoint"
+        except UserError as exc:
+            raise UserError(f"no skeleton given and the default checkpoint has none ({exc}); "
+                            "pass --skeleton FILE.bvh (any BEAT BVH)") from None
+    raise UserError("no skeleton given and no model checkpoint installed; pass --skeleton FILE.bvh (any BEAT BVH)")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("blendshapes")
+    def blendshapes_cmd(
+        mesh: Path = typer.Option(..., "--mesh", help="Neutral triangle mesh (.obj, an oriented manifold)."),
+        controls: Path = typer.Option(..., "--controls", help="Control table JSON (control vertices and "
+                                                              "per-target displacements)."),
+        out: Path = typer.Option(..., "--out", help="Output directory: one OBJ per target + report.json."),
+        no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
+        force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
+    ) -> None:
+        """Generate blendshape targets by Laplacian deformation with areas of influence (seed 2, sec. 4)."""
+        import json
+        import time
+
+        from rich.progress import Progress
+
+        from facecapges.avatar.blendshape_table import load_table
+        from facecapges.avatar.blendshapes import build_blendshapes
+        from facecapges.avatar.mesh import TriMesh, check_manifold, read_obj, write_obj
+        from facecapges.errors import refuse_overwrite
+
+        neutral = read_obj(mesh)
+        check_manifold(neutral, mesh)
+        table = load_table(controls, neutral.n_vertices)
+        out.mkdir(parents=True, exist_ok=True)
+        paths = {n: out / f"{n}.obj" for n in table.names}
+        for p in [*paths.values(), out / "report.json"]:
+            refuse_overwrite(p, force)
+        t0 = time.perf_counter()
+        with Progress(transient=True) as bar:
+            task = bar.add_task("deforming", total=len(table.names))
+            shapes = build_blendshapes(neutral, table, aoi=not no_aoi, progress=lambda k: bar.advance(task))
+        elapsed = time.perf_counter() - t0
+        for k, n in enumerate(shapes.names):
+            write_obj(paths[n], TriMesh(shapes.targets[k], neutral.faces), header=f"blendshape {n} of {mesh.name}")
+        report = {"mesh": str(mesh), "controls": str(controls), "seconds": elapsed, **shapes.report}
+        (out / "report.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+        r = shapes.report
+        typer.echo(f"{len(shapes.names)} targets in {elapsed:.2f} s → {out}; control error {r['max_control_error']:.2e} "
+                   f"of face size")
+        if "mean_far_motion_aoi" in r:
+            typer.echo(f"far-vertex motion (mean, fraction of face size): with AOI {r['mean_far_motion_aoi']:.2e}, "
+                       f"without AOI {r['mean_far_motion_no_aoi']:.2e}, plain edit {r['mean_far_motion_plain']:.2e}")
+
+    avatar = typer.Typer(help="Build the avatar (skinned BEAT body + 52-blendshape face) as glTF.",
+                         no_args_is_help=True)
+    app.add_typer(avatar, name="avatar")
+
+    @avatar.command("build")
+    def avatar_build(
+        out: Path = typer.Option(..., "--out", help="Output .glb file."),
+        skeleton: Path = typer.Option(None, "--skeleton", help="A BEAT BVH whose hierarchy and rest offsets to use "
+                                                               "(default: the skeleton stored with the default model)."),
+        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    ) -> None:
+        """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
+        from facecapges.avatar.body import default_avatar
+        from facecapges.avatar.gltf import write_glb
+        from facecapges.errors import refuse_overwrite
+
+        refuse_overwrite(out, force)
+        skel, source = _skeleton(skeleton)
+        av = default_avatar(skel)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_glb(av, out)
+        typer.echo(f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
+                   f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets")
+
+    @app.command("render")
+    def render_cmd(
+        bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
+        out: Path = typer.Option(..., "--out", help="Output .mp4."),
+        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]})."),
+        audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
+        avatar_glb: Path = typer.Option(None, "--avatar", help="Avatar .glb (default: built from the BVH's skeleton)."),
+        contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
+        size: str = typer.Option("640x480", help="Video size WIDTHxHEIGHT."),
+        force: bool = typer.Option(False, "--force", help="Overwrite outputs that exist."),
+    ) -> None:
+        """Render the avatar (front view) driven by a BVH and optional face weights, with the audio muxed."""
+        import numpy as np
+
+        from facecapges.arkit import ARKIT_NAMES
+        from facecapges.avatar.body import check_skeleton, default_avatar
+        from facecapges.avatar.gltf import avatar_to_gltf
+        from facecapges.avatar.render.video import bvh_quaternions, contact_sheet as make_sheet, render_video
+        from facecapges.errors import UserError, file_error, refuse_overwrite, require_file
+        from facecapges.io.bvh import read_bvh
+        from facecapges.timing import resample
+
+        refuse_overwrite(out, force)
+        if contact_sheet is not None:
+            refuse_overwrite(contact_sheet, force)
+        try:
+            width, height = (int(x) for x in size.lower().split("x"))
+        except ValueError:
+            raise UserError(f"--size must be WIDTHxHEIGHT, got {size!r}") from None
+        if not (16 <= width <= 4096 and 16 <= height <= 4096):
+            raise UserError(f"--size {size} is out of range")
+        motion = read_bvh(bvh)
+        check_skeleton(motion.skeleton, str(bvh))
+        if audio is not None:
+            require_file(audio, "audio")
+        if avatar_glb is not None:
+            import pygltflib
+
+            p = require_file(avatar_glb, "avatar")
+            try:
+                glb = p.read_bytes()
+                doc = pygltflib.GLTF2.load_from_bytes(glb)
+                joint_names = doc.extras["facecapges"]["joint_names"]
+            except Exception as exc:  # noqa: BLE001 - any parse failure is the user's file
+                raise file_error(p, f"not a facecapges avatar .glb ({exc})") from None
+        else:
+            doc = avatar_to_gltf(default_avatar(motion.skeleton))
+            glb = b"".join(doc.save_to_bytes())
+            joint_names = list(motion.skeleton.names)
+        quats = bvh_quaternions(joint_names, motion.skeleton, motion.motion, str(bvh))
+        T = quats.shape[0]
+        weights = np.zeros((T, len(ARKIT_NAMES)), np.float32)
+        if face is not None:
+            from facecapges.io.face_json import read_face_json
+
+            track = read_face_json(face)
+            w = resample(track.weights, track.fps, motion.fps)
+            n = min(T, len(w))
+            weights[:n] = w[:n]
+            if n < T and n > 0:
+                weights[n:] = w[n - 1]
+        figures = render_video(glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width,
+                               height=height)
+        typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")
+        if contact_sheet is not None:
+            make_sheet(glb, list(ARKIT_NAMES), contact_sheet)
+            typer.echo(f"{contact_sheet}: contact sheet of the 52 blendshapes")

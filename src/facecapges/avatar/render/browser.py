@@ -1,0 +1,229 @@
+"""Headless Chromium driven through the DevTools protocol, serving pages from 127.0.0.1.
+
+:class:`Browser` starts a small HTTP server on a free loopback port that serves
+``routes`` (URL prefix → directory, or exact URL → bytes), launches the Debian
+``chromium`` with software WebGL and no network use (a fresh ``--user-data-dir``,
+``--remote-debugging-port=0``), opens one page and offers :meth:`Browser.evaluate`:
+run a JavaScript expression in the page, await it if it is a promise, and return its
+JSON value. Nothing is fetched from outside this machine.
+
+The page's three.js comes from ``node_modules/three`` of the project checkout
+(``scripts/setup-avatar.sh`` installs the pinned 0.187.0); :func:`three_dir` finds it.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import threading
+import time
+import urllib.request
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from importlib import resources
+from pathlib import Path
+
+from facecapges.errors import UserError
+
+CHROMIUM_FLAGS = [
+    "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
+    "--disable-quic", "--no-first-run", "--no-default-browser-check", "--disable-background-networking",
+    "--disable-component-update", "--disable-sync", "--disable-extensions", "--disable-default-apps",
+    "--mute-audio", "--hide-scrollbars", "--disable-dev-shm-usage", "--remote-debugging-port=0",
+    "--remote-allow-origins=*",
+]
+SETUP_HINT = "run scripts/setup-avatar.sh"
+
+
+def web_dir() -> Path:
+    """The package's web assets (avatar_scene.js, render.html)."""
+    return Path(str(resources.files("facecapges") / "web"))
+
+
+def three_dir() -> Path:
+    """``node_modules/three`` (pinned 0.187.0): $FACECAPGES_THREE, else searched upwards from here and the cwd."""
+    env = os.environ.get("FACECAPGES_THREE")
+    candidates = [Path(env)] if env else []
+    for start in (Path(__file__).resolve(), Path.cwd().resolve()):
+        candidates += [p / "node_modules" / "three" for p in start.parents]
+        candidates.append(start / "node_modules" / "three")
+    for c in candidates:
+        if (c / "build" / "three.module.js").is_file():
+            return c
+    raise UserError(f"three.js (npm three 0.187.0) not found in node_modules; {SETUP_HINT}")
+
+
+def chromium_path() -> str:
+    exe = os.environ.get("FACECAPGES_CHROMIUM") or shutil.which("chromium") or shutil.which("chromium-browser")
+    if not exe:
+        raise UserError(f"chromium is not installed; {SETUP_HINT}")
+    return exe
+
+
+class _Handler(SimpleHTTPRequestHandler):
+    routes: dict[str, object] = {}
+
+    def log_message(self, *args) -> None:  # quiet
+        pass
+
+    def end_headers(self) -> None:
+        self.send_header("Cache-Control", "no-store")
+        super().end_headers()
+
+    def translate_path(self, path: str) -> str:
+        path = path.split("?", 1)[0].split("#", 1)[0]
+        for prefix, target in sorted(self.routes.items(), key=lambda kv: -len(kv[0])):
+            if isinstance(target, Path) and path.startswith(prefix):
+                rel = path[len(prefix):].lstrip("/")
+                full = (target / rel).resolve()
+                if target.resolve() in full.parents or full == target.resolve():
+                    return str(full)
+        return str(Path(tempfile.gettempdir()) / "facecapges-no-such-file")
+
+    def do_GET(self) -> None:
+        path = self.path.split("?", 1)[0]
+        blob = self.routes.get(path)
+        if isinstance(blob, (bytes, bytearray)):
+            self.send_response(200)
+            ctype = "application/octet-stream"
+            if path.endswith(".json"):
+                ctype = "application/json"
+            elif path.endswith(".glb"):
+                ctype = "model/gltf-binary"
+            self.send_header("Content-Type", ctype)
+            self.send_header("Content-Length", str(len(blob)))
+            self.end_headers()
+            self.wfile.write(blob)
+            return
+        super().do_GET()
+
+    extensions_map = {**SimpleHTTPRequestHandler.extensions_map, ".js": "text/javascript", ".mjs": "text/javascript",
+                      ".glb": "model/gltf-binary", ".html": "text/html"}
+
+
+class Browser:
+    """One headless Chromium page on a loopback HTTP server. Use as a context manager."""
+
+    def __init__(self, routes: dict[str, object], page: str, width: int = 640, height: int = 480,
+                 timeout: float = 60.0):
+        self.routes = dict(routes)
+        self.page = page
+        self.width, self.height = width, height
+        self.timeout = timeout
+        self._id = 0
+
+    # ------------------------------------------------------------------ lifecycle
+    def __enter__(self) -> "Browser":
+        from websockets.sync.client import connect
+
+        handler = type("Handler", (_Handler,), {"routes": self.routes})
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), handler)
+        self.server.daemon_threads = True
+        self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self._thread.start()
+        port = self.server.server_address[1]
+        self.profile = tempfile.mkdtemp(prefix="facecapges-chromium-")
+        self.proc = subprocess.Popen(
+            [chromium_path(), *CHROMIUM_FLAGS, f"--user-data-dir={self.profile}",
+             f"--window-size={self.width},{self.height}", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        try:
+            devtools = self._devtools_port()
+            targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{devtools}/json/list", timeout=10))
+            page = next(t for t in targets if t.get("type") == "page")
+            self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20)
+            self.call("Runtime.enable")
+            self.call("Page.enable")
+            self.call("Page.navigate", url=f"http://127.0.0.1:{port}{self.page}")
+        except BaseException:
+            self.close()
+            raise
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        ws = getattr(self, "ws", None)
+        if ws is not None:
+            try:
+                ws.close()
+            except Exception:
+                pass
+        proc = getattr(self, "proc", None)
+        if proc is not None and proc.poll() is None:
+            proc.terminate()
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+        server = getattr(self, "server", None)
+        if server is not None:
+            server.shutdown()
+            server.server_close()
+        if getattr(self, "profile", None):
+            shutil.rmtree(self.profile, ignore_errors=True)
+
+    def _devtools_port(self) -> int:
+        marker = Path(self.profile) / "DevToolsActivePort"
+        deadline = time.time() + self.timeout
+        while time.time() < deadline:
+            if self.proc.poll() is not None:
+                err = self.proc.stderr.read().decode(errors="replace")[-800:]
+                raise RuntimeError(f"chromium exited with status {self.proc.returncode}: {err}")
+            if marker.is_file():
+                lines = marker.read_text().split()
+                if lines:
+                    return int(lines[0])
+            time.sleep(0.05)
+        raise RuntimeError("chromium did not open its DevTools port in time")
+
+    # ------------------------------------------------------------------- protocol
+    def call(self, method: str, **params) -> dict:
+        """Send one DevTools command and return its result (events in between are skipped)."""
+        self._id += 1
+        my_id = self._id
+        self.ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        while True:
+            msg = json.loads(self.ws.recv(timeout=self.timeout))
+            if msg.get("id") == my_id:
+                if "error" in msg:
+                    raise RuntimeError(f"{method}: {msg['error']}")
+                return msg.get("result", {})
+
+    def evaluate(self, expression: str):
+        """Value of a JavaScript expression in the page (promises awaited), JSON-decoded."""
+        res = self.call("Runtime.evaluate", expression=expression, awaitPromise=True, returnByValue=True)
+        if "exceptionDetails" in res:
+            det = res["exceptionDetails"]
+            text = det.get("exception", {}).get("description") or det.get("text")
+            raise RuntimeError(f"page error: {text}")
+        return res.get("result", {}).get("value")
+
+    def wait_for(self, expression: str, timeout: float | None = None):
+        """Poll until ``expression`` is defined, then evaluate it (awaiting it)."""
+        deadline = time.time() + (timeout or self.timeout)
+        while time.time() < deadline:
+            ok = self.evaluate(f"(() => {{ try {{ return ({expression}) !== undefined; }} catch (e) {{ return false; }} }})()")
+            if ok:
+                return self.evaluate(expression)
+            time.sleep(0.05)
+        raise RuntimeError(f"page never defined {expression}")
+
+
+def avatar_routes(glb: bytes | Path) -> dict[str, object]:
+    """Routes for render.html: the web assets, three.js and the avatar at /avatar.glb."""
+    data = glb.read_bytes() if isinstance(glb, Path) else glb
+    return {"/web/": web_dir(), "/three/": three_dir(), "/avatar.glb": data}
+
+
+@functools.lru_cache(maxsize=1)
+def chromium_version() -> str:
+    try:
+        return subprocess.run([chromium_path(), "--version"], capture_output=True, text=True, timeout=30).stdout.strip()
+    except Exception:
+        return "unknown"

@@ -1,0 +1,155 @@
+"""Avatar videos and blendshape contact sheets, rendered by three.js in headless Chromium.
+
+* :func:`bvh_quaternions` turns BVH motion into the page's input: the local rotation
+  of every joint as a (w, x, y, z) quaternion (T, J, 4), joint order = the avatar's
+  (the BEAT BVH order). The BVH must have the avatar's skeleton (same joint names and
+  tree), else a :class:`~facecapges.errors.UserError`. Root translation is not
+  applied: the camera frames the upper body, which BEAT's upper-body motion keeps in
+  place (its Hips channels are 0).
+* :func:`render_video` renders frame ``t`` with pose ``t`` and face weights ``t``
+  (front view, 640×480 by default) as JPEG in the page, pipes the frames into the
+  ``imageio-ffmpeg`` ffmpeg (H.264, yuv420p) and muxes the audio (AAC) if given; the
+  video ends with the shorter of frames and audio.
+* :func:`contact_sheet` renders the face close-up once per blendshape at weight 1
+  (all others 0), labelled, in a grid PNG (the neutral face first).
+"""
+
+from __future__ import annotations
+
+import base64
+import subprocess
+from pathlib import Path
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges.avatar.render.browser import Browser, avatar_routes
+from facecapges.errors import UserError
+from facecapges.skeleton import Skeleton, local_matrices, motion_to_euler
+
+PAGE = "/web/render.html"
+
+
+def bvh_quaternions(avatar_joint_names: list[str], skel: Skeleton, motion: np.ndarray, name: str = "BVH"
+                    ) -> np.ndarray:
+    """Local joint rotations (T, J, 4) (w, x, y, z) of ``motion`` on ``skel``, in the avatar's joint order."""
+    if list(skel.names) != list(avatar_joint_names):
+        missing = [n for n in avatar_joint_names if n not in skel.names]
+        what = f"missing joints {missing[:5]}" if missing else "joints in another order or tree"
+        raise UserError(f"{name}: its skeleton is not the avatar's BEAT skeleton ({what})")
+    _, euler = motion_to_euler(skel, motion)
+    q = rot.matrix_to_quaternion(local_matrices(skel, euler))
+    return np.ascontiguousarray(q, dtype=np.float32)
+
+
+def _decode(url: str) -> bytes:
+    return base64.b64decode(url.split(",", 1)[1])
+
+
+def _open_page(glb: bytes, width: int, height: int) -> tuple[Browser, dict]:
+    b = Browser(avatar_routes(glb), f"{PAGE}?w={width}&h={height}", width, height)
+    b.__enter__()
+    try:
+        info = b.wait_for("window.facecapges.ready")
+        errors = b.evaluate("window.facecapges.errors")
+        if errors:
+            raise RuntimeError(f"avatar page errors: {errors}")
+    except BaseException:
+        b.close()
+        raise
+    return b, info
+
+
+def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float, out: str | Path,
+                 audio: str | Path | None = None, width: int = 640, height: int = 480, batch: int = 30,
+                 progress: bool = True, crf: int = 20) -> dict:
+    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures."""
+    import time
+
+    import imageio_ffmpeg
+    from rich.progress import Progress
+
+    T = quats.shape[0]
+    if weights.shape[0] != T:
+        raise ValueError(f"{T} poses but {weights.shape[0]} face frames")
+    t0 = time.perf_counter()
+    b, info = _open_page(glb, width, height)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "image2pipe", "-c:v", "mjpeg",
+           "-framerate", f"{fps:g}", "-i", "-"]
+    if audio is not None:
+        cmd += ["-i", str(audio), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k", "-shortest"]
+    cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", str(crf), "-pix_fmt", "yuv420p",
+            "-movflags", "+faststart", str(out)]
+    proc = None
+    try:
+        if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
+            raise ValueError(f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
+                             f"{info['joints']} / {info['blendshapes']}")
+        b.routes["/motion/quats.bin"] = np.ascontiguousarray(quats, np.float32).tobytes()
+        b.routes["/motion/weights.bin"] = np.ascontiguousarray(weights, np.float32).tobytes()
+        b.evaluate(f"window.facecapges.loadMotion({T})")
+        t_ready = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+        with Progress(disable=not progress, transient=True) as bar:
+            task = bar.add_task("rendering avatar video", total=T)
+            for start in range(0, T, batch):
+                urls = b.evaluate(f"window.facecapges.renderFrames({start}, {batch}, 'image/jpeg', 0.92)")
+                for u in urls:
+                    proc.stdin.write(_decode(u))
+                bar.advance(task, len(urls))
+        proc.stdin.close()
+        err = proc.stderr.read().decode(errors="replace")
+        if proc.wait() != 0:
+            raise RuntimeError(f"ffmpeg failed writing {out}: {err.strip()}")
+    finally:
+        b.close()
+        if proc is not None and proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    t1 = time.perf_counter()
+    return {"frames": T, "fps": fps, "size": [width, height], "startup_s": t_ready - t0,
+            "render_s": t1 - t_ready, "total_s": t1 - t0, "frames_per_s": T / max(t1 - t_ready, 1e-9)}
+
+
+def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.ndarray | None], view: str = "body",
+                  width: int = 640, height: int = 480) -> list[np.ndarray]:
+    """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
+    import cv2
+
+    b, _ = _open_page(glb, width, height)
+    images = []
+    try:
+        b.evaluate(f"window.facecapges.setView({view!r})")
+        for q, w in zip(poses, weights):
+            qa = "null" if q is None else "[" + ",".join(f"{x:.7g}" for x in np.asarray(q).ravel()) + "]"
+            wa = "null" if w is None else "[" + ",".join(f"{x:.7g}" for x in np.asarray(w).ravel()) + "]"
+            png = _decode(b.evaluate(f"window.facecapges.renderStill({qa}, {wa})"))
+            images.append(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR))
+    finally:
+        b.close()
+    return images
+
+
+def contact_sheet(glb: bytes, names: list[str], out: str | Path, cols: int = 8, cell: int = 240) -> Path:
+    """PNG grid: the neutral face, then each blendshape of ``names`` at weight 1."""
+    import cv2
+
+    K = len(names)
+    weights = [None] + [np.eye(K)[k] for k in range(K)]
+    images = render_stills(glb, [None] * (K + 1), weights, view="face", width=cell, height=cell)
+    labels = ["neutral"] + list(names)
+    rows = -(-len(images) // cols)
+    sheet = np.full((rows * (cell + 22), cols * cell, 3), 255, np.uint8)
+    for k, (img, label) in enumerate(zip(images, labels)):
+        r, c = divmod(k, cols)
+        y, x = r * (cell + 22), c * cell
+        sheet[y:y + cell, x:x + cell] = img
+        cv2.putText(sheet, label, (x + 4, y + cell + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1,
+                    cv2.LINE_AA)
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(out), sheet):
+        raise UserError(f"{out}: cannot write the contact sheet")
+    return out

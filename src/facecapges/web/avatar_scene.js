@@ -1,0 +1,102 @@
+// FaceCapGes avatar scene: a reusable ES module (three.js 0.187.0).
+//
+// Loads the avatar .glb written by `facecapges avatar build` and shows it driven by
+// one frame at a time:
+//   * pose: the LOCAL rotation of every BEAT joint as a unit quaternion, real part
+//     first (w, x, y, z) — the project's convention (facecapges.rotations) — in the
+//     order of `scene.jointNames` (the BEAT BVH joint order, stored in the glb);
+//     a joint's glTF rest rotation is the identity, so this is the BVH rotation as is;
+//   * face: the 52 ARKit blendshape weights in [0, 1], in the order of
+//     `scene.blendshapeNames` (facecapges.arkit.ARKIT_NAMES, stored in the glb).
+// Used by the offline renderer (render.html, headless Chromium) and by the browser
+// viewer. The page must map "three" and "three/addons/" in an import map.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+
+export const VIEWS = {
+  // camera target (x, y, z) and distance in metres, vertical field of view in degrees
+  body: { target: [0, 0.43, 0.0], distance: 2.45, fov: 30 },
+  face: { target: [0, 0.752, 0.06], distance: 0.46, fov: 30 },
+};
+
+export class AvatarScene {
+  constructor(canvas, { width = 640, height = 480, background = 0xeef0f3, antialias = true } = {}) {
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias, preserveDrawingBuffer: true });
+    this.renderer.setPixelRatio(1);
+    this.renderer.setSize(width, height, false);
+    this.renderer.outputColorSpace = THREE.SRGBColorSpace;
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(background);
+    this.camera = new THREE.PerspectiveCamera(30, width / height, 0.01, 50);
+    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8078, 1.6));
+    const key = new THREE.DirectionalLight(0xffffff, 2.2);
+    key.position.set(1.2, 1.5, 1.6);
+    this.scene.add(key);
+    const fill = new THREE.DirectionalLight(0xdde6ff, 0.7);
+    fill.position.set(-1.5, 0.6, 1.0);
+    this.scene.add(fill);
+    const rim = new THREE.DirectionalLight(0xffffff, 0.6);
+    rim.position.set(0, 1.5, -2.0);
+    this.scene.add(rim);
+    this.jointNames = [];
+    this.blendshapeNames = [];
+    this.joints = [];
+    this.morphMeshes = [];
+    this.setView('body');
+  }
+
+  // source: a URL or an ArrayBuffer holding the .glb
+  async load(source) {
+    const loader = new GLTFLoader();
+    const gltf = typeof source === 'string'
+      ? await loader.loadAsync(source)
+      : await new Promise((res, rej) => loader.parse(source, '', res, rej));
+    this.gltf = gltf;
+    this.root = gltf.scene;
+    this.scene.add(this.root);
+    const extras = (gltf.parser.json.extras || {}).facecapges || {};
+    this.jointNames = extras.joint_names || [];
+    this.blendshapeNames = extras.blendshape_names || [];
+    const byName = {};
+    this.root.traverse((o) => { if (o.isBone || o.type === 'Object3D' || o.isObject3D) { if (!(o.name in byName)) byName[o.name] = o; } });
+    this.joints = this.jointNames.map((n) => byName[n]);
+    const missing = this.jointNames.filter((n, i) => !this.joints[i]);
+    if (missing.length) throw new Error(`avatar is missing joints ${missing.join(', ')}`);
+    this.morphMeshes = [];
+    this.root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) this.morphMeshes.push(o); });
+    // map each blendshape name to its morph index in every face primitive
+    this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
+    this.root.traverse((o) => { if (o.isMesh) o.frustumCulled = false; });
+    return this;
+  }
+
+  setView(name) {
+    const v = VIEWS[name] || name;
+    this.camera.fov = v.fov;
+    this.camera.position.set(v.target[0], v.target[1], v.target[2] + v.distance);
+    this.camera.lookAt(new THREE.Vector3(...v.target));
+    this.camera.updateProjectionMatrix();
+  }
+
+  // quats: flat array, 4 per joint (w, x, y, z), jointNames order; offset: start index
+  setPose(quats, offset = 0) {
+    for (let j = 0; j < this.joints.length; j++) {
+      const k = offset + 4 * j;
+      this.joints[j].quaternion.set(quats[k + 1], quats[k + 2], quats[k + 3], quats[k]);
+    }
+  }
+
+  // weights: flat array in blendshapeNames order; offset: start index
+  setBlendshapes(weights, offset = 0) {
+    this.morphMeshes.forEach((m, mi) => {
+      const idx = this.morphIndex[mi];
+      for (let b = 0; b < idx.length; b++) {
+        if (idx[b] !== undefined) m.morphTargetInfluences[idx[b]] = weights[offset + b];
+      }
+    });
+  }
+
+  render() {
+    this.renderer.render(this.scene, this.camera);
+  }
+}
