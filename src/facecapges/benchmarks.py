@@ -17,6 +17,7 @@ import typer
 BENCHMARKS: dict[str, str] = {
     "data": "facecapges.data.bench",
     "model": "facecapges.model.bench",
+    "render": "facecapges.avatar.bench",
 }
 
 
