@@ -8,8 +8,12 @@ energy=rms``) — where the energy really starts to rise.
 
 **Motion beats** B_g (seconds), :func:`motion_beats`: local minima of joint angular
 speed. For each joint of the region the local rotation matrices of consecutive
-frames give the geodesic angle ``θ_tj = angle(R_t,j, R_{t+1},j)`` (radians); the
-angular speed is ``θ_tj · fps`` (rad/s), timed at the midpoint ``(t + ½)/fps``.
+frames give the geodesic angle ``θ_tj = angle(R_t,j, R_{t+1},j)`` (radians, computed
+as ``atan2(‖vee(Q − Qᵀ)‖/2, (tr Q − 1)/2)`` of ``Q = R_tᵀ R_{t+1}``, which stays
+accurate for small angles where ``arccos`` does not); the angular speed is
+``θ_tj · fps`` (rad/s), timed at the midpoint ``(t + ½)/fps``. Speeds are rounded to
+1e-9 rad/s before minima are searched, so round-off ripples on a plateau (a joint
+turning at constant speed, or not at all) are not beats.
 
 * ``mode="mean"`` (default): the speed curve is the **mean over the region's joints**;
   its strict local minima (``scipy.signal.argrelextrema(np.less, order)``, default
@@ -66,7 +70,10 @@ def joint_angular_speed(pose: np.ndarray, fps: float) -> np.ndarray:
     if p.ndim != 3 or p.shape[-1] != 6:
         raise ValueError(f"pose must be (T, J, 6) rot6d, got {p.shape}")
     R = rot.rot6d_to_matrix(p)
-    return rot.geodesic_angle(R[:-1], R[1:]) * fps
+    Q = np.swapaxes(R[:-1], -1, -2) @ R[1:]  # relative rotations (T-1, J, 3, 3)
+    vee = np.stack([Q[..., 2, 1] - Q[..., 1, 2], Q[..., 0, 2] - Q[..., 2, 0], Q[..., 1, 0] - Q[..., 0, 1]], -1)
+    cos = (Q[..., 0, 0] + Q[..., 1, 1] + Q[..., 2, 2] - 1.0) / 2.0
+    return np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos) * fps
 
 
 def _minima(curve: np.ndarray, order: int) -> np.ndarray:
@@ -74,7 +81,7 @@ def _minima(curve: np.ndarray, order: int) -> np.ndarray:
 
     if len(curve) < 3:
         return np.zeros(0, np.int64)
-    return argrelextrema(curve, np.less, order=order)[0]
+    return argrelextrema(np.round(curve, 9), np.less, order=order)[0]
 
 
 def motion_beats(pose: np.ndarray, fps: float, order: int = 2, mode: str = "mean") -> np.ndarray:

@@ -264,12 +264,16 @@ def _trace_sqrt_product_eigh(s1: np.ndarray, s2: np.ndarray) -> float:
 
 
 def _trace_sqrt_product_sqrtm(s1: np.ndarray, s2: np.ndarray, eps: float) -> float | None:
+    import warnings
+
     from scipy import linalg
 
-    covmean = linalg.sqrtm(s1 @ s2)
-    if not np.all(np.isfinite(covmean)):
-        off = np.eye(s1.shape[0]) * eps
-        covmean = linalg.sqrtm((s1 + off) @ (s2 + off))
+    with warnings.catch_warnings():  # singular products are expected; the result is checked below
+        warnings.simplefilter("ignore", linalg.LinAlgWarning)
+        covmean = linalg.sqrtm(s1 @ s2)
+        if not np.all(np.isfinite(covmean)):
+            off = np.eye(s1.shape[0]) * eps
+            covmean = linalg.sqrtm((s1 + off) @ (s2 + off))
     if not np.all(np.isfinite(covmean)):
         return None
     if np.iscomplexobj(covmean):
