@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges.data.cache import skeleton_from_dict
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import Skeleton
 
@@ -53,18 +54,6 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
         known = ", ".join(styles) or "none installed"
         raise UserError(f"unknown style {name!r} (installed: {known})")
     return styles[name]
-
-
-def skeleton_to_dict(skel: Skeleton) -> dict:
-    return {"names": list(skel.names), "parents": [int(p) for p in skel.parents],
-            "offsets": np.asarray(skel.offsets).tolist(), "channels": [list(c) for c in skel.channels],
-            "end_sites": {str(k): np.asarray(v).tolist() for k, v in skel.end_sites.items()}}
-
-
-def skeleton_from_dict(d: dict) -> Skeleton:
-    return Skeleton(names=list(d["names"]), parents=np.array(d["parents"], dtype=np.int64),
-                    offsets=np.array(d["offsets"], dtype=np.float64), channels=[list(c) for c in d["channels"]],
-                    end_sites={int(k): np.array(v, dtype=np.float64) for k, v in d.get("end_sites", {}).items()})
 
 
 @dataclass

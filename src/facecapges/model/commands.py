@@ -1,0 +1,124 @@
+"""Commands of the model area: ``train``, ``generate``, ``styles``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+
+def _load_clips(cache_path: Path, speaker: int, split: str):
+    from facecapges.data.cache import Cache
+    from facecapges.errors import UserError
+    from facecapges.training.train import ClipArrays
+
+    cache = Cache(cache_path)
+    entries = cache.clips(speaker=speaker, split=None if split == "all" else split)
+    if not entries:
+        have = sorted({(c["speaker"], c["split"]) for c in cache.clips()})
+        raise UserError(f"{cache_path}: no {split!r} clips of speaker {speaker} (the cache has speaker/split "
+                        f"{have}); use --split all to train on every clip of the speaker")
+    clips = []
+    for e in entries:
+        a = cache.load(e["name"])
+        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"]))
+    return cache, clips
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def train(
+        cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
+        speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker (thesis 3.2.2)."),
+        out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
+        config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides."),
+        epochs: Optional[int] = typer.Option(None, help="Number of epochs (default 375)."),
+        split: str = typer.Option("train", help="Clips to train on: train, val, test or all."),
+        holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip."),
+        resume: bool = typer.Option(False, "--resume", help="Continue the run in OUT exactly where it stopped."),
+        force: bool = typer.Option(False, "--force", help="Start over in a run folder that has a run."),
+    ) -> None:
+        """Train a FaceCapGes model with closed-loop sliding-window rollout (thesis ch. 4)."""
+        from facecapges.errors import UserError
+        from facecapges.model.config import load_config_file
+        from facecapges.training.train import build_trainer
+
+        if split not in ("train", "val", "test", "all"):
+            raise UserError(f"--split must be train, val, test or all, got {split!r}")
+        if (out / "last.pt").exists() and not (resume or force):
+            raise UserError(f"{out}: holds a training run; pass --resume to continue it or --force to start over")
+        model_over, train_over = load_config_file(config) if config else ({}, {})
+        if epochs is not None:
+            if epochs < 1:
+                raise UserError("--epochs must be at least 1")
+            train_over["epochs"] = epochs
+        if holdout_from is not None:
+            train_over["holdout_from"] = holdout_from
+        cache_obj, clips = _load_clips(cache, speaker, split)
+        if abs(cache_obj.fps - model_over.get("fps", 15)) > 1e-6:
+            model_over["fps"] = int(round(cache_obj.fps))
+        meta = {"speaker": speaker, "clips": [c.name for c in clips], "split": split,
+                "skeleton": cache_obj.index["skeleton"], "cache": str(cache)}
+        trainer = build_trainer(clips, out, model_over, train_over, meta, resume)
+        typer.echo(f"training on {len(clips)} clip(s), {len(trainer.train_set)} segments"
+                   + (f", {len(trainer.held_set)} held-out" if trainer.held_set else "")
+                   + f"; epochs {trainer.epoch}/{trainer.tcfg.epochs}")
+        trainer.fit()
+        typer.echo(f"checkpoint: {out / 'model.safetensors'}  log: {out / 'log.csv'}")
+
+    @app.command()
+    def generate(
+        audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
+        out: Path = typer.Option(..., help="Output BVH file (full BEAT skeleton, model fps)."),
+        face: Optional[Path] = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
+        head: Optional[Path] = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
+        checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
+        style: Optional[str] = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+        json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
+        force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
+    ) -> None:
+        """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
+        from facecapges.errors import refuse_overwrite
+        from facecapges.io.bvh import write_bvh
+        from facecapges.model.checkpoint import load_checkpoint
+        from facecapges.model.generate import generate_poses, prepare_inputs
+        from facecapges.rotations import normalize_rot6d
+        from facecapges.skeleton import pose_to_motion
+
+        refuse_overwrite(out, force)
+        ckpt = load_checkpoint(checkpoint, style)
+        inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
+        for note in inputs.notes:
+            typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
+        poses, ms = generate_poses(ckpt, inputs, progress=not json_out)
+        skel = ckpt.skeleton
+        write_bvh(out, skel, pose_to_motion(skel, normalize_rot6d(poses)), ckpt.fps)
+        summary = {"out": str(out), "frames": int(len(poses)), "fps": ckpt.fps,
+                   "duration_s": round(len(poses) / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
+                   "checkpoint": str(ckpt.path), "warnings": inputs.notes}
+        if json_out:
+            typer.echo(json.dumps(summary))
+        else:
+            typer.echo(f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
+                       f"({summary['duration_s']} s), {ms:.2f} ms/frame")
+
+    @app.command()
+    def styles(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+        """List the installed speaking styles (per-speaker checkpoints)."""
+        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
+
+        rows = []
+        for name, path in list_styles().items():
+            meta = load_checkpoint(path).meta
+            rows.append({"name": name, "default": name == DEFAULT_STYLE, "speaker": meta.get("speaker"),
+                         "epochs": meta.get("epochs_trained"), "path": str(path)})
+        if json_out:
+            typer.echo(json.dumps(rows, indent=2))
+            return
+        if not rows:
+            typer.echo("no styles installed")
+        for r in rows:
+            typer.echo(f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
+                       f"{r['epochs']} epochs  {r['path']}")

@@ -1,0 +1,1 @@
+"""Training the gesture model: closed-loop sliding-window rollout (thesis ch. 4)."""
