@@ -15,6 +15,7 @@ import time
 import typer
 
 BENCHMARKS: dict[str, str] = {
+    "capture": "facecapges.capture.bench",
     "data": "facecapges.data.bench",
     "model": "facecapges.model.bench",
     "render": "facecapges.avatar.bench",

@@ -1,0 +1,96 @@
+"""``facecapges bench --only capture``: speed and quality figures of the face capture.
+
+* ``estimator_ms_per_face``: metrics → sample set → ranges → 52 weights, per face per
+  frame (target ≤ 0.5 ms); ``head_pose_ms_per_face``: landmarks → pose (two fits);
+* ``capture_ms_per_frame``: the whole :meth:`FaceCapture.process` on real video frames
+  (colour conversion, MediaPipe landmarks, tracking, pose, estimator; target ≤ 25 ms),
+  with ``landmarks_ms_per_frame`` the MediaPipe part; video decoding is not counted;
+* quality: ``capture-eval`` on the HDTF clip (r of jawOpen / eyeBlink, head-pose
+  median error; quick: first 100 frames only) and the synthetic-sequence MAE.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+SHARED_FACE = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "face" / "WDA_KatieHill_000.mp4"
+
+
+def run(quick: bool = False) -> dict:
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.estimator import ExpressionEstimator
+    from facecapges.capture.head_pose import HeadPoseEstimator
+    from facecapges.capture.metrics import compute_metrics
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.samples import sample_weight
+    from facecapges.capture.synthetic import run_geometric, synthetic_mae, synthetic_sequence
+
+    model = resolve_model()
+    mesh = load_canonical_mesh(model)
+    pe = HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+    out: dict = {}
+
+    # ---- per-face costs on a synthetic sequence (no video needed)
+    seq = synthetic_sequence(mesh.vertices, 150 if quick else 600, seed=1)
+    poses, G, om = [], [], []
+    t0 = time.perf_counter()
+    for L in seq["landmarks"]:
+        pose, pts = pe.estimate(L, seq["width"], seq["height"])
+        poses.append((pose, pts))
+    t_pose = (time.perf_counter() - t0) / len(poses)
+    t0 = time.perf_counter()
+    for pose, pts in poses:
+        G.append(compute_metrics(pe.to_head_frame(pts, pose)))
+        om.append(sample_weight(pose.distance_m, pose.normal))
+    t_metrics = (time.perf_counter() - t0) / len(poses)
+    est = ExpressionEstimator("geometric")
+    t0 = time.perf_counter()
+    for g, w in zip(G, om):
+        est.update(g, w)
+        est.weights()
+    t_est = (time.perf_counter() - t0) / len(G)
+    out["head_pose_ms_per_face"] = round(1000 * t_pose, 3)
+    out["metrics_ms_per_face"] = round(1000 * t_metrics, 3)
+    out["estimator_ms_per_face"] = round(1000 * t_est, 3)
+    out["estimator_target_ms"] = 0.5
+    out["per_face_total_ms"] = round(1000 * (t_pose + t_metrics + t_est), 3)
+
+    maes = [synthetic_mae(s, run_geometric(s, pe), 30)
+            for s in [synthetic_sequence(mesh.vertices, 300 if quick else 450, seed=k) for k in range(1 if quick else 4)]]
+    out["synthetic_mae_mean"] = round(float(np.mean([m["mean"] for m in maes])), 4)
+    out["synthetic_mae_per_channel"] = {k: round(float(np.mean([m[k] for m in maes])), 4) for k in maes[0] if k != "mean"}
+    out["synthetic_mae_target"] = 0.1
+
+    # ---- real video
+    if SHARED_FACE.exists():
+        from facecapges.capture.evaluate import evaluate_tracks, run_tracks
+        from facecapges.capture.pipeline import FaceCapture
+        from facecapges.capture.video import open_source
+
+        src = open_source(str(SHARED_FACE))
+        frames = [f for _, _, f in src.frames(60 if quick else 200)]
+        src.close()
+        with FaceCapture(estimator="hybrid", fps=src.fps, model=model) as cap:
+            cap.process(frames[0], 0)  # warm-up (model start)
+            t_all = t_land = 0.0
+            for i, f in enumerate(frames[1:], 1):
+                t0 = time.perf_counter()
+                cap.process(f, i * 1000.0 / src.fps)
+                t_all += time.perf_counter() - t0
+                t_land += cap.detector.last_ms / 1000.0
+        n = len(frames) - 1
+        out["capture_ms_per_frame"] = round(1000 * t_all / n, 2)
+        out["landmarks_ms_per_frame"] = round(1000 * t_land / n, 2)
+        out["capture_target_ms"] = 25.0
+        rep = evaluate_tracks(run_tracks(SHARED_FACE, model=model, max_frames=100 if quick else None))
+        out["hdtf_frames_evaluated"] = rep["frames_evaluated"]
+        for name in ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight"):
+            out[f"hdtf_r_{name}"] = round(rep["channels"][name]["r"], 3)
+            out[f"hdtf_mae_{name}"] = round(rep["channels"][name]["mae"], 3)
+        out["hdtf_head_pose_median_deg"] = round(rep["head_pose"]["median_deg"], 2)
+    else:
+        out["video"] = f"skipped: {SHARED_FACE} missing"
+    return out
