@@ -134,7 +134,8 @@ class Browser:
             devtools = self._devtools_port()
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{devtools}/json/list", timeout=10))
             page = next(t for t in targets if t.get("type") == "page")
-            self.ws = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20)
+            self._ws_cm = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20)
+            self.ws = self._ws_cm.__enter__()
             self.call("Runtime.enable")
             self.call("Page.enable")
             self.call("Page.navigate", url=f"http://127.0.0.1:{port}{self.page}")
@@ -147,10 +148,11 @@ class Browser:
         self.close()
 
     def close(self) -> None:
-        ws = getattr(self, "ws", None)
-        if ws is not None:
+        cm = getattr(self, "_ws_cm", None)
+        if cm is not None:
+            self._ws_cm = None
             try:
-                ws.close()
+                cm.__exit__(None, None, None)
             except Exception:
                 pass
         proc = getattr(self, "proc", None)
