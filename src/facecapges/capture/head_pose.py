@@ -13,7 +13,8 @@ Conventions
   ``matrix_to_rot6d(R)`` (first two columns, :mod:`facecapges.rotations`).
 * **ARKit-style angles** ``(yaw, pitch, roll)`` in radians, with
   ``R = R_Y(yaw) @ R_X(pitch) @ R_Z(roll)``: yaw > 0 turns the face towards the image's
-  right (the subject's left), pitch > 0 tilts it up, roll > 0 tilts it counter-clockwise
+  right (the subject's left), pitch > 0 tilts it down (right-hand rule about X), roll > 0
+  tilts it counter-clockwise
   as seen by the camera.
 
 Landmarks → metric points (:func:`landmarks_to_camera`): MediaPipe's normalised
@@ -141,8 +142,13 @@ class HeadPose:
 
     @property
     def distance_m(self) -> float:
-        """Distance from the camera centre to the head origin, metres."""
-        return float(np.linalg.norm(self.t) / 100.0)
+        """Distance from the camera centre to the head origin, metres.
+
+        ``|t| / scale``: the lifted points are only known up to the assumption that the
+        face has the canonical mesh's size, and a fitted scale ≠ 1 means the lifting
+        depth was off by that factor.
+        """
+        return float(np.linalg.norm(self.t) / max(self.scale, 1e-9) / 100.0)
 
     @property
     def normal(self) -> np.ndarray:

@@ -56,8 +56,11 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
         from facecapges.capture.depth import check_depth_inputs
 
         depth_files, K = check_depth_inputs(depth_dir, intrinsics)
-    src = open_source(source)
+    from facecapges.capture.models import resolve_model
     from facecapges.capture.pipeline import FaceCapture
+
+    model = resolve_model(model)  # a missing model fails before any video is opened
+    src = open_source(source)
 
     try:
         cap = FaceCapture(estimator=estimator, fps=fps, model=model, intrinsics=K)

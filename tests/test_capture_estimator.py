@@ -1,0 +1,120 @@
+"""Sample set (eq. 4–7), range estimation (eq. 8–9) and the calibration-free estimator."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from facecapges.arkit import ARKIT_NAMES
+from facecapges.capture import ranges, samples
+from facecapges.capture.estimator import GEOMETRIC_MASK, N_UNITS, UNITS, ExpressionEstimator, units_to_arkit
+from facecapges.errors import UserError
+
+
+def test_sample_weight_formula():
+    assert samples.sample_weight(0.5, np.array([0, 0, 1.0])) == pytest.approx(1.0)
+    assert samples.sample_weight(1.0, np.array([0, 0, 1.0])) == pytest.approx(0.9)  # 1 − 0.5·0.2
+    n = np.array([math.sin(math.radians(60)), 0, math.cos(math.radians(60))])
+    assert samples.sample_weight(0.5, n) == pytest.approx(math.sqrt(0.5))
+    assert samples.sample_weight(0.5, np.array([0, 0, -1.0])) == 0.0  # facing away
+
+
+@pytest.mark.parametrize("omega", [0.4, 0.6, 0.9, 0.99])
+def test_compensation_samples_satisfy_the_density_ratio(omega):
+    d = samples.compensation_delta(omega)
+    sigma = -math.log(omega)
+    f = lambda x: math.exp(-x * x / (2 * sigma * sigma))  # noqa: E731 (Gaussian density up to a constant)
+    assert omega / ((1 - omega) / 2) == pytest.approx(f(0) / f(d), rel=1e-9)
+    assert math.isnan(samples.compensation_delta(0.3)) and samples.compensation_delta(1.0) == 0.0
+
+
+def test_sample_set_drops_merges_and_stays_bounded():
+    s = samples.SampleSet(2, capacity=4, scales=np.array([1.0, 2.0]))
+    assert not s.add(np.array([0.0, 0.0]), 0.2)  # ω < 1/3: dropped
+    assert s.size == 0 and s.n_dropped == 1
+    assert s.add(np.array([1.0, 1.0]), 1.0) and s.size == 1  # ω = 1: no compensation samples
+    assert s.add(np.array([5.0, 5.0]), 0.8) and s.size == 4  # + two compensation samples
+    d = samples.compensation_delta(0.8)
+    np.testing.assert_allclose(sorted(s.values[1, :4]), sorted([1.0, 5.0, 5 + 2 * d, 5 - 2 * d]))
+    np.testing.assert_allclose(s.weights[0, :4].sum(), 1.0 + 0.8 + 0.2)
+    # full: a new sample merges with its nearest neighbour (eq. 6–7)
+    s.insert(np.array([1.5, 1.5]), 1.0)
+    assert s.size == 4
+    v, w = s.unit(0)
+    assert v[0] == pytest.approx((1.0 * 1 + 1.5 * 1) / 2) and w[0] == pytest.approx(2.0)
+
+
+def test_scan_end_skips_isolated_outliers():
+    v = np.concatenate([[-5.0], np.linspace(0, 1, 40)])
+    w = np.ones_like(v)
+    lo = ranges.scan_end(v, w)
+    assert 0 <= lo < 0.1  # the lone −5 sample is not the node
+    lo2, hi = ranges.one_directional_range(v, w)
+    assert lo2 == lo and 0.9 < hi <= 1.0
+
+
+def test_two_directional_nodes_on_three_groups():
+    rng = np.random.default_rng(0)
+    v = np.sort(np.concatenate([rng.normal(-1, 0.02, 5), rng.normal(0, 0.02, 30), rng.normal(1, 0.02, 5)]))
+    g0, g1, g2 = ranges.two_directional_range(v, np.ones_like(v))
+    assert abs(g0 + 1) < 0.05 and abs(g1) < 0.05 and abs(g2 - 1) < 0.05
+    assert ranges.merge_to_three(np.array([2.0]), np.array([1.0])) == (2.0, 2.0, 2.0)
+    # eq. 8 and 9
+    assert ranges.one_directional_weight(1.5, 1.0, 3.0) == 0.25
+    np.testing.assert_allclose(ranges.two_directional_weight([-1, -0.5, 0, 0.5, 2], -1, 0, 1), [-1, -0.5, 0, 0.5, 2])
+
+
+def test_cold_start_reads_the_first_frame_as_rest_and_output_is_bounded():
+    est = ExpressionEstimator("geometric")
+    g = np.array([0.1, 1.7, 0.0, 0.7, 0.7, 0.26, 0.26, 1.1, 1.1, 0.6, 0.0, 0.0])
+    a = est.update(g, 0.95)
+    np.testing.assert_allclose(a, 0.0, atol=1e-9)
+    assert np.all(est.weights() == 0)
+    # an open mouth on frame 2 is measured against the prior span at once
+    g2 = g.copy()
+    g2[0] += UNITS[0].min_span
+    est.update(g2, 0.95)
+    w = est.weights()
+    assert w[ARKIT_NAMES.index("jawOpen")] > 0.3
+    assert np.all((w >= 0) & (w <= 1))
+    assert np.isfinite(est.activations).all()
+
+
+def test_modes():
+    mp = np.linspace(0, 1, 52).astype(np.float32)
+    g = np.full(N_UNITS, 0.5)
+    with pytest.raises(ValueError):
+        ExpressionEstimator("learned")
+    e = ExpressionEstimator("mediapipe")
+    e.update(g, 1.0)
+    np.testing.assert_allclose(e.weights(mp), mp)
+    for mode in ("geometric", "hybrid"):
+        e = ExpressionEstimator(mode)
+        e.update(g, 1.0)
+        w = e.weights(mp)
+        other = ~GEOMETRIC_MASK
+        np.testing.assert_allclose(w[other], mp[other] if mode == "hybrid" else 0)
+    # units → ARKit: exaggerated values are clipped
+    a = np.zeros(N_UNITS)
+    a[0] = 3.0
+    assert units_to_arkit(a)[ARKIT_NAMES.index("jawOpen")] == 1.0
+
+
+def test_synthetic_sequences_recover_known_parameters():
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.head_pose import HeadPoseEstimator
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.synthetic import run_geometric, synthetic_mae, synthetic_sequence
+
+    try:
+        mesh = load_canonical_mesh(resolve_model())
+    except UserError as exc:
+        pytest.skip(str(exc))
+    pe = HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+    for seed in (0, 1):
+        seq = synthetic_sequence(mesh.vertices, 300, seed=seed)
+        mae = synthetic_mae(seq, run_geometric(seq, pe), skip_frames=30)
+        assert mae["mean"] <= 0.1, mae
+        assert mae["jawOpen"] <= 0.1 and mae["eyeBlinkLeft"] <= 0.1, mae

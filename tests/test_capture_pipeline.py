@@ -1,0 +1,106 @@
+"""FaceCapture on real video (first frames only: MediaPipe costs ~15 ms a frame)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from facecapges.capture.video import open_source
+from facecapges.errors import UserError
+from facecapges.rotations import geodesic_angle
+
+
+def _capture(**kw):
+    from facecapges.capture.pipeline import FaceCapture
+
+    try:
+        return FaceCapture(**kw)
+    except UserError as exc:
+        if "not installed" in str(exc):
+            pytest.skip(str(exc))
+        raise
+
+
+def _frames(path, n):
+    src = open_source(str(path))
+    frames = [(ts, f) for _, ts, f in src.frames(n)]
+    src.close()
+    return src, frames
+
+
+def test_real_face_pose_matches_mediapipe_and_weights_are_valid(face_video):
+    src, frames = _frames(face_video, 60)
+    errs = []
+    with _capture(estimator="hybrid", fps=src.fps) as cap:
+        for ts, f in frames:
+            r = cap.process(f, ts)
+            assert r.face_found and r.face_id == 0
+            assert r.weights52.shape == (52,) and r.weights52.dtype == np.float32
+            assert np.all((r.weights52 >= 0) & (r.weights52 <= 1))
+            assert r.head_rot6d.shape == (6,) and 0.2 < r.distance_m < 2.0
+            errs.append(math.degrees(float(geodesic_angle(r.head_R, r.mp_transform[:3, :3]))))
+    assert np.median(errs) <= 3.0
+
+
+def test_strong_head_turns_stay_stable(megamind_video):
+    src, frames = _frames(megamind_video, 100)
+    prev = None
+    yaws = []
+    with _capture(estimator="geometric", fps=src.fps) as cap:
+        for ts, f in frames:
+            r = cap.process(f, ts)
+            assert np.isfinite(r.weights52).all() and np.isfinite(r.head_rot6d).all()
+            if prev is not None and r.face_found and prev.face_found:
+                step = math.degrees(float(geodesic_angle(r.head_R, prev.head_R)))
+                assert step < 20.0  # bounded frame-to-frame change at 24 fps
+                assert np.abs(r.weights52 - prev.weights52).max() <= 1.0
+            yaws.append(math.degrees(r.head_angles[0]))
+            prev = r
+    assert max(yaws) - min(yaws) > 15  # the clip really turns
+
+
+def test_face_lost_holds_then_eases_to_neutral(face_video):
+    src, frames = _frames(face_video, 30)
+    black = np.zeros_like(frames[0][1])
+    with _capture(estimator="mediapipe", fps=src.fps, hold_ms=400, ease_ms=400) as cap:
+        for ts, f in frames:
+            last = cap.process(f, ts)
+        t0 = frames[-1][0]
+        held = cap.process(black, t0 + 200)
+        assert not held.face_found and held.landmarks is None
+        np.testing.assert_allclose(held.weights52, last.weights52)
+        np.testing.assert_allclose(held.head_rot6d, last.head_rot6d, atol=1e-6)
+        mid = cap.process(black, t0 + 800)  # lost since t0 + 200: 600 ms = hold + half the ease
+        assert 0 < np.abs(mid.weights52).sum() < np.abs(last.weights52).sum()
+        gone = cap.process(black, t0 + 1050)
+        assert not gone.face_found and np.all(gone.weights52 == 0)
+        np.testing.assert_allclose(gone.head_rot6d, [1, 0, 0, 0, 1, 0], atol=1e-6)
+        back = cap.process(frames[0][1], t0 + 1100)
+        assert back.face_found and back.face_id == last.face_id  # identity kept
+
+
+def test_two_faces_keep_their_identities(face_video):
+    src, frames = _frames(face_video, 8)
+    with _capture(estimator="geometric", fps=src.fps, num_faces=2) as cap:
+        ids = []
+        for ts, f in frames:
+            small = f[::2, ::2]
+            pair = np.concatenate([small, np.ascontiguousarray(small[:, ::-1])], axis=1)
+            res = [r for r in cap.process_all(pair, ts) if r.face_found]
+            assert len(res) == 2
+            ids.append({r.face_id: r.landmarks[:, 0].mean() < 0.5 for r in res})
+        assert all(d == ids[0] for d in ids) and len(ids[0]) == 2
+        assert set(cap.states) == set(ids[0])  # one estimator per face
+
+
+def test_unreadable_video_and_camera_are_user_errors(tmp_path):
+    bad = tmp_path / "x.mp4"
+    bad.write_bytes(b"\x00" * 100)
+    with pytest.raises(UserError, match="cannot be read"):
+        open_source(str(bad))
+    with pytest.raises(UserError, match="not found"):
+        open_source(str(tmp_path / "missing.mp4"))
+    with pytest.raises(UserError, match="camera 57"):
+        open_source("57")
