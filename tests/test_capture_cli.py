@@ -76,3 +76,39 @@ def test_errors_exit_nonzero_with_one_clear_line(tmp_path, face_video):
     assert p.returncode == 2 and "none.task: face landmarker model not found" in p.stderr and "Traceback" not in p.stderr
     p = _run_cli("capture", str(bad), "--out", str(tmp_path / "o.json"), "--estimator", "magic")
     assert p.returncode == 2 and "--estimator" in p.stderr
+
+
+def test_capture_with_depth_frames(face_video, tmp_path):
+    """RGB-D wiring: depth frames rendered from the canonical mesh drive the head pose."""
+    import math
+
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.depth import render_depth
+    from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+    from facecapges.capture.models import resolve_model
+    from facecapges.rotations import geodesic_angle, rot6d_to_matrix
+
+    try:
+        mesh = load_canonical_mesh(resolve_model())
+    except UserError as exc:
+        pytest.skip(str(exc))
+    K = Intrinsics(200.0, 200.0, 80.0, 60.0)
+    ddir = tmp_path / "depth"
+    ddir.mkdir()
+    truth = []
+    for k in range(4):
+        R = angles_to_matrix(math.radians(5 * k), 0.0, 0.0)
+        truth.append(R)
+        D = render_depth(mesh.vertices / 100 @ R.T + [0, 0, -0.6], mesh.triangles, K, 160, 120, background_mm=1500)
+        np.save(ddir / f"{k:04d}.npy", D)
+    (tmp_path / "K.json").write_text(json.dumps({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy}))
+    out = tmp_path / "face.json"
+    res = _invoke(["capture", str(face_video), "--out", str(out), "--fps", "25", "--depth", str(ddir),
+                   "--intrinsics", str(tmp_path / "K.json"), "--max-frames", "4"])
+    assert res.exit_code == 0, res.output + repr(res.exception)
+    frames = json.loads(out.read_text())["frames"]
+    assert len(frames) == 4
+    for f, R in zip(frames, truth):
+        Rf = rot6d_to_matrix(np.array(f["head_rot6d"]))
+        assert math.degrees(float(geodesic_angle(Rf, R))) < 3.0
+        assert abs(f["distance_m"] - 0.6) < 0.05

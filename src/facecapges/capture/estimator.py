@@ -145,9 +145,11 @@ class ExpressionEstimator:
     Args:
         mode: ``geometric``, ``mediapipe`` or ``hybrid``.
         capacity: samples kept per unit.
-        update_every: ranges are re-estimated every this many frames (every frame
-            during the first ``warmup`` frames); the range moves slowly, so this only
-            bounds the per-frame cost.
+        update_every: each unit's range is re-estimated every this many frames, the
+            units taking turns (round robin, about ``N_UNITS / update_every`` units a
+            frame) so the cost per frame stays flat; during the first ``warmup``
+            frames every unit is re-estimated every frame (cold start). Ranges move
+            slowly, so this only bounds the per-frame cost.
     """
 
     def __init__(self, mode: str = "hybrid", capacity: int = 32, update_every: int = 6, warmup: int = 12):
@@ -166,11 +168,11 @@ class ExpressionEstimator:
         self._frame = 0
 
     # -------------------------------------------------------------- ranges
-    def update_ranges(self) -> None:
-        """Re-estimate every unit's nodes from the sample set (with the min-span prior)."""
+    def update_ranges(self, units=None) -> None:
+        """Re-estimate the nodes of ``units`` (default all) from the sample set (with the min-span prior)."""
         if self.samples.size == 0:
             return
-        for u in range(N_UNITS):
+        for u in range(N_UNITS) if units is None else units:
             v, w = self.samples.unit(u)
             if self.signs[u] < 0:
                 v, w = -v[::-1], w[::-1]
@@ -204,8 +206,12 @@ class ExpressionEstimator:
             if first and not added:
                 # cold start on a poorly weighted frame: still give a range around it
                 self.samples.insert(g, max(omega, 1e-3))
-            if first or self._frame < self.warmup or self._frame % self.update_every == 0:
+            if first or self._frame < self.warmup:
                 self.update_ranges()
+            else:
+                per = -(-N_UNITS // self.update_every)  # ceil
+                start = (self._frame * per) % N_UNITS
+                self.update_ranges([(start + i) % N_UNITS for i in range(per)])
             self.activations = self.activation(g)
         self._frame += 1
         return self.activations

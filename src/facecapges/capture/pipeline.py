@@ -144,13 +144,23 @@ class FaceCapture:
         faces = self.tracker.update(self.detector.detect(frame_bgr, int(timestamp_ms)), timestamp_ms)
         seen = set()
         results = []
+        # RGB-D: one depth head per frame, given to the primary face (else the first one)
+        depth_for = None
+        if depth_mm is not None and self.depth_tracker is not None and faces:
+            ids = [f.face_id for f in faces]
+            depth_for = self.primary_id if self.primary_id in ids else ids[0]
         for obs in faces:
             st = self.states.get(obs.face_id)
             if st is None:
                 st = self.states[obs.face_id] = _FaceState(obs.face_id, self.mode, self.window)
             depth_pose = None
-            if depth_mm is not None and self.depth_tracker is not None:
-                depth_pose = self.depth_tracker.update(depth_mm)
+            if obs.face_id == depth_for:
+                box = None
+                if depth_mm.shape[:2] == (h, w):  # registered RGB-D: restrict the cloud to the face box
+                    x = obs.landmarks[:, 0] * w
+                    y = obs.landmarks[:, 1] * h
+                    box = (int(x.min()), int(y.min()), int(x.max()) + 1, int(y.max()) + 1)
+                depth_pose = self.depth_tracker.update(depth_mm, box)
             st.lost_since = None
             res = self._found(st, obs, w, h, timestamp_ms, depth_pose)
             st.last = res
