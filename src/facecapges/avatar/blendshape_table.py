@@ -228,7 +228,7 @@ def author_arkit_table(V: np.ndarray) -> dict:
         add(f"mouthPress{S}", LIP_INNER_UPPER, [0.0, -0.15, -0.05], weight=lateral(LIP_INNER_UPPER, s))
         add(f"mouthPress{S}", LIP_INNER_LOWER, [0.0, 0.2, -0.05], weight=lateral(LIP_INNER_LOWER, s))
         add(f"mouthPress{S}", LIP_OUTER_LOWER, [0.0, 0.12, -0.1], weight=lateral(LIP_OUTER_LOWER, s))
-        add(f"mouthSmile{S}", corners[s], [0.35 * sx, 0.5, -0.35])
+        add(f"mouthSmile{S}", corners[s], [0.45 * sx, 0.7, -0.4])
         add(f"mouthSmile{S}", CHEEK[s], [0.05 * sx, 0.2, 0.1])
         add(f"mouthStretch{S}", corners[s], [0.55 * sx, -0.2, -0.1])
         add(f"mouthUpperUp{S}", upper_lip, [0.0, 0.45, 0.05], weight=lateral(upper_lip, s) ** 1.5)

@@ -118,7 +118,7 @@ class _Builder:
         J = np.zeros((len(V), 4), np.int64)
         W = np.zeros((len(V), 4))
         for i, wd in enumerate(self.w):
-            top = sorted(wd.items(), key=lambda kv: -kv[1])[:4]
+            top = sorted(((j, w) for j, w in wd.items() if w > 1e-6), key=lambda kv: -kv[1])[:4]
             s = sum(w for _, w in top)
             for k, (j, w) in enumerate(top):
                 J[i, k], W[i, k] = j, w / s

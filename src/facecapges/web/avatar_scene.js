@@ -15,7 +15,7 @@ import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 
 export const VIEWS = {
   // camera target (x, y, z) and distance in metres, vertical field of view in degrees
-  body: { target: [0, 0.43, 0.0], distance: 2.45, fov: 30 },
+  body: { target: [0, 0.36, 0.0], distance: 2.6, fov: 30 },
   face: { target: [0, 0.752, 0.06], distance: 0.46, fov: 30 },
 };
 
