@@ -362,10 +362,19 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     if np.dot(nrm, V[F[0, 0]] - center_line[0]) < 0:
         F = F[:, ::-1]
     fore = skel.index(f"{side}ForeArm")
+    # the far half of the palm follows the metacarpal joint of its finger (BEAT has
+    # Index, Ring and Pinky metacarpals; the middle finger's column stays on the hand)
+    mid = (knuckles[0] + knuckles[3]) / 2
     w = []
     for v in V:
         t = np.dot(v - wrist, fwd) / length
-        w.append({hand: 1.0} if t > 0.08 else {hand: 0.75, fore: 0.25})
+        a = np.dot(v - mid, across) / (width / 2)  # +1 index side, −1 pinky side
+        wd = {hand: 1.0} if t > 0.08 else {hand: 0.75, fore: 0.25}
+        m = 0.6 * float(np.clip((t - 0.35) / 0.6, 0.0, 1.0))
+        meta = "Index" if a > 0.35 else "Pinky" if a < -0.65 else "Ring" if a < -0.15 else None
+        if m > 0 and meta is not None:
+            wd = {hand: 1.0 - m, J(meta): m}
+        w.append(wd)
     b.add(V, w, F, SKIN)
     # fingers: one tube along each finger's joints to its end site
     radius = {"Thumb": 1.05, "Index": 0.9, "Middle": 0.92, "Ring": 0.86, "Pinky": 0.76}
