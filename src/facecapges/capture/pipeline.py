@@ -173,15 +173,18 @@ class FaceCapture:
                 del self.states[fid]
                 continue
             results.append(self._lost(self.states[fid], timestamp_ms))
-        if self.primary_id not in self.states:
-            found = [r for r in results if r.face_found and r.landmarks is not None]
+        found = [r for r in results if r.face_found and r.landmarks is not None]
+        if found and self.primary_id not in {r.face_id for r in found}:
+            # the primary face is lost (or there is none yet): follow the largest face in view
+            self.primary_id = max(found, key=lambda r: float(np.ptp(r.landmarks[:, 0]))).face_id
+        elif self.primary_id not in self.states:
             self.primary_id = None
-            if found:
-                self.primary_id = max(found, key=lambda r: float(np.ptp(r.landmarks[:, 0]))).face_id
         return results
 
     def process(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None) -> CaptureResult:
-        """The primary face (the first face seen that is still tracked; else the largest)."""
+        """The primary face: the current one while it is in view; when it is lost and another
+        face is in view, the largest face in view; while no face is in view, the lost
+        primary face (held, then eased to neutral)."""
         results = self.process_all(frame_bgr, timestamp_ms, depth_mm)
         for r in results:
             if r.face_id == self.primary_id:

@@ -6,11 +6,12 @@ Face JSON written (read back by ``facecapges.io.face_json``)::
      "frames": [{"time": t_s, "weights": [52 floats], "head_rot6d": [6 floats],
                  "face_found": bool, "distance_m": float}, ...]}
 
-``time`` is ``k / fps`` for output frame ``k``. Output frames are taken on the ``fps``
-grid: output frame ``k`` is the first source frame at or after ``k / fps`` (sources
-faster than ``fps`` are decimated before the landmark model runs, which is what a
-real-time runtime at ``fps`` does too). ``distance_m`` is ``null`` while no face has
-been seen yet. ``head_rot6d`` follows :mod:`head_pose` (identity = facing the camera).
+``time`` is ``k / fps`` for output frame ``k``. Every source frame is processed
+(MediaPipe's tracker and the sample set see the full frame rate), and output frame
+``k`` is the result of the first source frame at or after ``k / fps``; a source slower
+than ``fps`` repeats results. (Decimating before the landmark model would be
+cheaper for fast sources but gives MediaPipe's tracker larger jumps between frames.)
+``distance_m`` is ``null`` while no face has been seen yet. ``head_rot6d`` follows :mod:`head_pose` (identity = facing the camera).
 """
 
 from __future__ import annotations
@@ -63,7 +64,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     src = open_source(source)
 
     try:
-        cap = FaceCapture(estimator=estimator, fps=fps, model=model, intrinsics=K)
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K)
     except BaseException:
         src.close()
         raise
@@ -92,8 +93,6 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
             for i, ts, frame in src.frames():
                 if max_frames is not None and k >= max_frames:
                     break
-                if ts + 1e-6 < k * 1000.0 / fps:
-                    continue  # not yet at the next output tick
                 depth = None
                 if depth_files is not None:
                     from facecapges.capture.depth import read_depth
@@ -101,9 +100,9 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
                     if i < len(depth_files):
                         depth = read_depth(depth_files[i])
                 res = cap.process(frame, ts, depth)
-                n_found += bool(res.face_found)
                 # a slow source (fps below --fps) repeats the frame on the skipped ticks
-                while (k * 1000.0 / fps) <= ts + 1e-6:
+                while (k * 1000.0 / fps) <= ts + 1e-6 and (max_frames is None or k < max_frames):
+                    n_found += bool(res.face_found)
                     records.append(result_record(res, k / fps))
                     if writer is not None:
                         from facecapges.capture.overlay import draw_overlay
