@@ -104,3 +104,19 @@ def test_unreadable_video_and_camera_are_user_errors(tmp_path):
         open_source(str(tmp_path / "missing.mp4"))
     with pytest.raises(UserError, match="camera 57"):
         open_source("57")
+
+
+def test_primary_face_follows_a_face_that_jumped(face_video):
+    """A face that jumps more than a face width gets a new identity; the primary result follows it."""
+    src, frames = _frames(face_video, 8)
+    with _capture(estimator="geometric", fps=src.fps) as cap:
+        for k, (ts, f) in enumerate(frames):
+            canvas = np.zeros((f.shape[0], 3 * f.shape[1], 3), np.uint8)
+            x0 = 0 if k < 3 else 2 * f.shape[1]
+            canvas[:, x0:x0 + f.shape[1]] = f
+            r = cap.process(canvas, ts)
+            if k < 3:
+                assert r.face_found and r.face_id == 0
+            elif not r.face_found:  # MediaPipe may need a frame or two to re-detect
+                assert r.face_id == 0 and k < 6
+        assert r.face_found and r.face_id == 1 and 0 in cap.states  # old identity still held

@@ -57,7 +57,7 @@ class OverlayWriter:
 
         self.w, self.h = width + width % 2, height + height % 2
         self._gen = imageio_ffmpeg.write_frames(str(path), (self.w, self.h), fps=fps, codec="libx264",
-                                                pix_fmt_in="rgb24", output_params=["-pix_fmt", "yuv420p"],
+                                                pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
                                                 macro_block_size=1, quality=6)
         self._gen.send(None)
 
