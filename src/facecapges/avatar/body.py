@@ -137,8 +137,7 @@ def _frame(t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tube(centers: np.ndarray, radii: np.ndarray, n_around: int = 14, ref=(0.0, 1.0, 0.0),
-          cap_start: bool = True, cap_end: bool = True, squash: np.ndarray | None = None
-          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+          cap_start: bool = True, cap_end: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A closed tube through ``centers`` (K, 3): vertices, triangles, and each vertex's ring
     index (caps get −1 at the start and K at the end). ``radii`` (K,) or (K, 2) for an
     elliptic section (along ``ref``-ish axis, along the other axis)."""
@@ -452,7 +451,6 @@ def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
             r = (1 - t) * r0 + t * depth * height + 0.09 * height * np.sin(np.pi * t)
             ring.append(c + r * d)
         rings.append(ring)
-    rim_r = np.linalg.norm(V[loop] - c, axis=1).mean()
     pole = c + (depth * height) * back
     new = np.concatenate([np.asarray(rings).reshape(-1, 3), pole[None]])
     N0 = len(V)
@@ -470,7 +468,6 @@ def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
     if not any((int(F[0, 1]), int(F[0, 0])) == (int(x), int(y)) for x, y in
                np.concatenate([face.faces[:, [0, 1]], face.faces[:, [1, 2]], face.faces[:, [2, 0]]])):
         F = F[:, ::-1]
-    del rim_r
     src = np.concatenate([np.tile(loop, n_rings), [-1]])
     ring_no = np.concatenate([np.repeat(np.arange(1, n_rings + 1), m), [n_rings + 1]])
     return new, F, src, ring_no

@@ -131,6 +131,8 @@ def register(app: typer.Typer) -> None:
         check_skeleton(motion.skeleton, str(bvh))
         if audio is not None:
             require_file(audio, "audio")
+        if face is not None:
+            require_file(face, "face JSON")
         if avatar_glb is not None:
             import pygltflib
 
