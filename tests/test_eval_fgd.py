@@ -143,8 +143,9 @@ def test_training_on_the_real_clip_lowers_the_loss_and_scores_gt_as_zero(real_po
     assert ev.fgd([test], [still], "with_head") > 100 * max(gt, 1e-9)
     # save next to a checkpoint and load back: same features
     ckpt = tmp_path / "model.safetensors"
-    ckpt.write_bytes(b"")
-    F.save_fgd(ev, F.fgd_dir_for_checkpoint(ckpt))
+    w, c = F.save_fgd(ev, ckpt)
+    assert (w.name, c.name) == ("model.fgd.safetensors", "model.fgd.json") and not ckpt.exists()
+    assert F.fgd_paths(tmp_path) == (tmp_path / "fgd_autoencoder.safetensors", tmp_path / "fgd_autoencoder.json")
     back = F.load_fgd(ckpt)
     assert back.config == ev.config and back.regions == ["with_head"]
     assert back.history.loss["with_head"] == pytest.approx(loss)

@@ -5,8 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from facecapges.errors import UserError
-from facecapges.evaluation.srgr import read_semantic, semantic_weights, srgr
+from facecapges.evaluation.srgr import srgr
 
 
 def test_identical_sequences_give_one():
@@ -35,32 +34,15 @@ def test_shape_errors():
         srgr(np.zeros((3, 47, 6)), np.zeros((3, 47, 6)), weights=np.ones(4))
 
 
-def test_semantic_file_parsing_and_frame_weights(tmp_path):
+def test_weights_from_a_beat_semantic_file(tmp_path):
+    from facecapges.data.beat import read_semantic
+
     p = tmp_path / "2_scott_0_1_1.txt"
-    p.write_text("deictic_l\t0.10\t0.40\t0.30\t0.8\tthere\n"
-                 "beat_align\t0.30\t1.00\t0.70\t0.5\n"
-                 "\n"
-                 "iconic\t2.00\t2.20\t0.20\t1.0\tbig\n")
-    spans = read_semantic(p)
-    assert [s.name for s in spans] == ["deictic_l", "beat_align", "iconic"]
-    assert spans[0].word == "there" and spans[1].word == ""
-    w = semantic_weights(spans, n_frames=40, fps=15.0)
-    t = np.arange(40) / 15
-    assert w[2] == 0.8 and w[6] == 0.8  # 0.133 s, 0.4 s: first span wins where two overlap
-    assert w[7] == 0.5 and w[15] == 0.5 and w[16] == 0.0
-    assert w[30] == 1.0 and w[33] == 1.0 and w[34] == 0.0
-    assert np.all(w[(t < 0.1)] == 0)
-    # a later window of the clip
-    assert semantic_weights(spans, 5, 15.0, start_frame=30).tolist() == [1.0, 1.0, 1.0, 1.0, 0.0]
-
-
-def test_bad_semantic_files_are_user_errors(tmp_path):
-    bad = tmp_path / "bad.txt"
-    bad.write_text("deictic\t0.1\t0.2\n")
-    with pytest.raises(UserError, match="bad.txt: line 1"):
-        read_semantic(bad)
-    bad.write_text("deictic\tzero\t0.2\t0.1\t0.5\n")
-    with pytest.raises(UserError, match="numbers"):
-        read_semantic(bad)
-    with pytest.raises(UserError, match="not found"):
-        read_semantic(tmp_path / "missing.txt")
+    p.write_text("deictic_l\t0.10\t0.40\t0.30\t0.8\tthere\n")
+    lam = read_semantic(p, n_frames=10, fps=15.0)  # frames 2..6 (0.133–0.4 s) weigh 0.8
+    real = np.zeros((10, 3, 6))
+    gen = real.copy()
+    gen[:5, 0, 0] = 1.0  # joint 0 misses in frames 0..4
+    r = srgr(real, gen, lam)
+    hits_weighted = 0.8 * (3 * 2 + 2 * 3)  # frames 2..4: 2 hits each; frames 5..6: 3 hits each
+    assert r.weighted and r.value == pytest.approx(hits_weighted / 30)

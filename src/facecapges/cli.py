@@ -30,6 +30,7 @@ COMMAND_MODULES = [
     "facecapges.data.commands",  # prepare, export
     "facecapges.model.commands",  # train, generate
     "facecapges.avatar.commands",  # blendshapes, avatar build, render
+    "facecapges.evaluation.commands",  # fgd-train, eval
     "facecapges.benchmarks",  # bench
 ]
 

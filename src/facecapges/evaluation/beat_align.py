@@ -138,24 +138,45 @@ def fit_audio(audio: np.ndarray, n_frames: int, fps: float, sr: int) -> np.ndarr
     return np.pad(a, (0, n - len(a))) if len(a) < n else a
 
 
-def beat_align_control(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float,
-                       offsets_s: Sequence[float] = tuple(range(2, 61, 2)), sigma_s: float = SIGMA_S,
-                       order: int = 2, mode: str = "mean", min_gap_s: float = 1.0) -> BeatAlignControl:
-    """Matched BeatAlign and BeatAlign against the audio rolled by each offset (wrapping)."""
-    a = fit_audio(audio, len(pose), fps, sr)
+@dataclass
+class SpeechBeatSets:
+    """Speech beats of one audio, matched and for each shift (reusable across motions)."""
+
+    matched: np.ndarray
+    offsets_s: list[float]
+    shifted: list[np.ndarray]
+
+
+def speech_beat_sets(audio: np.ndarray, sr: int, n_frames: int, fps: float,
+                     offsets_s: Sequence[float] = tuple(range(2, 61, 2)), min_gap_s: float = 1.0) -> SpeechBeatSets:
+    """Speech beats of the audio fitted to ``n_frames`` frames, unshifted and rolled by each usable offset."""
+    a = fit_audio(audio, n_frames, fps, sr)
     dur = len(a) / sr
-    mb = motion_beats(pose, fps, order, mode)
-    sb = speech_beats(a, sr)
-    matched = beat_align_score(sb, mb, sigma_s)
-    used, scores = [], []
+    used, sets = [], []
     for off in offsets_s:
         o = float(off) % dur if dur > 0 else 0.0
         if min(o, dur - o) < min_gap_s:
             continue
-        shifted = np.roll(a, int(round(o * sr)))
-        scores.append(beat_align_score(speech_beats(shifted, sr), mb, sigma_s))
+        sets.append(speech_beats(np.roll(a, int(round(o * sr))), sr))
         used.append(float(off))
-    arr = np.array(scores, np.float64)
+    return SpeechBeatSets(speech_beats(a, sr), used, sets)
+
+
+def beat_align_control(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float,
+                       offsets_s: Sequence[float] = tuple(range(2, 61, 2)), sigma_s: float = SIGMA_S,
+                       order: int = 2, mode: str = "mean", min_gap_s: float = 1.0,
+                       speech: SpeechBeatSets | None = None) -> BeatAlignControl:
+    """Matched BeatAlign and BeatAlign against the audio rolled by each offset (wrapping).
+
+    ``speech`` (from :func:`speech_beat_sets` for this audio and ``len(pose)``) skips the
+    onset detection when several motions are scored against the same audio.
+    """
+    if speech is None:
+        speech = speech_beat_sets(audio, sr, len(pose), fps, offsets_s, min_gap_s)
+    mb = motion_beats(pose, fps, order, mode)
+    matched = beat_align_score(speech.matched, mb, sigma_s)
+    arr = np.array([beat_align_score(sb, mb, sigma_s) for sb in speech.shifted], np.float64)
     mean = float(np.nanmean(arr)) if len(arr) else float("nan")
     sd = float(np.nanstd(arr)) if len(arr) else float("nan")
-    return BeatAlignControl(matched, mean, sd, matched - mean, used, [float(x) for x in arr], len(sb), len(mb))
+    return BeatAlignControl(matched, mean, sd, matched - mean, list(speech.offsets_s), [float(x) for x in arr],
+                            len(speech.matched), len(mb))

@@ -52,10 +52,12 @@ covariances (fewer samples than dimensions, constant features), and gives
 product instead (with an ε·I offset retry and the tiny imaginary part dropped), and
 falls back to the symmetric form when that fails.
 
-**Files.** :func:`save_fgd` writes ``fgd_autoencoder.safetensors`` (weights, keys
-prefixed with the region) and ``fgd_autoencoder.json`` (config, joints per region,
-training history) into a directory — by convention the gesture checkpoint's
-directory (:func:`fgd_dir_for_checkpoint`).
+**Files** (:func:`fgd_paths`): weights as safetensors (keys prefixed with the region)
+plus a JSON document (config, joints per region, training history). Given a
+*directory* they are ``DIR/fgd_autoencoder.safetensors`` and ``DIR/fgd_autoencoder.json``;
+given a gesture *checkpoint file* ``X/NAME.safetensors`` they sit next to it as
+``X/NAME.fgd.safetensors`` and ``X/NAME.fgd.json``, so every checkpoint (and every
+installed style) carries its own FGD autoencoder.
 """
 
 from __future__ import annotations
@@ -399,43 +401,45 @@ def train_fgd(clips: Sequence[np.ndarray], config: FGDConfig | None = None,
 
 
 # --------------------------------------------------------------------- save/load
-def fgd_dir_for_checkpoint(checkpoint: str | Path) -> Path:
-    """The directory the FGD autoencoder of a gesture checkpoint lives in: the checkpoint's."""
-    p = Path(checkpoint)
-    return p if p.is_dir() else p.parent
+def fgd_paths(location: str | Path) -> tuple[Path, Path]:
+    """(weights, config) paths for a directory or next to a checkpoint file (see module doc)."""
+    p = Path(location)
+    if p.suffix == ".safetensors" and not p.is_dir():
+        return p.with_name(f"{p.stem}.fgd.safetensors"), p.with_name(f"{p.stem}.fgd.json")
+    return p / FGD_WEIGHTS, p / FGD_CONFIG
 
 
-def save_fgd(evaluator: FGDEvaluator, directory: str | Path) -> tuple[Path, Path]:
-    """Write ``fgd_autoencoder.safetensors`` and ``fgd_autoencoder.json`` into ``directory``."""
+def save_fgd(evaluator: FGDEvaluator, location: str | Path) -> tuple[Path, Path]:
+    """Write the weights and the JSON document (:func:`fgd_paths`); returns both paths."""
     from safetensors.torch import save_file
 
-    d = Path(directory)
-    d.mkdir(parents=True, exist_ok=True)
+    w_path, cfg_path = fgd_paths(location)
+    w_path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {f"{r}.{k}": v.detach().contiguous() for r, m in evaluator.models.items()
                for k, v in m.state_dict().items()}
-    save_file(tensors, str(d / FGD_WEIGHTS))
+    save_file(tensors, str(w_path))
     meta = {"config": asdict(evaluator.config), "regions": {r: m.joints for r, m in evaluator.models.items()},
             "history": {"loss": evaluator.history.loss, "n_windows": evaluator.history.n_windows},
             "format": "facecapges-fgd-autoencoder/1"}
-    (d / FGD_CONFIG).write_text(json.dumps(meta, indent=1))
-    return d / FGD_WEIGHTS, d / FGD_CONFIG
+    cfg_path.write_text(json.dumps(meta, indent=1))
+    return w_path, cfg_path
 
 
-def load_fgd(directory: str | Path) -> FGDEvaluator:
+def load_fgd(location: str | Path) -> FGDEvaluator:
     """Read what :func:`save_fgd` wrote; raises UserError naming the file on any problem."""
     from safetensors.torch import load_file
 
     from facecapges.errors import file_error, require_file
 
-    d = fgd_dir_for_checkpoint(directory)
-    cfg_path = require_file(d / FGD_CONFIG, "FGD autoencoder config")
-    w_path = require_file(d / FGD_WEIGHTS, "FGD autoencoder weights")
+    w_guess, cfg_guess = fgd_paths(location)
+    cfg_path = require_file(cfg_guess, "FGD autoencoder config")
+    w_path = require_file(w_guess, "FGD autoencoder weights")
     try:
         meta = json.loads(cfg_path.read_text())
         config = FGDConfig(**meta["config"])
         tensors = load_file(str(w_path))
     except (ValueError, KeyError, TypeError, OSError) as exc:
-        raise file_error(d, f"not a readable FGD autoencoder ({exc})") from None
+        raise file_error(cfg_path, f"not a readable FGD autoencoder ({exc})") from None
     models = {}
     for region, joints in meta["regions"].items():
         m = FGDAutoencoder(config, joints)
@@ -456,4 +460,4 @@ def n_parameters(model: nn.Module) -> int:
 
 __all__ = ["FGDConfig", "FGDAutoencoder", "FGDEvaluator", "GraphConv", "UPPER_BODY_PARENT", "adjacency",
            "frechet_distance", "frechet_distance_features", "gaussian_stats", "load_fgd", "make_windows",
-           "parents_within", "reconstruction_loss", "save_fgd", "train_fgd", "fgd_dir_for_checkpoint"]
+           "parents_within", "reconstruction_loss", "save_fgd", "train_fgd", "fgd_paths"]

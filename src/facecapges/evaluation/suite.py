@@ -64,7 +64,7 @@ def _progress(total: int, enabled: bool, what: str):
 def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr: int, fps: float,
                   real: np.ndarray | None, weights: np.ndarray | None, fgd: FGDEvaluator | None,
                   fgd_reference: Sequence[np.ndarray] | None, offsets_s: Sequence[float], sigma_s: float,
-                  ba_mode: str) -> dict:
+                  ba_mode: str, speech_sets) -> dict:
     reg = [select(s, region) for s in samples]
     out: dict = {"n_samples": len(samples)}
     if fgd is not None and region in fgd.models and fgd_reference:
@@ -73,7 +73,8 @@ def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr:
         out["FGD"] = None
     out["SRGR"] = (float(np.mean([srgr(select(real, region), r, weights).value for r in reg]))
                    if real is not None else None)
-    controls = [ba.beat_align_control(r, audio, sr, fps, offsets_s, sigma_s, mode=ba_mode) for r in reg]
+    controls = [ba.beat_align_control(r, audio, sr, fps, offsets_s, sigma_s, mode=ba_mode,
+                                      speech=speech_sets(len(r))) for r in reg]
     out["BA"] = float(np.mean([c.matched for c in controls]))
     out["BA_shifted_mean"] = float(np.mean([c.shifted_mean for c in controls]))
     out["BA_shifted_sd"] = float(np.mean([c.shifted_sd for c in controls]))
@@ -95,6 +96,13 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
     result = {"fps": fps, "sr": sr, "n_frames": n, "sigma_s": sigma_s, "srgr_delta": DELTA,
               "srgr_weighted": semantic_weights is not None, "ba_mode": ba_mode,
               "ba_offsets_s": [float(o) for o in offsets_s], "paired": real is not None, "regions": {}}
+    cache: dict[int, ba.SpeechBeatSets] = {}
+
+    def speech_sets(n_frames: int) -> ba.SpeechBeatSets:  # onsets once per audio length, shared by all rows
+        if n_frames not in cache:
+            cache[n_frames] = ba.speech_beat_sets(audio, sr, n_frames, fps, offsets_s)
+        return cache[n_frames]
+
     bar, task = _progress(len(regions) * len(samples), progress, "evaluating")
     with bar:
         for region in regions:
@@ -102,7 +110,7 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
             for name, s in samples.items():
                 bar.update(task, description=f"evaluating {name} [{region}]")
                 rows[name] = _score_method(s, region, audio, sr, fps, real, semantic_weights, fgd, fgd_reference,
-                                           offsets_s, sigma_s, ba_mode)
+                                           offsets_s, sigma_s, ba_mode, speech_sets)
                 bar.advance(task)
             result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
     return result
@@ -133,3 +141,45 @@ def evaluate_unpaired(methods: Mapping[str, Method], audio: np.ndarray, sr: int,
     """BeatAlign (+ control), L1DIV and FGD vs ``fgd_reference`` for motion without real counterpart."""
     return _evaluate(methods, audio, sr, fps, None, fgd, fgd_reference, None, regions, offsets_s, sigma_s,
                      ba_mode, progress)
+
+
+_AVERAGED = ("SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "L1DIV", "L1DIV_samples")
+
+
+def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
+                  fgd_reference: Sequence[np.ndarray] | None = None,
+                  method_clips: Mapping[str, Sequence[np.ndarray]] | None = None) -> dict:
+    """Merge per-clip results of the same methods into one (several held-out clips).
+
+    SRGR, BA (matched, shifted mean and sd) and L1DIV are averaged over clips weighted
+    by their frame counts; the BA gap is recomputed from the averages. FGD is not an
+    average: with ``fgd``, ``fgd_reference`` (all real clips) and ``method_clips``
+    (each method's clips) it is computed once over the pooled windows of all clips.
+    """
+    if not results:
+        raise ValueError("no per-clip results to combine")
+    n = np.array([r["n_frames"] for r in results], np.float64)
+    out = {k: v for k, v in results[0].items() if k != "regions"}
+    out["n_frames"] = int(n.sum())
+    out["n_clips"] = len(results)
+    out["regions"] = {}
+    for region, reg in results[0]["regions"].items():
+        rows = {}
+        for name in reg["methods"]:
+            per = [r["regions"][region]["methods"][name] for r in results]
+            row = {"n_samples": per[0]["n_samples"]}
+            for k in _AVERAGED:
+                vals = [p[k] for p in per]
+                ok = [(v, w) for v, w in zip(vals, n) if v is not None and np.isfinite(v)]
+                row[k] = float(sum(v * w for v, w in ok) / sum(w for _, w in ok)) if ok else None
+            row["BA_gap"] = row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) \
+                else None
+            if fgd is not None and region in fgd.models and fgd_reference and method_clips and name in method_clips:
+                row["FGD"] = fgd.fgd(list(fgd_reference), list(method_clips[name]), region)
+            else:
+                fg = [p["FGD"] for p in per]
+                row["FGD"] = fg[0] if len(per) == 1 else None
+            rows[name] = {k: row[k] for k in ("FGD", "SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap",
+                                              "L1DIV", "L1DIV_samples", "n_samples")}
+        out["regions"][region] = {"joints": reg["joints"], "methods": rows}
+    return out

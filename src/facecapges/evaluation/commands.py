@@ -1,0 +1,135 @@
+"""Commands of the evaluation area: ``fgd-train`` and ``eval``.
+
+``facecapges fgd-train`` trains the per-speaker FGD autoencoder (one per region) on a
+cache's clips (or on BVH files) and writes it into a directory or next to a gesture
+checkpoint (:func:`facecapges.evaluation.fgd.fgd_paths`).
+
+``facecapges eval`` runs a checkpoint over held-out clips of a cache frame by frame
+(the same streaming path as live use, cold start at the first held-out frame) and
+writes the thesis's metrics for the model and the reference rows, in both regions,
+with plots and a side-by-side video (see :mod:`facecapges.evaluation.run`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List, Optional
+
+import typer
+
+from facecapges.errors import UserError
+
+
+def _parse_regions(text: str) -> tuple[str, ...]:
+    from facecapges.evaluation.regions import REGIONS
+
+    regions = tuple(r.strip() for r in text.split(",") if r.strip())
+    bad = [r for r in regions if r not in REGIONS]
+    if bad or not regions:
+        raise UserError(f"--regions must be a comma-separated subset of {', '.join(REGIONS)}, got {text!r}")
+    return regions
+
+
+def _parse_offsets(text: str) -> list[float]:
+    """``"2:60:2"`` (start:stop:step, stop included) or ``"2,5,9"`` → offsets in seconds."""
+    try:
+        if ":" in text:
+            a, b, c = (float(x) for x in text.split(":"))
+            if c <= 0 or b < a:
+                raise ValueError
+            n = int((b - a) // c) + 1
+            return [a + i * c for i in range(n)]
+        out = [float(x) for x in text.split(",") if x.strip()]
+        if not out:
+            raise ValueError
+        return out
+    except ValueError:
+        raise UserError(f"--offsets must be START:STOP:STEP or a comma list of seconds, got {text!r}") from None
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("fgd-train")
+    def fgd_train(
+        cache: Optional[Path] = typer.Option(None, help="A cache written by `facecapges prepare`."),
+        speaker: int = typer.Option(2, help="BEAT speaker id (one FGD autoencoder per speaker)."),
+        split: str = typer.Option("train", help="Cache clips to train on: train, val, test or all."),
+        holdout_from: Optional[int] = typer.Option(None, help="Use only frames before this frame of every clip "
+                                                              "(the rest is held out for evaluation)."),
+        bvh: Optional[List[Path]] = typer.Option(None, help="BEAT BVH file(s) to train on instead of a cache "
+                                                            "(repeat the option for several files)."),
+        out: Optional[Path] = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
+        checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
+                                                             "to (NAME.fgd.safetensors/.json), when --out is not given."),
+        epochs: int = typer.Option(400, help="Training epochs (thesis: 400)."),
+        batch_size: int = typer.Option(256, help="Batch size B; lr = 1.2e-4 · B/128 (eq. 5.5)."),
+        momentum: float = typer.Option(0.9, help="SGD momentum (not stated in the thesis; 0 = plain SGD)."),
+        regions: str = typer.Option("with_head,without_head", help="Regions to train an autoencoder for."),
+        seed: int = typer.Option(0, help="Random seed."),
+        force: bool = typer.Option(False, "--force", help="Overwrite an existing FGD autoencoder."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    ) -> None:
+        """Train the skeleton-aware FGD autoencoder (thesis 5.5.1) on a speaker's real motion."""
+        from facecapges.errors import refuse_overwrite
+        from facecapges.evaluation.fgd import FGDConfig, fgd_paths, save_fgd, train_fgd
+        from facecapges.evaluation.run import load_real_clips
+
+        if (cache is None) == (not bvh):
+            raise UserError("give either --cache (with --speaker) or --bvh FILE, not both or neither")
+        if out is None and checkpoint is None:
+            raise UserError("give --out DIR or --checkpoint CKPT to say where the autoencoder goes")
+        if checkpoint is not None and out is None and not checkpoint.is_file():
+            raise UserError(f"{checkpoint}: checkpoint not found")
+        if epochs < 1 or batch_size < 1:
+            raise UserError("--epochs and --batch-size must be at least 1")
+        location = out if out is not None else checkpoint
+        for p in fgd_paths(location):
+            refuse_overwrite(p, force)
+        clips, source = load_real_clips(cache=cache, speaker=speaker, split=split, bvh=bvh,
+                                        before_frame=holdout_from)
+        cfg = FGDConfig(epochs=epochs, batch_size=batch_size, momentum=momentum, seed=seed)
+        n_frames = sum(len(c) for c in clips)
+        typer.echo(f"FGD autoencoder on {len(clips)} clip(s), {n_frames} frames from {source}; "
+                   f"{epochs} epochs, B={batch_size}, lr={cfg.lr:.3g}")
+        try:
+            ev = train_fgd(clips, cfg, regions=_parse_regions(regions), progress=not quiet)
+        except ValueError as exc:
+            raise UserError(str(exc)) from None
+        w, j = save_fgd(ev, location)
+        last = ", ".join(f"{r} {v[-1]:.4f}" for r, v in ev.history.loss.items())
+        typer.echo(f"{ev.history.n_windows} windows; final loss {last}\nwrote {w} and {j}")
+
+    @app.command("eval")
+    def eval_cmd(
+        cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
+        out: Path = typer.Option(..., help="Output folder: metrics.json, metrics.md, PNG plots, MP4."),
+        checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint (default: the installed default "
+                                                             "style)."),
+        style: Optional[str] = typer.Option(None, help="Installed style name instead of --checkpoint."),
+        speaker: Optional[int] = typer.Option(None, help="Speaker to evaluate (default: the checkpoint's)."),
+        split: str = typer.Option("test", help="Clips to evaluate when --holdout-from is not given."),
+        holdout_from: Optional[int] = typer.Option(None, help="Evaluate frames from this frame on of every clip "
+                                                              "of the speaker; earlier frames are the real pool."),
+        audio: Optional[List[Path]] = typer.Option(None, help="Extra unseen speech (no motion): BeatAlign, L1DIV "
+                                                              "and FGD against the speaker's real motion."),
+        fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to; "
+                                                      "default: next to the checkpoint)."),
+        offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
+        video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
+        seed: int = typer.Option(0, help="Seed for the random real segment baseline."),
+        force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has metrics."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+    ) -> None:
+        """Evaluate a checkpoint the way thesis ch. 5 does (FGD, SRGR, BeatAlign, L1DIV; both regions)."""
+        from facecapges.errors import refuse_overwrite
+        from facecapges.evaluation.run import run_eval
+
+        refuse_overwrite(out / "metrics.json", force)
+        if split not in ("train", "val", "test", "all"):
+            raise UserError(f"--split must be train, val, test or all, got {split!r}")
+        summary = run_eval(cache=cache, out=out, checkpoint=checkpoint, style=style, speaker=speaker, split=split,
+                           holdout_from=holdout_from, extra_audio=list(audio or []), fgd_location=fgd,
+                           offsets_s=_parse_offsets(offsets), video=video, seed=seed, progress=not quiet)
+        for w in summary["warnings"]:
+            typer.secho(f"warning: {w}", err=True, fg=typer.colors.YELLOW)
+        typer.echo((out / "metrics.md").read_text())
+        typer.echo("wrote " + ", ".join(summary["files"].values()))

@@ -1,0 +1,232 @@
+"""``facecapges eval`` end to end: checkpoint + cache → metrics, plots, video.
+
+**Held-out frames.** With ``holdout_from = F`` every clip of the speaker (any split)
+is evaluated on frames ``F…T−1`` and its frames ``0…F−1`` form the real pool (mean
+pose, random real segment). Without it, the clips of ``split`` (default test) are
+evaluated whole and the pool is the speaker's train clips (falling back to the
+evaluated clips themselves, with a warning, when the cache has none).
+
+**Generation.** The checkpoint runs frame by frame through
+:func:`facecapges.model.generate.generate_poses` — the streaming path of live use —
+from a cold start at the first evaluated frame, on the clip's own audio, face
+weights and head rotation from the cache.
+
+**Rows.** ground truth, mean pose, random real segment (same length, from the pool,
+never overlapping the evaluated frames) and the model. Several clips are merged by
+:func:`facecapges.evaluation.suite.combine_clips` (frame-weighted means; FGD pooled).
+SRGR is semantic-weighted only when every evaluated clip has a semantic file.
+
+**Unseen audio** (``extra_audio``): the model runs with neutral face and resting head
+(no face/head track exists for it); BeatAlign (+ control), L1DIV and FGD against all
+of the speaker's real motion in the cache.
+
+**Files** in ``out``: ``metrics.json`` (``paired`` and ``unseen_audio`` sections),
+``metrics.md``, ``beat_timeline.png``, ``joint_speed.png`` and
+``real_vs_generated.mp4`` (first evaluated clip, with its audio).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from facecapges import timing
+from facecapges.errors import UserError, file_error
+
+
+def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "train",
+                    bvh: Sequence[Path] | None = None, before_frame: int | None = None,
+                    fps: float = timing.MODEL_FPS) -> tuple[list[np.ndarray], str]:
+    """Real upper-body poses (T, 47, 6) from a cache or BVH files, cut at ``before_frame``."""
+    clips: list[np.ndarray] = []
+    if bvh:
+        from facecapges.io.bvh import read_bvh
+        from facecapges.skeleton import motion_to_pose
+
+        for p in bvh:
+            b = read_bvh(p)
+            missing = b.skeleton.missing()
+            if missing:
+                raise file_error(p, f"not a BEAT upper-body skeleton (missing joints: {', '.join(missing[:5])})")
+            pose = motion_to_pose(b.skeleton, b.motion)[0]
+            clips.append(timing.resample(pose, b.fps, fps) if abs(b.fps - fps) > 1e-6 else pose)
+        source = ", ".join(str(p) for p in bvh)
+    else:
+        from facecapges.data.cache import Cache
+
+        c = Cache(cache)
+        entries = c.clips(speaker=speaker, split=None if split == "all" else split)
+        if not entries:
+            have = sorted({(e["speaker"], e["split"]) for e in c.clips()})
+            raise UserError(f"{cache}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "
+                            f"{have}); use --split all, with --holdout-from FRAME to keep frames for evaluation")
+        clips = [c.load(e["name"])["pose"] for e in entries]
+        source = f"{cache} (speaker {speaker}, split {split})"
+    if before_frame is not None:
+        if before_frame < 1:
+            raise UserError("--holdout-from must be at least 1")
+        clips = [x[:before_frame] for x in clips]
+        source += f", frames < {before_frame}"
+    return [np.asarray(x, np.float32) for x in clips if len(x)], source
+
+
+def _markdown_unseen(unseen: dict) -> str:
+    from facecapges.evaluation.regions import REGION_TITLES
+
+    lines = ["", "## Unseen audio (no real motion)", "",
+             "| Audio | Region | Method | FGD↓ (vs speaker's real motion) | BA↑ | BA shifted (mean ± sd) | gap | L1DIV↑ |",
+             "|---|---|---|---|---|---|---|---|"]
+
+    def f(v, d=3):
+        return "—" if v is None else f"{v:.{d}f}"
+
+    for path, res in unseen.items():
+        for region, reg in res["regions"].items():
+            for name, m in reg["methods"].items():
+                lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {f(m['FGD'])} | {f(m['BA'])} | "
+                             f"{f(m['BA_shifted_mean'])} ± {f(m['BA_shifted_sd'])} | {f(m['BA_gap'], 4)} | "
+                             f"{f(m['L1DIV'])} |")
+    return "\n".join(lines) + "\n"
+
+
+def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str | None = None,
+             speaker: int | None = None, split: str = "test", holdout_from: int | None = None,
+             extra_audio: Sequence[Path] = (), fgd_location: Path | None = None,
+             offsets_s: Sequence[float] = tuple(range(2, 61, 2)), video: bool = True, seed: int = 0,
+             progress: bool = True) -> dict:
+    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing."""
+    from facecapges.data.cache import Cache
+    from facecapges.evaluation import baselines as bl
+    from facecapges.evaluation.fgd import fgd_paths, load_fgd
+    from facecapges.evaluation.report import markdown_table, write_metrics_json, write_report
+    from facecapges.evaluation.suite import combine_clips, evaluate_paired, evaluate_unpaired
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.generate import FrameInputs, generate_poses, prepare_inputs
+
+    warnings: list[str] = []
+    ckpt = load_checkpoint(checkpoint, style)
+    model_name = f"FaceCapGes ({ckpt.path.stem})"
+    c = Cache(cache)
+    fps, sr = c.fps, c.sr
+    if abs(fps - ckpt.fps) > 1e-6:
+        raise UserError(f"{cache}: the cache is at {fps:g} fps, the checkpoint runs at {ckpt.fps} fps")
+    if speaker is None:
+        speaker = int(ckpt.meta.get("speaker", 2))
+    if holdout_from is not None:
+        if holdout_from < 1:
+            raise UserError("--holdout-from must be at least 1")
+        entries = c.clips(speaker=speaker)
+        start = holdout_from
+    else:
+        entries = c.clips(speaker=speaker, split=None if split == "all" else split)
+        start = 0
+    if not entries:
+        have = sorted({(e["speaker"], e["split"]) for e in c.clips()})
+        raise UserError(f"{cache}: no {split!r} clips of speaker {speaker} to evaluate (speaker/split pairs: {have}); "
+                        "use --holdout-from FRAME to evaluate the end of every clip")
+    loaded = {e["name"]: c.load(e["name"]) for e in entries}
+    min_frames = 32
+    evaluated = [n for n in loaded if len(loaded[n]["pose"]) - start >= min_frames]
+    for n in loaded:
+        if n not in evaluated:
+            warnings.append(f"clip {n}: fewer than {min_frames} frames from frame {start} on; not evaluated")
+    if not evaluated:
+        raise UserError(f"{cache}: no clip of speaker {speaker} has {min_frames} frames to evaluate "
+                        f"from frame {start} on")
+    # the real pool for the baselines
+    if holdout_from is not None:
+        pool = [loaded[n]["pose"][:holdout_from] for n in loaded]
+    else:
+        pool = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker, split="train") if e["name"] not in loaded]
+        if not pool:
+            warnings.append(f"no train clips of speaker {speaker} outside the evaluated ones: mean pose and random "
+                            "segment come from the evaluated clips")
+            pool = [loaded[n]["pose"] for n in evaluated]
+    # FGD autoencoder
+    fgd = None
+    loc = fgd_location if fgd_location is not None else ckpt.path
+    if fgd_paths(loc)[1].exists() or fgd_location is not None:
+        fgd = load_fgd(loc)
+    else:
+        warnings.append(f"no FGD autoencoder at {fgd_paths(loc)[0]}: FGD not computed (train one with "
+                        f"`facecapges fgd-train --checkpoint {ckpt.path}`)")
+    weighted = all(loaded[n]["semantic_present"] for n in evaluated)
+    if not weighted:
+        warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
+    rng = np.random.default_rng(seed)
+    per_clip, real_clips, method_clips, ms_all = [], [], {}, []
+    first = None
+    for ci, name in enumerate(evaluated):
+        a = loaded[name]
+        real = a["pose"][start:].astype(np.float32)
+        s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
+        audio = a["audio"][s0:].astype(np.float32)
+        inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=a["face"][start:],
+                             head=a["head"][start:], fps=fps, notes=[])
+        gen, ms = generate_poses(ckpt, inputs, progress=progress)
+        ms_all.append(ms)
+        if holdout_from is not None:
+            seg_pool, excl = [a["pose"]], (0, start, len(a["pose"]))
+        else:
+            seg_pool, excl = pool, None
+        try:
+            segment = bl.random_segment(seg_pool, len(real), rng, exclude=excl)
+        except ValueError:
+            segment = bl.random_segment(pool + [a["pose"]], len(real), rng,
+                                        exclude=(len(pool), start, len(a["pose"])))
+        methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
+                   "random real segment": segment, model_name: gen}
+        lam = a["semantic"][start:] if weighted else None
+        per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
+                                        offsets_s=offsets_s, progress=progress))
+        real_clips.append(real)
+        for k, v in methods.items():
+            method_clips.setdefault(k, []).append(v)
+        if first is None:
+            first = (name, real, methods, audio)
+    result = combine_clips(per_clip, fgd, real_clips, method_clips)
+    result.update(checkpoint=str(ckpt.path), cache=str(cache), speaker=speaker, clips=evaluated,
+                  first_frame=start, ms_per_frame=float(np.mean(ms_all)),
+                  fgd_autoencoder=str(fgd_paths(loc)[0]) if fgd is not None else None)
+    # unseen audio
+    unseen = {}
+    if extra_audio:
+        from facecapges.io.audio import load_audio
+
+        all_real = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker)]  # every real clip
+        for path in extra_audio:
+            inputs = prepare_inputs(path, fps=ckpt.fps)
+            warnings += inputs.notes
+            gen, _ = generate_poses(ckpt, inputs, progress=progress)
+            wav = load_audio(path, sr)
+            unseen[str(path)] = evaluate_unpaired({model_name: gen}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
+                                                  offsets_s=offsets_s, progress=progress)
+    out = Path(out)
+    name, real0, methods0, audio0 = first
+    shown = {model_name: methods0[model_name], "random real segment": methods0["random real segment"],
+             "mean pose": methods0["mean pose"]}
+    files = write_report(out, result, real0, shown, audio0, sr, fps,
+                         title=f"Quantitative evaluation — {model_name}, speaker {speaker}",
+                         timeline_methods=[model_name])
+    full = {"paired": result, "unseen_audio": unseen, "warnings": warnings}
+    write_metrics_json(full, out / "metrics.json")
+    md = markdown_table(result, f"Quantitative evaluation — {model_name}, speaker {speaker}, "
+                                f"{len(evaluated)} clip(s) from frame {start}")
+    if unseen:
+        md += _markdown_unseen(unseen)
+    (out / "metrics.md").write_text(md)
+    if video:
+        import soundfile as sf
+
+        from facecapges.outputs.skeleton_video import render_skeleton_video
+
+        with tempfile.TemporaryDirectory() as td:
+            wav = Path(td) / "audio.wav"
+            sf.write(wav, audio0, sr)
+            files["video"] = str(render_skeleton_video([real0, methods0[model_name]], ["real", model_name],
+                                                       c.skeleton(name), out / "real_vs_generated.mp4", fps, wav,
+                                                       progress=progress))
+    return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}
