@@ -17,6 +17,7 @@ import typer
 BENCHMARKS: dict[str, str] = {
     "capture": "facecapges.capture.bench",
     "data": "facecapges.data.bench",
+    "evaluation": "facecapges.evaluation.bench",
     "model": "facecapges.model.bench",
     "render": "facecapges.avatar.bench",
 }

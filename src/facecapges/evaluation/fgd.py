@@ -31,6 +31,10 @@ with ``k = 1`` the layer is exactly eq. 5.7.
 * decoder: linear 128 → J·c2 + tanh, then twice [nearest ×2 upsampling in time,
   graph layer + tanh], then a graph layer to 6 channels without activation.
 
+``hidden`` = 128 is the thesis's; the per-joint widths c1 = 16, c2 = 32 are ours,
+chosen so training fits a CPU (≈ 5 s per epoch per 1000 windows on 2 cores; see
+``facecapges bench --only evaluation``).
+
 **Features for FGD.** Like BEAT/EMAGE's evaluators, every latent time step of every
 window is one 128-d sample (``(N·window/4, 128)``).
 
@@ -138,7 +142,7 @@ class FGDConfig:
     stride: int = 10  # training window stride (frames)
     eval_stride: int = 10  # window stride when embedding motion for FGD
     hidden: int = 128  # latent size per latent time step ("hidden 128")
-    channels: tuple[int, int] = (32, 64)  # per-joint channels c1, c2 of the graph layers
+    channels: tuple[int, int] = (16, 32)  # per-joint channels c1, c2 of the graph layers (ours: CPU budget)
     lambda_pos: float = 1.0  # λ_r of eq. 5.4
     lambda_vel: float = 0.1  # λ_v of eq. 5.4
     batch_size: int = 256  # B
