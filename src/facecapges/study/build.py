@@ -1,0 +1,180 @@
+"""A study folder: what ``facecapges study create`` writes and ``serve``/``analyze`` read.
+
+Layout of ``STUDY_DIR``::
+
+    study.json                      design: systems, clips (frames, fps, duration), criteria,
+                                    seed and every participant's plan (facecapges.study.design)
+    avatar.glb                      the avatar (facecapges.avatar), built from the first BVH's skeleton
+    media/<clip>/audio.wav          the clip's speech, 16 kHz mono PCM16 (transcoded from any input)
+    media/<clip>/face.json          {"fps", "frames", "names": 52 ARKit names, "weights": T*52 numbers}
+    media/<clip>/motion-<system>.json
+                                    {"fps", "frames", "joint_names", "quats": T*J*4 numbers}
+    responses/<participant>.json    the answers (facecapges.study.store)
+
+Poses are the LOCAL joint rotations as (w, x, y, z) quaternions per BEAT joint, in the
+BVH's joint order (= the avatar's, see src/facecapges/web/avatar_scene.js), at the study
+frame rate: each BVH is resampled from its own rate with
+:func:`facecapges.timing.resample` and cut or held at its last frame to the clip's
+``round(duration · fps)`` frames (the length check of :mod:`facecapges.study.clips`
+keeps that to at most ``tolerance_frames``). The face weights get the same treatment
+(neutral when the clip has no face track). Numbers are rounded to 4 decimals.
+
+The files are named after systems, so the server never serves them by name: a
+participant's page only ever sees screen positions (facecapges.study.server).
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.errors import UserError, file_error
+from facecapges.study.criteria import CRITERIA
+from facecapges.study.design import StudyPlan, balance_report, make_plan
+
+STUDY_FILE = "study.json"
+AVATAR_FILE = "avatar.glb"
+FORMAT = "facecapges-study/1"
+
+
+def _fit(frames: np.ndarray, n: int) -> np.ndarray:
+    """Cut ``frames`` to ``n`` rows or repeat its last row up to ``n``."""
+    if len(frames) >= n:
+        return frames[:n]
+    return np.concatenate([frames, np.repeat(frames[-1:], n - len(frames), axis=0)], axis=0)
+
+
+def _numbers(a: np.ndarray, decimals: int = 4) -> list:
+    return np.round(np.asarray(a, np.float64).ravel(), decimals).tolist()
+
+
+def media_dir(study_dir: Path, clip: str) -> Path:
+    return Path(study_dir) / "media" / clip
+
+
+def motion_file(study_dir: Path, clip: str, system: str) -> Path:
+    return media_dir(study_dir, clip) / f"motion-{system}.json"
+
+
+def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | None = None, seed: int = 0,
+                 force: bool = False, progress: bool = True) -> dict:
+    """Validate the clips, write the study folder; returns a summary (counts and balance)."""
+    from rich.progress import Progress
+
+    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.gltf import write_glb
+    from facecapges.avatar.render.video import bvh_quaternions
+    from facecapges.io.audio import save_audio
+    from facecapges.study.clips import load_clips
+    from facecapges.timing import resample
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise file_error(out, "exists and is not a folder")
+    if (out / STUDY_FILE).exists():
+        answered = sorted((out / "responses").glob("*.json")) if (out / "responses").is_dir() else []
+        if answered:
+            raise file_error(out, f"holds the answers of {len(answered)} participant(s) in responses/; move them "
+                                  "away before re-creating this study")
+        if not force:
+            raise file_error(out / STUDY_FILE, "already exists; pass --force to overwrite the study")
+    elif out.exists() and any(out.iterdir()) and not force:
+        raise file_error(out, "is a non-empty folder; pass --force to write the study into it")
+    if n_participants is not None and n_participants < 1:
+        raise UserError(f"--participants must be at least 1, got {n_participants}")
+
+    cs, motions, faces = load_clips(clips_yaml)
+    plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)
+    skel = motions[cs.clips[0].id][cs.systems[0]].skeleton
+    joint_names = list(skel.names)
+    if (out / STUDY_FILE).exists() and (out / "media").is_dir():  # an old study's media (--force)
+        shutil.rmtree(out / "media")
+    out.mkdir(parents=True, exist_ok=True)
+    clips_meta = []
+    with Progress(disable=not progress, transient=True) as bar:
+        task = bar.add_task("preparing clips", total=len(cs.clips) * (len(cs.systems) + 1) + 1)
+        write_glb(default_avatar(skel), out / AVATAR_FILE)
+        bar.advance(task)
+        for clip in cs.clips:
+            n = int(round(clip.duration * cs.fps))
+            d = media_dir(out, clip.id)
+            d.mkdir(parents=True, exist_ok=True)
+            save_audio(d / "audio.wav", clip.audio)
+            tr = faces[clip.id]
+            w = np.zeros((n, len(ARKIT_NAMES)), np.float32)
+            if tr is not None:
+                w = _fit(resample(tr.weights, tr.fps, cs.fps), n)
+            (d / "face.json").write_text(json.dumps({"fps": cs.fps, "frames": n, "names": list(ARKIT_NAMES),
+                                                     "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}), "utf-8")
+            bar.advance(task)
+            for s in cs.systems:
+                b = motions[clip.id][s]
+                q = bvh_quaternions(joint_names, b.skeleton, b.motion, f"clip {clip.id!r}, system {s!r}")
+                q = _fit(resample(q, b.fps, cs.fps), n)
+                motion_file(out, clip.id, s).write_text(json.dumps(
+                    {"fps": cs.fps, "frames": n, "joint_names": joint_names, "quats": _numbers(q)}), "utf-8")
+                bar.advance(task)
+            clips_meta.append({"id": clip.id, "frames": n, "duration": clip.duration,
+                               "audio_source": str(clip.audio_path),
+                               "face_source": str(clip.face_path) if clip.face_path else None,
+                               "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()}})
+    doc = {
+        "format": FORMAT,
+        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "source": str(Path(clips_yaml)),
+        "fps": cs.fps,
+        "systems": cs.systems,
+        "clips": clips_meta,
+        "criteria": [c.to_json() for c in CRITERIA],
+        "balance": balance_report(plan),
+        "plan": plan.to_json(),
+    }
+    (out / "responses").mkdir(exist_ok=True)
+    tmp = out / (STUDY_FILE + ".part")
+    tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+    tmp.replace(out / STUDY_FILE)
+    return {"clips": len(cs.clips), "systems": len(cs.systems), "participants": len(plan.participants),
+            "fps": cs.fps, "balance": doc["balance"]}
+
+
+@dataclass
+class Study:
+    """An opened study folder."""
+
+    dir: Path
+    doc: dict
+    plan: StudyPlan
+
+    @property
+    def systems(self) -> list[str]:
+        return list(self.doc["systems"])
+
+    @property
+    def clips(self) -> dict[str, dict]:
+        return {c["id"]: c for c in self.doc["clips"]}
+
+    @property
+    def responses_dir(self) -> Path:
+        return self.dir / "responses"
+
+
+def open_study(study_dir: str | Path) -> Study:
+    """Read ``STUDY_DIR/study.json`` (UserError when it is missing or not a study)."""
+    d = Path(study_dir)
+    f = d / STUDY_FILE
+    if not f.is_file():
+        raise file_error(d, f"not a study folder (no {STUDY_FILE}); make one with 'facecapges study create'")
+    try:
+        doc = json.loads(f.read_text(encoding="utf-8"))
+        if doc.get("format") != FORMAT:
+            raise ValueError(f"format is {doc.get('format')!r}, expected {FORMAT!r}")
+        plan = StudyPlan.from_json(doc["plan"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise file_error(f, f"not a valid study file ({exc})") from None
+    return Study(d, doc, plan)

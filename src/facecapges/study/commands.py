@@ -1,0 +1,94 @@
+"""Commands of the user-study area: ``study create``, ``study serve``, ``study analyze``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+
+def register(app: typer.Typer) -> None:
+    study = typer.Typer(help="Blind side-by-side user study: K versions of each clip ranked on realism, "
+                             "synchrony and diversity (thesis 5.3).", no_args_is_help=True)
+    app.add_typer(study, name="study")
+
+    @study.command("create")
+    def create_cmd(
+        clips: Path = typer.Option(..., "--clips", help="CLIPS.yaml: the clips (speech, face track) and one BVH per "
+                                                        "system and clip (format: facecapges.study.clips)."),
+        out: Path = typer.Option(..., "--out", help="Study folder to write."),
+        participants: int = typer.Option(None, "--participants", help="Number of participant plans (default: one "
+                                                                      "per row of the balanced Latin square: N clips, "
+                                                                      "2N for odd N)."),
+        seed: int = typer.Option(0, "--seed", help="Seed of the clip assignment and the screen positions."),
+        force: bool = typer.Option(False, "--force", help="Overwrite an existing study (never one with answers)."),
+    ) -> None:
+        """Validate the clips, build the avatar, precompute every pose track and write the participant plans."""
+        from facecapges.study.build import create_study
+
+        s = create_study(clips, out, participants, seed, force)
+        b = s["balance"]
+        typer.echo(f"{out}: {s['clips']} clips × {s['systems']} systems at {s['fps']:g} fps, "
+                   f"{s['participants']} participants (ids P01…)")
+        notes = []
+        if b["serial_position_spread"] or b["carry_over_spread"]:
+            notes.append(f"clip order is exactly balanced only for a multiple of {b['sequences']} participants")
+        if b["position_spread"]:
+            notes.append(f"screen positions are exactly balanced only when participants × clips is a multiple of "
+                         f"{s['systems']}")
+        typer.echo("balance: " + ("; ".join(notes) if notes else "clip order, carry-over and screen positions "
+                                                                 "exactly balanced"))
+        typer.echo(f"next: facecapges study serve {out}")
+
+    @study.command("serve")
+    def serve_cmd(
+        study_dir: Path = typer.Argument(..., help="Study folder made by 'facecapges study create'."),
+        host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (0.0.0.0: every interface)."),
+        port: int = typer.Option(8770, "--port", help="TCP port."),
+    ) -> None:
+        """Serve the study page; answers go to STUDY_DIR/responses/ as they are given. Ctrl-C stops."""
+        from datetime import datetime
+
+        from facecapges.errors import UserError
+        from facecapges.study.build import open_study
+        from facecapges.study.server import make_server
+
+        st = open_study(study_dir)
+
+        def log(msg: str) -> None:
+            typer.echo(f"{datetime.now():%H:%M:%S} {msg}")
+
+        try:
+            server = make_server(st, host, port, on_event=log)
+        except OSError as exc:
+            raise UserError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from None
+        shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        typer.echo(f"study {study_dir}: {len(st.plan.participants)} participants "
+                   f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips")
+        typer.echo(f"open http://{shown}:{server.server_address[1]}/ (Ctrl-C stops)")
+        try:
+            server.serve_forever()
+        except KeyboardInterrupt:
+            typer.echo("stopped")
+        finally:
+            server.server_close()
+
+    @study.command("analyze")
+    def analyze_cmd(
+        study_dir: Path = typer.Argument(..., help="Study folder with answers in responses/."),
+        out: Path = typer.Option(..., "--out", help="Folder for results.json, results.md and the PNG plots."),
+        force: bool = typer.Option(False, "--force", help="Overwrite results already in --out."),
+    ) -> None:
+        """Mean ranks with 95 % intervals, Friedman test, Holm-corrected Wilcoxon pairs, bar plots."""
+        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.study.analyze import analyze_study, collect_answers
+        from facecapges.study.build import open_study
+
+        st = open_study(study_dir)
+        if not collect_answers(st):
+            raise UserError(f"{study_dir}: no answers yet in responses/")
+        for name in ("results.json", "results.md", "mean_rank.png", "rank_shares.png"):
+            refuse_overwrite(out / name, force)
+        r = analyze_study(st, out)
+        typer.echo((out / "results.md").read_text(encoding="utf-8"))
+        typer.echo(f"written: {out / 'results.json'}, {out / 'results.md'}, " + ", ".join(r["plots"]))
