@@ -31,6 +31,7 @@ COMMAND_MODULES = [
     "facecapges.model.commands",  # train, generate
     "facecapges.avatar.commands",  # blendshapes, avatar build, render
     "facecapges.evaluation.commands",  # fgd-train, eval
+    "facecapges.runtime.commands",  # run, live
     "facecapges.study.commands",  # study create/serve/analyze
     "facecapges.benchmarks",  # bench
 ]

@@ -1,0 +1,169 @@
+"""Commands of the runtime: ``run`` (a video to files) and ``live`` (devices to avatar)."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+STYLE_HELP = "Installed speaking style (see `facecapges styles`); default: the default style."
+CKPT_HELP = "Checkpoint file of a speaking style (instead of --style)."
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("run")
+    def run_cmd(
+        video: Path = typer.Argument(..., help="Talking-head video (its audio track is the speech unless --audio)."),
+        out: Path = typer.Option(..., "--out", help="Output directory: motion.bvh, face.json, avatar.mp4, "
+                                                    "side_by_side.mp4, report.json."),
+        audio: Optional[Path] = typer.Option(None, "--audio", help="Speech audio file instead of the video's track."),
+        checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
+        style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
+        estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
+        max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
+        no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
+        json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
+        force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
+    ) -> None:
+        """Video → face capture → gestures → avatar, frame by frame as live, as fast as it goes, to files."""
+        from facecapges.errors import require_file
+        from facecapges.model.checkpoint import load_checkpoint
+        from facecapges.runtime.offline import run_video
+
+        require_file(video, "video")
+        if audio is not None:
+            require_file(audio, "audio")
+        ckpt = load_checkpoint(checkpoint, style)
+        report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
+                           progress=not json_out, videos=not no_video, estimator=estimator)
+        if json_out:
+            typer.echo(json.dumps(report, indent=2))
+            return
+        lat = report["latency_ms"]["total"]
+        typer.echo(f"{report['frames']} frames → {out}  (compute per frame p50 {lat['p50']:.1f} ms, "
+                   f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)")
+        ev = {k: v for k, v in report["events"].items() if v}
+        if ev:
+            typer.echo("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))
+
+    @app.command("live")
+    def live_cmd(
+        camera: Optional[int] = typer.Option(None, "--camera", help="Camera index (OpenCV)."),
+        video: Optional[Path] = typer.Option(None, "--video", help="A video file as the camera (+ its audio)."),
+        livelink: Optional[int] = typer.Option(None, "--livelink", help="Receive iPhone Live Link Face on this UDP "
+                                                                        "port (the app's default is 11111)."),
+        realtime: bool = typer.Option(False, "--realtime", help="Pace --video like a device (else as fast as it "
+                                                                "goes)."),
+        loop: bool = typer.Option(False, "--loop", help="Loop --video (and its audio) until stopped."),
+        mic: Optional[str] = typer.Option(None, "--mic", help="Microphone: sounddevice index or name (default "
+                                                              "device for --camera / --livelink)."),
+        audio: Optional[Path] = typer.Option(None, "--audio", help="Speech from a file instead of a microphone."),
+        vmc: Optional[str] = typer.Option(None, "--vmc", help="Send VMC (OSC/UDP) to HOST:PORT, e.g. "
+                                                              "127.0.0.1:39539."),
+        web: Optional[str] = typer.Option(None, "--web", help="Serve the browser viewer on [HOST:]PORT, e.g. "
+                                                              "127.0.0.1:8765 (port 0: any free port)."),
+        host: Optional[str] = typer.Option(None, "--host", help="Bind servers (viewer, Live Link) to this address "
+                                                                "instead of 127.0.0.1, e.g. 0.0.0.0 for a phone on "
+                                                                "the LAN."),
+        record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
+                                                                     "into this directory."),
+        checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
+        style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
+        estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
+        depth: Optional[Path] = typer.Option(None, "--depth", help="RGB-D: directory of depth frames for --video "
+                                                                   "(16-bit PNG or .npy, mm)."),
+        intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="RGB-D: camera intrinsics K.json."),
+        max_seconds: Optional[float] = typer.Option(None, "--max-seconds", help="Stop after this much stream time."),
+        force: bool = typer.Option(False, "--force", help="Overwrite files in --record."),
+    ) -> None:
+        """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""
+        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.model.checkpoint import load_checkpoint
+        from facecapges.runtime.session import build_session
+        from facecapges.runtime.web_server import is_loopback, parse_address
+
+        if realtime and video is None:
+            raise UserError("--realtime paces a --video file; devices are always real time")
+        if loop and video is None:
+            raise UserError("--loop needs --video")
+        bind = host or "127.0.0.1"
+        web_addr = None
+        if web is not None:
+            web_addr = parse_address(web, bind, "--web")
+            if not is_loopback(web_addr[0]) and host is None:
+                raise UserError(f"--web {web}: refusing to serve on a non-loopback address without --host "
+                                f"{web_addr[0]}")
+        vmc_addr = parse_address(vmc, "127.0.0.1", "--vmc") if vmc is not None else None
+        if record is not None:
+            for name in ("motion.bvh", "face.json", "report.json"):
+                refuse_overwrite(record / name, force)
+        if max_seconds is not None and max_seconds <= 0:
+            raise UserError("--max-seconds must be positive")
+        ckpt = load_checkpoint(checkpoint, style)
+        sinks, closers = [], []
+        server = None
+        if record is not None:
+            from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder
+
+            sinks += [BvhRecorder(record / "motion.bvh", ckpt.skeleton, ckpt.fps),
+                      FaceJsonRecorder(record / "face.json", ckpt.fps)]
+        if vmc_addr is not None:
+            from facecapges.runtime.vmc import VmcSender
+
+            sinks.append(VmcSender(ckpt.skeleton, *vmc_addr))
+        sess = build_session(ckpt, video=video, camera=camera, livelink=livelink, audio=audio, mic=mic,
+                             realtime=realtime or video is None, loop=loop, depth_dir=depth, intrinsics=intrinsics,
+                             estimator=estimator, host=bind, sinks=sinks, silent_ok=True)
+        try:
+            for note in sess.notes:
+                typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
+            if web_addr is not None:
+                from facecapges.runtime.offline import _avatar_glb
+                from facecapges.runtime.web_server import ViewerServer, WebFeed
+
+                server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                sess.closers.append(server)
+                sess.sinks.append(WebFeed(server))
+                typer.echo(f"viewer: {server.url}", nl=True)
+            src = sess.video or sess.face_feed
+            typer.echo(f"live: {src.name} + {sess.audio.name if sess.audio else 'silence'} → "
+                       + ", ".join([*(["VMC %s:%d" % vmc_addr] if vmc_addr else []),
+                                    *(["viewer"] if server else []), *([f"record {record}"] if record else [])])
+                       + "  (Ctrl-C stops)")
+            max_frames = int(round(max_seconds * ckpt.fps)) if max_seconds else None
+            last = [time.monotonic()]
+
+            def status(out):
+                now = time.monotonic()
+                if now - last[0] >= 5.0:
+                    last[0] = now
+                    lat = sess.scheduler.timings.ms["total"][-75:]
+                    lat = sorted(lat)[len(lat) // 2] if lat else 0.0
+                    typer.echo(f"frame {out.index}  compute p50 {lat:.1f} ms  face "
+                               f"{'tracked' if out.face_found else 'lost'}"
+                               + (f"  viewers {len(server.clients)}" if server else ""), err=True)
+
+            why = sess.scheduler.run(max_frames=max_frames, on_frame=status)
+        except KeyboardInterrupt:
+            why = "interrupted"
+        finally:
+            written = sess.close()
+        report = sess.scheduler.report() if sess.scheduler is not None else {}
+        report["stopped_by"] = why
+        if isinstance(sess.face_feed, object) and hasattr(sess.face_feed, "receiver"):
+            report["livelink"] = sess.face_feed.receiver.stats()
+        if server is not None:
+            report["viewer"] = {"frames_sent": server.frames_sent, "rejected_requests": server.rejected_requests,
+                                "oversized_closes": server.oversized_closes}
+        if record is not None:
+            record.mkdir(parents=True, exist_ok=True)
+            (record / "report.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+            written.append(record / "report.json")
+        lat = report.get("latency_ms", {}).get("total", {})
+        typer.echo(f"stopped ({why}) after {report.get('frames', 0)} frames; compute p50 {lat.get('p50', 0):.1f} ms, "
+                   f"p99 {lat.get('p99', 0):.1f} ms; events {json.dumps(report.get('events', {}))}")
+        for p in written:
+            typer.echo(f"wrote {p}")

@@ -1,0 +1,155 @@
+"""The WebSocket message format of the runtime, shared by the viewer feed and ``serve``.
+
+Every message is one JSON text frame (UTF-8) holding one object with a ``"type"``;
+a message is at most :data:`MAX_MESSAGE_BYTES` (64 KiB) — servers close a connection
+that sends a larger one (WebSocket close code 1009, "message too big"). Version
+:data:`PROTOCOL` = 1. Numbers are plain JSON numbers except audio, which is base64 of
+little-endian float32 samples (a frame of 1067 samples is 5.7 KB instead of ~12 KB).
+
+Server → client
+---------------
+``hello`` — sent once when a client connects::
+
+    {"type": "hello", "protocol": 1, "fps": 15, "sr": 16000, "samples_per_frame": 1067,
+     "joints": [47 names, facecapges.skeleton.UPPER_BODY order],
+     "blendshapes": [52 names, facecapges.arkit.ARKIT_NAMES order],
+     "max_message_bytes": 65536}
+
+``pose`` — one output frame (the viewer's feed; ``serve``'s reply to an ``input``)::
+
+    {"type": "pose", "frame": k, "time": k / fps,
+     "pose": [47 × (w, x, y, z)],      # local joint rotations, flat, BVH right-handed frame
+     "weights": [52 floats],           # ARKit blendshape weights shown on the face
+     "head": [6 floats],               # head rotation rot6d (head → camera)
+     "face_found": true,
+     "latency_ms": {"capture": .., "features": .., "model": .., "output": .., "total": ..},
+     "sent_ms": 1732240000123.4}       # server wall clock (ms since the epoch) when sent
+
+Client → server
+---------------
+``input`` — one frame of inputs for ``serve`` (issue 9)::
+
+    {"type": "input", "frame": k, "audio": "<base64 float32 LE, ≤ samples_per_frame>",
+     "face": [52 floats], "head": [6 floats]}
+
+``ping`` — ``{"type": "ping"}``; the server answers ``{"type": "pong", "sent_ms": ..}``.
+
+Malformed client messages raise :class:`ProtocolError` in :func:`decode_client`; a
+server answers ``{"type": "error", "message": ..}`` and keeps the connection.
+"""
+
+from __future__ import annotations
+
+import base64
+import binascii
+import json
+import math
+import time
+
+import numpy as np
+
+from facecapges import timing
+from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+from facecapges.runtime.frames import InputFrame, OutputFrame
+from facecapges.skeleton import N_JOINTS, UPPER_BODY
+
+PROTOCOL = 1
+MAX_MESSAGE_BYTES = 64 * 1024
+
+
+class ProtocolError(ValueError):
+    """A client message that is not a valid protocol message."""
+
+
+def _r(x: float, nd: int) -> float:
+    return round(float(x), nd)
+
+
+def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> str:
+    return json.dumps({"type": "hello", "protocol": PROTOCOL, "fps": fps, "sr": sr,
+                       "samples_per_frame": timing.samples_per_frame(fps, sr), "joints": list(UPPER_BODY),
+                       "blendshapes": list(ARKIT_NAMES), "max_message_bytes": MAX_MESSAGE_BYTES})
+
+
+def encode_pose(out: OutputFrame) -> str:
+    """One :class:`OutputFrame` as a ``pose`` message."""
+    q = np.asarray(out.quats, np.float64).reshape(-1)
+    return json.dumps({
+        "type": "pose", "frame": int(out.index), "time": _r(out.time_s, 6),
+        "pose": [_r(v, 6) for v in q],
+        "weights": [_r(v, 5) for v in np.asarray(out.face).reshape(-1)],
+        "head": [_r(v, 6) for v in np.asarray(out.head).reshape(-1)],
+        "face_found": bool(out.face_found),
+        "latency_ms": {k: _r(v, 3) for k, v in out.latency_ms.items()},
+        "sent_ms": _r(time.time() * 1000.0, 1),
+    }, separators=(",", ":"))
+
+
+def encode_input(frame: int, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> str:
+    a = np.ascontiguousarray(np.asarray(audio, np.float32).reshape(-1)).astype("<f4")
+    return json.dumps({"type": "input", "frame": int(frame), "audio": base64.b64encode(a.tobytes()).decode("ascii"),
+                       "face": [float(v) for v in np.asarray(face).reshape(-1)],
+                       "head": [float(v) for v in np.asarray(head).reshape(-1)]}, separators=(",", ":"))
+
+
+def _floats(obj, n: int, what: str) -> np.ndarray:
+    if not isinstance(obj, list) or len(obj) != n:
+        raise ProtocolError(f"'{what}' must be a list of {n} numbers")
+    try:
+        a = np.array(obj, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ProtocolError(f"'{what}' must hold numbers only") from None
+    if a.shape != (n,) or not np.isfinite(a).all():
+        raise ProtocolError(f"'{what}' must hold {n} finite numbers")
+    return a.astype(np.float32)
+
+
+def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> dict:
+    """Parse a client message: ``{"type": "ping"}`` or ``{"type": "input", "input": InputFrame}``."""
+    if isinstance(text, (bytes, bytearray)):
+        raise ProtocolError("binary messages are not part of the protocol (send JSON text)")
+    if len(text.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(f"message larger than {MAX_MESSAGE_BYTES} bytes")
+    try:
+        msg = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ProtocolError(f"not JSON ({exc.msg})") from None
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        raise ProtocolError("a message must be a JSON object with a string 'type'")
+    kind = msg["type"]
+    if kind == "ping":
+        return {"type": "ping"}
+    if kind != "input":
+        raise ProtocolError(f"unknown message type {kind!r} (expected 'input' or 'ping')")
+    k = msg.get("frame")
+    if not isinstance(k, int) or isinstance(k, bool) or k < 0:
+        raise ProtocolError("'frame' must be a non-negative integer")
+    audio_b64 = msg.get("audio")
+    if not isinstance(audio_b64, str):
+        raise ProtocolError("'audio' must be a base64 string of float32 little-endian samples")
+    try:
+        raw = base64.b64decode(audio_b64, validate=True)
+    except (binascii.Error, ValueError):
+        raise ProtocolError("'audio' is not valid base64") from None
+    spf = timing.samples_per_frame(fps, sr)
+    if len(raw) % 4 or len(raw) // 4 > spf:
+        raise ProtocolError(f"'audio' must hold at most {spf} float32 samples, got {len(raw) / 4:g}")
+    audio = np.frombuffer(raw, dtype="<f4").astype(np.float32)
+    if not np.isfinite(audio).all():
+        raise ProtocolError("'audio' holds NaN or infinite samples")
+    face = _floats(msg.get("face"), N_BLENDSHAPES, "face")
+    head = _floats(msg.get("head"), 6, "head")
+    if np.linalg.norm(head[:3]) < 1e-6 or np.linalg.norm(head[3:]) < 1e-6 or not math.isfinite(float(head.sum())):
+        raise ProtocolError("'head' is not a rotation (a rot6d column is zero)")
+    return {"type": "input", "input": InputFrame(k, audio, np.clip(face, 0.0, 1.0), head)}
+
+
+def decode_pose(text: str) -> dict:
+    """Parse a ``pose`` message (for clients and tests): arrays as numpy."""
+    msg = json.loads(text)
+    if msg.get("type") != "pose":
+        raise ProtocolError(f"not a pose message: {msg.get('type')!r}")
+    msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
+    msg["weights"] = np.asarray(msg["weights"], np.float64)
+    msg["head"] = np.asarray(msg["head"], np.float64)
+    return msg

@@ -1,0 +1,278 @@
+"""The model-rate clock: one generator step per frame, inputs aligned, nothing from the future.
+
+Frame ``k`` covers stream time ``[k/fps, (k+1)/fps)``; its **deadline** is ``(k+1)/fps``
+(the moment its last audio sample exists). At frame ``k`` the scheduler
+
+1. **capture** — takes the newest video frame stamped before the deadline
+   (:meth:`FileVideo.next_frame`; older unread frames are skipped) and runs
+   :class:`~facecapges.capture.FaceCapture` on it; or takes the newest Live Link
+   sample that arrived before the deadline;
+2. **features** — takes the audio samples frame ``k`` owns
+   (``timing.frame_sample_bounds(k)``) and assembles ``(audio, face52, head rot6d)``,
+   applying the fallbacks below;
+3. **model** — calls :meth:`StreamingGenerator.step` once;
+4. **output** — converts the pose to quaternions and hands the
+   :class:`~facecapges.runtime.frames.OutputFrame` to every sink.
+
+It never waits for future input: a source is only asked for data before the deadline,
+and whatever has not arrived is replaced by a fallback. In ``realtime`` mode frame
+``k`` starts at wall time ``t0 + deadline + input_slack_s`` (``input_slack_s`` covers a
+microphone's block delivery; 0 for files); offline (``run``) it starts at once.
+Every stage is timed with ``time.perf_counter``; ``total`` spans capture → output.
+
+Fallbacks (each counted in :attr:`Scheduler.events`)
+----------------------------------------------------
+* **face lost** (``face_lost_frames``, ``face_lost_events``) — the capture module's
+  behaviour: the last weights and head are held 500 ms, then eased to neutral over
+  1 s (smoothstep; the head along the geodesic), so the avatar never jumps.
+* **no new input frame** (``input_frames_reused``: the camera dropped a frame, a
+  frame came late, or the source is slower than the model rate) — the last face and
+  head are reused; after the same 500 ms they ease to neutral exactly like a lost
+  face (a stalled device looks like a face that left).
+* **audio underrun** (``audio_underruns``) — samples that have not arrived are zeros
+  (silence; the model's own padding convention). The end of a file is not an underrun.
+* **late frame** (``late_frames``, realtime only) — a frame that starts more than one
+  frame period after its scheduled time (the machine was busy). It is still computed
+  (the model needs every frame's audio, in order), so output continues without a
+  gap; the clock then catches up.
+* ``video_frames_skipped`` counts source frames never processed because a newer one was
+  due (e.g. 25 fps video at the 15 fps model rate): decimation, not an error.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges import timing
+from facecapges.arkit import N_BLENDSHAPES
+from facecapges.runtime.frames import InputFrame, OutputFrame
+from facecapges.runtime.sources import FaceSample
+
+STAGES = ("capture", "features", "model", "output", "total")
+IDENTITY6 = rot.identity_rot6d().astype(np.float32)
+
+
+def smoothstep(x: float) -> float:
+    x = min(max(x, 0.0), 1.0)
+    return x * x * (3 - 2 * x)
+
+
+class FaceHold:
+    """Hold, then ease to neutral, when no fresh face arrives (module docstring)."""
+
+    def __init__(self, hold_ms: float = 500.0, ease_ms: float = 1000.0):
+        self.hold_s, self.ease_s = hold_ms / 1000.0, ease_ms / 1000.0
+        self.weights = np.zeros(N_BLENDSHAPES, np.float32)
+        self.head = IDENTITY6.copy()
+        self.found = False
+        self.since: float | None = None  # stream time of the last fresh sample
+
+    def fresh(self, s: FaceSample) -> tuple[np.ndarray, np.ndarray, bool]:
+        self.weights = np.asarray(s.weights52, np.float32)
+        self.head = np.asarray(s.head_rot6d, np.float32)
+        self.found = bool(s.face_found)
+        self.since = s.ts_s
+        return self.weights, self.head, self.found
+
+    def stale(self, now_s: float) -> tuple[np.ndarray, np.ndarray, bool]:
+        if self.since is None:
+            return self.weights, self.head, False
+        from facecapges.capture.head_pose import exp_so3, log_so3
+
+        k = 1.0 - smoothstep((now_s - self.since - self.hold_s) / max(self.ease_s, 1e-6))
+        if k >= 1.0:
+            return self.weights, self.head, self.found
+        R = exp_so3(log_so3(rot.rot6d_to_matrix(self.head.astype(np.float64))) * k)
+        return (self.weights * k).astype(np.float32), rot.matrix_to_rot6d(R).astype(np.float32), False
+
+
+@dataclass
+class Timings:
+    """Per-stage durations (ms) of every frame, and their percentiles."""
+
+    ms: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
+
+    def add(self, stage_ms: dict[str, float]) -> None:
+        for s in STAGES:
+            self.ms[s].append(stage_ms.get(s, 0.0))
+
+    def summary(self, skip: int = 0) -> dict[str, dict[str, float]]:
+        """p50 / p99 / mean / max per stage (ms), ignoring the first ``skip`` frames (warm-up)."""
+        out = {}
+        for s in STAGES:
+            a = np.asarray(self.ms[s][skip:] or self.ms[s] or [0.0], np.float64)
+            out[s] = {"p50": round(float(np.percentile(a, 50)), 3), "p99": round(float(np.percentile(a, 99)), 3),
+                      "mean": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
+        return out
+
+
+class Scheduler:
+    """Runs one stream: sources → capture → generator → sinks, once per model frame.
+
+    Args:
+        generator: a :class:`~facecapges.model.streaming.StreamingGenerator` (reset here).
+        fps, sr: model rate and audio rate (the checkpoint's).
+        video: a video source (:class:`FileVideo`, :class:`CameraVideo`) — needs ``capture``.
+        face_feed: a face source without capture (:class:`LiveLinkFace`).
+        audio: an audio source (:class:`FileAudio`, :class:`MicAudio`) or None (silence).
+        capture: a :class:`~facecapges.capture.FaceCapture` for ``video``.
+        sinks: objects with ``write(OutputFrame)`` (and ``close()``, called by the owner).
+        realtime: pace frames by the wall clock (live) instead of as fast as possible.
+        input_slack_s: extra wait after each deadline in realtime mode (device latency).
+    """
+
+    def __init__(self, generator, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, video=None,
+                 face_feed=None, audio=None, capture=None, sinks=(), realtime: bool = False,
+                 input_slack_s: float = 0.0, hold_ms: float = 500.0, ease_ms: float = 1000.0):
+        if video is not None and capture is None:
+            raise ValueError("a video source needs a FaceCapture")
+        self.gen, self.fps, self.sr = generator, float(fps), int(sr)
+        self.video, self.face_feed, self.audio, self.capture = video, face_feed, audio, capture
+        self.sinks = list(sinks)
+        self.realtime, self.input_slack_s = realtime, input_slack_s
+        self.hold = FaceHold(hold_ms, ease_ms)
+        self.spf = timing.samples_per_frame(self.fps, self.sr)
+        self.timings = Timings()
+        self.events = {"face_lost_frames": 0, "face_lost_events": 0, "input_frames_reused": 0,
+                       "audio_underruns": 0, "late_frames": 0, "video_frames_skipped": 0}
+        self.frames = 0
+        self.t0: float | None = None
+        self.stopped_by = ""
+        self._was_found = True
+        self._stop = False
+        self.last_video_frame = None  # the frame capture saw last (for side-by-side video)
+        self.gen.reset()
+
+    # ------------------------------------------------------------------ control
+    def stop(self) -> None:
+        """Ask :meth:`run` to finish after the current frame (thread-safe)."""
+        self._stop = True
+
+    def start(self) -> None:
+        self.t0 = time.monotonic()
+        for src in (self.video, self.face_feed, self.audio):
+            if src is not None and hasattr(src, "start"):
+                src.start(self.t0)
+
+    def _now_s(self) -> float:
+        return time.monotonic() - self.t0
+
+    def input_ended(self) -> bool:
+        """A file source has nothing more for frame ``self.frames``."""
+        if self.audio is not None:
+            s, _ = timing.frame_sample_bounds(self.frames, self.fps, self.sr)
+            return bool(self.audio.ended(int(s)))
+        src = self.video or self.face_feed
+        return bool(src is not None and getattr(src, "ended", False))
+
+    # ------------------------------------------------------------------ one frame
+    def step(self) -> OutputFrame:
+        """Produce frame ``self.frames`` from what exists before its deadline."""
+        k = self.frames
+        deadline = (k + 1) / self.fps
+        now = None
+        if self.realtime:
+            due = deadline + self.input_slack_s
+            wait = due - self._now_s()
+            if wait > 0:
+                time.sleep(wait)
+            elif -wait > 1.0 / self.fps:
+                self.events["late_frames"] += 1
+            now = self._now_s()
+        stage: dict[str, float] = {}
+        t_start = time.perf_counter()
+        # 1. capture
+        sample = None
+        if self.video is not None:
+            vf = self.video.next_frame(deadline)
+            t_start = time.perf_counter()  # reading/decoding the frame is input, not compute
+            if vf is not None:
+                res = self.capture.process(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
+                sample = FaceSample(vf.ts_s, res.weights52, res.head_rot6d, bool(res.face_found))
+                self.last_video_frame = vf
+        elif self.face_feed is not None:
+            sample = self.face_feed.next_face(deadline)
+            t_start = time.perf_counter()
+        t1 = time.perf_counter()
+        stage["capture"] = (t1 - t_start) * 1000.0
+        # 2. features: this frame's audio, face and head, with fallbacks
+        s, e = timing.frame_sample_bounds(k, self.fps, self.sr)
+        s, e = int(s), int(e)
+        if self.audio is not None:
+            a = self.audio.read(s, e, now)
+            if len(a) < e - s and not self.audio.ended(s + len(a)):
+                self.events["audio_underruns"] += 1
+        else:
+            a = np.zeros(0, np.float32)
+        audio = np.zeros(e - s, np.float32)
+        audio[:len(a)] = a[:e - s]
+        if sample is not None:
+            face, head, found = self.hold.fresh(sample)
+        else:
+            if self.video is not None or self.face_feed is not None:
+                self.events["input_frames_reused"] += 1
+            face, head, found = self.hold.stale(deadline)
+        if not found:
+            self.events["face_lost_frames"] += 1
+            if self._was_found:
+                self.events["face_lost_events"] += 1
+        self._was_found = found
+        inp = InputFrame(k, audio, face, head, found)
+        t2 = time.perf_counter()
+        stage["features"] = (t2 - t1) * 1000.0
+        # 3. model
+        pose = self.gen.step(inp.audio, inp.face, inp.head)
+        t3 = time.perf_counter()
+        stage["model"] = (t3 - t2) * 1000.0
+        # 4. output
+        quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
+        out = OutputFrame(k, k / self.fps, pose, quats, inp.face, inp.head, found, stage)
+        for sink in self.sinks:
+            sink.write(out)
+        t4 = time.perf_counter()
+        stage["output"] = (t4 - t3) * 1000.0
+        stage["total"] = (t4 - t_start) * 1000.0
+        self.timings.add(stage)
+        if self.video is not None:
+            self.events["video_frames_skipped"] = int(getattr(self.video, "skipped", 0))
+        self.frames += 1
+        return out
+
+    # ------------------------------------------------------------------ loop
+    def run(self, max_frames: int | None = None, on_frame=None) -> str:
+        """Step until the input ends, ``max_frames``, :meth:`stop` or Ctrl-C. Returns why it stopped."""
+        if self.t0 is None:
+            self.start()
+        why = "end of input"
+        try:
+            while True:
+                if self._stop:
+                    why = "stopped"
+                    break
+                if max_frames is not None and self.frames >= max_frames:
+                    why = "frame limit"
+                    break
+                if self.input_ended():
+                    break
+                out = self.step()
+                if on_frame is not None:
+                    on_frame(out)
+        except KeyboardInterrupt:
+            why = "interrupted"
+        self.stopped_by = why
+        return why
+
+    def report(self, warmup: int = 5) -> dict:
+        """Frames, latency percentiles per stage (warm-up frames excluded) and event counts."""
+        return {"frames": self.frames, "fps": self.fps, "latency_ms": self.timings.summary(skip=warmup),
+                "latency_warmup_frames_excluded": min(warmup, max(self.frames - 1, 0)),
+                "events": dict(self.events), "stopped_by": self.stopped_by}
+
+
+def frames_for(duration_s: float, fps: float) -> int:
+    return int(math.ceil(duration_s * fps - 1e-6))

@@ -1,0 +1,121 @@
+"""Assemble a runtime session from user choices: sources, capture, generator, scheduler.
+
+``run`` and ``live`` build their sessions here, so the offline command and the live
+one share one code path (the scheduler); they differ only in pacing and sinks.
+:class:`Session` owns everything that must be closed (devices, the capture's
+MediaPipe graph, servers, file sinks) and closes it in reverse order, also after
+Ctrl-C.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.errors import UserError
+
+
+@dataclass
+class Session:
+    scheduler: object
+    checkpoint: object
+    video: object = None
+    face_feed: object = None
+    audio: object = None
+    capture: object = None
+    sinks: list = field(default_factory=list)
+    closers: list = field(default_factory=list)  # extra objects with close() (servers)
+    notes: list[str] = field(default_factory=list)
+
+    def close(self) -> list[Path]:
+        """Close sinks first (files are written), then servers, capture and sources."""
+        written = []
+        errors = []
+        for obj in [*self.sinks, *reversed(self.closers), self.capture, self.video, self.face_feed, self.audio]:
+            if obj is None:
+                continue
+            try:
+                p = obj.close()
+                if isinstance(p, Path):
+                    written.append(p)
+            except Exception as exc:  # noqa: BLE001 - close everything, then report the first failure
+                errors.append(exc)
+        self.sinks, self.closers = [], []
+        self.capture = self.video = self.face_feed = self.audio = None
+        if errors:
+            raise errors[0]
+        return written
+
+
+def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
+    """(T, 47, 4) upper-body quaternions → (T, J, 4) for every joint of ``skeleton`` (others at rest)."""
+    from facecapges.skeleton import upper_body_indices
+
+    q = np.asarray(quats47, np.float32)
+    out = np.zeros((q.shape[0], skeleton.n_joints, 4), np.float32)
+    out[..., 0] = 1.0
+    out[:, upper_body_indices(skeleton)] = q
+    return out
+
+
+def build_session(checkpoint, *, video: str | Path | None = None, camera: int | None = None,
+                  livelink: int | None = None, audio: str | Path | None = None, mic: str | None = None,
+                  realtime: bool = False, loop: bool = False, depth_dir=None, intrinsics=None,
+                  estimator: str = "hybrid", host: str = "127.0.0.1", sinks=(), silent_ok: bool = False) -> Session:
+    """Open the sources and build the scheduler (sinks are added by the caller)."""
+    from facecapges.runtime import sources as S
+    from facecapges.runtime.scheduler import Scheduler
+
+    chosen = [x for x in (video, camera, livelink) if x is not None]
+    if len(chosen) != 1:
+        raise UserError("choose one input: --camera INDEX, --video FILE or --livelink PORT")
+    if audio is not None and mic is not None:
+        raise UserError("choose one audio input: --mic DEVICE or --audio FILE")
+    fps, sr = checkpoint.fps, 16000
+    sess = Session(scheduler=None, checkpoint=checkpoint)
+    try:
+        if audio is not None:
+            sess.audio = S.FileAudio(audio, sr, realtime=realtime, loop=loop)
+        elif video is not None:
+            try:
+                sess.audio = S.FileAudio(video, sr, realtime=realtime, loop=loop)
+            except UserError:
+                if not silent_ok:
+                    raise
+                sess.notes.append(f"{video}: no readable audio track; the speech input is silence")
+        else:
+            sess.audio = S.MicAudio(mic, sr)
+        period = sess.audio.duration_s if (loop and isinstance(sess.audio, S.FileAudio)) else None
+        if video is not None:
+            v = S.FileVideo(video, loop_period_s=period, depth_dir=depth_dir, intrinsics=intrinsics)
+            if loop and period is None:
+                v.loop_period_s = (v.n_frames or 1) / v.fps
+            sess.video = v
+        elif camera is not None:
+            sess.video = S.CameraVideo(camera)
+        else:
+            sess.face_feed = S.LiveLinkFace(livelink, host)
+        if sess.video is not None:
+            from facecapges.capture.models import resolve_model
+            from facecapges.capture.pipeline import FaceCapture
+
+            resolve_model(None)
+            K = getattr(sess.video, "intrinsics", None)
+            sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K)
+            if getattr(sess.video, "depth_files", None) is not None:
+                from facecapges.capture.depth import DepthHeadTracker
+
+                sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
+        slack = 0.0
+        if isinstance(sess.audio, S.MicAudio):
+            slack = sess.audio.latency_s + 0.02  # one 20 ms block
+        sess.sinks = list(sinks)
+        sess.scheduler = Scheduler(checkpoint.streaming(), fps=fps, sr=sr, video=sess.video, face_feed=sess.face_feed,
+                                   audio=sess.audio, capture=sess.capture, sinks=sess.sinks, realtime=realtime,
+                                   input_slack_s=slack)
+    except BaseException:
+        sess.close()
+        raise
+    return sess
