@@ -32,6 +32,8 @@ each taken modulo the clip duration; offsets within ``min_gap_s`` of a multiple 
 the duration are skipped because they are no shift). Reported: matched score,
 shifted mean ± sd, and gap = matched − shifted mean. The audio is cut or
 zero-padded to the motion's duration before shifting, so the cycle matches.
+:func:`speech_beat_sets` computes the speech beats of all shifts once, so several
+motions (methods, regions) scored against one audio share the onset detection.
 """
 
 from __future__ import annotations
