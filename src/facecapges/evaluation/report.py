@@ -8,6 +8,8 @@
   with motion beats below, one row per motion (e.g. real and generated).
 * :func:`plot_speed_distributions` — histograms (density) of per-joint angular speed
   (rad/s), real vs each generated motion.
+* :func:`markdown_unseen_table` — BeatAlign (+ control), L1DIV and FGD of motion
+  generated for unseen audio.
 * :func:`write_report` — all of the above into one directory.
 
 The side-by-side skeleton video lives in :mod:`facecapges.outputs.skeleton_video`.
@@ -72,6 +74,20 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
               "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div).",
               "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
               f"- {result.get('n_frames')} frames at {result.get('fps')} fps."]
+    return "\n".join(lines) + "\n"
+
+
+def markdown_unseen_table(unseen: dict) -> str:
+    """Table of results on unseen audio: ``{audio path: evaluate_unpaired result}``."""
+    lines = ["", "## Unseen audio (no real motion)", "",
+             "| Audio | Region | Method | FGD↓ (vs speaker's real motion) | BA↑ | BA shifted (mean ± sd) | gap | L1DIV↑ |",
+             "|---|---|---|---|---|---|---|---|"]
+    for path, res in unseen.items():
+        for region, reg in res["regions"].items():
+            for name, m in reg["methods"].items():
+                lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {_fmt(m['FGD'])} | "
+                             f"{_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± {_fmt(m['BA_shifted_sd'])} | "
+                             f"{_fmt(m['BA_gap'], 4)} | {_fmt(m['L1DIV'])} |")
     return "\n".join(lines) + "\n"
 
 

@@ -73,25 +73,6 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
     return [np.asarray(x, np.float32) for x in clips if len(x)], source
 
 
-def _markdown_unseen(unseen: dict) -> str:
-    from facecapges.evaluation.regions import REGION_TITLES
-
-    lines = ["", "## Unseen audio (no real motion)", "",
-             "| Audio | Region | Method | FGD↓ (vs speaker's real motion) | BA↑ | BA shifted (mean ± sd) | gap | L1DIV↑ |",
-             "|---|---|---|---|---|---|---|---|"]
-
-    def f(v, d=3):
-        return "—" if v is None else f"{v:.{d}f}"
-
-    for path, res in unseen.items():
-        for region, reg in res["regions"].items():
-            for name, m in reg["methods"].items():
-                lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {f(m['FGD'])} | {f(m['BA'])} | "
-                             f"{f(m['BA_shifted_mean'])} ± {f(m['BA_shifted_sd'])} | {f(m['BA_gap'], 4)} | "
-                             f"{f(m['L1DIV'])} |")
-    return "\n".join(lines) + "\n"
-
-
 def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str | None = None,
              speaker: int | None = None, split: str = "test", holdout_from: int | None = None,
              extra_audio: Sequence[Path] = (), fgd_location: Path | None = None,
@@ -101,7 +82,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
-    from facecapges.evaluation.report import markdown_table, write_metrics_json, write_report
+    from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import combine_clips, evaluate_paired, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import FrameInputs, generate_poses, prepare_inputs
@@ -216,7 +197,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     md = markdown_table(result, f"Quantitative evaluation — {model_name}, speaker {speaker}, "
                                 f"{len(evaluated)} clip(s) from frame {start}")
     if unseen:
-        md += _markdown_unseen(unseen)
+        md += markdown_unseen_table(unseen)
     (out / "metrics.md").write_text(md)
     if video:
         import soundfile as sf
