@@ -64,15 +64,7 @@ def motion_file(study_dir: Path, clip: str, system: str) -> Path:
 def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | None = None, seed: int = 0,
                  force: bool = False, progress: bool = True) -> dict:
     """Validate the clips, write the study folder; returns a summary (counts and balance)."""
-    from rich.progress import Progress
-
-    from facecapges.arkit import ARKIT_NAMES
-    from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.gltf import write_glb
-    from facecapges.avatar.render.video import bvh_quaternions
-    from facecapges.io.audio import save_audio
     from facecapges.study.clips import load_clips
-    from facecapges.timing import resample
 
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -90,6 +82,16 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
         raise UserError(f"--participants must be at least 1, got {n_participants}")
 
     cs, motions, faces = load_clips(clips_yaml)
+
+    from rich.progress import Progress
+
+    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.gltf import write_glb
+    from facecapges.avatar.render.video import bvh_quaternions
+    from facecapges.io.audio import save_audio
+    from facecapges.timing import resample
+
     plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)
     skel = motions[cs.clips[0].id][cs.systems[0]].skeleton
     joint_names = list(skel.names)

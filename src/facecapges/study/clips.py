@@ -151,12 +151,13 @@ def load_clips(path: str | Path):
     ``motions[clip][system]`` is the :class:`~facecapges.io.bvh.BVH`; ``faces[clip]`` the
     :class:`~facecapges.io.face_json.FaceTrack` or None.
     """
+    cs = parse_clips(path)  # structure first: a typo is reported before the heavy imports
+
     from facecapges.avatar.body import check_skeleton
     from facecapges.io.audio import load_audio
     from facecapges.io.bvh import read_bvh
     from facecapges.io.face_json import read_face_json
 
-    cs = parse_clips(path)
     motions: dict[str, dict] = {}
     faces: dict[str, object] = {}
     ref = None
