@@ -83,6 +83,7 @@ class TrainConfig:
     batch_size: int = 256
     lr_base: float = 2.5e-4  # lr_g = lr_base * B / 128 (eq. 5.1)
     d_lr_ratio: float = 0.2  # lr_d = 0.2 * lr_g (eq. 5.2)
+    optimizer: str = "sgd"  # "sgd" as in the thesis; "adam" (ours) for tiny data sets
     momentum: float = 0.0  # plain SGD as in the thesis
     epochs: int = 375
     adv_start_epoch: int = 11  # discriminator from this (1-based) epoch on

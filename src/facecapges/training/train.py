@@ -19,6 +19,13 @@
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
   exactly (data order and dropout are seeded by epoch). ``RUN/log.csv`` has one line
   per epoch; ``RUN/model.safetensors`` is the inference checkpoint of the last epoch.
+* Many processes (``torchrun --nproc_per_node=K facecapges …`` or multi-node):
+  :mod:`facecapges.training.distributed` joins the process group; each rank trains
+  its strided share of every global batch (``batch_size`` per process × K), the
+  generator's rollout (:class:`RolloutModule`) and the discriminator are wrapped in
+  DistributedDataParallel, the learning rates scale with the global batch, and only
+  rank 0 writes the run folder. ``last.pt`` holds CPU tensors and no process count,
+  so a run resumes with any K. ``amp`` = float16 mixed precision on GPU.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ from facecapges.errors import UserError
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator
+from facecapges.training.distributed import DistContext
 from facecapges.timing import frame_audio
 
 
@@ -142,13 +150,92 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> 
     return best.astype(np.float32)
 
 
+def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torch.optim.Optimizer:
+    """SGD (thesis 5.1) or Adam, at the linearly scaled learning rate."""
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(module.parameters(), lr=lr, momentum=cfg.momentum)
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(module.parameters(), lr=lr, betas=(0.5, 0.999))
+    raise UserError(f"unknown optimizer {cfg.optimizer!r} (sgd or adam)")
+
+
+class RolloutModule(torch.nn.Module):
+    """The generator's whole training forward as one call: encode the segments, roll out.
+
+    This is what DistributedDataParallel wraps: the M closed-loop steps call
+    ``FaceCapGes.step`` in a Python loop, so wrapping the generator itself would leave
+    its ``forward`` unused; through this module one forward covers the rollout and the
+    gradients are all-reduced once per backward.
+    """
+
+    def __init__(self, generator: FaceCapGes):
+        super().__init__()
+        self.g = generator
+
+    def forward(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        return rollout_batch(self.g, batch)
+
+
+def scaled_lrs(cfg: TrainConfig, world_size: int) -> tuple[float, float]:
+    """(lr_g, lr_d) by the linear rule on the global batch (eq. 5.1–5.2)."""
+    lr_g = cfg.lr_base * (cfg.batch_size * world_size) / 128.0
+    return lr_g, cfg.d_lr_ratio * lr_g
+
+
+class _Precision:
+    """float16 autocast + a gradient scaler per optimizer on GPU (``amp``); plain float32 otherwise."""
+
+    def __init__(self, amp: bool, device: torch.device):
+        self.on = bool(amp) and device.type == "cuda"
+        self.device = device
+        self.scalers = {k: torch.amp.GradScaler("cuda") for k in ("g", "d")} if self.on else {}
+
+    def autocast(self):
+        import contextlib
+
+        if not self.on:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type="cuda", dtype=torch.float16)
+
+    def backward(self, which: str, loss: torch.Tensor) -> None:
+        (self.scalers[which].scale(loss) if self.on else loss).backward()
+
+    def unscale(self, which: str, opt: torch.optim.Optimizer) -> None:
+        if self.on:
+            self.scalers[which].unscale_(opt)
+
+    def step(self, which: str, opt: torch.optim.Optimizer) -> None:
+        if self.on:
+            self.scalers[which].step(opt)
+            self.scalers[which].update()
+        else:
+            opt.step()
+
+    def state_dict(self) -> dict:
+        return {k: s.state_dict() for k, s in self.scalers.items()}
+
+    def load_state_dict(self, sd: dict) -> None:
+        for k, s in self.scalers.items():
+            if k in sd:
+                s.load_state_dict(sd[k])
+
+
 class Trainer:
+    """Closed-loop trainer; one per process (see :mod:`facecapges.training.distributed`).
+
+    ``dist`` says which rank of how many this process is and on which device it
+    trains; only rank 0 writes files and shows progress. ``amp`` turns on float16
+    mixed precision on a GPU (no effect on CPU).
+    """
+
     def __init__(self, clips: list[ClipArrays], out: Path, model_cfg: ModelConfig, train_cfg: TrainConfig,
-                 meta: dict, log=print):
+                 meta: dict, log=print, dist: DistContext | None = None, amp: bool = False):
         self.out, self.mcfg, self.tcfg, self.meta, self.log = Path(out), model_cfg, train_cfg, meta, log
+        self.dist = dist or DistContext()
+        self.device = self.dist.device
         if train_cfg.num_threads:
             torch.set_num_threads(train_cfg.num_threads)
-        torch.manual_seed(train_cfg.seed)
+        torch.manual_seed(train_cfg.seed)  # the same initial weights on every rank
         self.G = FaceCapGes(model_cfg)
         self.D = SegmentDiscriminator(model_cfg)
         N, F_ = model_cfg.n_history, train_cfg.holdout_from
@@ -166,108 +253,183 @@ class Trainer:
         with torch.no_grad():
             self.G.decoder.head_t[-1].bias.copy_(mean[: model_cfg.n_torso * 6])
             self.G.decoder.head_u[-1].bias.copy_(mean[model_cfg.n_torso * 6:])
-        self.opt_g = torch.optim.SGD(self.G.parameters(), lr=train_cfg.lr_g(), momentum=train_cfg.momentum)
-        self.opt_d = torch.optim.SGD(self.D.parameters(), lr=train_cfg.lr_d(), momentum=train_cfg.momentum)
+        self.G.to(self.device)
+        self.D.to(self.device)
+        self.precision = _Precision(amp, self.device)
+        # what each training forward goes through: DDP wrappers when distributed
+        self.G_fwd: torch.nn.Module = RolloutModule(self.G)
+        self.D_fwd: torch.nn.Module = self.D
+        if self.dist.enabled:
+            from torch.nn.parallel import DistributedDataParallel as DDP
+
+            ids = [self.device.index] if self.device.type == "cuda" else None
+            self.G_fwd = DDP(self.G_fwd, device_ids=ids)
+            self.D_fwd = DDP(self.D, device_ids=ids)
+        self.lr_g, self.lr_d = scaled_lrs(train_cfg, self.dist.world_size)
+        self.opt_g = make_optimizer(self.G, train_cfg, self.lr_g)
+        self.opt_d = make_optimizer(self.D, train_cfg, self.lr_d)
         self.epoch = 0  # epochs completed
         self.history: list[dict] = []
 
+    @property
+    def global_batch(self) -> int:
+        return self.tcfg.batch_size * self.dist.world_size
+
     # ------------------------------------------------------------- state
     def state_dict(self) -> dict:
-        return {"G": self.G.state_dict(), "D": self.D.state_dict(), "opt_g": self.opt_g.state_dict(),
-                "opt_d": self.opt_d.state_dict(), "epoch": self.epoch, "history": self.history,
-                "model_config": to_dict(self.mcfg), "train_config": to_dict(self.tcfg), "meta": self.meta,
-                "neutral": self.neutral}
+        sd = {"G": self.G.state_dict(), "D": self.D.state_dict(), "opt_g": self.opt_g.state_dict(),
+              "opt_d": self.opt_d.state_dict(), "epoch": self.epoch, "history": self.history,
+              "model_config": to_dict(self.mcfg), "train_config": to_dict(self.tcfg), "meta": self.meta,
+              "neutral": self.neutral, "world_size": self.dist.world_size}
+        if self.precision.on:
+            sd["grad_scalers"] = self.precision.state_dict()
+        return sd
 
     def load_state_dict(self, sd: dict) -> None:
         self.G.load_state_dict(sd["G"])
         self.D.load_state_dict(sd["D"])
         self.opt_g.load_state_dict(sd["opt_g"])
         self.opt_d.load_state_dict(sd["opt_d"])
+        # the learning rates follow this run's global batch (another process count may resume)
+        for opt, lr in ((self.opt_g, self.lr_g), (self.opt_d, self.lr_d)):
+            for group in opt.param_groups:
+                group["lr"] = lr
+        if self.precision.on and "grad_scalers" in sd:
+            self.precision.load_state_dict(sd["grad_scalers"])
         self.epoch, self.history = int(sd["epoch"]), list(sd["history"])
 
     def save(self) -> None:
+        """last.pt (atomically) and model.safetensors — rank 0 only."""
+        if not self.dist.is_main:
+            return
         self.out.mkdir(parents=True, exist_ok=True)
         tmp = self.out / "last.pt.part"
-        torch.save(self.state_dict(), tmp)
+        torch.save(_to_cpu(self.state_dict()), tmp)
         tmp.replace(self.out / "last.pt")
         self.export(self.out / "model.safetensors")
 
     def export(self, path: Path) -> Path:
         last = self.history[-1] if self.history else {}
         meta = dict(self.meta, neutral_window=self.neutral.tolist(), train_config=to_dict(self.tcfg),
-                    epochs_trained=self.epoch, final_losses={k: v for k, v in last.items() if k != "epoch"})
-        return save_checkpoint(path, self.G, meta)
+                    epochs_trained=self.epoch, global_batch=self.global_batch,
+                    final_losses={k: v for k, v in last.items() if k != "epoch"})
+        G = self.G
+        if self.device.type != "cpu":
+            import copy
+
+            G = copy.deepcopy(self.G).cpu()
+        return save_checkpoint(path, G, meta)
 
     # -------------------------------------------------------------- loop
     def _adv_on(self, epoch: int) -> bool:
         return self.tcfg.w_adv > 0 and epoch >= self.tcfg.adv_start_epoch
 
+    def _gather(self, seg_set: SegmentSet, idx: np.ndarray) -> dict[str, torch.Tensor]:
+        batch = seg_set.gather(idx)
+        if self.device.type != "cpu":
+            batch = {k: v.to(self.device, non_blocking=True) for k, v in batch.items()}
+        return batch
+
     def train_epoch(self, epoch: int, progress=None) -> dict:
-        """One epoch (1-based ``epoch``); returns mean losses."""
-        t = self.tcfg
+        """One epoch (1-based ``epoch``); returns mean losses over the global batches."""
+        t, dist, prec = self.tcfg, self.dist, self.precision
         self.G.train()
         self.D.train()
-        rng = np.random.default_rng(t.seed * 100_003 + epoch)
-        torch.manual_seed(t.seed * 100_003 + epoch)
+        rng = np.random.default_rng(t.seed * 100_003 + epoch)  # the same order on every rank
+        torch.manual_seed(t.seed * 100_003 + epoch + 1_000_003 * dist.rank)  # dropout: own masks per rank
         order = rng.permutation(len(self.train_set))
-        n_batches = math.ceil(len(order) / t.batch_size)
+        gb = self.global_batch
+        n_batches = math.ceil(len(order) / gb)
+        adv_on = self._adv_on(epoch)
         sums: dict[str, float] = {}
         for b in range(n_batches):
-            batch = self.train_set.gather(order[b * t.batch_size:(b + 1) * t.batch_size])
-            gen, gt = rollout_batch(self.G, batch)
-            logs = {}
-            if self._adv_on(epoch):  # D step on the generated frames only (4.3.1)
-                d_real, d_fake = self.D(gt), self.D(gen.detach())
+            chunk = order[b * gb:(b + 1) * gb]
+            idx = dist.shard(chunk)
+            n_local = len(idx)
+            # weight: DDP's gradient average becomes the mean over the whole global batch
+            weight = n_local * dist.world_size / len(chunk)
+            if n_local == 0:  # more ranks than segments left: join the all-reduce with weight 0
+                idx = chunk[:1]
+            batch = self._gather(self.train_set, idx)
+            with prec.autocast():
+                gen, gt = self.G_fwd(batch)
+            gen = gen.float()
+            logs: dict[str, torch.Tensor] = {}
+            if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
+                with prec.autocast():
+                    d_out = self.D_fwd(torch.cat([gt, gen.detach()])).float()
+                d_real, d_fake = d_out[: len(gt)], d_out[len(gt):]
                 loss_d = F.binary_cross_entropy_with_logits(d_real, torch.ones_like(d_real)) + \
                     F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
                 self.opt_d.zero_grad(set_to_none=True)
-                loss_d.backward()
-                self.opt_d.step()
-                logs["d"] = loss_d.item()
+                prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
+                prec.step("d", self.opt_d)
+                logs["d"] = loss_d.detach()
             rec = reconstruction_losses(gen, gt, t.huber_beta)
             loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
-            if self._adv_on(epoch):
-                d_gen = self.D(gen)
+            if adv_on:
+                # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
+                self.D.requires_grad_(False)
+                with prec.autocast():
+                    d_gen = self.D(gen).float()
+                self.D.requires_grad_(True)
                 adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
                 loss = loss + t.w_adv * adv
-                logs["adv"] = adv.item()
+                logs["adv"] = adv.detach()
             self.opt_g.zero_grad(set_to_none=True)
-            loss.backward()
+            prec.backward("g", loss if weight == 1.0 else loss * weight)
             if t.grad_clip > 0:
+                prec.unscale("g", self.opt_g)
                 torch.nn.utils.clip_grad_norm_(self.G.parameters(), t.grad_clip)
-            self.opt_g.step()
-            logs.update({k: v.item() for k, v in rec.items()}, total=loss.item())
-            if not math.isfinite(logs["total"]):
-                raise UserError(f"training diverged at epoch {epoch} (loss {logs['total']}); lower the learning rate")
-            for k, v in logs.items():
+            prec.step("g", self.opt_g)
+            logs.update({k: v.detach() for k, v in rec.items()}, total=loss.detach())
+            keys = list(logs)
+            if dist.enabled:  # global-batch means: Σ_ranks n_local·mean_local / n_global
+                vals = dist.all_sum([logs[k].item() * n_local for k in keys])
+                values = {k: v / len(chunk) for k, v in zip(keys, vals)}
+            else:
+                values = {k: logs[k].item() for k in keys}
+            if not math.isfinite(values["total"]):
+                raise UserError(f"training diverged at epoch {epoch} (loss {values['total']}); "
+                                "lower the learning rate")
+            for k, v in values.items():
                 sums[k] = sums.get(k, 0.0) + v
             if progress is not None:
-                progress(b + 1, n_batches, logs)
+                progress(b + 1, n_batches, values)
         return {k: v / n_batches for k, v in sums.items()}
 
     @torch.no_grad()
     def evaluate(self, seg_set: SegmentSet, batch_size: int = 256) -> dict:
-        """Mean reconstruction losses of a segment set (eval mode, closed loop)."""
+        """Mean reconstruction losses of a segment set (eval mode, closed loop), shared among ranks."""
         self.G.eval()
-        sums = {"rec": 0.0, "vel": 0.0, "acc": 0.0}
+        keys = ("rec", "vel", "acc")
+        sums = dict.fromkeys(keys, 0.0)
         n = 0
-        for b in range(0, len(seg_set), batch_size):
-            idx = np.arange(b, min(b + batch_size, len(seg_set)))
-            gen, gt = rollout_batch(self.G, seg_set.gather(idx))
-            for k, v in reconstruction_losses(gen, gt, self.tcfg.huber_beta).items():
+        mine = self.dist.shard(np.arange(len(seg_set)))
+        for b in range(0, len(mine), batch_size):
+            idx = mine[b:b + batch_size]
+            with self.precision.autocast():
+                gen, gt = rollout_batch(self.G, self._gather(seg_set, idx))
+            for k, v in reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta).items():
                 sums[k] += v.item() * len(idx)
             n += len(idx)
+        if self.dist.enabled:
+            *vals, n = self.dist.all_sum([sums[k] for k in keys] + [float(n)])
+            sums = dict(zip(keys, vals))
         return {k: v / n for k, v in sums.items()}
 
     def fit(self, epochs: int | None = None) -> list[dict]:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
         total = epochs or self.tcfg.epochs
+        main = self.dist.is_main
         log_path = self.out / "log.csv"
-        fields = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds"]
-        self.out.mkdir(parents=True, exist_ok=True)
+        fields = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds",
+                  "processes", "global_batch"]
+        if main:
+            self.out.mkdir(parents=True, exist_ok=True)
         with Progress(TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                      TimeRemainingColumn(), transient=False) as bar:
+                      TimeRemainingColumn(), transient=False, disable=not main) as bar:
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
             while self.epoch < total:
                 epoch = self.epoch + 1
@@ -276,21 +438,35 @@ class Trainer:
                 if self.held_set is not None:
                     row.update({f"held_{k}": v for k, v in self.evaluate(self.held_set).items()})
                 row["seconds"] = round(time.perf_counter() - t0, 3)
+                row["processes"], row["global_batch"] = self.dist.world_size, self.global_batch
                 self.epoch = epoch
                 self.history.append(row)
-                self.save()
-                new = not log_path.exists() or epoch == 1
-                with log_path.open("w" if new else "a", newline="") as f:
-                    w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                    if new:
-                        w.writeheader()
-                    w.writerow(row)
+                if main:
+                    self.save()
+                    new = not log_path.exists() or epoch == 1
+                    with log_path.open("w" if new else "a", newline="") as f:
+                        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
+                        if new:
+                            w.writeheader()
+                        w.writerow(row)
                 info = f"loss {row['total']:.3f} rec {row['rec']:.4f}"
                 if "held_rec" in row:
                     info += f" held {row['held_rec']:.4f}"
                 bar.update(task, completed=epoch, info=info)
-        (self.out / "summary.json").write_text(json.dumps(self.history[-1] if self.history else {}, indent=2))
+        if main:
+            (self.out / "summary.json").write_text(json.dumps(self.history[-1] if self.history else {}, indent=2))
         return self.history
+
+
+def _to_cpu(obj):
+    """A state dict with every tensor on the CPU (so any process count/device can resume it)."""
+    if isinstance(obj, torch.Tensor):
+        return obj.detach().cpu()
+    if isinstance(obj, dict):
+        return {k: _to_cpu(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(_to_cpu(v) for v in obj)
+    return obj
 
 
 def load_resume(out: Path) -> dict:
@@ -304,14 +480,16 @@ def load_resume(out: Path) -> dict:
 
 
 def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
-                  resume: bool) -> Trainer:
+                  resume: bool, state: dict | None = None, dist: DistContext | None = None,
+                  amp: bool = False) -> Trainer:
+    """A new trainer, or (``resume``) one restored from ``state`` (default: OUT/last.pt)."""
     if resume:
-        sd = load_resume(out)
+        sd = state if state is not None else load_resume(out)
         mcfg = model_config_from_dict(sd["model_config"])
         tdict = dict(sd["train_config"], **{k: v for k, v in train_over.items() if k == "epochs"})
-        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"])
+        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"], dist=dist, amp=amp)
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)
     tcfg = train_config_from_dict(train_over)
-    return Trainer(clips, out, mcfg, tcfg, meta)
+    return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp)
