@@ -139,7 +139,7 @@ def markdown(results: dict) -> str:
     lines = [f"# User study: {results['n_participants']} participants, {results['n_answers']} answers, "
              f"{results['n_clips']} clips, {len(systems)} systems", "",
              "Mean rank (1 = best) with the 95 % participant-bootstrap interval.", "",
-             "| system | " + " | ".join(c["name"] for c in CRITERIA) + " |",
+             "| system | " + " | ".join(c.name for c in CRITERIA) + " |",
              "|---|" + "---|" * len(CRITERIA)]
     for s in systems:
         cells = []
