@@ -27,26 +27,26 @@ def shared_file(rel: str) -> Path:
     return p
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def beat_bvh() -> Path:
     return shared_file("data/beat/2_scott_0_1_1.bvh")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def beat_wav() -> Path:
     return shared_file("data/beat/2_scott_0_1_1.wav")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def unseen_wav() -> Path:
     return shared_file("data/beat/2_scott_0_2_2.wav")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def face_video() -> Path:
     return shared_file("data/face/WDA_KatieHill_000.mp4")
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def megamind_video() -> Path:
     return shared_file("data/face/Megamind.avi")

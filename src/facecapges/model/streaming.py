@@ -11,7 +11,12 @@ frame; it never looks ahead. What it caches between steps:
 * the per-frame embeddings ``[z_A; z_F; z_H]`` of the last N+1 frames — each frame is
   encoded once (the naive loop re-encodes the whole window every frame);
 * the history ring of the last N poses (its own predictions after warm-up, eq. 4.11);
-* both LSTM states ``(h, c)``, carried across steps (thesis 4.1.4).
+* both LSTM states ``(h, c)``, carried across steps (thesis 4.1.4);
+* the LSTMs' input projections of each history frame: the fused input of frame τ
+  (``[z; s_τ]``) no longer changes once its pose is known, so ``W_ih·fuse_τ`` is
+  computed once per frame; each step projects only the current frame (pose slot 0)
+  and the torso outputs fed to the limb LSTM, then runs the 17-step recurrence
+  (``lstm_window``, TorchScript) from the carried state.
 
 Cold start (thesis 4.1.1): :meth:`reset` fills the pose history with a neutral window
 taken from the training data (stored in the checkpoint) and the LSTM states with
@@ -36,6 +41,43 @@ import torch.nn.functional as F
 from facecapges.model.network import FaceCapGes
 
 
+@torch.jit.script
+def lstm_window(gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torch.Tensor
+                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A one-layer LSTM over a window whose input projections ``gx`` (W, 4H) are given.
+
+    Same gates as ``torch.nn.LSTM`` (order i, f, g, o); ``h``, ``c``: (1, H). Returns the
+    outputs (W, H) and the final state.
+    """
+    H = h.shape[1]
+    outs: list[torch.Tensor] = []
+    for k in range(gx.shape[0]):
+        g = torch.addmm(gx[k:k + 1], h, w_hh_t)
+        s = torch.sigmoid(g)
+        c = s[:, H:2 * H] * c + s[:, :H] * torch.tanh(g[:, 2 * H:3 * H])
+        h = s[:, 3 * H:] * torch.tanh(c)
+        outs.append(h)
+    return torch.cat(outs), h, c
+
+
+class _ProjectedLSTM:
+    """An ``nn.LSTM`` (one layer) split for per-frame caching of input projections.
+
+    The input of window frame τ is ``[e_τ; s_τ; extra_τ]``; ``W_ih`` is cut into the
+    blocks acting on each part, so ``W_e e_τ + W_s s_τ + b`` can be computed once per
+    frame and kept, and only ``extra`` (the torso outputs, for the limb LSTM) is
+    projected every step.
+    """
+
+    def __init__(self, lstm: torch.nn.LSTM, e_dim: int, s_dim: int):
+        w = lstm.weight_ih_l0.detach()
+        self.w_e = w[:, :e_dim].t().contiguous()
+        self.w_s = w[:, e_dim:e_dim + s_dim].t().contiguous()
+        self.w_x = w[:, e_dim + s_dim:].t().contiguous()  # (extra, 4H), may be empty
+        self.b = (lstm.bias_ih_l0 + lstm.bias_hh_l0).detach()[None]
+        self.w_hh_t = lstm.weight_hh_l0.detach().t().contiguous()
+
+
 def _as_frame_audio(audio: np.ndarray, spf: int) -> torch.Tensor:
     a = np.asarray(audio, dtype=np.float32).reshape(-1)
     if a.shape[0] > spf:
@@ -57,6 +99,8 @@ def _clean(x: np.ndarray, size: int, what: str) -> torch.Tensor:
 class StreamingGenerator:
     """Causal per-frame pose generator with cached encoder state (see module docs)."""
 
+    fast_decoder = True  # cache the LSTMs' per-frame input projections (one-layer decoders)
+
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray):
         self.model = model.eval()
         self.cfg = model.cfg
@@ -67,6 +111,11 @@ class StreamingGenerator:
         self.neutral_window = neutral_window
         self._audio_layers = self._split_tcn(model.audio_enc.tcn)
         self._face_layers = self._split_tcn(model.face_enc.tcn)
+        dec, E = model.decoder, self.cfg.audio_dim + self.cfg.face_dim + self.cfg.head_dim
+        self._fast = self.fast_decoder and self.cfg.lstm_layers == 1
+        if self._fast:
+            self._pt = _ProjectedLSTM(dec.lstm_t, E, self.cfg.pose_dim)
+            self._pu = _ProjectedLSTM(dec.lstm_u, E, self.cfg.pose_dim)
         self.reset()
 
     # ---------------------------------------------------------------- state
@@ -94,6 +143,9 @@ class StreamingGenerator:
         e0 = torch.cat([z_a0, z_f0, m.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
         self.emb = e0.expand(W, -1).clone()  # (N+1, E) ring of per-frame embeddings
         self.frames = 0
+        if self._fast:  # rings of W_e e_τ + W_s s_τ + b for the N history frames
+            self.gx_t = self._project(self._pt, self.emb[:N], self.hist)
+            self.gx_u = self._project(self._pu, self.emb[:N], self.hist)
 
     # ------------------------------------------------------------- encoding
     @staticmethod
@@ -139,24 +191,57 @@ class StreamingGenerator:
     def warmup(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray, pose: np.ndarray) -> None:
         """Push one frame whose pose is known (no generation, LSTM state untouched)."""
         self._push_inputs(audio, face, head)
-        p = torch.from_numpy(np.asarray(pose, dtype=np.float32).reshape(-1).copy())
-        self.hist = torch.cat([self.hist[1:], p[None]], 0)
+        p = torch.from_numpy(np.asarray(pose, dtype=np.float32).reshape(1, -1).copy())
+        self._append_history(p)
 
     @torch.inference_mode()
     def step(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
         """Generate the current frame's pose (47, 6) from this frame's inputs."""
         self._push_inputs(audio, face, head)
-        pose, self.state = self.model.step(self.emb[None], self.hist[None], self.state)
-        self.hist = torch.cat([self.hist[1:], pose], 0)
+        if self._fast:
+            pose = self._decode_cached()
+        else:
+            pose, self.state = self.model.step(self.emb[None], self.hist[None], self.state)
+        self._append_history(pose)
         return pose.reshape(self.cfg.n_joints, 6).numpy().copy()
+
+    # -------------------------------------------------------------- decoding
+    @staticmethod
+    def _project(pl: _ProjectedLSTM, emb: torch.Tensor, pose: torch.Tensor | None) -> torch.Tensor:
+        g = torch.addmm(pl.b, emb, pl.w_e)
+        return g if pose is None else g.addmm_(pose, pl.w_s)
+
+    def _append_history(self, pose: torch.Tensor) -> None:
+        """Frame t's pose joins the history (eq. 4.11) — and its cached projections."""
+        self.hist = torch.cat([self.hist[1:], pose], 0)
+        if self._fast:
+            e = self.emb[-1:]
+            self.gx_t = torch.cat([self.gx_t[1:], self._project(self._pt, e, pose)], 0)
+            self.gx_u = torch.cat([self.gx_u[1:], self._project(self._pu, e, pose)], 0)
+
+    def _decode_cached(self) -> torch.Tensor:
+        """Decoder.forward on the window, from cached projections (same arithmetic)."""
+        dec, e = self.model.decoder, self.emb[-1:]
+        (h_t, c_t), (h_u, c_u) = self.state
+        gx_t = torch.cat([self.gx_t, self._project(self._pt, e, None)], 0)  # current frame: s = 0
+        o_t, h_t, c_t = lstm_window(gx_t, h_t[0], c_t[0], self._pt.w_hh_t)
+        gx_u = torch.cat([self.gx_u, self._project(self._pu, e, None)], 0).addmm_(o_t, self._pu.w_x)
+        o_u, h_u, c_u = lstm_window(gx_u, h_u[0], c_u[0], self._pu.w_hh_t)
+        self.state = ((h_t[None], c_t[None]), (h_u[None], c_u[None]))
+        return torch.cat([dec.head_t(o_t[-1:]), dec.head_u(o_u[-1:])], -1)
 
 
 class NaiveStreamingGenerator(StreamingGenerator):
     """Reference loop: keeps raw inputs and re-encodes the whole window every frame.
 
+    Its decoder is the model's own ``step`` (``nn.LSTM`` over the fused window), with no
+    cached projections.
+
     For the window's N+1 embeddings it encodes the last 2N+1 frames of raw input
     (each window frame needs its own N-frame past) — same outputs, far more work.
     """
+
+    fast_decoder = False
 
     @torch.inference_mode()
     def reset(self, initial_pose: np.ndarray | None = None) -> None:

@@ -1,0 +1,28 @@
+# FaceCapGes — the two entry points are `make demo` and `make test`.
+# Both create .venv, install the project (pinned) and what it needs from Debian/npm.
+
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test setup clean
+
+demo: setup
+	$(VENV)/bin/facecapges demo --out out --force
+
+test: setup
+	$(PY) -m pytest -q
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh scripts/setup-avatar.sh
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	PYTHON=$(PY) bash scripts/setup-capture.sh
+	PYTHON=$(PY) bash scripts/setup-avatar.sh
+	touch $(STAMP)
+
+clean:
+	rm -rf $(VENV) node_modules out
