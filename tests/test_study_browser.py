@@ -30,7 +30,7 @@ class Page:
     """The study page in a fresh headless Chromium (the CDP driver of facecapges.avatar.render)."""
 
     def __init__(self, url: str):
-        self.b = Browser({}, "/", 1200, 1000, timeout=90)
+        self.b = Browser({"/blank.json": b"{}"}, "/blank.json", 1200, 1000, timeout=90)  # then our page
         self.b.__enter__()
         self.b.call("Page.navigate", url=url)
 

@@ -20,6 +20,7 @@ BENCHMARKS: dict[str, str] = {
     "evaluation": "facecapges.evaluation.bench",
     "model": "facecapges.model.bench",
     "render": "facecapges.avatar.bench",
+    "study": "facecapges.study.bench",
 }
 
 

@@ -59,7 +59,8 @@ def collect_answers(study: Study) -> list[dict]:
 
 def rank_matrix(answers: list[dict], systems: list[str], criterion: str) -> np.ndarray:
     """(n_answers, K) ranks of ``systems`` on ``criterion``."""
-    return np.array([[a["ranks"][criterion][s] for s in systems] for a in answers], dtype=np.float64).reshape(-1, len(systems))
+    rows = [[a["ranks"][criterion][s] for s in systems] for a in answers]
+    return np.array(rows, dtype=np.float64).reshape(-1, len(systems))
 
 
 def holm(pvalues: list[float]) -> list[float]:

@@ -87,7 +87,8 @@ def _load_yaml(path: Path) -> dict:
 
 def _positive(path: Path, doc: dict, key: str, default: float, allow_zero: bool = False) -> float:
     v = doc.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v < 0 or (v == 0 and not allow_zero):
+    bad = isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v)
+    if bad or v < 0 or (v == 0 and not allow_zero):
         raise file_error(path, f"'{key}' must be a positive number, got {v!r}")
     return float(v)
 
@@ -179,7 +180,8 @@ def load_clips(path: str | Path):
                 raise UserError(
                     f"{where}: {b.n_frames} frames at {b.fps:g} fps ({b.n_frames / b.fps:.3f} s) but the clip's "
                     f"audio lasts {clip.duration:.3f} s ({expected:.1f} frames); all versions of a clip must be "
-                    f"as long as its audio (tolerance {cs.tolerance_frames:g} frame)")
+                    f"as long as its audio (tolerance {cs.tolerance_frames:g} frame; 'tolerance_frames' in the clips file "
+                    "sets it)")
             motions[clip.id][s] = b
         if clip.face_path is not None:
             tr = read_face_json(clip.face_path)

@@ -12,14 +12,15 @@
 // the page moves on.
 import { AvatarScene } from '/web/avatar_scene.js';
 
-const SPACING = 0.9; // metres between the avatars' roots
+const SPACING = 1.0; // metres between the avatars' roots
+const REACH = 0.75; // metres an outstretched hand reaches sideways from an avatar's root
 const PX_PER_AVATAR = 360, HEIGHT = 480;
 const $ = (id) => document.getElementById(id);
 const letter = (j) => String.fromCharCode(65 + j);
 
 // inspected by tests and handy in the console; holds no system names (the page never has any)
 const state = { screen: 'loading', participant: null, index: -1, total: 0, ready: false, watched: false,
-                playing: false, plays: 0, frame: -1, audioClock: false, error: null };
+                playing: false, plays: 0, frame: -1, draws: 0, audioClock: false, error: null };
 window.study = state;
 
 async function api(path, body) {
@@ -59,9 +60,11 @@ async function buildScene(k) {
     rig.root.position.x = (j - (k - 1) / 2) * SPACING;
     rigs.push(rig);
   }
-  const v = { target: [0, 0.36, 0], distance: 2.6, fov: 30 };
+  // a long lens (narrow field of view from far away): the outer avatars are seen almost
+  // from the front too, so no position shows its avatar from a more flattering angle
+  const v = { target: [0, 0.36, 0], distance: 2.6, fov: 12 };
   const halfH = Math.tan((v.fov * Math.PI) / 360) * (width / HEIGHT);
-  v.distance = Math.max(v.distance, (1.08 * (k * SPACING)) / 2 / halfH);
+  v.distance = Math.max(v.distance, (((k - 1) / 2) * SPACING + REACH) / halfH);
   host.setView(v);
   $('labels').replaceChildren(...rigs.map((_, j) => el('span', { textContent: letter(j) })));
 }
@@ -78,6 +81,7 @@ function draw(f) {
   });
   host.render();
   state.frame = f;
+  state.draws += 1;
 }
 
 function clock() {
@@ -119,6 +123,7 @@ async function play() {
     }
   }
   if (!state.audioClock) $('status').textContent = 'Sound could not start in this browser; the motion plays silently.';
+  else $('status').textContent = state.watched ? 'Replaying…' : 'Playing…';
   wallStart = performance.now();
   state.playing = true;
   state.plays += 1;
