@@ -181,3 +181,10 @@ def test_two_participants_complete_the_study(served):
                 counts[PREFER[pid][c].index(s)] += 3
             assert got["rank_counts"] == counts
     assert (out / "mean_rank.png").is_file() and (out / "rank_shares.png").is_file()
+    # one participant alone (like thesis fig. 5.3 beside 5.2): exactly that participant's ranks
+    res = subprocess.run([sys.executable, "-m", "facecapges.cli", "study", "analyze", str(tmp / "study"),
+                          "--out", str(tmp / "p02"), "--only", "p02"], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    alone = json.loads((tmp / "p02" / "results.json").read_text())
+    assert alone["participants"] == ["P02"] and alone["n_answers"] == 3
+    assert alone["criteria"]["diversity"]["systems"]["shift_4s"]["mean_rank"] == 1.0

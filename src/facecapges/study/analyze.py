@@ -228,10 +228,16 @@ def _has_cjk_font() -> bool:
                for f in font_manager.fontManager.ttflist)
 
 
-def analyze_study(study: Study, out: str | Path) -> dict:
-    """Write results.json, results.md, mean_rank.png and rank_shares.png into ``out``; return the results."""
+def analyze_study(study: Study, out: str | Path, participants: list[str] | None = None) -> dict:
+    """Write results.json, results.md, mean_rank.png and rank_shares.png into ``out``; return the results.
+
+    ``participants``: analyse only these (e.g. the balanced-Latin-square session of a
+    study that also ran free sessions, as thesis figure 5.3 does beside figure 5.2).
+    """
     out = Path(out)
     answers = collect_answers(study)
+    if participants is not None:
+        answers = [a for a in answers if a["participant"] in set(participants)]
     systems = study.systems
     results = {
         "study": str(study.dir), "systems": systems, "n_clips": len(study.plan.clips),

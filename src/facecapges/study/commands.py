@@ -77,6 +77,7 @@ def register(app: typer.Typer) -> None:
     def analyze_cmd(
         study_dir: Path = typer.Argument(..., help="Study folder with answers in responses/."),
         out: Path = typer.Option(..., "--out", help="Folder for results.json, results.md and the PNG plots."),
+        only: str = typer.Option("", "--only", help="Comma-separated participant ids to analyse (default: all)."),
         force: bool = typer.Option(False, "--force", help="Overwrite results already in --out."),
     ) -> None:
         """Mean ranks with 95 % intervals, Friedman test, Holm-corrected Wilcoxon pairs, bar plots."""
@@ -85,10 +86,20 @@ def register(app: typer.Typer) -> None:
         from facecapges.study.build import open_study
 
         st = open_study(study_dir)
-        if not collect_answers(st):
+        answers = collect_answers(st)
+        if not answers:
             raise UserError(f"{study_dir}: no answers yet in responses/")
+        chosen = None
+        if only.strip():
+            chosen = [p.strip().upper() for p in only.split(",") if p.strip()]
+            known = {p.id for p in st.plan.participants}
+            bad = [p for p in chosen if p not in known]
+            if bad:
+                raise UserError(f"--only: unknown participant id(s) {bad}; the study has {sorted(known)}")
+            if not any(a["participant"] in chosen for a in answers):
+                raise UserError(f"--only: participants {chosen} have not answered yet")
         for name in ("results.json", "results.md", "mean_rank.png", "rank_shares.png"):
             refuse_overwrite(out / name, force)
-        r = analyze_study(st, out)
+        r = analyze_study(st, out, chosen)
         typer.echo((out / "results.md").read_text(encoding="utf-8"))
         typer.echo(f"written: {out / 'results.json'}, {out / 'results.md'}, " + ", ".join(r["plots"]))
