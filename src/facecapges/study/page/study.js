@@ -28,7 +28,7 @@ async function api(path, body) {
     method: 'POST', headers: { 'Content-Type': 'application/json' }, body: JSON.stringify(body) };
   const r = await fetch(path, opts);
   const doc = await r.json().catch(() => ({ error: `the server answered ${r.status}` }));
-  if (!r.ok) throw new Error(doc.error || `the server answered ${r.status}`);
+  if (!r.ok) throw Object.assign(new Error(doc.error || `the server answered ${r.status}`), { status: r.status });
   return doc;
 }
 
@@ -235,8 +235,14 @@ async function submit() {
     state.playing = false;
     if (st.done) finish(); else await loadTrial(st.next);
   } catch (e) {
-    $('trial-error').textContent = `Not saved: ${e.message}`;
     state.error = e.message;
+    if (e.status === 409) {
+      // this clip was answered elsewhere (another tab, a double click): continue where the server is
+      const st = await api('/api/session', { participant: state.participant }).catch(() => null);
+      if (st && st.done) { finish(); return; }
+      if (st && st.next !== state.index) { await loadTrial(st.next); return; }
+    }
+    $('trial-error').textContent = `Not saved: ${e.message}`;
     updateSubmit();
   }
 }
