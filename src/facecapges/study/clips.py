@@ -25,6 +25,8 @@ for every system, so the body motion is the only difference). Checks, each a
   its own frame rate, within ``tolerance_frames``; the face track must last D within
   ``tolerance_frames`` frames of the study rate. (BEAT's own wav files run a few
   frames longer than their motion — raise ``tolerance_frames`` for them knowingly.)
+* the face track gives the 52 ARKit weights only; a ``head_rot6d`` in it is ignored,
+  the head moves as each system's BVH says (thesis 5.2.2 keeps each model's own head);
 * every BVH must have the avatar's BEAT skeleton, and all BVHs the same joint tree
   (one avatar is built from the first BVH's skeleton; only the rotations of each BVH
   are played, so bone offsets may differ slightly between systems).
