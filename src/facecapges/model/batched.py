@@ -76,6 +76,32 @@ class _LSTMBlocks:
         self.w_hh_t = lstm.weight_hh_l0.detach().t().contiguous()  # (H, 4H)
 
 
+@torch.jit.script
+def lstm_window(gx: torch.Tensor, cur: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torch.Tensor,
+                extra: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One-layer LSTM over a window from precomputed input gates (TorchScript: one call, no
+    per-step Python dispatch).
+
+    ``gx`` (B, N, 4H): the history frames' gates, oldest first; ``cur`` (B, 4H): the current
+    frame's; ``extra`` (B, N+1, 4H) or None: gates added per step (the torso outputs'
+    projection, for the limb LSTM); ``h``, ``c`` (B, H). Gate order i, f, g, o as
+    ``torch.nn.LSTM``. Returns the outputs (B, N+1, H) and the final h, c.
+    """
+    H = h.shape[1]
+    N = gx.shape[1]
+    outs: list[torch.Tensor] = []
+    for k in range(N + 1):
+        x = gx[:, k] if k < N else cur
+        if extra is not None:
+            x = x + extra[:, k]
+        g = torch.addmm(x, h, w_hh_t)
+        s = torch.sigmoid(g)
+        c = s[:, H:2 * H] * c + s[:, :H] * torch.tanh(g[:, 2 * H:3 * H])
+        h = s[:, 3 * H:] * torch.tanh(c)
+        outs.append(h)
+    return torch.stack(outs, 1), h, c
+
+
 class BatchedStreamingGenerator:
     """Independent causal streams of one model, stepped as one batch (module docs)."""
 
@@ -154,6 +180,10 @@ class BatchedStreamingGenerator:
     @property
     def n_open(self) -> int:
         return len(self._open)
+
+    @property
+    def open_slots(self) -> frozenset[int]:
+        return frozenset(self._open)
 
     def open(self, initial_pose: np.ndarray | None = None) -> int:
         """A new stream in cold-start state (``reset``); returns its slot id."""
@@ -305,27 +335,13 @@ class BatchedStreamingGenerator:
         hist_rows = self._ring_rows(idx, frames, N, N)  # (B, N): the history frames, oldest first
         cur_t = torch.addmm(bt.b, e, bt.w_e)  # the current frame: its pose slot is zero (eq. 3.5)
         cur_u = torch.addmm(bu.b, e, bu.w_e)
-        H = self.cfg.lstm_hidden
-        h, c = self.h_t.index_select(0, idx), self.c_t.index_select(0, idx)
-        outs = []
-        for k in range(N + 1):  # torso LSTM over the window (eq. 4.12)
-            gx = self.gx_t.index_select(0, hist_rows[:, k]) if k < N else cur_t
-            g = torch.addmm(gx, h, bt.w_hh_t)
-            s = torch.sigmoid(g)
-            c = s[:, H:2 * H] * c + s[:, :H] * torch.tanh(g[:, 2 * H:3 * H])
-            h = s[:, 3 * H:] * torch.tanh(c)
-            outs.append(h)
+        o_t, h, c = lstm_window(self.gx_t[hist_rows], cur_t, self.h_t.index_select(0, idx),
+                                self.c_t.index_select(0, idx), bt.w_hh_t)  # torso (eq. 4.12)
         self.h_t.index_copy_(0, idx, h)
         self.c_t.index_copy_(0, idx, c)
-        o_t = torch.stack(outs, 1)  # (B, N+1, H)
         ox = torch.matmul(o_t, bu.w_x)  # torso outputs condition the limbs (eq. 4.13)
-        h, c = self.h_u.index_select(0, idx), self.c_u.index_select(0, idx)
-        for k in range(N + 1):  # upper-limb LSTM over the window
-            gx = self.gx_u.index_select(0, hist_rows[:, k]) if k < N else cur_u
-            g = torch.addmm(gx, h, bu.w_hh_t).add_(ox[:, k])
-            s = torch.sigmoid(g)
-            c = s[:, H:2 * H] * c + s[:, :H] * torch.tanh(g[:, 2 * H:3 * H])
-            h = s[:, 3 * H:] * torch.tanh(c)
+        o_u, h, c = lstm_window(self.gx_u[hist_rows], cur_u, self.h_u.index_select(0, idx),
+                                self.c_u.index_select(0, idx), bu.w_hh_t, ox)
         self.h_u.index_copy_(0, idx, h)
         self.c_u.index_copy_(0, idx, c)
         pose = torch.cat([dec.head_t(o_t[:, -1]), dec.head_u(h)], -1)  # only the last step is decoded

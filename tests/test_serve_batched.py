@@ -1,0 +1,124 @@
+"""BatchedStreamingGenerator: every stream's output equals its own StreamingGenerator (1e-5)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from facecapges.model.batched import BatchedStreamingGenerator, pack_audio
+from facecapges.model.config import ModelConfig
+from facecapges.model.network import FaceCapGes
+from facecapges.model.streaming import StreamingGenerator
+
+
+def _model(**over) -> FaceCapGes:
+    torch.manual_seed(0)
+    m = FaceCapGes(ModelConfig(**over)).eval()
+    with torch.no_grad():  # non-trivial LSTM states and heads: scale the random weights up a little
+        for p in m.decoder.parameters():
+            p.mul_(2.0)
+    return m
+
+
+def _streams(S: int, T: int, cfg: ModelConfig, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    spf = cfg.samples_per_frame
+    audio = [[(rng.normal(size=int(rng.integers(spf - 1, spf + 1))) * 0.2).astype(np.float32) for _ in range(T)]
+             for _ in range(S)]
+    face = rng.uniform(size=(S, T, 52)).astype(np.float32)
+    head = rng.normal(size=(S, T, 6)).astype(np.float32)
+    return audio, face, head
+
+
+def _neutral(cfg: ModelConfig, seed: int = 1) -> np.ndarray:
+    return (np.random.default_rng(seed).normal(size=(cfg.n_history, cfg.n_joints, 6)) * 0.3).astype(np.float32)
+
+
+@pytest.mark.parametrize("layers", [1, 2])
+def test_each_stream_equals_its_single_stream_generator(layers):
+    """Streams join late, skip ticks, leave and are replaced; outputs match to 1e-5."""
+    model = _model(lstm_layers=layers)
+    cfg, S, T = model.cfg, 6, 45
+    neutral = _neutral(cfg)
+    audio, face, head = _streams(S, T, cfg)
+    init = (np.random.default_rng(5).normal(size=(cfg.n_joints, 6)) * 0.2).astype(np.float32)
+    bg = BatchedStreamingGenerator(model, neutral, capacity=2)  # grows while streams join
+    assert bg.fast == (layers == 1)
+    slots: dict[int, int] = {}
+    got: dict[int, list] = {s: [] for s in range(S)}
+    due: dict[int, list] = {s: [] for s in range(S)}
+    for t in range(T):
+        for s in range(S - 1):
+            if t == 3 * s:  # stream s joins at tick 3s
+                slots[s] = bg.open(init if s == 2 else None)
+        if t == 30:  # stream 1 leaves; stream 5 joins next tick and takes over its slot
+            left = slots.pop(1)
+            bg.close(left)
+        if t == 31:
+            slots[S - 1] = bg.open()
+            assert slots[S - 1] == left
+        active = [s for s in sorted(slots) if (t + s) % 4 != 0]  # every stream skips some ticks
+        if not active:
+            continue
+        order = active[::-1] if t % 2 else active  # batch order does not matter
+        poses = bg.step([slots[s] for s in order], [audio[s][t] for s in order], face[order, t], head[order, t])
+        for j, s in enumerate(order):
+            got[s].append(poses[j])
+            due[s].append(t)
+    assert bg.capacity >= 5
+    for s in range(S):
+        g = StreamingGenerator(model, neutral)
+        g.reset(init if s == 2 else None)
+        ref = np.array([g.step(audio[s][t], face[s, t], head[s, t]) for t in due[s]])
+        assert len(ref) > 5
+        np.testing.assert_allclose(np.array(got[s]), ref, atol=1e-5, rtol=0)
+
+
+def test_warmup_and_reset_match_single_stream():
+    model = _model()
+    cfg = model.cfg
+    neutral = _neutral(cfg)
+    audio, face, head = _streams(2, 30, cfg, seed=3)
+    pose = (np.random.default_rng(2).normal(size=(30, cfg.n_joints, 6)) * 0.3).astype(np.float32)
+    bg = BatchedStreamingGenerator(model, neutral)
+    a, b = bg.open(), bg.open()
+    ga, gb = StreamingGenerator(model, neutral), StreamingGenerator(model, neutral)
+    for t in range(10):  # stream a warms up on known poses, b generates
+        bg.warmup([a], [audio[0][t]], face[0, t:t + 1], head[0, t:t + 1], pose[t:t + 1])
+        ga.warmup(audio[0][t], face[0, t], head[0, t], pose[t])
+        out = bg.step([b], [audio[1][t]], face[1, t:t + 1], head[1, t:t + 1])
+        np.testing.assert_allclose(out[0], gb.step(audio[1][t], face[1, t], head[1, t]), atol=1e-5)
+    for t in range(10, 20):
+        out = bg.step([a, b], [audio[0][t], audio[1][t]], face[:, t], head[:, t])
+        np.testing.assert_allclose(out[0], ga.step(audio[0][t], face[0, t], head[0, t]), atol=1e-5)
+        np.testing.assert_allclose(out[1], gb.step(audio[1][t], face[1, t], head[1, t]), atol=1e-5)
+    bg.reset(b)  # a reset stream starts over; the other keeps its state
+    gb.reset()
+    for t in range(20, 30):
+        out = bg.step([b, a], [audio[1][t], audio[0][t]], face[::-1, t], head[::-1, t])
+        np.testing.assert_allclose(out[0], gb.step(audio[1][t], face[1, t], head[1, t]), atol=1e-5)
+        np.testing.assert_allclose(out[1], ga.step(audio[0][t], face[0, t], head[0, t]), atol=1e-5)
+
+
+def test_bad_calls():
+    model = _model()
+    bg = BatchedStreamingGenerator(model, _neutral(model.cfg))
+    s = bg.open()
+    spf = model.cfg.samples_per_frame
+    with pytest.raises(KeyError):
+        bg.step([s + 1], [np.zeros(spf)], np.zeros((1, 52)), np.zeros((1, 6)))
+    with pytest.raises(ValueError, match="one frame"):
+        bg.step([s, s], [np.zeros(spf)] * 2, np.zeros((2, 52)), np.zeros((2, 6)))
+    with pytest.raises(ValueError, match="at most"):
+        bg.step([s], [np.zeros(spf + 1)], np.zeros((1, 52)), np.zeros((1, 6)))
+    with pytest.raises(ValueError, match="face"):
+        bg.step([s], [np.zeros(spf)], np.zeros((1, 51)), np.zeros((1, 6)))
+    with pytest.raises(ValueError, match="neutral window"):
+        BatchedStreamingGenerator(model, np.zeros((3, 47, 6)))
+    # NaN inputs are cleaned as the single-stream generator does; output stays finite
+    out = bg.step([s], [np.full(spf, np.nan, np.float32)], np.full((1, 52), np.nan), np.zeros((1, 6)))
+    assert np.isfinite(out).all()
+    bg.close(s)
+    assert bg.n_open == 0 and bg.open() == s  # the slot is reused
+    assert pack_audio([np.ones(3)], 5).tolist() == [[1, 1, 1, 0, 0]]
