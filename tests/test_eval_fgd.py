@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from facecapges import rotations as rot
 from facecapges.errors import UserError
 from facecapges.evaluation import fgd as F
 from facecapges.evaluation.regions import region_joints
@@ -141,6 +142,9 @@ def test_training_on_the_real_clip_lowers_the_loss_and_scores_gt_as_zero(real_po
     assert 0.0 <= gt < 1e-3
     still = np.repeat(test[:1], len(test), 0)
     assert ev.fgd([test], [still], "with_head") > 100 * max(gt, 1e-9)
+    rng = np.random.default_rng(0)
+    noisy = [rot.normalize_rot6d(test + rng.normal(0, s, test.shape)).astype(np.float32) for s in (0.03, 0.3)]
+    assert gt < ev.fgd([test], [noisy[0]], "with_head") < ev.fgd([test], [noisy[1]], "with_head")
     # save next to a checkpoint and load back: same features
     ckpt = tmp_path / "model.safetensors"
     w, c = F.save_fgd(ev, ckpt)
