@@ -17,4 +17,9 @@ signatures:
 * :mod:`~facecapges.evaluation.suite` — all metrics for several methods in both regions.
 * :mod:`~facecapges.evaluation.report` — ``metrics.json``, the Table 5.2 Markdown
   table and the PNG plots.
+* :mod:`~facecapges.evaluation.run` — ``facecapges eval`` end to end (checkpoint +
+  cache → report); :mod:`~facecapges.evaluation.commands` — ``fgd-train`` and ``eval``.
+* :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools.
+
+The side-by-side skeleton video is :mod:`facecapges.outputs.skeleton_video`.
 """
