@@ -82,7 +82,8 @@ def test_eval_with_a_checkpoint_on_the_held_out_frames(cache, tmp_path, unseen_w
     res = run("fgd-train", "--cache", cache, "--split", "all", "--holdout-from", 766, "--checkpoint", ckpt,
               "--epochs", 1, "--quiet")
     assert res.returncode == 0, res.stderr
-    assert (tmp_path / "run" / "model.fgd.safetensors").is_file()
+    assert (tmp_path / "run" / "model.fgd" / "fgd_autoencoder.safetensors").is_file()
+    assert sorted(p.name for p in (tmp_path / "run").glob("*.safetensors")) == ["model.safetensors"]
     out = tmp_path / "eval"
     res = run("eval", "--cache", cache, "--checkpoint", ckpt, "--holdout-from", 860, "--out", out,
               "--offsets", "2,3.5", "--audio", short_wav, "--quiet")

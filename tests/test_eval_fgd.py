@@ -148,7 +148,8 @@ def test_training_on_the_real_clip_lowers_the_loss_and_scores_gt_as_zero(real_po
     # save next to a checkpoint and load back: same features
     ckpt = tmp_path / "model.safetensors"
     w, c = F.save_fgd(ev, ckpt)
-    assert (w.name, c.name) == ("model.fgd.safetensors", "model.fgd.json") and not ckpt.exists()
+    assert (w, c) == (tmp_path / "model.fgd" / "fgd_autoencoder.safetensors", tmp_path / "model.fgd" /
+                      "fgd_autoencoder.json") and not ckpt.exists()
     assert F.fgd_paths(tmp_path) == (tmp_path / "fgd_autoencoder.safetensors", tmp_path / "fgd_autoencoder.json")
     back = F.load_fgd(ckpt)
     assert back.config == ev.config and back.regions == ["with_head"]

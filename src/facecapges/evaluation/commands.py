@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
                                                             "(repeat the option for several files)."),
         out: Optional[Path] = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
         checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
-                                                             "to (NAME.fgd.safetensors/.json), when --out is not given."),
+                                                             "to (in the folder NAME.fgd/), when --out is not given."),
         epochs: int = typer.Option(400, help="Training epochs (thesis: 400)."),
         batch_size: int = typer.Option(256, help="Batch size B; lr = 1.2e-4 · B/128 (eq. 5.5)."),
         momentum: float = typer.Option(0.9, help="SGD momentum (not stated in the thesis; 0 = plain SGD)."),

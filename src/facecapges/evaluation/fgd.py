@@ -59,9 +59,10 @@ falls back to the symmetric form when that fails.
 **Files** (:func:`fgd_paths`): weights as safetensors (keys prefixed with the region)
 plus a JSON document (config, joints per region, training history). Given a
 *directory* they are ``DIR/fgd_autoencoder.safetensors`` and ``DIR/fgd_autoencoder.json``;
-given a gesture *checkpoint file* ``X/NAME.safetensors`` they sit next to it as
-``X/NAME.fgd.safetensors`` and ``X/NAME.fgd.json``, so every checkpoint (and every
-installed style) carries its own FGD autoencoder.
+given a gesture *checkpoint file* ``X/NAME.safetensors`` they go into the folder
+``X/NAME.fgd/`` next to it, so every checkpoint (and every installed style) carries
+its own FGD autoencoder — and a folder of checkpoints (e.g. the installed styles,
+listed by ``*.safetensors``) gains no file that looks like another checkpoint.
 """
 
 from __future__ import annotations
@@ -409,7 +410,7 @@ def fgd_paths(location: str | Path) -> tuple[Path, Path]:
     """(weights, config) paths for a directory or next to a checkpoint file (see module doc)."""
     p = Path(location)
     if p.suffix == ".safetensors" and not p.is_dir():
-        return p.with_name(f"{p.stem}.fgd.safetensors"), p.with_name(f"{p.stem}.fgd.json")
+        p = p.with_name(f"{p.stem}.fgd")
     return p / FGD_WEIGHTS, p / FGD_CONFIG
 
 
