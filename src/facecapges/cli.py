@@ -32,7 +32,9 @@ COMMAND_MODULES = [
     "facecapges.avatar.commands",  # blendshapes, avatar build, render
     "facecapges.evaluation.commands",  # fgd-train, eval
     "facecapges.runtime.commands",  # run, live
+    "facecapges.serving.commands",  # serve
     "facecapges.study.commands",  # study create/serve/analyze
+    "facecapges.demo",  # demo
     "facecapges.benchmarks",  # bench
 ]
 

@@ -1,0 +1,116 @@
+"""Serving benchmark (``facecapges bench --only serve``): ``streams_at_15fps``.
+
+The largest number of simulated concurrent clients (:mod:`.loadgen`: real speech
+frames, one ``input`` per frame at 15 fps each, random phases) on loopback
+(127.0.0.1 only) for which every frame comes back and the round trip of the frames
+at p99 is within one frame period (1000/15 = 66.7 ms), against ``facecapges serve``
+run as its own process with the default style (or ``FACECAPGES_BENCH_CHECKPOINT``).
+
+Search: trials of N clients for ``seconds`` each (the first second of every client
+is warm-up and not measured) with N = 10, 20, 40, … doubling until a trial fails,
+then bisection between the last pass and the first fail down to a step of
+``max(2, 5 %)``. Every trial is listed with p50/p99/max, lost frames and errors.
+The clients run in the benchmark's process on the same machine, so they take CPU
+from the server; the load average before and after is reported because the machine
+is shared.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+TARGET = 100
+SPEECH = "data/beat/2_scott_0_2_2.wav"
+
+
+def _shared(rel: str) -> Path:
+    root = Path(os.environ.get("FACECAPGES_SHARED", Path(__file__).resolve().parents[3].parent / "shared"))
+    p = root / rel
+    return p if p.is_file() else Path.cwd().parent / "shared" / rel
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_server(port: int, checkpoint: str | None = None, threads: int = 1,
+                 extra: tuple[str, ...] = ()) -> subprocess.Popen:
+    """``facecapges serve`` on 127.0.0.1:port as a child process; returns once it listens."""
+    cmd = [sys.executable, "-m", "facecapges.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
+           "--threads", str(threads), *extra]
+    if checkpoint:
+        cmd += ["--checkpoint", checkpoint]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()
+    if not line.startswith("serving"):
+        proc.kill()
+        raise RuntimeError(f"serve did not start: {line}{proc.stderr.read()[-2000:]}")
+    return proc
+
+
+def stop_server(proc: subprocess.Popen) -> str:
+    import signal
+
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, _ = proc.communicate(timeout=20)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        out, _ = proc.communicate()
+    return out.strip().splitlines()[-1] if out.strip() else ""
+
+
+def run(quick: bool = False, threads: int = 1) -> dict:
+    from facecapges.io.audio import load_audio
+    from facecapges.serving import loadgen
+
+    seconds = 4.0 if quick else 8.0
+    period_ms = 1000.0 / 15
+    wav = _shared(SPEECH)
+    audio = load_audio(wav)
+    messages = loadgen.input_messages(audio, int(seconds * 15) + 15)
+    load_before = [round(x, 2) for x in os.getloadavg()]
+    port = free_port()
+    proc = start_server(port, os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None, threads,
+                        ("--max-streams", "2048", "--idle-timeout", "0"))
+    url = f"ws://127.0.0.1:{port}/"
+    trials: list[dict] = []
+
+    def trial(n: int) -> bool:
+        res = asyncio.run(loadgen.run_clients(url, n, seconds, messages, warmup_s=1.0, seed=n))
+        s = loadgen.summarize(res, period_ms)
+        s["load_average"] = round(os.getloadavg()[0], 2)
+        trials.append(s)
+        time.sleep(1.0)  # let the server drop the finished streams
+        return s["ok"]
+
+    try:
+        best, fail, n = 0, None, 10
+        while n <= 1024:
+            if trial(n):
+                best, n = n, n * 2
+            else:
+                fail = n
+                break
+        while fail is not None and fail - best > max(2, int(0.05 * fail)):
+            mid = (best + fail) // 2
+            if trial(mid):
+                best = mid
+            else:
+                fail = mid
+    finally:
+        served = stop_server(proc)
+    at_best = next((t for t in trials if t["clients"] == best and t["ok"]), {})
+    return {"streams_at_15fps": best, "target": TARGET, "meets_target": best >= TARGET,
+            "period_ms": round(period_ms, 2), "p99_ms_at_best": at_best.get("p99_ms"),
+            "p50_ms_at_best": at_best.get("p50_ms"), "seconds_per_trial": seconds, "server_threads": threads,
+            "load_average_before": load_before, "load_average_after": [round(x, 2) for x in os.getloadavg()],
+            "cpu_count": os.cpu_count(), "trials": trials, "server_summary": served}

@@ -1,0 +1,152 @@
+"""Simulated live clients for ``facecapges serve`` (benchmark and tests).
+
+Each client is one WebSocket stream that behaves like a webcam + microphone client:
+it connects, reads ``hello``, then sends one ``input`` message per frame at the
+model rate (frame k at ``start + phase + k/fps``, with a random phase per client so
+the streams are not aligned), and records for every frame the time from just before
+its ``send`` to the arrival of the ``pose`` with the same ``frame`` number (the round
+trip, loopback included). Inputs are real: consecutive frames of a speech recording
+(each frame its own samples), a slowly varying face and a head turning a little.
+Messages are encoded once before the run, so the clients spend their CPU on the
+sockets, not on JSON.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import re
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facecapges import timing
+from facecapges.runtime import protocol
+
+_FRAME = re.compile(r'"frame":(\d+)')
+
+
+def input_messages(audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR,
+                   seed: int = 0) -> list[str]:
+    """``n_frames`` consecutive ``input`` messages from a 16 kHz recording (looped)."""
+    rng = np.random.default_rng(seed)
+    bounds = [timing.frame_sample_bounds(k, fps, sr) for k in range(n_frames)]
+    need = bounds[-1][1]
+    a = np.asarray(audio, np.float32).reshape(-1)
+    if a.size == 0:
+        raise ValueError("no audio to send")
+    a = np.tile(a, math.ceil(need / a.size))[:need]
+    out = []
+    base = rng.uniform(0.0, 0.3, 52)
+    for k, (lo, hi) in enumerate(bounds):
+        face = np.clip(base + 0.2 * np.sin(k / 7.0 + np.arange(52)), 0.0, 1.0)
+        yaw = 0.2 * math.sin(k / 23.0)
+        head = np.array([math.cos(yaw), 0.0, -math.sin(yaw), 0.0, 1.0, 0.0])  # first two columns of R_y(yaw)
+        out.append(protocol.encode_input(k, a[lo:hi], face, head))
+    return out
+
+
+@dataclass
+class ClientResult:
+    sent: int = 0
+    received: int = 0
+    errors: list[str] = field(default_factory=list)
+    latencies_ms: list[float] = field(default_factory=list)  # frames sent after the warm-up
+    closed: str | None = None  # why the server closed us early, if it did
+
+
+async def run_client(url: str, messages: list[str], seconds: float, warmup_s: float = 1.0,
+                     fps: float = timing.MODEL_FPS, phase: float = 0.0) -> ClientResult:
+    """One client for ``seconds`` of stream time; latencies of frames sent after ``warmup_s``."""
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed
+
+    res = ClientResult()
+    period = 1.0 / fps
+    n = int(seconds * fps)
+    sent_at: dict[int, float] = {}
+    measured: set[int] = set()
+    try:
+        async with connect(url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None,
+                           open_timeout=30) as ws:
+            hello = await ws.recv()
+            if '"hello"' not in hello:
+                res.errors.append(f"no hello: {hello[:80]}")
+                return res
+            done = asyncio.Event()
+
+            async def reader():
+                try:
+                    async for msg in ws:
+                        now = time.perf_counter()
+                        m = _FRAME.search(msg, 0, 40)
+                        if msg.startswith('{"type":"pose"') and m:
+                            k = int(m.group(1))
+                            res.received += 1
+                            if k in measured:
+                                res.latencies_ms.append((now - sent_at[k]) * 1e3)
+                            if res.received >= n:
+                                break
+                        else:
+                            res.errors.append(msg[:120])
+                except ConnectionClosed as exc:
+                    res.closed = f"{exc.rcvd.code if exc.rcvd else '?'} {exc.rcvd.reason if exc.rcvd else ''}"
+                finally:
+                    done.set()
+
+            rtask = asyncio.ensure_future(reader())
+            start = time.perf_counter() + phase
+            for k in range(n):
+                delay = start + k * period - time.perf_counter()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                if done.is_set():
+                    break
+                now = time.perf_counter()
+                sent_at[k] = now
+                if k * period >= warmup_s:
+                    measured.add(k)
+                await ws.send(messages[k % len(messages)].replace('"frame":0,', f'"frame":{k},', 1)
+                              if k else messages[0])
+                res.sent += 1
+            try:
+                await asyncio.wait_for(done.wait(), timeout=5.0)
+            except asyncio.TimeoutError:
+                pass
+            rtask.cancel()
+    except (OSError, ConnectionClosed, asyncio.TimeoutError) as exc:
+        res.errors.append(f"connection: {exc.__class__.__name__}: {exc}")
+    return res
+
+
+def _frame0(messages: list[str]) -> list[str]:
+    """Every message with frame number 0 (run_client puts the real number in)."""
+    return [re.sub(r'"frame":\d+,', '"frame":0,', m, count=1) for m in messages]
+
+
+async def run_clients(url: str, n_clients: int, seconds: float, messages: list[str], warmup_s: float = 1.0,
+                      fps: float = timing.MODEL_FPS, seed: int = 0) -> list[ClientResult]:
+    """``n_clients`` concurrent clients, random phases within one frame period."""
+    rng = np.random.default_rng(seed)
+    msgs = _frame0(messages)
+    return list(await asyncio.gather(*[
+        run_client(url, msgs, seconds, warmup_s, fps, phase=float(rng.uniform(0, 1.0 / fps)))
+        for _ in range(n_clients)]))
+
+
+def summarize(results: list[ClientResult], period_ms: float) -> dict:
+    """p50/p99/max round trip over every measured frame; lost frames; errors."""
+    lat = np.concatenate([np.asarray(r.latencies_ms, np.float64) for r in results]) if results else np.zeros(0)
+    sent = sum(r.sent for r in results)
+    received = sum(r.received for r in results)
+    errors = sum(len(r.errors) for r in results)
+    closed = sum(r.closed is not None for r in results)
+    out = {"clients": len(results), "frames_sent": sent, "frames_returned": received, "lost": sent - received,
+           "errors": errors, "closed_early": closed, "measured_frames": int(lat.size)}
+    if lat.size:
+        out.update(p50_ms=round(float(np.percentile(lat, 50)), 2), p99_ms=round(float(np.percentile(lat, 99)), 2),
+                   max_ms=round(float(lat.max()), 2))
+    out["ok"] = bool(lat.size and sent == received and errors == 0 and closed == 0
+                     and out["p99_ms"] <= period_ms)
+    return out

@@ -1,0 +1,380 @@
+"""``facecapges serve``: many live streams over WebSocket, batched into one model call per tick.
+
+Every WebSocket connection is one live stream with its own history and LSTM state —
+a slot of a :class:`~facecapges.model.batched.BatchedStreamingGenerator`. Messages are
+those of :mod:`facecapges.runtime.protocol` (the browser viewer's format): the server
+sends ``hello`` on connect; the client sends one ``input`` per frame (its audio
+samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
+``frame`` number; ``ping`` → ``pong``; a bad message → ``error`` (the connection stays).
+
+Ticks (continuous batching). A single batching task runs for the whole server: each
+*tick* it takes, from every stream that has a frame waiting, its oldest frame, and
+runs all of them as ONE batched ``step`` (in a worker thread, so the event loop keeps
+receiving); the next tick starts as soon as that one is done and anything is waiting.
+A stream's frames are therefore processed in order, at most one per tick, and a
+frame waits at most for the tick in progress. ``latency_ms`` in each ``pose`` holds
+``queue`` (receipt → its tick starts), ``model`` (the batched call, shared by the
+tick), ``output`` (encoding) and ``total`` (receipt → sent).
+
+Isolation. Nothing a client does reaches another stream's state: a message that is
+not valid JSON/protocol gets an ``error`` reply and is dropped; messages above
+``rate_limit`` per second (a token bucket holding one second of messages) are dropped
+with one ``error`` per second; a stream with ``max_pending`` frames still waiting
+drops new ones (``error`` "busy"); a message larger than the protocol's 64 KiB closes
+that connection (1009); a client that stops reading is closed once its unsent output
+exceeds ``send_buffer_bytes`` (1008), because replies are written without waiting
+for any client (each connection's kernel send buffer is capped at 64 KiB so that
+unsent output shows up in ours); one that stops sending is closed after ``idle_timeout`` seconds
+(1000); disconnects free the slot between ticks. When ``max_streams`` are connected a
+new connection gets an ``error`` and is closed with 1013 ("try again later").
+
+Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
+answers handshakes whose ``Host`` names a loopback host (as the viewer server does).
+There is no authentication: bind other addresses only on trusted networks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import concurrent.futures
+import json
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from facecapges.errors import UserError
+from facecapges.runtime import protocol
+
+KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
+
+
+@dataclass
+class ServeConfig:
+    host: str = "127.0.0.1"
+    port: int = 8780
+    max_streams: int = 256
+    rate_limit: float = 30.0  # messages per second per connection (2× the model rate)
+    max_pending: int = 4  # frames a stream may have waiting for a tick
+    idle_timeout: float = 60.0  # seconds without input before a stream is closed (0 = never)
+    send_buffer_bytes: int = 1 << 20  # unsent output above this closes a client that stopped reading
+    threads: int = 1  # torch threads of the batched model call
+
+
+@dataclass
+class _Stream:
+    ws: object
+    id: int
+    slot: int | None = None
+    pending: collections.deque = field(default_factory=collections.deque)
+    tokens: float = 0.0
+    t_tokens: float = 0.0
+    last_input: float = 0.0
+    last_limit_error: float = -1e9
+    closed: bool = False
+    frames: int = 0
+
+
+def pose_messages(frames: list[int], fps: float, quats: np.ndarray, faces: np.ndarray, heads: np.ndarray,
+                  face_found: list[bool], latency_ms):
+    """Yields the ``pose`` messages (the fields and rounding of :func:`facecapges.runtime.protocol.encode_pose`)
+    for a batch of streams; the arrays are rounded at once. ``latency_ms``: a list of dicts,
+    or a function of the row called just before that row is encoded (so
+    a caller that sends each message as it comes gets its true latency)."""
+    B = len(frames)
+    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6).tolist()
+    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
+    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
+    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
+    for i, k in enumerate(frames):
+        yield json.dumps({"type": "pose", "frame": int(k), "time": round(k / fps, 6), "pose": q[i],
+                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
+                          "latency_ms": {n: round(float(v), 3) for n, v in lat(i).items()},
+                          "sent_ms": round(time.time() * 1000.0, 1)}, separators=(",", ":"))
+
+
+def _error(message: str) -> str:
+    return json.dumps({"type": "error", "message": message})
+
+
+class StreamServer:
+    """The multi-stream WebSocket server (module docs). :meth:`start` runs it in a thread,
+    :meth:`run` in the calling thread until interrupted."""
+
+    def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
+        from facecapges.model.batched import BatchedStreamingGenerator
+        from facecapges.runtime.web_server import is_loopback
+
+        self.cfg = config or ServeConfig()
+        c = self.cfg
+        if c.max_streams < 1:
+            raise UserError("--max-streams must be at least 1")
+        if c.rate_limit <= 0:
+            raise UserError("--rate-limit must be a positive number of frames per second")
+        self.ckpt = checkpoint
+        self.fps = float(checkpoint.fps)
+        self.sr = int(checkpoint.model.cfg.sr)
+        self.gen = BatchedStreamingGenerator(checkpoint.model, checkpoint.neutral_window,
+                                             capacity=min(c.max_streams, 64))
+        self.loopback_only = is_loopback(c.host)
+        self.log = log or (lambda *_: None)
+        self.streams: dict[int, _Stream] = {}
+        self._next_id = 0
+        self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="serve-model")
+        self._pool.submit(self._init_worker).result()
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._server = None
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._wake: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self.bound: tuple[str, int] | None = None
+        self.stats = collections.Counter()
+        self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
+
+    def _init_worker(self) -> None:
+        import torch
+
+        torch.set_num_threads(max(1, int(self.cfg.threads)))
+
+    # ---------------------------------------------------------------- WebSocket
+    def _process_request(self, connection, request):
+        from facecapges.runtime.web_server import is_loopback
+
+        host_header = request.headers.get("Host", "")
+        hostname = host_header.rsplit(":", 1)[0] if not host_header.startswith("[") else host_header.split("]")[0] + "]"
+        if self.loopback_only and not is_loopback(hostname):
+            self.stats["rejected_hosts"] += 1
+            return connection.respond(403, "forbidden: this server only answers loopback hosts\n")
+        return None
+
+    def _allow(self, st: _Stream, now: float) -> bool:
+        """Token bucket: ``rate_limit`` messages per second, one second of burst."""
+        rate = self.cfg.rate_limit
+        st.tokens = min(rate, st.tokens + (now - st.t_tokens) * rate)
+        st.t_tokens = now
+        if st.tokens >= 1.0:
+            st.tokens -= 1.0
+            return True
+        return False
+
+    async def _handler(self, ws) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        if len(self.streams) >= self.cfg.max_streams:
+            self.stats["refused_full"] += 1
+            try:
+                await ws.send(_error(f"server full: {self.cfg.max_streams} streams; try again later"))
+                await ws.close(1013, "server full")
+            except ConnectionClosed:
+                pass
+            return
+        sock = ws.transport.get_extra_info("socket") if getattr(ws, "transport", None) else None
+        if sock is not None:  # a bounded kernel buffer, so a client that stops reading shows up in ours
+            try:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, KERNEL_SEND_BUFFER)
+            except OSError:
+                pass
+        now = time.monotonic()
+        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now)
+        self._next_id += 1
+        self.streams[st.id] = st
+        self.stats["connections"] += 1
+        try:
+            await ws.send(protocol.encode_hello(self.fps, self.sr))
+            async for message in ws:
+                now = time.monotonic()
+                if not self._allow(st, now):
+                    self.stats["rate_limited"] += 1
+                    if now - st.last_limit_error >= 1.0:
+                        st.last_limit_error = now
+                        await ws.send(_error(f"rate limit: at most {self.cfg.rate_limit:g} messages per second; "
+                                             "messages dropped"))
+                    continue
+                try:
+                    msg = protocol.decode_client(message, self.fps, self.sr)
+                except protocol.ProtocolError as exc:
+                    self.stats["bad_messages"] += 1
+                    await ws.send(_error(str(exc)))
+                    continue
+                if msg["type"] == "ping":
+                    await ws.send(json.dumps({"type": "pong", "sent_ms": time.time() * 1000.0}))
+                    continue
+                st.last_input = now
+                if len(st.pending) >= self.cfg.max_pending:
+                    self.stats["dropped_busy"] += 1
+                    await ws.send(_error(f"busy: frame {msg['input'].index} dropped "
+                                         f"({self.cfg.max_pending} frames of this stream are waiting)"))
+                    continue
+                st.pending.append((msg["input"], now))
+                self._wake.set()
+        except ConnectionClosed:
+            pass
+        finally:
+            st.closed = True
+            self.streams.pop(st.id, None)
+            if ws.close_code == 1009:
+                self.stats["oversized_closes"] += 1
+            self._wake.set()  # the batching task frees the slot between ticks
+
+    # ---------------------------------------------------------------- ticks
+    def _compute(self, slots: list[int], inputs: list) -> tuple[np.ndarray, np.ndarray]:
+        """The worker thread's part of a tick: one batched step + quaternions."""
+        from facecapges import rotations as rot
+
+        audio = [i.audio for i in inputs]
+        face = np.stack([i.face for i in inputs])
+        head = np.stack([i.head for i in inputs])
+        poses = self.gen.step(slots, audio, face, head)
+        return poses, rot.rot6d_to_quaternion(poses.astype(np.float64))
+
+    def _sync_slots(self) -> None:
+        """Between ticks: free the slots of closed streams, give new streams theirs."""
+        live = {st.slot for st in self.streams.values() if st.slot is not None}
+        for slot in self.gen.open_slots - live:
+            self.gen.close(slot)
+        for st in self.streams.values():
+            if st.slot is None:
+                st.slot = self.gen.open()
+
+    def _send(self, st: _Stream, text: str) -> None:
+        """Write without waiting for the client; close a client that stopped reading."""
+        from websockets.asyncio.server import broadcast
+
+        if st.closed:
+            return
+        broadcast([st.ws], text)
+        transport = getattr(st.ws, "transport", None)
+        if transport is not None and transport.get_write_buffer_size() > self.cfg.send_buffer_bytes:
+            self.stats["slow_closes"] += 1
+            st.closed = True
+            st.pending.clear()
+            asyncio.ensure_future(st.ws.close(1008, "not reading its output"))
+
+    async def _batch_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            self._sync_slots()
+            due = [st for st in self.streams.values() if st.pending and not st.closed]
+            if not due:
+                continue
+            items = [st.pending.popleft() for st in due]
+            t0 = time.monotonic()
+            try:
+                poses, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due],
+                                                          [it[0] for it in items])
+            except Exception as exc:  # never expected: report it to the streams of this tick, keep serving
+                self.stats["tick_errors"] += 1
+                self.log(f"tick failed: {exc!r}")
+                for st in due:
+                    self._send(st, _error(f"internal error in this frame: {exc.__class__.__name__}"))
+                continue
+            t1 = time.monotonic()
+            inputs = [it[0] for it in items]
+
+            def latency(i: int) -> dict:
+                now = time.monotonic()
+                return {"queue": (t0 - items[i][1]) * 1e3, "model": (t1 - t0) * 1e3, "output": (now - t1) * 1e3,
+                        "total": (now - items[i][1]) * 1e3}
+
+            texts = pose_messages([i.index for i in inputs], self.fps, quats, np.stack([i.face for i in inputs]),
+                                  np.stack([i.head for i in inputs]), [i.face_found for i in inputs], latency)
+            for st, text in zip(due, texts):
+                st.frames += 1
+                self._send(st, text)
+            self.stats["frames"] += len(due)
+            self.stats["ticks"] += 1
+            self.batch_sizes.append(len(due))
+            if any(st.pending for st in self.streams.values()):
+                self._wake.set()
+
+    async def _idle_loop(self) -> None:
+        while self.cfg.idle_timeout > 0:
+            await asyncio.sleep(min(1.0, self.cfg.idle_timeout / 4))
+            now = time.monotonic()
+            for st in list(self.streams.values()):
+                if not st.closed and now - st.last_input > self.cfg.idle_timeout:
+                    self.stats["idle_closes"] += 1
+                    st.closed = True
+                    asyncio.ensure_future(st.ws.close(1000, f"idle for {self.cfg.idle_timeout:g} s"))
+
+    # ---------------------------------------------------------------- lifecycle
+    async def _main(self) -> None:
+        from websockets.asyncio.server import serve
+
+        self._wake, self._stop = asyncio.Event(), asyncio.Event()
+        c = self.cfg
+        try:
+            self._server = await serve(self._handler, c.host, c.port, process_request=self._process_request,
+                                       max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, server_header=None,
+                                       compression=None)
+        except OSError as exc:
+            self._error = UserError(f"cannot listen on {c.host}:{c.port} ({exc.strerror or exc})")
+            self._ready.set()
+            return
+        self.bound = next(iter(self._server.sockets)).getsockname()[:2]
+        tasks = [asyncio.ensure_future(self._batch_loop()), asyncio.ensure_future(self._idle_loop())]
+        self._ready.set()
+        try:
+            await self._stop.wait()
+        finally:
+            self._server.close()
+            for t in tasks:
+                t.cancel()
+            await asyncio.gather(*tasks, return_exceptions=True)
+            await self._server.wait_closed()
+
+    def _run_loop(self) -> None:
+        self._loop = asyncio.new_event_loop()
+        try:
+            self._loop.run_until_complete(self._main())
+        finally:
+            self._loop.close()
+            self._ready.set()
+
+    def start(self) -> "StreamServer":
+        """Serve in a background thread; returns once listening (raises UserError if it cannot)."""
+        self._thread = threading.Thread(target=self._run_loop, name="serve", daemon=True)
+        self._thread.start()
+        self._ready.wait(timeout=30)
+        if self._error is not None:
+            raise self._error
+        return self
+
+    def run(self) -> None:
+        """Block until Ctrl-C / :meth:`close` (starts the server if needed)."""
+        if self._thread is None:
+            self.start()
+        try:
+            while self._thread.is_alive():
+                self._thread.join(timeout=0.5)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.close()
+
+    @property
+    def url(self) -> str:
+        host, port = self.bound or (self.cfg.host, self.cfg.port)
+        return f"ws://{host if ':' not in host else f'[{host}]'}:{port}/"
+
+    def summary(self) -> dict:
+        b = list(self.batch_sizes)
+        return dict(self.stats, streams=len(self.streams),
+                    mean_batch=round(float(np.mean(b)), 2) if b else 0.0, max_batch=max(b) if b else 0)
+
+    def close(self) -> None:
+        if self._loop is not None and self._stop is not None and not self._loop.is_closed():
+            try:
+                self._loop.call_soon_threadsafe(self._stop.set)
+            except RuntimeError:
+                pass
+        if self._thread is not None:
+            self._thread.join(timeout=10)
+        self._pool.shutdown(wait=True)

@@ -1,0 +1,274 @@
+"""``facecapges serve``: real WebSocket clients on loopback against the real server.
+
+The model is a randomly initialised FaceCapGes of the default config (what is tested
+is the serving, not the weights): every stream's poses must equal a StreamingGenerator
+fed the same frames, whatever the other connections do.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import signal
+import socket
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from facecapges import rotations as rot
+from facecapges.model.checkpoint import Checkpoint, save_checkpoint
+from facecapges.model.config import ModelConfig
+from facecapges.model.network import FaceCapGes
+from facecapges.model.streaming import StreamingGenerator
+from facecapges.runtime import protocol
+from facecapges.serving.server import ServeConfig, StreamServer, pose_messages
+
+websockets = pytest.importorskip("websockets")
+from websockets.asyncio.client import connect  # noqa: E402
+from websockets.exceptions import ConnectionClosed  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def ckpt() -> Checkpoint:
+    torch.manual_seed(0)
+    model = FaceCapGes(ModelConfig()).eval()
+    with torch.no_grad():
+        for p in model.decoder.parameters():
+            p.mul_(2.0)
+    neutral = (np.random.default_rng(1).normal(size=(16, 47, 6)) * 0.3).astype(np.float32)
+    return Checkpoint(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+                      path=Path("random-init"))
+
+
+def frames(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        yaw = rng.uniform(-0.3, 0.3)
+        head = np.array([np.cos(yaw), 0, -np.sin(yaw), 0, 1, 0], np.float32)
+        out.append(((rng.normal(size=1067) * 0.2).astype(np.float32), rng.uniform(size=52).astype(np.float32), head))
+    return out
+
+
+def reference(ckpt: Checkpoint, fr) -> np.ndarray:
+    """Quaternions (T, 47, 4) a single-stream generator gives for these frames."""
+    g = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    poses = np.array([g.step(a, f, h) for a, f, h in fr])
+    return rot.rot6d_to_quaternion(poses.astype(np.float64))
+
+
+@pytest.fixture()
+def server(ckpt):
+    servers = []
+
+    def make(**over) -> StreamServer:
+        cfg = ServeConfig(port=0, **over)
+        s = StreamServer(ckpt, cfg).start()
+        servers.append(s)
+        return s
+
+    yield make
+    for s in servers:
+        s.close()
+
+
+async def stream(url: str, fr, pace_s: float = 0.0) -> list[dict]:
+    """Send the frames one by one (waiting for each pose), return the pose messages."""
+    out = []
+    async with connect(url, max_size=protocol.MAX_MESSAGE_BYTES) as ws:
+        hello = json.loads(await ws.recv())
+        assert hello["type"] == "hello" and hello["samples_per_frame"] == 1067 and len(hello["joints"]) == 47
+        for k, (a, f, h) in enumerate(fr):
+            await ws.send(protocol.encode_input(k, a, f, h))
+            msg = json.loads(await ws.recv())
+            assert msg["type"] == "pose", msg
+            out.append(msg)
+            if pace_s:
+                await asyncio.sleep(pace_s)
+    return out
+
+
+def quats(msgs: list[dict]) -> np.ndarray:
+    return np.array([protocol.decode_pose(json.dumps(m))["pose"] for m in msgs])
+
+
+def test_concurrent_streams_each_equal_single_stream(ckpt, server):
+    srv = server()
+    streams = [frames(25, seed) for seed in range(4)]
+
+    async def main():
+        return await asyncio.gather(*[stream(srv.url, fr, pace_s=0.005 * i) for i, fr in enumerate(streams)])
+
+    results = asyncio.run(main())
+    for fr, msgs in zip(streams, results):
+        assert [m["frame"] for m in msgs] == list(range(25))
+        np.testing.assert_allclose(quats(msgs), reference(ckpt, fr), atol=1e-5)
+        lat = msgs[-1]["latency_ms"]
+        assert set(lat) == {"queue", "model", "output", "total"} and lat["total"] >= lat["model"] >= 0
+        assert msgs[3]["time"] == pytest.approx(3 / 15)
+        np.testing.assert_allclose(msgs[3]["weights"], fr[3][1], atol=6e-6)  # echoed, 5 decimals
+    assert srv.summary()["frames"] == 100
+
+
+def test_garbage_stalls_and_disconnects_do_not_affect_others(ckpt, server):
+    srv = server(idle_timeout=1.0)
+    good, other = frames(30, 10), frames(12, 11)
+
+    async def garbage():
+        async with connect(srv.url, max_size=None) as ws:
+            await ws.recv()  # hello
+            errors = []
+            for bad in ("not json", "[1, 2]", json.dumps({"type": "dance"}), json.dumps({"type": "input"}),
+                        protocol.encode_input(0, np.zeros(1067), np.full(52, np.nan), np.eye(3)[:, :2].T.ravel()),
+                        protocol.encode_input(0, np.zeros(2000), np.zeros(52), np.array([1, 0, 0, 0, 1, 0.])),
+                        b"\x00\x01binary"):
+                await ws.send(bad)
+                errors.append(json.loads(await ws.recv()))
+            assert all(e["type"] == "error" and e["message"] for e in errors), errors
+            # the same connection then streams normally, from a clean state
+            out = []
+            for k, (a, f, h) in enumerate(other):
+                await ws.send(protocol.encode_input(k, a, f, h))
+                out.append(json.loads(await ws.recv()))
+            await ws.send(json.dumps({"type": "ping"}))
+            assert json.loads(await ws.recv())["type"] == "pong"
+            return out
+
+    async def oversized():
+        async with connect(srv.url, max_size=None) as ws:
+            await ws.recv()
+            await ws.send("x" * (protocol.MAX_MESSAGE_BYTES + 10))
+            with pytest.raises(ConnectionClosed) as exc:
+                await ws.recv()
+            return exc.value.rcvd.code
+
+    async def quitter():  # disconnects abruptly in the middle of its stream
+        ws = await connect(srv.url)
+        await ws.recv()
+        for k, (a, f, h) in enumerate(frames(5, 12)):
+            await ws.send(protocol.encode_input(k, a, f, h))
+        ws.transport.abort()
+
+    async def staller():  # connects, says nothing: closed after idle_timeout
+        async with connect(srv.url) as ws:
+            await ws.recv()
+            with pytest.raises(ConnectionClosed) as exc:
+                await asyncio.wait_for(ws.recv(), timeout=10)
+            return exc.value.rcvd.code
+
+    async def main():
+        return await asyncio.gather(stream(srv.url, good, pace_s=0.03), garbage(), oversized(), quitter(), staller())
+
+    good_msgs, other_msgs, big_code, _, idle_code = asyncio.run(main())
+    np.testing.assert_allclose(quats(good_msgs), reference(ckpt, good), atol=1e-5)
+    np.testing.assert_allclose(quats(other_msgs), reference(ckpt, other), atol=1e-5)
+    assert big_code == 1009 and idle_code == 1000
+    s = srv.summary()
+    assert s["bad_messages"] >= 6 and s["idle_closes"] >= 1 and s["streams"] == 0
+
+
+def test_max_streams_and_rate_limit(ckpt, server):
+    srv = server(max_streams=2, rate_limit=5.0)
+
+    async def main():
+        a = await connect(srv.url)
+        b = await connect(srv.url)
+        await a.recv(), await b.recv()
+        c = await connect(srv.url)
+        full = json.loads(await c.recv())
+        with pytest.raises(ConnectionClosed) as exc:
+            await c.recv()
+        assert full["type"] == "error" and "full" in full["message"] and exc.value.rcvd.code == 1013
+        # a burst of 12 frames at once: one second of burst (5) passes, the rest is dropped
+        fr = frames(12, 20)
+        for k, (au, f, h) in enumerate(fr):
+            await a.send(protocol.encode_input(k, au, f, h))
+        got = []
+        try:
+            while True:
+                got.append(json.loads(await asyncio.wait_for(a.recv(), timeout=1.0)))
+        except asyncio.TimeoutError:
+            pass
+        poses = [m for m in got if m["type"] == "pose"]
+        errors = [m for m in got if m["type"] == "error"]
+        assert 5 <= len(poses) <= 7 and len(errors) == 1 and "rate limit" in errors[0]["message"]
+        await b.close()
+        await asyncio.sleep(0.3)
+        d = await connect(srv.url)  # a freed place is taken again
+        assert json.loads(await d.recv())["type"] == "hello"
+        await a.close(), await d.close()
+
+    asyncio.run(main())
+    assert srv.summary()["refused_full"] == 1 and srv.summary()["rate_limited"] >= 5
+
+
+def test_client_that_stops_reading_is_closed(ckpt, server):
+    srv = server(send_buffer_bytes=16_000, rate_limit=1000.0)
+    fr = frames(400, 30)
+
+    async def main():
+        sock = socket.socket()
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        sock.connect(srv.bound)
+        ws = await connect(srv.url, sock=sock, max_queue=1)
+        await ws.recv()
+        msg = [protocol.encode_input(k, a, f, h) for k, (a, f, h) in enumerate(fr)]
+        try:
+            for m in msg:  # never read the poses
+                await ws.send(m)
+                await asyncio.sleep(0.01)
+                if srv.summary().get("slow_closes"):
+                    break
+        except ConnectionClosed:
+            pass
+        other = await stream(srv.url, frames(3, 31))  # the server still serves others
+        ws.transport.abort()
+        return other
+
+    other = asyncio.run(main())
+    assert len(other) == 3
+    assert srv.summary().get("slow_closes") == 1
+
+
+def test_pose_messages_are_the_runtime_format():
+    from facecapges.runtime.frames import OutputFrame
+
+    rng = np.random.default_rng(0)
+    pose = rng.normal(size=(2, 47, 6))
+    q = rot.rot6d_to_quaternion(pose)
+    face, head = rng.uniform(size=(2, 52)), rng.normal(size=(2, 6))
+    ours = list(pose_messages([7, 8], 15.0, q, face, head, [True, False], [{"model": 1.25}, {"model": 2.5}]))
+    ref = protocol.encode_pose(OutputFrame(7, 7 / 15, pose[0], q[0], face[0], head[0], True, {"model": 1.25}))
+    a, b = protocol.decode_pose(ours[0]), protocol.decode_pose(ref)
+    assert set(a) == set(b)
+    for k in ("pose", "weights", "head"):
+        np.testing.assert_allclose(a[k], b[k], atol=2e-6)
+    assert (a["frame"], a["time"], a["face_found"], a["latency_ms"]) == (b["frame"], b["time"], True, {"model": 1.25})
+    assert protocol.decode_pose(ours[1])["face_found"] is False
+
+
+def test_serve_command(tmp_path, ckpt):
+    path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
+    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(tmp_path / "none")],
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and p.stderr.startswith("error:") and "none" in p.stderr
+    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(path),
+                        "--max-streams", "0"], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 2 and "--max-streams" in p.stderr and "Traceback" not in p.stderr
+    proc = subprocess.Popen([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(path), "--port", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving"), line + proc.stderr.read()
+        url = line.split(" on ")[1].split()[0]
+        msgs = asyncio.run(stream(url, frames(4, 40)))
+        np.testing.assert_allclose(quats(msgs), reference(ckpt, frames(4, 40)), atol=1e-5)
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err
+    assert "'frames': 4" in out
