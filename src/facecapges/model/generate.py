@@ -92,8 +92,12 @@ def generate_poses(checkpoint, inputs: FrameInputs, progress: bool = True) -> tu
     """Run the streaming generator over every frame: poses (T, 47, 6), ms per frame."""
     if abs(inputs.fps - checkpoint.fps) > 1e-6:
         raise UserError(f"inputs are at {inputs.fps} fps, the checkpoint runs at {checkpoint.fps} fps")
+    import torch
+
     gen = checkpoint.streaming()
     T = inputs.n_frames
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one small step at a time: more threads only spin
     out = np.empty((T, 47, 6), np.float32)
     t0 = time.perf_counter()
     if progress:
@@ -102,8 +106,11 @@ def generate_poses(checkpoint, inputs: FrameInputs, progress: bool = True) -> tu
         it = track(range(T), description="generating", transient=True)
     else:
         it = range(T)
-    for t in it:
-        out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
+    try:
+        for t in it:
+            out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
+    finally:
+        torch.set_num_threads(threads)
     ms = (time.perf_counter() - t0) * 1000 / max(T, 1)
     if not np.isfinite(out).all():  # never emit NaN: this would be a model bug
         raise UserError("the model produced non-finite poses; the checkpoint is unusable")
