@@ -21,6 +21,7 @@ BENCHMARKS: dict[str, str] = {
     "model": "facecapges.model.bench",
     "render": "facecapges.avatar.bench",
     "study": "facecapges.study.bench",
+    "runtime": "facecapges.runtime.bench",
     "serve": "facecapges.serving.bench",
 }
 

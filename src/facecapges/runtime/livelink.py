@@ -178,6 +178,7 @@ class LiveLinkReceiver:
         from facecapges.errors import UserError
 
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)  # absorb bursts (Wi-Fi clumps)
         try:
             self.sock.bind((host, port))
         except OSError as exc:

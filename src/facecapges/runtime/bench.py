@@ -1,0 +1,176 @@
+"""Runtime benchmark (``facecapges bench --only runtime``): the targets of the runtime issue.
+
+* ``per_frame`` — compute per frame from input frame to pose + blendshapes, MediaPipe
+  capture included (the scheduler's ``total`` stage: capture → features → model →
+  output), over the shared HDTF clip (8 s, 25 fps) run offline; p50 / p99 per stage.
+  Targets: p50 ≤ 30 ms, p99 ≤ 50 ms.
+* ``run_60s`` — ``facecapges run`` on a 60 s talking-head video (the 8 s clip looped
+  with ffmpeg and cut at 60 s), both MP4s included. Target ≤ 180 s. Quick mode runs a
+  16 s cut instead (reported as such).
+* ``session`` — a simulated live session: the clip and its audio looped as a file
+  source, realtime pacing off, for ``hours`` of stream time (1 h in full mode, 2 min in
+  quick mode; the figure reports what ran). Memory: resident set size sampled every
+  150 frames; ``rss_change_pct`` = (last − first sample after warm-up) / first, and the
+  max deviation, target within ±5 %. Drift: every output frame is compared with the
+  training data (the shared BEAT clip the default style is trained on): a frame is
+  *inside* when every joint's rotation is within the training data's largest
+  geodesic distance of that joint from its training mean (+5°); the mean distance to
+  the training mean per tenth of the session shows whether it creeps away.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import subprocess
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+CLIP = "data/face/WDA_KatieHill_000.mp4"
+TRAIN_BVH = "data/beat/2_scott_0_1_1.bvh"
+
+
+def shared(rel: str) -> Path:
+    root = Path(os.environ.get("FACECAPGES_SHARED", Path(__file__).resolve().parents[3].parent / "shared"))
+    p = root / rel
+    if not p.is_file():
+        p = Path.cwd().parent / "shared" / rel
+    return p
+
+
+def rss_mb() -> float:
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def _checkpoint():
+    from facecapges.model.checkpoint import load_checkpoint
+
+    return load_checkpoint(os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None)
+
+
+def per_frame(ckpt, max_frames: int | None = None) -> dict:
+    from facecapges.runtime.session import build_session
+
+    sess = build_session(ckpt, video=shared(CLIP))
+    try:
+        sess.scheduler.run(max_frames=max_frames)
+        rep = sess.scheduler.report(warmup=10)
+    finally:
+        sess.close()
+    lat = rep["latency_ms"]
+    return {"frames": rep["frames"], "latency_ms": lat, "target_ms": {"p50": 30, "p99": 50},
+            "meets_target": lat["total"]["p50"] <= 30 and lat["total"]["p99"] <= 50, "events": rep["events"]}
+
+
+def looped_video(src: Path, seconds: float, out: Path) -> Path:
+    import imageio_ffmpeg
+
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-stream_loop", "-1", "-i", str(src),
+           "-t", f"{seconds:g}", "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "aac", str(out)]
+    subprocess.run(cmd, check=True)
+    return out
+
+
+def run_60s(ckpt, seconds: float = 60.0) -> dict:
+    from facecapges.runtime.offline import run_video
+
+    with tempfile.TemporaryDirectory(prefix="facecapges-bench-") as tmp:
+        video = looped_video(shared(CLIP), seconds, Path(tmp) / "talk.mp4")
+        t0 = time.perf_counter()
+        rep = run_video(video, Path(tmp) / "out", ckpt, progress=False)
+        wall = time.perf_counter() - t0
+    return {"input_seconds": seconds, "frames": rep["frames"], "wall_s": round(wall, 2), "phases_s": rep["seconds"],
+            "latency_ms_total": rep["latency_ms"]["total"], "target_s": 180 * seconds / 60.0,
+            "meets_target": wall <= 180 * seconds / 60.0}
+
+
+class PoseRange:
+    """Per-joint geodesic distance from the training mean rotation (module docstring)."""
+
+    def __init__(self, bvh_path: Path):
+        from facecapges import rotations as rot
+        from facecapges.io.bvh import read_bvh
+        from facecapges.skeleton import motion_to_pose
+
+        b = read_bvh(bvh_path)
+        pose, _ = motion_to_pose(b.skeleton, b.motion)
+        R = rot.rot6d_to_matrix(pose.astype(np.float64))  # (T, 47, 3, 3)
+        self.mean = rot.rot6d_to_matrix(pose.astype(np.float64).mean(0))  # chordal-ish mean, re-orthonormalised
+        d = rot.geodesic_angle(self.mean[None], R)  # (T, 47)
+        self.max_deg = np.degrees(d.max(0))
+
+    def distances_deg(self, poses: np.ndarray) -> np.ndarray:
+        from facecapges import rotations as rot
+
+        R = rot.rot6d_to_matrix(np.asarray(poses, np.float64))
+        return np.degrees(rot.geodesic_angle(self.mean[None], R))
+
+
+def session(ckpt, seconds: float) -> dict:
+    from facecapges.runtime.session import build_session
+
+    rng = PoseRange(shared(TRAIN_BVH))
+    sess = build_session(ckpt, video=shared(CLIP), loop=True)
+    sched = sess.scheduler
+    n = int(round(seconds * ckpt.fps))
+    rss, inside, dist_sum, dist_n, seg = [], 0, [], [], max(n // 10, 1)
+    worst = -math.inf
+
+    class Probe:
+        def write(self, out):
+            nonlocal inside, worst
+            d = rng.distances_deg(out.pose[None])[0]
+            inside_now = bool(np.all(d <= rng.max_deg + 5.0))
+            inside += inside_now
+            worst = max(worst, float((d - rng.max_deg).max()))
+            s = out.index // seg
+            while len(dist_sum) <= s:
+                dist_sum.append(0.0)
+                dist_n.append(0)
+            dist_sum[s] += float(d.mean())
+            dist_n[s] += 1
+            if out.index % 150 == 0:
+                rss.append(rss_mb())
+
+        def close(self):
+            pass
+
+    sched.sinks.append(Probe())
+    t0 = time.perf_counter()
+    video = sess.video
+    try:
+        sched.run(max_frames=n)
+        rep = sched.report(warmup=10)
+    finally:
+        sess.close()
+    wall = time.perf_counter() - t0
+    warm = rss[max(1, len(rss) // 10):] or rss
+    base = warm[0]
+    seg_mean = [round(s / max(c, 1), 3) for s, c in zip(dist_sum, dist_n)]
+    return {"stream_seconds": round(rep["frames"] / ckpt.fps, 1), "frames": rep["frames"], "wall_s": round(wall, 1),
+            "loops_of_clip": video.loops,
+            "rss_mb": {"first_after_warmup": round(base, 1), "last": round(warm[-1], 1),
+                       "min": round(min(warm), 1), "max": round(max(warm), 1), "samples": len(rss)},
+            "rss_change_pct": round(100 * (warm[-1] - base) / base, 2),
+            "rss_max_deviation_pct": round(100 * max(abs(x - base) for x in warm) / base, 2),
+            "memory_flat": all(abs(x - base) <= 0.05 * base for x in warm),
+            "pose_inside_training_range_pct": round(100 * inside / max(rep["frames"], 1), 2),
+            "worst_excess_over_training_range_deg": round(worst, 2),
+            "mean_distance_to_training_mean_deg_per_tenth": seg_mean,
+            "latency_ms_total": rep["latency_ms"]["total"], "events": rep["events"]}
+
+
+def run(quick: bool = False) -> dict:
+    ckpt = _checkpoint()
+    out = {"checkpoint": str(ckpt.path)}
+    out["per_frame"] = per_frame(ckpt, max_frames=60 if quick else None)
+    out["run_60s"] = run_60s(ckpt, 16.0 if quick else 60.0)
+    out["session"] = session(ckpt, 120.0 if quick else 3600.0)
+    return out

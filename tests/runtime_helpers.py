@@ -1,0 +1,36 @@
+"""Helpers shared by the runtime tests (not a test module).
+
+The runtime tests use the installed default style (``load_checkpoint()``). While the
+default style is still being trained, a developer may point
+``FACECAPGES_RUNTIME_TEST_CHECKPOINT`` at another checkpoint; nothing is skipped either way.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from functools import lru_cache
+
+
+@lru_cache(maxsize=1)
+def checkpoint():
+    from facecapges.model.checkpoint import load_checkpoint
+
+    return load_checkpoint(os.environ.get("FACECAPGES_RUNTIME_TEST_CHECKPOINT") or None)
+
+
+def ckpt_args() -> list[str]:
+    p = os.environ.get("FACECAPGES_RUNTIME_TEST_CHECKPOINT")
+    return ["--checkpoint", p] if p else []
+
+
+def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
+    """Run ``facecapges ARGS`` in a subprocess (real exit codes and stderr)."""
+    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
+                          timeout=timeout, **kw)
+
+
+def cli_popen(*args: str, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-u", "-m", "facecapges.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, **kw)
