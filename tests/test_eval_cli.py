@@ -86,7 +86,7 @@ def test_eval_with_a_checkpoint_on_the_held_out_frames(cache, tmp_path, unseen_w
     assert sorted(p.name for p in (tmp_path / "run").glob("*.safetensors")) == ["model.safetensors"]
     out = tmp_path / "eval"
     res = run("eval", "--cache", cache, "--checkpoint", ckpt, "--holdout-from", 860, "--out", out,
-              "--offsets", "2,3.5", "--audio", short_wav, "--quiet")
+              "--offsets", "2,3.5", "--audio", short_wav, "--samples", 2, "--quiet")
     assert res.returncode == 0, res.stderr
     data = json.loads((out / "metrics.json").read_text())
     paired = data["paired"]
@@ -97,6 +97,8 @@ def test_eval_with_a_checkpoint_on_the_held_out_frames(cache, tmp_path, unseen_w
         assert rows["ground truth"]["FGD"] < 1e-3 and rows["ground truth"]["SRGR"] == 1.0
         for m in rows.values():
             assert all(m[k] is not None and np.isfinite(m[k]) for k in ("FGD", "SRGR", "BA", "BA_gap", "L1DIV"))
+        model = rows["FaceCapGes (model)"]
+        assert model["n_samples"] == 2 and model["L1DIV_samples"] >= 0 and rows["ground truth"]["L1DIV_samples"] is None
     unseen = data["unseen_audio"][str(short_wav)]["regions"]["with_head"]["methods"]["FaceCapGes (model)"]
     assert unseen["FGD"] is not None and unseen["SRGR"] is None and 0 <= unseen["BA"] <= 1
     md = (out / "metrics.md").read_text()

@@ -115,7 +115,9 @@ def register(app: typer.Typer) -> None:
                                                       "default: next to the checkpoint)."),
         offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
         video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
-        seed: int = typer.Option(0, help="Seed for the random real segment baseline."),
+        seed: int = typer.Option(0, help="Seed for the random real segment baseline and the sample starts."),
+        samples: int = typer.Option(3, help="Model runs per clip (different cold-start histories) for L1DIV "
+                                            "eq. 5.11; metrics average over them."),
         force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has metrics."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
@@ -128,7 +130,8 @@ def register(app: typer.Typer) -> None:
             raise UserError(f"--split must be train, val, test or all, got {split!r}")
         summary = run_eval(cache=cache, out=out, checkpoint=checkpoint, style=style, speaker=speaker, split=split,
                            holdout_from=holdout_from, extra_audio=list(audio or []), fgd_location=fgd,
-                           offsets_s=_parse_offsets(offsets), video=video, seed=seed, progress=not quiet)
+                           offsets_s=_parse_offsets(offsets), video=video, seed=seed, samples=samples,
+                           progress=not quiet)
         for w in summary["warnings"]:
             typer.secho(f"warning: {w}", err=True, fg=typer.colors.YELLOW)
         typer.echo((out / "metrics.md").read_text())

@@ -11,6 +11,12 @@ evaluated clips themselves, with a warning, when the cache has none).
 from a cold start at the first evaluated frame, on the clip's own audio, face
 weights and head rotation from the cache.
 
+**Samples.** The model is run ``samples`` times per clip: sample 0 starts from the
+checkpoint's own cold-start window, sample k > 0 from a random real window of
+``n_history`` frames of the pool as its history. SRGR, BA and L1DIV are averaged over
+samples, FGD pools them, and eq. 5.11 (``L1DIV_samples``) is computed across them.
+Plots and video show sample 0.
+
 **Rows.** ground truth, mean pose, random real segment (same length, from the pool,
 never overlapping the evaluated frames) and the model. Several clips are merged by
 :func:`facecapges.evaluation.suite.combine_clips` (frame-weighted means; FGD pooled).
@@ -73,11 +79,35 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
     return [np.asarray(x, np.float32) for x in clips if len(x)], source
 
 
+def _real_window(pool: Sequence[np.ndarray], n: int, rng: np.random.Generator) -> np.ndarray:
+    """A random real window (n, 47, 6) from the pool: another cold-start history."""
+    from facecapges.evaluation.baselines import random_segment
+
+    return random_segment(pool, n, rng)
+
+
+def _generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarray:
+    """Like :func:`facecapges.model.generate.generate_poses`, starting from ``window`` as history."""
+    from facecapges.model.streaming import StreamingGenerator
+
+    gen = StreamingGenerator(ckpt.model, window)
+    out = np.empty((inputs.n_frames, 47, 6), np.float32)
+    from rich.progress import track
+
+    frames = track(range(inputs.n_frames), description="generating (other start)", transient=True,
+                   disable=not progress)
+    for t in frames:
+        out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
+    if not np.isfinite(out).all():
+        raise UserError("the model produced non-finite poses; the checkpoint is unusable")
+    return out
+
+
 def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str | None = None,
              speaker: int | None = None, split: str = "test", holdout_from: int | None = None,
              extra_audio: Sequence[Path] = (), fgd_location: Path | None = None,
              offsets_s: Sequence[float] = tuple(range(2, 61, 2)), video: bool = True, seed: int = 0,
-             progress: bool = True) -> dict:
+             samples: int = 3, progress: bool = True) -> dict:
     """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
@@ -114,6 +144,8 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     for n in loaded:
         if n not in evaluated:
             warnings.append(f"clip {n}: fewer than {min_frames} frames from frame {start} on; not evaluated")
+    if samples < 1:
+        raise UserError("--samples must be at least 1")
     if not evaluated:
         raise UserError(f"{cache}: no clip of speaker {speaker} has {min_frames} frames to evaluate "
                         f"from frame {start} on")
@@ -149,6 +181,8 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                              head=a["head"][start:], fps=fps, notes=[])
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
+        gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+                        for _ in range(samples - 1)]
         if holdout_from is not None:
             seg_pool, excl = [a["pose"]], (0, start, len(a["pose"]))
         else:
@@ -159,13 +193,13 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
             segment = bl.random_segment(pool + [a["pose"]], len(real), rng,
                                         exclude=(len(pool), start, len(a["pose"])))
         methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
-                   "random real segment": segment, model_name: gen}
+                   "random real segment": segment, model_name: gens}
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
                                         offsets_s=offsets_s, progress=progress))
         real_clips.append(real)
         for k, v in methods.items():
-            method_clips.setdefault(k, []).append(v)
+            method_clips.setdefault(k, []).extend(v if isinstance(v, list) else [v])
         if first is None:
             first = (name, real, methods, audio)
     result = combine_clips(per_clip, fgd, real_clips, method_clips)
@@ -182,12 +216,14 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
             inputs = prepare_inputs(path, fps=ckpt.fps)
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
+            gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+                            for _ in range(samples - 1)]
             wav = load_audio(path, sr)
-            unseen[str(path)] = evaluate_unpaired({model_name: gen}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
+            unseen[str(path)] = evaluate_unpaired({model_name: gens}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
                                                   offsets_s=offsets_s, progress=progress)
     out = Path(out)
     name, real0, methods0, audio0 = first
-    shown = {model_name: methods0[model_name], "random real segment": methods0["random real segment"],
+    shown = {model_name: methods0[model_name][0], "random real segment": methods0["random real segment"],
              "mean pose": methods0["mean pose"]}
     files = write_report(out, result, real0, shown, audio0, sr, fps,
                          title=f"Quantitative evaluation — {model_name}, speaker {speaker}",
@@ -207,7 +243,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         with tempfile.TemporaryDirectory() as td:
             wav = Path(td) / "audio.wav"
             sf.write(wav, audio0, sr)
-            files["video"] = str(render_skeleton_video([real0, methods0[model_name]], ["real", model_name],
+            files["video"] = str(render_skeleton_video([real0, methods0[model_name][0]], ["real", model_name],
                                                        c.skeleton(name), out / "real_vs_generated.mp4", fps, wav,
                                                        progress=progress))
     return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}
