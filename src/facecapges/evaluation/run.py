@@ -91,7 +91,7 @@ def _generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarr
     from facecapges.model.streaming import StreamingGenerator
 
     gen = StreamingGenerator(ckpt.model, window)
-    out = np.empty((inputs.n_frames, 47, 6), np.float32)
+    out = np.empty((inputs.n_frames, ckpt.model.cfg.n_joints, 6), np.float32)
     from rich.progress import track
 
     frames = track(range(inputs.n_frames), description="generating (other start)", transient=True,
