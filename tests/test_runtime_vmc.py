@@ -24,7 +24,7 @@ UNITY_BONES = {  # HumanBodyBones names the mapping may use
 
 
 def axis_quat(axis: str, deg: float) -> np.ndarray:
-    return rot.matrix_to_quaternion(rot.axis_angle_matrix(axis, np.radians(deg)))
+    return rot.matrix_to_quaternion(rot.axis_angle_matrix(axis, np.array(np.radians(deg))))
 
 
 def frame_with(rotations: dict[str, np.ndarray]) -> OutputFrame:
