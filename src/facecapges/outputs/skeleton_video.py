@@ -63,7 +63,8 @@ def drawn_bones(skel: Skeleton) -> list[tuple[int, int, tuple[int, int, int]]]:
         if p < 0 or spine not in chain:
             continue
         name = skel.names[j]
-        colour = _RIGHT if name.startswith("Right") else _LEFT if name.startswith("Left") else _TORSO
+        side = not name.endswith("Shoulder")  # the Spine3 → Shoulder bone runs up the torso: grey
+        colour = _RIGHT if side and name.startswith("Right") else _LEFT if side and name.startswith("Left") else _TORSO
         bones.append((p, j, colour))
     return bones
 
