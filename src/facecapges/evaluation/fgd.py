@@ -32,7 +32,7 @@ with ``k = 1`` the layer is exactly eq. 5.7.
   graph layer + tanh], then a graph layer to 6 channels without activation.
 
 ``hidden`` = 128 is the thesis's; the per-joint widths c1 = 16, c2 = 32 are ours,
-chosen so training fits a CPU (≈ 5 s per epoch per 1000 windows on 2 cores; see
+chosen so training fits a CPU (≈ 5–10 s per epoch per 1000 windows on 2 shared cores; see
 ``facecapges bench --only evaluation``).
 
 **Features for FGD.** Like BEAT/EMAGE's evaluators, every latent time step of every
