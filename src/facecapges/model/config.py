@@ -40,7 +40,7 @@ class ModelConfig:
     face_dim: int = 32
     # head encoder MLP 6 -> 36 -> 12 (eq. 3.12-3.13)
     head_hidden: int = 36
-    head_dim: int = 12
+    head_dim: int = 12  # 0 = the "without head pose" ablation
     # decoders: torso LSTM, then upper-limb LSTM conditioned on torso outputs
     lstm_hidden: int = 128  # (ours) chosen for the 2 ms/frame CPU budget
     lstm_layers: int = 1  # (ours)

@@ -128,14 +128,22 @@ class FaceEncoder(nn.Module):
 
 
 class HeadEncoder(nn.Module):
-    """E_H (eq. 3.12–3.13): per-frame 6 → 36 (ReLU) → 12."""
+    """E_H (eq. 3.12–3.13): per-frame 6 → 36 (ReLU) → 12.
+
+    ``head_dim = 0`` is the "without head pose" ablation (thesis 5.7): no head
+    encoder, z_H is empty and the head rotation never reaches the network.
+    """
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
-        self.fc1 = nn.Linear(6, cfg.head_hidden)
-        self.fc2 = nn.Linear(cfg.head_hidden, cfg.head_dim)
+        self.dim = cfg.head_dim
+        if self.dim:
+            self.fc1 = nn.Linear(6, cfg.head_hidden)
+            self.fc2 = nn.Linear(cfg.head_hidden, cfg.head_dim)
 
     def forward(self, head: torch.Tensor) -> torch.Tensor:  # (B, T, 6) -> (B, T, 12)
+        if not self.dim:
+            return head.new_zeros(head.shape[:-1] + (0,))
         return self.fc2(F.relu(self.fc1(head)))
 
 
