@@ -35,9 +35,14 @@ def _neutral(cfg: ModelConfig, seed: int = 1) -> np.ndarray:
     return (np.random.default_rng(seed).normal(size=(cfg.n_history, cfg.n_joints, 6)) * 0.3).astype(np.float32)
 
 
-@pytest.mark.parametrize("layers", [1, 2])
-def test_each_stream_equals_its_single_stream_generator(layers):
-    """Streams join late, skip ticks, leave and are replaced; outputs match to 1e-5."""
+@pytest.mark.parametrize("layers,script", [(1, True), (1, False), (2, False)])
+def test_each_stream_equals_its_single_stream_generator(layers, script, monkeypatch):
+    """Streams join late, skip ticks, leave and are replaced; outputs match to 1e-5.
+
+    One-layer decoders run the TorchScript step (and, checked too, its Python twin);
+    two-layer decoders the model's own step.
+    """
+    monkeypatch.setattr(BatchedStreamingGenerator, "use_script", script)
     model = _model(lstm_layers=layers)
     cfg, S, T = model.cfg, 6, 45
     neutral = _neutral(cfg)

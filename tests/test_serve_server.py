@@ -172,7 +172,7 @@ def test_garbage_stalls_and_disconnects_do_not_affect_others(ckpt, server):
 
 
 def test_max_streams_and_rate_limit(ckpt, server):
-    srv = server(max_streams=2, rate_limit=5.0)
+    srv = server(max_streams=2, rate_limit=5.0, max_pending=16)
 
     async def main():
         a = await connect(srv.url)

@@ -102,8 +102,90 @@ def lstm_window(gx: torch.Tensor, cur: torch.Tensor, h: torch.Tensor, c: torch.T
     return torch.stack(outs, 1), h, c
 
 
+class _ScriptedStep(torch.nn.Module):
+    """The whole batched step of a one-layer-decoder model as ONE TorchScript call.
+
+    Same arithmetic as the Python path (:meth:`BatchedStreamingGenerator._push_inputs` +
+    :meth:`BatchedStreamingGenerator._decode_fast`); run as one call it needs the GIL
+    once instead of for every one of its few hundred tensor operations, so a server's
+    event loop and the model do not take turns waiting for each other. The rings and
+    LSTM states are arguments (updated in place), the weights are shared with the model.
+    """
+
+    def __init__(self, model: FaceCapGes, audio_layers, face_layers, bt: "_LSTMBlocks", bu: "_LSTMBlocks"):
+        super().__init__()
+        cfg = model.cfg
+        self.frontend = model.audio_enc.frontend
+        self.audio_mlp = model.audio_enc.mlp
+        self.face_inp = model.face_enc.inp
+        self.face_extra = model.face_enc.tcn.extra
+        self.face_mlp = model.face_enc.mlp
+        self.head_enc = model.head_enc
+        self.head_t = model.decoder.head_t
+        self.head_u = model.decoder.head_u
+        self.a_b = [b for b, _, _ in audio_layers]
+        self.a_now = [w for _, w, _ in audio_layers]
+        self.a_past = [w for _, _, w in audio_layers]
+        self.a_dil = [int(d) for d in cfg.audio_tcn_dilations]
+        self.f_b = [b for b, _, _ in face_layers]
+        self.f_now = [w for _, w, _ in face_layers]
+        self.f_past = [w for _, _, w in face_layers]
+        self.f_dil = [int(d) for d in cfg.face_tcn_dilations]
+        self.t_b, self.t_we, self.t_ws, self.t_whh = bt.b, bt.w_e, bt.w_s, bt.w_hh_t
+        self.u_b, self.u_we, self.u_ws, self.u_wx, self.u_whh = bu.b, bu.w_e, bu.w_s, bu.w_x, bu.w_hh_t
+        self.n_history = int(cfg.n_history)
+
+    def _tcn(self, x: torch.Tensor, idx: torch.Tensor, frames: torch.Tensor, rings: list[torch.Tensor],
+             b: list[torch.Tensor], w_now: list[torch.Tensor], w_past: list[torch.Tensor], dil: list[int],
+             extra: torch.Tensor | None) -> torch.Tensor:
+        skip = torch.zeros_like(x)
+        n = len(rings)
+        for i in range(n):
+            rows = idx * dil[i] + torch.remainder(frames, dil[i])
+            y = torch.addmm(b[i], x, w_now[i]).addmm_(rings[i].index_select(0, rows), w_past[i])
+            if extra is not None and i == n - 1:
+                y = y + extra
+            y = F.leaky_relu(y, 0.2)
+            rings[i].index_copy_(0, rows, x)
+            skip = skip + y
+            x = x + y
+        return skip
+
+    def forward(self, idx: torch.Tensor, frames: torch.Tensor, audio: torch.Tensor, face: torch.Tensor,
+                head: torch.Tensor, q_audio: list[torch.Tensor], q_face: list[torch.Tensor], gx_t: torch.Tensor,
+                gx_u: torch.Tensor, h_t: torch.Tensor, c_t: torch.Tensor, h_u: torch.Tensor, c_u: torch.Tensor,
+                steps: torch.Tensor) -> torch.Tensor:
+        N = self.n_history
+        feat_a = self.frontend(audio.unsqueeze(1)).squeeze(1)  # (B, C)
+        z_a = self.audio_mlp(self._tcn(feat_a, idx, frames, q_audio, self.a_b, self.a_now, self.a_past, self.a_dil,
+                                       None))
+        extra = self.face_extra(z_a) if self.face_extra is not None else None
+        z_f = self.face_mlp(self._tcn(self.face_inp(face), idx, frames, q_face, self.f_b, self.f_now, self.f_past,
+                                      self.f_dil, extra))
+        e = torch.cat([z_a, z_f, self.head_enc(head)], -1)  # (B, E)
+        hist_rows = idx.unsqueeze(1) * N + torch.remainder(frames.unsqueeze(1) + steps.unsqueeze(0), N)
+        cur_t = torch.addmm(self.t_b, e, self.t_we)  # the current frame: pose slot zero (eq. 3.5)
+        cur_u = torch.addmm(self.u_b, e, self.u_we)
+        o_t, h, c = lstm_window(gx_t[hist_rows], cur_t, h_t.index_select(0, idx), c_t.index_select(0, idx),
+                                self.t_whh, None)
+        h_t.index_copy_(0, idx, h)
+        c_t.index_copy_(0, idx, c)
+        ox = torch.matmul(o_t, self.u_wx)
+        o_u, h, c = lstm_window(gx_u[hist_rows], cur_u, h_u.index_select(0, idx), c_u.index_select(0, idx),
+                                self.u_whh, ox)
+        h_u.index_copy_(0, idx, h)
+        c_u.index_copy_(0, idx, c)
+        pose = torch.cat([self.head_t(o_t[:, -1]), self.head_u(h)], -1)
+        rows = idx * N + torch.remainder(frames, N)  # frame f's pose joins the history (eq. 4.11)
+        gx_t.index_copy_(0, rows, cur_t.addmm(pose, self.t_ws))
+        gx_u.index_copy_(0, rows, cur_u.addmm(pose, self.u_ws))
+        return pose
+
+
 class BatchedStreamingGenerator:
     """Independent causal streams of one model, stepped as one batch (module docs)."""
+
+    use_script = True  # one-layer decoders: the step as one TorchScript call (False: the Python path)
 
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray, capacity: int = 8):
         self.model = model.eval()
@@ -121,6 +203,9 @@ class BatchedStreamingGenerator:
         if self.fast:
             self._bt = _LSTMBlocks(model.decoder.lstm_t, self.E, cfg.pose_dim)
             self._bu = _LSTMBlocks(model.decoder.lstm_u, self.E, cfg.pose_dim)
+            self._scripted = torch.jit.script(_ScriptedStep(model, self._audio_layers, self._face_layers,
+                                                            self._bt, self._bu))
+            self._steps = torch.arange(-N, 0)
         with torch.inference_mode():
             m = model
             # embedding of a frame before the stream: the encoders over zero features
@@ -260,9 +345,9 @@ class BatchedStreamingGenerator:
             x = x + y
         return skip
 
-    def _push_inputs(self, idx: torch.Tensor, frames: torch.Tensor, audio, face, head) -> torch.Tensor:
-        """Encode this frame of every stream in ``idx``; returns the new embeddings (B, E)."""
-        m, cfg, B = self.model, self.cfg, len(idx)
+    def _clean_inputs(self, audio, face, head, B: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(B, S) audio, (B, 52) face, (B, 6) head tensors; NaN/inf → 0 as the single-stream generator."""
+        cfg = self.cfg
         if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == cfg.samples_per_frame:
             a = torch.from_numpy(np.nan_to_num(audio.astype(np.float32, copy=False), nan=0.0, posinf=0.0,
                                                neginf=0.0))
@@ -270,8 +355,12 @@ class BatchedStreamingGenerator:
             a = torch.from_numpy(pack_audio(audio, cfg.samples_per_frame))
         if a.shape[0] != B:
             raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
-        f = _rows(face, cfg.n_face, "face", B)
-        h = _rows(head, 6, "head rot6d", B)
+        return a, _rows(face, cfg.n_face, "face", B), _rows(head, 6, "head rot6d", B)
+
+    def _push_inputs(self, idx: torch.Tensor, frames: torch.Tensor, audio, face, head) -> torch.Tensor:
+        """Encode this frame of every stream in ``idx``; returns the new embeddings (B, E)."""
+        m, cfg = self.model, self.cfg
+        a, f, h = self._clean_inputs(audio, face, head, len(idx))
         feat_a = m.audio_enc.frontend(a[:, None])[:, 0]  # (B, C): each stream's frame only
         z_a = m.audio_enc.mlp(self._tcn_step(self._audio_layers, self.q_audio, cfg.audio_tcn_dilations, idx, frames,
                                              feat_a))
@@ -325,8 +414,14 @@ class BatchedStreamingGenerator:
             idx, frames = self._ids(slots)
             if len(idx) == 0:
                 return np.zeros((0, self.cfg.n_joints, 6), np.float32)
-            e = self._push_inputs(idx, frames, audio, face, head)
-            pose = self._decode_fast(idx, frames, e) if self.fast else self._decode_model(idx, frames)
+            if self.fast and self.use_script:
+                a, f, h = self._clean_inputs(audio, face, head, len(idx))
+                pose = self._scripted(idx, frames, a, f, h, self.q_audio, self.q_face, self.gx_t, self.gx_u,
+                                      self.h_t, self.c_t, self.h_u, self.c_u, self._steps)
+                self.frames.index_copy_(0, idx, frames + 1)
+            else:
+                e = self._push_inputs(idx, frames, audio, face, head)
+                pose = self._decode_fast(idx, frames, e) if self.fast else self._decode_model(idx, frames)
             return pose.reshape(len(idx), self.cfg.n_joints, 6).numpy().copy()
 
     def _decode_fast(self, idx: torch.Tensor, frames: torch.Tensor, e: torch.Tensor) -> torch.Tensor:

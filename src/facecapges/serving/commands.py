@@ -23,6 +23,8 @@ def register(app: typer.Typer) -> None:
         idle_timeout: float = typer.Option(60.0, help="Close a stream after this many seconds without input "
                                                       "(0 = never)."),
         threads: int = typer.Option(1, help="torch threads for the batched model call."),
+        tick_ms: float = typer.Option(15.0, help="Least time between two batched calls (ms): larger batches, "
+                                                 "a little more latency."),
     ) -> None:
         """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
@@ -37,11 +39,13 @@ def register(app: typer.Typer) -> None:
 
         if not 0 <= port <= 65535:
             raise UserError(f"--port {port} is out of range")
+        if tick_ms < 0:
+            raise UserError("--tick-ms must be >= 0")
         if threads < 1:
             raise UserError("--threads must be at least 1")
         ckpt = load_checkpoint(checkpoint, style)
         cfg = ServeConfig(host=host, port=port, max_streams=max_streams, rate_limit=rate_limit,
-                          idle_timeout=idle_timeout, threads=threads)
+                          idle_timeout=idle_timeout, threads=threads, tick_ms=tick_ms)
         server = StreamServer(ckpt, cfg, log=lambda m: typer.echo(m, err=True))
         if not is_loopback(host):
             typer.secho(f"warning: listening on {host}: anyone who can reach it can use it (no authentication)",

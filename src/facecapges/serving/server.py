@@ -10,9 +10,12 @@ samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 Ticks (continuous batching). A single batching task runs for the whole server: each
 *tick* it takes, from every stream that has a frame waiting, its oldest frame, and
 runs all of them as ONE batched ``step`` (in a worker thread, so the event loop keeps
-receiving); the next tick starts as soon as that one is done and anything is waiting.
-A stream's frames are therefore processed in order, at most one per tick, and a
-frame waits at most for the tick in progress. ``latency_ms`` in each ``pose`` holds
+receiving); the next tick starts as soon as that one is done, something is waiting
+and at least ``tick_ms`` (15 ms by default) have passed since the previous tick
+started — the pause lets the frames of more streams arrive, because a batched call
+costs a fixed ~2 ms plus a fraction of a millisecond per stream. A stream's frames
+are therefore processed in order, at most one per tick, and a frame waits at most
+for the tick in progress and the pause. ``latency_ms`` in each ``pose`` holds
 ``queue`` (receipt → its tick starts), ``model`` (the batched call, shared by the
 tick), ``output`` (encoding) and ``total`` (receipt → sent).
 
@@ -62,6 +65,7 @@ class ServeConfig:
     idle_timeout: float = 60.0  # seconds without input before a stream is closed (0 = never)
     send_buffer_bytes: int = 1 << 20  # unsent output above this closes a client that stopped reading
     threads: int = 1  # torch threads of the batched model call
+    tick_ms: float = 15.0  # least time between the starts of two ticks (lets batches fill)
 
 
 @dataclass
@@ -257,9 +261,14 @@ class StreamServer:
 
     async def _batch_loop(self) -> None:
         loop = asyncio.get_running_loop()
+        last = -1e9
         while True:
             await self._wake.wait()
+            wait = last + self.cfg.tick_ms / 1000.0 - time.monotonic()
+            if wait > 0:  # let the frames of more streams arrive: fewer, larger batched calls
+                await asyncio.sleep(wait)
             self._wake.clear()
+            last = time.monotonic()
             self._sync_slots()
             due = [st for st in self.streams.values() if st.pending and not st.closed]
             if not due:
