@@ -126,7 +126,7 @@ def register(app: typer.Typer) -> None:
 
                 server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
                 sess.closers.append(server)
-                sess.sinks.append(WebFeed(server))
+                sess.add_sink(WebFeed(server))
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
             typer.echo(f"live: {src.name} + {sess.audio.name if sess.audio else 'silence'} → "

@@ -22,7 +22,9 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
-     "latency_ms": {"capture": .., "features": .., "model": .., "output": .., "total": ..},
+     "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
+                                       # compute of this frame; total = input frame → pose +
+                                       # blendshapes ready (sending is not included)
      "sent_ms": 1732240000123.4}       # server wall clock (ms since the epoch) when sent
 
 Client → server

@@ -18,7 +18,9 @@ It never waits for future input: a source is only asked for data before the dead
 and whatever has not arrived is replaced by a fallback. In ``realtime`` mode frame
 ``k`` starts at wall time ``t0 + deadline + input_slack_s`` (``input_slack_s`` covers a
 microphone's block delivery; 0 for files); offline (``run``) it starts at once.
-Every stage is timed with ``time.perf_counter``; ``total`` spans capture → output.
+Every stage is timed with ``time.perf_counter``; ``total`` spans capture → output (the
+sinks see a provisional ``total``: input frame → pose + blendshapes ready, before
+output).
 
 Fallbacks (each counted in :attr:`Scheduler.events`)
 ----------------------------------------------------
@@ -232,6 +234,7 @@ class Scheduler:
         # 4. output
         quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
         out = OutputFrame(k, k / self.fps, pose, quats, inp.face, inp.head, found, stage)
+        stage["total"] = (time.perf_counter() - t_start) * 1000.0  # pose + blendshapes ready (sinks see this)
         for sink in self.sinks:
             sink.write(out)
         t4 = time.perf_counter()

@@ -29,6 +29,11 @@ class Session:
     closers: list = field(default_factory=list)  # extra objects with close() (servers)
     notes: list[str] = field(default_factory=list)
 
+    def add_sink(self, sink) -> None:
+        """A sink that starts receiving frames now (and is closed with the session)."""
+        self.sinks.append(sink)
+        self.scheduler.sinks.append(sink)
+
     def close(self) -> list[Path]:
         """Close sinks first (files are written), then servers, capture and sources."""
         written = []
@@ -81,27 +86,28 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
     fps, sr = checkpoint.fps, 16000
     sess = Session(scheduler=None, checkpoint=checkpoint)
     try:
+        # the visual source first: a camera that cannot open is reported before anything else
+        if video is not None:
+            sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics)
+        elif camera is not None:
+            sess.video = S.CameraVideo(camera)
+        else:
+            sess.face_feed = S.LiveLinkFace(livelink, host)
         if audio is not None:
             sess.audio = S.FileAudio(audio, sr, realtime=realtime, loop=loop)
-        elif video is not None:
+        elif mic is not None or video is None:
+            sess.audio = S.MicAudio(mic, sr)
+        else:
             try:
                 sess.audio = S.FileAudio(video, sr, realtime=realtime, loop=loop)
             except UserError:
                 if not silent_ok:
                     raise
                 sess.notes.append(f"{video}: no readable audio track; the speech input is silence")
-        else:
-            sess.audio = S.MicAudio(mic, sr)
-        period = sess.audio.duration_s if (loop and isinstance(sess.audio, S.FileAudio)) else None
-        if video is not None:
-            v = S.FileVideo(video, loop_period_s=period, depth_dir=depth_dir, intrinsics=intrinsics)
-            if loop and period is None:
-                v.loop_period_s = (v.n_frames or 1) / v.fps
-            sess.video = v
-        elif camera is not None:
-            sess.video = S.CameraVideo(camera)
-        else:
-            sess.face_feed = S.LiveLinkFace(livelink, host)
+        if loop and isinstance(sess.video, S.FileVideo):  # video and audio loop with one period
+            v = sess.video
+            v.loop_period_s = sess.audio.duration_s if isinstance(sess.audio, S.FileAudio) else \
+                (v.n_frames or 1) / v.fps
         if sess.video is not None:
             from facecapges.capture.models import resolve_model
             from facecapges.capture.pipeline import FaceCapture

@@ -145,7 +145,8 @@ class ViewerServer:
             pass
         finally:
             self.clients.discard(ws)
-            if ws.close_code == 1009:
+            sent = getattr(ws.protocol, "close_sent", None)
+            if ws.close_code == 1009 or (sent is not None and sent.code == 1009):
                 self.oversized_closes += 1
 
     # ------------------------------------------------------------------ lifecycle

@@ -1,0 +1,191 @@
+"""``facecapges live --video FILE --realtime --web``: the viewer in headless Chromium, the WebSocket
+feed, loopback-only serving, oversized messages, Ctrl-C, and devices that cannot open."""
+
+from __future__ import annotations
+
+import base64
+import json
+import signal
+import socket
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from facecapges.runtime import protocol
+
+from runtime_helpers import ckpt_args, cli, cli_popen
+
+
+@pytest.fixture(scope="module")
+def live(face_video, tmp_path_factory):
+    rec = tmp_path_factory.mktemp("live") / "rec"
+    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
+                     "--record", str(rec), "--max-seconds", "300", *ckpt_args())
+    url = None
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            break
+        if line.startswith("viewer: "):
+            url = line.split()[1]
+            break
+    if url is None:
+        proc.kill()
+        pytest.fail(f"live did not start its viewer: {proc.stderr.read()[-2000:]}")
+    yield {"proc": proc, "url": url, "rec": rec}
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
+
+
+def get(url, host=None):
+    req = urllib.request.Request(url, headers={"Host": host} if host else {})
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, r.read(), r.headers.get("Content-Type", "")
+    except urllib.error.HTTPError as e:
+        return e.code, e.read(), ""
+
+
+def test_serves_page_assets_on_loopback_only(live):
+    url = live["url"]
+    assert url.startswith("http://127.0.0.1:")
+    status, body, ctype = get(url)
+    assert status == 200 and b"viewer.js" in body and ctype.startswith("text/html")
+    status, body, _ = get(url + "avatar.glb")
+    assert status == 200 and body[:4] == b"glTF"
+    assert get(url + "three/build/three.module.js")[0] == 200
+    assert get(url + "web/avatar_scene.js")[0] == 200
+    assert get(url + "web/..%2F..%2F..%2Fpyproject.toml")[0] == 404
+    assert get(url + "three/../../../etc/passwd")[0] == 404
+    assert get(url, host="attacker.example:80")[0] == 403  # DNS rebinding: foreign Host refused
+    port = int(url.rsplit(":", 1)[1].strip("/"))
+    # bound to 127.0.0.1 only: another local address of this machine does not reach it
+    others = {a[4][0] for a in socket.getaddrinfo(socket.gethostname(), None, socket.AF_INET)} - {"127.0.0.1"}
+    others = [a for a in others if not a.startswith("127.")]
+    for addr in others:
+        with socket.socket() as s:
+            s.settimeout(2)
+            assert s.connect_ex((addr, port)) != 0
+
+
+def test_websocket_feed_and_oversized_message(live):
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
+    ws_url = live["url"].replace("http://", "ws://") + "ws"
+    with connect(ws_url, max_size=None) as ws:
+        hello = json.loads(ws.recv(timeout=10))
+        assert hello["type"] == "hello" and hello["protocol"] == protocol.PROTOCOL
+        assert len(hello["joints"]) == 47 and len(hello["blendshapes"]) == 52
+        frames = []
+        while len(frames) < 10:
+            frames.append(protocol.decode_pose(ws.recv(timeout=10)))
+        idx = [f["frame"] for f in frames]
+        assert idx == sorted(idx) and len(set(idx)) == 10
+        for f in frames:
+            np.testing.assert_allclose(np.linalg.norm(f["pose"], axis=1), 1.0, atol=1e-4)
+            assert f["weights"].shape == (52,) and f["latency_ms"]["total"] > 0
+        ws.send(json.dumps({"type": "ping"}))
+        while True:
+            msg = json.loads(ws.recv(timeout=10))
+            if msg["type"] == "pong":
+                break
+        ws.send(json.dumps({"type": "input", "frame": 0, "audio": "%%%", "face": [], "head": []}))
+        while True:
+            msg = json.loads(ws.recv(timeout=10))
+            if msg["type"] == "error":
+                assert "audio" in msg["message"]
+                break
+        ws.send("x" * (protocol.MAX_MESSAGE_BYTES + 1))
+        with pytest.raises(ConnectionClosed):
+            for _ in range(200):
+                ws.recv(timeout=10)
+        assert ws.protocol.close_rcvd.code == 1009  # message too big
+
+
+def test_browser_viewer_shows_the_avatar(live, tmp_path):
+    import cv2
+
+    from facecapges.avatar.render.browser import Browser
+
+    with Browser({}, "/", width=800, height=600, timeout=90) as b:
+        b.call("Page.navigate", url=live["url"])
+        deadline = time.time() + 90
+        state = None
+        while time.time() < deadline:
+            state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer)) : null")
+            if state and state["ready"] and state["drawn"] >= 10:
+                break
+            time.sleep(0.5)
+        assert state and state["ready"] and state["connected"], state
+        assert state["errors"] == [] and state["frames"] >= 10 and state["drawn"] >= 10, state
+        assert state["lastFrame"] > 0 and state["computeMs"] > 0 and state["fpsIn"] > 0
+        shot = base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])
+        (tmp_path / "viewer.png").write_bytes(shot)
+        Path("/tmp/facecapges-viewer.png").write_bytes(shot)  # for a human look
+        img = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_COLOR)
+        bg = np.array([0xf3, 0xf0, 0xee])  # the scene background (BGR)
+        centre = img[150:550, 250:550].astype(int)
+        avatar = np.abs(centre - bg).sum(-1) > 60
+        assert avatar.mean() > 0.08  # the body fills a good part of the centre
+        blue = (centre[..., 0] > centre[..., 2] + 40).mean()  # the shirt
+        assert blue > 0.03
+        b.evaluate("window.facecapgesViewer.setSkeleton(true)")
+        time.sleep(0.5)
+        shot2 = cv2.imdecode(np.frombuffer(base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"]),
+                                           np.uint8), cv2.IMREAD_COLOR)
+        Path("/tmp/facecapges-viewer-skeleton.png").write_bytes(cv2.imencode(".png", shot2)[1].tobytes())
+        assert np.abs(shot2.astype(int) - img.astype(int)).sum(-1).astype(bool).mean() > 0.001
+
+
+def test_ctrl_c_stops_cleanly_and_closes_files(live):
+    proc = live["proc"]
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err[-2000:]
+    assert "stopped (interrupted)" in out
+    rec = live["rec"]
+    from facecapges.io.bvh import read_bvh
+    from facecapges.io.face_json import read_face_json
+
+    rep = json.loads((rec / "report.json").read_text())
+    n = read_bvh(rec / "motion.bvh").motion.shape[0]
+    assert n == rep["frames"] > 30 and read_face_json(rec / "face.json").n_frames == n
+    assert rep["stopped_by"] == "interrupted" and rep["viewer"]["oversized_closes"] >= 1
+    assert rep["viewer"]["rejected_requests"] >= 1
+
+
+def test_camera_that_cannot_open(tmp_path):
+    r = cli("live", "--camera", "7", "--audio", str(tmp_path / "none.wav"), *ckpt_args(), timeout=120)
+    assert r.returncode != 0 and "Traceback" not in r.stderr
+    assert "none.wav" in r.stderr or "camera 7" in r.stderr
+    r = cli("live", "--camera", "7", "--mic", "default", *ckpt_args(), timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert "microphone" in r.stderr or "camera 7" in r.stderr
+
+
+def test_camera_error_names_the_device(face_video):
+    from facecapges.errors import UserError
+    from facecapges.runtime.sources import CameraVideo
+
+    with pytest.raises(UserError, match="camera 7"):
+        CameraVideo(7)
+
+
+def test_microphone_that_cannot_open(face_video):
+    r = cli("live", "--video", str(face_video), "--mic", "no-such-mic-42", "--max-seconds", "1", *ckpt_args(),
+            timeout=120)
+    assert r.returncode == 2 and "no-such-mic-42" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_non_loopback_needs_host(face_video):
+    r = cli("live", "--video", str(face_video), "--web", "0.0.0.0:0", "--max-seconds", "1", *ckpt_args(),
+            timeout=120)
+    assert r.returncode == 2 and "--host" in r.stderr
