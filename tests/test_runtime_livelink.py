@@ -154,3 +154,47 @@ def test_receiver_survives_thousands_of_bad_packets():
         tx.close()
     finally:
         rx.close()
+
+
+def test_live_command_with_livelink(beat_wav, tmp_path):
+    """``live --livelink``: packets from the test drive the face; bad ones are counted in the report."""
+    import json
+
+    from facecapges.io.face_json import read_face_json
+
+    from runtime_helpers import ckpt_args, cli_popen
+
+    rec = tmp_path / "rec"
+    proc = cli_popen("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(rec), "--max-seconds", "4",
+                     *ckpt_args())
+    try:
+        port = None
+        deadline = time.time() + 120
+        while time.time() < deadline and port is None:
+            line = proc.stdout.readline()
+            if not line:
+                break
+            if line.startswith("live: Live Link UDP 127.0.0.1:"):
+                port = int(line.split("127.0.0.1:")[1].split()[0])
+        assert port, proc.stderr.read()[-2000:]
+        v = np.zeros(61, np.float32)
+        v[LIVELINK_NAMES.index("JawOpen")] = 0.8
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        k = 0
+        while proc.poll() is None and k < 400:
+            tx.sendto(build(v, frame=k), ("127.0.0.1", port))
+            if k % 10 == 0:
+                tx.sendto(b"garbage", ("127.0.0.1", port))
+            k += 1
+            time.sleep(1 / 60)
+        tx.close()
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err[-2000:]
+    rep = json.loads((rec / "report.json").read_text())
+    assert rep["frames"] == 60 and rep["livelink"]["bad_packets"] >= 5 and rep["livelink"]["packets"] > 50
+    face = read_face_json(rec / "face.json")
+    jaw = face.weights[:, ARKIT_NAMES.index("jawOpen")]
+    assert (np.abs(jaw - 0.8) < 1e-4).mean() > 0.5  # the phone's jaw drives the avatar's

@@ -117,6 +117,7 @@ def register(app: typer.Typer) -> None:
         sess = build_session(ckpt, video=video, camera=camera, livelink=livelink, audio=audio, mic=mic,
                              realtime=realtime or video is None, loop=loop, depth_dir=depth, intrinsics=intrinsics,
                              estimator=estimator, host=bind, sinks=sinks, silent_ok=True)
+        feed = sess.face_feed
         try:
             for note in sess.notes:
                 typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
@@ -153,8 +154,8 @@ def register(app: typer.Typer) -> None:
             written = sess.close()
         report = sess.scheduler.report() if sess.scheduler is not None else {}
         report["stopped_by"] = why
-        if isinstance(sess.face_feed, object) and hasattr(sess.face_feed, "receiver"):
-            report["livelink"] = sess.face_feed.receiver.stats()
+        if feed is not None:
+            report["livelink"] = feed.receiver.stats()
         if server is not None:
             report["viewer"] = {"frames_sent": server.frames_sent, "rejected_requests": server.rejected_requests,
                                 "oversized_closes": server.oversized_closes}
