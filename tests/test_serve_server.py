@@ -272,3 +272,17 @@ def test_serve_command(tmp_path, ckpt):
         out, err = proc.communicate(timeout=30)
     assert proc.returncode == 0, err
     assert "'frames': 4" in out
+
+
+def test_loadgen_clients_get_every_frame_back(server, beat_wav):
+    """The benchmark's simulated clients (real speech frames, 15 fps each) against the server."""
+    from facecapges.io.audio import load_audio
+    from facecapges.serving import loadgen
+
+    srv = server()
+    msgs = loadgen.input_messages(load_audio(beat_wav)[: 16000 * 3], 40)
+    assert len(msgs) == 40 and all(protocol.decode_client(m)["type"] == "input" for m in msgs[:3])
+    res = asyncio.run(loadgen.run_clients(srv.url, 3, 2.0, msgs, warmup_s=0.5))
+    s = loadgen.summarize(res, 1000 / 15)
+    assert s["frames_sent"] == 90 and s["lost"] == 0 and s["errors"] == 0 and s["measured_frames"] == 3 * 22
+    assert s["p50_ms"] > 0 and srv.summary()["frames"] == 90

@@ -12,7 +12,11 @@ then bisection between the last pass and the first fail down to a step of
 ``max(2, 5 %)``. Every trial is listed with p50/p99/max, lost frames and errors.
 The clients run in the benchmark's process on the same machine, so they take CPU
 from the server; the load average before and after is reported because the machine
-is shared.
+is shared, and so is the CPU time per returned frame of the server process and of
+the clients (from /proc and the process clock). ``streams_cpu_bound_estimate`` =
+cores × 1000 / ((server + client ms per frame) × 15): how many streams those CPU
+costs would fit on the idle machine — an estimate that ignores the GIL and
+scheduling, shown beside the measured figure, never instead of it.
 """
 
 from __future__ import annotations
@@ -68,6 +72,12 @@ def stop_server(proc: subprocess.Popen) -> str:
     return out.strip().splitlines()[-1] if out.strip() else ""
 
 
+def proc_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of a process so far (Linux /proc)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def run(quick: bool = False, threads: int = 1) -> dict:
     from facecapges.io.audio import load_audio
     from facecapges.serving import loadgen
@@ -85,9 +95,14 @@ def run(quick: bool = False, threads: int = 1) -> dict:
     trials: list[dict] = []
 
     def trial(n: int) -> bool:
+        srv0, cli0 = proc_cpu_s(proc.pid), time.process_time()
         res = asyncio.run(loadgen.run_clients(url, n, seconds, messages, warmup_s=1.0, seed=n))
+        srv_cpu, cli_cpu = proc_cpu_s(proc.pid) - srv0, time.process_time() - cli0
         s = loadgen.summarize(res, period_ms)
         s["load_average"] = round(os.getloadavg()[0], 2)
+        frames = max(1, s["frames_returned"])
+        s["server_cpu_ms_per_frame"] = round(1e3 * srv_cpu / frames, 3)
+        s["client_cpu_ms_per_frame"] = round(1e3 * cli_cpu / frames, 3)
         trials.append(s)
         time.sleep(1.0)  # let the server drop the finished streams
         return s["ok"]
@@ -109,8 +124,16 @@ def run(quick: bool = False, threads: int = 1) -> dict:
     finally:
         served = stop_server(proc)
     at_best = next((t for t in trials if t["clients"] == best and t["ok"]), {})
+    # CPU cost of one stream-frame in the largest passing trial (or the first trial): what
+    # the two cores could carry if nothing else ran — an estimate, not a measurement
+    ref = at_best or trials[0]
+    per_frame = ref["server_cpu_ms_per_frame"] + ref["client_cpu_ms_per_frame"]
     return {"streams_at_15fps": best, "target": TARGET, "meets_target": best >= TARGET,
             "period_ms": round(period_ms, 2), "p99_ms_at_best": at_best.get("p99_ms"),
             "p50_ms_at_best": at_best.get("p50_ms"), "seconds_per_trial": seconds, "server_threads": threads,
             "load_average_before": load_before, "load_average_after": [round(x, 2) for x in os.getloadavg()],
-            "cpu_count": os.cpu_count(), "trials": trials, "server_summary": served}
+            "cpu_count": os.cpu_count(),
+            "server_cpu_ms_per_frame": ref["server_cpu_ms_per_frame"],
+            "client_cpu_ms_per_frame": ref["client_cpu_ms_per_frame"],
+            "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * 15.0)),
+            "trials": trials, "server_summary": served}
