@@ -1,4 +1,4 @@
-"""Commands of the evaluation area: ``fgd-train`` and ``eval``.
+"""Commands of the evaluation area: ``fgd-train``, ``eval`` and ``ablate``.
 
 ``facecapges fgd-train`` trains the per-speaker FGD autoencoder (one per region) on a
 cache's clips (or on BVH files) and writes it into a directory or next to a gesture
@@ -8,6 +8,10 @@ checkpoint (:func:`facecapges.evaluation.fgd.fgd_paths`).
 (the same streaming path as live use, cold start at the first held-out frame) and
 writes the thesis's metrics for the model and the reference rows, in both regions,
 with plots and a side-by-side video (see :mod:`facecapges.evaluation.run`).
+
+``facecapges ablate`` trains the ablation variants of thesis 5.7 (full, without head
+pose, offline decoding) with one recipe and evaluates them on the held-out frames
+into a Table 5.3 report (see :mod:`facecapges.evaluation.ablate`).
 """
 
 from __future__ import annotations
@@ -136,3 +140,52 @@ def register(app: typer.Typer) -> None:
             typer.secho(f"warning: {w}", err=True, fg=typer.colors.YELLOW)
         typer.echo((out / "metrics.md").read_text())
         typer.echo("wrote " + ", ".join(summary["files"].values()))
+
+    @app.command("ablate")
+    def ablate_cmd(
+        cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
+        out: Path = typer.Option(..., help="Output folder: ablation.md, ablation.json, runs/<variant>/."),
+        speaker: int = typer.Option(2, help="BEAT speaker id to train and evaluate."),
+        config: Optional[Path] = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
+                                                         "(default: configs/demo-beat2-scott.yaml, the shipped "
+                                                         "model's recipe)."),
+        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's)."),
+        split: Optional[str] = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
+                                                       "else train)."),
+        holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
+                                                              "config's holdout_from); they are evaluated."),
+        variants: str = typer.Option(",".join(("full", "no_head", "offline")),
+                                     help="Comma-separated variants: full, no_head, offline."),
+        reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
+                                           help="Use the shipped default checkpoint as 'full' when its stored "
+                                                "recipe and data match."),
+        retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
+                                                              "finished model of this recipe."),
+        fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
+                                                      "default: the shipped one when 'full' is the shipped "
+                                                      "checkpoint, else trained into OUT/fgd."),
+        fgd_epochs: int = typer.Option(400, help="Epochs when an FGD autoencoder must be trained."),
+        samples: int = typer.Option(3, help="Runs per variant and clip (different start histories)."),
+        offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
+        seed: int = typer.Option(0, help="Seed of the random real segment and the start histories."),
+        force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has a table."),
+        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+    ) -> None:
+        """Ablation study (thesis 5.7, Table 5.3): train the variants with one budget, evaluate them."""
+        import sys
+
+        from facecapges.errors import refuse_overwrite
+        from facecapges.evaluation.ablate import run_ablation
+
+        refuse_overwrite(out / "ablation.json", force)
+        if fgd_epochs < 1:
+            raise UserError("--fgd-epochs must be at least 1")
+        chosen = tuple(v.strip() for v in variants.split(",") if v.strip())
+        doc = run_ablation(cache=cache, out=out, speaker=speaker, config=config, epochs=epochs, split=split,
+                           holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
+                           fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
+                           offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
+                           command="facecapges " + " ".join(sys.argv[1:]))
+        typer.echo((out / "ablation.md").read_text())
+        typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "
+                   f"({len(doc['variants'])} variant(s))")

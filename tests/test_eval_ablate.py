@@ -1,0 +1,187 @@
+"""Ablation study (thesis 5.7): the offline-decoding variant, its trainer and ``facecapges ablate``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from facecapges.model.config import ModelConfig
+from facecapges.model.network import FaceCapGes
+from facecapges.model.offline import OfflineDecoder, load_offline, save_offline
+
+TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
+            lstm_hidden=16, mlp_hidden=16, disc_channels=8, dropout=0.0)
+
+
+def run(*args) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+def _inputs(T: int, cfg: ModelConfig, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    return (torch.randn(1, T, cfg.samples_per_frame, generator=g) * 0.1, torch.rand(1, T, 52, generator=g),
+            torch.randn(1, T, 6, generator=g))
+
+
+def test_offline_is_bidirectional_unlike_facecapges():
+    """Early outputs of the offline model depend on later inputs; FaceCapGes's never do."""
+    torch.manual_seed(0)
+    cfg = ModelConfig(**TINY)
+    N, L = cfg.n_history, 34
+    off, fcg = OfflineDecoder(cfg).eval(), FaceCapGes(cfg).eval()
+    audio, face, head = _inputs(N + L, cfg)
+    seed = torch.randn(1, N, cfg.pose_dim) * 0.1
+
+    def outputs(a, f, h):
+        with torch.no_grad():
+            return off(a, f, h, seed)[:, N:], fcg.rollout(fcg.encode(a, f, h), seed)  # both (1, L, D)
+
+    # 1. exact dependency structure by autograd: d(first generated frame) / d(inputs of the last frames)
+    a = audio.clone().requires_grad_(True)
+    f = face.clone().requires_grad_(True)
+    h = head.clone().requires_grad_(True)
+    off(a, f, h, seed)[:, N].sum().backward()
+    assert all(x.grad[:, -4:].abs().sum() > 0 for x in (a, f, h))  # the backward LSTMs carry the future back
+    a.grad = f.grad = h.grad = None
+    fcg.rollout(fcg.encode(a, f, h), seed)[:, 0].sum().backward()
+    assert all(x.grad[:, N + 1:].abs().sum() == 0 for x in (a, f, h))  # closed loop: strictly causal
+    # 2. the same seen on outputs: change only frames from N+4 on
+    a2, f2, h2 = audio.clone(), face.clone(), head.clone()
+    a2[:, N + 4:] += 0.5
+    f2[:, N + 4:] = 1.0 - f2[:, N + 4:]
+    h2[:, N + 4:] *= -1
+    (o1, r1), (o2, r2) = outputs(audio, face, head), outputs(a2, f2, h2)
+    assert (o1[:, :4] - o2[:, :4]).abs().max() > 1e-4  # offline: frames before the change move
+    assert torch.equal(r1[:, :4], r2[:, :4])  # FaceCapGes: bit-identical before the change
+    assert (r1[:, 4:] - r2[:, 4:]).abs().max() > 1e-4  # ... and it does react where the change happens
+
+
+def test_offline_generate_and_checkpoint_round_trip(tmp_path):
+    torch.manual_seed(1)
+    cfg = ModelConfig(**TINY)
+    m = OfflineDecoder(cfg).eval()
+    T = 40
+    rng = np.random.default_rng(0)
+    audio = rng.normal(0, 0.1, (T, cfg.samples_per_frame)).astype(np.float32)
+    face, head = rng.uniform(0, 1, (T, 52)).astype(np.float32), rng.normal(0, 1, (T, 6)).astype(np.float32)
+    seed = rng.normal(0, 0.1, (cfg.n_history, 47, 6)).astype(np.float32)
+    out = m.generate(audio, face, head, seed)
+    assert out.shape == (T, 47, 6) and np.isfinite(out).all()
+    # one pass == decoding the seed + sequence as one segment
+    with torch.no_grad():
+        z = torch.cat([m.no_input_embedding().expand(1, cfg.n_history, -1),
+                       m.encode(*(torch.from_numpy(x)[None] for x in (audio, face, head)))], 1)
+        ref = m.decode(z, torch.from_numpy(seed.reshape(1, cfg.n_history, -1)))[0, cfg.n_history:]
+    np.testing.assert_allclose(out.reshape(T, -1), ref.numpy(), atol=1e-6)
+    p = save_offline(tmp_path / "off.safetensors", m, {"neutral_window": seed.tolist()})
+    m2, meta = load_offline(p)
+    np.testing.assert_array_equal(m2.generate(audio, face, head, seed), out)
+    assert meta["format"] == "facecapges-offline-1" and meta["model_config"]["lstm_hidden"] == 16
+    from facecapges.errors import UserError
+    from facecapges.model.checkpoint import load_checkpoint
+
+    with pytest.raises(UserError):  # not a streaming checkpoint
+        load_checkpoint(p)
+
+
+def test_offline_trainer_learns_the_segments(tmp_path):
+    """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
+    from facecapges.training.offline import build_offline_trainer
+    from facecapges.training.train import ClipArrays
+
+    rng = np.random.default_rng(0)
+    T = 200
+    t = np.arange(T)[:, None, None]
+    pose = (np.sin(t / 5.0 + np.arange(47)[None, :, None] / 7.0) * 0.3
+            + np.array([1, 0, 0, 0, 1, 0], np.float32)).astype(np.float32)
+    clip = ClipArrays("synthetic", pose, rng.normal(0, 1, (T, 6)).astype(np.float32),
+                      np.zeros((T, 52), np.float32), rng.normal(0, 0.05, T * 1067).astype(np.float32))
+    tr = build_offline_trainer([clip], tmp_path / "run", dict(TINY),
+                               dict(epochs=8, batch_size=8, optimizer="adam", lr_base=0.016, adv_start_epoch=4,
+                                    holdout_from=150, num_threads=1), {"speaker": 2, "clips": ["synthetic"]})
+    hist = tr.fit(progress=False)
+    assert hist[-1]["rec"] < hist[0]["rec"] and "adv" in hist[-1] and "held_rec" in hist[-1]
+    m, meta = load_offline(tmp_path / "run" / "model.safetensors")
+    assert meta["epochs_trained"] == 8 and meta["train_config"]["holdout_from"] == 150
+    assert np.asarray(meta["neutral_window"]).shape == (16, 47, 6)
+    lines = (tmp_path / "run" / "log.csv").read_text().splitlines()
+    assert len(lines) == 9 and lines[0].startswith("epoch,total,rec")
+
+
+def test_shipped_checkpoint_is_the_full_variant_of_the_demo_recipe():
+    """The reuse rule accepts the installed default style for its own recipe and rejects any other."""
+    from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
+    from facecapges.model.checkpoint import load_checkpoint
+
+    assert default_config_path().is_file()
+    meta = load_checkpoint().meta
+    recipe = make_recipe(None, 2, None, None, None, 15.0)
+    assert recipe.split == "all" and recipe.holdout_from == 766
+    assert _same_recipe(meta, recipe, None, ["2_scott_0_1_1"]) is None
+    assert _same_recipe(meta, make_recipe(None, 2, None, 3, None, 15.0), None, ["2_scott_0_1_1"])
+    assert _same_recipe(meta, recipe, {"head_dim": 0}, ["2_scott_0_1_1"]) == "model config differs"
+    assert _same_recipe(meta, recipe, None, ["other"]) == "other clips"
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    from conftest import shared_file
+
+    from facecapges.data.prepare import prepare
+
+    bvh = shared_file("data/beat/2_scott_0_1_1.bvh")
+    wav = shared_file("data/beat/2_scott_0_1_1.wav")
+    root = tmp_path_factory.mktemp("beat")
+    (root / bvh.name).symlink_to(bvh)
+    (root / wav.name).symlink_to(wav)
+    out = tmp_path_factory.mktemp("cache") / "c"
+    prepare(root, out, progress=False)
+    return out
+
+
+def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump({"model": {k: list(v) if isinstance(v, tuple) else v for k, v in TINY.items()},
+                                   "train": dict(batch_size=16, optimizer="adam", lr_base=0.008, epochs=3,
+                                                 adv_start_epoch=2, holdout_from=860, num_threads=1)}))
+    out = tmp_path / "abl"
+    args = ("ablate", "--cache", cache, "--speaker", 2, "--out", out, "--config", cfg, "--epochs", 1,
+            "--fgd-epochs", 1, "--samples", 2, "--offsets", "2,3.5", "--quiet")
+    res = run(*args)
+    assert res.returncode == 0, res.stderr
+    doc = json.loads((out / "ablation.json").read_text())
+    labels = ["FaceCapGes (full)", "without head pose", "offline decoding"]
+    for region in ("with_head", "without_head"):
+        rows = doc["result"]["regions"][region]["methods"]
+        assert list(rows) == ["ground truth", "mean pose", "random real segment"] + labels
+        assert rows["ground truth"]["FGD"] < 1e-3 and rows["ground truth"]["SRGR"] == 1.0
+        for name, m in rows.items():
+            assert all(m[k] is not None and np.isfinite(m[k]) for k in ("FGD", "SRGR", "BA", "BA_gap", "L1DIV")), name
+        for name in labels:
+            assert rows[name]["n_samples"] == 2 and rows[name]["L1DIV_samples"] is not None
+    assert doc["result"]["n_frames"] == 957 - 860 and doc["result"]["first_frame"] == 860
+    for v in ("full", "no_head", "offline"):
+        info = doc["variants"][v]
+        assert info["source"] == "trained" and info["epochs"] == 1 and (out / "runs" / v / "model.safetensors").is_file()
+    from facecapges.model.checkpoint import load_checkpoint
+
+    assert load_checkpoint(out / "runs" / "no_head" / "model.safetensors").model.cfg.head_dim == 0
+    assert load_checkpoint(out / "runs" / "full" / "model.safetensors").model.cfg.head_dim == 12
+    md = (out / "ablation.md").read_text()
+    assert "Upper body (without head)" in md and all(lb in md for lb in labels) and "Table 5.3" in md
+    # a second run refuses to overwrite; with --force it reuses the finished runs instead of training
+    again = run(*args)
+    assert again.returncode == 2 and "--force" in again.stderr and "Traceback" not in again.stderr
+    res = run(*args, "--force", "--variants", "no_head,offline")
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.count("already holds this recipe's model: reused") == 2
+    assert list(json.loads((out / "ablation.json").read_text())["variants"]) == ["no_head", "offline"]
+    bad = run("ablate", "--cache", cache, "--out", tmp_path / "x", "--config", cfg, "--variants", "camn", "--quiet")
+    assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
