@@ -9,6 +9,38 @@ Figures (one stream, batch 1, one thread, the default checkpoint):
 * ``max_abs_diff_naive`` — the two loops' outputs must agree (they compute the same
   function).
 * ``offline_fps`` — frames per second of :func:`generate_poses` over a 60 s input.
+
+Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one thread):
+
+* ``per_frame`` — 5.8.1: :meth:`StreamingGenerator.step` with batching off over
+  **all held-out frames** of the shared clip (``../shared/data/beat/2_scott_0_1_1``,
+  frames ≥ the checkpoint's ``holdout_from``, its own audio and head rotation, face
+  zero as in the cache) from a cold start: mean, p50, p99, total. Without ../shared,
+  synthetic speech-like frames, and ``inputs`` says so.
+* ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50 over
+  the same frames): ``input_prep`` (samples/weights → tensors), ``audio_frontend``
+  (strided convs over the frame's 1067 samples), ``audio_tcn`` (one cached step of
+  the 12-layer TCN + MLP → z_A), ``face_encoder``, ``head_encoder``, ``decoder``
+  (cached LSTM input projections, both 17-step LSTM recurrences, MLP heads, history
+  update) and ``to_bvh_euler`` (rot6d → rotation matrices → BVH Euler channels of
+  one frame, :func:`facecapges.skeleton.pose_to_motion`). The staged step is the
+  generator's own code path cut at stage boundaries; its poses are checked equal to
+  ``step``'s (``staged_max_abs_diff``). ``audio_features_ms`` = frontend + TCN step.
+* ``compute`` — multiply–accumulates per frame, **counted** with
+  ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
+  per stage too. The counter counts matrix products and convolutions (mm, addmm,
+  bmm, convolution) as 2 FLOPs per MAC, so MACs = FLOPs / 2; element-wise work
+  (activations, gates, additions) is not counted and is small beside the products.
+  The TorchScript ``lstm_window`` runs through the dispatcher, so the counter sees
+  its matrix products; ``lstm_window_check`` compares its count for one 17-step
+  window against the analytic 17·H·4H MACs (``counted_inside_torchscript``), and
+  the analytic figure is used instead should the counter ever miss it.
+* ``cpu_peak_gflops_1thread`` — a 1024×1024 float32 matmul on one thread (best of
+  several), the practical peak of this CPU for dense float32 work;
+  ``step_gflops_per_s`` = counted FLOPs / measured step time, and
+  ``fraction_of_peak`` their ratio: how close the per-frame step runs to the CPU's
+  limit (the step is a chain of tiny matrix–vector products, so it is bound by
+  per-op overhead and memory, not arithmetic).
 """
 
 from __future__ import annotations
@@ -66,6 +98,7 @@ def run(quick: bool = False) -> dict:
         t0 = time.perf_counter()
         generate_poses(ckpt, FrameInputs(audio=audio, face=face, head=head, fps=cfg.fps, notes=[]), progress=False)
         offline_s = time.perf_counter() - t0
+        thesis = speed_report(ckpt, quick)
     finally:
         torch.set_num_threads(threads)
     return {
@@ -81,4 +114,195 @@ def run(quick: bool = False) -> dict:
         "offline_fps": round(T / offline_s, 1),
         "offline_seconds_for_60s": round(offline_s, 2),
         "target": {"step_ms_p50_max": 2.0, "speedup_min": 3.0},
+        "thesis_5_8": thesis,
+    }
+
+
+# ------------------------------------------------------------------ thesis 5.8
+def shared_held_out(ckpt):
+    """(audio frames (T, S), face (T, 52), head (T, 6), label) of the shared clip's held-out frames, or None."""
+    from pathlib import Path
+
+    from facecapges import timing
+    from facecapges.data import beat
+    from facecapges.data.prepare import prepare_clip
+
+    root = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "beat"
+    files = [f for f in (beat.find_clips(root) if root.is_dir() else []) if f.clip.stem == "2_scott_0_1_1"]
+    if not files or files[0].get("bvh") is None or files[0].get("wav") is None:
+        return None
+    fps, sr = ckpt.fps, ckpt.model.cfg.sr
+    arrays = prepare_clip(files[0], fps, sr, None)[0]
+    T = len(arrays["pose"])
+    start = (ckpt.meta.get("train_config") or {}).get("holdout_from") or int(round(0.8 * T))
+    s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
+    n = T - start
+    audio = timing.frame_audio(arrays["audio"][s0:], n, fps, sr)
+    label = f"shared BEAT clip 2_scott_0_1_1, held-out frames {start}-{T - 1}"
+    return audio.astype(np.float32), arrays["face"][start:], arrays["head"][start:], label
+
+
+def _stages(gen, skel):
+    """The streaming step cut at stage boundaries: [(name, fn(state))], same code path as ``step``."""
+    from facecapges.model.streaming import _as_frame_audio, _clean
+    from facecapges.rotations import normalize_rot6d
+    from facecapges.skeleton import pose_to_motion
+
+    m, cfg = gen.model, gen.cfg
+
+    def input_prep(s):
+        s["a"] = _as_frame_audio(s["audio"], cfg.samples_per_frame)
+        s["f"] = _clean(s["face"], cfg.n_face, "face")
+        s["h"] = _clean(s["head"], 6, "head rot6d")
+
+    def audio_frontend(s):
+        s["feat"] = m.audio_enc.frontend(s["a"][None, None])[0]
+
+    def audio_tcn(s):
+        s["z_a"] = m.audio_enc.mlp(gen._tcn_step(gen._audio_layers, gen.q_audio, s["feat"]))
+
+    def face_encoder(s):
+        s["z_f"] = m.face_enc.mlp(gen._tcn_step(gen._face_layers, gen.q_face, m.face_enc.inp(s["f"][None]),
+                                                m.face_enc.tcn.extra(s["z_a"])))
+
+    def head_encoder(s):
+        s["z_h"] = m.head_enc(s["h"][None])
+
+    def decoder(s):
+        gen.emb = torch.cat([gen.emb[1:], torch.cat([s["z_a"], s["z_f"], s["z_h"]], -1)], 0)
+        gen.frames += 1
+        pose = gen._decode_cached()
+        gen._append_history(pose)
+        s["pose"] = pose.reshape(cfg.n_joints, 6).numpy().copy()
+
+    def to_bvh_euler(s):
+        s["motion"] = pose_to_motion(skel, normalize_rot6d(s["pose"][None]))
+
+    return [("input_prep", input_prep), ("audio_frontend", audio_frontend), ("audio_tcn", audio_tcn),
+            ("face_encoder", face_encoder), ("head_encoder", head_encoder), ("decoder", decoder),
+            ("to_bvh_euler", to_bvh_euler)]
+
+
+def _flops(fn) -> tuple[int, dict]:
+    from torch.utils.flop_counter import FlopCounterMode
+
+    with FlopCounterMode(display=False) as fc:
+        fn()
+    per_op = {str(k).split(".")[-1]: int(v) for k, v in fc.get_flop_counts().get("Global", {}).items()}
+    return int(fc.get_total_flops()), per_op
+
+
+def cpu_peak_gflops(n: int = 1024, reps: int = 8) -> float:
+    """Best GFLOP/s of an n×n float32 matmul on the current thread setting."""
+    g = torch.Generator().manual_seed(0)
+    a, b = torch.randn(n, n, generator=g), torch.randn(n, n, generator=g)
+    out = torch.empty(n, n)
+    torch.mm(a, b, out=out)
+    best = float("inf")
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        torch.mm(a, b, out=out)
+        best = min(best, time.perf_counter() - t0)
+    return 2 * n ** 3 / best / 1e9
+
+
+def speed_report(ckpt, quick: bool = False) -> dict:
+    """Thesis 5.8 figures (module docstring); expects torch at one thread."""
+    from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator, lstm_window
+
+    cfg = ckpt.model.cfg
+    data = shared_held_out(ckpt)
+    if data is None:
+        audio, face, head = _inputs(191, cfg.samples_per_frame, seed=2)
+        label = "synthetic speech-like frames (../shared/data/beat not found)"
+    else:
+        audio, face, head, label = data
+    if quick:
+        audio, face, head = audio[:60], face[:60], head[:60]
+    T = len(audio)
+    skel = ckpt.skeleton
+    # 5.8.1: per-frame inference, batching off, every held-out frame, cold start
+    gen = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    for t in range(min(20, T)):  # warm the allocator, then start the stream for real
+        gen.step(audio[t], face[t], head[t])
+    gen.reset()
+    step_ms, ref = np.empty(T), np.empty((T, cfg.n_joints, 6), np.float32)
+    t_all = time.perf_counter()
+    for t in range(T):
+        t0 = time.perf_counter()
+        ref[t] = gen.step(audio[t], face[t], head[t])
+        step_ms[t] = (time.perf_counter() - t0) * 1e3
+    total_s = time.perf_counter() - t_all
+    # 5.8.2: the same frames through the staged step
+    gen2 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    stages = _stages(gen2, skel)
+    times = {name: np.empty(T) for name, _ in stages}
+    diff = 0.0
+    with torch.inference_mode():
+        for t in range(T):
+            s = {"audio": audio[t], "face": face[t], "head": head[t]}
+            for name, fn in stages:
+                t0 = time.perf_counter()
+                fn(s)
+                times[name][t] = (time.perf_counter() - t0) * 1e3
+            diff = max(diff, float(np.abs(s["pose"] - ref[t]).max()))
+    stage_ms = {k: {"mean": round(float(v.mean()), 4), "p50": round(float(np.median(v)), 4)} for k, v in times.items()}
+    # counted MACs: one step (mid-stream), per stage, and one naive step
+    gen3 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
+    k = min(T - 1, 3 * cfg.n_history)
+    for t in range(k):  # a full window of real history first
+        gen3.step(audio[t], face[t], head[t])
+        naive.step(audio[t], face[t], head[t])
+    step_flops, step_ops = _flops(lambda: gen3.step(audio[k], face[k], head[k]))
+    naive_flops, _ = _flops(lambda: naive.step(audio[k], face[k], head[k]))
+    gen4 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    stages4 = _stages(gen4, skel)
+    stage_flops = dict.fromkeys((n for n, _ in stages4), 0)
+    with torch.inference_mode():
+        for t in range(k + 1):
+            s = {"audio": audio[t], "face": face[t], "head": head[t]}
+            for name, fn in stages4:
+                if t == k:
+                    stage_flops[name] = _flops(lambda: fn(s))[0]
+                else:
+                    fn(s)
+    H, W = cfg.lstm_hidden, cfg.window
+    analytic_lstm = W * H * 4 * H  # MACs of one 17-step recurrence (h·W_hh per step)
+    lstm_counted = _flops(lambda: lstm_window(torch.zeros(W, 4 * H), torch.zeros(1, H), torch.zeros(1, H),
+                                             torch.zeros(H, 4 * H)))[0] // 2
+    if lstm_counted != analytic_lstm:  # the counter did not see inside TorchScript: add the recurrences by hand
+        step_flops += 2 * 2 * (analytic_lstm - lstm_counted)
+        stage_flops["decoder"] += 2 * 2 * (analytic_lstm - lstm_counted)
+    peak = cpu_peak_gflops(512 if quick else 1024, 4 if quick else 8)
+    step_mean_s = float(step_ms.mean()) / 1e3
+    rate = step_flops / step_mean_s / 1e9
+    audio_feat = times["audio_frontend"] + times["audio_tcn"]
+    return {
+        "inputs": label,
+        "per_frame": {"frames": T, "batch": 1, "threads": torch.get_num_threads(),
+                      "mean_ms": round(float(step_ms.mean()), 4), "p50_ms": round(float(np.median(step_ms)), 4),
+                      "p99_ms": round(float(np.percentile(step_ms, 99)), 4), "max_ms": round(float(step_ms.max()), 4),
+                      "total_s": round(total_s, 4)},
+        "audio_features_ms": {"mean": round(float(audio_feat.mean()), 4),
+                              "p50": round(float(np.median(audio_feat)), 4),
+                              "what": "audio frontend (strided convs over 1067 samples) + one cached audio TCN step "
+                                      "+ MLP → z_A"},
+        "stages_ms": stage_ms,
+        "stages_sum_ms_mean": round(float(sum(v.mean() for v in times.values())), 4),
+        "staged_max_abs_diff": diff,
+        "compute": {
+            "macs_per_frame": step_flops // 2,
+            "flops_per_frame": step_flops,
+            "macs_per_frame_by_stage": {n: f // 2 for n, f in stage_flops.items()},
+            "macs_per_frame_by_op": {n: f // 2 for n, f in step_ops.items()},
+            "naive_macs_per_frame": naive_flops // 2,
+            "counter": "torch.utils.flop_counter.FlopCounterMode (matmul/conv FLOPs = 2·MACs; element-wise ops "
+                       "not counted)",
+            "lstm_window_check": {"counted_macs": int(lstm_counted), "analytic_macs": int(analytic_lstm),
+                                  "counted_inside_torchscript": bool(lstm_counted == analytic_lstm)},
+        },
+        "cpu_peak_gflops_1thread": round(peak, 2),
+        "step_gflops_per_s": round(rate, 4),
+        "fraction_of_peak": round(rate / peak, 5),
     }
