@@ -18,7 +18,11 @@ signatures:
 * :mod:`~facecapges.evaluation.report` — ``metrics.json``, the Table 5.2 Markdown
   table and the PNG plots.
 * :mod:`~facecapges.evaluation.run` — ``facecapges eval`` end to end (checkpoint +
-  cache → report); :mod:`~facecapges.evaluation.commands` — ``fgd-train`` and ``eval``.
+  cache → report); :mod:`~facecapges.evaluation.commands` — ``fgd-train``, ``eval`` and
+  ``ablate``.
+* :mod:`~facecapges.evaluation.ablate` — the ablation study of 5.7 (Table 5.3): full
+  model, without head pose, offline decoding (:mod:`facecapges.model.offline`), trained
+  with one recipe and evaluated on the held-out frames.
 * :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools.
 
 The side-by-side skeleton video is :mod:`facecapges.outputs.skeleton_video`.
