@@ -185,3 +185,33 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert list(json.loads((out / "ablation.json").read_text())["variants"]) == ["no_head", "offline"]
     bad = run("ablate", "--cache", cache, "--out", tmp_path / "x", "--config", cfg, "--variants", "camn", "--quiet")
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
+
+
+def test_bench_counts_macs_of_the_streaming_step():
+    """The 5.8 speed report counts every matrix product of a step, inside TorchScript too (no timing asserted)."""
+    from facecapges.model.bench import speed_report
+    from facecapges.model.checkpoint import load_checkpoint
+
+    ckpt = load_checkpoint()
+    cfg = ckpt.model.cfg
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        rep = speed_report(ckpt, quick=True)
+    finally:
+        torch.set_num_threads(threads)
+    comp = rep["compute"]
+    assert rep["staged_max_abs_diff"] == 0.0  # the staged step is the step
+    assert comp["lstm_window_check"]["counted_inside_torchscript"]
+    assert sum(comp["macs_per_frame_by_stage"].values()) == comp["macs_per_frame"]
+    # hand count of the audio frontend: Σ out_len · C_out · C_in · k over its convolutions
+    length, macs = cfg.samples_per_frame, 0
+    for conv in list(ckpt.model.audio_enc.frontend.convs) + [ckpt.model.audio_enc.frontend.collapse]:
+        length = (length - conv.kernel_size[0]) // conv.stride[0] + 1
+        macs += length * conv.out_channels * conv.in_channels * conv.kernel_size[0]
+    assert comp["macs_per_frame_by_stage"]["audio_frontend"] == macs
+    H, W = cfg.lstm_hidden, cfg.window
+    assert comp["macs_per_frame_by_stage"]["decoder"] > 2 * W * H * 4 * H  # both 17-step recurrences at least
+    assert comp["naive_macs_per_frame"] > 5 * comp["macs_per_frame"]
+    assert rep["per_frame"]["frames"] == 60 and rep["cpu_peak_gflops_1thread"] > 0
+    assert 0 < rep["fraction_of_peak"] < 1
