@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import asyncio
 import ipaddress
+import json
 import mimetypes
 import threading
 import time
@@ -134,12 +135,12 @@ class ViewerServer:
                     msg = protocol.decode_client(message, self.fps)
                 except protocol.ProtocolError as exc:
                     self.bad_messages += 1
-                    await ws.send(protocol.json.dumps({"type": "error", "message": str(exc)}))
+                    await ws.send(json.dumps({"type": "error", "message": str(exc)}))
                     continue
                 if msg["type"] == "ping":
-                    await ws.send(protocol.json.dumps({"type": "pong", "sent_ms": time.time() * 1000.0}))
+                    await ws.send(json.dumps({"type": "pong", "sent_ms": time.time() * 1000.0}))
                 else:
-                    await ws.send(protocol.json.dumps({"type": "error", "message": "this server is a viewer feed; "
+                    await ws.send(json.dumps({"type": "error", "message": "this server is a viewer feed; "
                                                        "it takes no inputs"}))
         except ConnectionClosed:
             pass
