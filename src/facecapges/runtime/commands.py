@@ -51,7 +51,8 @@ def register(app: typer.Typer) -> None:
 
     @app.command("live")
     def live_cmd(
-        camera: Optional[int] = typer.Option(None, "--camera", help="Camera index (OpenCV)."),
+        camera: Optional[int] = typer.Option(None, "--camera", help="Camera index (OpenCV); camera 0 when no "
+                                                                    "other input is chosen."),
         video: Optional[Path] = typer.Option(None, "--video", help="A video file as the camera (+ its audio)."),
         livelink: Optional[int] = typer.Option(None, "--livelink", help="Receive iPhone Live Link Face on this UDP "
                                                                         "port (the app's default is 11111)."),
@@ -85,6 +86,8 @@ def register(app: typer.Typer) -> None:
         from facecapges.runtime.session import build_session
         from facecapges.runtime.web_server import is_loopback, parse_address
 
+        if camera is None and video is None and livelink is None:
+            camera = 0
         if realtime and video is None:
             raise UserError("--realtime paces a --video file; devices are always real time")
         if loop and video is None:

@@ -51,7 +51,7 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
     aw, ah = meta["size"]
     proc = None
     try:
-        vi, frame, last = -1, None, None
+        vi, frame = -1, None
         for k in range(n_frames):
             want = int(np.ceil((k + 1) / fps * vfps - 1e-9)) - 1  # newest source frame with time < deadline
             while vi < want:
@@ -70,6 +70,7 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
             src = cv2.resize(src, (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
                              interpolation=cv2.INTER_AREA)
             img = np.hstack([src, av])
+            cv2.putText(img, "input", (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 4, cv2.LINE_AA)
             cv2.putText(img, "input", (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
             cv2.putText(img, "avatar", (src.shape[1] + 10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (40, 40, 40), 2,
                         cv2.LINE_AA)
@@ -83,11 +84,9 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
                 cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", "22", "-pix_fmt", "yuv420p",
                         "-movflags", "+faststart", str(out)]
                 proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-            last = img
             proc.stdin.write(np.ascontiguousarray(img).tobytes())
         if proc is None:
             raise UserError(f"{avatar_mp4}: no frames to put side by side")
-        del last
         proc.stdin.close()
         err = proc.stderr.read().decode(errors="replace")
         if proc.wait() != 0:

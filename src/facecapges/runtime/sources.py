@@ -160,11 +160,17 @@ class CameraVideo:
     def __init__(self, index: int):
         from facecapges.capture.video import open_source
 
+        import cv2
+
         self.index = index
+        level = cv2.utils.logging.getLogLevel()
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # our message says it in one line
         try:
             self._src = open_source(str(index))
         except UserError as exc:
             raise UserError(f"{exc}; check the device index (--camera) and that no other program uses it") from None
+        finally:
+            cv2.utils.logging.setLogLevel(level)
         self.fps = self._src.fps
         self.width, self.height = self._src.width, self._src.height
         self.ended = False
