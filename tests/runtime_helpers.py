@@ -1,13 +1,11 @@
 """Helpers shared by the runtime tests (not a test module).
 
-The runtime tests use the installed default style (``load_checkpoint()``). While the
-default style is still being trained, a developer may point
-``FACECAPGES_RUNTIME_TEST_CHECKPOINT`` at another checkpoint; nothing is skipped either way.
+The runtime tests use the installed default style (``load_checkpoint()``); when it is
+missing they fail (nothing is skipped).
 """
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from functools import lru_cache
@@ -17,12 +15,7 @@ from functools import lru_cache
 def checkpoint():
     from facecapges.model.checkpoint import load_checkpoint
 
-    return load_checkpoint(os.environ.get("FACECAPGES_RUNTIME_TEST_CHECKPOINT") or None)
-
-
-def ckpt_args() -> list[str]:
-    p = os.environ.get("FACECAPGES_RUNTIME_TEST_CHECKPOINT")
-    return ["--checkpoint", p] if p else []
+    return load_checkpoint()
 
 
 def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:

@@ -162,11 +162,10 @@ def test_live_command_with_livelink(beat_wav, tmp_path):
 
     from facecapges.io.face_json import read_face_json
 
-    from runtime_helpers import ckpt_args, cli_popen
+    from runtime_helpers import cli_popen
 
     rec = tmp_path / "rec"
-    proc = cli_popen("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(rec), "--max-seconds", "4",
-                     *ckpt_args())
+    proc = cli_popen("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(rec), "--max-seconds", "4")
     try:
         port = None
         deadline = time.time() + 120

@@ -10,7 +10,7 @@ import pytest
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
 
-from runtime_helpers import ckpt_args, cli
+from runtime_helpers import cli
 
 N = 30  # 2 s of the 8 s clip keeps the test short; the full clip is run by the benchmark
 
@@ -18,7 +18,7 @@ N = 30  # 2 s of the 8 s clip keeps the test short; the full clip is run by the 
 @pytest.fixture(scope="module")
 def run_dir(face_video, tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "out"
-    r = cli("run", str(face_video), "--out", str(out), "--max-frames", str(N), *ckpt_args())
+    r = cli("run", str(face_video), "--out", str(out), "--max-frames", str(N))
     assert r.returncode == 0, r.stderr[-2000:]
     return out
 
@@ -61,12 +61,12 @@ def test_report(run_dir):
 
 
 def test_refuses_to_overwrite(run_dir, face_video):
-    r = cli("run", str(face_video), "--out", str(run_dir), "--max-frames", "2", "--no-video", *ckpt_args())
+    r = cli("run", str(face_video), "--out", str(run_dir), "--max-frames", "2", "--no-video")
     assert r.returncode == 2 and "exists" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_bad_inputs(tmp_path, face_video):
-    r = cli("run", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "o"), *ckpt_args())
+    r = cli("run", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "o"))
     assert r.returncode == 2 and "nope.mp4" in r.stderr and "Traceback" not in r.stderr
     silent = tmp_path / "silent.mp4"
     import subprocess
@@ -75,7 +75,7 @@ def test_bad_inputs(tmp_path, face_video):
 
     subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-loglevel", "error", "-i", str(face_video), "-t", "1", "-an",
                     "-c:v", "copy", str(silent)], check=True)
-    r = cli("run", str(silent), "--out", str(tmp_path / "o2"), *ckpt_args())
+    r = cli("run", str(silent), "--out", str(tmp_path / "o2"))
     assert r.returncode == 2 and "silent.mp4" in r.stderr and "--audio" in r.stderr
     r = cli("run", str(face_video), "--out", str(tmp_path / "o3"), "--style", "no-such-style")
     assert r.returncode == 2 and "no-such-style" in r.stderr

@@ -202,8 +202,9 @@ def test_face_hold_unit():
     w = np.full(52, 0.8, np.float32)
     R = rot.axis_angle_matrix("Y", np.array(0.6))
     h.fresh(FaceSample(1.0, w, rot.matrix_to_rot6d(R).astype(np.float32)))
-    wf, hf, found = h.stale(1.4)
-    np.testing.assert_array_equal(wf, w) and found
+    wf, hf, found = h.stale(1.4)  # within the 500 ms hold
+    np.testing.assert_array_equal(wf, w)
+    assert found
     wm, hm, found = h.stale(2.0)  # half-way through the ease: smoothstep(0.5) = 0.5
     assert not found and wm[ARKIT_NAMES.index("jawOpen")] == pytest.approx(0.4)
     ang = rot.geodesic_angle(np.eye(3), rot.rot6d_to_matrix(hm.astype(np.float64)))

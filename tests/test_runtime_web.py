@@ -17,14 +17,14 @@ import pytest
 
 from facecapges.runtime import protocol
 
-from runtime_helpers import ckpt_args, cli, cli_popen
+from runtime_helpers import cli, cli_popen
 
 
 @pytest.fixture(scope="module")
 def live(face_video, tmp_path_factory):
     rec = tmp_path_factory.mktemp("live") / "rec"
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
-                     "--record", str(rec), "--max-seconds", "300", *ckpt_args())
+                     "--record", str(rec), "--max-seconds", "300")
     url = None
     deadline = time.time() + 120
     while time.time() < deadline:
@@ -163,10 +163,10 @@ def test_ctrl_c_stops_cleanly_and_closes_files(live):
 
 
 def test_camera_that_cannot_open(tmp_path):
-    r = cli("live", "--camera", "7", "--audio", str(tmp_path / "none.wav"), *ckpt_args(), timeout=120)
+    r = cli("live", "--camera", "7", "--audio", str(tmp_path / "none.wav"), timeout=120)
     assert r.returncode != 0 and "Traceback" not in r.stderr
     assert "none.wav" in r.stderr or "camera 7" in r.stderr
-    r = cli("live", "--camera", "7", "--mic", "default", *ckpt_args(), timeout=120)
+    r = cli("live", "--camera", "7", "--mic", "default", timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert "microphone" in r.stderr or "camera 7" in r.stderr
 
@@ -180,12 +180,12 @@ def test_camera_error_names_the_device(face_video):
 
 
 def test_microphone_that_cannot_open(face_video):
-    r = cli("live", "--video", str(face_video), "--mic", "no-such-mic-42", "--max-seconds", "1", *ckpt_args(),
+    r = cli("live", "--video", str(face_video), "--mic", "no-such-mic-42", "--max-seconds", "1",
             timeout=120)
     assert r.returncode == 2 and "no-such-mic-42" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_non_loopback_needs_host(face_video):
-    r = cli("live", "--video", str(face_video), "--web", "0.0.0.0:0", "--max-seconds", "1", *ckpt_args(),
+    r = cli("live", "--video", str(face_video), "--web", "0.0.0.0:0", "--max-seconds", "1",
             timeout=120)
     assert r.returncode == 2 and "--host" in r.stderr
