@@ -57,8 +57,9 @@ class ClientResult:
 
 
 async def run_client(url: str, messages: list[str], seconds: float, warmup_s: float = 1.0,
-                     fps: float = timing.MODEL_FPS, phase: float = 0.0) -> ClientResult:
-    """One client for ``seconds`` of stream time; latencies of frames sent after ``warmup_s``."""
+                     fps: float = timing.MODEL_FPS, phase: float = 0.0, drain_s: float = 5.0) -> ClientResult:
+    """One client for ``seconds`` of stream time; latencies of frames sent after ``warmup_s``;
+    after the last frame it waits up to ``drain_s`` for the missing poses."""
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed
 
@@ -111,7 +112,7 @@ async def run_client(url: str, messages: list[str], seconds: float, warmup_s: fl
                               if k else messages[0])
                 res.sent += 1
             try:
-                await asyncio.wait_for(done.wait(), timeout=5.0)
+                await asyncio.wait_for(done.wait(), timeout=drain_s)
             except asyncio.TimeoutError:
                 pass
             rtask.cancel()
@@ -126,12 +127,12 @@ def _frame0(messages: list[str]) -> list[str]:
 
 
 async def run_clients(url: str, n_clients: int, seconds: float, messages: list[str], warmup_s: float = 1.0,
-                      fps: float = timing.MODEL_FPS, seed: int = 0) -> list[ClientResult]:
+                      fps: float = timing.MODEL_FPS, seed: int = 0, drain_s: float = 5.0) -> list[ClientResult]:
     """``n_clients`` concurrent clients, random phases within one frame period."""
     rng = np.random.default_rng(seed)
     msgs = _frame0(messages)
     return list(await asyncio.gather(*[
-        run_client(url, msgs, seconds, warmup_s, fps, phase=float(rng.uniform(0, 1.0 / fps)))
+        run_client(url, msgs, seconds, warmup_s, fps, phase=float(rng.uniform(0, 1.0 / fps)), drain_s=drain_s)
         for _ in range(n_clients)]))
 
 

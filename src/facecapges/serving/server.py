@@ -119,7 +119,7 @@ class StreamServer:
         if c.rate_limit <= 0:
             raise UserError("--rate-limit must be a positive number of frames per second")
         self.ckpt = checkpoint
-        self.fps = float(checkpoint.fps)
+        self.fps = checkpoint.fps  # an int, as in the viewer's hello
         self.sr = int(checkpoint.model.cfg.sr)
         self.gen = BatchedStreamingGenerator(checkpoint.model, checkpoint.neutral_window,
                                              capacity=min(c.max_streams, 64))

@@ -57,7 +57,10 @@ def pick_device(device: str, local_rank: int = 0) -> torch.device:
     if device == "cpu" or (device == "auto" and not torch.cuda.is_available()):
         return torch.device("cpu")
     n = torch.cuda.device_count()
-    return torch.device("cuda", local_rank % n)
+    if local_rank >= n:
+        raise UserError(f"LOCAL_RANK={local_rank} but only {n} GPU(s) are visible: start at most {n} processes "
+                        "per node (torchrun --nproc_per_node) or train with --device cpu")
+    return torch.device("cuda", local_rank)
 
 
 @dataclass
