@@ -7,6 +7,15 @@ the variables torchrun sets (``RANK``, ``WORLD_SIZE``, ``LOCAL_RANK``, ``MASTER_
 process trains on a GPU (``cuda:LOCAL_RANK``), gloo on CPU. Without those variables
 the run is a single process and nothing here touches ``torch.distributed``.
 
+Examples::
+
+    torchrun --nproc_per_node=4 --no-python facecapges train --cache C --speaker 2 --out RUN
+    torchrun --nnodes=2 --node-rank=0 --nproc_per_node=8 --rdzv-backend=c10d \
+        --rdzv-endpoint=HOST:29500 --no-python facecapges train --cache C --speaker 2 --out RUN --amp
+
+Every node needs the cache; the run folder is written by rank 0 only, and ``--resume``
+reads it on rank 0 and broadcasts the state, so only rank 0's node needs it.
+
 Conventions (ours, the thesis trains on one GPU):
 
 * ``train.batch_size`` is the **per-process** batch; the global batch is
