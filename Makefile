@@ -12,7 +12,7 @@ demo: setup
 	$(VENV)/bin/facecapges demo --out out --force
 
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q --durations=15
 
 setup: $(STAMP)
 
