@@ -366,7 +366,8 @@ def ablation_markdown(full: dict) -> str:
         held = fl.get("held_rec")
         ms = res["ms_per_frame"].get(LABELS[v])
         took = f"{info['seconds'] / 60:.1f} min" if info["seconds"] else "—"
-        lines.append(f"| {LABELS[v]} | {info['source']} ({Path(info['path']).name}) | {info['epochs']} | "
+        where = Path(info["path"]).name if info["source"] == "shipped checkpoint" else f"runs/{v}/"
+        lines.append(f"| {LABELS[v]} | {info['source']} ({where}) | {info['epochs']} | "
                      f"{'—' if rec is None else f'{rec:.5f}'} | {'—' if held is None else f'{held:.5f}'} | "
                      f"{took} | "
                      f"{'—' if ms is None else f'{ms:.2f}'} |")
