@@ -132,7 +132,7 @@ def run(quick: bool = False, threads: int = 1) -> dict:
             "period_ms": round(period_ms, 2), "p99_ms_at_best": at_best.get("p99_ms"),
             "p50_ms_at_best": at_best.get("p50_ms"), "seconds_per_trial": seconds, "server_threads": threads,
             "load_average_before": load_before, "load_average_after": [round(x, 2) for x in os.getloadavg()],
-            "cpu_count": os.cpu_count(),
+            "cpu_count": os.cpu_count(), "niceness": os.nice(0),
             "server_cpu_ms_per_frame": ref["server_cpu_ms_per_frame"],
             "client_cpu_ms_per_frame": ref["client_cpu_ms_per_frame"],
             "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * 15.0)),
