@@ -10,7 +10,11 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import pytest
+# The suite runs many tiny per-frame steps on a 2-core machine: extra intra-op threads
+# only spin against each other (and against subprocesses the tests start).
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import pytest  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
