@@ -44,6 +44,7 @@ import torch
 import torch.nn.functional as F
 
 from facecapges.model.network import FaceCapGes
+from facecapges.model.streaming import initial_window
 
 
 def pack_audio(frames: Sequence[np.ndarray], samples_per_frame: int) -> np.ndarray:
@@ -290,13 +291,7 @@ class BatchedStreamingGenerator:
     def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
         """Cold start of one stream, as ``StreamingGenerator.reset``: (47, 6), (N, 47, 6) or None."""
         cfg, N, W = self.cfg, self.cfg.n_history, self.cfg.window
-        if initial_pose is None:
-            window = self.neutral_window
-        else:
-            p = np.asarray(initial_pose, dtype=np.float32)
-            window = np.broadcast_to(p, (N, cfg.n_joints, 6)) if p.ndim == 2 else p
-            if window.shape != (N, cfg.n_joints, 6):
-                raise ValueError(f"initial pose must be (47, 6) or ({N}, 47, 6), got {p.shape}")
+        window = initial_window(initial_pose, self.neutral_window)
         with self._lock:
             if slot not in self._open:
                 raise KeyError(f"slot {slot} is not open")

@@ -78,6 +78,18 @@ class _ProjectedLSTM:
         self.w_hh_t = lstm.weight_hh_l0.detach().t().contiguous()
 
 
+def initial_window(initial_pose: np.ndarray | None, neutral_window: np.ndarray) -> np.ndarray:
+    """The N-frame pose history a stream starts from: (47, 6) repeated, (N, 47, 6), or the neutral window."""
+    if initial_pose is None:
+        return neutral_window
+    N, J = neutral_window.shape[:2]
+    p = np.asarray(initial_pose, dtype=np.float32)
+    window = np.broadcast_to(p, (N, J, 6)) if p.ndim == 2 else p
+    if window.shape != (N, J, 6):
+        raise ValueError(f"initial pose must be ({J}, 6) or ({N}, {J}, 6), got {p.shape}")
+    return window
+
+
 def _as_frame_audio(audio: np.ndarray, spf: int) -> torch.Tensor:
     a = np.asarray(audio, dtype=np.float32).reshape(-1)
     if a.shape[0] > spf:
@@ -123,13 +135,7 @@ class StreamingGenerator:
     def reset(self, initial_pose: np.ndarray | None = None) -> None:
         """Start a new stream. ``initial_pose``: (47, 6), (N, 47, 6) or None (neutral)."""
         cfg, m, N, W = self.cfg, self.model, self.cfg.n_history, self.cfg.window
-        if initial_pose is None:
-            window = self.neutral_window
-        else:
-            p = np.asarray(initial_pose, dtype=np.float32)
-            window = np.broadcast_to(p, (N, cfg.n_joints, 6)) if p.ndim == 2 else p
-            if window.shape != (N, cfg.n_joints, 6):
-                raise ValueError(f"initial pose must be (47, 6) or ({N}, 47, 6), got {p.shape}")
+        window = initial_window(initial_pose, self.neutral_window)
         self.hist = torch.from_numpy(np.ascontiguousarray(window).reshape(N, -1).copy())  # (N, J*6)
         # per TCN layer, its inputs of the last d_i frames (zeros = before the stream,
         # exactly the causal padding of the sequence encoder)
