@@ -164,6 +164,19 @@ class Cache:
         return [c for c in self.index["clips"]
                 if (speaker is None or int(c["speaker"]) == int(speaker)) and (split is None or c["split"] == split)]
 
+    def select(self, speaker: int, split: str) -> list[dict]:
+        """Clips of ``speaker`` in ``split`` (``"all"``: every split); a UserError when there are none.
+
+        The message lists the speaker/split pairs the cache does have, so the user
+        can pick ``--split all`` (with ``--holdout-from FRAME``) for a single-clip cache.
+        """
+        entries = self.clips(speaker=speaker, split=None if split == "all" else split)
+        if not entries:
+            have = sorted({(int(c["speaker"]), c["split"]) for c in self.clips()})
+            raise UserError(f"{self.path}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "
+                            f"{have}); use --split all, with --holdout-from FRAME to keep frames for evaluation")
+        return entries
+
     def entry(self, name: str) -> dict:
         """The index entry of clip ``name``."""
         try:

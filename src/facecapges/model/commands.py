@@ -11,15 +11,10 @@ import typer
 
 def _load_clips(cache_path: Path, speaker: int, split: str):
     from facecapges.data.cache import Cache
-    from facecapges.errors import UserError
     from facecapges.training.train import ClipArrays
 
     cache = Cache(cache_path)
-    entries = cache.clips(speaker=speaker, split=None if split == "all" else split)
-    if not entries:
-        have = sorted({(c["speaker"], c["split"]) for c in cache.clips()})
-        raise UserError(f"{cache_path}: no {split!r} clips of speaker {speaker} (the cache has speaker/split "
-                        f"{have}); use --split all to train on every clip of the speaker")
+    entries = cache.select(speaker, split)
     clips = []
     for e in entries:
         a = cache.load(e["name"])
