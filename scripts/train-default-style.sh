@@ -17,4 +17,7 @@ fi
 mkdir -p src/facecapges/assets/styles
 cp "$WORK/run/model.safetensors" src/facecapges/assets/styles/beat2-scott-demo.safetensors
 cp "$WORK/run/log.csv" src/facecapges/assets/styles/beat2-scott-demo.log.csv
-echo "installed src/facecapges/assets/styles/beat2-scott-demo.safetensors"
+# its FGD autoencoder (thesis 5.5.1), saved beside it as beat2-scott-demo.fgd/
+$FC fgd-train --cache "$WORK/cache" --speaker 2 --split all --holdout-from 766 \
+    --checkpoint src/facecapges/assets/styles/beat2-scott-demo.safetensors
+echo "installed src/facecapges/assets/styles/beat2-scott-demo.safetensors (+ .fgd/)"
