@@ -19,5 +19,5 @@ cp "$WORK/run/model.safetensors" src/facecapges/assets/styles/beat2-scott-demo.s
 cp "$WORK/run/log.csv" src/facecapges/assets/styles/beat2-scott-demo.log.csv
 # its FGD autoencoder (thesis 5.5.1), saved beside it as beat2-scott-demo.fgd/
 $FC fgd-train --cache "$WORK/cache" --speaker 2 --split all --holdout-from 766 \
-    --checkpoint src/facecapges/assets/styles/beat2-scott-demo.safetensors
+    --checkpoint src/facecapges/assets/styles/beat2-scott-demo.safetensors --force
 echo "installed src/facecapges/assets/styles/beat2-scott-demo.safetensors (+ .fgd/)"
