@@ -397,6 +397,9 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
     if bad or not variants:
         raise UserError(f"--variants must be a comma-separated subset of {', '.join(VARIANTS)}, got {bad or '[]'}")
     c = Cache(cache)
+    if not c.clips(speaker=speaker):
+        have = sorted({e["speaker"] for e in c.clips()})
+        raise UserError(f"{cache}: no clips of speaker {speaker} (speakers in the cache: {have})")
     recipe = make_recipe(config, speaker, split, epochs, holdout_from, c.fps)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
