@@ -64,11 +64,7 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
         from facecapges.data.cache import Cache
 
         c = Cache(cache)
-        entries = c.clips(speaker=speaker, split=None if split == "all" else split)
-        if not entries:
-            have = sorted({(e["speaker"], e["split"]) for e in c.clips()})
-            raise UserError(f"{cache}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "
-                            f"{have}); use --split all, with --holdout-from FRAME to keep frames for evaluation")
+        entries = c.select(speaker, split)
         clips = [c.load(e["name"])["pose"] for e in entries]
         source = f"{cache} (speaker {speaker}, split {split})"
     if before_frame is not None:
