@@ -54,7 +54,7 @@ def lstm_window(gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torc
     for k in range(gx.shape[0]):
         g = torch.addmm(gx[k:k + 1], h, w_hh_t)
         s = torch.sigmoid(g)
-        c = s[:, H:2 * H] * c + s[:, :H] * torch.tanh(g[:, 2 * H:3 * H])
+        c = torch.addcmul(s[:, H:2 * H] * c, s[:, :H], torch.tanh(g[:, 2 * H:3 * H]))
         h = s[:, 3 * H:] * torch.tanh(c)
         outs.append(h)
     return torch.cat(outs), h, c
@@ -205,10 +205,11 @@ class StreamingGenerator:
         """Generate the current frame's pose (47, 6) from this frame's inputs."""
         self._push_inputs(audio, face, head)
         if self._fast:
-            pose = self._decode_cached()
+            pose, cur = self._decode_cached()
+            self._append_history(pose, cur)
         else:
             pose, self.state = self.model.step(self.emb[None], self.hist[None], self.state)
-        self._append_history(pose)
+            self._append_history(pose)
         return pose.reshape(self.cfg.n_joints, 6).numpy().copy()
 
     # -------------------------------------------------------------- decoding
@@ -217,24 +218,34 @@ class StreamingGenerator:
         g = torch.addmm(pl.b, emb, pl.w_e)
         return g if pose is None else g.addmm_(pose, pl.w_s)
 
-    def _append_history(self, pose: torch.Tensor) -> None:
-        """Frame t's pose joins the history (eq. 4.11) — and its cached projections."""
-        self.hist = torch.cat([self.hist[1:], pose], 0)
-        if self._fast:
-            e = self.emb[-1:]
-            self.gx_t = torch.cat([self.gx_t[1:], self._project(self._pt, e, pose)], 0)
-            self.gx_u = torch.cat([self.gx_u[1:], self._project(self._pu, e, pose)], 0)
+    def _append_history(self, pose: torch.Tensor, cur: tuple[torch.Tensor, torch.Tensor] | None = None) -> None:
+        """Frame t's pose joins the history (eq. 4.11) — as its cached projections.
 
-    def _decode_cached(self) -> torch.Tensor:
-        """Decoder.forward on the window, from cached projections (same arithmetic)."""
+        ``cur``: the frame's projections without pose (``W_e e_t + b``) if the decoder
+        already made them; the pose term is added to them in place.
+        """
+        if not self._fast:
+            self.hist = torch.cat([self.hist[1:], pose], 0)
+            return
+        if cur is None:
+            e = self.emb[-1:]
+            cur = (self._project(self._pt, e, None), self._project(self._pu, e, None))
+        self.gx_t = torch.cat([self.gx_t[1:], cur[0].addmm_(pose, self._pt.w_s)], 0)
+        self.gx_u = torch.cat([self.gx_u[1:], cur[1].addmm_(pose, self._pu.w_s)], 0)
+
+    def _decode_cached(self) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+        """Decoder.forward on the window, from cached projections (same arithmetic).
+
+        Returns the pose (1, J*6) and the current frame's pose-free projections.
+        """
         dec, e = self.model.decoder, self.emb[-1:]
         (h_t, c_t), (h_u, c_u) = self.state
-        gx_t = torch.cat([self.gx_t, self._project(self._pt, e, None)], 0)  # current frame: s = 0
-        o_t, h_t, c_t = lstm_window(gx_t, h_t[0], c_t[0], self._pt.w_hh_t)
-        gx_u = torch.cat([self.gx_u, self._project(self._pu, e, None)], 0).addmm_(o_t, self._pu.w_x)
+        cur_t, cur_u = self._project(self._pt, e, None), self._project(self._pu, e, None)  # s_t = 0 (eq. 3.5)
+        o_t, h_t, c_t = lstm_window(torch.cat([self.gx_t, cur_t], 0), h_t[0], c_t[0], self._pt.w_hh_t)
+        gx_u = torch.cat([self.gx_u, cur_u], 0).addmm_(o_t, self._pu.w_x)
         o_u, h_u, c_u = lstm_window(gx_u, h_u[0], c_u[0], self._pu.w_hh_t)
         self.state = ((h_t[None], c_t[None]), (h_u[None], c_u[None]))
-        return torch.cat([dec.head_t(o_t[-1:]), dec.head_u(o_u[-1:])], -1)
+        return torch.cat([dec.head_t(o_t[-1:]), dec.head_u(o_u[-1:])], -1), (cur_t, cur_u)
 
 
 class NaiveStreamingGenerator(StreamingGenerator):
