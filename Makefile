@@ -16,12 +16,13 @@ test: setup
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh scripts/setup-avatar.sh
+$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh scripts/setup-avatar.sh scripts/setup-runtime.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'
 	PYTHON=$(PY) bash scripts/setup-capture.sh
 	PYTHON=$(PY) bash scripts/setup-avatar.sh
+	bash scripts/setup-runtime.sh
 	touch $(STAMP)
 
 clean:
