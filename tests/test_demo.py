@@ -68,8 +68,9 @@ def test_demo_writes_bvh_and_video(tmp_path):
     assert arms.max() > 1.0  # degrees: the avatar actually gestures
     import imageio_ffmpeg
 
-    probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out / "demo.mp4")], capture_output=True, text=True)
-    assert "Video: h264" in probe.stderr and "Audio:" in probe.stderr
+    for video in ("demo.mp4", "demo_avatar.mp4"):
+        probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out / video)], capture_output=True, text=True)
+        assert "Video: h264" in probe.stderr and "Audio:" in probe.stderr, video
     # a second run never overwrites without asking
     p2 = subprocess.run([sys.executable, "-m", "facecapges.cli", "demo", "--out", str(out)],
                         capture_output=True, text=True, timeout=300)

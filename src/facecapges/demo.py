@@ -6,6 +6,10 @@ the default style frame by frame (no look-ahead, the live code path) and writes
 
 * ``OUT/demo.bvh`` — the motion on the BEAT skeleton (opens in Blender / three.js),
 * ``OUT/demo.mp4`` — the skeleton animation with the speech muxed in,
+* ``OUT/demo_avatar.mp4`` — the avatar (our skinned BEAT body with the ARKit face,
+  three.js in headless Chromium) performing the same motion, with the speech; the
+  face is neutral because the demo has speech only (``facecapges run`` drives it
+  from a video),
 
 then prints where they are.
 """
@@ -31,7 +35,13 @@ def register(app: typer.Typer) -> None:
         audio: Path = typer.Option(None, help="Speech to use instead of the bundled clip."),
         force: bool = typer.Option(False, "--force", help="Overwrite the demo files in OUT."),
     ) -> None:
-        """Generate gestures for a speech clip and write out/demo.bvh and out/demo.mp4."""
+        """Generate gestures for a speech clip: out/demo.bvh, out/demo.mp4 (skeleton), out/demo_avatar.mp4."""
+        import numpy as np
+
+        from facecapges.arkit import N_BLENDSHAPES
+        from facecapges.avatar.body import default_avatar
+        from facecapges.avatar.gltf import avatar_to_gltf
+        from facecapges.avatar.render.video import bvh_quaternions, render_video
         from facecapges.errors import refuse_overwrite
         from facecapges.io.bvh import write_bvh
         from facecapges.model.checkpoint import load_checkpoint
@@ -41,8 +51,8 @@ def register(app: typer.Typer) -> None:
         from facecapges.skeleton import pose_to_motion
 
         speech = audio or demo_speech()
-        bvh_path, mp4_path = out / "demo.bvh", out / "demo.mp4"
-        for p in (bvh_path, mp4_path):
+        bvh_path, mp4_path, avatar_path = out / "demo.bvh", out / "demo.mp4", out / "demo_avatar.mp4"
+        for p in (bvh_path, mp4_path, avatar_path):
             refuse_overwrite(p, force)
         t0 = time.perf_counter()
         ckpt = load_checkpoint()
@@ -50,12 +60,18 @@ def register(app: typer.Typer) -> None:
         poses, ms = generate_poses(ckpt, inputs)
         poses = normalize_rot6d(poses)
         skel = ckpt.skeleton
-        write_bvh(bvh_path, skel, pose_to_motion(skel, poses), ckpt.fps)
+        motion = pose_to_motion(skel, poses)
+        write_bvh(bvh_path, skel, motion, ckpt.fps)
         render_skeleton_video([poses], [f"FaceCapGes ({ckpt.path.stem})"], skel, mp4_path, fps=ckpt.fps,
                               wav=speech, progress=True)
+        glb = b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
+        quats = bvh_quaternions(list(skel.names), skel, motion, name=str(bvh_path))
+        render_video(glb, quats, np.zeros((len(poses), N_BLENDSHAPES), np.float32), ckpt.fps, avatar_path,
+                     audio=speech, progress=True)
         summary = {"speech": str(speech), "frames": int(len(poses)), "fps": ckpt.fps,
                    "ms_per_frame": round(ms, 2), "seconds": round(time.perf_counter() - t0, 1),
-                   "bvh": str(bvh_path), "video": str(mp4_path)}
+                   "bvh": str(bvh_path), "video": str(mp4_path), "avatar_video": str(avatar_path)}
         typer.echo(json.dumps(summary, indent=2))
         typer.echo(f"\nGestures for {len(poses) / ckpt.fps:.1f} s of speech ({ms:.2f} ms per frame):\n"
-                   f"  motion: {bvh_path.resolve()}\n  video:  {mp4_path.resolve()}")
+                   f"  motion: {bvh_path.resolve()}\n  video:  {mp4_path.resolve()}\n"
+                   f"  avatar: {avatar_path.resolve()}")
