@@ -43,7 +43,8 @@ from facecapges.errors import UserError
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import SegmentDiscriminator
 from facecapges.model.offline import OfflineDecoder, save_offline
-from facecapges.training.train import ClipArrays, SegmentSet, make_optimizer, neutral_window, reconstruction_losses
+from facecapges.training.train import (ClipArrays, SegmentSet, make_optimizer, neutral_window, reconstruction_losses,
+                                       segment_sets, start_heads_at_mean)
 
 LOG_FIELDS = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds"]
 
@@ -67,20 +68,9 @@ class OfflineTrainer:
         torch.manual_seed(train_cfg.seed)
         self.G = OfflineDecoder(model_cfg)
         self.D = SegmentDiscriminator(model_cfg)
-        N, F_ = model_cfg.n_history, train_cfg.holdout_from
-        self.train_set = SegmentSet(clips, model_cfg, train_cfg.clip_len, train_cfg.stride, (0, F_))
-        self.held_set = None
-        if F_ is not None:
-            try:
-                self.held_set = SegmentSet(clips, model_cfg, train_cfg.clip_len, train_cfg.stride, (F_, None))
-            except UserError:
-                self.held_set = None
-        self.neutral = neutral_window(clips, N, F_)
-        mean = torch.from_numpy(self.train_set.pose.reshape(-1, model_cfg.pose_dim)[self.train_set.pose.any(1)]
-                                .mean(0))
-        with torch.no_grad():
-            self.G.head_t[-1].bias.copy_(mean[: model_cfg.n_torso * 6])
-            self.G.head_u[-1].bias.copy_(mean[model_cfg.n_torso * 6:])
+        self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
+        self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
+        start_heads_at_mean(self.G.head_t, self.G.head_u, self.train_set, model_cfg)
         self.opt_g = make_optimizer(self.G, train_cfg, train_cfg.lr_g())
         self.opt_d = make_optimizer(self.D, train_cfg, train_cfg.lr_d())
         self.epoch = 0

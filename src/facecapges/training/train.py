@@ -150,6 +150,30 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> 
     return best.astype(np.float32)
 
 
+def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
+                 ) -> tuple[SegmentSet, SegmentSet | None]:
+    """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
+    F_ = tcfg.holdout_from
+    train_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    held_set = None
+    if F_ is not None:
+        try:
+            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (F_, None))
+        except UserError:  # too few held-out frames for one segment
+            held_set = None
+    return train_set, held_set
+
+
+def start_heads_at_mean(head_t: torch.nn.Sequential, head_u: torch.nn.Sequential, train_set: SegmentSet,
+                        mcfg: ModelConfig) -> None:
+    """Start the output heads at the training mean pose, so the first rollouts are sane."""
+    real = train_set.pose.any(1)  # the zero frames padding each clip are not poses
+    mean = torch.from_numpy(train_set.pose.reshape(-1, mcfg.pose_dim)[real].mean(0))
+    with torch.no_grad():
+        head_t[-1].bias.copy_(mean[: mcfg.n_torso * 6])
+        head_u[-1].bias.copy_(mean[mcfg.n_torso * 6:])
+
+
 def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torch.optim.Optimizer:
     """SGD (thesis 5.1) or Adam, at the linearly scaled learning rate."""
     if cfg.optimizer == "sgd":
@@ -238,21 +262,9 @@ class Trainer:
         torch.manual_seed(train_cfg.seed)  # the same initial weights on every rank
         self.G = FaceCapGes(model_cfg)
         self.D = SegmentDiscriminator(model_cfg)
-        N, F_ = model_cfg.n_history, train_cfg.holdout_from
-        self.train_set = SegmentSet(clips, model_cfg, train_cfg.clip_len, train_cfg.stride, (0, F_))
-        self.held_set = None
-        if F_ is not None:
-            try:
-                self.held_set = SegmentSet(clips, model_cfg, train_cfg.clip_len, train_cfg.stride, (F_, None))
-            except UserError:
-                self.held_set = None
-        self.neutral = neutral_window(clips, N, F_)
-        # start the output heads at the training mean pose: the first rollouts are sane
-        mean = torch.from_numpy(self.train_set.pose.reshape(-1, model_cfg.pose_dim)[self.train_set.pose.any(1)]
-                                .mean(0))
-        with torch.no_grad():
-            self.G.decoder.head_t[-1].bias.copy_(mean[: model_cfg.n_torso * 6])
-            self.G.decoder.head_u[-1].bias.copy_(mean[model_cfg.n_torso * 6:])
+        self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
+        self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
+        start_heads_at_mean(self.G.decoder.head_t, self.G.decoder.head_u, self.train_set, model_cfg)
         self.G.to(self.device)
         self.D.to(self.device)
         self.precision = _Precision(amp, self.device)
