@@ -1,4 +1,7 @@
-"""Shared test fixtures.
+"""Shared test fixtures and the CI rule.
+
+In CI (``CI=true``) no test may be skipped: every skip is turned into a failure (see
+``pytest_runtest_makereport``), so a missing install step cannot hide behind a skip.
 
 Real data lives in ``../shared`` beside the repository and is never copied here.
 Outside CI a missing shared file skips the test that needs it; in CI (``CI=true``) it
@@ -54,3 +57,13 @@ def face_video() -> Path:
 @pytest.fixture(scope="session")
 def megamind_video() -> Path:
     return shared_file("data/face/Megamind.avi")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    """In CI nothing may be skipped: a skip there means a missing install or file."""
+    outcome = yield
+    report = outcome.get_result()
+    if report.skipped and os.environ.get("CI", "").lower() == "true" and not hasattr(report, "wasxfail"):
+        report.outcome = "failed"
+        report.longrepr = f"skipped in CI (CI=true forbids skips): {report.longrepr}"
