@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import math
 import platform
 import time
 
@@ -24,6 +25,17 @@ BENCHMARKS: dict[str, str] = {
     "runtime": "facecapges.runtime.bench",
     "serve": "facecapges.serving.bench",
 }
+
+
+def _finite_or_null(x):
+    """NaN/inf (e.g. a correlation over a stretch without blinks) become null: strict JSON."""
+    if isinstance(x, float):
+        return x if math.isfinite(x) else None
+    if isinstance(x, dict):
+        return {k: _finite_or_null(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite_or_null(v) for v in x]
+    return x
 
 
 def register(app: typer.Typer) -> None:
@@ -46,8 +58,9 @@ def register(app: typer.Typer) -> None:
                                     "torch": torch.__version__, "time": time.strftime("%Y-%m-%dT%H:%M:%S")}}
         for area in areas:
             result[area] = importlib.import_module(BENCHMARKS[area]).run(quick=quick)
+        result = _finite_or_null(result)
         if json_out:
-            print(json.dumps(result, indent=2))
+            print(json.dumps(result, indent=2, allow_nan=False))
         else:
             from rich.console import Console
             from rich.table import Table
