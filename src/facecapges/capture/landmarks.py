@@ -21,6 +21,8 @@ Conventions
 from __future__ import annotations
 
 import os
+import sys
+import tempfile
 import time
 from dataclasses import dataclass, field
 
@@ -53,6 +55,31 @@ class FaceObservation:
         return float(x.max() - x.min())
 
 
+class _NativeStderrToFile:
+    """Send the process's fd 2 to a temporary file for a block (C++ logs bypass Python).
+
+    Lines that look like errors (``E…``/``F…`` glog/absl prefixes) are kept in
+    ``errors`` so the caller can still show them.
+    """
+
+    errors = ""
+
+    def __enter__(self):
+        sys.stderr.flush()
+        self._tmp = tempfile.TemporaryFile(mode="w+b")
+        self._saved = os.dup(2)
+        os.dup2(self._tmp.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        os.dup2(self._saved, 2)
+        os.close(self._saved)
+        self._tmp.seek(0)
+        text = self._tmp.read().decode("utf-8", "replace")
+        self._tmp.close()
+        self.errors = "".join(ln + "\n" for ln in text.splitlines() if ln[:1] in ("E", "F"))
+
+
 class LandmarkDetector:
     """FaceLandmarker in VIDEO mode. Use as a context manager or call :meth:`close`.
 
@@ -79,10 +106,15 @@ class LandmarkDetector:
             output_face_blendshapes=True,
             output_facial_transformation_matrixes=True,
         )
+        log = _NativeStderrToFile()  # MediaPipe's C++ start-up lines would clutter the CLI
         try:
-            self._task = fl.FaceLandmarker.create_from_options(opts)
+            with log:
+                self._task = fl.FaceLandmarker.create_from_options(opts)
         except (ValueError, RuntimeError) as exc:
             raise UserError(f"{model_path}: MediaPipe cannot load the face landmarker model: {exc}") from None
+        finally:
+            if log.errors:
+                sys.stderr.write(log.errors)
         self._last_ts = -1
         self.last_ms = 0.0
         self._bs_map: np.ndarray | None = None
