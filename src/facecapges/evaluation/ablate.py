@@ -268,7 +268,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.suite import combine_clips, evaluate_paired
-    from facecapges.model.generate import FrameInputs
+    from facecapges.evaluation.run import heldout_inputs
 
     if samples < 1:
         raise UserError("--samples must be at least 1")
@@ -297,11 +297,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     per_clip, real_clips, method_clips = [], [], {}
     for name in evaluated:
         a = loaded[name]
-        real = a["pose"][start:].astype(np.float32)
-        s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
-        audio = a["audio"][s0:].astype(np.float32)
-        inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=a["face"][start:],
-                             head=a["head"][start:], fps=fps, notes=[])
+        real, audio, inputs = heldout_inputs(a, start, fps, sr)
         histories = [None] + [bl.random_segment(pool, n_hist, rng) for _ in range(samples - 1)]
         if F_ is not None:
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))

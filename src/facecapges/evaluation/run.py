@@ -75,6 +75,22 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
     return [np.asarray(x, np.float32) for x in clips if len(x)], source
 
 
+def heldout_inputs(arrays: dict, start: int, fps: float, sr: int):
+    """A cached clip from frame ``start`` on: real poses (T, 47, 6), audio (S,), model inputs.
+
+    The audio starts at the first sample frame ``start`` owns, so frame t of the
+    inputs is frame ``start + t`` of the clip.
+    """
+    from facecapges.model.generate import FrameInputs
+
+    real = arrays["pose"][start:].astype(np.float32)
+    s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
+    audio = arrays["audio"][s0:].astype(np.float32)
+    inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=arrays["face"][start:],
+                         head=arrays["head"][start:], fps=fps, notes=[])
+    return real, audio, inputs
+
+
 def _real_window(pool: Sequence[np.ndarray], n: int, rng: np.random.Generator) -> np.ndarray:
     """A random real window (n, 47, 6) from the pool: another cold-start history."""
     from facecapges.evaluation.baselines import random_segment
@@ -111,7 +127,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import combine_clips, evaluate_paired, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import FrameInputs, generate_poses, prepare_inputs
+    from facecapges.model.generate import generate_poses, prepare_inputs
 
     warnings: list[str] = []
     ckpt = load_checkpoint(checkpoint, style)
@@ -170,11 +186,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     first = None
     for ci, name in enumerate(evaluated):
         a = loaded[name]
-        real = a["pose"][start:].astype(np.float32)
-        s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
-        audio = a["audio"][s0:].astype(np.float32)
-        inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=a["face"][start:],
-                             head=a["head"][start:], fps=fps, notes=[])
+        real, audio, inputs = heldout_inputs(a, start, fps, sr)
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
         gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)

@@ -82,15 +82,15 @@ class Checkpoint:
         return StreamingGenerator(self.model, self.neutral_window)
 
 
-def save_checkpoint(path: str | Path, model, meta: dict) -> Path:
-    """Write weights + metadata atomically (temporary file, then rename)."""
+def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> Path:
+    """Write weights + metadata (format ``fmt``) atomically (temporary file, then rename)."""
     from safetensors.torch import save_file
 
     from facecapges.model.config import to_dict
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(meta, format=FORMAT, model_config=to_dict(model.cfg))
+    meta = dict(meta, format=fmt, model_config=to_dict(model.cfg))
     tensors = {k: v.detach().float().contiguous() for k, v in model.state_dict().items()}
     tmp = path.with_name(path.name + ".part")
     save_file(tensors, str(tmp), metadata={"facecapges": json.dumps(meta)})

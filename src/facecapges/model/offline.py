@@ -47,7 +47,7 @@ import torch
 import torch.nn as nn
 
 from facecapges.errors import UserError, file_error
-from facecapges.model.config import ModelConfig, model_config_from_dict, to_dict
+from facecapges.model.config import ModelConfig, model_config_from_dict
 from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp
 
 OFFLINE_FORMAT = "facecapges-offline-1"
@@ -134,16 +134,9 @@ class OfflineDecoder(nn.Module):
 
 def save_offline(path: str | Path, model: OfflineDecoder, meta: dict) -> Path:
     """Weights + metadata (format ``facecapges-offline-1``) atomically."""
-    from safetensors.torch import save_file
+    from facecapges.model.checkpoint import save_checkpoint
 
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(meta, format=OFFLINE_FORMAT, model_config=to_dict(model.cfg))
-    tensors = {k: v.detach().float().contiguous() for k, v in model.state_dict().items()}
-    tmp = path.with_name(path.name + ".part")
-    save_file(tensors, str(tmp), metadata={"facecapges": json.dumps(meta)})
-    tmp.replace(path)
-    return path
+    return save_checkpoint(path, model, meta, fmt=OFFLINE_FORMAT)
 
 
 def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
