@@ -263,3 +263,60 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
     rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
     tr = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
     return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+# --------------------------------------------------------------- SO(3) exp / log
+def log_so3(R: np.ndarray) -> np.ndarray:
+    """One rotation matrix (3, 3) → rotation vector (3,): axis × angle, radians."""
+    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    ang = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if ang < 1e-6:
+        return 0.5 * v
+    if math.pi - ang < 1e-4:
+        # near 180°: axis from the diagonal
+        axis = np.sqrt(np.maximum((np.diag(R) + 1) / 2, 0))
+        axis *= np.sign(v) + (v == 0)
+        return axis / max(np.linalg.norm(axis), 1e-12) * ang
+    return v * (ang / (2 * math.sin(ang)))
+
+
+def exp_so3(v: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) (axis × angle, radians) → rotation matrix (3, 3) (Rodrigues)."""
+    ang = float(np.linalg.norm(v))
+    if ang < 1e-12:
+        return np.eye(3)
+    k = v / ang
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(ang) * Kx + (1 - math.cos(ang)) * Kx @ Kx
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The shortest-arc rotation (..., 3, 3) taking direction ``a`` (..., 3) onto ``b`` (..., 3).
+
+    ``R @ a/|a| = b/|b|`` and ``R`` turns about ``a × b`` only (no twist about either
+    vector). Opposite vectors turn 180° about an axis perpendicular to ``a``; a zero
+    vector gives the identity. numpy only.
+    """
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    na, nb = np.linalg.norm(a, axis=-1, keepdims=True), np.linalg.norm(b, axis=-1, keepdims=True)
+    degenerate = ((na < _EPS) | (nb < _EPS))[..., 0]
+    a = a / np.maximum(na, _EPS)
+    b = b / np.maximum(nb, _EPS)
+    v = np.cross(a, b)
+    c = (a * b).sum(-1)
+    vx = np.zeros(a.shape[:-1] + (3, 3))
+    vx[..., 0, 1], vx[..., 0, 2], vx[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    vx[..., 1, 0], vx[..., 2, 0], vx[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    opposite = c < -1.0 + 1e-9
+    k = 1.0 / np.maximum(1.0 + c, 1e-9)
+    R = np.eye(3) + vx + (vx @ vx) * k[..., None, None]
+    if np.any(opposite):
+        # any axis perpendicular to a: cross with the least-aligned principal axis
+        helper = np.eye(3)[np.argmin(np.abs(a), axis=-1)]
+        axis = np.cross(a, helper)
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        flip = 2.0 * axis[..., :, None] * axis[..., None, :] - np.eye(3)  # 180° about axis
+        R = np.where(opposite[..., None, None], flip, R)
+    return np.where(degenerate[..., None, None], np.eye(3), R)

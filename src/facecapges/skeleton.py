@@ -107,6 +107,29 @@ class Skeleton:
         return self.names == other.names and np.array_equal(self.parents, other.parents)
 
 
+# ------------------------------------------------------------ skeleton ↔ JSON
+def skeleton_to_dict(skel: Skeleton) -> dict:
+    """A JSON-able description of a full BVH hierarchy."""
+    return {
+        "names": list(skel.names),
+        "parents": [int(p) for p in skel.parents],
+        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
+        "channels": [list(c) for c in skel.channels],
+        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
+    }
+
+
+def skeleton_from_dict(d: dict) -> Skeleton:
+    """Inverse of :func:`skeleton_to_dict`."""
+    return Skeleton(
+        names=list(d["names"]),
+        parents=np.asarray(d["parents"], dtype=np.int64),
+        offsets=np.asarray(d["offsets"], dtype=np.float64),
+        channels=[list(c) for c in d["channels"]],
+        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
+    )
+
+
 # ------------------------------------------------------------------ motion ↔ angles
 def motion_to_euler(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split BVH motion (T, C) into root position (T, 3) and local Euler degrees (T, J, 3).

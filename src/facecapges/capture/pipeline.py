@@ -29,12 +29,12 @@ from facecapges import rotations as rot
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.capture.canonical_mesh import load_canonical_mesh
 from facecapges.capture.estimator import ExpressionEstimator
-from facecapges.capture.head_pose import (HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, exp_so3, head_angles,
-                                          log_so3)
+from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, head_angles
 from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkDetector
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
 from facecapges.capture.samples import sample_weight
+from facecapges.rotations import exp_so3, log_so3
 
 IDENTITY_ROT6D = rot.matrix_to_rot6d(np.eye(3)).astype(np.float32)
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.data.cache import skeleton_from_dict
+from facecapges.skeleton import skeleton_from_dict
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import Skeleton
 

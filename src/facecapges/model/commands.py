@@ -18,7 +18,8 @@ def _load_clips(cache_path: Path, speaker: int, split: str):
     clips = []
     for e in entries:
         a = cache.load(e["name"])
-        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"]))
+        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
+                                mask=a["mask"]))
     return cache, clips
 
 

@@ -95,6 +95,7 @@ class TrainConfig:
     grad_clip: float = 1.0  # (ours) max grad norm, guards the closed-loop rollout
     seed: int = 0
     holdout_from: int | None = None  # frames >= this of every clip are held out
+    mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
     num_threads: int = 0  # 0 = torch default
 
     def lr_g(self) -> float:

@@ -85,7 +85,7 @@ class FaceHold:
     def stale(self, now_s: float) -> tuple[np.ndarray, np.ndarray, bool]:
         if self.since is None:
             return self.weights, self.head, False
-        from facecapges.capture.head_pose import exp_so3, log_so3
+        from facecapges.rotations import exp_so3, log_so3
 
         k = 1.0 - smoothstep((now_s - self.since - self.hold_s) / max(self.ease_s, 1e-6))
         if k >= 1.0:
