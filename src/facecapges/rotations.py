@@ -31,7 +31,7 @@ Conventions
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -116,29 +116,43 @@ def euler_to_matrix(euler: Array, order: str, degrees: bool = False) -> Array:
     return mats[0] @ mats[1] @ mats[2]
 
 
-def matrix_to_euler(matrix: Array, order: str, degrees: bool = False) -> Array:
+def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = False) -> Array:
     """Inverse of :func:`euler_to_matrix` (principal branch, middle angle in [-90°, 90°]).
+
+    ``order``: one order for every matrix, or a sequence of orders, one per entry of
+    the matrices' third-last axis (e.g. each joint of a skeleton in its own BVH order:
+    ``matrix`` (..., J, 3, 3) with J orders) — one vectorised pass either way.
 
     Near gimbal lock the first angle is set from the remaining freedom; the matrix
     the angles give back is still the input matrix.
     """
-    order = _check_order(order)
     _check_last(matrix, (3, 3), "matrix")
     lib = torch if _is_torch(matrix) else np
-    i, j, k = ("XYZ".index(a) for a in order)
-    # sign of the permutation: even permutations (XYZ, YZX, ZXY) give +1
-    sign = 1.0 if (j - i) % 3 == 1 else -1.0
-    m = matrix
+    if isinstance(order, str):
+        i, j, k = ("XYZ".index(a) for a in _check_order(order))
+        sign = 1.0 if (j - i) % 3 == 1 else -1.0  # even permutations (XYZ, YZX, ZXY) give +1
+        m = lambda r, c: matrix[..., r, c]  # noqa: E731
+    else:
+        ijk = np.array([["XYZ".index(a) for a in _check_order(o)] for o in order], np.int64).reshape(-1, 3)
+        if matrix.ndim < 3 or matrix.shape[-3] != len(ijk):
+            raise ValueError(f"{len(ijk)} Euler orders for matrices of shape {tuple(matrix.shape)}")
+        i, j, k = ijk.T
+        sign = np.where((j - i) % 3 == 1, 1.0, -1.0)
+        rows = np.arange(len(ijk))
+        if _is_torch(matrix):
+            i, j, k, rows = (torch.as_tensor(x, device=matrix.device) for x in (i, j, k, rows))
+            sign = torch.as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
+        m = lambda r, c: matrix[..., rows, r, c]  # noqa: E731
     # For R = R_i(a) R_j(b) R_k(c): R[i, k] = sign * sin(b)
-    sb = lib.clip(sign * m[..., i, k], -1.0, 1.0)
+    sb = lib.clip(sign * m(i, k), -1.0, 1.0)
     b = lib.arcsin(sb)
-    a = lib.arctan2(-sign * m[..., j, k], m[..., k, k])
-    c = lib.arctan2(-sign * m[..., i, j], m[..., i, i])
+    a = lib.arctan2(-sign * m(j, k), m(k, k))
+    c = lib.arctan2(-sign * m(i, j), m(i, i))
     # gimbal lock: cos(b) ~ 0, put everything in a
-    cb = lib.sqrt(m[..., i, i] ** 2 + m[..., i, j] ** 2)
+    cb = lib.sqrt(m(i, i) ** 2 + m(i, j) ** 2)
     locked = cb < 1e-6
     if bool(locked.any()):
-        a_locked = lib.arctan2(sign * m[..., k, j], m[..., j, j])
+        a_locked = lib.arctan2(sign * m(k, j), m(j, j))
         a = lib.where(locked, a_locked, a)
         c = lib.where(locked, lib.zeros_like(c), c)
     out = _stack([a, b, c], -1, matrix)
