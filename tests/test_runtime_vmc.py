@@ -297,3 +297,46 @@ def test_vmcp_receives_interpolated_60hz(skeleton):
     arm = [e.rotation for e in events if isinstance(e, BoneTransformEvent) and e.joint.value == "RightUpperArm"]
     angles = [np.degrees(2 * np.arctan2(-q.z, q.w)) for q in arm]  # Unity: −angle about Z
     np.testing.assert_allclose(angles, [0, 10, 20, 30, 40, 50, 60, 70, 80], atol=1e-3)
+
+
+def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
+    """``live --video … --realtime --vmc … --rate 30``: a loopback receiver gets two frames per model frame."""
+    import json
+
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import BlockingOSCUDPServer
+
+    from runtime_helpers import cli
+
+    got = []
+    disp = Dispatcher()
+    disp.set_default_handler(lambda address, *args: got.append((address, args)))
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), disp)
+    th = threading.Thread(target=server.serve_forever, daemon=True)
+    th.start()
+    rec = tmp_path / "rec"
+    try:
+        r = cli("live", "--video", str(face_video), "--audio", str(beat_wav), "--realtime", "--max-seconds", "2",
+                "--vmc", "127.0.0.1:%d" % server.server_address[1], "--vmc-blend", "both", "--rate", "30",
+                "--record", str(rec))
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert r.returncode == 0, r.stderr[-2000:]
+    rep = json.loads((rec / "report.json").read_text())
+    assert rep["frames"] == 30 and rep["output"]["interpolation_added_latency_ms"] == pytest.approx(33.3)
+    assert rep["vmc"]["largest_datagram_bytes"] <= MAX_DATAGRAM_BYTES
+    times = [args[0] for a, args in got if a == "/VMC/Ext/T"]
+    # two per model frame when the machine keeps up (a late frame cuts its predecessor's in-between short)
+    assert rep["frames"] < len(times) <= 2 * rep["frames"] and rep["vmc"]["frames"] == len(times)
+    assert np.all(np.diff(times) > 0) and np.min(np.diff(times)) == pytest.approx(1 / 30, abs=1e-4)
+    assert times[-1] == pytest.approx(29 / 15, abs=1e-5)  # ends on the last model frame
+    names = {args[0] for a, args in got if a == "/VMC/Ext/Blend/Val"}
+    assert {"Blink_L", "A", "EyeBlinkLeft", "JawOpen"} <= names
+
+
+def test_live_rejects_a_rate_that_is_not_a_multiple(face_video):
+    from runtime_helpers import cli
+
+    r = cli("live", "--video", str(face_video), "--vmc", "127.0.0.1:39539", "--rate", "25", "--max-seconds", "1")
+    assert r.returncode != 0 and "--rate 25" in r.stderr and "Traceback" not in r.stderr
