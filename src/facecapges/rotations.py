@@ -334,3 +334,26 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         flip = 2.0 * axis[..., :, None] * axis[..., None, :] - np.eye(3)  # 180° about axis
         R = np.where(opposite[..., None, None], flip, R)
     return np.where(degenerate[..., None, None], np.eye(3), R)
+
+
+def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
+
+    Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
+    ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
+    normalised linear blend.
+    """
+    q0 = np.asarray(q0, np.float64)
+    q1 = np.asarray(q1, np.float64)
+    _check_last(q0, (4,), "quaternion")
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    s = np.sin(theta)
+    small = s < 1e-6
+    safe = np.where(small, 1.0, s)
+    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    w1 = np.where(small, t, np.sin(t * theta) / safe)
+    out = w0 * q0 + w1 * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)

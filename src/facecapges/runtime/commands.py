@@ -64,6 +64,16 @@ def register(app: typer.Typer) -> None:
         audio: Optional[Path] = typer.Option(None, "--audio", help="Speech from a file instead of a microphone."),
         vmc: Optional[str] = typer.Option(None, "--vmc", help="Send VMC (OSC/UDP) to HOST:PORT, e.g. "
                                                               "127.0.0.1:39539."),
+        vmc_blend: str = typer.Option("vrm", "--vmc-blend", help="Face clips sent over VMC: vrm (VRM presets Blink, "
+                                                                 "A…O, Joy…; every VRM), perfect-sync (the 52 ARKit "
+                                                                 "clips, EyeBlinkLeft…) or both."),
+        vmc_avatar: Optional[Path] = typer.Option(None, "--vmc-avatar", help="The receiver's VRM file: send its own "
+                                                                             "rest bone positions (receivers that "
+                                                                             "apply bone positions keep its "
+                                                                             "proportions)."),
+        rate: Optional[float] = typer.Option(None, "--rate", help="VMC and viewer output rate in Hz, a multiple of "
+                                                                  "the model's 15 fps: 30 or 60 interpolate between "
+                                                                  "model frames (+33 / +50 ms latency)."),
         web: Optional[str] = typer.Option(None, "--web", help="Serve the browser viewer on [HOST:]PORT, e.g. "
                                                               "127.0.0.1:8765 (port 0: any free port)."),
         host: Optional[str] = typer.Option(None, "--host", help="Bind servers (viewer, Live Link) to this address "
@@ -105,9 +115,22 @@ def register(app: typer.Typer) -> None:
                 refuse_overwrite(record / name, force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
+        if vmc_avatar is not None and vmc is None:
+            raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+        if vmc_blend not in ("vrm", "perfect-sync", "both"):
+            raise UserError(f"--vmc-blend {vmc_blend}: choose vrm, perfect-sync or both")
         ckpt = load_checkpoint(checkpoint, style)
         sinks, closers = [], []
         server = None
+        up = sender = None
+        if rate is not None and rate != ckpt.fps:
+            from facecapges.runtime.upsample import Upsampler
+
+            try:
+                up = Upsampler([], ckpt.fps, rate)  # VMC and the viewer go through it
+            except ValueError as exc:
+                raise UserError(f"--rate {rate:g}: {exc}") from None
+            sinks.append(up)
         if record is not None:
             from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder
 
@@ -116,7 +139,8 @@ def register(app: typer.Typer) -> None:
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 
-            sinks.append(VmcSender(ckpt.skeleton, *vmc_addr))
+            sender = VmcSender(ckpt.skeleton, *vmc_addr, blend=vmc_blend, avatar=vmc_avatar)
+            (up.sinks if up else sinks).append(sender)
         sess = build_session(ckpt, video=video, camera=camera, livelink=livelink, audio=audio, mic=mic,
                              realtime=realtime or video is None, loop=loop, depth_dir=depth, intrinsics=intrinsics,
                              estimator=estimator, host=bind, sinks=sinks, silent_ok=True)
@@ -130,7 +154,7 @@ def register(app: typer.Typer) -> None:
 
                 server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
                 sess.closers.append(server)
-                sess.add_sink(WebFeed(server))
+                up.sinks.append(WebFeed(server)) if up else sess.add_sink(WebFeed(server))
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
             typer.echo(f"live: {src.name} + {sess.audio.name if sess.audio else 'silence'} → "
@@ -162,6 +186,11 @@ def register(app: typer.Typer) -> None:
         if server is not None:
             report["viewer"] = {"frames_sent": server.frames_sent, "rejected_requests": server.rejected_requests,
                                 "oversized_closes": server.oversized_closes}
+        if sender is not None:
+            report["vmc"] = sender.stats()
+        if up is not None:
+            report["output"] = {"rate_hz": up.rate_hz, "interpolation_added_latency_ms": round(up.added_latency_ms, 1),
+                                "frames_emitted": up.emitted}
         if record is not None:
             record.mkdir(parents=True, exist_ok=True)
             (record / "report.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
