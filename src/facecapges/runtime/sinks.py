@@ -13,6 +13,9 @@ files behind. Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed
   rotation (rot6d) per frame, at the model rate.
 * :class:`MemoryRecorder` — keeps quaternions and weights in memory for rendering the
   avatar video after ``run``.
+* :class:`ForFace` — passes on one face's frames only (a recorder per face for ``--faces N``).
+
+Every sink satisfies :class:`facecapges.runtime.interfaces.Sink`.
 """
 
 from __future__ import annotations
@@ -83,4 +86,18 @@ class MemoryRecorder:
         self.found.append(bool(out.face_found))
 
     def close(self) -> None:
-        pass
+        return None
+
+
+class ForFace:
+    """A sink that receives only face ``index``'s frames of a several-face session (``--faces N``)."""
+
+    def __init__(self, index: int, sink):
+        self.index, self.sink = int(index), sink
+
+    def write(self, out: OutputFrame) -> None:
+        if out.face_index == self.index:
+            self.sink.write(out)
+
+    def close(self):
+        return self.sink.close()
