@@ -77,6 +77,7 @@ class HeadDriver:
         self.weight = 0.0  # how much of the captured head is shown now
         self._R: np.ndarray | None = None  # last captured head while found
         self._tracking = False
+        self._R_seen = False
         self._since = 0.0
         self._w_from = 0.0
 
@@ -86,7 +87,10 @@ class HeadDriver:
         if found:
             self._R = rot.rot6d_to_matrix(np.asarray(head_rot6d, np.float64))
             if not self._tracking:
-                self._tracking, self._since, self._w_from = True, t_s, self.weight
+                # the first face of the session is shown at once (there is no captured head to come from)
+                first = self._R_seen is False
+                self._tracking, self._since, self._w_from = True, t_s, 1.0 if first else self.weight
+                self._R_seen = True
             k = self.policy.ease_in(t_s - self._since)
             self.weight = self._w_from + (1.0 - self._w_from) * k
         else:

@@ -73,16 +73,21 @@ class FaceJsonRecorder:
 
 
 class MemoryRecorder:
-    """(T, 47, 4) quaternions, (T, 52) weights and face-found flags, for the videos of ``run``."""
+    """(T, 47, 4) quaternions, (T, 47, 6) poses, (T, 52) weights, (T, 6) heads and face-found flags,
+    for the videos and the report of ``run``."""
 
     def __init__(self):
         self.quats: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []
         self.weights: list[np.ndarray] = []
+        self.heads: list[np.ndarray] = []
         self.found: list[bool] = []
 
     def write(self, out: OutputFrame) -> None:
         self.quats.append(np.asarray(out.quats, np.float32))
+        self.poses.append(np.asarray(out.pose, np.float32))
         self.weights.append(np.asarray(out.face, np.float32))
+        self.heads.append(np.asarray(out.head, np.float32))
         self.found.append(bool(out.face_found))
 
     def close(self) -> None:
