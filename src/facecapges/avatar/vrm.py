@@ -115,41 +115,52 @@ SUPPORTED_EXTENSIONS = frozenset({
     "VRMC_springBone_extended_collider", "VRMC_node_constraint", "VRMC_materials_hdr_emissiveMultiplier",
 })
 
-# VRM presets as combinations of ARKit targets (weights), for the avatar we write
-PRESET_BINDS: dict[str, dict[str, float]] = {
-    "happy": {"mouthSmileLeft": 1.0, "mouthSmileRight": 1.0, "cheekSquintLeft": 0.6, "cheekSquintRight": 0.6,
-              "eyeSquintLeft": 0.4, "eyeSquintRight": 0.4},
-    "angry": {"browDownLeft": 1.0, "browDownRight": 1.0, "noseSneerLeft": 0.5, "noseSneerRight": 0.5,
-              "mouthFrownLeft": 0.6, "mouthFrownRight": 0.6, "mouthPressLeft": 0.4, "mouthPressRight": 0.4},
-    "sad": {"browInnerUp": 1.0, "mouthFrownLeft": 0.8, "mouthFrownRight": 0.8, "mouthShrugLower": 0.3},
-    "relaxed": {"mouthSmileLeft": 0.45, "mouthSmileRight": 0.45, "eyeBlinkLeft": 0.3, "eyeBlinkRight": 0.3},
-    "surprised": {"eyeWideLeft": 1.0, "eyeWideRight": 1.0, "browInnerUp": 0.8, "browOuterUpLeft": 0.8,
-                  "browOuterUpRight": 0.8, "jawOpen": 0.45},
-    "aa": {"jawOpen": 0.75, "mouthLowerDownLeft": 0.3, "mouthLowerDownRight": 0.3},
-    "ih": {"jawOpen": 0.25, "mouthStretchLeft": 0.6, "mouthStretchRight": 0.6},
-    "ou": {"jawOpen": 0.2, "mouthPucker": 0.9, "mouthFunnel": 0.3},
-    "ee": {"jawOpen": 0.2, "mouthStretchLeft": 0.4, "mouthStretchRight": 0.4, "mouthSmileLeft": 0.3,
-           "mouthSmileRight": 0.3},
-    "oh": {"jawOpen": 0.45, "mouthFunnel": 0.8},
-    "blink": {"eyeBlinkLeft": 1.0, "eyeBlinkRight": 1.0},
-    "blinkLeft": {"eyeBlinkLeft": 1.0},
-    "blinkRight": {"eyeBlinkRight": 1.0},
-    # the model's left is +X: looking left turns the left eye out and the right eye in
-    "lookUp": {"eyeLookUpLeft": 1.0, "eyeLookUpRight": 1.0},
-    "lookDown": {"eyeLookDownLeft": 1.0, "eyeLookDownRight": 1.0},
-    "lookLeft": {"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},
-    "lookRight": {"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},
-    "neutral": {},
-}
+def _preset_binds() -> dict[str, dict[str, float]]:
+    """The VRM presets of the avatar we write, as combinations of its ARKit targets.
+
+    They are the inverse of :mod:`facecapges.arkit_vrm`'s ARKit → preset mapping (the
+    one mapping of the project): the visemes are its mouth prototypes spelled as ARKit
+    targets, the emotions sit at the top of its ramps, so that a face showing preset
+    ``p`` maps back to ``p`` (tested).
+    """
+    from facecapges.arkit_vrm import _VISEME_PROTOTYPES, VISEMES, VRM1_NAMES
+
+    binds: dict[str, dict[str, float]] = {}
+    for v, (opening, funnel, pucker, stretch, lower, upper) in zip(VISEMES, _VISEME_PROTOTYPES):
+        b = {"jawOpen": opening, "mouthFunnel": funnel, "mouthPucker": pucker}
+        for side in ("Left", "Right"):
+            b.update({f"mouthStretch{side}": stretch, f"mouthLowerDown{side}": lower, f"mouthUpperUp{side}": upper})
+        binds[VRM1_NAMES[v]] = {a: float(w) for a, w in b.items() if w > 0}
+    both = lambda stem, w: {f"{stem}Left": w, f"{stem}Right": w}  # noqa: E731
+    binds.update({
+        "happy": {**both("mouthSmile", 0.8), **both("cheekSquint", 0.6), **both("eyeSquint", 0.3)},
+        "relaxed": both("mouthSmile", 0.8),
+        "angry": {**both("browDown", 0.8), **both("noseSneer", 0.4), **both("mouthPress", 0.3)},
+        "sad": {"browInnerUp": 0.8, **both("mouthFrown", 0.7)},
+        "surprised": {**both("eyeWide", 0.8), **both("browOuterUp", 0.8), "browInnerUp": 0.5},
+        "blink": both("eyeBlink", 1.0), "blinkLeft": {"eyeBlinkLeft": 1.0}, "blinkRight": {"eyeBlinkRight": 1.0},
+        # the model's left is +X: looking left turns the left eye out and the right eye in
+        "lookUp": both("eyeLookUp", 1.0), "lookDown": both("eyeLookDown", 1.0),
+        "lookLeft": {"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},
+        "lookRight": {"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},
+        "neutral": {},
+    })
+    return binds
+
+
+PRESET_BINDS: dict[str, dict[str, float]] = _preset_binds()
 PRESET_NAMES: tuple[str, ...] = tuple(PRESET_BINDS)
 LOOK_PRESETS = ("lookUp", "lookDown", "lookLeft", "lookRight")
 # ARKit eye rotation range (degrees) behind eyeLook* = 1; the lookAt range maps use it
 EYE_RANGE_DEG = 30.0
 # VRM 0.x preset names → 1.0
-VRM0_PRESETS = {"joy": "happy", "angry": "angry", "sorrow": "sad", "fun": "relaxed", "a": "aa", "i": "ih",
-                "u": "ou", "e": "ee", "o": "oh", "blink": "blink", "blink_l": "blinkLeft", "blink_r": "blinkRight",
-                "lookup": "lookUp", "lookdown": "lookDown", "lookleft": "lookLeft", "lookright": "lookRight",
-                "neutral": "neutral"}
+def _vrm0_presets() -> dict[str, str]:
+    from facecapges.arkit_vrm import VRM1_NAMES
+
+    return {**{k.lower(): v for k, v in VRM1_NAMES.items()}, "neutral": "neutral"}
+
+
+VRM0_PRESETS = _vrm0_presets()  # VRM 0.x ``presetName`` (lower case in the file) → 1.0 name
 PERFECT_SYNC_MIN = 26  # a model with at least this many ARKit-named expressions is driven by them
 
 
@@ -450,33 +461,17 @@ def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
 
 
 # ===================================================================== faces
-def preset_weights(arkit: np.ndarray) -> dict[str, np.ndarray]:
-    """VRM preset weights (each (T,)) from ARKit weights (T, 52), for models without perfect sync.
-
-    Each preset's weight is the ARKit evidence for it, normalised so the preset's own
-    definition (:data:`PRESET_BINDS`) scores 1: ``w_p = Σ_a B[p,a] w_a / Σ_a B[p,a]²``, clipped
-    to [0, 1] (a least-squares fit of the preset's direction, one preset at a time).
-    Blinks use the blink channels alone; the look presets come from the eye-look channels.
-    """
-    from facecapges.arkit import arkit_index
-
-    w = np.asarray(arkit, np.float64)
-    out = {}
-    for p, binds in PRESET_BINDS.items():
-        if not binds:
-            continue
-        b = np.zeros(len(ARKIT_NAMES))
-        for a, v in binds.items():
-            b[arkit_index(a)] = v
-        out[p] = np.clip(w @ b / float(b @ b), 0.0, 1.0)
-    return out
-
-
 class ExpressionMap:
-    """ARKit weights (T, 52) → the model's expression weights (T, E), E = ``names``."""
+    """ARKit weights (T, 52) → the model's expression weights (T, E), E = ``names``.
+
+    Perfect-sync models (≥ :data:`PERFECT_SYNC_MIN` expressions named as ARKit shapes, any
+    case) get the ARKit weights as they are; the others their VRM presets, derived by
+    :func:`facecapges.arkit_vrm.vrm0_weights` (the project's one ARKit → preset mapping).
+    """
 
     def __init__(self, model: VrmModel):
         from facecapges.arkit import arkit_index
+        from facecapges.arkit_vrm import VRM1_EXPRESSIONS
 
         direct = {}
         for n in model.expressions:
@@ -485,16 +480,15 @@ class ExpressionMap:
                 direct.setdefault(a, n)
         self.perfect_sync = len(direct) >= PERFECT_SYNC_MIN
         if self.perfect_sync:
-            self.names = [direct[a] for a in sorted(direct)]
             self._index = sorted(direct)
+            self.names = [direct[a] for a in self._index]
         else:
-            self.names = [p for p in PRESET_BINDS if p in model.expressions and PRESET_BINDS[p]]
-            self._index = None
+            self._index = [k for k, n in enumerate(VRM1_EXPRESSIONS) if n in model.expressions]
+            self.names = [VRM1_EXPRESSIONS[k] for k in self._index]
 
     def __call__(self, arkit: np.ndarray) -> np.ndarray:
-        arkit = np.asarray(arkit, np.float64)
-        if self.perfect_sync:
-            return np.clip(arkit[..., self._index], 0.0, 1.0).astype(np.float32)
-        pw = preset_weights(arkit.reshape(-1, len(ARKIT_NAMES)))
-        out = np.stack([pw[n] for n in self.names], -1) if self.names else np.zeros((len(arkit.reshape(-1, 52)), 0))
-        return out.reshape(arkit.shape[:-1] + (len(self.names),)).astype(np.float32)
+        from facecapges.arkit_vrm import vrm0_weights
+
+        arkit = np.clip(np.asarray(arkit, np.float64), 0.0, 1.0)
+        w = arkit if self.perfect_sync else vrm0_weights(arkit)
+        return np.ascontiguousarray(w[..., self._index], dtype=np.float32)

@@ -46,8 +46,9 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
-def _open_page(glb: bytes, width: int, height: int) -> tuple[Browser, dict]:
-    b = Browser(avatar_routes(glb), f"{PAGE}?w={width}&h={height}", width, height)
+def _open_page(glb: bytes, width: int, height: int, page: str = PAGE, routes: dict | None = None
+               ) -> tuple[Browser, dict]:
+    b = Browser(routes if routes is not None else avatar_routes(glb), f"{page}?w={width}&h={height}", width, height)
     b.__enter__()
     try:
         info = b.wait_for("window.facecapges.ready")
@@ -62,8 +63,10 @@ def _open_page(glb: bytes, width: int, height: int) -> tuple[Browser, dict]:
 
 def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float, out: str | Path,
                  audio: str | Path | None = None, width: int = 640, height: int = 480, batch: int = 30,
-                 progress: bool = True, crf: int = 20) -> dict:
-    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures."""
+                 progress: bool = True, crf: int = 20, page: str = PAGE, routes: dict | None = None) -> dict:
+    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
+
+    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm_view)."""
     import time
 
     import imageio_ffmpeg
@@ -73,7 +76,7 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
     if weights.shape[0] != T:
         raise ValueError(f"{T} poses but {weights.shape[0]} face frames")
     t0 = time.perf_counter()
-    b, info = _open_page(glb, width, height)
+    b, info = _open_page(glb, width, height, page, routes)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "image2pipe", "-c:v", "mjpeg",
@@ -114,11 +117,12 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
 
 
 def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.ndarray | None], view: str = "body",
-                  width: int = 640, height: int = 480) -> list[np.ndarray]:
+                  width: int = 640, height: int = 480, page: str = PAGE, routes: dict | None = None
+                  ) -> list[np.ndarray]:
     """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
     import cv2
 
-    b, _ = _open_page(glb, width, height)
+    b, _ = _open_page(glb, width, height, page, routes)
     images = []
     try:
         b.evaluate(f"window.facecapges.setView({view!r})")
