@@ -96,6 +96,26 @@ def bvh_local_matrices(skel, motion: np.ndarray) -> np.ndarray:
     return local_matrices(skel, euler)
 
 
+def face_weights(face: Path | None, fps: float, T: int):
+    """(T, 52) ARKit weights of a face JSON resampled to ``fps`` (held at its last frame), zeros without one."""
+    import numpy as np
+
+    from facecapges.arkit import ARKIT_NAMES
+
+    weights = np.zeros((T, len(ARKIT_NAMES)), np.float32)
+    if face is not None:
+        from facecapges.io.face_json import read_face_json
+        from facecapges.timing import resample
+
+        track = read_face_json(face)
+        w = resample(track.weights, track.fps, fps)
+        n = min(T, len(w))
+        weights[:n] = w[:n]
+        if 0 < n < T:
+            weights[n:] = w[n - 1]
+    return weights
+
+
 def render_vrm_video(driver: VrmDriver, local_mats: np.ndarray, arkit: np.ndarray, fps: float, out: str | Path,
                      audio: str | Path | None = None, width: int = 640, height: int = 480,
                      progress: bool = True) -> dict:

@@ -100,6 +100,10 @@ def register(app: typer.Typer) -> None:
         checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
         style: Optional[str] = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
         json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
+        vrma: Optional[Path] = typer.Option(None, "--vrma", help="Also write the gestures (+ the --face weights) "
+                                                                 "as VRM Animation (.vrma) for any VRM avatar."),
+        vrma_face: str = typer.Option("presets", "--vrma-face", help="Face in the .vrma: presets (VRM presets from "
+                                                                     "ARKit, any VRM) or perfect-sync (52 ARKit)."),
         force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
@@ -111,6 +115,11 @@ def register(app: typer.Typer) -> None:
         from facecapges.skeleton import pose_to_motion
 
         refuse_overwrite(out, force)
+        if vrma is not None:
+            from facecapges.avatar.vrma import check_face_mode
+
+            refuse_overwrite(vrma, force)
+            check_face_mode(vrma_face)
         ckpt = load_checkpoint(checkpoint, style)
         inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
         for note in inputs.notes:
@@ -118,6 +127,11 @@ def register(app: typer.Typer) -> None:
         poses, ms = generate_poses(ckpt, inputs, progress=not json_out)
         skel = ckpt.skeleton
         write_bvh(out, skel, pose_to_motion(skel, normalize_rot6d(poses)), ckpt.fps)
+        if vrma is not None:
+            from facecapges.avatar.vrma import write_pose_vrma
+
+            write_pose_vrma(vrma, skel, normalize_rot6d(poses), ckpt.fps, inputs.face if face else None, vrma_face)
+            typer.echo(f"wrote {vrma} (VRM Animation)", err=json_out)
         summary = {"out": str(out), "frames": int(len(poses)), "fps": ckpt.fps,
                    "duration_s": round(len(poses) / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
                    "checkpoint": str(ckpt.path), "warnings": inputs.notes}

@@ -25,6 +25,8 @@ def register(app: typer.Typer) -> None:
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
         no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Avatar of avatar.mp4: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
     ) -> None:
@@ -38,7 +40,7 @@ def register(app: typer.Typer) -> None:
             require_file(audio, "audio")
         ckpt = load_checkpoint(checkpoint, style)
         report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
-                           progress=not json_out, videos=not no_video, estimator=estimator)
+                           progress=not json_out, videos=not no_video, estimator=estimator, avatar=avatar)
         if json_out:
             typer.echo(json.dumps(report, indent=2))
             return
@@ -71,6 +73,10 @@ def register(app: typer.Typer) -> None:
                                                                 "the LAN."),
         record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
+        vrma: bool = typer.Option(False, "--vrma", help="With --record: also record motion.vrma (VRM Animation, "
+                                                        "gestures + face as VRM presets)."),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
@@ -100,8 +106,17 @@ def register(app: typer.Typer) -> None:
                 raise UserError(f"--web {web}: refusing to serve on a non-loopback address without --host "
                                 f"{web_addr[0]}")
         vmc_addr = parse_address(vmc, "127.0.0.1", "--vmc") if vmc is not None else None
+        if avatar is not None:
+            from facecapges.avatar.vrm import load_model
+
+            if web_addr is None:
+                raise UserError("--avatar is the avatar of the browser viewer; pass --web too "
+                                "(VMC receivers show their own avatar)")
+            load_model(avatar)  # a bad file fails here, before any device opens
+        if vrma and record is None:
+            raise UserError("--vrma records into --record DIR; pass --record too")
         if record is not None:
-            for name in ("motion.bvh", "face.json", "report.json"):
+            for name in ("motion.bvh", "face.json", "report.json") + (("motion.vrma",) if vrma else ()):
                 refuse_overwrite(record / name, force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
@@ -113,6 +128,10 @@ def register(app: typer.Typer) -> None:
 
             sinks += [BvhRecorder(record / "motion.bvh", ckpt.skeleton, ckpt.fps),
                       FaceJsonRecorder(record / "face.json", ckpt.fps)]
+            if vrma:
+                from facecapges.avatar.vrma import VrmaRecorder
+
+                sinks.append(VrmaRecorder(record / "motion.vrma", ckpt.skeleton, ckpt.fps))
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 
@@ -128,9 +147,15 @@ def register(app: typer.Typer) -> None:
                 from facecapges.runtime.offline import _avatar_glb
                 from facecapges.runtime.web_server import ViewerServer, WebFeed
 
-                server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                if avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
+                    from facecapges.runtime.vrm_viewer import open_vrm_viewer
+
+                    server, feed_sink = open_vrm_viewer(avatar, ckpt, web_addr)
+                else:
+                    server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                    feed_sink = WebFeed(server)
                 sess.closers.append(server)
-                sess.add_sink(WebFeed(server))
+                sess.add_sink(feed_sink)
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
             typer.echo(f"live: {src.name} + {sess.audio.name if sess.audio else 'silence'} → "

@@ -101,8 +101,9 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
 
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
-              estimator: str = "hybrid") -> dict:
-    """The whole ``run`` command (module docstring); returns the report."""
+              estimator: str = "hybrid", avatar: str | Path | None = None) -> dict:
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
+    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
 
     from facecapges.io.audio import save_audio
@@ -119,6 +120,11 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
+    driver = None
+    if avatar is not None and videos:
+        from facecapges.avatar.vrm_view import VrmDriver
+
+        driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
     mem = MemoryRecorder()
     bvh = BvhRecorder(out_dir / "motion.bvh", checkpoint.skeleton, fps)
     face = FaceJsonRecorder(out_dir / "face.json", fps)
@@ -156,7 +162,14 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
             wav = Path(tmp) / "audio.wav"
             n = int(round(T / fps * 16000))
             save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
-            render_video(glb, quats, weights, fps, out_dir / "avatar.mp4", audio=wav, progress=progress)
+            if driver is not None:
+                from facecapges.avatar.retarget import upper_body_locals
+                from facecapges.avatar.vrm_view import render_vrm_video
+
+                render_vrm_video(driver, upper_body_locals(checkpoint.skeleton, np.stack(mem.quats)), weights, fps,
+                                 out_dir / "avatar.mp4", audio=wav, progress=progress)
+            else:
+                render_video(glb, quats, weights, fps, out_dir / "avatar.mp4", audio=wav, progress=progress)
             t1 = time.perf_counter()
             side_by_side(video, out_dir / "avatar.mp4", out_dir / "side_by_side.mp4", fps, T, wav)
             t2 = time.perf_counter()

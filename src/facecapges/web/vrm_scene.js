@@ -127,10 +127,3 @@ export class VrmScene {
   }
 }
 
-// the page's import map for three.js and three-vrm, served by facecapges (see vrm_render.html)
-export const IMPORTS = {
-  three: '/three/build/three.module.js',
-  'three/addons/': '/three/examples/jsm/',
-  '@pixiv/three-vrm': '/pixiv/three-vrm/lib/three-vrm.module.js',
-  '@pixiv/three-vrm-animation': '/pixiv/three-vrm-animation/lib/three-vrm-animation.module.js',
-};
