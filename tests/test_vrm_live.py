@@ -131,3 +131,43 @@ def test_run_renders_the_vrm(face_video, tmp_path):
     assert len(frames) == 15
     rep = json.loads((out / "report.json").read_text())
     assert rep["frames"] == 15
+
+
+def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
+    """``study create --avatar SAMPLE.vrm``: the participant page shows the VRM three times and plays a clip."""
+    import cv2
+
+    from _study_media import make_clips
+    from test_study_browser import Page
+
+    from facecapges.study.build import open_study
+    from facecapges.study.server import make_server, serve_in_thread
+
+    avatar = tmp_path / "sample.vrm"
+    avatar.write_bytes(build_sample("vrm0"))
+    clips = make_clips(tmp_path / "src", beat_bvh, beat_wav, n_clips=1, seconds=2.0)
+    p = cli("study", "create", "--clips", str(clips), "--out", str(tmp_path / "study"), "--participants", "1",
+            "--avatar", str(avatar))
+    assert p.returncode == 0, p.stderr
+    st = open_study(tmp_path / "study")
+    motion = json.loads(next((tmp_path / "study" / "media").glob("*/motion-*.json")).read_text())
+    assert len(motion["bone_names"]) == 22 and len(motion["quats"]) == motion["frames"] * 22 * 4
+    server = make_server(st, "127.0.0.1", 0)
+    serve_in_thread(server)
+    page = Page(f"http://127.0.0.1:{server.server_address[1]}/")
+    try:
+        page.start(st.plan.participants[0].id)
+        page.wait("window.study.ready && window.study.index === 0")
+        page.click("play")
+        page.wait("window.study.watched", timeout=30)
+        assert page.js("window.study.error") is None and page.js("window.study.draws") > 5
+        shot = tmp_path / "study.png"
+        page.screenshot(shot)
+        img = cv2.imread(str(shot)).astype(int)
+        red = ((img[..., 2] > 180) & (img[..., 1] < 80) & (img[..., 0] < 80)).sum()
+        blue = ((img[..., 0] > 180) & (img[..., 1] < 80) & (img[..., 2] < 80)).sum()
+        assert red > 20 and blue > 20, (red, blue)
+    finally:
+        page.close()
+        server.shutdown()
+        server.server_close()

@@ -51,12 +51,13 @@ export class VrmScene {
     this.scene.add(vrm.scene);
     vrm.update(0);
     vrm.scene.updateMatrixWorld(true);
-    this.setView('body');
+    if (this.camera) this.setView('body');  // (a rig sharing another scene has no camera)
     return this;
   }
 
   get metaVersion() { return this.vrm.meta.metaVersion; }
 
+  // world position of a raw humanoid bone (null if the model lacks it)
   bonePosition(name) {
     const n = this.vrm.humanoid.getRawBoneNode(name);
     return n ? n.getWorldPosition(new THREE.Vector3()) : null;
