@@ -28,7 +28,7 @@ from facecapges.avatar.vrm import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
 from vrm_samples import build_sample  # noqa: E402
-from vrm_schemas import VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
+from vrm_schemas import VRM0, VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
 FRAMES = (120, 480, 840)  # of the BEAT take: arms in three different places
 FIGURES: dict = {}
@@ -88,7 +88,12 @@ def files(beat, tmp_path_factory):
                         str(shared_file("data/beat/2_scott_0_1_1.bvh")), "--out", str(ours)],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    out = {"ours": ours}
+    ours0 = d / "ours0.vrm"
+    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--format", "vrm0", "--skeleton",
+                        str(shared_file("data/beat/2_scott_0_1_1.bvh")), "--out", str(ours0)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    out = {"ours": ours, "ours0": ours0}
     for v in ("vrm1", "vrm0", "glb"):
         out[v] = d / f"sample_{v}.{'glb' if v == 'glb' else 'vrm'}"
         out[v].write_bytes(build_sample(v))
@@ -133,6 +138,26 @@ def test_our_vrm_matches_the_vrm_1_0_schemas_and_the_khronos_validator(files):
     # the samples are valid too (they are test inputs, not our writer's)
     sdoc, _ = split_glb(files["vrm1"].read_bytes())
     _validate(sdoc, "VRMC_vrm", VRMC_VRM)
+
+
+def test_our_vrm0_matches_the_vrm_0_x_schema(files):
+    import jsonschema
+
+    doc, _ = split_glb(files["ours0"].read_bytes())
+    assert doc["extensionsUsed"] == ["VRM"]
+    ext = doc["extensions"]["VRM"]
+    jsonschema.validate(ext, VRM0, cls=jsonschema.Draft202012Validator)
+    groups = {g["name"]: g for g in ext["blendShapeMaster"]["blendShapeGroups"]}
+    assert len(groups) == 70 and groups["Joy"]["presetName"] == "joy" and groups["EyeBlinkLeft"]["binds"]
+    # VRM 0.x faces -Z: the left hand is at -X
+    nodes = doc["nodes"]
+    left = next(n for n in nodes if n["name"] == "LeftArm")
+    assert left["translation"][0] < 0
+    report = _khronos(files["ours0"])
+    # the only warning: VRM 0.x's extension name "VRM" has no vendor prefix (every VRM 0.x has it)
+    assert report["numErrors"] == 0 and [m["code"] for m in report["messages"] if m["severity"] <= 1] == [
+        "INVALID_EXTENSION_NAME_FORMAT"], report
+    FIGURES.setdefault("schema", {})["ours0.vrm"] = "valid"
 
 
 def test_presets_we_write_map_back_to_themselves():
@@ -208,13 +233,13 @@ def _screenshot_errors(b, driver, beat, k: int, quats: np.ndarray, pos: dict) ->
     return errs
 
 
-@pytest.mark.parametrize("name", ["ours", "vrm1", "vrm0", "glb"])
+@pytest.mark.parametrize("name", ["ours", "ours0", "vrm1", "vrm0", "glb"])
 def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
     b, driver, info = _session(files[name], beat, vrma=files["vrma"])
     fig = FIGURES.setdefault("avatars", {}).setdefault(name, {})
     try:
         assert b.evaluate("window.facecapges.errors") == []
-        assert info["metaVersion"] == ("0" if name == "vrm0" else "1")
+        assert info["metaVersion"] == ("0" if name in ("vrm0", "ours0") else "1")
         assert info["joints"] == len(driver.retarget.bones) >= 22
         fig["three_vrm"] = {"metaVersion": info["metaVersion"], "humanBones": len(info["humanBones"]),
                             "expressions": len(info["expressionNames"])}
@@ -225,11 +250,11 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
             pos = b.evaluate(f"window.facecapges.posedBones({json.dumps(quats[i].ravel().tolist())}, "
                              f"{json.dumps(BONES)})")
             errs += list(_arm_errors(beat, i, pos).values())
-            if name != "ours":
+            if not name.startswith("ours"):
                 shots += _screenshot_errors(b, driver, beat, i, quats[i], pos)
         fig["arm_direction_error_deg"] = {"median": float(np.median(errs)), "max": float(np.max(errs))}
         assert max(errs) < 2.0, errs
-        if name != "ours":
+        if not name.startswith("ours"):
             fig["screenshot_hand_error_deg"] = {"median": float(np.median(shots)), "max": float(np.max(shots)),
                                                 "hands_seen": len(shots)}
             assert len(shots) >= 3 and max(shots) < 8.0, shots

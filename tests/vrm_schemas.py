@@ -195,3 +195,55 @@ def semantic_errors(doc: dict, ext_name: str) -> list[str]:
                 if mesh is None or any(bind["index"] >= len(p.get("targets", [])) for p in mesh["primitives"]):
                     errs.append(f"expression {name}: bind {bind} has no such morph target")
     return errs
+
+# ----------------------------------------------------------------------------- VRM 0.x
+V0_BONES = [b for b in HUMAN_BONES if "ThumbMetacarpal" not in b] + \
+    [f"{s}ThumbIntermediate" for s in ("left", "right")]
+V0_REQUIRED = ["hips", "spine", "chest", "neck", "head"] + [f"{s}{p}" for s in ("left", "right") for p in (
+    "UpperArm", "LowerArm", "Hand", "UpperLeg", "LowerLeg", "Foot")]
+# UniVRM writes (and three-vrm reads) presetName in lower case; the 0.0 README lists them capitalised
+V0_PRESETS = ["unknown", "neutral", "a", "i", "u", "e", "o", "blink", "joy", "angry", "sorrow", "fun", "lookup",
+              "lookdown", "lookleft", "lookright", "blink_l", "blink_r"]
+_xyz = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+_degree_map = {"type": "object", "properties": {"curve": {"type": "array", "items": {"type": "number"}},
+                                                "xRange": {"type": "number"}, "yRange": {"type": "number"}}}
+VRM0 = {
+    "$schema": "https://json-schema.org/draft/2020-12/schema",
+    "title": "VRM 0.0",
+    "type": "object",
+    "required": ["meta", "humanoid"],
+    "properties": {
+        "exporterVersion": {"type": "string"}, "specVersion": {"const": "0.0"},
+        "meta": {"type": "object", "properties": {
+            **{k: {"type": "string"} for k in ("title", "version", "author", "contactInformation", "reference",
+                                               "otherPermissionUrl", "otherLicenseUrl")},
+            "texture": {"type": "integer"},
+            "allowedUserName": {"enum": ["OnlyAuthor", "ExplicitlyLicensedPerson", "Everyone"]},
+            "violentUssageName": {"enum": ["Disallow", "Allow"]}, "sexualUssageName": {"enum": ["Disallow", "Allow"]},
+            "commercialUssageName": {"enum": ["Disallow", "Allow"]},
+            "licenseName": {"enum": ["Redistribution_Prohibited", "CC0", "CC_BY", "CC_BY_NC", "CC_BY_SA",
+                                     "CC_BY_NC_SA", "CC_BY_ND", "CC_BY_NC_ND", "Other"]}}},
+        "humanoid": {"type": "object", "required": ["humanBones"], "properties": {"humanBones": {
+            "type": "array", "items": {"type": "object", "required": ["bone", "node"], "properties": {
+                "bone": {"enum": V0_BONES}, "node": _index, "useDefaultValues": {"type": "boolean"}}},
+            "allOf": [{"contains": {"properties": {"bone": {"const": b}}}} for b in V0_REQUIRED]}}},
+        "firstPerson": {"type": "object", "properties": {
+            "firstPersonBone": {"type": "integer"}, "firstPersonBoneOffset": _xyz,
+            "meshAnnotations": {"type": "array", "items": {"type": "object", "properties": {
+                "mesh": {"type": "integer"},
+                "firstPersonFlag": {"enum": ["Auto", "FirstPersonOnly", "ThirdPersonOnly", "Both"]}}}},
+            "lookAtTypeName": {"enum": ["Bone", "BlendShape"]},
+            **{k: _degree_map for k in ("lookAtHorizontalInner", "lookAtHorizontalOuter", "lookAtVerticalDown",
+                                        "lookAtVerticalUp")}}},
+        "blendShapeMaster": {"type": "object", "properties": {"blendShapeGroups": {"type": "array", "items": {
+            "type": "object", "required": ["name"], "properties": {
+                "name": {"type": "string"}, "presetName": {"enum": V0_PRESETS}, "isBinary": {"type": "boolean"},
+                "binds": {"type": "array", "items": {"type": "object", "required": ["mesh", "index", "weight"],
+                                                     "properties": {"mesh": _index, "index": _index,
+                                                                    "weight": {"type": "number", "minimum": 0,
+                                                                               "maximum": 100}}}},
+                "materialValues": {"type": "array"}}}}}},
+        "secondaryAnimation": {"type": "object"},
+        "materialProperties": {"type": "array", "items": {"type": "object", "required": ["name", "shader"]}},
+    },
+}

@@ -81,9 +81,10 @@ def register(app: typer.Typer) -> None:
         out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm)."),
         skeleton: Path = typer.Option(None, "--skeleton", help="A BEAT BVH whose hierarchy and rest offsets to use "
                                                                "(default: the skeleton stored with the default model)."),
-        fmt: str = typer.Option("glb", "--format", help="glb (glTF 2.0) or vrm (VRM 1.0: humanoid bones, VRM "
+        fmt: str = typer.Option("glb", "--format", help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
                                                         "presets + 52 ARKit perfect-sync expressions, lookAt, "
-                                                        "licence; loads in VSeeFace, Warudo, VNyan, three-vrm)."),
+                                                        "licence) or vrm0 (the same as VRM 0.x, for apps that "
+                                                        "read only 0.x, such as VSeeFace)."),
         force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
     ) -> None:
         """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
@@ -91,16 +92,16 @@ def register(app: typer.Typer) -> None:
         from facecapges.avatar.gltf import write_glb
         from facecapges.errors import UserError, refuse_overwrite
 
-        if fmt not in ("glb", "vrm"):
-            raise UserError(f"--format must be glb or vrm, got {fmt!r}")
+        if fmt not in ("glb", "vrm", "vrm0"):
+            raise UserError(f"--format must be glb, vrm or vrm0, got {fmt!r}")
         refuse_overwrite(out, force)
         skel, source = _skeleton(skeleton)
         av = default_avatar(skel)
         out.parent.mkdir(parents=True, exist_ok=True)
-        if fmt == "vrm":
+        if fmt in ("vrm", "vrm0"):
             from facecapges.avatar.vrm import write_vrm
 
-            write_vrm(av, out)
+            write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
         else:
             write_glb(av, out)
         typer.echo(f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "

@@ -38,8 +38,8 @@ decode (``extensionsRequired`` outside :data:`SUPPORTED_EXTENSIONS`), an unknown
 version.
 
 Faces (:class:`ExpressionMap`): a model with perfect-sync expressions gets the ARKit
-weights as they are; any other gets its VRM presets from the ARKit weights
-(:func:`preset_weights`).
+weights as they are; any other gets its VRM presets from the ARKit weights by
+:mod:`facecapges.arkit_vrm` (the project's one ARKit → VRM preset mapping).
 """
 
 from __future__ import annotations
@@ -233,10 +233,87 @@ def avatar_to_vrm(avatar):
     return doc
 
 
-def write_vrm(avatar, path: str | Path) -> Path:
-    """Write ``avatar`` to ``path`` as a VRM 1.0 (binary glTF)."""
+def _turned(avatar):
+    """``avatar`` turned 180° about Y (facing −Z, its left hand at −X), as VRM 0.x wants it."""
+    from dataclasses import replace
+
+    f = np.array([-1.0, 1.0, -1.0])
+    skel = replace(avatar.skeleton, offsets=avatar.skeleton.offsets * f,
+                   end_sites={j: v * f for j, v in avatar.skeleton.end_sites.items()})
+    body = replace(avatar.body, vertices=avatar.body.vertices * f, normals=avatar.body.normals * f)
+    face = replace(avatar.face, vertices=avatar.face.vertices * f, normals=avatar.face.normals * f,
+                   deltas=avatar.face.deltas * f, normal_deltas=avatar.face.normal_deltas * f,
+                   offset=avatar.face.offset * f)
+    return replace(avatar, skeleton=skel, rest=avatar.rest * f, body=body, face=face)
+
+
+def avatar_to_vrm0(avatar):
+    """``avatar`` as a VRM 0.x (``VRM`` extension) for apps that read only 0.x (VSeeFace).
+
+    The same content as :func:`avatar_to_vrm` in VRM 0.x terms: the model turned to face
+    −Z (VRM 0.x's rule; a rotation of the data, no node rotation), UniVRM's blend shape
+    groups — the presets with UniVRM's lower-case ``presetName`` plus the 52 ARKit shapes
+    named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`)
+    — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``Other`` (MIT).
+    """
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM1_NAMES
+
+    doc = avatar_to_vrm(_turned(avatar))
+    v1 = doc.extensions["VRMC_vrm"]
+    to_v0 = {v: k for k, v in VRM0_RENAME.items()}
+    face_node = doc.nodes.index(next(n for n in doc.nodes if n.name == "Face"))
+    face_mesh = doc.nodes[face_node].mesh
+
+    def group(name: str, preset: str, expr: dict) -> dict:
+        return {"name": name, "presetName": preset, "isBinary": False, "materialValues": [],
+                "binds": [{"mesh": face_mesh, "index": b["index"], "weight": 100.0 * b["weight"]}
+                          for b in expr["morphTargetBinds"]]}
+
+    v0_name = {v: k for k, v in VRM1_NAMES.items()}
+    groups = [group("Neutral", "neutral", v1["expressions"]["preset"]["neutral"])]
+    for p, expr in v1["expressions"]["preset"].items():
+        if p == "neutral":
+            continue
+        clip = v0_name[p]
+        groups.append(group(clip, clip.lower() if clip != "Surprised" else "unknown", expr))
+    for ps, (a, expr) in zip(PERFECT_SYNC_NAMES, v1["expressions"]["custom"].items()):
+        groups.append(group(ps, "unknown", expr))
+    look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": 90.0, "yRange": EYE_RANGE_DEG / 90.0}
+    head = v1["humanoid"]["humanBones"]["head"]["node"]
+    off = v1["lookAt"]["offsetFromHeadBone"]
+    meta = v1["meta"]
+    doc.extensionsUsed = ["VRM"]
+    doc.extensions = {"VRM": {
+        "exporterVersion": "facecapges-0.1.0", "specVersion": "0.0",
+        "meta": {"title": meta["name"], "version": meta["version"], "author": meta["authors"][0],
+                 "contactInformation": "", "reference": "", "allowedUserName": "Everyone",
+                 "violentUssageName": "Disallow", "sexualUssageName": "Disallow", "commercialUssageName": "Allow",
+                 "otherPermissionUrl": "", "licenseName": "Other",
+                 "otherLicenseUrl": "https://opensource.org/license/mit"},
+        "humanoid": {"humanBones": [{"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
+                                    for b, d in v1["humanoid"]["humanBones"].items()],
+                     "armStretch": 0.05, "legStretch": 0.05, "upperArmTwist": 0.5, "lowerArmTwist": 0.5,
+                     "upperLegTwist": 0.5, "lowerLegTwist": 0.5, "feetSpacing": 0.0, "hasTranslationDoF": False},
+        "firstPerson": {"firstPersonBone": head, "firstPersonBoneOffset": dict(zip("xyz", off)),
+                        "meshAnnotations": [{"mesh": face_mesh, "firstPersonFlag": "ThirdPersonOnly"}],
+                        "lookAtTypeName": "BlendShape", "lookAtHorizontalInner": dict(look),
+                        "lookAtHorizontalOuter": dict(look), "lookAtVerticalDown": dict(look),
+                        "lookAtVerticalUp": dict(look)},
+        "blendShapeMaster": {"blendShapeGroups": groups},
+        "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
+        "materialProperties": [{"name": m.name, "shader": "VRM_USE_GLTFSHADER", "renderQueue": 2000,
+                                "floatProperties": {}, "vectorProperties": {}, "textureProperties": {},
+                                "keywordMap": {}, "tagMap": {}} for m in doc.materials],
+    }}
+    doc.asset.generator = "facecapges avatar (VRM 0.x)"
+    return doc
+
+
+def write_vrm(avatar, path: str | Path, version: str = "1.0") -> Path:
+    """Write ``avatar`` to ``path`` as a VRM 1.0 (or, ``version="0.x"``, a VRM 0.x) binary glTF."""
     p = Path(path)
-    p.write_bytes(b"".join(avatar_to_vrm(avatar).save_to_bytes()))
+    doc = avatar_to_vrm0(avatar) if version == "0.x" else avatar_to_vrm(avatar)
+    p.write_bytes(b"".join(doc.save_to_bytes()))
     return p
 
 

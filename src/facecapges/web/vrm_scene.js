@@ -11,27 +11,15 @@
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { VRMLoaderPlugin, VRMUtils } from '@pixiv/three-vrm';
+import { AvatarScene } from './avatar_scene.js';
 
-export class VrmScene {
-  constructor(canvas, { width = 640, height = 480, background = 0xeef0f3, antialias = true } = {}) {
-    this.renderer = new THREE.WebGLRenderer({ canvas, antialias, preserveDrawingBuffer: true });
-    this.renderer.setPixelRatio(1);
-    this.renderer.setSize(width, height, false);
-    this.renderer.outputColorSpace = THREE.SRGBColorSpace;
-    this.scene = new THREE.Scene();
-    this.scene.background = new THREE.Color(background);
-    this.camera = new THREE.PerspectiveCamera(30, width / height, 0.01, 50);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8078, 1.6));
-    const key = new THREE.DirectionalLight(0xffffff, 2.2);
-    key.position.set(1.2, 1.5, 1.6);
-    this.scene.add(key);
-    const fill = new THREE.DirectionalLight(0xdde6ff, 0.7);
-    fill.position.set(-1.5, 0.6, 1.0);
-    this.scene.add(fill);
+// the renderer, lights and camera are AvatarScene's (avatar_scene.js); loading, framing and posing are VRM's
+export class VrmScene extends AvatarScene {
+  constructor(canvas, options = {}) {
+    super(canvas, options);
     this.bones = [];
     this.boneNodes = [];
     this.expressions = [];
-    this.warnings = [];
   }
 
   // source: a URL or an ArrayBuffer holding the .vrm
@@ -65,6 +53,7 @@ export class VrmScene {
 
   // the body view frames head to hips and both hands at rest; the face view the head
   setView(name) {
+    if (!this.vrm) return;  // (AvatarScene's constructor frames before there is a model)
     const head = this.bonePosition('head'), hips = this.bonePosition('hips');
     const l = this.bonePosition('leftHand'), r = this.bonePosition('rightHand');
     const fov = 30;
