@@ -105,6 +105,10 @@ def register(app: typer.Typer) -> None:
                                                                           "without --face, jaw and lips from the "
                                                                           "speech."),
         json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
+        vrma: Optional[Path] = typer.Option(None, "--vrma", help="Also write the gestures (+ the --face weights) "
+                                                                 "as VRM Animation (.vrma) for any VRM avatar."),
+        vrma_face: str = typer.Option("presets", "--vrma-face", help="Face in the .vrma: presets (VRM presets from "
+                                                                     "ARKit, any VRM) or perfect-sync (52 ARKit)."),
         force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
@@ -118,6 +122,11 @@ def register(app: typer.Typer) -> None:
         refuse_overwrite(out, force)
         if face_out is not None:
             refuse_overwrite(face_out, force)
+        if vrma is not None:
+            from facecapges.avatar.vrma import check_face_mode
+
+            refuse_overwrite(vrma, force)
+            check_face_mode(vrma_face)
         ckpt = load_checkpoint(checkpoint, style)
         inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
         for note in inputs.notes:
@@ -131,6 +140,11 @@ def register(app: typer.Typer) -> None:
 
             shown = inputs.face if face is not None else speech_mouth_track(inputs.audio, ckpt.fps)
             write_face_json(face_out, shown, ckpt.fps, inputs.head)
+        if vrma is not None:
+            from facecapges.avatar.vrma import write_pose_vrma
+
+            write_pose_vrma(vrma, skel, normalize_rot6d(poses), ckpt.fps, inputs.face if face else None, vrma_face)
+            typer.echo(f"wrote {vrma} (VRM Animation)", err=json_out)
         summary = {"out": str(out), "frames": int(len(poses)), "fps": ckpt.fps,
                    "duration_s": round(len(poses) / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
                    "checkpoint": str(ckpt.path), "warnings": inputs.notes}

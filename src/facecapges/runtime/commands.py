@@ -33,6 +33,8 @@ def register(app: typer.Typer) -> None:
                                                                              "height)."),
         head: str = typer.Option("capture", "--head", help=HEAD_HELP),
         faces: int = typer.Option(1, "--faces", help=FACES_HELP),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Avatar of avatar.mp4: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
     ) -> None:
@@ -48,7 +50,7 @@ def register(app: typer.Typer) -> None:
         ckpt = load_checkpoint(checkpoint, style)
         report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
                            progress=not json_out, videos=not no_video, estimator=estimator, head=head, faces=faces,
-                           video_size=size)
+                           video_size=size, avatar=avatar)
         if json_out:
             typer.echo(json.dumps(report, indent=2))
             return
@@ -91,6 +93,10 @@ def register(app: typer.Typer) -> None:
                                                                 "the LAN."),
         record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
+        vrma: bool = typer.Option(False, "--vrma", help="With --record: also record motion.vrma (VRM Animation, "
+                                                        "gestures + face as VRM presets)."),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
@@ -124,10 +130,22 @@ def register(app: typer.Typer) -> None:
                 raise UserError(f"--web {web}: refusing to serve on a non-loopback address without --host "
                                 f"{web_addr[0]}")
         vmc_addr = parse_address(vmc, "127.0.0.1", "--vmc") if vmc is not None else None
+        if avatar is not None:
+            from facecapges.avatar.vrm import load_model
+
+            if web_addr is None:
+                raise UserError("--avatar is the avatar of the browser viewer; pass --web too "
+                                "(VMC receivers show their own avatar)")
+            load_model(avatar)  # a bad file fails here, before any device opens
+        if vrma and record is None:
+            raise UserError("--vrma records into --record DIR; pass --record too")
         if record is not None:
             from facecapges.runtime.offline import output_names
 
-            for name in (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json"):
+            if vrma and faces > 1:
+                raise UserError("--vrma records one performer; use it with --faces 1")
+            for name in (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json",
+                         *(("motion.vrma",) if vrma else ())):
                 refuse_overwrite(record / name, force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
@@ -146,6 +164,10 @@ def register(app: typer.Typer) -> None:
         sinks, senders, ups = per_face_sinks(ckpt, faces, record, vmc_addr, vmc_blend=vmc_blend,
                                              vmc_avatar=vmc_avatar, rate=rate)
         server = None
+        if vrma:
+            from facecapges.avatar.vrma import VrmaRecorder
+
+            sinks.append(VrmaRecorder(record / "motion.vrma", ckpt.skeleton, ckpt.fps))
         sess = build_session(ckpt, video=video, camera=camera, livelink=livelink, audio=audio, mic=mic,
                              realtime=realtime or video is None, loop=loop, depth_dir=depth, intrinsics=intrinsics,
                              estimator=estimator, host=bind, sinks=sinks, silent_ok=True, head=head, faces=faces)
@@ -157,15 +179,20 @@ def register(app: typer.Typer) -> None:
                 from facecapges.runtime.offline import _avatar_glb
                 from facecapges.runtime.web_server import ViewerServer, WebFeed
 
-                server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                if avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
+                    from facecapges.runtime.vrm_viewer import open_vrm_viewer
+
+                    server, feed_sink = open_vrm_viewer(avatar, ckpt, web_addr)
+                else:
+                    server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                    feed_sink = WebFeed(server)
                 sess.closers.append(server)
                 if rate is not None and rate != ckpt.fps and faces == 1:
                     from facecapges.runtime.upsample import Upsampler
 
-                    ups.append(Upsampler([WebFeed(server)], ckpt.fps, rate))  # the viewer at --rate too
-                    sess.add_sink(ups[-1])
-                else:
-                    sess.add_sink(WebFeed(server))
+                    ups.append(Upsampler([feed_sink], ckpt.fps, rate))  # the viewer at --rate too
+                    feed_sink = ups[-1]
+                sess.add_sink(feed_sink)
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
             vmc_text = (["VMC %s:%d" % vmc_addr] if faces == 1 else

@@ -149,8 +149,9 @@ def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
               estimator: str = "hybrid", head: str = "capture", faces: int = 1,
-              video_size: tuple[int, int] = (640, 480)) -> dict:
-    """The whole ``run`` command (module docstring); returns the report."""
+              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None) -> dict:
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
+    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
 
     from facecapges.io.audio import save_audio
@@ -170,6 +171,11 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
+    driver = None
+    if avatar is not None and videos:
+        from facecapges.avatar.vrm_view import VrmDriver
+
+        driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
     mems, sinks = [], []
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
@@ -219,7 +225,15 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
                 quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
                 weights = np.clip(np.stack(m.weights), 0.0, 1.0)
                 dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
-                render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height)
+                if driver is not None:
+                    from facecapges.avatar.retarget import upper_body_locals
+                    from facecapges.avatar.vrm_view import render_vrm_video
+
+                    render_vrm_video(driver, upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights, fps,
+                                     dest, audio=wav, progress=progress, width=width, height=height)
+                else:
+                    render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width,
+                                 height=height)
                 renders.append(dest)
             if faces > 1:
                 side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)

@@ -22,11 +22,13 @@ def register(app: typer.Typer) -> None:
                                                                       "2N for odd N)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the clip assignment and the screen positions."),
         force: bool = typer.Option(False, "--force", help="Overwrite an existing study (never one with answers)."),
+        avatar: Path = typer.Option(None, "--avatar", help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB "
+                                                           "(default: ours, built from the first BVH)."),
     ) -> None:
         """Validate the clips, build the avatar, precompute every pose track and write the participant plans."""
         from facecapges.study.build import create_study
 
-        s = create_study(clips, out, participants, seed, force)
+        s = create_study(clips, out, participants, seed, force, avatar=avatar)
         b = s["balance"]
         typer.echo(f"{out}: {s['clips']} clips × {s['systems']} systems at {s['fps']:g} fps, "
                    f"{s['participants']} participants (ids P01…)")

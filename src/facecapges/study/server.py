@@ -5,7 +5,7 @@ Standard library only (``http.server.ThreadingHTTPServer``). Routes::
     GET  /                         the study page (page/study.html, page/study.js)
     GET  /web/avatar_scene.js      the project's three.js avatar scene module
     GET  /three/...                three.js (npm three 0.187.0, from node_modules)
-    GET  /avatar.glb               the study's avatar
+    GET  /avatar.glb               the study's avatar (or /avatar.vrm, /web/vrm_scene.js, /pixiv/* three-vrm)
     GET  /api/info                 criteria wording, number of clips and of versions (K)
     POST /api/session              {"participant"} → progress; unknown ids are refused
     GET  /api/trial?participant=P&index=i
@@ -32,13 +32,13 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
-from facecapges.study.build import AVATAR_FILE, Study, media_dir, motion_file
+from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.store import AnswerError, AnswerStore
 
 PAGE_DIR = Path(__file__).with_name("page")
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                  ".css": "text/css; charset=utf-8", ".json": "application/json", ".wav": "audio/wav",
-                 ".glb": "model/gltf-binary", ".png": "image/png"}
+                 ".glb": "model/gltf-binary", ".vrm": "model/gltf-binary", ".png": "image/png"}
 _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\.json)$")
 MAX_BODY = 64 * 1024
 
@@ -84,7 +84,8 @@ class StudyApp:
 
     def info(self) -> dict:
         return {"criteria": self.study.doc["criteria"], "clips": len(self.study.plan.clips),
-                "versions": len(self.study.plan.systems), "fps": self.study.doc["fps"]}
+                "versions": len(self.study.plan.systems), "fps": self.study.doc["fps"],
+                "avatar": "vrm" if self.study.doc.get("avatar") == VRM_FILE else "glb"}
 
     def trial(self, pid: str, i: int) -> dict:
         t = self.study.plan.participant(pid).trials[i]
@@ -118,7 +119,11 @@ class StudyApp:
             return self.study.dir / AVATAR_FILE
         if path == "/web/avatar_scene.js":
             return self.web / "avatar_scene.js"
-        for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three)):
+        if path == "/avatar.vrm":
+            return self.study.dir / VRM_FILE
+        if path == "/web/vrm_scene.js":
+            return self.web / "vrm_scene.js"
+        for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three), ("/pixiv/", self.three.parent / "@pixiv")):
             if path.startswith(prefix):
                 full = (root / path[len(prefix):]).resolve()
                 if root.resolve() in full.parents and full.is_file():

@@ -11,6 +11,7 @@
 // continue (no way back) → thank you. Every answer is stored by the server before
 // the page moves on.
 import { AvatarScene } from '/web/avatar_scene.js';
+import { VrmScene } from '/web/vrm_scene.js';
 
 const SPACING = 1.0; // metres between the avatars' roots
 const REACH = 0.75; // metres an outstretched hand reaches sideways from an avatar's root
@@ -50,8 +51,17 @@ async function buildScene(k) {
   const canvas = $('view');
   const width = PX_PER_AVATAR * k;
   host = new AvatarScene(canvas, { width, height: HEIGHT });
-  const glb = await (await fetch('/avatar.glb')).arrayBuffer();
-  for (let j = 0; j < k; j++) {
+  const vrm = info.avatar === 'vrm';
+  const glb = await (await fetch(vrm ? '/avatar.vrm' : '/avatar.glb')).arrayBuffer();
+  for (let j = 0; vrm && j < k; j++) {
+    // a VRM (three-vrm): its normalised bones and expressions are driven (facecapges.avatar.retarget)
+    const rig = Object.create(VrmScene.prototype);
+    rig.scene = host.scene;
+    await rig.load(glb.slice(0));
+    rig.vrm.scene.position.x = (j - (k - 1) / 2) * SPACING;
+    rigs.push(rig);
+  }
+  for (let j = 0; !vrm && j < k; j++) {
     // a rig shares the host's scene: AvatarScene.load/setPose/setBlendshapes only touch
     // this.scene and the rig's own joints and morph meshes
     const rig = Object.create(AvatarScene.prototype);
@@ -63,6 +73,7 @@ async function buildScene(k) {
   // a long lens (narrow field of view from far away): the outer avatars are seen almost
   // from the front too, so no position shows its avatar from a more flattering angle
   const v = { target: [0, 0.36, 0], distance: 2.6, fov: 12 };
+  if (vrm) v.target[1] += rigs[0].bonePosition('hips').y;  // a VRM stands on y = 0
   const halfH = Math.tan((v.fov * Math.PI) / 360) * (width / HEIGHT);
   v.distance = Math.max(v.distance, (((k - 1) / 2) * SPACING + REACH) / halfH);
   host.setView(v);
@@ -74,10 +85,16 @@ let trial = null, face = null, motions = [], audioBuf = null, audioCtx = null, s
 let t0 = 0, wallStart = 0;
 
 function draw(f) {
-  const J = rigs[0].joints.length, B = face.names.length;
+  const B = face.names.length;
   rigs.forEach((rig, j) => {
-    rig.setPose(motions[j], f * J * 4);
-    rig.setBlendshapes(face.weights, f * B);
+    if (rig.vrm) {
+      rig.setPose(motions[j], f * rig.bones.length * 4);
+      rig.setExpressions(face.weights, f * B);
+      rig.update();
+    } else {
+      rig.setPose(motions[j], f * rig.joints.length * 4);
+      rig.setBlendshapes(face.weights, f * B);
+    }
   });
   host.render();
   state.frame = f;
@@ -159,6 +176,7 @@ async function loadTrial(index) {
   const [faceDoc, ...motionDocs] = await Promise.all([trial.face, ...trial.motions].map((u) => api(u)));
   face = { names: faceDoc.names, weights: new Float32Array(faceDoc.weights) };
   motions = motionDocs.map((m) => new Float32Array(m.quats));
+  if (rigs[0] && rigs[0].vrm) rigs.forEach((rig) => rig.setLayout(motionDocs[0].bone_names, faceDoc.names));
   const wav = await (await fetch(trial.audio)).arrayBuffer();
   try {
     audioCtx = audioCtx || new AudioContext();
