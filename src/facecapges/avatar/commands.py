@@ -86,9 +86,9 @@ def register(app: typer.Typer) -> None:
         """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
         from facecapges.avatar.body import default_avatar
         from facecapges.avatar.gltf import write_glb
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_file
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         skel, source = _skeleton(skeleton)
         av = default_avatar(skel)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -114,13 +114,17 @@ def register(app: typer.Typer) -> None:
         from facecapges.avatar.body import check_skeleton, default_avatar
         from facecapges.avatar.gltf import avatar_to_gltf
         from facecapges.avatar.render.video import bvh_quaternions, contact_sheet as make_sheet, render_video
-        from facecapges.errors import UserError, file_error, refuse_overwrite, require_file
+        from facecapges.errors import UserError, check_output_file, file_error, require_file
         from facecapges.io.bvh import read_bvh
         from facecapges.timing import resample
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         if contact_sheet is not None:
-            refuse_overwrite(contact_sheet, force)
+            check_output_file(contact_sheet, force)
+        if audio is not None:  # used only at the final mux: check it before the whole render
+            from facecapges.io.audio import check_audio
+
+            check_audio(audio)
         try:
             width, height = (int(x) for x in size.lower().split("x"))
         except ValueError:

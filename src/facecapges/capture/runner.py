@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_file
 
 
 def face_json_document(records: list[dict], fps: float) -> dict:
@@ -49,9 +49,9 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
 
     if not (0 < fps <= 120):
         raise UserError(f"--fps must be in (0, 120], got {fps}")
-    out = refuse_overwrite(out, force)
+    out = check_output_file(out, force)
     if overlay is not None:
-        refuse_overwrite(overlay, force)
+        check_output_file(overlay, force)
     depth_files, K = (None, None)
     if depth_dir is not None or intrinsics is not None:
         from facecapges.capture.depth import check_depth_inputs
@@ -64,7 +64,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     src = open_source(source)
 
     try:
-        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K)
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=2)
     except BaseException:
         src.close()
         raise
@@ -75,6 +75,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     writer = None
     records: list[dict] = []
     n_found = 0
+    n_several = 0  # input frames with more than one face in view
     try:
         if overlay is not None:
             from facecapges.capture.overlay import OverlayWriter
@@ -100,6 +101,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
                     if i < len(depth_files):
                         depth = read_depth(depth_files[i])
                 res = cap.process(frame, ts, depth)
+                n_several += getattr(cap, "faces_in_view", 1) > 1
                 # a slow source (fps below --fps) repeats the frame on the skipped ticks
                 while (k * 1000.0 / fps) <= ts + 1e-6 and (max_frames is None or k < max_frames):
                     n_found += bool(res.face_found)
@@ -119,4 +121,16 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
         raise UserError(f"{source}: no frames could be read")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(face_json_document(records, fps)))
-    return {"frames": len(records), "face_found": n_found, "fps": fps, "out": str(out)}
+    warnings = []
+    if src.bad_frames:
+        warnings.append(f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "
+                        "good frame was held over them, so timing stays right")
+    if src.missing_tail > max(2, (src.n_frames or 0) // 100):  # containers often over-count by a frame
+        warnings.append(f"the last {src.missing_tail} of {src.n_frames} frames the video declares could not be "
+                        "decoded (file cut short or damaged at its end)")
+    if n_found == 0:
+        warnings.append("no face was found in any frame: the output holds a neutral face and a resting head")
+    if n_several:
+        warnings.append(f"more than one face was in view in {n_several} frame(s); the largest face was tracked")
+    return {"frames": len(records), "face_found": n_found, "fps": fps, "out": str(out), "warnings": warnings,
+            "bad_frames": src.bad_frames, "missing_frames": src.missing_tail}

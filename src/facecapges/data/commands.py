@@ -36,7 +36,9 @@ def register(app: typer.Typer) -> None:
 
         from facecapges.data.prepare import prepare as run_prepare
         from facecapges.data.prepare import summary_table
+        from facecapges.errors import check_output_dir
 
+        check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
         index = run_prepare(beat_root, out, speakers=parse_speakers(speakers), fps=fps, force=force,
                             progress=not quiet)
         console = Console()
@@ -58,11 +60,11 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Write a cached clip's motion as BVH on the full BEAT hierarchy (other joints at rest)."""
         from facecapges.data.cache import Cache
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_file
         from facecapges.io.bvh import write_bvh
         from facecapges.skeleton import pose_to_motion
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         c = Cache(cache)
         arrays = c.load(clip)
         skel = c.skeleton(clip)

@@ -119,6 +119,40 @@ def load_audio(path: str | Path, sr: int = AUDIO_SR) -> np.ndarray:
     return np.ascontiguousarray(audio, dtype=np.float32)
 
 
+def check_audio(path: str | Path) -> Path:
+    """Check that ``path`` is audio we can decode, cheaply (header, or ffmpeg on the first second).
+
+    For commands that use the audio only at their end (``render --audio``): the file is
+    refused before the work, with the message :func:`load_audio` would give.
+    """
+    path = require_file(path, "audio file")
+    if path.stat().st_size == 0:
+        raise file_error(path, "audio file is empty (0 bytes)")
+    if path.suffix.lower() in FFMPEG_SUFFIXES:
+        import imageio_ffmpeg
+
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-t", "1", "-i", str(path),
+               "-vn", "-ac", "1", "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+        proc = subprocess.run(cmd, capture_output=True, check=False)
+        err = proc.stderr.decode("utf-8", "replace").strip()
+        if proc.returncode != 0 or not proc.stdout:
+            if not err or "does not contain any stream" in err or "matches no streams" in err:
+                raise file_error(path, "has no audio track")
+            raise file_error(path, f"cannot decode audio ({err.splitlines()[-1]})")
+        return path
+    problem = _riff_truncation(path)
+    if problem:
+        raise file_error(path, problem)
+    try:
+        info = sf.info(str(path))
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        reason = str(exc).split(":", 1)[-1].strip() or "unreadable"
+        raise file_error(path, f"not a readable audio file ({reason})") from None
+    if info.frames == 0:
+        raise file_error(path, "audio file holds no samples")
+    return path
+
+
 def save_audio(path: str | Path, audio: np.ndarray, sr: int = AUDIO_SR, subtype: str = "PCM_16") -> Path:
     """Write mono ``audio`` (S,) as a WAV file (16-bit PCM by default), atomically. Returns the path.
 

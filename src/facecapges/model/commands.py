@@ -110,14 +110,14 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_file
         from facecapges.io.bvh import write_bvh
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.model.generate import generate_poses, prepare_inputs
         from facecapges.rotations import normalize_rot6d
         from facecapges.skeleton import pose_to_motion
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)  # before the work: existing, folder, unwritable
         ckpt = load_checkpoint(checkpoint, style)
         inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
         for note in inputs.notes:

@@ -45,9 +45,15 @@ def register(app: typer.Typer) -> None:
         lat = report["latency_ms"]["total"]
         typer.echo(f"{report['frames']} frames → {out}  (compute per frame p50 {lat['p50']:.1f} ms, "
                    f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)")
-        ev = {k: v for k, v in report["events"].items() if v}
+        ev = {k: v for k, v in report["events"].items() if v and k != "video_frames_skipped"}
         if ev:
             typer.echo("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))
+        if report["events"].get("video_frames_skipped"):  # decimation to the model rate, not a loss
+            typer.echo(f"note: {report['events']['video_frames_skipped']} video frames were not needed at the "
+                       f"model's {report['fps']:g} fps (normal frame-rate conversion)")
+        if report.get("face_found_frames") == 0 and report["frames"]:
+            typer.secho("warning: no face was found in any frame of the video; the avatar's face stayed neutral "
+                        "and its head at rest", err=True, fg=typer.colors.YELLOW)
 
     @app.command("live")
     def live_cmd(
@@ -81,11 +87,15 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Overwrite files in --record."),
     ) -> None:
         """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""
-        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.errors import UserError, check_output_dir
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.runtime.session import build_session
         from facecapges.runtime.web_server import is_loopback, parse_address
 
+        if livelink is not None:
+            from facecapges.errors import check_port
+
+            check_port(livelink, "--livelink")
         if camera is None and video is None and livelink is None:
             camera = 0
         if realtime and video is None:
@@ -101,8 +111,7 @@ def register(app: typer.Typer) -> None:
                                 f"{web_addr[0]}")
         vmc_addr = parse_address(vmc, "127.0.0.1", "--vmc") if vmc is not None else None
         if record is not None:
-            for name in ("motion.bvh", "face.json", "report.json"):
-                refuse_overwrite(record / name, force)
+            check_output_dir(record, ("motion.bvh", "face.json", "report.json"), force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
         ckpt = load_checkpoint(checkpoint, style)

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_dir
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -112,10 +112,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     t_start = time.perf_counter()
     video = Path(video)
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a directory")
-    for name in OUTPUTS:
-        refuse_overwrite(out_dir / name, force)
+    check_output_dir(out_dir, OUTPUTS, force)
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
@@ -133,7 +130,13 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         t_loop = time.perf_counter()
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"run {video.name}", total=total)
-            why = sched.run(max_frames=total, on_frame=lambda o: bar.advance(task))
+            found = [0]
+
+            def on_frame(o) -> None:
+                found[0] += bool(o.face_found)
+                bar.advance(task)
+
+            why = sched.run(max_frames=total, on_frame=on_frame)
         t_loop_end = time.perf_counter()
         input_audio = sess.audio.samples
     finally:
@@ -141,7 +144,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if why == "interrupted":
         raise KeyboardInterrupt
     report = {"video": str(video), "audio": str(audio or video), "checkpoint": str(checkpoint.path),
-              **sched.report(), "outputs": {}}
+              **sched.report(), "face_found_frames": found[0], "outputs": {}}
     report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
     report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(sched.frames, 1), 3)
     T = sched.frames
