@@ -69,6 +69,10 @@ def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, 
             notes.append(f"{face_path}: ignored unknown blendshape names: {', '.join(track.unknown_names)}")
         if track.n_frames == 0:
             raise file_error(face_path, "face track has no frames")
+        face_s, audio_s = track.n_frames / track.fps, len(audio) / sr
+        if abs(face_s - audio_s) > max(0.5, 0.05 * audio_s):
+            notes.append(f"{face_path}: the face track lasts {face_s:.1f} s, the audio {audio_s:.1f} s; "
+                         + ("its last frame is held" if face_s < audio_s else "it is cut") + " (are they the same take?)")
         face = _fit(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
         if track.head_rot6d is not None and head_path is None:
             head = _fit(timing.resample(track.head_rot6d, track.fps, fps), T).astype(np.float32)

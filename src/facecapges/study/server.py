@@ -208,6 +208,7 @@ class _Handler(BaseHTTPRequestHandler):
     app: StudyApp
     server_version = "facecapges-study"
     timeout = SOCKET_TIMEOUT  # socket timeout of every read: a silent client is dropped
+    default_request_version = "HTTP/1.0"  # error replies to garbage still carry a status line
 
     def log_message(self, *args) -> None:  # the app reports what matters
         pass
