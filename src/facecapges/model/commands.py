@@ -111,22 +111,25 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
         from facecapges.errors import check_output_file
-        from facecapges.io.bvh import write_bvh
+        from facecapges.io.bvh import BvhWriter
         from facecapges.model.checkpoint import load_checkpoint
-        from facecapges.model.generate import generate_poses, prepare_inputs
+        from facecapges.model.generate import generate_blocks, plan_inputs
         from facecapges.rotations import normalize_rot6d
         from facecapges.skeleton import pose_to_motion
 
         check_output_file(out, force)  # before the work: existing, folder, unwritable
         ckpt = load_checkpoint(checkpoint, style)
-        inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
+        inputs = plan_inputs(audio, face, head, fps=ckpt.fps)
         for note in inputs.notes:
             typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
-        poses, ms = generate_poses(ckpt, inputs, progress=not json_out)
         skel = ckpt.skeleton
-        write_bvh(out, skel, pose_to_motion(skel, normalize_rot6d(poses)), ckpt.fps)
-        summary = {"out": str(out), "frames": int(len(poses)), "fps": ckpt.fps,
-                   "duration_s": round(len(poses) / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
+        timing_ms: list[float] = []
+        with BvhWriter(out, skel, inputs.n_frames, ckpt.fps) as bvh:  # block by block: memory flat in length
+            for poses in generate_blocks(ckpt, inputs.blocks(), inputs.n_frames, ckpt.fps, not json_out, timing_ms):
+                bvh.write(pose_to_motion(skel, normalize_rot6d(poses)))
+        ms, n = timing_ms[0], inputs.n_frames
+        summary = {"out": str(out), "frames": int(n), "fps": ckpt.fps,
+                   "duration_s": round(n / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
                    "checkpoint": str(ckpt.path), "warnings": inputs.notes}
         if json_out:
             typer.echo(json.dumps(summary))
