@@ -57,9 +57,15 @@ def register(app: typer.Typer) -> None:
         lat = report["latency_ms"]["total"]
         typer.echo(f"{report['frames']} frames → {out}  (compute per frame p50 {lat['p50']:.1f} ms, "
                    f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)")
-        ev = {k: v for k, v in report["events"].items() if v}
+        ev = {k: v for k, v in report["events"].items() if v and k != "video_frames_skipped"}
         if ev:
             typer.echo("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))
+        if report["events"].get("video_frames_skipped"):  # decimation to the model rate, not a loss
+            typer.echo(f"note: {report['events']['video_frames_skipped']} video frames were not needed at the "
+                       f"model's {report['fps']:g} fps (normal frame-rate conversion)")
+        if report.get("face_found_frames") == 0 and report["frames"]:
+            typer.secho("warning: no face was found in any frame of the video; the avatar's face stayed neutral "
+                        "and its head at rest", err=True, fg=typer.colors.YELLOW)
 
     @app.command("live")
     def live_cmd(
@@ -109,12 +115,16 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Overwrite files in --record."),
     ) -> None:
         """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""
-        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.errors import UserError, check_output_dir
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.runtime.session import build_session
         from facecapges.runtime.live import default_outputs, livelink_hint, per_face_sinks
         from facecapges.runtime.web_server import is_loopback, parse_address
 
+        if livelink is not None:
+            from facecapges.errors import check_port
+
+            check_port(livelink, "--livelink")
         if camera is None and video is None and livelink is None:
             camera = 0
         web, default_note = default_outputs(web, vmc, record)
@@ -144,9 +154,8 @@ def register(app: typer.Typer) -> None:
 
             if vrma and faces > 1:
                 raise UserError("--vrma records one performer; use it with --faces 1")
-            for name in (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json",
-                         *(("motion.vrma",) if vrma else ())):
-                refuse_overwrite(record / name, force)
+            check_output_dir(record, (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json",
+                                      *(("motion.vrma",) if vrma else ())), force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
         if vmc_avatar is not None and vmc is None:

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_dir
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -163,11 +163,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     video = Path(video)
     out_dir = Path(out_dir)
     check_head_mode(head)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a directory")
-    names = output_names(faces)
-    for name in names:
-        refuse_overwrite(out_dir / name, force)
+    check_output_dir(out_dir, output_names(faces), force)
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
@@ -195,7 +191,13 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         t_loop = time.perf_counter()
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"run {video.name}", total=total)
-            why = sched.run(max_frames=total, on_frame=lambda o: bar.advance(task))
+            found = [0]
+
+            def on_frame(o) -> None:
+                found[0] += bool(o.face_found)
+                bar.advance(task)
+
+            why = sched.run(max_frames=total, on_frame=on_frame)
         t_loop_end = time.perf_counter()
         input_audio = sess.audio.samples
     finally:
@@ -203,7 +205,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if why == "interrupted":
         raise KeyboardInterrupt
     report = {"video": str(video), "audio": str(audio or video), "checkpoint": str(checkpoint.path),
-              **sched.report(), "head": head, "faces": faces, "outputs": {}}
+              **sched.report(), "head": head, "faces": faces, "face_found_frames": found[0], "outputs": {}}
     T = sched.frames
     follow = [head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0}
               for m in mems]
@@ -242,7 +244,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
             t2 = time.perf_counter()
         report["seconds"].update({"avatar_video": round(t1 - t0, 3), "side_by_side_video": round(t2 - t1, 3)})
     report["seconds"]["total"] = round(time.perf_counter() - t_start, 3)
-    for name in names[:-1]:
+    for name in output_names(faces)[:-1]:
         p = out_dir / name
         if p.exists():
             report["outputs"][name] = str(p)
