@@ -149,7 +149,9 @@ def register(app: typer.Typer) -> None:
         config: Optional[Path] = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
                                                          "(default: configs/demo-beat2-scott.yaml, the shipped "
                                                          "model's recipe)."),
-        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's)."),
+        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
+                                                             "FGD autoencoder's: that is --fgd-epochs (400) when none "
+                                                             "is found; pass --fgd to use an existing one."),
         split: Optional[str] = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
                                                        "else train)."),
         holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip (default: the "

@@ -46,16 +46,19 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
                        f"({summary['duration_s']} s), {ms:.2f} ms/frame")
 
-    @app.command()
-    def styles(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
-        """List the installed speaking styles (per-speaker checkpoints)."""
-        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
+    styles_app = typer.Typer(help="The installed speaking styles (per-speaker models): list, install.",
+                             invoke_without_command=True, no_args_is_help=False)
+    app.add_typer(styles_app, name="styles")
+
+    def _list(json_out: bool) -> None:
+        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
 
         rows = []
         for name, path in list_styles().items():
             meta = load_checkpoint(path).meta
             rows.append({"name": name, "default": name == DEFAULT_STYLE, "speaker": meta.get("speaker"),
-                         "epochs": meta.get("epochs_trained"), "path": str(path)})
+                         "epochs": meta.get("epochs_trained"), "inputs": meta.get("inputs"),
+                         "shipped": path.parent == styles_dir(), "path": str(path)})
         if json_out:
             typer.echo(json.dumps(rows, indent=2))
             return
@@ -63,4 +66,31 @@ def register(app: typer.Typer) -> None:
             typer.echo("no styles installed")
         for r in rows:
             typer.echo(f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
-                       f"{r['epochs']} epochs  {r['path']}")
+                       f"{r['epochs']} epochs  {'shipped' if r['shipped'] else 'user'}  {r['path']}")
+
+    @styles_app.callback()
+    def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+        """List the installed speaking styles (per-speaker checkpoints); `styles install RUN` adds one."""
+        if ctx.invoked_subcommand is None:
+            _list(json_out)
+
+    @styles_app.command("list")
+    def styles_list(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+        """List the installed styles: shipped ones and the user's own."""
+        _list(json_out)
+
+    @styles_app.command("install")
+    def styles_install(
+        run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
+        name: Optional[str] = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
+        force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
+    ) -> None:
+        """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).
+
+        Styles go to $FACECAPGES_STYLES, else $XDG_DATA_HOME/facecapges/styles
+        (default ~/.local/share/facecapges/styles).
+        """
+        from facecapges.model.checkpoint import install_style
+
+        dest = install_style(run, name, force)
+        typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
