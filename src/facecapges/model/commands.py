@@ -18,6 +18,10 @@ def register(app: typer.Typer) -> None:
         head: Optional[Path] = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
         checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
         style: Optional[str] = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+        face_out: Optional[Path] = typer.Option(None, "--face-out", help="Also write the face to show with the "
+                                                                          "motion (face JSON): --face resampled, or "
+                                                                          "without --face, jaw and lips from the "
+                                                                          "speech."),
         json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
         force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
@@ -30,6 +34,8 @@ def register(app: typer.Typer) -> None:
         from facecapges.skeleton import pose_to_motion
 
         refuse_overwrite(out, force)
+        if face_out is not None:
+            refuse_overwrite(face_out, force)
         ckpt = load_checkpoint(checkpoint, style)
         inputs = prepare_inputs(audio, face, head, fps=ckpt.fps)
         for note in inputs.notes:
@@ -37,6 +43,12 @@ def register(app: typer.Typer) -> None:
         poses, ms = generate_poses(ckpt, inputs, progress=not json_out)
         skel = ckpt.skeleton
         write_bvh(out, skel, pose_to_motion(skel, normalize_rot6d(poses)), ckpt.fps)
+        if face_out is not None:
+            from facecapges.capture.speech_mouth import speech_mouth_track
+            from facecapges.io.face_json import write_face_json
+
+            shown = inputs.face if face is not None else speech_mouth_track(inputs.audio, ckpt.fps)
+            write_face_json(face_out, shown, ckpt.fps, inputs.head)
         summary = {"out": str(out), "frames": int(len(poses)), "fps": ckpt.fps,
                    "duration_s": round(len(poses) / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
                    "checkpoint": str(ckpt.path), "warnings": inputs.notes}

@@ -100,6 +100,7 @@ class TrainConfig:
     head_to_camera: bool = True  # map skeleton head rotations into the model's camera frame
     seed: int = 0
     holdout_from: int | None = None  # frames >= this of every clip are held out
+    mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
     num_threads: int = 0  # 0 = torch default
 
     def learning_rates(self, world_size: int = 1) -> tuple[float, float]:

@@ -22,6 +22,7 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
+     "face": 0,                        # which face / avatar (several with `live --faces N`)
      "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
                                        # compute of this frame; total = input frame → pose +
                                        # blendshapes ready (sending is not included)
@@ -82,6 +83,7 @@ def encode_pose(out: OutputFrame) -> str:
         "weights": [_r(v, 5) for v in np.asarray(out.face).reshape(-1)],
         "head": [_r(v, 6) for v in np.asarray(out.head).reshape(-1)],
         "face_found": bool(out.face_found),
+        "face": int(out.face_index),
         "latency_ms": {k: _r(v, 3) for k, v in out.latency_ms.items()},
         "sent_ms": _r(time.time() * 1000.0, 1),
     }, separators=(",", ":"))

@@ -54,6 +54,7 @@ from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
 from facecapges.training.distributed import DistContext
+from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
 from facecapges.timing import frame_audio, frame_sample_bounds
 
 
@@ -67,6 +68,7 @@ class ClipArrays:
     head: np.ndarray  # (T, 6)
     face: np.ndarray  # (T, 52)
     audio: np.ndarray  # (S,) 16 kHz
+    mask: np.ndarray | None = None  # (47,) or (T, 47) bool: joints with real motion (None: all)
 
 
 def load_clips(cache_path: Path, speaker: int, split: str):
@@ -77,7 +79,8 @@ def load_clips(cache_path: Path, speaker: int, split: str):
     clips = []
     for e in cache.select(speaker, split):
         a = cache.load(e["name"])
-        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"]))
+        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
+                                mask=a["mask"]))
     return cache, clips
 
 
@@ -92,7 +95,7 @@ class SegmentSet:
                  frame_range: tuple[int, int | None] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
-        audio, face, head, pose, starts = [], [], [], [], []
+        audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
         for c in clips:
             T = len(c.pose)
@@ -103,6 +106,8 @@ class SegmentSet:
             face.append(pad(c.face))
             head.append(pad(c.head))
             pose.append(pad(c.pose.reshape(T, -1)))
+            m = np.ones(c.pose.shape[1], bool) if c.mask is None else np.asarray(c.mask, bool)
+            mask.append(pad(np.broadcast_to(m, (T, c.pose.shape[1]))))
             for s in range(lo, hi - clip_len + 1, stride):
                 starts.append(offset + N + s)  # index of the segment's first frame
             offset += T + N
@@ -112,6 +117,7 @@ class SegmentSet:
         self.face = np.concatenate(face)
         self.head = np.concatenate(head)
         self.pose = np.concatenate(pose)
+        self.mask = np.concatenate(mask)  # (frames, 47) float32, 1 = joint present
         self.starts = np.array(starts)
 
     def __len__(self) -> int:
@@ -122,7 +128,8 @@ class SegmentSet:
         win = s[:, None] + np.arange(-self.N, self.L)[None]  # (B, N + L)
         seg = s[:, None] + np.arange(self.L)[None]
         return {"audio": torch.from_numpy(self.audio[win]), "face": torch.from_numpy(self.face[win]),
-                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg])}
+                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg]),
+                "mask": torch.from_numpy(self.mask[seg])}
 
 
 def encode_segments(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -138,10 +145,8 @@ def huber(x: torch.Tensor, y: torch.Tensor, beta: float) -> torch.Tensor:
 
 
 def reconstruction_losses(gen: torch.Tensor, gt: torch.Tensor, beta: float) -> dict[str, torch.Tensor]:
-    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D)."""
-    vg, vt = gen[:, 1:] - gen[:, :-1], gt[:, 1:] - gt[:, :-1]
-    return {"rec": huber(gen, gt, beta), "vel": huber(vg, vt, beta),
-            "acc": huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta)}
+    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D), every joint counted."""
+    return masked_reconstruction_losses(gen, gt, beta, None)
 
 
 def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -174,7 +179,8 @@ def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
                  ) -> tuple[SegmentSet, SegmentSet | None]:
     """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
     F_ = tcfg.holdout_from
-    train_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    train_clips = clips + [mirrored(c) for c in clips] if getattr(tcfg, "mirror", False) else clips
+    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
     held_set = None
     if F_ is not None:
         try:
@@ -361,7 +367,8 @@ class Trainer:
         if ref is not None:  # the model's head input is in the camera frame (capture.head_pose)
             from facecapges.capture.head_pose import skeleton_head_to_camera
 
-            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio) for c in clips]
+            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask)
+                     for c in clips]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
         self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
         start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
@@ -471,10 +478,11 @@ class Trainer:
             with prec.autocast():
                 gen, gt = self.G_fwd(batch)
             gen = gen.float()
+            mask = batch["mask"][:, self.mcfg.n_history:]  # (B, M, 47): masked joints add no loss
             logs: dict[str, torch.Tensor] = {}
             if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
                 with prec.autocast():
-                    d_out = self.D_fwd(torch.cat([gt, gen.detach()])).float()
+                    d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
                 d_real, d_fake = d_out[: len(gt)], d_out[len(gt):]
                 loss_d = F.binary_cross_entropy_with_logits(d_real, torch.ones_like(d_real)) + \
                     F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
@@ -482,13 +490,13 @@ class Trainer:
                 prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
                 prec.step("d", self.opt_d)
                 logs["d"] = loss_d.detach()
-            rec = reconstruction_losses(gen, gt, t.huber_beta)
+            rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
             loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
             if adv_on:
                 # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
                 self.D.requires_grad_(False)
                 with prec.autocast():
-                    d_gen = self.D(gen).float()
+                    d_gen = self.D(discriminator_view(gen, gt, mask)).float()
                 self.D.requires_grad_(True)
                 adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
                 loss = loss + t.w_adv * adv
@@ -525,9 +533,11 @@ class Trainer:
         mine = self.dist.shard(np.arange(len(seg_set)))
         for b in range(0, len(mine), batch_size):
             idx = mine[b:b + batch_size]
+            batch = self._gather(seg_set, idx)
             with self.precision.autocast():
-                gen, gt = self.variant.forward(self.G, self._gather(seg_set, idx))
-            for k, v in reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta).items():
+                gen, gt = self.variant.forward(self.G, batch)
+            mask = batch["mask"][:, self.mcfg.n_history:]
+            for k, v in masked_reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta, mask).items():
                 sums[k] += v.item() * len(idx)
             n += len(idx)
         if self.dist.enabled:
