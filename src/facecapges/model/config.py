@@ -100,6 +100,9 @@ class TrainConfig:
     head_to_camera: bool = True  # map skeleton head rotations into the model's camera frame
     seed: int = 0
     holdout_from: int | None = None  # frames >= this of every clip are held out
+    # (or) the last fraction of every clip is held out: frames >= floor(T·(1 − f)) —
+    # the cache's rule for takes of other sources (their ``holdout_from``)
+    holdout_fraction: float | None = None
     mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
     num_threads: int = 0  # 0 = torch default
 

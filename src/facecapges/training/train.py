@@ -13,7 +13,8 @@
   500/1000/1000 (4.2.4), plus the non-saturating adversarial loss of a segment
   discriminator (eq. 4.22–4.23), weight 0.1, from epoch 11; D and G updated
   alternately, each by SGD, lr_g = 2.5e-4·B/128 and lr_d = 0.2·lr_g (eq. 5.1–5.2).
-* Held-out frames (``holdout_from``): segments are taken from frames < F for
+* Held-out frames (``holdout_from`` F, or ``holdout_fraction`` f: F = floor(T·(1 − f))
+  of each clip of T frames, the cache's per-take rule): segments are taken from frames < F for
   training and from frames ≥ F (warm-up included) for the held-out losses logged
   every epoch.
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
@@ -92,14 +93,15 @@ class SegmentSet:
     """
 
     def __init__(self, clips: list[ClipArrays], cfg: ModelConfig, clip_len: int, stride: int,
-                 frame_range: tuple[int, int | None] = (0, None)):
+                 frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
         audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
-        for c in clips:
+        ranges = frame_range if isinstance(frame_range, list) else [frame_range] * len(clips)
+        for c, (lo, hi) in zip(clips, ranges):
             T = len(c.pose)
-            lo, hi = frame_range[0], T if frame_range[1] is None else min(frame_range[1], T)
+            hi = T if hi is None else min(hi, T)
             a = frame_audio(c.audio, T, cfg.fps, cfg.sr)
             pad = lambda x: np.concatenate([np.zeros((N,) + x.shape[1:], np.float32), x.astype(np.float32)])
             audio.append(pad(a))
@@ -158,11 +160,19 @@ def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[to
 
 
 # ---------------------------------------------------------------------- trainer
-def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> np.ndarray:
+def holdout_frames(clips: list[ClipArrays], tcfg: TrainConfig) -> list[int | None]:
+    """Per clip, its first held-out frame (None: no hold-out) — ``holdout_fraction`` or ``holdout_from``."""
+    if tcfg.holdout_fraction:
+        return [int(math.floor(len(c.pose) * (1.0 - tcfg.holdout_fraction))) for c in clips]
+    return [tcfg.holdout_from] * len(clips)
+
+
+def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None | list[int | None]) -> np.ndarray:
     """The calmest real N-frame window of the training frames (least pose motion)."""
     best, best_e = None, math.inf
-    for c in clips:
-        T = len(c.pose) if frame_limit is None else min(frame_limit, len(c.pose))
+    limits = frame_limit if isinstance(frame_limit, list) else [frame_limit] * len(clips)
+    for c, lim in zip(clips, limits):
+        T = len(c.pose) if lim is None else min(lim, len(c.pose))
         if T < n:
             continue
         v = np.abs(np.diff(c.pose[:T].reshape(T, -1), axis=0)).sum(1)  # (T-1,)
@@ -177,14 +187,18 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> 
 
 def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
                  ) -> tuple[SegmentSet, SegmentSet | None]:
-    """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
-    F_ = tcfg.holdout_from
-    train_clips = clips + [mirrored(c) for c in clips] if getattr(tcfg, "mirror", False) else clips
-    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    """Training segments (frames < each clip's hold-out frame) and held-out ones (frames ≥ it, or None)."""
+    F_ = holdout_frames(clips, tcfg)
+    train_ranges = [(0, f) for f in F_]
+    train_clips = clips
+    if getattr(tcfg, "mirror", False):
+        train_clips, train_ranges = clips + [mirrored(c) for c in clips], train_ranges * 2
+    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, train_ranges)
     held_set = None
-    if F_ is not None:
+    if any(f is not None for f in F_):
         try:
-            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (F_, None))
+            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride,
+                                  [(len(c.pose) if f is None else f, None) for c, f in zip(clips, F_)])
         except UserError:  # too few held-out frames for one segment
             held_set = None
     return train_set, held_set
@@ -220,8 +234,8 @@ def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConf
     from facecapges.capture.head_pose import mean_rotation, skeleton_head_to_camera
     from facecapges.model.audio_features import AudioFeatures
 
-    lim = tcfg.holdout_from
-    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c in clips]
+    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c, lim in
+           zip(clips, holdout_frames(clips, tcfg))]
     head = np.concatenate([c.head[s] for c, s in zip(clips, cut)]).astype(np.float64)
     face = np.concatenate([c.face[s] for c, s in zip(clips, cut)]).astype(np.float64)
     ref = mean_rotation(head) if tcfg.head_to_camera else None
@@ -370,7 +384,7 @@ class Trainer:
             clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask)
                      for c in clips]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
-        self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
+        self.neutral = neutral_window(clips, model_cfg.n_history, holdout_frames(clips, train_cfg))
         start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
         self.G.to(self.device)
         self.D.to(self.device)
