@@ -309,7 +309,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
             methods[LABELS[v]] = [r.run(inputs, h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress))
+                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, m in methods.items():
             method_clips.setdefault(k, []).extend(m if isinstance(m, list) else [m])

@@ -52,6 +52,7 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
             label = REGION_TITLES[region] if i == 0 else ""
             lines.append(f"| {label} | {name} | {_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± "
                          f"{_fmt(m['BA_shifted_sd'])} | {_fmt(m['BA_gap'], 4)} |")
+    lines += synchrony_lines(result)
     if any(m.get("L1DIV_samples") is not None for r in regions for m in result["regions"][r]["methods"].values()):
         lines += ["", "### L1DIV across generated samples (eq. 5.11)", "", "| Region | Method | L1DIV (eq. 5.11) |",
                   "|---|---|---|"]
@@ -77,6 +78,31 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
     return "\n".join(lines) + "\n"
 
 
+def synchrony_lines(result: dict, audio_label: str | None = None) -> list[str]:
+    """The synchrony-control table of a suite result (empty without a ``synchrony`` section)."""
+    sync = result.get("synchrony")
+    if not sync:
+        return []
+    ref = sync["reference"]
+    lines = ["", "### Synchrony controls (same motion, its own audio shifted; wrists vs the real motion)", "",
+             ("| Audio " if audio_label else "") + "| Method | energy–speed r | shifted r (mean ± sd) | z | "
+             "BA gap (sd units, with head / without) | wrist jerk × real | wrist spread × real |",
+             ("|---" if audio_label else "") + "|---|---|---|---|---|---|---|"]
+    for name, m in sync["methods"].items():
+        gaps = [result["regions"][r]["methods"].get(name, {}).get("BA_gap_sd") for r in REGIONS
+                if r in result["regions"]]
+        lines.append((f"| {audio_label} " if audio_label else "") +
+                     f"| {name} | {_fmt(m['ES_r'])} | {_fmt(m['ES_shifted_mean'])} ± {_fmt(m['ES_shifted_sd'])} | "
+                     f"{_fmt(m['ES_z'], 2)} | {' / '.join(_fmt(g, 2) for g in gaps)} | {_fmt(m['jerk_ratio'], 2)} | "
+                     f"{_fmt(m['spread_ratio'], 2)} |")
+    lines += ["", f"Energy–speed: Pearson r of the per-frame audio RMS and the mean wrist speed, both smoothed over "
+                  f"0.5 s; z = (r − shifted mean) / shifted sd over the same audio shifts as BeatAlign. Judge a model "
+                  f"against its speaker's real figure (ground truth row), not against 0. Jerk and spread are ratios to "
+                  f"{ref['source']} (jerk {_fmt(ref['jerk'], 0)} units/s³, spread {_fmt(ref['spread'], 2)} units); "
+                  "1.0 moves like the real speaker."]
+    return lines
+
+
 def markdown_unseen_table(unseen: dict) -> str:
     """Table of results on unseen audio: ``{audio path: evaluate_unpaired result}``."""
     lines = ["", "## Unseen audio (no real motion)", "",
@@ -88,6 +114,8 @@ def markdown_unseen_table(unseen: dict) -> str:
                 lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {_fmt(m['FGD'])} | "
                              f"{_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± {_fmt(m['BA_shifted_sd'])} | "
                              f"{_fmt(m['BA_gap'], 4)} | {_fmt(m['L1DIV'])} |")
+    for path, res in unseen.items():
+        lines += synchrony_lines(res, Path(path).name)
     return "\n".join(lines) + "\n"
 
 
