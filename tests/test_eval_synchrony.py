@@ -109,7 +109,10 @@ def test_suite_reports_synchrony_for_every_row(beat):
     assert sync["shifted real"]["spread_ratio"] == pytest.approx(1.0, rel=0.2)
     gt = res["regions"]["with_head"]["methods"]["ground truth"]
     assert gt["BA_gap_sd"] == pytest.approx(gt["BA_gap"] / gt["BA_shifted_sd"])
+    peer = res["peers"]["methods"]
+    assert peer["ground truth"]["SRGR_BEAT"] == 1.0 and peer["mean pose"]["L1DIV_BEAT"] == pytest.approx(0, abs=1e-6)
+    assert peer["ground truth"]["L1DIV_BEAT"] > 100 and 0 < peer["ground truth"]["BA_EMAGE"] <= 1
     from facecapges.evaluation.report import markdown_table
 
     md = markdown_table(res)
-    assert "energy–speed r" in md and "wrist jerk × real" in md
+    assert "energy–speed r" in md and "wrist jerk × real" in md and "BA (BEAT script)" in md

@@ -28,7 +28,11 @@ FGD is ``None`` when no FGD autoencoder (or none for that region) is given. The
 ``synchrony`` section (:mod:`facecapges.evaluation.synchrony`: energy–speed
 correlation with its shifted-audio z-score, wrist jerk and spread and their ratios to
 the real motion) is present when a ``skeleton`` is given (wrist positions need forward
-kinematics); ``BA_gap_sd`` is the BeatAlign gap in shifted-sd units.
+kinematics); ``BA_gap_sd`` is the BeatAlign gap in shifted-sd units. With a skeleton
+the ``peers`` section also holds each method's BA, SRGR and L1div as BEAT/CaMN's and
+EMAGE's scripts compute them (:mod:`facecapges.evaluation.peers`, all 47 joints, no
+regions): ``{"methods": {name: {"BA_BEAT", "BA_BEAT_true_times", "BA_EMAGE",
+"SRGR_BEAT", "L1DIV_BEAT"}}, "n_speech_beats": {...}}``.
 """
 
 from __future__ import annotations
@@ -126,7 +130,23 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
             result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
     if skeleton is not None:
         result["synchrony"] = _synchrony(samples, skeleton, audio, sr, fps, real, real_stats, offsets_s)
+        result["peers"] = _peers(samples, skeleton, audio, sr, fps, real, semantic_weights)
     return result
+
+
+def _peers(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
+           real: np.ndarray | None, weights: np.ndarray | None) -> dict:
+    """:func:`facecapges.evaluation.peers.peer_metrics` per method on all 47 joints (mean over samples)."""
+    from facecapges.evaluation import peers
+
+    n = len(next(iter(samples.values()))[0]) if samples else 0
+    a = ba.fit_audio(audio, n, fps, sr)
+    speech = peers.peer_speech(a, sr)
+    methods = {}
+    for name, arrs in samples.items():
+        rows = [peers.peer_metrics(real, x, a, sr, fps, skeleton, weights, speech) for x in arrs]
+        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
+    return {"methods": methods, "n_speech_beats": {k: int(len(v)) for k, v in speech.items()}}
 
 
 def _synchrony(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
@@ -233,6 +253,12 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
             rows[name] = {k: row[k] for k in ("FGD", "SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap",
                                               "BA_gap_sd", "L1DIV", "L1DIV_samples", "n_samples")}
         out["regions"][region] = {"joints": reg["joints"], "methods": rows}
+    if all("peers" in r for r in results):
+        methods = {}
+        for name, first in results[0]["peers"]["methods"].items():
+            methods[name] = {k: _weighted([r["peers"]["methods"][name][k] for r in results], n) for k in first}
+        out["peers"] = {"methods": methods, "n_speech_beats": {
+            k: int(sum(r["peers"]["n_speech_beats"][k] for r in results)) for k in results[0]["peers"]["n_speech_beats"]}}
     if all("synchrony" in r for r in results):
         methods = {}
         for name in results[0]["synchrony"]["methods"]:
