@@ -226,3 +226,26 @@ def pose_to_motion(skel: Skeleton, pose: np.ndarray, root_pos: np.ndarray | None
     mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(pose.astype(np.float64))
     euler = matrices_to_euler(skel, mats)
     return euler_to_motion(skel, euler, root_pos)
+
+
+# ------------------------------------------------------------ skeleton ↔ JSON
+def skeleton_to_dict(skel: Skeleton) -> dict:
+    """A JSON-able description of a full BVH hierarchy."""
+    return {
+        "names": list(skel.names),
+        "parents": [int(p) for p in skel.parents],
+        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
+        "channels": [list(c) for c in skel.channels],
+        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
+    }
+
+
+def skeleton_from_dict(d: dict) -> Skeleton:
+    """Inverse of :func:`skeleton_to_dict`."""
+    return Skeleton(
+        names=list(d["names"]),
+        parents=np.asarray(d["parents"], dtype=np.int64),
+        offsets=np.asarray(d["offsets"], dtype=np.float64),
+        channels=[list(c) for c in d["channels"]],
+        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
+    )

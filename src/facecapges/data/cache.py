@@ -55,7 +55,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import N_JOINTS, Skeleton
+from facecapges.skeleton import N_JOINTS, Skeleton, skeleton_from_dict, skeleton_to_dict  # noqa: F401 (re-exported)
 
 CACHE_VERSION = 1
 INDEX_NAME = "index.json"
@@ -63,29 +63,6 @@ CLIP_DIR = "clips"
 STD_FLOOR = 1e-3
 PRESENCE_KEYS = ("face_present", "semantic_present", "emotion_present")
 ARRAY_KEYS = ("pose", "head", "face", "semantic", "emotion", "audio", "offsets") + PRESENCE_KEYS
-
-
-# ------------------------------------------------------------ skeleton ↔ JSON
-def skeleton_to_dict(skel: Skeleton) -> dict:
-    """A JSON-able description of a full BVH hierarchy."""
-    return {
-        "names": list(skel.names),
-        "parents": [int(p) for p in skel.parents],
-        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
-        "channels": [list(c) for c in skel.channels],
-        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
-    }
-
-
-def skeleton_from_dict(d: dict) -> Skeleton:
-    """Inverse of :func:`skeleton_to_dict`."""
-    return Skeleton(
-        names=list(d["names"]),
-        parents=np.asarray(d["parents"], dtype=np.int64),
-        offsets=np.asarray(d["offsets"], dtype=np.float64),
-        channels=[list(c) for c in d["channels"]],
-        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
-    )
 
 
 # -------------------------------------------------------------------- statistics

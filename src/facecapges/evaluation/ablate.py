@@ -150,9 +150,9 @@ class TrainedVariant:
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
 
-    return _load_clips(cache, speaker, split)
+    return load_clips(cache, speaker, split)
 
 
 def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
@@ -297,7 +297,8 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     per_clip, real_clips, method_clips = [], [], {}
     for name in evaluated:
         a = loaded[name]
-        real, audio, inputs = heldout_inputs(a, start, fps, sr)
+        real, audio, inputs = heldout_inputs(a, start, fps, sr,
+                                             next(iter(runners.values())).meta.get("head_reference_rot6d"))
         histories = [None] + [bl.random_segment(pool, n_hist, rng) for _ in range(samples - 1)]
         if F_ is not None:
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))

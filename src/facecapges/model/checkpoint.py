@@ -20,9 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.data.cache import skeleton_from_dict
+from facecapges.skeleton import Skeleton, skeleton_from_dict
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import Skeleton
 
 DEFAULT_STYLE = "beat2-scott-demo"
 FORMAT = "facecapges-checkpoint-1"
@@ -104,7 +103,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     from safetensors import SafetensorError, safe_open
 
     from facecapges.model.config import model_config_from_dict
-    from facecapges.model.network import FaceCapGes
+    from facecapges.model.network import FaceCapGes, with_default_norms
 
     p = resolve(path, style)
     try:
@@ -124,7 +123,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     cfg = model_config_from_dict(meta["model_config"])
     model = FaceCapGes(cfg)
     try:
-        model.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)
+        model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)
     except RuntimeError as exc:
         first = str(exc).splitlines()[0]
         raise file_error(p, f"weights do not match the checkpoint's model config ({first})") from None
