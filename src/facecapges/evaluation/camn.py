@@ -31,7 +31,8 @@ Per frame τ of a segment (B batch, T frames, S = 1067 samples per frame):
 
 Sizes are CaMN's (BEAT's config: hidden 256, 4 layers, audio 128, face 32, dropout
 0.3). It is trained by the project's trainer with the same recipe as FaceCapGes
-(:data:`CAMN` is its :class:`facecapges.training.train.Variant`-compatible pieces):
+(:func:`build_camn_trainer` gives the trainer a :class:`facecapges.training.train.Variant`
+made of :func:`build_camn`, :func:`camn_batch`, :func:`camn_heads` and :func:`save_camn`):
 L = 34-frame segments with the first N = 16 real poses as seed (CaMN's own setting is
 4; we give it what the FaceCapGes warm-up sees), losses on the 18 frames after.
 Evaluation decodes a whole held-out sequence in one pass from the same N-frame
@@ -161,8 +162,16 @@ class CaMN(nn.Module):
         self.head_u = _out_head(H, n_limb)
 
     def input_norm_layers(self) -> dict[str, nn.Module]:
-        """The standardising modules of each input ({name: module with in_mean/in_scale})."""
-        return {"audio": self.audio_enc.gain, "face": self.face_norm, "head": self.head_norm}
+        """The standardising modules of each input ({name: module with in_mean/in_scale}).
+
+        Audio is always raw samples here (CaMN's input); its one gain takes the
+        trainer's statistic only when the shared config's audio is raw too (with Mel
+        features the statistic is per feature; BatchNorm then sets the scale).
+        """
+        layers = {"face": self.face_norm, "head": self.head_norm}
+        if self.cfg.audio_repr == "raw":
+            layers["audio"] = self.audio_enc.gain
+        return layers
 
     def features(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
         """Fused per-frame features [â; f̂; h] (B, T, F), non-causal over the segment."""
@@ -236,6 +245,20 @@ def camn_batch(model: CaMN, batch: dict[str, torch.Tensor]) -> tuple[torch.Tenso
 def camn_heads(model: CaMN) -> tuple[nn.Sequential, nn.Sequential]:
     """The (torso, limbs) output MLPs, which the trainer starts at the training mean pose."""
     return model.head_t, model.head_u
+
+
+def _variant():
+    from facecapges.training.train import Variant
+
+    return Variant(name="camn", build=build_camn, forward=camn_batch, output_heads=camn_heads, export=save_camn,
+                   meta={"variant": "CaMN"})
+
+
+def build_camn_trainer(clips, out: Path, model_over: dict, train_over: dict, meta: dict):
+    """A new trainer of the project's one training loop for CaMN (same override dicts as ``build_trainer``)."""
+    from facecapges.training.train import build_trainer
+
+    return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=_variant())
 
 
 def save_camn(path: str | Path, model: CaMN, meta: dict) -> Path:
