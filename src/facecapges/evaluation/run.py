@@ -211,7 +211,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                    "random real segment": segment, model_name: gens}
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress))
+                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, v in methods.items():
             method_clips.setdefault(k, []).extend(v if isinstance(v, list) else [v])
@@ -235,7 +235,8 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                             for _ in range(samples - 1)]
             wav = load_audio(path, sr)
             unseen[str(path)] = evaluate_unpaired({model_name: gens}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
-                                                  offsets_s=offsets_s, progress=progress)
+                                                  offsets_s=offsets_s, progress=progress,
+                                                  skeleton=c.skeleton(evaluated[0]))
     out = Path(out)
     name, real0, methods0, audio0 = first
     shown = {model_name: methods0[model_name][0], "random real segment": methods0["random real segment"],

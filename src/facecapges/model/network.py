@@ -300,7 +300,12 @@ class SegmentDiscriminator(nn.Module):
 
 
 def input_norm_layers(model: nn.Module) -> dict[str, nn.Module]:
-    """The standardising layer of each input of a FaceCapGes-like model (audio, face, head)."""
+    """The standardising layer of each input of a FaceCapGes-like model (audio, face, head).
+
+    A model with its own ``input_norm_layers()`` method (e.g. the CaMN baseline) names them itself.
+    """
+    if hasattr(model, "input_norm_layers"):
+        return model.input_norm_layers()
     fe = model.audio_enc.frontend
     layers = {"audio": fe if isinstance(fe, AudioFrontend) else fe.proj, "face": model.face_enc.inp}
     if model.head_enc.dim:
