@@ -50,7 +50,7 @@ def cache(tmp_path_factory, beat_bvh) -> Path:
 
 
 def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> None:
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
     from facecapges.training.distributed import init_distributed, shutdown
     from facecapges.training.train import build_trainer
 
@@ -58,7 +58,7 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
                       LOCAL_RANK=str(rank))
     ctx = init_distributed("cpu")
     try:
-        _, clips = _load_clips(cache, 2, "all")
+        _, clips = load_clips(cache, 2, "all")
         tr = build_trainer(clips, out / "run", dict(TINY_MODEL), dict(TRAIN, batch_size=GLOBAL_BATCH // world),
                            {"split": "all"}, resume=False, dist=ctx)
         tr.fit()
@@ -69,7 +69,7 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
 
 
 def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
     from facecapges.training.train import build_trainer
 
     mp.spawn(_rank_worker, args=(2, free_port(), cache, tmp_path), nprocs=2, join=True)
@@ -82,7 +82,7 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
     assert {p.name for p in (tmp_path / "run").iterdir()} == {"last.pt", "model.safetensors", "log.csv",
                                                                 "summary.json"}
 
-    _, clips = _load_clips(cache, 2, "all")
+    _, clips = load_clips(cache, 2, "all")
     threads = torch.get_num_threads()
     try:
         one = build_trainer(clips, tmp_path / "one", dict(TINY_MODEL), dict(TRAIN, batch_size=GLOBAL_BATCH),

@@ -157,7 +157,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     res = run(*args)
     assert res.returncode == 0, res.stderr
     doc = json.loads((out / "ablation.json").read_text())
-    labels = ["FaceCapGes (full)", "without head pose", "offline decoding"]
+    labels = ["FaceCapGes (full)", "without head pose", "offline decoding", "CaMN (baseline)"]
     for region in ("with_head", "without_head"):
         rows = doc["result"]["regions"][region]["methods"]
         assert list(rows) == ["ground truth", "mean pose", "random real segment"] + labels
@@ -167,7 +167,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
         for name in labels:
             assert rows[name]["n_samples"] == 2 and rows[name]["L1DIV_samples"] is not None
     assert doc["result"]["n_frames"] == 957 - 860 and doc["result"]["first_frame"] == 860
-    for v in ("full", "no_head", "offline"):
+    for v in ("full", "no_head", "offline", "camn"):
         info = doc["variants"][v]
         assert info["source"] == "trained" and info["epochs"] == 1 and (out / "runs" / v / "model.safetensors").is_file()
     from facecapges.model.checkpoint import load_checkpoint
@@ -183,7 +183,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert res.returncode == 0, res.stderr
     assert res.stdout.count("already holds this recipe's model: reused") == 2
     assert list(json.loads((out / "ablation.json").read_text())["variants"]) == ["no_head", "offline"]
-    bad = run("ablate", "--cache", cache, "--out", tmp_path / "x", "--config", cfg, "--variants", "camn", "--quiet")
+    bad = run("ablate", "--cache", cache, "--out", tmp_path / "x", "--config", cfg, "--variants", "diffsheg", "--quiet")
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
 
 

@@ -28,7 +28,8 @@ app = typer.Typer(
 COMMAND_MODULES = [
     "facecapges.capture.commands",  # capture, capture-eval
     "facecapges.data.commands",  # prepare, export
-    "facecapges.model.commands",  # train, generate
+    "facecapges.model.commands",  # generate, styles
+    "facecapges.training.commands",  # train
     "facecapges.avatar.commands",  # blendshapes, avatar build, render
     "facecapges.evaluation.commands",  # fgd-train, eval
     "facecapges.runtime.commands",  # run, live

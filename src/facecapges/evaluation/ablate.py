@@ -11,6 +11,11 @@ discriminator schedule, seed):
   (same encoders, bidirectional torso/limb LSTMs over a whole segment, no closed-loop
   rollout), trained by :mod:`facecapges.training.offline` on the same L = 34
   segments with the first N = 16 real poses as seed and losses on the 18 frames after.
+* ``camn`` — the CaMN baseline (thesis 5.2.1, Table 5.2/5.3's CaMN row):
+  :class:`facecapges.evaluation.camn.CaMN`, BEAT's cascaded bidirectional body/hands
+  LSTMs with non-causal conv encoders on the same audio, face and head inputs, trained
+  by the same trainer, recipe and segments as ``offline`` and evaluated like it.
+  DiffSHEG is not reproduced (it needs HuBERT features; see that module).
 
 **Reusing the shipped model for ``full``.** When the installed default style
 (``beat2-scott-demo``) was trained by exactly this recipe — its stored model config
@@ -69,8 +74,21 @@ import numpy as np
 from facecapges import timing
 from facecapges.errors import UserError
 
-VARIANTS: tuple[str, ...] = ("full", "no_head", "offline")
-LABELS = {"full": "FaceCapGes (full)", "no_head": "without head pose", "offline": "offline decoding"}
+VARIANTS: tuple[str, ...] = ("full", "no_head", "offline", "camn")
+LABELS = {"full": "FaceCapGes (full)", "no_head": "without head pose", "offline": "offline decoding",
+          "camn": "CaMN (baseline)"}
+#: Variants decoded offline (one pass per sequence): their loader and trainer builder.
+SEGMENT_DECODERS = {"offline": ("facecapges.model.offline:load_offline",
+                                "facecapges.training.offline:build_offline_trainer"),
+                    "camn": ("facecapges.evaluation.camn:load_camn",
+                             "facecapges.evaluation.camn:build_camn_trainer")}
+
+
+def _resolve(ref: str):
+    import importlib
+
+    mod, name = ref.split(":")
+    return getattr(importlib.import_module(mod), name)
 
 
 def default_config_path() -> Path:
@@ -150,9 +168,9 @@ class TrainedVariant:
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
 
-    return _load_clips(cache, speaker, split)
+    return load_clips(cache, speaker, split)
 
 
 def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
@@ -162,7 +180,6 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
     import json
 
     from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
-    from facecapges.model.offline import load_offline
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -183,7 +200,8 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
         done = run / "model.safetensors"
         if done.is_file() and not retrain:
             try:
-                meta = load_offline(done)[1] if v == "offline" else load_checkpoint(done).meta
+                meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else \
+                    load_checkpoint(done).meta
             except UserError:
                 meta = {}
             if meta and _same_recipe(meta, recipe, extra, names) is None:
@@ -197,10 +215,9 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
             f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}")
         t0 = time.perf_counter()
         meta = dict(meta_base, variant=LABELS[v])
-        if v == "offline":
-            from facecapges.training.offline import build_offline_trainer
-
-            tr = build_offline_trainer(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
+        if v in SEGMENT_DECODERS:
+            build = _resolve(SEGMENT_DECODERS[v][1])
+            tr = build(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
             tr.fit(progress=progress)
         else:
             from facecapges.training.train import build_trainer
@@ -221,10 +238,8 @@ class _Runner:
 
     def __init__(self, variant: TrainedVariant):
         self.variant = variant
-        if variant.name == "offline":
-            from facecapges.model.offline import load_offline
-
-            self.model, self.meta = load_offline(variant.path)
+        if variant.name in SEGMENT_DECODERS:
+            self.model, self.meta = _resolve(SEGMENT_DECODERS[variant.name][0])(variant.path)
             self.ckpt = None
         else:
             from facecapges.model.checkpoint import load_checkpoint
@@ -297,7 +312,8 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     per_clip, real_clips, method_clips = [], [], {}
     for name in evaluated:
         a = loaded[name]
-        real, audio, inputs = heldout_inputs(a, start, fps, sr)
+        real, audio, inputs = heldout_inputs(a, start, fps, sr,
+                                             next(iter(runners.values())).meta.get("head_reference_rot6d"))
         histories = [None] + [bl.random_segment(pool, n_hist, rng) for _ in range(samples - 1)]
         if F_ is not None:
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))
@@ -309,7 +325,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
             methods[LABELS[v]] = [r.run(inputs, h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress))
+                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, m in methods.items():
             method_clips.setdefault(k, []).extend(m if isinstance(m, list) else [m])

@@ -48,7 +48,7 @@ import torch.nn as nn
 
 from facecapges.errors import UserError, file_error
 from facecapges.model.config import ModelConfig, model_config_from_dict
-from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp
+from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
 
 OFFLINE_FORMAT = "facecapges-offline-1"
 
@@ -157,7 +157,7 @@ def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
         raise file_error(p, f"not an offline-decoding checkpoint (format {meta.get('format')!r})")
     model = OfflineDecoder(model_config_from_dict(meta["model_config"]))
     try:
-        model.load_state_dict(tensors, strict=True)
+        model.load_state_dict(with_default_norms(model, tensors), strict=True)
     except RuntimeError as exc:
         raise UserError(f"{p}: weights do not match the model config ({str(exc).splitlines()[0]})") from None
     return model.eval(), meta
