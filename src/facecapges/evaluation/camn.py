@@ -52,7 +52,6 @@ shared sizes: joints, face channels, N, rates) and the :class:`CaMNConfig`.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -270,23 +269,10 @@ def save_camn(path: str | Path, model: CaMN, meta: dict) -> Path:
 
 def load_camn(path: str | Path) -> tuple[CaMN, dict]:
     """A CaMN checkpoint (eval mode) and its metadata; clear errors for other files."""
-    from safetensors import SafetensorError, safe_open
+    from facecapges.model.checkpoint import read_weights
 
     p = Path(path)
-    if not p.is_file():
-        raise file_error(p, "CaMN checkpoint not found")
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    try:
-        meta = json.loads(raw) if raw else {}
-    except ValueError:
-        raise file_error(p, "corrupt checkpoint metadata") from None
-    if meta.get("format") != CAMN_FORMAT:
-        raise file_error(p, f"not a CaMN checkpoint (format {meta.get('format')!r})")
+    tensors, meta = read_weights(p, CAMN_FORMAT, "CaMN checkpoint")
     try:
         camn_cfg = CaMNConfig(**meta.get("camn_config", {}))
     except TypeError as exc:

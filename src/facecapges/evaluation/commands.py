@@ -163,6 +163,9 @@ def register(app: typer.Typer) -> None:
         reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
                                            help="Use the shipped default checkpoint as 'full' when its stored "
                                                 "recipe and data match."),
+        full_from: Optional[str] = typer.Option(None, "--full-from", help="Take this checkpoint (file or "
+                                                                          "installed style name) as the 'full' row "
+                                                                          "as it is, whatever its recipe."),
         retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
                                                               "finished model of this recipe."),
         fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
@@ -191,6 +194,7 @@ def register(app: typer.Typer) -> None:
                            holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
                            fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
                            offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
+                           full_from=full_from,
                            command="facecapges " + " ".join(sys.argv[1:]))
         typer.echo((out / "ablation.md").read_text())
         typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "

@@ -153,6 +153,28 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
+def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+    from safetensors import SafetensorError, safe_open
+
+    p = Path(path)
+    if not p.is_file():
+        raise file_error(p, f"{what} not found")
+    try:
+        with safe_open(str(p), framework="pt") as f:
+            raw = (f.metadata() or {}).get("facecapges")
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    try:
+        meta = json.loads(raw) if raw else {}
+    except json.JSONDecodeError:
+        raise file_error(p, "checkpoint metadata is corrupt") from None
+    if meta.get("format") != fmt:
+        raise file_error(p, f"not a {what} (format {meta.get('format')!r})")
+    return tensors, meta
+
+
 def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
     import torch
