@@ -151,4 +151,5 @@ def read_joints9(path: str | Path, target: Skeleton, layout: Joints9Layout | str
     array = load_array(path, layout)
     array = timing.resample(array, layout.fps, fps)
     pose, mask = joints9_to_pose(array, layout, target)
-    return Retargeted(pose=pose, mask=mask, fps=fps, map_name=layout.name)
+    return Retargeted(pose=pose, mask=mask, fps=fps, map_name=layout.name, source_fps=layout.fps,
+                      dataset=layout.dataset or layout.name, licence=layout.licence, speaker=layout.speaker)
