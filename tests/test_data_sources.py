@@ -100,6 +100,18 @@ def test_export_moves_arms_and_fingers(exported):
     assert bvh.fps == 15 and bvh.n_frames == 1033 and bvh.skeleton.n_joints == 75
     assert np.ptp(P[:, bvh.skeleton.index("RightHandIndex3")], axis=0).max() > 10  # the fingers travel (cm)
     assert src.skeleton.n_joints == 75 and bvh.skeleton.names != src.skeleton.names
+    # the cache's fill of the masked metacarpals keeps every measured bone pointing where the retarget put it
+    from facecapges.data.retarget import retarget_bvh
+    from facecapges.skeleton import pose_to_motion
+
+    direct = retarget_bvh(shared_file("data/zeggs/067_Speech_2_x_1_0.bvh"), bvh.skeleton, fps=15)
+    Pd = joint_positions(bvh.skeleton, pose_to_motion(bvh.skeleton, direct.pose))
+    for a, b in (("RightHandIndex1", "RightHandIndex2"), ("LeftHandPinky2", "LeftHandPinky3"),
+                 ("RightForeArm", "RightHand")):
+        ia, ib = bvh.skeleton.index(a), bvh.skeleton.index(b)
+        u, v = P[:, ib] - P[:, ia], Pd[:, ib] - Pd[:, ia]
+        cos = (u * v).sum(-1) / np.linalg.norm(u, axis=-1) / np.linalg.norm(v, axis=-1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.1, (a, b)
 
 
 def test_export_plays_in_blender(exported, tmp_path):
