@@ -145,3 +145,27 @@ def test_export_plays_in_threejs(exported):
     for f, (t, bones) in zip(frames, got.items()):
         for b, xyz in bones.items():
             assert np.allclose(xyz, P[f, bvh.skeleton.index(b)], atol=0.05), (f, b)
+
+
+def test_speaker_ids_of_other_sources(tmp_path):
+    from facecapges.data.prepare import prepare
+    from facecapges.errors import UserError
+
+    beat_bvh, beat_wav = shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "take1.bvh").symlink_to(beat_bvh)  # BEAT's names, as someone's own capture would have them
+    (mine / "take1.wav").symlink_to(beat_wav)
+    with pytest.raises(UserError, match="states no speaker id"):
+        prepare(None, tmp_path / "c", mocap=[mine], target=read_bvh(beat_bvh).skeleton, progress=False)
+    with pytest.raises(UserError, match="BEAT's range"):
+        prepare(None, tmp_path / "c", mocap=[mine], mocap_speaker=2, target=read_bvh(beat_bvh).skeleton,
+                progress=False)
+    index = prepare(None, tmp_path / "c", mocap=[mine], mocap_speaker=101, target=read_bvh(beat_bvh).skeleton,
+                    progress=False)
+    (clip,) = index["clips"]
+    assert (clip["name"], clip["speaker"], clip["joint_map"], clip["n_masked"]) == ("beat_take1", 101, "beat", 0)
+    (mine / "take2.bvh").symlink_to(beat_bvh)  # no take2.wav
+    with pytest.raises(UserError, match="take2.wav"):
+        prepare(None, tmp_path / "c2", mocap=[mine], mocap_speaker=101, target=read_bvh(beat_bvh).skeleton,
+                progress=False)

@@ -185,7 +185,10 @@ def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Pat
 
 
 def _speaker_of(given: int | None, declared: int | None, what: str) -> int:
-    spk = given if given is not None else declared if declared is not None else FIRST_OTHER_SPEAKER
+    spk = given if given is not None else declared
+    if spk is None:
+        raise UserError(f"{what}: its joint map states no speaker id; give one with --mocap-speaker / "
+                        f"--joints9-speaker ({FIRST_OTHER_SPEAKER + 1} or more; {FIRST_OTHER_SPEAKER} is ZEGGS's)")
     if spk < FIRST_OTHER_SPEAKER:
         raise UserError(f"{what}: speaker id {spk} is in BEAT's range; other performers take ids from "
                         f"{FIRST_OTHER_SPEAKER} on")
