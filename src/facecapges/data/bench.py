@@ -25,7 +25,8 @@ def _best(fn, reps: int) -> float:
 
 
 def run(quick: bool = False) -> dict:
-    """Seconds for read_bvh, motion_to_pose, load_audio, a full prepare and Cache.load of the sample."""
+    """Seconds for read_bvh, motion_to_pose, load_audio, a full prepare and Cache.load of the sample;
+    retargeting speed of the ZEGGS take and the 9-joint reader when the shared files are there."""
     from facecapges.data.cache import Cache
     from facecapges.data.prepare import prepare
     from facecapges.io.audio import load_audio
@@ -54,4 +55,23 @@ def run(quick: bool = False) -> dict:
         result["cache_mb"] = round(sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) / 1e6, 2)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    result.update(_other_sources(bvh.skeleton, reps))
     return result
+
+
+def _other_sources(target, reps: int) -> dict:
+    """Frames per second of retargeting the ZEGGS BVH (its own rate) and reading a 9-joint take (to 15 fps)."""
+    from facecapges.data.joints9 import read_joints9
+    from facecapges.data.retarget import retarget_bvh
+    from facecapges.io.bvh import read_bvh
+
+    out: dict = {}
+    zeggs = SAMPLE_DIR.parent / "zeggs" / "067_Speech_2_x_1_0.bvh"
+    if zeggs.exists():
+        n = read_bvh(zeggs).n_frames
+        out["retarget_zeggs_frames_per_s"] = round(n / _best(lambda: retarget_bvh(zeggs, target), reps), 1)
+    take = SAMPLE_DIR.parent / "zeggs9" / "001_Neutral_0_x_1_0.npy"
+    if take.exists():
+        n = read_joints9(take, target).n_frames
+        out["joints9_frames_per_s"] = round(n / _best(lambda: read_joints9(take, target), reps), 1)
+    return out
