@@ -1,6 +1,6 @@
 """Benchmark of the data path: reading BEAT files, building a cache, loading a clip.
 
-Runs on the shared sample (``../shared/data/beat`` beside the repository); figures
+Runs on the shared sample (``data/beat`` of the shared folder the command passes); figures
 are wall-clock seconds on this machine. ``quick`` does one repetition instead of three.
 """
 
@@ -11,7 +11,6 @@ import tempfile
 import time
 from pathlib import Path
 
-SAMPLE_DIR = Path(__file__).resolve().parents[3].parent / "shared" / "data" / "beat"
 CLIP = "2_scott_0_1_1"
 
 
@@ -24,7 +23,7 @@ def _best(fn, reps: int) -> float:
     return best
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool, shared: Path) -> dict:
     """Seconds for read_bvh, motion_to_pose, load_audio, a full prepare and Cache.load of the sample."""
     from facecapges.data.cache import Cache
     from facecapges.data.prepare import prepare
@@ -32,9 +31,12 @@ def run(quick: bool = False) -> dict:
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import motion_to_pose
 
-    bvh_path, wav_path = SAMPLE_DIR / f"{CLIP}.bvh", SAMPLE_DIR / f"{CLIP}.wav"
+    from facecapges.errors import UserError
+
+    sample_dir = Path(shared) / "data" / "beat"
+    bvh_path, wav_path = sample_dir / f"{CLIP}.bvh", sample_dir / f"{CLIP}.wav"
     if not bvh_path.exists() or not wav_path.exists():
-        return {"skipped": f"shared sample missing at {SAMPLE_DIR}"}
+        raise UserError(f"{sample_dir}: the data benchmark needs the shared clip {CLIP} (.bvh, .wav)")
     reps = 1 if quick else 3
     bvh = read_bvh(bvh_path)
     result = {
@@ -46,7 +48,7 @@ def run(quick: bool = False) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="facecapges-bench-"))
     try:
         out = tmp / "cache"
-        result["prepare_s"] = round(_best(lambda: prepare(SAMPLE_DIR, out, speakers=[2], force=True,
+        result["prepare_s"] = round(_best(lambda: prepare(sample_dir, out, speakers=[2], force=True,
                                                           progress=False), reps), 4)
         result["prepare_frames_per_s"] = round(bvh.n_frames / result["prepare_s"], 1)
         cache = Cache(out)

@@ -82,24 +82,6 @@ class _Stream:
     frames: int = 0
 
 
-def pose_messages(frames: list[int], fps: float, quats: np.ndarray, faces: np.ndarray, heads: np.ndarray,
-                  face_found: list[bool], latency_ms):
-    """Yields the ``pose`` messages (the fields and rounding of :func:`facecapges.runtime.protocol.encode_pose`)
-    for a batch of streams; the arrays are rounded at once. ``latency_ms``: a list of dicts,
-    or a function of the row called just before that row is encoded (so
-    a caller that sends each message as it comes gets its true latency)."""
-    B = len(frames)
-    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6).tolist()
-    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
-    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
-    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
-    for i, k in enumerate(frames):
-        yield json.dumps({"type": "pose", "frame": int(k), "time": round(k / fps, 6), "pose": q[i],
-                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
-                          "latency_ms": {n: round(float(v), 3) for n, v in lat(i).items()},
-                          "sent_ms": round(time.time() * 1000.0, 1)}, separators=(",", ":"))
-
-
 def _error(message: str) -> str:
     return json.dumps({"type": "error", "message": message})
 
@@ -292,8 +274,10 @@ class StreamServer:
                 return {"queue": (t0 - items[i][1]) * 1e3, "model": (t1 - t0) * 1e3, "output": (now - t1) * 1e3,
                         "total": (now - items[i][1]) * 1e3}
 
-            texts = pose_messages([i.index for i in inputs], self.fps, quats, np.stack([i.face for i in inputs]),
-                                  np.stack([i.head for i in inputs]), [i.face_found for i in inputs], latency)
+            index = [i.index for i in inputs]
+            texts = protocol.encode_poses(index, [k / self.fps for k in index], quats,
+                                          np.stack([i.face for i in inputs]), np.stack([i.head for i in inputs]),
+                                          [i.face_found for i in inputs], latency)
             for st, text in zip(due, texts):
                 st.frames += 1
                 self._send(st, text)
