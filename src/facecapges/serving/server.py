@@ -9,8 +9,9 @@ samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 
 Ticks (continuous batching). A single batching task runs for the whole server: each
 *tick* it takes, from every stream that has a frame waiting, its oldest frame, and
-runs all of them as ONE batched ``step`` (in a worker thread, so the event loop keeps
-receiving); the next tick starts as soon as that one is done, something is waiting
+runs all of them as ONE batched ``step`` (in the model's own process,
+:mod:`facecapges.serving.model_process`, waited for by a worker thread, so the event
+loop keeps receiving); the next tick starts as soon as that one is done, something is waiting
 and at least ``tick_ms`` (15 ms by default) have passed since the previous tick
 started — the pause lets the frames of more streams arrive, because a batched call
 costs a fixed ~2 ms plus a fraction of a millisecond per stream. A stream's frames
@@ -91,7 +92,7 @@ class StreamServer:
     :meth:`run` in the calling thread until interrupted."""
 
     def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
-        from facecapges.model.batched import BatchedStreamingGenerator
+        from facecapges.serving.model_process import ModelProcess
         from facecapges.runtime.web_server import is_loopback
 
         self.cfg = config or ServeConfig()
@@ -103,8 +104,8 @@ class StreamServer:
         self.ckpt = checkpoint
         self.fps = checkpoint.fps  # an int, as in the viewer's hello
         self.sr = int(checkpoint.model.cfg.sr)
-        self.gen = BatchedStreamingGenerator(checkpoint.model, checkpoint.neutral_window,
-                                             capacity=min(c.max_streams, 64))
+        # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
+        self.gen = ModelProcess(checkpoint.model, checkpoint.neutral_window, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
         self.log = log or (lambda *_: None)
         self.streams: dict[int, _Stream] = {}
@@ -371,3 +372,4 @@ class StreamServer:
         if self._thread is not None:
             self._thread.join(timeout=10)
         self._pool.shutdown(wait=True)
+        self.gen.shutdown()
