@@ -48,19 +48,44 @@ Nothing mixes across the batch axis: each stream's output equals the naive
 re-windowed loop's on the same inputs (tested to 1e-5), and a one-slot generator gives
 the same poses as a slot of a batch.
 
-What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13), measured
-on this 2-core machine in one run, default checkpoint, one thread, median ms per
-step (``python -m facecapges.model.batched`` prints the table; load average beside):
+What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13): measured
+on this 2-core machine, default checkpoint, one thread, the candidates interleaved in
+one run; CPU ms per step (``time.thread_time``, so the other helpers' load — average
+16–22 during the run — inflates all alike, ~3× a quiet machine's figures):
 
-=====================================  =========  ========  ==========
-kernel                                 B = 1      B = 64    start-up
-=====================================  =========  ========  ==========
-TorchScript (before)                   see below
-eager, this module                     see below
-torch.compile (inductor)               see below
-=====================================  =========  ========  ==========
+=====================================  =========  =========  ===============================
+kernel                                 B = 1      B = 64     start-up
+=====================================  =========  =========  ===============================
+TorchScript (the old step)             2.47       19.7       ~1 s (scripting)
+eager, this module (before lockstep)   3.20       22.6       none
+torch.compile (inductor) of the step   2.42       18.4       191 s (B = 1), 210 s (B = 64)
+                                                             cold, per batch shape; 5.5 s
+                                                             from a warm on-disk cache
+torch.export, the LSTM window only     1.74       —          18.6 s to export
+  (same window in eager: 1.08)
+=====================================  =========  =========  ===============================
 
-Chosen: **eager** (see :data:`KERNEL_MEASUREMENT`).
+Chosen: **eager**. torch.compile runs no faster than TorchScript did and needs minutes
+of compilation for every checkpoint shape and batch size on first use — every
+``run``, ``live``, test and ``serve`` start would pay it on a fresh machine;
+``torch.export``'s program, run from Python, is slower than the eager code it records
+(and AOT-compiling it costs what inductor costs). What eager loses (1.3× CPU at one
+stream) is won back where it matters: the two LSTMs run in lockstep for small batches
+(:class:`Cascade`: 1.53 vs 1.67 ms for the decoder at B = 1, same run), Euler
+conversion moved to one vectorised pass (:func:`facecapges.rotations.matrix_to_euler`),
+and ``serve`` — which needed TorchScript's single GIL-free call so its event loop and
+the model would not wait for each other — runs this kernel in a process of its own
+(:mod:`facecapges.serving.model_process`).
+
+Where the rest of the CPU's peak goes (the step's 12 MFLOP reach a few % of the
+~100 GFLOP/s single-thread matmul peak, ``bench``'s ``fraction_of_peak``): the step is
+~360 small tensor operations, each a few µs of dispatch and allocation whatever its
+size (per-op overhead, most of the time at B = 1); its products are matrix–vector
+products (B = 1) that read every weight once per use — ~9 MB of weights per frame
+(the LSTMs' W_hh 17 times each) streamed from L2/L3, so they run at memory speed, not
+at the FMA units' peak; the audio front end's small strided convolutions are far
+from GEMM efficiency. Batching (``serve``) turns the products into matrix–matrix ones
+and spreads the per-op overhead over the streams.
 
 Thread safety: every public method takes one internal lock, so one thread may
 open/close slots while another steps.

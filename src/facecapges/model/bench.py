@@ -2,46 +2,48 @@
 
 Figures (one stream, batch 1, one thread, the default checkpoint):
 
-* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`StreamingGenerator.step` (cached
-  encoder state), and ``naive_step_ms_p50`` / ``naive_step_ms_p99`` for the loop that
-  re-encodes the whole window every frame; the two run side by side in alternating
-  blocks of 25 frames on the same inputs, so machine load hits both alike.
-  ``speedup`` is their ratio.
-* ``max_abs_diff_naive`` — the two loops' outputs must agree (they compute the same
-  function).
-* ``offline_fps`` — frames per second of :func:`generate_poses` over a 60 s input.
+* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`StreamingGenerator.step` (the cached
+  kernel, a one-slot :class:`~facecapges.model.batched.BatchedStreamingGenerator`);
+  ``to_bvh_euler_ms_p50`` — that frame's rot6d → BVH Euler motion row
+  (:func:`facecapges.skeleton.pose_to_motion`, what every BVH / viewer output runs);
+  ``step_with_euler_ms_p50`` / ``_p99`` — the two together, per frame (target
+  ≤ 1.0 ms at p50). ``naive_step_ms_p50`` / ``_p99`` — the loop that re-encodes the
+  whole window every frame (the test oracle); the two generators run side by side in
+  alternating blocks of 25 frames on the same inputs, so machine load hits both alike.
+  ``speedup`` is the ratio of their p50 step times (target ≥ 3).
+* ``max_abs_diff_naive`` — the two loops' outputs must agree (same function).
+* ``offline_fps`` — frames per second of :func:`generate_poses` (60 s of input; 10 s
+  with ``--quick``).
+* ``load_average_before`` / ``_after`` — the machine is shared: read ratios, not
+  absolute times, when it is busy.
 
 Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one thread):
 
-* ``per_frame`` — 5.8.1: :meth:`StreamingGenerator.step` with batching off over
-  **all held-out frames** of the shared clip (``../shared/data/beat/2_scott_0_1_1``,
-  frames ≥ the checkpoint's ``holdout_from``, its own audio and head rotation, face
-  zero as in the cache) from a cold start: mean, p50, p99, total. Without ../shared,
-  synthetic speech-like frames, and ``inputs`` says so.
-* ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50 over
-  the same frames): ``input_prep`` (samples/weights → tensors), ``audio_frontend``
-  (strided convs over the frame's 1067 samples), ``audio_tcn`` (one cached step of
-  the 12-layer TCN + MLP → z_A), ``face_encoder``, ``head_encoder``, ``decoder``
-  (cached LSTM input projections, both 17-step LSTM recurrences, MLP heads, history
-  update) and ``to_bvh_euler`` (rot6d → rotation matrices → BVH Euler channels of
-  one frame, :func:`facecapges.skeleton.pose_to_motion`). The staged step is the
-  generator's own code path cut at stage boundaries; its poses are checked equal to
-  ``step``'s (``staged_max_abs_diff``). ``audio_features_ms`` = frontend + TCN step.
+* ``per_frame`` — 5.8.1: :meth:`StreamingGenerator.step` over **all held-out frames**
+  of the shared clip (``data/beat/2_scott_0_1_1`` of the shared folder the command
+  passes; frames ≥ the checkpoint's ``holdout_from``, its own audio and head rotation,
+  face zero as in the cache) from a cold start: mean, p50, p99, total. Without the
+  shared folder, synthetic speech-like frames, and ``inputs`` says so.
+* ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50): the
+  kernel's own ``torch.profiler`` scopes (``facecapges::<stage>``:
+  :data:`~facecapges.model.batched.STAGES` — input_prep, audio_frontend, audio_tcn,
+  face_encoder, head_encoder, decoder) and ``to_bvh_euler``, read from a profile of
+  the real step (the profiler adds its own cost to each recorded op, so read the
+  stages' shares; ``per_frame`` is the unprofiled time). ``audio_features_ms`` =
+  frontend + TCN step.
 * ``compute`` — multiply–accumulates per frame, **counted** with
   ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
-  per stage too. The counter counts matrix products and convolutions (mm, addmm,
-  bmm, convolution) as 2 FLOPs per MAC, so MACs = FLOPs / 2; element-wise work
-  (activations, gates, additions) is not counted and is small beside the products.
-  The TorchScript ``lstm_window`` runs through the dispatcher, so the counter sees
-  its matrix products; ``lstm_window_check`` compares its count for one 17-step
-  window against the analytic 17·H·4H MACs (``counted_inside_torchscript``), and
-  the analytic figure is used instead should the counter ever miss it.
+  per kernel stage too (a nested counter per stage scope). The counter counts matrix
+  products and convolutions as 2 FLOPs per MAC, so MACs = FLOPs / 2; element-wise
+  work (activations, gates, additions) is not counted and is small beside the
+  products. ``lstm_window_check`` compares the count for one 17-step LSTM window with
+  the analytic 17·H·4H MACs.
 * ``cpu_peak_gflops_1thread`` — a 1024×1024 float32 matmul on one thread (best of
   several), the practical peak of this CPU for dense float32 work;
   ``step_gflops_per_s`` = counted FLOPs / measured step time, and
-  ``fraction_of_peak`` their ratio: how close the per-frame step runs to the CPU's
-  limit (the step is a chain of tiny matrix–vector products, so it is bound by
-  per-op overhead and memory, not arithmetic).
+  ``fraction_of_peak`` their ratio. Where the rest goes (per-op overhead of ~360
+  small operations, matrix–vector products bound by reading ~9 MB of weights per
+  frame, small convolutions): :mod:`facecapges.model.batched`'s docs.
 """
 
 from __future__ import annotations
