@@ -265,9 +265,10 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
     return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
 
-def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
 
+    ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
     Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
     ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
     normalised linear blend.

@@ -1,12 +1,14 @@
 """Whole-video capture: a source → BEAT-format face JSON (+ overlay video).
 
-Face JSON written (read back by ``facecapges.io.face_json``)::
+Face JSON written by :func:`facecapges.io.face_json.write_face_json` (BEAT's layout by
+default: 51 names at 60 fps; ``face_layout="full"``: 52 names at ``fps``), each frame
+with the extensions ``head_rot6d``, ``face_found`` and ``distance_m``::
 
-    {"names": [52 ARKIT_NAMES], "fps": 15,
-     "frames": [{"time": t_s, "weights": [52 floats], "head_rot6d": [6 floats],
+    {"names": [...], "fps": 60,
+     "frames": [{"time": t_s, "weights": [...], "head_rot6d": [6 floats],
                  "face_found": bool, "distance_m": float}, ...]}
 
-``time`` is ``k / fps`` for output frame ``k``. Every source frame is processed
+Capture frame ``k`` is the result at ``k / fps``. Every source frame is processed
 (MediaPipe's tracker and the sample set see the full frame rate), and output frame
 ``k`` is the result of the first source frame at or after ``k / fps``; a source slower
 than ``fps`` repeats results. (Decimating before the landmark model would be
@@ -16,26 +18,20 @@ cheaper for fast sources but gives MediaPipe's tracker larger jumps between fram
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES
 from facecapges.errors import UserError, refuse_overwrite
-
-
-def face_json_document(records: list[dict], fps: float) -> dict:
-    return {"names": list(ARKIT_NAMES), "fps": fps, "frames": records}
 
 
 def result_record(res, time_s: float) -> dict:
     d = float(res.distance_m)
     return {
         "time": round(float(time_s), 6),
-        "weights": [round(float(x), 5) for x in res.weights52],
-        "head_rot6d": [round(float(x), 6) for x in res.head_rot6d],
+        "weights": np.asarray(res.weights52, np.float64),
+        "head_rot6d": np.asarray(res.head_rot6d, np.float64),
         "face_found": bool(res.face_found),
         "distance_m": None if not math.isfinite(d) else round(d, 4),
     }
@@ -43,7 +39,8 @@ def result_record(res, time_s: float) -> dict:
 
 def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: float = 15.0,
                   overlay: str | Path | None = None, depth_dir=None, intrinsics=None, model=None,
-                  force: bool = False, max_frames: int | None = None, progress: bool = True) -> dict:
+                  force: bool = False, max_frames: int | None = None, progress: bool = True,
+                  face_layout: str = "beat") -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON); returns a summary dict."""
     from facecapges.capture.video import open_source
 
@@ -117,6 +114,8 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
             writer.close()
     if not records:
         raise UserError(f"{source}: no frames could be read")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(face_json_document(records, fps)))
+    from facecapges.io.face_json import write_face_json
+
+    write_face_json(out, np.stack([r["weights"] for r in records]), fps, np.stack([r["head_rot6d"] for r in records]),
+                    layout=face_layout, extras={k: [r[k] for r in records] for k in ("face_found", "distance_m")})
     return {"frames": len(records), "face_found": n_found, "fps": fps, "out": str(out)}

@@ -13,6 +13,14 @@ STYLE_HELP = "Installed speaking style (see `facecapges styles`); default: the d
 CKPT_HELP = "Checkpoint file of a speaking style (instead of --style)."
 
 
+def _check_face_json(layout: str) -> None:
+    from facecapges.errors import UserError
+    from facecapges.io.face_json import FACE_LAYOUTS
+
+    if layout not in FACE_LAYOUTS:
+        raise UserError(f"--face-json {layout}: choose {' or '.join(FACE_LAYOUTS)}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run_cmd(
@@ -25,6 +33,8 @@ def register(app: typer.Typer) -> None:
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
         no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
     ) -> None:
@@ -36,9 +46,10 @@ def register(app: typer.Typer) -> None:
         require_file(video, "video")
         if audio is not None:
             require_file(audio, "audio")
+        _check_face_json(face_json)
         ckpt = load_checkpoint(checkpoint, style)
         report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
-                           progress=not json_out, videos=not no_video, estimator=estimator)
+                           progress=not json_out, videos=not no_video, estimator=estimator, face_layout=face_json)
         if json_out:
             typer.echo(json.dumps(report, indent=2))
             return
@@ -81,6 +92,8 @@ def register(app: typer.Typer) -> None:
                                                                 "the LAN."),
         record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
@@ -117,6 +130,7 @@ def register(app: typer.Typer) -> None:
             raise UserError("--max-seconds must be positive")
         if vmc_avatar is not None and vmc is None:
             raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+        _check_face_json(face_json)
         if vmc_blend not in ("vrm", "perfect-sync", "both"):
             raise UserError(f"--vmc-blend {vmc_blend}: choose vrm, perfect-sync or both")
         ckpt = load_checkpoint(checkpoint, style)
@@ -135,7 +149,7 @@ def register(app: typer.Typer) -> None:
             from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder
 
             sinks += [BvhRecorder(record / "motion.bvh", ckpt.skeleton, ckpt.fps),
-                      FaceJsonRecorder(record / "face.json", ckpt.fps)]
+                      FaceJsonRecorder(record / "face.json", ckpt.fps, face_json)]
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 

@@ -101,7 +101,7 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
 
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
-              estimator: str = "hybrid") -> dict:
+              estimator: str = "hybrid", face_layout: str = "beat") -> dict:
     """The whole ``run`` command (module docstring); returns the report."""
     from rich.progress import Progress
 
@@ -121,7 +121,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     fps = checkpoint.fps
     mem = MemoryRecorder()
     bvh = BvhRecorder(out_dir / "motion.bvh", checkpoint.skeleton, fps)
-    face = FaceJsonRecorder(out_dir / "face.json", fps)
+    face = FaceJsonRecorder(out_dir / "face.json", fps, face_layout)
     sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
                          sinks=[bvh, face, mem])
     sched = sess.scheduler
