@@ -132,11 +132,10 @@ _UNITY_X = np.array([-1.0, 1.0, 1.0])  # right-handed (BEAT, VRM 1.0 glTF) → U
 
 def hip_height_cm(skeleton: Skeleton) -> float:
     """Height of the hips joint above the lowest joint (the feet) in the rest pose, cm."""
-    glob = np.zeros((skeleton.n_joints, 3))
-    for j in range(skeleton.n_joints):
-        p = int(skeleton.parents[j])
-        glob[j] = skeleton.offsets[j] + (glob[p] if p >= 0 else 0.0)
-    return float(glob[0, 1] - glob[:, 1].min())
+    from facecapges.avatar.body import rest_positions
+
+    rest = rest_positions(skeleton)
+    return float(rest[0, 1] - rest[:, 1].min())
 
 
 def _read_glb_json(path: Path) -> dict:
