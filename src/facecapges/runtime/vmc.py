@@ -1,7 +1,7 @@
 """VMC protocol sender (OSC over UDP): drive VSeeFace, Warudo, VNyan … with the avatar.
 
 Each frame goes to ``host:port`` (default 127.0.0.1:39539, the VMC "Marionette" port)
-as a few OSC bundles (python-osc), every datagram at most :data:`MAX_DATAGRAM_BYTES`
+as a few OSC 1.0 bundles, every datagram at most :data:`MAX_DATAGRAM_BYTES`
 (1200 B: under any path MTU a LAN, Wi-Fi, VPN or IPv6 link has, so nothing is ever
 fragmented — one bundle with everything was 6.3 KB, five IP fragments, lost whole
 when one fragment is). In order::
@@ -14,7 +14,7 @@ when one fragment is). In order::
     /VMC/Ext/T  <stream time, s>
 
 ``/VMC/Ext/Blend/Apply`` is in the last datagram, after every ``Blend/Val`` of the
-frame; a receiver applies the frame's face at once. :func:`frame_datagrams` packs the
+frame; a receiver applies the frame's face at once. :func:`pack_bundles` packs the
 messages greedily in this order.
 
 Face clips (``blend``, ``live --vmc-blend``)
@@ -45,8 +45,9 @@ the same VRM. We do the same:
   optional in VRM) are not sent and their rotation folds into the next bone down.
 * without it, bones carry BEAT's rest offsets in metres and Hips stands at BEAT's hip
   height (0.89 m above the feet, from the leg chain), never at the floor. A receiver
-  must then use rotations only: EVMC4U "Bone Position Synchronize" off; VSeeFace,
-  Warudo and VNyan use the rotations (and the root) of a VMC stream.
+  that applies bone positions must then have that off (EVMC4U: "Bone Position
+  Synchronize"), as iFacialMocap's VMC output also asks; receivers that retarget use
+  only the rotations and the root.
 
 Conventions
 -----------
