@@ -12,9 +12,11 @@ def register(app: typer.Typer) -> None:
     @app.command("capture")
     def capture(
         source: str = typer.Argument(..., help="A video file, or a camera index (0, 1, …)."),
-        out: Path = typer.Option(..., "--out", help="Face JSON to write (52 ARKit weights + head rot6d per frame)."),
+        out: Path = typer.Option(..., "--out", help="Face JSON to write (ARKit weights + head rot6d per frame)."),
         estimator: str = typer.Option("hybrid", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator)."),
-        fps: float = typer.Option(15.0, help="Output frame rate (frames per second)."),
+        fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
+        face_json: str = typer.Option("beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or "
+                                                                 "full (52 weights at --fps)."),
         overlay: Optional[Path] = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
         depth: Optional[Path] = typer.Option(None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."),
         intrinsics: Optional[Path] = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
@@ -30,14 +32,17 @@ def register(app: typer.Typer) -> None:
         from facecapges.capture.runner import capture_video
         from facecapges.errors import UserError
 
+        if face_json not in ("beat", "full"):
+            raise UserError(f"--face-json {face_json}: choose beat or full")
         if estimator not in ("geometric", "mediapipe", "hybrid"):
             raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
-                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces)
+                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces,
+                          face_layout=face_json)
         console = Console(stderr=True)
         for w in s.get("warnings", []):
             console.print(f"[yellow]warning:[/yellow] {w}")
-        console.print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
+        console.print(f"wrote {s['out']}: {s['frames']} frames captured at {s['fps']:g} fps, "
                       f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
 
     @app.command("capture-eval")

@@ -18,6 +18,11 @@
   geodesic distance of that joint from its training mean (+5°); the mean distance to
   the training mean per tenth of the session shows whether it creeps away.
 
+* ``vmc_output`` — the VMC sender's cost per frame (OSC messages, bundles ≤ 1200 B,
+  ``sendto`` on loopback) for each ``--vmc-blend`` mode, with datagrams per frame and the
+  largest one. (Measured Dec 2026, machine shared by 8 jobs: p50 0.4–0.8 ms per frame;
+  4 datagrams for ``vrm``, 6 for ``perfect-sync`` / ``both``, largest 1196 B.)
+
 Measured on this machine (2 cores shared with a training run, default style, Nov 2026):
 per frame on the 8 s clip p50 14–30 ms, p99 15–41 ms depending on the load (MediaPipe
 capture is ~80 % of it); ``run`` on 60 s: 135 s wall (pipeline 48 s, avatar video 62 s,
@@ -177,6 +182,53 @@ def session(ckpt, video: Path, train_bvh: Path, seconds: float) -> dict:
             "latency_ms_total": rep["latency_ms"]["total"], "events": rep["events"]}
 
 
+def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
+    """VMC sending cost per frame (messages, bundles, sendto on loopback) per ``--vmc-blend`` mode, and sizes.
+
+    Real poses of the training clip, real faces (a talking-face-like sweep). At ``--rate 60``
+    this runs 60 times a second, so ``p50_ms × 60 / 1000`` is the share of one core it takes.
+    """
+    import socket
+
+    from facecapges import rotations as rot
+    from facecapges.io.bvh import read_bvh
+    from facecapges.runtime.frames import OutputFrame
+    from facecapges.runtime.vmc import BLEND_MODES, VmcSender
+    from facecapges.skeleton import motion_to_pose
+
+    bvh = read_bvh(train_bvh)
+    pose = motion_to_pose(bvh.skeleton, bvh.motion[:frames])[0]
+    quats = rot.rot6d_to_quaternion(pose.astype(np.float64))
+    rng = np.random.default_rng(0)
+    faces = np.clip(0.3 + 0.3 * np.sin(np.arange(len(pose))[:, None] / 5.0 + rng.uniform(0, 6, 52)), 0, 1)
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    out = {}
+    try:
+        for blend in BLEND_MODES:
+            sender = VmcSender(bvh.skeleton, *rx.getsockname(), blend=blend)
+            ms = []
+            for k in range(len(pose)):
+                fr = OutputFrame(k, k / 15, pose[k], quats[k], faces[k], rot.identity_rot6d(), True, {})
+                t = time.perf_counter()
+                sender.write(fr)
+                ms.append((time.perf_counter() - t) * 1000.0)
+                while True:  # drain, so the socket buffer never fills
+                    rx.setblocking(False)
+                    try:
+                        rx.recv(65535)
+                    except BlockingIOError:
+                        break
+            sender.close()
+            st = sender.stats()
+            out[blend] = {"p50_ms": round(float(np.median(ms)), 3), "p99_ms": round(float(np.percentile(ms, 99)), 3),
+                          "datagrams_per_frame": round(st["datagrams"] / max(st["frames"], 1), 2),
+                          "largest_datagram_bytes": st["largest_datagram_bytes"]}
+    finally:
+        rx.close()
+    return out
+
+
 def run(quick: bool, shared: Path, session_s: float | None = None) -> dict:
     """Quick: 30 frames, ``run`` on 4 s, a 10 s session; full: the whole 8 s clip, ``run`` on
     20 s (its wall time per 60 s of input reported beside), a 3 min session. ``session_s``
@@ -184,6 +236,7 @@ def run(quick: bool, shared: Path, session_s: float | None = None) -> dict:
     ckpt = _checkpoint()
     clip, train = shared_file(shared, CLIP), shared_file(shared, TRAIN_BVH)
     out = {"checkpoint": str(ckpt.path)}
+    out["vmc_output"] = vmc_output(ckpt, train, 60 if quick else 300)
     out["per_frame"] = per_frame(ckpt, clip, max_frames=30 if quick else None)
     out["run_60s"] = run_60s(ckpt, clip, 4.0 if quick else 20.0)
     out["session"] = session(ckpt, clip, train, session_s or (10.0 if quick else 180.0))

@@ -9,8 +9,9 @@ files behind. Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed
 
 * :class:`BvhRecorder` — the full BEAT skeleton of the checkpoint at the model rate;
   the 47 generated joints, every other joint at rest (``skeleton.pose_to_motion``).
-* :class:`FaceJsonRecorder` — the 52 ARKit weights the avatar showed, with the head
-  rotation (rot6d) per frame, at the model rate.
+* :class:`FaceJsonRecorder` — the ARKit weights the avatar showed, with the head
+  rotation (rot6d) per frame: BEAT's layout (51 names, 60 fps) or ``layout="full"``
+  (52 names at the model rate), :func:`facecapges.io.face_json.write_face_json`.
 * :class:`MemoryRecorder` — keeps quaternions and weights in memory for rendering the
   avatar video after ``run``.
 * :class:`ForFace` — passes on one face's frames only (a recorder per face for ``--faces N``).
@@ -51,8 +52,8 @@ class BvhRecorder:
 
 
 class FaceJsonRecorder:
-    def __init__(self, path: str | Path, fps: float):
-        self.path, self.fps = Path(path), fps
+    def __init__(self, path: str | Path, fps: float, layout: str = "beat"):
+        self.path, self.fps, self.layout = Path(path), fps, layout
         self.weights: list[np.ndarray] = []
         self.heads: list[np.ndarray] = []
         self.closed = False
@@ -69,7 +70,7 @@ class FaceJsonRecorder:
             return None
         from facecapges.io.face_json import write_face_json
 
-        return write_face_json(self.path, np.stack(self.weights), self.fps, np.stack(self.heads))
+        return write_face_json(self.path, np.stack(self.weights), self.fps, np.stack(self.heads), layout=self.layout)
 
 
 class MemoryRecorder:
