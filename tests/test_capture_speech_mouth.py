@@ -6,15 +6,14 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.capture.speech_mouth import MOUTH_NAMES, SpeechMouth, speech_mouth_track
+from facecapges.capture.speech_mouth import MOUTH_NAMES, SpeechMouth, speech_frames, speech_mouth_track
 from facecapges.io.audio import load_audio
 
 JAW = ARKIT_NAMES.index("jawOpen")
 
 
 def frames(x: np.ndarray) -> list[np.ndarray]:
-    T = int(np.ceil(len(x) / timing.AUDIO_SR * timing.MODEL_FPS - 1e-6))
-    return [x[int(s):int(e)] for s, e in (timing.frame_sample_bounds(k) for k in range(T))]
+    return speech_frames(x, timing.MODEL_FPS, int(np.ceil(len(x) / timing.AUDIO_SR * timing.MODEL_FPS - 1e-6)))
 
 
 def test_jaw_follows_the_speech_on_unseen_audio(unseen_wav):

@@ -100,7 +100,8 @@ def register(app: typer.Typer) -> None:
     def render_cmd(
         bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
         out: Path = typer.Option(..., "--out", help="Output .mp4."),
-        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]})."),
+        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); "
+                                                       "without it, the jaw and lips follow --audio."),
         audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
         avatar_glb: Path = typer.Option(None, "--avatar", help="Avatar .glb (default: built from the BVH's skeleton)."),
         contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
@@ -159,6 +160,11 @@ def register(app: typer.Typer) -> None:
             weights[:n] = w[:n]
             if n < T and n > 0:
                 weights[n:] = w[n - 1]
+        elif audio is not None:  # no face given: the speech moves the jaw and lips
+            from facecapges.capture.speech_mouth import speech_frames, speech_mouth_track
+            from facecapges.io.audio import load_audio
+
+            weights = speech_mouth_track(speech_frames(load_audio(audio), motion.fps, T), motion.fps)
         figures = render_video(glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width,
                                height=height)
         typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")

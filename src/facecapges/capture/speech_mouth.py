@@ -100,6 +100,15 @@ class SpeechMouth:
         return w
 
 
+def speech_frames(samples: np.ndarray, fps: float, n_frames: int, sr: int = timing.AUDIO_SR) -> list[np.ndarray]:
+    """The audio chunk of each of ``n_frames`` frames (``timing.frame_sample_bounds``; empty past the end)."""
+    out = []
+    for k in range(n_frames):
+        s, e = timing.frame_sample_bounds(k, fps, sr)
+        out.append(np.asarray(samples[int(s):int(e)], np.float32))
+    return out
+
+
 def speech_mouth_track(frames_audio, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:
     """(T, 52) mouth weights for a sequence of per-frame audio chunks (causal, as live)."""
     m = SpeechMouth(fps, sr)
