@@ -9,6 +9,8 @@ from facecapges.arkit import ARKIT_NAMES
 from facecapges.capture.speech_mouth import MOUTH_NAMES, SpeechMouth, speech_frames, speech_mouth_track
 from facecapges.io.audio import load_audio
 
+from runtime_helpers import cli
+
 JAW = ARKIT_NAMES.index("jawOpen")
 
 
@@ -40,3 +42,14 @@ def test_causal_and_closed_in_silence(unseen_wav):
     m = SpeechMouth()
     assert not m.step(np.zeros(1067, np.float32)).any()
     assert not m.step(np.zeros(0, np.float32)).any()
+
+
+def test_generate_writes_the_speaking_face(unseen_wav, tmp_path):
+    from facecapges.io.face_json import read_face_json
+
+    r = cli("generate", "--audio", str(unseen_wav), "--out", str(tmp_path / "g.bvh"), "--face-out",
+            str(tmp_path / "g.json"))
+    assert r.returncode == 0, r.stderr
+    face = read_face_json(tmp_path / "g.json")
+    jaw = face.weights[:, JAW]
+    assert face.fps == 15 and jaw.max() > 0.3 and jaw.std() > 0.05  # the mouth speaks
