@@ -34,8 +34,11 @@ def register(app: typer.Typer) -> None:
             raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
                           intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces)
-        Console(stderr=True).print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
-                                   f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
+        console = Console(stderr=True)
+        for w in s.get("warnings", []):
+            console.print(f"[yellow]warning:[/yellow] {w}")
+        console.print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
+                      f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
 
     @app.command("capture-eval")
     def capture_eval(

@@ -26,10 +26,9 @@ import json
 import math
 from pathlib import Path
 
-import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_file
 
 
 def face_json_document(records: list[dict], fps: float) -> dict:
@@ -61,9 +60,9 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     out = Path(out)
     outs = [out] if faces == 1 else [out.with_name(f"{out.stem}_{i + 1}{out.suffix}") for i in range(faces)]
     for p in outs:
-        refuse_overwrite(p, force)
+        check_output_file(p, force)
     if overlay is not None:
-        refuse_overwrite(overlay, force)
+        check_output_file(overlay, force)
     depth_files, K = (None, None)
     if depth_dir is not None or intrinsics is not None:
         from facecapges.capture.depth import check_depth_inputs
@@ -76,7 +75,8 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     src = open_source(source)
 
     try:
-        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=faces)
+        # one face: MediaPipe looks for two so that a second face in view can be reported
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
     except BaseException:
         src.close()
         raise
@@ -87,6 +87,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     writer = None
     records: list[list[dict]] = [[] for _ in outs]
     n_found = [0] * len(outs)
+    n_several = 0  # input frames with more than one face in view (one-face capture)
     try:
         if overlay is not None:
             from facecapges.capture.overlay import OverlayWriter
@@ -113,6 +114,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
                         depth = read_depth(depth_files[i])
                 if faces == 1:
                     results = [cap.process(frame, ts, depth)]
+                    n_several += getattr(cap, "faces_in_view", 1) > 1
                 else:
                     results = [r if r is not None else cap.neutral(ts) for r in cap.process_slots(frame, ts, depth)]
                 # a slow source (fps below --fps) repeats the frame on the skipped ticks
@@ -139,7 +141,20 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     out.parent.mkdir(parents=True, exist_ok=True)
     for p, rec in zip(outs, records):
         p.write_text(json.dumps(face_json_document(rec, fps)))
+    warnings = []
+    if src.bad_frames:
+        warnings.append(f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "
+                        "good frame was held over them, so timing stays right")
+    if src.missing_tail > max(2, (src.n_frames or 0) // 100):  # containers often over-count by a frame
+        warnings.append(f"the last {src.missing_tail} of {src.n_frames} frames the video declares could not be "
+                        "decoded (file cut short or damaged at its end)")
+    if sum(n_found) == 0:
+        warnings.append("no face was found in any frame: the output holds a neutral face and a resting head")
+    if n_several:
+        warnings.append(f"more than one face was in view in {n_several} frame(s); the largest face was tracked "
+                        "(--faces N captures several)")
+    common = {"frames": len(records[0]), "fps": fps, "warnings": warnings, "bad_frames": src.bad_frames,
+              "missing_frames": src.missing_tail}
     if faces == 1:
-        return {"frames": len(records[0]), "face_found": n_found[0], "fps": fps, "out": str(out)}
-    return {"frames": len(records[0]), "face_found": n_found, "fps": fps, "out": ", ".join(map(str, outs)),
-            "outs": [str(p) for p in outs]}
+        return {**common, "face_found": n_found[0], "out": str(out)}
+    return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}

@@ -58,11 +58,18 @@ def livelink_hint(feed, bind: str, waiting: bool = False) -> str | None:
     return None
 
 
-def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, int] | None) -> list:
-    """Recorders and VMC senders, one set per face (module docstring)."""
-    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace
+def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, int] | None, *,
+                   vmc_blend: str = "both", vmc_avatar=None, rate: float | None = None):
+    """Recorders and VMC senders, one set per face (module docstring).
 
-    sinks = []
+    Returns ``(sinks, senders, upsamplers)``: what the session writes to, the VMC senders
+    (for their stats) and, with ``rate`` above the model rate, the per-face interpolators
+    the senders sit behind (recorders always get the model's own frames).
+    """
+    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace
+    from facecapges.runtime.upsample import Upsampler
+
+    sinks, senders, ups = [], [], []
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
         per = []
@@ -72,6 +79,12 @@ def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, i
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 
-            per.append(VmcSender(ckpt.skeleton, vmc_addr[0], vmc_addr[1] + i))
+            sender = VmcSender(ckpt.skeleton, vmc_addr[0], vmc_addr[1] + i, blend=vmc_blend, avatar=vmc_avatar)
+            senders.append(sender)
+            if rate is not None and rate != ckpt.fps:
+                ups.append(Upsampler([sender], ckpt.fps, rate))
+                per.append(ups[-1])
+            else:
+                per.append(sender)
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
-    return sinks
+    return sinks, senders, ups

@@ -336,7 +336,7 @@ class Scheduler:
                     why = "stopped"
                     break
                 if max_frames is not None and self.frames >= max_frames:
-                    why = "frame limit"
+                    why = "end of input" if self.input_ended() else "frame limit"
                     break
                 if self.input_ended():
                     break
