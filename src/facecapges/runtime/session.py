@@ -132,9 +132,10 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             from facecapges.capture.pipeline import FaceCapture
 
             resolve_model(None)
-            K = getattr(sess.video, "intrinsics", None)
+            file_video = isinstance(sess.video, S.FileVideo)
+            K = sess.video.intrinsics if file_video else None
             sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
-            if getattr(sess.video, "depth_files", None) is not None:
+            if file_video and sess.video.depth_files is not None:
                 from facecapges.capture.depth import DepthHeadTracker
 
                 sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
