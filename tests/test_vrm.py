@@ -375,3 +375,12 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     assert "VRM 0.x" in r.stdout and "12 frames" in r.stdout
     frames = list(imageio_ffmpeg.read_frames(str(out)))[1:]
     assert len(frames) == 12
+
+
+def test_vrm_bench_runs():
+    from facecapges.avatar.vrm_bench import run
+
+    r = run(quick=True)
+    assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000
+    assert all(r[k] > 0 for k in ("retarget_frame_ms", "presets_frame_ms", "retarget_900_ms", "vrma_900_s"))
+    FIGURES["bench"] = r
