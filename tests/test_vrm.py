@@ -35,7 +35,9 @@ FRAMES = (120, 480, 840)  # of the BEAT take: arms in three different places
 FIGURES: dict = {}
 SEGMENTS = [(f"{s}UpperArm", f"{s}LowerArm", f"{S}Arm", f"{S}ForeArm") for s, S in (("left", "Left"), ("right", "Right"))] \
     + [(f"{s}LowerArm", f"{s}Hand", f"{S}ForeArm", f"{S}Hand") for s, S in (("left", "Left"), ("right", "Right"))]
-BONES = sorted({n for seg in SEGMENTS for n in seg[:2]})
+FINGERS = [(f"{s}{f}Proximal", f"{s}{f}Intermediate", f"{S}Hand{g}1", f"{S}Hand{g}2")
+           for s, S in (("left", "Left"), ("right", "Right")) for f, g in (("Index", "Index"), ("Middle", "Middle"))]
+BONES = sorted({n for seg in SEGMENTS + FINGERS for n in seg[:2]})
 
 
 def _validate(doc: dict, name: str, schema: dict) -> None:
@@ -195,10 +197,12 @@ def _session(path: Path, beat, vrma: Path | None = None, size=(480, 360), correc
     return b, driver, info
 
 
-def _arm_errors(beat, k: int, pos: dict) -> dict:
+def _arm_errors(beat, k: int, pos: dict, segments=SEGMENTS) -> dict:
     names = beat["skel"].names
     out = {}
-    for a, b, A, B in SEGMENTS:
+    for a, b, A, B in segments:
+        if pos.get(a) is None or pos.get(b) is None:
+            continue
         want = beat["P"][k, names.index(B)] - beat["P"][k, names.index(A)]
         out[f"{a}->{b}"] = _angle(np.subtract(pos[b], pos[a]), want)
     return out
@@ -246,15 +250,19 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
                             "expressions": len(info["expressionNames"])}
         L = beat["L"][list(FRAMES)]
         quats, _ = driver.frames(L, np.zeros((len(FRAMES), 52)))
-        errs, shots = [], []
+        errs, shots, fingers = [], [], []
         for i, k in enumerate(FRAMES):
             pos = b.evaluate(f"window.facecapges.posedBones({json.dumps(quats[i].ravel().tolist())}, "
                              f"{json.dumps(BONES)})")
             errs += list(_arm_errors(beat, i, pos).values())
+            fingers += list(_arm_errors(beat, i, pos, FINGERS).values())
             if not name.startswith("ours"):
                 shots += _screenshot_errors(b, driver, beat, i, quats[i], pos)
         fig["arm_direction_error_deg"] = {"median": float(np.median(errs)), "max": float(np.max(errs))}
         assert max(errs) < 2.0, errs
+        if name in ("ours", "ours0", "vrm1"):  # the avatars with fingers
+            fig["finger_direction_error_deg"] = {"median": float(np.median(fingers)), "max": float(np.max(fingers))}
+            assert len(fingers) == 12 and max(fingers) < 2.0, fingers
         if not name.startswith("ours"):
             fig["screenshot_hand_error_deg"] = {"median": float(np.median(shots)), "max": float(np.max(shots)),
                                                 "hands_seen": len(shots)}
@@ -277,6 +285,13 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
         fig["vrma_arm_direction_error_deg"] = {"median": float(np.median(verr)), "max": float(np.max(verr)),
                                                "tracks": anim["tracks"]}
         assert max(verr) < 2.0, verr
+        if name == "ours":  # the perfect-sync .vrma drives our 52 ARKit expressions
+            b.routes["/anim_ps.vrma"] = files["vrma_ps"].read_bytes()
+            anim = b.evaluate("window.facecapges.loadVrma('/anim_ps.vrma')")
+            assert anim["expressionTracks"] == 52
+            r = b.evaluate(f"window.facecapges.seekVrma({FRAMES[1] / 15}, [], ['EyeBlinkLeft', 'JawOpen'])")
+            assert r["expressions"]["EyeBlinkLeft"] == pytest.approx(FRAMES[1] / 899, abs=0.02)
+            assert r["expressions"]["JawOpen"] == pytest.approx(0.0, abs=1e-6)
     finally:
         b.close()
 
@@ -295,17 +310,17 @@ def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat
 
 
 def test_our_vrm_expressions_drive_its_morph_targets(files, beat):
-    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
     b, driver, info = _session(files["ours"], beat, size=(160, 120))
     try:
-        assert driver.faces.perfect_sync and driver.faces.names == list(ARKIT_NAMES)
-        assert set(info["expressionNames"]) >= set(ARKIT_NAMES) | {"aa", "blink", "happy", "lookLeft"}
+        assert driver.faces.perfect_sync and driver.faces.names == list(PERFECT_SYNC_NAMES)
+        assert set(info["expressionNames"]) >= set(PERFECT_SYNC_NAMES) | {"aa", "blink", "happy", "lookLeft"}
         js = ("(() => { const s = window.facecapges.scene, em = s.vrm.expressionManager; em.setValue('%s', 1); "
               "s.update(); let m = null; s.vrm.scene.traverse(o => { if (o.isMesh && o.morphTargetDictionary && "
               "'%s' in o.morphTargetDictionary) m = o; }); const v = m.morphTargetInfluences["
               "m.morphTargetDictionary['%s']]; em.setValue('%s', 0); s.update(); return v; })()")
-        assert b.evaluate(js % ("jawOpen", "jawOpen", "jawOpen", "jawOpen")) == pytest.approx(1.0)
+        assert b.evaluate(js % ("JawOpen", "jawOpen", "jawOpen", "JawOpen")) == pytest.approx(1.0)
         assert b.evaluate(js % ("blink", "eyeBlinkLeft", "eyeBlinkLeft", "blink")) == pytest.approx(1.0)
     finally:
         b.close()
