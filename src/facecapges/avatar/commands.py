@@ -90,11 +90,11 @@ def register(app: typer.Typer) -> None:
         """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
         from facecapges.avatar.body import default_avatar
         from facecapges.avatar.gltf import write_glb
-        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.errors import UserError, check_output_file
 
         if fmt not in ("glb", "vrm", "vrm0"):
             raise UserError(f"--format must be glb, vrm or vrm0, got {fmt!r}")
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         skel, source = _skeleton(skeleton)
         av = default_avatar(skel)
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -127,12 +127,16 @@ def register(app: typer.Typer) -> None:
         from facecapges.avatar.body import check_skeleton, default_avatar
         from facecapges.avatar.gltf import avatar_to_gltf
         from facecapges.avatar.render.video import bvh_quaternions, contact_sheet as make_sheet, render_video
-        from facecapges.errors import UserError, file_error, refuse_overwrite, require_file
+        from facecapges.errors import UserError, check_output_file, file_error, require_file
         from facecapges.io.bvh import read_bvh
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         if contact_sheet is not None:
-            refuse_overwrite(contact_sheet, force)
+            check_output_file(contact_sheet, force)
+        if audio is not None:  # used only at the final mux: check it before the whole render
+            from facecapges.io.audio import check_audio
+
+            check_audio(audio)
         try:
             width, height = (int(x) for x in size.lower().split("x"))
         except ValueError:

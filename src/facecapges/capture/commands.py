@@ -20,6 +20,8 @@ def register(app: typer.Typer) -> None:
         intrinsics: Optional[Path] = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
         model: Optional[Path] = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
         max_frames: Optional[int] = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
+        faces: int = typer.Option(1, "--faces", help="Faces to follow (1-8); several write OUT_1.json … one per face, "
+                                                     "numbered left to right, kept by position."),
         force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
     ) -> None:
         """Face capture without calibration: video/camera → ARKit blendshapes + head pose (face JSON)."""
@@ -31,9 +33,12 @@ def register(app: typer.Typer) -> None:
         if estimator not in ("geometric", "mediapipe", "hybrid"):
             raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
-                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames)
-        Console(stderr=True).print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
-                                   f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
+                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces)
+        console = Console(stderr=True)
+        for w in s.get("warnings", []):
+            console.print(f"[yellow]warning:[/yellow] {w}")
+        console.print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
+                      f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
 
     @app.command("capture-eval")
     def capture_eval(

@@ -12,8 +12,10 @@ Format (BEAT's ``.json`` face files; written back the same way)::
   :func:`facecapges.arkit.to_arkit52`. Names are matched case-insensitively; unknown
   names are returned to the caller (who reports them) and their channels ignored.
 * **Frame rate** is derived from the ``time`` fields: ``1 / median(Δtime)``, rounded
-  to an integer when within 0.01 of one. Without usable times (fewer than two frames,
-  missing or non-increasing times) it falls back to :data:`BEAT_FACE_FPS` = 60.
+  to an integer when within 0.01 of one. Without times (fewer than two frames, or a
+  frame without ``time``) it falls back to :data:`BEAT_FACE_FPS` = 60. Times that do
+  not increase, or a rate outside :data:`FPS_RANGE`, are a UserError (a 15 fps track
+  read as 60 fps would play 4× fast).
 * **Head rotation** (an extension of BEAT's format, written by our capture tools):
   each frame may carry ``"head_rot6d": [6 floats]``, the global head rotation as
   rot6d (first two matrix columns, see :mod:`facecapges.rotations`). It is read only
@@ -35,6 +37,7 @@ from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES, to_arkit52
 from facecapges.errors import file_error, require_file
 
 BEAT_FACE_FPS = 60.0
+FPS_RANGE = (1.0, 1000.0)  # frame rates a face track may have
 
 
 @dataclass
@@ -51,13 +54,18 @@ class FaceTrack:
         return int(self.weights.shape[0])
 
 
-def _fps_from_times(times: list[float | None]) -> float:
+def _fps_from_times(times: list[float | None], path: Path | None = None) -> float:
     if len(times) < 2 or any(t is None for t in times):
         return BEAT_FACE_FPS
     dt = np.diff(np.asarray(times, dtype=np.float64))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
-        return BEAT_FACE_FPS
+        bad = int(np.argmax(~np.isfinite(dt) | (dt <= 0))) + 1
+        raise file_error(path or "face JSON", f"frame times must increase; frame {bad} has time {times[bad]} after "
+                                              f"{times[bad - 1]}")
     fps = 1.0 / float(np.median(dt))
+    if not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
+        raise file_error(path or "face JSON", f"frame times are {float(np.median(dt)):g} s apart ({fps:.3g} fps); "
+                                              f"a face track runs at {FPS_RANGE[0]:g}–{FPS_RANGE[1]:g} fps")
     return float(round(fps)) if abs(fps - round(fps)) < 0.01 else fps
 
 
@@ -70,6 +78,8 @@ def read_face_json(path: str | Path) -> FaceTrack:
         raise file_error(path, "not a text JSON file") from None
     except json.JSONDecodeError as exc:
         raise file_error(path, f"malformed JSON at line {exc.lineno} column {exc.colno}: {exc.msg}") from None
+    except (ValueError, RecursionError) as exc:  # nested deeper than the parser goes, huge integers
+        raise file_error(path, f"malformed JSON ({exc.__class__.__name__})") from None
     if not isinstance(doc, dict) or not isinstance(doc.get("names"), list) or not isinstance(doc.get("frames"), list):
         raise file_error(path, "face JSON must be an object with a 'names' list and a 'frames' list")
     names = doc["names"]
@@ -86,12 +96,14 @@ def read_face_json(path: str | Path) -> FaceTrack:
             raise file_error(path, f"frame {i} has {got} weights, 'names' lists {len(names)}")
         rows.append(w)
         t = fr.get("time")
-        times.append(float(t) if isinstance(t, (int, float)) else None)
+        times.append(float(t) if isinstance(t, (int, float)) and not isinstance(t, bool) else None)
         heads.append(fr.get("head_rot6d"))
     try:
         weights = np.asarray(rows, dtype=np.float64)
     except (TypeError, ValueError):
         raise file_error(path, "face weights must all be numbers") from None
+    if weights.ndim != 2 or weights.dtype == object:
+        raise file_error(path, "face weights must all be numbers (one list of numbers per frame)")
     if not np.isfinite(weights).all():
         bad = int(np.argwhere(~np.isfinite(weights))[0, 0])
         raise file_error(path, f"face weights contain NaN or infinite values (first in frame {bad})")
@@ -107,7 +119,7 @@ def read_face_json(path: str | Path) -> FaceTrack:
             raise file_error(path, "'head_rot6d' contains NaN or infinite values")
         head = head.astype(np.float32)
     out, unknown = to_arkit52(weights, names)
-    return FaceTrack(weights=out, fps=_fps_from_times(times), unknown_names=unknown, head_rot6d=head)
+    return FaceTrack(weights=out, fps=_fps_from_times(times, path), unknown_names=unknown, head_rot6d=head)
 
 
 def write_face_json(path: str | Path, weights52: np.ndarray, fps: float,

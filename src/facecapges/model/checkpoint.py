@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.data.cache import skeleton_from_dict
+from facecapges.skeleton import skeleton_from_dict
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import Skeleton
 
@@ -117,11 +117,18 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
     try:
         meta = json.loads(raw_meta)
-    except json.JSONDecodeError:
+    except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != FORMAT:
-        raise file_error(p, f"unsupported checkpoint format {meta.get('format')!r} (expected {FORMAT})")
-    cfg = model_config_from_dict(meta["model_config"])
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        fmt = meta.get("format") if isinstance(meta, dict) else None
+        raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
+    for key in ("model_config",):
+        if key not in meta:
+            raise file_error(p, f"checkpoint metadata has no {key!r}: not a complete FaceCapGes checkpoint")
+    try:
+        cfg = model_config_from_dict(meta["model_config"])
+    except UserError as exc:
+        raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
     model = FaceCapGes(cfg)
     try:
         model.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)

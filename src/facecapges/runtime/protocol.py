@@ -22,6 +22,7 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
+     "face": 0,                        # which face / avatar (several with `live --faces N`)
      "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
                                        # compute of this frame; total = input frame → pose +
                                        # blendshapes ready (sending is not included)
@@ -82,6 +83,7 @@ def encode_pose(out: OutputFrame) -> str:
         "weights": [_r(v, 5) for v in np.asarray(out.face).reshape(-1)],
         "head": [_r(v, 6) for v in np.asarray(out.head).reshape(-1)],
         "face_found": bool(out.face_found),
+        "face": int(out.face_index),
         "latency_ms": {k: _r(v, 3) for k, v in out.latency_ms.items()},
         "sent_ms": _r(time.time() * 1000.0, 1),
     }, separators=(",", ":"))
@@ -116,6 +118,10 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
         msg = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ProtocolError(f"not JSON ({exc.msg})") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise ProtocolError(f"not JSON ({str(exc)[:80]})") from None
+    except RecursionError:  # '[[[[…' deeper than the parser goes: bad input, not a crash
+        raise ProtocolError("JSON nested too deeply") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
         raise ProtocolError("a message must be a JSON object with a string 'type'")
     kind = msg["type"]
@@ -147,11 +153,17 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
 
 
 def decode_pose(text: str) -> dict:
-    """Parse a ``pose`` message (for clients and tests): arrays as numpy."""
-    msg = json.loads(text)
-    if msg.get("type") != "pose":
-        raise ProtocolError(f"not a pose message: {msg.get('type')!r}")
-    msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
-    msg["weights"] = np.asarray(msg["weights"], np.float64)
-    msg["head"] = np.asarray(msg["head"], np.float64)
+    """Parse a ``pose`` message (for clients and tests): arrays as numpy; ProtocolError if it is not one."""
+    try:
+        msg = json.loads(text)
+    except (ValueError, RecursionError):
+        raise ProtocolError("not a JSON message") from None
+    if not isinstance(msg, dict) or msg.get("type") != "pose":
+        raise ProtocolError(f"not a pose message: {msg.get('type') if isinstance(msg, dict) else msg!r:.40}")
+    try:
+        msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
+        msg["weights"] = np.asarray(msg["weights"], np.float64).reshape(N_BLENDSHAPES)
+        msg["head"] = np.asarray(msg["head"], np.float64).reshape(6)
+    except (KeyError, TypeError, ValueError):
+        raise ProtocolError("a pose message needs 'pose' (47 × 4), 'weights' (52) and 'head' (6) numbers") from None
     return msg

@@ -13,6 +13,9 @@ files behind. Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed
   rotation (rot6d) per frame, at the model rate.
 * :class:`MemoryRecorder` — keeps quaternions and weights in memory for rendering the
   avatar video after ``run``.
+* :class:`ForFace` — passes on one face's frames only (a recorder per face for ``--faces N``).
+
+Every sink satisfies :class:`facecapges.runtime.interfaces.Sink`.
 """
 
 from __future__ import annotations
@@ -70,17 +73,36 @@ class FaceJsonRecorder:
 
 
 class MemoryRecorder:
-    """(T, 47, 4) quaternions, (T, 52) weights and face-found flags, for the videos of ``run``."""
+    """(T, 47, 4) quaternions, (T, 47, 6) poses, (T, 52) weights, (T, 6) heads and face-found flags,
+    for the videos and the report of ``run``."""
 
     def __init__(self):
         self.quats: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []
         self.weights: list[np.ndarray] = []
+        self.heads: list[np.ndarray] = []
         self.found: list[bool] = []
 
     def write(self, out: OutputFrame) -> None:
         self.quats.append(np.asarray(out.quats, np.float32))
+        self.poses.append(np.asarray(out.pose, np.float32))
         self.weights.append(np.asarray(out.face, np.float32))
+        self.heads.append(np.asarray(out.head, np.float32))
         self.found.append(bool(out.face_found))
 
     def close(self) -> None:
-        pass
+        return None
+
+
+class ForFace:
+    """A sink that receives only face ``index``'s frames of a several-face session (``--faces N``)."""
+
+    def __init__(self, index: int, sink):
+        self.index, self.sink = int(index), sink
+
+    def write(self, out: OutputFrame) -> None:
+        if out.face_index == self.index:
+            self.sink.write(out)
+
+    def close(self):
+        return self.sink.close()

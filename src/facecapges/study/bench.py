@@ -21,7 +21,6 @@ def _shared(rel: str) -> Path | None:
 
 
 def run(quick: bool = False) -> dict:
-    import numpy as np
     import yaml
 
     from facecapges.study.design import make_plan

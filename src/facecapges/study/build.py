@@ -13,6 +13,12 @@ Layout of ``STUDY_DIR``::
     media/<clip>/motion-<system>.json
                                     {"fps", "frames", "joint_names", "quats": T*J*4 numbers}
     responses/<participant>.json    the answers (facecapges.study.store)
+    invitations.txt                 one invitation link per participant (``/?invite=TOKEN``)
+
+Invitations: every participant gets an unguessable token (:func:`new_token`, 128 random
+bits from :mod:`secrets`, not derived from the seed), stored in the plan. The server
+takes answers only with a participant's token, so knowing the ids ``P01…`` is not
+enough to answer for someone; the organiser hands each participant his link.
 
 Poses are the LOCAL joint rotations as (w, x, y, z) quaternions per BEAT joint, in the
 BVH's joint order (= the avatar's, see src/facecapges/web/avatar_scene.js), at the study
@@ -38,7 +44,7 @@ import numpy as np
 
 from facecapges.errors import UserError, file_error
 from facecapges.study.criteria import CRITERIA
-from facecapges.study.design import StudyPlan, balance_report, make_plan
+from facecapges.study.design import StudyPlan, balance_report, make_plan, new_token
 
 STUDY_FILE = "study.json"
 AVATAR_FILE = "avatar.glb"
@@ -63,6 +69,37 @@ def media_dir(study_dir: Path, clip: str) -> Path:
 
 def motion_file(study_dir: Path, clip: str, system: str) -> Path:
     return media_dir(study_dir, clip) / f"motion-{system}.json"
+
+
+INVITATIONS_FILE = "invitations.txt"
+
+
+def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://127.0.0.1:8770") -> Path:
+    """``invitations.txt``: one line per participant, ``ID  URL/?invite=TOKEN`` (written atomically)."""
+    f = Path(study_dir) / INVITATIONS_FILE
+    lines = ["# one link per participant; each link is that participant's only credential",
+             *(f"{p.id}\t{base_url.rstrip('/')}/?invite={p.token}" for p in plan.participants)]
+    tmp = f.with_name(f.name + ".part")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(f)
+    return f
+
+
+def ensure_tokens(study: "Study") -> int:
+    """Give every participant without a token one and save the plan; returns how many were added.
+
+    For a study made before invitations: answers already in it carry no token and are
+    left out of the analysis (facecapges.study.analyze).
+    """
+    missing = [p for p in study.plan.participants if not p.token]
+    for p in missing:
+        p.token = new_token()
+    if missing:
+        study.doc["plan"] = study.plan.to_json()
+        tmp = study.dir / (STUDY_FILE + ".part")
+        tmp.write_text(json.dumps(study.doc, indent=1) + "\n", encoding="utf-8")
+        tmp.replace(study.dir / STUDY_FILE)
+    return len(missing)
 
 
 def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | None = None, seed: int = 0,
@@ -97,6 +134,8 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     from facecapges.timing import resample
 
     plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)
+    for p in plan.participants:
+        p.token = new_token()
     skel = motions[cs.clips[0].id][cs.systems[0]].skeleton
     joint_names = list(skel.names)
     driver = None
@@ -162,6 +201,7 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     tmp = out / (STUDY_FILE + ".part")
     tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     tmp.replace(out / STUDY_FILE)
+    write_invitations(out, plan)
     return {"clips": len(cs.clips), "systems": len(cs.systems), "participants": len(plan.participants),
             "fps": cs.fps, "balance": doc["balance"]}
 

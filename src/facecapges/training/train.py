@@ -30,7 +30,7 @@
 
 from __future__ import annotations
 
-import csv
+import contextlib
 import json
 import math
 import time
@@ -46,6 +46,8 @@ from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator
 from facecapges.training.distributed import DistContext
+from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
+from facecapges.training.resume_file import RunFolderLock, load_state, save_state, write_log
 from facecapges.timing import frame_audio
 
 
@@ -59,6 +61,7 @@ class ClipArrays:
     head: np.ndarray  # (T, 6)
     face: np.ndarray  # (T, 52)
     audio: np.ndarray  # (S,) 16 kHz
+    mask: np.ndarray | None = None  # (47,) or (T, 47) bool: joints with real motion (None: all)
 
 
 class SegmentSet:
@@ -72,7 +75,7 @@ class SegmentSet:
                  frame_range: tuple[int, int | None] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
-        audio, face, head, pose, starts = [], [], [], [], []
+        audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
         for c in clips:
             T = len(c.pose)
@@ -83,6 +86,8 @@ class SegmentSet:
             face.append(pad(c.face))
             head.append(pad(c.head))
             pose.append(pad(c.pose.reshape(T, -1)))
+            m = np.ones(c.pose.shape[1], bool) if c.mask is None else np.asarray(c.mask, bool)
+            mask.append(pad(np.broadcast_to(m, (T, c.pose.shape[1]))))
             for s in range(lo, hi - clip_len + 1, stride):
                 starts.append(offset + N + s)  # index of the segment's first frame
             offset += T + N
@@ -92,6 +97,7 @@ class SegmentSet:
         self.face = np.concatenate(face)
         self.head = np.concatenate(head)
         self.pose = np.concatenate(pose)
+        self.mask = np.concatenate(mask)  # (frames, 47) float32, 1 = joint present
         self.starts = np.array(starts)
 
     def __len__(self) -> int:
@@ -102,7 +108,8 @@ class SegmentSet:
         win = s[:, None] + np.arange(-self.N, self.L)[None]  # (B, N + L)
         seg = s[:, None] + np.arange(self.L)[None]
         return {"audio": torch.from_numpy(self.audio[win]), "face": torch.from_numpy(self.face[win]),
-                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg])}
+                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg]),
+                "mask": torch.from_numpy(self.mask[seg])}
 
 
 def encode_segments(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -118,10 +125,8 @@ def huber(x: torch.Tensor, y: torch.Tensor, beta: float) -> torch.Tensor:
 
 
 def reconstruction_losses(gen: torch.Tensor, gt: torch.Tensor, beta: float) -> dict[str, torch.Tensor]:
-    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D)."""
-    vg, vt = gen[:, 1:] - gen[:, :-1], gt[:, 1:] - gt[:, :-1]
-    return {"rec": huber(gen, gt, beta), "vel": huber(vg, vt, beta),
-            "acc": huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta)}
+    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D), every joint counted."""
+    return masked_reconstruction_losses(gen, gt, beta, None)
 
 
 def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -154,7 +159,8 @@ def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
                  ) -> tuple[SegmentSet, SegmentSet | None]:
     """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
     F_ = tcfg.holdout_from
-    train_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    train_clips = clips + [mirrored(c) for c in clips] if getattr(tcfg, "mirror", False) else clips
+    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
     held_set = None
     if F_ is not None:
         try:
@@ -315,9 +321,7 @@ class Trainer:
         if not self.dist.is_main:
             return
         self.out.mkdir(parents=True, exist_ok=True)
-        tmp = self.out / "last.pt.part"
-        torch.save(_to_cpu(self.state_dict()), tmp)
-        tmp.replace(self.out / "last.pt")
+        save_state(self.out / "last.pt", self.state_dict())  # data only (facecapges.training.resume_file)
         self.export(self.out / "model.safetensors")
 
     def export(self, path: Path) -> Path:
@@ -366,10 +370,11 @@ class Trainer:
             with prec.autocast():
                 gen, gt = self.G_fwd(batch)
             gen = gen.float()
+            mask = batch["mask"][:, self.mcfg.n_history:]  # (B, M, 47): masked joints add no loss
             logs: dict[str, torch.Tensor] = {}
             if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
                 with prec.autocast():
-                    d_out = self.D_fwd(torch.cat([gt, gen.detach()])).float()
+                    d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
                 d_real, d_fake = d_out[: len(gt)], d_out[len(gt):]
                 loss_d = F.binary_cross_entropy_with_logits(d_real, torch.ones_like(d_real)) + \
                     F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
@@ -377,13 +382,13 @@ class Trainer:
                 prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
                 prec.step("d", self.opt_d)
                 logs["d"] = loss_d.detach()
-            rec = reconstruction_losses(gen, gt, t.huber_beta)
+            rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
             loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
             if adv_on:
                 # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
                 self.D.requires_grad_(False)
                 with prec.autocast():
-                    d_gen = self.D(gen).float()
+                    d_gen = self.D(discriminator_view(gen, gt, mask)).float()
                 self.D.requires_grad_(True)
                 adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
                 loss = loss + t.w_adv * adv
@@ -420,9 +425,11 @@ class Trainer:
         mine = self.dist.shard(np.arange(len(seg_set)))
         for b in range(0, len(mine), batch_size):
             idx = mine[b:b + batch_size]
+            batch = self._gather(seg_set, idx)
             with self.precision.autocast():
-                gen, gt = rollout_batch(self.G, self._gather(seg_set, idx))
-            for k, v in reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta).items():
+                gen, gt = rollout_batch(self.G, batch)
+            mask = batch["mask"][:, self.mcfg.n_history:]
+            for k, v in masked_reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta, mask).items():
                 sums[k] += v.item() * len(idx)
             n += len(idx)
         if self.dist.enabled:
@@ -438,10 +445,11 @@ class Trainer:
         log_path = self.out / "log.csv"
         fields = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds",
                   "processes", "global_batch"]
-        if main:
-            self.out.mkdir(parents=True, exist_ok=True)
-        with Progress(TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
+        lock = RunFolderLock(self.out) if main else contextlib.nullcontext()  # one training per run folder
+        with lock, Progress(TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
                       TimeRemainingColumn(), transient=False, disable=not main) as bar:
+            if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
+                write_log(log_path, self.history, fields)
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
             while self.epoch < total:
                 epoch = self.epoch + 1
@@ -455,12 +463,7 @@ class Trainer:
                 self.history.append(row)
                 if main:
                     self.save()
-                    new = not log_path.exists() or epoch == 1
-                    with log_path.open("w" if new else "a", newline="") as f:
-                        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                        if new:
-                            w.writeheader()
-                        w.writerow(row)
+                    write_log(log_path, self.history, fields)
                 info = f"loss {row['total']:.3f} rec {row['rec']:.4f}"
                 if "held_rec" in row:
                     info += f" held {row['held_rec']:.4f}"
@@ -470,25 +473,9 @@ class Trainer:
         return self.history
 
 
-def _to_cpu(obj):
-    """A state dict with every tensor on the CPU (so any process count/device can resume it)."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().cpu()
-    if isinstance(obj, dict):
-        return {k: _to_cpu(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_to_cpu(v) for v in obj)
-    return obj
-
-
 def load_resume(out: Path) -> dict:
-    p = Path(out) / "last.pt"
-    if not p.is_file():
-        raise UserError(f"{p}: nothing to resume (no last.pt in the run folder)")
-    try:
-        return torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # a corrupt or foreign file
-        raise UserError(f"{p}: cannot read the training state ({exc.__class__.__name__})") from None
+    return load_state(Path(out) / "last.pt", required=("G", "D", "opt_g", "opt_d", "epoch", "history",
+                                                      "model_config", "train_config", "meta"))
 
 
 def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
@@ -503,5 +490,5 @@ def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_ov
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)
-    tcfg = train_config_from_dict(train_over)
+    tcfg = train_config_from_dict(train_over, mcfg)
     return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp)
