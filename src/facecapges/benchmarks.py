@@ -38,6 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "study": "facecapges.study.bench",
     "runtime": "facecapges.runtime.bench",
     "serve": "facecapges.serving.bench",
+    "vrm": "facecapges.avatar.vrm_bench",
 }
 
 
