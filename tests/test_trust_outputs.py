@@ -14,17 +14,7 @@ import pytest
 
 from facecapges.errors import UserError, check_output_dir, check_output_file
 
-
-def cli(*args: str, timeout: float = 300, prefix: tuple[str, ...] = ()) -> subprocess.CompletedProcess:
-    return subprocess.run([*prefix, sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
-                          timeout=timeout)
-
-
-def refused(p: subprocess.CompletedProcess, *words: str) -> None:
-    assert p.returncode == 2, p.stdout + p.stderr
-    assert "Traceback" not in p.stderr and p.stderr.startswith("error:"), p.stderr
-    for w in words:
-        assert w in p.stderr, p.stderr
+from runtime_helpers import cli, refused
 
 
 def read_only(folder: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -195,3 +185,26 @@ def test_smaller_crashes_are_clear_errors(tmp_path):
     with pytest.raises(UserError, match="corrupt clip file"):
         c.load("c")
     refused(cli("live", "--livelink", "70000", "--max-seconds", "1"), "out of range")
+
+
+def test_two_faces_in_view_are_said(tmp_path, face_video):
+    import cv2
+
+    cap = cv2.VideoCapture(str(face_video))
+    fps = cap.get(cv2.CAP_PROP_FPS) or 25.0
+    frames = []
+    while len(frames) < 20:
+        ok, f = cap.read()
+        if not ok:
+            break
+        frames.append(cv2.resize(f, (f.shape[1] // 2, f.shape[0] // 2)))
+    cap.release()
+    two = tmp_path / "two.mp4"
+    h, w = frames[0].shape[:2]
+    out = cv2.VideoWriter(str(two), cv2.VideoWriter_fourcc(*"mp4v"), fps, (2 * w, h))
+    for f in frames:
+        out.write(np.hstack([f, f]))  # the same speaker twice, side by side
+    out.release()
+    p = cli("capture", str(two), "--out", str(tmp_path / "f.json"), "--estimator", "geometric")
+    assert p.returncode == 0, p.stderr
+    assert "more than one face was in view" in p.stderr and "the largest face was tracked" in p.stderr

@@ -32,7 +32,7 @@ def register(app: typer.Typer) -> None:
             raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
                           intrinsics=intrinsics, model=model, force=force, max_frames=max_frames)
-        console = Console(stderr=True)
+        console = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the width
         for w in s.get("warnings", []):
             console.print(f"[yellow]warning:[/yellow] {w}")
         console.print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
