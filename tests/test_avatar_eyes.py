@@ -57,9 +57,9 @@ def test_blinks_and_gaze_show_in_the_render():
     import cv2
 
     from facecapges.avatar.render.video import render_stills
-    from facecapges.runtime.offline import _avatar_glb
+    from facecapges.runtime.offline import avatar_glb
 
-    glb = _avatar_glb(checkpoint().skeleton)
+    glb = avatar_glb(checkpoint().skeleton)
     ws = [_w(), _w(eyeBlinkLeft=1, eyeBlinkRight=1), _w(eyeLookOutLeft=1, eyeLookInRight=1),
           _w(eyeLookInLeft=1, eyeLookOutRight=1)]
     imgs = render_stills(glb, [None] * len(ws), ws, view="face", width=320, height=320)

@@ -33,7 +33,7 @@ Per frame, every value in [0, 1]:
   down*, *upper lip up*. Each vowel has a prototype in that space, set from the
   articulation of the five (Japanese) vowels the VRM visemes are: jaw opening
   A > O > E > I > U, lip rounding U and O (pucker, funnel), lip spreading I and E
-  (stretch), lips parted from the teeth in A/E/I (:data:`_VISEME_PROTOTYPES`). The
+  (stretch), lips parted from the teeth in A/E/I (:data:`VISEME_PROTOTYPES`). The
   viseme weights are the non-negative least-squares combination of the prototypes
   that best reproduces the frame's features (``scipy.optimize.nnls``: 5 unknowns), each
   clipped to 1 and scaled so that their sum is at most 1 (receivers add the clips; a sum
@@ -81,7 +81,7 @@ VISEMES: tuple[str, ...] = ("A", "I", "U", "E", "O")
 
 _I = {n: i for i, n in enumerate(ARKIT_NAMES)}
 # features: opening, funnel, pucker, stretch, lower lip down, upper lip up (module docstring)
-_VISEME_PROTOTYPES = np.array([
+VISEME_PROTOTYPES = np.array([
     # open  funnel pucker stretch lowerDn upperUp
     [0.70, 0.00, 0.00, 0.05, 0.35, 0.15],  # A  (aa): jaw wide open, lips relaxed, parted
     [0.15, 0.00, 0.00, 0.50, 0.15, 0.30],  # I  (ih): nearly closed jaw, lips spread, teeth shown
@@ -120,7 +120,7 @@ def viseme_weights(face52: np.ndarray) -> np.ndarray:
     feats = mouth_features(face52)
     flat = feats.reshape(-1, feats.shape[-1])
     out = np.zeros((flat.shape[0], len(VISEMES)), np.float64)
-    A = _VISEME_PROTOTYPES.T  # (6, 5)
+    A = VISEME_PROTOTYPES.T  # (6, 5)
     for k, f in enumerate(flat):
         if f.max() > 1e-4:
             out[k] = nnls(A, f)[0]

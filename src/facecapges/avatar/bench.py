@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 
-def _shared(shared: Path, rel: str) -> Path | None:
+def shared_file(shared: Path, rel: str) -> Path | None:
     p = Path(shared) / rel
     return p if p.exists() else None
 
@@ -47,7 +47,7 @@ def run(quick: bool, shared: Path) -> dict:
     shapes = arkit_blendshapes(compare=False)
     out["blendshapes_52_s"] = round(time.perf_counter() - t0, 3)
     out["blendshapes_target_s"] = 10.0
-    bvh_path = _shared(shared, "data/beat/2_scott_0_1_1.bvh")
+    bvh_path = shared_file(shared, "data/beat/2_scott_0_1_1.bvh")
     if bvh_path is None:
         from facecapges.errors import UserError
 
@@ -62,7 +62,7 @@ def run(quick: bool, shared: Path) -> dict:
     reps = (T + bvh.n_frames - 1) // bvh.n_frames
     motion = np.concatenate([bvh.motion] * reps)[:T]
     quats = bvh_quaternions(bvh.skeleton.names, bvh.skeleton, motion)
-    wav = _shared(shared, "data/beat/2_scott_0_1_1.wav")
+    wav = shared_file(shared, "data/beat/2_scott_0_1_1.wav")
     with tempfile.TemporaryDirectory() as tmp:
         figures = render_video(glb, quats, synthetic_face(T, bvh.fps), bvh.fps, Path(tmp) / "bench.mp4", audio=wav,
                                progress=False)

@@ -124,10 +124,10 @@ def _preset_binds() -> dict[str, dict[str, float]]:
     targets, the emotions sit at the top of its ramps, so that a face showing preset
     ``p`` maps back to ``p`` (tested).
     """
-    from facecapges.arkit_vrm import _VISEME_PROTOTYPES, VISEMES, VRM1_NAMES
+    from facecapges.arkit_vrm import VISEME_PROTOTYPES, VISEMES, VRM1_NAMES
 
     binds: dict[str, dict[str, float]] = {}
-    for v, (opening, funnel, pucker, stretch, lower, upper) in zip(VISEMES, _VISEME_PROTOTYPES):
+    for v, (opening, funnel, pucker, stretch, lower, upper) in zip(VISEMES, VISEME_PROTOTYPES):
         b = {"jawOpen": opening, "mouthFunnel": funnel, "mouthPucker": pucker}
         for side in ("Left", "Right"):
             b.update({f"mouthStretch{side}": stretch, f"mouthLowerDown{side}": lower, f"mouthUpperUp{side}": upper})

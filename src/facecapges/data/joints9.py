@@ -37,7 +37,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
-from facecapges.data.retarget import (ROOT, JointMap, Retargeted, _rest_positions, load_map, pose_from_world,
+from facecapges.data.retarget import (ROOT, JointMap, Retargeted, rest_positions, load_map, pose_from_world,
                                       shipped_map_path)
 from facecapges.errors import UserError, file_error, require_file
 from facecapges.skeleton import UPPER_BODY, Skeleton
@@ -128,7 +128,7 @@ def joints9_to_pose(array: np.ndarray, layout: Joints9Layout, target: Skeleton) 
             if t != ROOT and t not in jmap.corrections and jmap.joints.get(t) != t:
                 raise UserError(f"joint map {jmap.name!r} states no rest correction for BEAT {t}")
             world[t] = S[s] @ jmap.corrections.get(t, np.eye(3))
-    rest = _rest_positions(target)
+    rest = rest_positions(target)
     for shoulder, c in layout.clavicles.items():
         chest_t = next((t for t, s in jmap.joints.items() if s == c["chest"] and t in world), None)
         if chest_t is None or c["arm"] not in P:

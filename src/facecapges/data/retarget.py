@@ -155,7 +155,7 @@ def auto_map(source: Skeleton, where: str = "source") -> JointMap:
 
 
 # ----------------------------------------------------------- rest corrections
-def _rest_positions(skel: Skeleton) -> np.ndarray:
+def rest_positions(skel: Skeleton) -> np.ndarray:
     """World joint positions (J, 3) of the rest pose (all channels 0)."""
     eye = np.broadcast_to(np.eye(3), (1, skel.n_joints, 3, 3))
     return global_transforms(skel, np.array(eye))[1][0]
@@ -176,7 +176,7 @@ def direction_child(target: Skeleton, t: int, mapped: set[str]) -> int | None:
 def rest_corrections(jmap: JointMap, source: Skeleton, target: Skeleton) -> dict[str, np.ndarray]:
     """``Q_t`` (3, 3) of every mapped BEAT joint (method step 2); stated ones are kept."""
     mapped = {t for t, s in jmap.joints.items() if s in source.names and t in target.names}
-    pt, ps = _rest_positions(target), _rest_positions(source)
+    pt, ps = rest_positions(target), rest_positions(source)
     out: dict[str, np.ndarray] = {}
     for t in mapped:
         if t in jmap.corrections:

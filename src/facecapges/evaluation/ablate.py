@@ -287,9 +287,9 @@ class _Runner:
 
             out, _ = generate_poses(self.ckpt, inputs, progress=progress)
         else:
-            from facecapges.evaluation.run import _generate_from
+            from facecapges.evaluation.run import generate_from
 
-            out = _generate_from(self.ckpt, inputs, history, progress)
+            out = generate_from(self.ckpt, inputs, history, progress)
         self.ms.append((time.perf_counter() - t0) * 1000 / max(inputs.n_frames, 1))
         if not np.isfinite(out).all():
             raise UserError(f"variant {self.variant.name}: the model produced non-finite poses")

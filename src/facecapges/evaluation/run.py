@@ -105,7 +105,7 @@ def _real_window(pool: Sequence[np.ndarray], n: int, rng: np.random.Generator) -
     return random_segment(pool, n, rng)
 
 
-def _generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarray:
+def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarray:
     """Like :func:`facecapges.model.generate.generate_poses`, starting from ``window`` as history."""
     from facecapges.model.streaming import StreamingGenerator
 
@@ -196,7 +196,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
-        gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+        gens = [gen] + [generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
                         for _ in range(samples - 1)]
         if holdout_from is not None:
             seg_pool, excl = [a["pose"]], (0, start, len(a["pose"]))
@@ -231,7 +231,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
             inputs = prepare_inputs(path, fps=ckpt.fps)
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
-            gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+            gens = [gen] + [generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
                             for _ in range(samples - 1)]
             wav = load_audio(path, sr)
             unseen[str(path)] = evaluate_unpaired({model_name: gens}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,

@@ -199,7 +199,7 @@ def register(app: typer.Typer) -> None:
             for note in sess.notes:
                 typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
             if web_addr is not None:
-                from facecapges.runtime.offline import _avatar_glb
+                from facecapges.runtime.offline import avatar_glb
                 from facecapges.runtime.web_server import ViewerServer, WebFeed
 
                 if avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
@@ -207,7 +207,7 @@ def register(app: typer.Typer) -> None:
 
                     server, feed_sink = open_vrm_viewer(avatar, ckpt, web_addr)
                 else:
-                    server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                    server = ViewerServer(avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
                     feed_sink = WebFeed(server)
                 sess.closers.append(server)
                 if rate is not None and rate != ckpt.fps and faces == 1:

@@ -37,7 +37,7 @@ from facecapges.errors import UserError, check_output_dir
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
 
-def _avatar_glb(skeleton) -> bytes:
+def avatar_glb(skeleton) -> bytes:
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
 
@@ -217,7 +217,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         from facecapges.avatar.render.video import render_video
 
         t0 = time.perf_counter()
-        glb = _avatar_glb(checkpoint.skeleton)
+        glb = avatar_glb(checkpoint.skeleton)
         width, height = video_size
         with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
             wav = Path(tmp) / "audio.wav"
