@@ -128,6 +128,12 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     """
     _check_last(matrix, (3, 3), "matrix")
     lib = torch if _is_torch(matrix) else np
+    # one order: ints and a float sign; one order per matrix: index and sign arrays (NumPy or torch)
+    i: Any
+    j: Any
+    k: Any
+    sign: Any
+    rows: Any
     if isinstance(order, str):
         i, j, k = ("XYZ".index(a) for a in _check_order(order))
         sign = 1.0 if (j - i) % 3 == 1 else -1.0  # even permutations (XYZ, YZX, ZXY) give +1
@@ -232,6 +238,7 @@ def matrix_to_quaternion(matrix: Array) -> Array:
     qy = from_(y2, [r02 - r20, r01 + r10, y2, r12 + r21])
     qz = from_(z2, [r10 - r01, r02 + r20, r12 + r21, z2])
     allq = _stack([qw, qx, qy, qz], -2, matrix)  # (..., 4 candidates, 4)
+    q: Any  # a torch tensor or a NumPy array, as the input
     if _is_torch(m):
         q = torch.gather(allq, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
         q = torch.where(q[..., :1] < 0, -q, q)

@@ -173,10 +173,13 @@ def _channel_layout(skel: Skeleton) -> tuple:
         r = 0
         for k, c in enumerate(chans):
             if c.endswith("rotation"):
-                joint.append(j), angle.append(r), column.append(start + k)
+                joint.append(j)
+                angle.append(r)
+                column.append(start + k)
                 r += 1
             elif skel.parents[j] < 0:
-                pos_col.append(start + k), pos_axis.append("XYZ".index(c[0]))
+                pos_col.append(start + k)
+                pos_axis.append("XYZ".index(c[0]))
     layout = ([skel.rotation_order(j) for j in range(skel.n_joints)], *(np.array(x, np.int64) for x in
                                                                          (joint, angle, column, pos_col, pos_axis)))
     skel.__dict__["_layout"] = (key, layout)

@@ -16,6 +16,7 @@ whole table) and measures what the issue asks to see:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -85,7 +86,7 @@ def build_blendshapes(mesh: TriMesh, table: ControlTable, aoi: bool = True, comp
         per_target[name] = entry
         if progress is not None:
             progress(k)
-    report = {
+    report: dict[str, Any] = {
         "n_vertices": mesh.n_vertices, "n_controls": int(table.controls.size), "n_targets": len(table.targets),
         "face_size": size, "aoi": aoi, "far_radius": far_radius,
         "max_control_error": max(errors), "mean_iterations": float(np.mean(iters)),

@@ -34,6 +34,7 @@ Conventions
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -332,7 +333,7 @@ def _arm(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     centers = np.stack([np.interp(ss, js, pts[:, a]) for a in range(3)], 1)
     V, F, ring = _tube(centers, np.interp(ss, js, r), 16)
     s_v = np.where(ring < 0, 0.0, np.where(ring >= len(ss), ss[-1], ss[np.clip(ring, 0, len(ss) - 1)]))
-    w = _chain_weights(s_v, [0.0, js[1], js[2]], [j["Shoulder"], j["Arm"], j["ForeArm"]], blend=0.08 * upper)
+    w = _chain_weights(s_v, [0.0, js[1], js[2]], [j["Shoulder"], j["Arm"], j["ForeArm"]], blend=float(0.08 * upper))
     # the wrist end blends into the hand
     for i, s in enumerate(s_v):
         if s > js[3] - 0.06 * upper:
@@ -582,7 +583,7 @@ def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], 
 
 
 def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_rings: list[list[int]],
-               mouth_ring: list[int], brow_rings: list[list[int]] = (), head_to_hairline: float = 16.8) -> FaceMesh:
+               mouth_ring: list[int], brow_rings: Sequence[list[int]] = (), head_to_hairline: float = 16.8) -> FaceMesh:
     """The morph-target head: ``neutral`` + its ``targets`` (T, N, 3) + a closed back of head.
 
     ``eye_rings`` / ``mouth_ring``: vertex indices outlining the eye and mouth openings
@@ -593,7 +594,7 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
     cap_v, cap_f, cap_src, cap_ring = back_of_head(neutral)
     V = np.concatenate([neutral.vertices, cap_v])
     n_face = neutral.n_vertices
-    faces = {SKIN: [], EYE: [], MOUTH: [], HAIR: []}
+    faces: dict[str, list] = {SKIN: [], EYE: [], MOUTH: [], HAIR: []}
     ring_sets = ([(set(r), EYE) for r in eye_rings] + [(set(mouth_ring), MOUTH)]
                  + [(set(r), HAIR) for r in brow_rings])
     for tri in neutral.faces:
@@ -614,7 +615,8 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
     deltas_face = targets - neutral.vertices[None]
     # the eyes: the opening triangles give way to a socket and an eyeball
     eye_tris = faces.pop(EYE, [])
-    extra_v, extra_d = [], []
+    extra_v: list[np.ndarray] = []
+    extra_d: list[np.ndarray] = []
     for ring in eye_rings:
         rs = set(ring)
         tris = np.asarray([t for t in eye_tris if all(int(v) in rs for v in t)], np.int64).reshape(-1, 3)
@@ -650,7 +652,7 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
 
 
 def build_avatar(skel: Skeleton, neutral: TriMesh, names: list[str], targets: np.ndarray,
-                 eye_rings: list[list[int]], mouth_ring: list[int], brow_rings: list[list[int]] = ()) -> Avatar:
+                 eye_rings: list[list[int]], mouth_ring: list[int], brow_rings: Sequence[list[int]] = ()) -> Avatar:
     """Body skinned to ``skel`` + the morph-target face mounted on its Head joint."""
     check_skeleton(skel)
     body = build_body(skel)

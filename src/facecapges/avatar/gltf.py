@@ -65,7 +65,8 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
     nodes = [g.Node(name=n, translation=[float(x) * CM_TO_M for x in skel.offsets[j]],
                     children=list(kids[j])) for j, n in enumerate(skel.names)]
 
-    materials, mat_index = [], {}
+    materials: list[g.Material] = []
+    mat_index: dict[str, int] = {}
     for name, rgba in COLORS.items():
         mat_index[name] = len(materials)
         materials.append(g.Material(name=name, pbrMetallicRoughness=g.PbrMetallicRoughness(

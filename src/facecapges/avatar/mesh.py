@@ -127,7 +127,7 @@ def check_manifold(mesh: TriMesh, name: str | Path = "mesh") -> None:
         raise file_error(name, f"non-manifold: edge {int(a) + 1}-{int(b) + 1} is shared by {int(ucount.max())} triangles")
     # Non-manifold vertices: the triangles around a vertex must form one fan.
     nv = len(v)
-    kids = [[] for _ in range(nv)]
+    kids: list[list[tuple[int, int]]] = [[] for _ in range(nv)]  # per vertex: its triangles' other two
     for tri in f:
         for k in range(3):
             kids[tri[k]].append((int(tri[(k + 1) % 3]), int(tri[(k + 2) % 3])))

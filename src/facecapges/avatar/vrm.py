@@ -459,7 +459,7 @@ def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
     from facecapges.arkit import arkit_index
     from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
-    custom = {}
+    custom: dict[str, dict] = {}
     for ni, node in enumerate(doc.get("nodes") or []):
         if "mesh" not in node:
             continue
@@ -555,7 +555,7 @@ class ExpressionMap:
         from facecapges.arkit import arkit_index
         from facecapges.arkit_vrm import VRM1_EXPRESSIONS
 
-        direct = {}
+        direct: dict[int, str] = {}
         for n in model.expressions:
             a = arkit_index(n)
             if a is not None:

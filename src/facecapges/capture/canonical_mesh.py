@@ -69,14 +69,15 @@ def _varint(buf: bytes, pos: int) -> tuple[int, int]:
         shift += 7
 
 
-def _fields(buf: bytes) -> list[tuple[int, int, object]]:
+def _fields(buf: bytes) -> list[tuple[int, int, int | bytes]]:
     """(field number, wire type, value) for every field of one message, in order.
 
     Value is an int for varints, bytes for length-delimited fields and the raw 4/8
     bytes for fixed32/fixed64.
     """
-    out = []
+    out: list[tuple[int, int, int | bytes]] = []
     pos = 0
+    value: int | bytes
     while pos < len(buf):
         key, pos = _varint(buf, pos)
         field, wire = key >> 3, key & 7
@@ -111,25 +112,26 @@ def parse_geometry_metadata(data: bytes) -> CanonicalMesh:
     vbuf: list[float] = []
     ibuf: list[int] = []
     for field, wire, value in _fields(data):
-        if field == 2 and wire == 2:
+        if field == 2 and wire == 2 and isinstance(value, bytes):
             lid, w = 0, 0.0
             for f2, w2, v2 in _fields(value):
-                if f2 == 1 and w2 == 0:
+                if f2 == 1 and isinstance(v2, int):  # wire 0
                     lid = v2
-                elif f2 == 2 and w2 == 5:
+                elif f2 == 2 and w2 == 5 and isinstance(v2, bytes):
                     w = struct.unpack("<f", v2)[0]
             ids.append(lid)
             weights.append(w)
-        elif field == 1 and wire == 2:
+        elif field == 1 and wire == 2 and isinstance(value, bytes):
             for f2, w2, v2 in _fields(value):
-                if f2 == 3 and w2 == 2:  # packed floats
+                if isinstance(v2, int):  # wire 0: a varint
+                    if f2 == 4:
+                        ibuf.append(v2)
+                elif f2 == 3 and w2 == 2:  # packed floats
                     vbuf.extend(np.frombuffer(v2, "<f4").tolist())
                 elif f2 == 3 and w2 == 5:  # unpacked float
                     vbuf.append(struct.unpack("<f", v2)[0])
                 elif f2 == 4 and w2 == 2:
                     ibuf.extend(_packed_varints(v2))
-                elif f2 == 4 and w2 == 0:
-                    ibuf.append(v2)
     if len(vbuf) % 5 or len(ibuf) % 3 or not vbuf:
         raise ValueError(f"unexpected canonical mesh sizes: {len(vbuf)} vertex floats, {len(ibuf)} indices")
     v = np.asarray(vbuf, np.float64).reshape(-1, 5)

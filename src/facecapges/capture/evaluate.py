@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES
+from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 from facecapges.capture.estimator import GEOMETRIC_CHANNELS
 from facecapges.rotations import geodesic_angle
 
@@ -57,11 +57,11 @@ def run_tracks(video: str | Path, model=None, max_frames: int | None = None, pro
                 t_land += t_l
                 t_rest += t_all - t_l
                 geo.append(res.weights52)
-                mp.append(res.mp_blendshapes if res.mp_blendshapes is not None else np.zeros(52, np.float32))
+                mp.append(res.mp_blendshapes if res.mp_blendshapes is not None else np.zeros(N_BLENDSHAPES, np.float32))
                 ok = res.face_found and res.mp_transform is not None
                 found.append(ok)
                 R_geo.append(res.head_R)
-                R_mp.append(res.mp_transform[:3, :3] if ok else np.eye(3))
+                R_mp.append(res.mp_transform[:3, :3] if ok and res.mp_transform is not None else np.eye(3))
                 t_ms.append(ts)
                 bar.advance(task)
     finally:

@@ -214,8 +214,8 @@ class FaceTracker:
                 if cost[a, b] <= self.max_jump:
                     assigned[a] = ids[b]
         for a, f in enumerate(faces):
-            tid = assigned.get(a)
-            if tid is None:
+            tid = assigned.get(a, -1)
+            if tid < 0:  # a new face (track ids count from 0)
                 tid = self._next_id
                 self._next_id += 1
             f.face_id = tid

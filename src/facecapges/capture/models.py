@@ -91,9 +91,10 @@ def resolve_model(model: str | Path | None = None) -> Path:
         if not p.is_file():
             raise file_error(p, "face landmarker model not found (--model expects a face_landmarker.task file)")
         return check_bundle(p)
-    p = bundled_model_path()
-    if p is None:
+    bundled = bundled_model_path()
+    if bundled is None:
         raise UserError(f"face_landmarker.task not found: package {TASK_PACKAGE} is not installed; {SETUP_HINT}")
+    p = bundled
     if not p.is_file():
         raise file_error(p, f"face landmarker model missing from the {TASK_PACKAGE} package; {SETUP_HINT}")
     st = p.stat()

@@ -21,6 +21,7 @@ learned ranges.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -34,6 +35,9 @@ from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkD
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
 from facecapges.capture.samples import sample_weight
+
+if TYPE_CHECKING:
+    from facecapges.capture.depth import DepthHeadTracker
 
 
 
@@ -95,7 +99,7 @@ class FaceCapture:
         self.window = smoothing_window or max(3, int(round(self.fps / 3)))
         self.states: dict[int, _FaceState] = {}
         self.primary_id: int | None = None
-        self.depth_tracker = None  # set by the caller for RGB-D input (depth.DepthHeadTracker)
+        self.depth_tracker: DepthHeadTracker | None = None  # set by the caller for RGB-D input (depth.DepthHeadTracker)
 
     # ------------------------------------------------------------------ per face
     def _found(self, st: _FaceState, obs: FaceObservation, w: int, h: int, ts: float,

@@ -78,7 +78,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     except BaseException:
         src.close()
         raise
-    if depth_files is not None:
+    if depth_files is not None and K is not None:
         from facecapges.capture.depth import DepthHeadTracker
 
         cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)

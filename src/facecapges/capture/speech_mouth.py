@@ -55,7 +55,7 @@ class SpeechMouth:
         self._window: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def reset(self) -> None:
-        self.__init__(self.fps, self.sr)
+        SpeechMouth.__init__(self, self.fps, self.sr)
 
     def _spectrum(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         n = len(x)

@@ -17,16 +17,19 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
 import numpy as np
 
 from facecapges.errors import UserError, file_error
 
+if TYPE_CHECKING:
+    import cv2
+
 
 @dataclass
 class FrameSource:
-    cap: object
+    cap: "cv2.VideoCapture"
     name: str
     fps: float
     n_frames: int | None  # None for cameras
@@ -79,7 +82,7 @@ def _quiet_opencv() -> None:
     import cv2
 
     try:
-        cv2.setLogLevel(0)  # LOG_LEVEL_SILENT
+        cv2.setLogLevel(0)  # type: ignore[attr-defined]  # LOG_LEVEL_SILENT; missing from OpenCV's stubs
     except AttributeError:
         pass
 

@@ -10,6 +10,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 CLIP = "2_scott_0_1_1"
 
@@ -40,7 +41,7 @@ def run(quick: bool, shared: Path) -> dict:
         raise UserError(f"{sample_dir}: the data benchmark needs the shared clip {CLIP} (.bvh, .wav)")
     reps = 1 if quick else 3
     bvh = read_bvh(bvh_path)
-    result = {
+    result: dict[str, Any] = {
         "clip": CLIP, "frames": bvh.n_frames,
         "read_bvh_s": round(_best(lambda: read_bvh(bvh_path), reps), 4),
         "motion_to_pose_s": round(_best(lambda: motion_to_pose(bvh.skeleton, bvh.motion), reps), 4),

@@ -46,6 +46,7 @@ import math
 import shutil
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
@@ -88,7 +89,7 @@ def check_skeleton(skel: Skeleton, path: Path, reference: tuple[Skeleton, Path] 
 def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Skeleton, Path] | None
                  ) -> tuple[dict[str, np.ndarray], dict, Skeleton, list[str]]:
     """Arrays, index entry, skeleton and warnings of one clip that has .bvh and .wav."""
-    bvh_path, wav_path = files.get("bvh"), files.get("wav")
+    bvh_path, wav_path = files.files["bvh"], files.files["wav"]  # callers pass only clips with both
     bvh = read_bvh(bvh_path)
     check_skeleton(bvh.skeleton, bvh_path, reference)
     motion = timing.resample(bvh.motion, bvh.fps, fps)
@@ -328,7 +329,7 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
                 bar.update(task, description=files.name)
                 arrays, entry, skel, warn = prepare_clip(files, fps, sr, reference)
                 if reference is None:
-                    reference = (skel, files.get("bvh"))
+                    reference = (skel, files.files["bvh"])
                 warnings.extend(warn)
                 speaker_info.setdefault(str(entry["speaker"]), {"dataset": "BEAT", "licence": "CC BY-NC 4.0",
                                                                 "performer": files.clip.performer})
@@ -422,6 +423,7 @@ def summary_table(index: dict):
     from rich.table import Table
 
     table = Table(title=f"Cache at {index['fps']:g} fps, {index['sr']} Hz")
+    just: Literal["left", "right"]
     for col, just in (("split", "left"), ("speaker", "left"), ("clips", "right"), ("frames", "right"),
                       ("seconds", "right")):
         table.add_column(col, justify=just)

@@ -302,7 +302,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     """The suite over the held-out frames for the reference rows and every variant (both regions)."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
-    from facecapges.evaluation.suite import combine_clips, evaluate_paired
+    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired
     from facecapges.evaluation.run import heldout_inputs
 
     if samples < 1:
@@ -329,7 +329,8 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     n_hist = next(iter(runners.values())).cfg.n_history
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
     rng = np.random.default_rng(seed)
-    per_clip, real_clips, method_clips = [], [], {}
+    per_clip, real_clips = [], []
+    method_clips: dict[str, list[np.ndarray]] = {}
     for name in evaluated:
         a = loaded[name]
         real, audio, _ = heldout_inputs(a, start, fps, sr)
@@ -347,8 +348,9 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))
         else:
             segment = bl.random_segment(pool, len(real), rng)
-        methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
-                   "random real segment": segment}
+        methods: dict[str, Method] = {"ground truth": bl.ground_truth(real),
+                                      "mean pose": bl.mean_pose_sequence(pool, len(real)),
+                                      "random real segment": segment}
         for v, r in runners.items():
             methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None

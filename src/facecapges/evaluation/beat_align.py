@@ -138,7 +138,8 @@ def motion_beats(pose: np.ndarray, fps: float, order: int = 2, mode: str = "mean
     elif mode == "single":
         idx = _minima(speed[:, joint], order)
     elif mode == "union":
-        idx = np.unique(np.concatenate([_minima(speed[:, j], order) for j in range(speed.shape[1])] or [[]]))
+        idx = np.unique(np.concatenate([_minima(speed[:, j], order) for j in range(speed.shape[1])]
+                                       or [np.empty(0, np.int64)]))
     else:
         raise ValueError("mode='per_joint' has one beat set per joint: use motion_beats_per_joint")
     return (idx.astype(np.float64) + 0.5) / fps

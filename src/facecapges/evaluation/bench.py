@@ -147,7 +147,8 @@ def peer_timing(quick: bool = False) -> dict:
         head = np.tile(np.array([1, 0, 0, 0, 1, 0], np.float32), (T, 1))
         a_t, f_t, h_t = (torch.from_numpy(x) for x in (audio, face, head))
         poses = torch.zeros(T, cfg.pose_dim)
-        ours_ms, camn_ms = [], []
+        ours_ms: list[float] = []
+        camn_ms: list[float] = []
         with torch.inference_mode():
             for t in range(L - 1):  # warm both up
                 ours.step(audio[t], face[t], head[t])

@@ -81,6 +81,9 @@ class CaMNConfig:
 class _Standardize(nn.Module):
     """``(x − in_mean) · in_scale`` per channel, buffers set from the training frames."""
 
+    in_mean: torch.Tensor  # buffers (dim,)
+    in_scale: torch.Tensor
+
     def __init__(self, dim: int):
         super().__init__()
         self.register_buffer("in_mean", torch.zeros(dim))
@@ -167,7 +170,7 @@ class CaMN(nn.Module):
         trainer's statistic only when the shared config's audio is raw too (with Mel
         features the statistic is per feature; BatchNorm then sets the scale).
         """
-        layers = {"face": self.face_norm, "head": self.head_norm}
+        layers: dict[str, nn.Module] = {"face": self.face_norm, "head": self.head_norm}
         if self.cfg.audio_repr == "raw":
             layers["audio"] = self.audio_enc.gain
         return layers

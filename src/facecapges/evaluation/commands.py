@@ -86,6 +86,7 @@ def register(app: typer.Typer) -> None:
         if epochs < 1 or batch_size < 1:
             raise UserError("--epochs and --batch-size must be at least 1")
         location = out if out is not None else checkpoint
+        assert location is not None  # checked above
         for p in fgd_paths(location):
             refuse_overwrite(p, force)
         clips, source = load_real_clips(cache=cache, speaker=speaker, split=split, bvh=bvh,

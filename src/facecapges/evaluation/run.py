@@ -63,6 +63,8 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
     else:
         from facecapges.data.cache import Cache
 
+        if cache is None:
+            raise UserError("give a prepared cache or BVH files")
         c = Cache(cache)
         entries = c.select(speaker, split)
         clips = [c.load(e["name"])["pose"] for e in entries]
@@ -132,7 +134,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
-    from facecapges.evaluation.suite import combine_clips, evaluate_paired, evaluate_unpaired
+    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
 
@@ -189,8 +191,9 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     if not weighted:
         warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
     rng = np.random.default_rng(seed)
-    per_clip, real_clips, method_clips, ms_all = [], [], {}, []
-    first = None
+    per_clip, real_clips, ms_all = [], [], []
+    method_clips: dict[str, list[np.ndarray]] = {}
+    first: tuple[str, np.ndarray, dict[str, Method], np.ndarray] | None = None
     for ci, name in enumerate(evaluated):
         a = loaded[name]
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
@@ -207,8 +210,9 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         except ValueError:
             segment = bl.random_segment(pool + [a["pose"]], len(real), rng,
                                         exclude=(len(pool), start, len(a["pose"])))
-        methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
-                   "random real segment": segment, model_name: gens}
+        methods: dict[str, Method] = {"ground truth": bl.ground_truth(real),
+                                      "mean pose": bl.mean_pose_sequence(pool, len(real)),
+                                      "random real segment": segment, model_name: gens}
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
                                         offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
@@ -238,6 +242,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                                                   offsets_s=offsets_s, progress=progress,
                                                   skeleton=c.skeleton(evaluated[0]))
     out = Path(out)
+    assert first is not None  # at least one clip was evaluated
     name, real0, methods0, audio0 = first
     shown = {model_name: methods0[model_name][0], "random real segment": methods0["random real segment"],
              "mean pose": methods0["mean pose"]}

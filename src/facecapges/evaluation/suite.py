@@ -37,7 +37,7 @@ regions): ``{"methods": {name: {"BA_BEAT", "BA_BEAT_true_times", "BA_EMAGE",
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -108,7 +108,7 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
     samples = {k: _samples(k, v, n) for k, v in methods.items()}
     if n is None:
         n = len(next(iter(samples.values()))[0]) if samples else 0
-    result = {"fps": fps, "sr": sr, "n_frames": n, "sigma_s": sigma_s, "srgr_delta": DELTA,
+    result: dict[str, Any] = {"fps": fps, "sr": sr, "n_frames": n, "sigma_s": sigma_s, "srgr_delta": DELTA,
               "srgr_weighted": semantic_weights is not None, "ba_mode": ba_mode,
               "ba_offsets_s": [float(o) for o in offsets_s], "paired": real is not None, "regions": {}}
     cache: dict[int, ba.SpeechBeatSets] = {}

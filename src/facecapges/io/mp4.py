@@ -30,7 +30,7 @@ class Mp4Writer:
         self.fps, self.audio, self.crf, self.jpeg, self.preset = float(fps), audio, int(crf), jpeg, preset
         self.size: tuple[int, int] | None = None  # (width, height) as written
         self.frames = 0
-        self._proc: subprocess.Popen | None = None
+        self._proc: subprocess.Popen[bytes] | None = None
         self._part = self.path.with_name(self.path.stem + ".part" + self.path.suffix)
 
     def _open(self, input_args: list[str]) -> None:
@@ -61,12 +61,14 @@ class Mp4Writer:
                 self.size = (w + w % 2, h + h % 2)
                 self._open(["-f", "rawvideo", "-pix_fmt", "bgr24", "-s", f"{self.size[0]}x{self.size[1]}",
                             "-framerate", f"{self.fps:g}", "-i", "-"])
+            assert self.size is not None  # set with the first frame
             w, h = self.size
             if img.shape[:2] != (h, w):
                 pad = np.zeros((h, w, 3), np.uint8)
                 pad[:min(h, img.shape[0]), :min(w, img.shape[1])] = img[:h, :w]
                 img = pad
             data = np.ascontiguousarray(img).tobytes()
+        assert self._proc is not None and self._proc.stdin is not None  # opened with the first frame, stdin=PIPE
         try:
             self._proc.stdin.write(data)
         except BrokenPipeError:
@@ -74,7 +76,7 @@ class Mp4Writer:
         self.frames += 1
 
     def _fail(self) -> None:
-        err = self._proc.stderr.read().decode(errors="replace").strip() if self._proc else ""
+        err = self._proc.stderr.read().decode(errors="replace").strip() if self._proc and self._proc.stderr else ""
         self.abort()
         raise RuntimeError(f"ffmpeg failed writing {self.path}: {err}")
 
@@ -82,6 +84,7 @@ class Mp4Writer:
         """Finish the file; a writer that got no frame is an error."""
         if self._proc is None:
             raise ValueError(f"{self.path}: no frames were written")
+        assert self._proc.stdin is not None and self._proc.stderr is not None  # both PIPE
         try:
             self._proc.stdin.close()
         except BrokenPipeError:

@@ -49,6 +49,9 @@ AUDIO_REPRS = ("raw", "mel")
 class AudioFeatures(nn.Module):
     """(…, S) frames of samples → (…, 43) log-Mel, energy, log-F0, voicing (module docs)."""
 
+    mel_basis: torch.Tensor  # (40, 257) buffer
+    window: torch.Tensor  # (N_FFT,) buffer
+
     def __init__(self, sr: int, samples_per_frame: int):
         super().__init__()
         import librosa

@@ -22,11 +22,15 @@ import json
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 from facecapges.errors import UserError, file_error
+
+if TYPE_CHECKING:
+    from facecapges.model.network import FaceCapGes
 
 DEFAULT_STYLE = "beat2-scott-demo"
 FORMAT = "facecapges-checkpoint-1"
@@ -115,7 +119,7 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
 class Checkpoint:
     """A loaded inference checkpoint."""
 
-    model: "object"  # FaceCapGes (eval mode)
+    model: FaceCapGes  # eval mode
     meta: dict
     path: Path
 

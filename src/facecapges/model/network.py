@@ -28,6 +28,10 @@ Shapes: B batch, T frames, S = samples per frame (1067), J = 47 joints.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
 import torch
 import torch.nn as nn
 import torch.nn.functional as F
@@ -41,6 +45,9 @@ NORM_BUFFERS = ("in_mean", "in_scale")
 
 class StandardizedLinear(nn.Linear):
     """``Linear((x − in_mean) · in_scale)``: a linear layer over a standardised input."""
+
+    in_mean: torch.Tensor  # buffers (in_features,)
+    in_scale: torch.Tensor
 
     def __init__(self, in_features: int, out_features: int, bias: bool = True):
         super().__init__(in_features, out_features, bias)
@@ -58,6 +65,9 @@ class AudioFrontend(nn.Module):
     training audio; ``in_mean`` is 0: audio has no offset).
     """
 
+    in_mean: torch.Tensor  # buffers (1,)
+    in_scale: torch.Tensor
+
     def __init__(self, cfg: ModelConfig):
         super().__init__()
         self.register_buffer("in_mean", torch.zeros(1))
@@ -70,6 +80,7 @@ class AudioFrontend(nn.Module):
         ])
         length = cfg.samples_per_frame
         for conv in self.convs:
+            assert isinstance(conv, nn.Conv1d)
             length = (length - conv.kernel_size[0]) // conv.stride[0] + 1
         self.collapse = nn.Conv1d(c3, cfg.audio_tcn_channels, length)  # remaining length -> 1
 
@@ -299,7 +310,7 @@ class SegmentDiscriminator(nn.Module):
         return self.out(h.mean(-1)).squeeze(-1)
 
 
-def input_norm_layers(model: nn.Module) -> dict[str, nn.Module]:
+def input_norm_layers(model: Any) -> dict[str, Any]:  # model: FaceCapGes-like (duck-typed, below)
     """The standardising layer of each input of a FaceCapGes-like model (audio, face, head).
 
     A model with its own ``input_norm_layers()`` method (e.g. the CaMN baseline) names them itself.
@@ -314,7 +325,8 @@ def input_norm_layers(model: nn.Module) -> dict[str, nn.Module]:
 
 
 @torch.no_grad()
-def set_input_statistics(model: nn.Module, stats: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> None:
+def set_input_statistics(model: nn.Module, stats: Mapping[str, tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray]]
+                         ) -> None:
     """Set ``in_mean``/``in_scale`` of the inputs named in ``stats`` ({name: (mean, scale)})."""
     layers = input_norm_layers(model)
     for name, (mean, scale) in stats.items():

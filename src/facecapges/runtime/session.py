@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 @dataclass
 class Session:
-    scheduler: Scheduler | None
+    scheduler: Scheduler = field(init=False)  # built last, by build_session
     checkpoint: Checkpoint
     video: VideoSource | None = None
     face_feed: FaceFeed | None = None
@@ -107,7 +107,7 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
 
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
-    sess = Session(scheduler=None, checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
+    sess = Session(checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
     torch.set_num_threads(1)
     fps, sr = checkpoint.fps, 16000
     try:

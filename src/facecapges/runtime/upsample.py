@@ -118,6 +118,7 @@ class Upsampler:
                     self._cond.wait(wait)  # a new frame (or close) may cut the wait short
                     continue
                 j, start, target = self._j, self._start, self._target
+                assert target is not None  # the wait above ends only with a frame
                 self._j = self.n if start is None else self._j + 1  # the very first frame: shown once
             fr = target if start is None else blend_frames(start, target, (j + 1) / self.n)
             with self._cond:

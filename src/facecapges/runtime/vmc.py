@@ -273,7 +273,9 @@ _BUNDLE_HEAD = b"#bundle\0" + struct.pack(">Q", 1)  # OSC bundle, time tag "imme
 
 def pack_bundles(messages: list[bytes], max_bytes: int = MAX_DATAGRAM_BYTES) -> list[bytes]:
     """OSC messages → as few OSC bundles as fit, in order, each datagram ≤ ``max_bytes``."""
-    out, cur, size = [], [], len(_BUNDLE_HEAD)
+    out: list[bytes] = []
+    cur: list[bytes] = []
+    size = len(_BUNDLE_HEAD)
     for m in messages:
         need = 4 + len(m)
         if len(_BUNDLE_HEAD) + need > max_bytes:
@@ -309,6 +311,7 @@ class VmcSender:
         self.blend = blend
         self.host, self.port = host, port
         self.max_datagram = int(max_datagram)
+        self.address: tuple  # (host, port[, flow, scope]) as getaddrinfo gives it
         family, _, _, _, self.address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         self.sent = 0  # frames

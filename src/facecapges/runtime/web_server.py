@@ -30,12 +30,16 @@ import mimetypes
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, pong_message,
                                    refuse_foreign_host)
+
+if TYPE_CHECKING:
+    from websockets.asyncio.server import Server
 
 __all__ = ["ViewerServer", "WebFeed", "is_loopback", "parse_address"]
 
@@ -76,7 +80,7 @@ class ViewerServer:
         self.bad_messages = 0
         self.conn_log = ConnectionLog(log or (lambda m: print(m, file=sys.stderr)), "viewer")
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._server = None
+        self._server: Server | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None

@@ -20,12 +20,13 @@ import ipaddress
 import json
 import time
 from collections.abc import Callable
+from typing import Any
 
 from facecapges.runtime import protocol
 
 LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 HANDSHAKE_TIMEOUT = 10.0  # seconds from TCP connect to the end of the WebSocket handshake
-SERVE_OPTIONS = {"max_size": protocol.MAX_MESSAGE_BYTES, "ping_interval": None, "server_header": None,
+SERVE_OPTIONS: dict[str, Any] = {"max_size": protocol.MAX_MESSAGE_BYTES, "ping_interval": None, "server_header": None,
                  "open_timeout": HANDSHAKE_TIMEOUT}
 
 

@@ -51,6 +51,7 @@ def start_server(port: int, checkpoint: str | None = None, threads: int = 1,
     if checkpoint:
         cmd += ["--checkpoint", checkpoint]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert proc.stdout is not None and proc.stderr is not None  # both PIPE
     line = proc.stdout.readline()
     if not line.startswith("serving"):
         proc.kill()

@@ -71,7 +71,7 @@ async def run_client(url: str, messages: list[str], seconds: float, warmup_s: fl
     try:
         async with connect(url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None,
                            open_timeout=30) as ws:
-            hello = await ws.recv()
+            hello = await ws.recv(decode=True)
             if '"hello"' not in hello:
                 res.errors.append(f"no hello: {hello[:80]}")
                 return res
@@ -143,7 +143,7 @@ def summarize(results: list[ClientResult], period_ms: float) -> dict:
     received = sum(r.received for r in results)
     errors = sum(len(r.errors) for r in results)
     closed = sum(r.closed is not None for r in results)
-    out = {"clients": len(results), "frames_sent": sent, "frames_returned": received, "lost": sent - received,
+    out: dict[str, float] = {"clients": len(results), "frames_sent": sent, "frames_returned": received, "lost": sent - received,
            "errors": errors, "closed_early": closed, "measured_frames": int(lat.size)}
     if lat.size:
         out.update(p50_ms=round(float(np.percentile(lat, 50)), 2), p99_ms=round(float(np.percentile(lat, 99)), 2),

@@ -48,7 +48,8 @@ def _serve_model(conn, model, neutral_window, threads: int, audio, face, head, p
             elif kind == "open":
                 res = gen.open()
             elif kind == "close":
-                res = gen.close(msg[1])
+                gen.close(msg[1])
+                res = None
             else:  # "quit"
                 conn.send(("ok", None))
                 return

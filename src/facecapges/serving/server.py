@@ -56,6 +56,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -63,6 +64,9 @@ from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, peer_host,
                                    pong_message, refuse_foreign_host)
+
+if TYPE_CHECKING:
+    from websockets.asyncio.server import Server, ServerConnection
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
 
@@ -86,7 +90,7 @@ class ServeConfig:
 
 @dataclass
 class _Stream:
-    ws: object
+    ws: ServerConnection
     id: int
     slot: int | None = None
     pending: collections.deque = field(default_factory=collections.deque)
@@ -132,14 +136,13 @@ class StreamServer:
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="serve-model")
         self._pool.submit(self._init_worker).result()
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._server = None
+        self._server: Server | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._error: BaseException | None = None
-        self._wake: asyncio.Event | None = None
-        self._stop: asyncio.Event | None = None
+        self._wake, self._stop = asyncio.Event(), asyncio.Event()  # made anew in the server's loop by _main
         self.bound: tuple[str, int] | None = None
-        self.stats = collections.Counter()
+        self.stats: collections.Counter[str] = collections.Counter()
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
 
     def _init_worker(self) -> None:
@@ -394,6 +397,7 @@ class StreamServer:
         """Block until Ctrl-C / :meth:`close` (starts the server if needed)."""
         if self._thread is None:
             self.start()
+        assert self._thread is not None  # start() made it
         try:
             while self._thread.is_alive():
                 self._thread.join(timeout=0.5)

@@ -191,7 +191,7 @@ def plot(results: dict, out: Path) -> list[Path]:
     systems = results["systems"]
     k = len(systems)
     crit = list(CRITERIA)
-    colors = plt.get_cmap("tab10").colors
+    colors = plt.get_cmap("tab10").colors  # type: ignore[attr-defined]  # a ListedColormap; the stub says Colormap
     paths = []
 
     fig, ax = plt.subplots(figsize=(2.2 + 1.9 * len(crit), 3.8), dpi=120)

@@ -54,7 +54,7 @@ class Clip:
     audio_path: Path
     face_path: Path | None
     bvh_paths: dict[str, Path]
-    audio: np.ndarray = field(repr=False, default=None)
+    audio: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, np.float32))  # loaded by validation
     duration: float = 0.0
 
 

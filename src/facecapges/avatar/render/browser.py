@@ -25,8 +25,12 @@ import urllib.request
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from facecapges.errors import UserError
+
+if TYPE_CHECKING:
+    from websockets.sync.client import ClientConnection
 
 CHROMIUM_FLAGS = [
     "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
@@ -134,7 +138,7 @@ class Browser:
             devtools = self._devtools_port()
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{devtools}/json/list", timeout=10))
             page = next(t for t in targets if t.get("type") == "page")
-            self._ws_cm = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20)
+            self._ws_cm: ClientConnection | None = connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=20)
             self.ws = self._ws_cm.__enter__()
             self.call("Runtime.enable")
             self.call("Page.enable")
@@ -175,6 +179,7 @@ class Browser:
         deadline = time.time() + self.timeout
         while time.time() < deadline:
             if self.proc.poll() is not None:
+                assert self.proc.stderr is not None  # stderr=PIPE
                 err = self.proc.stderr.read().decode(errors="replace")[-800:]
                 raise RuntimeError(f"chromium exited with status {self.proc.returncode}: {err}")
             if marker.is_file():

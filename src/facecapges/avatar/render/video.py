@@ -116,14 +116,17 @@ def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.n
     import cv2
 
     b, _ = _open_page(glb, width, height, inset, page, routes)
-    images = []
+    images: list[np.ndarray] = []
     try:
         b.evaluate(f"window.facecapges.setView({view!r})")
         for q, w in zip(poses, weights):
             qa = "null" if q is None else "[" + ",".join(f"{x:.7g}" for x in np.asarray(q).ravel()) + "]"
             wa = "null" if w is None else "[" + ",".join(f"{x:.7g}" for x in np.asarray(w).ravel()) + "]"
             png = _decode(b.evaluate(f"window.facecapges.renderStill({qa}, {wa})"))
-            images.append(cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR))
+            img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+            if img is None:
+                raise RuntimeError("the avatar page returned an undecodable PNG")
+            images.append(img)
     finally:
         b.close()
     return images
