@@ -631,8 +631,8 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
             faces.setdefault(m, []).extend(f)
     if extra_v:
         V = np.concatenate([V] + extra_v)
-    faces = {m: np.asarray(f, np.int64).reshape(-1, 3) for m, f in faces.items() if len(f)}
-    allf = np.concatenate(list(faces.values()))
+    by_material = {m: np.asarray(f, np.int64).reshape(-1, 3) for m, f in faces.items() if len(f)}  # per material
+    allf = np.concatenate(list(by_material.values()))
     normals = TriMesh(V, allf).vertex_normals()
     deltas = np.zeros((T, len(V), 3))
     deltas[:, :n_face] = deltas_face
@@ -648,7 +648,7 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
         Vt = V + deltas[t]
         ndel[t] = TriMesh(Vt, allf).vertex_normals() - normals
     offset = np.array([0.0, head_to_hairline - ymax, 3.0])
-    return FaceMesh(V, normals, faces, list(names), deltas, ndel, offset)
+    return FaceMesh(V, normals, by_material, list(names), deltas, ndel, offset)
 
 
 def build_avatar(skel: Skeleton, neutral: TriMesh, names: list[str], targets: np.ndarray,

@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
         no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
         force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
     ) -> None:
-        """Generate blendshape targets by Laplacian deformation with areas of influence (seed 2, sec. 4)."""
+        """Generate the 52 ARKit blendshape targets by Laplacian deformation with areas of influence."""
         import json
         import time
 

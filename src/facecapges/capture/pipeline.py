@@ -152,6 +152,7 @@ class FaceCapture:
                 st = self.states[obs.face_id] = _FaceState(obs.face_id, self.mode, self.window)
             depth_pose = None
             if obs.face_id == depth_for:
+                assert depth_mm is not None and self.depth_tracker is not None  # depth_for is set only then
                 box = None
                 if depth_mm.shape[:2] == (h, w):  # registered RGB-D: restrict the cloud to the face box
                     x = obs.landmarks[:, 0] * w

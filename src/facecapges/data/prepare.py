@@ -358,6 +358,7 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
                 pooled_train[k].merge(train[k])
                 pooled_all[k].merge(acc_all[spk][k])
         stats["all"] = _stats_block(pooled_train, pooled_all, "all speakers")
+        assert reference is not None  # set by the first clip or mocap source (none at all was refused above)
         fill = _fill_masked_clips(tmp, entries, masks, pooled_all["pose"], reference[0])
 
         index = {

@@ -64,15 +64,15 @@ def register(app: typer.Typer) -> None:
         out: Optional[Path] = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
         checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
                                                              "to (in the folder NAME.fgd/), when --out is not given."),
-        epochs: int = typer.Option(400, help="Training epochs (thesis: 400)."),
-        batch_size: int = typer.Option(256, help="Batch size B; lr = 1.2e-4 · B/128 (eq. 5.5)."),
-        momentum: float = typer.Option(0.9, help="SGD momentum (not stated in the thesis; 0 = plain SGD)."),
+        epochs: int = typer.Option(400, help="Training epochs."),
+        batch_size: int = typer.Option(256, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."),
+        momentum: float = typer.Option(0.9, help="SGD momentum (0 = plain SGD)."),
         regions: str = typer.Option("with_head,without_head", help="Regions to train an autoencoder for."),
         seed: int = typer.Option(0, help="Random seed."),
         force: bool = typer.Option(False, "--force", help="Overwrite an existing FGD autoencoder."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
-        """Train the skeleton-aware FGD autoencoder (thesis 5.5.1) on a speaker's real motion."""
+        """Train the skeleton-aware FGD autoencoder on a speaker's real motion (what `eval` measures FGD with)."""
         from facecapges.errors import refuse_overwrite
         from facecapges.evaluation.fgd import FGDConfig, fgd_paths, save_fgd, train_fgd
         from facecapges.evaluation.run import load_real_clips
@@ -121,12 +121,12 @@ def register(app: typer.Typer) -> None:
         offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
         video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
         seed: int = typer.Option(0, help="Seed for the random real segment baseline and the sample starts."),
-        samples: int = typer.Option(3, help="Model runs per clip (different cold-start histories) for L1DIV "
-                                            "eq. 5.11; metrics average over them."),
+        samples: int = typer.Option(3, help="Model runs per clip (different cold-start histories) for the "
+                                            "diversity across samples (L1DIV); metrics average over them."),
         force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has metrics."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """Evaluate a checkpoint the way thesis ch. 5 does (FGD, SRGR, BeatAlign, L1DIV; both regions)."""
+        """Evaluate a checkpoint on held-out motion: FGD, SRGR, BeatAlign, L1DIV, with and without the head."""
         from facecapges.errors import check_output_dir
         from facecapges.evaluation.run import run_eval
 
@@ -179,7 +179,7 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has a table."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
-        """Ablation study (thesis 5.7, Table 5.3): train the variants with one budget, evaluate them."""
+        """Ablation study: train the model's variants with one budget, evaluate them side by side."""
         import sys
 
         from facecapges.errors import check_output_dir

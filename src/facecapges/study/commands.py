@@ -9,7 +9,7 @@ import typer
 
 def register(app: typer.Typer) -> None:
     study = typer.Typer(help="Blind side-by-side user study: K versions of each clip ranked on realism, "
-                             "synchrony and diversity (thesis 5.3).", no_args_is_help=True)
+                             "synchrony and diversity.", no_args_is_help=True)
     app.add_typer(study, name="study")
 
     @study.command("create")

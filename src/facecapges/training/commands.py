@@ -12,7 +12,7 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def train(
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
-        speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker (thesis 3.2.2)."),
+        speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker."),
         out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
         config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: "
                                                        "configs/demo-beat2-scott.yaml)."),
@@ -29,7 +29,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Train a FaceCapGes model with closed-loop sliding-window rollout.
 
-        Without --config this is the paper's recipe (SGD, batch 256), meant for full
+        Without --config this is the published recipe (SGD, batch 256), meant for full
         BEAT (hours of speech per speaker). On small data (minutes of one speaker) use
         the recipe the shipped styles were trained with: --config
         configs/demo-beat2-scott.yaml (Adam, batch 16, a smaller model; its comments
