@@ -1,0 +1,58 @@
+"""FaceCapGes: real-time co-speech gestures from face, head pose and speech.
+
+The Python API (README "Python API")::
+
+    ckpt = facecapges.load_checkpoint(style="beat2-scott-demo")
+    gen = ckpt.streaming()                      # a StreamingGenerator: one live stream
+    pose = gen.step(audio_chunk, face, head)    # (47, 6) rot6d, frame by frame
+
+The names below are imported on first use, so ``import facecapges`` stays light (no
+torch until a checkpoint is loaded).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+__version__ = "0.1.0"
+
+_EXPORTS: dict[str, str] = {
+    "load_checkpoint": "facecapges.model.checkpoint",
+    "list_styles": "facecapges.model.checkpoint",
+    "Checkpoint": "facecapges.model.checkpoint",
+    "DEFAULT_STYLE": "facecapges.model.checkpoint",
+    "StreamingGenerator": "facecapges.model.streaming",
+    "load_audio": "facecapges.io.audio",
+    "UserError": "facecapges.errors",
+    "MODEL_FPS": "facecapges.timing",
+    "AUDIO_SR": "facecapges.timing",
+    "ARKIT_NAMES": "facecapges.arkit",
+    "N_BLENDSHAPES": "facecapges.arkit",
+    "UPPER_BODY": "facecapges.skeleton",
+    "N_JOINTS": "facecapges.skeleton",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+if TYPE_CHECKING:
+    from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+    from facecapges.errors import UserError
+    from facecapges.io.audio import load_audio
+    from facecapges.model.checkpoint import DEFAULT_STYLE, Checkpoint, list_styles, load_checkpoint
+    from facecapges.model.streaming import StreamingGenerator
+    from facecapges.skeleton import N_JOINTS, UPPER_BODY
+    from facecapges.timing import AUDIO_SR, MODEL_FPS
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'facecapges' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))
