@@ -13,6 +13,8 @@ demo: setup
 
 test: setup
 	bash scripts/setup-test.sh
+	$(VENV)/bin/ruff check src
+	$(VENV)/bin/mypy
 	$(PY) -m pytest -q --durations=15
 
 setup: $(STAMP)

@@ -33,7 +33,11 @@ _EXPORTS: dict[str, str] = {
     "N_JOINTS": "facecapges.skeleton",
 }
 
-__all__ = ["__version__", *_EXPORTS]
+__all__ = [  # the API first, then the conventions
+    "__version__", "load_checkpoint", "list_styles", "Checkpoint", "DEFAULT_STYLE", "StreamingGenerator",
+    "load_audio", "UserError", "MODEL_FPS", "AUDIO_SR", "ARKIT_NAMES", "N_BLENDSHAPES", "UPPER_BODY", "N_JOINTS",
+]
+assert set(__all__) == {"__version__", *_EXPORTS}
 
 if TYPE_CHECKING:
     from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES

@@ -72,7 +72,7 @@ def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
         t0 = time.perf_counter()
         try:
             result[area] = importlib.import_module(BENCHMARKS[area]).run(quick=quick, shared=shared)
-        except Exception as exc:  # one broken area must not hide the others' figures
+        except Exception as exc:  # noqa: BLE001  one broken area must not hide the others' figures
             ok = False
             result[area] = {"error": f"{exc.__class__.__name__}: {exc}"}
             _log(f"{area} FAILED: {exc.__class__.__name__}: {exc}")

@@ -214,7 +214,6 @@ def identity_rot6d(shape: tuple[int, ...] = ()) -> np.ndarray:
 def matrix_to_quaternion(matrix: Array) -> Array:
     """Matrices (..., 3, 3) → unit quaternions (..., 4) as (w, x, y, z), w ≥ 0."""
     _check_last(matrix, (3, 3), "matrix")
-    lib = torch if _is_torch(matrix) else np
     m = matrix
     m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
     # four candidate |components|, all computed, best-conditioned one picked

@@ -1,6 +1,6 @@
 """Avatar benchmark: blendshape generation, glb build, and video rendering speed.
 
-Targets (issue 6): all 52 blendshapes in ≤ 10 s; a 60 s clip at 15 fps (900 frames)
+Targets: all 52 blendshapes in ≤ 10 s; a 60 s clip at 15 fps (900 frames)
 rendered to MP4 with audio in ≤ 2 min on this CPU. The motion is the real BEAT clip
 (``../shared/data/beat``) with synthetic face weights (a talking jaw and blinks); with
 ``quick`` only 10 s are rendered.
@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges.arkit import N_BLENDSHAPES
+
 
 def shared_file(shared: Path, rel: str) -> Path | None:
     p = Path(shared) / rel
@@ -25,7 +27,7 @@ def synthetic_face(T: int, fps: float) -> np.ndarray:
     from facecapges.arkit import arkit_index
 
     t = np.arange(T) / fps
-    w = np.zeros((T, 52), np.float32)
+    w = np.zeros((T, N_BLENDSHAPES), np.float32)
     w[:, arkit_index("jawOpen")] = 0.35 * np.clip(np.sin(2 * np.pi * 3.1 * t) + 0.3, 0, None)
     blink = ((t % 3.0) < 0.15).astype(np.float32)
     w[:, arkit_index("eyeBlinkLeft")] = blink

@@ -34,6 +34,7 @@ Conventions
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -523,7 +524,7 @@ def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], 
     # socket: two rings swept into the head and a back pole, each following its rim vertex
     m = len(loop)
     sock_v, sock_src, sock_k = [], [], []
-    for k, (shrink, depth) in enumerate(((0.9, 0.6), (0.55, 1.6)), start=1):
+    for shrink, depth in ((0.9, 0.6), (0.55, 1.6)):
         sock_v.append(ctr + shrink * (rim - ctr) - depth * fwd)
         sock_src.append(loop)
         sock_k.append(np.full(m, shrink))
@@ -534,7 +535,7 @@ def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], 
     sock_d[:, :-1] = deltas[:, src] * scale[None, :, None]
     idx = [loop, base + np.arange(m), base + m + np.arange(m)]
     sock_f = []
-    for a, b in zip(idx[:-1], idx[1:]):
+    for a, b in itertools.pairwise(idx):
         a2, b2 = np.roll(a, -1), np.roll(b, -1)
         sock_f += list(np.stack([a, b2, b], 1)) + list(np.stack([a, a2, b2], 1))
     pole = base + 2 * m

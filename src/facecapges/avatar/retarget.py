@@ -42,7 +42,7 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges.avatar.vrm import BEAT_BONES, BONE_NAMES, BONE_PARENT, VrmModel
 from facecapges.errors import UserError
-from facecapges.skeleton import Skeleton, global_transforms
+from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms
 
 # the child bones that give a bone its direction, in order of preference
 _FINGER_PARTS = {"Thumb": ("Metacarpal", "Proximal", "Distal"), "Index": ("Proximal", "Intermediate", "Distal"),
@@ -152,7 +152,7 @@ def upper_body_locals(skel: Skeleton, quats47: np.ndarray) -> np.ndarray:
     """(T, 47, 4) upper-body local quaternions (runtime frames) → (T, J, 3, 3) on ``skel``, others at rest."""
     from facecapges.skeleton import upper_body_indices
 
-    q = np.asarray(quats47, np.float64).reshape(-1, 47, 4)
+    q = np.asarray(quats47, np.float64).reshape(-1, N_JOINTS, 4)
     mats = np.broadcast_to(np.eye(3), (len(q), skel.n_joints, 3, 3)).copy()
     mats[:, upper_body_indices(skel)] = rot.quaternion_to_matrix(q)
     return mats

@@ -52,7 +52,6 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES
 from facecapges.errors import UserError, file_error
 
 LICENSE_URL = "https://vrm.dev/licenses/1.0/"
@@ -326,7 +325,7 @@ def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
     """A binary glTF's JSON (parsed) and its BIN chunk; UserError if ``data`` is not one."""
     if len(data) < 20 or data[:4] != b"glTF":
         raise UserError(f"{name}: not a VRM or binary glTF file (.vrm/.glb); no glTF header")
-    version, length = struct.unpack_from("<II", data, 4)
+    version, _length = struct.unpack_from("<II", data, 4)
     if version != 2:
         raise UserError(f"{name}: glTF version {version}; only glTF 2.0 (VRM 0.x and 1.0) is supported")
     jlen, jtype = struct.unpack_from("<II", data, 12)

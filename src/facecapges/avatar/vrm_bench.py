@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges.skeleton import N_JOINTS
+
 
 def run(quick: bool, shared: Path) -> dict:
     from facecapges.avatar.bench import shared_file, synthetic_face
@@ -45,7 +47,7 @@ def run(quick: bool, shared: Path) -> dict:
     presets = ExpressionMap(type(model)(**{**model.__dict__, "expressions": list(PRESET_BINDS)}))
     sync = ExpressionMap(type(model)(**{**model.__dict__, "expressions": list(ARKIT_NAMES)}))
     n = 50 if quick else 300
-    q47 = np.tile(np.array([1.0, 0, 0, 0]), (47, 1))
+    q47 = np.tile(np.array([1.0, 0, 0, 0]), (N_JOINTS, 1))
 
     def med(fn) -> float:
         ts = []

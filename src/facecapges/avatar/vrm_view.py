@@ -82,8 +82,8 @@ class VrmDriver:
 
     def describe(self) -> str:
         m = self.model
-        face = ("perfect sync (%d ARKit expressions)" % len(self.faces.names) if self.faces.perfect_sync
-                else "%d VRM presets from ARKit" % len(self.faces.names))
+        face = (f"perfect sync ({len(self.faces.names)} ARKit expressions)" if self.faces.perfect_sync
+                else f"{len(self.faces.names)} VRM presets from ARKit")
         return (f"{m.title!r} ({'VRM 0.x' if m.kind == 'vrm0' else 'VRM 1.0' if m.kind == 'vrm1' else 'humanoid GLB'}"
                 f"): {len(self.retarget.bones)} humanoid bones driven, face: {face}")
 

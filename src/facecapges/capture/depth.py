@@ -105,7 +105,7 @@ def foreground_mask(depth_mm: np.ndarray, seed: int = 0) -> np.ndarray:
 
 def depth_to_points(depth_mm: np.ndarray, K: Intrinsics, mask: np.ndarray | None = None) -> np.ndarray:
     """Back-project (masked) pixels to (N, 3) metres in the OpenGL camera frame."""
-    h, w = depth_mm.shape
+    _h, _w = depth_mm.shape  # (H, W): one depth image
     vs, us = np.nonzero((depth_mm > 0) if mask is None else mask & (depth_mm > 0))
     z = depth_mm[vs, us].astype(np.float64) / 1000.0
     x = (us + 0.5 - K.cx) * z / K.fx
@@ -175,11 +175,6 @@ class DepthHeadTracker:
             m2[max(0, y0):y1, max(0, x0):x1] = True
             mask &= m2
         return depth_to_points(depth_mm, self.K, mask)
-
-    def _sub(self, pts: np.ndarray) -> np.ndarray:
-        if len(pts) > self.max_points:
-            pts = pts[self.rng.choice(len(pts), self.max_points, replace=False)]
-        return pts
 
     def update(self, depth_mm: np.ndarray, box: tuple[int, int, int, int] | None = None) -> HeadPose | None:
         """Head pose (R head→camera, t in cm like :mod:`head_pose`) for this depth frame; None without a head."""

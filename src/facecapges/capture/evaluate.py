@@ -49,7 +49,7 @@ def run_tracks(video: str | Path, model=None, max_frames: int | None = None, pro
     try:
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"capture-eval {Path(str(video)).name}", total=src.n_frames)
-            for i, ts, frame in src.frames(max_frames):
+            for _, ts, frame in src.frames(max_frames):
                 t0 = time.perf_counter()
                 res = cap.process(frame, ts)
                 t_all = time.perf_counter() - t0

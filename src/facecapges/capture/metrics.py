@@ -62,15 +62,6 @@ METRIC_NAMES: tuple[str, ...] = (
     "brow_height_L", "brow_height_R", "eyelid_L", "eyelid_R", "nose_L", "nose_R",
     "brow_inner", "mouth_corner_L", "mouth_corner_R",
 )
-N_METRICS = len(METRIC_NAMES)
-
-#: every landmark index a metric reads (for callers that only lift these points)
-METRIC_LANDMARKS: tuple[int, ...] = tuple(sorted({
-    INNER_EYE_R, INNER_EYE_L, OUTER_EYE_R, OUTER_EYE_L, MOUTH_CORNER_R, MOUTH_CORNER_L,
-    UPPER_LIP_CENTER, LOWER_LIP_CENTER, NOSTRIL_L, NOSTRIL_R,
-    *[i for p in LIP_PAIRS + EYELID_PAIRS_L + EYELID_PAIRS_R for i in p],
-    *BROW_L, *BROW_R, *BROW_INNER_L, *BROW_INNER_R,
-}))
 
 
 def _pairs_height(P: np.ndarray, pairs) -> np.ndarray:

@@ -30,6 +30,7 @@ import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+from facecapges.capture.landmarks import N_LANDMARKS
 from facecapges.capture.metrics import BROW_INNER_L, BROW_INNER_R, BROW_L, BROW_R
 
 CHANNELS = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browOuterUpLeft", "browOuterUpRight",
@@ -85,7 +86,7 @@ def synthetic_sequence(canonical: np.ndarray, n_frames: int = 300, fps: float = 
     roll = np.radians(_smooth_walk(T, rng, 10, fps))
     dist = 65 + _smooth_walk(T, rng, 25, fps)  # cm
     K = Intrinsics.default(width, height)
-    L = np.zeros((T, 478, 3))
+    L = np.zeros((T, N_LANDMARKS, 3))
     Rs = np.zeros((T, 3, 3))
     for k in range(T):
         X = V.copy()

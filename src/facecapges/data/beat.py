@@ -13,8 +13,8 @@ The **clip number** is the ``start`` field (the 4th). BEAT writes ``start == end
 ordinary clips; when a file spans several (``start < end``) it is filed under its
 first clip.
 
-Split (BEAT / CaMN's English rule, as issue 2 states it)
--------------------------------------------------------
+Split (BEAT / CaMN's English rule)
+----------------------------------
 * **test**: speech clips 1–8 and 65, 73, 81, 87, 95, 103, 111; conversation clip 1;
 * **val**: speech clips 57–64 and 72, 80, 86, 94, 102, 110, 118; conversation 12;
 * **train**: everything else.

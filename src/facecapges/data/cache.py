@@ -88,7 +88,6 @@ INDEX_NAME = "index.json"
 CLIP_DIR = "clips"
 STD_FLOOR = 1e-3
 PRESENCE_KEYS = ("face_present", "semantic_present", "emotion_present")
-ARRAY_KEYS = ("pose", "head", "face", "semantic", "emotion", "audio", "offsets", "mask") + PRESENCE_KEYS
 HOLDOUT_FRACTION = 0.2  # the last 20 % of every take is held out
 
 

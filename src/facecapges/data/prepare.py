@@ -59,6 +59,7 @@ from facecapges.io.audio import load_audio
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
 from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, head_rot6d, motion_to_pose, skeleton_to_dict
+from facecapges.arkit import N_BLENDSHAPES
 
 
 def _fit_length(x: np.ndarray, n: int, pad: str = "edge") -> np.ndarray:
@@ -101,7 +102,7 @@ def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Sk
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
-    face = np.zeros((T, 52), np.float32)
+    face = np.zeros((T, N_BLENDSHAPES), np.float32)
     face_path = files.get("json")
     if face_path is not None:
         track = read_face_json(face_path)
@@ -176,7 +177,7 @@ def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Pat
     audio_full = load_audio(wav, sr)
     S = int(math.floor(T * sr / fps + 1e-6))
     arrays = {
-        "pose": pose.astype(np.float32), "head": _head_of(target, pose), "face": np.zeros((T, 52), np.float32),
+        "pose": pose.astype(np.float32), "head": _head_of(target, pose), "face": np.zeros((T, N_BLENDSHAPES), np.float32),
         "face_present": np.array(False), "semantic": np.zeros(T, np.float32), "semantic_present": np.array(False),
         "emotion": np.zeros(T, np.int16), "emotion_present": np.array(False),
         "audio": _fit_length(audio_full, S, pad="zero").astype(np.float32),
@@ -241,7 +242,7 @@ def _stats_block(train: dict[str, RunningStats], every: dict[str, RunningStats],
 
 
 def _new_acc() -> dict[str, RunningStats]:
-    return {"pose": RunningStats(N_JOINTS * 6), "head": RunningStats(6), "face": RunningStats(52)}
+    return {"pose": RunningStats(N_JOINTS * 6), "head": RunningStats(6), "face": RunningStats(N_BLENDSHAPES)}
 
 
 def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] | None = None,

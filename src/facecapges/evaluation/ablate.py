@@ -230,7 +230,7 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
                 secs = json.loads(info.read_text()).get("train_seconds", 0.0) if info.is_file() else 0.0
                 result[v] = TrainedVariant(v, done, "existing run", float(secs), meta.get("final_losses", {}))
                 continue
-        mcfg, tcfg = recipe.resolved(extra)
+        _, tcfg = recipe.resolved(extra)
         say(f"[{v}] training {LABELS[v]}: {tcfg['epochs']} epochs, batch {tcfg['batch_size']}, "
             f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}")
         t0 = time.perf_counter()

@@ -1,4 +1,4 @@
-"""Reference rows for the evaluation tables (thesis 5.7; issue 4).
+"""Reference rows for the evaluation tables (thesis 5.7).
 
 * **ground truth** — the held-out real motion itself (FGD ≈ 0 against itself,
   SRGR = 1 unweighted, L1DIV = the real motion's own diversity).

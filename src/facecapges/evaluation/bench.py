@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges.timing import AUDIO_SR
+
 
 def _data(shared_dir: Path):
     """Skeleton, poses (T, 47, 6), audio and sr of the shared BEAT clip (in the shared folder)."""
@@ -117,7 +119,7 @@ def run(quick: bool, shared: Path) -> dict:
 def _speechlike(n_frames: int, spf: int, seed: int = 0) -> np.ndarray:
     """(n_frames, spf) float32: harmonics under a syllable-rate envelope, plus noise."""
     rng = np.random.default_rng(seed)
-    t = np.arange(n_frames * spf) / 16000.0
+    t = np.arange(n_frames * spf) / AUDIO_SR
     env = 0.5 * (1 + np.sin(2 * np.pi * 4.0 * t))
     wave = env * (0.2 * np.sin(2 * np.pi * 140 * t) + 0.1 * np.sin(2 * np.pi * 280 * t))
     return (wave + 0.01 * rng.standard_normal(t.size)).astype(np.float32).reshape(n_frames, spf)
@@ -161,7 +163,7 @@ def peer_timing(quick: bool = False) -> dict:
                     ours.step(audio[i], face[i], head[i])
                     ours_ms.append((time.perf_counter() - t0) * 1000)
                     t += 1
-                for k in range(per_block):
+                for _ in range(per_block):
                     e = L + len(camn_ms)  # the window ends at frame e − 1
                     t0 = time.perf_counter()
                     out = camn(a_t[None, e - L:e], f_t[None, e - L:e], h_t[None, e - L:e], poses[None, e - L:e - L + N])

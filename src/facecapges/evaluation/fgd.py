@@ -67,6 +67,7 @@ listed by ``*.safetensors``) gains no file that looks like another checkpoint.
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -91,7 +92,7 @@ def _finger_parents(side: str) -> dict[str, str]:
          f"{h}Index": h, f"{h}Thumb1": f"{h}Index"}
     for finger, first in (("Middle", "Middle1"), ("Ring", "Ring"), ("Pinky", "Pinky"), ("Index", "Index")):
         chain = [first] + [f"{finger}{k}" for k in (1, 2, 3) if f"{finger}{k}" != first]
-        for a, b in zip(chain, chain[1:]):
+        for a, b in itertools.pairwise(chain):
             p[f"{h}{b}"] = f"{h}{a}"
     p[f"{h}Thumb2"], p[f"{h}Thumb3"] = f"{h}Thumb1", f"{h}Thumb2"
     return p
@@ -457,10 +458,6 @@ def load_fgd(location: str | Path) -> FGDEvaluator:
         models[region] = m.eval()
     hist = meta.get("history", {})
     return FGDEvaluator(config, models, TrainHistory(hist.get("loss", {}), hist.get("n_windows", 0)))
-
-
-def n_parameters(model: nn.Module) -> int:
-    return sum(p.numel() for p in model.parameters())
 
 
 __all__ = ["FGDConfig", "FGDAutoencoder", "FGDEvaluator", "GraphConv", "UPPER_BODY_PARENT", "adjacency",

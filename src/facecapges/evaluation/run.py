@@ -194,7 +194,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     per_clip, real_clips, ms_all = [], [], []
     method_clips: dict[str, list[np.ndarray]] = {}
     first: tuple[str, np.ndarray, dict[str, Method], np.ndarray] | None = None
-    for ci, name in enumerate(evaluated):
+    for name in evaluated:
         a = loaded[name]
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
         gen, ms = generate_poses(ckpt, inputs, progress=progress)

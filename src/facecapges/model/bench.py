@@ -55,15 +55,18 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from facecapges.arkit import N_BLENDSHAPES
+from facecapges.timing import AUDIO_SR
+
 
 def _inputs(T: int, spf: int, seed: int = 0):
     rng = np.random.default_rng(seed)
-    t = np.arange(T * spf) / 16000.0
+    t = np.arange(T * spf) / AUDIO_SR
     # speech-like: a few harmonics with a syllable-rate envelope, plus a little noise
     env = 0.5 * (1 + np.sin(2 * np.pi * 4.0 * t))
     wave = env * (0.2 * np.sin(2 * np.pi * 140 * t) + 0.1 * np.sin(2 * np.pi * 280 * t)) + 0.01 * rng.standard_normal(t.size)
     audio = wave.astype(np.float32).reshape(T, spf)
-    face = rng.uniform(0, 0.3, (T, 52)).astype(np.float32)
+    face = rng.uniform(0, 0.3, (T, N_BLENDSHAPES)).astype(np.float32)
     head = np.tile(np.array([1, 0, 0, 0, 1, 0], np.float32), (T, 1))
     return audio, face, head
 

@@ -167,7 +167,7 @@ def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
     try:
         with safe_open(str(p), framework="pt") as f:
             raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
+            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
     try:
@@ -191,7 +191,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     try:
         with safe_open(str(p), framework="pt") as f:
             raw_meta = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
+            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
     if raw_meta is None:

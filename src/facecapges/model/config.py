@@ -12,7 +12,9 @@ import json
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
+from facecapges.arkit import N_BLENDSHAPES
 from facecapges.errors import UserError
+from facecapges.skeleton import N_JOINTS, N_TORSO
 from facecapges.timing import AUDIO_SR, MODEL_FPS, samples_per_frame
 
 
@@ -25,9 +27,9 @@ class ModelConfig:
     # strided convolutions; "mel" = the frame's log-Mel spectrum + energy + F0 (§2.4.1).
     audio_repr: str = "raw"
     n_history: int = 16  # N: history poses in the window; window = N + 1 frames
-    n_joints: int = 47
-    n_torso: int = 3
-    n_face: int = 52
+    n_joints: int = N_JOINTS
+    n_torso: int = N_TORSO
+    n_face: int = N_BLENDSHAPES
     # audio encoder (12-layer causal TCN with skips + 2-layer MLP -> 128)
     audio_frontend_channels: tuple[int, ...] = (32, 64, 128)  # (ours) strided conv widths
     audio_tcn_channels: int = 64  # (ours)
@@ -154,9 +156,8 @@ def _check_value(where: str, kind: str, v, limits):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or v in (float("inf"), float("-inf")):
             raise bad("a number")
         v = float(v)
-    elif kind == "str":
-        if not isinstance(v, str):
-            raise bad("a text value")
+    elif kind == "str" and not isinstance(v, str):
+        raise bad("a text value")
     if isinstance(limits, set):
         if v not in limits:
             raise bad("one of " + ", ".join(repr(x) for x in sorted(limits)))

@@ -127,7 +127,7 @@ def plan_inputs(audio_path: str | Path, face_path: str | Path | None = None, hea
             raise file_error(p, "head rotation file not found")
         try:
             h = np.load(p)
-        except Exception:
+        except Exception:  # noqa: BLE001  numpy raises many types for a bad file; all mean unreadable
             raise file_error(p, "not a readable .npy array") from None
         if h.ndim != 2 or h.shape[1] != 6 or len(h) == 0:
             raise file_error(p, f"head rotation must be (T, 6) rot6d at {fps:g} fps, got {h.shape}")

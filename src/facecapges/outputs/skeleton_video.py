@@ -101,7 +101,7 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
     bones = drawn_bones(skeleton)
     used = sorted({b[0] for b in bones} | {b[1] for b in bones})
     all_xy = np.concatenate([pos[:, used, :2].reshape(-1, 2) for pos in positions])
-    to_px, scale = _frame_mapper(all_xy, pw, ph, 0.06, top)
+    to_px, _ = _frame_mapper(all_xy, pw, ph, 0.06, top)
     pix = [np.round(to_px(pos[..., :2]) * 4).astype(np.int32) for pos in positions]  # 2 fractional bits
     head, head_end = skeleton.names.index("Head") if "Head" in skeleton.names else None, \
         skeleton.names.index("HeadEnd") if "HeadEnd" in skeleton.names else None

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges.arkit import N_BLENDSHAPES
+
 CLIP = "data/face/WDA_KatieHill_000.mp4"
 TRAIN_BVH = "data/beat/2_scott_0_1_1.bvh"
 
@@ -200,7 +202,7 @@ def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
     pose = motion_to_pose(bvh.skeleton, bvh.motion[:frames])[0]
     quats = rot.rot6d_to_quaternion(pose.astype(np.float64))
     rng = np.random.default_rng(0)
-    faces = np.clip(0.3 + 0.3 * np.sin(np.arange(len(pose))[:, None] / 5.0 + rng.uniform(0, 6, 52)), 0, 1)
+    faces = np.clip(0.3 + 0.3 * np.sin(np.arange(len(pose))[:, None] / 5.0 + rng.uniform(0, 6, N_BLENDSHAPES)), 0, 1)
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     rx.bind(("127.0.0.1", 0))
     out = {}

@@ -218,7 +218,7 @@ def register(app: typer.Typer) -> None:
                 sess.add_sink(feed_sink)
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
-            vmc_text = (["VMC %s:%d" % vmc_addr] if faces == 1 else
+            vmc_text = ([f"VMC {vmc_addr[0]}:{vmc_addr[1]}"] if faces == 1 else
                         [f"VMC {vmc_addr[0]}:{vmc_addr[1]}…{vmc_addr[1] + faces - 1} (face i on port +i-1)"]) \
                 if vmc_addr else []
             if default_note:

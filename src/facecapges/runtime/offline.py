@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.errors import UserError, check_output_dir
+from facecapges.timing import AUDIO_SR
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -221,7 +222,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         width, height = video_size
         with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
             wav = Path(tmp) / "audio.wav"
-            n = int(round(T / fps * 16000))
+            n = int(round(T / fps * AUDIO_SR))
             save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
             renders = []
             for i, m in enumerate(mems):

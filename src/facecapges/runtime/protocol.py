@@ -30,7 +30,7 @@ Server → client
 
 Client → server
 ---------------
-``input`` — one frame of inputs for ``serve`` (issue 9)::
+``input`` — one frame of inputs for ``serve``::
 
     {"type": "input", "frame": k, "audio": "<base64 float32 LE, ≤ samples_per_frame>",
      "face": [52 floats], "head": [6 floats]}

@@ -44,7 +44,6 @@ Fallbacks (each counted in :attr:`Scheduler.events`)
 
 from __future__ import annotations
 
-import math
 import time
 from array import array
 from collections.abc import Sequence
@@ -354,6 +353,3 @@ class Scheduler:
                 "latency_warmup_frames_excluded": min(warmup, max(self.frames - 1, 0)),
                 "events": dict(self.events), "stopped_by": self.stopped_by}
 
-
-def frames_for(duration_s: float, fps: float) -> int:
-    return int(math.ceil(duration_s * fps - 1e-6))

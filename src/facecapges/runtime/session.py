@@ -17,6 +17,7 @@ import numpy as np
 
 from facecapges.errors import UserError
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
+from facecapges.timing import AUDIO_SR
 
 if TYPE_CHECKING:
     from facecapges.capture.pipeline import FaceCapture
@@ -109,7 +110,7 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
     sess = Session(checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
     torch.set_num_threads(1)
-    fps, sr = checkpoint.fps, 16000
+    fps, sr = checkpoint.fps, AUDIO_SR
     try:
         # the visual source first: a camera that cannot open is reported before anything else
         if video is not None:

@@ -54,7 +54,7 @@ def _serve_model(conn, model, neutral_window, threads: int, audio, face, head, p
                 conn.send(("ok", None))
                 return
             conn.send(("ok", res))
-        except Exception as exc:  # a bad call: report it, keep serving
+        except Exception as exc:  # noqa: BLE001  a bad call: report it, keep serving
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
 
 

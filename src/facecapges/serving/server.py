@@ -231,7 +231,7 @@ class StreamServer:
                 self._wake.set()
         except ConnectionClosed:
             pass
-        except Exception as exc:  # never expected: one line, this connection only
+        except Exception as exc:  # noqa: BLE001  never expected: one line, this connection only
             self.stats["handler_errors"] += 1
             self.log(f"serve: stream {st.id} ({address}) closed after an internal error: {exc!r:.200}")
             await ws.close(1011, "internal error")
@@ -294,9 +294,9 @@ class StreamServer:
             items = [st.pending.popleft() for st in due]
             t0 = time.monotonic()
             try:
-                poses, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due],
+                _, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due],
                                                           [it[0] for it in items])
-            except Exception as exc:  # never expected: report it to the streams of this tick, keep serving
+            except Exception as exc:  # noqa: BLE001  never expected: report it to the streams of this tick
                 self.stats["tick_errors"] += 1
                 self.log(f"tick failed: {exc!r}")
                 for st in due:

@@ -14,6 +14,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from facecapges.timing import AUDIO_SR
+
 
 def _shared(shared: Path, rel: str) -> Path | None:
     p = Path(shared) / rel
@@ -53,7 +55,7 @@ def run(quick: bool, shared: Path) -> dict:
         systems = {"clip": m, "shifted": np.roll(b.motion, -150, axis=0)[:n], "reversed": m[::-1]}
         for s, mo in systems.items():
             write_bvh(tmp / f"{s}.bvh", b.skeleton, mo, b.fps)
-        save_audio(tmp / "a.wav", load_audio(wav_path)[: int(seconds * 16000)])
+        save_audio(tmp / "a.wav", load_audio(wav_path)[: int(seconds * AUDIO_SR)])
         (tmp / "CLIPS.yaml").write_text(yaml.safe_dump(
             {"clips": [{"id": "c", "audio": "a.wav", "bvh": {s: f"{s}.bvh" for s in systems}}]}))
         t = time.perf_counter()

@@ -68,7 +68,7 @@ def load_state(path: str | Path, required: tuple[str, ...] = ()) -> dict:
         raise UserError(f"{p}: nothing to resume (no {p.name} in the run folder)")
     try:
         state = torch.load(p, map_location="cpu", weights_only=True)
-    except Exception as exc:  # pickle.UnpicklingError for anything beyond data, or a corrupt file
+    except Exception as exc:  # noqa: BLE001  pickle.UnpicklingError beyond data, or a corrupt file
         why = "it holds more than tensors and plain values (refused: loading it could run code)" \
             if "weights_only" in str(exc) or "global" in str(exc).lower() else f"{exc.__class__.__name__}"
         raise UserError(f"{p}: cannot read the training state ({why})") from None

@@ -25,7 +25,7 @@ import urllib.request
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 from facecapges.errors import UserError
 
@@ -68,7 +68,7 @@ def chromium_path() -> str:
 
 
 class _Handler(SimpleHTTPRequestHandler):
-    routes: dict[str, object] = {}
+    routes: ClassVar[dict[str, object]] = {}
 
     def log_message(self, *args) -> None:  # quiet
         pass
@@ -104,7 +104,7 @@ class _Handler(SimpleHTTPRequestHandler):
             return
         super().do_GET()
 
-    extensions_map = {**SimpleHTTPRequestHandler.extensions_map, ".js": "text/javascript", ".mjs": "text/javascript",
+    extensions_map = {**SimpleHTTPRequestHandler.extensions_map,  # noqa: RUF012  http.server's own attribute ".js": "text/javascript", ".mjs": "text/javascript",
                       ".glb": "model/gltf-binary", ".html": "text/html"}
 
 
@@ -157,7 +157,7 @@ class Browser:
             self._ws_cm = None
             try:
                 cm.__exit__(None, None, None)
-            except Exception:
+            except Exception:  # noqa: BLE001  closing a dead DevTools socket: nothing left to do
                 pass
         proc = getattr(self, "proc", None)
         if proc is not None and proc.poll() is None:
@@ -232,5 +232,5 @@ def avatar_routes(glb: bytes | Path) -> dict[str, object]:
 def chromium_version() -> str:
     try:
         return subprocess.run([chromium_path(), "--version"], capture_output=True, text=True, timeout=30).stdout.strip()
-    except Exception:
+    except Exception:  # noqa: BLE001  a version string only: never fail over it
         return "unknown"
