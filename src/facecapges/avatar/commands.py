@@ -15,17 +15,13 @@ def _skeleton(bvh: Path | None):
         from facecapges.io.bvh import read_bvh
 
         return read_bvh(bvh).skeleton, str(bvh)
+    from facecapges.model.checkpoint import load_skeleton
+
     try:
-        from facecapges.model.checkpoint import load_skeleton
-    except ImportError:
-        load_skeleton = None
-    if load_skeleton is not None:
-        try:
-            return load_skeleton(), "the default checkpoint"
-        except UserError as exc:
-            raise UserError(f"no skeleton given and the default checkpoint has none ({exc}); "
-                            "pass --skeleton FILE.bvh (any BEAT BVH)") from None
-    raise UserError("no skeleton given and no model checkpoint installed; pass --skeleton FILE.bvh (any BEAT BVH)")
+        return load_skeleton(), "the default checkpoint"
+    except UserError as exc:
+        raise UserError(f"no skeleton given and the default checkpoint has none ({exc}); "
+                        "pass --skeleton FILE.bvh (any BEAT BVH)") from None
 
 
 def register(app: typer.Typer) -> None:

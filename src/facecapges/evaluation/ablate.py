@@ -358,7 +358,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
                                         offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, m in methods.items():
-            method_clips.setdefault(k, []).extend(m if isinstance(m, list) else [m])
+            method_clips.setdefault(k, []).extend([m] if isinstance(m, np.ndarray) else m)
     result = combine_clips(per_clip, fgd, real_clips, method_clips)
     result.update(clips=evaluated, first_frame=start, speaker=recipe.speaker,
                   ms_per_frame={LABELS[v]: float(np.mean(r.ms)) for v, r in runners.items()})

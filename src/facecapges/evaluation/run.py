@@ -193,7 +193,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     rng = np.random.default_rng(seed)
     per_clip, real_clips, ms_all = [], [], []
     method_clips: dict[str, list[np.ndarray]] = {}
-    first: tuple[str, np.ndarray, dict[str, Method], np.ndarray] | None = None
+    first: tuple[str, np.ndarray, dict[str, np.ndarray], np.ndarray] | None = None  # its first sample per method
     for name in evaluated:
         a = loaded[name]
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
@@ -218,9 +218,9 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                                         offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, v in methods.items():
-            method_clips.setdefault(k, []).extend(v if isinstance(v, list) else [v])
+            method_clips.setdefault(k, []).extend([v] if isinstance(v, np.ndarray) else v)
         if first is None:
-            first = (name, real, methods, audio)
+            first = (name, real, {k: v if isinstance(v, np.ndarray) else v[0] for k, v in methods.items()}, audio)
     result = combine_clips(per_clip, fgd, real_clips, method_clips)
     result.update(checkpoint=str(ckpt.path), cache=str(cache), speaker=speaker, clips=evaluated,
                   first_frame=start, ms_per_frame=float(np.mean(ms_all)),
@@ -244,7 +244,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     out = Path(out)
     assert first is not None  # at least one clip was evaluated
     name, real0, methods0, audio0 = first
-    shown = {model_name: methods0[model_name][0], "random real segment": methods0["random real segment"],
+    shown = {model_name: methods0[model_name], "random real segment": methods0["random real segment"],
              "mean pose": methods0["mean pose"]}
     files = write_report(out, result, real0, shown, audio0, sr, fps,
                          title=f"Quantitative evaluation — {model_name}, speaker {speaker}",
@@ -264,7 +264,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         with tempfile.TemporaryDirectory() as td:
             wav = Path(td) / "audio.wav"
             sf.write(wav, audio0, sr)
-            files["video"] = str(render_skeleton_video([real0, methods0[model_name][0]], ["real", model_name],
+            files["video"] = str(render_skeleton_video([real0, methods0[model_name]], ["real", model_name],
                                                        c.skeleton(name), out / "real_vs_generated.mp4", fps, wav,
                                                        progress=progress))
     return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}

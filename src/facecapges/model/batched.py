@@ -95,6 +95,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
+from collections.abc import Callable
 from typing import Sequence
 
 import numpy as np
@@ -108,7 +109,7 @@ STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_enc
 _NO_SCOPE = contextlib.nullcontext()
 
 
-stage_listener = None  # a function stage name → context manager, set by the benchmark to count FLOPs per stage
+stage_listener: Callable[[str], contextlib.AbstractContextManager] | None = None  # a function stage name → context manager, set by the benchmark to count FLOPs per stage
 
 
 def stage(name: str):
