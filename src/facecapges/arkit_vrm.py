@@ -60,7 +60,10 @@ Per frame, every value in [0, 1]:
 
   On the real talking-head clip (``WDA_KatieHill_000``, 8 s of neutral speech, our
   capture) the single-unit rules this replaced had ``Sorrow`` active (> 0.1) in 52 % of
-  the frames and ``Angry`` in 18 %; see ``tests/test_arkit_vrm.py`` for what these give.
+  the frames and ``Angry`` in 18 %; these give ``Fun`` 17 %, ``Angry`` 11 %, ``Sorrow``
+  10 %, ``Surprised`` 8 %, ``Joy`` 0 %, each as a few runs of 0.2–1 s where the speaker
+  really frowns or smiles, not frame-to-frame flicker (a check, not a fit: the
+  thresholds are round FACS-style values, not tuned on the clip).
 * **LookUp / LookDown / LookLeft / LookRight** (for avatars whose eyes are blendshapes,
   not bones): ``LookUp = mean(eyeLookUpL/R)``, ``LookDown = mean(eyeLookDownL/R)``;
   the avatar's left is the left eye looking out and the right eye looking in:
