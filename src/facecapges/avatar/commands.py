@@ -78,7 +78,7 @@ def register(app: typer.Typer) -> None:
 
     @avatar.command("build")
     def avatar_build(
-        out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm)."),
+        out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
         skeleton: Path = typer.Option(None, "--skeleton", help="A BEAT BVH whose hierarchy and rest offsets to use "
                                                                "(default: the skeleton stored with the default model)."),
         fmt: str = typer.Option("glb", "--format", help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
@@ -111,7 +111,8 @@ def register(app: typer.Typer) -> None:
     def render_cmd(
         bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
         out: Path = typer.Option(..., "--out", help="Output .mp4."),
-        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]})."),
+        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); "
+                                                       "without it, the jaw and lips follow --audio."),
         audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
         avatar_glb: Path = typer.Option(None, "--avatar", help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
                                                                "skeleton, or our .glb (default: built from the "
@@ -152,6 +153,15 @@ def register(app: typer.Typer) -> None:
         from facecapges.avatar.vrm_view import face_weights as _face_weights
         from facecapges.avatar.vrm_view import is_vrm_file
 
+        def _shown_face(T: int):
+            """The face JSON's weights; without one, jaw and lips from the speech (capture.speech_mouth)."""
+            if face is None and audio is not None:
+                from facecapges.capture.speech_mouth import speech_frames, speech_mouth_track
+                from facecapges.io.audio import load_audio
+
+                return speech_mouth_track(speech_frames(load_audio(audio), motion.fps, T), motion.fps)
+            return _face_weights(face, motion.fps, T)
+
         if avatar_glb is not None and is_vrm_file(require_file(avatar_glb, "avatar")):
             from facecapges.avatar.vrm_view import VrmDriver, bvh_local_matrices, render_vrm_video
 
@@ -159,7 +169,7 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"avatar: {driver.describe()}")
             if contact_sheet is not None:
                 raise UserError("--contact-sheet needs our own avatar (its 52 morph targets), not a VRM")
-            weights = _face_weights(face, motion.fps, len(motion.motion))
+            weights = _shown_face(len(motion.motion))
             figures = render_vrm_video(driver, bvh_local_matrices(motion.skeleton, motion.motion), weights,
                                        motion.fps, out, audio=audio, width=width, height=height)
             typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in "
@@ -180,7 +190,7 @@ def register(app: typer.Typer) -> None:
             glb = b"".join(doc.save_to_bytes())
             joint_names = list(motion.skeleton.names)
         quats = bvh_quaternions(joint_names, motion.skeleton, motion.motion, str(bvh))
-        weights = _face_weights(face, motion.fps, quats.shape[0])
+        weights = _shown_face(quats.shape[0])
         figures = render_video(glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width,
                                height=height)
         typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")

@@ -39,7 +39,7 @@ def register(app: typer.Typer) -> None:
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
                           intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces,
                           face_layout=face_json)
-        console = Console(stderr=True)
+        console = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the width
         for w in s.get("warnings", []):
             console.print(f"[yellow]warning:[/yellow] {w}")
         console.print(f"wrote {s['out']}: {s['frames']} frames captured at {s['fps']:g} fps, "
@@ -52,6 +52,7 @@ def register(app: typer.Typer) -> None:
         skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
         model: Optional[Path] = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
         max_frames: Optional[int] = typer.Option(None, help="Only the first N frames."),
+        force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
     ) -> None:
         """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""
         import math
@@ -60,9 +61,10 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
-        from facecapges.errors import require_file
+        from facecapges.errors import check_output_dir, require_file
 
         require_file(video, "video")
+        check_output_dir(out, ("capture_eval.json", "tracks.png"), force)
         tr = run_tracks(video, model=model, max_frames=max_frames, progress=True)
         rep = evaluate_tracks(tr, skip)
         rep["video"] = str(video)

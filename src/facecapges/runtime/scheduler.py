@@ -170,7 +170,7 @@ class Scheduler:
         if video is not None and capture is None:
             raise ValueError("a video source needs a FaceCapture")
         gens = list(generator) if isinstance(generator, (list, tuple)) else [generator]
-        if len(gens) > 1 and (video is None or getattr(capture, "num_faces", 1) != len(gens)):
+        if len(gens) > 1 and (video is None or capture.num_faces != len(gens)):
             raise ValueError("several generators need a video source and a FaceCapture(num_faces=N) to match")
         self.fps, self.sr = float(fps), int(sr)
         self.video, self.face_feed, self.audio, self.capture = video, face_feed, audio, capture

@@ -1,10 +1,12 @@
 """File sinks of the runtime: BVH motion and BEAT-format face JSON recorders.
 
 A sink has ``write(OutputFrame)`` (called once per frame by the scheduler, cheap: it
-only appends) and ``close()`` (writes the file atomically through
-:func:`facecapges.io.bvh.write_bvh` / :func:`facecapges.io.face_json.write_face_json`;
-safe to call twice). ``close`` is what makes Ctrl-C in ``live --record`` leave whole
-files behind. Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
+only appends) and ``close()`` (safe to call twice). The BVH is written as it happens
+(a growing :class:`facecapges.io.bvh.BvhWriter`, valid after every second of frames,
+so a long ``live --record`` keeps no motion in memory and a cut-off one still opens);
+the face JSON is written atomically by ``close`` through
+:func:`facecapges.io.face_json.write_face_json`. ``close`` runs on Ctrl-C and on
+SIGTERM/SIGHUP (the command line turns both into an interrupt). Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
 :mod:`.web_server`.
 
 * :class:`BvhRecorder` — the full BEAT skeleton of the checkpoint at the model rate;
@@ -31,24 +33,36 @@ from facecapges.runtime.frames import OutputFrame
 class BvhRecorder:
     def __init__(self, path: str | Path, skeleton, fps: float):
         self.path, self.skeleton, self.fps = Path(path), skeleton, fps
-        self.poses: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []  # the frames of the current second, not yet on disk
+        self.block = max(1, int(round(fps)))
+        self.writer = None
         self.closed = False
 
     def write(self, out: OutputFrame) -> None:
         self.poses.append(np.asarray(out.pose, np.float32))
+        if len(self.poses) >= self.block:
+            self._flush()
+
+    def _flush(self) -> None:
+        from facecapges.io.bvh import BvhWriter
+        from facecapges.rotations import normalize_rot6d
+        from facecapges.skeleton import pose_to_motion
+
+        if not self.poses:
+            return
+        if self.writer is None:
+            self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
+        poses = normalize_rot6d(np.stack(self.poses).astype(np.float64))
+        self.writer.write(pose_to_motion(self.skeleton, poses))
+        self.writer.flush()
+        self.poses = []
 
     def close(self) -> Path | None:
         if self.closed:
             return None
         self.closed = True
-        if not self.poses:
-            return None
-        from facecapges.io.bvh import write_bvh
-        from facecapges.rotations import normalize_rot6d
-        from facecapges.skeleton import pose_to_motion
-
-        poses = normalize_rot6d(np.stack(self.poses).astype(np.float64))
-        return write_bvh(self.path, self.skeleton, pose_to_motion(self.skeleton, poses), self.fps)
+        self._flush()
+        return self.writer.close() if self.writer is not None else None
 
 
 class FaceJsonRecorder:

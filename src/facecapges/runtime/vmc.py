@@ -182,8 +182,11 @@ class VmcMapping:
         self.skeleton = skeleton
         names = list(skeleton.names)
         missing = [n for n in BEAT_TO_UNITY if n not in names]
-        if missing:
-            raise ValueError(f"skeleton lacks BEAT joints {missing[:5]}")
+        if missing:  # the user's skeleton: the same error as the avatar's check_skeleton
+            from facecapges.errors import UserError
+
+            raise UserError(f"not a BEAT skeleton; VMC needs the joints {missing[:5]}"
+                            f"{' …' if len(missing) > 5 else ''}")
         table = {b: u for b, u in BEAT_TO_UNITY.items() if positions is None or u in positions or u == "Hips"}
         self.upper_idx = np.array([names.index(n) for n in UPPER_BODY])
         self.bones: list[tuple[str, list[int], np.ndarray]] = []
