@@ -38,4 +38,4 @@ def test_a_signal_leaves_whole_recordings(face_video, tmp_path, sig):
     rep = json.loads((rec / "report.json").read_text())
     n = read_bvh(rec / "motion.bvh").motion.shape[0]
     assert rep["stopped_by"] == "interrupted" and n == rep["frames"] >= grown
-    assert read_face_json(rec / "face.json").n_frames == n
+    assert read_face_json(rec / "face.json").n_frames == 4 * n  # BEAT's layout: 60 fps

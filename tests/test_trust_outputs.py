@@ -153,7 +153,7 @@ def test_a_damaged_video_is_held_over_and_reported(tmp_path):
     assert "could not be decoded" in p.stderr and "no face was found in any frame" in p.stderr
     assert "[mpeg4" not in p.stderr and "header damaged" not in p.stderr  # FFmpeg's own noise is off
     frames = json.loads((tmp_path / "f.json").read_text())["frames"]
-    assert len(frames) == 72  # 120 frames at 25 fps = 4.8 s → 72 frames at 15 fps, nothing cut
+    assert len(frames) == 288  # 120 frames at 25 fps = 4.8 s → 72 at 15 fps, written in BEAT's 60 fps: nothing cut
 
 
 def test_camera_error_is_one_line(tmp_path):
