@@ -151,7 +151,7 @@ def test_the_video_shows_the_head(tmp_path, face_video):
     from facecapges.runtime.offline import run_video
 
     out = tmp_path / "run"
-    run_video(face_video, out, checkpoint(), max_frames=75, progress=False, head="capture")
+    run_video(face_video, out, checkpoint(), max_frames=75, progress=False, head="capture", face_layout="full")
     captured = read_face_json(out / "face.json").head_rot6d
     v = cv2.VideoCapture(str(out / "avatar.mp4"))
     W, H = int(v.get(cv2.CAP_PROP_FRAME_WIDTH)), int(v.get(cv2.CAP_PROP_FRAME_HEIGHT))
