@@ -158,19 +158,14 @@ def test_viewer_shows_every_face(two_faces, tmp_path):
 
     from facecapges.avatar.render.browser import Browser
 
-    from runtime_helpers import cli_popen
+    from runtime_helpers import cli_popen, wait_line
 
     proc = cli_popen("live", "--video", str(two_faces), "--realtime", "--loop", "--faces", "2", "--web", "127.0.0.1:0",
                      "--max-seconds", "120")
     try:
-        url = None
-        while url is None:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            if line.startswith("viewer: "):
-                url = line.split()[1]
-        assert url, proc.stderr.read()[-2000:]
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        url = line.split()[1]
         with Browser({}, "/", width=900, height=600, timeout=90) as b:
             b.call("Page.navigate", url=url)
             state = None

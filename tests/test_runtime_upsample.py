@@ -96,20 +96,14 @@ def test_viewer_gets_30_frames_a_second(face_video):
     from websockets.sync.client import connect
 
     from facecapges.runtime import protocol
-    from runtime_helpers import cli_popen
+    from runtime_helpers import cli_popen, wait_line
 
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
                      "--rate", "30", "--max-seconds", "60")
     try:
-        url = None
-        deadline = time.time() + 120
-        while time.time() < deadline and url is None:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            if line.startswith("viewer: "):
-                url = line.split()[1]
-        assert url, proc.stderr.read()[-2000:]
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        url = line.split()[1]
         with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
             assert json.loads(ws.recv(timeout=30))["type"] == "hello"
             times = []
