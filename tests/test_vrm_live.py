@@ -178,7 +178,7 @@ def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
     serve_in_thread(server)
     page = Page(f"http://127.0.0.1:{server.server_address[1]}/")
     try:
-        page.start(st.plan.participants[0].id)
+        page.start(st.plan.participants[0].token)  # the invitation token
         page.wait("window.study.ready && window.study.index === 0")
         page.click("play")
         page.wait("window.study.watched", timeout=30)
