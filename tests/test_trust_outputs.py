@@ -34,7 +34,7 @@ def test_output_checks(tmp_path):
         check_output_file(tmp_path, force=True)
     with pytest.raises(UserError, match="already exists"):
         check_output_file(tmp_path / "file")
-    with pytest.raises(UserError, match="already holds a.png, b.png"):
+    with pytest.raises(UserError, match=r"a.png: already exists \(so do b.png\)"):
         (tmp_path / "d").mkdir()
         (tmp_path / "d" / "a.png").write_text("")
         (tmp_path / "d" / "b.png").write_text("")
@@ -72,7 +72,8 @@ def test_eval_and_ablate_keep_every_existing_output(tmp_path):
     out = tmp_path / "ev"
     out.mkdir()
     (out / "metrics.md").write_text("my notes")  # no metrics.json: the old check let this be overwritten
-    refused(cli("eval", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "metrics.md", "--force")
+    refused(cli("eval", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "metrics.md: already exists",
+            "--force")
     (out / "ablation.md").write_text("mine")
     refused(cli("ablate", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "ablation.md")
     assert (out / "metrics.md").read_text() == "my notes" and (out / "ablation.md").read_text() == "mine"
