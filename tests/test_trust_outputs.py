@@ -211,3 +211,18 @@ def test_two_faces_in_view_are_said(tmp_path, face_video):
     p = cli("capture", str(two), "--out", str(tmp_path / "f.json"), "--estimator", "geometric")
     assert p.returncode == 0, p.stderr
     assert "more than one face was in view" in p.stderr and "the largest face was tracked" in p.stderr
+
+
+def test_run_says_what_happened_in_words(tmp_path, beat_wav):
+    import soundfile as sf
+
+    _, bad = _damaged_video(tmp_path)  # no face in it; 25 fps
+    a, sr = sf.read(beat_wav, dtype="float32")
+    sf.write(tmp_path / "speech.wav", a[: int(4.0 * sr)], sr)
+    p = cli("run", str(bad), "--audio", str(tmp_path / "speech.wav"), "--out", str(tmp_path / "o"), "--no-video",
+            "--estimator", "geometric")
+    assert p.returncode == 0, p.stderr
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["frames"] == 60 and rep["stopped_by"] == "end of input"  # not "frame limit" at the normal end
+    assert rep["face_found_frames"] == 0 and "no face was found in any frame" in " ".join(p.stderr.split())
+    assert "video_frames_skipped" not in p.stdout and "normal frame-rate conversion" in p.stdout
