@@ -184,7 +184,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert res.stdout.count("already holds this recipe's model: reused") == 2
     assert list(json.loads((out / "ablation.json").read_text())["variants"]) == ["no_head", "offline"]
     # any checkpoint can stand as the 'full' row; the table says when its recipe is another one
-    res = run(*args, "--force", "--variants", "full,camn",
+    res = run(*args, "--force", "--variants", "full,camn", "--samples", 1,
               "--given", f"full={out / 'runs' / 'no_head' / 'model.safetensors'},camn={out / 'runs' / 'camn'}/model.safetensors")
     assert res.returncode == 0, res.stderr
     info = json.loads((out / "ablation.json").read_text())["variants"]["full"]
