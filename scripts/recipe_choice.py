@@ -18,6 +18,7 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 
@@ -46,7 +47,8 @@ def main() -> None:
     for c in clips:
         T = int(len(c.pose) * args.train_until)
         S = int(frame_sample_bounds(T, cache.fps, cache.sr)[0])
-        cut_clips.append(ClipArrays(c.name, c.pose[:T], c.head[:T], c.face[:T], c.audio[:S]))
+        mask = c.mask if c.mask is None or np.ndim(c.mask) == 1 else c.mask[:T]
+        cut_clips.append(ClipArrays(c.name, c.pose[:T], c.head[:T], c.face[:T], c.audio[:S], mask))
     T0 = min(len(c.pose) for c in cut_clips)
     train_over["holdout_from"] = int(T0 * (1 - args.val_fraction))
     meta = {"speaker": args.speaker, "clips": [c.name for c in clips], "split": "all",

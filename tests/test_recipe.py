@@ -160,3 +160,33 @@ def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
 
     with pytest.raises(UserError, match="offline"):  # a closed-loop trainer refuses an offline run
         build_trainer([_clip()], tmp_path / "two", {}, {}, {}, resume=True)
+
+
+# ------------------------------------------------------------- styles install
+def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
+    from facecapges.errors import UserError
+    from facecapges.model.checkpoint import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
+    from facecapges.training.train import build_trainer
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    monkeypatch.delenv("FACECAPGES_STYLES", raising=False)
+    assert user_styles_dir() == tmp_path / "xdg" / "facecapges" / "styles"
+    run = tmp_path / "my-run"
+    build_trainer([_clip()], run, dict(TINY), dict(epochs=1, batch_size=8, holdout_from=120, num_threads=1),
+                  {"speaker": 7}, resume=False).fit(progress=False)
+    (run / "model.fgd").mkdir()
+    (run / "model.fgd" / "x.json").write_text("{}")
+    shipped = sorted(p.name for p in styles_dir().iterdir())
+    dest = install_style(run)
+    assert dest == user_styles_dir() / "my-run.safetensors" and (user_styles_dir() / "my-run.log.csv").is_file()
+    assert (user_styles_dir() / "my-run.fgd" / "x.json").is_file()
+    assert list_styles()["my-run"] == dest and load_checkpoint(style="my-run").meta["speaker"] == 7
+    assert sorted(p.name for p in styles_dir().iterdir()) == shipped  # the package is untouched
+    with pytest.raises(UserError, match="--force"):
+        install_style(run)
+    install_style(run, force=True)
+    with pytest.raises(UserError, match="name"):
+        install_style(run, name="../escape")
+    (tmp_path / "junk.safetensors").write_bytes(b"not a checkpoint")
+    with pytest.raises(UserError):
+        install_style(tmp_path / "junk.safetensors")

@@ -60,10 +60,12 @@ def test_blendshapes_reordered_by_name_and_head_rotation():
     assert w[ARKIT_NAMES.index("tongueOut")] == pytest.approx(1.0)
     assert w[ARKIT_NAMES.index("mouthSmileRight")] == pytest.approx(0.3)
     assert np.count_nonzero(w) == 4
-    # yaw > 0 turns the face (+Z of the head) towards the camera's +X (the image's right)
+    # the wire's HeadYaw > 0 turns the head to the subject's right: the face (+Z of the head) towards the
+    # camera's −X (the image's left); our yaw (> 0 to the subject's left) is its negative
     R = rot.rot6d_to_matrix(fr.head_rot6d.astype(np.float64))
     forward = R @ np.array([0.0, 0.0, 1.0])
-    assert forward[0] == pytest.approx(np.sin(0.3), abs=1e-6) and forward[2] == pytest.approx(np.cos(0.3), abs=1e-6)
+    assert forward[0] == pytest.approx(-np.sin(0.3), abs=1e-6) and forward[2] == pytest.approx(np.cos(0.3), abs=1e-6)
+    np.testing.assert_allclose(fr.head_angles, [-0.3, 0.0, 0.0], atol=1e-7)
 
 
 def test_malformed_packets_raise_packet_error():
@@ -71,8 +73,6 @@ def test_malformed_packets_raise_packet_error():
     for n in range(len(good)):
         with pytest.raises(PacketError):
             decode_packet(good[:n])
-    with pytest.raises(PacketError):
-        decode_packet(good + b"\0")
     with pytest.raises(PacketError):
         decode_packet(build(sample_values(), version=5))
     with pytest.raises(PacketError):
@@ -83,6 +83,15 @@ def test_malformed_packets_raise_packet_error():
         decode_packet(bytes(bad))
     with pytest.raises(PacketError):
         decode_packet(build(np.r_[sample_values()[:60], np.nan]))
+
+
+def test_trailing_bytes_are_ignored():
+    """Unreal's receiver reads the fields it knows and ignores the rest; so do we."""
+    v = sample_values(4)
+    for extra in (b"\0", b"\xaa\xbb\xcc", bytes(64)):
+        fr = decode_packet(build(v) + extra)
+        np.testing.assert_array_equal(fr.values, v)
+        assert fr.frame_number == 1234
 
 
 @settings(max_examples=400, deadline=None)
@@ -130,7 +139,7 @@ def test_receiver_survives_thousands_of_bad_packets():
                 b[rng.choice([0, 1, 2, 3, 41, 42, 43, 67])] ^= 0xFF  # version, a length or the count corrupted
                 packets.append((False, bytes(b)))
             elif kind == 4:
-                packets.append((False, base + bytes(rng.randrange(1, 20))))
+                packets.append((False, base[:-rng.randrange(1, 20)]))
             else:
                 packets.append((False, b""))
         sent = 0
@@ -197,3 +206,71 @@ def test_live_command_with_livelink(beat_wav, tmp_path):
     face = read_face_json(rec / "face.json")
     jaw = face.weights[:, ARKIT_NAMES.index("jawOpen")]
     assert (np.abs(jaw - 0.8) < 1e-4).mean() > 0.5  # the phone's jaw drives the avatar's
+
+
+# ---------------------------------------------------------------- real recordings (LLV project, BSD-2)
+def recording(name: str) -> list:
+    """Decode a ``.gesichter`` file: gzip; one byte; big-endian uint32 count; per frame uint32 length + packet."""
+    import gzip
+
+    from conftest import shared_file
+
+    raw = gzip.decompress(shared_file(f"data/livelink/{name}").read_bytes())
+    (count,) = struct.unpack_from(">I", raw, 1)
+    pos, frames = 5, []
+    for _ in range(count):
+        (n,) = struct.unpack_from(">I", raw, pos)
+        frames.append(decode_packet(raw[pos + 4:pos + 4 + n]))
+        pos += 4 + n
+    assert pos == len(raw)
+    return frames
+
+
+def test_recordings_decode_every_packet():
+    counts = {n: len(recording(n)) for n in ("dao.gesichter", "debug-headyaw.gesichter",
+                                              "debug-lefteyepitch.gesichter", "debug-all-blendshapes.gesichter")}
+    assert counts == {"dao.gesichter": 180, "debug-headyaw.gesichter": 66, "debug-lefteyepitch.gesichter": 66,
+                      "debug-all-blendshapes.gesichter": 3660}
+
+
+def test_real_face_angles_are_radians():
+    """The eye angle per unit of EyeLook* weight is the eye's range: 35° as radians, 110° as degrees/180."""
+    frames = recording("dao.gesichter")
+    V = np.array([f.values for f in frames], np.float64)
+    col = {n: V[:, i] for i, n in enumerate(LIVELINK_NAMES)}
+    horizontal = col["EyeLookInLeft"] - col["EyeLookOutLeft"]
+    slope = np.polyfit(horizontal, col["LeftEyeYaw"], 1)[0]
+    assert np.corrcoef(horizontal, col["LeftEyeYaw"])[0, 1] > 0.999
+    assert 0.45 < slope < 0.8  # a full look = 26°–46° if radians (as degrees/180 it would be 81°–144°)
+    vertical = col["EyeLookDownLeft"] - col["EyeLookUpLeft"]
+    assert 0.45 < np.polyfit(vertical, col["LeftEyePitch"], 1)[0] < 0.8
+    head = np.degrees(np.array([f.head_angles for f in frames]))
+    assert np.abs(head).max() < 30.0 and np.ptp(head[:, 0]) > 15.0  # a moving head, within a neck's range
+
+
+def test_real_face_head_follows_the_eyes():
+    """Eyes lead the head in a gaze shift: eye yaw (> 0 = rightward gaze, Apple's EyeLookIn/Out) leads head yaw."""
+    frames = recording("dao.gesichter")
+    V = np.array([f.values for f in frames], np.float64)
+    eye_yaw = V[:, LIVELINK_NAMES.index("LeftEyeYaw")] + V[:, LIVELINK_NAMES.index("RightEyeYaw")]
+    wire_yaw = V[:, LIVELINK_NAMES.index("HeadYaw")]
+    lags = range(0, 6)
+    corr = [np.corrcoef(eye_yaw[:len(eye_yaw) - k], wire_yaw[k:])[0, 1] for k in lags]
+    assert max(corr) > 0.95 and int(np.argmax(corr)) >= 1  # same direction, eyes first
+    # so a gaze to the subject's right turns our head to the subject's right: our yaw < 0 there
+    ours = np.array([f.head_angles[0] for f in frames])
+    assert np.corrcoef(eye_yaw, ours)[0, 1] < -0.9
+
+
+def test_debug_head_yaw_sweep_turns_about_the_vertical_axis():
+    frames = recording("debug-headyaw.gesichter")
+    wire = np.array([f.values[LIVELINK_NAMES.index("HeadYaw")] for f in frames])
+    assert wire.min() == pytest.approx(-1.0) and wire.max() == pytest.approx(1.0)
+    for f, w in zip(frames, wire):
+        R = rot.rot6d_to_matrix(f.head_rot6d.astype(np.float64))
+        np.testing.assert_allclose(R @ np.array([0.0, 1.0, 0.0]), [0, 1, 0], atol=1e-6)  # up stays up
+        forward = R @ np.array([0.0, 0.0, 1.0])
+        assert np.arctan2(forward[0], forward[2]) == pytest.approx(-w, abs=1e-5)  # radians, yaw negated
+    eye = recording("debug-lefteyepitch.gesichter")
+    for f in eye:  # an eye sweep leaves the head alone
+        np.testing.assert_allclose(rot.rot6d_to_matrix(f.head_rot6d.astype(np.float64)), np.eye(3), atol=1e-7)

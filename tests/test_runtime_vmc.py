@@ -1,4 +1,4 @@
-"""VMC over OSC/UDP: a python-osc server in the test receives what the sender sends."""
+"""VMC over OSC/UDP: python-osc and PyPI ``vmcp`` (an independent VMC parser) receive what the sender sends."""
 
 from __future__ import annotations
 
@@ -10,9 +10,11 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.arkit import ARKIT_NAMES
+from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
 from facecapges.io.bvh import read_bvh
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.vmc import BEAT_TO_UNITY, VmcMapping, VmcSender
+from facecapges.runtime.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,
+                                    vrm_rest_positions)
 from facecapges.skeleton import UPPER_BODY
 
 UNITY_BONES = {  # HumanBodyBones names the mapping may use
@@ -27,14 +29,16 @@ def axis_quat(axis: str, deg: float) -> np.ndarray:
     return rot.matrix_to_quaternion(rot.axis_angle_matrix(axis, np.array(np.radians(deg))))
 
 
-def frame_with(rotations: dict[str, np.ndarray]) -> OutputFrame:
+def frame_with(rotations: dict[str, np.ndarray], index: int = 7, **face_weights) -> OutputFrame:
     q = np.tile([1.0, 0.0, 0.0, 0.0], (47, 1))
     for name, quat in rotations.items():
         q[UPPER_BODY.index(name)] = quat
     pose = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
     face = np.zeros(52, np.float32)
     face[ARKIT_NAMES.index("jawOpen")] = 0.625
-    return OutputFrame(7, 7 / 15, pose, q.astype(np.float32), face, rot.identity_rot6d(), True, {})
+    for name, w in face_weights.items():
+        face[ARKIT_NAMES.index(name)] = w
+    return OutputFrame(index, index / 15, pose, q.astype(np.float32), face, rot.identity_rot6d(), True, {})
 
 
 @pytest.fixture(scope="module")
@@ -44,12 +48,12 @@ def skeleton(beat_bvh):
 
 def receive(sender_factory, frame):
     from pythonosc.dispatcher import Dispatcher
-    from pythonosc.osc_server import ThreadingOSCUDPServer
+    from pythonosc.osc_server import BlockingOSCUDPServer
 
     got = []
     disp = Dispatcher()
     disp.set_default_handler(lambda address, *args: got.append((address, args)))
-    server = ThreadingOSCUDPServer(("127.0.0.1", 0), disp)
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), disp)  # one datagram after the other, in order
     th = threading.Thread(target=server.serve_forever, daemon=True)
     th.start()
     try:
@@ -68,7 +72,7 @@ def receive(sender_factory, frame):
 def test_vmc_messages(skeleton):
     fr = frame_with({"RightArm": axis_quat("Z", 30.0), "Neck1": axis_quat("X", 20.0),
                      "LeftHandIndex": axis_quat("Z", 10.0), "LeftHandIndex1": axis_quat("Z", 20.0)})
-    got = receive(lambda h, p: VmcSender(skeleton, h, p), fr)
+    got = receive(lambda h, p: VmcSender(skeleton, h, p, blend="both"), fr)
     addresses = [a for a, _ in got]
     assert addresses[0] == "/VMC/Ext/Root/Pos" and got[0][1][0] == "root"
     bones = {args[0]: np.array(args[1:], np.float64) for a, args in got if a == "/VMC/Ext/Bone/Pos"}
@@ -84,11 +88,16 @@ def test_vmc_messages(skeleton):
     np.testing.assert_allclose(bones["Neck"][3:], [0, 0, 0, 1], atol=1e-6)
     # the index metacarpal folds into IndexProximal: 10° + 20° about Z
     np.testing.assert_allclose(bones["LeftIndexProximal"][3:], [0, 0, -s15, c15], atol=1e-6)
-    # positions: metres, x mirrored — the right arm is at +x in BEAT (cm), so at −x in Unity
-    assert bones["RightUpperArm"][0] * skeleton.offsets[skeleton.index("RightArm")][0] < 0
+    # positions: metres, x mirrored — BEAT's right arm is at −x (it faces +Z), Unity's humanoid has it at +x
+    assert skeleton.offsets[skeleton.index("RightArm")][0] < 0 < bones["RightUpperArm"][0]
+    # the root is the avatar's placement (identity at the origin); Hips stands at hip height, not on the floor
+    assert got[0][1][1:] == pytest.approx((0, 0, 0, 0, 0, 0, 1))
+    np.testing.assert_allclose(bones["Hips"][:3], [0, hip_height_cm(skeleton) / 100, 0], atol=1e-6)
+    assert 0.85 < bones["Hips"][1] < 0.95
     blends = [(args[0], args[1]) for a, args in got if a == "/VMC/Ext/Blend/Val"]
-    assert [n for n, _ in blends] == list(ARKIT_NAMES)
-    assert dict(blends)["jawOpen"] == pytest.approx(0.625)
+    assert [n for n, _ in blends] == list(VRM0_PRESETS) + list(PERFECT_SYNC_NAMES)
+    assert dict(blends)["JawOpen"] == pytest.approx(0.625)
+    assert dict(blends)["A"] == pytest.approx(vrm0_presets(fr.face)["A"], abs=1e-6) and dict(blends)["A"] > 0.5
     assert addresses.index("/VMC/Ext/Blend/Apply") > max(i for i, a in enumerate(addresses) if a == "/VMC/Ext/Blend/Val")
     assert ("/VMC/Ext/OK", (1,)) in got
     assert dict(got)["/VMC/Ext/T"][0] == pytest.approx(7 / 15)
@@ -114,3 +123,239 @@ def test_unreachable_receiver_does_not_raise(skeleton):
         sender.write(frame_with({}))
     sender.close()
     assert sender.sent + sender.errors == 3
+
+
+@pytest.mark.parametrize("blend, names", [("vrm", VRM0_PRESETS), ("perfect-sync", PERFECT_SYNC_NAMES)])
+def test_blend_modes_send_only_their_names(skeleton, blend, names):
+    got = receive(lambda h, p: VmcSender(skeleton, h, p, blend=blend), frame_with({}, eyeBlinkLeft=1.0))
+    blends = dict((args[0], args[1]) for a, args in got if a == "/VMC/Ext/Blend/Val")
+    assert list(blends) == list(names)
+    if blend == "vrm":
+        assert blends["Blink_L"] == pytest.approx(1.0) and blends["Blink"] == 0
+    else:
+        assert blends["EyeBlinkLeft"] == pytest.approx(1.0)
+
+
+def test_every_datagram_under_the_mtu_and_apply_last(skeleton):
+    """Raw UDP: each datagram is one OSC bundle ≤ 1200 B; /VMC/Ext/Blend/Apply is in the frame's last one."""
+    import socket
+
+    from pythonosc.osc_bundle import OscBundle
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(5)
+    sender = VmcSender(skeleton, *rx.getsockname(), blend="both")
+    try:
+        sender.write(frame_with({"RightArm": axis_quat("Z", 30.0)}))
+        sizes, addresses = [], []
+        while not addresses or addresses[-1][-1] != "/VMC/Ext/T":
+            d = rx.recv(65535)
+            sizes.append(len(d))
+            assert OscBundle.dgram_is_bundle(d)
+            addresses.append([m.address for m in OscBundle(d)])
+    finally:
+        sender.close()
+        rx.close()
+    assert max(sizes) <= MAX_DATAGRAM_BYTES and len(sizes) >= 5
+    assert sender.stats()["largest_datagram_bytes"] == max(sizes)
+    flat = [a for group in addresses for a in group]
+    assert "/VMC/Ext/Blend/Apply" in addresses[-1]
+    assert flat.index("/VMC/Ext/Blend/Apply") > max(i for i, a in enumerate(flat) if a == "/VMC/Ext/Blend/Val")
+
+
+@pytest.fixture(scope="module")
+def vrm_files(skeleton, tmp_path_factory):
+    """Our avatar as real VRM 1.0 and VRM 0.x files (facecapges.avatar.vrm), and a 1.0 file without a neck bone."""
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.vrm import join_glb, split_glb, write_vrm
+
+    tmp = tmp_path_factory.mktemp("vrm")
+    av = default_avatar(skeleton)
+    v1, v0 = write_vrm(av, tmp / "a1.vrm"), write_vrm(av, tmp / "a0.vrm", version="0.x")
+    doc, binary = split_glb(v1.read_bytes())
+    del doc["extensions"]["VRMC_vrm"]["humanoid"]["humanBones"]["neck"]
+    (tmp / "noneck.vrm").write_bytes(join_glb(doc, binary))
+    return v1, v0, tmp / "noneck.vrm"
+
+
+def node_translations(path) -> dict[str, np.ndarray]:
+    """Humanoid bone → node translation, read with pygltflib (independently of the code under test)."""
+    import pygltflib
+
+    doc = pygltflib.GLTF2.load_binary(str(path))
+    ext = doc.extensions
+    if "VRMC_vrm" in ext:
+        pairs = [(b, d["node"]) for b, d in ext["VRMC_vrm"]["humanoid"]["humanBones"].items()]
+    else:
+        pairs = [(d["bone"], d["node"]) for d in ext["VRM"]["humanoid"]["humanBones"]]
+    return {b: np.array(doc.nodes[n].translation or [0, 0, 0], np.float64) for b, n in pairs}
+
+
+def test_avatar_rest_positions_are_sent(skeleton, vrm_files):
+    """With the receiver's VRM, every bone carries that model's own rest position: applying them changes nothing."""
+    v1, v0, _ = vrm_files
+    t1, t0 = node_translations(v1), node_translations(v0)
+    p1, p0 = vrm_rest_positions(v1), vrm_rest_positions(v0)
+    # VRM 1.0 faces +Z: Unity = x negated; VRM 0.x faces −Z: z negated; VRM 0.x counts the thumb one joint later
+    np.testing.assert_allclose(p1["LeftUpperArm"], t1["leftUpperArm"] * [-1, 1, 1])
+    np.testing.assert_allclose(p0["LeftUpperArm"], t0["leftUpperArm"] * [1, 1, -1])
+    np.testing.assert_allclose(p1["LeftThumbProximal"], t1["leftThumbMetacarpal"] * [-1, 1, 1])
+    np.testing.assert_allclose(p0["LeftThumbProximal"], t0["leftThumbProximal"] * [1, 1, -1])
+    # both files are the same avatar: the same positions in Unity's frame, left arm on Unity's −x
+    for name in p1:
+        np.testing.assert_allclose(p0[name], p1[name], atol=1e-6, err_msg=name)
+    assert p1["LeftUpperArm"][0] < 0 < p1["RightUpperArm"][0]
+
+    fr = frame_with({"Neck": axis_quat("X", 20.0), "Neck1": axis_quat("X", 10.0)})
+    got = receive(lambda h, p: VmcSender(skeleton, h, p, avatar=v0), fr)
+    sent = {args[0]: np.array(args[1:], np.float64) for a, args in got if a == "/VMC/Ext/Bone/Pos"}
+    assert set(sent) == set(BEAT_TO_UNITY.values())
+    for name, pos in sent.items():
+        np.testing.assert_allclose(pos[:3], p0[name], atol=1e-6, err_msg=name)
+
+
+def test_bones_the_avatar_lacks_fold_into_the_next(skeleton, vrm_files):
+    _, _, noneck = vrm_files
+    fr = frame_with({"Neck": axis_quat("X", 20.0), "Neck1": axis_quat("X", 10.0)})
+    got = receive(lambda h, p: VmcSender(skeleton, h, p, avatar=noneck), fr)
+    sent = {args[0]: np.array(args[1:], np.float64) for a, args in got if a == "/VMC/Ext/Bone/Pos"}
+    assert "Neck" not in sent and "Head" in sent
+    # BEAT's Neck and Neck1 rotations fold into Head: 30° about X
+    np.testing.assert_allclose(sent["Head"][3:], [np.sin(np.radians(15)), 0, 0, np.cos(np.radians(15))], atol=1e-6)
+
+
+def test_bad_avatar_file_is_a_user_error(skeleton, tmp_path):
+    from facecapges.errors import UserError
+
+    (tmp_path / "x.vrm").write_bytes(b"not a glb")
+    with pytest.raises(UserError):
+        VmcSender(skeleton, avatar=tmp_path / "x.vrm")
+    with pytest.raises(UserError):
+        VmcSender(skeleton, avatar=tmp_path / "missing.vrm")
+
+
+# ------------------------------------------------------------------ PyPI vmcp as the receiver
+def vmcp_receive(send, until_times: int, timeout: float = 10.0) -> list:
+    """Run ``send(host, port)`` and collect the ``vmcp`` events of a loopback receiver."""
+    import socket
+
+    from vmcp.events import (BlendShapeApplyEvent, BlendShapeEvent, BoneTransformEvent, RelativeTimeEvent,
+                             RootTransformEvent, StateEvent)
+    from vmcp.facades import on_receive
+    from vmcp.osc import OSC
+    from vmcp.osc.backend.osc4py3 import as_eventloop as backend
+
+    probe = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()
+    events = []
+    osc = OSC(backend)
+    with osc.open():
+        rx = osc.create_receiver("127.0.0.1", port, f"rx{port}").open()
+        for kind in (RootTransformEvent, BoneTransformEvent, BlendShapeEvent, BlendShapeApplyEvent, StateEvent,
+                     RelativeTimeEvent):
+            on_receive(rx, kind, events.append)
+        th = threading.Thread(target=send, args=("127.0.0.1", port), daemon=True)
+        th.start()
+        deadline = time.time() + timeout
+        while time.time() < deadline and sum(isinstance(e, RelativeTimeEvent) for e in events) < until_times:
+            osc.run()
+            time.sleep(0.001)
+        th.join(timeout)
+        for _ in range(20):
+            osc.run()
+    return events
+
+
+def test_vmcp_parses_a_frame(skeleton):
+    from vmcp.events import BlendShapeApplyEvent, BlendShapeEvent, BoneTransformEvent, RootTransformEvent, StateEvent
+
+    fr = frame_with({"RightArm": axis_quat("Z", 30.0)}, eyeBlinkRight=0.8)
+
+    def send(host, port):
+        s = VmcSender(skeleton, host, port, blend="both")
+        s.write(fr)
+        s.close()
+
+    events = vmcp_receive(send, until_times=1)
+    root = [e for e in events if isinstance(e, RootTransformEvent)]
+    assert len(root) == 1 and root[0].position.y == 0 and root[0].rotation.w == 1
+    bones = {e.joint.value: e for e in events if isinstance(e, BoneTransformEvent)}  # vmcp's Bone enum parsed them
+    assert set(bones) == set(BEAT_TO_UNITY.values())
+    arm = bones["RightUpperArm"].rotation
+    assert (arm.z, arm.w) == pytest.approx((-np.sin(np.radians(15)), np.cos(np.radians(15))), abs=1e-6)
+    assert bones["Hips"].position.y == pytest.approx(hip_height_cm(skeleton) / 100, abs=1e-5)
+    kinds = [type(e).__name__ for e in events]
+    blends = {e.key: e.value for e in events if isinstance(e, BlendShapeEvent)}
+    assert blends["Blink_R"] == pytest.approx(0.8, abs=1e-6) and blends["EyeBlinkRight"] == pytest.approx(0.8, abs=1e-6)
+    assert kinds.index("BlendShapeApplyEvent") > max(i for i, k in enumerate(kinds) if k == "BlendShapeEvent")
+    assert any(isinstance(e, StateEvent) for e in events) and any(isinstance(e, BlendShapeApplyEvent) for e in events)
+
+
+def test_vmcp_receives_interpolated_60hz(skeleton):
+    """Upsampler → VmcSender at 60 Hz: four bundles sets per model frame, rotations slerped, the last one exact."""
+    from vmcp.events import BoneTransformEvent, RelativeTimeEvent
+
+    from facecapges.runtime.upsample import Upsampler
+
+    frames = [frame_with({"RightArm": axis_quat("Z", a)}, index=k) for k, a in enumerate((0.0, 40.0, 80.0))]
+
+    def send(host, port):
+        up = Upsampler([VmcSender(skeleton, host, port)], fps=15, rate_hz=60)
+        for fr in frames:
+            up.write(fr)
+            time.sleep(1 / 15)
+        up.close()
+
+    events = vmcp_receive(send, until_times=1 + 4 + 4)
+    times = [e.delta for e in events if isinstance(e, RelativeTimeEvent)]
+    assert len(times) == 9  # the first frame once, then 4 per model frame
+    np.testing.assert_allclose(times, [k / 60 for k in range(9)], atol=1e-6)
+    arm = [e.rotation for e in events if isinstance(e, BoneTransformEvent) and e.joint.value == "RightUpperArm"]
+    angles = [np.degrees(2 * np.arctan2(-q.z, q.w)) for q in arm]  # Unity: −angle about Z
+    np.testing.assert_allclose(angles, [0, 10, 20, 30, 40, 50, 60, 70, 80], atol=1e-3)
+
+
+def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
+    """``live --video … --realtime --vmc … --rate 30``: a loopback receiver gets two frames per model frame."""
+    import json
+
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import BlockingOSCUDPServer
+
+    from runtime_helpers import cli
+
+    got = []
+    disp = Dispatcher()
+    disp.set_default_handler(lambda address, *args: got.append((address, args)))
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), disp)
+    th = threading.Thread(target=server.serve_forever, daemon=True)
+    th.start()
+    rec = tmp_path / "rec"
+    try:
+        r = cli("live", "--video", str(face_video), "--audio", str(beat_wav), "--realtime", "--max-seconds", "2",
+                "--vmc", "127.0.0.1:%d" % server.server_address[1], "--vmc-blend", "both", "--rate", "30",
+                "--record", str(rec))
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert r.returncode == 0, r.stderr[-2000:]
+    rep = json.loads((rec / "report.json").read_text())
+    assert rep["frames"] == 30 and rep["output"]["interpolation_added_latency_ms"] == pytest.approx(33.3)
+    assert rep["vmc"]["largest_datagram_bytes"] <= MAX_DATAGRAM_BYTES
+    times = [args[0] for a, args in got if a == "/VMC/Ext/T"]
+    # two per model frame when the machine keeps up (a late frame cuts its predecessor's in-between short)
+    assert rep["frames"] < len(times) <= 2 * rep["frames"] and rep["vmc"]["frames"] == len(times)
+    assert np.all(np.diff(times) > 0) and np.min(np.diff(times)) == pytest.approx(1 / 30, abs=1e-4)
+    assert times[-1] == pytest.approx(29 / 15, abs=1e-5)  # ends on the last model frame
+    names = {args[0] for a, args in got if a == "/VMC/Ext/Blend/Val"}
+    assert {"Blink_L", "A", "EyeBlinkLeft", "JawOpen"} <= names
+
+
+def test_live_rejects_a_rate_that_is_not_a_multiple(face_video):
+    from runtime_helpers import cli
+
+    r = cli("live", "--video", str(face_video), "--vmc", "127.0.0.1:39539", "--rate", "25", "--max-seconds", "1")
+    assert r.returncode != 0 and "--rate 25" in r.stderr and "Traceback" not in r.stderr

@@ -7,9 +7,10 @@ the default style frame by frame (no look-ahead, the live code path) and writes
 * ``OUT/demo.bvh`` — the motion on the BEAT skeleton (opens in Blender / three.js),
 * ``OUT/demo.mp4`` — the skeleton animation with the speech muxed in,
 * ``OUT/demo_avatar.mp4`` — the avatar (our skinned BEAT body with the ARKit face,
-  three.js in headless Chromium) performing the same motion, with the speech; the
-  face is neutral because the demo has speech only (``facecapges run`` drives it
-  from a video),
+  three.js in headless Chromium) performing the same motion, with the speech and a
+  face close-up inset; the demo has speech only, so its jaw and lips are driven by the
+  speech itself (:mod:`facecapges.capture.speech_mouth`, causal, frame by frame;
+  ``facecapges run`` drives the whole face from a video),
 
 then prints where they are.
 """
@@ -36,13 +37,12 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Overwrite the demo files in OUT."),
     ) -> None:
         """Generate gestures for a speech clip: out/demo.bvh, out/demo.mp4 (skeleton), out/demo_avatar.mp4."""
-        import numpy as np
 
-        from facecapges.arkit import N_BLENDSHAPES
         from facecapges.avatar.body import default_avatar
         from facecapges.avatar.gltf import avatar_to_gltf
         from facecapges.avatar.render.video import bvh_quaternions, render_video
-        from facecapges.errors import refuse_overwrite
+        from facecapges.capture.speech_mouth import speech_mouth_track
+        from facecapges.errors import check_output_file
         from facecapges.io.bvh import write_bvh
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.model.generate import generate_poses, prepare_inputs
@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         speech = audio or demo_speech()
         bvh_path, mp4_path, avatar_path = out / "demo.bvh", out / "demo.mp4", out / "demo_avatar.mp4"
         for p in (bvh_path, mp4_path, avatar_path):
-            refuse_overwrite(p, force)
+            check_output_file(p, force)
         t0 = time.perf_counter()
         ckpt = load_checkpoint()
         inputs = prepare_inputs(speech, fps=ckpt.fps)
@@ -66,8 +66,8 @@ def register(app: typer.Typer) -> None:
                               wav=speech, progress=True)
         glb = b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
         quats = bvh_quaternions(list(skel.names), skel, motion, name=str(bvh_path))
-        render_video(glb, quats, np.zeros((len(poses), N_BLENDSHAPES), np.float32), ckpt.fps, avatar_path,
-                     audio=speech, progress=True)
+        mouth = speech_mouth_track(inputs.audio[:len(poses)], ckpt.fps)
+        render_video(glb, quats, mouth, ckpt.fps, avatar_path, audio=speech, progress=True)
         summary = {"speech": str(speech), "frames": int(len(poses)), "fps": ckpt.fps,
                    "ms_per_frame": round(ms, 2), "seconds": round(time.perf_counter() - t0, 1),
                    "bvh": str(bvh_path), "video": str(mp4_path), "avatar_video": str(avatar_path)}

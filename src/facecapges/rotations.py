@@ -31,7 +31,7 @@ Conventions
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Sequence
 
 import numpy as np
 import torch
@@ -116,29 +116,43 @@ def euler_to_matrix(euler: Array, order: str, degrees: bool = False) -> Array:
     return mats[0] @ mats[1] @ mats[2]
 
 
-def matrix_to_euler(matrix: Array, order: str, degrees: bool = False) -> Array:
+def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = False) -> Array:
     """Inverse of :func:`euler_to_matrix` (principal branch, middle angle in [-90°, 90°]).
+
+    ``order``: one order for every matrix, or a sequence of orders, one per entry of
+    the matrices' third-last axis (e.g. each joint of a skeleton in its own BVH order:
+    ``matrix`` (..., J, 3, 3) with J orders) — one vectorised pass either way.
 
     Near gimbal lock the first angle is set from the remaining freedom; the matrix
     the angles give back is still the input matrix.
     """
-    order = _check_order(order)
     _check_last(matrix, (3, 3), "matrix")
     lib = torch if _is_torch(matrix) else np
-    i, j, k = ("XYZ".index(a) for a in order)
-    # sign of the permutation: even permutations (XYZ, YZX, ZXY) give +1
-    sign = 1.0 if (j - i) % 3 == 1 else -1.0
-    m = matrix
+    if isinstance(order, str):
+        i, j, k = ("XYZ".index(a) for a in _check_order(order))
+        sign = 1.0 if (j - i) % 3 == 1 else -1.0  # even permutations (XYZ, YZX, ZXY) give +1
+        m = lambda r, c: matrix[..., r, c]  # noqa: E731
+    else:
+        ijk = np.array([["XYZ".index(a) for a in _check_order(o)] for o in order], np.int64).reshape(-1, 3)
+        if matrix.ndim < 3 or matrix.shape[-3] != len(ijk):
+            raise ValueError(f"{len(ijk)} Euler orders for matrices of shape {tuple(matrix.shape)}")
+        i, j, k = ijk.T
+        sign = np.where((j - i) % 3 == 1, 1.0, -1.0)
+        rows = np.arange(len(ijk))
+        if _is_torch(matrix):
+            i, j, k, rows = (torch.as_tensor(x, device=matrix.device) for x in (i, j, k, rows))
+            sign = torch.as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
+        m = lambda r, c: matrix[..., rows, r, c]  # noqa: E731
     # For R = R_i(a) R_j(b) R_k(c): R[i, k] = sign * sin(b)
-    sb = lib.clip(sign * m[..., i, k], -1.0, 1.0)
+    sb = lib.clip(sign * m(i, k), -1.0, 1.0)
     b = lib.arcsin(sb)
-    a = lib.arctan2(-sign * m[..., j, k], m[..., k, k])
-    c = lib.arctan2(-sign * m[..., i, j], m[..., i, i])
+    a = lib.arctan2(-sign * m(j, k), m(k, k))
+    c = lib.arctan2(-sign * m(i, j), m(i, i))
     # gimbal lock: cos(b) ~ 0, put everything in a
-    cb = lib.sqrt(m[..., i, i] ** 2 + m[..., i, j] ** 2)
+    cb = lib.sqrt(m(i, i) ** 2 + m(i, j) ** 2)
     locked = cb < 1e-6
     if bool(locked.any()):
-        a_locked = lib.arctan2(sign * m[..., k, j], m[..., j, j])
+        a_locked = lib.arctan2(sign * m(k, j), m(j, j))
         a = lib.where(locked, a_locked, a)
         c = lib.where(locked, lib.zeros_like(c), c)
     out = _stack([a, b, c], -1, matrix)
@@ -263,3 +277,84 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
     rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
     tr = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
     return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+# --------------------------------------------------------------- SO(3) exp / log
+def log_so3(R: np.ndarray) -> np.ndarray:
+    """One rotation matrix (3, 3) → rotation vector (3,): axis × angle, radians."""
+    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
+    ang = math.acos(c)
+    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    if ang < 1e-6:
+        return 0.5 * v
+    if math.pi - ang < 1e-4:
+        # near 180°: axis from the diagonal
+        axis = np.sqrt(np.maximum((np.diag(R) + 1) / 2, 0))
+        axis *= np.sign(v) + (v == 0)
+        return axis / max(np.linalg.norm(axis), 1e-12) * ang
+    return v * (ang / (2 * math.sin(ang)))
+
+
+def exp_so3(v: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) (axis × angle, radians) → rotation matrix (3, 3) (Rodrigues)."""
+    ang = float(np.linalg.norm(v))
+    if ang < 1e-12:
+        return np.eye(3)
+    k = v / ang
+    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(ang) * Kx + (1 - math.cos(ang)) * Kx @ Kx
+
+
+def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The shortest-arc rotation (..., 3, 3) taking direction ``a`` (..., 3) onto ``b`` (..., 3).
+
+    ``R @ a/|a| = b/|b|`` and ``R`` turns about ``a × b`` only (no twist about either
+    vector). Opposite vectors turn 180° about an axis perpendicular to ``a``; a zero
+    vector gives the identity. numpy only.
+    """
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    na, nb = np.linalg.norm(a, axis=-1, keepdims=True), np.linalg.norm(b, axis=-1, keepdims=True)
+    degenerate = ((na < _EPS) | (nb < _EPS))[..., 0]
+    a = a / np.maximum(na, _EPS)
+    b = b / np.maximum(nb, _EPS)
+    v = np.cross(a, b)
+    c = (a * b).sum(-1)
+    vx = np.zeros(a.shape[:-1] + (3, 3))
+    vx[..., 0, 1], vx[..., 0, 2], vx[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    vx[..., 1, 0], vx[..., 2, 0], vx[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    opposite = c < -1.0 + 1e-9
+    k = 1.0 / np.maximum(1.0 + c, 1e-9)
+    R = np.eye(3) + vx + (vx @ vx) * k[..., None, None]
+    if np.any(opposite):
+        # any axis perpendicular to a: cross with the least-aligned principal axis
+        helper = np.eye(3)[np.argmin(np.abs(a), axis=-1)]
+        axis = np.cross(a, helper)
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        flip = 2.0 * axis[..., :, None] * axis[..., None, :] - np.eye(3)  # 180° about axis
+        R = np.where(opposite[..., None, None], flip, R)
+    return np.where(degenerate[..., None, None], np.eye(3), R)
+
+
+def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
+    """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
+
+    ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
+    Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
+    ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
+    normalised linear blend.
+    """
+    q0 = np.asarray(q0, np.float64)
+    q1 = np.asarray(q1, np.float64)
+    _check_last(q0, (4,), "quaternion")
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    dot = np.clip(np.abs(dot), 0.0, 1.0)
+    theta = np.arccos(dot)
+    s = np.sin(theta)
+    small = s < 1e-6
+    safe = np.where(small, 1.0, s)
+    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
+    w1 = np.where(small, t, np.sin(t * theta) / safe)
+    out = w0 * q0 + w1 * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)

@@ -107,6 +107,29 @@ class Skeleton:
         return self.names == other.names and np.array_equal(self.parents, other.parents)
 
 
+# ------------------------------------------------------------ skeleton ↔ JSON
+def skeleton_to_dict(skel: Skeleton) -> dict:
+    """A JSON-able description of a full BVH hierarchy."""
+    return {
+        "names": list(skel.names),
+        "parents": [int(p) for p in skel.parents],
+        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
+        "channels": [list(c) for c in skel.channels],
+        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
+    }
+
+
+def skeleton_from_dict(d: dict) -> Skeleton:
+    """Inverse of :func:`skeleton_to_dict`."""
+    return Skeleton(
+        names=list(d["names"]),
+        parents=np.asarray(d["parents"], dtype=np.int64),
+        offsets=np.asarray(d["offsets"], dtype=np.float64),
+        channels=[list(c) for c in d["channels"]],
+        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
+    )
+
+
 # ------------------------------------------------------------------ motion ↔ angles
 def motion_to_euler(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Split BVH motion (T, C) into root position (T, 3) and local Euler degrees (T, J, 3).
@@ -117,14 +140,9 @@ def motion_to_euler(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.
     T = motion.shape[0]
     euler = np.zeros((T, skel.n_joints, 3))
     root_pos = np.zeros((T, 3))
-    for j, (start, chans) in enumerate(zip(skel.channel_offsets(), skel.channels)):
-        r = 0
-        for k, c in enumerate(chans):
-            if c.endswith("rotation"):
-                euler[:, j, r] = motion[:, start + k]
-                r += 1
-            elif skel.parents[j] < 0:
-                root_pos[:, "XYZ".index(c[0])] = motion[:, start + k]
+    _, joint, angle, column, pos_col, pos_axis = _channel_layout(skel)
+    euler[:, joint, angle] = motion[:, column]
+    root_pos[:, pos_axis] = motion[:, pos_col]
     return root_pos, euler
 
 
@@ -132,15 +150,37 @@ def euler_to_motion(skel: Skeleton, euler: np.ndarray, root_pos: np.ndarray | No
     """Inverse of :func:`motion_to_euler`: (T, J, 3) degrees (+ root (T, 3)) → (T, C)."""
     T = euler.shape[0]
     motion = np.zeros((T, skel.n_channels))
+    _, joint, angle, column, pos_col, pos_axis = _channel_layout(skel)
+    motion[:, column] = euler[:, joint, angle]
+    if root_pos is not None:
+        motion[:, pos_col] = root_pos[:, pos_axis]
+    return motion
+
+
+def _channel_layout(skel: Skeleton) -> tuple:
+    """Each joint's Euler order, and where rotation angles / root position go in a motion row.
+
+    Returns (orders, joint, angle, column, pos_col, pos_axis): motion column ``column[n]``
+    holds angle ``angle[n]`` of joint ``joint[n]``; ``pos_col[n]`` the root position's
+    axis ``pos_axis[n]``. Computed once per skeleton (skeletons are not edited in place).
+    """
+    key = (id(skel.channels), len(skel.channels), id(skel.parents))
+    cached = skel.__dict__.get("_layout")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    joint, angle, column, pos_col, pos_axis = [], [], [], [], []
     for j, (start, chans) in enumerate(zip(skel.channel_offsets(), skel.channels)):
         r = 0
         for k, c in enumerate(chans):
             if c.endswith("rotation"):
-                motion[:, start + k] = euler[:, j, r]
+                joint.append(j), angle.append(r), column.append(start + k)
                 r += 1
-            elif root_pos is not None and skel.parents[j] < 0:
-                motion[:, start + k] = root_pos[:, "XYZ".index(c[0])]
-    return motion
+            elif skel.parents[j] < 0:
+                pos_col.append(start + k), pos_axis.append("XYZ".index(c[0]))
+    layout = ([skel.rotation_order(j) for j in range(skel.n_joints)], *(np.array(x, np.int64) for x in
+                                                                         (joint, angle, column, pos_col, pos_axis)))
+    skel.__dict__["_layout"] = (key, layout)
+    return layout
 
 
 def local_matrices(skel: Skeleton, euler_deg: np.ndarray) -> np.ndarray:
@@ -158,10 +198,7 @@ def matrices_to_euler(skel: Skeleton, mats: np.ndarray, unwrap: bool = True) -> 
     With ``unwrap`` each angle track is made continuous over time (no ±180° jumps),
     which keeps keyframe interpolation in Blender and three.js smooth.
     """
-    out = np.empty(mats.shape[:-2] + (3,))
-    for order in {skel.rotation_order(j) for j in range(skel.n_joints)}:
-        idx = [j for j in range(skel.n_joints) if skel.rotation_order(j) == order]
-        out[:, idx] = rot.matrix_to_euler(mats[:, idx], order, degrees=True)
+    out = rot.matrix_to_euler(mats, _channel_layout(skel)[0], degrees=True)
     if unwrap and out.shape[0] > 1:
         out = np.unwrap(out, period=360.0, axis=0)
     return out
@@ -226,26 +263,3 @@ def pose_to_motion(skel: Skeleton, pose: np.ndarray, root_pos: np.ndarray | None
     mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(pose.astype(np.float64))
     euler = matrices_to_euler(skel, mats)
     return euler_to_motion(skel, euler, root_pos)
-
-
-# ------------------------------------------------------------ skeleton ↔ JSON
-def skeleton_to_dict(skel: Skeleton) -> dict:
-    """A JSON-able description of a full BVH hierarchy."""
-    return {
-        "names": list(skel.names),
-        "parents": [int(p) for p in skel.parents],
-        "offsets": np.asarray(skel.offsets, dtype=np.float64).tolist(),
-        "channels": [list(c) for c in skel.channels],
-        "end_sites": {str(int(j)): np.asarray(v, dtype=np.float64).tolist() for j, v in skel.end_sites.items()},
-    }
-
-
-def skeleton_from_dict(d: dict) -> Skeleton:
-    """Inverse of :func:`skeleton_to_dict`."""
-    return Skeleton(
-        names=list(d["names"]),
-        parents=np.asarray(d["parents"], dtype=np.int64),
-        offsets=np.asarray(d["offsets"], dtype=np.float64),
-        channels=[list(c) for c in d["channels"]],
-        end_sites={int(j): np.asarray(v, dtype=np.float64) for j, v in d.get("end_sites", {}).items()},
-    )

@@ -17,8 +17,15 @@ Conventions
   Head joint's frame (``offset`` cm from it). It carries the blendshape targets as
   morph targets (thesis eq. 2.11: ``F = F0 + Σ w_i (B_i − F0)``); the back of the head
   never moves. Triangles are grouped by material: skin, hair, the eye openings and the
-  mouth opening (the canonical mesh closes both with triangles, drawn dark, so a
-  blink or an open jaw reads at a glance).
+  mouth opening (the canonical mesh closes the mouth with triangles, drawn dark, so an
+  open jaw reads at a glance).
+* **Eyes**: the canonical mesh's eye-opening triangles are replaced by a dark socket
+  (the opening's rim swept 2 cm into the head, following the lids) holding an
+  eyeball (sclera, iris, pupil) just behind the lids; the ``eyeLook*`` targets rotate
+  each eyeball about its centre (``GAZE_DEG`` at weight 1) as morph targets, so every
+  glTF consumer shows the gaze, and a blink closes the lids over the eyeball.
+* The back of the head is swept from the face's outline; under the jaw it tucks in
+  towards the neck instead of bulging out, so no strip of it shows below the jaw line.
 * The face is placed so that its 17.7 cm (chin to hairline) fits between the Head and
   HeadEnd joints; sizes of the body parts are fractions of the skeleton's own bone
   lengths where a bone fixes them, and plain centimetres otherwise (documented at each
@@ -40,13 +47,26 @@ SHIRT = "shirt"
 HAIR = "hair"
 EYE = "eye"
 MOUTH = "mouth"
+SCLERA = "sclera"
+IRIS = "iris"
+PUPIL = "pupil"
 COLORS = {  # linear-ish base colours (RGBA) of the glTF materials
     SKIN: (0.80, 0.55, 0.42, 1.0),
     SHIRT: (0.16, 0.27, 0.48, 1.0),
     HAIR: (0.10, 0.065, 0.04, 1.0),
-    EYE: (0.03, 0.025, 0.025, 1.0),
+    EYE: (0.03, 0.025, 0.025, 1.0),  # the eye sockets behind the eyeballs
     MOUTH: (0.30, 0.05, 0.06, 1.0),
+    SCLERA: (0.86, 0.84, 0.80, 1.0),
+    IRIS: (0.16, 0.09, 0.04, 1.0),
+    PUPIL: (0.01, 0.01, 0.01, 1.0),
 }
+# eyeballs: radius as a fraction of the eye opening's width (an adult eye: 12 mm for a
+# 30 mm wide opening), the largest gaze angles of the eyeLook* targets at weight 1
+# (ARKit leaves them unstated; the human oculomotor range is about ±35°, gaze in
+# conversation stays well inside it), and the iris/pupil as angles from the gaze axis
+EYEBALL_RADIUS = 0.42
+GAZE_DEG = {"Up": 25.0, "Down": 30.0, "In": 30.0, "Out": 30.0}
+IRIS_RAD, PUPIL_RAD = 0.52, 0.22
 REQUIRED_JOINTS = UPPER_BODY + ("Hips", "Spine1", "Spine2", "Spine3", "Head", "HeadEnd")
 FINGERS = ("Thumb", "Index", "Middle", "Ring", "Pinky")
 
@@ -448,7 +468,11 @@ def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
             d0 = u / r0
             om = np.arccos(np.clip(np.dot(d0, back), -1, 1))
             d = (np.sin((1 - t) * om) * d0 + np.sin(t * om) * back) / max(np.sin(om), 1e-6)
-            r = (1 - t) * r0 + t * depth * height + 0.09 * height * np.sin(np.pi * t)
+            # below the cheekbones the skull bulge fades out and the surface tucks in under
+            # the jaw (else its first rings stick out below the jaw line, a pale strip)
+            low = float(np.clip(-u[1] / (0.3 * height), 0.0, 1.0))
+            r_end = (1 - low) * depth * height + low * min(0.85 * r0, depth * height)
+            r = (1 - t) * r0 + t * r_end + (1 - low) * 0.09 * height * np.sin(np.pi * t)
             ring.append(c + r * d)
         rings.append(ring)
     pole = c + (depth * height) * back
@@ -464,13 +488,97 @@ def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
     last = idx[-1]
     faces.append(np.stack([last, np.full(m, N0 + len(new) - 1), np.roll(last, -1)], 1))
     F = np.concatenate(faces)
-    # the rim edges must run opposite to the face's boundary direction
-    if not any((int(F[0, 1]), int(F[0, 0])) == (int(x), int(y)) for x, y in
-               np.concatenate([face.faces[:, [0, 1]], face.faces[:, [1, 2]], face.faces[:, [2, 0]]])):
+    # consistent orientation with the face: a rim edge of the cap must run opposite to the
+    # same edge in the face (the second triangle of the first strip holds the rim edge a2 → a)
+    face_edges = {(int(x), int(y)) for x, y in
+                  np.concatenate([face.faces[:, [0, 1]], face.faces[:, [1, 2]], face.faces[:, [2, 0]]])}
+    t = F[m]  # [a, b2, a2]
+    if (int(t[0]), int(t[2])) not in face_edges:
         F = F[:, ::-1]
     src = np.concatenate([np.tile(loop, n_rings), [-1]])
     ring_no = np.concatenate([np.repeat(np.arange(1, n_rings + 1), m), [n_rings + 1]])
     return new, F, src, ring_no
+
+
+def _rotation(axis: str, deg: float) -> np.ndarray:
+    a = np.radians(deg)
+    c, s_ = np.cos(a), np.sin(a)
+    if axis == "X":
+        return np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
+    return np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
+
+
+def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], side: str, base: int
+         ) -> tuple[np.ndarray, np.ndarray, dict[str, list]]:
+    """Socket + eyeball of one eye opening (triangles ``tris`` of the neutral face ``V``).
+
+    Returns the new vertices, their deltas (T, M, 3) and triangles per material (indices
+    from ``base``; the socket's rim is the opening's own vertices, so it follows the lids)."""
+    loop = boundary_loop(tris)
+    rim = V[loop]
+    ctr = rim.mean(0)
+    width = float(np.ptp(rim[:, 0]))
+    fwd = np.array([0.0, 0.0, 1.0])
+    # socket: two rings swept into the head and a back pole, each following its rim vertex
+    m = len(loop)
+    sock_v, sock_src, sock_k = [], [], []
+    for k, (shrink, depth) in enumerate(((0.9, 0.6), (0.55, 1.6)), start=1):
+        sock_v.append(ctr + shrink * (rim - ctr) - depth * fwd)
+        sock_src.append(loop)
+        sock_k.append(np.full(m, shrink))
+    sock_v = np.concatenate(sock_v + [(ctr - 2.0 * fwd)[None]])
+    src = np.concatenate(sock_src)
+    scale = np.concatenate(sock_k)
+    sock_d = np.zeros((len(deltas), len(sock_v), 3))
+    sock_d[:, :-1] = deltas[:, src] * scale[None, :, None]
+    idx = [loop, base + np.arange(m), base + m + np.arange(m)]
+    sock_f = []
+    for a, b in zip(idx[:-1], idx[1:]):
+        a2, b2 = np.roll(a, -1), np.roll(b, -1)
+        sock_f += list(np.stack([a, b2, b], 1)) + list(np.stack([a, a2, b2], 1))
+    pole = base + 2 * m
+    sock_f += list(np.stack([idx[-1], np.roll(idx[-1], -1), np.full(m, pole)], 1))
+    # eyeball: its front just behind the lids at the opening's middle
+    r = EYEBALL_RADIUS * width
+    mid = np.argsort(np.abs(rim[:, 0] - ctr[0]))[:4]
+    center = np.array([ctr[0], ctr[1], rim[mid, 2].mean() - 0.12 - r])
+    thetas = np.array([0.1, PUPIL_RAD, 0.36, IRIS_RAD, 0.72, 0.95, 1.25, 1.6, 2.0, 2.5, 2.95])
+    n = 24
+    phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
+    ball = [center + r * fwd]
+    for th in thetas:
+        ball += list(center + r * np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi),
+                                            np.full(n, np.cos(th))], 1))
+    ball.append(center - r * fwd)
+    ball = np.asarray(ball)
+    b0 = base + len(sock_v)
+    ball_f: dict[str, list] = {PUPIL: [], IRIS: [], SCLERA: []}
+
+    def mat(th: float) -> str:
+        return PUPIL if th <= PUPIL_RAD + 1e-9 else IRIS if th <= IRIS_RAD + 1e-9 else SCLERA
+
+    ring = lambda k: b0 + 1 + k * n + np.arange(n)  # noqa: E731
+    ball_f[mat(thetas[0])] += list(np.stack([np.full(n, b0), ring(0), np.roll(ring(0), -1)], 1))
+    for k in range(len(thetas) - 1):
+        a, b = ring(k), ring(k + 1)
+        for t in list(np.stack([a, b, np.roll(b, -1)], 1)) + list(np.stack([a, np.roll(b, -1), np.roll(a, -1)], 1)):
+            ball_f[mat(thetas[k + 1])].append(t)
+    last = ring(len(thetas) - 1)
+    ball_f[SCLERA] += list(np.stack([last, np.full(n, b0 + len(ball) - 1), np.roll(last, -1)], 1))
+    # gaze: eyeLook{Up,Down,In,Out}{side} turn this eyeball about its centre
+    ball_d = np.zeros((len(deltas), len(ball), 3))
+    inward = -1.0 if side == "Left" else 1.0  # towards the nose, in X
+    for direction, deg in GAZE_DEG.items():
+        name = f"eyeLook{direction}{side}"
+        if name not in names:
+            continue
+        if direction in ("Up", "Down"):
+            R = _rotation("X", -deg if direction == "Up" else deg)  # +X rotation turns +Z down
+        else:
+            R = _rotation("Y", deg * (inward if direction == "In" else -inward))  # +Y rotation turns +Z to +X
+        ball_d[names.index(name)] = (ball - center) @ R.T + center - ball
+    return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1),
+            {EYE: sock_f, **ball_f})
 
 
 def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_rings: list[list[int]],
@@ -501,17 +609,38 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
         # hair over the top and back of the skull; skin at the temples, jaw and under the chin
         hair = c[1] > ymin + 0.62 * (ymax - ymin) - 0.35 * max(0.0, (zmax - 8.0) - c[2]) and c[1] > ymin + 0.25 * (ymax - ymin)
         faces[HAIR if hair else SKIN].append(tri)
-    faces = {m: np.asarray(f, np.int64).reshape(-1, 3) for m, f in faces.items() if f}
+    T = len(names)
+    n_head = len(V)
+    deltas_face = targets - neutral.vertices[None]
+    # the eyes: the opening triangles give way to a socket and an eyeball
+    eye_tris = faces.pop(EYE, [])
+    extra_v, extra_d = [], []
+    for ring in eye_rings:
+        rs = set(ring)
+        tris = np.asarray([t for t in eye_tris if all(int(v) in rs for v in t)], np.int64).reshape(-1, 3)
+        if not len(tris):
+            continue
+        side = "Left" if neutral.vertices[ring, 0].mean() > 0 else "Right"  # head frame: +X = subject's left
+        base = n_head + sum(len(v) for v in extra_v)
+        ev, ed, ef = _eye(neutral.vertices, deltas_face, tris, names, side, base)
+        extra_v.append(ev)
+        extra_d.append(ed)
+        for m, f in ef.items():
+            faces.setdefault(m, []).extend(f)
+    if extra_v:
+        V = np.concatenate([V] + extra_v)
+    faces = {m: np.asarray(f, np.int64).reshape(-1, 3) for m, f in faces.items() if len(f)}
     allf = np.concatenate(list(faces.values()))
     normals = TriMesh(V, allf).vertex_normals()
-    T = len(names)
     deltas = np.zeros((T, len(V), 3))
-    deltas[:, :n_face] = targets - neutral.vertices[None]
+    deltas[:, :n_face] = deltas_face
     # the first rings of the back of the head follow their outline vertex (a jaw moving
     # sideways drags the skin below the ear), fading out by the third ring
     fade = np.clip(1.0 - cap_ring / 4.0, 0.0, 1.0) ** 2
     moving = cap_src >= 0
-    deltas[:, n_face:][:, moving] = deltas[:, cap_src[moving]] * fade[moving][None, :, None]
+    deltas[:, n_face:n_head][:, moving] = deltas[:, cap_src[moving]] * fade[moving][None, :, None]
+    if extra_d:
+        deltas[:, n_head:] = np.concatenate(extra_d, axis=1)
     ndel = np.zeros_like(deltas)
     for t in range(T):
         Vt = V + deltas[t]

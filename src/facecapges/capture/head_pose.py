@@ -56,6 +56,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facecapges import rotations as rot
+from facecapges.rotations import exp_so3, log_so3
 
 DEFAULT_VFOV_DEG = 63.0  # MediaPipe's geometry pipeline default
 
@@ -194,30 +195,6 @@ class HeadPoseEstimator:
     def to_head_frame(self, pts: np.ndarray, pose: HeadPose) -> np.ndarray:
         """Camera-frame points → head frame (canonical orientation and scale, cm)."""
         return ((pts - pose.t) @ pose.R) / pose.scale
-
-
-def log_so3(R: np.ndarray) -> np.ndarray:
-    """Rotation matrix → rotation vector (axis × angle, radians)."""
-    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
-    ang = math.acos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if ang < 1e-6:
-        return 0.5 * v
-    if math.pi - ang < 1e-4:
-        # near 180°: axis from the diagonal
-        axis = np.sqrt(np.maximum((np.diag(R) + 1) / 2, 0))
-        axis *= np.sign(v) + (v == 0)
-        return axis / max(np.linalg.norm(axis), 1e-12) * ang
-    return v * (ang / (2 * math.sin(ang)))
-
-
-def exp_so3(v: np.ndarray) -> np.ndarray:
-    ang = float(np.linalg.norm(v))
-    if ang < 1e-12:
-        return np.eye(3)
-    k = v / ang
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(ang) * Kx + (1 - math.cos(ang)) * Kx @ Kx
 
 
 class PoseSmoother:

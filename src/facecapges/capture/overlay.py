@@ -50,24 +50,19 @@ def draw_overlay(frame_bgr: np.ndarray, result, fps_text: str = "") -> np.ndarra
 
 
 class OverlayWriter:
-    """H.264 MP4 writer (frames padded to even sizes for yuv420p)."""
+    """The overlay video: frames into :class:`facecapges.io.mp4.Mp4Writer` (H.264, even sizes)."""
 
     def __init__(self, path: str | Path, width: int, height: int, fps: float):
-        import imageio_ffmpeg
+        from facecapges.io.mp4 import Mp4Writer
 
         self.w, self.h = width + width % 2, height + height % 2
-        self._gen = imageio_ffmpeg.write_frames(str(path), (self.w, self.h), fps=fps, codec="libx264",
-                                                pix_fmt_in="rgb24", pix_fmt_out="yuv420p",
-                                                macro_block_size=1, quality=6)
-        self._gen.send(None)
+        self._mp4 = Mp4Writer(path, fps, crf=23)
 
     def write(self, frame_bgr: np.ndarray) -> None:
-        rgb = np.ascontiguousarray(frame_bgr[:, :, ::-1])
-        if rgb.shape[:2] != (self.h, self.w):
-            pad = np.zeros((self.h, self.w, 3), np.uint8)
-            pad[:rgb.shape[0], :rgb.shape[1]] = rgb
-            rgb = pad
-        self._gen.send(rgb)
+        self._mp4.write(frame_bgr)
 
     def close(self) -> None:
-        self._gen.close()
+        if self._mp4.frames:
+            self._mp4.close()
+        else:
+            self._mp4.abort()

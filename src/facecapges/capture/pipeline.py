@@ -12,15 +12,14 @@ estimator (:mod:`estimator`). Every tracked face has its own estimator and smoot
 so calibration state never leaks between people.
 
 Face lost (occlusion, out of frame): the result is flagged ``face_found = False``; the
-last weights and head rotation are **held** for ``hold_ms`` (500 ms: a blink of an
-occlusion should not make the avatar twitch), then **eased** to neutral (weights 0,
-head facing the camera) over ``ease_ms`` (1000 ms, smoothstep). A face that comes back
-within ``forget_ms`` keeps its identity and its learned ranges.
+last weights and head rotation are held, then eased to neutral (weights 0, head facing
+the camera) by the project's one face-lost policy (:mod:`face_lost`: 500 ms hold, 1 s
+smoothstep). A face that comes back within ``forget_ms`` keeps its identity and its
+learned ranges.
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,14 +28,13 @@ from facecapges import rotations as rot
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.capture.canonical_mesh import load_canonical_mesh
 from facecapges.capture.estimator import ExpressionEstimator
-from facecapges.capture.head_pose import (HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, exp_so3, head_angles,
-                                          log_so3)
+from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
+from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, head_angles
 from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkDetector
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
 from facecapges.capture.samples import sample_weight
 
-IDENTITY_ROT6D = rot.matrix_to_rot6d(np.eye(3)).astype(np.float32)
 
 
 @dataclass
@@ -55,11 +53,6 @@ class CaptureResult:
     mp_transform: np.ndarray | None = None  # MediaPipe's facial transformation matrix
     head_R: np.ndarray = field(default_factory=lambda: np.eye(3))
     sample_weight: float = 0.0
-
-
-def smoothstep(x: float) -> float:
-    x = min(max(x, 0.0), 1.0)
-    return x * x * (3 - 2 * x)
 
 
 class _FaceState:
@@ -93,10 +86,12 @@ class FaceCapture:
         mesh = load_canonical_mesh(self.model_path)
         self.mesh = mesh
         self.pose_estimator = HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+        self.num_faces = int(num_faces)
         self.detector = LandmarkDetector(self.model_path, num_faces=num_faces)
         self.tracker = FaceTracker(forget_ms=max(forget_ms, hold_ms + ease_ms))
         self.intrinsics = intrinsics
         self.hold_ms, self.ease_ms = hold_ms, ease_ms
+        self.policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
         self.window = smoothing_window or max(3, int(round(self.fps / 3)))
         self.states: dict[int, _FaceState] = {}
         self.primary_id: int | None = None
@@ -124,17 +119,15 @@ class FaceCapture:
             st.smoother.reset_state()
         if last is None:
             return self.neutral(ts, st.face_id)
-        age = ts - st.lost_since
-        k = 1.0 - smoothstep((age - self.hold_ms) / max(self.ease_ms, 1e-6))  # 1 = hold, 0 = neutral
+        k = self.policy.held((ts - st.lost_since) / 1000.0)  # 1 = hold, 0 = neutral
         weights = (last.weights52 * k).astype(np.float32)
-        # ease the rotation along the geodesic towards identity
-        R = exp_so3(log_so3(last.head_R) * k)
+        R = scale_rotation(last.head_R, k)
         return CaptureResult(weights, rot.matrix_to_rot6d(R).astype(np.float32), head_angles(R).astype(np.float32),
                              last.distance_m, False, None, st.face_id, ts, None, None, R, 0.0)
 
     def neutral(self, ts: float = 0.0, face_id: int = -1) -> CaptureResult:
         """Weights 0, head facing the camera, flagged not found."""
-        return CaptureResult(np.zeros(N_BLENDSHAPES, np.float32), IDENTITY_ROT6D.copy(), np.zeros(3, np.float32),
+        return CaptureResult(np.zeros(N_BLENDSHAPES, np.float32), rot.identity_rot6d().astype(np.float32), np.zeros(3, np.float32),
                              float("nan"), False, None, face_id, ts)
 
     # ------------------------------------------------------------------ frames
@@ -186,10 +179,53 @@ class FaceCapture:
         face is in view, the largest face in view; while no face is in view, the lost
         primary face (held, then eased to neutral)."""
         results = self.process_all(frame_bgr, timestamp_ms, depth_mm)
+        self.faces_in_view = sum(bool(r.face_found) for r in results)  # callers warn about a second face
         for r in results:
             if r.face_id == self.primary_id:
                 return r
         return self.neutral(timestamp_ms)
+
+    def process_slots(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None
+                      ) -> list[CaptureResult | None]:
+        """One result per face slot (``num_faces`` of them; None: no face in that slot yet).
+
+        Several people (seed 2 §5.1): slot ``i`` drives avatar ``i``. Faces are given
+        slots from left to right in the image as they first appear; a tracked face
+        keeps its slot (the tracker keeps its identity for ``forget_ms``), and a face
+        that comes back after its identity was retired, or under a new identity, takes
+        the free slot whose face was last seen nearest to it — identity by position.
+        """
+        results = self.process_all(frame_bgr, timestamp_ms, depth_mm)
+        by_id = {r.face_id: r for r in results}
+        slots = self.slots
+        for s in slots:  # identities the tracker retired free their slot (its place is remembered)
+            if s["id"] is not None and s["id"] not in by_id:
+                s["id"] = None
+        taken = {s["id"] for s in slots if s["id"] is not None}
+        new = [r for r in results if r.face_id not in taken and r.face_found and r.landmarks is not None]
+        new.sort(key=lambda r: float(r.landmarks[:, 0].mean()))
+        for r in new:
+            c = r.landmarks[:, :2].mean(0)
+            free = [i for i, s in enumerate(slots) if s["id"] is None or not by_id[s["id"]].face_found]
+            if not free:
+                break
+            i = min(free, key=lambda i: float(np.linalg.norm(slots[i]["center"] - c)))
+            slots[i]["id"] = r.face_id
+        out: list[CaptureResult | None] = []
+        for s in slots:
+            r = by_id.get(s["id"]) if s["id"] is not None else None
+            if r is not None and r.face_found and r.landmarks is not None:
+                s["center"] = r.landmarks[:, :2].mean(0)
+            out.append(r)
+        return out
+
+    @property
+    def slots(self) -> list[dict]:
+        if not hasattr(self, "_slots"):
+            n = self.num_faces
+            # never-used slots wait at evenly spaced places across the image, left to right
+            self._slots = [{"id": None, "center": np.array([(i + 0.5) / n, 0.5])} for i in range(n)]
+        return self._slots
 
     def close(self) -> None:
         self.detector.close()

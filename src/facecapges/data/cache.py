@@ -1,4 +1,4 @@
-"""The prepared BEAT cache: what ``facecapges prepare`` writes and the model reads.
+"""The prepared cache: what ``facecapges prepare`` writes and the model reads.
 
 Layout of a cache folder::
 
@@ -21,7 +21,16 @@ key                 shape          dtype   meaning
 ``emotion_present`` ()             bool
 ``audio``           (S,)           float32 16 kHz mono, S = floor(T·sr/fps)
 ``offsets``         (J, 3)         float64 this clip's BVH joint offsets (cm)
+``mask``            (47,)          bool    joints whose rotation the source carries
 =================== ============== ======= ==============================================
+
+**Masked joints.** A take retargeted from another skeleton (:mod:`facecapges.data.retarget`)
+or read from 9-joint arrays (:mod:`facecapges.data.joints9`) lacks some of the 47
+joints. ``mask[j]`` is False for those: their ``pose`` rows hold the cache's mean
+rotation of that joint (``index["fill"]``, identity when no clip has it) so the
+pose is still a plausible one for the model's history, the child joints' rotations
+are adjusted so every world rotation stays the source's, and training adds no loss
+for them. BEAT clips have every joint (mask all True).
 
 ``audio`` covers exactly the samples frames 0…T−1 own by
 :func:`facecapges.timing.frame_sample_bounds` (frame i owns
@@ -34,13 +43,28 @@ is padded with zeros (the clip entry records the original length as ``audio_s``)
 the full 75-joint hierarchy; clips of other performers differ only in offsets, kept
 per clip in the npz), ``upper_body`` (the 47 names), ``clips`` (one entry per clip:
 ``name, speaker, split, kind, n_frames, duration_s, audio_s, file, has_face,
-has_semantic, has_emotion``), ``skipped`` (files that are not training clips, with
-the reason, e.g. audio without motion) and ``stats``.
+has_semantic, has_emotion, dataset, origin, joint_map, n_masked, holdout_from``),
+``speakers`` (per speaker id: ``dataset``, ``licence``, ``performer``), ``skipped``
+(files that are not training clips, with the reason, e.g. audio without motion),
+``fill`` (47·6 values: the rotation masked joints hold) and ``stats``.
+
+``origin`` is ``"beat"`` (a BEAT BVH), ``"retarget"`` (a BVH of another skeleton,
+retargeted with ``joint_map``) or ``"joints9"`` (9-joint arrays). ``holdout_from`` is
+the first frame of the clip's last 20 %, the part to keep out of training and of every
+choice made on it.
+
+**Speaker ids.** BEAT's own ids (1–30) are kept. Every other performer gets an id of
+100 or more (:data:`FIRST_OTHER_SPEAKER`), so the two can never collide: the ZEGGS
+speaker is 100 (stated in its joint map); a user's own performers take 101, 102, …
+(``prepare --mocap-speaker``). Clips from another source are named
+``<joint map>_<file stem>`` (e.g. ``zeggs_067_Speech_2_x_1_0``) and are all in the
+``train`` split: hold out their last 20 % by ``holdout_from``.
 
 ``stats[str(speaker)]`` (and ``stats["all"]`` pooled over every speaker) has
 ``pose_mean``/``pose_std`` (47·6 values, reshape to (47, 6)), ``head_mean``/``head_std``
 (6), ``face_mean``/``face_std`` (52), ``n_frames`` and ``source``. They are computed
-over the speaker's **train** clips (face only over clips that have face); a speaker
+over the speaker's **train** clips (face only over clips that have face, each pose
+joint only over the clips that have it — masked joints do not count); a speaker
 with no train clip in the cache (e.g. the shared sample, whose only clip is a test
 clip) falls back to all of its clips and says so in ``source``. Standard deviations
 are floored at :data:`STD_FLOOR` so dividing by them is always safe; channels with no
@@ -50,19 +74,22 @@ data at all get mean 0, std 1.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import N_JOINTS, Skeleton, skeleton_from_dict, skeleton_to_dict  # noqa: F401 (re-exported)
+from facecapges.skeleton import N_JOINTS, Skeleton, skeleton_from_dict
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
+FIRST_OTHER_SPEAKER = 100  # ids below are BEAT's; other performers start here
 INDEX_NAME = "index.json"
 CLIP_DIR = "clips"
 STD_FLOOR = 1e-3
 PRESENCE_KEYS = ("face_present", "semantic_present", "emotion_present")
-ARRAY_KEYS = ("pose", "head", "face", "semantic", "emotion", "audio", "offsets") + PRESENCE_KEYS
+ARRAY_KEYS = ("pose", "head", "face", "semantic", "emotion", "audio", "offsets", "mask") + PRESENCE_KEYS
+HOLDOUT_FRACTION = 0.2  # the last 20 % of every take is held out
 
 
 # -------------------------------------------------------------------- statistics
@@ -70,27 +97,34 @@ class RunningStats:
     """Mean and standard deviation of (N, D) batches, accumulated in float64."""
 
     def __init__(self, dim: int):
-        self.n = 0
+        self.n = 0  # rows added
+        self.count = np.zeros(dim)  # rows that had each dimension (a mask can leave some out)
         self.sum = np.zeros(dim)
         self.sumsq = np.zeros(dim)
 
-    def add(self, x: np.ndarray) -> None:
+    def add(self, x: np.ndarray, present: np.ndarray | None = None) -> None:
+        """Add rows (N, D); ``present`` (D,) bool leaves the False dimensions out."""
         x = np.asarray(x, dtype=np.float64).reshape(len(x), -1)
+        w = np.ones(x.shape[1]) if present is None else np.asarray(present, np.float64).reshape(-1)
         self.n += len(x)
-        self.sum += x.sum(0)
-        self.sumsq += (x * x).sum(0)
+        self.count += len(x) * w
+        self.sum += x.sum(0) * w
+        self.sumsq += (x * x).sum(0) * w
 
     def merge(self, other: "RunningStats") -> None:
         self.n += other.n
+        self.count += other.count
         self.sum += other.sum
         self.sumsq += other.sumsq
 
     def result(self) -> tuple[list[float], list[float]]:
-        if self.n == 0:
-            return np.zeros_like(self.sum).tolist(), np.ones_like(self.sum).tolist()
-        mean = self.sum / self.n
-        var = np.maximum(self.sumsq / self.n - mean * mean, 0.0)
-        return mean.tolist(), np.maximum(np.sqrt(var), STD_FLOOR).tolist()
+        """Mean and std per dimension; a dimension no row had gets mean 0, std 1."""
+        seen = self.count > 0
+        n = np.maximum(self.count, 1)
+        mean = np.where(seen, self.sum / n, 0.0)
+        var = np.maximum(self.sumsq / n - mean * mean, 0.0)
+        std = np.where(seen, np.maximum(np.sqrt(var), STD_FLOOR), 1.0)
+        return mean.tolist(), std.tolist()
 
 
 # ------------------------------------------------------------------------ loader
@@ -125,6 +159,11 @@ class Cache:
     @property
     def sr(self) -> int:
         return int(self.index["sr"])
+
+    def speaker_info(self, speaker: int) -> dict:
+        """Dataset, licence and performer of ``speaker`` (``index["speakers"]``; BEAT when unstated)."""
+        return dict(self.index.get("speakers", {}).get(str(int(speaker)), {"dataset": "BEAT",
+                                                                          "licence": "CC BY-NC 4.0"}))
 
     @property
     def speakers(self) -> list[int]:
@@ -172,10 +211,16 @@ class Cache:
                 out = {k: z[k] for k in z.files}
         except FileNotFoundError:
             raise file_error(path, "clip file missing from the cache") from None
-        except (OSError, ValueError) as exc:
-            raise file_error(path, f"corrupt clip file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # truncated or damaged .npz
+            raise file_error(path, f"corrupt clip file ({exc.__class__.__name__}: {str(exc)[:120]})") from None
+        missing = [k for k in PRESENCE_KEYS if k not in out]
+        if missing:
+            raise file_error(path, f"corrupt clip file (no {', '.join(missing)})")
         for k in PRESENCE_KEYS:
             out[k] = bool(out[k])
+        if "mask" not in out:
+            out["mask"] = np.ones(N_JOINTS, bool)
+        out["mask"] = out["mask"].astype(bool)
         return out
 
     def skeleton(self, name: str | None = None) -> Skeleton:
@@ -183,8 +228,12 @@ class Cache:
         skel = skeleton_from_dict(self.index["skeleton"])
         if name is not None:
             self.entry(name)
-            with np.load(self.path / self._by_name[name]["file"], allow_pickle=False) as z:
-                skel.offsets = z["offsets"].astype(np.float64)
+            f = self.path / self._by_name[name]["file"]
+            try:
+                with np.load(f, allow_pickle=False) as z:
+                    skel.offsets = z["offsets"].astype(np.float64)
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+                raise file_error(f, f"corrupt clip file ({exc.__class__.__name__})") from None
         return skel
 
     def stats(self, speaker: int | str | None = None) -> dict[str, np.ndarray]:

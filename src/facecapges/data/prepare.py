@@ -19,6 +19,20 @@ Clips of the selected speakers without a ``.bvh`` are not training clips: they a
 listed in ``index["skipped"]`` and counted in the summary as "audio only" (or "no
 motion, no audio"); a ``.bvh`` without a ``.wav`` is skipped as "motion only".
 
+Other sources (``mocap``, ``joints9``; any number of files or folders each):
+
+* a BVH of another skeleton with a same-named ``.wav`` is retargeted onto the BEAT
+  skeleton (:mod:`facecapges.data.retarget`; joint map by name or detected), then
+  resampled to the cache rate;
+* a reduced-joint ``.npy`` with a same-named ``.wav`` is read by
+  :mod:`facecapges.data.joints9`.
+
+Their clips carry a joint ``mask``, the speaker id of their map (ZEGGS: 100; see
+:mod:`facecapges.data.cache` for the id scheme) and no face, semantic or emotion.
+The BEAT skeleton their poses are written on is the first BEAT BVH's, or ``target``.
+After all clips, masked joints are given the cache's mean rotation of that joint
+(:func:`~facecapges.data.retarget.fill_masked`; world rotations unchanged).
+
 The cache is written to a hidden ``.<name>.part`` folder beside ``out`` and renamed at
 the end, so an interrupted run never leaves a half cache that looks complete. An
 existing ``out`` is only replaced with ``force``, and only when it is a facecapges
@@ -37,12 +51,13 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.data import beat
-from facecapges.data.cache import (CACHE_VERSION, CLIP_DIR, INDEX_NAME, RunningStats, skeleton_to_dict)
+from facecapges.data.cache import (CACHE_VERSION, CLIP_DIR, FIRST_OTHER_SPEAKER, HOLDOUT_FRACTION, INDEX_NAME,
+                                   RunningStats)
 from facecapges.errors import UserError, file_error, refuse_overwrite
 from facecapges.io.audio import load_audio
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
-from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, motion_to_pose
+from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, head_rot6d, motion_to_pose, skeleton_to_dict
 
 
 def _fit_length(x: np.ndarray, n: int, pad: str = "edge") -> np.ndarray:
@@ -103,6 +118,7 @@ def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Sk
         "semantic": semantic.astype(np.float32), "semantic_present": np.array(sem_path is not None),
         "emotion": emotion.astype(np.int16), "emotion_present": np.array(emo_path is not None),
         "audio": audio.astype(np.float32), "offsets": bvh.skeleton.offsets.astype(np.float64),
+        "mask": np.ones(N_JOINTS, bool),
     }
     clip = files.clip
     entry = {
@@ -110,8 +126,99 @@ def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Sk
         "n_frames": T, "duration_s": round(T / fps, 6), "audio_s": round(len(audio_full) / sr, 6),
         "source_fps": bvh.fps, "file": f"{CLIP_DIR}/{clip.stem}.npz",
         "has_face": face_path is not None, "has_semantic": sem_path is not None, "has_emotion": emo_path is not None,
+        "dataset": "BEAT", "origin": "beat", "joint_map": None, "n_masked": 0,
+        "holdout_from": holdout_frame(T),
     }
     return arrays, entry, bvh.skeleton, warnings
+
+
+def holdout_frame(T: int) -> int:
+    """First frame of a take's last 20 % (HOLDOUT_FRACTION)."""
+    return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
+
+
+# ------------------------------------------------------------ other sources
+def _paired(paths: list[Path], suffix: str, what: str) -> list[tuple[Path, Path]]:
+    """(motion file, wav) pairs from files or folders (searched recursively); a missing .wav is an error."""
+    out = []
+    for p in paths:
+        p = Path(p)
+        if p.is_dir():
+            found = sorted(q for q in p.rglob(f"*{suffix}") if q.is_file())
+            if not found:
+                raise file_error(p, f"no {suffix} files in this folder ({what})")
+        elif p.is_file():
+            found = [p]
+        else:
+            raise file_error(p, f"not found ({what})")
+        for m in found:
+            wav = m.with_suffix(".wav")
+            if not wav.is_file():
+                raise file_error(m, f"no matching audio {wav.name} beside it")
+            out.append((m, wav))
+    return out
+
+
+def _head_of(target: Skeleton, pose: np.ndarray) -> np.ndarray:
+    """Head rot6d (T, 6) of a pose on ``target`` (undriven joints at rest)."""
+    from facecapges import rotations as rot
+
+    T = len(pose)
+    mats = np.broadcast_to(np.eye(3), (T, target.n_joints, 3, 3)).copy()
+    mats[:, [target.index(n) for n in UPPER_BODY]] = rot.rot6d_to_matrix(pose.astype(np.float64))
+    return head_rot6d(target, mats)
+
+
+def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Path, fps: float, sr: int
+                  ) -> tuple[dict[str, np.ndarray], float]:
+    T = len(pose)
+    audio_full = load_audio(wav, sr)
+    S = int(math.floor(T * sr / fps + 1e-6))
+    arrays = {
+        "pose": pose.astype(np.float32), "head": _head_of(target, pose), "face": np.zeros((T, 52), np.float32),
+        "face_present": np.array(False), "semantic": np.zeros(T, np.float32), "semantic_present": np.array(False),
+        "emotion": np.zeros(T, np.int16), "emotion_present": np.array(False),
+        "audio": _fit_length(audio_full, S, pad="zero").astype(np.float32),
+        "offsets": target.offsets.astype(np.float64), "mask": mask.astype(bool),
+    }
+    return arrays, len(audio_full) / sr
+
+
+def _speaker_of(given: int | None, declared: int | None, what: str) -> int:
+    spk = given if given is not None else declared
+    if spk is None:
+        raise UserError(f"{what}: its joint map states no speaker id; give one with --mocap-speaker / "
+                        f"--joints9-speaker ({FIRST_OTHER_SPEAKER + 1} or more; {FIRST_OTHER_SPEAKER} is ZEGGS's)")
+    if spk < FIRST_OTHER_SPEAKER:
+        raise UserError(f"{what}: speaker id {spk} is in BEAT's range; other performers take ids from "
+                        f"{FIRST_OTHER_SPEAKER} on")
+    return spk
+
+
+def prepare_other_clip(kind: str, path: Path, wav: Path, target: Skeleton, fps: float, sr: int,
+                       spec: str | Path | None, speaker: int | None) -> tuple[dict[str, np.ndarray], dict, dict]:
+    """Arrays, index entry and speaker info of a take of another source.
+
+    ``kind`` is ``"mocap"`` (a BVH, retargeted with joint map ``spec``, default: detected)
+    or ``"joints9"`` (reduced-joint arrays, layout ``spec``, default ``zeggs9``).
+    """
+    from facecapges.data.joints9 import read_joints9
+    from facecapges.data.retarget import retarget_bvh
+
+    if kind == "mocap":
+        r, origin = retarget_bvh(path, target, spec, fps=fps), "retarget"
+    else:
+        r, origin = read_joints9(path, target, spec or "zeggs9", fps=fps), "joints9"
+    spk = _speaker_of(speaker, r.speaker, str(path))
+    arrays, audio_s = _other_arrays(r.pose, r.mask, target, wav, fps, sr)
+    name = f"{r.map_name}_{path.stem}"
+    T = r.n_frames
+    entry = {"name": name, "speaker": spk, "split": "train", "kind": beat.SPEECH, "n_frames": T,
+             "duration_s": round(T / fps, 6), "audio_s": round(audio_s, 6), "source_fps": r.source_fps,
+             "file": f"{CLIP_DIR}/{name}.npz", "has_face": False, "has_semantic": False, "has_emotion": False,
+             "dataset": r.dataset, "origin": origin, "joint_map": r.map_name, "n_masked": int((~r.mask).sum()),
+             "holdout_from": holdout_frame(T)}
+    return arrays, entry, {"dataset": r.dataset, "licence": r.licence, "performer": str(spk)}
 
 
 def _check_out(out: Path, force: bool) -> None:
@@ -136,37 +243,50 @@ def _new_acc() -> dict[str, RunningStats]:
     return {"pose": RunningStats(N_JOINTS * 6), "head": RunningStats(6), "face": RunningStats(52)}
 
 
-def prepare(beat_root: str | Path, out: str | Path, speakers: list[int] | None = None,
+def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] | None = None,
             fps: float = timing.MODEL_FPS, force: bool = False, progress: bool = True,
-            sr: int = timing.AUDIO_SR) -> dict:
-    """Build the cache ``out`` from the BEAT folder ``beat_root``; return its index.
+            sr: int = timing.AUDIO_SR, mocap: list[Path] | tuple = (), joints9: list[Path] | tuple = (),
+            joint_map: str | Path | None = None, layout: str | Path | None = None,
+            mocap_speaker: int | None = None, joints9_speaker: int | None = None,
+            target: Skeleton | None = None) -> dict:
+    """Build the cache ``out`` from the BEAT folder ``beat_root`` and other sources; return its index.
 
-    ``speakers`` restricts to those speaker ids (None: all found). Raises
+    ``speakers`` restricts BEAT to those speaker ids (None: all found). ``mocap``: BVH
+    files/folders of other skeletons (retargeted with ``joint_map``, default: detected);
+    ``joints9``: reduced-joint ``.npy`` files/folders (``layout``, default ``zeggs9``).
+    ``target``: the BEAT skeleton for those when there is no BEAT BVH. Raises
     :class:`~facecapges.errors.UserError` for an empty folder, unknown speakers, bad
     files, or an existing ``out`` without ``force``.
     """
-    beat_root, out = Path(beat_root), Path(out)
+    out = Path(out)
     if fps <= 0:
         raise UserError(f"--fps must be positive, got {fps}")
     _check_out(out, force)
-    found = beat.require_beat_clips(beat_root)
-    if speakers:
-        chosen = [c for c in found if c.clip.speaker in set(speakers)]
-        if not chosen:
-            have = sorted({c.clip.speaker for c in found})
-            raise UserError(f"{beat_root}: no clips of speaker(s) {sorted(speakers)} (found speakers {have})")
-    else:
-        chosen = found
-    usable = [c for c in chosen if c.get("bvh") and c.get("wav")]
-    skipped = []
-    for c in chosen:
-        if c.get("bvh") and c.get("wav"):
-            continue
-        reason = ("audio only" if c.get("wav") else "motion only") if (c.get("wav") or c.get("bvh")) \
-            else "no motion, no audio"
-        skipped.append({"name": c.name, "speaker": c.clip.speaker, "reason": reason,
-                        "files": sorted(p.name for p in c.files.values())})
-    if not usable:
+    usable: list[beat.ClipFiles] = []
+    skipped: list[dict] = []
+    if beat_root is not None:
+        beat_root = Path(beat_root)
+        found = beat.require_beat_clips(beat_root)
+        if speakers:
+            chosen = [c for c in found if c.clip.speaker in set(speakers)]
+            if not chosen:
+                have = sorted({c.clip.speaker for c in found})
+                raise UserError(f"{beat_root}: no clips of speaker(s) {sorted(speakers)} (found speakers {have})")
+        else:
+            chosen = found
+        usable = [c for c in chosen if c.get("bvh") and c.get("wav")]
+        for c in chosen:
+            if c.get("bvh") and c.get("wav"):
+                continue
+            reason = ("audio only" if c.get("wav") else "motion only") if (c.get("wav") or c.get("bvh")) \
+                else "no motion, no audio"
+            skipped.append({"name": c.name, "speaker": c.clip.speaker, "reason": reason,
+                            "files": sorted(p.name for p in c.files.values())})
+    others = [("mocap", m, w) for m, w in _paired(list(mocap), ".bvh", "--mocap")] + \
+        [("joints9", m, w) for m, w in _paired(list(joints9), ".npy", "--joints9")]
+    if not usable and not others:
+        if beat_root is None:
+            raise UserError("nothing to prepare: give a BEAT folder, --mocap or --joints9")
         raise UserError(f"{beat_root}: no clip has both a .bvh and a .wav ({len(skipped)} incomplete clip(s): "
                         f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})")
 
@@ -176,6 +296,8 @@ def prepare(beat_root: str | Path, out: str | Path, speakers: list[int] | None =
     (tmp / CLIP_DIR).mkdir(parents=True)
     entries, warnings = [], []
     reference: tuple[Skeleton, Path] | None = None
+    speaker_info: dict[str, dict] = {}
+    masks: dict[str, np.ndarray] = {}
     acc_train: dict[int, dict[str, RunningStats]] = {}
     acc_all: dict[int, dict[str, RunningStats]] = {}
     try:
@@ -184,23 +306,47 @@ def prepare(beat_root: str | Path, out: str | Path, speakers: list[int] | None =
         columns = (TextColumn("[bold]prepare[/bold] {task.description:<24}"), BarColumn(), MofNCompleteColumn(),
                    TimeRemainingColumn())
         with Progress(*columns, disable=not progress, transient=False) as bar:
-            task = bar.add_task("", total=len(usable))
+            task = bar.add_task("", total=len(usable) + len(others))
+
+            def add(arrays: dict, entry: dict) -> None:
+                if entry["name"] in masks:
+                    raise UserError(f"two clips are named {entry['name']!r}; rename one of the files")
+                np.savez_compressed(tmp / entry["file"], **arrays)
+                entries.append(entry)
+                masks[entry["name"]] = arrays["mask"]
+                spk = int(entry["speaker"])
+                present = np.repeat(arrays["mask"], 6)
+                for acc in ([acc_all.setdefault(spk, _new_acc())]
+                            + ([acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else [])):
+                    acc["pose"].add(arrays["pose"].reshape(len(arrays["pose"]), -1), present)
+                    acc["head"].add(arrays["head"])
+                    if entry["has_face"]:
+                        acc["face"].add(arrays["face"])
+                bar.advance(task)
+
             for files in usable:
                 bar.update(task, description=files.name)
                 arrays, entry, skel, warn = prepare_clip(files, fps, sr, reference)
                 if reference is None:
                     reference = (skel, files.get("bvh"))
-                np.savez_compressed(tmp / entry["file"], **arrays)
-                entries.append(entry)
                 warnings.extend(warn)
-                spk = files.clip.speaker
-                for acc in ([acc_all.setdefault(spk, _new_acc())]
-                            + ([acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else [])):
-                    acc["pose"].add(arrays["pose"].reshape(len(arrays["pose"]), -1))
-                    acc["head"].add(arrays["head"])
-                    if entry["has_face"]:
-                        acc["face"].add(arrays["face"])
-                bar.advance(task)
+                speaker_info.setdefault(str(entry["speaker"]), {"dataset": "BEAT", "licence": "CC BY-NC 4.0",
+                                                                "performer": files.clip.performer})
+                add(arrays, entry)
+            if others:
+                if reference is None:
+                    if target is None:
+                        raise UserError("--mocap/--joints9 need the BEAT skeleton to write poses on: give a BEAT "
+                                        "folder or a target skeleton")
+                    reference = (target, Path("target skeleton"))
+                for kind, motion_path, wav in others:
+                    bar.update(task, description=motion_path.stem[:24])
+                    mocap_kind = kind == "mocap"
+                    arrays, entry, info = prepare_other_clip(
+                        kind, motion_path, wav, reference[0], fps, sr, joint_map if mocap_kind else layout,
+                        mocap_speaker if mocap_kind else joints9_speaker)
+                    speaker_info.setdefault(str(entry["speaker"]), info)
+                    add(arrays, entry)
 
         stats: dict = {}
         pooled_train, pooled_all = _new_acc(), _new_acc()
@@ -211,13 +357,15 @@ def prepare(beat_root: str | Path, out: str | Path, speakers: list[int] | None =
                 pooled_train[k].merge(train[k])
                 pooled_all[k].merge(acc_all[spk][k])
         stats["all"] = _stats_block(pooled_train, pooled_all, "all speakers")
+        fill = _fill_masked_clips(tmp, entries, masks, pooled_all["pose"], reference[0])
 
         index = {
-            "version": CACHE_VERSION, "fps": fps, "sr": sr, "source": str(beat_root.resolve()),
+            "version": CACHE_VERSION, "fps": fps, "sr": sr,
+            "source": str(beat_root.resolve()) if beat_root is not None else None,
             "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
             "skeleton": skeleton_to_dict(reference[0]), "skeleton_source": reference[1].name,
             "upper_body": list(UPPER_BODY), "clips": entries, "skipped": skipped, "warnings": warnings,
-            "stats": stats,
+            "speakers": speaker_info, "fill": fill.reshape(-1).tolist(), "stats": stats,
         }
         (tmp / INDEX_NAME).write_text(json.dumps(index, indent=1), encoding="utf-8")
         if out.exists():
@@ -227,6 +375,30 @@ def prepare(beat_root: str | Path, out: str | Path, speakers: list[int] | None =
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return index
+
+
+def _fill_masked_clips(tmp: Path, entries: list[dict], masks: dict[str, np.ndarray], pose_acc: RunningStats,
+                       target: Skeleton) -> np.ndarray:
+    """Give masked joints the cache's mean rotation (identity where no clip has the joint); returns it (47, 6)."""
+    from facecapges import rotations as rot
+    from facecapges.data.retarget import fill_masked
+
+    mean, _ = pose_acc.result()
+    mean = np.asarray(mean).reshape(N_JOINTS, 6)
+    seen = pose_acc.count.reshape(N_JOINTS, 6)[:, 0] > 0
+    fill = np.where(seen[:, None], rot.normalize_rot6d(mean), rot.identity_rot6d((N_JOINTS,)))
+    fill = fill.astype(np.float32)
+    for e in entries:
+        m = masks[e["name"]]
+        if m.all():
+            continue
+        path = tmp / e["file"]
+        with np.load(path, allow_pickle=False) as z:
+            arrays = {k: z[k] for k in z.files}
+        arrays["pose"] = fill_masked(target, arrays["pose"], m, fill)
+        arrays["head"] = _head_of(target, arrays["pose"])
+        np.savez_compressed(path, **arrays)
+    return fill
 
 
 def summary_rows(index: dict) -> list[tuple[str, str, int, int, float]]:
@@ -249,7 +421,7 @@ def summary_table(index: dict):
     """A rich Table of :func:`summary_rows`, with skipped clips counted in the caption."""
     from rich.table import Table
 
-    table = Table(title=f"BEAT cache at {index['fps']:g} fps, {index['sr']} Hz")
+    table = Table(title=f"Cache at {index['fps']:g} fps, {index['sr']} Hz")
     for col, just in (("split", "left"), ("speaker", "left"), ("clips", "right"), ("frames", "right"),
                       ("seconds", "right")):
         table.add_column(col, justify=just)

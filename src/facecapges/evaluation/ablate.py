@@ -151,8 +151,12 @@ def make_recipe(config: Path | None, speaker: int, split: str | None, epochs: in
 def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_names: list[str]) -> str | None:
     """None when a checkpoint's metadata says it was trained by this recipe, else the reason."""
     mcfg, tcfg = recipe.resolved(model_extra)
+    from facecapges.model.config import TrainConfig, to_dict
+
+    # a field added to TrainConfig after the checkpoint was written counts at its default
+    stored_t = dict(to_dict(TrainConfig()), **(meta.get("train_config") or {}))
     checks = [(meta.get("model_config") == mcfg, "model config differs"),
-              (meta.get("train_config") == tcfg, "training config differs"),
+              (stored_t == tcfg, "training config differs"),
               (meta.get("epochs_trained") == tcfg["epochs"], "not trained for the full number of epochs"),
               (meta.get("speaker") == recipe.speaker, "other speaker"),
               (list(meta.get("clips") or []) == clip_names, "other clips"),

@@ -139,10 +139,11 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
         """Evaluate a checkpoint the way thesis ch. 5 does (FGD, SRGR, BeatAlign, L1DIV; both regions)."""
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_dir
         from facecapges.evaluation.run import run_eval
 
-        refuse_overwrite(out / "metrics.json", force)
+        check_output_dir(out, ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+                         + (["real_vs_generated.mp4"] if video else []), force)
         if split not in ("train", "val", "test", "all"):
             raise UserError(f"--split must be train, val, test or all, got {split!r}")
         summary = run_eval(cache=cache, out=out, checkpoint=checkpoint, style=style, speaker=speaker, split=split,
@@ -162,7 +163,9 @@ def register(app: typer.Typer) -> None:
         config: Optional[Path] = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
                                                          "(default: configs/demo-beat2-scott.yaml, the shipped "
                                                          "model's recipe)."),
-        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's)."),
+        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
+                                                             "FGD autoencoder's: that is --fgd-epochs (400) when none "
+                                                             "is found; pass --fgd to use an existing one."),
         split: Optional[str] = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
                                                        "else train)."),
         holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
@@ -192,13 +195,15 @@ def register(app: typer.Typer) -> None:
         """Ablation study (thesis 5.7, Table 5.3): train the variants with one budget, evaluate them."""
         import sys
 
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_dir
         from facecapges.evaluation.ablate import run_ablation
 
-        refuse_overwrite(out / "ablation.json", force)
         if fgd_epochs < 1:
             raise UserError("--fgd-epochs must be at least 1")
         chosen = tuple(v.strip() for v in variants.split(",") if v.strip())
+        # every output is checked before any training; --retrain would replace the runs' models
+        check_output_dir(out, ["ablation.json", "ablation.md"]
+                         + ([f"runs/{v}/model.safetensors" for v in chosen] if retrain else []), force)
         doc = run_ablation(cache=cache, out=out, speaker=speaker, config=config, epochs=epochs, split=split,
                            holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
                            fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,

@@ -7,8 +7,13 @@ summary, the cold-start neutral pose window (N, 47, 6) taken from the training d
 the speaker, and the skeleton header (the BEAT hierarchy the poses belong to, so BVH
 can be written).
 
-Installed styles live in ``facecapges/assets/styles/<name>.safetensors`` with a model
-card ``<name>.md``; ``DEFAULT_STYLE`` is the one trained on the shared BEAT clip.
+Styles ship in ``facecapges/assets/styles/<name>.safetensors`` with a model card
+``<name>.md``; ``DEFAULT_STYLE`` is the one trained on the shared BEAT clip. Styles a
+user trains are installed (``facecapges styles install RUN``) into the user data
+folder :func:`user_styles_dir` — ``$FACECAPGES_STYLES`` if set, else
+``$XDG_DATA_HOME/facecapges/styles`` (``~/.local/share/facecapges/styles`` by
+default) — and found by ``--style NAME`` like the shipped ones; a user style of the
+same name as a shipped one takes precedence.
 """
 
 from __future__ import annotations
@@ -28,12 +33,62 @@ FORMAT = "facecapges-checkpoint-1"
 
 
 def styles_dir() -> Path:
+    """The styles shipped inside the package."""
     return Path(str(resources.files("facecapges") / "assets" / "styles"))
 
 
+def user_styles_dir() -> Path:
+    """Where ``styles install`` puts the user's own styles (module docs)."""
+    import os
+
+    if os.environ.get("FACECAPGES_STYLES"):
+        return Path(os.environ["FACECAPGES_STYLES"])
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "facecapges" / "styles"
+
+
 def list_styles() -> dict[str, Path]:
-    d = styles_dir()
-    return {p.stem: p for p in sorted(d.glob("*.safetensors"))} if d.is_dir() else {}
+    """Every style by name: the shipped ones, then the user's (which win on a name clash)."""
+    out: dict[str, Path] = {}
+    for d in (styles_dir(), user_styles_dir()):
+        if d.is_dir():
+            out.update({p.stem: p for p in sorted(d.glob("*.safetensors"))})
+    return out
+
+
+def install_style(run: str | Path, name: str | None = None, force: bool = False) -> Path:
+    """Copy a trained model (a run folder or a ``.safetensors`` file) into :func:`user_styles_dir`.
+
+    The file is checked first (it must load as a streaming checkpoint). Beside it go
+    the run's ``log.csv`` (as ``NAME.log.csv``), a model card ``NAME.md`` if the run has
+    one (``model_card.md``) and its FGD autoencoder folder if ``fgd-train`` wrote one
+    (``model.fgd/`` → ``NAME.fgd/``). An existing user style of that name is replaced
+    only with ``force``.
+    """
+    import re
+    import shutil
+
+    src = resolve(run)
+    folder = src.parent
+    name = name or (folder.name if src.name == "model.safetensors" else src.stem)
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
+        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    load_checkpoint(src)  # refuse what would not load
+    dest_dir = user_styles_dir()
+    dest = dest_dir / f"{name}.safetensors"
+    if dest.exists() and not force:
+        raise UserError(f"{dest}: a style named {name!r} is installed; pass --force to replace it")
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dest)
+    extras = [(folder / "log.csv", dest_dir / f"{name}.log.csv"), (folder / "model_card.md", dest_dir / f"{name}.md")]
+    for a, b in extras:
+        if a.is_file():
+            shutil.copyfile(a, b)
+    fgd = src.with_suffix(".fgd")
+    if fgd.is_dir():
+        shutil.rmtree(dest_dir / f"{name}.fgd", ignore_errors=True)
+        shutil.copytree(fgd, dest_dir / f"{name}.fgd")
+    return dest
 
 
 def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> Path:
@@ -51,7 +106,8 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
     styles = list_styles()
     if name not in styles:
         known = ", ".join(styles) or "none installed"
-        raise UserError(f"unknown style {name!r} (installed: {known})")
+        raise UserError(f"unknown style {name!r} (installed: {known}; install your own with "
+                        "`facecapges styles install RUN`)")
     return styles[name]
 
 
@@ -138,11 +194,18 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
     try:
         meta = json.loads(raw_meta)
-    except json.JSONDecodeError:
+    except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != FORMAT:
-        raise file_error(p, f"unsupported checkpoint format {meta.get('format')!r} (expected {FORMAT})")
-    cfg = model_config_from_dict(meta["model_config"])
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        fmt = meta.get("format") if isinstance(meta, dict) else None
+        raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
+    for key in ("model_config",):
+        if key not in meta:
+            raise file_error(p, f"checkpoint metadata has no {key!r}: not a complete FaceCapGes checkpoint")
+    try:
+        cfg = model_config_from_dict(meta["model_config"])
+    except UserError as exc:
+        raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
     model = FaceCapGes(cfg)
     try:
         model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)

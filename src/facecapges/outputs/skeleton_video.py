@@ -18,7 +18,7 @@ H.264 MP4 (yuv420p, plays in browsers) with an optional WAV as AAC.
   hand is on the viewer's left. One scale for all panels and frames, so the panels
   compare directly.
 * **Drawing** with OpenCV (``cv2.line``, anti-aliased) into one BGR frame per time
-  step, piped raw into the ``imageio-ffmpeg`` ffmpeg binary; nothing is held in
+  step, piped raw into the project's MP4 writer (:mod:`facecapges.io.mp4`); nothing is held in
   memory but the current frame. Colours: torso/head grey, right arm red, left arm
   blue (BGR order internally).
 * Sequences of different lengths: the video lasts as long as the longest; a shorter
@@ -28,7 +28,6 @@ H.264 MP4 (yuv420p, plays in browsers) with an optional WAV as AAC.
 
 from __future__ import annotations
 
-import subprocess
 from pathlib import Path
 from typing import Sequence
 
@@ -93,7 +92,6 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
     audio muxed in (AAC). ``panel_size`` (width, height) in pixels, rounded to even.
     """
     import cv2
-    import imageio_ffmpeg
 
     if len(poses) == 0 or len(poses) != len(titles):
         raise ValueError(f"need one title per pose sequence, got {len(poses)} poses and {len(titles)} titles")
@@ -111,13 +109,9 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
     W, H = pw * len(poses), ph
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "bgr24",
-           "-s", f"{W}x{H}", "-r", f"{fps:g}", "-i", "-"]
-    if wav is not None:
-        cmd += ["-i", str(wav), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k", "-shortest"]
-    cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", str(crf), "-pix_fmt", "yuv420p",
-            "-movflags", "+faststart", str(out)]
-    proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
+    from facecapges.io.mp4 import Mp4Writer
+
+    writer = Mp4Writer(out, fps, audio=wav, crf=crf)
     background = np.full((H, W, 3), 250, np.uint8)
     for k, title in enumerate(titles):
         cv2.putText(background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2,
@@ -142,20 +136,10 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
                         cv2.circle(frame, tuple(c), r, _TORSO, 3, cv2.LINE_AA, shift=2)
                 cv2.putText(frame, f"{t / fps:5.1f} s", (W - 110, H - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
                             (80, 80, 80), 1, cv2.LINE_AA)
-                try:
-                    proc.stdin.write(frame.tobytes())
-                except BrokenPipeError:
-                    break
+                writer.write(frame)
                 bar.advance(task)
-        try:
-            proc.stdin.close()
-        except BrokenPipeError:
-            pass
-        err = proc.stderr.read().decode(errors="replace")
-        if proc.wait() != 0:
-            raise RuntimeError(f"ffmpeg failed writing {out}: {err.strip()}")
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        writer.close()
+    except BaseException:
+        writer.abort()
+        raise
     return out

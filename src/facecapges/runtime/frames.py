@@ -11,7 +11,8 @@ rate, 15 by default, :mod:`facecapges.timing`). Its :class:`InputFrame` holds
 
 and its :class:`OutputFrame` the generated upper-body pose (47 joints,
 ``facecapges.skeleton.UPPER_BODY`` order) as rot6d and as local-rotation quaternions
-(w, x, y, z), with the face that was shown and the per-stage compute time.
+(w, x, y, z), with the face that was shown and the per-stage compute time. With
+several faces (``--faces N``) each face has its own stream and ``face_index``.
 """
 
 from __future__ import annotations
@@ -40,3 +41,4 @@ class OutputFrame:
     head: np.ndarray  # (6,) rot6d
     face_found: bool
     latency_ms: dict[str, float] = field(default_factory=dict)  # capture, features, model, output, total
+    face_index: int = 0  # which face (avatar) of a several-face session, 0 = the first

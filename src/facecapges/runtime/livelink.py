@@ -17,24 +17,56 @@ throughout)::
     ..      uint8       value count (61)
     ..      61 float32  values (below)
 
-A packet with version 6 and 36-byte id is 1 + 4+36 + 4+m + 16 + 1 + 244 bytes
-(m = 13 → 319 bytes). The 61 values, in Apple's ``ARFaceAnchor.BlendShapeLocation``
-order as Unreal's ``EARFaceBlendShape`` lists them (:data:`LIVELINK_NAMES`): the 52
-blendshapes (``EyeBlinkLeft`` … ``TongueOut``, weights in [0, 1]), then ``HeadYaw``,
-``HeadPitch``, ``HeadRoll`` and the left/right eye yaw, pitch, roll, in radians.
+A packet with version 6 and a 36-byte id is 1 + 4+36 + 4+m + 16 + 1 + 244 bytes
+(m = 13 → 319 bytes; the LLV recordings, 32-byte id and 18-byte name, are 320). The 61
+values, in Apple's ``ARFaceAnchor.BlendShapeLocation`` order as Unreal's
+``EARFaceBlendShape`` lists them (:data:`LIVELINK_NAMES`): the 52 blendshapes
+(``EyeBlinkLeft`` … ``TongueOut``, weights in [0, 1]), then ``HeadYaw``, ``HeadPitch``,
+``HeadRoll`` and the left/right eye yaw, pitch, roll.
 
-Conversion to the project's frame: the 52 weights are reordered into
-``facecapges.arkit.ARKIT_NAMES`` by name; the head angles become the head → camera
-rotation ``R = R_Y(yaw) @ R_X(pitch) @ R_Z(roll)`` of
-:func:`facecapges.capture.head_pose.angles_to_matrix` (ARKit's face anchor is right-handed, Y
-up, +Z out of the face, the same convention as our capture), then rot6d. The eye
-angles are decoded but not used by the model.
+Head angles: units and signs (settled on real recordings)
+---------------------------------------------------------
+The published sources disagree with a naive reading. Unreal's ARKit face support
+(``ToBlendShapeMap`` in AppleARKitFaceSupport) turns the face transform into an
+``FRotator`` and stores ``degrees / 180`` (so ±1 = ±180°), negating yaw and roll when the
+face is *not* mirrored. The recordings of the app's packets in ``../shared/data/livelink/``
+(the BSD-2 LLV project's ``.gesichter`` files) settle both questions:
+
+* **Units: radians.** In ``dao.gesichter`` (180 frames of a real face) every eye angle is
+  an exact linear function of the eye's ``EyeLook*`` weights (correlation 1.000): a full
+  look (weight 1) is 0.61 of the angle unit. As radians that is 35°, the eye's real
+  range; as degrees/180 it would be 110°, which no eye can do. The head, whose angles
+  come from the same transform code, spans yaw −0.19…0.31, pitch −0.04…0.08 and roll
+  −0.35…0.43: 11–25° as radians (a person talking and moving), 34–77° as degrees/180
+  (a 77° roll would lay the head on the shoulder); as degrees it would be a head frozen
+  within half a degree while the eyes sweep ±13°.
+* **Signs: yaw and roll are negated, pitch kept.** Apple documents ``eyeLookInLeft`` and
+  ``eyeLookOutRight`` as a *rightward* gaze, and both eyes' yaw grows with them: eye yaw
+  > 0 is a gaze to the subject's right, eye pitch > 0 a gaze down. In the recording the
+  head follows the eyes in both yaw (r = 0.98) and pitch (r = 0.65) with the eyes
+  *leading* by 2–7 frames — ordinary eye-head gaze shifts, where eyes and head turn the
+  same way — so head yaw > 0 turns the head to the subject's right and head pitch > 0
+  tilts it down. Our convention (:mod:`facecapges.capture.head_pose`) has yaw > 0 to
+  the subject's *left* and pitch > 0 down, so yaw changes sign. Roll changes sign with
+  it: mirroring a face (the only thing Unreal's flag changes) negates yaw and roll
+  together and never pitch, so whichever convention a packet is in, yaw and roll share
+  their sign flip.
+
+So the head → camera rotation is ``R = angles_to_matrix(−HeadYaw, HeadPitch, −HeadRoll)``
+(:func:`facecapges.capture.head_pose.angles_to_matrix`: ``R_Y(yaw) @ R_X(pitch) @ R_Z(roll)``
+in the ARKit-style camera frame, right-handed, Y up, +Z out of the face), then rot6d;
+:attr:`LiveLinkFrame.head_angles` returns the angles already converted. ``tests/
+test_runtime_livelink.py`` checks these figures on the recordings. The eye angles are
+decoded but not used by the model. The 52 weights are reordered into
+``facecapges.arkit.ARKIT_NAMES`` by name.
 
 Robustness: :func:`decode_packet` raises :class:`PacketError` for anything that is not
-exactly one such packet (truncated, trailing bytes, wrong version or count, lengths
-out of range, invalid UTF-8, non-finite values); :class:`LiveLinkReceiver` counts and
-drops those and never stops on them. A packet of another version is dropped too
-(counted as ``bad_packets``): the app's newer MetaHuman mode uses another format.
+one such packet (truncated, wrong version or count, lengths out of range, invalid UTF-8,
+non-finite values). Bytes *after* the 61 values are ignored, as Unreal's receiver
+ignores them (it reads the fields it knows and stops): a future app version may append
+fields. :class:`LiveLinkReceiver` counts and drops bad packets and never stops on them.
+A packet of another version is dropped too (counted as ``bad_packets``): the app's newer
+MetaHuman mode uses another format.
 """
 
 from __future__ import annotations
@@ -74,6 +106,7 @@ for _i, _n in enumerate(_BLEND):
     _TO_ARKIT[arkit_index(_n)] = _i
 assert sorted(_TO_ARKIT.tolist()) == list(range(N_BLENDSHAPES))
 
+HEAD_SIGNS = np.array([-1.0, 1.0, -1.0])  # wire (HeadYaw, HeadPitch, HeadRoll) → ours (module docstring)
 _TIME = struct.Struct(">ifii")
 _VALUES = struct.Struct(f">{N_VALUES}f")
 
@@ -105,8 +138,8 @@ class LiveLinkFrame:
 
     @property
     def head_angles(self) -> np.ndarray:
-        """(yaw, pitch, roll) radians."""
-        return self.values[52:55].astype(np.float64)
+        """(yaw, pitch, roll) radians in the project's convention: the wire's yaw and roll negated (module docstring)."""
+        return self.values[52:55].astype(np.float64) * HEAD_SIGNS
 
     @property
     def head_rot6d(self) -> np.ndarray:
@@ -132,7 +165,10 @@ def _string(data: bytes, pos: int, what: str) -> tuple[str, int]:
 
 
 def decode_packet(data: bytes) -> LiveLinkFrame:
-    """One packet (layout in the module docstring) → :class:`LiveLinkFrame`; :class:`PacketError` otherwise."""
+    """One packet (layout in the module docstring; trailing bytes ignored) → :class:`LiveLinkFrame`.
+
+    Raises :class:`PacketError` for anything else.
+    """
     data = bytes(data)
     if len(data) < 1:
         raise PacketError("empty packet")
@@ -148,7 +184,7 @@ def decode_packet(data: bytes) -> LiveLinkFrame:
     pos += 1
     if count != N_VALUES:
         raise PacketError(f"{count} values (expected {N_VALUES})")
-    if pos + _VALUES.size != len(data):
+    if pos + _VALUES.size > len(data):  # trailing bytes are ignored (module docstring)
         raise PacketError(f"{len(data) - pos} bytes of values (expected {_VALUES.size})")
     values = np.array(_VALUES.unpack_from(data, pos), np.float32)
     if not np.isfinite(values).all() or not np.isfinite(sub):

@@ -2,16 +2,23 @@
 
 Writes into ``DIR``:
 
-* ``motion.bvh`` — the generated upper body on the checkpoint's BEAT skeleton, model fps;
+* ``motion.bvh`` — the generated upper body on the checkpoint's BEAT skeleton, model fps,
+  with the avatar's head as shown (``--head``, :mod:`facecapges.runtime.head`);
 * ``face.json`` — BEAT-format face JSON of the weights the avatar showed (+ head rot6d);
 * ``avatar.mp4`` — the avatar (three.js in headless Chromium,
-  :mod:`facecapges.avatar.render.video`) with the input audio;
+  :mod:`facecapges.avatar.render.video`, ``--video-size``, with a face close-up inset)
+  with the input audio;
 * ``side_by_side.mp4`` — the input video frame each model frame used (the newest one
   before the frame's deadline, the scheduler's rule) | the avatar, same audio;
+* with ``--faces N`` (N > 1): ``motion_1.bvh``, ``face_1.json`` … one pair per face
+  (face ``i`` = the ``i``-th face from the left as they first appear), and every
+  avatar next to each other in ``avatar.mp4`` and ``side_by_side.mp4``;
 * ``report.json`` — ``frames``, ``latency_ms`` (``p50``/``p99``/``mean``/``max`` per
   stage: ``capture``, ``features``, ``model``, ``output`` and ``total`` = input frame to
   pose + blendshapes; the first 5 frames are warm-up and excluded), ``events`` (the
-  scheduler's fallback counters), wall-clock seconds per phase, inputs and checkpoint.
+  scheduler's fallback counters), ``head_follow`` (how closely the avatar's head
+  follows the captured one: yaw/pitch correlation, ranges, mean error), wall-clock
+  seconds per phase, inputs and checkpoint.
 
 The frame count is ``ceil(audio duration · fps)`` (as ``generate``), or ``--max-frames``.
 """
@@ -19,14 +26,13 @@ The frame count is ``ceil(audio duration · fps)`` (as ``generate``), or ``--max
 from __future__ import annotations
 
 import json
-import subprocess
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_dir
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -38,18 +44,43 @@ def _avatar_glb(skeleton) -> bytes:
     return b"".join(avatar_to_gltf(default_avatar(skeleton)).save_to_bytes())
 
 
-def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames: int, audio_wav: Path | None,
-                 height: int = 480) -> None:
-    """Input frame used by model frame k (newest before (k+1)/fps) | avatar frame k → ``out`` (H.264 + AAC)."""
+def _label(img: np.ndarray, text: str, x: int, dark: bool = False) -> None:
+    import cv2
+
+    if not dark:
+        cv2.putText(img, text, (x, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 4, cv2.LINE_AA)
+    cv2.putText(img, text, (x, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (40, 40, 40) if dark else (255, 255, 255), 2,
+                cv2.LINE_AA)
+
+
+def _frames(mp4: Path):
+    """BGR frames of an MP4 (imageio-ffmpeg's reader)."""
     import cv2
     import imageio_ffmpeg
 
+    reader = imageio_ffmpeg.read_frames(str(mp4))
+    try:
+        w, h = next(reader)["size"]
+        for raw in reader:
+            yield cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(h, w, 3), cv2.COLOR_RGB2BGR)
+    finally:
+        reader.close()
+
+
+def side_by_side(video: Path, avatar_mp4s: list[Path], out: Path, fps: float, n_frames: int, audio_wav: Path | None,
+                 height: int = 480, with_input: bool = True) -> None:
+    """Input frame used by model frame k (newest before (k+1)/fps) | avatar frame(s) k → ``out`` (H.264 + AAC).
+
+    Several avatars (one per face, left to right as the faces' slots) stand next to each
+    other; ``with_input=False`` writes the avatars alone (``avatar.mp4`` of several faces)."""
+    import cv2
+
+    from facecapges.io.mp4 import Mp4Writer
+
     cap = cv2.VideoCapture(str(video))
     vfps = float(cap.get(cv2.CAP_PROP_FPS) or 25.0)
-    reader = imageio_ffmpeg.read_frames(str(avatar_mp4))
-    meta = next(reader)
-    aw, ah = meta["size"]
-    proc = None
+    readers = [_frames(p) for p in avatar_mp4s]
+    writer = Mp4Writer(out, fps, audio=audio_wav, crf=22)
     try:
         vi, frame = -1, None
         for k in range(n_frames):
@@ -60,70 +91,98 @@ def side_by_side(video: Path, avatar_mp4: Path, out: Path, fps: float, n_frames:
                     break
                 vi, frame = vi + 1, img
             try:
-                av = np.frombuffer(next(reader), np.uint8).reshape(ah, aw, 3)
+                avs = [next(r) for r in readers]
             except StopIteration:
                 break
-            av = cv2.cvtColor(av, cv2.COLOR_RGB2BGR)
-            if av.shape[0] != height:
-                av = cv2.resize(av, (int(round(aw * height / ah)), height), interpolation=cv2.INTER_AREA)
-            src = frame if frame is not None else np.zeros((height, height, 3), np.uint8)
-            src = cv2.resize(src, (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
-                             interpolation=cv2.INTER_AREA)
-            img = np.hstack([src, av])
-            cv2.putText(img, "input", (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 4, cv2.LINE_AA)
-            cv2.putText(img, "input", (10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2, cv2.LINE_AA)
-            cv2.putText(img, "avatar", (src.shape[1] + 10, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (40, 40, 40), 2,
-                        cv2.LINE_AA)
-            if proc is None:
-                h, w = img.shape[:2]
-                cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt",
-                       "bgr24", "-s", f"{w}x{h}", "-framerate", f"{fps:g}", "-i", "-"]
-                if audio_wav is not None:
-                    cmd += ["-i", str(audio_wav), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k",
-                            "-shortest"]
-                cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", "22", "-pix_fmt", "yuv420p",
-                        "-movflags", "+faststart", str(out)]
-                proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
-            proc.stdin.write(np.ascontiguousarray(img).tobytes())
-        if proc is None:
-            raise UserError(f"{avatar_mp4}: no frames to put side by side")
-        proc.stdin.close()
-        err = proc.stderr.read().decode(errors="replace")
-        if proc.wait() != 0:
-            raise RuntimeError(f"ffmpeg failed writing {out}: {err.strip()}")
+            panels = []
+            if with_input:
+                src = frame if frame is not None else np.zeros((height, height, 3), np.uint8)
+                panels.append(cv2.resize(src, (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
+                                         interpolation=cv2.INTER_AREA))
+            for av in avs:
+                if av.shape[0] != height:
+                    av = cv2.resize(av, (int(round(av.shape[1] * height / av.shape[0])), height),
+                                    interpolation=cv2.INTER_AREA)
+                panels.append(av)
+            img = np.hstack(panels)
+            x = 0
+            if with_input:
+                _label(img, "input", 10)
+                x = panels[0].shape[1]
+            for i, p in enumerate(panels[int(with_input):]):
+                _label(img, "avatar" if len(avs) == 1 else f"avatar {i + 1}", x + 10, dark=True)
+                x += p.shape[1]
+            writer.write(img)
+        if not writer.frames:
+            raise UserError(f"{avatar_mp4s[0]}: no frames to put side by side")
+        writer.close()
+    except BaseException:
+        writer.abort()
+        raise
     finally:
         cap.release()
-        reader.close()
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        for r in readers:
+            r.close()
+
+
+def output_names(faces: int) -> tuple[str, ...]:
+    """The files ``run`` writes: one motion and face file per face (``motion_1.bvh`` … for several)."""
+    if faces == 1:
+        return OUTPUTS
+    per = tuple(f"{stem}_{i + 1}{ext}" for i in range(faces) for stem, ext in (("motion", ".bvh"), ("face", ".json")))
+    return per + OUTPUTS[2:]
+
+
+def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple[int, int]:
+    """``"WxH"`` (even, 160…3840 × 120…2160) → (width, height); None → ``default``."""
+    if text is None:
+        return default
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise UserError(f"--video-size must look like 640x480, got {text!r}") from None
+    if not (160 <= w <= 3840 and 120 <= h <= 2160):
+        raise UserError(f"--video-size {text}: width must be 160…3840 and height 120…2160")
+    return w // 2 * 2, h // 2 * 2
 
 
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
-              estimator: str = "hybrid") -> dict:
-    """The whole ``run`` command (module docstring); returns the report."""
+              estimator: str = "hybrid", head: str = "capture", faces: int = 1,
+              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None,
+              face_layout: str = "beat") -> dict:
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
+    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
 
     from facecapges.io.audio import save_audio
+    from facecapges.runtime.head import check_head_mode, head_follow
     from facecapges.runtime.session import build_session, full_quaternions
-    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, MemoryRecorder
+    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
 
     t_start = time.perf_counter()
     video = Path(video)
     out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a directory")
-    for name in OUTPUTS:
-        refuse_overwrite(out_dir / name, force)
+    check_head_mode(head)
+    check_output_dir(out_dir, output_names(faces), force)
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
-    mem = MemoryRecorder()
-    bvh = BvhRecorder(out_dir / "motion.bvh", checkpoint.skeleton, fps)
-    face = FaceJsonRecorder(out_dir / "face.json", fps)
+    driver = None
+    if avatar is not None and videos:
+        from facecapges.avatar.vrm_view import VrmDriver
+
+        driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
+    mems, sinks = [], []
+    for i in range(faces):
+        sfx = "" if faces == 1 else f"_{i + 1}"
+        mem = MemoryRecorder()
+        mems.append(mem)
+        per = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
+               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout), mem]
+        sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
-                         sinks=[bvh, face, mem])
+                         sinks=sinks, head=head, faces=faces)
     sched = sess.scheduler
     try:
         total = int(np.ceil(sess.audio.duration_s * fps - 1e-6))
@@ -133,7 +192,13 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         t_loop = time.perf_counter()
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"run {video.name}", total=total)
-            why = sched.run(max_frames=total, on_frame=lambda o: bar.advance(task))
+            found = [0]
+
+            def on_frame(o) -> None:
+                found[0] += bool(o.face_found)
+                bar.advance(task)
+
+            why = sched.run(max_frames=total, on_frame=on_frame)
         t_loop_end = time.perf_counter()
         input_audio = sess.audio.samples
     finally:
@@ -141,28 +206,46 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if why == "interrupted":
         raise KeyboardInterrupt
     report = {"video": str(video), "audio": str(audio or video), "checkpoint": str(checkpoint.path),
-              **sched.report(), "outputs": {}}
-    report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
-    report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(sched.frames, 1), 3)
+              **sched.report(), "head": head, "faces": faces, "face_found_frames": found[0], "outputs": {}}
     T = sched.frames
+    follow = [head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0}
+              for m in mems]
+    report["head_follow"] = follow[0] if faces == 1 else follow
+    report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
+    report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
     if videos and T > 0:
         from facecapges.avatar.render.video import render_video
 
         t0 = time.perf_counter()
         glb = _avatar_glb(checkpoint.skeleton)
-        quats = full_quaternions(checkpoint.skeleton, np.stack(mem.quats))
-        weights = np.clip(np.stack(mem.weights), 0.0, 1.0)
+        width, height = video_size
         with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
             wav = Path(tmp) / "audio.wav"
             n = int(round(T / fps * 16000))
             save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
-            render_video(glb, quats, weights, fps, out_dir / "avatar.mp4", audio=wav, progress=progress)
+            renders = []
+            for i, m in enumerate(mems):
+                quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
+                weights = np.clip(np.stack(m.weights), 0.0, 1.0)
+                dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
+                if driver is not None:
+                    from facecapges.avatar.retarget import upper_body_locals
+                    from facecapges.avatar.vrm_view import render_vrm_video
+
+                    render_vrm_video(driver, upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights, fps,
+                                     dest, audio=wav, progress=progress, width=width, height=height)
+                else:
+                    render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width,
+                                 height=height)
+                renders.append(dest)
+            if faces > 1:
+                side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)
             t1 = time.perf_counter()
-            side_by_side(video, out_dir / "avatar.mp4", out_dir / "side_by_side.mp4", fps, T, wav)
+            side_by_side(video, renders, out_dir / "side_by_side.mp4", fps, T, wav, height=height)
             t2 = time.perf_counter()
         report["seconds"].update({"avatar_video": round(t1 - t0, 3), "side_by_side_video": round(t2 - t1, 3)})
     report["seconds"]["total"] = round(time.perf_counter() - t_start, 3)
-    for name in OUTPUTS[:-1]:
+    for name in output_names(faces)[:-1]:
         p = out_dir / name
         if p.exists():
             report["outputs"][name] = str(p)

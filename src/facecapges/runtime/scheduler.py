@@ -24,9 +24,10 @@ output).
 
 Fallbacks (each counted in :attr:`Scheduler.events`)
 ----------------------------------------------------
-* **face lost** (``face_lost_frames``, ``face_lost_events``) — the capture module's
-  behaviour: the last weights and head are held 500 ms, then eased to neutral over
-  1 s (smoothstep; the head along the geodesic), so the avatar never jumps.
+* **face lost** (``face_lost_frames``, ``face_lost_events``) — the project's one
+  face-lost policy (:mod:`facecapges.capture.face_lost`): the last weights and head are
+  held 500 ms, then eased to neutral over 1 s (smoothstep; the head along the
+  geodesic), so the avatar never jumps.
 * **no new input frame** (``input_frames_reused``: the camera dropped a frame, a
   frame came late, or the source is slower than the model rate) — the last face and
   head are reused; after the same 500 ms they ease to neutral exactly like a lost
@@ -46,6 +47,7 @@ from __future__ import annotations
 import math
 import time
 from array import array
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -53,44 +55,51 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
+from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
+from facecapges.capture.speech_mouth import SpeechMouth
 from facecapges.runtime.frames import InputFrame, OutputFrame
+from facecapges.runtime.head import HeadDriver
+from facecapges.runtime.interfaces import AudioSource, FaceFeed, Generator, Sink, VideoSource
 from facecapges.runtime.sources import FaceSample
 
 STAGES = ("capture", "features", "model", "output", "total")
-IDENTITY6 = rot.identity_rot6d().astype(np.float32)
-
-
-def smoothstep(x: float) -> float:
-    x = min(max(x, 0.0), 1.0)
-    return x * x * (3 - 2 * x)
 
 
 class FaceHold:
     """Hold, then ease to neutral, when no fresh face arrives (module docstring)."""
 
     def __init__(self, hold_ms: float = 500.0, ease_ms: float = 1000.0):
-        self.hold_s, self.ease_s = hold_ms / 1000.0, ease_ms / 1000.0
+        self.policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
         self.weights = np.zeros(N_BLENDSHAPES, np.float32)
-        self.head = IDENTITY6.copy()
+        self.head = rot.identity_rot6d().astype(np.float32)
         self.found = False
         self.since: float | None = None  # stream time of the last fresh sample
+        self.seen: float | None = None  # stream time of the last sample with a face
+        self.remaining = 0.0  # how much of the last face is still shown (1 while tracked)
+
+    def _remaining(self, now_s: float) -> float:
+        return 0.0 if self.seen is None else self.policy.held(now_s - self.seen)
 
     def fresh(self, s: FaceSample) -> tuple[np.ndarray, np.ndarray, bool]:
         self.weights = np.asarray(s.weights52, np.float32)
         self.head = np.asarray(s.head_rot6d, np.float32)
         self.found = bool(s.face_found)
         self.since = s.ts_s
+        if self.found:
+            self.seen = s.ts_s
+        # a lost face from the capture is already held/eased there, by the same policy
+        self.remaining = 1.0 if self.found else self._remaining(s.ts_s)
         return self.weights, self.head, self.found
 
     def stale(self, now_s: float) -> tuple[np.ndarray, np.ndarray, bool]:
         if self.since is None:
+            self.remaining = 0.0
             return self.weights, self.head, False
-        from facecapges.capture.head_pose import exp_so3, log_so3
-
-        k = 1.0 - smoothstep((now_s - self.since - self.hold_s) / max(self.ease_s, 1e-6))
+        k = self.policy.held(now_s - self.since)
+        self.remaining = min(k, self._remaining(now_s)) if self.found else self._remaining(now_s)
         if k >= 1.0:
             return self.weights, self.head, self.found
-        R = exp_so3(log_so3(rot.rot6d_to_matrix(self.head.astype(np.float64))) * k)
+        R = scale_rotation(rot.rot6d_to_matrix(self.head.astype(np.float64)), k)
         return (self.weights * k).astype(np.float32), rot.matrix_to_rot6d(R).astype(np.float32), False
 
 
@@ -115,31 +124,62 @@ class Timings:
         return out
 
 
+@dataclass
+class Stream:
+    """One face's chain: its generator, input hold, head driver, speech mouth and the last frame."""
+
+    index: int
+    gen: "Generator"
+    hold: FaceHold
+    head: HeadDriver
+    mouth: SpeechMouth
+    was_found: bool = True
+    last: OutputFrame | None = None
+
+
 class Scheduler:
-    """Runs one stream: sources → capture → generator → sinks, once per model frame.
+    """Runs one session: sources → capture → generator(s) → sinks, once per model frame.
 
     Args:
-        generator: a :class:`~facecapges.model.streaming.StreamingGenerator` (reset here).
+        generator: a :class:`~facecapges.model.streaming.StreamingGenerator` (reset here),
+            or one per face (a list) for several faces (``FaceCapture(num_faces=N)``).
         fps, sr: model rate and audio rate (the checkpoint's).
         video: a video source (:class:`FileVideo`, :class:`CameraVideo`) — needs ``capture``.
         face_feed: a face source without capture (:class:`LiveLinkFace`).
         audio: an audio source (:class:`FileAudio`, :class:`MicAudio`) or None (silence).
         capture: a :class:`~facecapges.capture.FaceCapture` for ``video``.
-        sinks: objects with ``write(OutputFrame)`` (and ``close()``, called by the owner).
+        sinks: objects satisfying :class:`~facecapges.runtime.interfaces.Sink` (closed by the owner); each
+            gets every face's frames (``OutputFrame.face_index``); wrap one in
+            :class:`~facecapges.runtime.sinks.ForFace` to give it one face only.
         realtime: pace frames by the wall clock (live) instead of as fast as possible.
         input_slack_s: extra wait after each deadline in realtime mode (device latency).
+        head: what the avatar's head shows, ``capture``, ``model`` or ``blend``
+            (:mod:`facecapges.runtime.head`).
+        speech_mouth: drive the shown jaw and lips from the speech while there is no face
+            (:mod:`facecapges.capture.speech_mouth`); the model's input is not changed.
+
+    Several faces: the capture runs once per frame (:meth:`FaceCapture.process_slots`),
+    then face ``i`` goes through generator ``i``; all of them share the audio.
     """
 
-    def __init__(self, generator, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, video=None,
-                 face_feed=None, audio=None, capture=None, sinks=(), realtime: bool = False,
-                 input_slack_s: float = 0.0, hold_ms: float = 500.0, ease_ms: float = 1000.0):
+    def __init__(self, generator, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR,
+                 video: VideoSource | None = None, face_feed: FaceFeed | None = None,
+                 audio: AudioSource | None = None, capture=None, sinks: Sequence[Sink] = (),
+                 realtime: bool = False, input_slack_s: float = 0.0, hold_ms: float = 500.0,
+                 ease_ms: float = 1000.0, head: str = "capture", speech_mouth: bool = True):
         if video is not None and capture is None:
             raise ValueError("a video source needs a FaceCapture")
-        self.gen, self.fps, self.sr = generator, float(fps), int(sr)
+        gens = list(generator) if isinstance(generator, (list, tuple)) else [generator]
+        if len(gens) > 1 and (video is None or capture.num_faces != len(gens)):
+            raise ValueError("several generators need a video source and a FaceCapture(num_faces=N) to match")
+        self.fps, self.sr = float(fps), int(sr)
         self.video, self.face_feed, self.audio, self.capture = video, face_feed, audio, capture
         self.sinks = list(sinks)
         self.realtime, self.input_slack_s = realtime, input_slack_s
-        self.hold = FaceHold(hold_ms, ease_ms)
+        self.speech_mouth = speech_mouth
+        policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
+        self.streams = [Stream(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy),
+                               SpeechMouth(self.fps, self.sr)) for i, g in enumerate(gens)]
         self.spf = timing.samples_per_frame(self.fps, self.sr)
         self.timings = Timings()
         self.events = {"face_lost_frames": 0, "face_lost_events": 0, "input_frames_reused": 0,
@@ -147,10 +187,19 @@ class Scheduler:
         self.frames = 0
         self.t0: float | None = None
         self.stopped_by = ""
-        self._was_found = True
         self._stop = False
         self.last_video_frame = None  # the frame capture saw last (for side-by-side video)
-        self.gen.reset()
+        for st in self.streams:
+            st.gen.reset()
+
+    @property
+    def gen(self):
+        """The (first face's) generator."""
+        return self.streams[0].gen
+
+    @property
+    def hold(self) -> FaceHold:
+        return self.streams[0].hold
 
     # ------------------------------------------------------------------ control
     def stop(self) -> None:
@@ -160,7 +209,7 @@ class Scheduler:
     def start(self) -> None:
         self.t0 = time.monotonic()
         for src in (self.video, self.face_feed, self.audio):
-            if src is not None and hasattr(src, "start"):
+            if src is not None:
                 src.start(self.t0)
 
     def _now_s(self) -> float:
@@ -170,13 +219,33 @@ class Scheduler:
         """A file source has nothing more for frame ``self.frames``."""
         if self.audio is not None:
             s, _ = timing.frame_sample_bounds(self.frames, self.fps, self.sr)
-            return bool(self.audio.ended(int(s)))
+            return bool(self.audio.ended_at(int(s)))
         src = self.video or self.face_feed
-        return bool(src is not None and getattr(src, "ended", False))
+        return bool(src is not None and src.ended)
 
     # ------------------------------------------------------------------ one frame
+    def _capture(self, deadline: float) -> list[FaceSample | None]:
+        """The fresh face sample of each stream (None: nothing new before the deadline)."""
+        n = len(self.streams)
+        if self.video is not None:
+            vf = self.video.next_frame(deadline)
+            self._t_input = time.perf_counter()
+            if vf is None:
+                return [None] * n
+            self.last_video_frame = vf
+            if n == 1:
+                res = [self.capture.process(vf.image, vf.ts_s * 1000.0, vf.depth_mm)]
+            else:
+                res = self.capture.process_slots(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
+            return [FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found)) if r is not None else
+                    FaceSample(vf.ts_s, np.zeros(N_BLENDSHAPES, np.float32),
+                               rot.identity_rot6d().astype(np.float32), False) for r in res]
+        sample = self.face_feed.next_face(deadline)
+        self._t_input = time.perf_counter()
+        return [sample]
+
     def step(self) -> OutputFrame:
-        """Produce frame ``self.frames`` from what exists before its deadline."""
+        """Produce frame ``self.frames`` from what exists before its deadline (returns the first face's)."""
         k = self.frames
         deadline = (k + 1) / self.fps
         now = None
@@ -191,17 +260,11 @@ class Scheduler:
         stage: dict[str, float] = {}
         t_start = time.perf_counter()
         # 1. capture
-        sample = None
-        if self.video is not None:
-            vf = self.video.next_frame(deadline)
-            t_start = time.perf_counter()  # reading/decoding the frame is input, not compute
-            if vf is not None:
-                res = self.capture.process(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
-                sample = FaceSample(vf.ts_s, res.weights52, res.head_rot6d, bool(res.face_found))
-                self.last_video_frame = vf
-        elif self.face_feed is not None:
-            sample = self.face_feed.next_face(deadline)
-            t_start = time.perf_counter()
+        if self.video is not None or self.face_feed is not None:
+            samples = self._capture(deadline)
+            t_start = self._t_input  # reading/decoding the frame is input, not compute
+        else:
+            samples = [None] * len(self.streams)
         t1 = time.perf_counter()
         stage["capture"] = (t1 - t_start) * 1000.0
         # 2. features: this frame's audio, face and head, with fallbacks
@@ -209,44 +272,57 @@ class Scheduler:
         s, e = int(s), int(e)
         if self.audio is not None:
             a = self.audio.read(s, e, now)
-            if len(a) < e - s and not self.audio.ended(s + len(a)):
+            if len(a) < e - s and not self.audio.ended_at(s + len(a)):
                 self.events["audio_underruns"] += 1
         else:
             a = np.zeros(0, np.float32)
         audio = np.zeros(e - s, np.float32)
         audio[:len(a)] = a[:e - s]
-        if sample is not None:
-            face, head, found = self.hold.fresh(sample)
-        else:
-            if self.video is not None or self.face_feed is not None:
-                self.events["input_frames_reused"] += 1
-            face, head, found = self.hold.stale(deadline)
-        if not found:
-            self.events["face_lost_frames"] += 1
-            if self._was_found:
-                self.events["face_lost_events"] += 1
-        self._was_found = found
-        inp = InputFrame(k, audio, face, head, found)
+        inputs = []
+        for st, sample in zip(self.streams, samples):
+            if sample is not None:
+                face, head, found = st.hold.fresh(sample)
+            else:
+                if self.video is not None or self.face_feed is not None:
+                    self.events["input_frames_reused"] += 1
+                face, head, found = st.hold.stale(deadline)
+            if not found:
+                self.events["face_lost_frames"] += 1
+                if st.was_found:
+                    self.events["face_lost_events"] += 1
+            st.was_found = found
+            inputs.append(InputFrame(k, audio, face, head, found))
         t2 = time.perf_counter()
         stage["features"] = (t2 - t1) * 1000.0
         # 3. model
-        pose = self.gen.step(inp.audio, inp.face, inp.head)
+        poses = [st.gen.step(inp.audio, inp.face, inp.head) for st, inp in zip(self.streams, inputs)]
         t3 = time.perf_counter()
         stage["model"] = (t3 - t2) * 1000.0
-        # 4. output
-        quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
-        out = OutputFrame(k, k / self.fps, pose, quats, inp.face, inp.head, found, stage)
+        # 4. output: the head and the face the avatar shows
+        outs = []
+        for st, inp, pose in zip(self.streams, inputs, poses):
+            pose = st.head(pose, inp.head, inp.face_found, k / self.fps)
+            shown = inp.face
+            mouth = st.mouth.step(inp.audio) if self.speech_mouth else None
+            if mouth is not None and not inp.face_found:
+                # no face track: the speech moves the mouth, as much as the held face has gone
+                shown = np.clip(inp.face + (1.0 - st.hold.remaining) * mouth, 0.0, 1.0).astype(np.float32)
+            quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
+            outs.append(OutputFrame(k, k / self.fps, pose, quats, shown, inp.head, inp.face_found, stage, st.index))
         stage["total"] = (time.perf_counter() - t_start) * 1000.0  # pose + blendshapes ready (sinks see this)
-        for sink in self.sinks:
-            sink.write(out)
+        for out in outs:
+            for sink in self.sinks:
+                sink.write(out)
+        for st, out in zip(self.streams, outs):
+            st.last = out
         t4 = time.perf_counter()
         stage["output"] = (t4 - t3) * 1000.0
         stage["total"] = (t4 - t_start) * 1000.0
         self.timings.add(stage)
         if self.video is not None:
-            self.events["video_frames_skipped"] = int(getattr(self.video, "skipped", 0))
+            self.events["video_frames_skipped"] = int(self.video.skipped)
         self.frames += 1
-        return out
+        return outs[0]
 
     # ------------------------------------------------------------------ loop
     def run(self, max_frames: int | None = None, on_frame=None) -> str:
@@ -260,7 +336,7 @@ class Scheduler:
                     why = "stopped"
                     break
                 if max_frames is not None and self.frames >= max_frames:
-                    why = "frame limit"
+                    why = "end of input" if self.input_ended() else "frame limit"
                     break
                 if self.input_ended():
                     break

@@ -11,23 +11,32 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from facecapges.errors import UserError
+from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
+
+if TYPE_CHECKING:
+    from facecapges.capture.pipeline import FaceCapture
+    from facecapges.model.checkpoint import Checkpoint
+    from facecapges.runtime.scheduler import Scheduler
 
 
 @dataclass
 class Session:
-    scheduler: object
-    checkpoint: object
-    video: object = None
-    face_feed: object = None
-    audio: object = None
-    capture: object = None
-    sinks: list = field(default_factory=list)
+    scheduler: Scheduler | None
+    checkpoint: Checkpoint
+    video: VideoSource | None = None
+    face_feed: FaceFeed | None = None
+    audio: AudioSource | None = None
+    capture: FaceCapture | None = None
+    sinks: list[Sink] = field(default_factory=list)
     closers: list = field(default_factory=list)  # extra objects with close() (servers)
     notes: list[str] = field(default_factory=list)
+    faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
+    torch_threads: int | None = None  # torch's thread count before the session; restored by close()
 
     def add_sink(self, sink) -> None:
         """A sink that starts receiving frames now (and is closed with the session)."""
@@ -49,6 +58,11 @@ class Session:
                 errors.append(exc)
         self.sinks, self.closers = [], []
         self.capture = self.video = self.face_feed = self.audio = None
+        if self.torch_threads is not None:  # the process's setting, as it was before the session
+            import torch
+
+            torch.set_num_threads(self.torch_threads)
+            self.torch_threads = None
         if errors:
             raise errors[0]
         return written
@@ -68,8 +82,14 @@ def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
 def build_session(checkpoint, *, video: str | Path | None = None, camera: int | None = None,
                   livelink: int | None = None, audio: str | Path | None = None, mic: str | None = None,
                   realtime: bool = False, loop: bool = False, depth_dir=None, intrinsics=None,
-                  estimator: str = "hybrid", host: str = "127.0.0.1", sinks=(), silent_ok: bool = False) -> Session:
-    """Open the sources and build the scheduler (sinks are added by the caller)."""
+                  estimator: str = "hybrid", host: str = "127.0.0.1", sinks=(), silent_ok: bool = False,
+                  head: str = "capture", faces: int = 1) -> Session:
+    """Open the sources and build the scheduler (sinks are added by the caller).
+
+    ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
+    how many faces of the video drive an avatar each (one generator per face).
+    """
+    from facecapges.runtime.head import check_head_mode
     from facecapges.runtime import sources as S
     from facecapges.runtime.scheduler import Scheduler
 
@@ -78,13 +98,18 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
         raise UserError("choose one input: --camera INDEX, --video FILE or --livelink PORT")
     if audio is not None and mic is not None:
         raise UserError("choose one audio input: --mic DEVICE or --audio FILE")
+    check_head_mode(head)
+    if not 1 <= int(faces) <= 8:
+        raise UserError(f"--faces must be 1 to 8, got {faces}")
+    if faces > 1 and livelink is not None:
+        raise UserError("--faces N needs a camera or a video: Live Link sends one face")
     import torch
 
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
+    sess = Session(scheduler=None, checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
     torch.set_num_threads(1)
     fps, sr = checkpoint.fps, 16000
-    sess = Session(scheduler=None, checkpoint=checkpoint)
     try:
         # the visual source first: a camera that cannot open is reported before anything else
         if video is not None:
@@ -113,9 +138,10 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             from facecapges.capture.pipeline import FaceCapture
 
             resolve_model(None)
-            K = getattr(sess.video, "intrinsics", None)
-            sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K)
-            if getattr(sess.video, "depth_files", None) is not None:
+            file_video = isinstance(sess.video, S.FileVideo)
+            K = sess.video.intrinsics if file_video else None
+            sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
+            if file_video and sess.video.depth_files is not None:
                 from facecapges.capture.depth import DepthHeadTracker
 
                 sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
@@ -123,9 +149,10 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
         if isinstance(sess.audio, S.MicAudio):
             slack = sess.audio.latency_s + 0.02  # one 20 ms block
         sess.sinks = list(sinks)
-        sess.scheduler = Scheduler(checkpoint.streaming(), fps=fps, sr=sr, video=sess.video, face_feed=sess.face_feed,
-                                   audio=sess.audio, capture=sess.capture, sinks=sess.sinks, realtime=realtime,
-                                   input_slack_s=slack)
+        gens = [checkpoint.streaming() for _ in range(int(faces))]
+        sess.scheduler = Scheduler(gens if faces > 1 else gens[0], fps=fps, sr=sr, video=sess.video,
+                                   face_feed=sess.face_feed, audio=sess.audio, capture=sess.capture, sinks=sess.sinks,
+                                   realtime=realtime, input_slack_s=slack, head=head)
     except BaseException:
         sess.close()
         raise

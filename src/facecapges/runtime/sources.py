@@ -1,5 +1,8 @@
 """Input sources of the runtime: video frames, face feeds and audio, on one stream clock.
 
+Each satisfies its protocol of :mod:`.interfaces` (``VideoSource``, ``FaceFeed``,
+``AudioSource``).
+
 Stream time ``t`` (seconds) starts at 0 when a session starts. The scheduler asks each
 source only for what exists *before* a frame's deadline (:mod:`.scheduler`): sources
 never hand out data from the future, and they never block waiting for it.
@@ -30,7 +33,7 @@ Audio sources
   the device.
 
 :meth:`read` returns the samples ``[start, end)`` that exist by stream time ``now``;
-fewer than asked for means an underrun (live) or the end of a file (``ended``).
+fewer than asked for means an underrun (live) or the end of a file (``ended_at``).
 """
 
 from __future__ import annotations
@@ -94,6 +97,9 @@ class FileVideo:
     @property
     def name(self) -> str:
         return str(self.path)
+
+    def start(self, t0: float) -> None:
+        """A file's frames are stamped by their index, not the wall clock: nothing to start."""
 
     def _ts(self, i: int) -> float:
         return self._offset + i / self.fps
@@ -282,8 +288,8 @@ class FileAudio:
     def start(self, t0: float) -> None:
         self._t0 = t0
 
-    def ended(self, start: int) -> bool:
-        return not self.loop and start >= len(self.samples)
+    def ended_at(self, sample: int) -> bool:
+        return not self.loop and sample >= len(self.samples)
 
     def read(self, start: int, end: int, now_s: float | None = None) -> np.ndarray:
         if now_s is not None and self.realtime:
@@ -341,7 +347,7 @@ class MicAudio:
         self._t0 = t0
         self.stream.start()
 
-    def ended(self, start: int) -> bool:
+    def ended_at(self, sample: int) -> bool:
         return False
 
     def read(self, start: int, end: int, now_s: float | None = None) -> np.ndarray:

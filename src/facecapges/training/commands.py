@@ -14,7 +14,8 @@ def register(app: typer.Typer) -> None:
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker (thesis 3.2.2)."),
         out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
-        config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides."),
+        config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: "
+                                                       "configs/demo-beat2-scott.yaml)."),
         epochs: Optional[int] = typer.Option(None, help="Number of epochs (default 375)."),
         split: Optional[str] = typer.Option(None, help="Clips to train on: train (default), val, test or all; "
                                                        "a resumed run keeps its own."),
@@ -26,7 +27,15 @@ def register(app: typer.Typer) -> None:
                                                 "each process takes GPU LOCAL_RANK."),
         amp: bool = typer.Option(False, "--amp", help="float16 mixed precision on GPU (no effect on CPU)."),
     ) -> None:
-        """Train a FaceCapGes model with closed-loop sliding-window rollout (thesis ch. 4).
+        """Train a FaceCapGes model with closed-loop sliding-window rollout.
+
+        Without --config this is the paper's recipe (SGD, batch 256), meant for full
+        BEAT (hours of speech per speaker). On small data (minutes of one speaker) use
+        the recipe the shipped styles were trained with: --config
+        configs/demo-beat2-scott.yaml (Adam, batch 16, a smaller model; its comments
+        give the measurements behind each choice). Walk-through from full BEAT to an
+        installed style: docs/train-your-own-style.md. Then `facecapges styles install
+        OUT` makes it a --style.
 
         Runs as is under `torchrun --nproc_per_node=K` (and multi-node): the global
         batch is train.batch_size x K and the learning rates scale with it; rank 0
@@ -42,6 +51,13 @@ def register(app: typer.Typer) -> None:
             say = typer.echo if ctx.is_main else (lambda *a, **k: None)
 
             def run_folder() -> tuple[str, dict | None]:  # rank 0's disk decides
+                from facecapges.errors import check_output_dir
+                from facecapges.training.resume_file import RunFolderLock
+
+                if not resume and not (out / "last.pt").exists():  # a folder without a run keeps its files too
+                    check_output_dir(out, ("model.safetensors", "log.csv", "summary.json"), force)
+                check_output_dir(out)
+                RunFolderLock(out).acquire()  # held until the process ends; a second train here is refused
                 state = load_resume(out) if resume else None
                 chosen = split if split is not None else (state["meta"].get("split", "train") if state else "train")
                 if chosen not in ("train", "val", "test", "all"):

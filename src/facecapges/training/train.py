@@ -13,7 +13,8 @@
   500/1000/1000 (4.2.4), plus the non-saturating adversarial loss of a segment
   discriminator (eq. 4.22–4.23), weight 0.1, from epoch 11; D and G updated
   alternately, each by SGD, lr_g = 2.5e-4·B/128 and lr_d = 0.2·lr_g (eq. 5.1–5.2).
-* Held-out frames (``holdout_from``): segments are taken from frames < F for
+* Held-out frames (``holdout_from`` F, or ``holdout_fraction`` f: F = floor(T·(1 − f))
+  of each clip of T frames, the cache's per-take rule): segments are taken from frames < F for
   training and from frames ≥ F (warm-up included) for the held-out losses logged
   every epoch.
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
@@ -37,7 +38,7 @@
 
 from __future__ import annotations
 
-import csv
+import contextlib
 import json
 import math
 import time
@@ -54,6 +55,8 @@ from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
 from facecapges.training.distributed import DistContext
+from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
+from facecapges.training.resume_file import RunFolderLock, load_state, save_state, write_log
 from facecapges.timing import frame_audio, frame_sample_bounds
 
 
@@ -67,6 +70,7 @@ class ClipArrays:
     head: np.ndarray  # (T, 6)
     face: np.ndarray  # (T, 52)
     audio: np.ndarray  # (S,) 16 kHz
+    mask: np.ndarray | None = None  # (47,) or (T, 47) bool: joints with real motion (None: all)
 
 
 def load_clips(cache_path: Path, speaker: int, split: str):
@@ -77,7 +81,8 @@ def load_clips(cache_path: Path, speaker: int, split: str):
     clips = []
     for e in cache.select(speaker, split):
         a = cache.load(e["name"])
-        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"]))
+        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
+                                mask=a["mask"]))
     return cache, clips
 
 
@@ -89,20 +94,23 @@ class SegmentSet:
     """
 
     def __init__(self, clips: list[ClipArrays], cfg: ModelConfig, clip_len: int, stride: int,
-                 frame_range: tuple[int, int | None] = (0, None)):
+                 frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
-        audio, face, head, pose, starts = [], [], [], [], []
+        audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
-        for c in clips:
+        ranges = frame_range if isinstance(frame_range, list) else [frame_range] * len(clips)
+        for c, (lo, hi) in zip(clips, ranges):
             T = len(c.pose)
-            lo, hi = frame_range[0], T if frame_range[1] is None else min(frame_range[1], T)
+            hi = T if hi is None else min(hi, T)
             a = frame_audio(c.audio, T, cfg.fps, cfg.sr)
             pad = lambda x: np.concatenate([np.zeros((N,) + x.shape[1:], np.float32), x.astype(np.float32)])
             audio.append(pad(a))
             face.append(pad(c.face))
             head.append(pad(c.head))
             pose.append(pad(c.pose.reshape(T, -1)))
+            m = np.ones(c.pose.shape[1], bool) if c.mask is None else np.asarray(c.mask, bool)
+            mask.append(pad(np.broadcast_to(m, (T, c.pose.shape[1]))))
             for s in range(lo, hi - clip_len + 1, stride):
                 starts.append(offset + N + s)  # index of the segment's first frame
             offset += T + N
@@ -112,6 +120,7 @@ class SegmentSet:
         self.face = np.concatenate(face)
         self.head = np.concatenate(head)
         self.pose = np.concatenate(pose)
+        self.mask = np.concatenate(mask)  # (frames, 47) float32, 1 = joint present
         self.starts = np.array(starts)
 
     def __len__(self) -> int:
@@ -122,7 +131,8 @@ class SegmentSet:
         win = s[:, None] + np.arange(-self.N, self.L)[None]  # (B, N + L)
         seg = s[:, None] + np.arange(self.L)[None]
         return {"audio": torch.from_numpy(self.audio[win]), "face": torch.from_numpy(self.face[win]),
-                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg])}
+                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg]),
+                "mask": torch.from_numpy(self.mask[seg])}
 
 
 def encode_segments(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -138,10 +148,8 @@ def huber(x: torch.Tensor, y: torch.Tensor, beta: float) -> torch.Tensor:
 
 
 def reconstruction_losses(gen: torch.Tensor, gt: torch.Tensor, beta: float) -> dict[str, torch.Tensor]:
-    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D)."""
-    vg, vt = gen[:, 1:] - gen[:, :-1], gt[:, 1:] - gt[:, :-1]
-    return {"rec": huber(gen, gt, beta), "vel": huber(vg, vt, beta),
-            "acc": huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta)}
+    """Pose, velocity and acceleration Huber losses (eq. 4.16, 4.19, 4.20) over (B, M, D), every joint counted."""
+    return masked_reconstruction_losses(gen, gt, beta, None)
 
 
 def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
@@ -153,11 +161,19 @@ def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[to
 
 
 # ---------------------------------------------------------------------- trainer
-def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> np.ndarray:
+def holdout_frames(clips: list[ClipArrays], tcfg: TrainConfig) -> list[int | None]:
+    """Per clip, its first held-out frame (None: no hold-out) — ``holdout_fraction`` or ``holdout_from``."""
+    if tcfg.holdout_fraction:
+        return [int(math.floor(len(c.pose) * (1.0 - tcfg.holdout_fraction))) for c in clips]
+    return [tcfg.holdout_from] * len(clips)
+
+
+def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None | list[int | None]) -> np.ndarray:
     """The calmest real N-frame window of the training frames (least pose motion)."""
     best, best_e = None, math.inf
-    for c in clips:
-        T = len(c.pose) if frame_limit is None else min(frame_limit, len(c.pose))
+    limits = frame_limit if isinstance(frame_limit, list) else [frame_limit] * len(clips)
+    for c, lim in zip(clips, limits):
+        T = len(c.pose) if lim is None else min(lim, len(c.pose))
         if T < n:
             continue
         v = np.abs(np.diff(c.pose[:T].reshape(T, -1), axis=0)).sum(1)  # (T-1,)
@@ -172,13 +188,18 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> 
 
 def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
                  ) -> tuple[SegmentSet, SegmentSet | None]:
-    """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
-    F_ = tcfg.holdout_from
-    train_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    """Training segments (frames < each clip's hold-out frame) and held-out ones (frames ≥ it, or None)."""
+    F_ = holdout_frames(clips, tcfg)
+    train_ranges = [(0, f) for f in F_]
+    train_clips = clips
+    if getattr(tcfg, "mirror", False):
+        train_clips, train_ranges = clips + [mirrored(c) for c in clips], train_ranges * 2
+    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, train_ranges)
     held_set = None
-    if F_ is not None:
+    if any(f is not None for f in F_):
         try:
-            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (F_, None))
+            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride,
+                                  [(len(c.pose) if f is None else f, None) for c, f in zip(clips, F_)])
         except UserError:  # too few held-out frames for one segment
             held_set = None
     return train_set, held_set
@@ -214,8 +235,8 @@ def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConf
     from facecapges.capture.head_pose import mean_rotation, skeleton_head_to_camera
     from facecapges.model.audio_features import AudioFeatures
 
-    lim = tcfg.holdout_from
-    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c in clips]
+    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c, lim in
+           zip(clips, holdout_frames(clips, tcfg))]
     head = np.concatenate([c.head[s] for c, s in zip(clips, cut)]).astype(np.float64)
     face = np.concatenate([c.face[s] for c, s in zip(clips, cut)]).astype(np.float64)
     ref = mean_rotation(head) if tcfg.head_to_camera else None
@@ -361,9 +382,10 @@ class Trainer:
         if ref is not None:  # the model's head input is in the camera frame (capture.head_pose)
             from facecapges.capture.head_pose import skeleton_head_to_camera
 
-            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio) for c in clips]
+            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask)
+                     for c in clips]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
-        self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
+        self.neutral = neutral_window(clips, model_cfg.n_history, holdout_frames(clips, train_cfg))
         start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
         self.G.to(self.device)
         self.D.to(self.device)
@@ -418,9 +440,7 @@ class Trainer:
         if not self.dist.is_main:
             return
         self.out.mkdir(parents=True, exist_ok=True)
-        tmp = self.out / "last.pt.part"
-        torch.save(_to_cpu(self.state_dict()), tmp)
-        tmp.replace(self.out / "last.pt")
+        save_state(self.out / "last.pt", self.state_dict())  # data only (facecapges.training.resume_file)
         self.export(self.out / "model.safetensors")
 
     def export(self, path: Path) -> Path:
@@ -471,10 +491,11 @@ class Trainer:
             with prec.autocast():
                 gen, gt = self.G_fwd(batch)
             gen = gen.float()
+            mask = batch["mask"][:, self.mcfg.n_history:]  # (B, M, 47): masked joints add no loss
             logs: dict[str, torch.Tensor] = {}
             if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
                 with prec.autocast():
-                    d_out = self.D_fwd(torch.cat([gt, gen.detach()])).float()
+                    d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
                 d_real, d_fake = d_out[: len(gt)], d_out[len(gt):]
                 loss_d = F.binary_cross_entropy_with_logits(d_real, torch.ones_like(d_real)) + \
                     F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
@@ -482,13 +503,13 @@ class Trainer:
                 prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
                 prec.step("d", self.opt_d)
                 logs["d"] = loss_d.detach()
-            rec = reconstruction_losses(gen, gt, t.huber_beta)
+            rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
             loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
             if adv_on:
                 # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
                 self.D.requires_grad_(False)
                 with prec.autocast():
-                    d_gen = self.D(gen).float()
+                    d_gen = self.D(discriminator_view(gen, gt, mask)).float()
                 self.D.requires_grad_(True)
                 adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
                 loss = loss + t.w_adv * adv
@@ -525,9 +546,11 @@ class Trainer:
         mine = self.dist.shard(np.arange(len(seg_set)))
         for b in range(0, len(mine), batch_size):
             idx = mine[b:b + batch_size]
+            batch = self._gather(seg_set, idx)
             with self.precision.autocast():
-                gen, gt = self.variant.forward(self.G, self._gather(seg_set, idx))
-            for k, v in reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta).items():
+                gen, gt = self.variant.forward(self.G, batch)
+            mask = batch["mask"][:, self.mcfg.n_history:]
+            for k, v in masked_reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta, mask).items():
                 sums[k] += v.item() * len(idx)
             n += len(idx)
         if self.dist.enabled:
@@ -546,8 +569,12 @@ class Trainer:
         if main:
             self.out.mkdir(parents=True, exist_ok=True)
         label = "train" if self.variant is CLOSED_LOOP else f"train {self.variant.name}"
-        with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                      TimeRemainingColumn(), transient=False, disable=not (main and progress)) as bar:
+        lock = RunFolderLock(self.out) if main else contextlib.nullcontext()  # one training per run folder
+        with lock, Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[info]}"), TimeRemainingColumn(), transient=False,
+                            disable=not (main and progress)) as bar:
+            if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
+                write_log(log_path, self.history, fields)
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
             while self.epoch < total:
                 epoch = self.epoch + 1
@@ -561,12 +588,7 @@ class Trainer:
                 self.history.append(row)
                 if main:
                     self.save()
-                    new = not log_path.exists() or epoch == 1
-                    with log_path.open("w" if new else "a", newline="") as f:
-                        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                        if new:
-                            w.writeheader()
-                        w.writerow(row)
+                    write_log(log_path, self.history, fields)
                 info = f"loss {row['total']:.3f} rec {row['rec']:.4f}"
                 if "held_rec" in row:
                     info += f" held {row['held_rec']:.4f}"
@@ -576,25 +598,9 @@ class Trainer:
         return self.history
 
 
-def _to_cpu(obj):
-    """A state dict with every tensor on the CPU (so any process count/device can resume it)."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().cpu()
-    if isinstance(obj, dict):
-        return {k: _to_cpu(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_to_cpu(v) for v in obj)
-    return obj
-
-
 def load_resume(out: Path) -> dict:
-    p = Path(out) / "last.pt"
-    if not p.is_file():
-        raise UserError(f"{p}: nothing to resume (no last.pt in the run folder)")
-    try:
-        return torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # a corrupt or foreign file
-        raise UserError(f"{p}: cannot read the training state ({exc.__class__.__name__})") from None
+    return load_state(Path(out) / "last.pt", required=("G", "D", "opt_g", "opt_d", "epoch", "history",
+                                                      "model_config", "train_config", "meta"))
 
 
 def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
@@ -610,5 +616,5 @@ def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_ov
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)
-    tcfg = train_config_from_dict(train_over)
+    tcfg = train_config_from_dict(train_over, mcfg)
     return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp, variant=variant)

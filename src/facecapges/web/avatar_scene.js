@@ -20,7 +20,10 @@ export const VIEWS = {
 };
 
 export class AvatarScene {
-  constructor(canvas, { width = 640, height = 480, background = 0xeef0f3, antialias = true } = {}) {
+  // inset: also draw the face close-up (VIEWS.face, following the head) in the top-right corner
+  constructor(canvas, { width = 640, height = 480, background = 0xeef0f3, antialias = true, inset = false } = {}) {
+    this.inset = inset;
+    this.faceCamera = new THREE.PerspectiveCamera(VIEWS.face.fov, 4 / 3, 0.01, 50);
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(1);
     this.renderer.setSize(width, height, false);
@@ -67,6 +70,13 @@ export class AvatarScene {
     // map each blendshape name to its morph index in every face primitive
     this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
     this.root.traverse((o) => { if (o.isMesh) o.frustumCulled = false; });
+    // the face close-up keeps its rest framing relative to the Head joint, wherever the body takes it
+    this.head = byName.Head || null;
+    if (this.head) {
+      this.root.updateMatrixWorld(true);
+      const h = this.head.getWorldPosition(new THREE.Vector3());
+      this.faceOffset = new THREE.Vector3(...VIEWS.face.target).sub(h);
+    }
     return this;
   }
 
@@ -97,6 +107,33 @@ export class AvatarScene {
   }
 
   render() {
-    this.renderer.render(this.scene, this.camera);
+    const r = this.renderer;
+    if (!this.inset || !this.head) { r.render(this.scene, this.camera); return; }
+    const size = r.getSize(new THREE.Vector2());
+    r.setScissorTest(false);
+    r.setViewport(0, 0, size.x, size.y);
+    r.render(this.scene, this.camera);
+    // the inset: a third of the height, 4:3, top-right, with a thin frame (viewport origin = bottom-left)
+    const ih = Math.round(size.y / 3), iw = Math.round(ih * 4 / 3), m = Math.round(size.y / 60) + 2;
+    const x = size.x - iw - m, y = size.y - ih - m;
+    this.root.updateMatrixWorld(true);
+    const t = this.head.getWorldPosition(new THREE.Vector3()).add(this.faceOffset);
+    const v = VIEWS.face;
+    this.faceCamera.aspect = iw / ih;
+    this.faceCamera.position.set(t.x, t.y, t.z + v.distance);
+    this.faceCamera.lookAt(t);
+    this.faceCamera.updateProjectionMatrix();
+    r.setScissorTest(true);
+    const clear = r.getClearColor(new THREE.Color()), alpha = r.getClearAlpha();
+    r.setClearColor(0x6b7280, 1);
+    r.setScissor(x - 2, y - 2, iw + 4, ih + 4);
+    r.setViewport(x - 2, y - 2, iw + 4, ih + 4);
+    r.clear();
+    r.setClearColor(clear, alpha);
+    r.setScissor(x, y, iw, ih);
+    r.setViewport(x, y, iw, ih);
+    r.render(this.scene, this.faceCamera);
+    r.setScissorTest(false);
+    r.setViewport(0, 0, size.x, size.y);
   }
 }

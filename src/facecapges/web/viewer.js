@@ -4,15 +4,17 @@
 // `pose` message per frame (facecapges/runtime/protocol.py): local joint quaternions (w, x, y, z) of the
 // 47 upper-body BEAT joints and 52 ARKit weights. Joints the feed does not name stay at rest. Draws the
 // newest frame on every animation frame; shows frame rate, compute and transport latency; a checkbox
-// toggles a skeleton overlay. State for tests: window.facecapgesViewer.
+// toggles a skeleton overlay. Several faces (`live --faces N`): the `face` field of a pose message picks the
+// avatar; avatar i is a clone of the first, placed left to right. State for tests: window.facecapgesViewer.
 import * as THREE from 'three';
-import { AvatarScene } from './avatar_scene.js';
+import * as SkeletonUtils from 'three/addons/utils/SkeletonUtils.js';
+import { AvatarScene, VIEWS } from './avatar_scene.js';
 
 const $ = (id) => document.getElementById(id);
 const canvas = $('c');
-const scene = new AvatarScene(canvas, { width: innerWidth, height: innerHeight });
+const scene = new AvatarScene(canvas, { width: innerWidth, height: innerHeight, inset: true });
 const state = {
-  ready: false, connected: false, hello: null, frames: 0, drawn: 0, lastFrame: -1, faceFound: null,
+  ready: false, connected: false, hello: null, frames: 0, drawn: 0, lastFrame: -1, faceFound: null, avatars: 1,
   fpsIn: 0, fpsDrawn: 0, computeMs: null, transportMs: null, errors: [],
 };
 window.facecapgesViewer = state;
@@ -20,7 +22,9 @@ window.addEventListener('error', (e) => state.errors.push(String(e.message || e)
 
 let jointMap = [];   // feed joint k -> scene joint object
 let blendMap = [];   // feed blendshape k -> index in scene.blendshapeNames
-let pending = null;  // newest unseen pose message
+let pending = null;  // newest unseen pose message (the first face's)
+const others = new Map();  // face index > 0 -> newest unseen pose message
+const clones = [];   // avatars of faces 1, 2, …: {root, joints: feed k -> bone, morphs: [[mesh, idx]]}
 const recentCompute = [];
 const arrivals = [];
 const draws = [];
@@ -38,6 +42,38 @@ function buildMaps() {
   jointMap = state.hello.joints.map((n) => byName.get(n) || null);
   const bIdx = new Map(scene.blendshapeNames.map((n, i) => [n, i]));
   blendMap = state.hello.blendshapes.map((n) => bIdx.has(n) ? bIdx.get(n) : -1);
+}
+
+function place() {
+  const n = 1 + clones.length, gap = 1.1;
+  [scene.root, ...clones.map((c) => c.root)].forEach((r, i) => { r.position.x = (i - (n - 1) / 2) * gap; });
+  const v = VIEWS.body;
+  scene.setView({ ...v, distance: v.distance * Math.max(1, 0.45 + 0.55 * n) });
+  state.avatars = n;
+}
+
+function cloneFor(face) {
+  while (clones.length < face) {
+    const root = SkeletonUtils.clone(scene.root);
+    scene.scene.add(root);
+    const byName = new Map();
+    root.traverse((o) => { if (!byName.has(o.name)) byName.set(o.name, o); });
+    const morphs = [];
+    root.traverse((o) => {
+      if (o.isMesh && o.morphTargetDictionary) morphs.push([o, scene.blendshapeNames.map((n) => o.morphTargetDictionary[n])]);
+    });
+    clones.push({ root, joints: state.hello.joints.map((n) => byName.get(n) || null), morphs });
+    place();
+  }
+  return clones[face - 1];
+}
+
+function applyClone(c, msg) {
+  const q = msg.pose;
+  c.joints.forEach((j, k) => { if (j) j.quaternion.set(q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], q[4 * k]); });
+  c.morphs.forEach(([m, idx]) => {
+    msg.weights.forEach((v, k) => { const b = blendMap[k]; if (b >= 0 && idx[b] !== undefined) m.morphTargetInfluences[idx[b]] = v; });
+  });
 }
 
 function apply(msg) {
@@ -67,6 +103,7 @@ function connect() {
     const msg = JSON.parse(ev.data);
     if (msg.type === 'hello') { state.hello = msg; if (state.ready) buildMaps(); return; }
     if (msg.type !== 'pose') return;
+    if (msg.face) { others.set(msg.face, msg); return; }
     const now = performance.now();
     state.frames += 1;
     arrivals.push(now);
@@ -96,6 +133,11 @@ function hud(now) {
 
 function loop() {
   const now = performance.now();
+  if (state.ready && state.hello && others.size) {
+    others.forEach((msg, face) => applyClone(cloneFor(face), msg));
+    others.clear();
+    if (!pending) scene.render();
+  }
   if (pending && state.ready && state.hello) {
     apply(pending);
     state.lastFrame = pending.frame;

@@ -7,9 +7,11 @@
   applied: the camera frames the upper body, which BEAT's upper-body motion keeps in
   place (its Hips channels are 0).
 * :func:`render_video` renders frame ``t`` with pose ``t`` and face weights ``t``
-  (front view, 640×480 by default) as JPEG in the page, pipes the frames into the
-  ``imageio-ffmpeg`` ffmpeg (H.264, yuv420p) and muxes the audio (AAC) if given; the
-  video ends with the shorter of frames and audio.
+  (front view, 640×480 by default, any ``width`` × ``height``) as JPEG in the page,
+  with a **face close-up inset** in the top-right corner (a second camera on the head,
+  a third of the frame's height: the whole video is watchable and the mouth and eyes
+  are big enough to see them follow), and writes the MP4 with the audio through
+  :class:`facecapges.io.mp4.Mp4Writer`; the video ends with the shorter of frames and audio.
 * :func:`contact_sheet` renders the face close-up once per blendshape at weight 1
   (all others 0), labelled, in a grid PNG (the neutral face first).
 """
@@ -17,7 +19,6 @@
 from __future__ import annotations
 
 import base64
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -46,8 +47,10 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
-def _open_page(glb: bytes, width: int, height: int) -> tuple[Browser, dict]:
-    b = Browser(avatar_routes(glb), f"{PAGE}?w={width}&h={height}", width, height)
+def _open_page(glb: bytes, width: int, height: int, inset: bool = False, page: str = PAGE,
+               routes: dict | None = None) -> tuple[Browser, dict]:
+    b = Browser(routes if routes is not None else avatar_routes(glb),
+                f"{page}?w={width}&h={height}&inset={int(inset)}", width, height)
     b.__enter__()
     try:
         info = b.wait_for("window.facecapges.ready")
@@ -62,27 +65,24 @@ def _open_page(glb: bytes, width: int, height: int) -> tuple[Browser, dict]:
 
 def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float, out: str | Path,
                  audio: str | Path | None = None, width: int = 640, height: int = 480, batch: int = 30,
-                 progress: bool = True, crf: int = 20) -> dict:
-    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures."""
+                 progress: bool = True, crf: int = 20, inset: bool = True, page: str = PAGE,
+                 routes: dict | None = None) -> dict:
+    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
+
+    ``inset``: draw the face close-up in the top-right corner (module docstring).
+    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm_view)."""
     import time
 
-    import imageio_ffmpeg
     from rich.progress import Progress
+
+    from facecapges.io.mp4 import Mp4Writer
 
     T = quats.shape[0]
     if weights.shape[0] != T:
         raise ValueError(f"{T} poses but {weights.shape[0]} face frames")
     t0 = time.perf_counter()
-    b, info = _open_page(glb, width, height)
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-f", "image2pipe", "-c:v", "mjpeg",
-           "-framerate", f"{fps:g}", "-i", "-"]
-    if audio is not None:
-        cmd += ["-i", str(audio), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k", "-shortest"]
-    cmd += ["-c:v", "libx264", "-preset", "veryfast", "-crf", str(crf), "-pix_fmt", "yuv420p",
-            "-movflags", "+faststart", str(out)]
-    proc = None
+    b, info = _open_page(glb, width, height, inset, page, routes)
+    writer = Mp4Writer(out, fps, audio=audio, crf=crf, jpeg=True)
     try:
         if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
             raise ValueError(f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
@@ -91,34 +91,31 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
         b.routes["/motion/weights.bin"] = np.ascontiguousarray(weights, np.float32).tobytes()
         b.evaluate(f"window.facecapges.loadMotion({T})")
         t_ready = time.perf_counter()
-        proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task("rendering avatar video", total=T)
             for start in range(0, T, batch):
                 urls = b.evaluate(f"window.facecapges.renderFrames({start}, {batch}, 'image/jpeg', 0.92)")
                 for u in urls:
-                    proc.stdin.write(_decode(u))
+                    writer.write(_decode(u))
                 bar.advance(task, len(urls))
-        proc.stdin.close()
-        err = proc.stderr.read().decode(errors="replace")
-        if proc.wait() != 0:
-            raise RuntimeError(f"ffmpeg failed writing {out}: {err.strip()}")
+        writer.close()
+    except BaseException:
+        writer.abort()
+        raise
     finally:
         b.close()
-        if proc is not None and proc.poll() is None:
-            proc.kill()
-            proc.wait()
     t1 = time.perf_counter()
     return {"frames": T, "fps": fps, "size": [width, height], "startup_s": t_ready - t0,
             "render_s": t1 - t_ready, "total_s": t1 - t0, "frames_per_s": T / max(t1 - t_ready, 1e-9)}
 
 
 def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.ndarray | None], view: str = "body",
-                  width: int = 640, height: int = 480) -> list[np.ndarray]:
+                  width: int = 640, height: int = 480, inset: bool = False, page: str = PAGE,
+                  routes: dict | None = None) -> list[np.ndarray]:
     """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
     import cv2
 
-    b, _ = _open_page(glb, width, height)
+    b, _ = _open_page(glb, width, height, inset, page, routes)
     images = []
     try:
         b.evaluate(f"window.facecapges.setView({view!r})")

@@ -1,0 +1,161 @@
+"""ARKit weights → VRM expressions: the one mapping every VRM consumer uses (VMC, VRM export, viewer).
+
+A standard VRM 0.x avatar has no ARKit clips, only the *presets* of its
+``BlendShapeProxy`` (VRM 1.0: ``expressions``). This module derives them from the 52
+ARKit weights (:data:`facecapges.arkit.ARKIT_NAMES` order) and names the ARKit clips the
+way "perfect-sync" avatars spell them.
+
+Names
+-----
+* :data:`VRM0_PRESETS` — the VRM 0.x preset names as UniVRM writes them (case matters:
+  VMC receivers match ``BlendShapeProxy`` names case-sensitively), plus ``Surprised``,
+  the extra clip VRoid Studio exports (the VRM 1.0 preset ``surprised``).
+* :data:`VRM1_NAMES` — the VRM 1.0 expression name of each (``A`` → ``aa``, ``Joy`` →
+  ``happy``, ``Fun`` → ``relaxed``, ``Sorrow`` → ``sad``, ``Blink_L`` → ``blinkLeft`` …,
+  as in the VRM 1.0 migration guide).
+* :data:`PERFECT_SYNC_NAMES` — the 52 ARKit names in UpperCamelCase (``EyeBlinkLeft``,
+  ``JawOpen``, ``TongueOut``): the clip names of perfect-sync VRM models (the convention
+  of iFacialMocap/VSeeFace and Apple's ``ARFaceAnchor.BlendShapeLocation`` spelling).
+  ``Left``/``Right`` are the *face's own* sides, as in ARKit and VRM: no mirroring.
+
+How the presets are derived (:func:`vrm0_weights`)
+--------------------------------------------------
+Per frame, every value in [0, 1]:
+
+* **Blink / Blink_L / Blink_R.** ``Blink = min(L, R)``, ``Blink_L = L − Blink``,
+  ``Blink_R = R − Blink`` with ``L, R = eyeBlinkLeft, eyeBlinkRight``. VRM clips add
+  linearly, so the left eyelid ends up exactly at ``L`` and the right at ``R`` on an
+  avatar whose ``Blink`` closes both eyes and ``Blink_L``/``Blink_R`` one each — sending
+  ``Blink = mean`` *and* ``Blink_L/R`` would close a winking eye 1.5 times.
+* **A, I, U, E, O (visemes)** from the jaw and mouth shapes. Six mouth features
+  (left/right averaged): *opening* ``max(jawOpen − mouthClose, 0)`` (``mouthClose`` =
+  lips together while the jaw hangs open), *funnel*, *pucker*, *stretch*, *lower lip
+  down*, *upper lip up*. Each vowel has a prototype in that space, set from the
+  articulation of the five (Japanese) vowels the VRM visemes are: jaw opening
+  A > O > E > I > U, lip rounding U and O (pucker, funnel), lip spreading I and E
+  (stretch), lips parted from the teeth in A/E/I (:data:`_VISEME_PROTOTYPES`). The
+  viseme weights are the non-negative least-squares combination of the prototypes
+  that best reproduces the frame's features (``scipy.optimize.nnls``: 5 unknowns), each
+  clipped to 1 and scaled so that their sum is at most 1 (receivers add the clips; a sum
+  above 1 over-opens the mouth). A closed, relaxed mouth gives all zeros. Smiles are not
+  a viseme feature: they drive ``Joy``/``Fun``.
+* **Joy, Fun, Angry, Sorrow, Surprised** from the ARKit action units they are made of,
+  through ``ramp(x, lo, hi) = clip((x − lo)/(hi − lo), 0, 1)`` so that the small resting
+  values of every tracker stay at 0: ``smile = ramp(mean(mouthSmileL/R), 0.2, 0.7)``;
+  ``Joy = smile · ramp(mean(cheekSquintL/R), 0.15, 0.5)`` (a smile with the eyes
+  squeezed: VRM's ``Joy`` closes the eyes), ``Fun = smile − Joy`` (a smile with open
+  eyes); ``Angry = ramp(mean(browDownL/R), 0.2, 0.6) · (1 − smile)``;
+  ``Sorrow = ramp((browInnerUp + mean(mouthFrownL/R)) / 2, 0.2, 0.55) · (1 − smile)``;
+  ``Surprised = ramp((mean(eyeWideL/R) + mean(browOuterUpL/R)) / 2, 0.25, 0.6)``.
+* **LookUp / LookDown / LookLeft / LookRight** (for avatars whose eyes are blendshapes,
+  not bones): ``LookUp = mean(eyeLookUpL/R)``, ``LookDown = mean(eyeLookDownL/R)``;
+  the avatar's left is the left eye looking out and the right eye looking in:
+  ``LookLeft = mean(eyeLookOutLeft, eyeLookInRight)``,
+  ``LookRight = mean(eyeLookInLeft, eyeLookOutRight)``.
+* ``Neutral`` is the rest face (all 0): not sent.
+
+The thresholds are engineering choices (no published reference maps ARKit to VRM
+presets); they are here, once, for every consumer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+
+VRM0_PRESETS: tuple[str, ...] = (
+    "Blink", "Blink_L", "Blink_R", "A", "I", "U", "E", "O",
+    "Joy", "Angry", "Sorrow", "Fun", "Surprised",
+    "LookUp", "LookDown", "LookLeft", "LookRight",
+)
+VRM1_NAMES: dict[str, str] = {
+    "Blink": "blink", "Blink_L": "blinkLeft", "Blink_R": "blinkRight",
+    "A": "aa", "I": "ih", "U": "ou", "E": "ee", "O": "oh",
+    "Joy": "happy", "Angry": "angry", "Sorrow": "sad", "Fun": "relaxed", "Surprised": "surprised",
+    "LookUp": "lookUp", "LookDown": "lookDown", "LookLeft": "lookLeft", "LookRight": "lookRight",
+}
+VRM1_EXPRESSIONS: tuple[str, ...] = tuple(VRM1_NAMES[n] for n in VRM0_PRESETS)
+PERFECT_SYNC_NAMES: tuple[str, ...] = tuple(n[0].upper() + n[1:] for n in ARKIT_NAMES)
+VISEMES: tuple[str, ...] = ("A", "I", "U", "E", "O")
+
+_I = {n: i for i, n in enumerate(ARKIT_NAMES)}
+# features: opening, funnel, pucker, stretch, lower lip down, upper lip up (module docstring)
+_VISEME_PROTOTYPES = np.array([
+    # open  funnel pucker stretch lowerDn upperUp
+    [0.70, 0.00, 0.00, 0.05, 0.35, 0.15],  # A  (aa): jaw wide open, lips relaxed, parted
+    [0.15, 0.00, 0.00, 0.50, 0.15, 0.30],  # I  (ih): nearly closed jaw, lips spread, teeth shown
+    [0.10, 0.35, 0.75, 0.00, 0.00, 0.00],  # U  (ou): small opening, lips rounded and protruded
+    [0.35, 0.00, 0.00, 0.30, 0.35, 0.15],  # E  (ee): half-open jaw, lips a little spread
+    [0.45, 0.70, 0.30, 0.00, 0.10, 0.05],  # O  (oh): open jaw, lips rounded into a funnel
+], np.float64)
+
+
+def _mean(w: np.ndarray, *names: str) -> np.ndarray:
+    return np.mean([w[..., _I[n]] for n in names], axis=0)
+
+
+def _ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    return np.clip((x - lo) / (hi - lo), 0.0, 1.0)
+
+
+def mouth_features(face52: np.ndarray) -> np.ndarray:
+    """(..., 52) ARKit weights → (..., 6) viseme features (module docstring)."""
+    w = np.asarray(face52, np.float64)
+    opening = np.maximum(w[..., _I["jawOpen"]] - w[..., _I["mouthClose"]], 0.0)
+    return np.stack([
+        opening,
+        w[..., _I["mouthFunnel"]],
+        w[..., _I["mouthPucker"]],
+        _mean(w, "mouthStretchLeft", "mouthStretchRight"),
+        _mean(w, "mouthLowerDownLeft", "mouthLowerDownRight"),
+        _mean(w, "mouthUpperUpLeft", "mouthUpperUpRight"),
+    ], axis=-1)
+
+
+def viseme_weights(face52: np.ndarray) -> np.ndarray:
+    """(..., 52) ARKit weights → (..., 5) A, I, U, E, O weights (NNLS on the prototypes; sum ≤ 1)."""
+    from scipy.optimize import nnls
+
+    feats = mouth_features(face52)
+    flat = feats.reshape(-1, feats.shape[-1])
+    out = np.zeros((flat.shape[0], len(VISEMES)), np.float64)
+    A = _VISEME_PROTOTYPES.T  # (6, 5)
+    for k, f in enumerate(flat):
+        if f.max() > 1e-4:
+            out[k] = nnls(A, f)[0]
+    out = np.minimum(out, 1.0)
+    total = out.sum(axis=-1, keepdims=True)
+    out = np.where(total > 1.0, out / np.maximum(total, 1e-12), out)
+    return out.reshape(feats.shape[:-1] + (len(VISEMES),))
+
+
+def vrm0_weights(face52: np.ndarray) -> np.ndarray:
+    """(..., 52) ARKit weights → (..., 17) VRM 0.x preset weights in :data:`VRM0_PRESETS` order."""
+    w = np.clip(np.asarray(face52, np.float64), 0.0, 1.0)
+    if w.shape[-1] != N_BLENDSHAPES:
+        raise ValueError(f"face weights must be (..., {N_BLENDSHAPES}), got {w.shape}")
+    left, right = w[..., _I["eyeBlinkLeft"]], w[..., _I["eyeBlinkRight"]]
+    both = np.minimum(left, right)
+    vis = viseme_weights(w)
+    smile = _ramp(_mean(w, "mouthSmileLeft", "mouthSmileRight"), 0.2, 0.7)
+    joy = smile * _ramp(_mean(w, "cheekSquintLeft", "cheekSquintRight"), 0.15, 0.5)
+    angry = _ramp(_mean(w, "browDownLeft", "browDownRight"), 0.2, 0.6) * (1.0 - smile)
+    sorrow = _ramp((w[..., _I["browInnerUp"]] + _mean(w, "mouthFrownLeft", "mouthFrownRight")) / 2, 0.2, 0.55)
+    surprised = _ramp((_mean(w, "eyeWideLeft", "eyeWideRight") + _mean(w, "browOuterUpLeft", "browOuterUpRight")) / 2,
+                      0.25, 0.6)
+    cols = [both, left - both, right - both, *np.moveaxis(vis, -1, 0),
+            joy, angry, sorrow * (1.0 - smile), smile - joy, surprised,
+            _mean(w, "eyeLookUpLeft", "eyeLookUpRight"), _mean(w, "eyeLookDownLeft", "eyeLookDownRight"),
+            _mean(w, "eyeLookOutLeft", "eyeLookInRight"), _mean(w, "eyeLookInLeft", "eyeLookOutRight")]
+    return np.clip(np.stack(cols, axis=-1), 0.0, 1.0)
+
+
+def vrm0_presets(face52: np.ndarray) -> dict[str, float]:
+    """One frame's (52,) ARKit weights → ``{VRM 0.x preset name: weight}``."""
+    return dict(zip(VRM0_PRESETS, vrm0_weights(np.asarray(face52).reshape(N_BLENDSHAPES)).tolist()))
+
+
+def vrm1_expressions(face52: np.ndarray) -> dict[str, float]:
+    """One frame's (52,) ARKit weights → ``{VRM 1.0 expression name: weight}``."""
+    return {VRM1_NAMES[k]: v for k, v in vrm0_presets(face52).items()}

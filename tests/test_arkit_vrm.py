@@ -1,0 +1,91 @@
+"""ARKit → VRM presets: names in the spelling the consumers match, and each preset driven by its action units."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from facecapges.arkit import ARKIT_NAMES
+from facecapges.arkit_vrm import (PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_EXPRESSIONS, vrm0_presets, vrm0_weights,
+                                  vrm1_expressions)
+
+
+def face(**weights) -> np.ndarray:
+    w = np.zeros(52, np.float32)
+    for name, v in weights.items():
+        w[ARKIT_NAMES.index(name)] = v
+    return w
+
+
+def active(d: dict[str, float], eps: float = 0.05) -> set[str]:
+    return {k for k, v in d.items() if v > eps}
+
+
+def test_names():
+    # UniVRM's VRM 0.x preset spelling; perfect-sync clips in UpperCamelCase
+    assert {"Blink", "Blink_L", "Blink_R", "A", "I", "U", "E", "O", "Joy", "Angry", "Sorrow", "Fun"} <= set(VRM0_PRESETS)
+    assert PERFECT_SYNC_NAMES[ARKIT_NAMES.index("eyeBlinkLeft")] == "EyeBlinkLeft"
+    assert PERFECT_SYNC_NAMES[ARKIT_NAMES.index("jawOpen")] == "JawOpen"
+    assert PERFECT_SYNC_NAMES[-1] == "TongueOut" and len(set(PERFECT_SYNC_NAMES)) == 52
+    assert {"aa", "ih", "ou", "ee", "oh", "blink", "blinkLeft", "blinkRight", "happy", "sad", "relaxed"} \
+        <= set(VRM1_EXPRESSIONS)
+
+
+def test_neutral_face_sends_nothing():
+    assert not active(vrm0_presets(face()), 1e-9)
+
+
+def test_blink_split_keeps_each_eyelid_exact():
+    p = vrm0_presets(face(eyeBlinkLeft=0.9, eyeBlinkRight=0.4))
+    assert p["Blink"] == pytest.approx(0.4) and p["Blink_L"] == pytest.approx(0.5) and p["Blink_R"] == 0
+    # an avatar adds Blink (both lids) and Blink_L/R (one lid each)
+    assert p["Blink"] + p["Blink_L"] == pytest.approx(0.9) and p["Blink"] + p["Blink_R"] == pytest.approx(0.4)
+
+
+@pytest.mark.parametrize("shape, vowel", [
+    (dict(jawOpen=0.7, mouthLowerDownLeft=0.3, mouthLowerDownRight=0.3), "A"),
+    (dict(jawOpen=0.15, mouthStretchLeft=0.5, mouthStretchRight=0.5, mouthUpperUpLeft=0.3,
+          mouthUpperUpRight=0.3), "I"),
+    (dict(jawOpen=0.1, mouthPucker=0.8, mouthFunnel=0.3), "U"),
+    (dict(jawOpen=0.35, mouthStretchLeft=0.3, mouthStretchRight=0.3, mouthLowerDownLeft=0.35,
+          mouthLowerDownRight=0.35), "E"),
+    (dict(jawOpen=0.45, mouthFunnel=0.7, mouthPucker=0.3), "O"),
+])
+def test_visemes_from_mouth_shapes(shape, vowel):
+    p = vrm0_presets(face(**shape))
+    vis = {k: p[k] for k in "AIUEO"}
+    assert max(vis, key=vis.get) == vowel and vis[vowel] > 0.6
+    assert sum(vis.values()) <= 1.0 + 1e-9
+
+
+def test_lips_closed_over_open_jaw_is_no_viseme():
+    p = vrm0_presets(face(jawOpen=0.5, mouthClose=0.5))
+    assert max(p[k] for k in "AIUEO") < 0.02
+
+
+def test_emotions():
+    assert active(vrm0_presets(face(mouthSmileLeft=0.8, mouthSmileRight=0.8))) == {"Fun"}
+    assert active(vrm0_presets(face(mouthSmileLeft=0.8, mouthSmileRight=0.8, cheekSquintLeft=0.6,
+                                    cheekSquintRight=0.6))) == {"Joy"}
+    assert active(vrm0_presets(face(browDownLeft=0.7, browDownRight=0.7))) == {"Angry"}
+    assert active(vrm0_presets(face(browInnerUp=0.7, mouthFrownLeft=0.6, mouthFrownRight=0.6))) == {"Sorrow"}
+    assert "Surprised" in active(vrm0_presets(face(eyeWideLeft=0.8, eyeWideRight=0.8, browOuterUpLeft=0.7,
+                                                   browOuterUpRight=0.7)))
+    # a tracker's small resting values stay at 0
+    assert not active(vrm0_presets(face(mouthSmileLeft=0.15, browDownLeft=0.15, browDownRight=0.15)), 1e-9)
+
+
+def test_eye_look_sides():
+    p = vrm0_presets(face(eyeLookOutLeft=0.6, eyeLookInRight=0.6))
+    assert p["LookLeft"] == pytest.approx(0.6) and p["LookRight"] == 0
+
+
+def test_batched_equals_per_frame_and_vrm1():
+    rng = np.random.default_rng(0)
+    w = rng.uniform(0, 1, (7, 52))
+    batch = vrm0_weights(w)
+    assert batch.shape == (7, len(VRM0_PRESETS)) and ((batch >= 0) & (batch <= 1)).all()
+    np.testing.assert_allclose(batch[3], list(vrm0_presets(w[3]).values()))
+    assert list(vrm1_expressions(w[3]).values()) == pytest.approx(batch[3].tolist())
+    with pytest.raises(ValueError):
+        vrm0_weights(w[:, :51])

@@ -1,0 +1,177 @@
+"""The avatar's head is the person's head: on both real talking-head clips, in the files and over VMC."""
+
+from __future__ import annotations
+
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from facecapges import rotations as rot
+from facecapges.capture.face_lost import FaceLostPolicy
+from facecapges.capture.head_pose import angles_to_matrix, head_angles
+from facecapges.io.face_json import read_face_json
+from facecapges.runtime.head import HeadDriver, avatar_head_matrix, head_follow, set_head
+
+from runtime_helpers import checkpoint, cli
+
+MEGAMIND_FRAMES = 168  # the clip's 11.3 s at 15 fps (it has no audio: a BEAT clip is the speech)
+
+
+def run_head(tmp_path, video, head, audio=None, frames=None) -> dict:
+    from facecapges.runtime.offline import run_video
+
+    rep = run_video(video, tmp_path / head, checkpoint(), audio=audio, max_frames=frames, progress=False,
+                    videos=False, head=head)
+    return rep["head_follow"]
+
+
+@pytest.mark.parametrize("clip", ["katie", "megamind"])
+def test_avatar_head_follows_the_captured_head(tmp_path, clip, face_video, megamind_video, unseen_wav):
+    video, audio, frames = (face_video, None, None) if clip == "katie" else (megamind_video, unseen_wav,
+                                                                            MEGAMIND_FRAMES)
+    got = run_head(tmp_path, video, "capture", audio, frames)
+    assert got["frames"] > 100
+    assert got["yaw_r"] >= 0.9 and got["pitch_r"] >= 0.9, got
+    assert got["mean_error_deg"] < 3.0
+    # the model's own neck does not follow a nod (the measure can fail)
+    old = run_head(tmp_path, video, "model", audio, frames)
+    assert old["pitch_r"] < 0.5 and old["mean_error_deg"] > 8.0, old
+    half = run_head(tmp_path, video, "blend", audio, frames)
+    assert old["mean_error_deg"] > half["mean_error_deg"] > got["mean_error_deg"]
+
+
+def test_set_head_puts_the_rotation_on_the_neck_chain():
+    rng = np.random.default_rng(0)
+    pose = rot.matrix_to_rot6d(rot.euler_to_matrix(rng.uniform(-0.4, 0.4, (47, 3)), "XYZ")).astype(np.float64)
+    R = angles_to_matrix(0.4, -0.3, 0.1)
+    out = set_head(pose, R)
+    np.testing.assert_allclose(avatar_head_matrix(out), R, atol=1e-9)
+    np.testing.assert_array_equal(out[0], pose[0])  # the spine is the model's
+    np.testing.assert_array_equal(out[3:], pose[3:])  # and so are the arms
+    np.testing.assert_allclose(out[1], out[2])  # the neck's share is split evenly
+
+
+def test_face_lost_falls_back_to_the_model_head_and_comes_back_smoothly():
+    pol = FaceLostPolicy()
+    drv = HeadDriver("capture", pol)
+    model_pose = np.tile(rot.identity_rot6d(), (47, 1)).astype(np.float64)
+    cap = rot.matrix_to_rot6d(angles_to_matrix(0.5, 0.3, 0.0))
+    fps, yaws = 15.0, []
+    for k in range(90):
+        t = k / fps
+        found = not (15 <= k < 60)  # the face is away for 3 s
+        yaws.append(head_angles(avatar_head_matrix(drv(model_pose, cap, found, t)))[0])
+    yaws = np.degrees(yaws)
+    assert yaws[0] == pytest.approx(np.degrees(0.5), abs=1e-6)  # the first face is shown at once
+    held = [k for k in range(15, 60) if (k - 15) / fps <= pol.hold_s]
+    np.testing.assert_allclose(yaws[held], np.degrees(0.5), atol=1e-6)  # held 0.5 s
+    gone = [k for k in range(15, 60) if (k - 15) / fps >= pol.gone_s]
+    np.testing.assert_allclose(yaws[gone], 0.0, atol=1e-6)  # then the model's head
+    assert yaws[-1] == pytest.approx(np.degrees(0.5), abs=1e-6)  # the capture again
+    assert np.abs(np.diff(yaws)).max() < 10.0  # eased both ways: no jump (the full swing is 28.6°)
+    assert np.abs(np.diff(yaws[58:66])).max() > 1.0  # and it does come back within 0.3 s
+    # model mode leaves the model's head alone
+    assert HeadDriver("model")(model_pose, cap, True, 0.0) is model_pose
+
+
+def test_head_follow_measures_disagreement():
+    T = 60
+    yaw = 0.4 * np.sin(np.arange(T) / 6)
+    heads = np.stack([rot.matrix_to_rot6d(angles_to_matrix(y, 0.2 * np.cos(k / 5), 0)) for k, y in enumerate(yaw)])
+    still = np.tile(rot.identity_rot6d(), (T, 47, 1))
+    shown = np.stack([set_head(still[k], rot.rot6d_to_matrix(heads[k].astype(np.float64))) for k in range(T)])
+    assert head_follow(shown, heads)["yaw_r"] == pytest.approx(1.0)
+    assert head_follow(still, heads)["mean_error_deg"] > 5  # a still head does not follow
+
+
+def _vmc_heads(port_holder, got, stop):
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import BlockingOSCUDPServer
+
+    current: dict[str, np.ndarray] = {}
+
+    def on_bone(address, name, *v):
+        current[name] = np.array([v[6], v[3], -v[4], -v[5]])  # Unity (x, y, z, w) → right-handed (w, x, y, z)
+
+    def on_time(address, t):
+        got[int(round(float(t) * 15))] = dict(current)
+
+    disp = Dispatcher()
+    disp.map("/VMC/Ext/Bone/Pos", on_bone)
+    disp.map("/VMC/Ext/T", on_time)
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), disp)
+    server.timeout = 0.2
+    port_holder.append(server.server_address[1])
+    while not stop.is_set():
+        server.handle_request()
+    server.server_close()
+
+
+def test_vmc_receiver_sees_the_captured_head(tmp_path, face_video):
+    """``live`` over VMC: a receiver chaining the bones it gets shows the person's yaw and pitch."""
+    got: dict[int, dict] = {}
+    port, stop = [], threading.Event()
+    th = threading.Thread(target=_vmc_heads, args=(port, got, stop), daemon=True)
+    th.start()
+    while not port:
+        time.sleep(0.01)
+    rec = tmp_path / "rec"
+    r = cli("live", "--video", str(face_video), "--vmc", f"127.0.0.1:{port[0]}", "--record", str(rec),
+            "--face-json", "full")  # face.json at the model rate: frame k is VMC frame k
+    time.sleep(0.5)
+    stop.set()
+    th.join(5)
+    assert r.returncode == 0, r.stderr
+    captured = read_face_json(rec / "face.json").head_rot6d
+    chain = ("Hips", "Spine", "Chest", "UpperChest", "Neck", "Head")
+    frames = sorted(k for k, bones in got.items() if all(b in bones for b in chain) and k < len(captured))
+    assert len(frames) > 0.9 * len(captured)
+    vmc, cam = [], []
+    for k in frames:
+        G = np.eye(3)
+        for b in chain:
+            G = G @ rot.quaternion_to_matrix(got[k][b])
+        vmc.append(np.degrees(head_angles(G)))
+        cam.append(np.degrees(head_angles(rot.rot6d_to_matrix(captured[k].astype(np.float64)))))
+    vmc, cam = np.array(vmc), np.array(cam)
+    r_yaw, r_pitch = (np.corrcoef(vmc[:, i], cam[:, i])[0, 1] for i in (0, 1))
+    assert r_yaw >= 0.9 and r_pitch >= 0.9, (r_yaw, r_pitch)
+    report = json.loads((rec / "report.json").read_text())
+    assert report["frames"] >= len(captured)
+
+
+def test_the_video_shows_the_head(tmp_path, face_video):
+    """MediaPipe, run on the face close-up of the rendered avatar.mp4, sees the person's yaw and pitch."""
+    import cv2
+
+    from facecapges.capture.pipeline import FaceCapture
+    from facecapges.runtime.offline import run_video
+
+    out = tmp_path / "run"
+    run_video(face_video, out, checkpoint(), max_frames=75, progress=False, head="capture")
+    captured = read_face_json(out / "face.json").head_rot6d
+    v = cv2.VideoCapture(str(out / "avatar.mp4"))
+    W, H = int(v.get(cv2.CAP_PROP_FRAME_WIDTH)), int(v.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    ih = round(H / 3)  # the inset: a third of the height, 4:3, top-right (web/avatar_scene.js)
+    iw, m = round(ih * 4 / 3), round(H / 60) + 2
+    seen, cam = [], []
+    with FaceCapture(estimator="mediapipe", fps=15) as cap:
+        k = 0
+        while True:
+            ok, img = v.read()
+            if not ok:
+                break
+            crop = cv2.resize(img[m:m + ih, W - iw - m:W - m], (3 * iw, 3 * ih), interpolation=cv2.INTER_CUBIC)
+            r = cap.process(crop, k * 1000 / 15)
+            if r.face_found and k < len(captured):
+                seen.append(np.degrees(head_angles(r.head_R)))
+                cam.append(np.degrees(head_angles(rot.rot6d_to_matrix(captured[k].astype(np.float64)))))
+            k += 1
+    v.release()
+    seen, cam = np.array(seen), np.array(cam)
+    assert len(seen) > 0.9 * len(captured)
+    r_yaw, r_pitch = (np.corrcoef(seen[:, i], cam[:, i])[0, 1] for i in (0, 1))
+    assert r_yaw >= 0.9 and r_pitch >= 0.9, (r_yaw, r_pitch)
