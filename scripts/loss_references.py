@@ -25,19 +25,12 @@ def main() -> None:
     ap.add_argument("--until-fraction", type=float, default=1.0, help="cut every clip to this fraction first")
     args = ap.parse_args()
     from facecapges.model.config import ModelConfig, TrainConfig
-    from facecapges.timing import frame_sample_bounds
     from facecapges.training.masking import masked_reconstruction_losses
-    from facecapges.training.train import ClipArrays, load_clips, segment_sets
+    from facecapges.training.train import clip_head, load_clips, segment_sets
 
     cache, clips = load_clips(args.cache, args.speaker, "all")
     if args.until_fraction < 1:
-        cut = []
-        for c in clips:
-            T = int(len(c.pose) * args.until_fraction)
-            S = int(frame_sample_bounds(T, cache.fps, cache.sr)[0])
-            m = c.mask if c.mask is None or np.ndim(c.mask) == 1 else c.mask[:T]
-            cut.append(ClipArrays(c.name, c.pose[:T], c.head[:T], c.face[:T], c.audio[:S], m))
-        clips = cut
+        clips = [clip_head(c, int(len(c.pose) * args.until_fraction), cache.fps, cache.sr) for c in clips]
     tcfg = TrainConfig(holdout_from=args.holdout_from, holdout_fraction=args.holdout_fraction)
     mcfg = ModelConfig()
     train, held = segment_sets(clips, mcfg, tcfg)
