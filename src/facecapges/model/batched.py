@@ -467,7 +467,7 @@ class BatchedStreamingGenerator:
         self.frames[idx] = frames + 1
 
     def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
-        ids = [int(s) for s in np.asarray(slots, dtype=np.int64).reshape(-1)]
+        ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
         if len(set(ids)) != len(ids):
             raise ValueError("a stream can take only one frame per batched step")
         closed = [s for s in ids if s not in self._open]

@@ -25,12 +25,11 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
   face zero as in the cache) from a cold start: mean, p50, p99, total. Without the
   shared folder, synthetic speech-like frames, and ``inputs`` says so.
 * ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50): the
-  kernel's own ``torch.profiler`` scopes (``facecapges::<stage>``:
+  kernel's own stage scopes (``facecapges::<stage>`` for ``torch.profiler``:
   :data:`~facecapges.model.batched.STAGES` — input_prep, audio_frontend, audio_tcn,
-  face_encoder, head_encoder, decoder) and ``to_bvh_euler``, read from a profile of
-  the real step (the profiler adds its own cost to each recorded op, so read the
-  stages' shares; ``per_frame`` is the unprofiled time). ``audio_features_ms`` =
-  frontend + TCN step.
+  face_encoder, head_encoder, decoder), each timed by a wall-clock listener during
+  the real step (the torch profiler's per-op recording would cost more than the ops),
+  and ``to_bvh_euler``. ``audio_features_ms`` = frontend + TCN step.
 * ``compute`` — multiply–accumulates per frame, **counted** with
   ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
   per kernel stage too (a nested counter per stage scope). The counter counts matrix
@@ -221,29 +220,33 @@ def cpu_peak_gflops(n: int = 1024, reps: int = 8) -> float:
 
 
 def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
-    """ms per frame of each kernel stage (its ``facecapges::<stage>`` profiler scope) over the frames.
+    """ms per frame of each kernel stage over the frames, timed at the kernel's own stage scopes.
 
-    The step is the generator's own code, recorded by ``torch.profiler``; the profiler
-    adds its own cost per recorded op, so these are larger than the unprofiled step
-    and meant for the shares of the stages.
+    The kernel marks its stages with :func:`facecapges.model.batched.stage` (the
+    ``facecapges::<stage>`` ``torch.profiler`` scopes); here a listener times each scope
+    with the wall clock instead of the profiler, whose per-op recording costs more than
+    the ops themselves and would distort the shares.
     """
-    from torch.profiler import ProfilerActivity, profile, record_function
+    import contextlib
 
-    from facecapges.model.batched import STAGES
+    from facecapges.model import batched
 
-    times: dict[str, list] = {k: [] for k in (*STAGES, "to_bvh_euler")}
-    for t in range(len(audio)):
-        with profile(activities=[ProfilerActivity.CPU]) as prof:
+    times: dict[str, list] = {k: [] for k in (*batched.STAGES, "to_bvh_euler")}
+
+    @contextlib.contextmanager
+    def timed(name: str):
+        t0 = time.perf_counter()
+        yield
+        times[name].append((time.perf_counter() - t0) * 1e3)
+
+    batched.stage_listener = timed
+    try:
+        for t in range(len(audio)):
             pose = gen.step(audio[t], face[t], head[t])
-            with record_function("facecapges::to_bvh_euler"):
+            with timed("to_bvh_euler"):
                 euler(pose)
-        seen = dict.fromkeys(times, 0.0)
-        for ev in prof.events():
-            name = ev.name.removeprefix("facecapges::")
-            if ev.name.startswith("facecapges::") and name in seen:
-                seen[name] += ev.cpu_time_total / 1e3
-        for k, v in seen.items():
-            times[k].append(v)
+    finally:
+        batched.stage_listener = None
     return {k: np.array(v) for k, v in times.items()}
 
 
