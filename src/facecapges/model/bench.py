@@ -89,7 +89,7 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
     try:
         ckpt = load_checkpoint()
         cfg = ckpt.model.cfg
-        n = 150 if quick else 900
+        n = 150 if quick else 450
         audio, face, head = _inputs(n, cfg.samples_per_frame)
         fast = StreamingGenerator(ckpt.model, ckpt.neutral_window)
         naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
