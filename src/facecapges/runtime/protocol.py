@@ -22,7 +22,8 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
-     "face": 0,                        # which face / avatar (several with `live --faces N`)
+     "face": 1,                        # only with several faces (`live --faces N`): which one,
+                                       # 0-based; absent = the first (face 0)
      "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
                                        # compute of this frame; total = input frame → pose +
                                        # blendshapes ready (sending is not included)
@@ -77,15 +78,15 @@ def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> st
 def encode_pose(out: OutputFrame) -> str:
     """One :class:`OutputFrame` as a ``pose`` message."""
     q = np.asarray(out.quats, np.float64).reshape(-1)
+    extra = {"face": int(out.face_index)} if out.face_index else {}
     return json.dumps({
         "type": "pose", "frame": int(out.index), "time": _r(out.time_s, 6),
         "pose": [_r(v, 6) for v in q],
         "weights": [_r(v, 5) for v in np.asarray(out.face).reshape(-1)],
         "head": [_r(v, 6) for v in np.asarray(out.head).reshape(-1)],
         "face_found": bool(out.face_found),
-        "face": int(out.face_index),
         "latency_ms": {k: _r(v, 3) for k, v in out.latency_ms.items()},
-        "sent_ms": _r(time.time() * 1000.0, 1),
+        "sent_ms": _r(time.time() * 1000.0, 1), **extra,
     }, separators=(",", ":"))
 
 
