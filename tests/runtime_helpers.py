@@ -27,3 +27,11 @@ def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
 def cli_popen(*args: str, **kw) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-u", "-m", "facecapges.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kw)
+
+
+def refused(p: subprocess.CompletedProcess, *words: str) -> None:
+    """Assert a command failed the way a user should see it: exit 2, one ``error:`` line, no traceback."""
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert "Traceback" not in p.stderr and p.stderr.startswith("error:"), p.stderr
+    for w in words:
+        assert w in p.stderr, p.stderr

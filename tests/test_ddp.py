@@ -50,7 +50,7 @@ def cache(tmp_path_factory, beat_bvh) -> Path:
 
 
 def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> None:
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
     from facecapges.training.distributed import init_distributed, shutdown
     from facecapges.training.train import build_trainer
 
@@ -58,7 +58,7 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
                       LOCAL_RANK=str(rank))
     ctx = init_distributed("cpu")
     try:
-        _, clips = _load_clips(cache, 2, "all")
+        _, clips = load_clips(cache, 2, "all")
         tr = build_trainer(clips, out / "run", dict(TINY_MODEL), dict(TRAIN, batch_size=GLOBAL_BATCH // world),
                            {"split": "all"}, resume=False, dist=ctx)
         tr.fit()
@@ -69,7 +69,7 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
 
 
 def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
     from facecapges.training.train import build_trainer
 
     mp.spawn(_rank_worker, args=(2, free_port(), cache, tmp_path), nprocs=2, join=True)
@@ -82,7 +82,7 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
     assert {p.name for p in (tmp_path / "run").iterdir()} == {"last.pt", "model.safetensors", "log.csv",
                                                                 "summary.json"}
 
-    _, clips = _load_clips(cache, 2, "all")
+    _, clips = load_clips(cache, 2, "all")
     threads = torch.get_num_threads()
     try:
         one = build_trainer(clips, tmp_path / "one", dict(TINY_MODEL), dict(TRAIN, batch_size=GLOBAL_BATCH),
@@ -113,7 +113,7 @@ def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     assert "2 processes, global batch 24" in p.stdout
     assert p.stdout.count("checkpoint:") == 1  # one rank speaks
     assert "--amp is GPU-only" in p.stderr
-    state = torch.load(run / "last.pt", weights_only=False)
+    state = torch.load(run / "last.pt", weights_only=True)
     assert state["epoch"] == 1 and state["world_size"] == 2
     # resume the 2-process run with 1 process: the global batch and the lr follow the new count
     p = cli("train", "--cache", str(cache), "--speaker", "2", "--out", str(run), "--epochs", "2", "--resume")
@@ -123,7 +123,7 @@ def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     assert [(r[head.index("processes")], r[head.index("global_batch")]) for r in rows[1:]] == [("2", "24"),
                                                                                               ("1", "12")]
     assert all(np.isfinite(float(r[head.index("total")])) for r in rows[1:])
-    state = torch.load(run / "last.pt", weights_only=False)
+    state = torch.load(run / "last.pt", weights_only=True)
     assert state["epoch"] == 2 and state["world_size"] == 1
     lr = state["opt_g"]["param_groups"][0]["lr"]
     assert lr == pytest.approx(1.0 * 12 / 128)

@@ -157,7 +157,9 @@ def test_checkpoint_round_trip_and_errors(tmp_path, model):
 
 def test_train_config_learning_rates():
     t = TrainConfig()
-    assert t.lr_g() == pytest.approx(2.5e-4 * 256 / 128)
-    assert t.lr_d() == pytest.approx(0.2 * t.lr_g())
+    lr_g, lr_d = t.learning_rates()
+    assert lr_g == pytest.approx(2.5e-4 * 256 / 128)
+    assert lr_d == pytest.approx(0.2 * lr_g)
+    assert t.learning_rates(world_size=4)[0] == pytest.approx(4 * lr_g)  # linear in the global batch
     assert (t.clip_len, t.stride, t.huber_beta, t.epochs, t.adv_start_epoch) == (34, 10, 0.1, 375, 11)
     assert (t.w_rec, t.w_vel, t.w_acc, t.w_adv) == (500, 1000, 1000, 0.1)

@@ -119,7 +119,8 @@ def test_vmc_receiver_sees_the_captured_head(tmp_path, face_video):
     while not port:
         time.sleep(0.01)
     rec = tmp_path / "rec"
-    r = cli("live", "--video", str(face_video), "--vmc", f"127.0.0.1:{port[0]}", "--record", str(rec))
+    r = cli("live", "--video", str(face_video), "--vmc", f"127.0.0.1:{port[0]}", "--record", str(rec),
+            "--face-json", "full")  # face.json at the model rate: frame k is VMC frame k
     time.sleep(0.5)
     stop.set()
     th.join(5)

@@ -141,6 +141,14 @@ def test_two_participants_complete_the_study(served):
     try:
         page.wait("window.study.screen === 'welcome'")
         assert page.js("document.getElementById('pid').value") == TOKENS["P01"]
+        # English by default; the participant can switch to the thesis's Chinese wording
+        intro = "document.getElementById('criteria-intro').textContent"
+        assert "Realism" in page.js(intro) and "真实性" not in page.js(intro)
+        page.js("(() => { const s = document.getElementById('language'); s.value = 'zh'; "
+                "s.dispatchEvent(new Event('change')); })()")
+        assert "真实性" in page.js(intro) and "Realism" not in page.js(intro)
+        page.js("(() => { const s = document.getElementById('language'); s.value = 'en'; "
+                "s.dispatchEvent(new Event('change')); })()")
         page.start("P01")  # a participant id is no credential
         page.wait("document.getElementById('start-error').textContent.includes('unknown invitation')")
         page.start(TOKENS["P01"])

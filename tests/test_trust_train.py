@@ -18,20 +18,10 @@ from facecapges.errors import UserError
 from facecapges.model.config import load_config_file
 from facecapges.training.resume_file import RunFolderLock, load_state, save_state
 
+from runtime_helpers import cli, refused
+
 TINY_MODEL = dict(audio_frontend_channels=[8, 8, 8], audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
                   face_dim=8, lstm_hidden=16, mlp_hidden=16, disc_channels=8)
-
-
-def cli(*args: str, timeout: float = 120) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
-                          timeout=timeout)
-
-
-def refused(p: subprocess.CompletedProcess, *words: str) -> None:
-    assert p.returncode == 2, p.stdout + p.stderr
-    assert "Traceback" not in p.stderr and p.stderr.startswith("error:"), p.stderr
-    for w in words:
-        assert w in p.stderr, p.stderr
 
 
 class Payload:

@@ -38,6 +38,27 @@ def _vrma_ok(path: Path) -> dict:
     return doc
 
 
+def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
+    """Load ``vrma`` with @pixiv/three-vrm-animation onto a sample VRM in headless Chromium."""
+    from conftest import shared_file
+
+    from facecapges.avatar.render.browser import Browser
+    from facecapges.avatar.vrm import parse_model
+    from facecapges.avatar.vrm_view import PAGE, VrmDriver
+    from facecapges.io.bvh import read_bvh
+
+    skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
+    driver = VrmDriver(parse_model(build_sample(variant), variant), skel)
+    routes = {**driver.routes(), "/a.vrma": vrma.read_bytes()}
+    with Browser(routes, f"{PAGE}?w=160&h=120", 160, 120) as b:
+        b.wait_for("window.facecapges.ready")
+        info = b.evaluate("window.facecapges.loadVrma('/a.vrma')")
+        info["errors"] = b.evaluate("window.facecapges.errors")
+        info["end"] = b.evaluate(f"window.facecapges.seekVrma({info['duration']}, ['leftHand'], "
+                                 "['blink', 'EyeBlinkLeft', 'JawOpen'])")
+    return info
+
+
 def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     import cv2
 
@@ -92,12 +113,16 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     times = doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]
     assert times["count"] == n > 10
     assert "preset" in doc["extensions"]["VRMC_vrm_animation"]["expressions"]
+    played = _play_vrma(rec / "motion.vrma", "vrm0")
+    assert played["errors"] == [] and played["humanoidTracks"] == 52 and played["expressionTracks"] == 13
+    assert played["duration"] == pytest.approx((n - 1) / 15, abs=1e-3)
 
 
 def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     import soundfile as sf
 
     from facecapges.arkit import ARKIT_NAMES
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
     from facecapges.io.face_json import write_face_json
 
     audio, sr = sf.read(unseen_wav)
@@ -113,7 +138,10 @@ def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     assert p.returncode == 0, p.stderr
     doc = _vrma_ok(tmp_path / "g.vrma")
     ext = doc["extensions"]["VRMC_vrm_animation"]
-    assert list(ext["expressions"]["custom"]) == list(ARKIT_NAMES)
+    assert list(ext["expressions"]["custom"]) == list(PERFECT_SYNC_NAMES)
+    played = _play_vrma(tmp_path / "g.vrma", "vrm1")  # the sample's perfect-sync clips: "JawOpen" …
+    assert played["errors"] == [] and played["humanoidTracks"] == 52 and played["expressionTracks"] == 52
+    assert played["end"]["expressions"]["JawOpen"] == pytest.approx(0.6, abs=1e-3)  # the face track's jaw
     p = cli("generate", "--audio", str(wav), "--out", str(tmp_path / "h.bvh"), "--vrma", str(tmp_path / "h.vrma"),
             "--vrma-face", "smiles")
     assert p.returncode == 2 and "--vrma-face" in p.stderr and not (tmp_path / "h.bvh").exists()

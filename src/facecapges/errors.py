@@ -3,6 +3,22 @@
 Anything the user can fix (a missing file, a malformed BVH, a wrong skeleton, an
 existing output) is raised as :class:`UserError`. The command line catches it,
 prints its message on one line and exits with status 2 — never a traceback.
+
+The error policy, one rule per kind of failure:
+
+* **UserError** — input a person gave us (files, command-line values, a skeleton, an
+  output location) that is wrong; the message names the thing and says what to do.
+  The same condition raises it wherever it is found (e.g. a skeleton without the BEAT
+  joints, in the avatar and in the VMC sender alike).
+* **ValueError** (and ``TypeError``) — a programming error: a function called with
+  arrays of the wrong shape by our own code. Never caught; a test fails.
+* **Protocol errors of servers** — :class:`facecapges.runtime.protocol.ProtocolError`,
+  ``runtime.livelink.PacketError``, ``study.store.AnswerError``: bad messages from a
+  client over the network. They are answered (an ``error`` message, an HTTP status)
+  or counted and dropped, and logged at most once per connection; they never stop a
+  server and never reach the user as a traceback.
+* Process-wide state a function changes (torch's thread count) is restored by it or by
+  the object that owns it (``Session.close``).
 """
 
 from __future__ import annotations

@@ -336,9 +336,10 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(degenerate[..., None, None], np.eye(3), R)
 
 
-def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
 
+    ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
     Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
     ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
     normalised linear blend.

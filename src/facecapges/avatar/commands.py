@@ -78,7 +78,7 @@ def register(app: typer.Typer) -> None:
 
     @avatar.command("build")
     def avatar_build(
-        out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm)."),
+        out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
         skeleton: Path = typer.Option(None, "--skeleton", help="A BEAT BVH whose hierarchy and rest offsets to use "
                                                                "(default: the skeleton stored with the default model)."),
         fmt: str = typer.Option("glb", "--format", help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "

@@ -17,9 +17,10 @@ Our avatar's glTF (:mod:`facecapges.avatar.gltf`) plus ``VRMC_vrm``:
   non-humanoid nodes between humanoid ones, which the spec allows. A ``Root`` node
   above Hips lifts the body so the soles (BEAT ForeFoot) stand on y = 0, as the VRM
   T-pose wants; BEAT's rest pose already is a T-pose facing +Z, left hand at +X.
-* **expressions** — the 52 ARKit blendshapes as *custom* expressions named exactly as
-  ARKit names them (the "perfect sync" convention of VSeeFace / Warudo / VNyan), each
-  bound to its morph target at weight 1, and the VRM presets (``happy`` … ``neutral``)
+* **expressions** — the 52 ARKit blendshapes as *custom* expressions in perfect-sync
+  spelling (``EyeBlinkLeft``, ``JawOpen`` …: :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`,
+  the clip names VMC senders and perfect-sync avatars use), each bound to its morph
+  target (named as in ARKit) at weight 1, and the VRM presets (``happy`` … ``neutral``)
   as fixed combinations of ARKit targets (:data:`PRESET_BINDS`).
 * **lookAt** — type ``expression`` (the face has no eye bones): ``lookUp/Down/Left/
   Right`` move the eyes with the ARKit eyeLook targets; the look-at origin is the
@@ -211,7 +212,10 @@ def avatar_to_vrm(avatar):
     preset = {p: expr(b) for p, b in PRESET_BINDS.items()}
     for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
         preset[p]["overrideBlink"] = preset[p]["overrideMouth"] = "blend"
-    custom = {a: expr({a: 1.0}) for a in face.names}
+    from facecapges.arkit import arkit_index
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+
+    custom = {PERFECT_SYNC_NAMES[arkit_index(a)]: expr({a: 1.0}) for a in face.names if arkit_index(a) is not None}
     eye_v = np.unique(face.faces[EYE].reshape(-1)) if EYE in face.faces else np.arange(len(face.vertices))
     eyes = (face.vertices[eye_v].mean(0) + face.offset) * CM_TO_M  # in the Head joint's frame
     rng = {"inputMaxValue": EYE_RANGE_DEG, "outputScale": 1.0}
@@ -256,7 +260,7 @@ def avatar_to_vrm0(avatar):
     named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`)
     — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``Other`` (MIT).
     """
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM1_NAMES
+    from facecapges.arkit_vrm import VRM1_NAMES
 
     doc = avatar_to_vrm(_turned(avatar))
     v1 = doc.extensions["VRMC_vrm"]
@@ -276,7 +280,7 @@ def avatar_to_vrm0(avatar):
             continue
         clip = v0_name[p]
         groups.append(group(clip, clip.lower() if clip != "Surprised" else "unknown", expr))
-    for ps, (a, expr) in zip(PERFECT_SYNC_NAMES, v1["expressions"]["custom"].items()):
+    for ps, expr in v1["expressions"]["custom"].items():
         groups.append(group(ps, "unknown", expr))
     look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": 90.0, "yRange": EYE_RANGE_DEG / 90.0}
     head = v1["humanoid"]["humanBones"]["head"]["node"]
@@ -453,6 +457,7 @@ def _morph_names(doc: dict) -> list[str]:
 def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
     """Give a plain humanoid GLB a minimal VRMC_vrm extension (in memory): bones + ARKit customs."""
     from facecapges.arkit import arkit_index
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
     custom = {}
     for ni, node in enumerate(doc.get("nodes") or []):
@@ -462,7 +467,7 @@ def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
         for k, t in enumerate((mesh.get("extras") or {}).get("targetNames") or []):
             a = arkit_index(str(t))
             if a is not None:
-                custom.setdefault(ARKIT_NAMES[a], {"morphTargetBinds": []})["morphTargetBinds"].append(
+                custom.setdefault(PERFECT_SYNC_NAMES[a], {"morphTargetBinds": []})["morphTargetBinds"].append(
                     {"node": ni, "index": k, "weight": 1.0})
     doc.setdefault("extensionsUsed", []).append("VRMC_vrm")
     doc.setdefault("extensions", {})["VRMC_vrm"] = {

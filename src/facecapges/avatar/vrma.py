@@ -22,8 +22,9 @@ Layout written by :func:`motion_to_vrma`
   spec's encoding), with ``face="presets"`` the VRM presets derived from the ARKit
   weights by :func:`facecapges.arkit_vrm.vrm0_weights` (any VRM can play them; the
   look presets are left out — the spec reserves them for lookAt), with
-  ``face="perfect-sync"`` the 52 ARKit weights as custom expressions named as ARKit
-  names them (for perfect-sync avatars such as ours).
+  ``face="perfect-sync"`` the 52 ARKit weights as custom expressions in perfect-sync
+  spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`), the names
+  of the clips of perfect-sync avatars such as ours.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     """The ``.vrma`` glTF document (pygltflib) of BEAT local rotations (T, J, 3, 3) (+ (T, 52) ARKit)."""
     import pygltflib as g
 
-    from facecapges.arkit_vrm import VRM0_PRESETS, VRM1_NAMES, vrm0_weights
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
     from facecapges.avatar.body import rest_positions
     from facecapges.avatar.retarget import Retargeter
     from facecapges.rotations import matrix_to_quaternion
@@ -126,7 +127,7 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
             tracks = {VRM1_NAMES[n]: w[:, k] for k, n in enumerate(VRM0_PRESETS) if not n.startswith("Look")}
             group = "preset"
         else:
-            tracks = {n: arkit[:, k] for k, n in enumerate(ARKIT_NAMES)}
+            tracks = {n: arkit[:, k] for k, n in enumerate(PERFECT_SYNC_NAMES)}
             group = "custom"
         expressions[group] = {}
         for name, track in tracks.items():

@@ -16,6 +16,17 @@ Conventions
   right (the subject's left), pitch > 0 tilts it down (right-hand rule about X), roll > 0
   tilts it counter-clockwise
   as seen by the camera.
+* **The gesture model's head input** is this camera-frame ``R`` (identity = facing the
+  camera), whatever the source. Live capture (webcam, ARKit, Live Link) is already in
+  it. A rotation from a motion-capture skeleton (BEAT/ZEGGS: the global rotation of
+  the head chain, :func:`facecapges.skeleton.head_rot6d`, Y up, the body facing +Z —
+  the same axes as the camera frame of a camera in front of the speaker) is mapped
+  into it by :func:`skeleton_head_to_camera`: ``R = R_skel · R_refᵀ``, where
+  ``R_ref`` (:func:`mean_rotation`) is the speaker's mean head rotation over the
+  training frames — the speaker's average head orientation stands for "facing the
+  camera". A head turn of the speaker about the vertical axis is then the same turn of
+  a user in front of the camera. The trainer stores ``R_ref`` in the checkpoint
+  (``head_reference_rot6d``); evaluation maps held-out skeleton heads with it.
 
 Landmarks → metric points (:func:`landmarks_to_camera`): MediaPipe's normalised
 landmarks are a scaled-orthographic view. They are lifted to the camera frame with a
@@ -229,3 +240,18 @@ class PoseSmoother:
         R = ref @ exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)
+
+
+def mean_rotation(rot6d: np.ndarray) -> np.ndarray:
+    """The chordal L2 mean (…, 6) → (6,) rot6d: the average matrix projected onto SO(3)."""
+    m = rot.rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6)).mean(0)
+    u, _, vt = np.linalg.svd(m)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    return rot.matrix_to_rot6d((u * np.array([1.0, 1.0, d])) @ vt)
+
+
+def skeleton_head_to_camera(head_rot6d: np.ndarray, reference_rot6d: np.ndarray) -> np.ndarray:
+    """Skeleton-frame head rotations (…, 6) → the model's camera frame: ``R_skel · R_refᵀ`` (module docs)."""
+    R = rot.rot6d_to_matrix(np.asarray(head_rot6d, np.float64))
+    ref = rot.rot6d_to_matrix(np.asarray(reference_rot6d, np.float64))
+    return rot.matrix_to_rot6d(R @ np.swapaxes(ref, -1, -2)).astype(np.float32)

@@ -1,12 +1,14 @@
 """Whole-video capture: a source → BEAT-format face JSON (+ overlay video).
 
-Face JSON written (read back by ``facecapges.io.face_json``)::
+Face JSON written by :func:`facecapges.io.face_json.write_face_json` (BEAT's layout by
+default: 51 names at 60 fps; ``face_layout="full"``: 52 names at ``fps``), each frame
+with the extensions ``head_rot6d``, ``face_found`` and ``distance_m``::
 
-    {"names": [52 ARKIT_NAMES], "fps": 15,
-     "frames": [{"time": t_s, "weights": [52 floats], "head_rot6d": [6 floats],
+    {"names": [...], "fps": 60,
+     "frames": [{"time": t_s, "weights": [...], "head_rot6d": [6 floats],
                  "face_found": bool, "distance_m": float}, ...]}
 
-``time`` is ``k / fps`` for output frame ``k``. Every source frame is processed
+Capture frame ``k`` is the result at ``k / fps``. Every source frame is processed
 (MediaPipe's tracker and the sample set see the full frame rate), and output frame
 ``k`` is the result of the first source frame at or after ``k / fps``; a source slower
 than ``fps`` repeats results. (Decimating before the landmark model would be
@@ -22,25 +24,20 @@ view (yet) is written as not found, neutral.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
+import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES
 from facecapges.errors import UserError, check_output_file
-
-
-def face_json_document(records: list[dict], fps: float) -> dict:
-    return {"names": list(ARKIT_NAMES), "fps": fps, "frames": records}
 
 
 def result_record(res, time_s: float) -> dict:
     d = float(res.distance_m)
     return {
         "time": round(float(time_s), 6),
-        "weights": [round(float(x), 5) for x in res.weights52],
-        "head_rot6d": [round(float(x), 6) for x in res.head_rot6d],
+        "weights": np.asarray(res.weights52, np.float64),
+        "head_rot6d": np.asarray(res.head_rot6d, np.float64),
         "face_found": bool(res.face_found),
         "distance_m": None if not math.isfinite(d) else round(d, 4),
     }
@@ -48,7 +45,8 @@ def result_record(res, time_s: float) -> dict:
 
 def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: float = 15.0,
                   overlay: str | Path | None = None, depth_dir=None, intrinsics=None, model=None,
-                  force: bool = False, max_frames: int | None = None, progress: bool = True, faces: int = 1) -> dict:
+                  force: bool = False, max_frames: int | None = None, progress: bool = True, faces: int = 1,
+                  face_layout: str = "beat") -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON; one per face, module docstring);
     returns a summary dict."""
     from facecapges.capture.video import open_source
@@ -138,9 +136,11 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
             writer.close()
     if not records[0]:
         raise UserError(f"{source}: no frames could be read")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    from facecapges.io.face_json import write_face_json
+
     for p, rec in zip(outs, records):
-        p.write_text(json.dumps(face_json_document(rec, fps)))
+        write_face_json(p, np.stack([r["weights"] for r in rec]), fps, np.stack([r["head_rot6d"] for r in rec]),
+                        layout=face_layout, extras={k: [r[k] for r in rec] for k in ("face_found", "distance_m")})
     warnings = []
     if src.bad_frames:
         warnings.append(f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "

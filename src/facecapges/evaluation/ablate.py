@@ -11,6 +11,15 @@ discriminator schedule, seed):
   (same encoders, bidirectional torso/limb LSTMs over a whole segment, no closed-loop
   rollout), trained by :mod:`facecapges.training.offline` on the same L = 34
   segments with the first N = 16 real poses as seed and losses on the 18 frames after.
+* ``camn`` — the CaMN baseline (thesis 5.2.1, Table 5.2/5.3's CaMN row):
+  :class:`facecapges.evaluation.camn.CaMN`, BEAT's cascaded bidirectional body/hands
+  LSTMs with non-causal conv encoders on the same audio, face and head inputs, trained
+  by the same trainer, recipe and segments as ``offline`` and evaluated like it.
+  DiffSHEG is not reproduced (it needs HuBERT features; see that module).
+
+**A given checkpoint as ``full``** (``full_from``, ``--full-from``): a checkpoint file
+or installed style is used as the ``full`` row as it is; when its stored recipe is not
+this one, the variants table says so ("given checkpoint (not this recipe: …)").
 
 **Reusing the shipped model for ``full``.** When the installed default style
 (``beat2-scott-demo``) was trained by exactly this recipe — its stored model config
@@ -69,8 +78,21 @@ import numpy as np
 from facecapges import timing
 from facecapges.errors import UserError
 
-VARIANTS: tuple[str, ...] = ("full", "no_head", "offline")
-LABELS = {"full": "FaceCapGes (full)", "no_head": "without head pose", "offline": "offline decoding"}
+VARIANTS: tuple[str, ...] = ("full", "no_head", "offline", "camn")
+LABELS = {"full": "FaceCapGes (full)", "no_head": "without head pose", "offline": "offline decoding",
+          "camn": "CaMN (baseline)"}
+#: Variants decoded offline (one pass per sequence): their loader and trainer builder.
+SEGMENT_DECODERS = {"offline": ("facecapges.model.offline:load_offline",
+                                "facecapges.training.offline:build_offline_trainer"),
+                    "camn": ("facecapges.evaluation.camn:load_camn",
+                             "facecapges.evaluation.camn:build_camn_trainer")}
+
+
+def _resolve(ref: str):
+    import importlib
+
+    mod, name = ref.split(":")
+    return getattr(importlib.import_module(mod), name)
 
 
 def default_config_path() -> Path:
@@ -128,8 +150,12 @@ def make_recipe(config: Path | None, speaker: int, split: str | None, epochs: in
 def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_names: list[str]) -> str | None:
     """None when a checkpoint's metadata says it was trained by this recipe, else the reason."""
     mcfg, tcfg = recipe.resolved(model_extra)
+    from facecapges.model.config import TrainConfig, to_dict
+
+    # a field added to TrainConfig after the checkpoint was written counts at its default
+    stored_t = dict(to_dict(TrainConfig()), **(meta.get("train_config") or {}))
     checks = [(meta.get("model_config") == mcfg, "model config differs"),
-              (meta.get("train_config") == tcfg, "training config differs"),
+              (stored_t == tcfg, "training config differs"),
               (meta.get("epochs_trained") == tcfg["epochs"], "not trained for the full number of epochs"),
               (meta.get("speaker") == recipe.speaker, "other speaker"),
               (list(meta.get("clips") or []) == clip_names, "other clips"),
@@ -150,19 +176,22 @@ class TrainedVariant:
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
-    from facecapges.model.commands import _load_clips
+    from facecapges.training.train import load_clips
 
-    return _load_clips(cache, speaker, split)
+    return load_clips(cache, speaker, split)
 
 
 def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
                    reuse_default: bool = True, retrain: bool = False, progress: bool = True,
-                   say=print) -> dict[str, TrainedVariant]:
-    """Train (or reuse) every variant; see the module docstring."""
+                   say=print, full_from: str | None = None) -> dict[str, TrainedVariant]:
+    """Train (or reuse) every variant; see the module docstring.
+
+    ``full_from`` (a checkpoint file or an installed style name) is taken as the
+    ``full`` row as it is, whatever recipe trained it; the table says so.
+    """
     import json
 
     from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
-    from facecapges.model.offline import load_offline
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -172,6 +201,14 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
     for v in variants:
         run = out / "runs" / v
         extra = {"head_dim": 0} if v == "no_head" else None
+        if v == "full" and full_from is not None:
+            as_file = Path(full_from)
+            ck = load_checkpoint(as_file) if as_file.is_file() or as_file.is_dir() else load_checkpoint(style=full_from)
+            why = _same_recipe(ck.meta, recipe, None, names)
+            source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
+            say(f"[{v}] {ck.path} taken as given" + ("" if why is None else f"; note: {why}"))
+            result[v] = TrainedVariant(v, ck.path, source, 0.0, ck.meta.get("final_losses", {}))
+            continue
         if v == "full" and reuse_default and not retrain and DEFAULT_STYLE in list_styles():
             ck = load_checkpoint(style=DEFAULT_STYLE)
             why = _same_recipe(ck.meta, recipe, None, names)
@@ -183,7 +220,8 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
         done = run / "model.safetensors"
         if done.is_file() and not retrain:
             try:
-                meta = load_offline(done)[1] if v == "offline" else load_checkpoint(done).meta
+                meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else \
+                    load_checkpoint(done).meta
             except UserError:
                 meta = {}
             if meta and _same_recipe(meta, recipe, extra, names) is None:
@@ -197,10 +235,9 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
             f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}")
         t0 = time.perf_counter()
         meta = dict(meta_base, variant=LABELS[v])
-        if v == "offline":
-            from facecapges.training.offline import build_offline_trainer
-
-            tr = build_offline_trainer(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
+        if v in SEGMENT_DECODERS:
+            build = _resolve(SEGMENT_DECODERS[v][1])
+            tr = build(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
             tr.fit(progress=progress)
         else:
             from facecapges.training.train import build_trainer
@@ -221,10 +258,8 @@ class _Runner:
 
     def __init__(self, variant: TrainedVariant):
         self.variant = variant
-        if variant.name == "offline":
-            from facecapges.model.offline import load_offline
-
-            self.model, self.meta = load_offline(variant.path)
+        if variant.name in SEGMENT_DECODERS:
+            self.model, self.meta = _resolve(SEGMENT_DECODERS[variant.name][0])(variant.path)
             self.ckpt = None
         else:
             from facecapges.model.checkpoint import load_checkpoint
@@ -297,7 +332,16 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     per_clip, real_clips, method_clips = [], [], {}
     for name in evaluated:
         a = loaded[name]
-        real, audio, inputs = heldout_inputs(a, start, fps, sr)
+        real, audio, _ = heldout_inputs(a, start, fps, sr)
+        inputs_by_ref: dict = {}  # each model gets the head in its own training frame
+
+        def inputs_for(r):
+            ref = r.meta.get("head_reference_rot6d")
+            key = None if ref is None else tuple(np.asarray(ref, np.float64).ravel().round(9))
+            if key not in inputs_by_ref:
+                inputs_by_ref[key] = heldout_inputs(a, start, fps, sr, ref)[2]
+            return inputs_by_ref[key]
+
         histories = [None] + [bl.random_segment(pool, n_hist, rng) for _ in range(samples - 1)]
         if F_ is not None:
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))
@@ -306,10 +350,10 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
         methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
                    "random real segment": segment}
         for v, r in runners.items():
-            methods[LABELS[v]] = [r.run(inputs, h, progress) for h in histories]
+            methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress))
+                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, m in methods.items():
             method_clips.setdefault(k, []).extend(m if isinstance(m, list) else [m])
@@ -327,7 +371,8 @@ def _fgd_for(out: Path, recipe: Recipe, trained: dict[str, TrainedVariant], cach
     if fgd_location is not None:
         return load_fgd(fgd_location), str(fgd_paths(fgd_location)[0])
     full = trained.get("full")
-    if full is not None and full.source == "shipped checkpoint" and fgd_paths(full.path)[1].is_file():
+    if full is not None and full.source.startswith(("shipped checkpoint", "given checkpoint")) and \
+            fgd_paths(full.path)[1].is_file():
         say(f"FGD: the shipped checkpoint's autoencoder {fgd_paths(full.path)[0].parent}")
         return load_fgd(full.path), str(fgd_paths(full.path)[0])
     loc = out / "fgd"
@@ -362,7 +407,7 @@ def ablation_markdown(full: dict) -> str:
         held = fl.get("held_rec")
         ms = res["ms_per_frame"].get(LABELS[v])
         took = f"{info['seconds'] / 60:.1f} min" if info["seconds"] else "—"
-        where = Path(info["path"]).name if info["source"] == "shipped checkpoint" else f"runs/{v}/"
+        where = Path(info["path"]).name if info["source"].startswith(("shipped", "given")) else f"runs/{v}/"
         lines.append(f"| {LABELS[v]} | {info['source']} ({where}) | {info['epochs']} | "
                      f"{'—' if rec is None else f'{rec:.5f}'} | {'—' if held is None else f'{held:.5f}'} | "
                      f"{took} | "
@@ -375,7 +420,15 @@ def ablation_markdown(full: dict) -> str:
               "window, the others from the same random real histories for every variant). The offline variant "
               "decodes each held-out sequence in one pass seeded by that same history; the two closed-loop "
               "variants run frame by frame through the streaming generator.",
-              f"FGD autoencoder: `{full['fgd_autoencoder']}`.", ""]
+              f"FGD autoencoder: `{full['fgd_autoencoder']}`."]
+    if "camn" in full["variants"]:
+        lines += ["", "CaMN (baseline) is our implementation of BEAT's CaMN (`facecapges.evaluation.camn`: "
+                      "non-causal conv encoders, fusion cascade, 4-layer bidirectional body and hands LSTMs of 256 "
+                      "units) on the same audio, face and head inputs, trained by the same trainer, recipe and "
+                      "segments as the offline-decoding variant and decoded like it. DiffSHEG (thesis 5.2.1) is not "
+                      "reproduced: it needs HuBERT speech features from a pretrained model that cannot be obtained "
+                      "on this machine."]
+    lines.append("")
     return md + "\n".join(lines)
 
 
@@ -384,6 +437,7 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
                  reuse_default: bool = True, retrain: bool = False, fgd_location: Path | None = None,
                  fgd_epochs: int = 400, samples: int = 3, seed: int = 0,
                  offsets_s: Sequence[float] = tuple(range(2, 61, 2)), progress: bool = True, say=print,
+                 full_from: str | None = None,
                  command: str | None = None) -> dict:
     """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
     from facecapges.data.cache import Cache
@@ -399,7 +453,7 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
     recipe = make_recipe(config, speaker, split, epochs, holdout_from, c.fps)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say)
+    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say, full_from)
     fgd, fgd_file = _fgd_for(out, recipe, trained, cache, fgd_location, fgd_epochs, progress, say)
     say("evaluating the variants on the held-out frames")
     result = evaluate_variants(cache, recipe, trained, fgd, samples, seed, offsets_s, progress)

@@ -10,7 +10,7 @@ writes the thesis's metrics for the model and the reference rows, in both region
 with plots and a side-by-side video (see :mod:`facecapges.evaluation.run`).
 
 ``facecapges ablate`` trains the ablation variants of thesis 5.7 (full, without head
-pose, offline decoding) with one recipe and evaluates them on the held-out frames
+pose, offline decoding) and the CaMN baseline of 5.2.1 with one recipe and evaluates them on the held-out frames
 into a Table 5.3 report (see :mod:`facecapges.evaluation.ablate`).
 """
 
@@ -150,16 +150,22 @@ def register(app: typer.Typer) -> None:
         config: Optional[Path] = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
                                                          "(default: configs/demo-beat2-scott.yaml, the shipped "
                                                          "model's recipe)."),
-        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's)."),
+        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
+                                                             "FGD autoencoder's: that is --fgd-epochs (400) when none "
+                                                             "is found; pass --fgd to use an existing one."),
         split: Optional[str] = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
                                                        "else train)."),
         holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
                                                               "config's holdout_from); they are evaluated."),
-        variants: str = typer.Option(",".join(("full", "no_head", "offline")),
-                                     help="Comma-separated variants: full, no_head, offline."),
+        variants: str = typer.Option(",".join(("full", "no_head", "offline", "camn")),
+                                     help="Comma-separated variants: full, no_head, offline, camn (the CaMN "
+                                          "baseline)."),
         reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
                                            help="Use the shipped default checkpoint as 'full' when its stored "
                                                 "recipe and data match."),
+        full_from: Optional[str] = typer.Option(None, "--full-from", help="Take this checkpoint (file or "
+                                                                          "installed style name) as the 'full' row "
+                                                                          "as it is, whatever its recipe."),
         retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
                                                               "finished model of this recipe."),
         fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
@@ -188,6 +194,7 @@ def register(app: typer.Typer) -> None:
                            holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
                            fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
                            offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
+                           full_from=full_from,
                            command="facecapges " + " ".join(sys.argv[1:]))
         typer.echo((out / "ablation.md").read_text())
         typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "

@@ -9,14 +9,19 @@ exactly as printed: the pair sum runs over i < k but the normaliser is N(N−1),
 the value is *half* the mean pairwise distance. Unit: rot6d L1 per joint-frame.
 Needs N ≥ 2.
 
-``l1div_temporal`` — **per-sequence deviation from the temporal mean**, the quantity
-BEAT/CaMN's ``L1div`` code computes and Table 5.2's magnitudes (7–13) reflect: for
-one sequence (T, J, 6) with temporal mean m (J, 6),
+``l1div_temporal`` — **per-sequence deviation from the temporal mean**: for one
+sequence (T, J, 6) with temporal mean m (J, 6),
 
     L1DIV_seq = 1/T · Σ_t Σ_j ‖r̂_tj − m_j‖₁
 
-a sum over all J·6 components per frame, averaged over frames. Several sequences:
-frame-weighted mean (``l1div_temporal_many``). A constant sequence gives 0.
+a sum over all J·6 rot6d components per frame, averaged over frames. Several
+sequences: frame-weighted mean (``l1div_temporal_many``). A constant sequence gives 0.
+This is the *formula* of BEAT/CaMN's ``L1div`` class, but their code runs it on the 141
+denormalised Euler channels in degrees, not on rot6d: on 2_scott_0_1_1 that gives
+988 from the file's own Euler channels and 512 from the same motion converted to
+principal-branch Euler (the forearms' branch choice alone moves it by hundreds),
+against 10.9 on rot6d. So Table 5.2's 7–13 magnitudes match this rot6d form, not
+BEAT/CaMN's numbers; :func:`facecapges.evaluation.peers.l1div_beat` computes theirs.
 """
 
 from __future__ import annotations

@@ -52,6 +52,8 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
             label = REGION_TITLES[region] if i == 0 else ""
             lines.append(f"| {label} | {name} | {_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± "
                          f"{_fmt(m['BA_shifted_sd'])} | {_fmt(m['BA_gap'], 4)} |")
+    lines += synchrony_lines(result)
+    lines += peer_lines(result)
     if any(m.get("L1DIV_samples") is not None for r in regions for m in result["regions"][r]["methods"].values()):
         lines += ["", "### L1DIV across generated samples (eq. 5.11)", "", "| Region | Method | L1DIV (eq. 5.11) |",
                   "|---|---|---|"]
@@ -67,14 +69,62 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
               + (", weighted by the BEAT semantic score of the frame." if result.get("srgr_weighted")
                  else "; no semantic file, so every frame has weight 1 (unweighted)."),
               f"- BA (eq. 5.9–5.10): mean over speech beats of exp(−Δt²/2σ²), σ = {result.get('sigma_s', 0.3)} s; "
-              f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed. "
+              f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed "
+              "(mode 'mean': the region's mean speed curve; BEAT/CaMN's script scores one joint, EMAGE averages "
+              "per-joint scores — see the peers' table). "
               f"Shifted: the audio rolled by {len(offs)} offsets "
               + (f"({offs[0]:g}–{offs[-1]:g} s)" if offs else "") + "; the gap, not the raw BA, shows synchrony.",
               "- L1DIV: per-sequence deviation from the temporal mean, Σ over the region's joints × 6 rot6d "
-              "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div).",
+              "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div formula, but on rot6d: their "
+              "code runs it on Euler degrees, hundreds times larger).",
               "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
               f"- {result.get('n_frames')} frames at {result.get('fps')} fps."]
     return "\n".join(lines) + "\n"
+
+
+def synchrony_lines(result: dict, audio_label: str | None = None) -> list[str]:
+    """The synchrony-control table of a suite result (empty without a ``synchrony`` section)."""
+    sync = result.get("synchrony")
+    if not sync:
+        return []
+    ref = sync["reference"]
+    lines = ["", "### Synchrony controls (same motion, its own audio shifted; wrists vs the real motion)", "",
+             ("| Audio " if audio_label else "") + "| Method | energy–speed r | shifted r (mean ± sd) | z | "
+             "BA gap (sd units, with head / without) | wrist jerk × real | wrist spread × real |",
+             ("|---" if audio_label else "") + "|---|---|---|---|---|---|---|"]
+    for name, m in sync["methods"].items():
+        gaps = [result["regions"][r]["methods"].get(name, {}).get("BA_gap_sd") for r in REGIONS
+                if r in result["regions"]]
+        lines.append((f"| {audio_label} " if audio_label else "") +
+                     f"| {name} | {_fmt(m['ES_r'])} | {_fmt(m['ES_shifted_mean'])} ± {_fmt(m['ES_shifted_sd'])} | "
+                     f"{_fmt(m['ES_z'], 2)} | {' / '.join(_fmt(g, 2) for g in gaps)} | {_fmt(m['jerk_ratio'], 2)} | "
+                     f"{_fmt(m['spread_ratio'], 2)} |")
+    lines += ["", f"Energy–speed: Pearson r of the per-frame audio RMS and the mean wrist speed, both smoothed over "
+                  f"0.5 s; z = (r − shifted mean) / shifted sd over the same audio shifts as BeatAlign. Judge a model "
+                  f"against its speaker's real figure (ground truth row), not against 0. Jerk and spread are ratios to "
+                  f"{ref['source']} (jerk {_fmt(ref['jerk'], 0)} units/s³, spread {_fmt(ref['spread'], 2)} units); "
+                  "1.0 moves like the real speaker."]
+    return lines
+
+
+def peer_lines(result: dict) -> list[str]:
+    """BA, SRGR and L1div as the peers' scripts compute them (empty without a ``peers`` section)."""
+    peers = result.get("peers")
+    if not peers:
+        return []
+    lines = ["", "### The same motion under the peers' metric code (all 47 joints; for published numbers only)", "",
+             "| Method | BA (BEAT script) | BA (BEAT, true beat times) | BA (EMAGE) | SRGR (BEAT, 4° Euler) | "
+             "L1div (BEAT, Euler °) |", "|---|---|---|---|---|---|"]
+    for name, m in peers["methods"].items():
+        lines.append(f"| {name} | {_fmt(m['BA_BEAT'])} | {_fmt(m['BA_BEAT_true_times'])} | {_fmt(m['BA_EMAGE'])} | "
+                     f"{_fmt(m['SRGR_BEAT'])} | {_fmt(m['L1DIV_BEAT'], 1)} |")
+    lines += ["", "BEAT/CaMN's BeatAlign scores one joint (RightHandRing2, where its channel slice lands on 47-joint "
+                  "arrays) against speech beats whose times its script scales by 16000/22050 = 0.726 (it assumes "
+                  "librosa's 22.05 kHz); EMAGE averages per-joint scores of position-speed minima. BEAT's SRGR counts "
+                  "a joint-frame when its three Euler angles are within 4° (L1); its L1div sums Euler-degree "
+                  "deviations. These are not the thesis's definitions the tables above use (see "
+                  "`facecapges.evaluation.peers`)."]
+    return lines
 
 
 def markdown_unseen_table(unseen: dict) -> str:
@@ -88,6 +138,8 @@ def markdown_unseen_table(unseen: dict) -> str:
                 lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {_fmt(m['FGD'])} | "
                              f"{_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± {_fmt(m['BA_shifted_sd'])} | "
                              f"{_fmt(m['BA_gap'], 4)} | {_fmt(m['L1DIV'])} |")
+    for path, res in unseen.items():
+        lines += synchrony_lines(res, Path(path).name)
     return "\n".join(lines) + "\n"
 
 

@@ -75,19 +75,26 @@ def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "t
     return [np.asarray(x, np.float32) for x in clips if len(x)], source
 
 
-def heldout_inputs(arrays: dict, start: int, fps: float, sr: int):
+def heldout_inputs(arrays: dict, start: int, fps: float, sr: int, head_reference=None):
     """A cached clip from frame ``start`` on: real poses (T, 47, 6), audio (S,), model inputs.
 
     The audio starts at the first sample frame ``start`` owns, so frame t of the
-    inputs is frame ``start + t`` of the clip.
+    inputs is frame ``start + t`` of the clip. ``head_reference`` (the checkpoint's
+    ``head_reference_rot6d``) maps the cached skeleton-frame head into the model's
+    camera frame (:func:`facecapges.capture.head_pose.skeleton_head_to_camera`).
     """
     from facecapges.model.generate import FrameInputs
 
     real = arrays["pose"][start:].astype(np.float32)
     s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
     audio = arrays["audio"][s0:].astype(np.float32)
+    head = arrays["head"][start:]
+    if head_reference is not None:
+        from facecapges.capture.head_pose import skeleton_head_to_camera
+
+        head = skeleton_head_to_camera(head, head_reference)
     inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=arrays["face"][start:],
-                         head=arrays["head"][start:], fps=fps, notes=[])
+                         head=head, fps=fps, notes=[])
     return real, audio, inputs
 
 
@@ -186,7 +193,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     first = None
     for ci, name in enumerate(evaluated):
         a = loaded[name]
-        real, audio, inputs = heldout_inputs(a, start, fps, sr)
+        real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
         gens = [gen] + [_generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
@@ -204,7 +211,7 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                    "random real segment": segment, model_name: gens}
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress))
+                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
         real_clips.append(real)
         for k, v in methods.items():
             method_clips.setdefault(k, []).extend(v if isinstance(v, list) else [v])
@@ -228,7 +235,8 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
                             for _ in range(samples - 1)]
             wav = load_audio(path, sr)
             unseen[str(path)] = evaluate_unpaired({model_name: gens}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
-                                                  offsets_s=offsets_s, progress=progress)
+                                                  offsets_s=offsets_s, progress=progress,
+                                                  skeleton=c.skeleton(evaluated[0]))
     out = Path(out)
     name, real0, methods0, audio0 = first
     shown = {model_name: methods0[model_name][0], "random real segment": methods0["random real segment"],

@@ -11,6 +11,16 @@
   recall, and :class:`SRGRResult` says ``weighted=False`` so reports label it
   "SRGR (unweighted)".
 
+**A frozen pose scores well under δ = 0.5.** Most of the 47 joints (fingers, neck)
+move little, so the static mean pose of the training frames scores 0.886 on
+2_scott_0_1_1 (0.882 on its held-out last 20 %). BEAT/CaMN's trainer uses a different
+test — the L1 distance of a joint's three Euler angles in degrees below 4°
+(:func:`facecapges.evaluation.peers.srgr_beat`) — under which the same mean pose scores
+0.51 on the held-out frames and a random real segment 0.47; ``eval`` reports both.
+Neither threshold ranks the mean pose below real motion from elsewhere in the
+clip: SRGR rewards being near the target on average, so read it beside FGD, BA and
+the synchrony controls, never alone.
+
 The per-frame scores λ_t come from BEAT's semantic ``.txt`` files, read by
 :func:`facecapges.data.beat.read_semantic` (the cache stores them per clip as
 ``semantic`` with ``semantic_present``); this module only takes the array.

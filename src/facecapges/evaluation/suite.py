@@ -18,10 +18,21 @@ Result layout (JSON-able dict)::
      "ba_offsets_s", "paired",
      "regions": {region: {"joints": [...],
                           "methods": {name: {"FGD", "SRGR", "BA", "BA_shifted_mean",
-                                             "BA_shifted_sd", "BA_gap", "L1DIV",
-                                             "L1DIV_samples", "n_samples"}}}}}
+                                             "BA_shifted_sd", "BA_gap", "BA_gap_sd", "L1DIV",
+                                             "L1DIV_samples", "n_samples"}}}},
+     "synchrony": {"methods": {name: {"ES_r", "ES_shifted_mean", "ES_shifted_sd", "ES_z", "jerk",
+                                      "spread", "jerk_ratio", "spread_ratio", "n_frames"}},
+                   "reference": {"jerk", "spread", "source"}}}
 
-FGD is ``None`` when no FGD autoencoder (or none for that region) is given.
+FGD is ``None`` when no FGD autoencoder (or none for that region) is given. The
+``synchrony`` section (:mod:`facecapges.evaluation.synchrony`: energy–speed
+correlation with its shifted-audio z-score, wrist jerk and spread and their ratios to
+the real motion) is present when a ``skeleton`` is given (wrist positions need forward
+kinematics); ``BA_gap_sd`` is the BeatAlign gap in shifted-sd units. With a skeleton
+the ``peers`` section also holds each method's BA, SRGR and L1div as BEAT/CaMN's and
+EMAGE's scripts compute them (:mod:`facecapges.evaluation.peers`, all 47 joints, no
+regions): ``{"methods": {name: {"BA_BEAT", "BA_BEAT_true_times", "BA_EMAGE",
+"SRGR_BEAT", "L1DIV_BEAT"}}, "n_speech_beats": {...}}``.
 """
 
 from __future__ import annotations
@@ -31,6 +42,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from facecapges.evaluation import beat_align as ba
+from facecapges.evaluation import synchrony as sy
 from facecapges.evaluation.fgd import FGDEvaluator
 from facecapges.evaluation.l1div import l1div_samples, l1div_temporal
 from facecapges.evaluation.regions import REGIONS, region_joints, select
@@ -79,6 +91,8 @@ def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr:
     out["BA_shifted_mean"] = float(np.mean([c.shifted_mean for c in controls]))
     out["BA_shifted_sd"] = float(np.mean([c.shifted_sd for c in controls]))
     out["BA_gap"] = out["BA"] - out["BA_shifted_mean"]
+    gsd = [sy.beat_align_gap_sd(c) for c in controls]
+    out["BA_gap_sd"] = float(np.mean(gsd)) if all(np.isfinite(gsd)) else None
     out["L1DIV"] = float(np.mean([l1div_temporal(r) for r in reg]))
     same_len = len({len(r) for r in reg}) == 1
     out["L1DIV_samples"] = l1div_samples(reg) if len(reg) >= 2 and same_len else None
@@ -88,7 +102,8 @@ def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr:
 def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float, real: np.ndarray | None,
               fgd: FGDEvaluator | None, fgd_reference: Sequence[np.ndarray] | None,
               semantic_weights: np.ndarray | None, regions: Sequence[str], offsets_s: Sequence[float],
-              sigma_s: float, ba_mode: str, progress: bool) -> dict:
+              sigma_s: float, ba_mode: str, progress: bool, skeleton=None,
+              real_stats: sy.MotionStats | None = None) -> dict:
     n = len(real) if real is not None else None
     samples = {k: _samples(k, v, n) for k, v in methods.items()}
     if n is None:
@@ -113,14 +128,56 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
                                            offsets_s, sigma_s, ba_mode, speech_sets)
                 bar.advance(task)
             result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
+    if skeleton is not None:
+        result["synchrony"] = _synchrony(samples, skeleton, audio, sr, fps, real, real_stats, offsets_s)
+        result["peers"] = _peers(samples, skeleton, audio, sr, fps, real, semantic_weights)
     return result
+
+
+def _peers(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
+           real: np.ndarray | None, weights: np.ndarray | None) -> dict:
+    """:func:`facecapges.evaluation.peers.peer_metrics` per method on all 47 joints (mean over samples)."""
+    from facecapges.evaluation import peers
+
+    n = len(next(iter(samples.values()))[0]) if samples else 0
+    a = ba.fit_audio(audio, n, fps, sr)
+    speech = peers.peer_speech(a, sr)
+    methods = {}
+    for name, arrs in samples.items():
+        rows = [peers.peer_metrics(real, x, a, sr, fps, skeleton, weights, speech) for x in arrs]
+        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
+    return {"methods": methods, "n_speech_beats": {k: int(len(v)) for k, v in speech.items()}}
+
+
+def _synchrony(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
+               real: np.ndarray | None, real_stats: sy.MotionStats | None, offsets_s: Sequence[float]) -> dict:
+    """:func:`facecapges.evaluation.synchrony.synchrony_row` per method (mean over samples).
+
+    Jerk/spread ratios are to the real motion (paired) or to ``real_stats`` (unpaired);
+    ``"reference"`` records those reference figures."""
+    if real is not None:
+        ref = sy.motion_stats(sy.wrist_positions(skeleton, real), fps)
+    else:
+        ref = real_stats
+    methods = {}
+    for name, arrs in samples.items():
+        rows = [sy.synchrony_row(sy.wrist_positions(skeleton, a), audio, sr, fps, ref, offsets_s) for a in arrs]
+        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
+    reference = {"jerk": ref.jerk if ref else None, "spread": ref.spread if ref else None,
+                 "source": "the real motion" if real is not None else "the speaker's real clips"}
+    return {"methods": methods, "reference": reference}
+
+
+def _finite_mean(vals) -> float | None:
+    ok = [float(v) for v in vals if v is not None and np.isfinite(v)]
+    return float(np.mean(ok)) if ok and len(ok) == len(vals) else None
 
 
 def evaluate_paired(real: np.ndarray, methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
                     fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
                     semantic_weights: np.ndarray | None = None, regions: Sequence[str] = REGIONS,
                     offsets_s: Sequence[float] = DEFAULT_OFFSETS_S, sigma_s: float = ba.SIGMA_S,
-                    ba_mode: str = "mean", progress: bool = True) -> dict:
+                    ba_mode: str = "mean", progress: bool = True, skeleton=None) -> dict:
     """Every metric for each method against the real motion ``real`` (T, 47, 6) and its audio.
 
     ``fgd_reference`` defaults to ``[real]``; include a ``"ground truth"`` entry in
@@ -131,19 +188,34 @@ def evaluate_paired(real: np.ndarray, methods: Mapping[str, Method], audio: np.n
         raise ValueError(f"real must be (T, {N_JOINTS}, 6), got {real.shape}")
     ref = list(fgd_reference) if fgd_reference is not None else [real]
     return _evaluate(methods, audio, sr, fps, real, fgd, ref, semantic_weights, regions, offsets_s, sigma_s,
-                     ba_mode, progress)
+                     ba_mode, progress, skeleton)
 
 
 def evaluate_unpaired(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
                       fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
                       regions: Sequence[str] = REGIONS, offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
-                      sigma_s: float = ba.SIGMA_S, ba_mode: str = "mean", progress: bool = True) -> dict:
-    """BeatAlign (+ control), L1DIV and FGD vs ``fgd_reference`` for motion without real counterpart."""
+                      sigma_s: float = ba.SIGMA_S, ba_mode: str = "mean", progress: bool = True,
+                      skeleton=None, real_reference: Sequence[np.ndarray] | None = None) -> dict:
+    """BeatAlign (+ control), L1DIV and FGD vs ``fgd_reference`` for motion without real counterpart.
+
+    With ``skeleton``, the synchrony section's jerk/spread ratios are to ``real_reference``
+    (default ``fgd_reference``): the speaker's real clips, frame-weighted.
+    """
+    stats = None
+    if skeleton is not None:
+        ref = real_reference if real_reference is not None else fgd_reference
+        stats = sy.pooled_stats([sy.motion_stats(sy.wrist_positions(skeleton, r), fps) for r in ref or []])
     return _evaluate(methods, audio, sr, fps, None, fgd, fgd_reference, None, regions, offsets_s, sigma_s,
-                     ba_mode, progress)
+                     ba_mode, progress, skeleton, stats)
 
 
-_AVERAGED = ("SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "L1DIV", "L1DIV_samples")
+_AVERAGED = ("SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap_sd", "L1DIV", "L1DIV_samples")
+_SYNC_AVERAGED = ("ES_r", "ES_shifted_mean", "ES_shifted_sd", "ES_z", "jerk", "spread", "jerk_ratio", "spread_ratio")
+
+
+def _weighted(vals, n) -> float | None:
+    ok = [(v, w) for v, w in zip(vals, n) if v is not None and np.isfinite(v)]
+    return float(sum(v * w for v, w in ok) / sum(w for _, w in ok)) if ok else None
 
 
 def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
@@ -151,8 +223,9 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
                   method_clips: Mapping[str, Sequence[np.ndarray]] | None = None) -> dict:
     """Merge per-clip results of the same methods into one (several held-out clips).
 
-    SRGR, BA (matched, shifted mean and sd) and L1DIV are averaged over clips weighted
-    by their frame counts; the BA gap is recomputed from the averages. FGD is not an
+    SRGR, BA (matched, shifted mean and sd, gap in sd units), L1DIV and every figure of
+    the synchrony section (each clip's own r, z and ratios) are averaged over clips
+    weighted by their frame counts; the BA gap is recomputed from the averages. FGD is not an
     average: with ``fgd``, ``fgd_reference`` (all real clips) and ``method_clips``
     (each method's clips) it is computed once over the pooled windows of all clips.
     """
@@ -169,9 +242,7 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
             per = [r["regions"][region]["methods"][name] for r in results]
             row = {"n_samples": per[0]["n_samples"]}
             for k in _AVERAGED:
-                vals = [p[k] for p in per]
-                ok = [(v, w) for v, w in zip(vals, n) if v is not None and np.isfinite(v)]
-                row[k] = float(sum(v * w for v, w in ok) / sum(w for _, w in ok)) if ok else None
+                row[k] = _weighted([p.get(k) for p in per], n)
             row["BA_gap"] = row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) \
                 else None
             if fgd is not None and region in fgd.models and fgd_reference and method_clips and name in method_clips:
@@ -180,6 +251,23 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
                 fg = [p["FGD"] for p in per]
                 row["FGD"] = fg[0] if len(per) == 1 else None
             rows[name] = {k: row[k] for k in ("FGD", "SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap",
-                                              "L1DIV", "L1DIV_samples", "n_samples")}
+                                              "BA_gap_sd", "L1DIV", "L1DIV_samples", "n_samples")}
         out["regions"][region] = {"joints": reg["joints"], "methods": rows}
+    if all("peers" in r for r in results):
+        methods = {}
+        for name, first in results[0]["peers"]["methods"].items():
+            methods[name] = {k: _weighted([r["peers"]["methods"][name][k] for r in results], n) for k in first}
+        out["peers"] = {"methods": methods, "n_speech_beats": {
+            k: int(sum(r["peers"]["n_speech_beats"][k] for r in results)) for k in results[0]["peers"]["n_speech_beats"]}}
+    if all("synchrony" in r for r in results):
+        methods = {}
+        for name in results[0]["synchrony"]["methods"]:
+            per = [r["synchrony"]["methods"][name] for r in results]
+            methods[name] = {k: _weighted([p[k] for p in per], n) for k in _SYNC_AVERAGED}
+            methods[name]["n_frames"] = int(n.sum())
+        refs = [r["synchrony"]["reference"] for r in results]
+        out["synchrony"] = {"methods": methods,
+                            "reference": {"jerk": _weighted([x["jerk"] for x in refs], n),
+                                          "spread": _weighted([x["spread"] for x in refs], n),
+                                          "source": refs[0]["source"]}}
     return out

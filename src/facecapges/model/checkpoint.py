@@ -7,8 +7,13 @@ summary, the cold-start neutral pose window (N, 47, 6) taken from the training d
 the speaker, and the skeleton header (the BEAT hierarchy the poses belong to, so BVH
 can be written).
 
-Installed styles live in ``facecapges/assets/styles/<name>.safetensors`` with a model
-card ``<name>.md``; ``DEFAULT_STYLE`` is the one trained on the shared BEAT clip.
+Styles ship in ``facecapges/assets/styles/<name>.safetensors`` with a model card
+``<name>.md``; ``DEFAULT_STYLE`` is the one trained on the shared BEAT clip. Styles a
+user trains are installed (``facecapges styles install RUN``) into the user data
+folder :func:`user_styles_dir` — ``$FACECAPGES_STYLES`` if set, else
+``$XDG_DATA_HOME/facecapges/styles`` (``~/.local/share/facecapges/styles`` by
+default) — and found by ``--style NAME`` like the shipped ones; a user style of the
+same name as a shipped one takes precedence.
 """
 
 from __future__ import annotations
@@ -20,21 +25,70 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.skeleton import skeleton_from_dict
+from facecapges.skeleton import Skeleton, skeleton_from_dict
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import Skeleton
 
 DEFAULT_STYLE = "beat2-scott-demo"
 FORMAT = "facecapges-checkpoint-1"
 
 
 def styles_dir() -> Path:
+    """The styles shipped inside the package."""
     return Path(str(resources.files("facecapges") / "assets" / "styles"))
 
 
+def user_styles_dir() -> Path:
+    """Where ``styles install`` puts the user's own styles (module docs)."""
+    import os
+
+    if os.environ.get("FACECAPGES_STYLES"):
+        return Path(os.environ["FACECAPGES_STYLES"])
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base) / "facecapges" / "styles"
+
+
 def list_styles() -> dict[str, Path]:
-    d = styles_dir()
-    return {p.stem: p for p in sorted(d.glob("*.safetensors"))} if d.is_dir() else {}
+    """Every style by name: the shipped ones, then the user's (which win on a name clash)."""
+    out: dict[str, Path] = {}
+    for d in (styles_dir(), user_styles_dir()):
+        if d.is_dir():
+            out.update({p.stem: p for p in sorted(d.glob("*.safetensors"))})
+    return out
+
+
+def install_style(run: str | Path, name: str | None = None, force: bool = False) -> Path:
+    """Copy a trained model (a run folder or a ``.safetensors`` file) into :func:`user_styles_dir`.
+
+    The file is checked first (it must load as a streaming checkpoint). Beside it go
+    the run's ``log.csv`` (as ``NAME.log.csv``), a model card ``NAME.md`` if the run has
+    one (``model_card.md``) and its FGD autoencoder folder if ``fgd-train`` wrote one
+    (``model.fgd/`` → ``NAME.fgd/``). An existing user style of that name is replaced
+    only with ``force``.
+    """
+    import re
+    import shutil
+
+    src = resolve(run)
+    folder = src.parent
+    name = name or (folder.name if src.name == "model.safetensors" else src.stem)
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
+        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    load_checkpoint(src)  # refuse what would not load
+    dest_dir = user_styles_dir()
+    dest = dest_dir / f"{name}.safetensors"
+    if dest.exists() and not force:
+        raise UserError(f"{dest}: a style named {name!r} is installed; pass --force to replace it")
+    dest_dir.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dest)
+    extras = [(folder / "log.csv", dest_dir / f"{name}.log.csv"), (folder / "model_card.md", dest_dir / f"{name}.md")]
+    for a, b in extras:
+        if a.is_file():
+            shutil.copyfile(a, b)
+    fgd = src.with_suffix(".fgd")
+    if fgd.is_dir():
+        shutil.rmtree(dest_dir / f"{name}.fgd", ignore_errors=True)
+        shutil.copytree(fgd, dest_dir / f"{name}.fgd")
+    return dest
 
 
 def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> Path:
@@ -52,7 +106,8 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
     styles = list_styles()
     if name not in styles:
         known = ", ".join(styles) or "none installed"
-        raise UserError(f"unknown style {name!r} (installed: {known})")
+        raise UserError(f"unknown style {name!r} (installed: {known}; install your own with "
+                        "`facecapges styles install RUN`)")
     return styles[name]
 
 
@@ -98,13 +153,35 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
+def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+    from safetensors import SafetensorError, safe_open
+
+    p = Path(path)
+    if not p.is_file():
+        raise file_error(p, f"{what} not found")
+    try:
+        with safe_open(str(p), framework="pt") as f:
+            raw = (f.metadata() or {}).get("facecapges")
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    try:
+        meta = json.loads(raw) if raw else {}
+    except json.JSONDecodeError:
+        raise file_error(p, "checkpoint metadata is corrupt") from None
+    if meta.get("format") != fmt:
+        raise file_error(p, f"not a {what} (format {meta.get('format')!r})")
+    return tensors, meta
+
+
 def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
     import torch
     from safetensors import SafetensorError, safe_open
 
     from facecapges.model.config import model_config_from_dict
-    from facecapges.model.network import FaceCapGes
+    from facecapges.model.network import FaceCapGes, with_default_norms
 
     p = resolve(path, style)
     try:
@@ -131,7 +208,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
     model = FaceCapGes(cfg)
     try:
-        model.load_state_dict({k: v.float() for k, v in tensors.items()}, strict=True)
+        model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)
     except RuntimeError as exc:
         first = str(exc).splitlines()[0]
         raise file_error(p, f"weights do not match the checkpoint's model config ({first})") from None

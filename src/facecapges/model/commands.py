@@ -1,4 +1,4 @@
-"""Commands of the model area: ``train``, ``generate``, ``styles``."""
+"""Commands of the model area: ``generate``, ``styles`` (``train`` is in :mod:`facecapges.training.commands`)."""
 
 from __future__ import annotations
 
@@ -9,96 +9,7 @@ from typing import Optional
 import typer
 
 
-def _load_clips(cache_path: Path, speaker: int, split: str):
-    from facecapges.data.cache import Cache
-    from facecapges.training.train import ClipArrays
-
-    cache = Cache(cache_path)
-    entries = cache.select(speaker, split)
-    clips = []
-    for e in entries:
-        a = cache.load(e["name"])
-        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
-                                mask=a["mask"]))
-    return cache, clips
-
-
 def register(app: typer.Typer) -> None:
-    @app.command()
-    def train(
-        cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
-        speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker (thesis 3.2.2)."),
-        out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
-        config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides."),
-        epochs: Optional[int] = typer.Option(None, help="Number of epochs (default 375)."),
-        split: Optional[str] = typer.Option(None, help="Clips to train on: train (default), val, test or all; "
-                                                       "a resumed run keeps its own."),
-        holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip."),
-        resume: bool = typer.Option(False, "--resume", help="Continue the run in OUT exactly where it stopped "
-                                                            "(any number of processes)."),
-        force: bool = typer.Option(False, "--force", help="Start over in a run folder that has a run."),
-        device: str = typer.Option("auto", help="auto (a GPU when there is one), cpu or cuda; under torchrun "
-                                                "each process takes GPU LOCAL_RANK."),
-        amp: bool = typer.Option(False, "--amp", help="float16 mixed precision on GPU (no effect on CPU)."),
-    ) -> None:
-        """Train a FaceCapGes model with closed-loop sliding-window rollout (thesis ch. 4).
-
-        Runs as is under `torchrun --nproc_per_node=K` (and multi-node): the global
-        batch is train.batch_size x K and the learning rates scale with it; rank 0
-        writes the run folder.
-        """
-        from facecapges.errors import UserError
-        from facecapges.model.config import load_config_file
-        from facecapges.training.distributed import init_distributed, shutdown
-        from facecapges.training.train import build_trainer, load_resume
-
-        ctx = init_distributed(device)
-        try:
-            say = typer.echo if ctx.is_main else (lambda *a, **k: None)
-
-            def run_folder() -> tuple[str, dict | None]:  # rank 0's disk decides
-                from facecapges.errors import check_output_dir
-                from facecapges.training.resume_file import RunFolderLock
-
-                if not resume and not (out / "last.pt").exists():  # a folder without a run keeps its files too
-                    check_output_dir(out, ("model.safetensors", "log.csv", "summary.json"), force)
-                check_output_dir(out)
-                RunFolderLock(out).acquire()  # held until the process ends; a second train here is refused
-                state = load_resume(out) if resume else None
-                chosen = split if split is not None else (state["meta"].get("split", "train") if state else "train")
-                if chosen not in ("train", "val", "test", "all"):
-                    raise UserError(f"--split must be train, val, test or all, got {chosen!r}")
-                if (out / "last.pt").exists() and not (resume or force):
-                    raise UserError(f"{out}: holds a training run; pass --resume to continue it or --force to "
-                                    "start over")
-                return chosen, state
-
-            chosen_split, state = ctx.run_on_main(run_folder)
-            model_over, train_over = load_config_file(config) if config else ({}, {})
-            if epochs is not None:
-                if epochs < 1:
-                    raise UserError("--epochs must be at least 1")
-                train_over["epochs"] = epochs
-            if holdout_from is not None:
-                train_over["holdout_from"] = holdout_from
-            cache_obj, clips = _load_clips(cache, speaker, chosen_split)
-            if abs(cache_obj.fps - model_over.get("fps", 15)) > 1e-6:
-                model_over["fps"] = int(round(cache_obj.fps))
-            meta = {"speaker": speaker, "clips": [c.name for c in clips], "split": chosen_split,
-                    "skeleton": cache_obj.index["skeleton"], "cache": str(cache)}
-            if amp and ctx.device.type != "cuda":
-                say("note: --amp is GPU-only; training on CPU in float32", err=True)
-            trainer = build_trainer(clips, out, model_over, train_over, meta, resume, state=state, dist=ctx, amp=amp)
-            say(f"training on {len(clips)} clip(s), {len(trainer.train_set)} segments"
-                + (f", {len(trainer.held_set)} held-out" if trainer.held_set else "")
-                + f"; epochs {trainer.epoch}/{trainer.tcfg.epochs}"
-                + (f"; {ctx.world_size} processes, global batch {trainer.global_batch}, lr_g {trainer.lr_g:.3g}"
-                   if ctx.enabled else ""))
-            trainer.fit()
-            say(f"checkpoint: {out / 'model.safetensors'}  log: {out / 'log.csv'}")
-        finally:
-            shutdown(ctx)
-
     @app.command()
     def generate(
         audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
@@ -180,16 +91,19 @@ def register(app: typer.Typer) -> None:
             typer.echo(f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
                        f"({summary['duration_s']} s), {ms:.2f} ms/frame")
 
-    @app.command()
-    def styles(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
-        """List the installed speaking styles (per-speaker checkpoints)."""
-        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
+    styles_app = typer.Typer(help="The installed speaking styles (per-speaker models): list, install.",
+                             invoke_without_command=True, no_args_is_help=False)
+    app.add_typer(styles_app, name="styles")
+
+    def _list(json_out: bool) -> None:
+        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
 
         rows = []
         for name, path in list_styles().items():
             meta = load_checkpoint(path).meta
             rows.append({"name": name, "default": name == DEFAULT_STYLE, "speaker": meta.get("speaker"),
-                         "epochs": meta.get("epochs_trained"), "path": str(path)})
+                         "epochs": meta.get("epochs_trained"), "inputs": meta.get("inputs"),
+                         "shipped": path.parent == styles_dir(), "path": str(path)})
         if json_out:
             typer.echo(json.dumps(rows, indent=2))
             return
@@ -197,4 +111,31 @@ def register(app: typer.Typer) -> None:
             typer.echo("no styles installed")
         for r in rows:
             typer.echo(f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
-                       f"{r['epochs']} epochs  {r['path']}")
+                       f"{r['epochs']} epochs  {'shipped' if r['shipped'] else 'user'}  {r['path']}")
+
+    @styles_app.callback()
+    def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+        """List the installed speaking styles (per-speaker checkpoints); `styles install RUN` adds one."""
+        if ctx.invoked_subcommand is None:
+            _list(json_out)
+
+    @styles_app.command("list")
+    def styles_list(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+        """List the installed styles: shipped ones and the user's own."""
+        _list(json_out)
+
+    @styles_app.command("install")
+    def styles_install(
+        run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
+        name: Optional[str] = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
+        force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
+    ) -> None:
+        """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).
+
+        Styles go to $FACECAPGES_STYLES, else $XDG_DATA_HOME/facecapges/styles
+        (default ~/.local/share/facecapges/styles).
+        """
+        from facecapges.model.checkpoint import install_style
+
+        dest = install_style(run, name, force)
+        typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")

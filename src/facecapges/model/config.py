@@ -20,8 +20,9 @@ from facecapges.timing import AUDIO_SR, MODEL_FPS, samples_per_frame
 class ModelConfig:
     fps: int = MODEL_FPS
     sr: int = AUDIO_SR
-    # audio representation: "raw" = each frame's own 16 kHz samples (CaMN), zero-padded
-    # to ceil(sr/fps) = 1067 and reduced to one vector by strided convolutions.
+    # audio representation (facecapges.model.audio_features): "raw" = each frame's own
+    # 16 kHz samples (table 3.1), zero-padded to ceil(sr/fps) = 1067 and reduced by
+    # strided convolutions; "mel" = the frame's log-Mel spectrum + energy + F0 (§2.4.1).
     audio_repr: str = "raw"
     n_history: int = 16  # N: history poses in the window; window = N + 1 frames
     n_joints: int = 47
@@ -66,8 +67,8 @@ class ModelConfig:
         return self.audio_dim + self.face_dim + self.head_dim + self.pose_dim
 
     def validate(self) -> "ModelConfig":
-        if self.audio_repr != "raw":
-            raise UserError(f"unsupported audio_repr {self.audio_repr!r} (only 'raw')")
+        if self.audio_repr not in ("raw", "mel"):
+            raise UserError(f"unsupported audio_repr {self.audio_repr!r} (raw or mel)")
         for name, dil in (("audio", self.audio_tcn_dilations), ("face", self.face_tcn_dilations)):
             if sum(dil) > self.n_history:
                 raise UserError(f"{name} TCN receptive field {sum(dil) + 1} exceeds the window N+1={self.window}")
@@ -92,17 +93,23 @@ class TrainConfig:
     w_vel: float = 1000.0
     w_acc: float = 1000.0
     w_adv: float = 0.1
-    grad_clip: float = 1.0  # (ours) max grad norm, guards the closed-loop rollout
+    # max grad norm (0 = off, as in the thesis). The thesis recipe has no clipping; at
+    # 1.0 a start-of-training norm of ~28 makes every plain-SGD step ~28x smaller.
+    grad_clip: float = 0.0
+    normalize_inputs: bool = True  # (ours) standardise audio/face/head by training-frame statistics
+    head_to_camera: bool = True  # map skeleton head rotations into the model's camera frame
     seed: int = 0
     holdout_from: int | None = None  # frames >= this of every clip are held out
+    # (or) the last fraction of every clip is held out: frames >= floor(T·(1 − f)) —
+    # the cache's rule for takes of other sources (their ``holdout_from``)
+    holdout_fraction: float | None = None
     mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
     num_threads: int = 0  # 0 = torch default
 
-    def lr_g(self) -> float:
-        return self.lr_base * self.batch_size / 128.0
-
-    def lr_d(self) -> float:
-        return self.d_lr_ratio * self.lr_g()
+    def learning_rates(self, world_size: int = 1) -> tuple[float, float]:
+        """(lr_g, lr_d) by the linear rule on the global batch ``batch_size × world_size`` (eq. 5.1–5.2)."""
+        lr_g = self.lr_base * (self.batch_size * world_size) / 128.0
+        return lr_g, self.d_lr_ratio * lr_g
 
 
 # The allowed range of every setting: (least, greatest) — None is open — or the allowed

@@ -14,6 +14,15 @@ windowed encoder; the streaming generator computes each frame's embedding once a
 caches it. In the face TCN's 8th layer the audio embedding enters through a kernel-1
 path (the current frame's ``z_A`` only), so joining it does not widen the window.
 
+Input normalisation. Each input enters the network through a layer that first
+standardises it, ``(x − in_mean) · in_scale`` (:class:`StandardizedLinear`, buffers
+saved in the checkpoint): the face weights and the head rotation per channel, the
+Mel features per channel, the raw samples by one gain. The trainer sets them from the
+training frames (:func:`set_input_statistics`); a modality training never saw gets
+``in_scale = 0``, so the model ignores it at run time exactly as it did in training
+(no face in training → the live face cannot change the output). Fresh models and
+checkpoints written before these buffers existed have the identity (mean 0, scale 1).
+
 Shapes: B batch, T frames, S = samples per frame (1067), J = 47 joints.
 """
 
@@ -23,16 +32,36 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from facecapges.model.audio_features import AudioFeatures
 from facecapges.model.config import ModelConfig
 
 LSTMState = tuple[torch.Tensor, torch.Tensor]
+NORM_BUFFERS = ("in_mean", "in_scale")
+
+
+class StandardizedLinear(nn.Linear):
+    """``Linear((x − in_mean) · in_scale)``: a linear layer over a standardised input."""
+
+    def __init__(self, in_features: int, out_features: int, bias: bool = True):
+        super().__init__(in_features, out_features, bias)
+        self.register_buffer("in_mean", torch.zeros(in_features))
+        self.register_buffer("in_scale", torch.ones(in_features))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return super().forward((x - self.in_mean) * self.in_scale)
 
 
 class AudioFrontend(nn.Module):
-    """One frame's raw samples (S,) → one vector, by strided convolutions (per frame)."""
+    """One frame's raw samples (S,) → one vector, by strided convolutions (per frame).
+
+    The samples are first multiplied by the gain ``in_scale`` (1 / the RMS of the
+    training audio; ``in_mean`` is 0: audio has no offset).
+    """
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
+        self.register_buffer("in_mean", torch.zeros(1))
+        self.register_buffer("in_scale", torch.ones(1))
         c1, c2, c3 = cfg.audio_frontend_channels
         self.convs = nn.ModuleList([
             nn.Conv1d(1, c1, 15, stride=5),
@@ -46,11 +75,29 @@ class AudioFrontend(nn.Module):
 
     def forward(self, audio: torch.Tensor) -> torch.Tensor:  # (B, T, S) -> (B, T, C)
         B, T, S = audio.shape
-        x = audio.reshape(B * T, 1, S)
+        x = ((audio - self.in_mean) * self.in_scale).reshape(B * T, 1, S)
         for conv in self.convs:
             x = F.leaky_relu(conv(x), 0.2)
         x = self.collapse(x)  # (B*T, C, 1)
         return x.reshape(B, T, -1)
+
+
+class MelFrontend(nn.Module):
+    """One frame's samples (S,) → log-Mel/energy/F0 features (43) → one vector (per frame).
+
+    ``features`` is :class:`facecapges.model.audio_features.AudioFeatures`; the features
+    are standardised (``proj``'s buffers) and mapped by a two-layer MLP to the TCN width.
+    """
+
+    def __init__(self, cfg: ModelConfig):
+        super().__init__()
+        self.features = AudioFeatures(cfg.sr, cfg.samples_per_frame)
+        c = cfg.audio_frontend_channels[-1]
+        self.proj = StandardizedLinear(self.features.dim, c)
+        self.out = nn.Linear(c, cfg.audio_tcn_channels)
+
+    def forward(self, audio: torch.Tensor) -> torch.Tensor:  # (B, T, S) -> (B, T, C)
+        return self.out(F.leaky_relu(self.proj(self.features(audio)), 0.2))
 
 
 class CausalTCN(nn.Module):
@@ -102,7 +149,7 @@ class AudioEncoder(nn.Module):
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
-        self.frontend = AudioFrontend(cfg)
+        self.frontend = AudioFrontend(cfg) if cfg.audio_repr == "raw" else MelFrontend(cfg)
         self.tcn = CausalTCN(cfg.audio_tcn_channels, cfg.audio_tcn_dilations)
         self.mlp = mlp([cfg.audio_tcn_channels, cfg.audio_dim, cfg.audio_dim])
 
@@ -118,7 +165,7 @@ class FaceEncoder(nn.Module):
 
     def __init__(self, cfg: ModelConfig):
         super().__init__()
-        self.inp = nn.Linear(cfg.n_face, cfg.face_tcn_channels)
+        self.inp = StandardizedLinear(cfg.n_face, cfg.face_tcn_channels)
         self.tcn = CausalTCN(cfg.face_tcn_channels, cfg.face_tcn_dilations, extra_dim=cfg.audio_dim)
         self.mlp = mlp([cfg.face_tcn_channels, cfg.face_dim * 2, cfg.face_dim])
 
@@ -138,7 +185,7 @@ class HeadEncoder(nn.Module):
         super().__init__()
         self.dim = cfg.head_dim
         if self.dim:
-            self.fc1 = nn.Linear(6, cfg.head_hidden)
+            self.fc1 = StandardizedLinear(6, cfg.head_hidden)
             self.fc2 = nn.Linear(cfg.head_hidden, cfg.head_dim)
 
     def forward(self, head: torch.Tensor) -> torch.Tensor:  # (B, T, 6) -> (B, T, 12)
@@ -250,3 +297,34 @@ class SegmentDiscriminator(nn.Module):
         vel = torch.cat([torch.zeros_like(seq[:, :1]), seq[:, 1:] - seq[:, :-1]], 1)
         h = self.net(torch.cat([seq, vel], -1).transpose(1, 2))
         return self.out(h.mean(-1)).squeeze(-1)
+
+
+def input_norm_layers(model: nn.Module) -> dict[str, nn.Module]:
+    """The standardising layer of each input of a FaceCapGes-like model (audio, face, head).
+
+    A model with its own ``input_norm_layers()`` method (e.g. the CaMN baseline) names them itself.
+    """
+    if hasattr(model, "input_norm_layers"):
+        return model.input_norm_layers()
+    fe = model.audio_enc.frontend
+    layers = {"audio": fe if isinstance(fe, AudioFrontend) else fe.proj, "face": model.face_enc.inp}
+    if model.head_enc.dim:
+        layers["head"] = model.head_enc.fc1
+    return layers
+
+
+@torch.no_grad()
+def set_input_statistics(model: nn.Module, stats: dict[str, tuple[torch.Tensor, torch.Tensor]]) -> None:
+    """Set ``in_mean``/``in_scale`` of the inputs named in ``stats`` ({name: (mean, scale)})."""
+    layers = input_norm_layers(model)
+    for name, (mean, scale) in stats.items():
+        if name in layers:
+            layers[name].in_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+            layers[name].in_scale.copy_(torch.as_tensor(scale, dtype=torch.float32))
+
+
+def with_default_norms(model: nn.Module, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """``tensors`` plus identity normalisation buffers where a checkpoint predates them."""
+    own = model.state_dict()
+    missing = {k: own[k] for k in own if k not in tensors and k.rsplit(".", 1)[-1] in NORM_BUFFERS}
+    return {**tensors, **missing}

@@ -39,16 +39,15 @@ a streaming model).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import torch
 import torch.nn as nn
 
-from facecapges.errors import UserError, file_error
+from facecapges.errors import UserError
 from facecapges.model.config import ModelConfig, model_config_from_dict
-from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp
+from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
 
 OFFLINE_FORMAT = "facecapges-offline-1"
 
@@ -141,23 +140,13 @@ def save_offline(path: str | Path, model: OfflineDecoder, meta: dict) -> Path:
 
 def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
     """An offline-decoding checkpoint (eval mode) and its metadata."""
-    from safetensors import SafetensorError, safe_open
+    from facecapges.model.checkpoint import read_weights
 
     p = Path(path)
-    if not p.is_file():
-        raise file_error(p, "offline-decoding checkpoint not found")
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    meta = json.loads(raw) if raw else {}
-    if meta.get("format") != OFFLINE_FORMAT:
-        raise file_error(p, f"not an offline-decoding checkpoint (format {meta.get('format')!r})")
+    tensors, meta = read_weights(p, OFFLINE_FORMAT, "offline-decoding checkpoint")
     model = OfflineDecoder(model_config_from_dict(meta["model_config"]))
     try:
-        model.load_state_dict(tensors, strict=True)
+        model.load_state_dict(with_default_norms(model, tensors), strict=True)
     except RuntimeError as exc:
         raise UserError(f"{p}: weights do not match the model config ({str(exc).splitlines()[0]})") from None
     return model.eval(), meta

@@ -16,6 +16,14 @@ HEAD_HELP = ("What the avatar's head shows: capture (the person's head; the mode
 FACES_HELP = "Faces to follow, each with its own avatar (1-8; files, VMC ports and viewer avatars per face)."
 
 
+def _check_face_json(layout: str) -> None:
+    from facecapges.errors import UserError
+    from facecapges.io.face_json import FACE_LAYOUTS
+
+    if layout not in FACE_LAYOUTS:
+        raise UserError(f"--face-json {layout}: choose {' or '.join(FACE_LAYOUTS)}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run_cmd(
@@ -28,6 +36,8 @@ def register(app: typer.Typer) -> None:
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
         no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
         video_size: Optional[str] = typer.Option(None, "--video-size", help="Avatar video size WxH (default "
                                                                              "640x480; side_by_side.mp4 has its "
                                                                              "height)."),
@@ -47,10 +57,11 @@ def register(app: typer.Typer) -> None:
         require_file(video, "video")
         if audio is not None:
             require_file(audio, "audio")
+        _check_face_json(face_json)
         ckpt = load_checkpoint(checkpoint, style)
         report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
                            progress=not json_out, videos=not no_video, estimator=estimator, head=head, faces=faces,
-                           video_size=size, avatar=avatar)
+                           video_size=size, avatar=avatar, face_layout=face_json)
         if json_out:
             typer.echo(json.dumps(report, indent=2))
             return
@@ -99,6 +110,8 @@ def register(app: typer.Typer) -> None:
                                                                 "the LAN."),
         record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
         vrma: bool = typer.Option(False, "--vrma", help="With --record: also record motion.vrma (VRM Animation, "
                                                         "gestures + face as VRM presets)."),
         avatar: Optional[Path] = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
@@ -160,6 +173,7 @@ def register(app: typer.Typer) -> None:
             raise UserError("--max-seconds must be positive")
         if vmc_avatar is not None and vmc is None:
             raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+        _check_face_json(face_json)
         if vmc_blend not in ("vrm", "perfect-sync", "both"):
             raise UserError(f"--vmc-blend {vmc_blend}: choose vrm, perfect-sync or both")
         ckpt = load_checkpoint(checkpoint, style)
@@ -171,7 +185,7 @@ def register(app: typer.Typer) -> None:
             except ValueError as exc:
                 raise UserError(f"--rate {rate:g}: {exc}") from None
         sinks, senders, ups = per_face_sinks(ckpt, faces, record, vmc_addr, vmc_blend=vmc_blend,
-                                             vmc_avatar=vmc_avatar, rate=rate)
+                                             vmc_avatar=vmc_avatar, rate=rate, face_layout=face_json)
         server = None
         if vrma:
             from facecapges.avatar.vrma import VrmaRecorder

@@ -149,7 +149,8 @@ def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
               estimator: str = "hybrid", head: str = "capture", faces: int = 1,
-              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None) -> dict:
+              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None,
+              face_layout: str = "beat") -> dict:
     """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
     shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
@@ -178,7 +179,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         mem = MemoryRecorder()
         mems.append(mem)
         per = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
-               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps), mem]
+               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout), mem]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
                          sinks=sinks, head=head, faces=faces)

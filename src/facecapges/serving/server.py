@@ -9,8 +9,9 @@ samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 
 Ticks (continuous batching). A single batching task runs for the whole server: each
 *tick* it takes, from every stream that has a frame waiting, its oldest frame, and
-runs all of them as ONE batched ``step`` (in a worker thread, so the event loop keeps
-receiving); the next tick starts as soon as that one is done, something is waiting
+runs all of them as ONE batched ``step`` (in the model's own process,
+:mod:`facecapges.serving.model_process`, waited for by a worker thread, so the event
+loop keeps receiving); the next tick starts as soon as that one is done, something is waiting
 and at least ``tick_ms`` (15 ms by default) have passed since the previous tick
 started — the pause lets the frames of more streams arrive, because a batched call
 costs a fixed ~2 ms plus a fraction of a millisecond per stream. A stream's frames
@@ -51,7 +52,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import concurrent.futures
-import json
 import socket
 import threading
 import time
@@ -101,24 +101,6 @@ class _Stream:
     window_t0: float | None = None  # start of the rate window (the first input)
 
 
-def pose_messages(frames: list[int], fps: float, quats: np.ndarray, faces: np.ndarray, heads: np.ndarray,
-                  face_found: list[bool], latency_ms):
-    """Yields the ``pose`` messages (the fields and rounding of :func:`facecapges.runtime.protocol.encode_pose`)
-    for a batch of streams; the arrays are rounded at once. ``latency_ms``: a list of dicts,
-    or a function of the row called just before that row is encoded (so
-    a caller that sends each message as it comes gets its true latency)."""
-    B = len(frames)
-    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6).tolist()
-    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
-    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
-    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
-    for i, k in enumerate(frames):
-        yield json.dumps({"type": "pose", "frame": int(k), "time": round(k / fps, 6), "pose": q[i],
-                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
-                          "latency_ms": {n: round(float(v), 3) for n, v in lat(i).items()},
-                          "sent_ms": round(time.time() * 1000.0, 1)}, separators=(",", ":"))
-
-
 _error = error_message
 
 
@@ -127,7 +109,7 @@ class StreamServer:
     :meth:`run` in the calling thread until interrupted."""
 
     def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
-        from facecapges.model.batched import BatchedStreamingGenerator
+        from facecapges.serving.model_process import ModelProcess
 
         self.cfg = config or ServeConfig()
         c = self.cfg
@@ -138,8 +120,8 @@ class StreamServer:
         self.ckpt = checkpoint
         self.fps = checkpoint.fps  # an int, as in the viewer's hello
         self.sr = int(checkpoint.model.cfg.sr)
-        self.gen = BatchedStreamingGenerator(checkpoint.model, checkpoint.neutral_window,
-                                             capacity=min(c.max_streams, 64))
+        # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
+        self.gen = ModelProcess(checkpoint.model, checkpoint.neutral_window, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
         self.per_address = c.max_per_address if c.max_per_address is not None else \
             (c.max_streams if self.loopback_only else 16)
@@ -325,8 +307,10 @@ class StreamServer:
                 return {"queue": (t0 - items[i][1]) * 1e3, "model": (t1 - t0) * 1e3, "output": (now - t1) * 1e3,
                         "total": (now - items[i][1]) * 1e3}
 
-            texts = pose_messages([i.index for i in inputs], self.fps, quats, np.stack([i.face for i in inputs]),
-                                  np.stack([i.head for i in inputs]), [i.face_found for i in inputs], latency)
+            index = [i.index for i in inputs]
+            texts = protocol.encode_poses(index, [k / self.fps for k in index], quats,
+                                          np.stack([i.face for i in inputs]), np.stack([i.head for i in inputs]),
+                                          [i.face_found for i in inputs], latency)
             for st, text in zip(due, texts):
                 st.frames += 1
                 self._send(st, text)
@@ -437,3 +421,4 @@ class StreamServer:
         if self._thread is not None:
             self._thread.join(timeout=10)
         self._pool.shutdown(wait=True)
+        self.gen.shutdown()

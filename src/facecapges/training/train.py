@@ -13,7 +13,8 @@
   500/1000/1000 (4.2.4), plus the non-saturating adversarial loss of a segment
   discriminator (eq. 4.22–4.23), weight 0.1, from epoch 11; D and G updated
   alternately, each by SGD, lr_g = 2.5e-4·B/128 and lr_d = 0.2·lr_g (eq. 5.1–5.2).
-* Held-out frames (``holdout_from``): segments are taken from frames < F for
+* Held-out frames (``holdout_from`` F, or ``holdout_fraction`` f: F = floor(T·(1 − f))
+  of each clip of T frames, the cache's per-take rule): segments are taken from frames < F for
   training and from frames ≥ F (warm-up included) for the held-out losses logged
   every epoch.
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
@@ -22,10 +23,17 @@
 * Many processes (``torchrun --nproc_per_node=K facecapges …`` or multi-node):
   :mod:`facecapges.training.distributed` joins the process group; each rank trains
   its strided share of every global batch (``batch_size`` per process × K), the
-  generator's rollout (:class:`RolloutModule`) and the discriminator are wrapped in
+  generator's training forward (:class:`TrainingForward`) and the discriminator are wrapped in
   DistributedDataParallel, the learning rates scale with the global batch, and only
   rank 0 writes the run folder. ``last.pt`` holds CPU tensors and no process count,
   so a run resumes with any K. ``amp`` = float16 mixed precision on GPU.
+* Model variants: the loop above is the one trainer of the project. What differs
+  between the closed-loop FaceCapGes generator and the ablation/baseline decoders is a
+  :class:`Variant` — how to build the generator, its training forward (generated and
+  real poses of a batch of segments), where its output heads are and how it is
+  exported. :data:`CLOSED_LOOP` is FaceCapGes; :data:`facecapges.training.offline.OFFLINE`
+  the offline-decoding ablation. Every variant gets DDP, AMP, resume, the held-out
+  losses and the same learning-rate rule (:meth:`TrainConfig.learning_rates`).
 """
 
 from __future__ import annotations
@@ -34,7 +42,8 @@ import contextlib
 import json
 import math
 import time
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +53,11 @@ import torch.nn.functional as F
 from facecapges.errors import UserError
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
-from facecapges.model.network import FaceCapGes, SegmentDiscriminator
+from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
 from facecapges.training.distributed import DistContext
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
 from facecapges.training.resume_file import RunFolderLock, load_state, save_state, write_log
-from facecapges.timing import frame_audio
+from facecapges.timing import frame_audio, frame_sample_bounds
 
 
 # ------------------------------------------------------------------------ data
@@ -64,6 +73,19 @@ class ClipArrays:
     mask: np.ndarray | None = None  # (47,) or (T, 47) bool: joints with real motion (None: all)
 
 
+def load_clips(cache_path: Path, speaker: int, split: str):
+    """The prepared cache at ``cache_path`` and the :class:`ClipArrays` of ``speaker``'s ``split`` clips."""
+    from facecapges.data.cache import Cache
+
+    cache = Cache(cache_path)
+    clips = []
+    for e in cache.select(speaker, split):
+        a = cache.load(e["name"])
+        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
+                                mask=a["mask"]))
+    return cache, clips
+
+
 class SegmentSet:
     """All clips concatenated (each preceded by N zero frames) + segment start indices.
 
@@ -72,14 +94,15 @@ class SegmentSet:
     """
 
     def __init__(self, clips: list[ClipArrays], cfg: ModelConfig, clip_len: int, stride: int,
-                 frame_range: tuple[int, int | None] = (0, None)):
+                 frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
         audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
-        for c in clips:
+        ranges = frame_range if isinstance(frame_range, list) else [frame_range] * len(clips)
+        for c, (lo, hi) in zip(clips, ranges):
             T = len(c.pose)
-            lo, hi = frame_range[0], T if frame_range[1] is None else min(frame_range[1], T)
+            hi = T if hi is None else min(hi, T)
             a = frame_audio(c.audio, T, cfg.fps, cfg.sr)
             pad = lambda x: np.concatenate([np.zeros((N,) + x.shape[1:], np.float32), x.astype(np.float32)])
             audio.append(pad(a))
@@ -138,11 +161,19 @@ def rollout_batch(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> tuple[to
 
 
 # ---------------------------------------------------------------------- trainer
-def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> np.ndarray:
+def holdout_frames(clips: list[ClipArrays], tcfg: TrainConfig) -> list[int | None]:
+    """Per clip, its first held-out frame (None: no hold-out) — ``holdout_fraction`` or ``holdout_from``."""
+    if tcfg.holdout_fraction:
+        return [int(math.floor(len(c.pose) * (1.0 - tcfg.holdout_fraction))) for c in clips]
+    return [tcfg.holdout_from] * len(clips)
+
+
+def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None | list[int | None]) -> np.ndarray:
     """The calmest real N-frame window of the training frames (least pose motion)."""
     best, best_e = None, math.inf
-    for c in clips:
-        T = len(c.pose) if frame_limit is None else min(frame_limit, len(c.pose))
+    limits = frame_limit if isinstance(frame_limit, list) else [frame_limit] * len(clips)
+    for c, lim in zip(clips, limits):
+        T = len(c.pose) if lim is None else min(lim, len(c.pose))
         if T < n:
             continue
         v = np.abs(np.diff(c.pose[:T].reshape(T, -1), axis=0)).sum(1)  # (T-1,)
@@ -157,14 +188,18 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None) -> 
 
 def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
                  ) -> tuple[SegmentSet, SegmentSet | None]:
-    """Training segments (frames < holdout_from) and held-out ones (frames ≥ it, or None)."""
-    F_ = tcfg.holdout_from
-    train_clips = clips + [mirrored(c) for c in clips] if getattr(tcfg, "mirror", False) else clips
-    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, (0, F_))
+    """Training segments (frames < each clip's hold-out frame) and held-out ones (frames ≥ it, or None)."""
+    F_ = holdout_frames(clips, tcfg)
+    train_ranges = [(0, f) for f in F_]
+    train_clips = clips
+    if getattr(tcfg, "mirror", False):
+        train_clips, train_ranges = clips + [mirrored(c) for c in clips], train_ranges * 2
+    train_set = SegmentSet(train_clips, mcfg, tcfg.clip_len, tcfg.stride, train_ranges)
     held_set = None
-    if F_ is not None:
+    if any(f is not None for f in F_):
         try:
-            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride, (F_, None))
+            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride,
+                                  [(len(c.pose) if f is None else f, None) for c, f in zip(clips, F_)])
         except UserError:  # too few held-out frames for one segment
             held_set = None
     return train_set, held_set
@@ -180,6 +215,59 @@ def start_heads_at_mean(head_t: torch.nn.Sequential, head_u: torch.nn.Sequential
         head_u[-1].bias.copy_(mean[mcfg.n_torso * 6:])
 
 
+def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
+                     ) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict, np.ndarray | None]:
+    """Normalisation of each input from the training frames (< ``holdout_from``) only.
+
+    Returns ({input: (in_mean, in_scale)} for :func:`~facecapges.model.network.set_input_statistics`,
+    the metadata saying what the style was trained with, and the head reference
+    rotation ``R_ref`` (rot6d) or None). Held-out frames never enter a statistic.
+
+    * head: mapped into the model's camera frame first (``head_to_camera``; the mapping
+      and ``R_ref`` = the speaker's mean head rotation are defined in
+      :mod:`facecapges.capture.head_pose`); then per channel mean and one scale
+      1 / RMS deviation over the six channels (rot6d channels near ±1 barely move;
+      a scale per channel would magnify them).
+    * face: per channel mean and 1 / max(sd, 0.01); when no training frame has a face
+      (all zero) the scale is 0: the style never saw faces, so faces never reach it.
+    * audio: raw samples by 1 / RMS; Mel features per channel (1 / max(sd, 1e-3)).
+    """
+    from facecapges.capture.head_pose import mean_rotation, skeleton_head_to_camera
+    from facecapges.model.audio_features import AudioFeatures
+
+    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c, lim in
+           zip(clips, holdout_frames(clips, tcfg))]
+    head = np.concatenate([c.head[s] for c, s in zip(clips, cut)]).astype(np.float64)
+    face = np.concatenate([c.face[s] for c, s in zip(clips, cut)]).astype(np.float64)
+    ref = mean_rotation(head) if tcfg.head_to_camera else None
+    if ref is not None:
+        head = skeleton_head_to_camera(head, ref).astype(np.float64)
+    face_seen = bool(np.abs(face).max() > 0) if len(face) else False
+    meta = {"face": face_seen, "audio": mcfg.audio_repr,
+            "head_frame": "camera (speaker's mean head rotation = facing the camera)" if ref is not None
+            else "skeleton (as in the data)"}
+    if not tcfg.normalize_inputs:
+        return {"face": (np.zeros(mcfg.n_face), np.full(mcfg.n_face, float(face_seen)))}, meta, ref
+    h_mean = head.mean(0)
+    h_scale = 1.0 / max(float(np.sqrt(((head - h_mean) ** 2).sum(1).mean() / 6)), 1e-3)
+    stats = {"head": (h_mean, np.full(6, h_scale))}
+    if face_seen:
+        stats["face"] = (face.mean(0), 1.0 / np.maximum(face.std(0), 0.01))
+    else:
+        stats["face"] = (np.zeros(mcfg.n_face), np.zeros(mcfg.n_face))
+    audio = [c.audio[: int(frame_sample_bounds(s.stop, mcfg.fps, mcfg.sr)[0])] for c, s in zip(clips, cut)]
+    if mcfg.audio_repr == "raw":
+        rms = float(np.sqrt(np.mean(np.concatenate(audio).astype(np.float64) ** 2)))
+        stats["audio"] = (np.zeros(1), np.ones(1) / max(rms, 1e-4))
+    else:
+        feats = AudioFeatures(mcfg.sr, mcfg.samples_per_frame)
+        with torch.no_grad():
+            f = np.concatenate([feats(torch.from_numpy(frame_audio(a, s.stop, mcfg.fps, mcfg.sr))).numpy()
+                                for a, s in zip(audio, cut)]).astype(np.float64)
+        stats["audio"] = (f.mean(0), 1.0 / np.maximum(f.std(0), 1e-3))
+    return stats, meta, ref
+
+
 def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torch.optim.Optimizer:
     """SGD (thesis 5.1) or Adam, at the linearly scaled learning rate."""
     if cfg.optimizer == "sgd":
@@ -189,27 +277,45 @@ def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torc
     raise UserError(f"unknown optimizer {cfg.optimizer!r} (sgd or adam)")
 
 
-class RolloutModule(torch.nn.Module):
-    """The generator's whole training forward as one call: encode the segments, roll out.
+@dataclass(frozen=True)
+class Variant:
+    """What one kind of generator needs from the trainer (module docs, "Model variants").
 
-    This is what DistributedDataParallel wraps: the M closed-loop steps call
-    ``FaceCapGes.step`` in a Python loop, so wrapping the generator itself would leave
-    its ``forward`` unused; through this module one forward covers the rollout and the
-    gradients are all-reduced once per backward.
+    ``build(cfg)`` makes the generator; ``forward(G, batch)`` gives the generated and
+    real poses (B, M, J·6) of a batch of segments (:meth:`SegmentSet.gather`);
+    ``output_heads(G)`` are its (torso, limbs) output MLPs, started at the training
+    mean pose; ``export(path, G, meta)`` writes its inference checkpoint; ``meta`` is
+    added to that checkpoint's metadata.
     """
 
-    def __init__(self, generator: FaceCapGes):
+    name: str
+    build: Callable[[ModelConfig], torch.nn.Module]
+    forward: Callable[[torch.nn.Module, dict[str, torch.Tensor]], tuple[torch.Tensor, torch.Tensor]]
+    output_heads: Callable[[torch.nn.Module], tuple[torch.nn.Sequential, torch.nn.Sequential]]
+    export: Callable[[Path, torch.nn.Module, dict], Path]
+    meta: dict = field(default_factory=dict)
+
+
+CLOSED_LOOP = Variant(name="closed-loop", build=FaceCapGes, forward=rollout_batch,
+                      output_heads=lambda G: (G.decoder.head_t, G.decoder.head_u), export=save_checkpoint)
+
+
+class TrainingForward(torch.nn.Module):
+    """A variant's whole training forward as one module call (what DDP wraps).
+
+    The closed-loop rollout calls ``FaceCapGes.step`` M times in a Python loop, so
+    wrapping the generator itself would leave its ``forward`` unused; through this
+    module one forward covers the batch and the gradients are all-reduced once per
+    backward.
+    """
+
+    def __init__(self, variant: Variant, generator: torch.nn.Module):
         super().__init__()
+        self.variant = variant
         self.g = generator
 
     def forward(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
-        return rollout_batch(self.g, batch)
-
-
-def scaled_lrs(cfg: TrainConfig, world_size: int) -> tuple[float, float]:
-    """(lr_g, lr_d) by the linear rule on the global batch (eq. 5.1–5.2)."""
-    lr_g = cfg.lr_base * (cfg.batch_size * world_size) / 128.0
-    return lr_g, cfg.d_lr_ratio * lr_g
+        return self.variant.forward(self.g, batch)
 
 
 class _Precision:
@@ -259,23 +365,33 @@ class Trainer:
     """
 
     def __init__(self, clips: list[ClipArrays], out: Path, model_cfg: ModelConfig, train_cfg: TrainConfig,
-                 meta: dict, log=print, dist: DistContext | None = None, amp: bool = False):
+                 meta: dict, log=print, dist: DistContext | None = None, amp: bool = False,
+                 variant: Variant = CLOSED_LOOP):
         self.out, self.mcfg, self.tcfg, self.meta, self.log = Path(out), model_cfg, train_cfg, meta, log
+        self.variant = variant
         self.dist = dist or DistContext()
         self.device = self.dist.device
         if train_cfg.num_threads:
             torch.set_num_threads(train_cfg.num_threads)
         torch.manual_seed(train_cfg.seed)  # the same initial weights on every rank
-        self.G = FaceCapGes(model_cfg)
+        self.G = variant.build(model_cfg)
         self.D = SegmentDiscriminator(model_cfg)
+        norms, self.inputs, ref = input_statistics(clips, model_cfg, train_cfg)
+        set_input_statistics(self.G, norms)
+        self.head_reference = ref
+        if ref is not None:  # the model's head input is in the camera frame (capture.head_pose)
+            from facecapges.capture.head_pose import skeleton_head_to_camera
+
+            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask)
+                     for c in clips]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
-        self.neutral = neutral_window(clips, model_cfg.n_history, train_cfg.holdout_from)
-        start_heads_at_mean(self.G.decoder.head_t, self.G.decoder.head_u, self.train_set, model_cfg)
+        self.neutral = neutral_window(clips, model_cfg.n_history, holdout_frames(clips, train_cfg))
+        start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
         self.G.to(self.device)
         self.D.to(self.device)
         self.precision = _Precision(amp, self.device)
         # what each training forward goes through: DDP wrappers when distributed
-        self.G_fwd: torch.nn.Module = RolloutModule(self.G)
+        self.G_fwd: torch.nn.Module = TrainingForward(variant, self.G)
         self.D_fwd: torch.nn.Module = self.D
         if self.dist.enabled:
             from torch.nn.parallel import DistributedDataParallel as DDP
@@ -283,7 +399,7 @@ class Trainer:
             ids = [self.device.index] if self.device.type == "cuda" else None
             self.G_fwd = DDP(self.G_fwd, device_ids=ids)
             self.D_fwd = DDP(self.D, device_ids=ids)
-        self.lr_g, self.lr_d = scaled_lrs(train_cfg, self.dist.world_size)
+        self.lr_g, self.lr_d = train_cfg.learning_rates(self.dist.world_size)
         self.opt_g = make_optimizer(self.G, train_cfg, self.lr_g)
         self.opt_d = make_optimizer(self.D, train_cfg, self.lr_d)
         self.epoch = 0  # epochs completed
@@ -298,12 +414,15 @@ class Trainer:
         sd = {"G": self.G.state_dict(), "D": self.D.state_dict(), "opt_g": self.opt_g.state_dict(),
               "opt_d": self.opt_d.state_dict(), "epoch": self.epoch, "history": self.history,
               "model_config": to_dict(self.mcfg), "train_config": to_dict(self.tcfg), "meta": self.meta,
-              "neutral": self.neutral, "world_size": self.dist.world_size}
+              "neutral": self.neutral, "world_size": self.dist.world_size, "variant": self.variant.name}
         if self.precision.on:
             sd["grad_scalers"] = self.precision.state_dict()
         return sd
 
     def load_state_dict(self, sd: dict) -> None:
+        saved = sd.get("variant", CLOSED_LOOP.name)
+        if saved != self.variant.name:
+            raise UserError(f"{self.out}: the run holds a {saved} model, not a {self.variant.name} one")
         self.G.load_state_dict(sd["G"])
         self.D.load_state_dict(sd["D"])
         self.opt_g.load_state_dict(sd["opt_g"])
@@ -326,7 +445,9 @@ class Trainer:
 
     def export(self, path: Path) -> Path:
         last = self.history[-1] if self.history else {}
-        meta = dict(self.meta, neutral_window=self.neutral.tolist(), train_config=to_dict(self.tcfg),
+        meta = dict(self.meta, **self.variant.meta, neutral_window=self.neutral.tolist(), train_config=to_dict(self.tcfg),
+                    inputs=self.inputs,
+                    head_reference_rot6d=None if self.head_reference is None else self.head_reference.tolist(),
                     epochs_trained=self.epoch, global_batch=self.global_batch,
                     final_losses={k: v for k, v in last.items() if k != "epoch"})
         G = self.G
@@ -334,7 +455,7 @@ class Trainer:
             import copy
 
             G = copy.deepcopy(self.G).cpu()
-        return save_checkpoint(path, G, meta)
+        return self.variant.export(path, G, meta)
 
     # -------------------------------------------------------------- loop
     def _adv_on(self, epoch: int) -> bool:
@@ -427,7 +548,7 @@ class Trainer:
             idx = mine[b:b + batch_size]
             batch = self._gather(seg_set, idx)
             with self.precision.autocast():
-                gen, gt = rollout_batch(self.G, batch)
+                gen, gt = self.variant.forward(self.G, batch)
             mask = batch["mask"][:, self.mcfg.n_history:]
             for k, v in masked_reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta, mask).items():
                 sums[k] += v.item() * len(idx)
@@ -437,7 +558,7 @@ class Trainer:
             sums = dict(zip(keys, vals))
         return {k: v / n for k, v in sums.items()}
 
-    def fit(self, epochs: int | None = None) -> list[dict]:
+    def fit(self, epochs: int | None = None, progress: bool = True) -> list[dict]:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
         total = epochs or self.tcfg.epochs
@@ -445,9 +566,13 @@ class Trainer:
         log_path = self.out / "log.csv"
         fields = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds",
                   "processes", "global_batch"]
+        if main:
+            self.out.mkdir(parents=True, exist_ok=True)
+        label = "train" if self.variant is CLOSED_LOOP else f"train {self.variant.name}"
         lock = RunFolderLock(self.out) if main else contextlib.nullcontext()  # one training per run folder
-        with lock, Progress(TextColumn("[bold]train"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                      TimeRemainingColumn(), transient=False, disable=not main) as bar:
+        with lock, Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[info]}"), TimeRemainingColumn(), transient=False,
+                            disable=not (main and progress)) as bar:
             if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
                 write_log(log_path, self.history, fields)
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
@@ -480,15 +605,16 @@ def load_resume(out: Path) -> dict:
 
 def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
                   resume: bool, state: dict | None = None, dist: DistContext | None = None,
-                  amp: bool = False) -> Trainer:
+                  amp: bool = False, variant: Variant = CLOSED_LOOP) -> Trainer:
     """A new trainer, or (``resume``) one restored from ``state`` (default: OUT/last.pt)."""
     if resume:
         sd = state if state is not None else load_resume(out)
         mcfg = model_config_from_dict(sd["model_config"])
         tdict = dict(sd["train_config"], **{k: v for k, v in train_over.items() if k == "epochs"})
-        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"], dist=dist, amp=amp)
+        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"], dist=dist, amp=amp,
+                     variant=variant)
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)
     tcfg = train_config_from_dict(train_over, mcfg)
-    return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp)
+    return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp, variant=variant)

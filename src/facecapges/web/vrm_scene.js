@@ -39,6 +39,10 @@ export class VrmScene extends AvatarScene {
     this.scene.add(vrm.scene);
     vrm.update(0);
     vrm.scene.updateMatrixWorld(true);
+    // for AvatarScene's face inset: the camera follows the head bone, aimed a little above it
+    this.root = vrm.scene;
+    this.head = vrm.humanoid.getRawBoneNode('head');
+    this.faceOffset = new THREE.Vector3(0, 0.07, 0);
     if (this.camera) this.setView('body');  // (a rig sharing another scene has no camera)
     return this;
   }
@@ -113,7 +117,7 @@ export class VrmScene extends AvatarScene {
 
   render() {
     this.update();
-    this.renderer.render(this.scene, this.camera);
+    super.render();  // the body view (+ the face inset when the scene was made with inset: true)
   }
 }
 

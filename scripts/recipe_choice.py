@@ -1,0 +1,67 @@
+"""Recipe choices (optimizer, audio representation) on a validation split *inside* the training frames.
+
+The last 20 % of every paired take is never used for a choice: each clip is cut at
+``--train-until`` (default: 80 % of its frames), and of what is left the last
+``--val-fraction`` (default 20 %) is the validation part the trainer reports as
+``held_*``. Usage::
+
+    python scripts/recipe_choice.py --cache build/cache-beat --speaker 2 --config configs/X.yaml \
+        --out build/choice/X [--set train.optimizer=sgd --set model.audio_repr=mel ...]
+
+Writes OUT/log.csv (per-epoch losses) and OUT/choice.json (the validation losses of
+the last epoch and the best epoch).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--cache", type=Path, required=True)
+    ap.add_argument("--speaker", type=int, required=True)
+    ap.add_argument("--config", type=Path, required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--train-until", type=float, default=0.8, help="fraction of each clip available at all")
+    ap.add_argument("--val-fraction", type=float, default=0.2, help="of that, the validation part")
+    ap.add_argument("--set", action="append", default=[], help="section.key=value (YAML value)")
+    args = ap.parse_args()
+
+    from facecapges.model.config import load_config_file
+    from facecapges.training.train import ClipArrays, build_trainer, load_clips
+    from facecapges.timing import frame_sample_bounds
+
+    model_over, train_over = load_config_file(args.config)
+    for item in args.set:
+        key, value = item.split("=", 1)
+        section, name = key.split(".", 1)
+        (model_over if section == "model" else train_over)[name] = yaml.safe_load(value)
+    cache, clips = load_clips(args.cache, args.speaker, "all")
+    cut_clips = []
+    for c in clips:
+        T = int(len(c.pose) * args.train_until)
+        S = int(frame_sample_bounds(T, cache.fps, cache.sr)[0])
+        mask = c.mask if c.mask is None or np.ndim(c.mask) == 1 else c.mask[:T]
+        cut_clips.append(ClipArrays(c.name, c.pose[:T], c.head[:T], c.face[:T], c.audio[:S], mask))
+    T0 = min(len(c.pose) for c in cut_clips)
+    train_over["holdout_from"] = int(T0 * (1 - args.val_fraction))
+    meta = {"speaker": args.speaker, "clips": [c.name for c in clips], "split": "all",
+            "skeleton": cache.index["skeleton"], "cache": str(args.cache), "choice_run": True}
+    tr = build_trainer(cut_clips, args.out, model_over, train_over, meta, resume=False)
+    hist = tr.fit()
+    best = min(hist, key=lambda r: r.get("held_rec", float("inf")))
+    result = {"settings": args.set, "config": str(args.config), "train_frames": train_over["holdout_from"],
+              "val_frames": [train_over["holdout_from"], T0], "last": hist[-1], "best_epoch": best,
+              "minutes": sum(r["seconds"] for r in hist) / 60}
+    (args.out / "choice.json").write_text(json.dumps(result, indent=2))
+    print(json.dumps({k: result[k] for k in ("settings", "minutes")}), hist[-1].get("held_rec"), best.get("held_rec"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,86 @@
+"""Per-frame audio features: the model's two audio representations (``ModelConfig.audio_repr``).
+
+* ``"raw"`` (thesis table 3.1): a frame's own 16 kHz samples, zero-padded to
+  ``samples_per_frame`` = ceil(sr/fps) = 1067, fed to strided convolutions
+  (:class:`facecapges.model.network.AudioFrontend`).
+* ``"mel"`` (thesis §2.4.1, "Mel spectrum, short-time energy and F0 with Librosa"):
+  :class:`AudioFeatures` turns the same 1067 samples into ``FEATURE_DIM`` = 43 numbers:
+
+  ===================== ======================================================================
+  0 … 39                log-Mel power spectrum, dB: ``10·log10(max(M, 1e-10))`` of Librosa's
+                        Slaney Mel filter bank (``librosa.filters.mel``, 40 bands, 0–8 kHz) over
+                        the power spectrogram of 512-sample periodic-Hann windows, hop 128,
+                        ``center=False`` — exactly ``librosa.feature.melspectrogram(y=frame,
+                        n_fft=512, hop_length=128, center=False)`` — averaged over the
+                        frame's 5 windows (power averaged, then dB)
+  40                    short-time energy, dB: ``10·log10(mean(x²) + 1e-10)`` over the 1067 samples
+  41                    F0 as ``log2(F0 / 100 Hz)``, F0 = sr / the lag (60–400 Hz) of the highest
+                        normalised autocorrelation of the frame; 0 when unvoiced
+  42                    voicing: that autocorrelation peak (0…1; < 0.3 counts as unvoiced)
+  ===================== ======================================================================
+
+Causality and streaming: every feature of frame t is a function of frame t's own
+samples only (no look-ahead, no state), so the offline path (a whole clip as (T, S)
+frames) and the streaming path (one (1, S) frame per step) call the same
+:meth:`AudioFeatures.forward` and get the same values (``test_audio_features``). Librosa's
+``power_to_db(top_db=80)`` is *not* used: it clips relative to the maximum of the whole
+input, which would make a frame's value depend on the future. The module is pure
+torch (``torch.stft``, ``torch.fft``) so it runs inside the model and in TorchScript;
+its Mel matrix comes from Librosa.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn as nn
+
+N_FFT = 512
+HOP = 128
+N_MELS = 40
+F0_MIN_HZ = 60.0
+F0_MAX_HZ = 400.0
+VOICED_MIN = 0.3
+FEATURE_DIM = N_MELS + 3
+AUDIO_REPRS = ("raw", "mel")
+
+
+class AudioFeatures(nn.Module):
+    """(…, S) frames of samples → (…, 43) log-Mel, energy, log-F0, voicing (module docs)."""
+
+    def __init__(self, sr: int, samples_per_frame: int):
+        super().__init__()
+        import librosa
+
+        if samples_per_frame < N_FFT:
+            raise ValueError(f"a frame of {samples_per_frame} samples is shorter than the {N_FFT}-sample FFT")
+        mel = librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)  # (40, 257), Slaney scale and norm
+        self.register_buffer("mel_basis", torch.from_numpy(mel).float(), persistent=False)
+        self.register_buffer("window", torch.hann_window(N_FFT, periodic=True), persistent=False)
+        self.sr = float(sr)
+        self.lag_min = int(math.floor(sr / F0_MAX_HZ))
+        self.lag_max = int(math.ceil(sr / F0_MIN_HZ))
+        self.dim = FEATURE_DIM
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        shape = frames.shape[:-1]
+        x = frames.reshape(-1, frames.shape[-1]).float()  # (B, S)
+        spec = torch.stft(x, N_FFT, HOP, N_FFT, self.window, center=False, return_complex=True)  # (B, 257, n)
+        power = spec.real ** 2 + spec.imag ** 2
+        mel = torch.matmul(self.mel_basis, power).mean(-1)  # (B, 40)
+        log_mel = 10.0 * torch.log10(torch.clamp(mel, min=1e-10))
+        energy = 10.0 * torch.log10((x * x).mean(-1, keepdim=True) + 1e-10)  # (B, 1)
+        # F0: normalised autocorrelation of the mean-removed frame (zero-padded FFT, no wrap-around)
+        x0 = x - x.mean(-1, keepdim=True)
+        n = 2 * x.shape[-1]
+        f = torch.fft.rfft(x0, n=n)
+        ac = torch.fft.irfft(f.real ** 2 + f.imag ** 2, n=n)[:, : self.lag_max + 1]
+        norm = ac[:, self.lag_min:self.lag_max + 1] / torch.clamp(ac[:, :1], min=1e-8)
+        peak, idx = norm.max(-1)
+        voicing = torch.clamp(peak, 0.0, 1.0)
+        f0 = self.sr / (idx + self.lag_min).float()
+        voiced = (voicing >= VOICED_MIN).float()
+        log_f0 = torch.log2(f0 / 100.0) * voiced
+        out = torch.cat([log_mel, energy, log_f0[:, None], voicing[:, None]], -1)
+        return out.reshape(shape + (FEATURE_DIM,))

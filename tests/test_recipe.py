@@ -1,0 +1,192 @@
+"""The training recipe: audio features, input normalisation, head frame, one trainer for every variant."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from facecapges import rotations as rot
+from facecapges.model.config import ModelConfig
+
+TINY = dict(audio_frontend_channels=(4, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
+            face_dim=8, lstm_hidden=16, mlp_hidden=16, disc_channels=8)
+SR, SPF = 16000, 1067
+
+
+def _speech_like(seconds: float, seed: int = 0) -> np.ndarray:
+    """Voiced bursts (harmonics of a gliding F0) separated by pauses, 16 kHz."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(seconds * SR)) / SR
+    f0 = 120 + 30 * np.sin(2 * np.pi * 0.7 * t)
+    phase = 2 * np.pi * np.cumsum(f0) / SR
+    voiced = sum(np.sin(k * phase) / k for k in range(1, 6))
+    env = (np.sin(2 * np.pi * 1.3 * t) > 0.2).astype(float)
+    return (0.3 * env * voiced + 0.003 * rng.normal(size=t.shape)).astype(np.float32)
+
+
+# ------------------------------------------------------------------ audio features
+def test_mel_features_match_librosa_and_find_f0():
+    import librosa
+
+    from facecapges.model.audio_features import FEATURE_DIM, N_MELS, AudioFeatures
+
+    feats = AudioFeatures(SR, SPF)
+    rng = np.random.default_rng(0)
+    frame = rng.normal(0, 0.1, SPF).astype(np.float32)
+    out = feats(torch.from_numpy(frame)[None]).numpy()[0]
+    assert out.shape == (FEATURE_DIM,)
+    ref = librosa.feature.melspectrogram(y=frame, sr=SR, n_fft=512, hop_length=128, center=False, n_mels=N_MELS)
+    np.testing.assert_allclose(out[:N_MELS], 10 * np.log10(np.maximum(ref.mean(-1), 1e-10)), atol=1e-3)
+    np.testing.assert_allclose(out[N_MELS], 10 * np.log10(np.mean(frame.astype(np.float64) ** 2)), atol=1e-3)
+    for f0 in (90.0, 150.0, 240.0):  # a voiced frame: log2(F0/100) within 2 %, voicing high
+        tone = np.sin(2 * np.pi * f0 * np.arange(SPF) / SR).astype(np.float32)
+        v = feats(torch.from_numpy(tone)[None]).numpy()[0]
+        assert 2 ** v[N_MELS + 1] * 100 == pytest.approx(f0, rel=0.02) and v[N_MELS + 2] > 0.8
+    noise = feats(torch.from_numpy(rng.normal(size=SPF).astype(np.float32))[None]).numpy()[0]
+    assert noise[N_MELS + 1] == 0.0 and noise[N_MELS + 2] < 0.3  # unvoiced: no F0
+
+
+def test_mel_features_streaming_equal_offline_and_causal():
+    """A clip's features as (T, S) frames equal the per-frame ones; changing the future changes nothing."""
+    from facecapges.model.audio_features import AudioFeatures
+    from facecapges.timing import frame_audio
+
+    feats = AudioFeatures(SR, SPF)
+    audio = _speech_like(3.0)
+    T = 45
+    frames = torch.from_numpy(frame_audio(audio, T, 15, SR))
+    offline = feats(frames).numpy()
+    stream = np.stack([feats(frames[t:t + 1])[0].numpy() for t in range(T)])
+    np.testing.assert_allclose(stream, offline, atol=1e-4)
+    later = frames.clone()
+    later[30:] = torch.randn_like(later[30:])
+    np.testing.assert_array_equal(feats(later).numpy()[:30], offline[:30])
+
+
+def test_mel_model_streams_like_its_training_rollout():
+    from facecapges.model.network import FaceCapGes
+    from facecapges.model.streaming import StreamingGenerator
+
+    torch.manual_seed(0)
+    model = FaceCapGes(ModelConfig(audio_repr="mel", **TINY)).eval()
+    cfg, N, T = model.cfg, model.cfg.n_history, 40
+    from facecapges.timing import frame_audio
+
+    a = torch.from_numpy(frame_audio(_speech_like(3.0, seed=1), T, 15, SR))[None]
+    f, h = torch.rand(1, T, 52), torch.randn(1, T, 6)
+    p = torch.randn(1, T, cfg.pose_dim) * 0.3
+    with torch.no_grad():
+        ref = model.rollout(model.encode(a, f, h), p[:, :N])[0].numpy()
+    g = StreamingGenerator(model, np.zeros((N, 47, 6), np.float32))
+    for t in range(N):
+        g.warmup(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy(), p[0, t].numpy())
+    out = np.stack([g.step(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy()) for t in range(N, T)])
+    np.testing.assert_allclose(out.reshape(T - N, -1), ref, atol=1e-4)
+
+
+# --------------------------------------------------------------------- head frame
+def test_skeleton_head_maps_to_camera_frame_around_the_speaker_mean():
+    from facecapges.capture.head_pose import angles_to_matrix, head_angles, mean_rotation, skeleton_head_to_camera
+
+    rng = np.random.default_rng(0)
+    rest = angles_to_matrix(0.0, np.radians(13.0), 0.0)  # the speaker's head, pitched 13° on average
+    yaws = np.radians(rng.normal(0, 5, 200))
+    R = np.stack([angles_to_matrix(y, 0.0, 0.0) @ rest for y in yaws])  # turns about the vertical axis
+    ref = mean_rotation(rot.matrix_to_rot6d(R))
+    assert np.degrees(head_angles(rot.rot6d_to_matrix(ref))[1]) == pytest.approx(13.0, abs=0.5)
+    cam = skeleton_head_to_camera(rot.matrix_to_rot6d(R), ref)
+    ang = head_angles(rot.rot6d_to_matrix(cam.astype(np.float64)))
+    # the mean head is "facing the camera"; a turn of the speaker is the same turn of a user
+    np.testing.assert_allclose(ang[:, 0], yaws - yaws.mean(), atol=np.radians(0.3))
+    np.testing.assert_allclose(ang[:, 1:], 0.0, atol=np.radians(0.3))
+    np.testing.assert_allclose(skeleton_head_to_camera(ref, ref), rot.identity_rot6d(), atol=1e-6)
+
+
+# --------------------------------------------------------------- what a style saw
+def _clip(T: int = 160, seed: int = 0, face: bool = False):
+    from facecapges.training.train import ClipArrays
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(T)[:, None, None]
+    pose = (np.sin(t / 5.0 + np.arange(47)[None, :, None] / 7.0) * 0.3 + rot.identity_rot6d()).astype(np.float32)
+    pitch = rot.matrix_to_rot6d(rot.euler_to_matrix(np.stack([np.full(T, 0.23), 0.05 * rng.normal(size=T),
+                                                               np.zeros(T)], 1), "XYZ")).astype(np.float32)
+    f = rng.uniform(0, 1, (T, 52)).astype(np.float32) if face else np.zeros((T, 52), np.float32)
+    return ClipArrays("synthetic", pose, pitch, f, _speech_like(T / 15 + 0.1, seed)[: T * SR // 15])
+
+
+def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.training.train import build_trainer
+
+    tr = build_trainer([_clip()], tmp_path / "run", dict(TINY), dict(epochs=1, batch_size=8, holdout_from=120,
+                                                                      num_threads=1), {"speaker": 2}, resume=False)
+    tr.fit(progress=False)
+    ck = load_checkpoint(tmp_path / "run")
+    assert ck.meta["inputs"]["face"] is False and ck.meta["inputs"]["audio"] == "raw"
+    ref = np.asarray(ck.meta["head_reference_rot6d"])
+    assert np.degrees(np.arccos(np.clip(ref[4], -1, 1))) == pytest.approx(np.degrees(0.23), abs=1.0)
+    a, h = torch.randn(1, 30, SPF) * 0.1, torch.randn(1, 30, 6) * 0.1
+    with torch.no_grad():  # any live face gives exactly what training gave: no face
+        z0 = ck.model.encode(a, torch.zeros(1, 30, 52), h)
+        z1 = ck.model.encode(a, torch.rand(1, 30, 52), h)
+    assert torch.equal(z0, z1)
+    # held-out frames never enter a statistic: the scale of the head comes from frames < 120 only
+    tr2 = build_trainer([_clip(face=True)], tmp_path / "run2", dict(TINY), dict(epochs=1, batch_size=8,
+                        holdout_from=120, num_threads=1), {"speaker": 2}, resume=False)
+    assert tr2.inputs["face"] is True
+    c = _clip(face=True)
+    np.testing.assert_allclose(tr2.G.face_enc.inp.in_mean.numpy(), c.face[:120].mean(0), atol=1e-5)
+
+
+def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
+    """The offline decoder gets resume by construction: 2 + 1 epochs equal 3 in one go."""
+    from facecapges.training.offline import OFFLINE
+    from facecapges.training.train import build_trainer
+
+    over = dict(epochs=3, batch_size=8, optimizer="adam", lr_base=0.016, adv_start_epoch=2, holdout_from=120,
+                num_threads=1)
+    one = build_trainer([_clip()], tmp_path / "one", dict(TINY), over, {}, resume=False, variant=OFFLINE)
+    one.fit(progress=False)
+    two = build_trainer([_clip()], tmp_path / "two", dict(TINY), over, {}, resume=False, variant=OFFLINE)
+    two.fit(epochs=2, progress=False)
+    again = build_trainer([_clip()], tmp_path / "two", {}, {"epochs": 3}, {}, resume=True, variant=OFFLINE)
+    again.fit(progress=False)
+    for k, v in one.G.state_dict().items():
+        assert torch.allclose(again.G.state_dict()[k], v, atol=1e-6), k
+    assert [r["epoch"] for r in again.history] == [1, 2, 3]
+    from facecapges.errors import UserError
+
+    with pytest.raises(UserError, match="offline"):  # a closed-loop trainer refuses an offline run
+        build_trainer([_clip()], tmp_path / "two", {}, {}, {}, resume=True)
+
+
+# ------------------------------------------------------------- styles install
+def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
+    from facecapges.errors import UserError
+    from facecapges.model.checkpoint import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
+    from facecapges.training.train import build_trainer
+
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    monkeypatch.delenv("FACECAPGES_STYLES", raising=False)
+    assert user_styles_dir() == tmp_path / "xdg" / "facecapges" / "styles"
+    run = tmp_path / "my-run"
+    build_trainer([_clip()], run, dict(TINY), dict(epochs=1, batch_size=8, holdout_from=120, num_threads=1),
+                  {"speaker": 7}, resume=False).fit(progress=False)
+    (run / "model.fgd").mkdir()
+    (run / "model.fgd" / "x.json").write_text("{}")
+    shipped = sorted(p.name for p in styles_dir().iterdir())
+    dest = install_style(run)
+    assert dest == user_styles_dir() / "my-run.safetensors" and (user_styles_dir() / "my-run.log.csv").is_file()
+    assert (user_styles_dir() / "my-run.fgd" / "x.json").is_file()
+    assert list_styles()["my-run"] == dest and load_checkpoint(style="my-run").meta["speaker"] == 7
+    assert sorted(p.name for p in styles_dir().iterdir()) == shipped  # the package is untouched
+    with pytest.raises(UserError, match="--force"):
+        install_style(run)
+    install_style(run, force=True)
+    with pytest.raises(UserError, match="name"):
+        install_style(run, name="../escape")
+    (tmp_path / "junk.safetensors").write_bytes(b"not a checkpoint")
+    with pytest.raises(UserError):
+        install_style(tmp_path / "junk.safetensors")
