@@ -40,6 +40,7 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, required=True)
     ap.add_argument("--speaker", type=int, required=True)
     ap.add_argument("--holdout-from", type=int)
+    ap.add_argument("--until-frame", type=int, help="cut every take here first (a validation split's end)")
     ap.add_argument("--audio", type=Path, action="append", default=[])
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
@@ -58,6 +59,12 @@ def main() -> None:
     train_stats = []
     for e in cache.select(args.speaker, "all"):
         a = cache.load(e["name"])
+        if args.until_frame:
+            from facecapges.timing import frame_sample_bounds
+
+            S = int(frame_sample_bounds(args.until_frame, fps, sr)[0])
+            a = {k: (v[:S] if k == "audio" else v[: args.until_frame]) if k in ("pose", "head", "face", "audio")
+                 else v for k, v in a.items()}
         start = args.holdout_from or e.get("holdout_from") or int(len(a["pose"]) * 0.8)
         train_stats.append(motion_stats(wrist_positions(skel, a["pose"][:start]), fps))
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ref)
