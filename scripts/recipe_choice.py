@@ -18,7 +18,6 @@ import argparse
 import json
 from pathlib import Path
 
-import numpy as np
 import yaml
 
 
@@ -34,8 +33,7 @@ def main() -> None:
     args = ap.parse_args()
 
     from facecapges.model.config import load_config_file
-    from facecapges.training.train import ClipArrays, build_trainer, load_clips
-    from facecapges.timing import frame_sample_bounds
+    from facecapges.training.train import build_trainer, clip_head, load_clips
 
     model_over, train_over = load_config_file(args.config)
     for item in args.set:
@@ -43,12 +41,7 @@ def main() -> None:
         section, name = key.split(".", 1)
         (model_over if section == "model" else train_over)[name] = yaml.safe_load(value)
     cache, clips = load_clips(args.cache, args.speaker, "all")
-    cut_clips = []
-    for c in clips:
-        T = int(len(c.pose) * args.train_until)
-        S = int(frame_sample_bounds(T, cache.fps, cache.sr)[0])
-        mask = c.mask if c.mask is None or np.ndim(c.mask) == 1 else c.mask[:T]
-        cut_clips.append(ClipArrays(c.name, c.pose[:T], c.head[:T], c.face[:T], c.audio[:S], mask))
+    cut_clips = [clip_head(c, int(len(c.pose) * args.train_until), cache.fps, cache.sr) for c in clips]
     T0 = min(len(c.pose) for c in cut_clips)
     train_over["holdout_from"] = int(T0 * (1 - args.val_fraction))
     meta = {"speaker": args.speaker, "clips": [c.name for c in clips], "split": "all",

@@ -52,4 +52,4 @@ def test_generate_writes_the_speaking_face(unseen_wav, tmp_path):
     assert r.returncode == 0, r.stderr
     face = read_face_json(tmp_path / "g.json")
     jaw = face.weights[:, JAW]
-    assert face.fps == 15 and jaw.max() > 0.3 and jaw.std() > 0.05  # the mouth speaks
+    assert face.n_frames / face.fps > 60 and jaw.max() > 0.3 and jaw.std() > 0.05  # the mouth speaks

@@ -184,11 +184,15 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert res.stdout.count("already holds this recipe's model: reused") == 2
     assert list(json.loads((out / "ablation.json").read_text())["variants"]) == ["no_head", "offline"]
     # any checkpoint can stand as the 'full' row; the table says when its recipe is another one
-    res = run(*args, "--force", "--variants", "full", "--full-from", out / "runs" / "no_head" / "model.safetensors")
+    res = run(*args, "--force", "--variants", "full,camn", "--samples", 1,
+              "--given", f"full={out / 'runs' / 'no_head' / 'model.safetensors'},camn={out / 'runs' / 'camn'}/model.safetensors")
     assert res.returncode == 0, res.stderr
     info = json.loads((out / "ablation.json").read_text())["variants"]["full"]
     assert info["source"] == "given checkpoint (not this recipe: model config differs)"
     assert "given checkpoint (not this recipe" in (out / "ablation.md").read_text()
+    assert json.loads((out / "ablation.json").read_text())["variants"]["camn"]["source"] == "given checkpoint"
+    bad = run(*args, "--force", "--variants", "full", "--given", "camn")
+    assert bad.returncode == 2 and "--given" in bad.stderr
     bad = run("ablate", "--cache", cache, "--out", tmp_path / "x", "--config", cfg, "--variants", "diffsheg", "--quiet")
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
 

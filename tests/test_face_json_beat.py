@@ -116,3 +116,14 @@ def test_capture_command_writes_beats_layout(face_video, tmp_path):
     facial = beat_loader(out)
     assert facial.shape == (30, 51) and facial.shape[0] // POSE_FPS == 2
     assert np.isfinite(beat_normalise(facial)).all() and facial.max() > 0.1
+
+
+def test_unknown_layout_is_one_clear_error(face_video, tmp_path):
+    from runtime_helpers import cli
+
+    for args in (["capture", str(face_video), "--out", str(tmp_path / "a.json")],
+                 ["run", str(face_video), "--out", str(tmp_path / "r")],
+                 ["live", "--video", str(face_video), "--max-seconds", "1"]):
+        r = cli(*args, "--face-json", "beat52")
+        assert r.returncode == 2 and "--face-json beat52" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "a.json").exists() and not (tmp_path / "r").exists()

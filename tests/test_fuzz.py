@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from facecapges.errors import UserError
@@ -122,6 +122,8 @@ face_docs = st.one_of(
 
 @FUZZ
 @given(face_docs)
+@example(b'{"names": ["jawOpen"], "frames": [{"weights": [3447e89]}]}')  # found by this test: inf as float32
+@example(b'{"names": ["jawOpen"], "frames": [{"weights": [[]]}]}')  # found by this test: nested weights
 def test_fuzz_face_json(data):
     from facecapges.io.face_json import read_face_json
 

@@ -54,23 +54,13 @@ def synthetic_take(seconds: float, seed: int) -> tuple[np.ndarray, np.ndarray, n
     return pose.astype(np.float32), audio.astype(np.float32), burst
 
 
-def _smooth(x: np.ndarray, n: int) -> np.ndarray:
-    return np.convolve(x, np.ones(n) / n, mode="same")
+def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
+    """The eval suite's energy–wrist-speed correlation (0.5 s smoothing) and its z against shifted audio."""
+    from facecapges.evaluation.synchrony import energy_speed_control, wrist_positions
+    from facecapges.model.checkpoint import load_skeleton
 
-
-def energy_speed_z(audio: np.ndarray, pose: np.ndarray, fps: int = FPS, sr: int = SR) -> tuple[float, float]:
-    """Correlation of the audio energy with the arms' speed (both smoothed over 0.5 s) and its z-score
-    against the same correlation with the energy shifted by 2 s, 3 s, … (circularly)."""
-    from facecapges.timing import frame_audio
-
-    T = len(pose)
-    energy = np.sqrt((frame_audio(audio, T, fps, sr).astype(np.float64) ** 2).mean(1))
-    speed = np.r_[0.0, np.linalg.norm(np.diff(pose[:, ARMS].reshape(T, -1), axis=0), axis=1)]
-    n = int(round(0.5 * fps))
-    e, s = _smooth(energy, n), _smooth(speed, n)
-    r = float(np.corrcoef(e, s)[0, 1])
-    ctrl = [float(np.corrcoef(np.roll(e, k), s)[0, 1]) for k in range(2 * fps, T - 2 * fps, fps)]
-    return r, (r - float(np.mean(ctrl))) / max(float(np.std(ctrl)), 1e-6)
+    c = energy_speed_control(wrist_positions(load_skeleton(), pose), audio, SR, FPS)
+    return c.r, c.z
 
 
 def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:

@@ -38,4 +38,5 @@ def test_a_signal_leaves_whole_recordings(face_video, tmp_path, sig):
     rep = json.loads((rec / "report.json").read_text())
     n = read_bvh(rec / "motion.bvh").motion.shape[0]
     assert rep["stopped_by"] == "interrupted" and n == rep["frames"] >= grown
-    assert read_face_json(rec / "face.json").n_frames == n
+    face = read_face_json(rec / "face.json")  # the same length (whatever rate the face JSON is written at)
+    assert face.n_frames / face.fps == pytest.approx(n / 15, abs=1 / 15)

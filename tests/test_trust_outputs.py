@@ -34,7 +34,7 @@ def test_output_checks(tmp_path):
         check_output_file(tmp_path, force=True)
     with pytest.raises(UserError, match="already exists"):
         check_output_file(tmp_path / "file")
-    with pytest.raises(UserError, match="already holds a.png, b.png"):
+    with pytest.raises(UserError, match=r"a.png: already exists \(so do b.png\)"):
         (tmp_path / "d").mkdir()
         (tmp_path / "d" / "a.png").write_text("")
         (tmp_path / "d" / "b.png").write_text("")
@@ -72,7 +72,8 @@ def test_eval_and_ablate_keep_every_existing_output(tmp_path):
     out = tmp_path / "ev"
     out.mkdir()
     (out / "metrics.md").write_text("my notes")  # no metrics.json: the old check let this be overwritten
-    refused(cli("eval", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "metrics.md", "--force")
+    refused(cli("eval", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "metrics.md: already exists",
+            "--force")
     (out / "ablation.md").write_text("mine")
     refused(cli("ablate", "--cache", str(tmp_path / "nocache"), "--out", str(out)), "ablation.md")
     assert (out / "metrics.md").read_text() == "my notes" and (out / "ablation.md").read_text() == "mine"
@@ -152,8 +153,10 @@ def test_a_damaged_video_is_held_over_and_reported(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "could not be decoded" in p.stderr and "no face was found in any frame" in p.stderr
     assert "[mpeg4" not in p.stderr and "header damaged" not in p.stderr  # FFmpeg's own noise is off
-    frames = json.loads((tmp_path / "f.json").read_text())["frames"]
-    assert len(frames) == 72  # 120 frames at 25 fps = 4.8 s → 72 frames at 15 fps, nothing cut
+    from facecapges.io.face_json import read_face_json
+
+    track = read_face_json(tmp_path / "f.json")
+    assert track.n_frames / track.fps == pytest.approx(4.8, abs=1 / 15)  # 120 frames at 25 fps: nothing cut
 
 
 def test_camera_error_is_one_line(tmp_path):
@@ -208,3 +211,18 @@ def test_two_faces_in_view_are_said(tmp_path, face_video):
     p = cli("capture", str(two), "--out", str(tmp_path / "f.json"), "--estimator", "geometric")
     assert p.returncode == 0, p.stderr
     assert "more than one face was in view" in p.stderr and "the largest face was tracked" in p.stderr
+
+
+def test_run_says_what_happened_in_words(tmp_path, beat_wav):
+    import soundfile as sf
+
+    _, bad = _damaged_video(tmp_path)  # no face in it; 25 fps
+    a, sr = sf.read(beat_wav, dtype="float32")
+    sf.write(tmp_path / "speech.wav", a[: int(4.0 * sr)], sr)
+    p = cli("run", str(bad), "--audio", str(tmp_path / "speech.wav"), "--out", str(tmp_path / "o"), "--no-video",
+            "--estimator", "geometric")
+    assert p.returncode == 0, p.stderr
+    rep = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert rep["frames"] == 60 and rep["stopped_by"] == "end of input"  # not "frame limit" at the normal end
+    assert rep["face_found_frames"] == 0 and "no face was found in any frame" in " ".join(p.stderr.split())
+    assert "video_frames_skipped" not in p.stdout and "normal frame-rate conversion" in p.stdout

@@ -153,5 +153,5 @@ def test_train_keeps_the_files_of_a_folder_without_a_run(tmp_path):
     (run / "model.safetensors").write_bytes(b"mine")
     (run / "log.csv").write_text("mine")
     p = cli("train", "--cache", str(tmp_path / "nocache"), "--speaker", "2", "--out", str(run))
-    refused(p, "already holds", "--force")
+    refused(p, "already exists", "--force")
     assert (run / "model.safetensors").read_bytes() == b"mine" and (run / "log.csv").read_text() == "mine"

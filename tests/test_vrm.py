@@ -390,6 +390,12 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     assert "VRM 0.x" in r.stdout and "12 frames" in r.stdout
     frames = list(imageio_ffmpeg.read_frames(str(out)))[1:]
     assert len(frames) == 12
+    # the same BVH as VRM Animation (avatar vrma)
+    r = _cli("avatar", "vrma", "--bvh", str(bvh), "--out", str(tmp_path / "s.vrma"))
+    assert r.returncode == 0, r.stderr
+    doc, _ = split_glb((tmp_path / "s.vrma").read_bytes())
+    _validate(doc, "VRMC_vrm_animation", VRMC_VRM_ANIMATION)
+    assert doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]["count"] == 12
 
 
 def test_vrm_bench_runs():

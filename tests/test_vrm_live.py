@@ -23,7 +23,7 @@ import pytest
 from facecapges.avatar.vrm import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import cli, cli_popen  # noqa: E402
+from runtime_helpers import cli, cli_popen, wait_line  # noqa: E402
 from vrm_samples import build_sample  # noqa: E402
 from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
@@ -70,15 +70,9 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
                      "--avatar", str(avatar), "--record", str(rec), "--vrma", "--max-seconds", "120")
     try:
-        url = None
-        deadline = time.time() + 120
-        while time.time() < deadline and url is None:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            if line.startswith("viewer: "):
-                url = line.split()[1]
-        assert url, proc.stderr.read()[-2000:]
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        url = line.split()[1]
         with Browser({}, "/", width=640, height=480, timeout=90) as b:
             b.call("Page.navigate", url=url)
             state = None
@@ -184,7 +178,7 @@ def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
     serve_in_thread(server)
     page = Page(f"http://127.0.0.1:{server.server_address[1]}/")
     try:
-        page.start(st.plan.participants[0].id)
+        page.start(st.plan.participants[0].token)  # the invitation token
         page.wait("window.study.ready && window.study.index === 0")
         page.click("play")
         page.wait("window.study.watched", timeout=30)

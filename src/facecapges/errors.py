@@ -102,8 +102,9 @@ def check_output_dir(folder: str | Path, names: list[str] | tuple[str, ...] = ()
         raise file_error(d, "is a file; the output must name a folder")
     existing = [n for n in names if (d / n).exists()]
     if existing and not force:
-        shown = ", ".join(existing[:4]) + (", …" if len(existing) > 4 else "")
-        raise file_error(d, f"already holds {shown}; pass {flag} to overwrite")
+        also = ", ".join(existing[1:4]) + (", …" if len(existing) > 4 else "")
+        raise file_error(d / existing[0], "already exists" + (f" (so do {also})" if also else "")
+                         + f"; pass {flag} to overwrite")
     _writable_folder(d)
     return d
 

@@ -103,6 +103,29 @@ def register(app: typer.Typer) -> None:
         typer.echo(f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
                    f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets")
 
+    @avatar.command("vrma")
+    def avatar_vrma(
+        bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh."),
+        out: Path = typer.Option(..., "--out", help="Output .vrma (VRM Animation 1.0)."),
+        face: Path = typer.Option(None, "--face", help="Face JSON to add as expressions (resampled to the BVH)."),
+        face_mode: str = typer.Option("presets", "--vrma-face", help="presets (VRM presets from ARKit, any VRM) "
+                                                                     "or perfect-sync (52 ARKit expressions)."),
+        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    ) -> None:
+        """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
+        from facecapges.avatar.body import check_skeleton
+        from facecapges.avatar.vrma import check_face_mode, write_bvh_as_vrma
+        from facecapges.errors import refuse_overwrite, require_file
+        from facecapges.io.bvh import read_bvh
+
+        refuse_overwrite(out, force)
+        check_face_mode(face_mode)
+        check_skeleton(read_bvh(require_file(bvh, "BVH")).skeleton, str(bvh))
+        if face is not None:
+            require_file(face, "face JSON")
+        p = write_bvh_as_vrma(bvh, out, face, face_mode)
+        typer.echo(f"{p}: VRM Animation, {p.stat().st_size} bytes")
+
     @app.command("render")
     def render_cmd(
         bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),

@@ -149,8 +149,6 @@ def _preset_binds() -> dict[str, dict[str, float]]:
 
 
 PRESET_BINDS: dict[str, dict[str, float]] = _preset_binds()
-PRESET_NAMES: tuple[str, ...] = tuple(PRESET_BINDS)
-LOOK_PRESETS = ("lookUp", "lookDown", "lookLeft", "lookRight")
 # ARKit eye rotation range (degrees) behind eyeLook* = 1; the lookAt range maps use it
 EYE_RANGE_DEG = 30.0
 # VRM 0.x preset names → 1.0

@@ -17,9 +17,10 @@ discriminator schedule, seed):
   by the same trainer, recipe and segments as ``offline`` and evaluated like it.
   DiffSHEG is not reproduced (it needs HuBERT features; see that module).
 
-**A given checkpoint as ``full``** (``full_from``, ``--full-from``): a checkpoint file
-or installed style is used as the ``full`` row as it is; when its stored recipe is not
-this one, the variants table says so ("given checkpoint (not this recipe: …)").
+**Given checkpoints** (``given``, ``--given full=STYLE_OR_FILE,camn=FILE``): a variant's
+row comes from that checkpoint as it is (e.g. the shipped style as ``full``, or a CaMN
+run stopped before its last epoch); when its stored recipe is not this one, the
+variants table says so ("given checkpoint (not this recipe: …)").
 
 **Reusing the shipped model for ``full``.** When the installed default style
 (``beat2-scott-demo``) was trained by exactly this recipe — its stored model config
@@ -71,7 +72,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -170,9 +171,10 @@ def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_name
 class TrainedVariant:
     name: str
     path: Path
-    source: str  # "trained", "shipped checkpoint", "existing run"
+    source: str  # "trained", "shipped checkpoint", "existing run", "given checkpoint …"
     seconds: float
     final_losses: dict = field(default_factory=dict)
+    epochs: int | None = None  # epochs the checkpoint was trained for (None: the recipe's)
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
@@ -183,11 +185,12 @@ def _load_clip_arrays(cache: Path, speaker: int, split: str):
 
 def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
                    reuse_default: bool = True, retrain: bool = False, progress: bool = True,
-                   say=print, full_from: str | None = None) -> dict[str, TrainedVariant]:
+                   say=print, given: Mapping[str, str] | None = None) -> dict[str, TrainedVariant]:
     """Train (or reuse) every variant; see the module docstring.
 
-    ``full_from`` (a checkpoint file or an installed style name) is taken as the
-    ``full`` row as it is, whatever recipe trained it; the table says so.
+    ``given`` maps variants to checkpoints (a file, or for closed-loop variants an
+    installed style name) taken as they are, whatever recipe trained them; the table
+    says so.
     """
     import json
 
@@ -201,20 +204,25 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
     for v in variants:
         run = out / "runs" / v
         extra = {"head_dim": 0} if v == "no_head" else None
-        if v == "full" and full_from is not None:
-            as_file = Path(full_from)
-            ck = load_checkpoint(as_file) if as_file.is_file() or as_file.is_dir() else load_checkpoint(style=full_from)
-            why = _same_recipe(ck.meta, recipe, None, names)
+        if given and v in given:
+            ref = Path(given[v])
+            if v in SEGMENT_DECODERS:
+                path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
+            else:
+                ck = load_checkpoint(ref) if ref.is_file() or ref.is_dir() else load_checkpoint(style=given[v])
+                path, meta = ck.path, ck.meta
+            why = _same_recipe(meta, recipe, extra, names)
             source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
-            say(f"[{v}] {ck.path} taken as given" + ("" if why is None else f"; note: {why}"))
-            result[v] = TrainedVariant(v, ck.path, source, 0.0, ck.meta.get("final_losses", {}))
+            say(f"[{v}] {path} taken as given" + ("" if why is None else f"; note: {why}"))
+            result[v] = TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
             continue
         if v == "full" and reuse_default and not retrain and DEFAULT_STYLE in list_styles():
             ck = load_checkpoint(style=DEFAULT_STYLE)
             why = _same_recipe(ck.meta, recipe, None, names)
             if why is None:
                 say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
-                result[v] = TrainedVariant(v, ck.path, "shipped checkpoint", 0.0, ck.meta.get("final_losses", {}))
+                result[v] = TrainedVariant(v, ck.path, "shipped checkpoint", 0.0, ck.meta.get("final_losses", {}),
+                                           ck.meta.get("epochs_trained"))
                 continue
             say(f"[{v}] shipped checkpoint not reused ({why}); training")
         done = run / "model.safetensors"
@@ -439,7 +447,7 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
                  reuse_default: bool = True, retrain: bool = False, fgd_location: Path | None = None,
                  fgd_epochs: int = 400, samples: int = 3, seed: int = 0,
                  offsets_s: Sequence[float] = tuple(range(2, 61, 2)), progress: bool = True, say=print,
-                 full_from: str | None = None,
+                 given: Mapping[str, str] | None = None,
                  command: str | None = None) -> dict:
     """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
     from facecapges.data.cache import Cache
@@ -455,7 +463,10 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
     recipe = make_recipe(config, speaker, split, epochs, holdout_from, c.fps)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say, full_from)
+    unknown = sorted(set(given or {}) - set(variants))
+    if unknown:
+        raise UserError(f"--given names variant(s) not in --variants: {', '.join(unknown)}")
+    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say, given)
     fgd, fgd_file = _fgd_for(out, recipe, trained, cache, fgd_location, fgd_epochs, progress, say)
     say("evaluating the variants on the held-out frames")
     result = evaluate_variants(cache, recipe, trained, fgd, samples, seed, offsets_s, progress)
@@ -464,7 +475,8 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
            "recipe": {"config_path": recipe.config_path, "split": recipe.split, "holdout_from": recipe.holdout_from,
                       "speaker": recipe.speaker, "model_over": recipe.model_over, "train": tcfg},
            "variants": {v: {"label": LABELS[v], "path": str(t.path), "source": t.source, "seconds": t.seconds,
-                            "epochs": tcfg["epochs"], "final_losses": t.final_losses} for v, t in trained.items()}}
+                            "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
+                            "final_losses": t.final_losses} for v, t in trained.items()}}
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
     return doc

@@ -39,11 +39,13 @@ Evaluation decodes a whole held-out sequence in one pass from the same N-frame
 history the streaming models start from, placed before the sequence with zero inputs
 (:meth:`CaMN.generate`), exactly as the offline-decoding ablation is run.
 
-**DiffSHEG** (thesis 5.2.1) is not provided: it conditions a diffusion transformer on
-HuBERT speech features (a 95M-parameter pretrained speech model) jointly with
-expression; no HuBERT weights can be obtained on this machine (no model hub, no
-download at run time), and training a substitute speech model on one minute of speech
-would not be DiffSHEG. Its rows in Tables 5.2/5.3 cannot be reproduced here.
+**DiffSHEG** (thesis 5.2.1) is not provided: it conditions a diffusion model jointly
+generating expression and gesture on HuBERT speech features, i.e. on a large
+self-supervised speech model pretrained on hundreds of hours of audio. No HuBERT weights
+come with anything the project installs and nothing may be downloaded at run time (no
+model hub); a speech model trained here on one minute of speech would not be HuBERT,
+and DiffSHEG without it would not be DiffSHEG. Its rows in Tables 5.2/5.3 are therefore
+not reproduced.
 
 Checkpoint: one ``.safetensors``, metadata format ``facecapges-camn-1``
 (:func:`save_camn` / :func:`load_camn`), holding the :class:`ModelConfig` (for the

@@ -51,6 +51,19 @@ def _parse_offsets(text: str) -> list[float]:
         raise UserError(f"--offsets must be START:STOP:STEP or a comma list of seconds, got {text!r}") from None
 
 
+def _parse_given(text: str | None) -> dict[str, str]:
+    """``"full=beat2-scott-demo,camn=run/model.safetensors"`` → {variant: checkpoint}."""
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        name, sep, ref = item.partition("=")
+        if not sep or not name.strip() or not ref.strip():
+            raise UserError(f"--given must be VARIANT=CHECKPOINT[,VARIANT=CHECKPOINT…], got {text!r}")
+        out[name.strip()] = ref.strip()
+    return out
+
+
 def register(app: typer.Typer) -> None:
     @app.command("fgd-train")
     def fgd_train(
@@ -164,9 +177,10 @@ def register(app: typer.Typer) -> None:
         reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
                                            help="Use the shipped default checkpoint as 'full' when its stored "
                                                 "recipe and data match."),
-        full_from: Optional[str] = typer.Option(None, "--full-from", help="Take this checkpoint (file or "
-                                                                          "installed style name) as the 'full' row "
-                                                                          "as it is, whatever its recipe."),
+        given: Optional[str] = typer.Option(None, "--given", help="VARIANT=CHECKPOINT[,…]: take these rows from "
+                                                                  "existing checkpoints as they are (a file, or an "
+                                                                  "installed style for full/no_head), whatever "
+                                                                  "their recipe, e.g. full=beat2-scott-demo."),
         retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
                                                               "finished model of this recipe."),
         fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
@@ -195,7 +209,7 @@ def register(app: typer.Typer) -> None:
                            holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
                            fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
                            offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
-                           full_from=full_from,
+                           given=_parse_given(given),
                            command="facecapges " + " ".join(sys.argv[1:]))
         typer.echo((out / "ablation.md").read_text())
         typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "

@@ -136,9 +136,11 @@ def read_face_json(path: str | Path) -> FaceTrack:
             raise file_error(path, "'head_rot6d' values must be numbers") from None
         if head.shape != (len(frames), 6):
             raise file_error(path, f"'head_rot6d' must hold 6 numbers per frame, got shape {head.shape}")
-        if not np.isfinite(head).all():
-            raise file_error(path, "'head_rot6d' contains NaN or infinite values")
+        if not np.isfinite(head).all() or np.abs(head).max(initial=0.0) > 1e6:
+            raise file_error(path, "'head_rot6d' contains NaN, infinite or out-of-range values")
         head = head.astype(np.float32)
+    if np.abs(weights).max(initial=0.0) > 1e6:  # finite here, infinite as float32: not a weight
+        raise file_error(path, "face weights out of range (blendshape weights are about 0 to 1)")
     out, unknown = to_arkit52(weights, names)
     return FaceTrack(weights=out, fps=_fps_from_times(times, path), unknown_names=unknown, head_rot6d=head)
 

@@ -150,6 +150,19 @@ def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:
     return torch.from_numpy(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0))
 
 
+def no_input_embedding(model) -> torch.Tensor:
+    """Embedding (E,) of a frame before the stream starts: the encoders over zero features.
+
+    Exactly the causal zero padding of the sequence encoders, so a stream's first frames
+    see the same past as a whole clip encoded at once. ``model``: anything with the
+    FaceCapGes encoders (``audio_enc``, ``face_enc``, ``head_enc``).
+    """
+    cfg = model.cfg
+    z_a = model.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
+    z_f = model.face_enc.mlp(model.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a))
+    return torch.cat([z_a, z_f, model.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
+
+
 # ------------------------------------------------------------------ the kernel's pieces
 def tcn_tap(x_now: torch.Tensor, x_past: torch.Tensor, b: torch.Tensor, w_now: torch.Tensor,
             w_past: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
@@ -281,11 +294,7 @@ class BatchedStreamingGenerator:
             self._cascade = Cascade(model.decoder.lstm_t, model.decoder.lstm_u)
         self._hist_offsets = torch.arange(-N, 0)
         with torch.inference_mode():
-            m = model
-            # embedding of a frame before the stream: the encoders over zero features
-            z_a0 = m.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
-            z_f0 = m.face_enc.mlp(m.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a0))
-            self._e0 = torch.cat([z_a0, z_f0, m.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0].clone()  # (E,)
+            self._e0 = no_input_embedding(model).clone()  # (E,)
         self.capacity = 0
         self._free: list[int] = []
         self._open: set[int] = set()
@@ -468,7 +477,7 @@ class BatchedStreamingGenerator:
         self.frames[idx] = frames + 1
 
     def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
-        ids = [int(s) for s in np.asarray(slots, dtype=np.int64).reshape(-1)]
+        ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
         if len(set(ids)) != len(ids):
             raise ValueError("a stream can take only one frame per batched step")
         closed = [s for s in ids if s not in self._open]

@@ -11,6 +11,10 @@ Figures (one stream, batch 1, one thread, the default checkpoint):
   whole window every frame (the test oracle); the two generators run side by side in
   alternating blocks of 25 frames on the same inputs, so machine load hits both alike.
   ``speedup`` is the ratio of their p50 step times (target ≥ 3).
+* ``cpu_ms`` — the same steps' CPU time (``time.thread_time``, the thread's own
+  clock): on a loaded machine the wall clock adds waits for a core to every step,
+  short ones most (so the wall-clock ``speedup`` shrinks towards 1); the CPU time does
+  not.
 * ``max_abs_diff_naive`` — the two loops' outputs must agree (same function).
 * ``offline_fps`` — frames per second of :func:`generate_poses` (60 s of input; 10 s
   with ``--quick``).
@@ -25,12 +29,11 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
   face zero as in the cache) from a cold start: mean, p50, p99, total. Without the
   shared folder, synthetic speech-like frames, and ``inputs`` says so.
 * ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50): the
-  kernel's own ``torch.profiler`` scopes (``facecapges::<stage>``:
+  kernel's own stage scopes (``facecapges::<stage>`` for ``torch.profiler``:
   :data:`~facecapges.model.batched.STAGES` — input_prep, audio_frontend, audio_tcn,
-  face_encoder, head_encoder, decoder) and ``to_bvh_euler``, read from a profile of
-  the real step (the profiler adds its own cost to each recorded op, so read the
-  stages' shares; ``per_frame`` is the unprofiled time). ``audio_features_ms`` =
-  frontend + TCN step.
+  face_encoder, head_encoder, decoder), each timed by a wall-clock listener during
+  the real step (the torch profiler's per-op recording would cost more than the ops),
+  and ``to_bvh_euler``. ``audio_features_ms`` = frontend + TCN step.
 * ``compute`` — multiply–accumulates per frame, **counted** with
   ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
   per kernel stage too (a nested counter per stage scope). The counter counts matrix
@@ -89,7 +92,7 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
     try:
         ckpt = load_checkpoint()
         cfg = ckpt.model.cfg
-        n = 150 if quick else 900
+        n = 150 if quick else 450
         audio, face, head = _inputs(n, cfg.samples_per_frame)
         fast = StreamingGenerator(ckpt.model, ckpt.neutral_window)
         naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
@@ -100,24 +103,29 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
             g.reset()
         # side by side in alternating blocks of frames: both see the same machine load,
         # and neither evicts the other's working set from the cache on every frame
-        t_fast, t_euler, t_naive, diff, block = [], [], [], 0.0, 25
+        # wall clock, and the thread's CPU time (time.thread_time: without the waits for a
+        # core that a loaded machine adds to every step alike)
+        t_fast, t_euler, t_naive, c_fast, c_euler, c_naive, diff, block = [], [], [], [], [], [], 0.0, 25
+        clock, cpu = time.perf_counter, time.thread_time
         for start in range(0, n, block):
             frames = range(start, min(start + block, n))
             outs = []
             for t in frames:
-                t0 = time.perf_counter()
+                t0, c0 = clock(), cpu()
                 outs.append(fast.step(audio[t], face[t], head[t]))
-                t1 = time.perf_counter()
+                t1, c1 = clock(), cpu()
                 euler(outs[-1])
-                t_fast.append(t1 - t0)
-                t_euler.append(time.perf_counter() - t1)
+                t_fast.append(t1 - t0), c_fast.append(c1 - c0)
+                t_euler.append(clock() - t1), c_euler.append(cpu() - c1)
             for t, a in zip(frames, outs):
-                t0 = time.perf_counter()
+                t0, c0 = clock(), cpu()
                 b = naive.step(audio[t], face[t], head[t])
-                t_naive.append(time.perf_counter() - t0)
+                t_naive.append(clock() - t0), c_naive.append(cpu() - c0)
                 diff = max(diff, float(np.abs(a - b).max()))
-        ms = {k: np.array(v) * 1e3 for k, v in (("fast", t_fast), ("euler", t_euler), ("naive", t_naive))}
+        ms = {k: np.array(v) * 1e3 for k, v in (("fast", t_fast), ("euler", t_euler), ("naive", t_naive),
+                                                 ("fast_cpu", c_fast), ("euler_cpu", c_euler), ("naive_cpu", c_naive))}
         with_euler = ms["fast"] + ms["euler"]
+        with_euler_cpu = ms["fast_cpu"] + ms["euler_cpu"]
         T = (10 if quick else 60) * cfg.fps
         audio, face, head = _inputs(T, cfg.samples_per_frame, seed=1)
         t0 = time.perf_counter()
@@ -143,6 +151,11 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
         "naive_step_ms_p50": pct(ms["naive"], 50),
         "naive_step_ms_p99": pct(ms["naive"], 99),
         "speedup": round(float(np.percentile(ms["naive"], 50) / np.percentile(ms["fast"], 50)), 2),
+        "cpu_ms": {"step_p50": pct(ms["fast_cpu"], 50), "step_p99": pct(ms["fast_cpu"], 99),
+                   "to_bvh_euler_p50": pct(ms["euler_cpu"], 50), "step_with_euler_p50": pct(with_euler_cpu, 50),
+                   "step_with_euler_p99": pct(with_euler_cpu, 99), "naive_step_p50": pct(ms["naive_cpu"], 50),
+                   "speedup": round(float(np.percentile(ms["naive_cpu"], 50) / np.percentile(ms["fast_cpu"], 50)), 2),
+                   "what": "the same steps' CPU time (time.thread_time): no waiting for a core"},
         "max_abs_diff_naive": diff,
         "offline_fps": round(T / offline_s, 1),
         "offline_seconds": round(offline_s, 2),
@@ -224,29 +237,33 @@ def cpu_peak_gflops(n: int = 1024, reps: int = 8) -> float:
 
 
 def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
-    """ms per frame of each kernel stage (its ``facecapges::<stage>`` profiler scope) over the frames.
+    """ms per frame of each kernel stage over the frames, timed at the kernel's own stage scopes.
 
-    The step is the generator's own code, recorded by ``torch.profiler``; the profiler
-    adds its own cost per recorded op, so these are larger than the unprofiled step
-    and meant for the shares of the stages.
+    The kernel marks its stages with :func:`facecapges.model.batched.stage` (the
+    ``facecapges::<stage>`` ``torch.profiler`` scopes); here a listener times each scope
+    with the wall clock instead of the profiler, whose per-op recording costs more than
+    the ops themselves and would distort the shares.
     """
-    from torch.profiler import ProfilerActivity, profile, record_function
+    import contextlib
 
-    from facecapges.model.batched import STAGES
+    from facecapges.model import batched
 
-    times: dict[str, list] = {k: [] for k in (*STAGES, "to_bvh_euler")}
-    for t in range(len(audio)):
-        with profile(activities=[ProfilerActivity.CPU]) as prof:
+    times: dict[str, list] = {k: [] for k in (*batched.STAGES, "to_bvh_euler")}
+
+    @contextlib.contextmanager
+    def timed(name: str):
+        t0 = time.perf_counter()
+        yield
+        times[name].append((time.perf_counter() - t0) * 1e3)
+
+    batched.stage_listener = timed
+    try:
+        for t in range(len(audio)):
             pose = gen.step(audio[t], face[t], head[t])
-            with record_function("facecapges::to_bvh_euler"):
+            with timed("to_bvh_euler"):
                 euler(pose)
-        seen = dict.fromkeys(times, 0.0)
-        for ev in prof.events():
-            name = ev.name.removeprefix("facecapges::")
-            if ev.name.startswith("facecapges::") and name in seen:
-                seen[name] += ev.cpu_time_total / 1e3
-        for k, v in seen.items():
-            times[k].append(v)
+    finally:
+        batched.stage_listener = None
     return {k: np.array(v) for k, v in times.items()}
 
 

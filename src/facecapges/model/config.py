@@ -119,7 +119,7 @@ class TrainConfig:
 # message naming the setting, never a traceback deep in training.
 LIMITS: dict[str, dict[str, tuple | set]] = {
     "ModelConfig": {
-        "fps": (1, 240), "sr": (8000, 192000), "audio_repr": {"raw"}, "n_history": (1, 256),
+        "fps": (1, 240), "sr": (8000, 192000), "audio_repr": {"raw", "mel"}, "n_history": (1, 256),
         "n_joints": {47}, "n_torso": (1, 46), "n_face": {52}, "audio_frontend_channels": (1, 4096),
         "audio_tcn_channels": (1, 4096), "audio_tcn_dilations": (1, 256), "audio_dim": (1, 4096),
         "face_tcn_channels": (1, 4096), "face_tcn_dilations": (1, 256), "face_dim": (1, 4096),

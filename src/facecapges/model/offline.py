@@ -77,11 +77,10 @@ class OfflineDecoder(nn.Module):
         return torch.cat([z_a, z_f, self.head_enc(head)], -1)
 
     def no_input_embedding(self) -> torch.Tensor:
-        """Embedding (E,) of a frame before the sequence: the encoders over zero features."""
-        cfg = self.cfg
-        z_a = self.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
-        z_f = self.face_enc.mlp(self.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a))
-        return torch.cat([z_a, z_f, self.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
+        """Embedding (E,) of a frame before the sequence: the streaming kernel's (same encoders)."""
+        from facecapges.model.batched import no_input_embedding
+
+        return no_input_embedding(self)
 
     # -------------------------------------------------------------- decoding
     def decode(self, z: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:

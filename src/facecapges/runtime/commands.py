@@ -206,6 +206,10 @@ def register(app: typer.Typer) -> None:
                     from facecapges.runtime.vrm_viewer import open_vrm_viewer
 
                     server, feed_sink = open_vrm_viewer(avatar, ckpt, web_addr)
+                    if faces > 1:  # the VRM viewer shows one avatar: the first face
+                        from facecapges.runtime.sinks import ForFace
+
+                        feed_sink = ForFace(0, feed_sink)
                 else:
                     server = ViewerServer(avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
                     feed_sink = WebFeed(server)

@@ -22,7 +22,7 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
-     "face": 0,                        # which face / avatar (several with `live --faces N`)
+     "face": 0,                        # which face / avatar, 0-based (several with `live --faces N`)
      "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
                                        # compute of this frame; total = input frame → pose +
                                        # blendshapes ready (sending is not included)

@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-TARGET = 100
+TARGET = 150  # concurrent real-time streams with p99 under one frame period
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 
 

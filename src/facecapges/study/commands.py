@@ -113,7 +113,7 @@ def register(app: typer.Typer) -> None:
                         f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})", err=True,
                         fg=typer.colors.YELLOW)
         if not answers:
-            raise UserError(f"{study_dir}: no answers given with an invitation token yet in responses/")
+            raise UserError(f"{study_dir}: no answers yet in responses/ (that were given with an invitation token)")
         chosen = None
         if only.strip():
             chosen = [p.strip().upper() for p in only.split(",") if p.strip()]

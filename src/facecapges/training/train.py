@@ -86,6 +86,13 @@ def load_clips(cache_path: Path, speaker: int, split: str):
     return cache, clips
 
 
+def clip_head(c: ClipArrays, n_frames: int, fps: float, sr: int) -> ClipArrays:
+    """The first ``n_frames`` of a clip (audio cut at the first sample frame ``n_frames`` would own)."""
+    S = int(frame_sample_bounds(n_frames, fps, sr)[0])
+    mask = c.mask if c.mask is None or np.ndim(c.mask) == 1 else c.mask[:n_frames]
+    return ClipArrays(c.name, c.pose[:n_frames], c.head[:n_frames], c.face[:n_frames], c.audio[:S], mask)
+
+
 class SegmentSet:
     """All clips concatenated (each preceded by N zero frames) + segment start indices.
 
