@@ -171,10 +171,10 @@ class FaceCapture:
                 del self.states[fid]
                 continue
             results.append(self._lost(self.states[fid], timestamp_ms))
-        found = [r for r in results if r.face_found and r.landmarks is not None]
-        if found and self.primary_id not in {r.face_id for r in found}:
+        found = [(r, r.landmarks) for r in results if r.face_found and r.landmarks is not None]
+        if found and self.primary_id not in {r.face_id for r, _ in found}:
             # the primary face is lost (or there is none yet): follow the largest face in view
-            self.primary_id = max(found, key=lambda r: float(np.ptp(r.landmarks[:, 0]))).face_id
+            self.primary_id = max(found, key=lambda rl: float(np.ptp(rl[1][:, 0])))[0].face_id
         elif self.primary_id not in self.states:
             self.primary_id = None
         return results
@@ -207,10 +207,10 @@ class FaceCapture:
             if s["id"] is not None and s["id"] not in by_id:
                 s["id"] = None
         taken = {s["id"] for s in slots if s["id"] is not None}
-        new = [r for r in results if r.face_id not in taken and r.face_found and r.landmarks is not None]
-        new.sort(key=lambda r: float(r.landmarks[:, 0].mean()))
-        for r in new:
-            c = r.landmarks[:, :2].mean(0)
+        new = [(r, r.landmarks) for r in results if r.face_id not in taken and r.face_found and r.landmarks is not None]
+        new.sort(key=lambda rl: float(rl[1][:, 0].mean()))
+        for r, lm in new:
+            c = lm[:, :2].mean(0)
             free = [i for i, s in enumerate(slots) if s["id"] is None or not by_id[s["id"]].face_found]
             if not free:
                 break

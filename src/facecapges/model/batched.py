@@ -230,9 +230,9 @@ class Cascade:
 
     def __init__(self, lstm_t: torch.nn.LSTM, lstm_u: torch.nn.LSTM):
         H = self.H = lstm_t.hidden_size
-        self.w_t = lstm_t.weight_hh_l0.detach().t().contiguous()  # (H, 4H)
-        self.w_x = lstm_u.weight_ih_l0.detach()[:, -H:].t().contiguous()  # limb input = [e; s; o_t]
-        self.w_u = lstm_u.weight_hh_l0.detach().t().contiguous()
+        self.w_t = lstm_t.get_parameter("weight_hh_l0").detach().t().contiguous()  # (H, 4H)
+        self.w_x = lstm_u.get_parameter("weight_ih_l0").detach()[:, -H:].t().contiguous()  # limb input = [e; s; o_t]
+        self.w_u = lstm_u.get_parameter("weight_hh_l0").detach().t().contiguous()
         top = torch.stack([self.w_t.reshape(H, 4, H), self.w_x.reshape(H, 4, H)], 2)
         bottom = torch.stack([torch.zeros(H, 4, H), self.w_u.reshape(H, 4, H)], 2)
         self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).contiguous()
@@ -264,10 +264,10 @@ class _LSTMBlocks:
     """A one-layer ``nn.LSTM``'s W_ih blocks acting on the embedding and the pose of [e; s; extra]."""
 
     def __init__(self, lstm: torch.nn.LSTM, e_dim: int, s_dim: int):
-        w = lstm.weight_ih_l0.detach()
+        w = lstm.get_parameter("weight_ih_l0").detach()
         self.w_e = w[:, :e_dim].t().contiguous()  # (E, 4H)
         self.w_s = w[:, e_dim:e_dim + s_dim].t().contiguous()  # (J*6, 4H)
-        self.b = (lstm.bias_ih_l0 + lstm.bias_hh_l0).detach()[None]  # (1, 4H)
+        self.b = (lstm.get_parameter("bias_ih_l0") + lstm.get_parameter("bias_hh_l0")).detach()[None]  # (1, 4H)
 
 
 class BatchedStreamingGenerator:
@@ -470,8 +470,10 @@ class BatchedStreamingGenerator:
         if self.fast:
             for blocks, ring, c in ((self._bt, self.gx_t, cur[0] if cur else None),
                                     (self._bu, self.gx_u, cur[1] if cur else None)):
-                base = c if c is not None else torch.addmm(blocks.b, e, blocks.w_e)
-                ring[idx, row] = base.addmm(pose, blocks.w_s)
+                if c is None:
+                    assert e is not None  # without ``cur`` the embedding makes the pose-free part
+                    c = torch.addmm(blocks.b, e, blocks.w_e)
+                ring[idx, row] = c.addmm(pose, blocks.w_s)
         else:
             self.hist[idx, row] = pose
         self.frames[idx] = frames + 1

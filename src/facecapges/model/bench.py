@@ -115,12 +115,15 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
                 outs.append(fast.step(audio[t], face[t], head[t]))
                 t1, c1 = clock(), cpu()
                 euler(outs[-1])
-                t_fast.append(t1 - t0), c_fast.append(c1 - c0)
-                t_euler.append(clock() - t1), c_euler.append(cpu() - c1)
+                t_fast.append(t1 - t0)
+                c_fast.append(c1 - c0)
+                t_euler.append(clock() - t1)
+                c_euler.append(cpu() - c1)
             for t, a in zip(frames, outs):
                 t0, c0 = clock(), cpu()
                 b = naive.step(audio[t], face[t], head[t])
-                t_naive.append(clock() - t0), c_naive.append(cpu() - c0)
+                t_naive.append(clock() - t0)
+                c_naive.append(cpu() - c0)
                 diff = max(diff, float(np.abs(a - b).max()))
         ms = {k: np.array(v) * 1e3 for k, v in (("fast", t_fast), ("euler", t_euler), ("naive", t_naive),
                                                  ("fast_cpu", c_fast), ("euler_cpu", c_euler), ("naive_cpu", c_naive))}

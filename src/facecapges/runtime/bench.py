@@ -132,12 +132,16 @@ class PoseRange:
 
 def session(ckpt, video: Path, train_bvh: Path, seconds: float) -> dict:
     from facecapges.runtime.session import build_session
+    from facecapges.runtime.sources import FileVideo
 
     rng = PoseRange(train_bvh)
     sess = build_session(ckpt, video=video, loop=True)
     sched = sess.scheduler
     n = int(round(seconds * ckpt.fps))
-    rss, inside, dist_sum, dist_n, seg = [], 0, [], [], max(n // 10, 1)
+    rss: list[float] = []
+    dist_sum: list[float] = []
+    dist_n: list[int] = []
+    inside, seg = 0, max(n // 10, 1)
     worst = -math.inf
 
     class Probe:
@@ -162,6 +166,7 @@ def session(ckpt, video: Path, train_bvh: Path, seconds: float) -> dict:
     sched.sinks.append(Probe())
     t0 = time.perf_counter()
     video = sess.video
+    assert isinstance(video, FileVideo)  # the session plays the clip as a camera
     try:
         sched.run(max_frames=n)
         rep = sched.report(warmup=10)
@@ -208,7 +213,8 @@ def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
     out = {}
     try:
         for blend in BLEND_MODES:
-            sender = VmcSender(bvh.skeleton, *rx.getsockname(), blend=blend)
+            host, port = rx.getsockname()
+            sender = VmcSender(bvh.skeleton, host, port, blend=blend)
             ms = []
             for k in range(len(pose)):
                 fr = OutputFrame(k, k / 15, pose[k], quats[k], faces[k], rot.identity_rot6d(), True, {})
@@ -237,7 +243,7 @@ def run(quick: bool, shared: Path, session_s: float | None = None) -> dict:
     sets the session length (e.g. 3600 for the 1 h soak of the runtime issue)."""
     ckpt = _checkpoint()
     clip, train = shared_file(shared, CLIP), shared_file(shared, TRAIN_BVH)
-    out = {"checkpoint": str(ckpt.path)}
+    out: dict[str, object] = {"checkpoint": str(ckpt.path)}
     out["vmc_output"] = vmc_output(ckpt, train, 60 if quick else 300)
     out["per_frame"] = per_frame(ckpt, clip, max_frames=30 if quick else None)
     out["run_60s"] = run_60s(ckpt, clip, 4.0 if quick else 10.0)

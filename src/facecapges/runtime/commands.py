@@ -131,6 +131,7 @@ def register(app: typer.Typer) -> None:
         from facecapges.errors import UserError, check_output_dir
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.runtime.session import build_session
+        from facecapges.runtime.sources import LiveLinkFace
         from facecapges.runtime.live import default_outputs, livelink_hint, per_face_sinks
         from facecapges.runtime.web_server import is_loopback, parse_address
 
@@ -187,7 +188,7 @@ def register(app: typer.Typer) -> None:
         sinks, senders, ups = per_face_sinks(ckpt, faces, record, vmc_addr, vmc_blend=vmc_blend,
                                              vmc_avatar=vmc_avatar, rate=rate, face_layout=face_json)
         server = None
-        if vrma:
+        if vrma and record is not None:  # --vrma without --record was refused above
             from facecapges.avatar.vrma import VrmaRecorder
 
             sinks.append(VrmaRecorder(record / "motion.vrma", ckpt.skeleton, ckpt.fps))
@@ -222,6 +223,7 @@ def register(app: typer.Typer) -> None:
                 sess.add_sink(feed_sink)
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
+            assert src is not None  # build_session opened one input
             vmc_text = ([f"VMC {vmc_addr[0]}:{vmc_addr[1]}"] if faces == 1 else
                         [f"VMC {vmc_addr[0]}:{vmc_addr[1]}…{vmc_addr[1] + faces - 1} (face i on port +i-1)"]) \
                 if vmc_addr else []
@@ -256,7 +258,7 @@ def register(app: typer.Typer) -> None:
             written = sess.close()
         report = sess.scheduler.report() if sess.scheduler is not None else {}
         report["stopped_by"] = why
-        if feed is not None:
+        if isinstance(feed, LiveLinkFace):
             report["livelink"] = feed.receiver.stats()
         if server is not None:
             report["viewer"] = {"frames_sent": server.frames_sent, "rejected_requests": server.rejected_requests,

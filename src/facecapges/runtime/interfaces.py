@@ -28,7 +28,9 @@ from facecapges.runtime.frames import OutputFrame
 
 @runtime_checkable
 class VideoSource(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...  # an attribute or a property
+
     fps: float
     ended: bool  # no frame will come any more (end of a file, a camera that died)
     skipped: int  # frames never handed out because a newer one was due
@@ -43,7 +45,9 @@ class VideoSource(Protocol):
 
 @runtime_checkable
 class FaceFeed(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...  # an attribute or a property
+
     ended: bool
 
     def start(self, t0: float) -> None: ...
@@ -56,7 +60,9 @@ class FaceFeed(Protocol):
 
 @runtime_checkable
 class AudioSource(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...  # an attribute or a property
+
 
     def start(self, t0: float) -> None: ...
 

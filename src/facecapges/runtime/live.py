@@ -67,13 +67,16 @@ def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, i
     (for their stats) and, with ``rate`` above the model rate, the per-face interpolators
     the senders sit behind (recorders always get the model's own frames).
     """
+    from facecapges.runtime.interfaces import Sink
     from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace
     from facecapges.runtime.upsample import Upsampler
 
-    sinks, senders, ups = [], [], []
+    sinks: list[Sink] = []
+    senders: list[VmcSender] = []
+    ups: list[Upsampler] = []
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
-        per = []
+        per: list[Sink] = []
         if record is not None:
             per += [BvhRecorder(record / f"motion{sfx}.bvh", ckpt.skeleton, ckpt.fps),
                     FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout)]

@@ -159,7 +159,9 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     from facecapges.io.audio import save_audio
     from facecapges.runtime.head import check_head_mode, head_follow
     from facecapges.runtime.session import build_session, full_quaternions
+    from facecapges.runtime.interfaces import Sink
     from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
+    from facecapges.runtime.sources import FileAudio
 
     t_start = time.perf_counter()
     video = Path(video)
@@ -174,19 +176,22 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         from facecapges.avatar.vrm_view import VrmDriver
 
         driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
-    mems, sinks = [], []
+    mems: list[MemoryRecorder] = []
+    sinks: list[Sink] = []
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
         mem = MemoryRecorder()
         mems.append(mem)
-        per = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
+        per: list[Sink] = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
                FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout), mem]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
                          sinks=sinks, head=head, faces=faces)
     sched = sess.scheduler
+    audio_src = sess.audio
+    assert isinstance(audio_src, FileAudio)  # run reads its speech from a file
     try:
-        total = int(np.ceil(sess.audio.duration_s * fps - 1e-6))
+        total = int(np.ceil(audio_src.duration_s * fps - 1e-6))
         if max_frames is not None:
             total = min(total, max_frames)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -201,7 +206,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
 
             why = sched.run(max_frames=total, on_frame=on_frame)
         t_loop_end = time.perf_counter()
-        input_audio = sess.audio.samples
+        input_audio = audio_src.samples
     finally:
         sess.close()
     if why == "interrupted":

@@ -212,6 +212,7 @@ class Scheduler:
                 src.start(self.t0)
 
     def _now_s(self) -> float:
+        assert self.t0 is not None  # set by start()
         return time.monotonic() - self.t0
 
     def input_ended(self) -> bool:
@@ -239,6 +240,7 @@ class Scheduler:
             return [FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found)) if r is not None else
                     FaceSample(vf.ts_s, np.zeros(N_BLENDSHAPES, np.float32),
                                rot.identity_rot6d().astype(np.float32), False) for r in res]
+        assert self.face_feed is not None  # a scheduler has a video or a face feed
         sample = self.face_feed.next_face(deadline)
         self._t_input = time.perf_counter()
         return [sample]

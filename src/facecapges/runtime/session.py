@@ -117,7 +117,7 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics)
         elif camera is not None:
             sess.video = S.CameraVideo(camera)
-        else:
+        elif livelink is not None:  # one input was chosen above
             sess.face_feed = S.LiveLinkFace(livelink, host)
         if audio is not None:
             sess.audio = S.FileAudio(audio, sr, realtime=realtime, loop=loop)
@@ -139,10 +139,10 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             from facecapges.capture.pipeline import FaceCapture
 
             resolve_model(None)
-            file_video = isinstance(sess.video, S.FileVideo)
-            K = sess.video.intrinsics if file_video else None
+            file_video = sess.video if isinstance(sess.video, S.FileVideo) else None
+            K = file_video.intrinsics if file_video is not None else None
             sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
-            if file_video and sess.video.depth_files is not None:
+            if file_video is not None and file_video.depth_files is not None and K is not None:
                 from facecapges.capture.depth import DepthHeadTracker
 
                 sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)

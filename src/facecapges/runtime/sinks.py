@@ -24,10 +24,14 @@ Every sink satisfies :class:`facecapges.runtime.interfaces.Sink`.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from facecapges.runtime.frames import OutputFrame
+
+if TYPE_CHECKING:
+    from facecapges.io.bvh import BvhWriter
 
 
 class BvhRecorder:
@@ -35,7 +39,7 @@ class BvhRecorder:
         self.path, self.skeleton, self.fps = Path(path), skeleton, fps
         self.poses: list[np.ndarray] = []  # the frames of the current second, not yet on disk
         self.block = max(1, int(round(fps)))
-        self.writer = None
+        self.writer: BvhWriter | None = None
         self.closed = False
 
     def write(self, out: OutputFrame) -> None:

@@ -124,6 +124,7 @@ class FileVideo:
         """The newest unread frame with time < ``deadline_s`` (older unread ones skipped), or None."""
         while not self.ended:
             if not self._in_loop(self._i):
+                assert self.loop_period_s is not None  # out of the loop only when there is one
                 if self._offset + self.loop_period_s >= deadline_s or not self._restart():
                     return None
                 continue
@@ -210,6 +211,7 @@ class CameraVideo:
                 time.sleep(0.02)
                 continue
             fails = 0
+            assert self._t0 is not None  # set by start(), before this thread runs
             ts = time.monotonic() - self._t0
             with self._lock:
                 self._seq += 1
@@ -321,7 +323,7 @@ class MicAudio:
         self.written = 0
         self.overflows = 0
         self._lock = threading.Lock()
-        self._t0 = None
+        self._t0: float | None = None
         try:
             sd.check_input_settings(device=dev, channels=1, samplerate=sr, dtype="float32")
             self.stream = sd.InputStream(device=dev, channels=1, samplerate=sr, dtype="float32",

@@ -30,7 +30,7 @@ import mimetypes
 import sys
 import threading
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Self
 
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
@@ -172,7 +172,7 @@ class ViewerServer:
         self._ready.set()
         await self._server.wait_closed()
 
-    def start(self) -> "ViewerServer":
+    def start(self) -> Self:
         def run():
             self._loop = asyncio.new_event_loop()
             try:

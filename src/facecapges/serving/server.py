@@ -143,6 +143,7 @@ class StreamServer:
         self._wake, self._stop = asyncio.Event(), asyncio.Event()  # made anew in the server's loop by _main
         self.bound: tuple[str, int] | None = None
         self.stats: collections.Counter[str] = collections.Counter()
+        self._closing: set[asyncio.Future] = set()  # close tasks still running
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
 
     def _init_worker(self) -> None:
@@ -275,7 +276,13 @@ class StreamServer:
             self.stats["slow_closes"] += 1
             st.closed = True
             st.pending.clear()
-            asyncio.ensure_future(st.ws.close(1008, "not reading its output"))
+            self._close_later(st.ws, 1008, "not reading its output")
+
+    def _close_later(self, ws: ServerConnection, code: int, reason: str) -> None:
+        """Close ``ws`` without waiting; the task is kept until it ends (asyncio holds tasks weakly)."""
+        task = asyncio.ensure_future(ws.close(code, reason))
+        self._closing.add(task)
+        task.add_done_callback(self._closing.discard)
 
     async def _batch_loop(self) -> None:
         loop = asyncio.get_running_loop()
@@ -288,13 +295,13 @@ class StreamServer:
             self._wake.clear()
             last = time.monotonic()
             self._sync_slots()
-            due = [st for st in self.streams.values() if st.pending and not st.closed]
+            due = [st for st in self.streams.values() if st.pending and not st.closed and st.slot is not None]
             if not due:
                 continue
             items = [st.pending.popleft() for st in due]
             t0 = time.monotonic()
             try:
-                _, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due],
+                _, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due if st.slot is not None],
                                                           [it[0] for it in items])
             except Exception as exc:  # noqa: BLE001  never expected: report it to the streams of this tick
                 self.stats["tick_errors"] += 1
@@ -349,7 +356,7 @@ class StreamServer:
                 if why is not None:
                     self.stats[why[0]] += 1
                     st.closed = True
-                    asyncio.ensure_future(st.ws.close(why[1], why[2]))
+                    self._close_later(st.ws, why[1], why[2])
 
     # ---------------------------------------------------------------- lifecycle
     async def _main(self) -> None:

@@ -46,6 +46,7 @@ from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
+from facecapges.study.design import ParticipantPlan
 from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
 
 PAGE_DIR = Path(__file__).with_name("page")
@@ -112,10 +113,16 @@ class StudyApp:
                 "avatar": "vrm" if self.study.doc.get("avatar") == VRM_FILE else "glb",
                 "language": self.language, "languages": list(LANGUAGES)}
 
+    def _plan(self, pid: str) -> ParticipantPlan:
+        plan = self.study.plan.participant(pid)
+        if plan is None:  # a token always names a planned participant
+            raise HttpError(404, f"participant {pid} is not in the study plan")
+        return plan
+
     def trial(self, pid: str, i: int) -> dict:
-        t = self.study.plan.participant(pid).trials[i]
+        t = self._plan(pid).trials[i]
         meta = self.study.clips[t.clip]
-        base = f"/media/{self.study.plan.participant(pid).token}/{i}"
+        base = f"/media/{self._plan(pid).token}/{i}"
         return {"index": i, "total": len(self.study.plan.clips), "fps": self.study.doc["fps"],
                 "frames": meta["frames"], "duration": meta["duration"], "versions": len(t.systems),
                 "audio": f"{base}/audio.wav", "face": f"{base}/face.json",
@@ -127,7 +134,7 @@ class StudyApp:
             return None
         pid = self.participant(m.group(1))
         i = self.current(pid, m.group(2))
-        t = self.study.plan.participant(pid).trials[i]
+        t = self._plan(pid).trials[i]
         if m.group(3) == "audio.wav":
             return media_dir(self.study.dir, t.clip) / "audio.wav"
         if m.group(3) == "face.json":
@@ -239,7 +246,7 @@ class _Handler(BaseHTTPRequestHandler):
             return self._json(exc.status, {"error": str(exc)})
         except OSError:
             return self._json(404, {"error": "not found"})
-        if f is None:
+        if f is None or data is None:
             return self._json(200, doc)
         self._send(200, data, CONTENT_TYPES.get(f.suffix, "application/octet-stream"))
 

@@ -170,7 +170,7 @@ class AnswerStore:
                 raise LimitError(f"at most {MAX_PLAYS} {kind} events are recorded per clip; not recorded")
             self._append(pid, {"type": kind, "trial": trial})
 
-    def answer(self, pid: str, trial: int, ranks_by_position: dict) -> dict:
+    def answer(self, pid: str, trial: int, ranks_by_position: object) -> dict:  # checked: from the client
         """Save the ranks of trial ``trial`` (must be the next one); returns the new state."""
         part = self._participant(pid)
         k = len(self.plan.systems)

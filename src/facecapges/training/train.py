@@ -43,6 +43,7 @@ import json
 import math
 import time
 from collections.abc import Callable
+from typing import Generic, TypeVar
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -104,6 +105,10 @@ class SegmentSet:
                  frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None)):
         N = cfg.n_history
         self.N, self.L = N, clip_len
+
+        def pad(x: np.ndarray) -> np.ndarray:  # N zero frames ahead of the clip: the first window's history
+            return np.concatenate([np.zeros((N,) + x.shape[1:], np.float32), x.astype(np.float32)])
+
         audio, face, head, pose, starts, mask = [], [], [], [], [], []
         offset = 0
         ranges = frame_range if isinstance(frame_range, list) else [frame_range] * len(clips)
@@ -111,7 +116,6 @@ class SegmentSet:
             T = len(c.pose)
             hi = T if hi is None else min(hi, T)
             a = frame_audio(c.audio, T, cfg.fps, cfg.sr)
-            pad = lambda x: np.concatenate([np.zeros((N,) + x.shape[1:], np.float32), x.astype(np.float32)])
             audio.append(pad(a))
             face.append(pad(c.face))
             head.append(pad(c.head))
@@ -218,8 +222,8 @@ def start_heads_at_mean(head_t: torch.nn.Sequential, head_u: torch.nn.Sequential
     real = train_set.pose.any(1)  # the zero frames padding each clip are not poses
     mean = torch.from_numpy(train_set.pose.reshape(-1, mcfg.pose_dim)[real].mean(0))
     with torch.no_grad():
-        head_t[-1].bias.copy_(mean[: mcfg.n_torso * 6])
-        head_u[-1].bias.copy_(mean[mcfg.n_torso * 6:])
+        head_t[-1].get_parameter("bias").copy_(mean[: mcfg.n_torso * 6])
+        head_u[-1].get_parameter("bias").copy_(mean[mcfg.n_torso * 6:])
 
 
 def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
@@ -284,8 +288,11 @@ def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torc
     raise UserError(f"unknown optimizer {cfg.optimizer!r} (sgd or adam)")
 
 
+M = TypeVar("M", bound=torch.nn.Module)  # the variant's model class
+
+
 @dataclass(frozen=True)
-class Variant:
+class Variant(Generic[M]):
     """What one kind of generator needs from the trainer (module docs, "Model variants").
 
     ``build(cfg)`` makes the generator; ``forward(G, batch)`` gives the generated and
@@ -296,10 +303,10 @@ class Variant:
     """
 
     name: str
-    build: Callable[[ModelConfig], torch.nn.Module]
-    forward: Callable[[torch.nn.Module, dict[str, torch.Tensor]], tuple[torch.Tensor, torch.Tensor]]
-    output_heads: Callable[[torch.nn.Module], tuple[torch.nn.Sequential, torch.nn.Sequential]]
-    export: Callable[[Path, torch.nn.Module, dict], Path]
+    build: Callable[[ModelConfig], M]
+    forward: Callable[[M, dict[str, torch.Tensor]], tuple[torch.Tensor, torch.Tensor]]
+    output_heads: Callable[[M], tuple[torch.nn.Sequential, torch.nn.Sequential]]
+    export: Callable[[Path, M, dict], Path]
     meta: dict = field(default_factory=dict)
 
 
