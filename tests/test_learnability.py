@@ -21,9 +21,9 @@ from facecapges.skeleton import UPPER_BODY
 FPS, SR = 15, 16000
 SPF = 1067
 ARMS = [UPPER_BODY.index(j) for j in ("RightArm", "RightForeArm", "LeftArm", "LeftForeArm")]
-MODEL = dict(audio_frontend_channels=(8, 16, 16), audio_tcn_channels=16, audio_dim=32, face_tcn_channels=8,
+MODEL = dict(audio_repr="mel", audio_frontend_channels=(8, 16, 16), audio_tcn_channels=16, audio_dim=32, face_tcn_channels=8,
              face_dim=8, lstm_hidden=32, mlp_hidden=48, disc_channels=16)
-TRAIN = dict(epochs=24, batch_size=16, optimizer="adam", lr_base=0.008, adv_start_epoch=1000, num_threads=2,
+TRAIN = dict(epochs=60, batch_size=16, optimizer="adam", lr_base=0.008, adv_start_epoch=1000, num_threads=1,
              seed=0)
 
 
