@@ -153,15 +153,10 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
-    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
-    import torch
+def read_checkpoint_file(p: Path, fmt: str, what: str = "FaceCapGes") -> tuple[dict, dict]:
+    """Tensors and metadata of a checkpoint file of format ``fmt``; one clear error for anything else."""
     from safetensors import SafetensorError, safe_open
 
-    from facecapges.model.config import model_config_from_dict
-    from facecapges.model.network import FaceCapGes, with_default_norms
-
-    p = resolve(path, style)
     try:
         with safe_open(str(p), framework="pt") as f:
             raw_meta = (f.metadata() or {}).get("facecapges")
@@ -169,13 +164,25 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
     if raw_meta is None:
-        raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
+        raise file_error(p, f"not a {what} checkpoint (no 'facecapges' metadata)")
     try:
         meta = json.loads(raw_meta)
     except json.JSONDecodeError:
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != FORMAT:
-        raise file_error(p, f"unsupported checkpoint format {meta.get('format')!r} (expected {FORMAT})")
+    if meta.get("format") != fmt:
+        raise file_error(p, f"not a {what} checkpoint (format {meta.get('format')!r}, expected {fmt})")
+    return tensors, meta
+
+
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
+    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
+    import torch
+
+    from facecapges.model.config import model_config_from_dict
+    from facecapges.model.network import FaceCapGes, with_default_norms
+
+    p = resolve(path, style)
+    tensors, meta = read_checkpoint_file(p, FORMAT)
     cfg = model_config_from_dict(meta["model_config"])
     model = FaceCapGes(cfg)
     try:

@@ -39,7 +39,6 @@ a streaming model).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -141,20 +140,12 @@ def save_offline(path: str | Path, model: OfflineDecoder, meta: dict) -> Path:
 
 def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
     """An offline-decoding checkpoint (eval mode) and its metadata."""
-    from safetensors import SafetensorError, safe_open
+    from facecapges.model.checkpoint import read_checkpoint_file
 
     p = Path(path)
     if not p.is_file():
         raise file_error(p, "offline-decoding checkpoint not found")
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    meta = json.loads(raw) if raw else {}
-    if meta.get("format") != OFFLINE_FORMAT:
-        raise file_error(p, f"not an offline-decoding checkpoint (format {meta.get('format')!r})")
+    tensors, meta = read_checkpoint_file(p, OFFLINE_FORMAT, "offline-decoding")
     model = OfflineDecoder(model_config_from_dict(meta["model_config"]))
     try:
         model.load_state_dict(with_default_norms(model, tensors), strict=True)
