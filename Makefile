@@ -12,6 +12,7 @@ demo: setup
 	$(VENV)/bin/facecapges demo --out out --force
 
 test: setup
+	bash scripts/setup-test.sh
 	$(PY) -m pytest -q --durations=15
 
 setup: $(STAMP)

@@ -44,7 +44,7 @@ def make_clips(tmp: Path, beat_bvh: Path, beat_wav: Path, n_clips: int = 3, seco
         w[:, ARKIT_NAMES.index("jawOpen")] = np.clip(rms / (rms.max() + 1e-9), 0, 1) * 0.6
         w[:, ARKIT_NAMES.index("eyeBlinkLeft")] = w[:, ARKIT_NAMES.index("eyeBlinkRight")] = \
             (np.arange(nf) % int(face_fps * 1.5) < 3).astype(float)
-        write_face_json(media / f"{cid}.json", w, face_fps)
+        write_face_json(media / f"{cid}.json", w, face_fps, layout="full")  # the track at its own rate
         entry = {"id": cid, "audio": f"media/{cid}.wav", "face": f"media/{cid}.json", "bvh": {}}
         for s, shift in zip(systems, SHIFTS * 3):
             write_bvh(media / f"{cid}-{s}.bvh", bvh.skeleton, bvh.motion[start + shift: start + shift + n], fps)

@@ -67,3 +67,12 @@ def pytest_runtest_makereport(item, call):
     if report.skipped and os.environ.get("CI", "").lower() == "true" and not hasattr(report, "wasxfail"):
         report.outcome = "failed"
         report.longrepr = f"skipped in CI (CI=true forbids skips): {report.longrepr}"
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The number of cases the fuzz suite (tests/test_fuzz.py) tried, when it ran."""
+    import sys
+
+    fuzz = sys.modules.get("test_fuzz")
+    if fuzz is not None and sum(fuzz.CASES.values()):
+        terminalreporter.write_line(f"fuzz cases tried: {sum(fuzz.CASES.values())} ({dict(fuzz.CASES)})")

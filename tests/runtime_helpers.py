@@ -27,3 +27,25 @@ def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
 def cli_popen(*args: str, **kw) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-u", "-m", "facecapges.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, **kw)
+
+
+def wait_line(proc: subprocess.Popen, prefix: str, timeout: float = 120.0) -> str | None:
+    """The first stdout line of ``proc`` starting with ``prefix`` (None if it ends or ``timeout`` s pass first)."""
+    import time
+
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        line = proc.stdout.readline()
+        if not line:
+            return None
+        if line.startswith(prefix):
+            return line
+    return None
+
+
+def refused(p: subprocess.CompletedProcess, *words: str) -> None:
+    """Assert a command failed the way a user should see it: exit 2, one ``error:`` line, no traceback."""
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert "Traceback" not in p.stderr and p.stderr.startswith("error:"), p.stderr
+    for w in words:
+        assert w in p.stderr, p.stderr

@@ -67,8 +67,14 @@ def test_emotions():
     assert active(vrm0_presets(face(mouthSmileLeft=0.8, mouthSmileRight=0.8))) == {"Fun"}
     assert active(vrm0_presets(face(mouthSmileLeft=0.8, mouthSmileRight=0.8, cheekSquintLeft=0.6,
                                     cheekSquintRight=0.6))) == {"Joy"}
-    assert active(vrm0_presets(face(browDownLeft=0.7, browDownRight=0.7))) == {"Angry"}
-    assert active(vrm0_presets(face(browInnerUp=0.7, mouthFrownLeft=0.6, mouthFrownRight=0.6))) == {"Sorrow"}
+    assert active(vrm0_presets(face(browDownLeft=0.8, browDownRight=0.8, eyeSquintLeft=0.5,
+                                    eyeSquintRight=0.5))) == {"Angry"}
+    # one action unit alone is not an emotion: speech moves brows and lip corners
+    assert not active(vrm0_presets(face(browDownLeft=0.8, browDownRight=0.8)), 1e-9)
+    assert not active(vrm0_presets(face(browInnerUp=0.9)), 1e-9)
+    assert not active(vrm0_presets(face(mouthFrownLeft=0.9, mouthFrownRight=0.9)), 1e-9)
+    assert not active(vrm0_presets(face(mouthSmileLeft=0.9)), 1e-9)  # a one-sided smirk
+    assert active(vrm0_presets(face(browInnerUp=0.8, mouthFrownLeft=0.7, mouthFrownRight=0.7))) == {"Sorrow"}
     assert "Surprised" in active(vrm0_presets(face(eyeWideLeft=0.8, eyeWideRight=0.8, browOuterUpLeft=0.7,
                                                    browOuterUpRight=0.7)))
     # a tracker's small resting values stay at 0
@@ -89,3 +95,27 @@ def test_batched_equals_per_frame_and_vrm1():
     assert list(vrm1_expressions(w[3]).values()) == pytest.approx(batch[3].tolist())
     with pytest.raises(ValueError):
         vrm0_weights(w[:, :51])
+
+
+def test_real_iphone_face_blinks_are_exact():
+    """On a real ARKit face (the Live Link recording), the blink split reproduces each eyelid in every frame."""
+    import gzip
+    import struct
+
+    from conftest import shared_file
+
+    from facecapges.runtime.livelink import decode_packet
+
+    raw = gzip.decompress(shared_file("data/livelink/dao.gesichter").read_bytes())
+    pos, W = 5, []
+    for _ in range(struct.unpack_from(">I", raw, 1)[0]):
+        (n,) = struct.unpack_from(">I", raw, pos)
+        W.append(decode_packet(raw[pos + 4:pos + 4 + n]).weights52)
+        pos += 4 + n
+    W = np.array(W)
+    P = dict(zip(VRM0_PRESETS, vrm0_weights(W).T))
+    np.testing.assert_allclose(P["Blink"] + P["Blink_L"], W[:, ARKIT_NAMES.index("eyeBlinkLeft")], atol=1e-6)
+    np.testing.assert_allclose(P["Blink"] + P["Blink_R"], W[:, ARKIT_NAMES.index("eyeBlinkRight")], atol=1e-6)
+    assert P["Blink"].max() > 0.8  # the recording blinks
+    vis = np.stack([P[v] for v in "AIUEO"], -1)
+    assert vis.sum(-1).max() <= 1.0 + 1e-9 and vis.max() > 0.4  # the mouth moves, never over-opened

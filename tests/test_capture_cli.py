@@ -27,7 +27,7 @@ def _invoke(args):
 def test_capture_writes_face_json_and_overlay(face_video, tmp_path):
     out, ov = tmp_path / "face.json", tmp_path / "ov.mp4"
     res = _invoke(["capture", str(face_video), "--out", str(out), "--fps", "15", "--estimator", "hybrid",
-                   "--overlay", str(ov), "--max-frames", "20"])
+                   "--overlay", str(ov), "--max-frames", "20", "--face-json", "full"])
     assert res.exit_code == 0, res.output + repr(res.exception)
     doc = json.loads(out.read_text())
     assert doc["names"] == list(ARKIT_NAMES) and doc["fps"] == 15
@@ -104,7 +104,7 @@ def test_capture_with_depth_frames(face_video, tmp_path):
     (tmp_path / "K.json").write_text(json.dumps({"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy}))
     out = tmp_path / "face.json"
     res = _invoke(["capture", str(face_video), "--out", str(out), "--fps", "25", "--depth", str(ddir),
-                   "--intrinsics", str(tmp_path / "K.json"), "--max-frames", "4"])
+                   "--intrinsics", str(tmp_path / "K.json"), "--max-frames", "4", "--face-json", "full"])
     assert res.exit_code == 0, res.output + repr(res.exception)
     frames = json.loads(out.read_text())["frames"]
     assert len(frames) == 4

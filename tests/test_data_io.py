@@ -127,7 +127,7 @@ def test_write_read_round_trip_with_head(tmp_path):
     from scipy.spatial.transform import Rotation
 
     head = matrix_to_rot6d(Rotation.random(12, random_state=0).as_matrix()).astype(np.float32)
-    write_face_json(tmp_path / "o.json", w, 15.0, head_rot6d=head)
+    write_face_json(tmp_path / "o.json", w, 15.0, head_rot6d=head, layout="full")
     doc = json.loads((tmp_path / "o.json").read_text())
     assert doc["names"] == list(ARKIT_NAMES) and len(doc["frames"]) == 12
     face = read_face_json(tmp_path / "o.json")

@@ -44,6 +44,18 @@ def test_fk_arm_directions_match_the_stored_positions(take, target):
         for a, b in ((f"{side}Arm", f"{side}ForeArm"), (f"{side}ForeArm", f"{side}Hand")):
             err = angles_deg(P[:, target.index(b)] - P[:, target.index(a)], Ps[:, j[b]] - Ps[:, j[a]])
             assert np.median(err) < 0.5 and err.max() < 2.0, (take, a, b, np.median(err), err.max())
+        # the clavicle (not stored) puts BEAT's upper arm where the chest→arm vector points, corrected by the
+        # layout's rest correction for the two skeletons' proportions (seen in each chest's frame)
+        _, euler = motion_to_euler(target, pose_to_motion(target, r.pose))
+        G, P_ = global_transforms(target, local_matrices(target, euler))
+        S, pos = source_world(raw, layout)
+        chest, arm = target.index("Spine3"), target.index(f"{side}Arm")
+        d_t = np.einsum("tji,tj->ti", G[:, chest], P_[:, arm] - P_[:, chest])
+        d_s = np.einsum("tji,tj->ti", S["Spine3"], pos[f"{side}Arm"] - pos["Spine3"])
+        K, Q = layout.clavicles[f"{side}Shoulder"]["correction"], layout.skeleton_map.corrections["Spine"]
+        err = angles_deg(d_t, d_s @ Q @ K.T)
+        assert err.max() < 0.5, (take, side, err.max())
+        assert angles_deg(d_s, d_s.mean(0)).max() > 5  # the source's clavicle does move
 
 
 def _hinge_axis(upper: np.ndarray, forearm_dir: np.ndarray) -> np.ndarray:

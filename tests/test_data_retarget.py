@@ -10,7 +10,8 @@ import pytest
 
 from conftest import shared_file
 from facecapges import rotations as rot
-from facecapges.data.retarget import (auto_map, load_map, rest_corrections, retarget_bvh, retarget_motion)
+from facecapges.data.retarget import (auto_map, load_map, rest_corrections, retarget_bvh, retarget_motion,
+                                      shipped_map_path)
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh
 from facecapges.skeleton import (UPPER_BODY, global_transforms, local_matrices, motion_to_euler, motion_to_pose,
@@ -134,3 +135,27 @@ def test_masked_joints_follow_their_parent(beat, zeggs_path):
     R = rot.rot6d_to_matrix(pose[:, ~mask].astype(np.float64))
     assert np.allclose(R, np.eye(3), atol=1e-5)
     assert pose_to_motion(beat.skeleton, pose).shape == (50, beat.skeleton.n_channels)
+
+
+def test_own_joint_map_for_other_names(beat, zeggs_path, tmp_path):
+    """Bring your own mocap: other joint names + a written map (no stated corrections) = the shipped result."""
+    import json
+    import re
+
+    text = re.sub(r"(ROOT|JOINT) (\w+)", r"\1 mocap_\2", zeggs_path.read_text())
+    mine = tmp_path / "mine.bvh"
+    mine.write_text(text)
+    zmap = json.loads(shipped_map_path("zeggs").read_text())
+    own = {"name": "mystudio", "speaker": 101, "joints": {t: f"mocap_{s}" for t, s in zmap["joints"].items()}}
+    (tmp_path / "mystudio.json").write_text(json.dumps(own))
+    with pytest.raises(UserError, match="cannot map"):
+        auto_map(read_bvh(mine).skeleton)
+    res = run("retarget", mine, "--map", tmp_path / "mystudio.json", "--out", tmp_path / "o.bvh", "--target",
+              shared_file("data/beat/2_scott_0_1_1.bvh"))
+    assert res.returncode == 0, res.stderr
+    assert "joint map 'mystudio'" in res.stdout
+    ref = retarget_bvh(zeggs_path, beat.skeleton)
+    got = read_bvh(tmp_path / "o.bvh")
+    want = pose_to_motion(beat.skeleton, ref.pose)
+    P0, P1 = fk(beat.skeleton, want)[1], fk(got.skeleton, got.motion)[1]
+    assert np.abs(P0 - P1).max() < 0.01  # cm

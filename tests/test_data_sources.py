@@ -100,6 +100,18 @@ def test_export_moves_arms_and_fingers(exported):
     assert bvh.fps == 15 and bvh.n_frames == 1033 and bvh.skeleton.n_joints == 75
     assert np.ptp(P[:, bvh.skeleton.index("RightHandIndex3")], axis=0).max() > 10  # the fingers travel (cm)
     assert src.skeleton.n_joints == 75 and bvh.skeleton.names != src.skeleton.names
+    # the cache's fill of the masked metacarpals keeps every measured bone pointing where the retarget put it
+    from facecapges.data.retarget import retarget_bvh
+    from facecapges.skeleton import pose_to_motion
+
+    direct = retarget_bvh(shared_file("data/zeggs/067_Speech_2_x_1_0.bvh"), bvh.skeleton, fps=15)
+    Pd = joint_positions(bvh.skeleton, pose_to_motion(bvh.skeleton, direct.pose))
+    for a, b in (("RightHandIndex1", "RightHandIndex2"), ("LeftHandPinky2", "LeftHandPinky3"),
+                 ("RightForeArm", "RightHand")):
+        ia, ib = bvh.skeleton.index(a), bvh.skeleton.index(b)
+        u, v = P[:, ib] - P[:, ia], Pd[:, ib] - Pd[:, ia]
+        cos = (u * v).sum(-1) / np.linalg.norm(u, axis=-1) / np.linalg.norm(v, axis=-1)
+        assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.1, (a, b)
 
 
 def test_export_plays_in_blender(exported, tmp_path):
@@ -133,3 +145,27 @@ def test_export_plays_in_threejs(exported):
     for f, (t, bones) in zip(frames, got.items()):
         for b, xyz in bones.items():
             assert np.allclose(xyz, P[f, bvh.skeleton.index(b)], atol=0.05), (f, b)
+
+
+def test_speaker_ids_of_other_sources(tmp_path):
+    from facecapges.data.prepare import prepare
+    from facecapges.errors import UserError
+
+    beat_bvh, beat_wav = shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav")
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "take1.bvh").symlink_to(beat_bvh)  # BEAT's names, as someone's own capture would have them
+    (mine / "take1.wav").symlink_to(beat_wav)
+    with pytest.raises(UserError, match="states no speaker id"):
+        prepare(None, tmp_path / "c", mocap=[mine], target=read_bvh(beat_bvh).skeleton, progress=False)
+    with pytest.raises(UserError, match="BEAT's range"):
+        prepare(None, tmp_path / "c", mocap=[mine], mocap_speaker=2, target=read_bvh(beat_bvh).skeleton,
+                progress=False)
+    index = prepare(None, tmp_path / "c", mocap=[mine], mocap_speaker=101, target=read_bvh(beat_bvh).skeleton,
+                    progress=False)
+    (clip,) = index["clips"]
+    assert (clip["name"], clip["speaker"], clip["joint_map"], clip["n_masked"]) == ("beat_take1", 101, "beat", 0)
+    (mine / "take2.bvh").symlink_to(beat_bvh)  # no take2.wav
+    with pytest.raises(UserError, match="take2.wav"):
+        prepare(None, tmp_path / "c2", mocap=[mine], mocap_speaker=101, target=read_bvh(beat_bvh).skeleton,
+                progress=False)

@@ -113,7 +113,7 @@ def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     assert "2 processes, global batch 24" in p.stdout
     assert p.stdout.count("checkpoint:") == 1  # one rank speaks
     assert "--amp is GPU-only" in p.stderr
-    state = torch.load(run / "last.pt", weights_only=False)
+    state = torch.load(run / "last.pt", weights_only=True)
     assert state["epoch"] == 1 and state["world_size"] == 2
     # resume the 2-process run with 1 process: the global batch and the lr follow the new count
     p = cli("train", "--cache", str(cache), "--speaker", "2", "--out", str(run), "--epochs", "2", "--resume")
@@ -123,7 +123,7 @@ def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     assert [(r[head.index("processes")], r[head.index("global_batch")]) for r in rows[1:]] == [("2", "24"),
                                                                                               ("1", "12")]
     assert all(np.isfinite(float(r[head.index("total")])) for r in rows[1:])
-    state = torch.load(run / "last.pt", weights_only=False)
+    state = torch.load(run / "last.pt", weights_only=True)
     assert state["epoch"] == 2 and state["world_size"] == 1
     lr = state["opt_g"]["param_groups"][0]["lr"]
     assert lr == pytest.approx(1.0 * 12 / 128)

@@ -72,8 +72,8 @@ def test_train_writes_checkpoint_log_and_resumes_exactly(tmp_path, cache, traine
     run("train", "--cache", str(cache), "--speaker", "2", "--out", str(tmp_path / "r"), "--config", str(cfg),
         "--epochs", "1", "--split", "all", "--holdout-from", "766")
     run("train", "--cache", str(cache), "--speaker", "2", "--out", str(tmp_path / "r"), "--epochs", "2", "--resume")
-    a = torch.load(trained / "last.pt", weights_only=False)["G"]
-    b = torch.load(tmp_path / "r" / "last.pt", weights_only=False)["G"]
+    a = torch.load(trained / "last.pt", weights_only=True)["G"]
+    b = torch.load(tmp_path / "r" / "last.pt", weights_only=True)["G"]
     for k in a:
         assert torch.equal(a[k], b[k]), k
     # an existing run is never overwritten without asking

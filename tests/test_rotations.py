@@ -171,3 +171,26 @@ def test_real_right_forearm_wraps_in_euler_but_is_continuous_in_rot6d(beat_bvh):
     assert step[wraps].max() < 0.35  # a rot6d step of at most ~20°: no discontinuity
     assert step[wraps].max() < np.percentile(step, 99)  # smaller than the arm's fast movements
     assert np.degrees(rot.geodesic_angle(mats[wraps], mats[wraps + 1])).max() < 20.0
+
+
+def test_so3_exp_log_round_trip():
+    rng = np.random.default_rng(3)
+    for v in list(rng.normal(size=(50, 3))) + [np.zeros(3), np.array([np.pi - 1e-6, 0, 0]), np.array([0, 1e-9, 0])]:
+        R = rot.exp_so3(v)
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-9) and np.linalg.det(R) > 0
+        assert np.allclose(rot.exp_so3(rot.log_so3(R)), R, atol=1e-5)  # ~1e-6 within 1e-6 rad of 180°
+
+
+def test_rotation_between_is_the_shortest_arc():
+    rng = np.random.default_rng(4)
+    a, b = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
+    R = rot.rotation_between(a, b)
+    assert np.allclose(np.einsum("nij,nj->ni", R, a / np.linalg.norm(a, axis=1, keepdims=True)),
+                       b / np.linalg.norm(b, axis=1, keepdims=True), atol=1e-9)
+    assert np.allclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-9)
+    # no twist: the angle turned is the angle between the vectors
+    cos = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
+    assert np.allclose(rot.geodesic_angle(np.eye(3), R), np.arccos(np.clip(cos, -1, 1)), atol=1e-7)
+    flip = rot.rotation_between(np.array([1.0, 0, 0]), np.array([-1.0, 0, 0]))
+    assert np.allclose(flip @ [1, 0, 0], [-1, 0, 0]) and np.isclose(np.linalg.det(flip), 1)
+    assert np.allclose(rot.rotation_between(np.zeros(3), np.ones(3)), np.eye(3))

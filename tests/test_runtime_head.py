@@ -87,6 +87,12 @@ def test_head_follow_measures_disagreement():
     assert head_follow(still, heads)["mean_error_deg"] > 5  # a still head does not follow
 
 
+def model_rate_heads(path) -> np.ndarray:
+    """The recorded head rot6d at the model's 15 fps (face JSON is BEAT's 60 fps: every 4th frame is exact)."""
+    f = read_face_json(path)
+    return f.head_rot6d[::int(round(f.fps / 15))]
+
+
 def _vmc_heads(port_holder, got, stop):
     from pythonosc.dispatcher import Dispatcher
     from pythonosc.osc_server import BlockingOSCUDPServer
@@ -119,12 +125,13 @@ def test_vmc_receiver_sees_the_captured_head(tmp_path, face_video):
     while not port:
         time.sleep(0.01)
     rec = tmp_path / "rec"
-    r = cli("live", "--video", str(face_video), "--vmc", f"127.0.0.1:{port[0]}", "--record", str(rec))
+    r = cli("live", "--video", str(face_video), "--vmc", f"127.0.0.1:{port[0]}", "--record", str(rec),
+            "--face-json", "full")  # face.json at the model rate: frame k is VMC frame k
     time.sleep(0.5)
     stop.set()
     th.join(5)
     assert r.returncode == 0, r.stderr
-    captured = read_face_json(rec / "face.json").head_rot6d
+    captured = model_rate_heads(rec / "face.json")
     chain = ("Hips", "Spine", "Chest", "UpperChest", "Neck", "Head")
     frames = sorted(k for k, bones in got.items() if all(b in bones for b in chain) and k < len(captured))
     assert len(frames) > 0.9 * len(captured)
@@ -140,3 +147,37 @@ def test_vmc_receiver_sees_the_captured_head(tmp_path, face_video):
     assert r_yaw >= 0.9 and r_pitch >= 0.9, (r_yaw, r_pitch)
     report = json.loads((rec / "report.json").read_text())
     assert report["frames"] >= len(captured)
+
+
+def test_the_video_shows_the_head(tmp_path, face_video):
+    """MediaPipe, run on the face close-up of the rendered avatar.mp4, sees the person's yaw and pitch."""
+    import cv2
+
+    from facecapges.capture.pipeline import FaceCapture
+    from facecapges.runtime.offline import run_video
+
+    out = tmp_path / "run"
+    run_video(face_video, out, checkpoint(), max_frames=75, progress=False, head="capture")
+    captured = model_rate_heads(out / "face.json")
+    v = cv2.VideoCapture(str(out / "avatar.mp4"))
+    W, H = int(v.get(cv2.CAP_PROP_FRAME_WIDTH)), int(v.get(cv2.CAP_PROP_FRAME_HEIGHT))
+    ih = round(H / 3)  # the inset: a third of the height, 4:3, top-right (web/avatar_scene.js)
+    iw, m = round(ih * 4 / 3), round(H / 60) + 2
+    seen, cam = [], []
+    with FaceCapture(estimator="mediapipe", fps=15) as cap:
+        k = 0
+        while True:
+            ok, img = v.read()
+            if not ok:
+                break
+            crop = cv2.resize(img[m:m + ih, W - iw - m:W - m], (3 * iw, 3 * ih), interpolation=cv2.INTER_CUBIC)
+            r = cap.process(crop, k * 1000 / 15)
+            if r.face_found and k < len(captured):
+                seen.append(np.degrees(head_angles(r.head_R)))
+                cam.append(np.degrees(head_angles(rot.rot6d_to_matrix(captured[k].astype(np.float64)))))
+            k += 1
+    v.release()
+    seen, cam = np.array(seen), np.array(cam)
+    assert len(seen) > 0.9 * len(captured)
+    r_yaw, r_pitch = (np.corrcoef(seen[:, i], cam[:, i])[0, 1] for i in (0, 1))
+    assert r_yaw >= 0.9 and r_pitch >= 0.9, (r_yaw, r_pitch)

@@ -171,20 +171,14 @@ def test_live_command_with_livelink(beat_wav, tmp_path):
 
     from facecapges.io.face_json import read_face_json
 
-    from runtime_helpers import cli_popen
+    from runtime_helpers import cli_popen, wait_line
 
     rec = tmp_path / "rec"
     proc = cli_popen("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(rec), "--max-seconds", "4")
     try:
-        port = None
-        deadline = time.time() + 120
-        while time.time() < deadline and port is None:
-            line = proc.stdout.readline()
-            if not line:
-                break
-            if line.startswith("live: Live Link UDP 127.0.0.1:"):
-                port = int(line.split("127.0.0.1:")[1].split()[0])
-        assert port, proc.stderr.read()[-2000:]
+        line = wait_line(proc, "live: Live Link UDP 127.0.0.1:")
+        assert line, proc.stderr.read()[-2000:]
+        port = int(line.split("127.0.0.1:")[1].split()[0])
         v = np.zeros(61, np.float32)
         v[LIVELINK_NAMES.index("JawOpen")] = 0.8
         tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -163,7 +163,7 @@ def test_feed_stops_hold_then_ease_without_jumps():
     rest = np.setdiff1d(np.arange(52), mouth)
     assert np.abs(faces[eased][:, rest]).max() == 0.0
     jaw = faces[eased, ARKIT_NAMES.index("jawOpen")]
-    assert jaw.max() > 0.1 and jaw.std() > 0.02
+    assert jaw.max() > 0.1 and np.ptp(jaw) > 0.02
     for k in eased:  # the head faces the camera again
         np.testing.assert_allclose(outs[k].head, rot.identity_rot6d(), atol=1e-6)
     assert np.abs(np.diff(model_faces[stop - 1:], axis=0)).max() < 0.25  # eased, no jump

@@ -26,7 +26,7 @@ from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
 from facecapges.model.streaming import StreamingGenerator
 from facecapges.runtime import protocol
-from facecapges.serving.server import ServeConfig, StreamServer, pose_messages
+from facecapges.serving.server import ServeConfig, StreamServer
 
 websockets = pytest.importorskip("websockets")
 from websockets.asyncio.client import connect  # noqa: E402
@@ -253,7 +253,8 @@ def test_pose_messages_are_the_runtime_format():
     pose = rng.normal(size=(2, 47, 6))
     q = rot.rot6d_to_quaternion(pose)
     face, head = rng.uniform(size=(2, 52)), rng.normal(size=(2, 6))
-    ours = list(pose_messages([7, 8], 15.0, q, face, head, [True, False], [{"model": 1.25}, {"model": 2.5}]))
+    ours = list(protocol.encode_poses([7, 8], [7 / 15, 8 / 15], q, face, head, [True, False],
+                                      [{"model": 1.25}, {"model": 2.5}]))
     ref = protocol.encode_pose(OutputFrame(7, 7 / 15, pose[0], q[0], face[0], head[0], True, {"model": 1.25}))
     a, b = protocol.decode_pose(ours[0]), protocol.decode_pose(ref)
     assert set(a) == set(b)

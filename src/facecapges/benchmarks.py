@@ -1,8 +1,18 @@
 """``facecapges bench``: every area's benchmark, one JSON document.
 
 Speed and memory targets are shown here, never by timed unit tests. Each area has a
-``bench.py`` with ``run(quick: bool) -> dict``; its results appear under the area's
-key. Areas are listed in ``BENCHMARKS`` (module path of each ``run``).
+``bench.py`` with ``run(quick: bool, shared: Path) -> dict``; its results appear under
+the area's key. Areas are listed in ``BENCHMARKS`` (module path of each ``run``).
+``shared`` is the folder of shared data (``../shared``: ``data/beat``, ``data/face``…),
+given by the command (``--shared``), never looked up by the areas themselves.
+
+Progress goes to stderr (one line as each area starts and ends, with its wall time
+and the load average: the machine is shared). An area that fails does not stop the
+others: its entry holds ``{"error": ...}``, the document is still printed, and the
+command exits with status 1. ``bench`` in the document holds the wall time of each
+area and of the whole run. Budget on this 2-core machine: the whole bench within
+about 5 minutes, ``--quick`` (a smoke run of every area, run by the test suite)
+within about 1 minute.
 """
 
 from __future__ import annotations
@@ -10,8 +20,12 @@ from __future__ import annotations
 import importlib
 import json
 import math
+import os
 import platform
+import sys
 import time
+import traceback
+from pathlib import Path
 
 import typer
 
@@ -24,6 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "study": "facecapges.study.bench",
     "runtime": "facecapges.runtime.bench",
     "serve": "facecapges.serving.bench",
+    "vrm": "facecapges.avatar.vrm_bench",
 }
 
 
@@ -38,12 +53,47 @@ def _finite_or_null(x):
     return x
 
 
+def _log(msg: str) -> None:
+    print(f"bench: {msg}", file=sys.stderr, flush=True)
+
+
+def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
+    """Run the areas in order; (result document, every area ran without error)."""
+    import torch
+
+    result: dict = {"machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
+                                "torch": torch.__version__, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+                                "load_average": [round(x, 2) for x in os.getloadavg()]}}
+    walls: dict[str, float] = {}
+    ok = True
+    t_all = time.perf_counter()
+    for n, area in enumerate(areas, 1):
+        _log(f"[{n}/{len(areas)}] {area} … (load {os.getloadavg()[0]:.1f})")
+        t0 = time.perf_counter()
+        try:
+            result[area] = importlib.import_module(BENCHMARKS[area]).run(quick=quick, shared=shared)
+        except Exception as exc:  # one broken area must not hide the others' figures
+            ok = False
+            result[area] = {"error": f"{exc.__class__.__name__}: {exc}"}
+            _log(f"{area} FAILED: {exc.__class__.__name__}: {exc}")
+            traceback.print_exc(file=sys.stderr)
+        walls[area] = round(time.perf_counter() - t0, 1)
+        _log(f"[{n}/{len(areas)}] {area} done in {walls[area]:.1f} s")
+    total = round(time.perf_counter() - t_all, 1)
+    result["bench"] = {"quick": quick, "wall_s": total, "area_wall_s": walls,
+                       "load_average_after": [round(x, 2) for x in os.getloadavg()]}
+    _log(f"all {len(areas)} area(s) in {total:.1f} s" + ("" if ok else " — some failed"))
+    return _finite_or_null(result), ok
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def bench(
         json_out: bool = typer.Option(False, "--json", help="Print one JSON document (default: a table)."),
         only: str = typer.Option("", help=f"Comma-separated areas to run, of: {', '.join(BENCHMARKS)}."),
-        quick: bool = typer.Option(False, help="Fewer repetitions (smoke run)."),
+        quick: bool = typer.Option(False, help="Fewer repetitions (smoke run, about a minute)."),
+        shared: Path = typer.Option(Path("../shared"), "--shared", envvar="FACECAPGES_SHARED",
+                                    help="The shared data folder (holds data/beat, data/face …)."),
     ) -> None:
         """Measure speed and memory of every stage and print the figures."""
         from facecapges.errors import UserError
@@ -52,13 +102,9 @@ def register(app: typer.Typer) -> None:
         unknown = [a for a in areas if a not in BENCHMARKS]
         if unknown:
             raise UserError(f"unknown benchmark area(s) {unknown}; known: {list(BENCHMARKS)}")
-        import torch
-
-        result: dict = {"machine": {"cpu_count": __import__("os").cpu_count(), "python": platform.python_version(),
-                                    "torch": torch.__version__, "time": time.strftime("%Y-%m-%dT%H:%M:%S")}}
-        for area in areas:
-            result[area] = importlib.import_module(BENCHMARKS[area]).run(quick=quick)
-        result = _finite_or_null(result)
+        if not shared.is_dir():
+            raise UserError(f"{shared}: shared data folder not found (pass --shared PATH)")
+        result, ok = run_areas(areas, quick, shared.resolve())
         if json_out:
             print(json.dumps(result, indent=2, allow_nan=False))
         else:
@@ -70,3 +116,5 @@ def register(app: typer.Typer) -> None:
                 for k, v in result[area].items():
                     table.add_row(area, k, json.dumps(v) if not isinstance(v, str) else v)
             Console().print(table)
+        if not ok:
+            raise typer.Exit(1)

@@ -43,8 +43,16 @@ for _name in COMMAND_MODULES:
     importlib.import_module(_name).register(app)
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt  # SIGTERM/SIGHUP end a command like Ctrl-C: its files are closed cleanly
+
+
 def main() -> None:
     """Console entry point."""
+    import signal
+
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _interrupt)
     try:
         app()
     except UserError as exc:

@@ -42,7 +42,7 @@ def register(app: typer.Typer) -> None:
         from facecapges.avatar.gltf import avatar_to_gltf
         from facecapges.avatar.render.video import bvh_quaternions, render_video
         from facecapges.capture.speech_mouth import speech_mouth_track
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_file
         from facecapges.io.bvh import write_bvh
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.model.generate import generate_poses, prepare_inputs
@@ -53,7 +53,7 @@ def register(app: typer.Typer) -> None:
         speech = audio or demo_speech()
         bvh_path, mp4_path, avatar_path = out / "demo.bvh", out / "demo.mp4", out / "demo_avatar.mp4"
         for p in (bvh_path, mp4_path, avatar_path):
-            refuse_overwrite(p, force)
+            check_output_file(p, force)
         t0 = time.perf_counter()
         ckpt = load_checkpoint()
         inputs = prepare_inputs(speech, fps=ckpt.fps)

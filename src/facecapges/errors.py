@@ -3,6 +3,22 @@
 Anything the user can fix (a missing file, a malformed BVH, a wrong skeleton, an
 existing output) is raised as :class:`UserError`. The command line catches it,
 prints its message on one line and exits with status 2 — never a traceback.
+
+The error policy, one rule per kind of failure:
+
+* **UserError** — input a person gave us (files, command-line values, a skeleton, an
+  output location) that is wrong; the message names the thing and says what to do.
+  The same condition raises it wherever it is found (e.g. a skeleton without the BEAT
+  joints, in the avatar and in the VMC sender alike).
+* **ValueError** (and ``TypeError``) — a programming error: a function called with
+  arrays of the wrong shape by our own code. Never caught; a test fails.
+* **Protocol errors of servers** — :class:`facecapges.runtime.protocol.ProtocolError`,
+  ``runtime.livelink.PacketError``, ``study.store.AnswerError``: bad messages from a
+  client over the network. They are answered (an ``error`` message, an HTTP status)
+  or counted and dropped, and logged at most once per connection; they never stop a
+  server and never reach the user as a traceback.
+* Process-wide state a function changes (torch's thread count) is restored by it or by
+  the object that owns it (``Session.close``).
 """
 
 from __future__ import annotations
@@ -35,3 +51,66 @@ def refuse_overwrite(path: str | Path, force: bool, flag: str = "--force") -> Pa
     if p.exists() and not force:
         raise file_error(p, f"already exists; pass {flag} to overwrite it")
     return p
+
+
+def _writable_folder(folder: Path) -> None:
+    """Raise unless files can be created in ``folder`` or in the nearest folder above it that exists."""
+    import errno
+    import os
+    import tempfile
+
+    anc = folder
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if not anc.is_dir():
+        raise file_error(anc, "is a file, not a folder; choose another output location")
+    try:
+        with tempfile.TemporaryFile(dir=anc):
+            pass
+    except OSError as exc:
+        why = "the file system is read-only" if exc.errno == errno.EROFS else (exc.strerror or str(exc)).lower()
+        raise file_error(anc, f"cannot write here ({why})") from None
+    if not os.access(anc, os.W_OK | os.X_OK):
+        raise file_error(anc, "cannot write here (permission denied)")
+
+
+def check_output_file(path: str | Path, force: bool = False, flag: str = "--force") -> Path:
+    """Check, before any work, that ``path`` can be written as a file and is not kept.
+
+    One rule for every command that writes: an output that exists is kept unless
+    ``force``; a path naming a folder, a parent that is a file or a folder that cannot
+    be written (read-only file system, no permission) is a :class:`UserError` now
+    rather than a traceback after the work.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise file_error(p, "is a folder; the output must name a file")
+    refuse_overwrite(p, force, flag)
+    _writable_folder(p.parent)
+    return p
+
+
+def check_output_dir(folder: str | Path, names: list[str] | tuple[str, ...] = (), force: bool = False,
+                     flag: str = "--force") -> Path:
+    """Check, before any work, that ``folder`` can receive the outputs ``names`` (kept unless ``force``).
+
+    Every name is checked, not only the first, so nothing in the folder is overwritten
+    without ``force``.
+    """
+    d = Path(folder)
+    if d.exists() and not d.is_dir():
+        raise file_error(d, "is a file; the output must name a folder")
+    existing = [n for n in names if (d / n).exists()]
+    if existing and not force:
+        also = ", ".join(existing[1:4]) + (", …" if len(existing) > 4 else "")
+        raise file_error(d / existing[0], "already exists" + (f" (so do {also})" if also else "")
+                         + f"; pass {flag} to overwrite")
+    _writable_folder(d)
+    return d
+
+
+def check_port(port: int, flag: str = "--port") -> int:
+    """A TCP port number 0–65535 (0: any free port), else a UserError naming ``flag``."""
+    if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+        raise UserError(f"{flag}: port {port} is out of range (0-65535)")
+    return port

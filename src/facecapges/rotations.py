@@ -30,6 +30,7 @@ Conventions
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any, Sequence
 
@@ -131,34 +132,44 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     if isinstance(order, str):
         i, j, k = ("XYZ".index(a) for a in _check_order(order))
         sign = 1.0 if (j - i) % 3 == 1 else -1.0  # even permutations (XYZ, YZX, ZXY) give +1
-        m = lambda r, c: matrix[..., r, c]  # noqa: E731
+        ii, ij, ik, jk, kk, kj, jj = (matrix[..., r, c] for r, c in ((i, i), (i, j), (i, k), (j, k), (k, k), (k, j),
+                                                                      (j, j)))
     else:
-        ijk = np.array([["XYZ".index(a) for a in _check_order(o)] for o in order], np.int64).reshape(-1, 3)
-        if matrix.ndim < 3 or matrix.shape[-3] != len(ijk):
-            raise ValueError(f"{len(ijk)} Euler orders for matrices of shape {tuple(matrix.shape)}")
-        i, j, k = ijk.T
-        sign = np.where((j - i) % 3 == 1, 1.0, -1.0)
-        rows = np.arange(len(ijk))
+        rows, cols, sign = _orders_index(tuple(order))
+        if matrix.ndim < 3 or matrix.shape[-3] != len(rows):
+            raise ValueError(f"{len(rows)} Euler orders for matrices of shape {tuple(matrix.shape)}")
+        flat = matrix.reshape(tuple(matrix.shape[:-2]) + (9,))
         if _is_torch(matrix):
-            i, j, k, rows = (torch.as_tensor(x, device=matrix.device) for x in (i, j, k, rows))
+            rows, cols = torch.as_tensor(rows, device=matrix.device), torch.as_tensor(cols, device=matrix.device)
             sign = torch.as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
-        m = lambda r, c: matrix[..., rows, r, c]  # noqa: E731
+        v = flat[..., rows, cols]  # (..., J, 7): the seven entries used, each joint's own
+        ii, ij, ik, jk, kk, kj, jj = (v[..., n] for n in range(7))
     # For R = R_i(a) R_j(b) R_k(c): R[i, k] = sign * sin(b)
-    sb = lib.clip(sign * m(i, k), -1.0, 1.0)
+    sb = lib.clip(sign * ik, -1.0, 1.0)
     b = lib.arcsin(sb)
-    a = lib.arctan2(-sign * m(j, k), m(k, k))
-    c = lib.arctan2(-sign * m(i, j), m(i, i))
+    a = lib.arctan2(-sign * jk, kk)
+    c = lib.arctan2(-sign * ij, ii)
     # gimbal lock: cos(b) ~ 0, put everything in a
-    cb = lib.sqrt(m(i, i) ** 2 + m(i, j) ** 2)
+    cb = lib.sqrt(ii ** 2 + ij ** 2)
     locked = cb < 1e-6
     if bool(locked.any()):
-        a_locked = lib.arctan2(sign * m(k, j), m(j, j))
+        a_locked = lib.arctan2(sign * kj, jj)
         a = lib.where(locked, a_locked, a)
         c = lib.where(locked, lib.zeros_like(c), c)
     out = _stack([a, b, c], -1, matrix)
     if degrees:
         out = out * (180.0 / math.pi)
     return out
+
+
+@functools.lru_cache(maxsize=64)
+def _orders_index(orders: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per order: row numbers (J, 1), the flat indices of R[i,i], R[i,j], R[i,k], R[j,k],
+    R[k,k], R[k,j], R[j,j] (J, 7), and the permutation's sign (J,) — for :func:`matrix_to_euler`."""
+    ijk = np.array([["XYZ".index(a) for a in _check_order(o)] for o in orders], np.int64).reshape(-1, 3)
+    i, j, k = ijk.T
+    cols = np.stack([3 * r + c for r, c in ((i, i), (i, j), (i, k), (j, k), (k, k), (k, j), (j, j))], 1)
+    return np.arange(len(ijk))[:, None], cols, np.where((j - i) % 3 == 1, 1.0, -1.0)
 
 
 # ------------------------------------------------------------------------- rot6d
@@ -336,9 +347,10 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(degenerate[..., None, None], np.eye(3), R)
 
 
-def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
 
+    ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
     Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
     ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
     normalised linear blend.

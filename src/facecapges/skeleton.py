@@ -243,7 +243,11 @@ def head_rot6d(skel: Skeleton, local_mats: np.ndarray, head: str = HEAD_JOINT) -
 # --------------------------------------------------------------- pose (47 rot6d)
 def upper_body_indices(skel: Skeleton) -> np.ndarray:
     """Indices in ``skel`` of the 47 UPPER_BODY joints, in UPPER_BODY order."""
-    return np.array([skel.index(n) for n in UPPER_BODY])
+    key = (id(skel.names), len(skel.names))
+    cached = skel.__dict__.get("_upper_body")
+    if cached is None or cached[0] != key:
+        cached = skel.__dict__["_upper_body"] = (key, np.array([skel.index(n) for n in UPPER_BODY]))
+    return cached[1]
 
 
 def motion_to_pose(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

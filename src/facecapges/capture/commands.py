@@ -12,9 +12,11 @@ def register(app: typer.Typer) -> None:
     @app.command("capture")
     def capture(
         source: str = typer.Argument(..., help="A video file, or a camera index (0, 1, …)."),
-        out: Path = typer.Option(..., "--out", help="Face JSON to write (52 ARKit weights + head rot6d per frame)."),
+        out: Path = typer.Option(..., "--out", help="Face JSON to write (ARKit weights + head rot6d per frame)."),
         estimator: str = typer.Option("hybrid", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator)."),
-        fps: float = typer.Option(15.0, help="Output frame rate (frames per second)."),
+        fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
+        face_json: str = typer.Option("beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or "
+                                                                 "full (52 weights at --fps)."),
         overlay: Optional[Path] = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
         depth: Optional[Path] = typer.Option(None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."),
         intrinsics: Optional[Path] = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
@@ -30,12 +32,18 @@ def register(app: typer.Typer) -> None:
         from facecapges.capture.runner import capture_video
         from facecapges.errors import UserError
 
+        if face_json not in ("beat", "full"):
+            raise UserError(f"--face-json {face_json}: choose beat or full")
         if estimator not in ("geometric", "mediapipe", "hybrid"):
             raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
         s = capture_video(source, out, estimator=estimator, fps=fps, overlay=overlay, depth_dir=depth,
-                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces)
-        Console(stderr=True).print(f"wrote {s['out']}: {s['frames']} frames at {s['fps']:g} fps, "
-                                   f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
+                          intrinsics=intrinsics, model=model, force=force, max_frames=max_frames, faces=faces,
+                          face_layout=face_json)
+        console = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the width
+        for w in s.get("warnings", []):
+            console.print(f"[yellow]warning:[/yellow] {w}")
+        console.print(f"wrote {s['out']}: {s['frames']} frames captured at {s['fps']:g} fps, "
+                      f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else ""))
 
     @app.command("capture-eval")
     def capture_eval(
@@ -44,6 +52,7 @@ def register(app: typer.Typer) -> None:
         skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
         model: Optional[Path] = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
         max_frames: Optional[int] = typer.Option(None, help="Only the first N frames."),
+        force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
     ) -> None:
         """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""
         import math
@@ -52,9 +61,10 @@ def register(app: typer.Typer) -> None:
         from rich.table import Table
 
         from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
-        from facecapges.errors import require_file
+        from facecapges.errors import check_output_dir, require_file
 
         require_file(video, "video")
+        check_output_dir(out, ("capture_eval.json", "tracks.png"), force)
         tr = run_tracks(video, model=model, max_frames=max_frames, progress=True)
         rep = evaluate_tracks(tr, skip)
         rep["video"] = str(video)

@@ -179,6 +179,7 @@ class FaceCapture:
         face is in view, the largest face in view; while no face is in view, the lost
         primary face (held, then eased to neutral)."""
         results = self.process_all(frame_bgr, timestamp_ms, depth_mm)
+        self.faces_in_view = sum(bool(r.face_found) for r in results)  # callers warn about a second face
         for r in results:
             if r.face_id == self.primary_id:
                 return r

@@ -1,12 +1,14 @@
 """Whole-video capture: a source → BEAT-format face JSON (+ overlay video).
 
-Face JSON written (read back by ``facecapges.io.face_json``)::
+Face JSON written by :func:`facecapges.io.face_json.write_face_json` (BEAT's layout by
+default: 51 names at 60 fps; ``face_layout="full"``: 52 names at ``fps``), each frame
+with the extensions ``head_rot6d``, ``face_found`` and ``distance_m``::
 
-    {"names": [52 ARKIT_NAMES], "fps": 15,
-     "frames": [{"time": t_s, "weights": [52 floats], "head_rot6d": [6 floats],
+    {"names": [...], "fps": 60,
+     "frames": [{"time": t_s, "weights": [...], "head_rot6d": [6 floats],
                  "face_found": bool, "distance_m": float}, ...]}
 
-``time`` is ``k / fps`` for output frame ``k``. Every source frame is processed
+Capture frame ``k`` is the result at ``k / fps``. Every source frame is processed
 (MediaPipe's tracker and the sample set see the full frame rate), and output frame
 ``k`` is the result of the first source frame at or after ``k / fps``; a source slower
 than ``fps`` repeats results. (Decimating before the landmark model would be
@@ -22,26 +24,20 @@ view (yet) is written as not found, neutral.
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES
-from facecapges.errors import UserError, refuse_overwrite
-
-
-def face_json_document(records: list[dict], fps: float) -> dict:
-    return {"names": list(ARKIT_NAMES), "fps": fps, "frames": records}
+from facecapges.errors import UserError, check_output_file
 
 
 def result_record(res, time_s: float) -> dict:
     d = float(res.distance_m)
     return {
         "time": round(float(time_s), 6),
-        "weights": [round(float(x), 5) for x in res.weights52],
-        "head_rot6d": [round(float(x), 6) for x in res.head_rot6d],
+        "weights": np.asarray(res.weights52, np.float64),
+        "head_rot6d": np.asarray(res.head_rot6d, np.float64),
         "face_found": bool(res.face_found),
         "distance_m": None if not math.isfinite(d) else round(d, 4),
     }
@@ -49,7 +45,8 @@ def result_record(res, time_s: float) -> dict:
 
 def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: float = 15.0,
                   overlay: str | Path | None = None, depth_dir=None, intrinsics=None, model=None,
-                  force: bool = False, max_frames: int | None = None, progress: bool = True, faces: int = 1) -> dict:
+                  force: bool = False, max_frames: int | None = None, progress: bool = True, faces: int = 1,
+                  face_layout: str = "beat") -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON; one per face, module docstring);
     returns a summary dict."""
     from facecapges.capture.video import open_source
@@ -61,9 +58,9 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     out = Path(out)
     outs = [out] if faces == 1 else [out.with_name(f"{out.stem}_{i + 1}{out.suffix}") for i in range(faces)]
     for p in outs:
-        refuse_overwrite(p, force)
+        check_output_file(p, force)
     if overlay is not None:
-        refuse_overwrite(overlay, force)
+        check_output_file(overlay, force)
     depth_files, K = (None, None)
     if depth_dir is not None or intrinsics is not None:
         from facecapges.capture.depth import check_depth_inputs
@@ -76,7 +73,8 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     src = open_source(source)
 
     try:
-        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=faces)
+        # one face: MediaPipe looks for two so that a second face in view can be reported
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
     except BaseException:
         src.close()
         raise
@@ -87,6 +85,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     writer = None
     records: list[list[dict]] = [[] for _ in outs]
     n_found = [0] * len(outs)
+    n_several = 0  # input frames with more than one face in view (one-face capture)
     try:
         if overlay is not None:
             from facecapges.capture.overlay import OverlayWriter
@@ -113,6 +112,7 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
                         depth = read_depth(depth_files[i])
                 if faces == 1:
                     results = [cap.process(frame, ts, depth)]
+                    n_several += getattr(cap, "faces_in_view", 1) > 1
                 else:
                     results = [r if r is not None else cap.neutral(ts) for r in cap.process_slots(frame, ts, depth)]
                 # a slow source (fps below --fps) repeats the frame on the skipped ticks
@@ -136,10 +136,25 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
             writer.close()
     if not records[0]:
         raise UserError(f"{source}: no frames could be read")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    from facecapges.io.face_json import write_face_json
+
     for p, rec in zip(outs, records):
-        p.write_text(json.dumps(face_json_document(rec, fps)))
+        write_face_json(p, np.stack([r["weights"] for r in rec]), fps, np.stack([r["head_rot6d"] for r in rec]),
+                        layout=face_layout, extras={k: [r[k] for r in rec] for k in ("face_found", "distance_m")})
+    warnings = []
+    if src.bad_frames:
+        warnings.append(f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "
+                        "good frame was held over them, so timing stays right")
+    if src.missing_tail > max(2, (src.n_frames or 0) // 100):  # containers often over-count by a frame
+        warnings.append(f"the last {src.missing_tail} of {src.n_frames} frames the video declares could not be "
+                        "decoded (file cut short or damaged at its end)")
+    if sum(n_found) == 0:
+        warnings.append("no face was found in any frame: the output holds a neutral face and a resting head")
+    if n_several:
+        warnings.append(f"more than one face was in view in {n_several} frame(s); the largest face was tracked "
+                        "(--faces N captures several)")
+    common = {"frames": len(records[0]), "fps": fps, "warnings": warnings, "bad_frames": src.bad_frames,
+              "missing_frames": src.missing_tail}
     if faces == 1:
-        return {"frames": len(records[0]), "face_found": n_found[0], "fps": fps, "out": str(out)}
-    return {"frames": len(records[0]), "face_found": n_found, "fps": fps, "out": ", ".join(map(str, outs)),
-            "outs": [str(p) for p in outs]}
+        return {**common, "face_found": n_found[0], "out": str(out)}
+    return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}

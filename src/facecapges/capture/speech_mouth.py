@@ -5,17 +5,19 @@ left the frame) the avatar would speak with a closed mouth. :class:`SpeechMouth`
 each model frame's audio (the 1066–1067 samples the model gets, :mod:`facecapges.timing`)
 into mouth blendshapes, using that frame and the past only:
 
-1. **loudness** — the frame's RMS level in dB, placed between a running noise floor
-   and a running speech peak (both causal trackers: the floor follows quiet frames at
-   once and rises 1.5 dB/s, the peak follows loud frames at once and decays 3 dB/s),
-   so the same mapping works for a quiet microphone and a loud file without
-   calibration. ``openness = ((level − floor) / (peak − floor))`` clamped to [0, 1],
-   zero below a gate of 0.2 (breaths and room noise do not move the jaw);
+1. **vowel loudness** — the frame's level (dB) in the 250–1200 Hz band, where the
+   first formant of vowels lies (F1 rises as the jaw opens: "a" ≈ 750 Hz, "i"/"u" ≈
+   300 Hz; fricatives put their energy higher up), placed in the top 24 dB below a
+   running speech peak and at least 6 dB above a running noise floor (causal
+   trackers: the floor follows quiet frames at once and rises 1.5 dB/s, the peak
+   follows loud frames at once and decays 3 dB/s), so the same mapping works for a
+   quiet microphone and a loud file without calibration; below a gate of 0.15 of
+   that range (pauses, breaths, room noise) the jaw closes;
 2. **shape** — the spectral centroid of the frame (Hann window, 80 Hz–5 kHz): dark,
    rounded vowels (low centroid: o, u) add ``mouthFunnel`` / ``mouthPucker``, bright
    sounds (high centroid: i, e, s) add ``mouthStretch``;
-3. **motion** — an attack/release filter (opens within ~2 frames, closes within ~4),
-   so syllables read as the jaw moving rather than flickering.
+3. **motion** — an attack/release filter (70 % of the way per frame opening, 50 %
+   closing), so syllables read as the jaw moving rather than flickering.
 
 ``jawOpen`` peaks at 0.55, about what MediaPipe measures on the shared talking-head
 clip at a loud syllable (a speaking mouth is rarely wide open). The constants are
@@ -30,7 +32,11 @@ from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 
 JAW_MAX = 0.55
-GATE = 0.2
+GATE = 0.15
+VOWEL_BAND_HZ = (250.0, 1200.0)  # where the first formant of vowels lies; it rises as the jaw opens
+RANGE_DB = 24.0  # the jaw moves over the top 24 dB of the band's level
+FLOOR_RISE_DB_S, PEAK_DECAY_DB_S = 1.5, 3.0
+ATTACK, RELEASE = 0.7, 0.5  # share of the way to the target per frame, opening / closing
 _IDX = {n: ARKIT_NAMES.index(n) for n in ARKIT_NAMES}
 MOUTH_NAMES = ("jawOpen", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight",
                "mouthStretchLeft", "mouthStretchRight", "mouthFunnel", "mouthPucker")  # the weights it drives
@@ -41,41 +47,46 @@ class SpeechMouth:
 
     def __init__(self, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR):
         self.fps, self.sr = float(fps), int(sr)
-        self.floor_db, self.peak_db = -55.0, -25.0
+        self.floor_db, self.peak_db = -70.0, -30.0
         self.open = 0.0
         self.shape = np.zeros(3)  # funnel, pucker, stretch
-        self._rise = 1.5 / self.fps  # dB per frame
-        self._decay = 3.0 / self.fps
+        self._rise = FLOOR_RISE_DB_S / self.fps  # dB per frame
+        self._decay = PEAK_DECAY_DB_S / self.fps
+        self._window: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def reset(self) -> None:
         self.__init__(self.fps, self.sr)
 
-    def _centroid(self, x: np.ndarray) -> float:
-        spec = np.abs(np.fft.rfft(x * np.hanning(len(x)))) ** 2
-        f = np.fft.rfftfreq(len(x), 1.0 / self.sr)
-        band = (f >= 80) & (f <= 5000)
-        p = spec[band]
-        return float((f[band] * p).sum() / max(p.sum(), 1e-12))
+    def _spectrum(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(x)
+        if n not in self._window:
+            self._window[n] = (np.hanning(n), np.fft.rfftfreq(n, 1.0 / self.sr))
+        win, f = self._window[n]
+        return np.abs(np.fft.rfft(x * win)) ** 2 / n, f
 
     def step(self, audio: np.ndarray) -> np.ndarray:
         """The mouth weights for one frame of audio (float32 samples in [-1, 1])."""
         x = np.asarray(audio, np.float64)
-        rms = float(np.sqrt(np.mean(x * x))) if len(x) else 0.0
-        db = 20.0 * np.log10(rms + 1e-6)
-        # causal level trackers (module docstring, step 1)
-        self.floor_db = db if db < self.floor_db else self.floor_db + self._rise
-        self.peak_db = db if db > self.peak_db else self.peak_db - self._decay
-        self.floor_db = min(self.floor_db, self.peak_db - 20.0)
-        self.peak_db = max(self.peak_db, self.floor_db + 20.0)
-        level = (db - self.floor_db) / (self.peak_db - self.floor_db)
-        target = 0.0 if level < GATE else min((level - GATE) / (1.0 - GATE), 1.0)
-        self.open += (target - self.open) * (0.65 if target > self.open else 0.4)
-        shape = np.zeros(3)
-        if target > 0 and len(x) >= 64:
-            c = self._centroid(x)
-            dark = float(np.clip((1400.0 - c) / 900.0, 0.0, 1.0))
-            bright = float(np.clip((c - 2200.0) / 1800.0, 0.0, 1.0))
-            shape = np.array([0.5 * dark, 0.3 * dark, 0.35 * bright])
+        target, shape = 0.0, np.zeros(3)
+        if len(x) >= 64:
+            spec, f = self._spectrum(x)
+            vowel = (f >= VOWEL_BAND_HZ[0]) & (f <= VOWEL_BAND_HZ[1])
+            db = 10.0 * np.log10(spec[vowel].sum() + 1e-10)
+            # causal level trackers (module docstring, step 1)
+            self.floor_db = db if db < self.floor_db else self.floor_db + self._rise
+            self.peak_db = db if db > self.peak_db else self.peak_db - self._decay
+            self.floor_db = min(self.floor_db, self.peak_db - RANGE_DB)
+            low = max(self.floor_db + 6.0, self.peak_db - RANGE_DB)
+            level = (db - low) / max(self.peak_db - low, 1e-6)
+            target = 0.0 if level < GATE else min((level - GATE) / (1.0 - GATE), 1.0) ** 1.3
+            if target > 0:
+                band = (f >= 80) & (f <= 5000)
+                p = spec[band]
+                c = float((f[band] * p).sum() / max(p.sum(), 1e-12))  # spectral centroid, Hz
+                dark = float(np.clip((1400.0 - c) / 900.0, 0.0, 1.0))
+                bright = float(np.clip((c - 2200.0) / 1800.0, 0.0, 1.0))
+                shape = np.array([0.5 * dark, 0.3 * dark, 0.35 * bright])
+        self.open += (target - self.open) * (ATTACK if target > self.open else RELEASE)
         self.shape += (shape - self.shape) * 0.5
         w = np.zeros(N_BLENDSHAPES, np.float32)
         o = self.open
@@ -87,6 +98,15 @@ class SpeechMouth:
         w[_IDX["mouthFunnel"]] = self.shape[0] * o
         w[_IDX["mouthPucker"]] = self.shape[1] * o
         return w
+
+
+def speech_frames(samples: np.ndarray, fps: float, n_frames: int, sr: int = timing.AUDIO_SR) -> list[np.ndarray]:
+    """The audio chunk of each of ``n_frames`` frames (``timing.frame_sample_bounds``; empty past the end)."""
+    out = []
+    for k in range(n_frames):
+        s, e = timing.frame_sample_bounds(k, fps, sr)
+        out.append(np.asarray(samples[int(s):int(e)], np.float32))
+    return out
 
 
 def speech_mouth_track(frames_audio, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:

@@ -4,6 +4,12 @@
 An unreadable file or a camera that cannot be opened is a :class:`UserError`.
 Timestamps come from the frame index and the stream's frame rate for files (exact
 and monotonic), and from the wall clock for cameras.
+
+Damaged files: a frame that cannot be decoded in the middle of a file (the decoder
+fails, later frames decode again) is replaced by the last good frame — its time slot
+is kept, so the rest stays in sync with the audio — and counted in ``bad_frames``;
+frames that fail at the end of the file up to its declared frame count are counted in
+``missing_tail``. The caller reports both; a file is never cut short silently.
 """
 
 from __future__ import annotations
@@ -27,25 +33,60 @@ class FrameSource:
     width: int
     height: int
     is_camera: bool
+    bad_frames: int = 0  # undecodable frames held over (files)
+    missing_tail: int = 0  # declared frames after the last decodable one (files)
 
     def frames(self, max_frames: int | None = None) -> Iterator[tuple[int, float, np.ndarray]]:
         """(index, timestamp_ms, BGR frame) until the stream ends or ``max_frames``."""
         i = 0
         t0 = time.monotonic()
+        failed = 0  # consecutive undecodable frames not yet held over
+        last = None
         while max_frames is None or i < max_frames:
             ok, frame = self.cap.read()
             if not ok or frame is None:
-                break
+                if self.is_camera or self.n_frames is None or i + failed + 1 >= self.n_frames:
+                    break
+                failed += 1  # maybe a damaged stretch: try the next frame
+                continue
+            for _ in range(failed):  # a damaged stretch ended: hold the last good frame over it
+                if max_frames is not None and i >= max_frames:
+                    return
+                yield i, i * 1000.0 / self.fps, last if last is not None else frame
+                i += 1
+            self.bad_frames += failed
+            failed = 0
+            if max_frames is not None and i >= max_frames:
+                return
             ts = (time.monotonic() - t0) * 1000.0 if self.is_camera else i * 1000.0 / self.fps
             yield i, ts, frame
+            last = frame
             i += 1
+        if self.n_frames is not None and not self.is_camera and (max_frames is None or i < max_frames):
+            self.missing_tail = max(0, min(self.n_frames, max_frames or self.n_frames) - i)
 
     def close(self) -> None:
         self.cap.release()
 
 
+def _quiet_opencv() -> None:
+    """OpenCV's and FFmpeg's own console warnings off: our errors and warnings say what matters."""
+    import os
+
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT")
+    os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")  # AV_LOG_QUIET
+    os.environ.setdefault("OPENCV_VIDEOIO_DEBUG", "0")
+    import cv2
+
+    try:
+        cv2.setLogLevel(0)  # LOG_LEVEL_SILENT
+    except AttributeError:
+        pass
+
+
 def open_source(source: str | int) -> FrameSource:
     """Open a video file or a camera index (see the module docstring)."""
+    _quiet_opencv()
     import cv2
 
     s = str(source)

@@ -74,6 +74,7 @@ data at all get mean 0, std 1.
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -210,8 +211,11 @@ class Cache:
                 out = {k: z[k] for k in z.files}
         except FileNotFoundError:
             raise file_error(path, "clip file missing from the cache") from None
-        except (OSError, ValueError) as exc:
-            raise file_error(path, f"corrupt clip file ({exc})") from None
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:  # truncated or damaged .npz
+            raise file_error(path, f"corrupt clip file ({exc.__class__.__name__}: {str(exc)[:120]})") from None
+        missing = [k for k in PRESENCE_KEYS if k not in out]
+        if missing:
+            raise file_error(path, f"corrupt clip file (no {', '.join(missing)})")
         for k in PRESENCE_KEYS:
             out[k] = bool(out[k])
         if "mask" not in out:
@@ -224,8 +228,12 @@ class Cache:
         skel = skeleton_from_dict(self.index["skeleton"])
         if name is not None:
             self.entry(name)
-            with np.load(self.path / self._by_name[name]["file"], allow_pickle=False) as z:
-                skel.offsets = z["offsets"].astype(np.float64)
+            f = self.path / self._by_name[name]["file"]
+            try:
+                with np.load(f, allow_pickle=False) as z:
+                    skel.offsets = z["offsets"].astype(np.float64)
+            except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+                raise file_error(f, f"corrupt clip file ({exc.__class__.__name__})") from None
         return skel
 
     def stats(self, speaker: int | str | None = None) -> dict[str, np.ndarray]:

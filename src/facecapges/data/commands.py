@@ -66,7 +66,9 @@ def register(app: typer.Typer) -> None:
 
         from facecapges.data.prepare import prepare as run_prepare
         from facecapges.data.prepare import summary_table
+        from facecapges.errors import check_output_dir
 
+        check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
         target_skel = None
         if (mocap or joints9) and (target is not None or beat_root is None):
             target_skel = _target_skeleton(target)
@@ -129,11 +131,11 @@ def register(app: typer.Typer) -> None:
         A clip retargeted from another skeleton gives its BEAT pose; joints the source
         lacks hold the cache's mean rotation."""
         from facecapges.data.cache import Cache
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_file
         from facecapges.io.bvh import write_bvh
         from facecapges.skeleton import pose_to_motion
 
-        refuse_overwrite(out, force)
+        check_output_file(out, force)
         c = Cache(cache)
         arrays = c.load(clip)
         skel = c.skeleton(clip)

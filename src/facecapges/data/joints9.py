@@ -16,9 +16,9 @@ stored frame sits on the source skeleton:
 * ``clavicles``: BEAT shoulder joints the arrays do not store, solved from positions.
   The chest→upper-arm direction ``c`` in the chest's frame is turned onto BEAT by the
   stated correction ``K`` (ZEGGS's rest chest→arm direction to BEAT's), and the BEAT
-  clavicle takes the shortest-arc rotation from BEAT's rest chest→arm direction to
-  ``K c``: the shoulder swings as the source's, its twist about the collarbone stays
-  at rest.
+  clavicle is turned (shortest arc, about its own joint) until BEAT's upper arm lies
+  along ``K c`` (:func:`clavicle_rotation`): the shoulder swings as the source's, its
+  twist about the collarbone stays at rest.
 
 :func:`read_joints9` resamples to the model rate (60 → 15 fps keeps every 4th frame)
 and returns the BEAT pose (T, 47, 6) with ``mask`` (47,): True for the joints the
@@ -137,10 +137,28 @@ def joints9_to_pose(array: np.ndarray, layout: Joints9Layout, target: Skeleton) 
         d = np.einsum("tji,tj->ti", chest_s, P[c["arm"]] - P[c["chest"]])  # in the source chest frame
         q_chest = jmap.corrections.get(chest_t, np.eye(3))
         want = (c["correction"] @ q_chest.T @ d.T).T  # in BEAT's chest frame
-        b = rest[target.index(shoulder.replace("Shoulder", "Arm"))] - rest[target.index("Spine3")]
-        world[shoulder] = world[chest_t] @ rot.rotation_between(np.broadcast_to(b, want.shape), want)
+        world[shoulder] = world[chest_t] @ clavicle_rotation(target, rest, shoulder, want)
     root = world.pop(ROOT, None)
     return pose_from_world(target, world, root)
+
+
+def clavicle_rotation(target: Skeleton, rest: np.ndarray, shoulder: str, want: np.ndarray) -> np.ndarray:
+    """BEAT clavicle rotations (T, 3, 3), in the chest's frame, that put the upper arm along ``want`` (T, 3).
+
+    The clavicle turns about BEAT's shoulder joint (offset ``o`` from the chest) and
+    carries the upper-arm joint (offset ``a`` from it): the arm lands on the point ``x``
+    of the ray along ``want`` with ``|x − o| = |a|`` (the far one), and the clavicle takes
+    the shortest arc from ``a`` to ``x − o``. A ray that misses the sphere takes its
+    closest point.
+    """
+    chest = target.index("Spine3")
+    sh, arm = target.index(shoulder), target.index(shoulder.replace("Shoulder", "Arm"))
+    o, a = rest[sh] - rest[chest], rest[arm] - rest[sh]
+    w = want / np.linalg.norm(want, axis=-1, keepdims=True)
+    wo = w @ o
+    disc = np.maximum(wo * wo - o @ o + a @ a, 0.0)
+    x = (wo + np.sqrt(disc))[:, None] * w
+    return rot.rotation_between(np.broadcast_to(a, x.shape), x - o)
 
 
 def read_joints9(path: str | Path, target: Skeleton, layout: Joints9Layout | str | Path = "zeggs9",
@@ -151,4 +169,5 @@ def read_joints9(path: str | Path, target: Skeleton, layout: Joints9Layout | str
     array = load_array(path, layout)
     array = timing.resample(array, layout.fps, fps)
     pose, mask = joints9_to_pose(array, layout, target)
-    return Retargeted(pose=pose, mask=mask, fps=fps, map_name=layout.name)
+    return Retargeted(pose=pose, mask=mask, fps=fps, map_name=layout.name, source_fps=layout.fps,
+                      dataset=layout.dataset or layout.name, licence=layout.licence, speaker=layout.speaker)

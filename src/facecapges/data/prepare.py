@@ -184,51 +184,41 @@ def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Pat
     return arrays, len(audio_full) / sr
 
 
-def _other_entry(name: str, speaker: int, T: int, fps: float, audio_s: float, src_fps: float, dataset: str,
-                 origin: str, map_name: str, mask: np.ndarray) -> dict:
-    return {"name": name, "speaker": speaker, "split": "train", "kind": beat.SPEECH, "n_frames": T,
-            "duration_s": round(T / fps, 6), "audio_s": round(audio_s, 6), "source_fps": src_fps,
-            "file": f"{CLIP_DIR}/{name}.npz", "has_face": False, "has_semantic": False, "has_emotion": False,
-            "dataset": dataset, "origin": origin, "joint_map": map_name, "n_masked": int((~mask).sum()),
-            "holdout_from": holdout_frame(T)}
-
-
 def _speaker_of(given: int | None, declared: int | None, what: str) -> int:
-    spk = given if given is not None else declared if declared is not None else FIRST_OTHER_SPEAKER
+    spk = given if given is not None else declared
+    if spk is None:
+        raise UserError(f"{what}: its joint map states no speaker id; give one with --mocap-speaker / "
+                        f"--joints9-speaker ({FIRST_OTHER_SPEAKER + 1} or more; {FIRST_OTHER_SPEAKER} is ZEGGS's)")
     if spk < FIRST_OTHER_SPEAKER:
         raise UserError(f"{what}: speaker id {spk} is in BEAT's range; other performers take ids from "
                         f"{FIRST_OTHER_SPEAKER} on")
     return spk
 
 
-def prepare_mocap_clip(bvh_path: Path, wav: Path, target: Skeleton, fps: float, sr: int, joint_map, speaker):
-    """Arrays, entry and speaker info of a BVH of another skeleton (retargeted)."""
-    from facecapges.data.retarget import auto_map, load_map, retarget_bvh
-    from facecapges.io.bvh import read_bvh
+def prepare_other_clip(kind: str, path: Path, wav: Path, target: Skeleton, fps: float, sr: int,
+                       spec: str | Path | None, speaker: int | None) -> tuple[dict[str, np.ndarray], dict, dict]:
+    """Arrays, index entry and speaker info of a take of another source.
 
-    src = read_bvh(bvh_path)
-    jmap = load_map(joint_map) if joint_map else auto_map(src.skeleton, where=str(bvh_path))
-    r = retarget_bvh(bvh_path, target, jmap, fps=fps)
-    spk = _speaker_of(speaker, jmap.speaker, str(bvh_path))
+    ``kind`` is ``"mocap"`` (a BVH, retargeted with joint map ``spec``, default: detected)
+    or ``"joints9"`` (reduced-joint arrays, layout ``spec``, default ``zeggs9``).
+    """
+    from facecapges.data.joints9 import read_joints9
+    from facecapges.data.retarget import retarget_bvh
+
+    if kind == "mocap":
+        r, origin = retarget_bvh(path, target, spec, fps=fps), "retarget"
+    else:
+        r, origin = read_joints9(path, target, spec or "zeggs9", fps=fps), "joints9"
+    spk = _speaker_of(speaker, r.speaker, str(path))
     arrays, audio_s = _other_arrays(r.pose, r.mask, target, wav, fps, sr)
-    name = f"{jmap.name}_{bvh_path.stem}"
-    entry = _other_entry(name, spk, r.n_frames, fps, audio_s, src.fps, jmap.dataset or jmap.name, "retarget",
-                         jmap.name, r.mask)
-    return arrays, entry, {"dataset": jmap.dataset or jmap.name, "licence": jmap.licence, "performer": str(spk)}
-
-
-def prepare_joints9_clip(npy: Path, wav: Path, target: Skeleton, fps: float, sr: int, layout, speaker):
-    """Arrays, entry and speaker info of a reduced-joint take."""
-    from facecapges.data.joints9 import load_layout, read_joints9
-
-    lay = load_layout(layout or "zeggs9")
-    r = read_joints9(npy, target, lay, fps=fps)
-    spk = _speaker_of(speaker, lay.speaker, str(npy))
-    arrays, audio_s = _other_arrays(r.pose, r.mask, target, wav, fps, sr)
-    name = f"{lay.name}_{npy.stem}"
-    entry = _other_entry(name, spk, r.n_frames, fps, audio_s, lay.fps, lay.dataset or lay.name, "joints9",
-                         lay.name, r.mask)
-    return arrays, entry, {"dataset": lay.dataset or lay.name, "licence": lay.licence, "performer": str(spk)}
+    name = f"{r.map_name}_{path.stem}"
+    T = r.n_frames
+    entry = {"name": name, "speaker": spk, "split": "train", "kind": beat.SPEECH, "n_frames": T,
+             "duration_s": round(T / fps, 6), "audio_s": round(audio_s, 6), "source_fps": r.source_fps,
+             "file": f"{CLIP_DIR}/{name}.npz", "has_face": False, "has_semantic": False, "has_emotion": False,
+             "dataset": r.dataset, "origin": origin, "joint_map": r.map_name, "n_masked": int((~r.mask).sum()),
+             "holdout_from": holdout_frame(T)}
+    return arrays, entry, {"dataset": r.dataset, "licence": r.licence, "performer": str(spk)}
 
 
 def _check_out(out: Path, force: bool) -> None:
@@ -351,12 +341,10 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
                     reference = (target, Path("target skeleton"))
                 for kind, motion_path, wav in others:
                     bar.update(task, description=motion_path.stem[:24])
-                    if kind == "mocap":
-                        arrays, entry, info = prepare_mocap_clip(motion_path, wav, reference[0], fps, sr, joint_map,
-                                                                 mocap_speaker)
-                    else:
-                        arrays, entry, info = prepare_joints9_clip(motion_path, wav, reference[0], fps, sr, layout,
-                                                                   joints9_speaker)
+                    mocap_kind = kind == "mocap"
+                    arrays, entry, info = prepare_other_clip(
+                        kind, motion_path, wav, reference[0], fps, sr, joint_map if mocap_kind else layout,
+                        mocap_speaker if mocap_kind else joints9_speaker)
                     speaker_info.setdefault(str(entry["speaker"]), info)
                     add(arrays, entry)
 

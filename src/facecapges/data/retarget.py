@@ -206,12 +206,16 @@ def corrections_as_quaternions(corr: dict[str, np.ndarray], digits: int = 6) -> 
 # ------------------------------------------------------------- the retarget
 @dataclass
 class Retargeted:
-    """A retargeted take: BEAT pose rot6d (T, 47, 6) float32, the joint mask (47,) and the fps."""
+    """A retargeted take: BEAT pose rot6d (T, 47, 6) float32, the joint mask (47,), its fps and source."""
 
     pose: np.ndarray
     mask: np.ndarray
     fps: float
     map_name: str
+    source_fps: float
+    dataset: str = ""
+    licence: str = ""
+    speaker: int | None = None
 
     @property
     def n_frames(self) -> int:
@@ -292,7 +296,9 @@ def retarget_bvh(path: str | Path, target: Skeleton, jmap: JointMap | str | Path
         pose, mask = retarget_motion(bvh.skeleton, motion, target, jmap)
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
-    return Retargeted(pose=pose, mask=mask, fps=bvh.fps if fps is None else fps, map_name=jmap.name)
+    return Retargeted(pose=pose, mask=mask, fps=bvh.fps if fps is None else fps, map_name=jmap.name,
+                      source_fps=bvh.fps, dataset=jmap.dataset or jmap.name, licence=jmap.licence,
+                      speaker=jmap.speaker)
 
 
 def fill_masked(target: Skeleton, pose: np.ndarray, mask: np.ndarray, fill: np.ndarray) -> np.ndarray:

@@ -11,9 +11,16 @@ signatures:
   shifted-audio control.
 * :mod:`~facecapges.evaluation.l1div` — L1 diversity (eq. 5.11) and the per-sequence
   deviation from the temporal mean.
+* :mod:`~facecapges.evaluation.synchrony` — synchrony controls: audio-energy / wrist-speed
+  correlation against shifted audio (z), BeatAlign gap in sd units, wrist jerk and spread
+  as ratios to the real motion.
+* :mod:`~facecapges.evaluation.peers` — BA, SRGR and L1div exactly as BEAT/CaMN's and
+  EMAGE's scripts compute them (for comparisons with published numbers).
 * :mod:`~facecapges.evaluation.regions` — the two evaluation regions (5.5.5).
 * :mod:`~facecapges.evaluation.baselines` — reference rows (ground truth, mean pose,
   random real segment).
+* :mod:`~facecapges.evaluation.camn` — the CaMN baseline network (thesis 5.2.1), trained by
+  the project's trainer as a variant and evaluated by ``ablate``; why DiffSHEG is absent.
 * :mod:`~facecapges.evaluation.suite` — all metrics for several methods in both regions.
 * :mod:`~facecapges.evaluation.report` — ``metrics.json``, the Table 5.2 Markdown
   table and the PNG plots.
@@ -21,9 +28,10 @@ signatures:
   cache → report); :mod:`~facecapges.evaluation.commands` — ``fgd-train``, ``eval`` and
   ``ablate``.
 * :mod:`~facecapges.evaluation.ablate` — the ablation study of 5.7 (Table 5.3): full
-  model, without head pose, offline decoding (:mod:`facecapges.model.offline`), trained
-  with one recipe and evaluated on the held-out frames.
-* :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools.
+  model, without head pose, offline decoding (:mod:`facecapges.model.offline`) and the
+  CaMN baseline, trained with one recipe and evaluated on the held-out frames.
+* :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools and the
+  peer-architecture timing (FaceCapGes streaming vs CaMN online/offline).
 
 The side-by-side skeleton video is :mod:`facecapges.outputs.skeleton_video`.
 """

@@ -17,6 +17,11 @@ discriminator schedule, seed):
   by the same trainer, recipe and segments as ``offline`` and evaluated like it.
   DiffSHEG is not reproduced (it needs HuBERT features; see that module).
 
+**Given checkpoints** (``given``, ``--given full=STYLE_OR_FILE,camn=FILE``): a variant's
+row comes from that checkpoint as it is (e.g. the shipped style as ``full``, or a CaMN
+run stopped before its last epoch); when its stored recipe is not this one, the
+variants table says so ("given checkpoint (not this recipe: …)").
+
 **Reusing the shipped model for ``full``.** When the installed default style
 (``beat2-scott-demo``) was trained by exactly this recipe — its stored model config
 and training config (incl. epochs, hold-out frame and seed) equal the resolved ones,
@@ -67,7 +72,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -146,8 +151,12 @@ def make_recipe(config: Path | None, speaker: int, split: str | None, epochs: in
 def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_names: list[str]) -> str | None:
     """None when a checkpoint's metadata says it was trained by this recipe, else the reason."""
     mcfg, tcfg = recipe.resolved(model_extra)
+    from facecapges.model.config import TrainConfig, to_dict
+
+    # a field added to TrainConfig after the checkpoint was written counts at its default
+    stored_t = dict(to_dict(TrainConfig()), **(meta.get("train_config") or {}))
     checks = [(meta.get("model_config") == mcfg, "model config differs"),
-              (meta.get("train_config") == tcfg, "training config differs"),
+              (stored_t == tcfg, "training config differs"),
               (meta.get("epochs_trained") == tcfg["epochs"], "not trained for the full number of epochs"),
               (meta.get("speaker") == recipe.speaker, "other speaker"),
               (list(meta.get("clips") or []) == clip_names, "other clips"),
@@ -162,9 +171,10 @@ def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_name
 class TrainedVariant:
     name: str
     path: Path
-    source: str  # "trained", "shipped checkpoint", "existing run"
+    source: str  # "trained", "shipped checkpoint", "existing run", "given checkpoint …"
     seconds: float
     final_losses: dict = field(default_factory=dict)
+    epochs: int | None = None  # epochs the checkpoint was trained for (None: the recipe's)
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
@@ -175,8 +185,13 @@ def _load_clip_arrays(cache: Path, speaker: int, split: str):
 
 def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
                    reuse_default: bool = True, retrain: bool = False, progress: bool = True,
-                   say=print) -> dict[str, TrainedVariant]:
-    """Train (or reuse) every variant; see the module docstring."""
+                   say=print, given: Mapping[str, str] | None = None) -> dict[str, TrainedVariant]:
+    """Train (or reuse) every variant; see the module docstring.
+
+    ``given`` maps variants to checkpoints (a file, or for closed-loop variants an
+    installed style name) taken as they are, whatever recipe trained them; the table
+    says so.
+    """
     import json
 
     from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
@@ -189,12 +204,25 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
     for v in variants:
         run = out / "runs" / v
         extra = {"head_dim": 0} if v == "no_head" else None
+        if given and v in given:
+            ref = Path(given[v])
+            if v in SEGMENT_DECODERS:
+                path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
+            else:
+                ck = load_checkpoint(ref) if ref.is_file() or ref.is_dir() else load_checkpoint(style=given[v])
+                path, meta = ck.path, ck.meta
+            why = _same_recipe(meta, recipe, extra, names)
+            source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
+            say(f"[{v}] {path} taken as given" + ("" if why is None else f"; note: {why}"))
+            result[v] = TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
+            continue
         if v == "full" and reuse_default and not retrain and DEFAULT_STYLE in list_styles():
             ck = load_checkpoint(style=DEFAULT_STYLE)
             why = _same_recipe(ck.meta, recipe, None, names)
             if why is None:
                 say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
-                result[v] = TrainedVariant(v, ck.path, "shipped checkpoint", 0.0, ck.meta.get("final_losses", {}))
+                result[v] = TrainedVariant(v, ck.path, "shipped checkpoint", 0.0, ck.meta.get("final_losses", {}),
+                                           ck.meta.get("epochs_trained"))
                 continue
             say(f"[{v}] shipped checkpoint not reused ({why}); training")
         done = run / "model.safetensors"
@@ -312,8 +340,16 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     per_clip, real_clips, method_clips = [], [], {}
     for name in evaluated:
         a = loaded[name]
-        real, audio, inputs = heldout_inputs(a, start, fps, sr,
-                                             next(iter(runners.values())).meta.get("head_reference_rot6d"))
+        real, audio, _ = heldout_inputs(a, start, fps, sr)
+        inputs_by_ref: dict = {}  # each model gets the head in its own training frame
+
+        def inputs_for(r):
+            ref = r.meta.get("head_reference_rot6d")
+            key = None if ref is None else tuple(np.asarray(ref, np.float64).ravel().round(9))
+            if key not in inputs_by_ref:
+                inputs_by_ref[key] = heldout_inputs(a, start, fps, sr, ref)[2]
+            return inputs_by_ref[key]
+
         histories = [None] + [bl.random_segment(pool, n_hist, rng) for _ in range(samples - 1)]
         if F_ is not None:
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))
@@ -322,7 +358,7 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
         methods = {"ground truth": bl.ground_truth(real), "mean pose": bl.mean_pose_sequence(pool, len(real)),
                    "random real segment": segment}
         for v, r in runners.items():
-            methods[LABELS[v]] = [r.run(inputs, h, progress) for h in histories]
+            methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None
         per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
                                         offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
@@ -343,7 +379,8 @@ def _fgd_for(out: Path, recipe: Recipe, trained: dict[str, TrainedVariant], cach
     if fgd_location is not None:
         return load_fgd(fgd_location), str(fgd_paths(fgd_location)[0])
     full = trained.get("full")
-    if full is not None and full.source == "shipped checkpoint" and fgd_paths(full.path)[1].is_file():
+    if full is not None and full.source.startswith(("shipped checkpoint", "given checkpoint")) and \
+            fgd_paths(full.path)[1].is_file():
         say(f"FGD: the shipped checkpoint's autoencoder {fgd_paths(full.path)[0].parent}")
         return load_fgd(full.path), str(fgd_paths(full.path)[0])
     loc = out / "fgd"
@@ -378,7 +415,7 @@ def ablation_markdown(full: dict) -> str:
         held = fl.get("held_rec")
         ms = res["ms_per_frame"].get(LABELS[v])
         took = f"{info['seconds'] / 60:.1f} min" if info["seconds"] else "—"
-        where = Path(info["path"]).name if info["source"] == "shipped checkpoint" else f"runs/{v}/"
+        where = Path(info["path"]).name if info["source"].startswith(("shipped", "given")) else f"runs/{v}/"
         lines.append(f"| {LABELS[v]} | {info['source']} ({where}) | {info['epochs']} | "
                      f"{'—' if rec is None else f'{rec:.5f}'} | {'—' if held is None else f'{held:.5f}'} | "
                      f"{took} | "
@@ -391,7 +428,15 @@ def ablation_markdown(full: dict) -> str:
               "window, the others from the same random real histories for every variant). The offline variant "
               "decodes each held-out sequence in one pass seeded by that same history; the two closed-loop "
               "variants run frame by frame through the streaming generator.",
-              f"FGD autoencoder: `{full['fgd_autoencoder']}`.", ""]
+              f"FGD autoencoder: `{full['fgd_autoencoder']}`."]
+    if "camn" in full["variants"]:
+        lines += ["", "CaMN (baseline) is our implementation of BEAT's CaMN (`facecapges.evaluation.camn`: "
+                      "non-causal conv encoders, fusion cascade, 4-layer bidirectional body and hands LSTMs of 256 "
+                      "units) on the same audio, face and head inputs, trained by the same trainer, recipe and "
+                      "segments as the offline-decoding variant and decoded like it. DiffSHEG (thesis 5.2.1) is not "
+                      "reproduced: it needs HuBERT speech features from a pretrained model that cannot be obtained "
+                      "on this machine."]
+    lines.append("")
     return md + "\n".join(lines)
 
 
@@ -400,6 +445,7 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
                  reuse_default: bool = True, retrain: bool = False, fgd_location: Path | None = None,
                  fgd_epochs: int = 400, samples: int = 3, seed: int = 0,
                  offsets_s: Sequence[float] = tuple(range(2, 61, 2)), progress: bool = True, say=print,
+                 given: Mapping[str, str] | None = None,
                  command: str | None = None) -> dict:
     """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
     from facecapges.data.cache import Cache
@@ -415,7 +461,10 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
     recipe = make_recipe(config, speaker, split, epochs, holdout_from, c.fps)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say)
+    unknown = sorted(set(given or {}) - set(variants))
+    if unknown:
+        raise UserError(f"--given names variant(s) not in --variants: {', '.join(unknown)}")
+    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say, given)
     fgd, fgd_file = _fgd_for(out, recipe, trained, cache, fgd_location, fgd_epochs, progress, say)
     say("evaluating the variants on the held-out frames")
     result = evaluate_variants(cache, recipe, trained, fgd, samples, seed, offsets_s, progress)
@@ -424,7 +473,8 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
            "recipe": {"config_path": recipe.config_path, "split": recipe.split, "holdout_from": recipe.holdout_from,
                       "speaker": recipe.speaker, "model_over": recipe.model_over, "train": tcfg},
            "variants": {v: {"label": LABELS[v], "path": str(t.path), "source": t.source, "seconds": t.seconds,
-                            "epochs": tcfg["epochs"], "final_losses": t.final_losses} for v, t in trained.items()}}
+                            "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
+                            "final_losses": t.final_losses} for v, t in trained.items()}}
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
     return doc

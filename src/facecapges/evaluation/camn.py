@@ -39,11 +39,13 @@ Evaluation decodes a whole held-out sequence in one pass from the same N-frame
 history the streaming models start from, placed before the sequence with zero inputs
 (:meth:`CaMN.generate`), exactly as the offline-decoding ablation is run.
 
-**DiffSHEG** (thesis 5.2.1) is not provided: it conditions a diffusion transformer on
-HuBERT speech features (a 95M-parameter pretrained speech model) jointly with
-expression; no HuBERT weights can be obtained on this machine (no model hub, no
-download at run time), and training a substitute speech model on one minute of speech
-would not be DiffSHEG. Its rows in Tables 5.2/5.3 cannot be reproduced here.
+**DiffSHEG** (thesis 5.2.1) is not provided: it conditions a diffusion model jointly
+generating expression and gesture on HuBERT speech features, i.e. on a large
+self-supervised speech model pretrained on hundreds of hours of audio. No HuBERT weights
+come with anything the project installs and nothing may be downloaded at run time (no
+model hub); a speech model trained here on one minute of speech would not be HuBERT,
+and DiffSHEG without it would not be DiffSHEG. Its rows in Tables 5.2/5.3 are therefore
+not reproduced.
 
 Checkpoint: one ``.safetensors``, metadata format ``facecapges-camn-1``
 (:func:`save_camn` / :func:`load_camn`), holding the :class:`ModelConfig` (for the
@@ -52,7 +54,6 @@ shared sizes: joints, face channels, N, rates) and the :class:`CaMNConfig`.
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -270,23 +271,10 @@ def save_camn(path: str | Path, model: CaMN, meta: dict) -> Path:
 
 def load_camn(path: str | Path) -> tuple[CaMN, dict]:
     """A CaMN checkpoint (eval mode) and its metadata; clear errors for other files."""
-    from safetensors import SafetensorError, safe_open
+    from facecapges.model.checkpoint import read_weights
 
     p = Path(path)
-    if not p.is_file():
-        raise file_error(p, "CaMN checkpoint not found")
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    try:
-        meta = json.loads(raw) if raw else {}
-    except ValueError:
-        raise file_error(p, "corrupt checkpoint metadata") from None
-    if meta.get("format") != CAMN_FORMAT:
-        raise file_error(p, f"not a CaMN checkpoint (format {meta.get('format')!r})")
+    tensors, meta = read_weights(p, CAMN_FORMAT, "CaMN checkpoint")
     try:
         camn_cfg = CaMNConfig(**meta.get("camn_config", {}))
     except TypeError as exc:

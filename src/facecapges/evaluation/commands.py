@@ -51,6 +51,19 @@ def _parse_offsets(text: str) -> list[float]:
         raise UserError(f"--offsets must be START:STOP:STEP or a comma list of seconds, got {text!r}") from None
 
 
+def _parse_given(text: str | None) -> dict[str, str]:
+    """``"full=beat2-scott-demo,camn=run/model.safetensors"`` → {variant: checkpoint}."""
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        name, sep, ref = item.partition("=")
+        if not sep or not name.strip() or not ref.strip():
+            raise UserError(f"--given must be VARIANT=CHECKPOINT[,VARIANT=CHECKPOINT…], got {text!r}")
+        out[name.strip()] = ref.strip()
+    return out
+
+
 def register(app: typer.Typer) -> None:
     @app.command("fgd-train")
     def fgd_train(
@@ -126,10 +139,11 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
         """Evaluate a checkpoint the way thesis ch. 5 does (FGD, SRGR, BeatAlign, L1DIV; both regions)."""
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_dir
         from facecapges.evaluation.run import run_eval
 
-        refuse_overwrite(out / "metrics.json", force)
+        check_output_dir(out, ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+                         + (["real_vs_generated.mp4"] if video else []), force)
         if split not in ("train", "val", "test", "all"):
             raise UserError(f"--split must be train, val, test or all, got {split!r}")
         summary = run_eval(cache=cache, out=out, checkpoint=checkpoint, style=style, speaker=speaker, split=split,
@@ -162,6 +176,10 @@ def register(app: typer.Typer) -> None:
         reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
                                            help="Use the shipped default checkpoint as 'full' when its stored "
                                                 "recipe and data match."),
+        given: Optional[str] = typer.Option(None, "--given", help="VARIANT=CHECKPOINT[,…]: take these rows from "
+                                                                  "existing checkpoints as they are (a file, or an "
+                                                                  "installed style for full/no_head), whatever "
+                                                                  "their recipe, e.g. full=beat2-scott-demo."),
         retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
                                                               "finished model of this recipe."),
         fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
@@ -177,17 +195,20 @@ def register(app: typer.Typer) -> None:
         """Ablation study (thesis 5.7, Table 5.3): train the variants with one budget, evaluate them."""
         import sys
 
-        from facecapges.errors import refuse_overwrite
+        from facecapges.errors import check_output_dir
         from facecapges.evaluation.ablate import run_ablation
 
-        refuse_overwrite(out / "ablation.json", force)
         if fgd_epochs < 1:
             raise UserError("--fgd-epochs must be at least 1")
         chosen = tuple(v.strip() for v in variants.split(",") if v.strip())
+        # every output is checked before any training; --retrain would replace the runs' models
+        check_output_dir(out, ["ablation.json", "ablation.md"]
+                         + ([f"runs/{v}/model.safetensors" for v in chosen] if retrain else []), force)
         doc = run_ablation(cache=cache, out=out, speaker=speaker, config=config, epochs=epochs, split=split,
                            holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
                            fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
                            offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
+                           given=_parse_given(given),
                            command="facecapges " + " ".join(sys.argv[1:]))
         typer.echo((out / "ablation.md").read_text())
         typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "

@@ -16,12 +16,17 @@ Conventions
   *truncated*: libsndfile would silently return the part that is there, so
   :func:`load_audio` checks the chunk sizes itself and refuses such a file.
 
+* Long files can be read block by block (:func:`audio_blocks`, :func:`audio_level`),
+  so memory stays flat in the length of the input: soxr's streaming resampler for
+  libsndfile formats, ffmpeg's pipe read in pieces for the others.
+
 Every problem a user can fix (missing, truncated, undecodable, empty file, a video
 without sound) raises :class:`~facecapges.errors.UserError` naming the file.
 """
 
 from __future__ import annotations
 
+import math
 import struct
 import subprocess
 from pathlib import Path
@@ -117,6 +122,132 @@ def load_audio(path: str | Path, sr: int = AUDIO_SR) -> np.ndarray:
     if not np.isfinite(audio).all():
         raise file_error(path, "audio contains NaN or infinite samples")
     return np.ascontiguousarray(audio, dtype=np.float32)
+
+
+def check_audio(path: str | Path) -> Path:
+    """Check that ``path`` is audio we can decode, cheaply (header, or ffmpeg on the first second).
+
+    For commands that use the audio only at their end (``render --audio``): the file is
+    refused before the work, with the message :func:`load_audio` would give.
+    """
+    path = require_file(path, "audio file")
+    if path.stat().st_size == 0:
+        raise file_error(path, "audio file is empty (0 bytes)")
+    if path.suffix.lower() in FFMPEG_SUFFIXES:
+        import imageio_ffmpeg
+
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-t", "1", "-i", str(path),
+               "-vn", "-ac", "1", "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+        proc = subprocess.run(cmd, capture_output=True, check=False)
+        err = proc.stderr.decode("utf-8", "replace").strip()
+        if proc.returncode != 0 or not proc.stdout:
+            if not err or "does not contain any stream" in err or "matches no streams" in err:
+                raise file_error(path, "has no audio track")
+            raise file_error(path, f"cannot decode audio ({err.splitlines()[-1]})")
+        return path
+    problem = _riff_truncation(path)
+    if problem:
+        raise file_error(path, problem)
+    try:
+        info = sf.info(str(path))
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        reason = str(exc).split(":", 1)[-1].strip() or "unreadable"
+        raise file_error(path, f"not a readable audio file ({reason})") from None
+    if info.frames == 0:
+        raise file_error(path, "audio file holds no samples")
+    return path
+
+
+BLOCK_SECONDS = 30.0  # seconds of audio per block of the streaming readers
+
+
+def _check_readable(path: Path) -> sf.SoundFile | None:
+    """The open SoundFile of a libsndfile format (None for ffmpeg formats); UserError when unreadable."""
+    path = require_file(path, "audio file")
+    if path.stat().st_size == 0:
+        raise file_error(path, "audio file is empty (0 bytes)")
+    if path.suffix.lower() in FFMPEG_SUFFIXES:
+        return None
+    problem = _riff_truncation(path)
+    if problem:
+        raise file_error(path, problem)
+    try:
+        return sf.SoundFile(str(path))
+    except (sf.LibsndfileError, RuntimeError, TypeError) as exc:
+        reason = str(exc).split(":", 1)[-1].strip() or "unreadable"
+        raise file_error(path, f"not a readable audio file ({reason})") from None
+
+
+def _native_blocks(path: Path, sr: int | None, block_s: float):
+    """(rate, iterator of mono float32 blocks): at the file's own rate when ``sr`` is None."""
+    f = _check_readable(path)
+    if f is None:  # ffmpeg decodes (and resamples) onto a pipe we read in pieces
+        import imageio_ffmpeg
+
+        rate = sr or AUDIO_SR
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path),
+               "-vn", "-ac", "1", "-ar", str(rate), "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+
+        def gen():
+            proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+            try:
+                n = int(block_s * rate) * 4
+                while chunk := proc.stdout.read(n):
+                    yield np.frombuffer(chunk[: len(chunk) // 4 * 4], dtype="<f4").astype(np.float32)
+                err = proc.stderr.read().decode("utf-8", "replace").strip()
+                if proc.wait() != 0:
+                    if "does not contain any stream" in err or "matches no streams" in err:
+                        raise file_error(path, "has no audio track")
+                    raise file_error(path, f"cannot decode audio ({(err.splitlines() or ['ffmpeg failed'])[-1]})")
+            finally:
+                if proc.poll() is None:
+                    proc.kill()
+                    proc.wait()
+        return rate, gen()
+
+    def gen_sf():
+        with f:
+            for block in f.blocks(blocksize=max(1, int(block_s * f.samplerate)), dtype="float32", always_2d=True):
+                yield block.mean(axis=1)
+    return f.samplerate, gen_sf()
+
+
+def audio_blocks(path: str | Path, sr: int = AUDIO_SR, block_s: float = BLOCK_SECONDS):
+    """Mono float32 blocks of ``path`` at ``sr`` Hz, decoded and resampled piece by piece.
+
+    The same samples as :func:`load_audio` (soxr high quality, streaming), with memory
+    that does not grow with the file's length.
+    """
+    path = Path(path)
+    rate, blocks = _native_blocks(path, sr, block_s)
+    if rate == sr:
+        yield from blocks
+        return
+    import soxr
+
+    rs = soxr.ResampleStream(rate, sr, 1, dtype="float32", quality="HQ")
+    for block in blocks:
+        yield rs.resample_chunk(block)
+    yield rs.resample_chunk(np.zeros(0, np.float32), last=True)
+
+
+def audio_level(path: str | Path, block_s: float = BLOCK_SECONDS) -> tuple[float, float]:
+    """(duration in s, RMS level in dBFS) of a file, read block by block at its own rate (no resampling).
+
+    For refusing silent input before any work: memory is flat in the file's length.
+    """
+    path = Path(path)
+    rate, blocks = _native_blocks(path, None, block_s)
+    n, energy = 0, 0.0
+    for block in blocks:
+        if not np.isfinite(block).all():
+            raise file_error(path, "audio contains NaN or infinite samples")
+        n += len(block)
+        energy += float(np.dot(block.astype(np.float64), block.astype(np.float64)))
+    if n == 0:
+        raise file_error(path, "audio file holds no samples")
+    rms = math.sqrt(energy / n)
+    return n / rate, (20.0 * math.log10(rms) if rms > 0 else float("-inf"))
 
 
 def save_audio(path: str | Path, audio: np.ndarray, sr: int = AUDIO_SR, subtype: str = "PCM_16") -> Path:

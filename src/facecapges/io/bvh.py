@@ -154,6 +154,90 @@ def write_bvh(path: str | Path, skeleton: Skeleton, motion: np.ndarray, fps: flo
     motion = np.asarray(motion, dtype=np.float64)
     if motion.ndim != 2 or motion.shape[1] != skeleton.n_channels:
         raise ValueError(f"motion must be (T, {skeleton.n_channels}), got {motion.shape}")
+    with BvhWriter(path, skeleton, motion.shape[0], fps) as w:
+        w.write(motion)
+    return Path(path)
+
+
+class BvhWriter:
+    """A BVH file written block by block (memory flat in its length): the header with
+    ``n_frames``, then :meth:`write` as many (n, C) blocks as make ``n_frames`` rows.
+
+    Written under ``PATH.part`` and renamed by :meth:`close` once every declared frame is
+    there; :meth:`abort` (or an exception inside ``with``) removes the partial file.
+
+    ``n_frames=None`` (a live recording of unknown length): the file is written at
+    ``PATH`` itself and is a valid BVH after every :meth:`flush` — the frame count is a
+    fixed-width field (``Frames: 0000000042``) rewritten in place — so a recording cut
+    off at any moment still opens.
+    """
+
+    COUNT_WIDTH = 10
+
+    def __init__(self, path: str | Path, skeleton: Skeleton, n_frames: int | None, fps: float):
+        self.path = Path(path)
+        self.growing = n_frames is None
+        self.skeleton, self.n_frames, self.written = skeleton, (0 if n_frames is None else int(n_frames)), 0
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.path if self.growing else self.path.with_name(self.path.name + ".part")
+        self._f = self.tmp.open("w", encoding="utf-8")
+        head = "\n".join(_header_lines(skeleton, self.n_frames, fps)) + "\n"
+        if self.growing:
+            head = head.replace("Frames: 0\n", "Frames: " + "0" * self.COUNT_WIDTH + "\n")
+            self._count_at = len(head.encode("utf-8").split(b"\nFrames: ")[0]) + len("\nFrames: ")
+        self._f.write(head)
+
+    def flush(self) -> None:
+        """Growing file: patch the frame count and push everything to disk (a valid BVH now)."""
+        self._f.flush()
+        if self.growing:
+            end = self._f.tell()
+            self._f.seek(self._count_at)
+            self._f.write(f"{self.written:0{self.COUNT_WIDTH}d}")
+            self._f.seek(end)
+            self._f.flush()
+
+    def write(self, motion: np.ndarray) -> None:
+        motion = np.asarray(motion, dtype=np.float64)
+        if motion.ndim != 2 or motion.shape[1] != self.skeleton.n_channels:
+            raise ValueError(f"motion must be (n, {self.skeleton.n_channels}), got {motion.shape}")
+        if not self.growing and self.written + len(motion) > self.n_frames:
+            raise ValueError(f"more than the {self.n_frames} frames declared")
+        if len(motion):
+            self._f.write("\n".join(" ".join(f"{v:.6f}" for v in row) for row in motion) + "\n")
+        self.written += len(motion)
+
+    def close(self) -> Path:
+        if self.growing:
+            self.flush()
+            self._f.close()
+            return self.path
+        self._f.close()
+        if self.written != self.n_frames:
+            self.abort()
+            raise ValueError(f"{self.written} frames written, {self.n_frames} declared")
+        self.tmp.replace(self.path)
+        return self.path
+
+    def abort(self) -> None:
+        if self.growing:  # what was recorded stays, as a valid file
+            self.close()
+            return
+        self._f.close()
+        self.tmp.unlink(missing_ok=True)
+
+    def __enter__(self) -> "BvhWriter":
+        return self
+
+    def __exit__(self, exc_type, *exc) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _header_lines(skeleton: Skeleton, n_frames: int, fps: float) -> list[str]:
+    """HIERARCHY … MOTION, Frames, Frame Time: the lines before the motion rows."""
     out: list[str] = ["HIERARCHY"]
     children = skeleton.children()
 
@@ -179,12 +263,6 @@ def write_bvh(path: str | Path, skeleton: Skeleton, motion: np.ndarray, fps: flo
     for root in (j for j in range(skeleton.n_joints) if skeleton.parents[j] < 0):
         emit(root, 0)
     out.append("MOTION")
-    out.append(f"Frames: {motion.shape[0]}")
+    out.append(f"Frames: {n_frames}")
     out.append(f"Frame Time: {1.0 / fps:.7f}")
-    body = "\n".join(" ".join(f"{v:.6f}" for v in row) for row in motion)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".part")
-    tmp.write_text("\n".join(out) + "\n" + body + "\n", encoding="utf-8")
-    tmp.replace(path)
-    return path
+    return out

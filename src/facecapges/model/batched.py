@@ -18,8 +18,8 @@ tensor              shape                  meaning
 ``x_face``          (S, R_f, L_f, C_f)     same for the face TCN
 ``gx_t``, ``gx_u``  (S, N, 4H)             ring of the history frames' LSTM input
                                            projections ``W_ih·[z_τ; s_τ] + b``
-``hc``              (S, 4, H)              h_t, c_t, h_u, c_u: torso and limb LSTM
-                                           states, carried across steps (4.1.4)
+``hc``              (S, 2, 2H)             [h_t | h_u], [c_t | c_u]: torso and limb
+                                           LSTM states, carried across steps (4.1.4)
 ``frames``          (S,)                   frames pushed so far
 ==================  =====================  ===========================================
 
@@ -38,7 +38,7 @@ real step, not from a copy of it):
   frame is fixed once its pose is known, so it is computed once per frame and kept
   (``gx_*``); a step projects only the current frame (pose slot zero, eq. 3.5) and the
   torso outputs that feed the limb LSTM (eq. 4.13), runs both N+1-step recurrences
-  (:func:`lstm_window`) from the carried state, decodes the last step with the MLP
+  (:class:`Cascade`) from the carried state, decodes the last step with the MLP
   heads, and writes the new frame's projections into the history ring (eq. 4.11).
 
 Decoders with more than one LSTM layer run ``FaceCapGes.step`` on the gathered
@@ -48,19 +48,44 @@ Nothing mixes across the batch axis: each stream's output equals the naive
 re-windowed loop's on the same inputs (tested to 1e-5), and a one-slot generator gives
 the same poses as a slot of a batch.
 
-What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13), measured
-on this 2-core machine in one run, default checkpoint, one thread, median ms per
-step (``python -m facecapges.model.batched`` prints the table; load average beside):
+What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13): measured
+on this 2-core machine, default checkpoint, one thread, the candidates interleaved in
+one run; CPU ms per step (``time.thread_time``, so the other helpers' load — average
+16–22 during the run — inflates all alike, ~3× a quiet machine's figures):
 
-=====================================  =========  ========  ==========
-kernel                                 B = 1      B = 64    start-up
-=====================================  =========  ========  ==========
-TorchScript (before)                   see below
-eager, this module                     see below
-torch.compile (inductor)               see below
-=====================================  =========  ========  ==========
+=====================================  =========  =========  ===============================
+kernel                                 B = 1      B = 64     start-up
+=====================================  =========  =========  ===============================
+TorchScript (the old step)             2.47       19.7       ~1 s (scripting)
+eager, this module (before lockstep)   3.20       22.6       none
+torch.compile (inductor) of the step   2.42       18.4       191 s (B = 1), 210 s (B = 64)
+                                                             cold, per batch shape; 5.5 s
+                                                             from a warm on-disk cache
+torch.export, the LSTM window only     1.74       —          18.6 s to export
+  (same window in eager: 1.08)
+=====================================  =========  =========  ===============================
 
-Chosen: **eager** (see :data:`KERNEL_MEASUREMENT`).
+Chosen: **eager**. torch.compile runs no faster than TorchScript did and needs minutes
+of compilation for every checkpoint shape and batch size on first use — every
+``run``, ``live``, test and ``serve`` start would pay it on a fresh machine;
+``torch.export``'s program, run from Python, is slower than the eager code it records
+(and AOT-compiling it costs what inductor costs). What eager loses (1.3× CPU at one
+stream) is won back where it matters: the two LSTMs run in lockstep for small batches
+(:class:`Cascade`: 1.53 vs 1.67 ms for the decoder at B = 1, same run), Euler
+conversion moved to one vectorised pass (:func:`facecapges.rotations.matrix_to_euler`),
+and ``serve`` — which needed TorchScript's single GIL-free call so its event loop and
+the model would not wait for each other — runs this kernel in a process of its own
+(:mod:`facecapges.serving.model_process`).
+
+Where the rest of the CPU's peak goes (the step's 12 MFLOP reach a few % of the
+~100 GFLOP/s single-thread matmul peak, ``bench``'s ``fraction_of_peak``): the step is
+~360 small tensor operations, each a few µs of dispatch and allocation whatever its
+size (per-op overhead, most of the time at B = 1); its products are matrix–vector
+products (B = 1) that read every weight once per use — ~9 MB of weights per frame
+(the LSTMs' W_hh 17 times each) streamed from L2/L3, so they run at memory speed, not
+at the FMA units' peak; the audio front end's small strided convolutions are far
+from GEMM efficiency. Batching (``serve``) turns the products into matrix–matrix ones
+and spreads the per-op overhead over the streams.
 
 Thread safety: every public method takes one internal lock, so one thread may
 open/close slots while another steps.
@@ -83,8 +108,13 @@ STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_enc
 _NO_SCOPE = contextlib.nullcontext()
 
 
+stage_listener = None  # a function stage name → context manager, set by the benchmark to count FLOPs per stage
+
+
 def stage(name: str):
     """The profiler scope ``facecapges::<name>`` while a profiler records, else nothing (≈ free)."""
+    if stage_listener is not None:
+        return stage_listener(name)
     return record_function("facecapges::" + name) if torch.autograd.profiler._is_profiler_enabled else _NO_SCOPE
 
 
@@ -117,6 +147,19 @@ def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:
     if a.shape[1] != n:
         raise ValueError(f"{what} must have {n} values per stream, got {a.shape[1]}")
     return torch.from_numpy(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0))
+
+
+def no_input_embedding(model) -> torch.Tensor:
+    """Embedding (E,) of a frame before the stream starts: the encoders over zero features.
+
+    Exactly the causal zero padding of the sequence encoders, so a stream's first frames
+    see the same past as a whole clip encoded at once. ``model``: anything with the
+    FaceCapGes encoders (``audio_enc``, ``face_enc``, ``head_enc``).
+    """
+    cfg = model.cfg
+    z_a = model.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
+    z_f = model.face_enc.mlp(model.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a))
+    return torch.cat([z_a, z_f, model.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
 
 
 # ------------------------------------------------------------------ the kernel's pieces
@@ -160,16 +203,70 @@ def lstm_window(gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torc
     return outs, c
 
 
+class Cascade:
+    """The torso LSTM and the limb LSTM it conditions (eq. 4.12–4.13) over one window.
+
+    :meth:`run` takes the input gates of each window step, ``gx_t``, ``gx_u`` (B, W, 4H),
+    without the limb's torso-output term, and the carried states ``h``, ``c`` (B, 2H) as
+    ``[torso | limb]``; it returns the final ``h``, ``c``. Two schedules of the same
+    recurrence (same gates as ``torch.nn.LSTM``, order i, f, g, o), chosen by batch size:
+
+    * **lockstep** (B ≤ :attr:`LOCKSTEP_MAX_BATCH`): iteration m runs torso step m and
+      limb step m − 1 as one cell — the limb's input at step m − 1 is the torso output
+      h_t,m−1, exactly the torso half of the state iteration m starts from, so one
+      ``[h_t | h_u] @ w`` (2H × 8H, gate columns interleaved ``[i_t i_u f_t f_u …]``)
+      gives both cells' recurrent gates and the limb's torso term: W + 1 cells of ~9
+      ops instead of 2W. Fewer ops win when the per-op overhead dominates (one stream);
+    * **sequential** (larger batches): the torso over the whole window, its outputs'
+      projection as one GEMM, then the limb — fewer multiply–adds (no zero block, W_x
+      read once), which wins once the products dominate.
+
+    Measured (CPU ms per kernel step, same run): lockstep vs sequential 1.53 vs 1.67 at
+    B = 1, 28.5 vs 22.6 at B = 64 (load 19, so ~3× a quiet machine's figures).
+    """
+
+    LOCKSTEP_MAX_BATCH = 4
+
+    def __init__(self, lstm_t: torch.nn.LSTM, lstm_u: torch.nn.LSTM):
+        H = self.H = lstm_t.hidden_size
+        self.w_t = lstm_t.weight_hh_l0.detach().t().contiguous()  # (H, 4H)
+        self.w_x = lstm_u.weight_ih_l0.detach()[:, -H:].t().contiguous()  # limb input = [e; s; o_t]
+        self.w_u = lstm_u.weight_hh_l0.detach().t().contiguous()
+        top = torch.stack([self.w_t.reshape(H, 4, H), self.w_x.reshape(H, 4, H)], 2)
+        bottom = torch.stack([torch.zeros(H, 4, H), self.w_u.reshape(H, 4, H)], 2)
+        self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).contiguous()
+
+    def run(self, gx_t: torch.Tensor, gx_u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor]:
+        B, W, _ = gx_t.shape
+        H = self.H
+        if B > self.LOCKSTEP_MAX_BATCH:
+            o_t, c_t = lstm_window(gx_t, h[:, :H], c[:, :H], self.w_t)
+            o_u, c_u = lstm_window(gx_u + torch.matmul(torch.stack(o_t, 1), self.w_x), h[:, H:], c[:, H:], self.w_u)
+            return torch.cat([o_t[-1], o_u[-1]], 1), torch.cat([c_t, c_u], 1)
+        z = gx_t.new_zeros(B, 1, 4, H)
+        gx = torch.stack([torch.cat([gx_t.view(B, W, 4, H), z], 1), torch.cat([z, gx_u.view(B, W, 4, H)], 1)], 3)
+        h_u, c_u = h[:, H:], c[:, H:]
+        for m, x in enumerate(gx.view(B, W + 1, 8 * H).unbind(1)):
+            g = torch.addmm(x, h, self.w)
+            i, f, _, o = g.sigmoid().chunk(4, 1)
+            c = torch.addcmul(f * c, i, g[:, 4 * H:6 * H].tanh())
+            h = o * c.tanh()
+            if m == 0:  # there is no limb step −1: the limb state stays as carried
+                h, c = torch.cat([h[:, :H], h_u], 1), torch.cat([c[:, :H], c_u], 1)
+            elif m == W - 1:  # the torso's last step
+                h_t, c_t = h[:, :H], c[:, :H]
+        return torch.cat([h_t, h[:, H:]], 1), torch.cat([c_t, c[:, H:]], 1)
+
+
 class _LSTMBlocks:
-    """A one-layer ``nn.LSTM`` whose W_ih is cut into the blocks acting on [e; s; extra]."""
+    """A one-layer ``nn.LSTM``'s W_ih blocks acting on the embedding and the pose of [e; s; extra]."""
 
     def __init__(self, lstm: torch.nn.LSTM, e_dim: int, s_dim: int):
         w = lstm.weight_ih_l0.detach()
         self.w_e = w[:, :e_dim].t().contiguous()  # (E, 4H)
         self.w_s = w[:, e_dim:e_dim + s_dim].t().contiguous()  # (J*6, 4H)
-        self.w_x = w[:, e_dim + s_dim:].t().contiguous()  # (extra, 4H); empty for the torso LSTM
         self.b = (lstm.bias_ih_l0 + lstm.bias_hh_l0).detach()[None]  # (1, 4H)
-        self.w_hh_t = lstm.weight_hh_l0.detach().t().contiguous()  # (H, 4H)
 
 
 class BatchedStreamingGenerator:
@@ -193,13 +290,10 @@ class BatchedStreamingGenerator:
         if self.fast:
             self._bt = _LSTMBlocks(model.decoder.lstm_t, self.E, cfg.pose_dim)
             self._bu = _LSTMBlocks(model.decoder.lstm_u, self.E, cfg.pose_dim)
+            self._cascade = Cascade(model.decoder.lstm_t, model.decoder.lstm_u)
         self._hist_offsets = torch.arange(-N, 0)
         with torch.inference_mode():
-            m = model
-            # embedding of a frame before the stream: the encoders over zero features
-            z_a0 = m.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
-            z_f0 = m.face_enc.mlp(m.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a0))
-            self._e0 = torch.cat([z_a0, z_f0, m.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0].clone()  # (E,)
+            self._e0 = no_input_embedding(model).clone()  # (E,)
         self.capacity = 0
         self._free: list[int] = []
         self._open: set[int] = set()
@@ -229,7 +323,7 @@ class BatchedStreamingGenerator:
         if self.fast:
             self.gx_t = grow("gx_t", (capacity, N, 4 * H))
             self.gx_u = grow("gx_u", (capacity, N, 4 * H))
-            self.hc = grow("hc", (capacity, 4, H))
+            self.hc = grow("hc", (capacity, 2, 2 * H))  # [h_t | h_u], [c_t | c_u]
         else:  # the model's own step: rings of embeddings and poses, (L, S, H) states
             self.emb = grow("emb", (capacity, W, self.E))
             self.hist = grow("hist", (capacity, N, cfg.pose_dim))
@@ -342,14 +436,13 @@ class BatchedStreamingGenerator:
         rows = torch.remainder(frames[:, None] + self._hist_offsets, N)  # (B, N): history, oldest first
         cur_t = torch.addmm(bt.b, e, bt.w_e)  # the current frame: its pose slot is zero (eq. 3.5)
         cur_u = torch.addmm(bu.b, e, bu.w_e)
-        hc = self.hc[idx]  # (B, 4, H)
-        gx = torch.cat([self.gx_t[idx[:, None], rows], cur_t[:, None]], 1)  # (B, N+1, 4H)
-        o_t, c_t = lstm_window(gx, hc[:, 0], hc[:, 1], bt.w_hh_t)  # torso (eq. 4.12)
-        gx = torch.cat([self.gx_u[idx[:, None], rows], cur_u[:, None]], 1)
-        gx += torch.matmul(torch.stack(o_t, 1), bu.w_x)  # the torso outputs condition the limbs (eq. 4.13)
-        o_u, c_u = lstm_window(gx, hc[:, 2], hc[:, 3], bu.w_hh_t)
-        self.hc[idx] = torch.stack([o_t[-1], c_t, o_u[-1], c_u], 1)
-        pose = torch.cat([dec.head_t(o_t[-1]), dec.head_u(o_u[-1])], -1)  # only the last step is decoded
+        hc = self.hc[idx]  # (B, 2, 2H)
+        gx_t = torch.cat([self.gx_t[idx[:, None], rows], cur_t[:, None]], 1)  # (B, N+1, 4H)
+        gx_u = torch.cat([self.gx_u[idx[:, None], rows], cur_u[:, None]], 1)
+        h, c = self._cascade.run(gx_t, gx_u, hc[:, 0], hc[:, 1])  # eq. 4.12-4.13
+        self.hc[idx] = torch.stack([h, c], 1)
+        H = self.cfg.lstm_hidden
+        pose = torch.cat([dec.head_t(h[:, :H]), dec.head_u(h[:, H:])], -1)  # only the last step is decoded
         self._push_pose(idx, frames, e, pose, (cur_t, cur_u))
         return pose
 
@@ -383,7 +476,7 @@ class BatchedStreamingGenerator:
         self.frames[idx] = frames + 1
 
     def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
-        ids = [int(s) for s in np.asarray(slots, dtype=np.int64).reshape(-1)]
+        ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
         if len(set(ids)) != len(ids):
             raise ValueError("a stream can take only one frame per batched step")
         closed = [s for s in ids if s not in self._open]

@@ -153,10 +153,37 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
-def read_checkpoint_file(p: Path, fmt: str, what: str = "FaceCapGes") -> tuple[dict, dict]:
-    """Tensors and metadata of a checkpoint file of format ``fmt``; one clear error for anything else."""
+def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
     from safetensors import SafetensorError, safe_open
 
+    p = Path(path)
+    if not p.is_file():
+        raise file_error(p, f"{what} not found")
+    try:
+        with safe_open(str(p), framework="pt") as f:
+            raw = (f.metadata() or {}).get("facecapges")
+            tensors = {k: f.get_tensor(k) for k in f.keys()}
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    try:
+        meta = json.loads(raw) if raw else {}
+    except json.JSONDecodeError:
+        raise file_error(p, "checkpoint metadata is corrupt") from None
+    if meta.get("format") != fmt:
+        raise file_error(p, f"not a {what} (format {meta.get('format')!r})")
+    return tensors, meta
+
+
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
+    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
+    import torch
+    from safetensors import SafetensorError, safe_open
+
+    from facecapges.model.config import model_config_from_dict
+    from facecapges.model.network import FaceCapGes, with_default_norms
+
+    p = resolve(path, style)
     try:
         with safe_open(str(p), framework="pt") as f:
             raw_meta = (f.metadata() or {}).get("facecapges")
@@ -164,26 +191,21 @@ def read_checkpoint_file(p: Path, fmt: str, what: str = "FaceCapGes") -> tuple[d
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
     if raw_meta is None:
-        raise file_error(p, f"not a {what} checkpoint (no 'facecapges' metadata)")
+        raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
     try:
         meta = json.loads(raw_meta)
-    except json.JSONDecodeError:
+    except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != fmt:
-        raise file_error(p, f"not a {what} checkpoint (format {meta.get('format')!r}, expected {fmt})")
-    return tensors, meta
-
-
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
-    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
-    import torch
-
-    from facecapges.model.config import model_config_from_dict
-    from facecapges.model.network import FaceCapGes, with_default_norms
-
-    p = resolve(path, style)
-    tensors, meta = read_checkpoint_file(p, FORMAT)
-    cfg = model_config_from_dict(meta["model_config"])
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        fmt = meta.get("format") if isinstance(meta, dict) else None
+        raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
+    for key in ("model_config",):
+        if key not in meta:
+            raise file_error(p, f"checkpoint metadata has no {key!r}: not a complete FaceCapGes checkpoint")
+    try:
+        cfg = model_config_from_dict(meta["model_config"])
+    except UserError as exc:
+        raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
     model = FaceCapGes(cfg)
     try:
         model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)

@@ -112,25 +112,89 @@ class TrainConfig:
         return lr_g, self.d_lr_ratio * lr_g
 
 
-def _from_dict(cls, data: dict):
+# The allowed range of every setting: (least, greatest) — None is open — or the allowed
+# values; checked with the type of the field by :func:`check_fields` so a bad value is one
+# message naming the setting, never a traceback deep in training.
+LIMITS: dict[str, dict[str, tuple | set]] = {
+    "ModelConfig": {
+        "fps": (1, 240), "sr": (8000, 192000), "audio_repr": {"raw", "mel"}, "n_history": (1, 256),
+        "n_joints": {47}, "n_torso": (1, 46), "n_face": {52}, "audio_frontend_channels": (1, 4096),
+        "audio_tcn_channels": (1, 4096), "audio_tcn_dilations": (1, 256), "audio_dim": (1, 4096),
+        "face_tcn_channels": (1, 4096), "face_tcn_dilations": (1, 256), "face_dim": (1, 4096),
+        "head_hidden": (1, 4096), "head_dim": (0, 4096), "lstm_hidden": (1, 4096), "lstm_layers": (1, 16),
+        "mlp_hidden": (1, 8192), "dropout": (0.0, 0.99), "disc_channels": (1, 4096),
+    },
+    "TrainConfig": {
+        "clip_len": (2, 100_000), "stride": (1, 100_000), "batch_size": (1, 1 << 20), "lr_base": (1e-12, 100.0),
+        "d_lr_ratio": (0.0, 1000.0), "optimizer": {"sgd", "adam"}, "momentum": (0.0, 0.999),
+        "epochs": (1, 1_000_000), "adv_start_epoch": (1, 1_000_000), "huber_beta": (1e-9, 1000.0),
+        "w_rec": (0.0, 1e9), "w_vel": (0.0, 1e9), "w_acc": (0.0, 1e9), "w_adv": (0.0, 1e9),
+        "grad_clip": (0.0, 1e9), "seed": (0, 2**32 - 1), "holdout_from": (1, None), "num_threads": (0, 1024),
+    },
+}
+
+
+def _check_value(where: str, kind: str, v, limits):
+    """One setting against its type (the field's annotation) and its limits; returns the clean value."""
+    def bad(expected: str):
+        return UserError(f"{where} must be {expected}, got {v!r}")
+
+    if kind.endswith("| None"):
+        if v is None:
+            return None
+        kind = kind[: -len("| None")].strip()
+    if kind.startswith("tuple["):
+        if not isinstance(v, (list, tuple)) or not v:
+            raise bad("a non-empty list of whole numbers")
+        return tuple(_check_value(f"{where}[{i}]", "int", x, limits) for i, x in enumerate(v))
+    if kind == "int":
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise bad("a whole number")
+    elif kind == "float":
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v or v in (float("inf"), float("-inf")):
+            raise bad("a number")
+        v = float(v)
+    elif kind == "str":
+        if not isinstance(v, str):
+            raise bad("a text value")
+    if isinstance(limits, set):
+        if v not in limits:
+            raise bad("one of " + ", ".join(repr(x) for x in sorted(limits)))
+    elif limits is not None:
+        lo, hi = limits
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise bad(f"at least {lo}" if hi is None else f"between {lo} and {hi}")
+    return v
+
+
+def check_fields(cls, data) -> dict:
+    """``data`` checked against the settings of ``cls`` (names, types, ranges); the clean keyword arguments."""
+    section = {"ModelConfig": "model", "TrainConfig": "train"}.get(cls.__name__, cls.__name__)
+    if not isinstance(data, dict):
+        raise UserError(f"the '{section}' settings must be a mapping of name: value, got {data!r}")
     names = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - names)
+    unknown = sorted(set(map(str, data)) - names)
     if unknown:
         raise UserError(f"unknown {cls.__name__} setting(s): {', '.join(unknown)}")
-    kwargs = {}
-    for f in fields(cls):
-        if f.name in data:
-            v = data[f.name]
-            kwargs[f.name] = tuple(v) if isinstance(v, list) else v
-    return cls(**kwargs)
+    limits = LIMITS.get(cls.__name__, {})
+    return {f.name: _check_value(f"{section}.{f.name}", str(f.type), data[f.name], limits.get(f.name))
+            for f in fields(cls) if f.name in data}
+
+
+def _from_dict(cls, data: dict):
+    return cls(**check_fields(cls, data))
 
 
 def model_config_from_dict(data: dict) -> ModelConfig:
     return _from_dict(ModelConfig, data).validate()
 
 
-def train_config_from_dict(data: dict) -> TrainConfig:
-    return _from_dict(TrainConfig, data)
+def train_config_from_dict(data: dict, model: ModelConfig | None = None) -> TrainConfig:
+    cfg = _from_dict(TrainConfig, data)
+    if model is not None and cfg.clip_len <= model.n_history:
+        raise UserError(f"train.clip_len must be more than model.n_history = {model.n_history} (the warm-up "
+                        f"frames; the rest are generated), got {cfg.clip_len}")
+    return cfg
 
 
 def to_dict(cfg) -> dict:
@@ -145,12 +209,20 @@ def load_config_file(path: str | Path) -> tuple[dict, dict]:
     if not p.is_file():
         raise UserError(f"{p}: config file not found")
     try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except yaml.YAMLError as exc:
+        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as exc:
         raise UserError(f"{p}: not valid YAML/JSON ({exc.__class__.__name__})") from None
     if not isinstance(data, dict) or set(data) - {"model", "train"}:
         raise UserError(f"{p}: expected a mapping with 'model' and/or 'train' sections")
-    return dict(data.get("model") or {}), dict(data.get("train") or {})
+    model, train = data.get("model") or {}, data.get("train") or {}
+    for name, section in (("model", model), ("train", train)):
+        if not isinstance(section, dict):
+            raise UserError(f"{p}: '{name}:' must be a mapping of settings, got {section!r}")
+    try:  # every value now, before any data is read
+        train_config_from_dict(dict(train), model_config_from_dict(dict(model)))
+    except UserError as exc:
+        raise UserError(f"{p}: {exc}") from None
+    return dict(model), dict(train)
 
 
 

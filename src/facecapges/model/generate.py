@@ -5,6 +5,12 @@ rate (audio framed, face JSON resampled causally, head rotation aligned) and
 :func:`generate_poses` runs the :class:`~facecapges.model.streaming.StreamingGenerator`
 frame by frame from a cold start. The result has ``ceil(duration·fps)`` frames.
 
+Long recordings: :func:`plan_inputs` checks the files (the silence check reads the
+audio block by block) and :meth:`StreamedInputs.blocks` hands out the audio frames a
+block at a time, so :func:`generate_blocks` and a block-wise writer (``generate``
+writes the BVH with :class:`facecapges.io.bvh.BvhWriter`) keep memory flat in the
+input's length; only the face and head tracks (232 bytes per frame) are held whole.
+
 Missing modalities: without a face track the face is neutral (all weights 0); without
 a head track the head is at rest (identity rotation). A face track shorter than the
 audio holds its last frame; a longer one is cut.
@@ -22,6 +28,8 @@ from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.errors import UserError, file_error
 from facecapges.rotations import identity_rot6d
+
+BLOCK_FRAMES = 900  # frames per block when a recording is streamed (1 min at 15 fps)
 
 
 @dataclass
@@ -45,19 +53,56 @@ def _fit(x: np.ndarray, T: int) -> np.ndarray:
     return np.concatenate([x, np.repeat(x[-1:], T - len(x), 0)])
 
 
-def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, head_path: str | Path | None = None,
-                   fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> FrameInputs:
-    from facecapges.io.audio import is_silent, load_audio
+@dataclass
+class StreamedInputs:
+    """Inputs of a long recording, read block by block: face and head for every frame
+    (small: 232 bytes per frame) and the audio frames only while :meth:`blocks` runs."""
+
+    audio_path: Path
+    n_frames: int
+    face: np.ndarray  # (T, 52)
+    head: np.ndarray  # (T, 6)
+    fps: float
+    sr: int
+    notes: list[str]
+
+    def blocks(self, block_frames: int = BLOCK_FRAMES):
+        """(audio (n, samples_per_frame), face (n, 52), head (n, 6)) for consecutive frames."""
+        from facecapges.io.audio import audio_blocks
+
+        spf = timing.samples_per_frame(self.fps, self.sr)
+        stream = audio_blocks(self.audio_path, self.sr)
+        buf, offset, k = np.zeros(0, np.float32), 0, 0  # buf[0] is sample `offset` of the file
+        while k < self.n_frames:
+            kb = min(self.n_frames, k + block_frames)
+            starts, ends = timing.frame_sample_bounds(np.arange(k, kb), self.fps, self.sr)
+            while offset + len(buf) < ends[-1]:
+                more = next(stream, None)
+                if more is None:
+                    break
+                buf = np.concatenate([buf, more])
+            audio = np.zeros((kb - k, spf), np.float32)  # frames past the end of the audio are silent
+            for row, (a, b) in enumerate(zip(starts - offset, ends - offset)):
+                chunk = buf[a:b]
+                audio[row, :len(chunk)] = chunk
+            buf, offset = buf[starts[-1] - offset:], int(starts[-1])
+            yield audio, self.face[k:kb], self.head[k:kb]
+            k = kb
+
+
+def plan_inputs(audio_path: str | Path, face_path: str | Path | None = None, head_path: str | Path | None = None,
+                fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> StreamedInputs:
+    """Check the input files and read everything but the audio (module docstring); memory flat in length."""
+    from facecapges.io.audio import SILENCE_DB, audio_level
 
     notes: list[str] = []
-    audio = load_audio(audio_path, sr)
-    if len(audio) < timing.samples_per_frame(fps, sr) - 1:
-        raise file_error(audio_path, f"audio is shorter than one frame ({len(audio)} samples at {sr} Hz, "
+    audio_s, level_db = audio_level(audio_path)  # block by block: 1 h of silence is refused in flat memory
+    if audio_s * sr < timing.samples_per_frame(fps, sr) - 1:
+        raise file_error(audio_path, f"audio is shorter than one frame ({audio_s * sr:.0f} samples at {sr} Hz, "
                                      f"one frame is {sr / fps:.0f})")
-    if is_silent(audio):
+    if level_db < SILENCE_DB:
         raise file_error(audio_path, "audio is silent (below -50 dBFS): there is no speech to gesture to")
-    T = timing.n_frames_for(len(audio) / sr, fps)
-    frames = timing.frame_audio(audio, T, fps, sr)
+    T = timing.n_frames_for(audio_s, fps)
 
     face = np.zeros((T, N_BLENDSHAPES), np.float32)
     head = np.broadcast_to(identity_rot6d(), (T, 6)).copy()
@@ -69,6 +114,10 @@ def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, 
             notes.append(f"{face_path}: ignored unknown blendshape names: {', '.join(track.unknown_names)}")
         if track.n_frames == 0:
             raise file_error(face_path, "face track has no frames")
+        face_s = track.n_frames / track.fps
+        if abs(face_s - audio_s) > max(0.5, 0.05 * audio_s):
+            notes.append(f"{face_path}: the face track lasts {face_s:.1f} s, the audio {audio_s:.1f} s; "
+                         + ("its last frame is held" if face_s < audio_s else "it is cut") + " (are they the same take?)")
         face = _fit(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
         if track.head_rot6d is not None and head_path is None:
             head = _fit(timing.resample(track.head_rot6d, track.fps, fps), T).astype(np.float32)
@@ -85,33 +134,61 @@ def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, 
         if not np.isfinite(h).all():
             raise file_error(p, "head rotation contains NaN or infinite values")
         head = _fit(h.astype(np.float32), T)
-    return FrameInputs(audio=frames, face=face, head=head, fps=fps, notes=notes)
+    return StreamedInputs(Path(audio_path), T, face, head, fps, sr, notes)
+
+
+def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, head_path: str | Path | None = None,
+                   fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> FrameInputs:
+    """Every frame's inputs in memory (:func:`plan_inputs` + all its blocks at once)."""
+    plan = plan_inputs(audio_path, face_path, head_path, fps, sr)
+    audio = np.concatenate([a for a, _, _ in plan.blocks()]) if plan.n_frames else \
+        np.zeros((0, timing.samples_per_frame(fps, sr)), np.float32)
+    return FrameInputs(audio=audio, face=plan.face, head=plan.head, fps=fps, notes=plan.notes)
+
+
+def generate_blocks(checkpoint, blocks, n_frames: int, fps: float, progress: bool = True, timing_ms: list | None = None):
+    """Run one streaming generator over consecutive input blocks ``(audio, face, head)``; yields pose blocks
+    (n, 47, 6). ``timing_ms`` (a list) receives the model's ms per frame at the end."""
+    if abs(fps - checkpoint.fps) > 1e-6:
+        raise UserError(f"inputs are at {fps} fps, the checkpoint runs at {checkpoint.fps} fps")
+    import torch
+
+    gen = checkpoint.streaming()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # one small step at a time: more threads only spin
+    bar = None
+    if progress:
+        from rich.progress import Progress
+
+        bar = Progress(transient=True)
+        bar.start()
+        task = bar.add_task("generating", total=n_frames)
+    spent = 0.0
+    try:
+        for audio, face, head in blocks:
+            out = np.empty((len(audio), 47, 6), np.float32)
+            t0 = time.perf_counter()
+            for t in range(len(audio)):
+                out[t] = gen.step(audio[t], face[t], head[t])
+            spent += time.perf_counter() - t0
+            if not np.isfinite(out).all():  # never emit NaN: this would be a model bug
+                raise UserError("the model produced non-finite poses; the checkpoint is unusable")
+            if bar is not None:
+                bar.advance(task, len(audio))
+            yield out
+    finally:
+        torch.set_num_threads(threads)
+        if bar is not None:
+            bar.stop()
+    if timing_ms is not None:
+        timing_ms.append(spent * 1000 / max(n_frames, 1))
 
 
 def generate_poses(checkpoint, inputs: FrameInputs, progress: bool = True) -> tuple[np.ndarray, float]:
     """Run the streaming generator over every frame: poses (T, 47, 6), ms per frame."""
-    if abs(inputs.fps - checkpoint.fps) > 1e-6:
-        raise UserError(f"inputs are at {inputs.fps} fps, the checkpoint runs at {checkpoint.fps} fps")
-    import torch
-
-    gen = checkpoint.streaming()
-    T = inputs.n_frames
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # one small step at a time: more threads only spin
-    out = np.empty((T, 47, 6), np.float32)
-    t0 = time.perf_counter()
-    if progress:
-        from rich.progress import track
-
-        it = track(range(T), description="generating", transient=True)
-    else:
-        it = range(T)
-    try:
-        for t in it:
-            out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
-    finally:
-        torch.set_num_threads(threads)
-    ms = (time.perf_counter() - t0) * 1000 / max(T, 1)
-    if not np.isfinite(out).all():  # never emit NaN: this would be a model bug
-        raise UserError("the model produced non-finite poses; the checkpoint is unusable")
-    return out, ms
+    ms: list[float] = []
+    blocks = generate_blocks(checkpoint, [(inputs.audio, inputs.face, inputs.head)], inputs.n_frames, inputs.fps,
+                             progress, ms)
+    poses = list(blocks)
+    out = np.concatenate(poses) if poses else np.empty((0, 47, 6), np.float32)
+    return out, ms[0]

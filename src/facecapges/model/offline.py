@@ -45,7 +45,7 @@ import numpy as np
 import torch
 import torch.nn as nn
 
-from facecapges.errors import UserError, file_error
+from facecapges.errors import UserError
 from facecapges.model.config import ModelConfig, model_config_from_dict
 from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
 
@@ -77,11 +77,10 @@ class OfflineDecoder(nn.Module):
         return torch.cat([z_a, z_f, self.head_enc(head)], -1)
 
     def no_input_embedding(self) -> torch.Tensor:
-        """Embedding (E,) of a frame before the sequence: the encoders over zero features."""
-        cfg = self.cfg
-        z_a = self.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
-        z_f = self.face_enc.mlp(self.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a))
-        return torch.cat([z_a, z_f, self.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
+        """Embedding (E,) of a frame before the sequence: the streaming kernel's (same encoders)."""
+        from facecapges.model.batched import no_input_embedding
+
+        return no_input_embedding(self)
 
     # -------------------------------------------------------------- decoding
     def decode(self, z: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:
@@ -140,12 +139,10 @@ def save_offline(path: str | Path, model: OfflineDecoder, meta: dict) -> Path:
 
 def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
     """An offline-decoding checkpoint (eval mode) and its metadata."""
-    from facecapges.model.checkpoint import read_checkpoint_file
+    from facecapges.model.checkpoint import read_weights
 
     p = Path(path)
-    if not p.is_file():
-        raise file_error(p, "offline-decoding checkpoint not found")
-    tensors, meta = read_checkpoint_file(p, OFFLINE_FORMAT, "offline-decoding")
+    tensors, meta = read_weights(p, OFFLINE_FORMAT, "offline-decoding checkpoint")
     model = OfflineDecoder(model_config_from_dict(meta["model_config"]))
     try:
         model.load_state_dict(with_default_norms(model, tensors), strict=True)

@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from facecapges.model.batched import BatchedStreamingGenerator, initial_window
+from facecapges.model.batched import BatchedStreamingGenerator, initial_window, no_input_embedding
 from facecapges.model.network import FaceCapGes
 
 __all__ = ["StreamingGenerator", "NaiveStreamingGenerator", "initial_window"]
@@ -95,11 +95,8 @@ class NaiveStreamingGenerator:
         if neutral_window.shape != (N, self.cfg.n_joints, 6):
             raise ValueError(f"neutral window must be ({N}, {self.cfg.n_joints}, 6), got {neutral_window.shape}")
         self.neutral_window = neutral_window
-        with torch.inference_mode():  # a frame before the stream: the encoders over zero features
-            cfg, m = self.cfg, model
-            z_a0 = m.audio_enc.from_features(torch.zeros(1, 1, cfg.audio_tcn_channels))
-            z_f0 = m.face_enc.mlp(m.face_enc.tcn(torch.zeros(1, 1, cfg.face_tcn_channels), z_a0))
-            self.e0 = torch.cat([z_a0, z_f0, m.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
+        with torch.inference_mode():
+            self.e0 = no_input_embedding(model)
         self.reset()
 
     @torch.inference_mode()

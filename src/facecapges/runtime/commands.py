@@ -16,6 +16,14 @@ HEAD_HELP = ("What the avatar's head shows: capture (the person's head; the mode
 FACES_HELP = "Faces to follow, each with its own avatar (1-8; files, VMC ports and viewer avatars per face)."
 
 
+def _check_face_json(layout: str) -> None:
+    from facecapges.errors import UserError
+    from facecapges.io.face_json import FACE_LAYOUTS
+
+    if layout not in FACE_LAYOUTS:
+        raise UserError(f"--face-json {layout}: choose {' or '.join(FACE_LAYOUTS)}")
+
+
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run_cmd(
@@ -28,11 +36,15 @@ def register(app: typer.Typer) -> None:
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
         max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
         no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
         video_size: Optional[str] = typer.Option(None, "--video-size", help="Avatar video size WxH (default "
                                                                              "640x480; side_by_side.mp4 has its "
                                                                              "height)."),
         head: str = typer.Option("capture", "--head", help=HEAD_HELP),
         faces: int = typer.Option(1, "--faces", help=FACES_HELP),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Avatar of avatar.mp4: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
     ) -> None:
@@ -45,19 +57,26 @@ def register(app: typer.Typer) -> None:
         require_file(video, "video")
         if audio is not None:
             require_file(audio, "audio")
+        _check_face_json(face_json)
         ckpt = load_checkpoint(checkpoint, style)
         report = run_video(video, out, ckpt, audio=audio, max_frames=max_frames, force=force,
                            progress=not json_out, videos=not no_video, estimator=estimator, head=head, faces=faces,
-                           video_size=size)
+                           video_size=size, avatar=avatar, face_layout=face_json)
         if json_out:
             typer.echo(json.dumps(report, indent=2))
             return
         lat = report["latency_ms"]["total"]
         typer.echo(f"{report['frames']} frames → {out}  (compute per frame p50 {lat['p50']:.1f} ms, "
                    f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)")
-        ev = {k: v for k, v in report["events"].items() if v}
+        ev = {k: v for k, v in report["events"].items() if v and k != "video_frames_skipped"}
         if ev:
             typer.echo("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))
+        if report["events"].get("video_frames_skipped"):  # decimation to the model rate, not a loss
+            typer.echo(f"note: {report['events']['video_frames_skipped']} video frames were not needed at the "
+                       f"model's {report['fps']:g} fps (normal frame-rate conversion)")
+        if report.get("face_found_frames") == 0 and report["frames"]:
+            typer.secho("warning: no face was found in any frame of the video; the avatar's face stayed neutral "
+                        "and its head at rest", err=True, fg=typer.colors.YELLOW)
 
     @app.command("live")
     def live_cmd(
@@ -91,6 +110,12 @@ def register(app: typer.Typer) -> None:
                                                                 "the LAN."),
         record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
+        face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
+                                                                 "60 fps) or full (52 weights at the model rate)."),
+        vrma: bool = typer.Option(False, "--vrma", help="With --record: also record motion.vrma (VRM Animation, "
+                                                        "gestures + face as VRM presets)."),
+        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
+                                                                     "humanoid GLB (default: ours)."),
         checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
@@ -103,12 +128,16 @@ def register(app: typer.Typer) -> None:
         force: bool = typer.Option(False, "--force", help="Overwrite files in --record."),
     ) -> None:
         """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""
-        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.errors import UserError, check_output_dir
         from facecapges.model.checkpoint import load_checkpoint
         from facecapges.runtime.session import build_session
         from facecapges.runtime.live import default_outputs, livelink_hint, per_face_sinks
         from facecapges.runtime.web_server import is_loopback, parse_address
 
+        if livelink is not None:
+            from facecapges.errors import check_port
+
+            check_port(livelink, "--livelink")
         if camera is None and video is None and livelink is None:
             camera = 0
         web, default_note = default_outputs(web, vmc, record)
@@ -124,15 +153,27 @@ def register(app: typer.Typer) -> None:
                 raise UserError(f"--web {web}: refusing to serve on a non-loopback address without --host "
                                 f"{web_addr[0]}")
         vmc_addr = parse_address(vmc, "127.0.0.1", "--vmc") if vmc is not None else None
+        if avatar is not None:
+            from facecapges.avatar.vrm import load_model
+
+            if web_addr is None:
+                raise UserError("--avatar is the avatar of the browser viewer; pass --web too "
+                                "(VMC receivers show their own avatar)")
+            load_model(avatar)  # a bad file fails here, before any device opens
+        if vrma and record is None:
+            raise UserError("--vrma records into --record DIR; pass --record too")
         if record is not None:
             from facecapges.runtime.offline import output_names
 
-            for name in (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json"):
-                refuse_overwrite(record / name, force)
+            if vrma and faces > 1:
+                raise UserError("--vrma records one performer; use it with --faces 1")
+            check_output_dir(record, (*output_names(max(faces, 1))[:2 * max(faces, 1)], "report.json",
+                                      *(("motion.vrma",) if vrma else ())), force)
         if max_seconds is not None and max_seconds <= 0:
             raise UserError("--max-seconds must be positive")
         if vmc_avatar is not None and vmc is None:
             raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+        _check_face_json(face_json)
         if vmc_blend not in ("vrm", "perfect-sync", "both"):
             raise UserError(f"--vmc-blend {vmc_blend}: choose vrm, perfect-sync or both")
         ckpt = load_checkpoint(checkpoint, style)
@@ -144,8 +185,12 @@ def register(app: typer.Typer) -> None:
             except ValueError as exc:
                 raise UserError(f"--rate {rate:g}: {exc}") from None
         sinks, senders, ups = per_face_sinks(ckpt, faces, record, vmc_addr, vmc_blend=vmc_blend,
-                                             vmc_avatar=vmc_avatar, rate=rate)
+                                             vmc_avatar=vmc_avatar, rate=rate, face_layout=face_json)
         server = None
+        if vrma:
+            from facecapges.avatar.vrma import VrmaRecorder
+
+            sinks.append(VrmaRecorder(record / "motion.vrma", ckpt.skeleton, ckpt.fps))
         sess = build_session(ckpt, video=video, camera=camera, livelink=livelink, audio=audio, mic=mic,
                              realtime=realtime or video is None, loop=loop, depth_dir=depth, intrinsics=intrinsics,
                              estimator=estimator, host=bind, sinks=sinks, silent_ok=True, head=head, faces=faces)
@@ -157,15 +202,24 @@ def register(app: typer.Typer) -> None:
                 from facecapges.runtime.offline import _avatar_glb
                 from facecapges.runtime.web_server import ViewerServer, WebFeed
 
-                server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                if avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
+                    from facecapges.runtime.vrm_viewer import open_vrm_viewer
+
+                    server, feed_sink = open_vrm_viewer(avatar, ckpt, web_addr)
+                    if faces > 1:  # the VRM viewer shows one avatar: the first face
+                        from facecapges.runtime.sinks import ForFace
+
+                        feed_sink = ForFace(0, feed_sink)
+                else:
+                    server = ViewerServer(_avatar_glb(ckpt.skeleton), web_addr[0], web_addr[1], fps=ckpt.fps).start()
+                    feed_sink = WebFeed(server)
                 sess.closers.append(server)
                 if rate is not None and rate != ckpt.fps and faces == 1:
                     from facecapges.runtime.upsample import Upsampler
 
-                    ups.append(Upsampler([WebFeed(server)], ckpt.fps, rate))  # the viewer at --rate too
-                    sess.add_sink(ups[-1])
-                else:
-                    sess.add_sink(WebFeed(server))
+                    ups.append(Upsampler([feed_sink], ckpt.fps, rate))  # the viewer at --rate too
+                    feed_sink = ups[-1]
+                sess.add_sink(feed_sink)
                 typer.echo(f"viewer: {server.url}", nl=True)
             src = sess.video or sess.face_feed
             vmc_text = (["VMC %s:%d" % vmc_addr] if faces == 1 else

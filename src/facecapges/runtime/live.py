@@ -59,7 +59,8 @@ def livelink_hint(feed, bind: str, waiting: bool = False) -> str | None:
 
 
 def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, int] | None, *,
-                   vmc_blend: str = "both", vmc_avatar=None, rate: float | None = None):
+                   vmc_blend: str = "both", vmc_avatar=None, rate: float | None = None,
+                   face_layout: str = "beat"):
     """Recorders and VMC senders, one set per face (module docstring).
 
     Returns ``(sinks, senders, upsamplers)``: what the session writes to, the VMC senders
@@ -75,7 +76,7 @@ def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, i
         per = []
         if record is not None:
             per += [BvhRecorder(record / f"motion{sfx}.bvh", ckpt.skeleton, ckpt.fps),
-                    FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps)]
+                    FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout)]
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 

@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, refuse_overwrite
+from facecapges.errors import UserError, check_output_dir
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -149,8 +149,10 @@ def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple
 def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
               max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
               estimator: str = "hybrid", head: str = "capture", faces: int = 1,
-              video_size: tuple[int, int] = (640, 480)) -> dict:
-    """The whole ``run`` command (module docstring); returns the report."""
+              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None,
+              face_layout: str = "beat") -> dict:
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
+    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
 
     from facecapges.io.audio import save_audio
@@ -162,21 +164,22 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     video = Path(video)
     out_dir = Path(out_dir)
     check_head_mode(head)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a directory")
-    names = output_names(faces)
-    for name in names:
-        refuse_overwrite(out_dir / name, force)
+    check_output_dir(out_dir, output_names(faces), force)
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
     fps = checkpoint.fps
+    driver = None
+    if avatar is not None and videos:
+        from facecapges.avatar.vrm_view import VrmDriver
+
+        driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
     mems, sinks = [], []
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
         mem = MemoryRecorder()
         mems.append(mem)
         per = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
-               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps), mem]
+               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout), mem]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
                          sinks=sinks, head=head, faces=faces)
@@ -189,7 +192,13 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         t_loop = time.perf_counter()
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"run {video.name}", total=total)
-            why = sched.run(max_frames=total, on_frame=lambda o: bar.advance(task))
+            found = [0]
+
+            def on_frame(o) -> None:
+                found[0] += bool(o.face_found)
+                bar.advance(task)
+
+            why = sched.run(max_frames=total, on_frame=on_frame)
         t_loop_end = time.perf_counter()
         input_audio = sess.audio.samples
     finally:
@@ -197,7 +206,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
     if why == "interrupted":
         raise KeyboardInterrupt
     report = {"video": str(video), "audio": str(audio or video), "checkpoint": str(checkpoint.path),
-              **sched.report(), "head": head, "faces": faces, "outputs": {}}
+              **sched.report(), "head": head, "faces": faces, "face_found_frames": found[0], "outputs": {}}
     T = sched.frames
     follow = [head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0}
               for m in mems]
@@ -219,7 +228,15 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
                 quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
                 weights = np.clip(np.stack(m.weights), 0.0, 1.0)
                 dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
-                render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height)
+                if driver is not None:
+                    from facecapges.avatar.retarget import upper_body_locals
+                    from facecapges.avatar.vrm_view import render_vrm_video
+
+                    render_vrm_video(driver, upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights, fps,
+                                     dest, audio=wav, progress=progress, width=width, height=height)
+                else:
+                    render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width,
+                                 height=height)
                 renders.append(dest)
             if faces > 1:
                 side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)
@@ -228,7 +245,7 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
             t2 = time.perf_counter()
         report["seconds"].update({"avatar_video": round(t1 - t0, 3), "side_by_side_video": round(t2 - t1, 3)})
     report["seconds"]["total"] = round(time.perf_counter() - t_start, 3)
-    for name in names[:-1]:
+    for name in output_names(faces)[:-1]:
         p = out_dir / name
         if p.exists():
             report["outputs"][name] = str(p)

@@ -22,7 +22,7 @@ Server → client
      "weights": [52 floats],           # ARKit blendshape weights shown on the face
      "head": [6 floats],               # head rotation rot6d (head → camera)
      "face_found": true,
-     "face": 0,                        # which face / avatar (several with `live --faces N`)
+     "face": 0,                        # which face / avatar, 0-based (several with `live --faces N`)
      "latency_ms": {"capture": .., "features": .., "model": .., "total": ..},
                                        # compute of this frame; total = input frame → pose +
                                        # blendshapes ready (sending is not included)
@@ -48,6 +48,7 @@ import binascii
 import json
 import math
 import time
+from typing import Iterator, Sequence
 
 import numpy as np
 
@@ -76,17 +77,30 @@ def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> st
 
 def encode_pose(out: OutputFrame) -> str:
     """One :class:`OutputFrame` as a ``pose`` message."""
-    q = np.asarray(out.quats, np.float64).reshape(-1)
-    return json.dumps({
-        "type": "pose", "frame": int(out.index), "time": _r(out.time_s, 6),
-        "pose": [_r(v, 6) for v in q],
-        "weights": [_r(v, 5) for v in np.asarray(out.face).reshape(-1)],
-        "head": [_r(v, 6) for v in np.asarray(out.head).reshape(-1)],
-        "face_found": bool(out.face_found),
-        "face": int(out.face_index),
-        "latency_ms": {k: _r(v, 3) for k, v in out.latency_ms.items()},
-        "sent_ms": _r(time.time() * 1000.0, 1),
-    }, separators=(",", ":"))
+    return next(encode_poses([out.index], [out.time_s], np.asarray(out.quats)[None], np.asarray(out.face)[None],
+                             np.asarray(out.head)[None], [out.face_found], [out.latency_ms], [out.face_index]))
+
+
+def encode_poses(frames: Sequence[int], times_s: Sequence[float], quats: np.ndarray, faces: np.ndarray,
+                 heads: np.ndarray, face_found: Sequence[bool], latency_ms,
+                 face_index: Sequence[int] | None = None) -> Iterator[str]:
+    """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
+    one-frame use). ``quats`` (B, 47, 4), ``faces`` (B, 52), ``heads`` (B, 6) are rounded at once
+    (6, 5 and 6 decimals). ``latency_ms``: B dicts, or a function of the row called just before
+    that row is encoded (so a caller that sends each message as it comes reports its true latency).
+    ``face_index``: which face / avatar each row is (``live --faces N``); 0 for all by default.
+    """
+    B = len(frames)
+    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6).tolist()
+    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
+    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
+    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
+    for i in range(B):
+        yield json.dumps({"type": "pose", "frame": int(frames[i]), "time": _r(times_s[i], 6), "pose": q[i],
+                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
+                          "face": int(face_index[i]) if face_index is not None else 0,
+                          "latency_ms": {k: _r(v, 3) for k, v in lat(i).items()},
+                          "sent_ms": _r(time.time() * 1000.0, 1)}, separators=(",", ":"))
 
 
 def encode_input(frame: int, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> str:
@@ -118,6 +132,10 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
         msg = json.loads(text)
     except json.JSONDecodeError as exc:
         raise ProtocolError(f"not JSON ({exc.msg})") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        raise ProtocolError(f"not JSON ({str(exc)[:80]})") from None
+    except RecursionError:  # '[[[[…' deeper than the parser goes: bad input, not a crash
+        raise ProtocolError("JSON nested too deeply") from None
     if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
         raise ProtocolError("a message must be a JSON object with a string 'type'")
     kind = msg["type"]
@@ -149,11 +167,17 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
 
 
 def decode_pose(text: str) -> dict:
-    """Parse a ``pose`` message (for clients and tests): arrays as numpy."""
-    msg = json.loads(text)
-    if msg.get("type") != "pose":
-        raise ProtocolError(f"not a pose message: {msg.get('type')!r}")
-    msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
-    msg["weights"] = np.asarray(msg["weights"], np.float64)
-    msg["head"] = np.asarray(msg["head"], np.float64)
+    """Parse a ``pose`` message (for clients and tests): arrays as numpy; ProtocolError if it is not one."""
+    try:
+        msg = json.loads(text)
+    except (ValueError, RecursionError):
+        raise ProtocolError("not a JSON message") from None
+    if not isinstance(msg, dict) or msg.get("type") != "pose":
+        raise ProtocolError(f"not a pose message: {msg.get('type') if isinstance(msg, dict) else msg!r:.40}")
+    try:
+        msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
+        msg["weights"] = np.asarray(msg["weights"], np.float64).reshape(N_BLENDSHAPES)
+        msg["head"] = np.asarray(msg["head"], np.float64).reshape(6)
+    except (KeyError, TypeError, ValueError):
+        raise ProtocolError("a pose message needs 'pose' (47 × 4), 'weights' (52) and 'head' (6) numbers") from None
     return msg

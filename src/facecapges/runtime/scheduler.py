@@ -170,7 +170,7 @@ class Scheduler:
         if video is not None and capture is None:
             raise ValueError("a video source needs a FaceCapture")
         gens = list(generator) if isinstance(generator, (list, tuple)) else [generator]
-        if len(gens) > 1 and (video is None or getattr(capture, "num_faces", 1) != len(gens)):
+        if len(gens) > 1 and (video is None or capture.num_faces != len(gens)):
             raise ValueError("several generators need a video source and a FaceCapture(num_faces=N) to match")
         self.fps, self.sr = float(fps), int(sr)
         self.video, self.face_feed, self.audio, self.capture = video, face_feed, audio, capture
@@ -336,7 +336,7 @@ class Scheduler:
                     why = "stopped"
                     break
                 if max_frames is not None and self.frames >= max_frames:
-                    why = "frame limit"
+                    why = "end of input" if self.input_ended() else "frame limit"
                     break
                 if self.input_ended():
                     break

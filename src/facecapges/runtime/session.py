@@ -36,6 +36,7 @@ class Session:
     closers: list = field(default_factory=list)  # extra objects with close() (servers)
     notes: list[str] = field(default_factory=list)
     faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
+    torch_threads: int | None = None  # torch's thread count before the session; restored by close()
 
     def add_sink(self, sink) -> None:
         """A sink that starts receiving frames now (and is closed with the session)."""
@@ -57,6 +58,11 @@ class Session:
                 errors.append(exc)
         self.sinks, self.closers = [], []
         self.capture = self.video = self.face_feed = self.audio = None
+        if self.torch_threads is not None:  # the process's setting, as it was before the session
+            import torch
+
+            torch.set_num_threads(self.torch_threads)
+            self.torch_threads = None
         if errors:
             raise errors[0]
         return written
@@ -101,9 +107,9 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
 
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
+    sess = Session(scheduler=None, checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
     torch.set_num_threads(1)
     fps, sr = checkpoint.fps, 16000
-    sess = Session(scheduler=None, checkpoint=checkpoint, faces=int(faces))
     try:
         # the visual source first: a camera that cannot open is reported before anything else
         if video is not None:
@@ -132,9 +138,10 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             from facecapges.capture.pipeline import FaceCapture
 
             resolve_model(None)
-            K = getattr(sess.video, "intrinsics", None)
+            file_video = isinstance(sess.video, S.FileVideo)
+            K = sess.video.intrinsics if file_video else None
             sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
-            if getattr(sess.video, "depth_files", None) is not None:
+            if file_video and sess.video.depth_files is not None:
                 from facecapges.capture.depth import DepthHeadTracker
 
                 sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)

@@ -1,16 +1,19 @@
 """File sinks of the runtime: BVH motion and BEAT-format face JSON recorders.
 
 A sink has ``write(OutputFrame)`` (called once per frame by the scheduler, cheap: it
-only appends) and ``close()`` (writes the file atomically through
-:func:`facecapges.io.bvh.write_bvh` / :func:`facecapges.io.face_json.write_face_json`;
-safe to call twice). ``close`` is what makes Ctrl-C in ``live --record`` leave whole
-files behind. Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
+only appends) and ``close()`` (safe to call twice). The BVH is written as it happens
+(a growing :class:`facecapges.io.bvh.BvhWriter`, valid after every second of frames,
+so a long ``live --record`` keeps no motion in memory and a cut-off one still opens);
+the face JSON is written atomically by ``close`` through
+:func:`facecapges.io.face_json.write_face_json`. ``close`` runs on Ctrl-C and on
+SIGTERM/SIGHUP (the command line turns both into an interrupt). Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
 :mod:`.web_server`.
 
 * :class:`BvhRecorder` — the full BEAT skeleton of the checkpoint at the model rate;
   the 47 generated joints, every other joint at rest (``skeleton.pose_to_motion``).
-* :class:`FaceJsonRecorder` — the 52 ARKit weights the avatar showed, with the head
-  rotation (rot6d) per frame, at the model rate.
+* :class:`FaceJsonRecorder` — the ARKit weights the avatar showed, with the head
+  rotation (rot6d) per frame: BEAT's layout (51 names, 60 fps) or ``layout="full"``
+  (52 names at the model rate), :func:`facecapges.io.face_json.write_face_json`.
 * :class:`MemoryRecorder` — keeps quaternions and weights in memory for rendering the
   avatar video after ``run``.
 * :class:`ForFace` — passes on one face's frames only (a recorder per face for ``--faces N``).
@@ -30,29 +33,41 @@ from facecapges.runtime.frames import OutputFrame
 class BvhRecorder:
     def __init__(self, path: str | Path, skeleton, fps: float):
         self.path, self.skeleton, self.fps = Path(path), skeleton, fps
-        self.poses: list[np.ndarray] = []
+        self.poses: list[np.ndarray] = []  # the frames of the current second, not yet on disk
+        self.block = max(1, int(round(fps)))
+        self.writer = None
         self.closed = False
 
     def write(self, out: OutputFrame) -> None:
         self.poses.append(np.asarray(out.pose, np.float32))
+        if len(self.poses) >= self.block:
+            self._flush()
+
+    def _flush(self) -> None:
+        from facecapges.io.bvh import BvhWriter
+        from facecapges.rotations import normalize_rot6d
+        from facecapges.skeleton import pose_to_motion
+
+        if not self.poses:
+            return
+        if self.writer is None:
+            self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
+        poses = normalize_rot6d(np.stack(self.poses).astype(np.float64))
+        self.writer.write(pose_to_motion(self.skeleton, poses))
+        self.writer.flush()
+        self.poses = []
 
     def close(self) -> Path | None:
         if self.closed:
             return None
         self.closed = True
-        if not self.poses:
-            return None
-        from facecapges.io.bvh import write_bvh
-        from facecapges.rotations import normalize_rot6d
-        from facecapges.skeleton import pose_to_motion
-
-        poses = normalize_rot6d(np.stack(self.poses).astype(np.float64))
-        return write_bvh(self.path, self.skeleton, pose_to_motion(self.skeleton, poses), self.fps)
+        self._flush()
+        return self.writer.close() if self.writer is not None else None
 
 
 class FaceJsonRecorder:
-    def __init__(self, path: str | Path, fps: float):
-        self.path, self.fps = Path(path), fps
+    def __init__(self, path: str | Path, fps: float, layout: str = "beat"):
+        self.path, self.fps, self.layout = Path(path), fps, layout
         self.weights: list[np.ndarray] = []
         self.heads: list[np.ndarray] = []
         self.closed = False
@@ -69,7 +84,7 @@ class FaceJsonRecorder:
             return None
         from facecapges.io.face_json import write_face_json
 
-        return write_face_json(self.path, np.stack(self.weights), self.fps, np.stack(self.heads))
+        return write_face_json(self.path, np.stack(self.weights), self.fps, np.stack(self.heads), layout=self.layout)
 
 
 class MemoryRecorder:

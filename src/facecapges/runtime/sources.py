@@ -288,8 +288,8 @@ class FileAudio:
     def start(self, t0: float) -> None:
         self._t0 = t0
 
-    def ended_at(self, start: int) -> bool:
-        return not self.loop and start >= len(self.samples)
+    def ended_at(self, sample: int) -> bool:
+        return not self.loop and sample >= len(self.samples)
 
     def read(self, start: int, end: int, now_s: float | None = None) -> np.ndarray:
         if now_s is not None and self.realtime:
@@ -347,7 +347,7 @@ class MicAudio:
         self._t0 = t0
         self.stream.start()
 
-    def ended_at(self, start: int) -> bool:
+    def ended_at(self, sample: int) -> bool:
         return False
 
     def read(self, start: int, end: int, now_s: float | None = None) -> np.ndarray:

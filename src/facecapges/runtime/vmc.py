@@ -1,7 +1,7 @@
 """VMC protocol sender (OSC over UDP): drive VSeeFace, Warudo, VNyan … with the avatar.
 
 Each frame goes to ``host:port`` (default 127.0.0.1:39539, the VMC "Marionette" port)
-as a few OSC bundles (python-osc), every datagram at most :data:`MAX_DATAGRAM_BYTES`
+as a few OSC 1.0 bundles, every datagram at most :data:`MAX_DATAGRAM_BYTES`
 (1200 B: under any path MTU a LAN, Wi-Fi, VPN or IPv6 link has, so nothing is ever
 fragmented — one bundle with everything was 6.3 KB, five IP fragments, lost whole
 when one fragment is). In order::
@@ -14,7 +14,7 @@ when one fragment is). In order::
     /VMC/Ext/T  <stream time, s>
 
 ``/VMC/Ext/Blend/Apply`` is in the last datagram, after every ``Blend/Val`` of the
-frame; a receiver applies the frame's face at once. :func:`frame_datagrams` packs the
+frame; a receiver applies the frame's face at once. :func:`pack_bundles` packs the
 messages greedily in this order.
 
 Face clips (``blend``, ``live --vmc-blend``)
@@ -45,8 +45,9 @@ the same VRM. We do the same:
   optional in VRM) are not sent and their rotation folds into the next bone down.
 * without it, bones carry BEAT's rest offsets in metres and Hips stands at BEAT's hip
   height (0.89 m above the feet, from the leg chain), never at the floor. A receiver
-  must then use rotations only: EVMC4U "Bone Position Synchronize" off; VSeeFace,
-  Warudo and VNyan use the rotations (and the root) of a VMC stream.
+  that applies bone positions must then have that off (EVMC4U: "Bone Position
+  Synchronize"), as iFacialMocap's VMC output also asks; receivers that retarget use
+  only the rotations and the root.
 
 Conventions
 -----------
@@ -65,7 +66,8 @@ Conventions
   rotations of unmapped joints (marked "folded" below) are carried by the next mapped
   bone down the chain.
 
-BEAT → HumanBodyBones (``Left``/``Right`` alike; BEAT's side prefix kept)
+BEAT → HumanBodyBones (``Left``/``Right`` alike; BEAT's side prefix kept; derived from
+:data:`facecapges.avatar.vrm.BEAT_BONES`, the project's one BEAT → humanoid table)
 
 =====================  ==========================  ==================================
 BEAT joint             HumanBodyBones              note
@@ -73,8 +75,8 @@ BEAT joint             HumanBodyBones              note
 Hips                   Hips
 Spine                  Spine
 Spine1                 Chest
-Spine2                 UpperChest
-Spine3                 —                           folded into Neck
+Spine2                 —                           folded into UpperChest
+Spine3                 UpperChest
 Neck                   Neck
 Neck1                  —                           folded into Head
 Head                   Head
@@ -96,7 +98,6 @@ Head                   Head
 from __future__ import annotations
 
 import functools
-import json
 import socket
 import struct
 from pathlib import Path
@@ -114,94 +115,58 @@ MAX_DATAGRAM_BYTES = 1200  # module docstring
 BLEND_MODES = ("vrm", "perfect-sync", "both")
 
 
+def vrm_to_unity(bone: str) -> str:
+    """A VRM 1.0 humanoid bone name → Unity's ``HumanBodyBones`` name (``leftUpperArm`` → ``LeftUpperArm``).
+
+    VRM 1.0 counts the thumb from the metacarpal: ``thumbMetacarpal`` / ``thumbProximal`` /
+    ``thumbDistal`` are Unity's ``ThumbProximal`` / ``ThumbIntermediate`` / ``ThumbDistal``.
+    """
+    name = bone[0].upper() + bone[1:]
+    for old, new in (("ThumbProximal", "ThumbIntermediate"), ("ThumbMetacarpal", "ThumbProximal")):
+        if name.endswith(old):
+            return name[:-len(old)] + new
+    return name
+
+
 def _table() -> dict[str, str]:
-    t = {"Hips": "Hips", "Spine": "Spine", "Spine1": "Chest", "Spine2": "UpperChest", "Neck": "Neck", "Head": "Head"}
-    for side in ("Left", "Right"):
-        t.update({f"{side}Shoulder": f"{side}Shoulder", f"{side}Arm": f"{side}UpperArm",
-                  f"{side}ForeArm": f"{side}LowerArm", f"{side}Hand": f"{side}Hand"})
-        for beat, unity in (("Thumb", "Thumb"), ("Index", "Index"), ("Middle", "Middle"), ("Ring", "Ring"),
-                            ("Pinky", "Little")):
-            for k, seg in enumerate(("Proximal", "Intermediate", "Distal"), start=1):
-                t[f"{side}Hand{beat}{k}"] = f"{side}{unity}{seg}"
-    return t
+    from facecapges.avatar.vrm import BEAT_BONES  # the one BEAT → humanoid bone table
+
+    legs = ("UpperLeg", "LowerLeg", "Foot", "Toes")  # not generated: the receiver keeps its own legs
+    return {beat: vrm_to_unity(b) for b, beat in BEAT_BONES.items() if not b.endswith(legs)}
 
 
-BEAT_TO_UNITY: dict[str, str] = _table()  # the table of the module docstring
+BEAT_TO_UNITY: dict[str, str] = _table()  # the table of the module docstring (from facecapges.avatar.vrm)
 _UNITY_X = np.array([-1.0, 1.0, 1.0])  # right-handed (BEAT, VRM 1.0 glTF) → Unity positions
 
 
 def hip_height_cm(skeleton: Skeleton) -> float:
     """Height of the hips joint above the lowest joint (the feet) in the rest pose, cm."""
-    glob = np.zeros((skeleton.n_joints, 3))
-    for j in range(skeleton.n_joints):
-        p = int(skeleton.parents[j])
-        glob[j] = skeleton.offsets[j] + (glob[p] if p >= 0 else 0.0)
-    return float(glob[0, 1] - glob[:, 1].min())
+    from facecapges.avatar.body import rest_positions
 
-
-def _read_glb_json(path: Path) -> dict:
-    from facecapges.errors import file_error, require_file
-
-    path = require_file(path, "VRM avatar")
-    with open(path, "rb") as f:
-        head = f.read(20)
-        if len(head) < 20 or head[:4] != b"glTF":
-            raise file_error(path, "not a VRM/GLB file (no glTF binary header)")
-        n, kind = struct.unpack_from("<I4s", head, 12)
-        if kind != b"JSON" or n > 64 * 1024 * 1024:
-            raise file_error(path, "GLB without a JSON chunk")
-        raw = f.read(n)
-    try:
-        return json.loads(raw.decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError):
-        raise file_error(path, "the GLB's JSON chunk is not valid JSON") from None
+    rest = rest_positions(skeleton)
+    return float(rest[0, 1] - rest[:, 1].min())
 
 
 def vrm_rest_positions(path: str | Path) -> dict[str, np.ndarray]:
-    """A VRM avatar's humanoid bones → their rest local positions in Unity's frame (metres).
+    """A VRM avatar's humanoid bones → their rest local positions in Unity's frame (metres), Unity bone names.
 
-    Reads only the GLB's JSON chunk. VRM 0.x (``extensions.VRM``) faces −Z in glTF and
-    UniVRM imports it with z negated; VRM 1.0 (``extensions.VRMC_vrm``) faces +Z and is
-    imported with x negated (thumb bones renamed: ``thumbMetacarpal`` is Unity's
-    ``ThumbProximal``). The position is the node's ``translation`` (relative to its
-    parent node), which is the ``Transform.localPosition`` a VMC receiver sets.
+    The file is read by :func:`facecapges.avatar.vrm.load_model` (VRM 0.x / 1.0 / humanoid
+    GLB; UserError otherwise). The position is the bone node's ``translation`` (relative to
+    its parent node), which is the ``Transform.localPosition`` a VMC receiver sets. VRM 0.x
+    faces −Z in glTF and UniVRM imports it with z negated; VRM 1.0 (and GLB) faces +Z and
+    is imported with x negated.
     """
-    from facecapges.errors import file_error
+    from facecapges.avatar.vrm import load_model, split_glb
 
-    path = Path(path)
-    doc = _read_glb_json(path)
-    ext = doc.get("extensions") or {}
+    model = load_model(path)
+    doc, _ = split_glb(model.data, str(path))
     nodes = doc.get("nodes") or []
-    if isinstance(ext.get("VRMC_vrm"), dict):
-        bones = ((ext["VRMC_vrm"].get("humanoid") or {}).get("humanBones") or {})
-        items = [(k, v.get("node")) for k, v in bones.items() if isinstance(v, dict)]
-        flip = _UNITY_X
-        rename = {"ThumbMetacarpal": "ThumbProximal", "ThumbProximal": "ThumbIntermediate"}
-    elif isinstance(ext.get("VRM"), dict):
-        bones = ((ext["VRM"].get("humanoid") or {}).get("humanBones") or [])
-        items = [(b.get("bone"), b.get("node")) for b in bones if isinstance(b, dict)]
-        flip = np.array([1.0, 1.0, -1.0])
-        rename = {}
-    else:
-        raise file_error(path, "not a VRM avatar (no VRM or VRMC_vrm extension)")
+    flip = np.array([1.0, 1.0, -1.0]) if model.kind == "vrm0" else _UNITY_X
     out = {}
-    for name, node in items:
-        if not isinstance(name, str) or not name or not isinstance(node, int) or not 0 <= node < len(nodes):
-            continue
-        unity = name[0].upper() + name[1:]
-        for side in ("Left", "Right"):
-            for old, new in rename.items():
-                if unity == side + old:
-                    unity = side + new
-                    break
-            else:
-                continue
-            break
+    for bone, node in model.bones.items():
         t = np.asarray(nodes[node].get("translation", [0.0, 0.0, 0.0]), np.float64)
         if t.shape == (3,) and np.isfinite(t).all():
-            out[unity] = t * flip
-    if "Hips" not in out:
-        raise file_error(path, "the VRM humanoid has no hips bone")
+            out[vrm_to_unity(bone)] = t * flip
     return out
 
 
@@ -217,8 +182,11 @@ class VmcMapping:
         self.skeleton = skeleton
         names = list(skeleton.names)
         missing = [n for n in BEAT_TO_UNITY if n not in names]
-        if missing:
-            raise ValueError(f"skeleton lacks BEAT joints {missing[:5]}")
+        if missing:  # the user's skeleton: the same error as the avatar's check_skeleton
+            from facecapges.errors import UserError
+
+            raise UserError(f"not a BEAT skeleton; VMC needs the joints {missing[:5]}"
+                            f"{' …' if len(missing) > 5 else ''}")
         table = {b: u for b, u in BEAT_TO_UNITY.items() if positions is None or u in positions or u == "Hips"}
         self.upper_idx = np.array([names.index(n) for n in UPPER_BODY])
         self.bones: list[tuple[str, list[int], np.ndarray]] = []

@@ -11,10 +11,10 @@ One ``websockets`` server on one port serves both (plain HTTP GETs are answered 
   one ``pose`` message per frame.
 
 Security: it binds 127.0.0.1 unless the user passes another address (``--host``);
-while bound to loopback it answers only requests whose ``Host`` header names a
-loopback host (no DNS-rebinding access from web pages); incoming WebSocket messages
-larger than :data:`~.protocol.MAX_MESSAGE_BYTES` close the connection (code 1009);
-paths are resolved inside their directory (no ``..`` escapes). Nothing is fetched
+the Host check, message size limit and handshake timeout are those of every
+WebSocket server of the project (:mod:`.ws`); a bad client message gets an ``error``
+reply and one log line per connection; paths are resolved inside their directory (no
+``..`` escapes; a path the file system cannot hold is a 404). Nothing is fetched
 from outside this machine.
 
 The server runs its asyncio loop in a background thread; :class:`WebFeed` is the
@@ -26,29 +26,21 @@ ones.
 from __future__ import annotations
 
 import asyncio
-import ipaddress
-import json
 import mimetypes
+import sys
 import threading
-import time
 from pathlib import Path
 
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
+from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, pong_message,
+                                   refuse_foreign_host)
 
-LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
+__all__ = ["ViewerServer", "WebFeed", "is_loopback", "parse_address"]
+
 TYPES = {".js": "text/javascript", ".mjs": "text/javascript", ".html": "text/html; charset=utf-8",
          ".glb": "model/gltf-binary", ".json": "application/json", ".css": "text/css"}
-
-
-def is_loopback(host: str) -> bool:
-    if host in LOOPBACK_NAMES:
-        return True
-    try:
-        return ipaddress.ip_address(host.strip("[]")).is_loopback
-    except ValueError:
-        return False
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web") -> tuple[str, int]:
@@ -68,7 +60,7 @@ class ViewerServer:
     """HTTP + WebSocket server of the viewer (module docstring). Use :meth:`start` / :meth:`close`."""
 
     def __init__(self, glb: bytes, host: str = "127.0.0.1", port: int = 8765, fps: float = 15.0,
-                 web_dir: Path | None = None, three_dir: Path | None = None):
+                 web_dir: Path | None = None, three_dir: Path | None = None, log=None):
         from facecapges.avatar.render.browser import three_dir as find_three
         from facecapges.avatar.render.browser import web_dir as find_web
 
@@ -82,6 +74,7 @@ class ViewerServer:
         self.rejected_requests = 0
         self.oversized_closes = 0
         self.bad_messages = 0
+        self.conn_log = ConnectionLog(log or (lambda m: print(m, file=sys.stderr)), "viewer")
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server = None
         self._thread: threading.Thread | None = None
@@ -96,8 +89,12 @@ class ViewerServer:
             return self.glb, TYPES[".glb"]
         for prefix, root in (("/web/", self.web_dir), ("/three/", self.three_dir)):
             if path.startswith(prefix):
-                full = (root / path[len(prefix):]).resolve()
-                if root in full.parents and full.is_file():
+                try:  # a name the file system cannot hold (too long, NUL) is simply not there
+                    full = (root / path[len(prefix):]).resolve()
+                    found = root in full.parents and full.is_file()
+                except (OSError, ValueError):
+                    return None
+                if found:
                     ctype = TYPES.get(full.suffix.lower()) or mimetypes.guess_type(full.name)[0] or \
                         "application/octet-stream"
                     return full.read_bytes(), ctype
@@ -107,15 +104,17 @@ class ViewerServer:
         from websockets.datastructures import Headers
         from websockets.http11 import Response
 
-        host_header = request.headers.get("Host", "")
-        hostname = host_header.rsplit(":", 1)[0] if not host_header.startswith("[") else host_header.split("]")[0] + "]"
-        if self.loopback_only and not is_loopback(hostname):
+        refused = refuse_foreign_host(connection, request, self.loopback_only)
+        if refused is not None:
             self.rejected_requests += 1
-            return connection.respond(403, "forbidden: this server only answers loopback hosts\n")
+            return refused
         path = request.path.split("?", 1)[0].split("#", 1)[0]
         if path == "/ws":
             return None  # continue with the WebSocket handshake
-        found = self._file(path)
+        try:
+            found = self._file(path)
+        except OSError:  # unreadable file
+            found = None
         if found is None:
             return connection.respond(404, "not found\n")
         body, ctype = found
@@ -135,16 +134,17 @@ class ViewerServer:
                     msg = protocol.decode_client(message, self.fps)
                 except protocol.ProtocolError as exc:
                     self.bad_messages += 1
-                    await ws.send(json.dumps({"type": "error", "message": str(exc)}))
+                    self.conn_log.bad_message(ws, exc)
+                    await ws.send(error_message(str(exc)))
                     continue
                 if msg["type"] == "ping":
-                    await ws.send(json.dumps({"type": "pong", "sent_ms": time.time() * 1000.0}))
+                    await ws.send(pong_message())
                 else:
-                    await ws.send(json.dumps({"type": "error", "message": "this server is a viewer feed; "
-                                                       "it takes no inputs"}))
+                    await ws.send(error_message("this server is a viewer feed; it takes no inputs"))
         except ConnectionClosed:
             pass
         finally:
+            self.conn_log.closed(ws)
             self.clients.discard(ws)
             sent = getattr(ws.protocol, "close_sent", None)
             if ws.close_code == 1009 or (sent is not None and sent.code == 1009):
@@ -156,7 +156,7 @@ class ViewerServer:
 
         try:
             self._server = await serve(self._handler, self.host, self.port, process_request=self._process_request,
-                                       max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, server_header=None)
+                                       **SERVE_OPTIONS)
         except OSError as exc:
             self._error = UserError(f"viewer server cannot listen on {self.host}:{self.port} "
                                     f"({exc.strerror or exc})")

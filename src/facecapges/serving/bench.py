@@ -6,10 +6,12 @@ frames, one ``input`` per frame at 15 fps each, random phases) on loopback
 at p99 is within one frame period (1000/15 = 66.7 ms), against ``facecapges serve``
 run as its own process with the default style (or ``FACECAPGES_BENCH_CHECKPOINT``).
 
-Search: trials of N clients for ``seconds`` each (the first second of every client
-is warm-up and not measured) with N = 10, 20, 40, … doubling until a trial fails,
-then bisection between the last pass and the first fail down to a step of
-``max(2, 5 %)``. Every trial is listed with p50/p99/max, lost frames and errors.
+Search: trials of N clients for ``seconds`` (5 s) each (the first second of every
+client is warm-up and not measured) with N = 40, 80, 160, … doubling until a trial
+fails, then bisection between the last pass and the first fail down to a step of
+``max(2, 5 %)``. Every trial is listed with p50/p99/max, lost frames and errors, and
+reported on stderr as it ends. ``--quick`` runs one 2 s trial of 20 clients (a smoke
+run: ``streams_at_15fps`` is then that trial's N if it passed, not a search result).
 The clients run in the benchmark's process on the same machine, so they take CPU
 from the server; the load average before and after is reported because the machine
 is shared, and so is the CPU time per returned frame of the server process and of
@@ -29,14 +31,10 @@ import sys
 import time
 from pathlib import Path
 
-TARGET = 100
+TARGET = 150  # concurrent real-time streams with p99 under one frame period
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 
 
-def _shared(rel: str) -> Path:
-    root = Path(os.environ.get("FACECAPGES_SHARED", Path(__file__).resolve().parents[3].parent / "shared"))
-    p = root / rel
-    return p if p.is_file() else Path.cwd().parent / "shared" / rel
 
 
 def free_port() -> int:
@@ -73,18 +71,30 @@ def stop_server(proc: subprocess.Popen) -> str:
 
 
 def proc_cpu_s(pid: int) -> float:
-    """User + system CPU seconds of a process so far (Linux /proc)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    """User + system CPU seconds so far of a process and its live children (the server's
+    model process), from Linux /proc."""
+    total = 0.0
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if stat.parent.name == str(pid) or fields[1] == str(pid):  # fields[1]: the parent's pid
+            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return total
 
 
-def run(quick: bool = False, threads: int = 1) -> dict:
+def run(quick: bool, shared: Path, threads: int = 1) -> dict:
     from facecapges.io.audio import load_audio
     from facecapges.serving import loadgen
 
-    seconds = 4.0 if quick else 8.0
+    from facecapges.errors import UserError
+
+    seconds = 2.0 if quick else 5.0
     period_ms = 1000.0 / 15
-    wav = _shared(SPEECH)
+    wav = Path(shared) / SPEECH
+    if not wav.is_file():
+        raise UserError(f"{wav}: the serving benchmark needs this shared speech clip")
     audio = load_audio(wav)
     messages = loadgen.input_messages(audio, int(seconds * 15) + 15)
     load_before = [round(x, 2) for x in os.getloadavg()]
@@ -104,18 +114,22 @@ def run(quick: bool = False, threads: int = 1) -> dict:
         s["server_cpu_ms_per_frame"] = round(1e3 * srv_cpu / frames, 3)
         s["client_cpu_ms_per_frame"] = round(1e3 * cli_cpu / frames, 3)
         trials.append(s)
-        time.sleep(1.0)  # let the server drop the finished streams
+        print(f"bench: serve {n} clients: p99 {s.get('p99_ms')} ms, lost {s['lost']}, errors {s['errors']}, "
+              f"load {s['load_average']} → {'pass' if s['ok'] else 'fail'}", file=sys.stderr, flush=True)
+        time.sleep(0.5)  # let the server drop the finished streams
         return s["ok"]
 
     try:
-        best, fail, n = 0, None, 10
+        best, fail, n = 0, None, 20 if quick else 40
         while n <= 1024:
             if trial(n):
                 best, n = n, n * 2
             else:
                 fail = n
                 break
-        while fail is not None and fail - best > max(2, int(0.05 * fail)):
+            if quick:
+                break
+        while not quick and fail is not None and fail - best > max(2, int(0.05 * fail)):
             mid = (best + fail) // 2
             if trial(mid):
                 best = mid

@@ -25,6 +25,8 @@ def register(app: typer.Typer) -> None:
         threads: int = typer.Option(1, help="torch threads for the batched model call."),
         tick_ms: float = typer.Option(15.0, help="Least time between two batched calls (ms): larger batches, "
                                                  "a little more latency."),
+        max_per_address: Optional[int] = typer.Option(None, help="Most streams one client address may hold "
+                                                                 "(default 16; no limit on a loopback server)."),
     ) -> None:
         """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
@@ -43,9 +45,12 @@ def register(app: typer.Typer) -> None:
             raise UserError("--tick-ms must be >= 0")
         if threads < 1:
             raise UserError("--threads must be at least 1")
+        if max_per_address is not None and max_per_address < 1:
+            raise UserError("--max-per-address must be at least 1")
         ckpt = load_checkpoint(checkpoint, style)
         cfg = ServeConfig(host=host, port=port, max_streams=max_streams, rate_limit=rate_limit,
-                          idle_timeout=idle_timeout, threads=threads, tick_ms=tick_ms)
+                          idle_timeout=idle_timeout, threads=threads, tick_ms=tick_ms,
+                          max_per_address=max_per_address)
         server = StreamServer(ckpt, cfg, log=lambda m: typer.echo(m, err=True))
         if not is_loopback(host):
             typer.secho(f"warning: listening on {host}: anyone who can reach it can use it (no authentication)",

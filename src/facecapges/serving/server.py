@@ -9,8 +9,9 @@ samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 
 Ticks (continuous batching). A single batching task runs for the whole server: each
 *tick* it takes, from every stream that has a frame waiting, its oldest frame, and
-runs all of them as ONE batched ``step`` (in a worker thread, so the event loop keeps
-receiving); the next tick starts as soon as that one is done, something is waiting
+runs all of them as ONE batched ``step`` (in the model's own process,
+:mod:`facecapges.serving.model_process`, waited for by a worker thread, so the event
+loop keeps receiving); the next tick starts as soon as that one is done, something is waiting
 and at least ``tick_ms`` (15 ms by default) have passed since the previous tick
 started — the pause lets the frames of more streams arrive, because a batched call
 costs a fixed ~2 ms plus a fraction of a millisecond per stream. A stream's frames
@@ -31,9 +32,19 @@ unsent output shows up in ours); one that stops sending is closed after ``idle_t
 (1000); disconnects free the slot between ticks. When ``max_streams`` are connected a
 new connection gets an ``error`` and is closed with 1013 ("try again later").
 
+Slots are for streams, not for sockets: the handshake must end within 10 s
+(:data:`facecapges.runtime.ws.HANDSHAKE_TIMEOUT`), the first ``input`` must come within
+``first_input_timeout`` seconds of the ``hello``, and afterwards a stream must keep at
+least ``min_input_rate`` inputs per second over every ``rate_window`` seconds (a live
+stream sends 15) — else it is closed (1008) and its slot freed. One client address may
+hold at most ``max_per_address`` streams (1013 beyond); by default 16, and no limit
+while the server is bound to loopback (every client is this machine, e.g. a local proxy).
+Bad messages are answered and logged on one line per connection.
+
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
-answers handshakes whose ``Host`` names a loopback host (as the viewer server does).
-There is no authentication: bind other addresses only on trusted networks.
+answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.ws`,
+as the viewer server does). There is no authentication: bind other addresses only on
+trusted networks.
 """
 
 from __future__ import annotations
@@ -41,7 +52,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import concurrent.futures
-import json
 import socket
 import threading
 import time
@@ -51,6 +61,8 @@ import numpy as np
 
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
+from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, peer_host,
+                                   pong_message, refuse_foreign_host)
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
 
@@ -66,6 +78,10 @@ class ServeConfig:
     send_buffer_bytes: int = 1 << 20  # unsent output above this closes a client that stopped reading
     threads: int = 1  # torch threads of the batched model call
     tick_ms: float = 15.0  # least time between the starts of two ticks (lets batches fill)
+    first_input_timeout: float = 10.0  # seconds from hello to the first input (0 = no limit)
+    min_input_rate: float = 1.0  # inputs per second a stream must keep over each rate_window (0 = none)
+    rate_window: float = 10.0  # seconds
+    max_per_address: int | None = None  # streams per client address; None: 16, unlimited on loopback
 
 
 @dataclass
@@ -80,28 +96,12 @@ class _Stream:
     last_limit_error: float = -1e9
     closed: bool = False
     frames: int = 0
+    address: str = "?"
+    inputs: int = 0  # inputs received in the current rate window
+    window_t0: float | None = None  # start of the rate window (the first input)
 
 
-def pose_messages(frames: list[int], fps: float, quats: np.ndarray, faces: np.ndarray, heads: np.ndarray,
-                  face_found: list[bool], latency_ms):
-    """Yields the ``pose`` messages (the fields and rounding of :func:`facecapges.runtime.protocol.encode_pose`)
-    for a batch of streams; the arrays are rounded at once. ``latency_ms``: a list of dicts,
-    or a function of the row called just before that row is encoded (so
-    a caller that sends each message as it comes gets its true latency)."""
-    B = len(frames)
-    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6).tolist()
-    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
-    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
-    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
-    for i, k in enumerate(frames):
-        yield json.dumps({"type": "pose", "frame": int(k), "time": round(k / fps, 6), "pose": q[i],
-                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
-                          "latency_ms": {n: round(float(v), 3) for n, v in lat(i).items()},
-                          "sent_ms": round(time.time() * 1000.0, 1)}, separators=(",", ":"))
-
-
-def _error(message: str) -> str:
-    return json.dumps({"type": "error", "message": message})
+_error = error_message
 
 
 class StreamServer:
@@ -109,8 +109,7 @@ class StreamServer:
     :meth:`run` in the calling thread until interrupted."""
 
     def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
-        from facecapges.model.batched import BatchedStreamingGenerator
-        from facecapges.runtime.web_server import is_loopback
+        from facecapges.serving.model_process import ModelProcess
 
         self.cfg = config or ServeConfig()
         c = self.cfg
@@ -121,10 +120,13 @@ class StreamServer:
         self.ckpt = checkpoint
         self.fps = checkpoint.fps  # an int, as in the viewer's hello
         self.sr = int(checkpoint.model.cfg.sr)
-        self.gen = BatchedStreamingGenerator(checkpoint.model, checkpoint.neutral_window,
-                                             capacity=min(c.max_streams, 64))
+        # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
+        self.gen = ModelProcess(checkpoint.model, checkpoint.neutral_window, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
+        self.per_address = c.max_per_address if c.max_per_address is not None else \
+            (c.max_streams if self.loopback_only else 16)
         self.log = log or (lambda *_: None)
+        self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
         self._next_id = 0
         self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="serve-model")
@@ -147,14 +149,10 @@ class StreamServer:
 
     # ---------------------------------------------------------------- WebSocket
     def _process_request(self, connection, request):
-        from facecapges.runtime.web_server import is_loopback
-
-        host_header = request.headers.get("Host", "")
-        hostname = host_header.rsplit(":", 1)[0] if not host_header.startswith("[") else host_header.split("]")[0] + "]"
-        if self.loopback_only and not is_loopback(hostname):
+        refused = refuse_foreign_host(connection, request, self.loopback_only)
+        if refused is not None:
             self.stats["rejected_hosts"] += 1
-            return connection.respond(403, "forbidden: this server only answers loopback hosts\n")
-        return None
+        return refused
 
     def _allow(self, st: _Stream, now: float) -> bool:
         """Token bucket: ``rate_limit`` messages per second, one second of burst."""
@@ -169,11 +167,18 @@ class StreamServer:
     async def _handler(self, ws) -> None:
         from websockets.exceptions import ConnectionClosed
 
+        address = peer_host(ws)
+        refusal = None
         if len(self.streams) >= self.cfg.max_streams:
             self.stats["refused_full"] += 1
+            refusal = f"server full: {self.cfg.max_streams} streams; try again later"
+        elif sum(st.address == address for st in self.streams.values()) >= self.per_address:
+            self.stats["refused_address"] += 1
+            refusal = f"at most {self.per_address} streams per client address; try again later"
+        if refusal is not None:
             try:
-                await ws.send(_error(f"server full: {self.cfg.max_streams} streams; try again later"))
-                await ws.close(1013, "server full")
+                await ws.send(_error(refusal))
+                await ws.close(1013, refusal.split(":")[0][:100])
             except ConnectionClosed:
                 pass
             return
@@ -184,7 +189,8 @@ class StreamServer:
             except OSError:
                 pass
         now = time.monotonic()
-        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now)
+        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now,
+                     address=address)
         self._next_id += 1
         self.streams[st.id] = st
         self.stats["connections"] += 1
@@ -203,12 +209,16 @@ class StreamServer:
                     msg = protocol.decode_client(message, self.fps, self.sr)
                 except protocol.ProtocolError as exc:
                     self.stats["bad_messages"] += 1
+                    self.conn_log.bad_message(ws, exc)
                     await ws.send(_error(str(exc)))
                     continue
                 if msg["type"] == "ping":
-                    await ws.send(json.dumps({"type": "pong", "sent_ms": time.time() * 1000.0}))
+                    await ws.send(pong_message())
                     continue
                 st.last_input = now
+                st.inputs += 1
+                if st.window_t0 is None:
+                    st.window_t0 = now
                 if len(st.pending) >= self.cfg.max_pending:
                     self.stats["dropped_busy"] += 1
                     await ws.send(_error(f"busy: frame {msg['input'].index} dropped "
@@ -218,8 +228,13 @@ class StreamServer:
                 self._wake.set()
         except ConnectionClosed:
             pass
+        except Exception as exc:  # never expected: one line, this connection only
+            self.stats["handler_errors"] += 1
+            self.log(f"serve: stream {st.id} ({address}) closed after an internal error: {exc!r:.200}")
+            await ws.close(1011, "internal error")
         finally:
             st.closed = True
+            self.conn_log.closed(ws)
             self.streams.pop(st.id, None)
             if ws.close_code == 1009:
                 self.stats["oversized_closes"] += 1
@@ -292,8 +307,10 @@ class StreamServer:
                 return {"queue": (t0 - items[i][1]) * 1e3, "model": (t1 - t0) * 1e3, "output": (now - t1) * 1e3,
                         "total": (now - items[i][1]) * 1e3}
 
-            texts = pose_messages([i.index for i in inputs], self.fps, quats, np.stack([i.face for i in inputs]),
-                                  np.stack([i.head for i in inputs]), [i.face_found for i in inputs], latency)
+            index = [i.index for i in inputs]
+            texts = protocol.encode_poses(index, [k / self.fps for k in index], quats,
+                                          np.stack([i.face for i in inputs]), np.stack([i.head for i in inputs]),
+                                          [i.face_found for i in inputs], latency)
             for st, text in zip(due, texts):
                 st.frames += 1
                 self._send(st, text)
@@ -303,15 +320,33 @@ class StreamServer:
             if any(st.pending for st in self.streams.values()):
                 self._wake.set()
 
+    def _overdue(self, st: _Stream, now: float) -> tuple[str, int, str] | None:
+        """Why a stream loses its slot now: (stats key, close code, reason), or None."""
+        c = self.cfg
+        if c.idle_timeout > 0 and now - st.last_input > c.idle_timeout:
+            return "idle_closes", 1000, f"idle for {c.idle_timeout:g} s"
+        if st.window_t0 is None:
+            if c.first_input_timeout > 0 and now - st.last_input > c.first_input_timeout:
+                return "no_input_closes", 1008, f"no input within {c.first_input_timeout:g} s"
+        elif c.min_input_rate > 0 and now - st.window_t0 >= c.rate_window:
+            rate = st.inputs / (now - st.window_t0)
+            st.inputs, st.window_t0 = 0, now
+            if rate < c.min_input_rate:
+                return "slow_input_closes", 1008, f"input slower than {c.min_input_rate:g} frames/s"
+        return None
+
     async def _idle_loop(self) -> None:
-        while self.cfg.idle_timeout > 0:
-            await asyncio.sleep(min(1.0, self.cfg.idle_timeout / 4))
+        c = self.cfg
+        periods = [p for p in (c.idle_timeout, c.first_input_timeout, c.rate_window) if p > 0]
+        while periods:
+            await asyncio.sleep(min(1.0, min(periods) / 4))
             now = time.monotonic()
             for st in list(self.streams.values()):
-                if not st.closed and now - st.last_input > self.cfg.idle_timeout:
-                    self.stats["idle_closes"] += 1
+                why = None if st.closed else self._overdue(st, now)
+                if why is not None:
+                    self.stats[why[0]] += 1
                     st.closed = True
-                    asyncio.ensure_future(st.ws.close(1000, f"idle for {self.cfg.idle_timeout:g} s"))
+                    asyncio.ensure_future(st.ws.close(why[1], why[2]))
 
     # ---------------------------------------------------------------- lifecycle
     async def _main(self) -> None:
@@ -321,8 +356,7 @@ class StreamServer:
         c = self.cfg
         try:
             self._server = await serve(self._handler, c.host, c.port, process_request=self._process_request,
-                                       max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, server_header=None,
-                                       compression=None)
+                                       compression=None, **SERVE_OPTIONS)
         except OSError as exc:
             self._error = UserError(f"cannot listen on {c.host}:{c.port} ({exc.strerror or exc})")
             self._ready.set()
@@ -387,3 +421,4 @@ class StreamServer:
         if self._thread is not None:
             self._thread.join(timeout=10)
         self._pool.shutdown(wait=True)
+        self.gen.shutdown()

@@ -28,6 +28,7 @@ participant and trial). Each answer ranks the K systems 1 (best) … K on each c
 
 from __future__ import annotations
 
+import hmac
 import json
 from pathlib import Path
 
@@ -36,23 +37,36 @@ import numpy as np
 from facecapges.errors import file_error
 from facecapges.study.build import Study
 from facecapges.study.criteria import CRITERIA
+from facecapges.study.design import token_digest
 from facecapges.study.store import answers_of
 
 N_BOOT = 10_000
 ALPHA = 0.05
 
 
-def collect_answers(study: Study) -> list[dict]:
-    """Every participant's answers, in participant then trial order (UserError on a corrupt file)."""
+def collect_answers(study: Study, left_out: list[str] | None = None) -> list[dict]:
+    """Every participant's answers given with his invitation token, in participant then trial order.
+
+    An answer counts only when its ``auth`` is the digest of the token of the participant
+    the file belongs to (facecapges.study.store); the others — a file of an unknown
+    participant, answers from before invitations, a forged file — are appended to
+    ``left_out`` as ``"P01 clip 3"`` and not analysed. UserError on a corrupt file.
+    """
     out = []
+    expected = {p.id: token_digest(p.token) for p in study.plan.participants if p.token}
     for f in sorted(study.responses_dir.glob("*.json")):
         try:
             doc = json.loads(f.read_text(encoding="utf-8"))
             answers = answers_of(doc)
-        except (ValueError, KeyError, TypeError) as exc:
-            raise file_error(f, f"not a valid answer file ({exc})") from None
-        pid = doc.get("participant", f.stem)
+        except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as exc:
+            raise file_error(f, f"not a valid answer file ({exc.__class__.__name__}: {str(exc)[:100]})") from None
+        pid = f.stem
         for a in answers:
+            auth = a.get("auth")
+            if pid not in expected or not isinstance(auth, str) or not hmac.compare_digest(auth, expected[pid]):
+                if left_out is not None:
+                    left_out.append(f"{pid} clip {int(a['trial']) + 1}")
+                continue
             out.append({"participant": pid, "trial": a["trial"], "clip": a["clip"], "ranks": a["ranks"]})
     return out
 

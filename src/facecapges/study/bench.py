@@ -2,7 +2,7 @@
 
 Figures: time to plan a large study; ``study create`` time and pose-file size for K = 3
 versions of a clip (the clip, a time-shifted copy and the reversed motion of
-``../shared/data/beat/2_scott_0_1_1``; 10 s quick, 60 s full); and in headless Chromium
+the shared ``data/beat/2_scott_0_1_1``; 10 s quick, 30 s full); and in headless Chromium
 (software WebGL) the page's start-up, trial loading time and playback: the share of
 the clip's frames actually drawn while the three avatars play in one scene
 (1.0 = every frame at the clip's 15 fps).
@@ -15,12 +15,12 @@ import time
 from pathlib import Path
 
 
-def _shared(rel: str) -> Path | None:
-    p = Path(__file__).resolve().parents[3].parent / "shared" / rel
+def _shared(shared: Path, rel: str) -> Path | None:
+    p = Path(shared) / rel
     return p if p.exists() else None
 
 
-def run(quick: bool = False) -> dict:
+def run(quick: bool, shared: Path) -> dict:
     import numpy as np
     import yaml
 
@@ -31,23 +31,26 @@ def run(quick: bool = False) -> dict:
     make_plan([f"c{i}" for i in range(40)], [f"s{i}" for i in range(5)], 100, seed=0)
     out["plan_100_participants_40_clips_5_systems_ms"] = round(1000 * (time.perf_counter() - t), 2)
 
-    bvh_path, wav_path = _shared("data/beat/2_scott_0_1_1.bvh"), _shared("data/beat/2_scott_0_1_1.wav")
+    bvh_path = _shared(shared, "data/beat/2_scott_0_1_1.bvh")
+    wav_path = _shared(shared, "data/beat/2_scott_0_1_1.wav")
     if bvh_path is None or wav_path is None:
-        out["study"] = "skipped: ../shared/data/beat/2_scott_0_1_1.{bvh,wav} missing"
-        return out
+        from facecapges.errors import UserError
+
+        raise UserError(f"{shared}: the study benchmark needs data/beat/2_scott_0_1_1.bvh and .wav")
     from facecapges.avatar.render.browser import Browser
     from facecapges.io.audio import load_audio, save_audio
     from facecapges.io.bvh import read_bvh, write_bvh
     from facecapges.study.build import create_study, open_study
     from facecapges.study.server import make_server, serve_in_thread
 
-    seconds = 10 if quick else 60
+    seconds = 10 if quick else 30
     with tempfile.TemporaryDirectory(prefix="facecapges-study-bench-") as tmp:
         tmp = Path(tmp)
         b = read_bvh(bvh_path)
         n = int(seconds * b.fps)
         m = b.motion[:n]
-        systems = {"clip": m, "shifted": b.motion[150:150 + n], "reversed": m[::-1]}
+        # the shifted copy starts 150 frames later and wraps around: as long as the clip
+        systems = {"clip": m, "shifted": np.roll(b.motion, -150, axis=0)[:n], "reversed": m[::-1]}
         for s, mo in systems.items():
             write_bvh(tmp / f"{s}.bvh", b.skeleton, mo, b.fps)
         save_audio(tmp / "a.wav", load_audio(wav_path)[: int(seconds * 16000)])
@@ -84,7 +87,7 @@ def run(quick: bool = False) -> dict:
                 wait("window.study.playing")
                 d0 = js("window.study.draws")
                 t0 = time.perf_counter()
-                time.sleep(3.0 if quick else 8.0)
+                time.sleep(2.0 if quick else 5.0)
                 drawn = js("window.study.draws") - d0
                 elapsed = time.perf_counter() - t0
                 fps = float(open_study(tmp / "study").doc["fps"])
@@ -102,4 +105,4 @@ def run(quick: bool = False) -> dict:
 if __name__ == "__main__":
     import json
 
-    print(json.dumps(run(quick=True), indent=1))
+    print(json.dumps(run(quick=True, shared=Path("../shared")), indent=1))

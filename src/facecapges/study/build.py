@@ -5,11 +5,20 @@ Layout of ``STUDY_DIR``::
     study.json                      design: systems, clips (frames, fps, duration), criteria,
                                     seed and every participant's plan (facecapges.study.design)
     avatar.glb                      the avatar (facecapges.avatar), built from the first BVH's skeleton
+    avatar.vrm                      instead, with ``study create --avatar FILE.vrm``: that VRM / humanoid GLB;
+                                    then motion files hold its normalised humanoid bones ("bone_names",
+                                    facecapges.avatar.retarget) and face.json its expressions
     media/<clip>/audio.wav          the clip's speech, 16 kHz mono PCM16 (transcoded from any input)
     media/<clip>/face.json          {"fps", "frames", "names": 52 ARKit names, "weights": T*52 numbers}
     media/<clip>/motion-<system>.json
                                     {"fps", "frames", "joint_names", "quats": T*J*4 numbers}
     responses/<participant>.json    the answers (facecapges.study.store)
+    invitations.txt                 one invitation link per participant (``/?invite=TOKEN``)
+
+Invitations: every participant gets an unguessable token (:func:`new_token`, 128 random
+bits from :mod:`secrets`, not derived from the seed), stored in the plan. The server
+takes answers only with a participant's token, so knowing the ids ``P01…`` is not
+enough to answer for someone; the organiser hands each participant his link.
 
 Poses are the LOCAL joint rotations as (w, x, y, z) quaternions per BEAT joint, in the
 BVH's joint order (= the avatar's, see src/facecapges/web/avatar_scene.js), at the study
@@ -35,10 +44,11 @@ import numpy as np
 
 from facecapges.errors import UserError, file_error
 from facecapges.study.criteria import CRITERIA
-from facecapges.study.design import StudyPlan, balance_report, make_plan
+from facecapges.study.design import StudyPlan, balance_report, make_plan, new_token
 
 STUDY_FILE = "study.json"
 AVATAR_FILE = "avatar.glb"
+VRM_FILE = "avatar.vrm"
 FORMAT = "facecapges-study/1"
 
 
@@ -61,8 +71,39 @@ def motion_file(study_dir: Path, clip: str, system: str) -> Path:
     return media_dir(study_dir, clip) / f"motion-{system}.json"
 
 
+INVITATIONS_FILE = "invitations.txt"
+
+
+def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://127.0.0.1:8770") -> Path:
+    """``invitations.txt``: one line per participant, ``ID  URL/?invite=TOKEN`` (written atomically)."""
+    f = Path(study_dir) / INVITATIONS_FILE
+    lines = ["# one link per participant; each link is that participant's only credential",
+             *(f"{p.id}\t{base_url.rstrip('/')}/?invite={p.token}" for p in plan.participants)]
+    tmp = f.with_name(f.name + ".part")
+    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    tmp.replace(f)
+    return f
+
+
+def ensure_tokens(study: "Study") -> int:
+    """Give every participant without a token one and save the plan; returns how many were added.
+
+    For a study made before invitations: answers already in it carry no token and are
+    left out of the analysis (facecapges.study.analyze).
+    """
+    missing = [p for p in study.plan.participants if not p.token]
+    for p in missing:
+        p.token = new_token()
+    if missing:
+        study.doc["plan"] = study.plan.to_json()
+        tmp = study.dir / (STUDY_FILE + ".part")
+        tmp.write_text(json.dumps(study.doc, indent=1) + "\n", encoding="utf-8")
+        tmp.replace(study.dir / STUDY_FILE)
+    return len(missing)
+
+
 def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | None = None, seed: int = 0,
-                 force: bool = False, progress: bool = True) -> dict:
+                 force: bool = False, progress: bool = True, avatar: str | Path | None = None) -> dict:
     """Validate the clips, write the study folder; returns a summary (counts and balance)."""
     from facecapges.study.clips import load_clips
 
@@ -93,15 +134,25 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     from facecapges.timing import resample
 
     plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)
+    for p in plan.participants:
+        p.token = new_token()
     skel = motions[cs.clips[0].id][cs.systems[0]].skeleton
     joint_names = list(skel.names)
+    driver = None
+    if avatar is not None:
+        from facecapges.avatar.vrm_view import VrmDriver
+
+        driver = VrmDriver.from_file(avatar, skel)
     if (out / STUDY_FILE).exists() and (out / "media").is_dir():  # an old study's media (--force)
         shutil.rmtree(out / "media")
     out.mkdir(parents=True, exist_ok=True)
     clips_meta = []
     with Progress(disable=not progress, transient=True) as bar:
         task = bar.add_task("preparing clips", total=len(cs.clips) * (len(cs.systems) + 1) + 1)
-        write_glb(default_avatar(skel), out / AVATAR_FILE)
+        if driver is None:
+            write_glb(default_avatar(skel), out / AVATAR_FILE)
+        else:
+            (out / VRM_FILE).write_bytes(driver.model.data)
         bar.advance(task)
         for clip in cs.clips:
             n = int(round(clip.duration * cs.fps))
@@ -112,15 +163,23 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
             w = np.zeros((n, len(ARKIT_NAMES)), np.float32)
             if tr is not None:
                 w = _fit(resample(tr.weights, tr.fps, cs.fps), n)
-            (d / "face.json").write_text(json.dumps({"fps": cs.fps, "frames": n, "names": list(ARKIT_NAMES),
+            names = list(ARKIT_NAMES)
+            if driver is not None:
+                w, names = driver.faces(w), list(driver.faces.names)
+            (d / "face.json").write_text(json.dumps({"fps": cs.fps, "frames": n, "names": names,
                                                      "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}), "utf-8")
             bar.advance(task)
             for s in cs.systems:
                 b = motions[clip.id][s]
                 q = bvh_quaternions(joint_names, b.skeleton, b.motion, f"clip {clip.id!r}, system {s!r}")
                 q = _fit(resample(q, b.fps, cs.fps), n)
-                motion_file(out, clip.id, s).write_text(json.dumps(
-                    {"fps": cs.fps, "frames": n, "joint_names": joint_names, "quats": _numbers(q)}), "utf-8")
+                doc = {"fps": cs.fps, "frames": n, "joint_names": joint_names}
+                if driver is not None:
+                    from facecapges.rotations import quaternion_to_matrix
+
+                    q = driver.retarget(quaternion_to_matrix(q))
+                    doc = {"fps": cs.fps, "frames": n, "bone_names": list(driver.retarget.bones)}
+                motion_file(out, clip.id, s).write_text(json.dumps({**doc, "quats": _numbers(q)}), "utf-8")
                 bar.advance(task)
             clips_meta.append({"id": clip.id, "frames": n, "duration": clip.duration,
                                "audio_source": str(clip.audio_path),
@@ -132,6 +191,7 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
         "source": str(Path(clips_yaml)),
         "fps": cs.fps,
         "systems": cs.systems,
+        "avatar": AVATAR_FILE if driver is None else VRM_FILE,
         "clips": clips_meta,
         "criteria": [c.to_json() for c in CRITERIA],
         "balance": balance_report(plan),
@@ -141,6 +201,7 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     tmp = out / (STUDY_FILE + ".part")
     tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     tmp.replace(out / STUDY_FILE)
+    write_invitations(out, plan)
     return {"clips": len(cs.clips), "systems": len(cs.systems), "participants": len(plan.participants),
             "fps": cs.fps, "balance": doc["balance"]}
 

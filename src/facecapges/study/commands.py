@@ -22,11 +22,13 @@ def register(app: typer.Typer) -> None:
                                                                       "2N for odd N)."),
         seed: int = typer.Option(0, "--seed", help="Seed of the clip assignment and the screen positions."),
         force: bool = typer.Option(False, "--force", help="Overwrite an existing study (never one with answers)."),
+        avatar: Path = typer.Option(None, "--avatar", help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB "
+                                                           "(default: ours, built from the first BVH)."),
     ) -> None:
         """Validate the clips, build the avatar, precompute every pose track and write the participant plans."""
         from facecapges.study.build import create_study
 
-        s = create_study(clips, out, participants, seed, force)
+        s = create_study(clips, out, participants, seed, force, avatar=avatar)
         b = s["balance"]
         typer.echo(f"{out}: {s['clips']} clips × {s['systems']} systems at {s['fps']:g} fps, "
                    f"{s['participants']} participants (ids P01…)")
@@ -38,6 +40,7 @@ def register(app: typer.Typer) -> None:
                          f"{s['systems']}")
         typer.echo("balance: " + ("; ".join(notes) if notes else "clip order, carry-over and screen positions "
                                                                  "exactly balanced"))
+        typer.echo(f"invitation links (one per participant, keep them private): {out / 'invitations.txt'}")
         typer.echo(f"next: facecapges study serve {out}")
 
     @study.command("serve")
@@ -45,27 +48,44 @@ def register(app: typer.Typer) -> None:
         study_dir: Path = typer.Argument(..., help="Study folder made by 'facecapges study create'."),
         host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (0.0.0.0: every interface)."),
         port: int = typer.Option(8770, "--port", help="TCP port."),
+        language: str = typer.Option("en", "--language", help="Language the page starts in: en (English) or zh "
+                                                              "(Chinese); participants can switch."),
     ) -> None:
-        """Serve the study page; answers go to STUDY_DIR/responses/ as they are given. Ctrl-C stops."""
+        """Serve the study page; answers go to STUDY_DIR/responses/ as they are given. Ctrl-C stops.
+
+        Each participant opens his own invitation link (listed in STUDY_DIR/invitations.txt);
+        the link's token is his only credential.
+        """
         from datetime import datetime
 
-        from facecapges.errors import UserError
-        from facecapges.study.build import open_study
-        from facecapges.study.server import make_server
+        from facecapges.errors import UserError, check_port
+        from facecapges.study.build import ensure_tokens, open_study, write_invitations
+        from facecapges.study.server import LANGUAGES, make_server
 
+        check_port(port, "--port")
+        if language not in LANGUAGES:
+            raise UserError(f"--language must be one of {', '.join(LANGUAGES)}, got {language!r}")
         st = open_study(study_dir)
+        added = ensure_tokens(st)
+        if added:
+            typer.echo(f"note: this study had no invitation tokens; gave {added} participant(s) one. Answers given "
+                       "before are left out of the analysis.", err=True)
 
         def log(msg: str) -> None:
             typer.echo(f"{datetime.now():%H:%M:%S} {msg}")
 
         try:
-            server = make_server(st, host, port, on_event=log)
+            server = make_server(st, host, port, on_event=log, language=language)
         except OSError as exc:
             raise UserError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from None
         shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        base = f"http://{shown if ':' not in shown else f'[{shown}]'}:{server.server_address[1]}"
+        inv = write_invitations(st.dir, st.plan, base)
         typer.echo(f"study {study_dir}: {len(st.plan.participants)} participants "
                    f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips")
-        typer.echo(f"open http://{shown}:{server.server_address[1]}/ (Ctrl-C stops)")
+        typer.echo(f"serving {base}/ (Ctrl-C stops); give each participant his own link from {inv}"
+                   + (" (replace 127.0.0.1 by this machine's address on the network)" if host in ("0.0.0.0", "")
+                      else ""))
         try:
             server.serve_forever()
         except KeyboardInterrupt:
@@ -86,9 +106,14 @@ def register(app: typer.Typer) -> None:
         from facecapges.study.build import open_study
 
         st = open_study(study_dir)
-        answers = collect_answers(st)
+        left_out: list[str] = []
+        answers = collect_answers(st, left_out)
+        if left_out:
+            typer.secho(f"warning: left out {len(left_out)} answer(s) not given with the participant's invitation "
+                        f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})", err=True,
+                        fg=typer.colors.YELLOW)
         if not answers:
-            raise UserError(f"{study_dir}: no answers yet in responses/")
+            raise UserError(f"{study_dir}: no answers yet in responses/ (that were given with an invitation token)")
         chosen = None
         if only.strip():
             chosen = [p.strip().upper() for p in only.split(",") if p.strip()]

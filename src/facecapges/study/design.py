@@ -79,6 +79,9 @@ class ParticipantPlan:
     id: str
     sequence: int  # the row of the Williams design this participant's clip order follows
     trials: list[Trial]
+    # the participant's invitation token (:func:`new_token`): the only
+    # credential the server accepts; "" in a plan that has none yet
+    token: str = ""
 
 
 @dataclass
@@ -95,16 +98,31 @@ class StudyPlan:
         return {
             "clips": list(self.clips), "systems": list(self.systems), "seed": self.seed,
             "participants": [{"id": p.id, "sequence": p.sequence,
-                              "trials": [{"clip": t.clip, "systems": list(t.systems)} for t in p.trials]}
+                              "trials": [{"clip": t.clip, "systems": list(t.systems)} for t in p.trials],
+                              **({"token": p.token} if p.token else {})}
                              for p in self.participants],
         }
 
     @classmethod
     def from_json(cls, doc: dict) -> "StudyPlan":
         parts = [ParticipantPlan(p["id"], int(p["sequence"]),
-                                 [Trial(t["clip"], tuple(t["systems"])) for t in p["trials"]])
+                                 [Trial(t["clip"], tuple(t["systems"])) for t in p["trials"]], str(p.get("token", "")))
                  for p in doc["participants"]]
         return cls(list(doc["clips"]), list(doc["systems"]), int(doc["seed"]), parts)
+
+
+def new_token() -> str:
+    """An invitation token: 22 URL-safe characters, 128 random bits."""
+    import secrets
+
+    return secrets.token_urlsafe(16)
+
+
+def token_digest(token: str) -> str:
+    """What the answer files record of a token (its SHA-256, shortened): proof without the secret."""
+    import hashlib
+
+    return hashlib.sha256(token.encode("utf-8")).hexdigest()[:32]
 
 
 def participant_ids(n: int) -> list[str]:

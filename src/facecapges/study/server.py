@@ -2,28 +2,41 @@
 
 Standard library only (``http.server.ThreadingHTTPServer``). Routes::
 
-    GET  /                         the study page (page/study.html, page/study.js)
+    GET  /                         the study page (page/study.html, page/study.js);
+                                   a participant opens his invitation link /?invite=TOKEN
     GET  /web/avatar_scene.js      the project's three.js avatar scene module
     GET  /three/...                three.js (npm three 0.187.0, from node_modules)
-    GET  /avatar.glb               the study's avatar
-    GET  /api/info                 criteria wording, number of clips and of versions (K)
-    POST /api/session              {"participant"} → progress; unknown ids are refused
-    GET  /api/trial?participant=P&index=i
+    GET  /avatar.glb               the study's avatar (or /avatar.vrm, /web/vrm_scene.js, /pixiv/* three-vrm)
+    GET  /api/info                 criteria wording (English and Chinese), page language,
+                                   number of clips and of versions (K)
+    POST /api/session              {"token"} → progress; a missing or unknown token is refused
+    GET  /api/trial?token=T&index=i
                                    the current trial: frame rate, length and the media URLs
-    GET  /media/P/i/audio.wav | face.json | motion-<position>.json
-    POST /api/event                {"participant", "index", "type": "play"}
-    POST /api/answer               {"participant", "index", "ranks": {criterion: [rank per position]}}
+    GET  /media/T/i/audio.wav | face.json | motion-<position>.json
+    POST /api/event                {"token", "index", "type": "play"}
+    POST /api/answer               {"token", "index", "ranks": {criterion: [rank per position]}}
+
+Credentials: the invitation token of a participant (facecapges.study.build) is the only
+thing that identifies him; participant ids are never accepted on their own (HTTP 401),
+so nobody can answer for, or lock out, another participant by guessing ``P07``.
 
 Blindness: the page only ever learns screen positions. Media are served under the
-participant, trial index and position, mapped to the system's file here on the server;
+token, trial index and position, mapped to the system's file here on the server;
 no system name, file name or clip id reaches the browser. Only the current trial of a
 participant is served and answered (no going back); every answer is on disk before the
 reply goes out (facecapges.study.store), so closing the browser loses nothing and the
-same participant id resumes at the first unanswered clip.
+same invitation link resumes at the first unanswered clip.
+
+Bounds: a request body must state its ``Content-Length`` (411 without, 400 when it is
+not a number ≥ 0, 413 above :data:`MAX_BODY`); a connection that sends nothing for
+:data:`SOCKET_TIMEOUT` seconds is closed; at most :data:`MAX_CONNECTIONS` are served
+at once (more are answered 503 and closed); JSON nested deeper than Python can parse
+is a 400; a damaged answer file is a 500 naming the file, logged once.
 """
 
 from __future__ import annotations
 
+import hmac
 import json
 import re
 import threading
@@ -32,15 +45,18 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
-from facecapges.study.build import AVATAR_FILE, Study, media_dir, motion_file
-from facecapges.study.store import AnswerError, AnswerStore
+from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
+from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
 
 PAGE_DIR = Path(__file__).with_name("page")
 CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                  ".css": "text/css; charset=utf-8", ".json": "application/json", ".wav": "audio/wav",
-                 ".glb": "model/gltf-binary", ".png": "image/png"}
+                 ".glb": "model/gltf-binary", ".vrm": "model/gltf-binary", ".png": "image/png"}
 _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\.json)$")
 MAX_BODY = 64 * 1024
+SOCKET_TIMEOUT = 15.0  # seconds a connection may stay silent (headers, body, keep-alive)
+MAX_CONNECTIONS = 64  # connections served at once; more get 503
+LANGUAGES = ("en", "zh")
 
 
 class HttpError(Exception):
@@ -52,7 +68,7 @@ class HttpError(Exception):
 class StudyApp:
     """Everything the handler needs: the study, its answer store and the static folders."""
 
-    def __init__(self, study: Study, on_event: Callable[[str], None] | None = None):
+    def __init__(self, study: Study, on_event: Callable[[str], None] | None = None, language: str = "en"):
         from facecapges.avatar.render.browser import three_dir, web_dir
 
         self.study = study
@@ -60,14 +76,22 @@ class StudyApp:
         self.three = three_dir()
         self.web = web_dir()
         self.on_event = on_event or (lambda msg: None)
-        self._ids = {p.id.lower(): p.id for p in study.plan.participants}
+        self.language = language if language in LANGUAGES else "en"
+        self._tokens = [(p.token.encode("utf-8"), p.id) for p in study.plan.participants if p.token]
+        self._damaged: set[str] = set()
 
     # ------------------------------------------------------------------ helpers
     def participant(self, raw) -> str:
-        pid = self._ids.get(str(raw or "").strip().lower())
+        """The participant whose invitation token ``raw`` is (401 otherwise)."""
+        token = str(raw or "").strip().encode("utf-8", "replace")
+        if not token:
+            raise HttpError(401, "an invitation token is required; please open the link you were given")
+        pid = None
+        for known, p in self._tokens:  # compare every token, in constant time each
+            if hmac.compare_digest(known, token):
+                pid = p
         if pid is None:
-            raise HttpError(404, f"unknown participant id {str(raw or '').strip()!r}; please check the id you "
-                                 "were given")
+            raise HttpError(401, "unknown invitation; please open the exact link you were given")
         return pid
 
     def current(self, pid: str, index) -> int:
@@ -84,12 +108,14 @@ class StudyApp:
 
     def info(self) -> dict:
         return {"criteria": self.study.doc["criteria"], "clips": len(self.study.plan.clips),
-                "versions": len(self.study.plan.systems), "fps": self.study.doc["fps"]}
+                "versions": len(self.study.plan.systems), "fps": self.study.doc["fps"],
+                "avatar": "vrm" if self.study.doc.get("avatar") == VRM_FILE else "glb",
+                "language": self.language, "languages": list(LANGUAGES)}
 
     def trial(self, pid: str, i: int) -> dict:
         t = self.study.plan.participant(pid).trials[i]
         meta = self.study.clips[t.clip]
-        base = f"/media/{pid}/{i}"
+        base = f"/media/{self.study.plan.participant(pid).token}/{i}"
         return {"index": i, "total": len(self.study.plan.clips), "fps": self.study.doc["fps"],
                 "frames": meta["frames"], "duration": meta["duration"], "versions": len(t.systems),
                 "audio": f"{base}/audio.wav", "face": f"{base}/face.json",
@@ -118,11 +144,18 @@ class StudyApp:
             return self.study.dir / AVATAR_FILE
         if path == "/web/avatar_scene.js":
             return self.web / "avatar_scene.js"
-        for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three)):
+        if path == "/avatar.vrm":
+            return self.study.dir / VRM_FILE
+        if path == "/web/vrm_scene.js":
+            return self.web / "vrm_scene.js"
+        for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three), ("/pixiv/", self.three.parent / "@pixiv")):
             if path.startswith(prefix):
-                full = (root / path[len(prefix):]).resolve()
-                if root.resolve() in full.parents and full.is_file():
-                    return full
+                try:  # a name too long or otherwise impossible for the file system is simply not there
+                    full = (root / path[len(prefix):]).resolve()
+                    if root.resolve() in full.parents and full.is_file():
+                        return full
+                except (OSError, ValueError):
+                    pass
                 return None
         return None
 
@@ -130,16 +163,28 @@ class StudyApp:
     def get(self, path: str, query: dict) -> tuple[object, Path | None]:
         if path == "/api/info":
             return self.info(), None
-        if path == "/api/trial":
-            pid = self.participant(query.get("participant", [""])[0])
-            return self.trial(pid, self.current(pid, query.get("index", [""])[0])), None
-        f = self.media(path) or self.static(path)
+        try:
+            if path == "/api/trial":
+                pid = self.participant(query.get("token", [""])[0])
+                return self.trial(pid, self.current(pid, query.get("index", [""])[0])), None
+            f = self.media(path) or self.static(path)
+        except DamagedFileError as exc:
+            raise self._damaged_file(exc) from None
         if f is None or not f.is_file():
-            raise HttpError(404, f"not found: {path}")
+            raise HttpError(404, f"not found: {path[:200]}")
         return None, f
 
+    def _damaged_file(self, exc: DamagedFileError) -> HttpError:
+        if str(exc) not in self._damaged:  # one line per damaged file, not one per request
+            self._damaged.add(str(exc))
+            self.on_event(f"error: {exc}")
+        return HttpError(500, "your answers cannot be recorded right now (the study's answer file is damaged); "
+                              "please tell the person running the study")
+
     def post(self, path: str, body: dict) -> dict:
-        pid = self.participant(body.get("participant"))
+        if path not in ("/api/session", "/api/event", "/api/answer"):
+            raise HttpError(404, f"not found: {path[:200]}")
+        pid = self.participant(body.get("token"))
         try:
             if path == "/api/session":
                 st = self.store.session(pid)
@@ -155,14 +200,20 @@ class StudyApp:
                 st = self.store.answer(pid, i, body.get("ranks"))
                 self.on_event(f"{pid}: ranked clip {i + 1} of {st['total']}" + (" — finished" if st["done"] else ""))
                 return st
+        except LimitError as exc:
+            raise HttpError(429, str(exc)) from None
         except AnswerError as exc:
             raise HttpError(409, str(exc)) from None
-        raise HttpError(404, f"not found: {path}")
+        except DamagedFileError as exc:
+            raise self._damaged_file(exc) from None
+        raise HttpError(404, f"not found: {path[:200]}")
 
 
 class _Handler(BaseHTTPRequestHandler):
     app: StudyApp
     server_version = "facecapges-study"
+    timeout = SOCKET_TIMEOUT  # socket timeout of every read: a silent client is dropped
+    default_request_version = "HTTP/1.0"  # error replies to garbage still carry a status line
 
     def log_message(self, *args) -> None:  # the app reports what matters
         pass
@@ -183,38 +234,96 @@ class _Handler(BaseHTTPRequestHandler):
         url = urlsplit(self.path)
         try:
             doc, f = self.app.get(url.path, parse_qs(url.query))
+            data = None if f is None else f.read_bytes()
         except HttpError as exc:
             return self._json(exc.status, {"error": str(exc)})
+        except OSError:
+            return self._json(404, {"error": "not found"})
         if f is None:
             return self._json(200, doc)
-        self._send(200, f.read_bytes(), CONTENT_TYPES.get(f.suffix, "application/octet-stream"))
+        self._send(200, data, CONTENT_TYPES.get(f.suffix, "application/octet-stream"))
 
     do_HEAD = do_GET
 
+    def _body(self) -> dict:
+        """The request's JSON object, read within the bounds of the module docstring."""
+        raw = self.headers.get("Content-Length")
+        if raw is None:
+            raise HttpError(411, "Content-Length is required")
+        if not raw.strip().isdigit():
+            raise HttpError(400, f"Content-Length must be a number of bytes, got {raw[:40]!r}")
+        n = int(raw)
+        if n > MAX_BODY:
+            raise HttpError(413, f"request too large: {n} bytes (at most {MAX_BODY})")
+        data = self.rfile.read(n) if n else b""
+        if len(data) != n:
+            raise HttpError(400, f"request body ended after {len(data)} of {n} bytes")
+        try:
+            body = json.loads(data or b"{}")
+        except (ValueError, RecursionError):  # JSONDecodeError, bad UTF-8, nesting too deep
+            raise HttpError(400, "request body is not JSON") from None
+        if not isinstance(body, dict):
+            raise HttpError(400, "request body must be a JSON object")
+        return body
+
     def do_POST(self) -> None:
         try:
-            n = int(self.headers.get("Content-Length") or 0)
-            if n > MAX_BODY:
-                raise HttpError(413, "request too large")
-            try:
-                body = json.loads(self.rfile.read(n) or b"{}")
-            except (json.JSONDecodeError, UnicodeDecodeError):
-                raise HttpError(400, "request body is not JSON") from None
-            if not isinstance(body, dict):
-                raise HttpError(400, "request body must be a JSON object")
+            body = self._body()
             doc = self.app.post(urlsplit(self.path).path, body)
         except HttpError as exc:
+            if exc.status in (400, 411, 413):
+                self.close_connection = True  # the rest of the stream cannot be trusted
             return self._json(exc.status, {"error": str(exc)})
         self._json(200, doc)
 
 
+class StudyServer(ThreadingHTTPServer):
+    """``ThreadingHTTPServer`` serving at most :data:`MAX_CONNECTIONS` connections at once."""
+
+    daemon_threads = True
+    max_connections = MAX_CONNECTIONS
+
+    def __init__(self, *args, **kwargs):
+        self._slots = threading.BoundedSemaphore(self.max_connections)
+        self.refused = 0
+        super().__init__(*args, **kwargs)
+
+    def process_request(self, request, client_address) -> None:
+        if not self._slots.acquire(blocking=False):
+            self.refused += 1
+            try:
+                request.settimeout(1.0)
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\nConnection: close\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address) -> None:
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
+
+    def handle_error(self, request, client_address) -> None:  # a dropped client is no news
+        pass
+
+
 def make_server(study: Study, host: str = "127.0.0.1", port: int = 8770,
-                on_event: Callable[[str], None] | None = None) -> ThreadingHTTPServer:
-    """An HTTP server for ``study`` bound to ``host:port`` (port 0: any free port); not yet serving."""
-    handler = type("StudyHandler", (_Handler,), {"app": StudyApp(study, on_event)})
-    server = ThreadingHTTPServer((host, port), handler)
-    server.daemon_threads = True
-    return server
+                on_event: Callable[[str], None] | None = None, language: str = "en",
+                timeout: float = SOCKET_TIMEOUT, max_connections: int = MAX_CONNECTIONS) -> StudyServer:
+    """An HTTP server for ``study`` bound to ``host:port`` (port 0: any free port); not yet serving.
+
+    ``timeout``: seconds a connection may stay silent; ``max_connections``: served at once.
+    """
+    handler = type("StudyHandler", (_Handler,), {"app": StudyApp(study, on_event, language), "timeout": timeout})
+    server_cls = type("BoundStudyServer", (StudyServer,), {"max_connections": int(max_connections)})
+    return server_cls((host, port), handler)
 
 
 def serve_in_thread(server: ThreadingHTTPServer) -> threading.Thread:

@@ -19,6 +19,13 @@ earlier or later version — a browser closed mid-study, a killed server or a po
 loses at most the event being written, never an answer already acknowledged. Nothing
 is ever removed from ``history``.
 
+Bounds: a participant file holds at most :data:`MAX_SESSIONS` session events and
+:data:`MAX_PLAYS` play events per trial; more are refused (:class:`LimitError`, HTTP
+429) and not written, so no client can grow a file — or the cost of rewriting it —
+without limit. Every answer records ``auth``, the digest of the invitation token it
+was given with (facecapges.study.design.token_digest); the analysis counts only answers
+whose ``auth`` matches the participant's token.
+
 The participant's progress is derived from the file: the next trial is the number of
 answered trials. Answers must come in plan order — an answer for any trial other than
 the next one is refused (no going back, no skipping), and a returning participant
@@ -35,11 +42,23 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from facecapges.study.criteria import CRITERION_KEYS
-from facecapges.study.design import StudyPlan
+from facecapges.study.design import StudyPlan, token_digest
+
+
+MAX_SESSIONS = 200  # session (re)starts recorded per participant
+MAX_PLAYS = 50  # play events recorded per trial
 
 
 class AnswerError(ValueError):
     """An answer the store refuses (wrong trial, malformed ranks); the message says why."""
+
+
+class LimitError(AnswerError):
+    """An event beyond the bounds of a participant file (not recorded)."""
+
+
+class DamagedFileError(Exception):
+    """A participant file on disk that is not a valid answer file (the message names it)."""
 
 
 def _now() -> str:
@@ -108,7 +127,16 @@ class AnswerStore:
         p = self.path(pid)
         if not p.exists():
             return {"participant": pid, "history": []}
-        return json.loads(p.read_text(encoding="utf-8"))
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+            if not isinstance(doc, dict) or not isinstance(doc.get("history"), list) or \
+                    not all(isinstance(ev, dict) for ev in doc["history"]):
+                raise ValueError("no list of events")
+            answers_of(doc)
+        except (ValueError, KeyError, TypeError, RecursionError, OSError) as exc:
+            raise DamagedFileError(f"{p}: damaged answer file ({exc.__class__.__name__}); nothing more is "
+                                   "recorded for this participant until it is repaired or moved away") from None
+        return doc
 
     def state(self, pid: str) -> dict:
         n = len(self._participant(pid).trials)
@@ -125,7 +153,8 @@ class AnswerStore:
         """Record that the participant (re)started; returns the state."""
         with self._lock(pid):
             st = self.state(pid)
-            self._append(pid, {"type": "session", "next": st["next"]})
+            if sum(ev.get("type") == "session" for ev in self.load(pid)["history"]) < MAX_SESSIONS:
+                self._append(pid, {"type": "session", "next": st["next"]})
             return st
 
     def event(self, pid: str, trial: int, kind: str) -> None:
@@ -136,6 +165,9 @@ class AnswerStore:
             st = self.state(pid)
             if trial != st["next"]:
                 raise AnswerError(f"trial {trial} is not the current trial ({st['next']})")
+            seen = sum(ev.get("type") == kind and ev.get("trial") == trial for ev in self.load(pid)["history"])
+            if seen >= MAX_PLAYS:
+                raise LimitError(f"at most {MAX_PLAYS} {kind} events are recorded per clip; not recorded")
             self._append(pid, {"type": kind, "trial": trial})
 
     def answer(self, pid: str, trial: int, ranks_by_position: dict) -> dict:
@@ -161,5 +193,6 @@ class AnswerStore:
             t = part.trials[trial]
             ranks = {c: {s: clean[c][j] for j, s in enumerate(t.systems)} for c in self.criteria}
             self._append(pid, {"type": "answer", "trial": trial, "clip": t.clip, "positions": list(t.systems),
-                               "ranks_by_position": clean, "ranks": ranks})
+                               "ranks_by_position": clean, "ranks": ranks,
+                               **({"auth": token_digest(part.token)} if part.token else {})})
             return self.state(pid)

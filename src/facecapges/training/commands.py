@@ -51,6 +51,13 @@ def register(app: typer.Typer) -> None:
             say = typer.echo if ctx.is_main else (lambda *a, **k: None)
 
             def run_folder() -> tuple[str, dict | None]:  # rank 0's disk decides
+                from facecapges.errors import check_output_dir
+                from facecapges.training.resume_file import RunFolderLock
+
+                if not resume and not (out / "last.pt").exists():  # a folder without a run keeps its files too
+                    check_output_dir(out, ("model.safetensors", "log.csv", "summary.json"), force)
+                check_output_dir(out)
+                RunFolderLock(out).acquire()  # held until the process ends; a second train here is refused
                 state = load_resume(out) if resume else None
                 chosen = split if split is not None else (state["meta"].get("split", "train") if state else "train")
                 if chosen not in ("train", "val", "test", "all"):

@@ -38,7 +38,7 @@
 
 from __future__ import annotations
 
-import csv
+import contextlib
 import json
 import math
 import time
@@ -56,6 +56,7 @@ from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
 from facecapges.training.distributed import DistContext
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
+from facecapges.training.resume_file import RunFolderLock, load_state, save_state, write_log
 from facecapges.timing import frame_audio, frame_sample_bounds
 
 
@@ -446,9 +447,7 @@ class Trainer:
         if not self.dist.is_main:
             return
         self.out.mkdir(parents=True, exist_ok=True)
-        tmp = self.out / "last.pt.part"
-        torch.save(_to_cpu(self.state_dict()), tmp)
-        tmp.replace(self.out / "last.pt")
+        save_state(self.out / "last.pt", self.state_dict())  # data only (facecapges.training.resume_file)
         self.export(self.out / "model.safetensors")
 
     def export(self, path: Path) -> Path:
@@ -577,8 +576,12 @@ class Trainer:
         if main:
             self.out.mkdir(parents=True, exist_ok=True)
         label = "train" if self.variant is CLOSED_LOOP else f"train {self.variant.name}"
-        with Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[info]}"),
-                      TimeRemainingColumn(), transient=False, disable=not (main and progress)) as bar:
+        lock = RunFolderLock(self.out) if main else contextlib.nullcontext()  # one training per run folder
+        with lock, Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
+                            TextColumn("{task.fields[info]}"), TimeRemainingColumn(), transient=False,
+                            disable=not (main and progress)) as bar:
+            if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
+                write_log(log_path, self.history, fields)
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
             while self.epoch < total:
                 epoch = self.epoch + 1
@@ -592,12 +595,7 @@ class Trainer:
                 self.history.append(row)
                 if main:
                     self.save()
-                    new = not log_path.exists() or epoch == 1
-                    with log_path.open("w" if new else "a", newline="") as f:
-                        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-                        if new:
-                            w.writeheader()
-                        w.writerow(row)
+                    write_log(log_path, self.history, fields)
                 info = f"loss {row['total']:.3f} rec {row['rec']:.4f}"
                 if "held_rec" in row:
                     info += f" held {row['held_rec']:.4f}"
@@ -607,25 +605,9 @@ class Trainer:
         return self.history
 
 
-def _to_cpu(obj):
-    """A state dict with every tensor on the CPU (so any process count/device can resume it)."""
-    if isinstance(obj, torch.Tensor):
-        return obj.detach().cpu()
-    if isinstance(obj, dict):
-        return {k: _to_cpu(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return type(obj)(_to_cpu(v) for v in obj)
-    return obj
-
-
 def load_resume(out: Path) -> dict:
-    p = Path(out) / "last.pt"
-    if not p.is_file():
-        raise UserError(f"{p}: nothing to resume (no last.pt in the run folder)")
-    try:
-        return torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # a corrupt or foreign file
-        raise UserError(f"{p}: cannot read the training state ({exc.__class__.__name__})") from None
+    return load_state(Path(out) / "last.pt", required=("G", "D", "opt_g", "opt_d", "epoch", "history",
+                                                      "model_config", "train_config", "meta"))
 
 
 def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
@@ -641,5 +623,5 @@ def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_ov
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)
-    tcfg = train_config_from_dict(train_over)
+    tcfg = train_config_from_dict(train_over, mcfg)
     return Trainer(clips, out, mcfg, tcfg, meta, dist=dist, amp=amp, variant=variant)

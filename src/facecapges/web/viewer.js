@@ -45,7 +45,7 @@ function buildMaps() {
 }
 
 function place() {
-  const n = 1 + clones.length, gap = 0.9;
+  const n = 1 + clones.length, gap = 1.1;
   [scene.root, ...clones.map((c) => c.root)].forEach((r, i) => { r.position.x = (i - (n - 1) / 2) * gap; });
   const v = VIEWS.body;
   scene.setView({ ...v, distance: v.distance * Math.max(1, 0.45 + 0.55 * n) });

@@ -47,8 +47,10 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
-def _open_page(glb: bytes, width: int, height: int, inset: bool = False) -> tuple[Browser, dict]:
-    b = Browser(avatar_routes(glb), f"{PAGE}?w={width}&h={height}&inset={int(inset)}", width, height)
+def _open_page(glb: bytes, width: int, height: int, inset: bool = False, page: str = PAGE,
+               routes: dict | None = None) -> tuple[Browser, dict]:
+    b = Browser(routes if routes is not None else avatar_routes(glb),
+                f"{page}?w={width}&h={height}&inset={int(inset)}", width, height)
     b.__enter__()
     try:
         info = b.wait_for("window.facecapges.ready")
@@ -63,10 +65,12 @@ def _open_page(glb: bytes, width: int, height: int, inset: bool = False) -> tupl
 
 def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float, out: str | Path,
                  audio: str | Path | None = None, width: int = 640, height: int = 480, batch: int = 30,
-                 progress: bool = True, crf: int = 20, inset: bool = True) -> dict:
+                 progress: bool = True, crf: int = 20, inset: bool = True, page: str = PAGE,
+                 routes: dict | None = None) -> dict:
     """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
 
-    ``inset``: draw the face close-up in the top-right corner (module docstring)."""
+    ``inset``: draw the face close-up in the top-right corner (module docstring).
+    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm_view)."""
     import time
 
     from rich.progress import Progress
@@ -77,7 +81,7 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
     if weights.shape[0] != T:
         raise ValueError(f"{T} poses but {weights.shape[0]} face frames")
     t0 = time.perf_counter()
-    b, info = _open_page(glb, width, height, inset)
+    b, info = _open_page(glb, width, height, inset, page, routes)
     writer = Mp4Writer(out, fps, audio=audio, crf=crf, jpeg=True)
     try:
         if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
@@ -106,11 +110,12 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
 
 
 def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.ndarray | None], view: str = "body",
-                  width: int = 640, height: int = 480, inset: bool = False) -> list[np.ndarray]:
+                  width: int = 640, height: int = 480, inset: bool = False, page: str = PAGE,
+                  routes: dict | None = None) -> list[np.ndarray]:
     """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
     import cv2
 
-    b, _ = _open_page(glb, width, height, inset)
+    b, _ = _open_page(glb, width, height, inset, page, routes)
     images = []
     try:
         b.evaluate(f"window.facecapges.setView({view!r})")

@@ -6,11 +6,13 @@
 // which system that is. Positions are shown as letters A, B, … from the left; they
 // mean nothing beyond "this position in this clip".
 //
-// Flow: participant id → (resume at the first unanswered clip) → for each clip: load,
+// Flow: invitation link (/?invite=TOKEN; the token is the participant's only credential)
+// → (resume at the first unanswered clip) → for each clip: load,
 // Play (replay allowed), rank on each criterion once watched to the end, Save and
 // continue (no way back) → thank you. Every answer is stored by the server before
 // the page moves on.
 import { AvatarScene } from '/web/avatar_scene.js';
+import { VrmScene } from '/web/vrm_scene.js';
 
 const SPACING = 1.0; // metres between the avatars' roots
 const REACH = 0.75; // metres an outstretched hand reaches sideways from an avatar's root
@@ -19,7 +21,7 @@ const $ = (id) => document.getElementById(id);
 const letter = (j) => String.fromCharCode(65 + j);
 
 // inspected by tests and handy in the console; holds no system names (the page never has any)
-const state = { screen: 'loading', participant: null, index: -1, total: 0, ready: false, watched: false,
+const state = { screen: 'loading', participant: null, token: null, language: 'en', index: -1, total: 0, ready: false, watched: false,
                 playing: false, plays: 0, frame: -1, draws: 0, audioClock: false, error: null };
 window.study = state;
 
@@ -50,8 +52,17 @@ async function buildScene(k) {
   const canvas = $('view');
   const width = PX_PER_AVATAR * k;
   host = new AvatarScene(canvas, { width, height: HEIGHT });
-  const glb = await (await fetch('/avatar.glb')).arrayBuffer();
-  for (let j = 0; j < k; j++) {
+  const vrm = info.avatar === 'vrm';
+  const glb = await (await fetch(vrm ? '/avatar.vrm' : '/avatar.glb')).arrayBuffer();
+  for (let j = 0; vrm && j < k; j++) {
+    // a VRM (three-vrm): its normalised bones and expressions are driven (facecapges.avatar.retarget)
+    const rig = Object.create(VrmScene.prototype);
+    rig.scene = host.scene;
+    await rig.load(glb.slice(0));
+    rig.vrm.scene.position.x = (j - (k - 1) / 2) * SPACING;
+    rigs.push(rig);
+  }
+  for (let j = 0; !vrm && j < k; j++) {
     // a rig shares the host's scene: AvatarScene.load/setPose/setBlendshapes only touch
     // this.scene and the rig's own joints and morph meshes
     const rig = Object.create(AvatarScene.prototype);
@@ -63,6 +74,7 @@ async function buildScene(k) {
   // a long lens (narrow field of view from far away): the outer avatars are seen almost
   // from the front too, so no position shows its avatar from a more flattering angle
   const v = { target: [0, 0.36, 0], distance: 2.6, fov: 12 };
+  if (vrm) v.target[1] += rigs[0].bonePosition('hips').y;  // a VRM stands on y = 0
   const halfH = Math.tan((v.fov * Math.PI) / 360) * (width / HEIGHT);
   v.distance = Math.max(v.distance, (((k - 1) / 2) * SPACING + REACH) / halfH);
   host.setView(v);
@@ -74,10 +86,16 @@ let trial = null, face = null, motions = [], audioBuf = null, audioCtx = null, s
 let t0 = 0, wallStart = 0;
 
 function draw(f) {
-  const J = rigs[0].joints.length, B = face.names.length;
+  const B = face.names.length;
   rigs.forEach((rig, j) => {
-    rig.setPose(motions[j], f * J * 4);
-    rig.setBlendshapes(face.weights, f * B);
+    if (rig.vrm) {
+      rig.setPose(motions[j], f * rig.bones.length * 4);
+      rig.setExpressions(face.weights, f * B);
+      rig.update();
+    } else {
+      rig.setPose(motions[j], f * rig.joints.length * 4);
+      rig.setBlendshapes(face.weights, f * B);
+    }
   });
   host.render();
   state.frame = f;
@@ -128,7 +146,7 @@ async function play() {
   state.playing = true;
   state.plays += 1;
   $('play').textContent = '↻ Replay';
-  api('/api/event', { participant: state.participant, index: state.index, type: 'play' }).catch(() => {});
+  api('/api/event', { token: state.token, index: state.index, type: 'play' }).catch(() => {});
 }
 
 function onWatched() {
@@ -155,10 +173,11 @@ async function loadTrial(index) {
   show('trial');
   state.index = index;
   $('progress').textContent = `Clip ${index + 1} of ${state.total}`;
-  trial = await api(`/api/trial?participant=${encodeURIComponent(state.participant)}&index=${index}`);
+  trial = await api(`/api/trial?token=${encodeURIComponent(state.token)}&index=${index}`);
   const [faceDoc, ...motionDocs] = await Promise.all([trial.face, ...trial.motions].map((u) => api(u)));
   face = { names: faceDoc.names, weights: new Float32Array(faceDoc.weights) };
   motions = motionDocs.map((m) => new Float32Array(m.quats));
+  if (rigs[0] && rigs[0].vrm) rigs.forEach((rig) => rig.setLayout(motionDocs[0].bone_names, faceDoc.names));
   const wav = await (await fetch(trial.audio)).arrayBuffer();
   try {
     audioCtx = audioCtx || new AudioContext();
@@ -188,13 +207,36 @@ function buildRanking() {
       s.addEventListener('change', () => onRankChange(s));
       return el('label', {}, `${letter(j)} `, s);
     });
-    const fs = el('fieldset', { disabled: true },
-      el('legend', {}, c.name, el('span', { className: 'zh', textContent: c.name_zh })),
-      el('p', { className: 'def' }, c.definition, el('span', { className: 'zh block', textContent: c.definition_zh })),
-      el('div', { className: 'ranks' }, ...selects));
+    const fs = el('fieldset', { disabled: true }, el('legend', {}, ...criterionName(c)),
+      el('p', { className: 'def' }, ...criterionText(c)), el('div', { className: 'ranks' }, ...selects));
     fs.dataset.criterion = c.key;
     return fs;
   }));
+}
+
+// the criteria in the page's language (the Chinese text is the thesis's own wording)
+function criterionName(c) {
+  return state.language === 'zh' ? [el('span', { lang: 'zh', textContent: c.name_zh })] : [c.name];
+}
+
+function criterionText(c) {
+  return state.language === 'zh' ? [el('span', { lang: 'zh', textContent: c.definition_zh })] : [c.definition];
+}
+
+function showCriteria() {
+  $('criteria-intro').replaceChildren(...info.criteria.map((c) => el('p', { className: 'criterion-intro' },
+    el('b', {}, ...criterionName(c)), el('br'), ...criterionText(c))));
+  for (const fs of $('ranking').querySelectorAll('fieldset')) {
+    const c = info.criteria.find((x) => x.key === fs.dataset.criterion);
+    fs.querySelector('legend').replaceChildren(...criterionName(c));
+    fs.querySelector('p.def').replaceChildren(...criterionText(c));
+  }
+}
+
+function setLanguage(lang) {
+  state.language = lang;
+  document.documentElement.lang = lang;
+  showCriteria();
 }
 
 function onRankChange(s) {
@@ -230,7 +272,7 @@ async function submit() {
   if (!state.watched || !ranks) return;
   $('submit').disabled = true;
   try {
-    const st = await api('/api/answer', { participant: state.participant, index: state.index, ranks });
+    const st = await api('/api/answer', { token: state.token, index: state.index, ranks });
     stopAudio();
     state.playing = false;
     if (st.done) finish(); else await loadTrial(st.next);
@@ -238,7 +280,7 @@ async function submit() {
     state.error = e.message;
     if (e.status === 409) {
       // this clip was answered elsewhere (another tab, a double click): continue where the server is
-      const st = await api('/api/session', { participant: state.participant }).catch(() => null);
+      const st = await api('/api/session', { token: state.token }).catch(() => null);
       if (st && st.done) { finish(); return; }
       if (st && st.next !== state.index) { await loadTrial(st.next); return; }
     }
@@ -257,7 +299,9 @@ async function start() {
   $('start-error').textContent = '';
   $('start').disabled = true;
   try {
-    const st = await api('/api/session', { participant: $('pid').value });
+    const token = $('pid').value.trim();
+    const st = await api('/api/session', { token });
+    state.token = token;
     state.participant = st.participant;
     state.total = st.total;
     if (st.done) { finish(); return; }
@@ -273,12 +317,13 @@ async function main() {
   info = await api('/api/info');
   $('n-clips').textContent = info.clips;
   $('n-versions').textContent = info.versions;
-  $('criteria-intro').replaceChildren(...info.criteria.map((c) => el('p', { className: 'criterion-intro' },
-    el('b', {}, `${c.name}`), el('span', { className: 'zh', textContent: c.name_zh }), el('br'),
-    c.definition, el('span', { className: 'zh block', textContent: c.definition_zh }))));
-  await buildScene(info.versions);
   const q = new URLSearchParams(location.search);
-  if (q.get('participant')) $('pid').value = q.get('participant');
+  state.language = info.languages.includes(q.get('lang')) ? q.get('lang') : info.language;
+  $('language').value = state.language;
+  $('language').addEventListener('change', () => setLanguage($('language').value));
+  showCriteria();
+  await buildScene(info.versions);
+  if (q.get('invite')) $('pid').value = q.get('invite');
   $('start').addEventListener('click', start);
   $('pid').addEventListener('keydown', (e) => { if (e.key === 'Enter') start(); });
   $('play').addEventListener('click', play);

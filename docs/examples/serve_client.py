@@ -1,0 +1,68 @@
+"""A minimal client of ``facecapges serve`` (docs/serve-protocol.md).
+
+Streams a WAV file to the server one 15 fps frame at a time, in real time, with no face
+(zero weights) and the head facing the camera, and prints each returned pose's frame
+number, its round-trip time and the rotation of the right forearm.
+
+    facecapges serve --port 8780 &
+    python docs/examples/serve_client.py ws://127.0.0.1:8780 speech.wav --seconds 5
+
+Needs only numpy, soundfile and websockets (all installed with facecapges).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import base64
+import json
+import time
+
+import numpy as np
+import soundfile as sf
+from websockets.asyncio.client import connect
+
+IDENTITY_ROT6D = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # first two columns of the identity matrix
+
+
+async def stream(url: str, wav: str, seconds: float) -> int:
+    samples, sr = sf.read(wav, dtype="float32", always_2d=True)
+    samples = samples.mean(axis=1)
+    async with connect(url, max_size=2**16) as ws:
+        hello = json.loads(await ws.recv())
+        fps, spf = hello["fps"], hello["samples_per_frame"]
+        if sr != hello["sr"]:
+            raise SystemExit(f"{wav}: {sr} Hz, the server wants {hello['sr']} Hz mono")
+        forearm = hello["joints"].index("RightForeArm")
+        n_frames = min(int(seconds * fps), len(samples) * fps // sr)
+        t0 = time.monotonic()
+        for k in range(n_frames):
+            # frame k owns samples floor(k·sr/fps) … floor((k+1)·sr/fps) − 1
+            a, b = k * sr // fps, (k + 1) * sr // fps
+            chunk = samples[a:b][:spf]
+            sent = time.monotonic()
+            await ws.send(json.dumps({"type": "input", "frame": k,
+                                      "audio": base64.b64encode(chunk.astype("<f4").tobytes()).decode(),
+                                      "face": [0.0] * len(hello["blendshapes"]), "head": IDENTITY_ROT6D}))
+            msg = json.loads(await ws.recv())
+            if msg["type"] != "pose":
+                raise SystemExit(f"server said: {msg}")
+            q = msg["pose"][4 * forearm: 4 * forearm + 4]  # (w, x, y, z)
+            print(f"frame {msg['frame']:4d}  {1000 * (time.monotonic() - sent):6.1f} ms  "
+                  f"RightForeArm w={q[0]:+.3f} x={q[1]:+.3f} y={q[2]:+.3f} z={q[3]:+.3f}")
+            await asyncio.sleep(max(0.0, t0 + (k + 1) / fps - time.monotonic()))  # real time
+        return n_frames
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("url", help="ws://HOST:PORT printed by `facecapges serve`")
+    ap.add_argument("wav", help="speech, 16 kHz mono")
+    ap.add_argument("--seconds", type=float, default=10.0)
+    args = ap.parse_args()
+    n = asyncio.run(stream(args.url, args.wav, args.seconds))
+    print(f"{n} frames")
+
+
+if __name__ == "__main__":
+    main()

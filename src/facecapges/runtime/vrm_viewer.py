@@ -1,0 +1,93 @@
+"""``live --web --avatar FILE.vrm``: the browser viewer showing a VRM (0.x / 1.0 / humanoid GLB).
+
+:class:`VrmViewerServer` is the viewer server (:mod:`.web_server`: same security rules,
+same ``/ws`` feed socket) serving ``web/vrm_viewer.html`` at ``/``, the avatar at
+``/avatar.vrm``, three-vrm at ``/pixiv/*`` and the frame layout at ``/vrm/layout.json``
+(``{"bones": [VRM bone names], "expressions": [names]}``). :class:`VrmWebFeed` is its
+sink: each frame's BEAT pose is retargeted onto the avatar's normalised humanoid bones
+and its ARKit weights mapped to the avatar's expressions in Python
+(:class:`facecapges.avatar.vrm_view.VrmDriver`, the one retargeting implementation),
+then broadcast as a ``vrm_pose`` message::
+
+    {"type": "vrm_pose", "frame": k, "time": k / fps, "pose": [B × (w, x, y, z)],
+     "weights": [E floats], "face_found": true, "latency_ms": {...}, "sent_ms": ...}
+
+(the viewer ignores the BEAT ``hello``/``pose`` layout of :mod:`.protocol`).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.runtime.frames import OutputFrame
+from facecapges.runtime.web_server import TYPES, ViewerServer
+
+
+class VrmViewerServer(ViewerServer):
+    def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = 15.0):
+        from facecapges.avatar.vrm_view import pixiv_dir
+
+        super().__init__(b"", host, port, fps)
+        self.driver = driver
+        self.pixiv_dir = pixiv_dir().resolve()
+        self.layout = json.dumps(driver.layout).encode("utf-8")
+
+    def _file(self, path: str):
+        if path in ("/", "/index.html", "/viewer.html"):
+            path = "/web/vrm_viewer.html"
+        if path == "/avatar.vrm":
+            return self.driver.model.data, TYPES[".glb"]
+        if path == "/avatar.glb":
+            return None
+        if path == "/vrm/layout.json":
+            return self.layout, TYPES[".json"]
+        if path.startswith("/pixiv/"):
+            full = (self.pixiv_dir / path[len("/pixiv/"):]).resolve()
+            if self.pixiv_dir in full.parents and full.is_file():
+                return full.read_bytes(), TYPES.get(full.suffix.lower(), "application/octet-stream")
+            return None
+        return super()._file(path)
+
+
+def encode_vrm_pose(out: OutputFrame, quats: np.ndarray, weights: np.ndarray) -> str:
+    return json.dumps({
+        "type": "vrm_pose", "frame": int(out.index), "time": round(float(out.time_s), 6),
+        "pose": [round(float(v), 6) for v in np.asarray(quats).reshape(-1)],
+        "weights": [round(float(v), 5) for v in np.asarray(weights).reshape(-1)],
+        "face_found": bool(out.face_found),
+        "latency_ms": {k: round(float(v), 3) for k, v in out.latency_ms.items()},
+        "sent_ms": round(time.time() * 1000.0, 1),
+    }, separators=(",", ":"))
+
+
+class VrmWebFeed:
+    """Sink: every frame retargeted onto the VRM and sent to every viewer of a :class:`VrmViewerServer`."""
+
+    def __init__(self, server: VrmViewerServer, skeleton):
+        self.server = server
+        self.skeleton = skeleton
+
+    def write(self, out: OutputFrame) -> None:
+        if not self.server.clients:
+            return
+        from facecapges.avatar.retarget import upper_body_locals
+
+        d = self.server.driver
+        q, w = d.frames(upper_body_locals(self.skeleton, np.asarray(out.quats)[None]), np.asarray(out.face)[None])
+        self.server.broadcast(encode_vrm_pose(out, q[0], w[0]))
+
+    def close(self) -> None:
+        pass
+
+
+def open_vrm_viewer(avatar: str | Path, ckpt, address: tuple[str, int]):
+    """Start the VRM viewer for ``avatar`` on ``address``; returns (server, sink)."""
+    from facecapges.avatar.vrm_view import VrmDriver
+
+    driver = VrmDriver.from_file(avatar, ckpt.skeleton)
+    server = VrmViewerServer(driver, address[0], address[1], fps=ckpt.fps).start()
+    return server, VrmWebFeed(server, ckpt.skeleton)

@@ -1,0 +1,123 @@
+// FaceCapGes VRM scene: any VRM 0.x / 1.0 avatar loaded by @pixiv/three-vrm 3.5.5 (three.js 0.187.0).
+//
+// Driven one frame at a time, in the layout facecapges.avatar.retarget writes:
+//   * pose: for each name of `bones` (VRM 1.0 humanoid bone names) the LOCAL rotation of that
+//     *normalised* bone (vrm.humanoid.getNormalizedBoneNode) as a quaternion, real part first
+//     (w, x, y, z); VRM 0.x models are turned to face +Z (VRMUtils.rotateVRM0) as three-vrm does;
+//   * face: for each name of `expressions` its weight in [0, 1] (vrm.expressionManager).
+// vrm.update() then moves the raw bones and morph targets. LookAt is not automatic: the face
+// weights carry the eye movement. The page must map "three", "three/addons/" and
+// "@pixiv/three-vrm" in an import map.
+import * as THREE from 'three';
+import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import { VRMLoaderPlugin, VRMUtils } from '@pixiv/three-vrm';
+import { AvatarScene } from './avatar_scene.js';
+
+// the renderer, lights and camera are AvatarScene's (avatar_scene.js); loading, framing and posing are VRM's
+export class VrmScene extends AvatarScene {
+  constructor(canvas, options = {}) {
+    super(canvas, options);
+    this.bones = [];
+    this.boneNodes = [];
+    this.expressions = [];
+  }
+
+  // source: a URL or an ArrayBuffer holding the .vrm
+  async load(source) {
+    const loader = new GLTFLoader();
+    loader.register((parser) => new VRMLoaderPlugin(parser));
+    const gltf = typeof source === 'string'
+      ? await loader.loadAsync(source)
+      : await new Promise((res, rej) => loader.parse(source, '', res, rej));
+    const vrm = gltf.userData.vrm;
+    if (!vrm) throw new Error('not a VRM: @pixiv/three-vrm found no VRM extension');
+    this.gltf = gltf;
+    this.vrm = vrm;
+    VRMUtils.rotateVRM0(vrm);
+    if (vrm.lookAt) vrm.lookAt.autoUpdate = false;
+    vrm.scene.traverse((o) => { if (o.isMesh) o.frustumCulled = false; });
+    this.scene.add(vrm.scene);
+    vrm.update(0);
+    vrm.scene.updateMatrixWorld(true);
+    // for AvatarScene's face inset: the camera follows the head bone, aimed a little above it
+    this.root = vrm.scene;
+    this.head = vrm.humanoid.getRawBoneNode('head');
+    this.faceOffset = new THREE.Vector3(0, 0.07, 0);
+    if (this.camera) this.setView('body');  // (a rig sharing another scene has no camera)
+    return this;
+  }
+
+  get metaVersion() { return this.vrm.meta.metaVersion; }
+
+  // world position of a raw humanoid bone (null if the model lacks it)
+  bonePosition(name) {
+    const n = this.vrm.humanoid.getRawBoneNode(name);
+    return n ? n.getWorldPosition(new THREE.Vector3()) : null;
+  }
+
+  // the body view frames head to hips and both hands at rest; the face view the head
+  setView(name) {
+    if (!this.vrm) return;  // (AvatarScene's constructor frames before there is a model)
+    const head = this.bonePosition('head'), hips = this.bonePosition('hips');
+    const l = this.bonePosition('leftHand'), r = this.bonePosition('rightHand');
+    const fov = 30;
+    this.camera.fov = fov;
+    let target, dist;
+    if (name === 'face') {
+      target = head.clone().add(new THREE.Vector3(0, 0.07, 0));
+      dist = 0.55;
+    } else {
+      const top = head.y + 0.25, bottom = hips.y - 0.2;
+      target = new THREE.Vector3(0, (top + bottom) / 2, 0);
+      const halfH = (top - bottom) / 2, halfW = Math.abs(l.x - r.x) / 2 + 0.1;
+      const t = Math.tan((fov / 2) * Math.PI / 180);
+      dist = Math.max(halfH / t, halfW / (t * this.camera.aspect)) * 1.05;
+    }
+    this.camera.position.set(target.x, target.y, target.z + dist);
+    this.camera.lookAt(target);
+    this.camera.updateProjectionMatrix();
+  }
+
+  // which normalised bones / expressions the flat arrays hold
+  setLayout(bones, expressions) {
+    this.bones = bones;
+    this.boneNodes = bones.map((n) => this.vrm.humanoid.getNormalizedBoneNode(n));
+    this.expressions = expressions;
+    const em = this.vrm.expressionManager;
+    this.missing = {
+      bones: bones.filter((n, i) => !this.boneNodes[i]),
+      expressions: expressions.filter((n) => !em || !em.getExpression(n)),
+    };
+    return this.missing;
+  }
+
+  // quats: flat (w, x, y, z) per bone of the layout; offset: start index
+  setPose(quats, offset = 0) {
+    for (let i = 0; i < this.boneNodes.length; i++) {
+      const n = this.boneNodes[i];
+      const k = offset + 4 * i;
+      if (n) n.quaternion.set(quats[k + 1], quats[k + 2], quats[k + 3], quats[k]);
+    }
+  }
+
+  restPose() {
+    for (const n of this.boneNodes) if (n) n.quaternion.identity();
+  }
+
+  setExpressions(weights, offset = 0) {
+    const em = this.vrm.expressionManager;
+    if (!em) return;
+    for (let i = 0; i < this.expressions.length; i++) em.setValue(this.expressions[i], weights[offset + i]);
+  }
+
+  update() {
+    this.vrm.update(0);
+    this.vrm.scene.updateMatrixWorld(true);
+  }
+
+  render() {
+    this.update();
+    super.render();  // the body view (+ the face inset when the scene was made with inset: true)
+  }
+}
+

@@ -1,0 +1,35 @@
+"""``facecapges bench --quick --json`` over every area: a broken area fails CI.
+
+One real run of the command as users run it (no timing is asserted: speed targets are
+shown by the bench's figures, not by tests). The document must be strict JSON with
+every area present and none failed, and progress must reach stderr.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from pathlib import Path
+
+from facecapges.benchmarks import BENCHMARKS
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video):
+    shared = beat_bvh.parents[2]  # ../shared (data/beat/<clip>.bvh)
+    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "bench", "--quick", "--json", "--shared", str(shared)],
+                       capture_output=True, text=True, timeout=900, cwd=REPO)
+    assert p.returncode == 0, p.stderr[-4000:]
+    doc = json.loads(p.stdout)  # strict JSON: no NaN
+    failed = {a: doc[a]["error"] for a in BENCHMARKS if "error" in doc.get(a, {"error": "missing"})}
+    assert not failed
+    assert set(doc["bench"]["area_wall_s"]) == set(BENCHMARKS)
+    n = len(BENCHMARKS)
+    assert f"[{n}/{n}]" in p.stderr and "done in" in p.stderr  # progress on stderr, JSON alone on stdout
+    m = doc["model"]
+    assert m["max_abs_diff_naive"] < 1e-4  # the cached kernel computes what the naive loop computes
+    assert m["step_with_euler_ms_p50"] >= m["step_ms_p50"] > 0
+    assert doc["serve"]["trials"] and doc["serve"]["trials"][0]["frames_returned"] > 0

@@ -1,0 +1,120 @@
+"""30/60 Hz output between 15 fps model frames: the blend itself, the emitting thread, and the viewer at --rate."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pytest
+
+from facecapges import rotations as rot
+from facecapges.runtime.frames import OutputFrame
+from facecapges.runtime.upsample import Upsampler, added_latency_s, blend_frames, substeps
+
+
+def frame(k: int, arm_deg: float, jaw: float, head_yaw_deg: float = 0.0) -> OutputFrame:
+    q = np.tile([1.0, 0.0, 0.0, 0.0], (47, 1))
+    q[4] = rot.matrix_to_quaternion(rot.axis_angle_matrix("Z", np.array(np.radians(arm_deg))))
+    face = np.zeros(52, np.float32)
+    face[24] = jaw
+    head = rot.matrix_to_rot6d(rot.axis_angle_matrix("Y", np.array(np.radians(head_yaw_deg))))
+    return OutputFrame(k, k / 15, rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)), q, face, head, True, {"total": 1.0})
+
+
+def test_rates_and_latency():
+    assert substeps(15, 15) == 1 and substeps(30, 15) == 2 and substeps(60, 15) == 4
+    for bad in (20, 25, 7.5, 0, -30):
+        with pytest.raises(ValueError):
+            substeps(bad, 15)
+    assert added_latency_s(30, 15) * 1000 == pytest.approx(33.333, abs=1e-3)
+    assert added_latency_s(60, 15) * 1000 == pytest.approx(50.0)
+    assert added_latency_s(15, 15) == 0
+
+
+def test_blend_slerps_rotations_and_lerps_weights():
+    a, b = frame(0, 0.0, 0.2, 0.0), frame(1, 80.0, 0.6, 40.0)
+    m = blend_frames(a, b, 0.25)
+    angle = np.degrees(2 * np.arccos(np.clip(m.quats[4, 0], -1, 1)))
+    assert angle == pytest.approx(20.0, abs=1e-3)  # slerp: a quarter of the arc
+    assert m.face[24] == pytest.approx(0.3) and m.time_s == pytest.approx(0.25 / 15)
+    R = rot.rot6d_to_matrix(m.head.astype(np.float64))
+    assert np.degrees(np.arctan2(R[0, 2], R[2, 2])) == pytest.approx(10.0, abs=1e-3)
+    np.testing.assert_allclose(rot.rot6d_to_matrix(m.pose.astype(np.float64)), rot.quaternion_to_matrix(m.quats),
+                               atol=1e-5)
+    assert blend_frames(a, b, 1.0) is b
+
+
+class Collect:
+    def __init__(self):
+        self.frames, self.closed = [], False
+
+    def write(self, fr):
+        self.frames.append((time.monotonic(), fr))
+
+    def close(self):
+        self.closed = True
+
+
+def wait_emitted(up: Upsampler, n: int, timeout: float = 10.0) -> None:
+    deadline = time.time() + timeout
+    while up.emitted < n and time.time() < deadline:
+        time.sleep(0.002)
+
+
+def test_upsampler_emits_n_per_model_frame_and_ends_on_the_last():
+    sink = Collect()
+    up = Upsampler([sink], fps=15, rate_hz=30)
+    for k in range(6):
+        up.write(frame(k, 10.0 * k, 0.1 * k))
+        wait_emitted(up, 1 + 2 * k)  # (on a loaded machine a frame arriving early cuts the in-betweens short)
+    up.close()
+    assert sink.closed
+    times = [f.time_s for _, f in sink.frames]
+    assert len(times) == 1 + 2 * 5  # the first once, then two per model frame
+    np.testing.assert_allclose(times, np.arange(11) / 30, atol=1e-9)
+    assert sink.frames[-1][1].face[24] == pytest.approx(0.5)
+
+
+def test_a_frame_that_comes_early_starts_from_what_was_shown():
+    sink = Collect()
+    up = Upsampler([sink], fps=15, rate_hz=60)
+    up.write(frame(0, 0.0, 0.0))
+    wait_emitted(up, 1)
+    up.write(frame(1, 40.0, 0.4))
+    wait_emitted(up, 2)  # the first in-between (10°) is out …
+    up.write(frame(2, 80.0, 0.8))  # … and frame 2 arrives 3/4 of a period early
+    wait_emitted(up, 6)
+    up.close()
+    arm = [np.degrees(2 * np.arccos(np.clip(f.quats[4, 0], -1, 1))) for _, f in sink.frames]
+    assert arm[0] == pytest.approx(0) and arm[-1] == pytest.approx(80, abs=1e-3)
+    assert np.all(np.diff(arm) > 0)  # no jump back: the new segment starts where the avatar was
+
+
+def test_viewer_gets_30_frames_a_second(face_video):
+    """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
+    from websockets.sync.client import connect
+
+    from facecapges.runtime import protocol
+    from runtime_helpers import cli_popen, wait_line
+
+    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
+                     "--rate", "30", "--max-seconds", "60")
+    try:
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        url = line.split()[1]
+        with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
+            assert json.loads(ws.recv(timeout=30))["type"] == "hello"
+            times = []
+            while len(times) < 40:
+                msg = ws.recv(timeout=30)
+                if json.loads(msg)["type"] == "pose":
+                    times.append(protocol.decode_pose(msg)["time"])
+    finally:
+        proc.kill()
+        proc.wait()
+    steps = np.round(np.diff(times) * 30, 3)
+    assert np.all(steps > 0) and np.min(steps) == pytest.approx(1.0, abs=1e-3)  # 1/30 s apart
+    half = np.round(np.array(times) * 30) % 2 == 1
+    assert half.sum() >= 10  # frames half-way between model frames

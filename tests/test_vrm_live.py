@@ -1,0 +1,195 @@
+"""A VRM in the live chain and VRM Animation from the commands that make gestures:
+
+* ``live --video F --realtime --web … --avatar SAMPLE.vrm --record DIR --vrma``: the VRM viewer
+  (three-vrm in headless Chromium) draws the feed, the hands of the VRM 0.x sample show up on
+  screen, and Ctrl-C leaves a ``motion.vrma`` as long as ``motion.bvh``, valid against the
+  VRM Animation schema;
+* ``generate --vrma`` (the installed default style) writes one with the face as presets;
+* ``run --avatar`` renders avatar.mp4 with the VRM.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import signal
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from facecapges.avatar.vrm import split_glb
+
+sys.path.insert(0, str(Path(__file__).parent))
+from runtime_helpers import cli, cli_popen, wait_line  # noqa: E402
+from vrm_samples import build_sample  # noqa: E402
+from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
+
+
+def _vrma_ok(path: Path) -> dict:
+    import jsonschema
+
+    doc, _ = split_glb(path.read_bytes())
+    jsonschema.validate(doc["extensions"]["VRMC_vrm_animation"], VRMC_VRM_ANIMATION,
+                        cls=jsonschema.Draft202012Validator)
+    assert semantic_errors(doc, "VRMC_vrm_animation") == []
+    return doc
+
+
+def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
+    """Load ``vrma`` with @pixiv/three-vrm-animation onto a sample VRM in headless Chromium."""
+    from conftest import shared_file
+
+    from facecapges.avatar.render.browser import Browser
+    from facecapges.avatar.vrm import parse_model
+    from facecapges.avatar.vrm_view import PAGE, VrmDriver
+    from facecapges.io.bvh import read_bvh
+
+    skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
+    driver = VrmDriver(parse_model(build_sample(variant), variant), skel)
+    routes = {**driver.routes(), "/a.vrma": vrma.read_bytes()}
+    with Browser(routes, f"{PAGE}?w=160&h=120", 160, 120) as b:
+        b.wait_for("window.facecapges.ready")
+        info = b.evaluate("window.facecapges.loadVrma('/a.vrma')")
+        info["errors"] = b.evaluate("window.facecapges.errors")
+        info["end"] = b.evaluate(f"window.facecapges.seekVrma({info['duration']}, ['leftHand'], "
+                                 "['blink', 'EyeBlinkLeft', 'JawOpen'])")
+    return info
+
+
+def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
+    import cv2
+
+    from facecapges.avatar.render.browser import Browser
+
+    avatar = tmp_path / "sample.vrm"
+    avatar.write_bytes(build_sample("vrm0"))
+    rec = tmp_path / "rec"
+    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
+                     "--avatar", str(avatar), "--record", str(rec), "--vrma", "--max-seconds", "120")
+    try:
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        url = line.split()[1]
+        with Browser({}, "/", width=640, height=480, timeout=90) as b:
+            b.call("Page.navigate", url=url)
+            state = None
+            deadline = time.time() + 90
+            while time.time() < deadline:
+                state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer))"
+                                   " : null")
+                if state and state["ready"] and state["drawn"] >= 10:
+                    break
+                time.sleep(0.5)
+            assert state and state["ready"] and state["errors"] == [] and state["drawn"] >= 10, state
+            assert state["metaVersion"] == "0" and state["bones"] == 22
+            shot = cv2.imdecode(np.frombuffer(base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"]),
+                                              np.uint8), cv2.IMREAD_COLOR)
+            Path("/tmp/facecapges-vrm-viewer.png").write_bytes(cv2.imencode(".png", shot)[1].tobytes())
+            bgr = shot.astype(int)
+            red = ((bgr[..., 2] > 180) & (bgr[..., 1] < 80) & (bgr[..., 0] < 80)).sum()
+            blue = ((bgr[..., 0] > 180) & (bgr[..., 1] < 80) & (bgr[..., 2] < 80)).sum()
+            body = (np.abs(bgr - np.array([0xf3, 0xf0, 0xee])).sum(-1) > 60).mean()
+            assert red + blue > 40 and body > 0.02, (red, blue, body)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+        assert proc.returncode == 0, err[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    from facecapges.io.bvh import read_bvh
+
+    n = read_bvh(rec / "motion.bvh").motion.shape[0]
+    doc = _vrma_ok(rec / "motion.vrma")
+    times = doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]
+    assert times["count"] == n > 10
+    assert "preset" in doc["extensions"]["VRMC_vrm_animation"]["expressions"]
+    played = _play_vrma(rec / "motion.vrma", "vrm0")
+    assert played["errors"] == [] and played["humanoidTracks"] == 52 and played["expressionTracks"] == 13
+    assert played["duration"] == pytest.approx((n - 1) / 15, abs=1e-3)
+
+
+def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
+    import soundfile as sf
+
+    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.io.face_json import write_face_json
+
+    audio, sr = sf.read(unseen_wav)
+    wav = tmp_path / "a.wav"
+    sf.write(wav, audio[: 4 * sr], sr)
+    face = tmp_path / "face.json"
+    w = np.zeros((120, 52), np.float32)
+    w[:, ARKIT_NAMES.index("jawOpen")] = 0.6
+    write_face_json(face, w, 30.0)
+    out = tmp_path / "g.bvh"
+    p = cli("generate", "--audio", str(wav), "--face", str(face), "--out", str(out), "--vrma", str(tmp_path / "g.vrma"),
+            "--vrma-face", "perfect-sync")
+    assert p.returncode == 0, p.stderr
+    doc = _vrma_ok(tmp_path / "g.vrma")
+    ext = doc["extensions"]["VRMC_vrm_animation"]
+    assert list(ext["expressions"]["custom"]) == list(PERFECT_SYNC_NAMES)
+    played = _play_vrma(tmp_path / "g.vrma", "vrm1")  # the sample's perfect-sync clips: "JawOpen" …
+    assert played["errors"] == [] and played["humanoidTracks"] == 52 and played["expressionTracks"] == 52
+    assert played["end"]["expressions"]["JawOpen"] == pytest.approx(0.6, abs=1e-3)  # the face track's jaw
+    p = cli("generate", "--audio", str(wav), "--out", str(tmp_path / "h.bvh"), "--vrma", str(tmp_path / "h.vrma"),
+            "--vrma-face", "smiles")
+    assert p.returncode == 2 and "--vrma-face" in p.stderr and not (tmp_path / "h.bvh").exists()
+
+
+def test_run_renders_the_vrm(face_video, tmp_path):
+    import imageio_ffmpeg
+
+    avatar = tmp_path / "sample.vrm"
+    avatar.write_bytes(build_sample("vrm1"))
+    out = tmp_path / "run"
+    p = cli("run", str(face_video), "--out", str(out), "--avatar", str(avatar), "--max-frames", "15")
+    assert p.returncode == 0, p.stderr
+    frames = list(imageio_ffmpeg.read_frames(str(out / "avatar.mp4")))[1:]
+    assert len(frames) == 15
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["frames"] == 15
+
+
+def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
+    """``study create --avatar SAMPLE.vrm``: the participant page shows the VRM three times and plays a clip."""
+    import cv2
+
+    from _study_media import make_clips
+    from test_study_browser import Page
+
+    from facecapges.study.build import open_study
+    from facecapges.study.server import make_server, serve_in_thread
+
+    avatar = tmp_path / "sample.vrm"
+    avatar.write_bytes(build_sample("vrm0"))
+    clips = make_clips(tmp_path / "src", beat_bvh, beat_wav, n_clips=1, seconds=2.0)
+    p = cli("study", "create", "--clips", str(clips), "--out", str(tmp_path / "study"), "--participants", "1",
+            "--avatar", str(avatar))
+    assert p.returncode == 0, p.stderr
+    st = open_study(tmp_path / "study")
+    motion = json.loads(next((tmp_path / "study" / "media").glob("*/motion-*.json")).read_text())
+    assert len(motion["bone_names"]) == 22 and len(motion["quats"]) == motion["frames"] * 22 * 4
+    server = make_server(st, "127.0.0.1", 0)
+    serve_in_thread(server)
+    page = Page(f"http://127.0.0.1:{server.server_address[1]}/")
+    try:
+        page.start(st.plan.participants[0].token)  # the invitation token
+        page.wait("window.study.ready && window.study.index === 0")
+        page.click("play")
+        page.wait("window.study.watched", timeout=30)
+        assert page.js("window.study.error") is None and page.js("window.study.draws") > 5
+        shot = tmp_path / "study.png"
+        page.screenshot(shot)
+        img = cv2.imread(str(shot)).astype(int)
+        red = ((img[..., 2] > 180) & (img[..., 1] < 80) & (img[..., 0] < 80)).sum()
+        blue = ((img[..., 0] > 180) & (img[..., 1] < 80) & (img[..., 2] < 80)).sum()
+        assert red > 20 and blue > 20, (red, blue)
+    finally:
+        page.close()
+        server.shutdown()
+        server.server_close()
