@@ -21,7 +21,7 @@ import torch.multiprocessing as mp
 
 TINY_MODEL = dict(audio_frontend_channels=[8, 8, 8], audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
                   face_dim=8, lstm_hidden=16, mlp_hidden=16, disc_channels=8, dropout=0.0)
-TRAIN = dict(adv_start_epoch=2, num_threads=1, epochs=2, holdout_from=756, seed=3, lr_base=1.0)
+TRAIN = dict(adv_start_epoch=2, num_threads=1, epochs=2, holdout_from=756, seed=3, lr_base=1.0, grad_clip=1.0)
 GLOBAL_BATCH = 14
 
 

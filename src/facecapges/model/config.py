@@ -132,6 +132,7 @@ LIMITS: dict[str, dict[str, tuple | set]] = {
         "epochs": (1, 1_000_000), "adv_start_epoch": (1, 1_000_000), "huber_beta": (1e-9, 1000.0),
         "w_rec": (0.0, 1e9), "w_vel": (0.0, 1e9), "w_acc": (0.0, 1e9), "w_adv": (0.0, 1e9),
         "grad_clip": (0.0, 1e9), "seed": (0, 2**32 - 1), "holdout_from": (1, None), "num_threads": (0, 1024),
+        "holdout_fraction": (0.0, 0.9),
     },
 }
 
