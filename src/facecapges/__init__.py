@@ -34,8 +34,20 @@ _EXPORTS: dict[str, str] = {
 }
 
 __all__ = [  # the API first, then the conventions
-    "__version__", "load_checkpoint", "list_styles", "Checkpoint", "DEFAULT_STYLE", "StreamingGenerator",
-    "load_audio", "UserError", "MODEL_FPS", "AUDIO_SR", "ARKIT_NAMES", "N_BLENDSHAPES", "UPPER_BODY", "N_JOINTS",
+    "ARKIT_NAMES",
+    "AUDIO_SR",
+    "DEFAULT_STYLE",
+    "MODEL_FPS",
+    "N_BLENDSHAPES",
+    "N_JOINTS",
+    "UPPER_BODY",
+    "Checkpoint",
+    "StreamingGenerator",
+    "UserError",
+    "__version__",
+    "list_styles",
+    "load_audio",
+    "load_checkpoint",
 ]
 assert set(__all__) == {"__version__", *_EXPORTS}
 

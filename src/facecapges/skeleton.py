@@ -103,7 +103,7 @@ class Skeleton:
         have = set(self.names)
         return [n for n in names if n not in have]
 
-    def is_same_tree(self, other: "Skeleton") -> bool:
+    def is_same_tree(self, other: Skeleton) -> bool:
         return self.names == other.names and np.array_equal(self.parents, other.parents)
 
 

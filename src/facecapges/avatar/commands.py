@@ -146,7 +146,8 @@ def register(app: typer.Typer) -> None:
         from facecapges.arkit import ARKIT_NAMES
         from facecapges.avatar.body import check_skeleton, default_avatar
         from facecapges.avatar.gltf import avatar_to_gltf
-        from facecapges.avatar.render.video import bvh_quaternions, contact_sheet as make_sheet, render_video
+        from facecapges.avatar.render.video import bvh_quaternions, render_video
+        from facecapges.avatar.render.video import contact_sheet as make_sheet
         from facecapges.errors import UserError, check_output_file, file_error, require_file
         from facecapges.io.bvh import read_bvh
 

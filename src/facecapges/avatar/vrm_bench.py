@@ -23,12 +23,12 @@ from facecapges.skeleton import N_JOINTS
 
 
 def run(quick: bool, shared: Path) -> dict:
+    from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.bench import shared_file, synthetic_face
     from facecapges.avatar.retarget import Retargeter, upper_body_locals
-    from facecapges.avatar.vrm import ExpressionMap, PRESET_BINDS
-    from facecapges.avatar.vrma import beat_model, write_vrma
+    from facecapges.avatar.vrm import PRESET_BINDS, ExpressionMap
     from facecapges.avatar.vrm_view import bvh_local_matrices
-    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.avatar.vrma import beat_model, write_vrma
 
     bvh = shared_file(shared, "data/beat/2_scott_0_1_1.bvh")
     if bvh is not None:

@@ -60,7 +60,7 @@ class VrmDriver:
         self.faces = ExpressionMap(model)
 
     @classmethod
-    def from_file(cls, path: str | Path, skeleton) -> "VrmDriver":
+    def from_file(cls, path: str | Path, skeleton) -> VrmDriver:
         from facecapges.avatar.vrm import load_model
 
         return cls(load_model(path), skeleton)

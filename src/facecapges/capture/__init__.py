@@ -30,4 +30,4 @@ def __getattr__(name: str):
     raise AttributeError(name)
 
 
-__all__ = ["FaceCapture", "CaptureResult"]
+__all__ = ["CaptureResult", "FaceCapture"]

@@ -34,8 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import file_error
 from facecapges.capture.models import GEOMETRY_MEMBER, read_member
+from facecapges.errors import file_error
 
 N_MESH_VERTICES = 468
 

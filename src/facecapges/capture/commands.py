@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,11 +16,11 @@ def register(app: typer.Typer) -> None:
         fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
         face_json: str = typer.Option("beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or "
                                                                  "full (52 weights at --fps)."),
-        overlay: Optional[Path] = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
-        depth: Optional[Path] = typer.Option(None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."),
-        intrinsics: Optional[Path] = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
-        model: Optional[Path] = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-        max_frames: Optional[int] = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
+        overlay: Path | None = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
+        depth: Path | None = typer.Option(None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."),
+        intrinsics: Path | None = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
+        model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
+        max_frames: int | None = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
         faces: int = typer.Option(1, "--faces", help="Faces to follow (1-8); several write OUT_1.json … one per face, "
                                                      "numbered left to right, kept by position."),
         force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
@@ -50,8 +49,8 @@ def register(app: typer.Typer) -> None:
         video: Path = typer.Argument(..., help="A video of a face."),
         out: Path = typer.Option(Path("capture_eval"), "--out", help="Directory for capture_eval.json and tracks.png."),
         skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
-        model: Optional[Path] = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-        max_frames: Optional[int] = typer.Option(None, help="Only the first N frames."),
+        model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
+        max_frames: int | None = typer.Option(None, help="Only the first N frames."),
         force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
     ) -> None:
         """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""

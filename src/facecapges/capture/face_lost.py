@@ -45,7 +45,7 @@ class FaceLostPolicy:
     ease_in_s: float = EASE_IN_S
 
     @classmethod
-    def from_ms(cls, hold_ms: float, ease_ms: float) -> "FaceLostPolicy":
+    def from_ms(cls, hold_ms: float, ease_ms: float) -> FaceLostPolicy:
         return cls(hold_ms / 1000.0, ease_ms / 1000.0)
 
     def held(self, age_s: float) -> float:

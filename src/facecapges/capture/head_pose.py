@@ -109,7 +109,7 @@ class Intrinsics:
     cy: float
 
     @classmethod
-    def default(cls, width: int, height: int, vfov_deg: float = DEFAULT_VFOV_DEG) -> "Intrinsics":
+    def default(cls, width: int, height: int, vfov_deg: float = DEFAULT_VFOV_DEG) -> Intrinsics:
         f = focal_from_vfov(height, vfov_deg)
         return cls(f, f, width / 2.0, height / 2.0)
 

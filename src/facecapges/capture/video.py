@@ -15,9 +15,10 @@ frames that fail at the end of the file up to its declared frame count are count
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
 
 @dataclass
 class FrameSource:
-    cap: "cv2.VideoCapture"
+    cap: cv2.VideoCapture
     name: str
     fps: float
     n_frames: int | None  # None for cameras

@@ -29,11 +29,10 @@ def run(quick: bool, shared: Path) -> dict:
     retargeting speed of the ZEGGS take and the 9-joint reader (shared ``data/zeggs``, ``data/zeggs9``)."""
     from facecapges.data.cache import Cache
     from facecapges.data.prepare import prepare
+    from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import motion_to_pose
-
-    from facecapges.errors import UserError
 
     sample_dir = Path(shared) / "data" / "beat"
     bvh_path, wav_path = sample_dir / f"{CLIP}.bvh", sample_dir / f"{CLIP}.wav"

@@ -110,7 +110,7 @@ class RunningStats:
         self.sum += x.sum(0) * w
         self.sumsq += (x * x).sum(0) * w
 
-    def merge(self, other: "RunningStats") -> None:
+    def merge(self, other: RunningStats) -> None:
         self.n += other.n
         self.count += other.count
         self.sum += other.sum

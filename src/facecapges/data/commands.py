@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -39,23 +38,23 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def prepare(
-        beat_root: Optional[Path] = typer.Argument(None, help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
+        beat_root: Path | None = typer.Argument(None, help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
                                                               "{end}.bvh/.wav/.json/.txt/.csv), searched recursively."),
         out: Path = typer.Option(..., "--out", help="Cache folder to create."),
         speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
         fps: float = typer.Option(15.0, help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame)."),
-        mocap: Optional[List[Path]] = typer.Option(None, "--mocap", help="BVH file or folder of another skeleton, "
+        mocap: list[Path] | None = typer.Option(None, "--mocap", help="BVH file or folder of another skeleton, "
                                                    "each with a same-named .wav; retargeted onto BEAT. Repeatable."),
-        joint_map: Optional[str] = typer.Option(None, "--map", help="Joint map for --mocap: zeggs, beat or a JSON "
+        joint_map: str | None = typer.Option(None, "--map", help="Joint map for --mocap: zeggs, beat or a JSON "
                                                 "file (default: detected from the joint names)."),
-        mocap_speaker: Optional[int] = typer.Option(None, help="Speaker id of the --mocap clips (100 or more; "
+        mocap_speaker: int | None = typer.Option(None, help="Speaker id of the --mocap clips (100 or more; "
                                                     "default: the joint map's, ZEGGS 100)."),
-        joints9: Optional[List[Path]] = typer.Option(None, "--joints9", help="Reduced-joint .npy file or folder "
+        joints9: list[Path] | None = typer.Option(None, "--joints9", help="Reduced-joint .npy file or folder "
                                                      "(T, 9, 7), each with a same-named .wav. Repeatable."),
-        layout: Optional[str] = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
-        joints9_speaker: Optional[int] = typer.Option(None, help="Speaker id of the --joints9 clips (100 or more; "
+        layout: str | None = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
+        joints9_speaker: int | None = typer.Option(None, help="Speaker id of the --joints9 clips (100 or more; "
                                                       "default: the layout's, ZEGGS 100)."),
-        target: Optional[Path] = typer.Option(None, help="BEAT-skeleton BVH the other sources are written on "
+        target: Path | None = typer.Option(None, help="BEAT-skeleton BVH the other sources are written on "
                                               "(default: the first BEAT BVH, else the default style's skeleton)."),
         force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
@@ -90,10 +89,10 @@ def register(app: typer.Typer) -> None:
     def retarget(
         src: Path = typer.Argument(..., help="BVH file of any skeleton (joint names mapped by --map)."),
         out: Path = typer.Option(..., "--out", help="BVH file to write, on the BEAT skeleton."),
-        fps: Optional[float] = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
-        joint_map: Optional[str] = typer.Option(None, "--map", help="Joint map: zeggs, beat or a JSON file "
+        fps: float | None = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
+        joint_map: str | None = typer.Option(None, "--map", help="Joint map: zeggs, beat or a JSON file "
                                                 "(default: detected from the joint names)."),
-        target: Optional[Path] = typer.Option(None, help="BEAT-skeleton BVH to write on (default: the skeleton of "
+        target: Path | None = typer.Option(None, help="BEAT-skeleton BVH to write on (default: the skeleton of "
                                               "the default style)."),
         force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
     ) -> None:

@@ -37,8 +37,15 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
-from facecapges.data.retarget import (ROOT, JointMap, Retargeted, rest_positions, load_map, pose_from_world,
-                                      shipped_map_path)
+from facecapges.data.retarget import (
+    ROOT,
+    JointMap,
+    Retargeted,
+    load_map,
+    pose_from_world,
+    rest_positions,
+    shipped_map_path,
+)
 from facecapges.errors import UserError, file_error, require_file
 from facecapges.skeleton import UPPER_BODY, Skeleton
 

@@ -51,15 +51,21 @@ from typing import Literal
 import numpy as np
 
 from facecapges import timing
+from facecapges.arkit import N_BLENDSHAPES
 from facecapges.data import beat
-from facecapges.data.cache import (CACHE_VERSION, CLIP_DIR, FIRST_OTHER_SPEAKER, HOLDOUT_FRACTION, INDEX_NAME,
-                                   RunningStats)
+from facecapges.data.cache import (
+    CACHE_VERSION,
+    CLIP_DIR,
+    FIRST_OTHER_SPEAKER,
+    HOLDOUT_FRACTION,
+    INDEX_NAME,
+    RunningStats,
+)
 from facecapges.errors import UserError, file_error, refuse_overwrite
 from facecapges.io.audio import load_audio
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
 from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, head_rot6d, motion_to_pose, skeleton_to_dict
-from facecapges.arkit import N_BLENDSHAPES
 
 
 def _fit_length(x: np.ndarray, n: int, pad: str = "edge") -> np.ndarray:

@@ -53,8 +53,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import (N_JOINTS, UPPER_BODY, Skeleton, global_transforms, local_matrices,
-                                 motion_to_euler)
+from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, global_transforms, local_matrices, motion_to_euler
 
 #: BEAT joints every source must drive; the others (neck, clavicles, fingers) are masked when absent.
 REQUIRED: tuple[str, ...] = ("Hips", "Spine", "RightArm", "RightForeArm", "RightHand", "LeftArm", "LeftForeArm",
@@ -79,7 +78,7 @@ class JointMap:
     description: str = ""
 
     @classmethod
-    def from_dict(cls, d: dict, origin: str = "joint map") -> "JointMap":
+    def from_dict(cls, d: dict, origin: str = "joint map") -> JointMap:
         try:
             joints = {str(k): str(v) for k, v in d["joints"].items()}
             corr = {}

@@ -70,9 +70,9 @@ plus the BeatAlign control and training notes), ``runs/<variant>/`` (run folders
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -310,8 +310,8 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     """The suite over the held-out frames for the reference rows and every variant (both regions)."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
-    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired
     from facecapges.evaluation.run import heldout_inputs
+    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired
 
     if samples < 1:
         raise UserError("--samples must be at least 1")

@@ -63,8 +63,8 @@ motions (methods, regions) scored against one audio share the onset detection.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Sequence
 
 import numpy as np
 

@@ -61,8 +61,13 @@ def run(quick: bool, shared: Path) -> dict:
     import torch
 
     from facecapges.evaluation import beat_align as ba
-    from facecapges.evaluation.fgd import FGDAutoencoder, FGDConfig, frechet_distance_features, make_windows, \
-        reconstruction_loss
+    from facecapges.evaluation.fgd import (
+        FGDAutoencoder,
+        FGDConfig,
+        frechet_distance_features,
+        make_windows,
+        reconstruction_loss,
+    )
     from facecapges.outputs.skeleton_video import render_skeleton_video
     from facecapges.skeleton import UPPER_BODY
 

@@ -17,7 +17,6 @@ into a Table 5.3 report (see :mod:`facecapges.evaluation.ablate`).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List, Optional
 
 import typer
 
@@ -67,15 +66,15 @@ def _parse_given(text: str | None) -> dict[str, str]:
 def register(app: typer.Typer) -> None:
     @app.command("fgd-train")
     def fgd_train(
-        cache: Optional[Path] = typer.Option(None, help="A cache written by `facecapges prepare`."),
+        cache: Path | None = typer.Option(None, help="A cache written by `facecapges prepare`."),
         speaker: int = typer.Option(2, help="BEAT speaker id (one FGD autoencoder per speaker)."),
         split: str = typer.Option("train", help="Cache clips to train on: train, val, test or all."),
-        holdout_from: Optional[int] = typer.Option(None, help="Use only frames before this frame of every clip "
+        holdout_from: int | None = typer.Option(None, help="Use only frames before this frame of every clip "
                                                               "(the rest is held out for evaluation)."),
-        bvh: Optional[List[Path]] = typer.Option(None, help="BEAT BVH file(s) to train on instead of a cache "
+        bvh: list[Path] | None = typer.Option(None, help="BEAT BVH file(s) to train on instead of a cache "
                                                             "(repeat the option for several files)."),
-        out: Optional[Path] = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
-        checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
+        out: Path | None = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
+        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
                                                              "to (in the folder NAME.fgd/), when --out is not given."),
         epochs: int = typer.Option(400, help="Training epochs."),
         batch_size: int = typer.Option(256, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."),
@@ -120,16 +119,16 @@ def register(app: typer.Typer) -> None:
     def eval_cmd(
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: metrics.json, metrics.md, PNG plots, MP4."),
-        checkpoint: Optional[Path] = typer.Option(None, help="Gesture checkpoint (default: the installed default "
+        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint (default: the installed default "
                                                              "style)."),
-        style: Optional[str] = typer.Option(None, help="Installed style name instead of --checkpoint."),
-        speaker: Optional[int] = typer.Option(None, help="Speaker to evaluate (default: the checkpoint's)."),
+        style: str | None = typer.Option(None, help="Installed style name instead of --checkpoint."),
+        speaker: int | None = typer.Option(None, help="Speaker to evaluate (default: the checkpoint's)."),
         split: str = typer.Option("test", help="Clips to evaluate when --holdout-from is not given."),
-        holdout_from: Optional[int] = typer.Option(None, help="Evaluate frames from this frame on of every clip "
+        holdout_from: int | None = typer.Option(None, help="Evaluate frames from this frame on of every clip "
                                                               "of the speaker; earlier frames are the real pool."),
-        audio: Optional[List[Path]] = typer.Option(None, help="Extra unseen speech (no motion): BeatAlign, L1DIV "
+        audio: list[Path] | None = typer.Option(None, help="Extra unseen speech (no motion): BeatAlign, L1DIV "
                                                               "and FGD against the speaker's real motion."),
-        fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to; "
+        fgd: Path | None = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to; "
                                                       "default: next to the checkpoint)."),
         offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
         video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
@@ -161,15 +160,15 @@ def register(app: typer.Typer) -> None:
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: ablation.md, ablation.json, runs/<variant>/."),
         speaker: int = typer.Option(2, help="BEAT speaker id to train and evaluate."),
-        config: Optional[Path] = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
+        config: Path | None = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
                                                          "(default: configs/demo-beat2-scott.yaml, the shipped "
                                                          "model's recipe)."),
-        epochs: Optional[int] = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
+        epochs: int | None = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
                                                              "FGD autoencoder's: that is --fgd-epochs (400) when none "
                                                              "is found; pass --fgd to use an existing one."),
-        split: Optional[str] = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
+        split: str | None = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
                                                        "else train)."),
-        holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
+        holdout_from: int | None = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
                                                               "config's holdout_from); they are evaluated."),
         variants: str = typer.Option(",".join(("full", "no_head", "offline", "camn")),
                                      help="Comma-separated variants: full, no_head, offline, camn (the CaMN "
@@ -177,13 +176,13 @@ def register(app: typer.Typer) -> None:
         reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
                                            help="Use the shipped default checkpoint as 'full' when its stored "
                                                 "recipe and data match."),
-        given: Optional[str] = typer.Option(None, "--given", help="VARIANT=CHECKPOINT[,…]: take these rows from "
+        given: str | None = typer.Option(None, "--given", help="VARIANT=CHECKPOINT[,…]: take these rows from "
                                                                   "existing checkpoints as they are (a file, or an "
                                                                   "installed style for full/no_head), whatever "
                                                                   "their recipe, e.g. full=beat2-scott-demo."),
         retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
                                                               "finished model of this recipe."),
-        fgd: Optional[Path] = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
+        fgd: Path | None = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
                                                       "default: the shipped one when 'full' is the shipped "
                                                       "checkpoint, else trained into OUT/fgd."),
         fgd_epochs: int = typer.Option(400, help="Epochs when an FGD autoencoder must be trained."),

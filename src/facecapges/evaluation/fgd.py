@@ -69,9 +69,9 @@ from __future__ import annotations
 
 import itertools
 import json
+from collections.abc import Iterable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
 
 import numpy as np
 import torch
@@ -460,6 +460,21 @@ def load_fgd(location: str | Path) -> FGDEvaluator:
     return FGDEvaluator(config, models, TrainHistory(hist.get("loss", {}), hist.get("n_windows", 0)))
 
 
-__all__ = ["FGDConfig", "FGDAutoencoder", "FGDEvaluator", "GraphConv", "UPPER_BODY_PARENT", "adjacency",
-           "frechet_distance", "frechet_distance_features", "gaussian_stats", "load_fgd", "make_windows",
-           "parents_within", "reconstruction_loss", "save_fgd", "train_fgd", "fgd_paths"]
+__all__ = [
+    "UPPER_BODY_PARENT",
+    "FGDAutoencoder",
+    "FGDConfig",
+    "FGDEvaluator",
+    "GraphConv",
+    "adjacency",
+    "fgd_paths",
+    "frechet_distance",
+    "frechet_distance_features",
+    "gaussian_stats",
+    "load_fgd",
+    "make_windows",
+    "parents_within",
+    "reconstruction_loss",
+    "save_fgd",
+    "train_fgd",
+]

@@ -26,7 +26,7 @@ BEAT/CaMN's numbers; :func:`facecapges.evaluation.peers.l1div_beat` computes the
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

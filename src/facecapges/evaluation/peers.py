@@ -43,7 +43,7 @@ mapped to BEAT's names in :data:`EMAGE_JOINTS`.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 

@@ -34,8 +34,8 @@ of the speaker's real motion in the cache.
 from __future__ import annotations
 
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

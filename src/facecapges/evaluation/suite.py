@@ -37,7 +37,8 @@ regions): ``{"methods": {name: {"BA_BEAT", "BA_BEAT_true_times", "BA_EMAGE",
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 

@@ -226,7 +226,7 @@ class BvhWriter:
         self._f.close()
         self.tmp.unlink(missing_ok=True)
 
-    def __enter__(self) -> "BvhWriter":
+    def __enter__(self) -> BvhWriter:
         return self
 
     def __exit__(self, exc_type, *exc) -> None:

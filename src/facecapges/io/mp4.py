@@ -107,7 +107,7 @@ class Mp4Writer:
             self._proc = None
         self._part.unlink(missing_ok=True)
 
-    def __enter__(self) -> "Mp4Writer":
+    def __enter__(self) -> Mp4Writer:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -95,8 +95,7 @@ from __future__ import annotations
 
 import contextlib
 import threading
-from collections.abc import Callable
-from typing import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch

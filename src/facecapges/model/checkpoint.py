@@ -26,8 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from facecapges.skeleton import Skeleton, skeleton_from_dict
 from facecapges.errors import UserError, file_error
+from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
     from facecapges.model.network import FaceCapGes

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,16 +13,16 @@ def register(app: typer.Typer) -> None:
     def generate(
         audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
         out: Path = typer.Option(..., help="Output BVH file (full BEAT skeleton, model fps)."),
-        face: Optional[Path] = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
-        head: Optional[Path] = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
-        checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
-        style: Optional[str] = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
-        face_out: Optional[Path] = typer.Option(None, "--face-out", help="Also write the face to show with the "
+        face: Path | None = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
+        head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
+        checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
+        style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+        face_out: Path | None = typer.Option(None, "--face-out", help="Also write the face to show with the "
                                                                           "motion (face JSON): --face resampled, or "
                                                                           "without --face, jaw and lips from the "
                                                                           "speech."),
         json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
-        vrma: Optional[Path] = typer.Option(None, "--vrma", help="Also write the gestures (+ the --face weights) "
+        vrma: Path | None = typer.Option(None, "--vrma", help="Also write the gestures (+ the --face weights) "
                                                                  "as VRM Animation (.vrma) for any VRM avatar."),
         vrma_face: str = typer.Option("presets", "--vrma-face", help="Face in the .vrma: presets (VRM presets from "
                                                                      "ARKit, any VRM) or perfect-sync (52 ARKit)."),
@@ -127,7 +126,7 @@ def register(app: typer.Typer) -> None:
     @styles_app.command("install")
     def styles_install(
         run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
-        name: Optional[str] = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
+        name: str | None = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
         force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
     ) -> None:
         """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).

@@ -68,7 +68,7 @@ class ModelConfig:
     def fuse_dim(self) -> int:
         return self.audio_dim + self.face_dim + self.head_dim + self.pose_dim
 
-    def validate(self) -> "ModelConfig":
+    def validate(self) -> ModelConfig:
         if self.audio_repr not in ("raw", "mel"):
             raise UserError(f"unsupported audio_repr {self.audio_repr!r} (raw or mel)")
         for name, dil in (("audio", self.audio_tcn_dilations), ("face", self.face_tcn_dilations)):

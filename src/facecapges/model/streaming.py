@@ -32,7 +32,7 @@ import torch
 from facecapges.model.batched import BatchedStreamingGenerator, initial_window, no_input_embedding
 from facecapges.model.network import FaceCapGes
 
-__all__ = ["StreamingGenerator", "NaiveStreamingGenerator", "initial_window"]
+__all__ = ["NaiveStreamingGenerator", "StreamingGenerator", "initial_window"]
 
 
 class StreamingGenerator:

@@ -28,8 +28,8 @@ H.264 MP4 (yuv420p, plays in browsers) with an optional WAV as AAC.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import numpy as np
 

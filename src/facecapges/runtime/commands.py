@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -30,20 +29,20 @@ def register(app: typer.Typer) -> None:
         video: Path = typer.Argument(..., help="Talking-head video (its audio track is the speech unless --audio)."),
         out: Path = typer.Option(..., "--out", help="Output directory: motion.bvh, face.json, avatar.mp4, "
                                                     "side_by_side.mp4, report.json."),
-        audio: Optional[Path] = typer.Option(None, "--audio", help="Speech audio file instead of the video's track."),
-        checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
-        style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
+        audio: Path | None = typer.Option(None, "--audio", help="Speech audio file instead of the video's track."),
+        checkpoint: Path | None = typer.Option(None, "--checkpoint", help=CKPT_HELP),
+        style: str | None = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
-        max_frames: Optional[int] = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
+        max_frames: int | None = typer.Option(None, "--max-frames", help="Stop after this many model frames."),
         no_video: bool = typer.Option(False, "--no-video", help="Skip avatar.mp4 and side_by_side.mp4."),
         face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
                                                                  "60 fps) or full (52 weights at the model rate)."),
-        video_size: Optional[str] = typer.Option(None, "--video-size", help="Avatar video size WxH (default "
+        video_size: str | None = typer.Option(None, "--video-size", help="Avatar video size WxH (default "
                                                                              "640x480; side_by_side.mp4 has its "
                                                                              "height)."),
         head: str = typer.Option("capture", "--head", help=HEAD_HELP),
         faces: int = typer.Option(1, "--faces", help=FACES_HELP),
-        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Avatar of avatar.mp4: a VRM 0.x/1.0 or a "
+        avatar: Path | None = typer.Option(None, "--avatar", help="Avatar of avatar.mp4: a VRM 0.x/1.0 or a "
                                                                      "humanoid GLB (default: ours)."),
         json_out: bool = typer.Option(False, "--json", help="Print the report as JSON."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs in --out."),
@@ -80,49 +79,49 @@ def register(app: typer.Typer) -> None:
 
     @app.command("live")
     def live_cmd(
-        camera: Optional[int] = typer.Option(None, "--camera", help="Camera index (OpenCV); camera 0 when no "
+        camera: int | None = typer.Option(None, "--camera", help="Camera index (OpenCV); camera 0 when no "
                                                                     "other input is chosen."),
-        video: Optional[Path] = typer.Option(None, "--video", help="A video file as the camera (+ its audio)."),
-        livelink: Optional[int] = typer.Option(None, "--livelink", help="Receive iPhone Live Link Face on this UDP "
+        video: Path | None = typer.Option(None, "--video", help="A video file as the camera (+ its audio)."),
+        livelink: int | None = typer.Option(None, "--livelink", help="Receive iPhone Live Link Face on this UDP "
                                                                         "port (the app's default is 11111)."),
         realtime: bool = typer.Option(False, "--realtime", help="Pace --video like a device (else as fast as it "
                                                                 "goes)."),
         loop: bool = typer.Option(False, "--loop", help="Loop --video (and its audio) until stopped."),
-        mic: Optional[str] = typer.Option(None, "--mic", help="Microphone: sounddevice index or name (default "
+        mic: str | None = typer.Option(None, "--mic", help="Microphone: sounddevice index or name (default "
                                                               "device for --camera / --livelink)."),
-        audio: Optional[Path] = typer.Option(None, "--audio", help="Speech from a file instead of a microphone."),
-        vmc: Optional[str] = typer.Option(None, "--vmc", help="Send VMC (OSC/UDP) to HOST:PORT, e.g. "
+        audio: Path | None = typer.Option(None, "--audio", help="Speech from a file instead of a microphone."),
+        vmc: str | None = typer.Option(None, "--vmc", help="Send VMC (OSC/UDP) to HOST:PORT, e.g. "
                                                               "127.0.0.1:39539."),
         vmc_blend: str = typer.Option("vrm", "--vmc-blend", help="Face clips sent over VMC: vrm (VRM presets Blink, "
                                                                  "A…O, Joy…; every VRM), perfect-sync (the 52 ARKit "
                                                                  "clips, EyeBlinkLeft…) or both."),
-        vmc_avatar: Optional[Path] = typer.Option(None, "--vmc-avatar", help="The receiver's VRM file: send its own "
+        vmc_avatar: Path | None = typer.Option(None, "--vmc-avatar", help="The receiver's VRM file: send its own "
                                                                              "rest bone positions (receivers that "
                                                                              "apply bone positions keep its "
                                                                              "proportions)."),
-        rate: Optional[float] = typer.Option(None, "--rate", help="VMC and viewer output rate in Hz, a multiple of "
+        rate: float | None = typer.Option(None, "--rate", help="VMC and viewer output rate in Hz, a multiple of "
                                                                   "the model's 15 fps: 30 or 60 interpolate between "
                                                                   "model frames (+33 / +50 ms latency)."),
-        web: Optional[str] = typer.Option(None, "--web", help="Serve the browser viewer on [HOST:]PORT, e.g. "
+        web: str | None = typer.Option(None, "--web", help="Serve the browser viewer on [HOST:]PORT, e.g. "
                                                               "127.0.0.1:8765 (port 0: any free port)."),
-        host: Optional[str] = typer.Option(None, "--host", help="Bind servers (viewer, Live Link) to this address "
+        host: str | None = typer.Option(None, "--host", help="Bind servers (viewer, Live Link) to this address "
                                                                 "instead of 127.0.0.1, e.g. 0.0.0.0 for a phone on "
                                                                 "the LAN."),
-        record: Optional[Path] = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
+        record: Path | None = typer.Option(None, "--record", help="Record motion.bvh, face.json and report.json "
                                                                      "into this directory."),
         face_json: str = typer.Option("beat", "--face-json", help="face.json layout: beat (BEAT's: 51 weights at "
                                                                  "60 fps) or full (52 weights at the model rate)."),
         vrma: bool = typer.Option(False, "--vrma", help="With --record: also record motion.vrma (VRM Animation, "
                                                         "gestures + face as VRM presets)."),
-        avatar: Optional[Path] = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
+        avatar: Path | None = typer.Option(None, "--avatar", help="Show this avatar in --web: a VRM 0.x/1.0 or a "
                                                                      "humanoid GLB (default: ours)."),
-        checkpoint: Optional[Path] = typer.Option(None, "--checkpoint", help=CKPT_HELP),
-        style: Optional[str] = typer.Option(None, "--style", help=STYLE_HELP),
+        checkpoint: Path | None = typer.Option(None, "--checkpoint", help=CKPT_HELP),
+        style: str | None = typer.Option(None, "--style", help=STYLE_HELP),
         estimator: str = typer.Option("hybrid", help="Face capture estimator: geometric, mediapipe or hybrid."),
-        depth: Optional[Path] = typer.Option(None, "--depth", help="RGB-D: directory of depth frames for --video "
+        depth: Path | None = typer.Option(None, "--depth", help="RGB-D: directory of depth frames for --video "
                                                                    "(16-bit PNG or .npy, mm)."),
-        intrinsics: Optional[Path] = typer.Option(None, "--intrinsics", help="RGB-D: camera intrinsics K.json."),
-        max_seconds: Optional[float] = typer.Option(None, "--max-seconds", help="Stop after this much stream time."),
+        intrinsics: Path | None = typer.Option(None, "--intrinsics", help="RGB-D: camera intrinsics K.json."),
+        max_seconds: float | None = typer.Option(None, "--max-seconds", help="Stop after this much stream time."),
         head: str = typer.Option("capture", "--head", help=HEAD_HELP),
         faces: int = typer.Option(1, "--faces", help=FACES_HELP + " VMC: face i on PORT+i-1."),
         force: bool = typer.Option(False, "--force", help="Overwrite files in --record."),
@@ -130,9 +129,9 @@ def register(app: typer.Typer) -> None:
         """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""
         from facecapges.errors import UserError, check_output_dir
         from facecapges.model.checkpoint import load_checkpoint
+        from facecapges.runtime.live import default_outputs, livelink_hint, per_face_sinks
         from facecapges.runtime.session import build_session
         from facecapges.runtime.sources import LiveLinkFace
-        from facecapges.runtime.live import default_outputs, livelink_hint, per_face_sinks
         from facecapges.runtime.web_server import is_loopback, parse_address
 
         if livelink is not None:

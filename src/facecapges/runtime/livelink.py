@@ -237,7 +237,7 @@ class LiveLinkReceiver:
         while not self._stop.is_set():
             try:
                 data, _ = self.sock.recvfrom(65535)
-            except socket.timeout:
+            except TimeoutError:
                 continue
             except OSError:
                 if self._stop.is_set():

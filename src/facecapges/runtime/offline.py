@@ -158,8 +158,8 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
 
     from facecapges.io.audio import save_audio
     from facecapges.runtime.head import check_head_mode, head_follow
-    from facecapges.runtime.session import build_session, full_quaternions
     from facecapges.runtime.interfaces import Sink
+    from facecapges.runtime.session import build_session, full_quaternions
     from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
     from facecapges.runtime.sources import FileAudio
 

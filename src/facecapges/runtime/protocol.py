@@ -48,7 +48,7 @@ import binascii
 import json
 import math
 import time
-from typing import Iterator, Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 

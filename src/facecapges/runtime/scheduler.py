@@ -128,7 +128,7 @@ class Stream:
     """One face's chain: its generator, input hold, head driver, speech mouth and the last frame."""
 
     index: int
-    gen: "Generator"
+    gen: Generator
     hold: FaceHold
     head: HeadDriver
     mouth: SpeechMouth

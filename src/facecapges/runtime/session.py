@@ -90,8 +90,8 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
     how many faces of the video drive an avatar each (one generator per face).
     """
-    from facecapges.runtime.head import check_head_mode
     from facecapges.runtime import sources as S
+    from facecapges.runtime.head import check_head_mode
     from facecapges.runtime.scheduler import Scheduler
 
     chosen = [x for x in (video, camera, livelink) if x is not None]

@@ -165,9 +165,9 @@ class CameraVideo:
     is_live = True
 
     def __init__(self, index: int):
-        from facecapges.capture.video import open_source
-
         import cv2
+
+        from facecapges.capture.video import open_source
 
         self.index = index
         level = cv2.utils.logging.getLogLevel()

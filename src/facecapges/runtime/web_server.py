@@ -35,8 +35,14 @@ from typing import TYPE_CHECKING, Self
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, pong_message,
-                                   refuse_foreign_host)
+from facecapges.runtime.ws import (
+    SERVE_OPTIONS,
+    ConnectionLog,
+    error_message,
+    is_loopback,
+    pong_message,
+    refuse_foreign_host,
+)
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server

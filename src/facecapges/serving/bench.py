@@ -86,10 +86,9 @@ def proc_cpu_s(pid: int) -> float:
 
 
 def run(quick: bool, shared: Path, threads: int = 1) -> dict:
+    from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
     from facecapges.serving import loadgen
-
-    from facecapges.errors import UserError
 
     seconds = 2.0 if quick else 5.0
     period_ms = 1000.0 / 15

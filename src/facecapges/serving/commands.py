@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,9 +13,9 @@ def register(app: typer.Typer) -> None:
         host: str = typer.Option("127.0.0.1", help="Address to listen on (loopback by default; there is no "
                                                    "authentication)."),
         port: int = typer.Option(8780, help="TCP port (0 = any free port)."),
-        checkpoint: Optional[Path] = typer.Option(None, help="Checkpoint file or run folder (default: the "
+        checkpoint: Path | None = typer.Option(None, help="Checkpoint file or run folder (default: the "
                                                              "installed default style)."),
-        style: Optional[str] = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+        style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
         max_streams: int = typer.Option(256, help="Most concurrent streams; more connections are refused (1013)."),
         rate_limit: float = typer.Option(30.0, help="Most messages per second per connection (FPS); more are "
                                                     "dropped with an error."),
@@ -25,7 +24,7 @@ def register(app: typer.Typer) -> None:
         threads: int = typer.Option(1, help="torch threads for the batched model call."),
         tick_ms: float = typer.Option(15.0, help="Least time between two batched calls (ms): larger batches, "
                                                  "a little more latency."),
-        max_per_address: Optional[int] = typer.Option(None, help="Most streams one client address may hold "
+        max_per_address: int | None = typer.Option(None, help="Most streams one client address may hold "
                                                                  "(default 16; no limit on a loopback server)."),
     ) -> None:
         """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.

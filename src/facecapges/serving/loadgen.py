@@ -113,10 +113,10 @@ async def run_client(url: str, messages: list[str], seconds: float, warmup_s: fl
                 res.sent += 1
             try:
                 await asyncio.wait_for(done.wait(), timeout=drain_s)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 pass
             rtask.cancel()
-    except (OSError, ConnectionClosed, asyncio.TimeoutError) as exc:
+    except (TimeoutError, OSError, ConnectionClosed) as exc:
         res.errors.append(f"connection: {exc.__class__.__name__}: {exc}")
     return res
 

@@ -18,7 +18,7 @@ thread-safe: one caller at a time (the server's model thread).
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -105,7 +105,7 @@ class ModelProcess:
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """Poses (B, 47, 6) of one frame per stream, as ``BatchedStreamingGenerator.step``."""
         B = len(slots)
-        if B > len(self._audio):
+        if len(self._audio) < B:
             raise ValueError(f"{B} streams in one step; this model process takes at most {len(self._audio)}")
         self._audio.numpy()[:B] = pack_audio(audio, self.samples_per_frame)
         self._face.numpy()[:B] = np.asarray(face, np.float32).reshape(B, -1)

@@ -62,8 +62,15 @@ import numpy as np
 
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
-from facecapges.runtime.ws import (SERVE_OPTIONS, ConnectionLog, error_message, is_loopback, peer_host,
-                                   pong_message, refuse_foreign_host)
+from facecapges.runtime.ws import (
+    SERVE_OPTIONS,
+    ConnectionLog,
+    error_message,
+    is_loopback,
+    peer_host,
+    pong_message,
+    refuse_foreign_host,
+)
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
@@ -391,7 +398,7 @@ class StreamServer:
             self._loop.close()
             self._ready.set()
 
-    def start(self) -> "StreamServer":
+    def start(self) -> StreamServer:
         """Serve in a background thread; returns once listening (raises UserError if it cannot)."""
         self._thread = threading.Thread(target=self._run_loop, name="serve", daemon=True)
         self._thread.start()

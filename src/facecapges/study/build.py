@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import shutil
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -85,7 +85,7 @@ def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://
     return f
 
 
-def ensure_tokens(study: "Study") -> int:
+def ensure_tokens(study: Study) -> int:
     """Give every participant without a token one and save the plan; returns how many were added.
 
     For a study made before invitations: answers already in it carry no token and are
@@ -187,7 +187,7 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
                                "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()}})
     doc = {
         "format": FORMAT,
-        "created": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
         "source": str(Path(clips_yaml)),
         "fps": cs.fps,
         "systems": cs.systems,

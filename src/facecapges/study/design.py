@@ -104,7 +104,7 @@ class StudyPlan:
         }
 
     @classmethod
-    def from_json(cls, doc: dict) -> "StudyPlan":
+    def from_json(cls, doc: dict) -> StudyPlan:
         parts = [ParticipantPlan(p["id"], int(p["sequence"]),
                                  [Trial(t["clip"], tuple(t["systems"])) for t in p["trials"]], str(p.get("token", "")))
                  for p in doc["participants"]]

@@ -38,12 +38,11 @@ import json
 import os
 import tempfile
 import threading
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 
 from facecapges.study.criteria import CRITERION_KEYS
 from facecapges.study.design import StudyPlan, token_digest
-
 
 MAX_SESSIONS = 200  # session (re)starts recorded per participant
 MAX_PLAYS = 50  # play events recorded per trial
@@ -62,7 +61,7 @@ class DamagedFileError(Exception):
 
 
 def _now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
+    return datetime.now(UTC).isoformat(timespec="milliseconds")
 
 
 def write_json_atomic(path: Path, doc: dict) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,12 +13,12 @@ def register(app: typer.Typer) -> None:
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker."),
         out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
-        config: Optional[Path] = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: "
+        config: Path | None = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: "
                                                        "configs/demo-beat2-scott.yaml)."),
-        epochs: Optional[int] = typer.Option(None, help="Number of epochs (default 375)."),
-        split: Optional[str] = typer.Option(None, help="Clips to train on: train (default), val, test or all; "
+        epochs: int | None = typer.Option(None, help="Number of epochs (default 375)."),
+        split: str | None = typer.Option(None, help="Clips to train on: train (default), val, test or all; "
                                                        "a resumed run keeps its own."),
-        holdout_from: Optional[int] = typer.Option(None, help="Hold out frames >= this of every clip."),
+        holdout_from: int | None = typer.Option(None, help="Hold out frames >= this of every clip."),
         resume: bool = typer.Option(False, "--resume", help="Continue the run in OUT exactly where it stopped "
                                                             "(any number of processes)."),
         force: bool = typer.Option(False, "--force", help="Start over in a run folder that has a run."),

@@ -38,8 +38,9 @@ Conventions (ours, the thesis trains on one GPU):
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import torch

@@ -96,7 +96,7 @@ class RunFolderLock:
         self.folder = Path(folder)
         self._key: str | None = None
 
-    def acquire(self) -> "RunFolderLock":
+    def acquire(self) -> RunFolderLock:
         import fcntl
 
         if self._key is not None:
@@ -127,7 +127,7 @@ class RunFolderLock:
             del _HELD[self._key]
         self._key = None
 
-    def __enter__(self) -> "RunFolderLock":
+    def __enter__(self) -> RunFolderLock:
         return self.acquire()
 
     def __exit__(self, *exc) -> None:

@@ -43,9 +43,9 @@ import json
 import math
 import time
 from collections.abc import Callable
-from typing import Generic, TypeVar
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Generic, TypeVar
 
 import numpy as np
 import torch
@@ -55,10 +55,10 @@ from facecapges.errors import UserError
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
+from facecapges.timing import frame_audio, frame_sample_bounds
 from facecapges.training.distributed import DistContext
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
 from facecapges.training.resume_file import RunFolderLock, load_state, save_state, write_log
-from facecapges.timing import frame_audio, frame_sample_bounds
 
 
 # ------------------------------------------------------------------------ data
@@ -179,13 +179,13 @@ def holdout_frames(clips: list[ClipArrays], tcfg: TrainConfig) -> list[int | Non
     return [tcfg.holdout_from] * len(clips)
 
 
-def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | None | list[int | None]) -> np.ndarray:
+def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | list[int | None] | None) -> np.ndarray:
     """The calmest real N-frame window of the training frames (least pose motion)."""
     best, best_e = None, math.inf
     limits = frame_limit if isinstance(frame_limit, list) else [frame_limit] * len(clips)
     for c, lim in zip(clips, limits):
         T = len(c.pose) if lim is None else min(lim, len(c.pose))
-        if T < n:
+        if n > T:
             continue
         v = np.abs(np.diff(c.pose[:T].reshape(T, -1), axis=0)).sum(1)  # (T-1,)
         energy = np.convolve(v, np.ones(n - 1), mode="valid")  # motion inside each window

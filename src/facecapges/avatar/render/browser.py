@@ -120,7 +120,7 @@ class Browser:
         self._id = 0
 
     # ------------------------------------------------------------------ lifecycle
-    def __enter__(self) -> "Browser":
+    def __enter__(self) -> Browser:
         from websockets.sync.client import connect
 
         handler = type("Handler", (_Handler,), {"routes": self.routes})
