@@ -401,7 +401,9 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
 def test_vrm_bench_runs():
     from facecapges.avatar.vrm_bench import run
 
-    r = run(quick=True)
+    from conftest import SHARED
+
+    r = run(quick=True, shared=SHARED)
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000
     assert all(r[k] > 0 for k in ("retarget_frame_ms", "presets_frame_ms", "retarget_900_ms", "vrma_900_s"))
     FIGURES["bench"] = r

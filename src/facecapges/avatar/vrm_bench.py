@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 
-def run(quick: bool) -> dict:
+def run(quick: bool, shared: Path) -> dict:
     from facecapges.avatar.bench import _shared, synthetic_face
     from facecapges.avatar.retarget import Retargeter, upper_body_locals
     from facecapges.avatar.vrm import ExpressionMap, PRESET_BINDS
@@ -28,7 +28,7 @@ def run(quick: bool) -> dict:
     from facecapges.avatar.vrm_view import bvh_local_matrices
     from facecapges.arkit import ARKIT_NAMES
 
-    bvh = _shared("data/beat/2_scott_0_1_1.bvh")
+    bvh = _shared(shared, "data/beat/2_scott_0_1_1.bvh")
     if bvh is not None:
         from facecapges.io.bvh import read_bvh
 
