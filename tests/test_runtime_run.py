@@ -62,7 +62,7 @@ def test_report(run_dir):
 
 def test_refuses_to_overwrite(run_dir, face_video):
     r = cli("run", str(face_video), "--out", str(run_dir), "--max-frames", "2", "--no-video")
-    assert r.returncode == 2 and "already holds" in r.stderr and "Traceback" not in r.stderr
+    assert r.returncode == 2 and "already exists" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_bad_inputs(tmp_path, face_video):

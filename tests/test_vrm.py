@@ -399,9 +399,9 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
 
 
 def test_vrm_bench_runs():
-    from conftest import SHARED
-
     from facecapges.avatar.vrm_bench import run
+
+    from conftest import SHARED
 
     r = run(quick=True, shared=SHARED)
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000

@@ -64,7 +64,9 @@ def run(quick: bool, shared: Path) -> dict:
         size = sum(f.stat().st_size for f in (tmp / "study" / "media" / "c").glob("motion-*.json"))
         out["pose_json_mb_per_version_minute"] = round(size / 3 / 1e6 * 60 / seconds, 2)
 
-        server = make_server(open_study(tmp / "study"), "127.0.0.1", 0)
+        st = open_study(tmp / "study")
+        token = st.plan.participants[0].token  # the invitation link is the only credential
+        server = make_server(st, "127.0.0.1", 0)
         serve_in_thread(server)
         try:
             with Browser({"/blank.json": b"{}"}, "/blank.json", 1200, 1000, timeout=90) as br:
@@ -81,7 +83,7 @@ def run(quick: bool, shared: Path) -> dict:
                         time.sleep(0.02)
                     return time.perf_counter() - t0
 
-                br.call("Page.navigate", url=f"http://127.0.0.1:{server.server_address[1]}/?participant=P01")
+                br.call("Page.navigate", url=f"http://127.0.0.1:{server.server_address[1]}/?invite={token}")
                 out["page_start_s"] = round(wait("window.study.screen === 'welcome'"), 2)
                 js("document.getElementById('start').click()")
                 out["trial_load_s"] = round(wait("window.study.ready"), 2)
