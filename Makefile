@@ -14,6 +14,7 @@ demo: setup
 test: setup
 	bash scripts/setup-test.sh
 	$(VENV)/bin/ruff check src
+	$(VENV)/bin/ruff format --check src
 	$(VENV)/bin/mypy
 	$(PY) -m pytest -q --durations=15
 

@@ -82,15 +82,42 @@ import numpy as np
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 
 VRM0_PRESETS: tuple[str, ...] = (
-    "Blink", "Blink_L", "Blink_R", "A", "I", "U", "E", "O",
-    "Joy", "Angry", "Sorrow", "Fun", "Surprised",
-    "LookUp", "LookDown", "LookLeft", "LookRight",
+    "Blink",
+    "Blink_L",
+    "Blink_R",
+    "A",
+    "I",
+    "U",
+    "E",
+    "O",
+    "Joy",
+    "Angry",
+    "Sorrow",
+    "Fun",
+    "Surprised",
+    "LookUp",
+    "LookDown",
+    "LookLeft",
+    "LookRight",
 )
 VRM1_NAMES: dict[str, str] = {
-    "Blink": "blink", "Blink_L": "blinkLeft", "Blink_R": "blinkRight",
-    "A": "aa", "I": "ih", "U": "ou", "E": "ee", "O": "oh",
-    "Joy": "happy", "Angry": "angry", "Sorrow": "sad", "Fun": "relaxed", "Surprised": "surprised",
-    "LookUp": "lookUp", "LookDown": "lookDown", "LookLeft": "lookLeft", "LookRight": "lookRight",
+    "Blink": "blink",
+    "Blink_L": "blinkLeft",
+    "Blink_R": "blinkRight",
+    "A": "aa",
+    "I": "ih",
+    "U": "ou",
+    "E": "ee",
+    "O": "oh",
+    "Joy": "happy",
+    "Angry": "angry",
+    "Sorrow": "sad",
+    "Fun": "relaxed",
+    "Surprised": "surprised",
+    "LookUp": "lookUp",
+    "LookDown": "lookDown",
+    "LookLeft": "lookLeft",
+    "LookRight": "lookRight",
 }
 VRM1_EXPRESSIONS: tuple[str, ...] = tuple(VRM1_NAMES[n] for n in VRM0_PRESETS)
 PERFECT_SYNC_NAMES: tuple[str, ...] = tuple(n[0].upper() + n[1:] for n in ARKIT_NAMES)
@@ -98,14 +125,17 @@ VISEMES: tuple[str, ...] = ("A", "I", "U", "E", "O")
 
 _I = {n: i for i, n in enumerate(ARKIT_NAMES)}
 # features: opening, funnel, pucker, stretch, lower lip down, upper lip up (module docstring)
-VISEME_PROTOTYPES = np.array([
-    # open  funnel pucker stretch lowerDn upperUp
-    [0.70, 0.00, 0.00, 0.05, 0.35, 0.15],  # A  (aa): jaw wide open, lips relaxed, parted
-    [0.15, 0.00, 0.00, 0.50, 0.15, 0.30],  # I  (ih): nearly closed jaw, lips spread, teeth shown
-    [0.10, 0.35, 0.75, 0.00, 0.00, 0.00],  # U  (ou): small opening, lips rounded and protruded
-    [0.35, 0.00, 0.00, 0.30, 0.35, 0.15],  # E  (ee): half-open jaw, lips a little spread
-    [0.45, 0.70, 0.30, 0.00, 0.10, 0.05],  # O  (oh): open jaw, lips rounded into a funnel
-], np.float64)
+VISEME_PROTOTYPES = np.array(
+    [
+        # open  funnel pucker stretch lowerDn upperUp
+        [0.70, 0.00, 0.00, 0.05, 0.35, 0.15],  # A  (aa): jaw wide open, lips relaxed, parted
+        [0.15, 0.00, 0.00, 0.50, 0.15, 0.30],  # I  (ih): nearly closed jaw, lips spread, teeth shown
+        [0.10, 0.35, 0.75, 0.00, 0.00, 0.00],  # U  (ou): small opening, lips rounded and protruded
+        [0.35, 0.00, 0.00, 0.30, 0.35, 0.15],  # E  (ee): half-open jaw, lips a little spread
+        [0.45, 0.70, 0.30, 0.00, 0.10, 0.05],  # O  (oh): open jaw, lips rounded into a funnel
+    ],
+    np.float64,
+)
 
 
 def _mean(w: np.ndarray, *names: str) -> np.ndarray:
@@ -125,14 +155,17 @@ def mouth_features(face52: np.ndarray) -> np.ndarray:
     """(..., 52) ARKit weights → (..., 6) viseme features (module docstring)."""
     w = np.asarray(face52, np.float64)
     opening = np.maximum(w[..., _I["jawOpen"]] - w[..., _I["mouthClose"]], 0.0)
-    return np.stack([
-        opening,
-        w[..., _I["mouthFunnel"]],
-        w[..., _I["mouthPucker"]],
-        _mean(w, "mouthStretchLeft", "mouthStretchRight"),
-        _mean(w, "mouthLowerDownLeft", "mouthLowerDownRight"),
-        _mean(w, "mouthUpperUpLeft", "mouthUpperUpRight"),
-    ], axis=-1)
+    return np.stack(
+        [
+            opening,
+            w[..., _I["mouthFunnel"]],
+            w[..., _I["mouthPucker"]],
+            _mean(w, "mouthStretchLeft", "mouthStretchRight"),
+            _mean(w, "mouthLowerDownLeft", "mouthLowerDownRight"),
+            _mean(w, "mouthUpperUpLeft", "mouthUpperUpRight"),
+        ],
+        axis=-1,
+    )
 
 
 def viseme_weights(face52: np.ndarray) -> np.ndarray:
@@ -162,16 +195,28 @@ def vrm0_weights(face52: np.ndarray) -> np.ndarray:
     vis = viseme_weights(w)
     smile = _ramp(_both(w, "mouthSmile"), 0.3, 0.7)
     joy = smile * _ramp(_mean(w, "cheekSquintLeft", "cheekSquintRight"), 0.15, 0.5)
-    tense = np.maximum(np.maximum(_mean(w, "eyeSquintLeft", "eyeSquintRight"), _mean(w, "mouthPressLeft",
-                                                                                      "mouthPressRight")),
-                       _mean(w, "noseSneerLeft", "noseSneerRight"))
+    tense = np.maximum(
+        np.maximum(_mean(w, "eyeSquintLeft", "eyeSquintRight"), _mean(w, "mouthPressLeft", "mouthPressRight")),
+        _mean(w, "noseSneerLeft", "noseSneerRight"),
+    )
     angry = _ramp(_both(w, "browDown"), 0.3, 0.7) * _ramp(tense, 0.2, 0.5) * (1.0 - smile)
     sorrow = _ramp(w[..., _I["browInnerUp"]], 0.3, 0.7) * _ramp(_both(w, "mouthFrown"), 0.3, 0.7) * (1.0 - smile)
     surprised = _ramp(_both(w, "browOuterUp"), 0.3, 0.7) * _ramp(_mean(w, "eyeWideLeft", "eyeWideRight"), 0.2, 0.5)
-    cols = [both, left - both, right - both, *np.moveaxis(vis, -1, 0),
-            joy, angry, sorrow, smile - joy, surprised,
-            _mean(w, "eyeLookUpLeft", "eyeLookUpRight"), _mean(w, "eyeLookDownLeft", "eyeLookDownRight"),
-            _mean(w, "eyeLookOutLeft", "eyeLookInRight"), _mean(w, "eyeLookInLeft", "eyeLookOutRight")]
+    cols = [
+        both,
+        left - both,
+        right - both,
+        *np.moveaxis(vis, -1, 0),
+        joy,
+        angry,
+        sorrow,
+        smile - joy,
+        surprised,
+        _mean(w, "eyeLookUpLeft", "eyeLookUpRight"),
+        _mean(w, "eyeLookDownLeft", "eyeLookDownRight"),
+        _mean(w, "eyeLookOutLeft", "eyeLookInRight"),
+        _mean(w, "eyeLookInLeft", "eyeLookOutRight"),
+    ]
     return np.clip(np.stack(cols, axis=-1), 0.0, 1.0)
 
 

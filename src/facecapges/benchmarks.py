@@ -61,9 +61,15 @@ def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
     """Run the areas in order; (result document, every area ran without error)."""
     import torch
 
-    result: dict = {"machine": {"cpu_count": os.cpu_count(), "python": platform.python_version(),
-                                "torch": torch.__version__, "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
-                                "load_average": [round(x, 2) for x in os.getloadavg()]}}
+    result: dict = {
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "python": platform.python_version(),
+            "torch": torch.__version__,
+            "time": time.strftime("%Y-%m-%dT%H:%M:%S"),
+            "load_average": [round(x, 2) for x in os.getloadavg()],
+        }
+    }
     walls: dict[str, float] = {}
     ok = True
     t_all = time.perf_counter()
@@ -80,8 +86,12 @@ def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
         walls[area] = round(time.perf_counter() - t0, 1)
         _log(f"[{n}/{len(areas)}] {area} done in {walls[area]:.1f} s")
     total = round(time.perf_counter() - t_all, 1)
-    result["bench"] = {"quick": quick, "wall_s": total, "area_wall_s": walls,
-                       "load_average_after": [round(x, 2) for x in os.getloadavg()]}
+    result["bench"] = {
+        "quick": quick,
+        "wall_s": total,
+        "area_wall_s": walls,
+        "load_average_after": [round(x, 2) for x in os.getloadavg()],
+    }
     _log(f"all {len(areas)} area(s) in {total:.1f} s" + ("" if ok else " — some failed"))
     return _finite_or_null(result), ok
 
@@ -92,8 +102,12 @@ def register(app: typer.Typer) -> None:
         json_out: bool = typer.Option(False, "--json", help="Print one JSON document (default: a table)."),
         only: str = typer.Option("", help=f"Comma-separated areas to run, of: {', '.join(BENCHMARKS)}."),
         quick: bool = typer.Option(False, help="Fewer repetitions (smoke run, about a minute)."),
-        shared: Path = typer.Option(Path("../shared"), "--shared", envvar="FACECAPGES_SHARED",
-                                    help="The shared data folder (holds data/beat, data/face …)."),
+        shared: Path = typer.Option(
+            Path("../shared"),
+            "--shared",
+            envvar="FACECAPGES_SHARED",
+            help="The shared data folder (holds data/beat, data/face …).",
+        ),
     ) -> None:
         """Measure speed and memory of every stage and print the figures."""
         from facecapges.errors import UserError

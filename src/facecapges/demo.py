@@ -62,16 +62,26 @@ def register(app: typer.Typer) -> None:
         skel = ckpt.skeleton
         motion = pose_to_motion(skel, poses)
         write_bvh(bvh_path, skel, motion, ckpt.fps)
-        render_skeleton_video([poses], [f"FaceCapGes ({ckpt.path.stem})"], skel, mp4_path, fps=ckpt.fps,
-                              wav=speech, progress=True)
+        render_skeleton_video(
+            [poses], [f"FaceCapGes ({ckpt.path.stem})"], skel, mp4_path, fps=ckpt.fps, wav=speech, progress=True
+        )
         glb = b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
         quats = bvh_quaternions(list(skel.names), skel, motion, name=str(bvh_path))
-        mouth = speech_mouth_track(inputs.audio[:len(poses)], ckpt.fps)
+        mouth = speech_mouth_track(inputs.audio[: len(poses)], ckpt.fps)
         render_video(glb, quats, mouth, ckpt.fps, avatar_path, audio=speech, progress=True)
-        summary = {"speech": str(speech), "frames": int(len(poses)), "fps": ckpt.fps,
-                   "ms_per_frame": round(ms, 2), "seconds": round(time.perf_counter() - t0, 1),
-                   "bvh": str(bvh_path), "video": str(mp4_path), "avatar_video": str(avatar_path)}
+        summary = {
+            "speech": str(speech),
+            "frames": int(len(poses)),
+            "fps": ckpt.fps,
+            "ms_per_frame": round(ms, 2),
+            "seconds": round(time.perf_counter() - t0, 1),
+            "bvh": str(bvh_path),
+            "video": str(mp4_path),
+            "avatar_video": str(avatar_path),
+        }
         typer.echo(json.dumps(summary, indent=2))
-        typer.echo(f"\nGestures for {len(poses) / ckpt.fps:.1f} s of speech ({ms:.2f} ms per frame):\n"
-                   f"  motion: {bvh_path.resolve()}\n  video:  {mp4_path.resolve()}\n"
-                   f"  avatar: {avatar_path.resolve()}")
+        typer.echo(
+            f"\nGestures for {len(poses) / ckpt.fps:.1f} s of speech ({ms:.2f} ms per frame):\n"
+            f"  motion: {bvh_path.resolve()}\n  video:  {mp4_path.resolve()}\n"
+            f"  avatar: {avatar_path.resolve()}"
+        )

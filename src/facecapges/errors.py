@@ -90,8 +90,9 @@ def check_output_file(path: str | Path, force: bool = False, flag: str = "--forc
     return p
 
 
-def check_output_dir(folder: str | Path, names: list[str] | tuple[str, ...] = (), force: bool = False,
-                     flag: str = "--force") -> Path:
+def check_output_dir(
+    folder: str | Path, names: list[str] | tuple[str, ...] = (), force: bool = False, flag: str = "--force"
+) -> Path:
     """Check, before any work, that ``folder`` can receive the outputs ``names`` (kept unless ``force``).
 
     Every name is checked, not only the first, so nothing in the folder is overwritten
@@ -103,8 +104,9 @@ def check_output_dir(folder: str | Path, names: list[str] | tuple[str, ...] = ()
     existing = [n for n in names if (d / n).exists()]
     if existing and not force:
         also = ", ".join(existing[1:4]) + (", …" if len(existing) > 4 else "")
-        raise file_error(d / existing[0], "already exists" + (f" (so do {also})" if also else "")
-                         + f"; pass {flag} to overwrite")
+        raise file_error(
+            d / existing[0], "already exists" + (f" (so do {also})" if also else "") + f"; pass {flag} to overwrite"
+        )
     _writable_folder(d)
     return d
 

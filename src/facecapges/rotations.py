@@ -49,7 +49,7 @@ def _is_torch(x: Array) -> bool:
 
 
 def _check_last(x: Array, shape: tuple[int, ...], what: str) -> None:
-    if tuple(x.shape[-len(shape):]) != shape:
+    if tuple(x.shape[-len(shape) :]) != shape:
         raise ValueError(f"{what} must have shape (..., {', '.join(map(str, shape))}), got {tuple(x.shape)}")
 
 
@@ -139,8 +139,9 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     if isinstance(order, str):
         i, j, k = ("XYZ".index(a) for a in _check_order(order))
         sign = 1.0 if (j - i) % 3 == 1 else -1.0  # even permutations (XYZ, YZX, ZXY) give +1
-        ii, ij, ik, jk, kk, kj, jj = (matrix[..., r, c] for r, c in ((i, i), (i, j), (i, k), (j, k), (k, k), (k, j),
-                                                                      (j, j)))
+        ii, ij, ik, jk, kk, kj, jj = (
+            matrix[..., r, c] for r, c in ((i, i), (i, j), (i, k), (j, k), (k, k), (k, j), (j, j))
+        )
     else:
         rows, cols, sign = _orders_index(tuple(order))
         if matrix.ndim < 3 or matrix.shape[-3] != len(rows):
@@ -157,7 +158,7 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     a = lib.arctan2(-sign * jk, kk)
     c = lib.arctan2(-sign * ij, ii)
     # gimbal lock: cos(b) ~ 0, put everything in a
-    cb = lib.sqrt(ii ** 2 + ij ** 2)
+    cb = lib.sqrt(ii**2 + ij**2)
     locked = cb < 1e-6
     if bool(locked.any()):
         a_locked = lib.arctan2(sign * kj, jj)
@@ -265,9 +266,15 @@ def quaternion_to_matrix(quat: Array) -> Array:
     q = quat / _maximum(_norm(quat), _EPS)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     rows = [
-        1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w),
-        2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w),
-        2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y),
+        1 - 2 * (y * y + z * z),
+        2 * (x * y - z * w),
+        2 * (x * z + y * w),
+        2 * (x * y + z * w),
+        1 - 2 * (x * x + z * z),
+        2 * (y * z - x * w),
+        2 * (x * z - y * w),
+        2 * (y * z + x * w),
+        1 - 2 * (x * x + y * y),
     ]
     return _stack(rows, -1, quat).reshape(tuple(quat.shape[:-1]) + (3, 3))
 

@@ -28,8 +28,26 @@ import numpy as np
 
 from facecapges import rotations as rot
 
-_HAND = ["Middle1", "Middle2", "Middle3", "Ring", "Ring1", "Ring2", "Ring3", "Pinky", "Pinky1", "Pinky2",
-         "Pinky3", "Index", "Index1", "Index2", "Index3", "Thumb1", "Thumb2", "Thumb3"]
+_HAND = [
+    "Middle1",
+    "Middle2",
+    "Middle3",
+    "Ring",
+    "Ring1",
+    "Ring2",
+    "Ring3",
+    "Pinky",
+    "Pinky1",
+    "Pinky2",
+    "Pinky3",
+    "Index",
+    "Index1",
+    "Index2",
+    "Index3",
+    "Thumb1",
+    "Thumb2",
+    "Thumb3",
+]
 
 
 def _arm(side: str) -> list[str]:
@@ -180,8 +198,10 @@ def _channel_layout(skel: Skeleton) -> tuple:
             elif skel.parents[j] < 0:
                 pos_col.append(start + k)
                 pos_axis.append("XYZ".index(c[0]))
-    layout = ([skel.rotation_order(j) for j in range(skel.n_joints)], *(np.array(x, np.int64) for x in
-                                                                         (joint, angle, column, pos_col, pos_axis)))
+    layout = (
+        [skel.rotation_order(j) for j in range(skel.n_joints)],
+        *(np.array(x, np.int64) for x in (joint, angle, column, pos_col, pos_axis)),
+    )
     skel.__dict__["_layout"] = (key, layout)
     return layout
 
@@ -207,8 +227,9 @@ def matrices_to_euler(skel: Skeleton, mats: np.ndarray, unwrap: bool = True) -> 
     return out
 
 
-def global_transforms(skel: Skeleton, local_mats: np.ndarray, root_pos: np.ndarray | None = None
-                      ) -> tuple[np.ndarray, np.ndarray]:
+def global_transforms(
+    skel: Skeleton, local_mats: np.ndarray, root_pos: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Forward kinematics: global rotations (T, J, 3, 3) and positions (T, J, 3).
 
     ``G_j = G_parent(j) @ R_j`` (eq. 2.2); ``p_j = p_parent + G_parent @ offset_j``.

@@ -40,8 +40,9 @@ def n_frames_for(duration_s: float, fps: float = MODEL_FPS) -> int:
     return int(math.ceil(duration_s * fps - 1e-6))
 
 
-def frame_audio(audio: np.ndarray, n_frames: int | None = None, fps: float = MODEL_FPS,
-                sr: int = AUDIO_SR) -> np.ndarray:
+def frame_audio(
+    audio: np.ndarray, n_frames: int | None = None, fps: float = MODEL_FPS, sr: int = AUDIO_SR
+) -> np.ndarray:
     """Cut mono audio (S,) into per-frame chunks (T, samples_per_frame), zero-padded.
 
     ``n_frames`` defaults to ``n_frames_for(len(audio)/sr)``; frames past the end of
@@ -54,8 +55,8 @@ def frame_audio(audio: np.ndarray, n_frames: int | None = None, fps: float = MOD
     out = np.zeros((n_frames, spf), np.float32)
     starts, ends = frame_sample_bounds(np.arange(n_frames), fps, sr)
     for t, (s, e) in enumerate(zip(starts, ends)):
-        chunk = audio[s:min(e, len(audio))]
-        out[t, :len(chunk)] = chunk
+        chunk = audio[s : min(e, len(audio))]
+        out[t, : len(chunk)] = chunk
     return out
 
 

@@ -68,14 +68,23 @@ def run(quick: bool, shared: Path) -> dict:
     quats = bvh_quaternions(bvh.skeleton.names, bvh.skeleton, motion)
     wav = shared_file(shared, "data/beat/2_scott_0_1_1.wav")
     with tempfile.TemporaryDirectory() as tmp:
-        figures = render_video(glb, quats, synthetic_face(T, bvh.fps), bvh.fps, Path(tmp) / "bench.mp4", audio=wav,
-                               progress=False)
+        figures = render_video(
+            glb, quats, synthetic_face(T, bvh.fps), bvh.fps, Path(tmp) / "bench.mp4", audio=wav, progress=False
+        )
         mp4_bytes = (Path(tmp) / "bench.mp4").stat().st_size
-    out.update({
-        "clip_s": seconds, "frames": T, "fps": bvh.fps, "size": "x".join(map(str, figures["size"])),
-        "render_total_s": round(figures["total_s"], 2), "render_frames_per_s": round(figures["frames_per_s"], 2),
-        "render_target_s_for_60s": 120.0,
-        "render_projected_60s_s": round(figures["startup_s"] + 60.0 * bvh.fps / figures["frames_per_s"], 1),
-        "mp4_bytes": mp4_bytes, "chromium": chromium_version(), "n_blendshapes": len(shapes.names),
-    })
+    out.update(
+        {
+            "clip_s": seconds,
+            "frames": T,
+            "fps": bvh.fps,
+            "size": "x".join(map(str, figures["size"])),
+            "render_total_s": round(figures["total_s"], 2),
+            "render_frames_per_s": round(figures["frames_per_s"], 2),
+            "render_target_s_for_60s": 120.0,
+            "render_projected_60s_s": round(figures["startup_s"] + 60.0 * bvh.fps / figures["frames_per_s"], 1),
+            "mp4_bytes": mp4_bytes,
+            "chromium": chromium_version(),
+            "n_blendshapes": len(shapes.names),
+        }
+    )
     return out

@@ -97,8 +97,9 @@ def parse_table(doc: dict, n_vertices: int, name: str | Path = "table") -> Contr
             except (TypeError, ValueError):
                 raise file_error(name, f"target {tname!r}: bad entry {key!r}: {vec!r}") from None
             if vi < 0 or vi >= n_vertices:
-                raise file_error(name, f"target {tname!r}: vertex index {vi} is out of range for a mesh of "
-                                       f"{n_vertices} vertices")
+                raise file_error(
+                    name, f"target {tname!r}: vertex index {vi} is out of range for a mesh of {n_vertices} vertices"
+                )
             if vi not in pos:
                 raise file_error(name, f"target {tname!r}: vertex {vi} is not listed in 'controls'")
             if d.shape != (3,) or not np.all(np.isfinite(d)):
@@ -143,8 +144,44 @@ NOSE_WING = {"R": [48, 98, 64, 129], "L": [278, 327, 294, 358]}
 CHEEK = {"R": [50, 205, 187, 123], "L": [280, 425, 411, 352]}
 UNDER_EYE = {"R": [117, 101, 36], "L": [346, 330, 266]}
 CHIN = [152, 175, 199, 200, 18, 83, 313, 32, 262, 201, 421]
-FACE_OVAL = [10, 338, 297, 332, 284, 251, 389, 356, 454, 323, 361, 288, 397, 365, 379, 378, 400, 377, 152, 148,
-             176, 149, 150, 136, 172, 58, 132, 93, 234, 127, 162, 21, 54, 103, 67, 109]
+FACE_OVAL = [
+    10,
+    338,
+    297,
+    332,
+    284,
+    251,
+    389,
+    356,
+    454,
+    323,
+    361,
+    288,
+    397,
+    365,
+    379,
+    378,
+    400,
+    377,
+    152,
+    148,
+    176,
+    149,
+    150,
+    136,
+    172,
+    58,
+    132,
+    93,
+    234,
+    127,
+    162,
+    21,
+    54,
+    103,
+    67,
+    109,
+]
 
 
 def _controls() -> list[int]:
@@ -190,8 +227,9 @@ def author_arkit_table(V: np.ndarray) -> dict:
         return d if weight is None else d * np.asarray(weight)[:, None]
 
     jaw_pts = CHIN + lower_lip + [i for i in FACE_OVAL if V[i, 1] < -3.0 and i not in CHIN]
-    jaw_w = [float(np.clip((-2.5 - V[i, 1]) / 3.0, 0.0, 1.0)) if i in FACE_OVAL and i not in CHIN else 1.0
-             for i in jaw_pts]
+    jaw_w = [
+        float(np.clip((-2.5 - V[i, 1]) / 3.0, 0.0, 1.0)) if i in FACE_OVAL and i not in CHIN else 1.0 for i in jaw_pts
+    ]
     half = corners["R"] + corners["L"]
 
     for s in ("L", "R"):
@@ -278,7 +316,7 @@ def author_arkit_table(V: np.ndarray) -> dict:
     return {
         "format": FORMAT,
         "description": "ARKit blendshapes as control-point displacements on MediaPipe's canonical face mesh "
-                       "(written by facecapges.avatar.blendshape_table.author_arkit_table).",
+        "(written by facecapges.avatar.blendshape_table.author_arkit_table).",
         "n_vertices": int(V.shape[0]),
         "units": "centimetres (canonical face: +X subject's left, Y up, +Z out of the face)",
         "controls": controls,

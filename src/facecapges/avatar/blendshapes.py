@@ -47,8 +47,15 @@ def far_vertices(mesh: TriMesh, moved: np.ndarray, far_radius: float) -> np.ndar
     return np.flatnonzero(dist > far_radius)
 
 
-def build_blendshapes(mesh: TriMesh, table: ControlTable, aoi: bool = True, compare: bool = True,
-                      far_radius: float = 0.25, progress=None, **deform_kw) -> Blendshapes:
+def build_blendshapes(
+    mesh: TriMesh,
+    table: ControlTable,
+    aoi: bool = True,
+    compare: bool = True,
+    far_radius: float = 0.25,
+    progress=None,
+    **deform_kw,
+) -> Blendshapes:
     """Deform ``mesh`` for every target of ``table``.
 
     ``aoi`` picks the targets returned (Process 1 with or without areas of
@@ -67,8 +74,12 @@ def build_blendshapes(mesh: TriMesh, table: ControlTable, aoi: bool = True, comp
         err = float(np.linalg.norm(res.vertices[table.controls] - target_pos, axis=1).max() / size)
         errors.append(err)
         iters.append(res.iterations)
-        entry = {"control_error": err, "iterations": res.iterations, "converged": res.converged,
-                 "aoi_vertices": int((res.factors > 0.01).sum()) if aoi else mesh.n_vertices}
+        entry = {
+            "control_error": err,
+            "iterations": res.iterations,
+            "converged": res.converged,
+            "aoi_vertices": int((res.factors > 0.01).sum()) if aoi else mesh.n_vertices,
+        }
         if compare:
             moved = table.controls[np.linalg.norm(disp, axis=1) > 1e-9]
             far = far_vertices(mesh, moved, far_radius * size)
@@ -76,26 +87,40 @@ def build_blendshapes(mesh: TriMesh, table: ControlTable, aoi: bool = True, comp
             with_aoi, without = (res.vertices, other) if aoi else (other, res.vertices)
             plain = deformer.plain(disp)
             if far.size:
-                motion = [float(np.linalg.norm(x[far] - mesh.vertices[far], axis=1).mean() / size)
-                          for x in (with_aoi, without, plain)]
+                motion = [
+                    float(np.linalg.norm(x[far] - mesh.vertices[far], axis=1).mean() / size)
+                    for x in (with_aoi, without, plain)
+                ]
                 far_aoi.append(motion[0])
                 far_free.append(motion[1])
                 far_plain.append(motion[2])
-                entry.update(far_vertices=int(far.size), far_motion_aoi=motion[0], far_motion_no_aoi=motion[1],
-                             far_motion_plain=motion[2])
+                entry.update(
+                    far_vertices=int(far.size),
+                    far_motion_aoi=motion[0],
+                    far_motion_no_aoi=motion[1],
+                    far_motion_plain=motion[2],
+                )
         per_target[name] = entry
         if progress is not None:
             progress(k)
     report: dict[str, Any] = {
-        "n_vertices": mesh.n_vertices, "n_controls": int(table.controls.size), "n_targets": len(table.targets),
-        "face_size": size, "aoi": aoi, "far_radius": far_radius,
-        "max_control_error": max(errors), "mean_iterations": float(np.mean(iters)),
+        "n_vertices": mesh.n_vertices,
+        "n_controls": int(table.controls.size),
+        "n_targets": len(table.targets),
+        "face_size": size,
+        "aoi": aoi,
+        "far_radius": far_radius,
+        "max_control_error": max(errors),
+        "mean_iterations": float(np.mean(iters)),
     }
     if far_aoi:
-        report.update(mean_far_motion_aoi=float(np.mean(far_aoi)), mean_far_motion_no_aoi=float(np.mean(far_free)),
-                      mean_far_motion_plain=float(np.mean(far_plain)),
-                      targets_where_aoi_moves_far_less=int(np.sum(np.asarray(far_aoi) < np.asarray(far_free))),
-                      targets_compared=len(far_aoi))
+        report.update(
+            mean_far_motion_aoi=float(np.mean(far_aoi)),
+            mean_far_motion_no_aoi=float(np.mean(far_free)),
+            mean_far_motion_plain=float(np.mean(far_plain)),
+            targets_where_aoi_moves_far_less=int(np.sum(np.asarray(far_aoi) < np.asarray(far_free))),
+            targets_compared=len(far_aoi),
+        )
     report["targets"] = per_target
     return Blendshapes(mesh, list(table.targets), out, report)
 

@@ -115,8 +115,7 @@ def check_skeleton(skel: Skeleton, name: str = "skeleton") -> None:
     """UserError unless ``skel`` is a BEAT skeleton (the joints the avatar binds to)."""
     missing = skel.missing(REQUIRED_JOINTS)
     if missing:
-        raise UserError(f"{name}: not a BEAT skeleton; missing joints {missing[:6]}"
-                        f"{' …' if len(missing) > 6 else ''}")
+        raise UserError(f"{name}: not a BEAT skeleton; missing joints {missing[:6]}{' …' if len(missing) > 6 else ''}")
 
 
 # ------------------------------------------------------------------ mesh builder
@@ -158,8 +157,14 @@ def _frame(t: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return u, np.cross(t, u)
 
 
-def _tube(centers: np.ndarray, radii: np.ndarray, n_around: int = 14, ref=(0.0, 1.0, 0.0),
-          cap_start: bool = True, cap_end: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _tube(
+    centers: np.ndarray,
+    radii: np.ndarray,
+    n_around: int = 14,
+    ref=(0.0, 1.0, 0.0),
+    cap_start: bool = True,
+    cap_end: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """A closed tube through ``centers`` (K, 3): vertices, triangles, and each vertex's ring
     index (caps get −1 at the start and K at the end). ``radii`` (K,) or (K, 2) for an
     elliptic section (along ``ref``-ish axis, along the other axis)."""
@@ -197,7 +202,11 @@ def _tube(centers: np.ndarray, radii: np.ndarray, n_around: int = 14, ref=(0.0, 
         extra.append(centers[-1] + 0.6 * radii[-1].mean() * t1 / np.linalg.norm(t1))
         ring_of.append(K)
         a = (K - 1) * n_around + np.arange(n_around)
-        faces.append(np.stack([np.full(n_around, n + len(extra) - 1), a, (K - 1) * n_around + (np.arange(n_around) + 1) % n_around], 1))
+        faces.append(
+            np.stack(
+                [np.full(n_around, n + len(extra) - 1), a, (K - 1) * n_around + (np.arange(n_around) + 1) % n_around], 1
+            )
+        )
     if extra:
         V = np.concatenate([V, np.asarray(extra)])
     F = np.concatenate(faces).astype(np.int64)
@@ -232,9 +241,20 @@ def _arc(points: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
-def _limb(b: _Builder, P: np.ndarray, path_joints: list[int], radii: list[float], material: str,
-          blend: float, n_around: int = 14, start_back: float = 0.0, end_point: np.ndarray | None = None,
-          subdiv: int = 3, squash: float = 1.0, ref=(0.0, 1.0, 0.0)) -> None:
+def _limb(
+    b: _Builder,
+    P: np.ndarray,
+    path_joints: list[int],
+    radii: list[float],
+    material: str,
+    blend: float,
+    n_around: int = 14,
+    start_back: float = 0.0,
+    end_point: np.ndarray | None = None,
+    subdiv: int = 3,
+    squash: float = 1.0,
+    ref=(0.0, 1.0, 0.0),
+) -> None:
     """A tube along joints ``path_joints`` (each owning the bone to the next); ``radii`` per joint
     (+ one for ``end_point``), ``subdiv`` rings per bone."""
     pts = [P[j] for j in path_joints] + ([end_point] if end_point is not None else [])
@@ -244,12 +264,17 @@ def _limb(b: _Builder, P: np.ndarray, path_joints: list[int], radii: list[float]
         pts = np.concatenate([[pts[0] - start_back * d / np.linalg.norm(d)], pts])
         radii = [radii[0]] + list(radii)
     js = _arc(pts)
-    ss = np.concatenate([np.linspace(js[k], js[k + 1], subdiv, endpoint=False) for k in range(len(pts) - 1)] + [[js[-1]]])
+    ss = np.concatenate(
+        [np.linspace(js[k], js[k + 1], subdiv, endpoint=False) for k in range(len(pts) - 1)] + [[js[-1]]]
+    )
     centers = np.stack([np.interp(ss, js, pts[:, a]) for a in range(3)], 1)
     r = np.interp(ss, js, radii)
     V, F, ring = _tube(centers, np.stack([r * squash, r], 1), n_around, ref=ref)
-    joint_s = list(_arc(np.asarray([P[j] for j in path_joints]))) if start_back == 0 else \
-        [0.0] + list(start_back + _arc(np.asarray([P[j] for j in path_joints]))[1:])
+    joint_s = (
+        list(_arc(np.asarray([P[j] for j in path_joints])))
+        if start_back == 0
+        else [0.0] + list(start_back + _arc(np.asarray([P[j] for j in path_joints]))[1:])
+    )
     if start_back > 0:
         joint_s[0] = 0.0
     s_v = np.where(ring < 0, 0.0, np.where(ring >= len(ss), ss[-1], ss[np.clip(ring, 0, len(ss) - 1)]))
@@ -265,10 +290,19 @@ def _torso(b: _Builder, skel: Skeleton, P: np.ndarray) -> None:
     arm_x = abs(P[skel.index("RightArm"), 0])
     neck_y = P[skel.index("Neck"), 1]
     # (height, half-width, half-depth): hips, waist, chest, shoulders, neck base (cm)
-    prof = np.array([[ys[0] - 6, 0.78 * arm_x, 11.0], [ys[0] + 4, 0.80 * arm_x, 11.5], [ys[2], 0.74 * arm_x, 10.5],
-                     [ys[3], 0.84 * arm_x, 11.5], [ys[4], 0.92 * arm_x, 11.5], [shoulder_y - 1, 0.98 * arm_x, 10.0],
-                     [shoulder_y + 2.5, 0.80 * arm_x, 8.0], [neck_y - 0.5, 0.42 * arm_x, 6.5],
-                     [neck_y + 1.5, 0.30 * arm_x, 5.5]])
+    prof = np.array(
+        [
+            [ys[0] - 6, 0.78 * arm_x, 11.0],
+            [ys[0] + 4, 0.80 * arm_x, 11.5],
+            [ys[2], 0.74 * arm_x, 10.5],
+            [ys[3], 0.84 * arm_x, 11.5],
+            [ys[4], 0.92 * arm_x, 11.5],
+            [shoulder_y - 1, 0.98 * arm_x, 10.0],
+            [shoulder_y + 2.5, 0.80 * arm_x, 8.0],
+            [neck_y - 0.5, 0.42 * arm_x, 6.5],
+            [neck_y + 1.5, 0.30 * arm_x, 5.5],
+        ]
+    )
     n_around = 28
     ang = np.linspace(0, 2 * np.pi, n_around, endpoint=False)
     rings = []
@@ -330,7 +364,9 @@ def _arm(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     pts = np.array([start, P[j["Arm"]], P[j["ForeArm"]], P[j["Hand"]]])
     r = np.array([0.14, 0.155, 0.125, 0.095]) * upper
     js = _arc(pts)
-    ss = np.concatenate([np.linspace(js[k], js[k + 1], n, endpoint=False) for k, n in enumerate((2, 6, 6))] + [[js[-1]]])
+    ss = np.concatenate(
+        [np.linspace(js[k], js[k + 1], n, endpoint=False) for k, n in enumerate((2, 6, 6))] + [[js[-1]]]
+    )
     centers = np.stack([np.interp(ss, js, pts[:, a]) for a in range(3)], 1)
     V, F, ring = _tube(centers, np.interp(ss, js, r), 16)
     s_v = np.where(ring < 0, 0.0, np.where(ring >= len(ss), ss[-1], ss[np.clip(ring, 0, len(ss) - 1)]))
@@ -356,8 +392,9 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     across /= width
     up = np.cross(across, fwd) if side == "Left" else np.cross(fwd, across)
     up /= np.linalg.norm(up)  # the back of the hand
-    center_line = np.array([wrist + t * length * fwd + (knuckles.mean(0) - wrist - length * fwd) * t
-                            for t in (-0.05, 0.3, 0.7, 1.02)])
+    center_line = np.array(
+        [wrist + t * length * fwd + (knuckles.mean(0) - wrist - length * fwd) * t for t in (-0.05, 0.3, 0.7, 1.02)]
+    )
     half_w = np.array([0.36, 0.5, 0.56, 0.55]) * width + 0.6
     half_t = np.array([0.9, 1.1, 1.05, 0.9])
     n = 16
@@ -366,8 +403,11 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     for c, hw, ht in zip(center_line, half_w, half_t):
         cc, ss = np.cos(ang), np.sin(ang)
         e = 2 / 3.0
-        rings.append(c + hw * (np.sign(cc) * np.abs(cc) ** e)[:, None] * across
-                     + ht * (np.sign(ss) * np.abs(ss) ** e)[:, None] * up)
+        rings.append(
+            c
+            + hw * (np.sign(cc) * np.abs(cc) ** e)[:, None] * across
+            + ht * (np.sign(ss) * np.abs(ss) ** e)[:, None] * up
+        )
     V = np.concatenate(rings + [center_line[:1] - 0.5 * fwd, center_line[-1:] + 0.3 * fwd])
     faces = []
     K = len(rings)
@@ -376,8 +416,10 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
         bb = k * n + (np.arange(n) + 1) % n
         faces += [np.stack([a, bb, bb + n], 1), np.stack([a, bb + n, a + n], 1)]
     a = np.arange(n)
-    faces += [np.stack([np.full(n, K * n), (a + 1) % n, a], 1),
-              np.stack([np.full(n, K * n + 1), (K - 1) * n + a, (K - 1) * n + (a + 1) % n], 1)]
+    faces += [
+        np.stack([np.full(n, K * n), (a + 1) % n, a], 1),
+        np.stack([np.full(n, K * n + 1), (K - 1) * n + a, (K - 1) * n + (a + 1) % n], 1),
+    ]
     F = np.concatenate(faces)
     nrm = np.cross(V[F[0, 1]] - V[F[0, 0]], V[F[0, 2]] - V[F[0, 0]])
     if np.dot(nrm, V[F[0, 0]] - center_line[0]) < 0:
@@ -403,16 +445,43 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
         chain = [J(f"{f}{k}") for k in (1, 2, 3, 4)]
         end = P[chain[-1]] + skel.end_sites.get(chain[-1], P[chain[-1]] - P[chain[-2]])
         r0 = radius[f]
-        radii = [r0 * 1.15, r0, r0 * 0.92, r0 * 0.85, r0 * 0.8] if f == "Thumb" else [r0, r0 * 0.95, r0 * 0.9, r0 * 0.82, r0 * 0.78]
-        _limb(b, P, chain, radii, SKIN, blend=0.5, n_around=10, end_point=end, subdiv=2,
-              start_back=0.0 if f == "Thumb" else 1.2, squash=0.9, ref=up)
+        radii = (
+            [r0 * 1.15, r0, r0 * 0.92, r0 * 0.85, r0 * 0.8]
+            if f == "Thumb"
+            else [r0, r0 * 0.95, r0 * 0.9, r0 * 0.82, r0 * 0.78]
+        )
+        _limb(
+            b,
+            P,
+            chain,
+            radii,
+            SKIN,
+            blend=0.5,
+            n_around=10,
+            end_point=end,
+            subdiv=2,
+            start_back=0.0 if f == "Thumb" else 1.2,
+            squash=0.9,
+            ref=up,
+        )
 
 
 def _neck(b: _Builder, skel: Skeleton, P: np.ndarray) -> None:
     neck, neck1, head = (skel.index(n) for n in ("Neck", "Neck1", "Head"))
     top = P[head] + np.array([0.0, 4.0, 0.5])
-    _limb(b, P, [neck, neck1, head], [5.6, 5.3, 5.1, 5.0], SKIN, blend=1.2, n_around=18,
-          start_back=3.0, end_point=top, subdiv=2, ref=(0.0, 0.0, 1.0))
+    _limb(
+        b,
+        P,
+        [neck, neck1, head],
+        [5.6, 5.3, 5.1, 5.0],
+        SKIN,
+        blend=1.2,
+        n_around=18,
+        start_back=3.0,
+        end_point=top,
+        subdiv=2,
+        ref=(0.0, 0.0, 1.0),
+    )
 
 
 def build_body(skel: Skeleton) -> SkinnedMesh:
@@ -443,8 +512,9 @@ def boundary_loop(faces: np.ndarray) -> np.ndarray:
     return np.asarray(loop)
 
 
-def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def back_of_head(
+    face: TriMesh, n_rings: int = 9, depth: float = 0.62
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Vertices (M, 3) and triangles (using face indices for the rim) closing the face into a head.
 
     The face outline is swept backwards around a centre behind the eyes: each outline
@@ -492,8 +562,10 @@ def back_of_head(face: TriMesh, n_rings: int = 9, depth: float = 0.62
     F = np.concatenate(faces)
     # consistent orientation with the face: a rim edge of the cap must run opposite to the
     # same edge in the face (the second triangle of the first strip holds the rim edge a2 → a)
-    face_edges = {(int(x), int(y)) for x, y in
-                  np.concatenate([face.faces[:, [0, 1]], face.faces[:, [1, 2]], face.faces[:, [2, 0]]])}
+    face_edges = {
+        (int(x), int(y))
+        for x, y in np.concatenate([face.faces[:, [0, 1]], face.faces[:, [1, 2]], face.faces[:, [2, 0]]])
+    }
     t = F[m]  # [a, b2, a2]
     if (int(t[0]), int(t[2])) not in face_edges:
         F = F[:, ::-1]
@@ -510,8 +582,9 @@ def _rotation(axis: str, deg: float) -> np.ndarray:
     return np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
 
 
-def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], side: str, base: int
-         ) -> tuple[np.ndarray, np.ndarray, dict[str, list]]:
+def _eye(
+    V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], side: str, base: int
+) -> tuple[np.ndarray, np.ndarray, dict[str, list]]:
     """Socket + eyeball of one eye opening (triangles ``tris`` of the neutral face ``V``).
 
     Returns the new vertices, their deltas (T, M, 3) and triangles per material (indices
@@ -549,8 +622,9 @@ def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], 
     phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
     ball = [center + r * fwd]
     for th in thetas:
-        ball += list(center + r * np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi),
-                                            np.full(n, np.cos(th))], 1))
+        ball += list(
+            center + r * np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.full(n, np.cos(th))], 1)
+        )
     ball.append(center - r * fwd)
     ball = np.asarray(ball)
     b0 = base + len(sock_v)
@@ -579,12 +653,18 @@ def _eye(V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], 
         else:
             R = _rotation("Y", deg * (inward if direction == "In" else -inward))  # +Y rotation turns +Z to +X
         ball_d[names.index(name)] = (ball - center) @ R.T + center - ball
-    return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1),
-            {EYE: sock_f, **ball_f})
+    return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1), {EYE: sock_f, **ball_f})
 
 
-def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_rings: list[list[int]],
-               mouth_ring: list[int], brow_rings: Sequence[list[int]] = (), head_to_hairline: float = 16.8) -> FaceMesh:
+def build_face(
+    neutral: TriMesh,
+    names: list[str],
+    targets: np.ndarray,
+    eye_rings: list[list[int]],
+    mouth_ring: list[int],
+    brow_rings: Sequence[list[int]] = (),
+    head_to_hairline: float = 16.8,
+) -> FaceMesh:
     """The morph-target head: ``neutral`` + its ``targets`` (T, N, 3) + a closed back of head.
 
     ``eye_rings`` / ``mouth_ring``: vertex indices outlining the eye and mouth openings
@@ -596,8 +676,7 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
     V = np.concatenate([neutral.vertices, cap_v])
     n_face = neutral.n_vertices
     faces: dict[str, list] = {SKIN: [], EYE: [], MOUTH: [], HAIR: []}
-    ring_sets = ([(set(r), EYE) for r in eye_rings] + [(set(mouth_ring), MOUTH)]
-                 + [(set(r), HAIR) for r in brow_rings])
+    ring_sets = [(set(r), EYE) for r in eye_rings] + [(set(mouth_ring), MOUTH)] + [(set(r), HAIR) for r in brow_rings]
     for tri in neutral.faces:
         mat = SKIN
         for rs, m in ring_sets:
@@ -609,7 +688,9 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
     for tri in cap_f:
         c = V[tri].mean(0)
         # hair over the top and back of the skull; skin at the temples, jaw and under the chin
-        hair = c[1] > ymin + 0.62 * (ymax - ymin) - 0.35 * max(0.0, (zmax - 8.0) - c[2]) and c[1] > ymin + 0.25 * (ymax - ymin)
+        hair = c[1] > ymin + 0.62 * (ymax - ymin) - 0.35 * max(0.0, (zmax - 8.0) - c[2]) and c[1] > ymin + 0.25 * (
+            ymax - ymin
+        )
         faces[HAIR if hair else SKIN].append(tri)
     T = len(names)
     n_head = len(V)
@@ -652,15 +733,31 @@ def build_face(neutral: TriMesh, names: list[str], targets: np.ndarray, eye_ring
     return FaceMesh(V, normals, by_material, list(names), deltas, ndel, offset)
 
 
-def build_avatar(skel: Skeleton, neutral: TriMesh, names: list[str], targets: np.ndarray,
-                 eye_rings: list[list[int]], mouth_ring: list[int], brow_rings: Sequence[list[int]] = ()) -> Avatar:
+def build_avatar(
+    skel: Skeleton,
+    neutral: TriMesh,
+    names: list[str],
+    targets: np.ndarray,
+    eye_rings: list[list[int]],
+    mouth_ring: list[int],
+    brow_rings: Sequence[list[int]] = (),
+) -> Avatar:
     """Body skinned to ``skel`` + the morph-target face mounted on its Head joint."""
     check_skeleton(skel)
     body = build_body(skel)
     face = build_face(neutral, names, targets, eye_rings, mouth_ring, brow_rings)
-    return Avatar(skel, rest_positions(skel), body, face,
-                  info={"body_vertices": len(body.vertices), "face_vertices": len(face.vertices),
-                        "joints": skel.n_joints, "morph_targets": len(names)})
+    return Avatar(
+        skel,
+        rest_positions(skel),
+        body,
+        face,
+        info={
+            "body_vertices": len(body.vertices),
+            "face_vertices": len(face.vertices),
+            "joints": skel.n_joints,
+            "morph_targets": len(names),
+        },
+    )
 
 
 def default_avatar(skel: Skeleton, progress=None) -> Avatar:

@@ -20,16 +20,18 @@ def _skeleton(bvh: Path | None):
     try:
         return load_skeleton(), "the default checkpoint"
     except UserError as exc:
-        raise UserError(f"no skeleton given and the default checkpoint has none ({exc}); "
-                        "pass --skeleton FILE.bvh (any BEAT BVH)") from None
+        raise UserError(
+            f"no skeleton given and the default checkpoint has none ({exc}); pass --skeleton FILE.bvh (any BEAT BVH)"
+        ) from None
 
 
 def register(app: typer.Typer) -> None:
     @app.command("blendshapes")
     def blendshapes_cmd(
         mesh: Path = typer.Option(..., "--mesh", help="Neutral triangle mesh (.obj, an oriented manifold)."),
-        controls: Path = typer.Option(..., "--controls", help="Control table JSON (control vertices and "
-                                                              "per-target displacements)."),
+        controls: Path = typer.Option(
+            ..., "--controls", help="Control table JSON (control vertices and per-target displacements)."
+        ),
         out: Path = typer.Option(..., "--out", help="Output directory: one OBJ per target + report.json."),
         no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
         force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
@@ -62,25 +64,38 @@ def register(app: typer.Typer) -> None:
         report = {"mesh": str(mesh), "controls": str(controls), "seconds": elapsed, **shapes.report}
         (out / "report.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
         r = shapes.report
-        typer.echo(f"{len(shapes.names)} targets in {elapsed:.2f} s → {out}; control error {r['max_control_error']:.2e} "
-                   f"of face size")
+        typer.echo(
+            f"{len(shapes.names)} targets in {elapsed:.2f} s → {out}; control error {r['max_control_error']:.2e} "
+            f"of face size"
+        )
         if "mean_far_motion_aoi" in r:
-            typer.echo(f"far-vertex motion (mean, fraction of face size): with AOI {r['mean_far_motion_aoi']:.2e}, "
-                       f"without AOI {r['mean_far_motion_no_aoi']:.2e}, plain edit {r['mean_far_motion_plain']:.2e}")
+            typer.echo(
+                f"far-vertex motion (mean, fraction of face size): with AOI {r['mean_far_motion_aoi']:.2e}, "
+                f"without AOI {r['mean_far_motion_no_aoi']:.2e}, plain edit {r['mean_far_motion_plain']:.2e}"
+            )
 
-    avatar = typer.Typer(help="Build the avatar (skinned BEAT body + 52-blendshape face) as glTF.",
-                         no_args_is_help=True)
+    avatar = typer.Typer(
+        help="Build the avatar (skinned BEAT body + 52-blendshape face) as glTF.", no_args_is_help=True
+    )
     app.add_typer(avatar, name="avatar")
 
     @avatar.command("build")
     def avatar_build(
         out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
-        skeleton: Path = typer.Option(None, "--skeleton", help="A BEAT BVH whose hierarchy and rest offsets to use "
-                                                               "(default: the skeleton stored with the default model)."),
-        fmt: str = typer.Option("glb", "--format", help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
-                                                        "presets + 52 ARKit perfect-sync expressions, lookAt, "
-                                                        "licence) or vrm0 (the same as VRM 0.x, for apps that "
-                                                        "read only 0.x, such as VSeeFace)."),
+        skeleton: Path = typer.Option(
+            None,
+            "--skeleton",
+            help="A BEAT BVH whose hierarchy and rest offsets to use "
+            "(default: the skeleton stored with the default model).",
+        ),
+        fmt: str = typer.Option(
+            "glb",
+            "--format",
+            help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
+            "presets + 52 ARKit perfect-sync expressions, lookAt, "
+            "licence) or vrm0 (the same as VRM 0.x, for apps that "
+            "read only 0.x, such as VSeeFace).",
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
     ) -> None:
         """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
@@ -100,16 +115,21 @@ def register(app: typer.Typer) -> None:
             write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
         else:
             write_glb(av, out)
-        typer.echo(f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
-                   f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets")
+        typer.echo(
+            f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
+            f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets"
+        )
 
     @avatar.command("vrma")
     def avatar_vrma(
         bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh."),
         out: Path = typer.Option(..., "--out", help="Output .vrma (VRM Animation 1.0)."),
         face: Path = typer.Option(None, "--face", help="Face JSON to add as expressions (resampled to the BVH)."),
-        face_mode: str = typer.Option("presets", "--vrma-face", help="presets (VRM presets from ARKit, any VRM) "
-                                                                     "or perfect-sync (52 ARKit expressions)."),
+        face_mode: str = typer.Option(
+            "presets",
+            "--vrma-face",
+            help="presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit expressions).",
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
     ) -> None:
         """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
@@ -130,12 +150,19 @@ def register(app: typer.Typer) -> None:
     def render_cmd(
         bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
         out: Path = typer.Option(..., "--out", help="Output .mp4."),
-        face: Path = typer.Option(None, "--face", help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); "
-                                                       "without it, the jaw and lips follow --audio."),
+        face: Path = typer.Option(
+            None,
+            "--face",
+            help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); without it, the jaw and lips follow --audio.",
+        ),
         audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
-        avatar_glb: Path = typer.Option(None, "--avatar", help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
-                                                               "skeleton, or our .glb (default: built from the "
-                                                               "BVH's skeleton)."),
+        avatar_glb: Path = typer.Option(
+            None,
+            "--avatar",
+            help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
+            "skeleton, or our .glb (default: built from the "
+            "BVH's skeleton).",
+        ),
         contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
         size: str = typer.Option("640x480", help="Video size WIDTHxHEIGHT."),
         force: bool = typer.Option(False, "--force", help="Overwrite outputs that exist."),
@@ -190,10 +217,19 @@ def register(app: typer.Typer) -> None:
             if contact_sheet is not None:
                 raise UserError("--contact-sheet needs our own avatar (its 52 morph targets), not a VRM")
             weights = _shown_face(len(motion.motion))
-            figures = render_vrm_video(driver, bvh_local_matrices(motion.skeleton, motion.motion), weights,
-                                       motion.fps, out, audio=audio, width=width, height=height)
-            typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in "
-                       f"{figures['total_s']:.1f} s")
+            figures = render_vrm_video(
+                driver,
+                bvh_local_matrices(motion.skeleton, motion.motion),
+                weights,
+                motion.fps,
+                out,
+                audio=audio,
+                width=width,
+                height=height,
+            )
+            typer.echo(
+                f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s"
+            )
             return
         if avatar_glb is not None:
             import pygltflib
@@ -211,8 +247,9 @@ def register(app: typer.Typer) -> None:
             joint_names = list(motion.skeleton.names)
         quats = bvh_quaternions(joint_names, motion.skeleton, motion.motion, str(bvh))
         weights = _shown_face(quats.shape[0])
-        figures = render_video(glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width,
-                               height=height)
+        figures = render_video(
+            glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width, height=height
+        )
         typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")
         if contact_sheet is not None:
             make_sheet(glb, list(ARKIT_NAMES), contact_sheet)

@@ -42,8 +42,12 @@ class _Buffer:
             self.data.append(0)
         self.views.append(g.BufferView(buffer=0, byteOffset=len(self.data), byteLength=arr.nbytes, target=target))
         self.data.extend(arr.tobytes())
-        ctype = {np.dtype(np.float32): g.FLOAT, np.dtype(np.uint16): g.UNSIGNED_SHORT,
-                 np.dtype(np.uint32): g.UNSIGNED_INT, np.dtype(np.uint8): g.UNSIGNED_BYTE}[arr.dtype]
+        ctype = {
+            np.dtype(np.float32): g.FLOAT,
+            np.dtype(np.uint16): g.UNSIGNED_SHORT,
+            np.dtype(np.uint32): g.UNSIGNED_INT,
+            np.dtype(np.uint8): g.UNSIGNED_BYTE,
+        }[arr.dtype]
         count = arr.shape[0] if arr.ndim > 1 or acc_type != g.SCALAR else arr.size
         if acc_type == g.MAT4:
             count = arr.shape[0]
@@ -62,16 +66,24 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
     J = skel.n_joints
     buf = _Buffer()
     kids = skel.children()
-    nodes = [g.Node(name=n, translation=[float(x) * CM_TO_M for x in skel.offsets[j]],
-                    children=list(kids[j])) for j, n in enumerate(skel.names)]
+    nodes = [
+        g.Node(name=n, translation=[float(x) * CM_TO_M for x in skel.offsets[j]], children=list(kids[j]))
+        for j, n in enumerate(skel.names)
+    ]
 
     materials: list[g.Material] = []
     mat_index: dict[str, int] = {}
     for name, rgba in COLORS.items():
         mat_index[name] = len(materials)
-        materials.append(g.Material(name=name, pbrMetallicRoughness=g.PbrMetallicRoughness(
-            baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8 if name != "eye" else 0.3),
-            doubleSided=name in ("eye", "mouth")))
+        materials.append(
+            g.Material(
+                name=name,
+                pbrMetallicRoughness=g.PbrMetallicRoughness(
+                    baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8 if name != "eye" else 0.3
+                ),
+                doubleSided=name in ("eye", "mouth"),
+            )
+        )
 
     def index_accessor(faces: np.ndarray, n_vertices: int) -> int:
         dt = np.uint16 if n_vertices < 65535 else np.uint32
@@ -83,9 +95,15 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
     nrm = buf.add(body.normals.astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
     jnt = buf.add(body.joints.astype(np.uint8 if J < 256 else np.uint16), g.VEC4, g.ARRAY_BUFFER)
     wgt = buf.add(body.weights.astype(np.float32), g.VEC4, g.ARRAY_BUFFER)
-    prims = [g.Primitive(attributes=g.Attributes(POSITION=pos, NORMAL=nrm, JOINTS_0=jnt, WEIGHTS_0=wgt),
-                         indices=index_accessor(f, len(body.vertices)), material=mat_index[m], mode=g.TRIANGLES)
-             for m, f in body.faces.items()]
+    prims = [
+        g.Primitive(
+            attributes=g.Attributes(POSITION=pos, NORMAL=nrm, JOINTS_0=jnt, WEIGHTS_0=wgt),
+            indices=index_accessor(f, len(body.vertices)),
+            material=mat_index[m],
+            mode=g.TRIANGLES,
+        )
+        for m, f in body.faces.items()
+    ]
     meshes = [g.Mesh(name="Body", primitives=prims)]
     ibm = np.zeros((J, 4, 4), np.float32)
     for j in range(J):
@@ -104,11 +122,21 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
         dp = buf.add((face.deltas[t] * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
         dn = buf.add(face.normal_deltas[t].astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
         targets.append({"POSITION": dp, "NORMAL": dn})
-    fprims = [g.Primitive(attributes=g.Attributes(POSITION=fpos, NORMAL=fnrm), targets=targets,
-                          indices=index_accessor(f, len(face.vertices)), material=mat_index[m], mode=g.TRIANGLES)
-              for m, f in face.faces.items()]
-    meshes.append(g.Mesh(name="Face", primitives=fprims, weights=[0.0] * len(face.names),
-                         extras={"targetNames": list(face.names)}))
+    fprims = [
+        g.Primitive(
+            attributes=g.Attributes(POSITION=fpos, NORMAL=fnrm),
+            targets=targets,
+            indices=index_accessor(f, len(face.vertices)),
+            material=mat_index[m],
+            mode=g.TRIANGLES,
+        )
+        for m, f in face.faces.items()
+    ]
+    meshes.append(
+        g.Mesh(
+            name="Face", primitives=fprims, weights=[0.0] * len(face.names), extras={"targetNames": list(face.names)}
+        )
+    )
 
     body_node = len(nodes)
     nodes.append(g.Node(name="Body", mesh=0, skin=0))
@@ -122,11 +150,21 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
         asset=g.Asset(version="2.0", generator="facecapges avatar"),
         scene=0,
         scenes=[g.Scene(name="Avatar", nodes=[root, body_node])],
-        nodes=nodes, meshes=meshes, skins=[skin], materials=materials,
-        accessors=buf.accessors, bufferViews=buf.views,
+        nodes=nodes,
+        meshes=meshes,
+        skins=[skin],
+        materials=materials,
+        accessors=buf.accessors,
+        bufferViews=buf.views,
         buffers=[g.Buffer(byteLength=len(buf.data))],
-        extras={"facecapges": {"joint_names": list(skel.names), "blendshape_names": list(face.names),
-                               "units": "metres", **avatar.info}},
+        extras={
+            "facecapges": {
+                "joint_names": list(skel.names),
+                "blendshape_names": list(face.names),
+                "units": "metres",
+                **avatar.info,
+            }
+        },
     )
     doc.set_binary_blob(bytes(buf.data))
     return doc

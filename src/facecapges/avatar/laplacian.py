@@ -70,8 +70,9 @@ def cotangent_laplacian(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matri
     return (W - sp.diags(np.asarray(W.sum(axis=1)).ravel())).tocsr()
 
 
-def spread_displacements(mesh: TriMesh, controls: np.ndarray, control_disp: np.ndarray, n_spread: int = 20,
-                         control_weight: float = 10.0) -> np.ndarray:
+def spread_displacements(
+    mesh: TriMesh, controls: np.ndarray, control_disp: np.ndarray, n_spread: int = 20, control_weight: float = 10.0
+) -> np.ndarray:
     """Per-vertex displacements (N, 3) spread from the control points by eq. 12.
 
     ``controls`` (K,) vertex indices, ``control_disp`` (K, 3) their displacements
@@ -151,14 +152,23 @@ class LaplacianDeformer:
         """One-shot Laplacian edit: keep L0, move the controls by ``control_disp`` (K, 3)."""
         return self.solve(self.L0, self.mesh.vertices[self.controls] + control_disp)
 
-    def factors(self, control_disp: np.ndarray, aoi_scale: float = 100.0, n_spread: int = 20,
-                control_weight: float = 10.0) -> np.ndarray:
+    def factors(
+        self, control_disp: np.ndarray, aoi_scale: float = 100.0, n_spread: int = 20, control_weight: float = 10.0
+    ) -> np.ndarray:
         """AOI deformation factors δ (N,) for one set of control displacements."""
         d = spread_displacements(self.mesh, self.controls, control_disp, n_spread, control_weight)
         return deformation_factors(d, aoi_scale / self.size)
 
-    def deform(self, control_disp: np.ndarray, aoi: bool = True, aoi_scale: float = 100.0, n_spread: int = 20,
-               control_weight: float = 10.0, tol: float = 1e-6, max_iter: int = 500) -> DeformResult:
+    def deform(
+        self,
+        control_disp: np.ndarray,
+        aoi: bool = True,
+        aoi_scale: float = 100.0,
+        n_spread: int = 20,
+        control_weight: float = 10.0,
+        tol: float = 1e-6,
+        max_iter: int = 500,
+    ) -> DeformResult:
         """Process 1: iterate solve → L' → rescale to |L0| → L = D L'' + (I − D) L0."""
         target = self.mesh.vertices[self.controls] + control_disp
         if aoi:

@@ -87,8 +87,11 @@ def read_obj(path: str | Path) -> TriMesh:
     v = np.asarray(verts, np.float64)
     f = np.asarray(faces, np.int64)
     if f.min() < 0 or f.max() >= len(v):
-        raise file_error(p, f"a face refers to vertex {int(f.max()) + 1 if f.max() >= len(v) else int(f.min()) + 1}, "
-                            f"outside the {len(v)} vertices")
+        raise file_error(
+            p,
+            f"a face refers to vertex {int(f.max()) + 1 if f.max() >= len(v) else int(f.min()) + 1}, "
+            f"outside the {len(v)} vertices",
+        )
     if not np.all(np.isfinite(v)):
         raise file_error(p, "a vertex coordinate is not finite")
     return TriMesh(v, f)
@@ -110,7 +113,10 @@ def check_manifold(mesh: TriMesh, name: str | Path = "mesh") -> None:
     if f.ndim != 2 or f.shape[1] != 3:
         raise file_error(name, f"faces must be (F, 3) triangles, got {f.shape}")
     if np.any((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0])):
-        raise file_error(name, f"degenerate triangle {int(np.flatnonzero((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0]))[0])} repeats a vertex")
+        raise file_error(
+            name,
+            f"degenerate triangle {int(np.flatnonzero((f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 2] == f[:, 0]))[0])} repeats a vertex",
+        )
     area2 = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
     if np.any(area2 <= 1e-12 * max(mesh.size, 1e-12) ** 2):
         raise file_error(name, f"triangle {int(np.argmin(area2))} has zero area")
@@ -124,7 +130,9 @@ def check_manifold(mesh: TriMesh, name: str | Path = "mesh") -> None:
     und, ucount = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
     if np.any(ucount > 2):
         a, b = und[np.argmax(ucount)]
-        raise file_error(name, f"non-manifold: edge {int(a) + 1}-{int(b) + 1} is shared by {int(ucount.max())} triangles")
+        raise file_error(
+            name, f"non-manifold: edge {int(a) + 1}-{int(b) + 1} is shared by {int(ucount.max())} triangles"
+        )
     # Non-manifold vertices: the triangles around a vertex must form one fan.
     nv = len(v)
     kids: list[list[tuple[int, int]]] = [[] for _ in range(nv)]  # per vertex: its triangles' other two

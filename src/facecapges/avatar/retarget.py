@@ -45,23 +45,38 @@ from facecapges.errors import UserError
 from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms
 
 # the child bones that give a bone its direction, in order of preference
-_FINGER_PARTS = {"Thumb": ("Metacarpal", "Proximal", "Distal"), "Index": ("Proximal", "Intermediate", "Distal"),
-                 "Middle": ("Proximal", "Intermediate", "Distal"), "Ring": ("Proximal", "Intermediate", "Distal"),
-                 "Little": ("Proximal", "Intermediate", "Distal")}
+_FINGER_PARTS = {
+    "Thumb": ("Metacarpal", "Proximal", "Distal"),
+    "Index": ("Proximal", "Intermediate", "Distal"),
+    "Middle": ("Proximal", "Intermediate", "Distal"),
+    "Ring": ("Proximal", "Intermediate", "Distal"),
+    "Little": ("Proximal", "Intermediate", "Distal"),
+}
 
 
 def _direction_children() -> dict[str, tuple[str, ...]]:
     d: dict[str, tuple[str, ...]] = {
-        "hips": ("spine",), "spine": ("chest", "upperChest", "neck", "head"), "chest": ("upperChest", "neck", "head"),
-        "upperChest": ("neck", "head"), "neck": ("head",)}
+        "hips": ("spine",),
+        "spine": ("chest", "upperChest", "neck", "head"),
+        "chest": ("upperChest", "neck", "head"),
+        "upperChest": ("neck", "head"),
+        "neck": ("head",),
+    }
     for s in ("left", "right"):
-        d.update({f"{s}Shoulder": (f"{s}UpperArm",), f"{s}UpperArm": (f"{s}LowerArm",),
-                  f"{s}LowerArm": (f"{s}Hand",), f"{s}Hand": (f"{s}MiddleProximal", f"{s}IndexProximal",
-                                                               f"{s}RingProximal"),
-                  f"{s}UpperLeg": (f"{s}LowerLeg",), f"{s}LowerLeg": (f"{s}Foot",), f"{s}Foot": (f"{s}Toes",)})
+        d.update(
+            {
+                f"{s}Shoulder": (f"{s}UpperArm",),
+                f"{s}UpperArm": (f"{s}LowerArm",),
+                f"{s}LowerArm": (f"{s}Hand",),
+                f"{s}Hand": (f"{s}MiddleProximal", f"{s}IndexProximal", f"{s}RingProximal"),
+                f"{s}UpperLeg": (f"{s}LowerLeg",),
+                f"{s}LowerLeg": (f"{s}Foot",),
+                f"{s}Foot": (f"{s}Toes",),
+            }
+        )
         for f, parts in _FINGER_PARTS.items():
             for k in range(len(parts) - 1):
-                d[f"{s}{f}{parts[k]}"] = tuple(f"{s}{f}{p}" for p in parts[k + 1:])
+                d[f"{s}{f}{parts[k]}"] = tuple(f"{s}{f}{p}" for p in parts[k + 1 :])
     return d
 
 
@@ -101,8 +116,21 @@ class Retargeter:
         self.model = model
         self.skel = skel
         src = {b: skel.names.index(j) for b, j in BEAT_BONES.items() if j in skel.names}
-        missing = [b for b in ("hips", "spine", "head", "leftUpperArm", "leftLowerArm", "leftHand",
-                               "rightUpperArm", "rightLowerArm", "rightHand") if b not in src]
+        missing = [
+            b
+            for b in (
+                "hips",
+                "spine",
+                "head",
+                "leftUpperArm",
+                "leftLowerArm",
+                "leftHand",
+                "rightUpperArm",
+                "rightLowerArm",
+                "rightHand",
+            )
+            if b not in src
+        ]
         if missing:
             raise UserError(f"the motion's skeleton is not a BEAT skeleton (no joints for {missing})")
         # bones driven: the model's, in VRM table order, that BEAT has too

@@ -59,45 +59,79 @@ SPEC_VERSION = "1.0"
 
 # (bone, parent bone, required) in the VRM 1.0 humanoid table's order
 HUMAN_BONES: tuple[tuple[str, str | None, bool], ...] = (
-    ("hips", None, True), ("spine", "hips", True), ("chest", "spine", False), ("upperChest", "chest", False),
-    ("neck", "upperChest", False), ("head", "neck", True), ("leftEye", "head", False), ("rightEye", "head", False),
+    ("hips", None, True),
+    ("spine", "hips", True),
+    ("chest", "spine", False),
+    ("upperChest", "chest", False),
+    ("neck", "upperChest", False),
+    ("head", "neck", True),
+    ("leftEye", "head", False),
+    ("rightEye", "head", False),
     ("jaw", "head", False),
-    ("leftUpperLeg", "hips", True), ("leftLowerLeg", "leftUpperLeg", True), ("leftFoot", "leftLowerLeg", True),
+    ("leftUpperLeg", "hips", True),
+    ("leftLowerLeg", "leftUpperLeg", True),
+    ("leftFoot", "leftLowerLeg", True),
     ("leftToes", "leftFoot", False),
-    ("rightUpperLeg", "hips", True), ("rightLowerLeg", "rightUpperLeg", True), ("rightFoot", "rightLowerLeg", True),
+    ("rightUpperLeg", "hips", True),
+    ("rightLowerLeg", "rightUpperLeg", True),
+    ("rightFoot", "rightLowerLeg", True),
     ("rightToes", "rightFoot", False),
-    ("leftShoulder", "upperChest", False), ("leftUpperArm", "leftShoulder", True),
-    ("leftLowerArm", "leftUpperArm", True), ("leftHand", "leftLowerArm", True),
-    ("rightShoulder", "upperChest", False), ("rightUpperArm", "rightShoulder", True),
-    ("rightLowerArm", "rightUpperArm", True), ("rightHand", "rightLowerArm", True),
+    ("leftShoulder", "upperChest", False),
+    ("leftUpperArm", "leftShoulder", True),
+    ("leftLowerArm", "leftUpperArm", True),
+    ("leftHand", "leftLowerArm", True),
+    ("rightShoulder", "upperChest", False),
+    ("rightUpperArm", "rightShoulder", True),
+    ("rightLowerArm", "rightUpperArm", True),
+    ("rightHand", "rightLowerArm", True),
 ) + tuple(
     (f"{side}{finger}{part}", f"{side}{finger}{prev}" if prev else f"{side}Hand", False)
     for side in ("left", "right")
-    for finger, parts in (("Thumb", ("Metacarpal", "Proximal", "Distal")),
-                          ("Index", ("Proximal", "Intermediate", "Distal")),
-                          ("Middle", ("Proximal", "Intermediate", "Distal")),
-                          ("Ring", ("Proximal", "Intermediate", "Distal")),
-                          ("Little", ("Proximal", "Intermediate", "Distal")))
+    for finger, parts in (
+        ("Thumb", ("Metacarpal", "Proximal", "Distal")),
+        ("Index", ("Proximal", "Intermediate", "Distal")),
+        ("Middle", ("Proximal", "Intermediate", "Distal")),
+        ("Ring", ("Proximal", "Intermediate", "Distal")),
+        ("Little", ("Proximal", "Intermediate", "Distal")),
+    )
     for prev, part in zip((None,) + parts[:-1], parts)
 )
 BONE_NAMES: tuple[str, ...] = tuple(b for b, _, _ in HUMAN_BONES)
 BONE_PARENT: dict[str, str | None] = {b: p for b, p, _ in HUMAN_BONES}
 REQUIRED_BONES: tuple[str, ...] = tuple(b for b, _, r in HUMAN_BONES if r)
 # VRM 0.x names its thumb bones one joint further out
-VRM0_RENAME = {f"{s}Thumb{a}": f"{s}Thumb{b}" for s in ("left", "right")
-               for a, b in (("Proximal", "Metacarpal"), ("Intermediate", "Proximal"))}
+VRM0_RENAME = {
+    f"{s}Thumb{a}": f"{s}Thumb{b}"
+    for s in ("left", "right")
+    for a, b in (("Proximal", "Metacarpal"), ("Intermediate", "Proximal"))
+}
 
 
 def _beat_bones() -> dict[str, str]:
-    m = {"hips": "Hips", "spine": "Spine", "chest": "Spine1", "upperChest": "Spine3", "neck": "Neck",
-         "head": "Head"}
+    m = {"hips": "Hips", "spine": "Spine", "chest": "Spine1", "upperChest": "Spine3", "neck": "Neck", "head": "Head"}
     for side, S in (("left", "Left"), ("right", "Right")):
-        m.update({f"{side}Shoulder": f"{S}Shoulder", f"{side}UpperArm": f"{S}Arm", f"{side}LowerArm": f"{S}ForeArm",
-                  f"{side}Hand": f"{S}Hand", f"{side}UpperLeg": f"{S}UpLeg", f"{side}LowerLeg": f"{S}Leg",
-                  f"{side}Foot": f"{S}Foot", f"{side}Toes": f"{S}ToeBase"})
-        for finger, beat in (("Thumb", "Thumb"), ("Index", "Index"), ("Middle", "Middle"), ("Ring", "Ring"),
-                             ("Little", "Pinky")):
-            parts = ("Metacarpal", "Proximal", "Distal") if finger == "Thumb" else ("Proximal", "Intermediate", "Distal")
+        m.update(
+            {
+                f"{side}Shoulder": f"{S}Shoulder",
+                f"{side}UpperArm": f"{S}Arm",
+                f"{side}LowerArm": f"{S}ForeArm",
+                f"{side}Hand": f"{S}Hand",
+                f"{side}UpperLeg": f"{S}UpLeg",
+                f"{side}LowerLeg": f"{S}Leg",
+                f"{side}Foot": f"{S}Foot",
+                f"{side}Toes": f"{S}ToeBase",
+            }
+        )
+        for finger, beat in (
+            ("Thumb", "Thumb"),
+            ("Index", "Index"),
+            ("Middle", "Middle"),
+            ("Ring", "Ring"),
+            ("Little", "Pinky"),
+        ):
+            parts = (
+                ("Metacarpal", "Proximal", "Distal") if finger == "Thumb" else ("Proximal", "Intermediate", "Distal")
+            )
             for k, part in enumerate(parts, start=1):
                 m[f"{side}{finger}{part}"] = f"{S}Hand{beat}{k}"
     return m
@@ -106,14 +140,35 @@ def _beat_bones() -> dict[str, str]:
 BEAT_BONES: dict[str, str] = _beat_bones()  # VRM bone → BEAT joint (BEAT and Mixamo share these names)
 
 # glTF extensions three.js's GLTFLoader decodes with no extra decoder, plus the VRM family
-SUPPORTED_EXTENSIONS = frozenset({
-    "KHR_materials_unlit", "KHR_texture_transform", "KHR_materials_emissive_strength", "KHR_mesh_quantization",
-    "KHR_materials_clearcoat", "KHR_materials_ior", "KHR_materials_specular", "KHR_materials_transmission",
-    "KHR_materials_volume", "KHR_materials_sheen", "KHR_materials_iridescence", "KHR_materials_anisotropy",
-    "KHR_materials_dispersion", "KHR_lights_punctual", "KHR_materials_pbrSpecularGlossiness", "EXT_texture_webp",
-    "EXT_mesh_gpu_instancing", "VRM", "VRMC_vrm", "VRMC_materials_mtoon", "VRMC_springBone",
-    "VRMC_springBone_extended_collider", "VRMC_node_constraint", "VRMC_materials_hdr_emissiveMultiplier",
-})
+SUPPORTED_EXTENSIONS = frozenset(
+    {
+        "KHR_materials_unlit",
+        "KHR_texture_transform",
+        "KHR_materials_emissive_strength",
+        "KHR_mesh_quantization",
+        "KHR_materials_clearcoat",
+        "KHR_materials_ior",
+        "KHR_materials_specular",
+        "KHR_materials_transmission",
+        "KHR_materials_volume",
+        "KHR_materials_sheen",
+        "KHR_materials_iridescence",
+        "KHR_materials_anisotropy",
+        "KHR_materials_dispersion",
+        "KHR_lights_punctual",
+        "KHR_materials_pbrSpecularGlossiness",
+        "EXT_texture_webp",
+        "EXT_mesh_gpu_instancing",
+        "VRM",
+        "VRMC_vrm",
+        "VRMC_materials_mtoon",
+        "VRMC_springBone",
+        "VRMC_springBone_extended_collider",
+        "VRMC_node_constraint",
+        "VRMC_materials_hdr_emissiveMultiplier",
+    }
+)
+
 
 def _preset_binds() -> dict[str, dict[str, float]]:
     """The VRM presets of the avatar we write, as combinations of its ARKit targets.
@@ -132,25 +187,32 @@ def _preset_binds() -> dict[str, dict[str, float]]:
             b.update({f"mouthStretch{side}": stretch, f"mouthLowerDown{side}": lower, f"mouthUpperUp{side}": upper})
         binds[VRM1_NAMES[v]] = {a: float(w) for a, w in b.items() if w > 0}
     both = lambda stem, w: {f"{stem}Left": w, f"{stem}Right": w}  # noqa: E731
-    binds.update({
-        "happy": {**both("mouthSmile", 0.8), **both("cheekSquint", 0.6), **both("eyeSquint", 0.3)},
-        "relaxed": both("mouthSmile", 0.8),
-        "angry": {**both("browDown", 0.8), **both("noseSneer", 0.4), **both("mouthPress", 0.3)},
-        "sad": {"browInnerUp": 0.8, **both("mouthFrown", 0.7)},
-        "surprised": {**both("eyeWide", 0.8), **both("browOuterUp", 0.8), "browInnerUp": 0.5},
-        "blink": both("eyeBlink", 1.0), "blinkLeft": {"eyeBlinkLeft": 1.0}, "blinkRight": {"eyeBlinkRight": 1.0},
-        # the model's left is +X: looking left turns the left eye out and the right eye in
-        "lookUp": both("eyeLookUp", 1.0), "lookDown": both("eyeLookDown", 1.0),
-        "lookLeft": {"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},
-        "lookRight": {"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},
-        "neutral": {},
-    })
+    binds.update(
+        {
+            "happy": {**both("mouthSmile", 0.8), **both("cheekSquint", 0.6), **both("eyeSquint", 0.3)},
+            "relaxed": both("mouthSmile", 0.8),
+            "angry": {**both("browDown", 0.8), **both("noseSneer", 0.4), **both("mouthPress", 0.3)},
+            "sad": {"browInnerUp": 0.8, **both("mouthFrown", 0.7)},
+            "surprised": {**both("eyeWide", 0.8), **both("browOuterUp", 0.8), "browInnerUp": 0.5},
+            "blink": both("eyeBlink", 1.0),
+            "blinkLeft": {"eyeBlinkLeft": 1.0},
+            "blinkRight": {"eyeBlinkRight": 1.0},
+            # the model's left is +X: looking left turns the left eye out and the right eye in
+            "lookUp": both("eyeLookUp", 1.0),
+            "lookDown": both("eyeLookDown", 1.0),
+            "lookLeft": {"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},
+            "lookRight": {"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},
+            "neutral": {},
+        }
+    )
     return binds
 
 
 PRESET_BINDS: dict[str, dict[str, float]] = _preset_binds()
 # ARKit eye rotation range (degrees) behind eyeLook* = 1; the lookAt range maps use it
 EYE_RANGE_DEG = 30.0
+
+
 # VRM 0.x preset names → 1.0
 def _vrm0_presets() -> dict[str, str]:
     from facecapges.arkit_vrm import VRM1_NAMES
@@ -166,12 +228,20 @@ PERFECT_SYNC_MIN = 26  # a model with at least this many ARKit-named expressions
 def vrm_meta(name: str = "FaceCapGes avatar", version: str = "0.1.0") -> dict:
     """``VRMC_vrm.meta`` of the avatar we build (its licence: VRM Public Licence 1.0, liberal)."""
     return {
-        "name": name, "version": version, "authors": ["FaceCapGes"],
+        "name": name,
+        "version": version,
+        "authors": ["FaceCapGes"],
         "copyrightInformation": "FaceCapGes contributors (MIT licence)",
-        "licenseUrl": LICENSE_URL, "avatarPermission": "everyone", "allowExcessivelyViolentUsage": False,
-        "allowExcessivelySexualUsage": False, "commercialUsage": "corporation",
-        "allowPoliticalOrReligiousUsage": False, "allowAntisocialOrHateUsage": False,
-        "creditNotation": "unnecessary", "allowRedistribution": True, "modification": "allowModificationRedistribution",
+        "licenseUrl": LICENSE_URL,
+        "avatarPermission": "everyone",
+        "allowExcessivelyViolentUsage": False,
+        "allowExcessivelySexualUsage": False,
+        "commercialUsage": "corporation",
+        "allowPoliticalOrReligiousUsage": False,
+        "allowAntisocialOrHateUsage": False,
+        "creditNotation": "unnecessary",
+        "allowRedistribution": True,
+        "modification": "allowModificationRedistribution",
         "thirdPartyLicenses": "Face mesh: MediaPipe canonical face model (Google), Apache License 2.0.",
     }
 
@@ -202,9 +272,15 @@ def avatar_to_vrm(avatar):
     morph = {n: k for k, n in enumerate(face.names)}
 
     def expr(binds: dict[str, float]) -> dict:
-        return {"morphTargetBinds": [{"node": face_node, "index": morph[a], "weight": float(w)}
-                                     for a, w in binds.items() if a in morph],
-                "isBinary": False, "overrideBlink": "none", "overrideLookAt": "none", "overrideMouth": "none"}
+        return {
+            "morphTargetBinds": [
+                {"node": face_node, "index": morph[a], "weight": float(w)} for a, w in binds.items() if a in morph
+            ],
+            "isBinary": False,
+            "overrideBlink": "none",
+            "overrideLookAt": "none",
+            "overrideMouth": "none",
+        }
 
     preset = {p: expr(b) for p, b in PRESET_BINDS.items()}
     for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
@@ -220,12 +296,21 @@ def avatar_to_vrm(avatar):
         "specVersion": SPEC_VERSION,
         "meta": vrm_meta(),
         "humanoid": {"humanBones": {b: {"node": names.index(j)} for b, j in BEAT_BONES.items() if j in names}},
-        "firstPerson": {"meshAnnotations": [{"node": face_node, "type": "thirdPersonOnly"},
-                                            {"node": names.index("Body"), "type": "auto"}]},
+        "firstPerson": {
+            "meshAnnotations": [
+                {"node": face_node, "type": "thirdPersonOnly"},
+                {"node": names.index("Body"), "type": "auto"},
+            ]
+        },
         "expressions": {"preset": preset, "custom": custom},
-        "lookAt": {"type": "expression", "offsetFromHeadBone": [float(x) for x in eyes],
-                   "rangeMapHorizontalInner": dict(rng), "rangeMapHorizontalOuter": dict(rng),
-                   "rangeMapVerticalDown": dict(rng), "rangeMapVerticalUp": dict(rng)},
+        "lookAt": {
+            "type": "expression",
+            "offsetFromHeadBone": [float(x) for x in eyes],
+            "rangeMapHorizontalInner": dict(rng),
+            "rangeMapHorizontalOuter": dict(rng),
+            "rangeMapVerticalDown": dict(rng),
+            "rangeMapVerticalUp": dict(rng),
+        },
     }
     doc.extensionsUsed = ["VRMC_vrm"]
     doc.extensions = {"VRMC_vrm": ext}
@@ -239,12 +324,20 @@ def _turned(avatar):
     from dataclasses import replace
 
     f = np.array([-1.0, 1.0, -1.0])
-    skel = replace(avatar.skeleton, offsets=avatar.skeleton.offsets * f,
-                   end_sites={j: v * f for j, v in avatar.skeleton.end_sites.items()})
+    skel = replace(
+        avatar.skeleton,
+        offsets=avatar.skeleton.offsets * f,
+        end_sites={j: v * f for j, v in avatar.skeleton.end_sites.items()},
+    )
     body = replace(avatar.body, vertices=avatar.body.vertices * f, normals=avatar.body.normals * f)
-    face = replace(avatar.face, vertices=avatar.face.vertices * f, normals=avatar.face.normals * f,
-                   deltas=avatar.face.deltas * f, normal_deltas=avatar.face.normal_deltas * f,
-                   offset=avatar.face.offset * f)
+    face = replace(
+        avatar.face,
+        vertices=avatar.face.vertices * f,
+        normals=avatar.face.normals * f,
+        deltas=avatar.face.deltas * f,
+        normal_deltas=avatar.face.normal_deltas * f,
+        offset=avatar.face.offset * f,
+    )
     return replace(avatar, skeleton=skel, rest=avatar.rest * f, body=body, face=face)
 
 
@@ -266,9 +359,16 @@ def avatar_to_vrm0(avatar):
     face_mesh = doc.nodes[face_node].mesh
 
     def group(name: str, preset: str, expr: dict) -> dict:
-        return {"name": name, "presetName": preset, "isBinary": False, "materialValues": [],
-                "binds": [{"mesh": face_mesh, "index": b["index"], "weight": 100.0 * b["weight"]}
-                          for b in expr["morphTargetBinds"]]}
+        return {
+            "name": name,
+            "presetName": preset,
+            "isBinary": False,
+            "materialValues": [],
+            "binds": [
+                {"mesh": face_mesh, "index": b["index"], "weight": 100.0 * b["weight"]}
+                for b in expr["morphTargetBinds"]
+            ],
+        }
 
     v0_name = {v: k for k, v in VRM1_NAMES.items()}
     groups = [group("Neutral", "neutral", v1["expressions"]["preset"]["neutral"])]
@@ -284,28 +384,65 @@ def avatar_to_vrm0(avatar):
     off = v1["lookAt"]["offsetFromHeadBone"]
     meta = v1["meta"]
     doc.extensionsUsed = ["VRM"]
-    doc.extensions = {"VRM": {
-        "exporterVersion": "facecapges-0.1.0", "specVersion": "0.0",
-        "meta": {"title": meta["name"], "version": meta["version"], "author": meta["authors"][0],
-                 "contactInformation": "", "reference": "", "allowedUserName": "Everyone",
-                 "violentUssageName": "Disallow", "sexualUssageName": "Disallow", "commercialUssageName": "Allow",
-                 "otherPermissionUrl": "", "licenseName": "Other",
-                 "otherLicenseUrl": "https://opensource.org/license/mit"},
-        "humanoid": {"humanBones": [{"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
-                                    for b, d in v1["humanoid"]["humanBones"].items()],
-                     "armStretch": 0.05, "legStretch": 0.05, "upperArmTwist": 0.5, "lowerArmTwist": 0.5,
-                     "upperLegTwist": 0.5, "lowerLegTwist": 0.5, "feetSpacing": 0.0, "hasTranslationDoF": False},
-        "firstPerson": {"firstPersonBone": head, "firstPersonBoneOffset": dict(zip("xyz", off)),
-                        "meshAnnotations": [{"mesh": face_mesh, "firstPersonFlag": "ThirdPersonOnly"}],
-                        "lookAtTypeName": "BlendShape", "lookAtHorizontalInner": dict(look),
-                        "lookAtHorizontalOuter": dict(look), "lookAtVerticalDown": dict(look),
-                        "lookAtVerticalUp": dict(look)},
-        "blendShapeMaster": {"blendShapeGroups": groups},
-        "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
-        "materialProperties": [{"name": m.name, "shader": "VRM_USE_GLTFSHADER", "renderQueue": 2000,
-                                "floatProperties": {}, "vectorProperties": {}, "textureProperties": {},
-                                "keywordMap": {}, "tagMap": {}} for m in doc.materials],
-    }}
+    doc.extensions = {
+        "VRM": {
+            "exporterVersion": "facecapges-0.1.0",
+            "specVersion": "0.0",
+            "meta": {
+                "title": meta["name"],
+                "version": meta["version"],
+                "author": meta["authors"][0],
+                "contactInformation": "",
+                "reference": "",
+                "allowedUserName": "Everyone",
+                "violentUssageName": "Disallow",
+                "sexualUssageName": "Disallow",
+                "commercialUssageName": "Allow",
+                "otherPermissionUrl": "",
+                "licenseName": "Other",
+                "otherLicenseUrl": "https://opensource.org/license/mit",
+            },
+            "humanoid": {
+                "humanBones": [
+                    {"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
+                    for b, d in v1["humanoid"]["humanBones"].items()
+                ],
+                "armStretch": 0.05,
+                "legStretch": 0.05,
+                "upperArmTwist": 0.5,
+                "lowerArmTwist": 0.5,
+                "upperLegTwist": 0.5,
+                "lowerLegTwist": 0.5,
+                "feetSpacing": 0.0,
+                "hasTranslationDoF": False,
+            },
+            "firstPerson": {
+                "firstPersonBone": head,
+                "firstPersonBoneOffset": dict(zip("xyz", off)),
+                "meshAnnotations": [{"mesh": face_mesh, "firstPersonFlag": "ThirdPersonOnly"}],
+                "lookAtTypeName": "BlendShape",
+                "lookAtHorizontalInner": dict(look),
+                "lookAtHorizontalOuter": dict(look),
+                "lookAtVerticalDown": dict(look),
+                "lookAtVerticalUp": dict(look),
+            },
+            "blendShapeMaster": {"blendShapeGroups": groups},
+            "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
+            "materialProperties": [
+                {
+                    "name": m.name,
+                    "shader": "VRM_USE_GLTFSHADER",
+                    "renderQueue": 2000,
+                    "floatProperties": {},
+                    "vectorProperties": {},
+                    "textureProperties": {},
+                    "keywordMap": {},
+                    "tagMap": {},
+                }
+                for m in doc.materials
+            ],
+        }
+    }
     doc.asset.generator = "facecapges avatar (VRM 0.x)"
     return doc
 
@@ -330,7 +467,7 @@ def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
     if jtype != 0x4E4F534A or 20 + jlen > len(data):
         raise UserError(f"{name}: broken binary glTF (no JSON chunk)")
     try:
-        doc = json.loads(data[20:20 + jlen].decode("utf-8"))
+        doc = json.loads(data[20 : 20 + jlen].decode("utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise UserError(f"{name}: broken binary glTF JSON ({exc})") from None
     if not isinstance(doc, dict):
@@ -340,7 +477,7 @@ def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
     if off + 8 <= len(data):
         blen, btype = struct.unpack_from("<II", data, off)
         if btype == 0x004E4942:
-            binary = data[off + 8:off + 8 + blen]
+            binary = data[off + 8 : off + 8 + blen]
     return doc, binary
 
 
@@ -359,9 +496,13 @@ def _quat_matrix(q) -> np.ndarray:
     x, y, z, w = (float(v) for v in q)
     n = np.sqrt(x * x + y * y + z * z + w * w) or 1.0
     x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
 
 
 def node_world_matrices(doc: dict) -> np.ndarray:
@@ -399,7 +540,7 @@ def _normalize_name(name: str) -> str:
     n = name
     for pre in ("mixamorig:", "mixamorig_", "mixamorig"):
         if n.lower().startswith(pre):
-            n = n[len(pre):]
+            n = n[len(pre) :]
     return n
 
 
@@ -437,9 +578,11 @@ class VrmModel:
 def _check_extensions(doc: dict, name: str) -> None:
     required = [e for e in doc.get("extensionsRequired") or [] if e not in SUPPORTED_EXTENSIONS]
     if required:
-        raise UserError(f"{name}: uses the glTF extension(s) {required}, which the avatar viewer cannot decode "
-                        f"(supported: plain glTF 2.0, VRM 0.x/1.0, MToon, KHR_materials_unlit, "
-                        f"KHR_texture_transform …); export the model without them")
+        raise UserError(
+            f"{name}: uses the glTF extension(s) {required}, which the avatar viewer cannot decode "
+            f"(supported: plain glTF 2.0, VRM 0.x/1.0, MToon, KHR_materials_unlit, "
+            f"KHR_texture_transform …); export the model without them"
+        )
 
 
 def _morph_names(doc: dict) -> list[str]:
@@ -465,7 +608,8 @@ def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
             a = arkit_index(str(t))
             if a is not None:
                 custom.setdefault(PERFECT_SYNC_NAMES[a], {"morphTargetBinds": []})["morphTargetBinds"].append(
-                    {"node": ni, "index": k, "weight": 1.0})
+                    {"node": ni, "index": k, "weight": 1.0}
+                )
     doc.setdefault("extensionsUsed", []).append("VRMC_vrm")
     doc.setdefault("extensions", {})["VRMC_vrm"] = {
         "specVersion": SPEC_VERSION,
@@ -533,10 +677,16 @@ def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
     world = node_world_matrices(doc)
     flip = np.array([-1.0, 1.0, -1.0]) if kind == "vrm0" else np.ones(3)
     rest = {b: world[n, :3, 3] * flip for b, n in bones.items()}
-    info = {"nodes": len(nodes), "bones": len(bones), "expressions": len(expressions),
-            "morph_targets": len(_morph_names(doc)), "bytes": len(data)}
-    return VrmModel(name=name, kind=kind, data=data, bones=bones, rest=rest, expressions=expressions, title=title,
-                    info=info)
+    info = {
+        "nodes": len(nodes),
+        "bones": len(bones),
+        "expressions": len(expressions),
+        "morph_targets": len(_morph_names(doc)),
+        "bytes": len(data),
+    }
+    return VrmModel(
+        name=name, kind=kind, data=data, bones=bones, rest=rest, expressions=expressions, title=title, info=info
+    )
 
 
 # ===================================================================== faces

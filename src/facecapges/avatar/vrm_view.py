@@ -67,8 +67,12 @@ class VrmDriver:
 
     @property
     def layout(self) -> dict:
-        return {"bones": list(self.retarget.bones), "expressions": list(self.faces.names),
-                "perfect_sync": self.faces.perfect_sync, "kind": self.model.kind}
+        return {
+            "bones": list(self.retarget.bones),
+            "expressions": list(self.faces.names),
+            "perfect_sync": self.faces.perfect_sync,
+            "kind": self.model.kind,
+        }
 
     def frames(self, local_mats: np.ndarray, arkit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(T, J, 3, 3) BEAT local rotations, (T, 52) weights → (T, B, 4) quats, (T, E) weights."""
@@ -77,15 +81,25 @@ class VrmDriver:
     def routes(self) -> dict[str, object]:
         from facecapges.avatar.render.browser import three_dir, web_dir
 
-        return {"/web/": web_dir(), "/three/": three_dir(), "/pixiv/": pixiv_dir(), "/avatar.vrm": self.model.data,
-                "/motion/layout.json": json.dumps(self.layout).encode("utf-8")}
+        return {
+            "/web/": web_dir(),
+            "/three/": three_dir(),
+            "/pixiv/": pixiv_dir(),
+            "/avatar.vrm": self.model.data,
+            "/motion/layout.json": json.dumps(self.layout).encode("utf-8"),
+        }
 
     def describe(self) -> str:
         m = self.model
-        face = (f"perfect sync ({len(self.faces.names)} ARKit expressions)" if self.faces.perfect_sync
-                else f"{len(self.faces.names)} VRM presets from ARKit")
-        return (f"{m.title!r} ({'VRM 0.x' if m.kind == 'vrm0' else 'VRM 1.0' if m.kind == 'vrm1' else 'humanoid GLB'}"
-                f"): {len(self.retarget.bones)} humanoid bones driven, face: {face}")
+        face = (
+            f"perfect sync ({len(self.faces.names)} ARKit expressions)"
+            if self.faces.perfect_sync
+            else f"{len(self.faces.names)} VRM presets from ARKit"
+        )
+        return (
+            f"{m.title!r} ({'VRM 0.x' if m.kind == 'vrm0' else 'VRM 1.0' if m.kind == 'vrm1' else 'humanoid GLB'}"
+            f"): {len(self.retarget.bones)} humanoid bones driven, face: {face}"
+        )
 
 
 def bvh_local_matrices(skel, motion: np.ndarray) -> np.ndarray:
@@ -116,12 +130,31 @@ def face_weights(face: Path | None, fps: float, T: int):
     return weights
 
 
-def render_vrm_video(driver: VrmDriver, local_mats: np.ndarray, arkit: np.ndarray, fps: float, out: str | Path,
-                     audio: str | Path | None = None, width: int = 640, height: int = 480,
-                     progress: bool = True) -> dict:
+def render_vrm_video(
+    driver: VrmDriver,
+    local_mats: np.ndarray,
+    arkit: np.ndarray,
+    fps: float,
+    out: str | Path,
+    audio: str | Path | None = None,
+    width: int = 640,
+    height: int = 480,
+    progress: bool = True,
+) -> dict:
     """Render the VRM driven by BEAT local rotations (T, J, 3, 3) and ARKit weights (T, 52) to an MP4."""
     from facecapges.avatar.render.video import render_video
 
     quats, weights = driver.frames(local_mats, arkit)
-    return render_video(driver.model.data, quats, weights, fps, out, audio=audio, width=width, height=height,
-                        progress=progress, page=PAGE, routes=driver.routes())
+    return render_video(
+        driver.model.data,
+        quats,
+        weights,
+        fps,
+        out,
+        audio=audio,
+        width=width,
+        height=height,
+        progress=progress,
+        page=PAGE,
+        routes=driver.routes(),
+    )

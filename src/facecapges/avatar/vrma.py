@@ -53,12 +53,12 @@ def beat_model(skel) -> VrmModel:
 
     P = rest_positions(skel) * 0.01
     bones = {b: skel.names.index(j) for b, j in BEAT_BONES.items() if j in skel.names}
-    return VrmModel(name="BEAT", kind="vrm1", data=b"", bones=bones, rest={b: P[n] for b, n in bones.items()},
-                    expressions=[])
+    return VrmModel(
+        name="BEAT", kind="vrm1", data=b"", bones=bones, rest={b: P[n] for b, n in bones.items()}, expressions=[]
+    )
 
 
-def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray | None = None,
-                   face: str = "presets"):
+def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray | None = None, face: str = "presets"):
     """The ``.vrma`` glTF document (pygltflib) of BEAT local rotations (T, J, 3, 3) (+ (T, 52) ARKit)."""
     import pygltflib as g
 
@@ -114,8 +114,11 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     for i, b in enumerate(rt.bones):
         out = add(q[:, i][:, [1, 2, 3, 0]], g.VEC4)
         samplers.append(g.AnimationSampler(input=times, output=out, interpolation="LINEAR"))
-        channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
-                                           target=g.AnimationChannelTarget(node=index[b], path="rotation")))
+        channels.append(
+            g.AnimationChannel(
+                sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=index[b], path="rotation")
+            )
+        )
     expressions: dict = {}
     scene_nodes = [0]
     if arkit is not None:
@@ -137,23 +140,34 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
             xyz = np.zeros((T, 3), np.float32)
             xyz[:, 0] = track
             samplers.append(g.AnimationSampler(input=times, output=add(xyz, g.VEC3), interpolation="LINEAR"))
-            channels.append(g.AnimationChannel(sampler=len(samplers) - 1,
-                                               target=g.AnimationChannelTarget(node=n, path="translation")))
+            channels.append(
+                g.AnimationChannel(
+                    sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=n, path="translation")
+                )
+            )
             expressions[group][name] = {"node": n}
     ext = {"specVersion": SPEC_VERSION, "humanoid": {"humanBones": {b: {"node": index[b]} for b in rt.bones}}}
     if expressions:
         ext["expressions"] = expressions
-    doc = g.GLTF2(asset=g.Asset(version="2.0", generator="facecapges (VRM Animation)"), scene=0,
-                  scenes=[g.Scene(nodes=scene_nodes)], nodes=nodes,
-                  animations=[g.Animation(name="gestures", samplers=samplers, channels=channels)],
-                  accessors=accs, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))],
-                  extensionsUsed=["VRMC_vrm_animation"], extensions={"VRMC_vrm_animation": ext})
+    doc = g.GLTF2(
+        asset=g.Asset(version="2.0", generator="facecapges (VRM Animation)"),
+        scene=0,
+        scenes=[g.Scene(nodes=scene_nodes)],
+        nodes=nodes,
+        animations=[g.Animation(name="gestures", samplers=samplers, channels=channels)],
+        accessors=accs,
+        bufferViews=views,
+        buffers=[g.Buffer(byteLength=len(blob))],
+        extensionsUsed=["VRMC_vrm_animation"],
+        extensions={"VRMC_vrm_animation": ext},
+    )
     doc.set_binary_blob(bytes(blob))
     return doc
 
 
-def write_vrma(path: str | Path, skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray | None = None,
-               face: str = "presets") -> Path:
+def write_vrma(
+    path: str | Path, skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray | None = None, face: str = "presets"
+) -> Path:
     """Write BEAT motion (+ face) to ``path`` as a ``.vrma``."""
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -161,8 +175,9 @@ def write_vrma(path: str | Path, skel, local_mats: np.ndarray, fps: float, arkit
     return p
 
 
-def write_bvh_as_vrma(bvh: str | Path, out: str | Path, face_json: str | Path | None = None,
-                      face: str = "presets") -> Path:
+def write_bvh_as_vrma(
+    bvh: str | Path, out: str | Path, face_json: str | Path | None = None, face: str = "presets"
+) -> Path:
     """A BEAT BVH (+ face JSON, resampled to the BVH's rate) → ``.vrma``."""
     from facecapges.avatar.vrm_view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
@@ -177,9 +192,9 @@ def write_bvh_as_vrma(bvh: str | Path, out: str | Path, face_json: str | Path | 
     return write_vrma(out, motion.skeleton, L, motion.fps, arkit, face)
 
 
-
-def write_pose_vrma(path: str | Path, skel, pose: np.ndarray, fps: float, arkit: np.ndarray | None = None,
-                    face: str = "presets") -> Path:
+def write_pose_vrma(
+    path: str | Path, skel, pose: np.ndarray, fps: float, arkit: np.ndarray | None = None, face: str = "presets"
+) -> Path:
     """Upper-body poses (T, 47, 6) rot6d (other joints at rest) (+ (T, 52) ARKit) → ``.vrma``."""
     from facecapges.rotations import rot6d_to_matrix
     from facecapges.skeleton import upper_body_indices

@@ -65,10 +65,14 @@ def run(quick: bool, shared: Path) -> dict:
     out["estimator_target_ms"] = 0.5
     out["per_face_total_ms"] = round(1000 * (t_pose + t_metrics + t_est), 3)
 
-    maes = [synthetic_mae(s, run_geometric(s, pe), 30)
-            for s in [synthetic_sequence(mesh.vertices, 300 if quick else 450, seed=k) for k in range(1 if quick else 4)]]
+    maes = [
+        synthetic_mae(s, run_geometric(s, pe), 30)
+        for s in [synthetic_sequence(mesh.vertices, 300 if quick else 450, seed=k) for k in range(1 if quick else 4)]
+    ]
     out["synthetic_mae_mean"] = round(float(np.mean([m["mean"] for m in maes])), 4)
-    out["synthetic_mae_per_channel"] = {k: round(float(np.mean([m[k] for m in maes])), 4) for k in maes[0] if k != "mean"}
+    out["synthetic_mae_per_channel"] = {
+        k: round(float(np.mean([m[k] for m in maes])), 4) for k in maes[0] if k != "mean"
+    }
     out["synthetic_mae_target"] = 0.1
 
     # ---- real video

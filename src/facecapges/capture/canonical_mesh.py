@@ -84,12 +84,12 @@ def _fields(buf: bytes) -> list[tuple[int, int, int | bytes]]:
         if wire == 0:
             value, pos = _varint(buf, pos)
         elif wire == 1:
-            value, pos = buf[pos:pos + 8], pos + 8
+            value, pos = buf[pos : pos + 8], pos + 8
         elif wire == 2:
             n, pos = _varint(buf, pos)
-            value, pos = buf[pos:pos + n], pos + n
+            value, pos = buf[pos : pos + n], pos + n
         elif wire == 5:
-            value, pos = buf[pos:pos + 4], pos + 4
+            value, pos = buf[pos : pos + 4], pos + 4
         else:
             raise ValueError(f"unsupported wire type {wire}")
         if pos > len(buf):
@@ -138,7 +138,9 @@ def parse_geometry_metadata(data: bytes) -> CanonicalMesh:
     tris = np.asarray(ibuf, np.int64).reshape(-1, 3)
     if tris.size and tris.max() >= len(v):
         raise ValueError("triangle index out of range")
-    return CanonicalMesh(v[:, :3].copy(), v[:, 3:].copy(), tris, np.asarray(ids, np.int64), np.asarray(weights, np.float64))
+    return CanonicalMesh(
+        v[:, :3].copy(), v[:, 3:].copy(), tris, np.asarray(ids, np.int64), np.asarray(weights, np.float64)
+    )
 
 
 @lru_cache(maxsize=4)

@@ -125,8 +125,15 @@ def _svd_step(C1n: np.ndarray, C2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return R, t
 
 
-def icp(C1: np.ndarray, C2: np.ndarray, iters: int = 50, tol: float = 1e-6, max_dist: float | None = None,
-        R0: np.ndarray | None = None, t0: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, float]:
+def icp(
+    C1: np.ndarray,
+    C2: np.ndarray,
+    iters: int = 50,
+    tol: float = 1e-6,
+    max_dist: float | None = None,
+    R0: np.ndarray | None = None,
+    t0: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Rigid ICP (paper Algorithm 1): ``R, t`` such that ``C2 @ R.T + t`` lies on ``C1``; also the final RMS (m)."""
     from scipy.spatial import cKDTree
 
@@ -172,7 +179,7 @@ class DepthHeadTracker:
         if box is not None:
             x0, y0, x1, y1 = box
             m2 = np.zeros_like(mask)
-            m2[max(0, y0):y1, max(0, x0):x1] = True
+            m2[max(0, y0) : y1, max(0, x0) : x1] = True
             mask &= m2
         return depth_to_points(depth_mm, self.K, mask)
 
@@ -196,8 +203,14 @@ class DepthHeadTracker:
         return self.pose
 
 
-def render_depth(vertices_m: np.ndarray, triangles: np.ndarray, K: Intrinsics, width: int, height: int,
-                 background_mm: float | None = None) -> np.ndarray:
+def render_depth(
+    vertices_m: np.ndarray,
+    triangles: np.ndarray,
+    K: Intrinsics,
+    width: int,
+    height: int,
+    background_mm: float | None = None,
+) -> np.ndarray:
     """Z-buffered depth (H, W) in millimetres of a mesh in the OpenGL camera frame (metres, in front: z < 0).
 
     Pixels the mesh does not cover are ``background_mm`` (a wall) or 0 (no reading).
@@ -226,7 +239,7 @@ def render_depth(vertices_m: np.ndarray, triangles: np.ndarray, K: Intrinsics, w
         # perspective-correct depth: interpolate 1/z
         inv = l0 / z[a] + l1 / z[b] + l2 / z[c]
         zz = np.where(inside, 1.0 / np.where(inside, inv, 1.0), np.inf)
-        sub = depth[y0:y1 + 1, x0:x1 + 1]
+        sub = depth[y0 : y1 + 1, x0 : x1 + 1]
         np.minimum(sub, zz, out=sub)
     out = depth * 1000.0
     out[~np.isfinite(out)] = 0.0 if background_mm is None else background_mm

@@ -98,10 +98,28 @@ BLINK_GAMMA = 1.5
 
 #: ARKit channels the geometric estimator writes (the rest are 0 or MediaPipe's)
 GEOMETRIC_CHANNELS: tuple[str, ...] = (
-    "jawOpen", "mouthPucker", "mouthFunnel", "mouthSmileLeft", "mouthSmileRight",
-    "mouthFrownLeft", "mouthFrownRight", "mouthStretchLeft", "mouthStretchRight", "jawLeft", "jawRight",
-    "browOuterUpLeft", "browOuterUpRight", "browDownLeft", "browDownRight", "browInnerUp",
-    "eyeBlinkLeft", "eyeBlinkRight", "eyeWideLeft", "eyeWideRight", "noseSneerLeft", "noseSneerRight",
+    "jawOpen",
+    "mouthPucker",
+    "mouthFunnel",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "mouthFrownLeft",
+    "mouthFrownRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "jawLeft",
+    "jawRight",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+    "eyeBlinkLeft",
+    "eyeBlinkRight",
+    "eyeWideLeft",
+    "eyeWideRight",
+    "noseSneerLeft",
+    "noseSneerRight",
 )
 GEOMETRIC_MASK = np.zeros(N_BLENDSHAPES, bool)
 GEOMETRIC_MASK[[_A[n] for n in GEOMETRIC_CHANNELS]] = True
@@ -117,7 +135,7 @@ def units_to_arkit(a: np.ndarray) -> np.ndarray:
     neg = np.clip(-a, 0.0, 1.0)
     out = np.zeros(a.shape[:-1] + (N_BLENDSHAPES,))
     jaw = pos[..., _U["lip_gap"]]
-    out[..., _A["jawOpen"]] = jaw ** JAW_GAMMA
+    out[..., _A["jawOpen"]] = jaw**JAW_GAMMA
     narrow = neg[..., _U["mouth_width"]]
     wide = pos[..., _U["mouth_width"]]
     out[..., _A["mouthPucker"]] = narrow * (1.0 - jaw)

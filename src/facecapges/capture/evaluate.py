@@ -68,9 +68,17 @@ def run_tracks(video: str | Path, model=None, max_frames: int | None = None, pro
         cap.close()
         src.close()
     n = max(len(t_ms), 1)
-    return {"fps": src.fps, "time_ms": np.array(t_ms), "geometric": np.array(geo), "mediapipe": np.array(mp),
-            "found": np.array(found, bool), "R_geo": np.array(R_geo), "R_mp": np.array(R_mp),
-            "landmarks_ms": 1000 * t_land / n, "per_face_ms": 1000 * t_rest / n}
+    return {
+        "fps": src.fps,
+        "time_ms": np.array(t_ms),
+        "geometric": np.array(geo),
+        "mediapipe": np.array(mp),
+        "found": np.array(found, bool),
+        "R_geo": np.array(R_geo),
+        "R_mp": np.array(R_mp),
+        "landmarks_ms": 1000 * t_land / n,
+        "per_face_ms": 1000 * t_rest / n,
+    }
 
 
 def evaluate_tracks(tr: dict, skip_s: float = 2.0) -> dict:
@@ -85,11 +93,23 @@ def evaluate_tracks(tr: dict, skip_s: float = 2.0) -> dict:
     ang = np.degrees(geodesic_angle(tr["R_geo"][found], tr["R_mp"][found])) if found.any() else np.array([np.nan])
     head = {"median_deg": float(np.median(ang)), "p90_deg": float(np.percentile(ang, 90))}
     targets = {n: {"r": channels[n]["r"], "target": t, "met": bool(channels[n]["r"] >= t)} for n, t in TARGETS.items()}
-    targets["head_pose_median_deg"] = {"value": head["median_deg"], "target": HEAD_TARGET_DEG,
-                                       "met": bool(head["median_deg"] <= HEAD_TARGET_DEG)}
-    return {"frames": int(len(found)), "frames_with_face": int(found.sum()), "frames_evaluated": int(sel.sum()),
-            "skip_s": skip_s, "fps": float(tr["fps"]), "channels": channels, "head_pose": head, "targets": targets,
-            "landmarks_ms_per_frame": tr["landmarks_ms"], "per_face_ms_per_frame": tr["per_face_ms"]}
+    targets["head_pose_median_deg"] = {
+        "value": head["median_deg"],
+        "target": HEAD_TARGET_DEG,
+        "met": bool(head["median_deg"] <= HEAD_TARGET_DEG),
+    }
+    return {
+        "frames": int(len(found)),
+        "frames_with_face": int(found.sum()),
+        "frames_evaluated": int(sel.sum()),
+        "skip_s": skip_s,
+        "fps": float(tr["fps"]),
+        "channels": channels,
+        "head_pose": head,
+        "targets": targets,
+        "landmarks_ms_per_frame": tr["landmarks_ms"],
+        "per_face_ms_per_frame": tr["per_face_ms"],
+    }
 
 
 def plot_tracks(tr: dict, path: str | Path, skip_s: float = 2.0) -> None:

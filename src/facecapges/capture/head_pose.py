@@ -61,8 +61,9 @@ from facecapges.rotations import exp_so3, log_so3
 DEFAULT_VFOV_DEG = 63.0  # MediaPipe's geometry pipeline default
 
 
-def procrustes(src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None,
-               with_scale: bool = True) -> tuple[float, np.ndarray, np.ndarray]:
+def procrustes(
+    src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None, with_scale: bool = True
+) -> tuple[float, np.ndarray, np.ndarray]:
     """Weighted similarity alignment ``dst ≈ s · R @ src + t`` (Umeyama 1991).
 
     Args:
@@ -114,8 +115,15 @@ class Intrinsics:
         return cls(f, f, width / 2.0, height / 2.0)
 
 
-def landmarks_to_camera(landmarks: np.ndarray, width: int, height: int, canonical: np.ndarray,
-                        weights: np.ndarray, ids: np.ndarray, K: Intrinsics | None = None) -> np.ndarray:
+def landmarks_to_camera(
+    landmarks: np.ndarray,
+    width: int,
+    height: int,
+    canonical: np.ndarray,
+    weights: np.ndarray,
+    ids: np.ndarray,
+    K: Intrinsics | None = None,
+) -> np.ndarray:
     """Normalised MediaPipe landmarks (N ≥ 468, 3) → camera-frame points (468, 3) in cm.
 
     See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis.
@@ -186,7 +194,9 @@ class HeadPoseEstimator:
         self.ids = np.asarray(basis_ids)
         self.weights = np.asarray(basis_weights, np.float64)
 
-    def estimate(self, landmarks: np.ndarray, width: int, height: int, K: Intrinsics | None = None) -> tuple[HeadPose, np.ndarray]:
+    def estimate(
+        self, landmarks: np.ndarray, width: int, height: int, K: Intrinsics | None = None
+    ) -> tuple[HeadPose, np.ndarray]:
         """Pose and the camera-frame points (468, 3) cm of one face."""
         pts = landmarks_to_camera(landmarks, width, height, self.canonical, self.weights, self.ids, K)
         s, R, t = procrustes(self.canonical[self.ids], pts[self.ids], self.weights)

@@ -58,9 +58,18 @@ NOSTRIL_L, NOSTRIL_R = 294, 64
 
 #: metric names, the order of :func:`compute_metrics`'s output
 METRIC_NAMES: tuple[str, ...] = (
-    "lip_gap", "mouth_width", "lip_offset",
-    "brow_height_L", "brow_height_R", "eyelid_L", "eyelid_R", "nose_L", "nose_R",
-    "brow_inner", "mouth_corner_L", "mouth_corner_R",
+    "lip_gap",
+    "mouth_width",
+    "lip_offset",
+    "brow_height_L",
+    "brow_height_R",
+    "eyelid_L",
+    "eyelid_R",
+    "nose_L",
+    "nose_R",
+    "brow_inner",
+    "mouth_corner_L",
+    "mouth_corner_R",
 )
 
 
@@ -83,18 +92,21 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     eyes_L = y[..., [INNER_EYE_L, OUTER_EYE_L]].mean(axis=-1)
     eyes_R = y[..., [INNER_EYE_R, OUTER_EYE_R]].mean(axis=-1)
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
-    g = np.stack([
-        _pairs_height(P, LIP_PAIRS),
-        np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1),
-        P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
-        y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
-        y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
-        _pairs_height(P, EYELID_PAIRS_L),
-        _pairs_height(P, EYELID_PAIRS_R),
-        y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
-        y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
-        y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
-        y[..., MOUTH_CORNER_L] - lip_mid,
-        y[..., MOUTH_CORNER_R] - lip_mid,
-    ], axis=-1)
+    g = np.stack(
+        [
+            _pairs_height(P, LIP_PAIRS),
+            np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1),
+            P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
+            y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
+            y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
+            _pairs_height(P, EYELID_PAIRS_L),
+            _pairs_height(P, EYELID_PAIRS_R),
+            y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
+            y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
+            y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
+            y[..., MOUTH_CORNER_L] - lip_mid,
+            y[..., MOUTH_CORNER_R] - lip_mid,
+        ],
+        axis=-1,
+    )
     return g / w[..., None]

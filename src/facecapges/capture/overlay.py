@@ -13,8 +13,18 @@ import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
 
-BAR_CHANNELS = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "mouthSmileLeft", "mouthSmileRight",
-                "browInnerUp", "browDownLeft", "mouthPucker", "eyeWideLeft", "noseSneerLeft")
+BAR_CHANNELS = (
+    "jawOpen",
+    "eyeBlinkLeft",
+    "eyeBlinkRight",
+    "mouthSmileLeft",
+    "mouthSmileRight",
+    "browInnerUp",
+    "browDownLeft",
+    "mouthPucker",
+    "eyeWideLeft",
+    "noseSneerLeft",
+)
 NOSE_TIP = 1
 
 
@@ -37,8 +47,16 @@ def draw_overlay(frame_bgr: np.ndarray, result, fps_text: str = "") -> np.ndarra
             cv2.line(img, tuple(o.astype(int)), tuple(end.astype(int)), col, 2, cv2.LINE_AA)
     status = "face" if result.face_found else "LOST (hold/ease)"
     yaw, pitch, roll = np.degrees(result.head_angles)
-    cv2.putText(img, f"{status} yaw {yaw:+.0f} pitch {pitch:+.0f} roll {roll:+.0f} {fps_text}", (8, 18),
-                cv2.FONT_HERSHEY_SIMPLEX, 0.45, (255, 255, 255), 1, cv2.LINE_AA)
+    cv2.putText(
+        img,
+        f"{status} yaw {yaw:+.0f} pitch {pitch:+.0f} roll {roll:+.0f} {fps_text}",
+        (8, 18),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.45,
+        (255, 255, 255),
+        1,
+        cv2.LINE_AA,
+    )
     x0, y0, bw = 8, 30, 90
     for k, name in enumerate(BAR_CHANNELS):
         v = float(result.weights52[ARKIT_NAMES.index(name)])

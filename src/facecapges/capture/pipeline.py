@@ -40,7 +40,6 @@ if TYPE_CHECKING:
     from facecapges.capture.depth import DepthHeadTracker
 
 
-
 @dataclass
 class CaptureResult:
     """One face in one frame. Conventions: :mod:`head_pose` (R head→camera, OpenGL camera)."""
@@ -80,9 +79,18 @@ class FaceCapture:
         hold_ms, ease_ms, forget_ms: face-lost behaviour.
     """
 
-    def __init__(self, estimator: str = "hybrid", fps: float = 15.0, model=None, num_faces: int = 1,
-                 intrinsics: Intrinsics | None = None, hold_ms: float = 500.0, ease_ms: float = 1000.0,
-                 forget_ms: float = 3000.0, smoothing_window: int | None = None):
+    def __init__(
+        self,
+        estimator: str = "hybrid",
+        fps: float = 15.0,
+        model=None,
+        num_faces: int = 1,
+        intrinsics: Intrinsics | None = None,
+        hold_ms: float = 500.0,
+        ease_ms: float = 1000.0,
+        forget_ms: float = 3000.0,
+        smoothing_window: int | None = None,
+    ):
         ExpressionEstimator(estimator)  # validates the mode before loading anything
         self.mode = estimator
         self.fps = float(fps)
@@ -102,8 +110,9 @@ class FaceCapture:
         self.depth_tracker: DepthHeadTracker | None = None  # set by the caller for RGB-D input (depth.DepthHeadTracker)
 
     # ------------------------------------------------------------------ per face
-    def _found(self, st: _FaceState, obs: FaceObservation, w: int, h: int, ts: float,
-               depth_pose: HeadPose | None) -> CaptureResult:
+    def _found(
+        self, st: _FaceState, obs: FaceObservation, w: int, h: int, ts: float, depth_pose: HeadPose | None
+    ) -> CaptureResult:
         pose, pts = self.pose_estimator.estimate(obs.landmarks, w, h, self.intrinsics)
         P = self.pose_estimator.to_head_frame(pts, pose)
         g = compute_metrics(P)
@@ -112,9 +121,20 @@ class FaceCapture:
         st.estimator.update(g, omega)
         weights = st.estimator.weights(obs.blendshapes)
         R = out_pose.R
-        return CaptureResult(weights, rot.matrix_to_rot6d(R).astype(np.float32), head_angles(R).astype(np.float32),
-                             out_pose.distance_m, True, obs.landmarks, obs.face_id, ts, obs.blendshapes,
-                             obs.transform, R, omega)
+        return CaptureResult(
+            weights,
+            rot.matrix_to_rot6d(R).astype(np.float32),
+            head_angles(R).astype(np.float32),
+            out_pose.distance_m,
+            True,
+            obs.landmarks,
+            obs.face_id,
+            ts,
+            obs.blendshapes,
+            obs.transform,
+            R,
+            omega,
+        )
 
     def _lost(self, st: _FaceState, ts: float) -> CaptureResult:
         last = st.last
@@ -126,16 +146,38 @@ class FaceCapture:
         k = self.policy.held((ts - st.lost_since) / 1000.0)  # 1 = hold, 0 = neutral
         weights = (last.weights52 * k).astype(np.float32)
         R = scale_rotation(last.head_R, k)
-        return CaptureResult(weights, rot.matrix_to_rot6d(R).astype(np.float32), head_angles(R).astype(np.float32),
-                             last.distance_m, False, None, st.face_id, ts, None, None, R, 0.0)
+        return CaptureResult(
+            weights,
+            rot.matrix_to_rot6d(R).astype(np.float32),
+            head_angles(R).astype(np.float32),
+            last.distance_m,
+            False,
+            None,
+            st.face_id,
+            ts,
+            None,
+            None,
+            R,
+            0.0,
+        )
 
     def neutral(self, ts: float = 0.0, face_id: int = -1) -> CaptureResult:
         """Weights 0, head facing the camera, flagged not found."""
-        return CaptureResult(np.zeros(N_BLENDSHAPES, np.float32), rot.identity_rot6d().astype(np.float32), np.zeros(3, np.float32),
-                             float("nan"), False, None, face_id, ts)
+        return CaptureResult(
+            np.zeros(N_BLENDSHAPES, np.float32),
+            rot.identity_rot6d().astype(np.float32),
+            np.zeros(3, np.float32),
+            float("nan"),
+            False,
+            None,
+            face_id,
+            ts,
+        )
 
     # ------------------------------------------------------------------ frames
-    def process_all(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None) -> list[CaptureResult]:
+    def process_all(
+        self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None
+    ) -> list[CaptureResult]:
         """Every tracked face (found, or lost and still held/easing) in this frame."""
         h, w = frame_bgr.shape[:2]
         faces = self.tracker.update(self.detector.detect(frame_bgr, int(timestamp_ms)), timestamp_ms)
@@ -190,8 +232,9 @@ class FaceCapture:
                 return r
         return self.neutral(timestamp_ms)
 
-    def process_slots(self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None
-                      ) -> list[CaptureResult | None]:
+    def process_slots(
+        self, frame_bgr: np.ndarray, timestamp_ms: float, depth_mm: np.ndarray | None = None
+    ) -> list[CaptureResult | None]:
         """One result per face slot (``num_faces`` of them; None: no face in that slot yet).
 
         Several people (seed 2 §5.1): slot ``i`` drives avatar ``i``. Faces are given

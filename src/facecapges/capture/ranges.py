@@ -40,8 +40,9 @@ import numpy as np
 L_PCT, K_PCT, M_PCT = 10.0, 5.0, 20.0
 
 
-def scan_end(values: np.ndarray, weights: np.ndarray, l_pct: float = L_PCT, k_pct: float = K_PCT,
-             m_pct: float = M_PCT) -> float:
+def scan_end(
+    values: np.ndarray, weights: np.ndarray, l_pct: float = L_PCT, k_pct: float = K_PCT, m_pct: float = M_PCT
+) -> float:
     """Node at the *low* end of sorted ``values`` by the paper's inward scan (pass reversed arrays for the high end)."""
     n = len(values)
     if n == 0:
@@ -67,8 +68,8 @@ def scan_end(values: np.ndarray, weights: np.ndarray, l_pct: float = L_PCT, k_pc
             count = 0.0
     if stop < start:
         return float(values[start])
-    w = weights[start:stop + 1]
-    return float((values[start:stop + 1] * w).sum() / w.sum())
+    w = weights[start : stop + 1]
+    return float((values[start : stop + 1] * w).sum() / w.sum())
 
 
 def one_directional_range(values: np.ndarray, weights: np.ndarray, **kw) -> tuple[float, float]:

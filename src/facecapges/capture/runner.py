@@ -43,10 +43,21 @@ def result_record(res, time_s: float) -> dict:
     }
 
 
-def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: float = 15.0,
-                  overlay: str | Path | None = None, depth_dir=None, intrinsics=None, model=None,
-                  force: bool = False, max_frames: int | None = None, progress: bool = True, faces: int = 1,
-                  face_layout: str = "beat") -> dict:
+def capture_video(
+    source: str,
+    out: str | Path,
+    estimator: str = "hybrid",
+    fps: float = 15.0,
+    overlay: str | Path | None = None,
+    depth_dir=None,
+    intrinsics=None,
+    model=None,
+    force: bool = False,
+    max_frames: int | None = None,
+    progress: bool = True,
+    faces: int = 1,
+    face_layout: str = "beat",
+) -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON; one per face, module docstring);
     returns a summary dict."""
     from facecapges.capture.video import open_source
@@ -139,22 +150,39 @@ def capture_video(source: str, out: str | Path, estimator: str = "hybrid", fps: 
     from facecapges.io.face_json import write_face_json
 
     for p, rec in zip(outs, records):
-        write_face_json(p, np.stack([r["weights"] for r in rec]), fps, np.stack([r["head_rot6d"] for r in rec]),
-                        layout=face_layout, extras={k: [r[k] for r in rec] for k in ("face_found", "distance_m")})
+        write_face_json(
+            p,
+            np.stack([r["weights"] for r in rec]),
+            fps,
+            np.stack([r["head_rot6d"] for r in rec]),
+            layout=face_layout,
+            extras={k: [r[k] for r in rec] for k in ("face_found", "distance_m")},
+        )
     warnings = []
     if src.bad_frames:
-        warnings.append(f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "
-                        "good frame was held over them, so timing stays right")
+        warnings.append(
+            f"{src.bad_frames} frame(s) of the video could not be decoded (damaged stretch); the last "
+            "good frame was held over them, so timing stays right"
+        )
     if src.missing_tail > max(2, (src.n_frames or 0) // 100):  # containers often over-count by a frame
-        warnings.append(f"the last {src.missing_tail} of {src.n_frames} frames the video declares could not be "
-                        "decoded (file cut short or damaged at its end)")
+        warnings.append(
+            f"the last {src.missing_tail} of {src.n_frames} frames the video declares could not be "
+            "decoded (file cut short or damaged at its end)"
+        )
     if sum(n_found) == 0:
         warnings.append("no face was found in any frame: the output holds a neutral face and a resting head")
     if n_several:
-        warnings.append(f"more than one face was in view in {n_several} frame(s); the largest face was tracked "
-                        "(--faces N captures several)")
-    common = {"frames": len(records[0]), "fps": fps, "warnings": warnings, "bad_frames": src.bad_frames,
-              "missing_frames": src.missing_tail}
+        warnings.append(
+            f"more than one face was in view in {n_several} frame(s); the largest face was tracked "
+            "(--faces N captures several)"
+        )
+    common = {
+        "frames": len(records[0]),
+        "fps": fps,
+        "warnings": warnings,
+        "bad_frames": src.bad_frames,
+        "missing_frames": src.missing_tail,
+    }
     if faces == 1:
         return {**common, "face_found": n_found[0], "out": str(out)}
     return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}

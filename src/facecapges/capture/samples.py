@@ -107,6 +107,6 @@ class SampleSet:
 
     def unit(self, u: int) -> tuple[np.ndarray, np.ndarray]:
         """(values, weights) of unit ``u``, sorted by value."""
-        v = self.values[u, :self.size]
+        v = self.values[u, : self.size]
         o = np.argsort(v, kind="stable")
-        return v[o], self.weights[u, :self.size][o]
+        return v[o], self.weights[u, : self.size][o]

@@ -38,8 +38,17 @@ RANGE_DB = 24.0  # the jaw moves over the top 24 dB of the band's level
 FLOOR_RISE_DB_S, PEAK_DECAY_DB_S = 1.5, 3.0
 ATTACK, RELEASE = 0.7, 0.5  # share of the way to the target per frame, opening / closing
 _IDX = {n: ARKIT_NAMES.index(n) for n in ARKIT_NAMES}
-MOUTH_NAMES = ("jawOpen", "mouthLowerDownLeft", "mouthLowerDownRight", "mouthUpperUpLeft", "mouthUpperUpRight",
-               "mouthStretchLeft", "mouthStretchRight", "mouthFunnel", "mouthPucker")  # the weights it drives
+MOUTH_NAMES = (
+    "jawOpen",
+    "mouthLowerDownLeft",
+    "mouthLowerDownRight",
+    "mouthUpperUpLeft",
+    "mouthUpperUpRight",
+    "mouthStretchLeft",
+    "mouthStretchRight",
+    "mouthFunnel",
+    "mouthPucker",
+)  # the weights it drives
 
 
 class SpeechMouth:
@@ -105,12 +114,15 @@ def speech_frames(samples: np.ndarray, fps: float, n_frames: int, sr: int = timi
     out = []
     for k in range(n_frames):
         s, e = timing.frame_sample_bounds(k, fps, sr)
-        out.append(np.asarray(samples[int(s):int(e)], np.float32))
+        out.append(np.asarray(samples[int(s) : int(e)], np.float32))
     return out
 
 
 def speech_mouth_track(frames_audio, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:
     """(T, 52) mouth weights for a sequence of per-frame audio chunks (causal, as live)."""
     m = SpeechMouth(fps, sr)
-    return np.stack([m.step(a) for a in frames_audio]).astype(np.float32) if len(frames_audio) else \
-        np.zeros((0, N_BLENDSHAPES), np.float32)
+    return (
+        np.stack([m.step(a) for a in frames_audio]).astype(np.float32)
+        if len(frames_audio)
+        else np.zeros((0, N_BLENDSHAPES), np.float32)
+    )

@@ -33,8 +33,16 @@ from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
 from facecapges.capture.landmarks import N_LANDMARKS
 from facecapges.capture.metrics import BROW_INNER_L, BROW_INNER_R, BROW_L, BROW_R
 
-CHANNELS = ("jawOpen", "eyeBlinkLeft", "eyeBlinkRight", "browOuterUpLeft", "browOuterUpRight",
-            "browDownLeft", "browDownRight", "browInnerUp")
+CHANNELS = (
+    "jawOpen",
+    "eyeBlinkLeft",
+    "eyeBlinkRight",
+    "browOuterUpLeft",
+    "browOuterUpRight",
+    "browDownLeft",
+    "browDownRight",
+    "browInnerUp",
+)
 LOWER_LIP = (14, 87, 317, 178, 88, 95, 402, 318, 324, 17, 84, 314, 181, 405, 91, 321, 146, 375)
 UPPER_LID_L = (386, 385, 387, 388, 384, 398, 466)
 UPPER_LID_R = (159, 158, 160, 161, 157, 173, 246)
@@ -57,13 +65,20 @@ def _events(T: int, fps: float, rng, rate_hz: float) -> np.ndarray:
 def _smooth_walk(T: int, rng, amp: float, fps: float) -> np.ndarray:
     k = max(1, int(fps))
     x = np.cumsum(rng.normal(0, 1, T + 2 * k))
-    x = np.convolve(x, np.ones(k) / k, mode="same")[k:k + T]
+    x = np.convolve(x, np.ones(k) / k, mode="same")[k : k + T]
     x -= x.mean()
     return amp * x / max(np.abs(x).max(), 1e-9)
 
 
-def synthetic_sequence(canonical: np.ndarray, n_frames: int = 300, fps: float = 15.0, seed: int = 0,
-                       width: int = 1280, height: int = 720, noise_px: float = 0.7) -> dict:
+def synthetic_sequence(
+    canonical: np.ndarray,
+    n_frames: int = 300,
+    fps: float = 15.0,
+    seed: int = 0,
+    width: int = 1280,
+    height: int = 720,
+    noise_px: float = 0.7,
+) -> dict:
     """Landmarks (T, 478, 3) normalised, true params (T, 52), true R (T, 3, 3), image size."""
     rng = np.random.default_rng(seed)
     V = np.asarray(canonical, np.float64)[:468] * rng.uniform(0.9, 1.1, 3)
@@ -76,7 +91,7 @@ def synthetic_sequence(canonical: np.ndarray, n_frames: int = 300, fps: float = 
     P[:, A["jawOpen"]] = _events(T, fps, rng, 0.5) ** 2
     blink = _events(T, fps, rng, 0.3)
     for side in ("Left", "Right"):
-        P[:, A[f"eyeBlink{side}"]] = blink ** 1.5
+        P[:, A[f"eyeBlink{side}"]] = blink**1.5
     brow = _events(T, fps, rng, 0.2) - _events(T, fps, rng, 0.15)
     P[:, A["browOuterUpLeft"]] = P[:, A["browOuterUpRight"]] = np.clip(brow, 0, 1)
     P[:, A["browDownLeft"]] = P[:, A["browDownRight"]] = np.clip(-brow, 0, 1)
@@ -108,8 +123,14 @@ def synthetic_sequence(canonical: np.ndarray, n_frames: int = 300, fps: float = 
         L[k, :468, 1] = v / height
         L[k, :468, 2] = -(C[:, 2] + zc) * (K.fx / zc) / width  # relative depth, MediaPipe's scale/sign
         L[k, 468:] = L[k, [468 % 468]]  # iris points unused: copy a landmark
-    return {"landmarks": L.astype(np.float32), "params": P.astype(np.float32), "R": Rs,
-            "width": width, "height": height, "fps": fps}
+    return {
+        "landmarks": L.astype(np.float32),
+        "params": P.astype(np.float32),
+        "R": Rs,
+        "width": width,
+        "height": height,
+        "fps": fps,
+    }
 
 
 def run_geometric(seq: dict, pose_estimator, mode: str = "geometric") -> np.ndarray:

@@ -64,7 +64,15 @@ VAL_CONVERSATION = frozenset({12})
 EMOTIONS: tuple[str, ...] = ("neutral", "happiness", "anger", "sadness", "contempt", "surprise", "fear", "disgust")
 #: Speech clip numbers of each emotion in BEAT's script (inclusive ranges).
 SPEECH_EMOTION_BLOCKS: tuple[tuple[int, int], ...] = (
-    (1, 64), (65, 72), (73, 80), (81, 86), (87, 94), (95, 102), (103, 110), (111, 118))
+    (1, 64),
+    (65, 72),
+    (73, 80),
+    (81, 86),
+    (87, 94),
+    (95, 102),
+    (103, 110),
+    (111, 118),
+)
 
 #: File kinds of a clip, by suffix.
 SUFFIXES = {".bvh": "bvh", ".wav": "wav", ".json": "json", ".txt": "txt", ".csv": "csv"}
@@ -184,8 +192,9 @@ def read_semantic(path: str | Path, n_frames: int, fps: float) -> np.ndarray:
         except (IndexError, ValueError):
             if lineno == 1 and len(cols) >= 5:  # a header row
                 continue
-            raise file_error(path, f"line {lineno}: expected tab-separated name, start, end, duration, "
-                                   f"score, keywords") from None
+            raise file_error(
+                path, f"line {lineno}: expected tab-separated name, start, end, duration, score, keywords"
+            ) from None
         if not (np.isfinite(start) and np.isfinite(end) and np.isfinite(score)) or end < start:
             raise file_error(path, f"line {lineno}: bad segment start={cols[1]} end={cols[2]} score={cols[4]}")
         inside = (times >= start - 1e-9) & (times <= end + 1e-9)

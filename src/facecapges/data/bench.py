@@ -41,7 +41,8 @@ def run(quick: bool, shared: Path) -> dict:
     reps = 1 if quick else 3
     bvh = read_bvh(bvh_path)
     result: dict[str, Any] = {
-        "clip": CLIP, "frames": bvh.n_frames,
+        "clip": CLIP,
+        "frames": bvh.n_frames,
         "read_bvh_s": round(_best(lambda: read_bvh(bvh_path), reps), 4),
         "motion_to_pose_s": round(_best(lambda: motion_to_pose(bvh.skeleton, bvh.motion), reps), 4),
         "load_audio_s": round(_best(lambda: load_audio(wav_path), reps), 4),
@@ -49,8 +50,9 @@ def run(quick: bool, shared: Path) -> dict:
     tmp = Path(tempfile.mkdtemp(prefix="facecapges-bench-"))
     try:
         out = tmp / "cache"
-        result["prepare_s"] = round(_best(lambda: prepare(sample_dir, out, speakers=[2], force=True,
-                                                          progress=False), reps), 4)
+        result["prepare_s"] = round(
+            _best(lambda: prepare(sample_dir, out, speakers=[2], force=True, progress=False), reps), 4
+        )
         result["prepare_frames_per_s"] = round(bvh.n_frames / result["prepare_s"], 1)
         cache = Cache(out)
         result["cache_load_ms"] = round(1000 * _best(lambda: cache.load(CLIP), reps), 2)

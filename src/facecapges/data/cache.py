@@ -147,8 +147,10 @@ class Cache:
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise file_error(index_path, f"malformed cache index ({exc})") from None
         if self.index.get("version") != CACHE_VERSION:
-            raise file_error(index_path, f"cache version {self.index.get('version')} is not {CACHE_VERSION}; "
-                                         "prepare it again with --force")
+            raise file_error(
+                index_path,
+                f"cache version {self.index.get('version')} is not {CACHE_VERSION}; prepare it again with --force",
+            )
         self._by_name = {c["name"]: c for c in self.index["clips"]}
 
     @property
@@ -161,8 +163,9 @@ class Cache:
 
     def speaker_info(self, speaker: int) -> dict:
         """Dataset, licence and performer of ``speaker`` (``index["speakers"]``; BEAT when unstated)."""
-        return dict(self.index.get("speakers", {}).get(str(int(speaker)), {"dataset": "BEAT",
-                                                                          "licence": "CC BY-NC 4.0"}))
+        return dict(
+            self.index.get("speakers", {}).get(str(int(speaker)), {"dataset": "BEAT", "licence": "CC BY-NC 4.0"})
+        )
 
     @property
     def speakers(self) -> list[int]:
@@ -176,8 +179,11 @@ class Cache:
 
     def clips(self, speaker: int | None = None, split: str | None = None) -> list[dict]:
         """Index entries of the clips, optionally of one speaker and/or split (train/val/test)."""
-        return [c for c in self.index["clips"]
-                if (speaker is None or int(c["speaker"]) == int(speaker)) and (split is None or c["split"] == split)]
+        return [
+            c
+            for c in self.index["clips"]
+            if (speaker is None or int(c["speaker"]) == int(speaker)) and (split is None or c["split"] == split)
+        ]
 
     def select(self, speaker: int, split: str) -> list[dict]:
         """Clips of ``speaker`` in ``split`` (``"all"``: every split); a UserError when there are none.
@@ -188,8 +194,10 @@ class Cache:
         entries = self.clips(speaker=speaker, split=None if split == "all" else split)
         if not entries:
             have = sorted({(int(c["speaker"]), c["split"]) for c in self.clips()})
-            raise UserError(f"{self.path}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "
-                            f"{have}); use --split all, with --holdout-from FRAME to keep frames for evaluation")
+            raise UserError(
+                f"{self.path}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "
+                f"{have}); use --split all, with --holdout-from FRAME to keep frames for evaluation"
+            )
         return entries
 
     def entry(self, name: str) -> dict:
@@ -198,8 +206,9 @@ class Cache:
             return self._by_name[name]
         except KeyError:
             some = ", ".join(list(self._by_name)[:5])
-            raise UserError(f"{self.path}: no clip {name!r} in this cache (it has: {some}"
-                            f"{', …' if len(self._by_name) > 5 else ''})") from None
+            raise UserError(
+                f"{self.path}: no clip {name!r} in this cache (it has: {some}{', …' if len(self._by_name) > 5 else ''})"
+            ) from None
 
     def load(self, name: str) -> dict:
         """All arrays of clip ``name`` (keys in the module docstring); ``*_present`` as Python bools."""

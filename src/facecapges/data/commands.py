@@ -38,24 +38,42 @@ def register(app: typer.Typer) -> None:
 
     @app.command()
     def prepare(
-        beat_root: Path | None = typer.Argument(None, help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
-                                                              "{end}.bvh/.wav/.json/.txt/.csv), searched recursively."),
+        beat_root: Path | None = typer.Argument(
+            None,
+            help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
+            "{end}.bvh/.wav/.json/.txt/.csv), searched recursively.",
+        ),
         out: Path = typer.Option(..., "--out", help="Cache folder to create."),
         speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
         fps: float = typer.Option(15.0, help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame)."),
-        mocap: list[Path] | None = typer.Option(None, "--mocap", help="BVH file or folder of another skeleton, "
-                                                   "each with a same-named .wav; retargeted onto BEAT. Repeatable."),
-        joint_map: str | None = typer.Option(None, "--map", help="Joint map for --mocap: zeggs, beat or a JSON "
-                                                "file (default: detected from the joint names)."),
-        mocap_speaker: int | None = typer.Option(None, help="Speaker id of the --mocap clips (100 or more; "
-                                                    "default: the joint map's, ZEGGS 100)."),
-        joints9: list[Path] | None = typer.Option(None, "--joints9", help="Reduced-joint .npy file or folder "
-                                                     "(T, 9, 7), each with a same-named .wav. Repeatable."),
+        mocap: list[Path] | None = typer.Option(
+            None,
+            "--mocap",
+            help="BVH file or folder of another skeleton, "
+            "each with a same-named .wav; retargeted onto BEAT. Repeatable.",
+        ),
+        joint_map: str | None = typer.Option(
+            None,
+            "--map",
+            help="Joint map for --mocap: zeggs, beat or a JSON file (default: detected from the joint names).",
+        ),
+        mocap_speaker: int | None = typer.Option(
+            None, help="Speaker id of the --mocap clips (100 or more; default: the joint map's, ZEGGS 100)."
+        ),
+        joints9: list[Path] | None = typer.Option(
+            None,
+            "--joints9",
+            help="Reduced-joint .npy file or folder (T, 9, 7), each with a same-named .wav. Repeatable.",
+        ),
         layout: str | None = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
-        joints9_speaker: int | None = typer.Option(None, help="Speaker id of the --joints9 clips (100 or more; "
-                                                      "default: the layout's, ZEGGS 100)."),
-        target: Path | None = typer.Option(None, help="BEAT-skeleton BVH the other sources are written on "
-                                              "(default: the first BEAT BVH, else the default style's skeleton)."),
+        joints9_speaker: int | None = typer.Option(
+            None, help="Speaker id of the --joints9 clips (100 or more; default: the layout's, ZEGGS 100)."
+        ),
+        target: Path | None = typer.Option(
+            None,
+            help="BEAT-skeleton BVH the other sources are written on "
+            "(default: the first BEAT BVH, else the default style's skeleton).",
+        ),
         force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
     ) -> None:
@@ -71,10 +89,21 @@ def register(app: typer.Typer) -> None:
         target_skel = None
         if (mocap or joints9) and (target is not None or beat_root is None):
             target_skel = _target_skeleton(target)
-        index = run_prepare(beat_root, out, speakers=parse_speakers(speakers), fps=fps, force=force,
-                            progress=not quiet, mocap=list(mocap or []), joints9=list(joints9 or []),
-                            joint_map=joint_map, layout=layout, mocap_speaker=mocap_speaker,
-                            joints9_speaker=joints9_speaker, target=target_skel)
+        index = run_prepare(
+            beat_root,
+            out,
+            speakers=parse_speakers(speakers),
+            fps=fps,
+            force=force,
+            progress=not quiet,
+            mocap=list(mocap or []),
+            joints9=list(joints9 or []),
+            joint_map=joint_map,
+            layout=layout,
+            mocap_speaker=mocap_speaker,
+            joints9_speaker=joints9_speaker,
+            target=target_skel,
+        )
         console = Console()
         for w in index.get("warnings", []):
             console.print(f"[yellow]warning:[/yellow] {w}")
@@ -82,18 +111,22 @@ def register(app: typer.Typer) -> None:
         n = len(index["clips"])
         frames = sum(c["n_frames"] for c in index["clips"])
         audio_only = sum(1 for s in index["skipped"] if s["reason"] == "audio only")
-        console.print(f"{n} clip{'s' if n != 1 else ''}, {frames} frames, {frames / index['fps']:.1f} s"
-                      f"{f', {audio_only} audio only' if audio_only else ''} → {out}")
+        console.print(
+            f"{n} clip{'s' if n != 1 else ''}, {frames} frames, {frames / index['fps']:.1f} s"
+            f"{f', {audio_only} audio only' if audio_only else ''} → {out}"
+        )
 
     @app.command()
     def retarget(
         src: Path = typer.Argument(..., help="BVH file of any skeleton (joint names mapped by --map)."),
         out: Path = typer.Option(..., "--out", help="BVH file to write, on the BEAT skeleton."),
         fps: float | None = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
-        joint_map: str | None = typer.Option(None, "--map", help="Joint map: zeggs, beat or a JSON file "
-                                                "(default: detected from the joint names)."),
-        target: Path | None = typer.Option(None, help="BEAT-skeleton BVH to write on (default: the skeleton of "
-                                              "the default style)."),
+        joint_map: str | None = typer.Option(
+            None, "--map", help="Joint map: zeggs, beat or a JSON file (default: detected from the joint names)."
+        ),
+        target: Path | None = typer.Option(
+            None, help="BEAT-skeleton BVH to write on (default: the skeleton of the default style)."
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
     ) -> None:
         """Map a BVH of another skeleton onto the BEAT 47-joint upper body (joint names + rest-pose correction).
@@ -114,9 +147,10 @@ def register(app: typer.Typer) -> None:
         r = retarget_bvh(src, skel, joint_map, fps=fps)
         write_bvh(out, skel, pose_to_motion(skel, r.pose), r.fps)
         missing = [n for n, m in zip(UPPER_BODY, r.mask) if not m]
-        typer.echo(f"{src.name} → {out}: {r.n_frames} frames at {r.fps:g} fps, joint map {r.map_name!r}, "
-                   f"{int(r.mask.sum())}/{len(UPPER_BODY)} joints"
-                   + (f" (at rest: {', '.join(missing)})" if missing else ""))
+        typer.echo(
+            f"{src.name} → {out}: {r.n_frames} frames at {r.fps:g} fps, joint map {r.map_name!r}, "
+            f"{int(r.mask.sum())}/{len(UPPER_BODY)} joints" + (f" (at rest: {', '.join(missing)})" if missing else "")
+        )
 
     @app.command()
     def export(

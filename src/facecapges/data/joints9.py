@@ -80,14 +80,27 @@ def load_layout(spec: str | Path = "zeggs9") -> Joints9Layout:
         if len(parents) != len(joints):
             raise ValueError("'joints' and 'parents' differ in length")
         frames = {str(k): rot.quaternion_to_matrix(np.asarray(v, np.float64)) for k, v in d.get("frames", {}).items()}
-        clav = {str(k): {"chest": str(v["chest"]), "arm": str(v["arm"]),
-                         "correction": rot.quaternion_to_matrix(np.asarray(v["correction"], np.float64))}
-                for k, v in d.get("clavicles", {}).items()}
+        clav = {
+            str(k): {
+                "chest": str(v["chest"]),
+                "arm": str(v["arm"]),
+                "correction": rot.quaternion_to_matrix(np.asarray(v["correction"], np.float64)),
+            }
+            for k, v in d.get("clavicles", {}).items()
+        }
         speaker = d.get("speaker")
-        return Joints9Layout(name=str(d.get("name", p.stem)), joints=joints, parents=parents, fps=float(d["fps"]),
-                             frames=frames, skeleton_map=load_map(d["skeleton_map"]), clavicles=clav,
-                             dataset=str(d.get("dataset", "")), licence=str(d.get("licence", "")),
-                             speaker=None if speaker is None else int(speaker))
+        return Joints9Layout(
+            name=str(d.get("name", p.stem)),
+            joints=joints,
+            parents=parents,
+            fps=float(d["fps"]),
+            frames=frames,
+            skeleton_map=load_map(d["skeleton_map"]),
+            clavicles=clav,
+            dataset=str(d.get("dataset", "")),
+            licence=str(d.get("licence", "")),
+            speaker=None if speaker is None else int(speaker),
+        )
     except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, ValueError) as exc:
         raise file_error(p, f"not a joint layout ({exc})") from None
 
@@ -101,8 +114,11 @@ def load_array(path: str | Path, layout: Joints9Layout) -> np.ndarray:
         raise file_error(path, f"not a numpy array file ({exc})") from None
     J = len(layout.joints)
     if not isinstance(a, np.ndarray) or a.ndim != 3 or a.shape[1:] != (J, 7):
-        raise file_error(path, f"expected a (T, {J}, 7) array ({layout.name}: position xyz + quaternion xyzw), "
-                               f"got {getattr(a, 'shape', '?')}")
+        raise file_error(
+            path,
+            f"expected a (T, {J}, 7) array ({layout.name}: position xyz + quaternion xyzw), "
+            f"got {getattr(a, 'shape', '?')}",
+        )
     if len(a) == 0:
         raise file_error(path, "the array has no frames")
     a = a.astype(np.float64)
@@ -168,13 +184,22 @@ def clavicle_rotation(target: Skeleton, rest: np.ndarray, shoulder: str, want: n
     return rot.rotation_between(np.broadcast_to(a, x.shape), x - o)
 
 
-def read_joints9(path: str | Path, target: Skeleton, layout: Joints9Layout | str | Path = "zeggs9",
-                 fps: float = timing.MODEL_FPS) -> Retargeted:
+def read_joints9(
+    path: str | Path, target: Skeleton, layout: Joints9Layout | str | Path = "zeggs9", fps: float = timing.MODEL_FPS
+) -> Retargeted:
     """Read a reduced-joint take as BEAT poses at ``fps`` with a per-joint mask."""
     if not isinstance(layout, Joints9Layout):
         layout = load_layout(layout)
     array = load_array(path, layout)
     array = timing.resample(array, layout.fps, fps)
     pose, mask = joints9_to_pose(array, layout, target)
-    return Retargeted(pose=pose, mask=mask, fps=fps, map_name=layout.name, source_fps=layout.fps,
-                      dataset=layout.dataset or layout.name, licence=layout.licence, speaker=layout.speaker)
+    return Retargeted(
+        pose=pose,
+        mask=mask,
+        fps=fps,
+        map_name=layout.name,
+        source_fps=layout.fps,
+        dataset=layout.dataset or layout.name,
+        licence=layout.licence,
+        speaker=layout.speaker,
+    )

@@ -85,16 +85,18 @@ def check_skeleton(skel: Skeleton, path: Path, reference: tuple[Skeleton, Path] 
     missing = skel.missing(UPPER_BODY)
     if missing:
         shown = ", ".join(missing[:6]) + (", …" if len(missing) > 6 else "")
-        raise file_error(path, f"wrong skeleton: missing {len(missing)} of the {N_JOINTS} BEAT upper-body "
-                               f"joints ({shown})")
+        raise file_error(
+            path, f"wrong skeleton: missing {len(missing)} of the {N_JOINTS} BEAT upper-body joints ({shown})"
+        )
     if reference is not None:
         ref, ref_path = reference
         if not ref.is_same_tree(skel) or ref.channels != skel.channels:
             raise file_error(path, f"wrong skeleton: joint tree or channel layout differs from {ref_path.name}")
 
 
-def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Skeleton, Path] | None
-                 ) -> tuple[dict[str, np.ndarray], dict, Skeleton, list[str]]:
+def prepare_clip(
+    files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Skeleton, Path] | None
+) -> tuple[dict[str, np.ndarray], dict, Skeleton, list[str]]:
     """Arrays, index entry, skeleton and warnings of one clip that has .bvh and .wav."""
     bvh_path, wav_path = files.files["bvh"], files.files["wav"]  # callers pass only clips with both
     bvh = read_bvh(bvh_path)
@@ -121,20 +123,36 @@ def prepare_clip(files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Sk
     emotion = beat.read_emotion(emo_path, T, fps) if emo_path else np.zeros(T, np.int16)
 
     arrays = {
-        "pose": pose.astype(np.float32), "head": head.astype(np.float32), "face": face,
+        "pose": pose.astype(np.float32),
+        "head": head.astype(np.float32),
+        "face": face,
         "face_present": np.array(face_path is not None),
-        "semantic": semantic.astype(np.float32), "semantic_present": np.array(sem_path is not None),
-        "emotion": emotion.astype(np.int16), "emotion_present": np.array(emo_path is not None),
-        "audio": audio.astype(np.float32), "offsets": bvh.skeleton.offsets.astype(np.float64),
+        "semantic": semantic.astype(np.float32),
+        "semantic_present": np.array(sem_path is not None),
+        "emotion": emotion.astype(np.int16),
+        "emotion_present": np.array(emo_path is not None),
+        "audio": audio.astype(np.float32),
+        "offsets": bvh.skeleton.offsets.astype(np.float64),
         "mask": np.ones(N_JOINTS, bool),
     }
     clip = files.clip
     entry = {
-        "name": clip.stem, "speaker": clip.speaker, "split": beat.split_of(clip), "kind": clip.kind,
-        "n_frames": T, "duration_s": round(T / fps, 6), "audio_s": round(len(audio_full) / sr, 6),
-        "source_fps": bvh.fps, "file": f"{CLIP_DIR}/{clip.stem}.npz",
-        "has_face": face_path is not None, "has_semantic": sem_path is not None, "has_emotion": emo_path is not None,
-        "dataset": "BEAT", "origin": "beat", "joint_map": None, "n_masked": 0,
+        "name": clip.stem,
+        "speaker": clip.speaker,
+        "split": beat.split_of(clip),
+        "kind": clip.kind,
+        "n_frames": T,
+        "duration_s": round(T / fps, 6),
+        "audio_s": round(len(audio_full) / sr, 6),
+        "source_fps": bvh.fps,
+        "file": f"{CLIP_DIR}/{clip.stem}.npz",
+        "has_face": face_path is not None,
+        "has_semantic": sem_path is not None,
+        "has_emotion": emo_path is not None,
+        "dataset": "BEAT",
+        "origin": "beat",
+        "joint_map": None,
+        "n_masked": 0,
         "holdout_from": holdout_frame(T),
     }
     return arrays, entry, bvh.skeleton, warnings
@@ -177,17 +195,24 @@ def _head_of(target: Skeleton, pose: np.ndarray) -> np.ndarray:
     return head_rot6d(target, mats)
 
 
-def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Path, fps: float, sr: int
-                  ) -> tuple[dict[str, np.ndarray], float]:
+def _other_arrays(
+    pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Path, fps: float, sr: int
+) -> tuple[dict[str, np.ndarray], float]:
     T = len(pose)
     audio_full = load_audio(wav, sr)
     S = int(math.floor(T * sr / fps + 1e-6))
     arrays = {
-        "pose": pose.astype(np.float32), "head": _head_of(target, pose), "face": np.zeros((T, N_BLENDSHAPES), np.float32),
-        "face_present": np.array(False), "semantic": np.zeros(T, np.float32), "semantic_present": np.array(False),
-        "emotion": np.zeros(T, np.int16), "emotion_present": np.array(False),
+        "pose": pose.astype(np.float32),
+        "head": _head_of(target, pose),
+        "face": np.zeros((T, N_BLENDSHAPES), np.float32),
+        "face_present": np.array(False),
+        "semantic": np.zeros(T, np.float32),
+        "semantic_present": np.array(False),
+        "emotion": np.zeros(T, np.int16),
+        "emotion_present": np.array(False),
         "audio": _fit_length(audio_full, S, pad="zero").astype(np.float32),
-        "offsets": target.offsets.astype(np.float64), "mask": mask.astype(bool),
+        "offsets": target.offsets.astype(np.float64),
+        "mask": mask.astype(bool),
     }
     return arrays, len(audio_full) / sr
 
@@ -195,16 +220,27 @@ def _other_arrays(pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Pat
 def _speaker_of(given: int | None, declared: int | None, what: str) -> int:
     spk = given if given is not None else declared
     if spk is None:
-        raise UserError(f"{what}: its joint map states no speaker id; give one with --mocap-speaker / "
-                        f"--joints9-speaker ({FIRST_OTHER_SPEAKER + 1} or more; {FIRST_OTHER_SPEAKER} is ZEGGS's)")
+        raise UserError(
+            f"{what}: its joint map states no speaker id; give one with --mocap-speaker / "
+            f"--joints9-speaker ({FIRST_OTHER_SPEAKER + 1} or more; {FIRST_OTHER_SPEAKER} is ZEGGS's)"
+        )
     if spk < FIRST_OTHER_SPEAKER:
-        raise UserError(f"{what}: speaker id {spk} is in BEAT's range; other performers take ids from "
-                        f"{FIRST_OTHER_SPEAKER} on")
+        raise UserError(
+            f"{what}: speaker id {spk} is in BEAT's range; other performers take ids from {FIRST_OTHER_SPEAKER} on"
+        )
     return spk
 
 
-def prepare_other_clip(kind: str, path: Path, wav: Path, target: Skeleton, fps: float, sr: int,
-                       spec: str | Path | None, speaker: int | None) -> tuple[dict[str, np.ndarray], dict, dict]:
+def prepare_other_clip(
+    kind: str,
+    path: Path,
+    wav: Path,
+    target: Skeleton,
+    fps: float,
+    sr: int,
+    spec: str | Path | None,
+    speaker: int | None,
+) -> tuple[dict[str, np.ndarray], dict, dict]:
     """Arrays, index entry and speaker info of a take of another source.
 
     ``kind`` is ``"mocap"`` (a BVH, retargeted with joint map ``spec``, default: detected)
@@ -221,11 +257,25 @@ def prepare_other_clip(kind: str, path: Path, wav: Path, target: Skeleton, fps: 
     arrays, audio_s = _other_arrays(r.pose, r.mask, target, wav, fps, sr)
     name = f"{r.map_name}_{path.stem}"
     T = r.n_frames
-    entry = {"name": name, "speaker": spk, "split": "train", "kind": beat.SPEECH, "n_frames": T,
-             "duration_s": round(T / fps, 6), "audio_s": round(audio_s, 6), "source_fps": r.source_fps,
-             "file": f"{CLIP_DIR}/{name}.npz", "has_face": False, "has_semantic": False, "has_emotion": False,
-             "dataset": r.dataset, "origin": origin, "joint_map": r.map_name, "n_masked": int((~r.mask).sum()),
-             "holdout_from": holdout_frame(T)}
+    entry = {
+        "name": name,
+        "speaker": spk,
+        "split": "train",
+        "kind": beat.SPEECH,
+        "n_frames": T,
+        "duration_s": round(T / fps, 6),
+        "audio_s": round(audio_s, 6),
+        "source_fps": r.source_fps,
+        "file": f"{CLIP_DIR}/{name}.npz",
+        "has_face": False,
+        "has_semantic": False,
+        "has_emotion": False,
+        "dataset": r.dataset,
+        "origin": origin,
+        "joint_map": r.map_name,
+        "n_masked": int((~r.mask).sum()),
+        "holdout_from": holdout_frame(T),
+    }
     return arrays, entry, {"dataset": r.dataset, "licence": r.licence, "performer": str(spk)}
 
 
@@ -239,8 +289,9 @@ def _check_out(out: Path, force: bool) -> None:
 
 
 def _stats_block(train: dict[str, RunningStats], every: dict[str, RunningStats], what: str) -> dict:
-    use, source = (train, f"train clips of {what}") if train["pose"].n else (every, f"all clips of {what} "
-                                                                                     "(it has no train clip)")
+    use, source = (
+        (train, f"train clips of {what}") if train["pose"].n else (every, f"all clips of {what} (it has no train clip)")
+    )
     block: dict = {"source": source, "n_frames": use["pose"].n}
     for key in ("pose", "head", "face"):
         block[f"{key}_mean"], block[f"{key}_std"] = use[key].result()
@@ -251,12 +302,22 @@ def _new_acc() -> dict[str, RunningStats]:
     return {"pose": RunningStats(N_JOINTS * 6), "head": RunningStats(6), "face": RunningStats(N_BLENDSHAPES)}
 
 
-def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] | None = None,
-            fps: float = timing.MODEL_FPS, force: bool = False, progress: bool = True,
-            sr: int = timing.AUDIO_SR, mocap: list[Path] | tuple = (), joints9: list[Path] | tuple = (),
-            joint_map: str | Path | None = None, layout: str | Path | None = None,
-            mocap_speaker: int | None = None, joints9_speaker: int | None = None,
-            target: Skeleton | None = None) -> dict:
+def prepare(
+    beat_root: str | Path | None,
+    out: str | Path,
+    speakers: list[int] | None = None,
+    fps: float = timing.MODEL_FPS,
+    force: bool = False,
+    progress: bool = True,
+    sr: int = timing.AUDIO_SR,
+    mocap: list[Path] | tuple = (),
+    joints9: list[Path] | tuple = (),
+    joint_map: str | Path | None = None,
+    layout: str | Path | None = None,
+    mocap_speaker: int | None = None,
+    joints9_speaker: int | None = None,
+    target: Skeleton | None = None,
+) -> dict:
     """Build the cache ``out`` from the BEAT folder ``beat_root`` and other sources; return its index.
 
     ``speakers`` restricts BEAT to those speaker ids (None: all found). ``mocap``: BVH
@@ -286,17 +347,29 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
         for c in chosen:
             if c.get("bvh") and c.get("wav"):
                 continue
-            reason = ("audio only" if c.get("wav") else "motion only") if (c.get("wav") or c.get("bvh")) \
+            reason = (
+                ("audio only" if c.get("wav") else "motion only")
+                if (c.get("wav") or c.get("bvh"))
                 else "no motion, no audio"
-            skipped.append({"name": c.name, "speaker": c.clip.speaker, "reason": reason,
-                            "files": sorted(p.name for p in c.files.values())})
-    others = [("mocap", m, w) for m, w in _paired(list(mocap), ".bvh", "--mocap")] + \
-        [("joints9", m, w) for m, w in _paired(list(joints9), ".npy", "--joints9")]
+            )
+            skipped.append(
+                {
+                    "name": c.name,
+                    "speaker": c.clip.speaker,
+                    "reason": reason,
+                    "files": sorted(p.name for p in c.files.values()),
+                }
+            )
+    others = [("mocap", m, w) for m, w in _paired(list(mocap), ".bvh", "--mocap")] + [
+        ("joints9", m, w) for m, w in _paired(list(joints9), ".npy", "--joints9")
+    ]
     if not usable and not others:
         if beat_root is None:
             raise UserError("nothing to prepare: give a BEAT folder, --mocap or --joints9")
-        raise UserError(f"{beat_root}: no clip has both a .bvh and a .wav ({len(skipped)} incomplete clip(s): "
-                        f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})")
+        raise UserError(
+            f"{beat_root}: no clip has both a .bvh and a .wav ({len(skipped)} incomplete clip(s): "
+            f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})"
+        )
 
     tmp = out.parent / f".{out.name}.part"
     if tmp.exists():
@@ -311,8 +384,12 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
     try:
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-        columns = (TextColumn("[bold]prepare[/bold] {task.description:<24}"), BarColumn(), MofNCompleteColumn(),
-                   TimeRemainingColumn())
+        columns = (
+            TextColumn("[bold]prepare[/bold] {task.description:<24}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeRemainingColumn(),
+        )
         with Progress(*columns, disable=not progress, transient=False) as bar:
             task = bar.add_task("", total=len(usable) + len(others))
 
@@ -324,8 +401,9 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
                 masks[entry["name"]] = arrays["mask"]
                 spk = int(entry["speaker"])
                 present = np.repeat(arrays["mask"], 6)
-                for acc in ([acc_all.setdefault(spk, _new_acc())]
-                            + ([acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else [])):
+                for acc in [acc_all.setdefault(spk, _new_acc())] + (
+                    [acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else []
+                ):
                     acc["pose"].add(arrays["pose"].reshape(len(arrays["pose"]), -1), present)
                     acc["head"].add(arrays["head"])
                     if entry["has_face"]:
@@ -338,21 +416,32 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
                 if reference is None:
                     reference = (skel, files.files["bvh"])
                 warnings.extend(warn)
-                speaker_info.setdefault(str(entry["speaker"]), {"dataset": "BEAT", "licence": "CC BY-NC 4.0",
-                                                                "performer": files.clip.performer})
+                speaker_info.setdefault(
+                    str(entry["speaker"]),
+                    {"dataset": "BEAT", "licence": "CC BY-NC 4.0", "performer": files.clip.performer},
+                )
                 add(arrays, entry)
             if others:
                 if reference is None:
                     if target is None:
-                        raise UserError("--mocap/--joints9 need the BEAT skeleton to write poses on: give a BEAT "
-                                        "folder or a target skeleton")
+                        raise UserError(
+                            "--mocap/--joints9 need the BEAT skeleton to write poses on: give a BEAT "
+                            "folder or a target skeleton"
+                        )
                     reference = (target, Path("target skeleton"))
                 for kind, motion_path, wav in others:
                     bar.update(task, description=motion_path.stem[:24])
                     mocap_kind = kind == "mocap"
                     arrays, entry, info = prepare_other_clip(
-                        kind, motion_path, wav, reference[0], fps, sr, joint_map if mocap_kind else layout,
-                        mocap_speaker if mocap_kind else joints9_speaker)
+                        kind,
+                        motion_path,
+                        wav,
+                        reference[0],
+                        fps,
+                        sr,
+                        joint_map if mocap_kind else layout,
+                        mocap_speaker if mocap_kind else joints9_speaker,
+                    )
                     speaker_info.setdefault(str(entry["speaker"]), info)
                     add(arrays, entry)
 
@@ -369,12 +458,20 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
         fill = _fill_masked_clips(tmp, entries, masks, pooled_all["pose"], reference[0])
 
         index = {
-            "version": CACHE_VERSION, "fps": fps, "sr": sr,
+            "version": CACHE_VERSION,
+            "fps": fps,
+            "sr": sr,
             "source": str(beat_root.resolve()) if beat_root is not None else None,
             "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "skeleton": skeleton_to_dict(reference[0]), "skeleton_source": reference[1].name,
-            "upper_body": list(UPPER_BODY), "clips": entries, "skipped": skipped, "warnings": warnings,
-            "speakers": speaker_info, "fill": fill.reshape(-1).tolist(), "stats": stats,
+            "skeleton": skeleton_to_dict(reference[0]),
+            "skeleton_source": reference[1].name,
+            "upper_body": list(UPPER_BODY),
+            "clips": entries,
+            "skipped": skipped,
+            "warnings": warnings,
+            "speakers": speaker_info,
+            "fill": fill.reshape(-1).tolist(),
+            "stats": stats,
         }
         (tmp / INDEX_NAME).write_text(json.dumps(index, indent=1), encoding="utf-8")
         if out.exists():
@@ -386,8 +483,9 @@ def prepare(beat_root: str | Path | None, out: str | Path, speakers: list[int] |
     return index
 
 
-def _fill_masked_clips(tmp: Path, entries: list[dict], masks: dict[str, np.ndarray], pose_acc: RunningStats,
-                       target: Skeleton) -> np.ndarray:
+def _fill_masked_clips(
+    tmp: Path, entries: list[dict], masks: dict[str, np.ndarray], pose_acc: RunningStats, target: Skeleton
+) -> np.ndarray:
     """Give masked joints the cache's mean rotation (identity where no clip has the joint); returns it (47, 6)."""
     from facecapges import rotations as rot
     from facecapges.data.retarget import fill_masked
@@ -417,7 +515,7 @@ def summary_rows(index: dict) -> list[tuple[str, str, int, int, float]]:
     for c in index["clips"]:
         groups.setdefault((c["split"], int(c["speaker"])), []).append(c)
     rows = []
-    for (split, spk) in sorted(groups, key=lambda k: (order.get(k[0], 9), k[1])):
+    for split, spk in sorted(groups, key=lambda k: (order.get(k[0], 9), k[1])):
         cs = groups[(split, spk)]
         frames = sum(c["n_frames"] for c in cs)
         rows.append((split, str(spk), len(cs), frames, frames / index["fps"]))
@@ -432,8 +530,13 @@ def summary_table(index: dict):
 
     table = Table(title=f"Cache at {index['fps']:g} fps, {index['sr']} Hz")
     just: Literal["left", "right"]
-    for col, just in (("split", "left"), ("speaker", "left"), ("clips", "right"), ("frames", "right"),
-                      ("seconds", "right")):
+    for col, just in (
+        ("split", "left"),
+        ("speaker", "left"),
+        ("clips", "right"),
+        ("frames", "right"),
+        ("seconds", "right"),
+    ):
         table.add_column(col, justify=just)
     rows = summary_rows(index)
     for i, (split, spk, n, frames, secs) in enumerate(rows):

@@ -56,8 +56,16 @@ from facecapges.errors import UserError, file_error
 from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, global_transforms, local_matrices, motion_to_euler
 
 #: BEAT joints every source must drive; the others (neck, clavicles, fingers) are masked when absent.
-REQUIRED: tuple[str, ...] = ("Hips", "Spine", "RightArm", "RightForeArm", "RightHand", "LeftArm", "LeftForeArm",
-                             "LeftHand")
+REQUIRED: tuple[str, ...] = (
+    "Hips",
+    "Spine",
+    "RightArm",
+    "RightForeArm",
+    "RightHand",
+    "LeftArm",
+    "LeftForeArm",
+    "LeftHand",
+)
 ROOT = "Hips"
 #: The shipped maps, tried in this order by :func:`auto_map` (``beat``, names as they are, last).
 SHIPPED_MAPS: tuple[str, ...] = ("zeggs", "beat")
@@ -88,10 +96,16 @@ class JointMap:
                     raise ValueError(f"correction of {k!r} must be a quaternion [w, x, y, z]")
                 corr[str(k)] = rot.quaternion_to_matrix(q)
             speaker = d.get("speaker")
-            return cls(name=str(d.get("name", origin)), joints=joints, corrections=corr,
-                       detect=[str(n) for n in d.get("detect", [])], dataset=str(d.get("dataset", "")),
-                       licence=str(d.get("licence", "")), speaker=None if speaker is None else int(speaker),
-                       description=str(d.get("description", "")))
+            return cls(
+                name=str(d.get("name", origin)),
+                joints=joints,
+                corrections=corr,
+                detect=[str(n) for n in d.get("detect", [])],
+                dataset=str(d.get("dataset", "")),
+                licence=str(d.get("licence", "")),
+                speaker=None if speaker is None else int(speaker),
+                description=str(d.get("description", "")),
+            )
         except (KeyError, TypeError, AttributeError, ValueError) as exc:
             raise UserError(f"{origin}: not a joint map ({exc}); see docs/bring-your-own-mocap.md") from None
 
@@ -148,9 +162,11 @@ def auto_map(source: Skeleton, where: str = "source") -> JointMap:
             best = (jmap, missing)
     assert best is not None  # the beat map has no detect list
     jmap, missing = best
-    raise UserError(f"{where}: cannot map this skeleton onto BEAT: it lacks {', '.join(missing)} "
-                    f"(joint map {jmap.name!r}); write a joint map JSON for it and pass --map "
-                    "(see docs/bring-your-own-mocap.md)")
+    raise UserError(
+        f"{where}: cannot map this skeleton onto BEAT: it lacks {', '.join(missing)} "
+        f"(joint map {jmap.name!r}); write a joint map JSON for it and pass --map "
+        "(see docs/bring-your-own-mocap.md)"
+    )
 
 
 # ----------------------------------------------------------- rest corrections
@@ -233,8 +249,9 @@ def driven_parents(target: Skeleton) -> list[int]:
     return out
 
 
-def pose_from_world(target: Skeleton, world: dict[str, np.ndarray], root: np.ndarray | None
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def pose_from_world(
+    target: Skeleton, world: dict[str, np.ndarray], root: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
     """BEAT pose from world rotations of BEAT joints (method steps 3–4).
 
     ``world[name]`` (T, 3, 3) are the corrected world rotations ``G_t`` of the BEAT joints
@@ -260,17 +277,20 @@ def pose_from_world(target: Skeleton, world: dict[str, np.ndarray], root: np.nda
     return rot.matrix_to_rot6d(local).astype(np.float32), mask
 
 
-def retarget_motion(source: Skeleton, motion: np.ndarray, target: Skeleton, jmap: JointMap
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def retarget_motion(
+    source: Skeleton, motion: np.ndarray, target: Skeleton, jmap: JointMap
+) -> tuple[np.ndarray, np.ndarray]:
     """Source BVH motion (T, C) → BEAT pose rot6d (T, 47, 6) float32 and mask (47,)."""
     unknown = jmap.unknown_targets(target)
     if unknown:
-        raise UserError(f"joint map {jmap.name!r} names joints the BEAT skeleton does not have: "
-                        f"{', '.join(unknown[:6])}")
+        raise UserError(
+            f"joint map {jmap.name!r} names joints the BEAT skeleton does not have: {', '.join(unknown[:6])}"
+        )
     missing = missing_sources(jmap, source)
     if missing:
-        raise UserError(f"cannot map this skeleton onto BEAT with joint map {jmap.name!r}: it lacks "
-                        f"{', '.join(missing)}")
+        raise UserError(
+            f"cannot map this skeleton onto BEAT with joint map {jmap.name!r}: it lacks {', '.join(missing)}"
+        )
     _, euler = motion_to_euler(source, motion)
     S = global_transforms(source, local_matrices(source, euler))[0]  # (T, Js, 3, 3)
     corr = rest_corrections(jmap, source, target)
@@ -279,8 +299,9 @@ def retarget_motion(source: Skeleton, motion: np.ndarray, target: Skeleton, jmap
     return pose_from_world(target, {t: g for t, g in world.items() if t in UPPER_BODY}, root)
 
 
-def retarget_bvh(path: str | Path, target: Skeleton, jmap: JointMap | str | Path | None = None,
-                 fps: float | None = None) -> Retargeted:
+def retarget_bvh(
+    path: str | Path, target: Skeleton, jmap: JointMap | str | Path | None = None, fps: float | None = None
+) -> Retargeted:
     """Read a BVH of any skeleton and retarget it (at its own rate, or resampled to ``fps``)."""
     from facecapges import timing
     from facecapges.io.bvh import read_bvh
@@ -295,9 +316,16 @@ def retarget_bvh(path: str | Path, target: Skeleton, jmap: JointMap | str | Path
         pose, mask = retarget_motion(bvh.skeleton, motion, target, jmap)
     except UserError as exc:
         raise UserError(f"{path}: {exc}") from None
-    return Retargeted(pose=pose, mask=mask, fps=bvh.fps if fps is None else fps, map_name=jmap.name,
-                      source_fps=bvh.fps, dataset=jmap.dataset or jmap.name, licence=jmap.licence,
-                      speaker=jmap.speaker)
+    return Retargeted(
+        pose=pose,
+        mask=mask,
+        fps=bvh.fps if fps is None else fps,
+        map_name=jmap.name,
+        source_fps=bvh.fps,
+        dataset=jmap.dataset or jmap.name,
+        licence=jmap.licence,
+        speaker=jmap.speaker,
+    )
 
 
 def fill_masked(target: Skeleton, pose: np.ndarray, mask: np.ndarray, fill: np.ndarray) -> np.ndarray:

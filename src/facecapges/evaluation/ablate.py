@@ -80,13 +80,17 @@ from facecapges import timing
 from facecapges.errors import UserError
 
 VARIANTS: tuple[str, ...] = ("full", "no_head", "offline", "camn")
-LABELS = {"full": "FaceCapGes (full)", "no_head": "without head pose", "offline": "offline decoding",
-          "camn": "CaMN (baseline)"}
+LABELS = {
+    "full": "FaceCapGes (full)",
+    "no_head": "without head pose",
+    "offline": "offline decoding",
+    "camn": "CaMN (baseline)",
+}
 #: Variants decoded offline (one pass per sequence): their loader and trainer builder.
-SEGMENT_DECODERS = {"offline": ("facecapges.model.offline:load_offline",
-                                "facecapges.training.offline:build_offline_trainer"),
-                    "camn": ("facecapges.evaluation.camn:load_camn",
-                             "facecapges.evaluation.camn:build_camn_trainer")}
+SEGMENT_DECODERS = {
+    "offline": ("facecapges.model.offline:load_offline", "facecapges.training.offline:build_offline_trainer"),
+    "camn": ("facecapges.evaluation.camn:load_camn", "facecapges.evaluation.camn:build_camn_trainer"),
+}
 
 
 def _resolve(ref: str):
@@ -120,8 +124,9 @@ class Recipe:
         return to_dict(model_config_from_dict(m)), to_dict(train_config_from_dict(self.train_over))
 
 
-def make_recipe(config: Path | None, speaker: int, split: str | None, epochs: int | None,
-                holdout_from: int | None, fps: float) -> Recipe:
+def make_recipe(
+    config: Path | None, speaker: int, split: str | None, epochs: int | None, holdout_from: int | None, fps: float
+) -> Recipe:
     from facecapges.model.config import load_config_file
 
     path = config if config is not None else default_config_path()
@@ -139,8 +144,10 @@ def make_recipe(config: Path | None, speaker: int, split: str | None, epochs: in
     if abs(fps - model_over.get("fps", timing.MODEL_FPS)) > 1e-6:
         model_over["fps"] = int(round(fps))
     if model_over.get("head_dim", 12) == 0:
-        raise UserError(f"{path}: the base config already has head_dim 0; the 'without head pose' variant needs "
-                        "a base model with head input")
+        raise UserError(
+            f"{path}: the base config already has head_dim 0; the 'without head pose' variant needs "
+            "a base model with head input"
+        )
     hf = train_over.get("holdout_from")
     chosen = split or ("all" if hf is not None else "train")
     if chosen not in ("train", "val", "test", "all"):
@@ -155,12 +162,14 @@ def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_name
 
     # a field added to TrainConfig after the checkpoint was written counts at its default
     stored_t = dict(to_dict(TrainConfig()), **(meta.get("train_config") or {}))
-    checks = [(meta.get("model_config") == mcfg, "model config differs"),
-              (stored_t == tcfg, "training config differs"),
-              (meta.get("epochs_trained") == tcfg["epochs"], "not trained for the full number of epochs"),
-              (meta.get("speaker") == recipe.speaker, "other speaker"),
-              (list(meta.get("clips") or []) == clip_names, "other clips"),
-              (meta.get("split", recipe.split) == recipe.split, "other split")]
+    checks = [
+        (meta.get("model_config") == mcfg, "model config differs"),
+        (stored_t == tcfg, "training config differs"),
+        (meta.get("epochs_trained") == tcfg["epochs"], "not trained for the full number of epochs"),
+        (meta.get("speaker") == recipe.speaker, "other speaker"),
+        (list(meta.get("clips") or []) == clip_names, "other clips"),
+        (meta.get("split", recipe.split) == recipe.split, "other split"),
+    ]
     for ok, why in checks:
         if not ok:
             return why
@@ -183,9 +192,17 @@ def _load_clip_arrays(cache: Path, speaker: int, split: str):
     return load_clips(cache, speaker, split)
 
 
-def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[str] = VARIANTS,
-                   reuse_default: bool = True, retrain: bool = False, progress: bool = True,
-                   say=print, given: Mapping[str, str] | None = None) -> dict[str, TrainedVariant]:
+def train_variants(
+    cache: Path,
+    out: Path,
+    recipe: Recipe,
+    variants: Sequence[str] = VARIANTS,
+    reuse_default: bool = True,
+    retrain: bool = False,
+    progress: bool = True,
+    say=print,
+    given: Mapping[str, str] | None = None,
+) -> dict[str, TrainedVariant]:
     """Train (or reuse) every variant; see the module docstring.
 
     ``given`` maps variants to checkpoints (a file, or for closed-loop variants an
@@ -198,8 +215,13 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
-    meta_base = {"speaker": recipe.speaker, "clips": names, "split": recipe.split,
-                 "skeleton": cache_obj.index["skeleton"], "cache": str(cache)}
+    meta_base = {
+        "speaker": recipe.speaker,
+        "clips": names,
+        "split": recipe.split,
+        "skeleton": cache_obj.index["skeleton"],
+        "cache": str(cache),
+    }
     result: dict[str, TrainedVariant] = {}
     for v in variants:
         run = out / "runs" / v
@@ -221,15 +243,22 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
             why = _same_recipe(ck.meta, recipe, None, names)
             if why is None:
                 say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
-                result[v] = TrainedVariant(v, ck.path, "shipped checkpoint", 0.0, ck.meta.get("final_losses", {}),
-                                           ck.meta.get("epochs_trained"))
+                result[v] = TrainedVariant(
+                    v,
+                    ck.path,
+                    "shipped checkpoint",
+                    0.0,
+                    ck.meta.get("final_losses", {}),
+                    ck.meta.get("epochs_trained"),
+                )
                 continue
             say(f"[{v}] shipped checkpoint not reused ({why}); training")
         done = run / "model.safetensors"
         if done.is_file() and not retrain:
             try:
-                meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else \
-                    load_checkpoint(done).meta
+                meta = (
+                    _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else load_checkpoint(done).meta
+                )
             except UserError:
                 meta = {}
             if meta and _same_recipe(meta, recipe, extra, names) is None:
@@ -239,8 +268,10 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
                 result[v] = TrainedVariant(v, done, "existing run", float(secs), meta.get("final_losses", {}))
                 continue
         _, tcfg = recipe.resolved(extra)
-        say(f"[{v}] training {LABELS[v]}: {tcfg['epochs']} epochs, batch {tcfg['batch_size']}, "
-            f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}")
+        say(
+            f"[{v}] training {LABELS[v]}: {tcfg['epochs']} epochs, batch {tcfg['batch_size']}, "
+            f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}"
+        )
         t0 = time.perf_counter()
         meta = dict(meta_base, variant=LABELS[v])
         if v in SEGMENT_DECODERS:
@@ -250,14 +281,16 @@ def train_variants(cache: Path, out: Path, recipe: Recipe, variants: Sequence[st
         else:
             from facecapges.training.train import build_trainer
 
-            tr = build_trainer(clips, run, dict(recipe.model_over, **(extra or {})), dict(recipe.train_over), meta,
-                               resume=False)
+            tr = build_trainer(
+                clips, run, dict(recipe.model_over, **(extra or {})), dict(recipe.train_over), meta, resume=False
+            )
             tr.fit()
         seconds = time.perf_counter() - t0
         last = tr.history[-1] if tr.history else {}
         (run / "ablation_variant.json").write_text(json.dumps({"variant": v, "train_seconds": seconds}))
-        result[v] = TrainedVariant(v, run / "model.safetensors", "trained", seconds,
-                                   {k: val for k, val in last.items() if k != "epoch"})
+        result[v] = TrainedVariant(
+            v, run / "model.safetensors", "trained", seconds, {k: val for k, val in last.items() if k != "epoch"}
+        )
     return result
 
 
@@ -286,8 +319,9 @@ class _Runner:
             threads = torch.get_num_threads()
             torch.set_num_threads(1)
             try:
-                out = self.model.generate(inputs.audio, inputs.face, inputs.head,
-                                          self.neutral if history is None else history)
+                out = self.model.generate(
+                    inputs.audio, inputs.face, inputs.head, self.neutral if history is None else history
+                )
             finally:
                 torch.set_num_threads(threads)
         elif history is None:
@@ -304,9 +338,16 @@ class _Runner:
         return out
 
 
-def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVariant], fgd=None,
-                      samples: int = 3, seed: int = 0, offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
-                      progress: bool = True) -> dict:
+def evaluate_variants(
+    cache: Path,
+    recipe: Recipe,
+    trained: dict[str, TrainedVariant],
+    fgd=None,
+    samples: int = 3,
+    seed: int = 0,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    progress: bool = True,
+) -> dict:
     """The suite over the held-out frames for the reference rows and every variant (both regions)."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
@@ -324,15 +365,19 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
     loaded = {e["name"]: c.load(e["name"]) for e in entries}
     evaluated = [n for n in loaded if len(loaded[n]["pose"]) - start >= 32]
     if not evaluated:
-        raise UserError(f"{cache}: no clip of speaker {recipe.speaker} has 32 frames to evaluate from frame {start} "
-                        "on (without a hold-out frame the test clips are evaluated)")
+        raise UserError(
+            f"{cache}: no clip of speaker {recipe.speaker} has 32 frames to evaluate from frame {start} "
+            "on (without a hold-out frame the test clips are evaluated)"
+        )
     if F_ is not None:
         pool = [loaded[n]["pose"][:F_] for n in loaded]
     else:
         pool = [c.load(e["name"])["pose"] for e in c.clips(speaker=recipe.speaker, split="train")]
         if not pool:
-            raise UserError(f"{cache}: no train clips of speaker {recipe.speaker} for the reference rows; "
-                            "use a hold-out frame (--holdout-from)")
+            raise UserError(
+                f"{cache}: no train clips of speaker {recipe.speaker} for the reference rows; "
+                "use a hold-out frame (--holdout-from)"
+            )
     runners = {v: _Runner(t) for v, t in trained.items()}
     n_hist = next(iter(runners.values())).cfg.n_history
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
@@ -356,33 +401,62 @@ def evaluate_variants(cache: Path, recipe: Recipe, trained: dict[str, TrainedVar
             segment = bl.random_segment([a["pose"]], len(real), rng, exclude=(0, start, len(a["pose"])))
         else:
             segment = bl.random_segment(pool, len(real), rng)
-        methods: dict[str, Method] = {"ground truth": bl.ground_truth(real),
-                                      "mean pose": bl.mean_pose_sequence(pool, len(real)),
-                                      "random real segment": segment}
+        methods: dict[str, Method] = {
+            "ground truth": bl.ground_truth(real),
+            "mean pose": bl.mean_pose_sequence(pool, len(real)),
+            "random real segment": segment,
+        }
         for v, r in runners.items():
             methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
         lam = a["semantic"][start:] if weighted else None
-        per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
+        per_clip.append(
+            evaluate_paired(
+                real,
+                methods,
+                audio,
+                sr,
+                fps,
+                fgd=None,
+                semantic_weights=lam,
+                offsets_s=offsets_s,
+                progress=progress,
+                skeleton=c.skeleton(name),
+            )
+        )
         real_clips.append(real)
         for k, m in methods.items():
             method_clips.setdefault(k, []).extend([m] if isinstance(m, np.ndarray) else m)
     result = combine_clips(per_clip, fgd, real_clips, method_clips)
-    result.update(clips=evaluated, first_frame=start, speaker=recipe.speaker,
-                  ms_per_frame={LABELS[v]: float(np.mean(r.ms)) for v, r in runners.items()})
+    result.update(
+        clips=evaluated,
+        first_frame=start,
+        speaker=recipe.speaker,
+        ms_per_frame={LABELS[v]: float(np.mean(r.ms)) for v, r in runners.items()},
+    )
     return result
 
 
-def _fgd_for(out: Path, recipe: Recipe, trained: dict[str, TrainedVariant], cache: Path,
-             fgd_location: Path | None, fgd_epochs: int, progress: bool, say=print):
+def _fgd_for(
+    out: Path,
+    recipe: Recipe,
+    trained: dict[str, TrainedVariant],
+    cache: Path,
+    fgd_location: Path | None,
+    fgd_epochs: int,
+    progress: bool,
+    say=print,
+):
     from facecapges.evaluation.fgd import FGDConfig, fgd_paths, load_fgd, save_fgd, train_fgd
     from facecapges.evaluation.run import load_real_clips
 
     if fgd_location is not None:
         return load_fgd(fgd_location), str(fgd_paths(fgd_location)[0])
     full = trained.get("full")
-    if full is not None and full.source.startswith(("shipped checkpoint", "given checkpoint")) and \
-            fgd_paths(full.path)[1].is_file():
+    if (
+        full is not None
+        and full.source.startswith(("shipped checkpoint", "given checkpoint"))
+        and fgd_paths(full.path)[1].is_file()
+    ):
         say(f"FGD: the shipped checkpoint's autoencoder {fgd_paths(full.path)[0].parent}")
         return load_fgd(full.path), str(fgd_paths(full.path)[0])
     loc = out / "fgd"
@@ -407,10 +481,18 @@ def ablation_markdown(full: dict) -> str:
     from facecapges.evaluation.report import markdown_table
 
     res = full["result"]
-    md = markdown_table(res, f"Ablation (thesis Table 5.3) — speaker {res['speaker']}, "
-                             f"{len(res['clips'])} clip(s) from frame {res['first_frame']}")
-    lines = ["", "### Variants", "", "| Variant | Model | Epochs | Train loss (rec) | Held-out loss (rec) | "
-             "Train time | Inference ms/frame |", "|---|---|---|---|---|---|---|"]
+    md = markdown_table(
+        res,
+        f"Ablation (thesis Table 5.3) — speaker {res['speaker']}, "
+        f"{len(res['clips'])} clip(s) from frame {res['first_frame']}",
+    )
+    lines = [
+        "",
+        "### Variants",
+        "",
+        "| Variant | Model | Epochs | Train loss (rec) | Held-out loss (rec) | Train time | Inference ms/frame |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for v, info in full["variants"].items():
         fl = info.get("final_losses") or {}
         rec = fl.get("rec")
@@ -418,37 +500,59 @@ def ablation_markdown(full: dict) -> str:
         ms = res["ms_per_frame"].get(LABELS[v])
         took = f"{info['seconds'] / 60:.1f} min" if info["seconds"] else "—"
         where = Path(info["path"]).name if info["source"].startswith(("shipped", "given")) else f"runs/{v}/"
-        lines.append(f"| {LABELS[v]} | {info['source']} ({where}) | {info['epochs']} | "
-                     f"{'—' if rec is None else f'{rec:.5f}'} | {'—' if held is None else f'{held:.5f}'} | "
-                     f"{took} | "
-                     f"{'—' if ms is None else f'{ms:.2f}'} |")
+        lines.append(
+            f"| {LABELS[v]} | {info['source']} ({where}) | {info['epochs']} | "
+            f"{'—' if rec is None else f'{rec:.5f}'} | {'—' if held is None else f'{held:.5f}'} | "
+            f"{took} | "
+            f"{'—' if ms is None else f'{ms:.2f}'} |"
+        )
     r = full["recipe"]
-    lines += ["", f"Recipe: base config `{r['config_path']}`, training split `{r['split']}`, hold-out from frame "
-                  f"{r['holdout_from']}; every variant: {r['train']['epochs']} epochs, batch {r['train']['batch_size']}, "
-                  f"{r['train']['optimizer']}, lr_base {r['train']['lr_base']}, seed {r['train']['seed']}.",
-              f"Samples per variant and clip: {full['samples']} (sample 0 from the model's cold-start neutral "
-              "window, the others from the same random real histories for every variant). The offline variant "
-              "decodes each held-out sequence in one pass seeded by that same history; the two closed-loop "
-              "variants run frame by frame through the streaming generator.",
-              f"FGD autoencoder: `{full['fgd_autoencoder']}`."]
+    lines += [
+        "",
+        f"Recipe: base config `{r['config_path']}`, training split `{r['split']}`, hold-out from frame "
+        f"{r['holdout_from']}; every variant: {r['train']['epochs']} epochs, batch {r['train']['batch_size']}, "
+        f"{r['train']['optimizer']}, lr_base {r['train']['lr_base']}, seed {r['train']['seed']}.",
+        f"Samples per variant and clip: {full['samples']} (sample 0 from the model's cold-start neutral "
+        "window, the others from the same random real histories for every variant). The offline variant "
+        "decodes each held-out sequence in one pass seeded by that same history; the two closed-loop "
+        "variants run frame by frame through the streaming generator.",
+        f"FGD autoencoder: `{full['fgd_autoencoder']}`.",
+    ]
     if "camn" in full["variants"]:
-        lines += ["", "CaMN (baseline) is our implementation of BEAT's CaMN (`facecapges.evaluation.camn`: "
-                      "non-causal conv encoders, fusion cascade, 4-layer bidirectional body and hands LSTMs of 256 "
-                      "units) on the same audio, face and head inputs, trained by the same trainer, recipe and "
-                      "segments as the offline-decoding variant and decoded like it. DiffSHEG (thesis 5.2.1) is not "
-                      "reproduced: it needs HuBERT speech features from a pretrained model that cannot be obtained "
-                      "on this machine."]
+        lines += [
+            "",
+            "CaMN (baseline) is our implementation of BEAT's CaMN (`facecapges.evaluation.camn`: "
+            "non-causal conv encoders, fusion cascade, 4-layer bidirectional body and hands LSTMs of 256 "
+            "units) on the same audio, face and head inputs, trained by the same trainer, recipe and "
+            "segments as the offline-decoding variant and decoded like it. DiffSHEG (thesis 5.2.1) is not "
+            "reproduced: it needs HuBERT speech features from a pretrained model that cannot be obtained "
+            "on this machine.",
+        ]
     lines.append("")
     return md + "\n".join(lines)
 
 
-def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None = None, epochs: int | None = None,
-                 split: str | None = None, holdout_from: int | None = None, variants: Sequence[str] = VARIANTS,
-                 reuse_default: bool = True, retrain: bool = False, fgd_location: Path | None = None,
-                 fgd_epochs: int = 400, samples: int = 3, seed: int = 0,
-                 offsets_s: Sequence[float] = tuple(range(2, 61, 2)), progress: bool = True, say=print,
-                 given: Mapping[str, str] | None = None,
-                 command: str | None = None) -> dict:
+def run_ablation(
+    cache: Path,
+    out: Path,
+    speaker: int = 2,
+    config: Path | None = None,
+    epochs: int | None = None,
+    split: str | None = None,
+    holdout_from: int | None = None,
+    variants: Sequence[str] = VARIANTS,
+    reuse_default: bool = True,
+    retrain: bool = False,
+    fgd_location: Path | None = None,
+    fgd_epochs: int = 400,
+    samples: int = 3,
+    seed: int = 0,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    progress: bool = True,
+    say=print,
+    given: Mapping[str, str] | None = None,
+    command: str | None = None,
+) -> dict:
     """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation.report import write_metrics_json
@@ -471,12 +575,31 @@ def run_ablation(cache: Path, out: Path, speaker: int = 2, config: Path | None =
     say("evaluating the variants on the held-out frames")
     result = evaluate_variants(cache, recipe, trained, fgd, samples, seed, offsets_s, progress)
     _, tcfg = recipe.resolved()
-    doc = {"result": result, "samples": samples, "fgd_autoencoder": fgd_file, "command": command,
-           "recipe": {"config_path": recipe.config_path, "split": recipe.split, "holdout_from": recipe.holdout_from,
-                      "speaker": recipe.speaker, "model_over": recipe.model_over, "train": tcfg},
-           "variants": {v: {"label": LABELS[v], "path": str(t.path), "source": t.source, "seconds": t.seconds,
-                            "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
-                            "final_losses": t.final_losses} for v, t in trained.items()}}
+    doc = {
+        "result": result,
+        "samples": samples,
+        "fgd_autoencoder": fgd_file,
+        "command": command,
+        "recipe": {
+            "config_path": recipe.config_path,
+            "split": recipe.split,
+            "holdout_from": recipe.holdout_from,
+            "speaker": recipe.speaker,
+            "model_over": recipe.model_over,
+            "train": tcfg,
+        },
+        "variants": {
+            v: {
+                "label": LABELS[v],
+                "path": str(t.path),
+                "source": t.source,
+                "seconds": t.seconds,
+                "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
+                "final_losses": t.final_losses,
+            }
+            for v, t in trained.items()
+        },
+    }
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
     return doc

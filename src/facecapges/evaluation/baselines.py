@@ -40,8 +40,12 @@ def mean_pose_sequence(train_clips: Sequence[np.ndarray], n_frames: int) -> np.n
     return np.repeat(m[None], n_frames, axis=0)
 
 
-def random_segment(pool: Sequence[np.ndarray], n_frames: int, rng: np.random.Generator | int = 0,
-                   exclude: tuple[int, int, int] | None = None) -> np.ndarray:
+def random_segment(
+    pool: Sequence[np.ndarray],
+    n_frames: int,
+    rng: np.random.Generator | int = 0,
+    exclude: tuple[int, int, int] | None = None,
+) -> np.ndarray:
     """A random real window (n_frames, J, 6) from the clips in ``pool``.
 
     ``exclude = (clip_index, start, end)`` forbids windows overlapping frames
@@ -58,4 +62,4 @@ def random_segment(pool: Sequence[np.ndarray], n_frames: int, rng: np.random.Gen
     if not candidates:
         raise ValueError(f"no real segment of {n_frames} frames outside the evaluated interval")
     ci, s = candidates[int(rng.integers(len(candidates)))]
-    return np.asarray(pool[ci][s:s + n_frames], np.float32).copy()
+    return np.asarray(pool[ci][s : s + n_frames], np.float32).copy()

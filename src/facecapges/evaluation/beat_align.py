@@ -92,8 +92,9 @@ def speech_beats(audio: np.ndarray, sr: int, hop_length: int = HOP_LENGTH, uniqu
     oenv = librosa.onset.onset_strength(y=y, sr=sr, hop_length=hop_length)
     rms = librosa.feature.rms(y=y, hop_length=hop_length)[0]
     n = min(len(oenv), len(rms))
-    frames = librosa.onset.onset_detect(onset_envelope=oenv[:n], sr=sr, hop_length=hop_length,
-                                        backtrack=True, energy=rms[:n], units="frames")
+    frames = librosa.onset.onset_detect(
+        onset_envelope=oenv[:n], sr=sr, hop_length=hop_length, backtrack=True, energy=rms[:n], units="frames"
+    )
     times = librosa.frames_to_time(frames, sr=sr, hop_length=hop_length)
     return np.unique(times) if unique else np.sort(times)
 
@@ -125,8 +126,9 @@ def _check_mode(mode: str, joint: int | None) -> None:
         raise ValueError("mode='single' needs the index of the joint to score (joint=...)")
 
 
-def motion_beats(pose: np.ndarray, fps: float, order: int = 2, mode: str = "mean",
-                 joint: int | None = None) -> np.ndarray:
+def motion_beats(
+    pose: np.ndarray, fps: float, order: int = 2, mode: str = "mean", joint: int | None = None
+) -> np.ndarray:
     """Motion beat times in seconds (M,), sorted, from rot6d poses (T, J, 6) (see module doc).
 
     ``mode="per_joint"`` has one beat set per joint: use :func:`motion_beats_per_joint`.
@@ -138,8 +140,9 @@ def motion_beats(pose: np.ndarray, fps: float, order: int = 2, mode: str = "mean
     elif mode == "single":
         idx = _minima(speed[:, joint], order)
     elif mode == "union":
-        idx = np.unique(np.concatenate([_minima(speed[:, j], order) for j in range(speed.shape[1])]
-                                       or [np.empty(0, np.int64)]))
+        idx = np.unique(
+            np.concatenate([_minima(speed[:, j], order) for j in range(speed.shape[1])] or [np.empty(0, np.int64)])
+        )
     else:
         raise ValueError("mode='per_joint' has one beat set per joint: use motion_beats_per_joint")
     return (idx.astype(np.float64) + 0.5) / fps
@@ -175,11 +178,19 @@ def beat_align_score(speech_s: np.ndarray, motion_s: np.ndarray, sigma_s: float 
         return 0.0
     pos = np.clip(np.searchsorted(m, s), 1, len(m) - 1) if len(m) > 1 else np.zeros(len(s), np.int64)
     dt = np.abs(s - m[pos]) if len(m) == 1 else np.minimum(np.abs(s - m[pos - 1]), np.abs(s - m[pos]))
-    return float(np.mean(np.exp(-dt ** 2 / (2.0 * sigma_s ** 2))))
+    return float(np.mean(np.exp(-(dt**2) / (2.0 * sigma_s**2))))
 
 
-def beat_align(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float, sigma_s: float = SIGMA_S,
-               order: int = 2, mode: str = "mean", joint: int | None = None) -> float:
+def beat_align(
+    pose: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    sigma_s: float = SIGMA_S,
+    order: int = 2,
+    mode: str = "mean",
+    joint: int | None = None,
+) -> float:
     """BeatAlign of motion (T, J, 6) at ``fps`` against its audio (S,) at ``sr`` (``mode``: module doc)."""
     return score_sets(speech_beats(audio, sr), _beat_sets(pose, fps, order, mode, joint), sigma_s)
 
@@ -217,8 +228,14 @@ class SpeechBeatSets:
     shifted: list[np.ndarray]
 
 
-def speech_beat_sets(audio: np.ndarray, sr: int, n_frames: int, fps: float,
-                     offsets_s: Sequence[float] = tuple(range(2, 61, 2)), min_gap_s: float = 1.0) -> SpeechBeatSets:
+def speech_beat_sets(
+    audio: np.ndarray,
+    sr: int,
+    n_frames: int,
+    fps: float,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    min_gap_s: float = 1.0,
+) -> SpeechBeatSets:
     """Speech beats of the audio fitted to ``n_frames`` frames, unshifted and rolled by each usable offset."""
     a = fit_audio(audio, n_frames, fps, sr)
     dur = len(a) / sr
@@ -232,10 +249,19 @@ def speech_beat_sets(audio: np.ndarray, sr: int, n_frames: int, fps: float,
     return SpeechBeatSets(speech_beats(a, sr), used, sets)
 
 
-def beat_align_control(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float,
-                       offsets_s: Sequence[float] = tuple(range(2, 61, 2)), sigma_s: float = SIGMA_S,
-                       order: int = 2, mode: str = "mean", min_gap_s: float = 1.0,
-                       speech: SpeechBeatSets | None = None, joint: int | None = None) -> BeatAlignControl:
+def beat_align_control(
+    pose: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    sigma_s: float = SIGMA_S,
+    order: int = 2,
+    mode: str = "mean",
+    min_gap_s: float = 1.0,
+    speech: SpeechBeatSets | None = None,
+    joint: int | None = None,
+) -> BeatAlignControl:
     """Matched BeatAlign and BeatAlign against the audio rolled by each offset (wrapping).
 
     ``speech`` (from :func:`speech_beat_sets` for this audio and ``len(pose)``) skips the
@@ -248,5 +274,13 @@ def beat_align_control(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float,
     arr = np.array([score_sets(sb, sets, sigma_s) for sb in speech.shifted], np.float64)
     mean = float(np.nanmean(arr)) if len(arr) else float("nan")
     sd = float(np.nanstd(arr)) if len(arr) else float("nan")
-    return BeatAlignControl(matched, mean, sd, matched - mean, list(speech.offsets_s), [float(x) for x in arr],
-                            len(speech.matched), int(sum(len(m) for m in sets)))
+    return BeatAlignControl(
+        matched,
+        mean,
+        sd,
+        matched - mean,
+        list(speech.offsets_s),
+        [float(x) for x in arr],
+        len(speech.matched),
+        int(sum(len(m) for m in sets)),
+    )

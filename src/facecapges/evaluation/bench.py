@@ -81,8 +81,9 @@ def run(quick: bool, shared: Path) -> dict:
         sf.write(wav, audio[: 60 * sr], sr)
         frames = 150 if quick else n
         t0 = time.perf_counter()
-        render_skeleton_video([pose[:frames], pose[57:57 + frames]], ["real", "other"], skel, Path(td) / "v.mp4", fps,
-                              wav)
+        render_skeleton_video(
+            [pose[:frames], pose[57 : 57 + frames]], ["real", "other"], skel, Path(td) / "v.mp4", fps, wav
+        )
         dt = time.perf_counter() - t0
     out["skeleton_video_s_per_min"] = round(dt * n / frames, 2)
     out["skeleton_video_fps"] = round(frames / dt, 1)
@@ -171,13 +172,18 @@ def peer_timing(quick: bool = False) -> dict:
                 for _ in range(per_block):
                     e = L + len(camn_ms)  # the window ends at frame e − 1
                     t0 = time.perf_counter()
-                    out = camn(a_t[None, e - L:e], f_t[None, e - L:e], h_t[None, e - L:e], poses[None, e - L:e - L + N])
+                    out = camn(
+                        a_t[None, e - L : e], f_t[None, e - L : e], h_t[None, e - L : e], poses[None, e - L : e - L + N]
+                    )
                     poses[e - 1] = out[0, -1]
                     camn_ms.append((time.perf_counter() - t0) * 1000)
             secs = 10 if quick else 60
             n_off = secs * cfg.fps
             a_off = torch.from_numpy(_speechlike(N + n_off, spf, 1))[None]
-            f_off, h_off = torch.zeros(1, N + n_off, cfg.n_face), torch.from_numpy(np.tile(head[:1], (N + n_off, 1)))[None]
+            f_off, h_off = (
+                torch.zeros(1, N + n_off, cfg.n_face),
+                torch.from_numpy(np.tile(head[:1], (N + n_off, 1)))[None],
+            )
             t0 = time.perf_counter()
             camn(a_off, f_off, h_off, torch.zeros(1, N, cfg.pose_dim))
             off_ms = (time.perf_counter() - t0) * 1000 / n_off
@@ -185,10 +191,14 @@ def peer_timing(quick: bool = False) -> dict:
         torch.set_num_threads(threads)
     ours_p50 = float(np.median(ours_ms))
     online_p50 = float(np.median(camn_ms))
-    return {"facecapges_step_ms_p50": round(ours_p50, 3), "camn_online_ms_p50": round(online_p50, 2),
-            "camn_offline_ms_per_frame": round(off_ms, 3), "offline_seconds": secs,
-            "camn_online_over_facecapges": round(online_p50 / ours_p50, 1),
-            "camn_offline_over_facecapges": round(off_ms / ours_p50, 2),
-            "camn_params_M": round(sum(p.numel() for p in camn.parameters()) / 1e6, 2),
-            "camn_config": {k: getattr(CaMNConfig(), k) for k in ("hidden", "layers", "audio_f", "facial_f")},
-            "frames_timed": {"facecapges": len(ours_ms), "camn_online": len(camn_ms)}}
+    return {
+        "facecapges_step_ms_p50": round(ours_p50, 3),
+        "camn_online_ms_p50": round(online_p50, 2),
+        "camn_offline_ms_per_frame": round(off_ms, 3),
+        "offline_seconds": secs,
+        "camn_online_over_facecapges": round(online_p50 / ours_p50, 1),
+        "camn_offline_over_facecapges": round(off_ms / ours_p50, 2),
+        "camn_params_M": round(sum(p.numel() for p in camn.parameters()) / 1e6, 2),
+        "camn_config": {k: getattr(CaMNConfig(), k) for k in ("hidden", "layers", "audio_f", "facial_f")},
+        "frames_timed": {"facecapges": len(ours_ms), "camn_online": len(camn_ms)},
+    }

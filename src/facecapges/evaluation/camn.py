@@ -105,8 +105,9 @@ class _TemporalBlock(nn.Module):
         self.bn1 = nn.BatchNorm1d(c_out)
         self.conv2 = nn.Conv1d(c_out, c_out, 3, padding=1)
         self.bn2 = nn.BatchNorm1d(c_out)
-        self.skip = None if c_in == c_out else nn.Sequential(nn.Conv1d(c_in, c_out, kernel, padding=pad),
-                                                             nn.BatchNorm1d(c_out))
+        self.skip = (
+            None if c_in == c_out else nn.Sequential(nn.Conv1d(c_in, c_out, kernel, padding=pad), nn.BatchNorm1d(c_out))
+        )
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.bn2(self.conv2(F.leaky_relu(self.bn1(self.conv1(x)), 0.2)))
@@ -150,9 +151,11 @@ class CaMN(nn.Module):
         H = c.hidden
         self.audio_enc = _WaveEncoder(c.audio_f)
         self.face_norm = _Standardize(cfg.n_face)
-        self.face_enc = nn.Sequential(_TemporalBlock(cfg.n_face, c.facial_f // 2, 7),
-                                      _TemporalBlock(c.facial_f // 2, c.facial_f // 2, 3),
-                                      _TemporalBlock(c.facial_f // 2, c.facial_f, 3))
+        self.face_enc = nn.Sequential(
+            _TemporalBlock(cfg.n_face, c.facial_f // 2, 7),
+            _TemporalBlock(c.facial_f // 2, c.facial_f // 2, 3),
+            _TemporalBlock(c.facial_f // 2, c.facial_f, 3),
+        )
         self.head_norm = _Standardize(6)
         self.head_enc = _TemporalBlock(6, c.head_f, 3)
         self.audio_fusion = _fusion(c.audio_f, H // 2, c.audio_f)
@@ -160,8 +163,9 @@ class CaMN(nn.Module):
         in_dim = cfg.pose_dim + 1 + c.audio_f + c.facial_f + c.head_f
         n_torso, n_limb = cfg.n_torso * 6, (cfg.n_joints - cfg.n_torso) * 6
         self.lstm_body = nn.LSTM(in_dim, H, c.layers, batch_first=True, bidirectional=True, dropout=c.dropout)
-        self.lstm_hands = nn.LSTM(in_dim + n_torso, H, c.layers, batch_first=True, bidirectional=True,
-                                  dropout=c.dropout)
+        self.lstm_hands = nn.LSTM(
+            in_dim + n_torso, H, c.layers, batch_first=True, bidirectional=True, dropout=c.dropout
+        )
         self.head_t = _out_head(H, n_torso)
         self.head_u = _out_head(H, n_limb)
 
@@ -186,8 +190,7 @@ class CaMN(nn.Module):
         f = self.facial_fusion(torch.cat([a, f], -1))
         return torch.cat([a, f, h], -1)
 
-    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor,
-                seed: torch.Tensor) -> torch.Tensor:
+    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:
         """Inputs of T frames + seed poses (B, n, J·6) of the first n frames → poses (B, T, J·6)."""
         x = self.features(audio, face, head)
         B, T, _ = x.shape
@@ -223,8 +226,12 @@ class CaMN(nn.Module):
             x = np.ascontiguousarray(x, np.float32)
             return torch.from_numpy(np.concatenate([np.zeros((n, width), np.float32), x]))[None]
 
-        out = self(pad(audio, cfg.samples_per_frame), pad(face, cfg.n_face), pad(head, 6),
-                   torch.from_numpy(seed.reshape(1, n, -1).copy()))[0, n:]
+        out = self(
+            pad(audio, cfg.samples_per_frame),
+            pad(face, cfg.n_face),
+            pad(head, 6),
+            torch.from_numpy(seed.reshape(1, n, -1).copy()),
+        )[0, n:]
         return out.reshape(-1, cfg.n_joints, 6).numpy().copy()
 
 
@@ -254,8 +261,14 @@ def camn_heads(model: CaMN) -> tuple[nn.Sequential, nn.Sequential]:
 def _variant():
     from facecapges.training.train import Variant
 
-    return Variant(name="camn", build=build_camn, forward=camn_batch, output_heads=camn_heads, export=save_camn,
-                   meta={"variant": "CaMN"})
+    return Variant(
+        name="camn",
+        build=build_camn,
+        forward=camn_batch,
+        output_heads=camn_heads,
+        export=save_camn,
+        meta={"variant": "CaMN"},
+    )
 
 
 def build_camn_trainer(clips, out: Path, model_over: dict, train_over: dict, meta: dict):

@@ -69,13 +69,18 @@ def register(app: typer.Typer) -> None:
         cache: Path | None = typer.Option(None, help="A cache written by `facecapges prepare`."),
         speaker: int = typer.Option(2, help="BEAT speaker id (one FGD autoencoder per speaker)."),
         split: str = typer.Option("train", help="Cache clips to train on: train, val, test or all."),
-        holdout_from: int | None = typer.Option(None, help="Use only frames before this frame of every clip "
-                                                              "(the rest is held out for evaluation)."),
-        bvh: list[Path] | None = typer.Option(None, help="BEAT BVH file(s) to train on instead of a cache "
-                                                            "(repeat the option for several files)."),
+        holdout_from: int | None = typer.Option(
+            None, help="Use only frames before this frame of every clip (the rest is held out for evaluation)."
+        ),
+        bvh: list[Path] | None = typer.Option(
+            None, help="BEAT BVH file(s) to train on instead of a cache (repeat the option for several files)."
+        ),
         out: Path | None = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
-        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint to store the autoencoder next "
-                                                             "to (in the folder NAME.fgd/), when --out is not given."),
+        checkpoint: Path | None = typer.Option(
+            None,
+            help="Gesture checkpoint to store the autoencoder next "
+            "to (in the folder NAME.fgd/), when --out is not given.",
+        ),
         epochs: int = typer.Option(400, help="Training epochs."),
         batch_size: int = typer.Option(256, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."),
         momentum: float = typer.Option(0.9, help="SGD momentum (0 = plain SGD)."),
@@ -101,12 +106,13 @@ def register(app: typer.Typer) -> None:
         assert location is not None  # checked above
         for p in fgd_paths(location):
             refuse_overwrite(p, force)
-        clips, source = load_real_clips(cache=cache, speaker=speaker, split=split, bvh=bvh,
-                                        before_frame=holdout_from)
+        clips, source = load_real_clips(cache=cache, speaker=speaker, split=split, bvh=bvh, before_frame=holdout_from)
         cfg = FGDConfig(epochs=epochs, batch_size=batch_size, momentum=momentum, seed=seed)
         n_frames = sum(len(c) for c in clips)
-        typer.echo(f"FGD autoencoder on {len(clips)} clip(s), {n_frames} frames from {source}; "
-                   f"{epochs} epochs, B={batch_size}, lr={cfg.lr:.3g}")
+        typer.echo(
+            f"FGD autoencoder on {len(clips)} clip(s), {n_frames} frames from {source}; "
+            f"{epochs} epochs, B={batch_size}, lr={cfg.lr:.3g}"
+        )
         try:
             ev = train_fgd(clips, cfg, regions=_parse_regions(regions), progress=not quiet)
         except ValueError as exc:
@@ -119,22 +125,28 @@ def register(app: typer.Typer) -> None:
     def eval_cmd(
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: metrics.json, metrics.md, PNG plots, MP4."),
-        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint (default: the installed default "
-                                                             "style)."),
+        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint (default: the installed default style)."),
         style: str | None = typer.Option(None, help="Installed style name instead of --checkpoint."),
         speaker: int | None = typer.Option(None, help="Speaker to evaluate (default: the checkpoint's)."),
         split: str = typer.Option("test", help="Clips to evaluate when --holdout-from is not given."),
-        holdout_from: int | None = typer.Option(None, help="Evaluate frames from this frame on of every clip "
-                                                              "of the speaker; earlier frames are the real pool."),
-        audio: list[Path] | None = typer.Option(None, help="Extra unseen speech (no motion): BeatAlign, L1DIV "
-                                                              "and FGD against the speaker's real motion."),
-        fgd: Path | None = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to; "
-                                                      "default: next to the checkpoint)."),
+        holdout_from: int | None = typer.Option(
+            None,
+            help="Evaluate frames from this frame on of every clip of the speaker; earlier frames are the real pool.",
+        ),
+        audio: list[Path] | None = typer.Option(
+            None, help="Extra unseen speech (no motion): BeatAlign, L1DIV and FGD against the speaker's real motion."
+        ),
+        fgd: Path | None = typer.Option(
+            None, help="FGD autoencoder (directory or checkpoint it sits next to; default: next to the checkpoint)."
+        ),
         offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
         video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
         seed: int = typer.Option(0, help="Seed for the random real segment baseline and the sample starts."),
-        samples: int = typer.Option(3, help="Model runs per clip (different cold-start histories) for the "
-                                            "diversity across samples (L1DIV); metrics average over them."),
+        samples: int = typer.Option(
+            3,
+            help="Model runs per clip (different cold-start histories) for the "
+            "diversity across samples (L1DIV); metrics average over them.",
+        ),
         force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has metrics."),
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
@@ -142,14 +154,30 @@ def register(app: typer.Typer) -> None:
         from facecapges.errors import check_output_dir
         from facecapges.evaluation.run import run_eval
 
-        check_output_dir(out, ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
-                         + (["real_vs_generated.mp4"] if video else []), force)
+        check_output_dir(
+            out,
+            ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+            + (["real_vs_generated.mp4"] if video else []),
+            force,
+        )
         if split not in ("train", "val", "test", "all"):
             raise UserError(f"--split must be train, val, test or all, got {split!r}")
-        summary = run_eval(cache=cache, out=out, checkpoint=checkpoint, style=style, speaker=speaker, split=split,
-                           holdout_from=holdout_from, extra_audio=list(audio or []), fgd_location=fgd,
-                           offsets_s=_parse_offsets(offsets), video=video, seed=seed, samples=samples,
-                           progress=not quiet)
+        summary = run_eval(
+            cache=cache,
+            out=out,
+            checkpoint=checkpoint,
+            style=style,
+            speaker=speaker,
+            split=split,
+            holdout_from=holdout_from,
+            extra_audio=list(audio or []),
+            fgd_location=fgd,
+            offsets_s=_parse_offsets(offsets),
+            video=video,
+            seed=seed,
+            samples=samples,
+            progress=not quiet,
+        )
         for w in summary["warnings"]:
             typer.secho(f"warning: {w}", err=True, fg=typer.colors.YELLOW)
         typer.echo((out / "metrics.md").read_text())
@@ -160,31 +188,50 @@ def register(app: typer.Typer) -> None:
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: ablation.md, ablation.json, runs/<variant>/."),
         speaker: int = typer.Option(2, help="BEAT speaker id to train and evaluate."),
-        config: Path | None = typer.Option(None, help="Base YAML/JSON recipe with 'model:'/'train:' sections "
-                                                         "(default: configs/demo-beat2-scott.yaml, the shipped "
-                                                         "model's recipe)."),
-        epochs: int | None = typer.Option(None, help="Epochs for every variant (default: the config's). Not the "
-                                                             "FGD autoencoder's: that is --fgd-epochs (400) when none "
-                                                             "is found; pass --fgd to use an existing one."),
-        split: str | None = typer.Option(None, help="Clips to train on (default: all with a hold-out frame, "
-                                                       "else train)."),
-        holdout_from: int | None = typer.Option(None, help="Hold out frames >= this of every clip (default: the "
-                                                              "config's holdout_from); they are evaluated."),
-        variants: str = typer.Option(",".join(("full", "no_head", "offline", "camn")),
-                                     help="Comma-separated variants: full, no_head, offline, camn (the CaMN "
-                                          "baseline)."),
-        reuse_default: bool = typer.Option(True, "--reuse-default/--no-reuse-default",
-                                           help="Use the shipped default checkpoint as 'full' when its stored "
-                                                "recipe and data match."),
-        given: str | None = typer.Option(None, "--given", help="VARIANT=CHECKPOINT[,…]: take these rows from "
-                                                                  "existing checkpoints as they are (a file, or an "
-                                                                  "installed style for full/no_head), whatever "
-                                                                  "their recipe, e.g. full=beat2-scott-demo."),
-        retrain: bool = typer.Option(False, "--retrain", help="Train every variant even if OUT/runs holds a "
-                                                              "finished model of this recipe."),
-        fgd: Path | None = typer.Option(None, help="FGD autoencoder (directory or checkpoint it sits next to); "
-                                                      "default: the shipped one when 'full' is the shipped "
-                                                      "checkpoint, else trained into OUT/fgd."),
+        config: Path | None = typer.Option(
+            None,
+            help="Base YAML/JSON recipe with 'model:'/'train:' sections "
+            "(default: configs/demo-beat2-scott.yaml, the shipped "
+            "model's recipe).",
+        ),
+        epochs: int | None = typer.Option(
+            None,
+            help="Epochs for every variant (default: the config's). Not the "
+            "FGD autoencoder's: that is --fgd-epochs (400) when none "
+            "is found; pass --fgd to use an existing one.",
+        ),
+        split: str | None = typer.Option(
+            None, help="Clips to train on (default: all with a hold-out frame, else train)."
+        ),
+        holdout_from: int | None = typer.Option(
+            None, help="Hold out frames >= this of every clip (default: the config's holdout_from); they are evaluated."
+        ),
+        variants: str = typer.Option(
+            ",".join(("full", "no_head", "offline", "camn")),
+            help="Comma-separated variants: full, no_head, offline, camn (the CaMN baseline).",
+        ),
+        reuse_default: bool = typer.Option(
+            True,
+            "--reuse-default/--no-reuse-default",
+            help="Use the shipped default checkpoint as 'full' when its stored recipe and data match.",
+        ),
+        given: str | None = typer.Option(
+            None,
+            "--given",
+            help="VARIANT=CHECKPOINT[,…]: take these rows from "
+            "existing checkpoints as they are (a file, or an "
+            "installed style for full/no_head), whatever "
+            "their recipe, e.g. full=beat2-scott-demo.",
+        ),
+        retrain: bool = typer.Option(
+            False, "--retrain", help="Train every variant even if OUT/runs holds a finished model of this recipe."
+        ),
+        fgd: Path | None = typer.Option(
+            None,
+            help="FGD autoencoder (directory or checkpoint it sits next to); "
+            "default: the shipped one when 'full' is the shipped "
+            "checkpoint, else trained into OUT/fgd.",
+        ),
         fgd_epochs: int = typer.Option(400, help="Epochs when an FGD autoencoder must be trained."),
         samples: int = typer.Option(3, help="Runs per variant and clip (different start histories)."),
         offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
@@ -202,14 +249,31 @@ def register(app: typer.Typer) -> None:
             raise UserError("--fgd-epochs must be at least 1")
         chosen = tuple(v.strip() for v in variants.split(",") if v.strip())
         # every output is checked before any training; --retrain would replace the runs' models
-        check_output_dir(out, ["ablation.json", "ablation.md"]
-                         + ([f"runs/{v}/model.safetensors" for v in chosen] if retrain else []), force)
-        doc = run_ablation(cache=cache, out=out, speaker=speaker, config=config, epochs=epochs, split=split,
-                           holdout_from=holdout_from, variants=chosen, reuse_default=reuse_default, retrain=retrain,
-                           fgd_location=fgd, fgd_epochs=fgd_epochs, samples=samples, seed=seed,
-                           offsets_s=_parse_offsets(offsets), progress=not quiet, say=typer.echo,
-                           given=_parse_given(given),
-                           command="facecapges " + " ".join(sys.argv[1:]))
+        check_output_dir(
+            out,
+            ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in chosen] if retrain else []),
+            force,
+        )
+        doc = run_ablation(
+            cache=cache,
+            out=out,
+            speaker=speaker,
+            config=config,
+            epochs=epochs,
+            split=split,
+            holdout_from=holdout_from,
+            variants=chosen,
+            reuse_default=reuse_default,
+            retrain=retrain,
+            fgd_location=fgd,
+            fgd_epochs=fgd_epochs,
+            samples=samples,
+            seed=seed,
+            offsets_s=_parse_offsets(offsets),
+            progress=not quiet,
+            say=typer.echo,
+            given=_parse_given(given),
+            command="facecapges " + " ".join(sys.argv[1:]),
+        )
         typer.echo((out / "ablation.md").read_text())
-        typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} "
-                   f"({len(doc['variants'])} variant(s))")
+        typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} ({len(doc['variants'])} variant(s))")

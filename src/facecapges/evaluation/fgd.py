@@ -87,9 +87,17 @@ FGD_CONFIG = "fgd_autoencoder.json"
 # ------------------------------------------------------------------------- graph
 def _finger_parents(side: str) -> dict[str, str]:
     h = f"{side}Hand"
-    p = {f"{side}Shoulder": "Spine", f"{side}Arm": f"{side}Shoulder", f"{side}ForeArm": f"{side}Arm",
-         f"{side}Hand": f"{side}ForeArm", f"{h}Middle1": h, f"{h}Ring": h, f"{h}Pinky": f"{h}Ring",
-         f"{h}Index": h, f"{h}Thumb1": f"{h}Index"}
+    p = {
+        f"{side}Shoulder": "Spine",
+        f"{side}Arm": f"{side}Shoulder",
+        f"{side}ForeArm": f"{side}Arm",
+        f"{side}Hand": f"{side}ForeArm",
+        f"{h}Middle1": h,
+        f"{h}Ring": h,
+        f"{h}Pinky": f"{h}Ring",
+        f"{h}Index": h,
+        f"{h}Thumb1": f"{h}Index",
+    }
     for finger, first in (("Middle", "Middle1"), ("Ring", "Ring"), ("Pinky", "Pinky"), ("Index", "Index")):
         chain = [first] + [f"{finger}{k}" for k in (1, 2, 3) if f"{finger}{k}" != first]
         for a, b in itertools.pairwise(chain):
@@ -99,8 +107,13 @@ def _finger_parents(side: str) -> dict[str, str]:
 
 
 #: Parent of each UPPER_BODY joint inside the 47-joint set (BEAT hierarchy); Spine is the root.
-UPPER_BODY_PARENT: dict[str, str | None] = {"Spine": None, "Neck": "Spine", "Neck1": "Neck",
-                                            **_finger_parents("Right"), **_finger_parents("Left")}
+UPPER_BODY_PARENT: dict[str, str | None] = {
+    "Spine": None,
+    "Neck": "Spine",
+    "Neck1": "Neck",
+    **_finger_parents("Right"),
+    **_finger_parents("Left"),
+}
 assert set(UPPER_BODY_PARENT) == set(UPPER_BODY)
 
 
@@ -170,8 +183,9 @@ class FGDConfig:
 class GraphConv(nn.Module):
     """Eq. 5.7 with a temporal kernel: ``tanh(Σ_j A_ij W h_j + b)``; x (B, C, T, J)."""
 
-    def __init__(self, A: torch.Tensor, c_in: int, c_out: int, kernel: int = 3, stride: int = 1,
-                 activation: bool = True):
+    def __init__(
+        self, A: torch.Tensor, c_in: int, c_out: int, kernel: int = 3, stride: int = 1, activation: bool = True
+    ):
         super().__init__()
         pad = (kernel - stride + 1) // 2 if stride > 1 else kernel // 2
         self.W = nn.Conv2d(c_in, c_out, (kernel, 1), stride=(stride, 1), padding=(pad, 0), bias=False)
@@ -220,8 +234,9 @@ class FGDAutoencoder(nn.Module):
         return self.decode(self.encode(x))
 
 
-def reconstruction_loss(pred: torch.Tensor, target: torch.Tensor, lambda_pos: float = 1.0,
-                        lambda_vel: float = 0.1) -> torch.Tensor:
+def reconstruction_loss(
+    pred: torch.Tensor, target: torch.Tensor, lambda_pos: float = 1.0, lambda_vel: float = 0.1
+) -> torch.Tensor:
     """Eq. 5.4: λ_r·MSE(ĝ, g) + λ_v·MSE(ĝ′, g′), ′ = difference along the frame axis (dim 1)."""
     pos = torch.mean((pred - target) ** 2)
     vel = torch.mean((pred.diff(dim=1) - target.diff(dim=1)) ** 2)
@@ -242,7 +257,7 @@ def make_windows(clips: Iterable[np.ndarray], window: int = 32, stride: int = 10
             raise ValueError(f"clips must be (T, J, 6) rot6d, got {c.shape}")
         J = c.shape[1]
         for s in range(0, c.shape[0] - window + 1, stride):
-            out.append(c[s:s + window])
+            out.append(c[s : s + window])
     if not out:
         return np.zeros((0, window, J or N_JOINTS, 6), np.float32)
     return np.stack(out)
@@ -291,8 +306,9 @@ def _trace_sqrt_product_sqrtm(s1: np.ndarray, s2: np.ndarray, eps: float) -> flo
     return float(np.trace(covmean))
 
 
-def frechet_distance(mu1: np.ndarray, sigma1: np.ndarray, mu2: np.ndarray, sigma2: np.ndarray,
-                     method: str = "eigh", eps: float = 1e-6) -> float:
+def frechet_distance(
+    mu1: np.ndarray, sigma1: np.ndarray, mu2: np.ndarray, sigma2: np.ndarray, method: str = "eigh", eps: float = 1e-6
+) -> float:
     """Eq. 5.3 between N(μ1, Σ1) and N(μ2, Σ2): a finite real number ≥ 0.
 
     ``method="eigh"`` (default) uses the symmetric form Σ1^{1/2} Σ2 Σ1^{1/2}; ``"sqrtm"``
@@ -349,11 +365,12 @@ class FGDEvaluator:
         if len(wins) == 0:
             raise ValueError(f"no clip has the {self.config.window} frames one FGD window needs")
         model.eval()
-        z = [model.encode(torch.from_numpy(wins[i:i + batch])) for i in range(0, len(wins), batch)]
+        z = [model.encode(torch.from_numpy(wins[i : i + batch])) for i in range(0, len(wins), batch)]
         return torch.cat(z).reshape(-1, self.config.hidden).numpy().astype(np.float64)
 
-    def fgd(self, real: Sequence[np.ndarray], generated: Sequence[np.ndarray], region: str,
-            method: str = "eigh") -> float:
+    def fgd(
+        self, real: Sequence[np.ndarray], generated: Sequence[np.ndarray], region: str, method: str = "eigh"
+    ) -> float:
         """FGD (eq. 5.3) between real and generated clips (lists of (T, 47, 6)) in ``region``."""
         return frechet_distance_features(self.embed(real, region), self.embed(generated, region), method)
 
@@ -363,8 +380,12 @@ class FGDEvaluator:
         return self.models[region]
 
 
-def train_fgd(clips: Sequence[np.ndarray], config: FGDConfig | None = None,
-              regions: Sequence[str] = REGIONS, progress: bool = True) -> FGDEvaluator:
+def train_fgd(
+    clips: Sequence[np.ndarray],
+    config: FGDConfig | None = None,
+    regions: Sequence[str] = REGIONS,
+    progress: bool = True,
+) -> FGDEvaluator:
     """Train one autoencoder per region on clips of poses (T, 47, 6) (eq. 5.4–5.5)."""
     config = config or FGDConfig()
     clips = [np.asarray(c, np.float32) for c in clips]
@@ -378,8 +399,14 @@ def train_fgd(clips: Sequence[np.ndarray], config: FGDConfig | None = None,
     models: dict[str, FGDAutoencoder] = {}
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-                  TimeRemainingColumn(), disable=not progress, transient=False) as bar:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeRemainingColumn(),
+        disable=not progress,
+        transient=False,
+    ) as bar:
         for region in regions:
             task = bar.add_task(f"FGD autoencoder [{region}]", total=config.epochs)
             torch.manual_seed(config.seed)
@@ -393,7 +420,7 @@ def train_fgd(clips: Sequence[np.ndarray], config: FGDConfig | None = None,
                 order = rng.permutation(len(data))
                 total = 0.0
                 for s in range(0, len(order), config.batch_size):
-                    x = data[order[s:s + config.batch_size]]
+                    x = data[order[s : s + config.batch_size]]
                     loss = reconstruction_loss(model(x), x, config.lambda_pos, config.lambda_vel)
                     opt.zero_grad()
                     loss.backward()
@@ -421,12 +448,16 @@ def save_fgd(evaluator: FGDEvaluator, location: str | Path) -> tuple[Path, Path]
 
     w_path, cfg_path = fgd_paths(location)
     w_path.parent.mkdir(parents=True, exist_ok=True)
-    tensors = {f"{r}.{k}": v.detach().contiguous() for r, m in evaluator.models.items()
-               for k, v in m.state_dict().items()}
+    tensors = {
+        f"{r}.{k}": v.detach().contiguous() for r, m in evaluator.models.items() for k, v in m.state_dict().items()
+    }
     save_file(tensors, str(w_path))
-    meta = {"config": asdict(evaluator.config), "regions": {r: m.joints for r, m in evaluator.models.items()},
-            "history": {"loss": evaluator.history.loss, "n_windows": evaluator.history.n_windows},
-            "format": "facecapges-fgd-autoencoder/1"}
+    meta = {
+        "config": asdict(evaluator.config),
+        "regions": {r: m.joints for r, m in evaluator.models.items()},
+        "history": {"loss": evaluator.history.loss, "n_windows": evaluator.history.n_windows},
+        "format": "facecapges-fgd-autoencoder/1",
+    }
     cfg_path.write_text(json.dumps(meta, indent=1))
     return w_path, cfg_path
 
@@ -450,7 +481,7 @@ def load_fgd(location: str | Path) -> FGDEvaluator:
     for region, joints in meta["regions"].items():
         m = FGDAutoencoder(config, joints)
         prefix = f"{region}."
-        state = {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
+        state = {k[len(prefix) :]: v for k, v in tensors.items() if k.startswith(prefix)}
         try:
             m.load_state_dict(state)
         except RuntimeError as exc:

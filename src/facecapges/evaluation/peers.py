@@ -57,8 +57,21 @@ BEAT_JOINT = "RightHandRing2"  # channels 36:39 of a 141-channel frame
 BEAT_SRGR_THRESHOLD_DEG = 4.0
 EMAGE_SPEED_THRESHOLD = 0.3
 #: EMAGE's SMPL-X upper-body joints (3, 6, 9, 12–21) by their BEAT counterparts.
-EMAGE_JOINTS: tuple[str, ...] = ("Spine1", "Spine2", "Spine3", "Neck", "LeftShoulder", "RightShoulder", "Head",
-                                 "LeftArm", "RightArm", "LeftForeArm", "RightForeArm", "LeftHand", "RightHand")
+EMAGE_JOINTS: tuple[str, ...] = (
+    "Spine1",
+    "Spine2",
+    "Spine3",
+    "Neck",
+    "LeftShoulder",
+    "RightShoulder",
+    "Head",
+    "LeftArm",
+    "RightArm",
+    "LeftForeArm",
+    "RightForeArm",
+    "LeftHand",
+    "RightHand",
+)
 
 
 def _pose(pose: np.ndarray) -> np.ndarray:
@@ -103,15 +116,26 @@ def beat_motion_beats(pose: np.ndarray, fps: float, joint: str = BEAT_JOINT, ord
     return argrelextrema(vel, np.less, order=order)[0].astype(np.float64) / fps
 
 
-def beat_align_beat(pose: np.ndarray, audio: np.ndarray, sr: int, fps: float, sigma_s: float = SIGMA_S,
-                    true_times: bool = False, speech_s: np.ndarray | None = None) -> float:
+def beat_align_beat(
+    pose: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    sigma_s: float = SIGMA_S,
+    true_times: bool = False,
+    speech_s: np.ndarray | None = None,
+) -> float:
     """BeatAlign as BEAT/CaMN's script computes it (see the module doc)."""
     sb = beat_speech_beats(audio, sr, true_times) if speech_s is None else speech_s
     return beat_align_score(sb, beat_motion_beats(pose, fps), sigma_s)
 
 
-def srgr_beat(real: np.ndarray, generated: np.ndarray, weights: np.ndarray | None = None,
-              threshold_deg: float = BEAT_SRGR_THRESHOLD_DEG) -> float:
+def srgr_beat(
+    real: np.ndarray,
+    generated: np.ndarray,
+    weights: np.ndarray | None = None,
+    threshold_deg: float = BEAT_SRGR_THRESHOLD_DEG,
+) -> float:
     """SRGR as BEAT/CaMN's trainer computes it: Euler-degree L1 per joint < 4°, weights × 1/0.165."""
     r, g = beat_euler(real), beat_euler(generated)
     if r.shape != g.shape:
@@ -164,9 +188,17 @@ def emage_positions(skel, pose: np.ndarray, joints: Sequence[str] = EMAGE_JOINTS
     return global_transforms(skel, mats)[1][:, [skel.index(n) for n in joints]]
 
 
-def beat_align_emage(positions: np.ndarray, audio: np.ndarray, sr: int, fps: float,
-                     reference_speed: np.ndarray | None = None, sigma_s: float = SIGMA_S, order: int = 2,
-                     threshold: float = EMAGE_SPEED_THRESHOLD, speech_s: np.ndarray | None = None) -> float:
+def beat_align_emage(
+    positions: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    reference_speed: np.ndarray | None = None,
+    sigma_s: float = SIGMA_S,
+    order: int = 2,
+    threshold: float = EMAGE_SPEED_THRESHOLD,
+    speech_s: np.ndarray | None = None,
+) -> float:
     """BeatAlign as EMAGE computes it from joint positions (T, J, 3): the mean of per-joint scores.
 
     ``reference_speed`` (J,) stands for EMAGE's ``mmae`` (default: this motion's own mean
@@ -186,22 +218,34 @@ def beat_align_emage(positions: np.ndarray, audio: np.ndarray, sr: int, fps: flo
     return float(np.mean(scores)) if scores else float("nan")
 
 
-def peer_metrics(real: np.ndarray | None, generated: np.ndarray, audio: np.ndarray, sr: int, fps: float, skel,
-                 weights: np.ndarray | None = None, speech: dict | None = None) -> dict:
+def peer_metrics(
+    real: np.ndarray | None,
+    generated: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    skel,
+    weights: np.ndarray | None = None,
+    speech: dict | None = None,
+) -> dict:
     """Every peer-computed figure for one motion (JSON-able); ``speech`` caches the speech beats."""
     sp = speech if speech is not None else peer_speech(audio, sr)
     ref_speed = None
     if real is not None:
         ref_speed = emage_joint_speed(emage_positions(skel, real), fps).mean(0)
-    return {"BA_BEAT": beat_align_beat(generated, audio, sr, fps, speech_s=sp["beat"]),
-            "BA_BEAT_true_times": beat_align_beat(generated, audio, sr, fps, speech_s=sp["beat_true"]),
-            "BA_EMAGE": beat_align_emage(emage_positions(skel, generated), audio, sr, fps, ref_speed,
-                                         speech_s=sp["emage"]),
-            "SRGR_BEAT": srgr_beat(real, generated, weights) if real is not None else None,
-            "L1DIV_BEAT": l1div_beat(generated)}
+    return {
+        "BA_BEAT": beat_align_beat(generated, audio, sr, fps, speech_s=sp["beat"]),
+        "BA_BEAT_true_times": beat_align_beat(generated, audio, sr, fps, speech_s=sp["beat_true"]),
+        "BA_EMAGE": beat_align_emage(emage_positions(skel, generated), audio, sr, fps, ref_speed, speech_s=sp["emage"]),
+        "SRGR_BEAT": srgr_beat(real, generated, weights) if real is not None else None,
+        "L1DIV_BEAT": l1div_beat(generated),
+    }
 
 
 def peer_speech(audio: np.ndarray, sr: int) -> dict:
     """The peers' speech beats of one audio, computed once for several motions."""
-    return {"beat": beat_speech_beats(audio, sr), "beat_true": beat_speech_beats(audio, sr, True),
-            "emage": emage_speech_beats(audio, sr)}
+    return {
+        "beat": beat_speech_beats(audio, sr),
+        "beat_true": beat_speech_beats(audio, sr, True),
+        "emage": emage_speech_beats(audio, sr),
+    }

@@ -37,48 +37,67 @@ def _fmt(v, digits: int = 3) -> str:
 def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
     """Table 5.2 layout for both regions, the BeatAlign control and definitions."""
     srgr_h = "SRGR↑" if result.get("srgr_weighted") else "SRGR (unweighted)↑"
-    lines = [f"## {title}", "", f"| Region | Method | FGD↓ | {srgr_h} | BA↑ | L1DIV↑ |",
-             "|---|---|---|---|---|---|"]
+    lines = [f"## {title}", "", f"| Region | Method | FGD↓ | {srgr_h} | BA↑ | L1DIV↑ |", "|---|---|---|---|---|---|"]
     regions = [r for r in REGIONS if r in result["regions"]]
     for region in regions:
         for i, (name, m) in enumerate(result["regions"][region]["methods"].items()):
             label = REGION_TITLES[region] if i == 0 else ""
-            lines.append(f"| {label} | {name} | {_fmt(m['FGD'])} | {_fmt(m['SRGR'])} | {_fmt(m['BA'])} | "
-                         f"{_fmt(m['L1DIV'])} |")
-    lines += ["", "### BeatAlign control (same motion, its own audio shifted)", "",
-              "| Region | Method | BA matched | BA shifted (mean ± sd) | gap |", "|---|---|---|---|---|"]
+            lines.append(
+                f"| {label} | {name} | {_fmt(m['FGD'])} | {_fmt(m['SRGR'])} | {_fmt(m['BA'])} | {_fmt(m['L1DIV'])} |"
+            )
+    lines += [
+        "",
+        "### BeatAlign control (same motion, its own audio shifted)",
+        "",
+        "| Region | Method | BA matched | BA shifted (mean ± sd) | gap |",
+        "|---|---|---|---|---|",
+    ]
     for region in regions:
         for i, (name, m) in enumerate(result["regions"][region]["methods"].items()):
             label = REGION_TITLES[region] if i == 0 else ""
-            lines.append(f"| {label} | {name} | {_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± "
-                         f"{_fmt(m['BA_shifted_sd'])} | {_fmt(m['BA_gap'], 4)} |")
+            lines.append(
+                f"| {label} | {name} | {_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± "
+                f"{_fmt(m['BA_shifted_sd'])} | {_fmt(m['BA_gap'], 4)} |"
+            )
     lines += synchrony_lines(result)
     lines += peer_lines(result)
     if any(m.get("L1DIV_samples") is not None for r in regions for m in result["regions"][r]["methods"].values()):
-        lines += ["", "### L1DIV across generated samples (eq. 5.11)", "", "| Region | Method | L1DIV (eq. 5.11) |",
-                  "|---|---|---|"]
+        lines += [
+            "",
+            "### L1DIV across generated samples (eq. 5.11)",
+            "",
+            "| Region | Method | L1DIV (eq. 5.11) |",
+            "|---|---|---|",
+        ]
         for region in regions:
             for name, m in result["regions"][region]["methods"].items():
                 if m.get("L1DIV_samples") is not None:
                     lines.append(f"| {REGION_TITLES[region]} | {name} | {_fmt(m['L1DIV_samples'])} |")
     offs = result.get("ba_offsets_s") or []
-    lines += ["", "Definitions:",
-              "- FGD (eq. 5.3): Fréchet distance between Gaussians fitted to the latent features of the "
-              "skeleton-aware autoencoder (one per region); lower is closer to the real distribution.",
-              f"- SRGR (eq. 5.8): share of joint-frames whose rot6d L1 error is below {result.get('srgr_delta', 0.5)}"
-              + (", weighted by the BEAT semantic score of the frame." if result.get("srgr_weighted")
-                 else "; no semantic file, so every frame has weight 1 (unweighted)."),
-              f"- BA (eq. 5.9–5.10): mean over speech beats of exp(−Δt²/2σ²), σ = {result.get('sigma_s', 0.3)} s; "
-              f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed "
-              "(mode 'mean': the region's mean speed curve; BEAT/CaMN's script scores one joint, EMAGE averages "
-              "per-joint scores — see the peers' table). "
-              f"Shifted: the audio rolled by {len(offs)} offsets "
-              + (f"({offs[0]:g}–{offs[-1]:g} s)" if offs else "") + "; the gap, not the raw BA, shows synchrony.",
-              "- L1DIV: per-sequence deviation from the temporal mean, Σ over the region's joints × 6 rot6d "
-              "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div formula, but on rot6d: their "
-              "code runs it on Euler degrees, hundreds times larger).",
-              "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
-              f"- {result.get('n_frames')} frames at {result.get('fps')} fps."]
+    lines += [
+        "",
+        "Definitions:",
+        "- FGD (eq. 5.3): Fréchet distance between Gaussians fitted to the latent features of the "
+        "skeleton-aware autoencoder (one per region); lower is closer to the real distribution.",
+        f"- SRGR (eq. 5.8): share of joint-frames whose rot6d L1 error is below {result.get('srgr_delta', 0.5)}"
+        + (
+            ", weighted by the BEAT semantic score of the frame."
+            if result.get("srgr_weighted")
+            else "; no semantic file, so every frame has weight 1 (unweighted)."
+        ),
+        f"- BA (eq. 5.9–5.10): mean over speech beats of exp(−Δt²/2σ²), σ = {result.get('sigma_s', 0.3)} s; "
+        f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed "
+        "(mode 'mean': the region's mean speed curve; BEAT/CaMN's script scores one joint, EMAGE averages "
+        "per-joint scores — see the peers' table). "
+        f"Shifted: the audio rolled by {len(offs)} offsets "
+        + (f"({offs[0]:g}–{offs[-1]:g} s)" if offs else "")
+        + "; the gap, not the raw BA, shows synchrony.",
+        "- L1DIV: per-sequence deviation from the temporal mean, Σ over the region's joints × 6 rot6d "
+        "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div formula, but on rot6d: their "
+        "code runs it on Euler degrees, hundreds times larger).",
+        "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
+        f"- {result.get('n_frames')} frames at {result.get('fps')} fps.",
+    ]
     return "\n".join(lines) + "\n"
 
 
@@ -88,22 +107,32 @@ def synchrony_lines(result: dict, audio_label: str | None = None) -> list[str]:
     if not sync:
         return []
     ref = sync["reference"]
-    lines = ["", "### Synchrony controls (same motion, its own audio shifted; wrists vs the real motion)", "",
-             ("| Audio " if audio_label else "") + "| Method | energy–speed r | shifted r (mean ± sd) | z | "
-             "BA gap (sd units, with head / without) | wrist jerk × real | wrist spread × real |",
-             ("|---" if audio_label else "") + "|---|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        "### Synchrony controls (same motion, its own audio shifted; wrists vs the real motion)",
+        "",
+        ("| Audio " if audio_label else "") + "| Method | energy–speed r | shifted r (mean ± sd) | z | "
+        "BA gap (sd units, with head / without) | wrist jerk × real | wrist spread × real |",
+        ("|---" if audio_label else "") + "|---|---|---|---|---|---|---|",
+    ]
     for name, m in sync["methods"].items():
-        gaps = [result["regions"][r]["methods"].get(name, {}).get("BA_gap_sd") for r in REGIONS
-                if r in result["regions"]]
-        lines.append((f"| {audio_label} " if audio_label else "") +
-                     f"| {name} | {_fmt(m['ES_r'])} | {_fmt(m['ES_shifted_mean'])} ± {_fmt(m['ES_shifted_sd'])} | "
-                     f"{_fmt(m['ES_z'], 2)} | {' / '.join(_fmt(g, 2) for g in gaps)} | {_fmt(m['jerk_ratio'], 2)} | "
-                     f"{_fmt(m['spread_ratio'], 2)} |")
-    lines += ["", f"Energy–speed: Pearson r of the per-frame audio RMS and the mean wrist speed, both smoothed over "
-                  f"0.5 s; z = (r − shifted mean) / shifted sd over the same audio shifts as BeatAlign. Judge a model "
-                  f"against its speaker's real figure (ground truth row), not against 0. Jerk and spread are ratios to "
-                  f"{ref['source']} (jerk {_fmt(ref['jerk'], 0)} units/s³, spread {_fmt(ref['spread'], 2)} units); "
-                  "1.0 moves like the real speaker."]
+        gaps = [
+            result["regions"][r]["methods"].get(name, {}).get("BA_gap_sd") for r in REGIONS if r in result["regions"]
+        ]
+        lines.append(
+            (f"| {audio_label} " if audio_label else "")
+            + f"| {name} | {_fmt(m['ES_r'])} | {_fmt(m['ES_shifted_mean'])} ± {_fmt(m['ES_shifted_sd'])} | "
+            f"{_fmt(m['ES_z'], 2)} | {' / '.join(_fmt(g, 2) for g in gaps)} | {_fmt(m['jerk_ratio'], 2)} | "
+            f"{_fmt(m['spread_ratio'], 2)} |"
+        )
+    lines += [
+        "",
+        f"Energy–speed: Pearson r of the per-frame audio RMS and the mean wrist speed, both smoothed over "
+        f"0.5 s; z = (r − shifted mean) / shifted sd over the same audio shifts as BeatAlign. Judge a model "
+        f"against its speaker's real figure (ground truth row), not against 0. Jerk and spread are ratios to "
+        f"{ref['source']} (jerk {_fmt(ref['jerk'], 0)} units/s³, spread {_fmt(ref['spread'], 2)} units); "
+        "1.0 moves like the real speaker.",
+    ]
     return lines
 
 
@@ -112,32 +141,48 @@ def peer_lines(result: dict) -> list[str]:
     peers = result.get("peers")
     if not peers:
         return []
-    lines = ["", "### The same motion under the peers' metric code (all 47 joints; for published numbers only)", "",
-             "| Method | BA (BEAT script) | BA (BEAT, true beat times) | BA (EMAGE) | SRGR (BEAT, 4° Euler) | "
-             "L1div (BEAT, Euler °) |", "|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        "### The same motion under the peers' metric code (all 47 joints; for published numbers only)",
+        "",
+        "| Method | BA (BEAT script) | BA (BEAT, true beat times) | BA (EMAGE) | SRGR (BEAT, 4° Euler) | "
+        "L1div (BEAT, Euler °) |",
+        "|---|---|---|---|---|---|",
+    ]
     for name, m in peers["methods"].items():
-        lines.append(f"| {name} | {_fmt(m['BA_BEAT'])} | {_fmt(m['BA_BEAT_true_times'])} | {_fmt(m['BA_EMAGE'])} | "
-                     f"{_fmt(m['SRGR_BEAT'])} | {_fmt(m['L1DIV_BEAT'], 1)} |")
-    lines += ["", "BEAT/CaMN's BeatAlign scores one joint (RightHandRing2, where its channel slice lands on 47-joint "
-                  "arrays) against speech beats whose times its script scales by 16000/22050 = 0.726 (it assumes "
-                  "librosa's 22.05 kHz); EMAGE averages per-joint scores of position-speed minima. BEAT's SRGR counts "
-                  "a joint-frame when its three Euler angles are within 4° (L1); its L1div sums Euler-degree "
-                  "deviations. These are not the thesis's definitions the tables above use (see "
-                  "`facecapges.evaluation.peers`)."]
+        lines.append(
+            f"| {name} | {_fmt(m['BA_BEAT'])} | {_fmt(m['BA_BEAT_true_times'])} | {_fmt(m['BA_EMAGE'])} | "
+            f"{_fmt(m['SRGR_BEAT'])} | {_fmt(m['L1DIV_BEAT'], 1)} |"
+        )
+    lines += [
+        "",
+        "BEAT/CaMN's BeatAlign scores one joint (RightHandRing2, where its channel slice lands on 47-joint "
+        "arrays) against speech beats whose times its script scales by 16000/22050 = 0.726 (it assumes "
+        "librosa's 22.05 kHz); EMAGE averages per-joint scores of position-speed minima. BEAT's SRGR counts "
+        "a joint-frame when its three Euler angles are within 4° (L1); its L1div sums Euler-degree "
+        "deviations. These are not the thesis's definitions the tables above use (see "
+        "`facecapges.evaluation.peers`).",
+    ]
     return lines
 
 
 def markdown_unseen_table(unseen: dict) -> str:
     """Table of results on unseen audio: ``{audio path: evaluate_unpaired result}``."""
-    lines = ["", "## Unseen audio (no real motion)", "",
-             "| Audio | Region | Method | FGD↓ (vs speaker's real motion) | BA↑ | BA shifted (mean ± sd) | gap | L1DIV↑ |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "",
+        "## Unseen audio (no real motion)",
+        "",
+        "| Audio | Region | Method | FGD↓ (vs speaker's real motion) | BA↑ | BA shifted (mean ± sd) | gap | L1DIV↑ |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for path, res in unseen.items():
         for region, reg in res["regions"].items():
             for name, m in reg["methods"].items():
-                lines.append(f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {_fmt(m['FGD'])} | "
-                             f"{_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± {_fmt(m['BA_shifted_sd'])} | "
-                             f"{_fmt(m['BA_gap'], 4)} | {_fmt(m['L1DIV'])} |")
+                lines.append(
+                    f"| {Path(path).name} | {REGION_TITLES[region]} | {name} | {_fmt(m['FGD'])} | "
+                    f"{_fmt(m['BA'])} | {_fmt(m['BA_shifted_mean'])} ± {_fmt(m['BA_shifted_sd'])} | "
+                    f"{_fmt(m['BA_gap'], 4)} | {_fmt(m['L1DIV'])} |"
+                )
     for path, res in unseen.items():
         lines += synchrony_lines(res, Path(path).name)
     return "\n".join(lines) + "\n"
@@ -171,9 +216,17 @@ def _agg():
     return plt
 
 
-def plot_beat_timeline(motions: Mapping[str, np.ndarray], audio: np.ndarray, sr: int, fps: float,
-                       path: str | Path, region: str = "with_head", max_seconds: float = 20.0,
-                       start_s: float = 0.0, sigma_s: float = ba.SIGMA_S) -> Path:
+def plot_beat_timeline(
+    motions: Mapping[str, np.ndarray],
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    path: str | Path,
+    region: str = "with_head",
+    max_seconds: float = 20.0,
+    start_s: float = 0.0,
+    sigma_s: float = ba.SIGMA_S,
+) -> Path:
     """PNG: speech beats vs motion beats for each motion (T, 47, 6) over one stretch of the clip."""
     import librosa
 
@@ -219,8 +272,9 @@ def plot_beat_timeline(motions: Mapping[str, np.ndarray], audio: np.ndarray, sr:
     return p
 
 
-def plot_speed_distributions(real: np.ndarray, generated: Mapping[str, np.ndarray], fps: float,
-                             path: str | Path, region: str = "with_head") -> Path:
+def plot_speed_distributions(
+    real: np.ndarray, generated: Mapping[str, np.ndarray], fps: float, path: str | Path, region: str = "with_head"
+) -> Path:
     """PNG: density histograms of per-joint angular speed (rad/s), real vs generated."""
     plt = _agg()
     rs = ba.joint_angular_speed(select(real, region), fps).ravel()
@@ -230,12 +284,25 @@ def plot_speed_distributions(real: np.ndarray, generated: Mapping[str, np.ndarra
         hi = max(hi, float(np.percentile(gs, 99.5)) if len(gs) else 0.0)
     bins = np.linspace(0, hi if hi > 0 else 1.0, 60)
     fig, ax = plt.subplots(figsize=(8, 4.5))
-    ax.hist(np.clip(rs, 0, bins[-1]), bins=bins, density=True, histtype="stepfilled", alpha=0.35, color="k",
-            label=f"real (mean {rs.mean():.2f})")
+    ax.hist(
+        np.clip(rs, 0, bins[-1]),
+        bins=bins,
+        density=True,
+        histtype="stepfilled",
+        alpha=0.35,
+        color="k",
+        label=f"real (mean {rs.mean():.2f})",
+    )
     for name, g in generated.items():
         gs = ba.joint_angular_speed(select(g, region), fps).ravel()
-        ax.hist(np.clip(gs, 0, bins[-1]), bins=bins, density=True, histtype="step", lw=1.5,
-                label=f"{name} (mean {gs.mean():.2f})")
+        ax.hist(
+            np.clip(gs, 0, bins[-1]),
+            bins=bins,
+            density=True,
+            histtype="step",
+            lw=1.5,
+            label=f"{name} (mean {gs.mean():.2f})",
+        )
     ax.set_xlabel("joint angular speed (rad/s)")
     ax.set_ylabel("density (log)")
     ax.set_yscale("log")
@@ -249,9 +316,17 @@ def plot_speed_distributions(real: np.ndarray, generated: Mapping[str, np.ndarra
     return p
 
 
-def write_report(out_dir: str | Path, result: dict, real: np.ndarray | None,
-                 generated: Mapping[str, np.ndarray], audio: np.ndarray, sr: int, fps: float,
-                 title: str = "Quantitative evaluation", timeline_methods: Sequence[str] | None = None) -> dict:
+def write_report(
+    out_dir: str | Path,
+    result: dict,
+    real: np.ndarray | None,
+    generated: Mapping[str, np.ndarray],
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    title: str = "Quantitative evaluation",
+    timeline_methods: Sequence[str] | None = None,
+) -> dict:
     """metrics.json, metrics.md, beat_timeline.png and joint_speed.png in ``out_dir``; returns their paths."""
     d = Path(out_dir)
     d.mkdir(parents=True, exist_ok=True)

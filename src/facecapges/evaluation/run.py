@@ -43,9 +43,14 @@ from facecapges import timing
 from facecapges.errors import UserError, file_error
 
 
-def load_real_clips(cache: Path | None = None, speaker: int = 2, split: str = "train",
-                    bvh: Sequence[Path] | None = None, before_frame: int | None = None,
-                    fps: float = timing.MODEL_FPS) -> tuple[list[np.ndarray], str]:
+def load_real_clips(
+    cache: Path | None = None,
+    speaker: int = 2,
+    split: str = "train",
+    bvh: Sequence[Path] | None = None,
+    before_frame: int | None = None,
+    fps: float = timing.MODEL_FPS,
+) -> tuple[list[np.ndarray], str]:
     """Real upper-body poses (T, 47, 6) from a cache or BVH files, cut at ``before_frame``."""
     clips: list[np.ndarray] = []
     if bvh:
@@ -95,8 +100,9 @@ def heldout_inputs(arrays: dict, start: int, fps: float, sr: int, head_reference
         from facecapges.capture.head_pose import skeleton_head_to_camera
 
         head = skeleton_head_to_camera(head, head_reference)
-    inputs = FrameInputs(audio=timing.frame_audio(audio, len(real), fps, sr), face=arrays["face"][start:],
-                         head=head, fps=fps, notes=[])
+    inputs = FrameInputs(
+        audio=timing.frame_audio(audio, len(real), fps, sr), face=arrays["face"][start:], head=head, fps=fps, notes=[]
+    )
     return real, audio, inputs
 
 
@@ -115,8 +121,7 @@ def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarra
     out = np.empty((inputs.n_frames, ckpt.model.cfg.n_joints, 6), np.float32)
     from rich.progress import track
 
-    frames = track(range(inputs.n_frames), description="generating (other start)", transient=True,
-                   disable=not progress)
+    frames = track(range(inputs.n_frames), description="generating (other start)", transient=True, disable=not progress)
     for t in frames:
         out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
     if not np.isfinite(out).all():
@@ -124,11 +129,22 @@ def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarra
     return out
 
 
-def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str | None = None,
-             speaker: int | None = None, split: str = "test", holdout_from: int | None = None,
-             extra_audio: Sequence[Path] = (), fgd_location: Path | None = None,
-             offsets_s: Sequence[float] = tuple(range(2, 61, 2)), video: bool = True, seed: int = 0,
-             samples: int = 3, progress: bool = True) -> dict:
+def run_eval(
+    cache: Path,
+    out: Path,
+    checkpoint: Path | None = None,
+    style: str | None = None,
+    speaker: int | None = None,
+    split: str = "test",
+    holdout_from: int | None = None,
+    extra_audio: Sequence[Path] = (),
+    fgd_location: Path | None = None,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    video: bool = True,
+    seed: int = 0,
+    samples: int = 3,
+    progress: bool = True,
+) -> dict:
     """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
@@ -157,8 +173,10 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         start = 0
     if not entries:
         have = sorted({(e["speaker"], e["split"]) for e in c.clips()})
-        raise UserError(f"{cache}: no {split!r} clips of speaker {speaker} to evaluate (speaker/split pairs: {have}); "
-                        "use --holdout-from FRAME to evaluate the end of every clip")
+        raise UserError(
+            f"{cache}: no {split!r} clips of speaker {speaker} to evaluate (speaker/split pairs: {have}); "
+            "use --holdout-from FRAME to evaluate the end of every clip"
+        )
     loaded = {e["name"]: c.load(e["name"]) for e in entries}
     min_frames = 32
     evaluated = [n for n in loaded if len(loaded[n]["pose"]) - start >= min_frames]
@@ -168,16 +186,19 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     if samples < 1:
         raise UserError("--samples must be at least 1")
     if not evaluated:
-        raise UserError(f"{cache}: no clip of speaker {speaker} has {min_frames} frames to evaluate "
-                        f"from frame {start} on")
+        raise UserError(
+            f"{cache}: no clip of speaker {speaker} has {min_frames} frames to evaluate from frame {start} on"
+        )
     # the real pool for the baselines
     if holdout_from is not None:
         pool = [loaded[n]["pose"][:holdout_from] for n in loaded]
     else:
         pool = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker, split="train") if e["name"] not in loaded]
         if not pool:
-            warnings.append(f"no train clips of speaker {speaker} outside the evaluated ones: mean pose and random "
-                            "segment come from the evaluated clips")
+            warnings.append(
+                f"no train clips of speaker {speaker} outside the evaluated ones: mean pose and random "
+                "segment come from the evaluated clips"
+            )
             pool = [loaded[n]["pose"] for n in evaluated]
     # FGD autoencoder
     fgd = None
@@ -185,8 +206,10 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
     if fgd_paths(loc)[1].exists() or fgd_location is not None:
         fgd = load_fgd(loc)
     else:
-        warnings.append(f"no FGD autoencoder at {fgd_paths(loc)[0]}: FGD not computed (train one with "
-                        f"`facecapges fgd-train --checkpoint {ckpt.path}`)")
+        warnings.append(
+            f"no FGD autoencoder at {fgd_paths(loc)[0]}: FGD not computed (train one with "
+            f"`facecapges fgd-train --checkpoint {ckpt.path}`)"
+        )
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
     if not weighted:
         warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
@@ -199,8 +222,10 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ckpt.meta.get("head_reference_rot6d"))
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
-        gens = [gen] + [generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
-                        for _ in range(samples - 1)]
+        gens = [gen] + [
+            generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+            for _ in range(samples - 1)
+        ]
         if holdout_from is not None:
             seg_pool, excl = [a["pose"]], (0, start, len(a["pose"]))
         else:
@@ -208,23 +233,43 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         try:
             segment = bl.random_segment(seg_pool, len(real), rng, exclude=excl)
         except ValueError:
-            segment = bl.random_segment(pool + [a["pose"]], len(real), rng,
-                                        exclude=(len(pool), start, len(a["pose"])))
-        methods: dict[str, Method] = {"ground truth": bl.ground_truth(real),
-                                      "mean pose": bl.mean_pose_sequence(pool, len(real)),
-                                      "random real segment": segment, model_name: gens}
+            segment = bl.random_segment(pool + [a["pose"]], len(real), rng, exclude=(len(pool), start, len(a["pose"])))
+        methods: dict[str, Method] = {
+            "ground truth": bl.ground_truth(real),
+            "mean pose": bl.mean_pose_sequence(pool, len(real)),
+            "random real segment": segment,
+            model_name: gens,
+        }
         lam = a["semantic"][start:] if weighted else None
-        per_clip.append(evaluate_paired(real, methods, audio, sr, fps, fgd=None, semantic_weights=lam,
-                                        offsets_s=offsets_s, progress=progress, skeleton=c.skeleton(name)))
+        per_clip.append(
+            evaluate_paired(
+                real,
+                methods,
+                audio,
+                sr,
+                fps,
+                fgd=None,
+                semantic_weights=lam,
+                offsets_s=offsets_s,
+                progress=progress,
+                skeleton=c.skeleton(name),
+            )
+        )
         real_clips.append(real)
         for k, v in methods.items():
             method_clips.setdefault(k, []).extend([v] if isinstance(v, np.ndarray) else v)
         if first is None:
             first = (name, real, {k: v if isinstance(v, np.ndarray) else v[0] for k, v in methods.items()}, audio)
     result = combine_clips(per_clip, fgd, real_clips, method_clips)
-    result.update(checkpoint=str(ckpt.path), cache=str(cache), speaker=speaker, clips=evaluated,
-                  first_frame=start, ms_per_frame=float(np.mean(ms_all)),
-                  fgd_autoencoder=str(fgd_paths(loc)[0]) if fgd is not None else None)
+    result.update(
+        checkpoint=str(ckpt.path),
+        cache=str(cache),
+        speaker=speaker,
+        clips=evaluated,
+        first_frame=start,
+        ms_per_frame=float(np.mean(ms_all)),
+        fgd_autoencoder=str(fgd_paths(loc)[0]) if fgd is not None else None,
+    )
     # unseen audio
     unseen = {}
     if extra_audio:
@@ -235,24 +280,47 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
             inputs = prepare_inputs(path, fps=ckpt.fps)
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
-            gens = [gen] + [generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
-                            for _ in range(samples - 1)]
+            gens = [gen] + [
+                generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+                for _ in range(samples - 1)
+            ]
             wav = load_audio(path, sr)
-            unseen[str(path)] = evaluate_unpaired({model_name: gens}, wav, sr, fps, fgd=fgd, fgd_reference=all_real,
-                                                  offsets_s=offsets_s, progress=progress,
-                                                  skeleton=c.skeleton(evaluated[0]))
+            unseen[str(path)] = evaluate_unpaired(
+                {model_name: gens},
+                wav,
+                sr,
+                fps,
+                fgd=fgd,
+                fgd_reference=all_real,
+                offsets_s=offsets_s,
+                progress=progress,
+                skeleton=c.skeleton(evaluated[0]),
+            )
     out = Path(out)
     assert first is not None  # at least one clip was evaluated
     name, real0, methods0, audio0 = first
-    shown = {model_name: methods0[model_name], "random real segment": methods0["random real segment"],
-             "mean pose": methods0["mean pose"]}
-    files = write_report(out, result, real0, shown, audio0, sr, fps,
-                         title=f"Quantitative evaluation — {model_name}, speaker {speaker}",
-                         timeline_methods=[model_name])
+    shown = {
+        model_name: methods0[model_name],
+        "random real segment": methods0["random real segment"],
+        "mean pose": methods0["mean pose"],
+    }
+    files = write_report(
+        out,
+        result,
+        real0,
+        shown,
+        audio0,
+        sr,
+        fps,
+        title=f"Quantitative evaluation — {model_name}, speaker {speaker}",
+        timeline_methods=[model_name],
+    )
     full = {"paired": result, "unseen_audio": unseen, "warnings": warnings}
     write_metrics_json(full, out / "metrics.json")
-    md = markdown_table(result, f"Quantitative evaluation — {model_name}, speaker {speaker}, "
-                                f"{len(evaluated)} clip(s) from frame {start}")
+    md = markdown_table(
+        result,
+        f"Quantitative evaluation — {model_name}, speaker {speaker}, {len(evaluated)} clip(s) from frame {start}",
+    )
     if unseen:
         md += markdown_unseen_table(unseen)
     (out / "metrics.md").write_text(md)
@@ -264,7 +332,15 @@ def run_eval(cache: Path, out: Path, checkpoint: Path | None = None, style: str 
         with tempfile.TemporaryDirectory() as td:
             wav = Path(td) / "audio.wav"
             sf.write(wav, audio0, sr)
-            files["video"] = str(render_skeleton_video([real0, methods0[model_name]], ["real", model_name],
-                                                       c.skeleton(name), out / "real_vs_generated.mp4", fps, wav,
-                                                       progress=progress))
+            files["video"] = str(
+                render_skeleton_video(
+                    [real0, methods0[model_name]],
+                    ["real", model_name],
+                    c.skeleton(name),
+                    out / "real_vs_generated.mp4",
+                    fps,
+                    wav,
+                    progress=progress,
+                )
+            )
     return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}

@@ -45,8 +45,9 @@ class SRGRResult:
         return "SRGR" if self.weighted else "SRGR (unweighted)"
 
 
-def srgr(real: np.ndarray, generated: np.ndarray, weights: np.ndarray | None = None,
-         delta: float = DELTA) -> SRGRResult:
+def srgr(
+    real: np.ndarray, generated: np.ndarray, weights: np.ndarray | None = None, delta: float = DELTA
+) -> SRGRResult:
     """Eq. 5.8 for real and generated rot6d poses (T, J, 6); ``weights`` λ_t (T,) or None."""
     r, g = np.asarray(real, np.float64), np.asarray(generated, np.float64)
     if r.shape != g.shape or r.ndim != 3 or r.shape[-1] != 6:

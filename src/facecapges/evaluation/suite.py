@@ -55,8 +55,11 @@ DEFAULT_OFFSETS_S = tuple(float(x) for x in range(2, 61, 2))
 
 
 def _samples(name: str, m: Method, n_frames: int | None) -> list[np.ndarray]:
-    arrs = [np.asarray(m, np.float32)] if isinstance(m, np.ndarray) and np.asarray(m).ndim == 3 else \
-        [np.asarray(x, np.float32) for x in m]
+    arrs = (
+        [np.asarray(m, np.float32)]
+        if isinstance(m, np.ndarray) and np.asarray(m).ndim == 3
+        else [np.asarray(x, np.float32) for x in m]
+    )
     for a in arrs:
         if a.ndim != 3 or a.shape[1:] != (N_JOINTS, 6):
             raise ValueError(f"method {name!r}: poses must be (T, {N_JOINTS}, 6), got {a.shape}")
@@ -74,20 +77,34 @@ def _progress(total: int, enabled: bool, what: str):
     return bar, bar.add_task(what, total=total)
 
 
-def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr: int, fps: float,
-                  real: np.ndarray | None, weights: np.ndarray | None, fgd: FGDEvaluator | None,
-                  fgd_reference: Sequence[np.ndarray] | None, offsets_s: Sequence[float], sigma_s: float,
-                  ba_mode: str, speech_sets) -> dict:
+def _score_method(
+    samples: list[np.ndarray],
+    region: str,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    real: np.ndarray | None,
+    weights: np.ndarray | None,
+    fgd: FGDEvaluator | None,
+    fgd_reference: Sequence[np.ndarray] | None,
+    offsets_s: Sequence[float],
+    sigma_s: float,
+    ba_mode: str,
+    speech_sets,
+) -> dict:
     reg = [select(s, region) for s in samples]
     out: dict = {"n_samples": len(samples)}
     if fgd is not None and region in fgd.models and fgd_reference:
         out["FGD"] = fgd.fgd(list(fgd_reference), samples, region)
     else:
         out["FGD"] = None
-    out["SRGR"] = (float(np.mean([srgr(select(real, region), r, weights).value for r in reg]))
-                   if real is not None else None)
-    controls = [ba.beat_align_control(r, audio, sr, fps, offsets_s, sigma_s, mode=ba_mode,
-                                      speech=speech_sets(len(r))) for r in reg]
+    out["SRGR"] = (
+        float(np.mean([srgr(select(real, region), r, weights).value for r in reg])) if real is not None else None
+    )
+    controls = [
+        ba.beat_align_control(r, audio, sr, fps, offsets_s, sigma_s, mode=ba_mode, speech=speech_sets(len(r)))
+        for r in reg
+    ]
     out["BA"] = float(np.mean([c.matched for c in controls]))
     out["BA_shifted_mean"] = float(np.mean([c.shifted_mean for c in controls]))
     out["BA_shifted_sd"] = float(np.mean([c.shifted_sd for c in controls]))
@@ -100,18 +117,39 @@ def _score_method(samples: list[np.ndarray], region: str, audio: np.ndarray, sr:
     return out
 
 
-def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float, real: np.ndarray | None,
-              fgd: FGDEvaluator | None, fgd_reference: Sequence[np.ndarray] | None,
-              semantic_weights: np.ndarray | None, regions: Sequence[str], offsets_s: Sequence[float],
-              sigma_s: float, ba_mode: str, progress: bool, skeleton=None,
-              real_stats: sy.MotionStats | None = None) -> dict:
+def _evaluate(
+    methods: Mapping[str, Method],
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    real: np.ndarray | None,
+    fgd: FGDEvaluator | None,
+    fgd_reference: Sequence[np.ndarray] | None,
+    semantic_weights: np.ndarray | None,
+    regions: Sequence[str],
+    offsets_s: Sequence[float],
+    sigma_s: float,
+    ba_mode: str,
+    progress: bool,
+    skeleton=None,
+    real_stats: sy.MotionStats | None = None,
+) -> dict:
     n = len(real) if real is not None else None
     samples = {k: _samples(k, v, n) for k, v in methods.items()}
     if n is None:
         n = len(next(iter(samples.values()))[0]) if samples else 0
-    result: dict[str, Any] = {"fps": fps, "sr": sr, "n_frames": n, "sigma_s": sigma_s, "srgr_delta": DELTA,
-              "srgr_weighted": semantic_weights is not None, "ba_mode": ba_mode,
-              "ba_offsets_s": [float(o) for o in offsets_s], "paired": real is not None, "regions": {}}
+    result: dict[str, Any] = {
+        "fps": fps,
+        "sr": sr,
+        "n_frames": n,
+        "sigma_s": sigma_s,
+        "srgr_delta": DELTA,
+        "srgr_weighted": semantic_weights is not None,
+        "ba_mode": ba_mode,
+        "ba_offsets_s": [float(o) for o in offsets_s],
+        "paired": real is not None,
+        "regions": {},
+    }
     cache: dict[int, ba.SpeechBeatSets] = {}
 
     def speech_sets(n_frames: int) -> ba.SpeechBeatSets:  # onsets once per audio length, shared by all rows
@@ -125,8 +163,21 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
             rows = {}
             for name, s in samples.items():
                 bar.update(task, description=f"evaluating {name} [{region}]")
-                rows[name] = _score_method(s, region, audio, sr, fps, real, semantic_weights, fgd, fgd_reference,
-                                           offsets_s, sigma_s, ba_mode, speech_sets)
+                rows[name] = _score_method(
+                    s,
+                    region,
+                    audio,
+                    sr,
+                    fps,
+                    real,
+                    semantic_weights,
+                    fgd,
+                    fgd_reference,
+                    offsets_s,
+                    sigma_s,
+                    ba_mode,
+                    speech_sets,
+                )
                 bar.advance(task)
             result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
     if skeleton is not None:
@@ -135,8 +186,15 @@ def _evaluate(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: fl
     return result
 
 
-def _peers(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
-           real: np.ndarray | None, weights: np.ndarray | None) -> dict:
+def _peers(
+    samples: Mapping[str, list[np.ndarray]],
+    skeleton,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    real: np.ndarray | None,
+    weights: np.ndarray | None,
+) -> dict:
     """:func:`facecapges.evaluation.peers.peer_metrics` per method on all 47 joints (mean over samples)."""
     from facecapges.evaluation import peers
 
@@ -150,8 +208,16 @@ def _peers(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray,
     return {"methods": methods, "n_speech_beats": {k: int(len(v)) for k, v in speech.items()}}
 
 
-def _synchrony(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndarray, sr: int, fps: float,
-               real: np.ndarray | None, real_stats: sy.MotionStats | None, offsets_s: Sequence[float]) -> dict:
+def _synchrony(
+    samples: Mapping[str, list[np.ndarray]],
+    skeleton,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    real: np.ndarray | None,
+    real_stats: sy.MotionStats | None,
+    offsets_s: Sequence[float],
+) -> dict:
     """:func:`facecapges.evaluation.synchrony.synchrony_row` per method (mean over samples).
 
     Jerk/spread ratios are to the real motion (paired) or to ``real_stats`` (unpaired);
@@ -164,8 +230,11 @@ def _synchrony(samples: Mapping[str, list[np.ndarray]], skeleton, audio: np.ndar
     for name, arrs in samples.items():
         rows = [sy.synchrony_row(sy.wrist_positions(skeleton, a), audio, sr, fps, ref, offsets_s) for a in arrs]
         methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
-    reference = {"jerk": ref.jerk if ref else None, "spread": ref.spread if ref else None,
-                 "source": "the real motion" if real is not None else "the speaker's real clips"}
+    reference = {
+        "jerk": ref.jerk if ref else None,
+        "spread": ref.spread if ref else None,
+        "source": "the real motion" if real is not None else "the speaker's real clips",
+    }
     return {"methods": methods, "reference": reference}
 
 
@@ -174,11 +243,22 @@ def _finite_mean(vals) -> float | None:
     return float(np.mean(ok)) if ok and len(ok) == len(vals) else None
 
 
-def evaluate_paired(real: np.ndarray, methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
-                    fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
-                    semantic_weights: np.ndarray | None = None, regions: Sequence[str] = REGIONS,
-                    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S, sigma_s: float = ba.SIGMA_S,
-                    ba_mode: str = "mean", progress: bool = True, skeleton=None) -> dict:
+def evaluate_paired(
+    real: np.ndarray,
+    methods: Mapping[str, Method],
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    fgd: FGDEvaluator | None = None,
+    fgd_reference: Sequence[np.ndarray] | None = None,
+    semantic_weights: np.ndarray | None = None,
+    regions: Sequence[str] = REGIONS,
+    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
+    sigma_s: float = ba.SIGMA_S,
+    ba_mode: str = "mean",
+    progress: bool = True,
+    skeleton=None,
+) -> dict:
     """Every metric for each method against the real motion ``real`` (T, 47, 6) and its audio.
 
     ``fgd_reference`` defaults to ``[real]``; include a ``"ground truth"`` entry in
@@ -188,15 +268,39 @@ def evaluate_paired(real: np.ndarray, methods: Mapping[str, Method], audio: np.n
     if real.ndim != 3 or real.shape[1:] != (N_JOINTS, 6):
         raise ValueError(f"real must be (T, {N_JOINTS}, 6), got {real.shape}")
     ref = list(fgd_reference) if fgd_reference is not None else [real]
-    return _evaluate(methods, audio, sr, fps, real, fgd, ref, semantic_weights, regions, offsets_s, sigma_s,
-                     ba_mode, progress, skeleton)
+    return _evaluate(
+        methods,
+        audio,
+        sr,
+        fps,
+        real,
+        fgd,
+        ref,
+        semantic_weights,
+        regions,
+        offsets_s,
+        sigma_s,
+        ba_mode,
+        progress,
+        skeleton,
+    )
 
 
-def evaluate_unpaired(methods: Mapping[str, Method], audio: np.ndarray, sr: int, fps: float,
-                      fgd: FGDEvaluator | None = None, fgd_reference: Sequence[np.ndarray] | None = None,
-                      regions: Sequence[str] = REGIONS, offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
-                      sigma_s: float = ba.SIGMA_S, ba_mode: str = "mean", progress: bool = True,
-                      skeleton=None, real_reference: Sequence[np.ndarray] | None = None) -> dict:
+def evaluate_unpaired(
+    methods: Mapping[str, Method],
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    fgd: FGDEvaluator | None = None,
+    fgd_reference: Sequence[np.ndarray] | None = None,
+    regions: Sequence[str] = REGIONS,
+    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
+    sigma_s: float = ba.SIGMA_S,
+    ba_mode: str = "mean",
+    progress: bool = True,
+    skeleton=None,
+    real_reference: Sequence[np.ndarray] | None = None,
+) -> dict:
     """BeatAlign (+ control), L1DIV and FGD vs ``fgd_reference`` for motion without real counterpart.
 
     With ``skeleton``, the synchrony section's jerk/spread ratios are to ``real_reference``
@@ -206,8 +310,23 @@ def evaluate_unpaired(methods: Mapping[str, Method], audio: np.ndarray, sr: int,
     if skeleton is not None:
         ref = real_reference if real_reference is not None else fgd_reference
         stats = sy.pooled_stats([sy.motion_stats(sy.wrist_positions(skeleton, r), fps) for r in ref or []])
-    return _evaluate(methods, audio, sr, fps, None, fgd, fgd_reference, None, regions, offsets_s, sigma_s,
-                     ba_mode, progress, skeleton, stats)
+    return _evaluate(
+        methods,
+        audio,
+        sr,
+        fps,
+        None,
+        fgd,
+        fgd_reference,
+        None,
+        regions,
+        offsets_s,
+        sigma_s,
+        ba_mode,
+        progress,
+        skeleton,
+        stats,
+    )
 
 
 _AVERAGED = ("SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap_sd", "L1DIV", "L1DIV_samples")
@@ -219,9 +338,12 @@ def _weighted(vals, n) -> float | None:
     return float(sum(v * w for v, w in ok) / sum(w for _, w in ok)) if ok else None
 
 
-def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
-                  fgd_reference: Sequence[np.ndarray] | None = None,
-                  method_clips: Mapping[str, Sequence[np.ndarray]] | None = None) -> dict:
+def combine_clips(
+    results: Sequence[dict],
+    fgd: FGDEvaluator | None = None,
+    fgd_reference: Sequence[np.ndarray] | None = None,
+    method_clips: Mapping[str, Sequence[np.ndarray]] | None = None,
+) -> dict:
     """Merge per-clip results of the same methods into one (several held-out clips).
 
     SRGR, BA (matched, shifted mean and sd, gap in sd units), L1DIV and every figure of
@@ -244,22 +366,41 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
             row = {"n_samples": per[0]["n_samples"]}
             for k in _AVERAGED:
                 row[k] = _weighted([p.get(k) for p in per], n)
-            row["BA_gap"] = row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) \
-                else None
+            row["BA_gap"] = (
+                row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) else None
+            )
             if fgd is not None and region in fgd.models and fgd_reference and method_clips and name in method_clips:
                 row["FGD"] = fgd.fgd(list(fgd_reference), list(method_clips[name]), region)
             else:
                 fg = [p["FGD"] for p in per]
                 row["FGD"] = fg[0] if len(per) == 1 else None
-            rows[name] = {k: row[k] for k in ("FGD", "SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap",
-                                              "BA_gap_sd", "L1DIV", "L1DIV_samples", "n_samples")}
+            rows[name] = {
+                k: row[k]
+                for k in (
+                    "FGD",
+                    "SRGR",
+                    "BA",
+                    "BA_shifted_mean",
+                    "BA_shifted_sd",
+                    "BA_gap",
+                    "BA_gap_sd",
+                    "L1DIV",
+                    "L1DIV_samples",
+                    "n_samples",
+                )
+            }
         out["regions"][region] = {"joints": reg["joints"], "methods": rows}
     if all("peers" in r for r in results):
         methods = {}
         for name, first in results[0]["peers"]["methods"].items():
             methods[name] = {k: _weighted([r["peers"]["methods"][name][k] for r in results], n) for k in first}
-        out["peers"] = {"methods": methods, "n_speech_beats": {
-            k: int(sum(r["peers"]["n_speech_beats"][k] for r in results)) for k in results[0]["peers"]["n_speech_beats"]}}
+        out["peers"] = {
+            "methods": methods,
+            "n_speech_beats": {
+                k: int(sum(r["peers"]["n_speech_beats"][k] for r in results))
+                for k in results[0]["peers"]["n_speech_beats"]
+            },
+        }
     if all("synchrony" in r for r in results):
         methods = {}
         for name in results[0]["synchrony"]["methods"]:
@@ -267,8 +408,12 @@ def combine_clips(results: Sequence[dict], fgd: FGDEvaluator | None = None,
             methods[name] = {k: _weighted([p[k] for p in per], n) for k in _SYNC_AVERAGED}
             methods[name]["n_frames"] = int(n.sum())
         refs = [r["synchrony"]["reference"] for r in results]
-        out["synchrony"] = {"methods": methods,
-                            "reference": {"jerk": _weighted([x["jerk"] for x in refs], n),
-                                          "spread": _weighted([x["spread"] for x in refs], n),
-                                          "source": refs[0]["source"]}}
+        out["synchrony"] = {
+            "methods": methods,
+            "reference": {
+                "jerk": _weighted([x["jerk"] for x in refs], n),
+                "spread": _weighted([x["spread"] for x in refs], n),
+                "source": refs[0]["source"],
+            },
+        }
     return out

@@ -101,7 +101,7 @@ def wrist_jerk(wrists: np.ndarray, fps: float) -> float:
     w = _check_wrists(wrists)
     if len(w) < 4:
         return float("nan")
-    return float(np.linalg.norm(np.diff(w, n=3, axis=0), axis=-1).mean() * fps ** 3)
+    return float(np.linalg.norm(np.diff(w, n=3, axis=0), axis=-1).mean() * fps**3)
 
 
 def wrist_spread(wrists: np.ndarray) -> float:
@@ -151,9 +151,15 @@ class EnergySpeedControl:
         return asdict(self)
 
 
-def energy_speed_control(wrists: np.ndarray, audio: np.ndarray, sr: int, fps: float,
-                         offsets_s: Sequence[float] = DEFAULT_OFFSETS_S, smooth_s: float = SMOOTH_S,
-                         min_gap_s: float = 1.0) -> EnergySpeedControl:
+def energy_speed_control(
+    wrists: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
+    smooth_s: float = SMOOTH_S,
+    min_gap_s: float = 1.0,
+) -> EnergySpeedControl:
     """Energy–speed correlation of wrist positions (T, W, 3) at ``fps`` with audio (S,) at ``sr``.
 
     The audio is cut or zero-padded to the motion's duration (frame i owns the samples
@@ -166,8 +172,9 @@ def energy_speed_control(wrists: np.ndarray, audio: np.ndarray, sr: int, fps: fl
     energy = energy_envelope(audio, sr, fps, n)
     r = _pearson(smooth(energy, fps, smooth_s), speed)
     used = usable_offsets(offsets_s, n / fps, min_gap_s)
-    shifted = [_pearson(smooth(np.roll(energy, int(round(off * fps)) % max(n, 1)), fps, smooth_s), speed)
-               for off in used]
+    shifted = [
+        _pearson(smooth(np.roll(energy, int(round(off * fps)) % max(n, 1)), fps, smooth_s), speed) for off in used
+    ]
     arr = np.array(shifted, np.float64)
     ok = arr[np.isfinite(arr)]
     mean = float(ok.mean()) if len(ok) else float("nan")
@@ -231,12 +238,27 @@ def pooled_stats(stats: Sequence[MotionStats]) -> MotionStats:
     return MotionStats(avg("jerk"), avg("spread"), n)
 
 
-def synchrony_row(wrists: np.ndarray, audio: np.ndarray, sr: int, fps: float, reference: MotionStats | None,
-                  offsets_s: Sequence[float] = DEFAULT_OFFSETS_S, smooth_s: float = SMOOTH_S) -> dict:
+def synchrony_row(
+    wrists: np.ndarray,
+    audio: np.ndarray,
+    sr: int,
+    fps: float,
+    reference: MotionStats | None,
+    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S,
+    smooth_s: float = SMOOTH_S,
+) -> dict:
     """Energy–speed control, jerk, spread and their ratios to ``reference`` for one motion (JSON-able)."""
     es = energy_speed_control(wrists, audio, sr, fps, offsets_s, smooth_s)
     st = motion_stats(wrists, fps)
     ref = reference if reference is not None else MotionStats(float("nan"), float("nan"), 0)
-    return {"ES_r": es.r, "ES_shifted_mean": es.shifted_mean, "ES_shifted_sd": es.shifted_sd, "ES_z": es.z,
-            "jerk": st.jerk, "spread": st.spread, "jerk_ratio": ratio(st.jerk, ref.jerk),
-            "spread_ratio": ratio(st.spread, ref.spread), "n_frames": st.n_frames}
+    return {
+        "ES_r": es.r,
+        "ES_shifted_mean": es.shifted_mean,
+        "ES_shifted_sd": es.shifted_sd,
+        "ES_z": es.z,
+        "jerk": st.jerk,
+        "spread": st.spread,
+        "jerk_ratio": ratio(st.jerk, ref.jerk),
+        "spread_ratio": ratio(st.spread, ref.spread),
+        "n_frames": st.n_frames,
+    }

@@ -71,8 +71,24 @@ def _riff_truncation(path: Path) -> str | None:
 def _decode_ffmpeg(path: Path, sr: int) -> np.ndarray:
     import imageio_ffmpeg
 
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path),
-           "-vn", "-ac", "1", "-ar", str(sr), "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+    cmd = [
+        imageio_ffmpeg.get_ffmpeg_exe(),
+        "-nostdin",
+        "-v",
+        "error",
+        "-i",
+        str(path),
+        "-vn",
+        "-ac",
+        "1",
+        "-ar",
+        str(sr),
+        "-f",
+        "f32le",
+        "-acodec",
+        "pcm_f32le",
+        "pipe:1",
+    ]
     proc = subprocess.run(cmd, capture_output=True, check=False)
     err = proc.stderr.decode("utf-8", "replace").strip()
     if proc.returncode != 0:
@@ -136,8 +152,24 @@ def check_audio(path: str | Path) -> Path:
     if path.suffix.lower() in FFMPEG_SUFFIXES:
         import imageio_ffmpeg
 
-        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-t", "1", "-i", str(path),
-               "-vn", "-ac", "1", "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+        cmd = [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-nostdin",
+            "-v",
+            "error",
+            "-t",
+            "1",
+            "-i",
+            str(path),
+            "-vn",
+            "-ac",
+            "1",
+            "-f",
+            "f32le",
+            "-acodec",
+            "pcm_f32le",
+            "pipe:1",
+        ]
         proc = subprocess.run(cmd, capture_output=True, check=False)
         err = proc.stderr.decode("utf-8", "replace").strip()
         if proc.returncode != 0 or not proc.stdout:
@@ -185,8 +217,24 @@ def _native_blocks(path: Path, sr: int | None, block_s: float):
         import imageio_ffmpeg
 
         rate = sr or AUDIO_SR
-        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path),
-               "-vn", "-ac", "1", "-ar", str(rate), "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]
+        cmd = [
+            imageio_ffmpeg.get_ffmpeg_exe(),
+            "-nostdin",
+            "-v",
+            "error",
+            "-i",
+            str(path),
+            "-vn",
+            "-ac",
+            "1",
+            "-ar",
+            str(rate),
+            "-f",
+            "f32le",
+            "-acodec",
+            "pcm_f32le",
+            "pipe:1",
+        ]
 
         def gen():
             proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -203,12 +251,14 @@ def _native_blocks(path: Path, sr: int | None, block_s: float):
                 if proc.poll() is None:
                     proc.kill()
                     proc.wait()
+
         return rate, gen()
 
     def gen_sf():
         with f:
             for block in f.blocks(blocksize=max(1, int(block_s * f.samplerate)), dtype="float32", always_2d=True):
                 yield block.mean(axis=1)
+
     return f.samplerate, gen_sf()
 
 
@@ -273,7 +323,7 @@ def rms_db(audio: np.ndarray) -> float:
     audio = np.asarray(audio, dtype=np.float64)
     if audio.size == 0:
         return float("-inf")
-    rms = float(np.sqrt(np.mean(audio ** 2)))
+    rms = float(np.sqrt(np.mean(audio**2)))
     return 20.0 * np.log10(rms) if rms > 0 else float("-inf")
 
 

@@ -88,7 +88,7 @@ def _parse_hierarchy(lines: list[str], path: Path) -> tuple[Skeleton, int]:
                     offsets[-1] = vals
             elif key == "CHANNELS":
                 n = int(tok[1])
-                ch = tok[2:2 + n]
+                ch = tok[2 : 2 + n]
                 if len(ch) != n or not set(ch) <= _VALID_CHANNELS:
                     raise ValueError(f"bad CHANNELS line {' '.join(tok)!r}")
                 channels[-1] = ch
@@ -104,8 +104,13 @@ def _parse_hierarchy(lines: list[str], path: Path) -> tuple[Skeleton, int]:
         raise file_error(path, "truncated BVH: no MOTION section")
     if not names:
         raise file_error(path, "BVH hierarchy has no joints")
-    skel = Skeleton(names=names, parents=np.array(parents), offsets=np.array(offsets, dtype=np.float64),
-                    channels=channels, end_sites=end_sites)
+    skel = Skeleton(
+        names=names,
+        parents=np.array(parents),
+        offsets=np.array(offsets, dtype=np.float64),
+        channels=channels,
+        end_sites=end_sites,
+    )
     return skel, i
 
 
@@ -125,7 +130,7 @@ def read_bvh(path: str | Path) -> BVH:
         raise file_error(path, "malformed MOTION header (expected 'Frames:' and 'Frame Time:')") from None
     if frame_time <= 0:
         raise file_error(path, f"Frame Time must be positive, got {frame_time}")
-    rows = [ln for ln in lines[i + 2:] if ln.strip()]
+    rows = [ln for ln in lines[i + 2 :] if ln.strip()]
     if len(rows) < n_frames:
         raise file_error(path, f"truncated BVH: header says {n_frames} frames, file has {len(rows)}")
     if n_frames == 0:

@@ -81,12 +81,16 @@ def _fps_from_times(times: list[float | None], path: Path | None = None) -> floa
     dt = np.diff(np.asarray(times, dtype=np.float64))
     if not np.all(np.isfinite(dt)) or np.any(dt <= 0):
         bad = int(np.argmax(~np.isfinite(dt) | (dt <= 0))) + 1
-        raise file_error(path or "face JSON", f"frame times must increase; frame {bad} has time {times[bad]} after "
-                                              f"{times[bad - 1]}")
+        raise file_error(
+            path or "face JSON", f"frame times must increase; frame {bad} has time {times[bad]} after {times[bad - 1]}"
+        )
     fps = 1.0 / float(np.median(dt))
     if not FPS_RANGE[0] <= fps <= FPS_RANGE[1]:
-        raise file_error(path or "face JSON", f"frame times are {float(np.median(dt)):g} s apart ({fps:.3g} fps); "
-                                              f"a face track runs at {FPS_RANGE[0]:g}–{FPS_RANGE[1]:g} fps")
+        raise file_error(
+            path or "face JSON",
+            f"frame times are {float(np.median(dt)):g} s apart ({fps:.3g} fps); "
+            f"a face track runs at {FPS_RANGE[0]:g}–{FPS_RANGE[1]:g} fps",
+        )
     return float(round(fps)) if abs(fps - round(fps)) < 0.01 else fps
 
 
@@ -153,9 +157,14 @@ def _resample_grid(T: int, src_fps: float, dst_fps: float) -> tuple[np.ndarray, 
     return k0, np.minimum(k0 + 1, T - 1), np.maximum(pos - k0, 0.0)[:, None]
 
 
-def write_face_json(path: str | Path, weights52: np.ndarray, fps: float,
-                    head_rot6d: np.ndarray | None = None, layout: str = "beat",
-                    extras: dict[str, list] | None = None) -> Path:
+def write_face_json(
+    path: str | Path,
+    weights52: np.ndarray,
+    fps: float,
+    head_rot6d: np.ndarray | None = None,
+    layout: str = "beat",
+    extras: dict[str, list] | None = None,
+) -> Path:
     """Write (T, 52) ARKit-order weights at ``fps`` (and optional (T, 6) head rot6d) as face JSON.
 
     ``layout`` is ``"beat"`` (51 names at 60 fps, BEAT's loaders) or ``"full"`` (52
@@ -195,7 +204,7 @@ def write_face_json(path: str | Path, weights52: np.ndarray, fps: float,
 
                 q = rot.matrix_to_quaternion(rot.rot6d_to_matrix(head_rot6d))
                 head_rot6d = rot.matrix_to_rot6d(rot.quaternion_to_matrix(rot.quaternion_slerp(q[k0], q[k1], a)))
-        w = w[:, :len(BEAT_NAMES)]
+        w = w[:, : len(BEAT_NAMES)]
     frames = []
     for i, row in enumerate(w):
         fr: dict = {"time": round(i / out_fps, 6), "weights": [round(float(v), 6) for v in row]}
@@ -207,7 +216,8 @@ def write_face_json(path: str | Path, weights52: np.ndarray, fps: float,
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
-    tmp.write_text(json.dumps({"names": names, "fps": out_fps, "frames": frames}, separators=(",", ":")),
-                   encoding="utf-8")
+    tmp.write_text(
+        json.dumps({"names": names, "fps": out_fps, "frames": frames}, separators=(",", ":")), encoding="utf-8"
+    )
     tmp.replace(path)
     return path

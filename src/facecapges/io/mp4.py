@@ -24,8 +24,15 @@ import numpy as np
 class Mp4Writer:
     """``with Mp4Writer(path, fps, audio=wav) as w: w.write(frame)`` (module docstring)."""
 
-    def __init__(self, path: str | Path, fps: float, audio: str | Path | None = None, crf: int = 20,
-                 jpeg: bool = False, preset: str = "veryfast"):
+    def __init__(
+        self,
+        path: str | Path,
+        fps: float,
+        audio: str | Path | None = None,
+        crf: int = 20,
+        jpeg: bool = False,
+        preset: str = "veryfast",
+    ):
         self.path = Path(path)
         self.fps, self.audio, self.crf, self.jpeg, self.preset = float(fps), audio, int(crf), jpeg, preset
         self.size: tuple[int, int] | None = None  # (width, height) as written
@@ -42,8 +49,21 @@ class Mp4Writer:
             cmd += ["-i", str(self.audio), "-map", "0:v", "-map", "1:a", "-c:a", "aac", "-b:a", "128k", "-shortest"]
         if self.jpeg:
             cmd += ["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2"]
-        cmd += ["-c:v", "libx264", "-preset", self.preset, "-crf", str(self.crf), "-pix_fmt", "yuv420p",
-                "-movflags", "+faststart", "-f", "mp4", str(self._part)]
+        cmd += [
+            "-c:v",
+            "libx264",
+            "-preset",
+            self.preset,
+            "-crf",
+            str(self.crf),
+            "-pix_fmt",
+            "yuv420p",
+            "-movflags",
+            "+faststart",
+            "-f",
+            "mp4",
+            str(self._part),
+        ]
         self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stderr=subprocess.PIPE)
 
     def write(self, frame: np.ndarray | bytes) -> None:
@@ -59,13 +79,25 @@ class Mp4Writer:
             if self._proc is None:
                 h, w = img.shape[:2]
                 self.size = (w + w % 2, h + h % 2)
-                self._open(["-f", "rawvideo", "-pix_fmt", "bgr24", "-s", f"{self.size[0]}x{self.size[1]}",
-                            "-framerate", f"{self.fps:g}", "-i", "-"])
+                self._open(
+                    [
+                        "-f",
+                        "rawvideo",
+                        "-pix_fmt",
+                        "bgr24",
+                        "-s",
+                        f"{self.size[0]}x{self.size[1]}",
+                        "-framerate",
+                        f"{self.fps:g}",
+                        "-i",
+                        "-",
+                    ]
+                )
             assert self.size is not None  # set with the first frame
             w, h = self.size
             if img.shape[:2] != (h, w):
                 pad = np.zeros((h, w, 3), np.uint8)
-                pad[:min(h, img.shape[0]), :min(w, img.shape[1])] = img[:h, :w]
+                pad[: min(h, img.shape[0]), : min(w, img.shape[1])] = img[:h, :w]
                 img = pad
             data = np.ascontiguousarray(img).tobytes()
         assert self._proc is not None and self._proc.stdin is not None  # opened with the first frame, stdin=PIPE

@@ -70,7 +70,7 @@ class AudioFeatures(nn.Module):
         shape = frames.shape[:-1]
         x = frames.reshape(-1, frames.shape[-1]).float()  # (B, S)
         spec = torch.stft(x, N_FFT, HOP, N_FFT, self.window, center=False, return_complex=True)  # (B, 257, n)
-        power = spec.real ** 2 + spec.imag ** 2
+        power = spec.real**2 + spec.imag**2
         mel = torch.matmul(self.mel_basis, power).mean(-1)  # (B, 40)
         log_mel = 10.0 * torch.log10(torch.clamp(mel, min=1e-10))
         energy = 10.0 * torch.log10((x * x).mean(-1, keepdim=True) + 1e-10)  # (B, 1)
@@ -78,8 +78,8 @@ class AudioFeatures(nn.Module):
         x0 = x - x.mean(-1, keepdim=True)
         n = 2 * x.shape[-1]
         f = torch.fft.rfft(x0, n=n)
-        ac = torch.fft.irfft(f.real ** 2 + f.imag ** 2, n=n)[:, : self.lag_max + 1]
-        norm = ac[:, self.lag_min:self.lag_max + 1] / torch.clamp(ac[:, :1], min=1e-8)
+        ac = torch.fft.irfft(f.real**2 + f.imag**2, n=n)[:, : self.lag_max + 1]
+        norm = ac[:, self.lag_min : self.lag_max + 1] / torch.clamp(ac[:, :1], min=1e-8)
         peak, idx = norm.max(-1)
         voicing = torch.clamp(peak, 0.0, 1.0)
         f0 = self.sr / (idx + self.lag_min).float()

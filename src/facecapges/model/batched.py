@@ -108,7 +108,9 @@ STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_enc
 _NO_SCOPE = contextlib.nullcontext()
 
 
-stage_listener: Callable[[str], contextlib.AbstractContextManager] | None = None  # a function stage name → context manager, set by the benchmark to count FLOPs per stage
+stage_listener: Callable[[str], contextlib.AbstractContextManager] | None = (
+    None  # a function stage name → context manager, set by the benchmark to count FLOPs per stage
+)
 
 
 def stage(name: str):
@@ -163,8 +165,14 @@ def no_input_embedding(model) -> torch.Tensor:
 
 
 # ------------------------------------------------------------------ the kernel's pieces
-def tcn_tap(x_now: torch.Tensor, x_past: torch.Tensor, b: torch.Tensor, w_now: torch.Tensor,
-            w_past: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
+def tcn_tap(
+    x_now: torch.Tensor,
+    x_past: torch.Tensor,
+    b: torch.Tensor,
+    w_now: torch.Tensor,
+    w_past: torch.Tensor,
+    extra: torch.Tensor | None = None,
+) -> torch.Tensor:
     """One frame through one causal TCN layer: ``act(W [x_{t-d}; x_t] + b (+ extra))``.
 
     The arithmetic of :meth:`~facecapges.model.network.CausalTCN.layer` with its weight
@@ -180,12 +188,19 @@ def tcn_tap(x_now: torch.Tensor, x_past: torch.Tensor, b: torch.Tensor, w_now: t
 def split_tcn(tcn) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
     """Each layer's (b, W_now^T, W_past^T) of a CausalTCN, split once for :func:`tcn_tap`."""
     C = tcn.layers[0].weight.shape[0]
-    return [(lin.bias.detach()[None].clone(), lin.weight.detach()[:, C:].t().contiguous(),
-             lin.weight.detach()[:, :C].t().contiguous()) for lin in tcn.layers]
+    return [
+        (
+            lin.bias.detach()[None].clone(),
+            lin.weight.detach()[:, C:].t().contiguous(),
+            lin.weight.detach()[:, :C].t().contiguous(),
+        )
+        for lin in tcn.layers
+    ]
 
 
-def lstm_window(gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torch.Tensor
-                ) -> tuple[list[torch.Tensor], torch.Tensor]:
+def lstm_window(
+    gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torch.Tensor
+) -> tuple[list[torch.Tensor], torch.Tensor]:
     """A one-layer LSTM over a window whose input gates ``gx`` (B, W, 4H) are given.
 
     Gates as ``torch.nn.LSTM`` (order i, f, g, o); ``h``, ``c`` (B, H) the carried state,
@@ -197,7 +212,7 @@ def lstm_window(gx: torch.Tensor, h: torch.Tensor, c: torch.Tensor, w_hh_t: torc
     for x in gx.unbind(1):
         g = torch.addmm(x, h, w_hh_t)
         i, f, _, o = g.sigmoid().chunk(4, 1)
-        c = torch.addcmul(f * c, i, g[:, 2 * H:3 * H].tanh())
+        c = torch.addcmul(f * c, i, g[:, 2 * H : 3 * H].tanh())
         h = o * c.tanh()
         outs.append(h)
     return outs, c
@@ -236,8 +251,9 @@ class Cascade:
         bottom = torch.stack([torch.zeros(H, 4, H), self.w_u.reshape(H, 4, H)], 2)
         self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).contiguous()
 
-    def run(self, gx_t: torch.Tensor, gx_u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-            ) -> tuple[torch.Tensor, torch.Tensor]:
+    def run(
+        self, gx_t: torch.Tensor, gx_u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
         B, W, _ = gx_t.shape
         H = self.H
         if B > self.LOCKSTEP_MAX_BATCH:
@@ -250,7 +266,7 @@ class Cascade:
         for m, x in enumerate(gx.view(B, W + 1, 8 * H).unbind(1)):
             g = torch.addmm(x, h, self.w)
             i, f, _, o = g.sigmoid().chunk(4, 1)
-            c = torch.addcmul(f * c, i, g[:, 4 * H:6 * H].tanh())
+            c = torch.addcmul(f * c, i, g[:, 4 * H : 6 * H].tanh())
             h = o * c.tanh()
             if m == 0:  # there is no limb step −1: the limb state stays as carried
                 h, c = torch.cat([h[:, :H], h_u], 1), torch.cat([c[:, :H], c_u], 1)
@@ -265,7 +281,7 @@ class _LSTMBlocks:
     def __init__(self, lstm: torch.nn.LSTM, e_dim: int, s_dim: int):
         w = lstm.get_parameter("weight_ih_l0").detach()
         self.w_e = w[:, :e_dim].t().contiguous()  # (E, 4H)
-        self.w_s = w[:, e_dim:e_dim + s_dim].t().contiguous()  # (J*6, 4H)
+        self.w_s = w[:, e_dim : e_dim + s_dim].t().contiguous()  # (J*6, 4H)
         self.b = (lstm.get_parameter("bias_ih_l0") + lstm.get_parameter("bias_hh_l0")).detach()[None]  # (1, 4H)
 
 
@@ -315,10 +331,12 @@ class BatchedStreamingGenerator:
                 new.narrow(axis, 0, prev.shape[axis]).copy_(prev)
             return new
 
-        self.x_audio = grow("x_audio", (capacity, max(cfg.audio_tcn_dilations), len(cfg.audio_tcn_dilations),
-                                        cfg.audio_tcn_channels))
-        self.x_face = grow("x_face", (capacity, max(cfg.face_tcn_dilations), len(cfg.face_tcn_dilations),
-                                      cfg.face_tcn_channels))
+        self.x_audio = grow(
+            "x_audio", (capacity, max(cfg.audio_tcn_dilations), len(cfg.audio_tcn_dilations), cfg.audio_tcn_channels)
+        )
+        self.x_face = grow(
+            "x_face", (capacity, max(cfg.face_tcn_dilations), len(cfg.face_tcn_dilations), cfg.face_tcn_channels)
+        )
         self.frames = grow("frames", (capacity,), dtype=torch.long)
         if self.fast:
             self.gx_t = grow("gx_t", (capacity, N, 4 * H))
@@ -391,8 +409,7 @@ class BatchedStreamingGenerator:
         """(B, S) audio, (B, 52) face, (B, 6) head tensors; NaN/inf → 0."""
         cfg = self.cfg
         if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == cfg.samples_per_frame:
-            a = torch.from_numpy(np.nan_to_num(audio.astype(np.float32, copy=False), nan=0.0, posinf=0.0,
-                                               neginf=0.0))
+            a = torch.from_numpy(np.nan_to_num(audio.astype(np.float32, copy=False), nan=0.0, posinf=0.0, neginf=0.0))
         else:
             a = torch.from_numpy(pack_audio(audio, cfg.samples_per_frame))
         if a.shape[0] != B:
@@ -400,8 +417,15 @@ class BatchedStreamingGenerator:
         return a, _rows(face, cfg.n_face, "face", B), _rows(head, 6, "head rot6d", B)
 
     @staticmethod
-    def _tcn(layers, ring: torch.Tensor, dil: torch.Tensor, idx: torch.Tensor, frames: torch.Tensor,
-             x: torch.Tensor, extra: torch.Tensor | None = None) -> torch.Tensor:
+    def _tcn(
+        layers,
+        ring: torch.Tensor,
+        dil: torch.Tensor,
+        idx: torch.Tensor,
+        frames: torch.Tensor,
+        x: torch.Tensor,
+        extra: torch.Tensor | None = None,
+    ) -> torch.Tensor:
         """New frames (B, C) of streams ``idx`` through a CausalTCN; updates its ring, returns the skip sum."""
         R, L = ring.shape[1], ring.shape[2]
         past = ring[idx[:, None], torch.remainder(frames[:, None] - dil, R), torch.arange(L)].unbind(1)
@@ -414,8 +438,9 @@ class BatchedStreamingGenerator:
         ring[idx, torch.remainder(frames, R)] = torch.stack(xs, 1)
         return torch.stack(ys).sum(0)
 
-    def _encode(self, idx: torch.Tensor, frames: torch.Tensor, a: torch.Tensor, f: torch.Tensor,
-                h: torch.Tensor) -> torch.Tensor:
+    def _encode(
+        self, idx: torch.Tensor, frames: torch.Tensor, a: torch.Tensor, f: torch.Tensor, h: torch.Tensor
+    ) -> torch.Tensor:
         """This frame of every stream in ``idx`` → its embedding [z_A; z_F; z_H] (B, E)."""
         m = self.model
         with stage("audio_frontend"):
@@ -424,8 +449,9 @@ class BatchedStreamingGenerator:
             z_a = m.audio_enc.mlp(self._tcn(self._audio_layers, self.x_audio, self._d_audio, idx, frames, feat))
         with stage("face_encoder"):
             extra = m.face_enc.tcn.extra(z_a) if m.face_enc.tcn.extra is not None else None
-            z_f = m.face_enc.mlp(self._tcn(self._face_layers, self.x_face, self._d_face, idx, frames,
-                                           m.face_enc.inp(f), extra))
+            z_f = m.face_enc.mlp(
+                self._tcn(self._face_layers, self.x_face, self._d_face, idx, frames, m.face_enc.inp(f), extra)
+            )
         with stage("head_encoder"):
             z_h = m.head_enc(h)
         return torch.cat([z_a, z_f, z_h], -1)
@@ -458,8 +484,14 @@ class BatchedStreamingGenerator:
         self._push_pose(idx, frames, e, pose)
         return pose
 
-    def _push_pose(self, idx: torch.Tensor, frames: torch.Tensor, e: torch.Tensor | None, pose: torch.Tensor,
-                   cur: tuple[torch.Tensor, torch.Tensor] | None = None) -> None:
+    def _push_pose(
+        self,
+        idx: torch.Tensor,
+        frames: torch.Tensor,
+        e: torch.Tensor | None,
+        pose: torch.Tensor,
+        cur: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> None:
         """Frame f's pose (B, J*6) joins the history of streams ``idx`` (eq. 4.11).
 
         One-layer decoders keep it as the frame's LSTM input projections (``cur``: its
@@ -467,8 +499,10 @@ class BatchedStreamingGenerator:
         """
         row = torch.remainder(frames, self.cfg.n_history)
         if self.fast:
-            for blocks, ring, c in ((self._bt, self.gx_t, cur[0] if cur else None),
-                                    (self._bu, self.gx_u, cur[1] if cur else None)):
+            for blocks, ring, c in (
+                (self._bt, self.gx_t, cur[0] if cur else None),
+                (self._bu, self.gx_u, cur[1] if cur else None),
+            ):
                 if c is None:
                     assert e is not None  # without ``cur`` the embedding makes the pose-free part
                     c = torch.addmm(blocks.b, e, blocks.w_e)

@@ -67,7 +67,9 @@ def _inputs(T: int, spf: int, seed: int = 0):
     t = np.arange(T * spf) / AUDIO_SR
     # speech-like: a few harmonics with a syllable-rate envelope, plus a little noise
     env = 0.5 * (1 + np.sin(2 * np.pi * 4.0 * t))
-    wave = env * (0.2 * np.sin(2 * np.pi * 140 * t) + 0.1 * np.sin(2 * np.pi * 280 * t)) + 0.01 * rng.standard_normal(t.size)
+    wave = env * (0.2 * np.sin(2 * np.pi * 140 * t) + 0.1 * np.sin(2 * np.pi * 280 * t)) + 0.01 * rng.standard_normal(
+        t.size
+    )
     audio = wave.astype(np.float32).reshape(T, spf)
     face = rng.uniform(0, 0.3, (T, N_BLENDSHAPES)).astype(np.float32)
     head = np.tile(np.array([1, 0, 0, 0, 1, 0], np.float32), (T, 1))
@@ -125,8 +127,17 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
                 t_naive.append(clock() - t0)
                 c_naive.append(cpu() - c0)
                 diff = max(diff, float(np.abs(a - b).max()))
-        ms = {k: np.array(v) * 1e3 for k, v in (("fast", t_fast), ("euler", t_euler), ("naive", t_naive),
-                                                 ("fast_cpu", c_fast), ("euler_cpu", c_euler), ("naive_cpu", c_naive))}
+        ms = {
+            k: np.array(v) * 1e3
+            for k, v in (
+                ("fast", t_fast),
+                ("euler", t_euler),
+                ("naive", t_naive),
+                ("fast_cpu", c_fast),
+                ("euler_cpu", c_euler),
+                ("naive_cpu", c_naive),
+            )
+        }
         with_euler = ms["fast"] + ms["euler"]
         with_euler_cpu = ms["fast_cpu"] + ms["euler_cpu"]
         T = (10 if quick else 60) * cfg.fps
@@ -154,11 +165,16 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
         "naive_step_ms_p50": pct(ms["naive"], 50),
         "naive_step_ms_p99": pct(ms["naive"], 99),
         "speedup": round(float(np.percentile(ms["naive"], 50) / np.percentile(ms["fast"], 50)), 2),
-        "cpu_ms": {"step_p50": pct(ms["fast_cpu"], 50), "step_p99": pct(ms["fast_cpu"], 99),
-                   "to_bvh_euler_p50": pct(ms["euler_cpu"], 50), "step_with_euler_p50": pct(with_euler_cpu, 50),
-                   "step_with_euler_p99": pct(with_euler_cpu, 99), "naive_step_p50": pct(ms["naive_cpu"], 50),
-                   "speedup": round(float(np.percentile(ms["naive_cpu"], 50) / np.percentile(ms["fast_cpu"], 50)), 2),
-                   "what": "the same steps' CPU time (time.thread_time): no waiting for a core"},
+        "cpu_ms": {
+            "step_p50": pct(ms["fast_cpu"], 50),
+            "step_p99": pct(ms["fast_cpu"], 99),
+            "to_bvh_euler_p50": pct(ms["euler_cpu"], 50),
+            "step_with_euler_p50": pct(with_euler_cpu, 50),
+            "step_with_euler_p99": pct(with_euler_cpu, 99),
+            "naive_step_p50": pct(ms["naive_cpu"], 50),
+            "speedup": round(float(np.percentile(ms["naive_cpu"], 50) / np.percentile(ms["fast_cpu"], 50)), 2),
+            "what": "the same steps' CPU time (time.thread_time): no waiting for a core",
+        },
         "max_abs_diff_naive": diff,
         "offline_fps": round(T / offline_s, 1),
         "offline_seconds": round(offline_s, 2),
@@ -180,8 +196,11 @@ def shared_held_out(ckpt, shared: Path | None):
     from facecapges.data.prepare import prepare_clip
 
     root = Path(shared) / "data" / "beat" if shared is not None else None
-    files = [f for f in (beat.find_clips(root) if root is not None and root.is_dir() else [])
-             if f.clip.stem == "2_scott_0_1_1"]
+    files = [
+        f
+        for f in (beat.find_clips(root) if root is not None and root.is_dir() else [])
+        if f.clip.stem == "2_scott_0_1_1"
+    ]
     if not files or files[0].get("bvh") is None or files[0].get("wav") is None:
         return None
     fps, sr = ckpt.fps, ckpt.model.cfg.sr
@@ -236,7 +255,7 @@ def cpu_peak_gflops(n: int = 1024, reps: int = 8) -> float:
         t0 = time.perf_counter()
         torch.mm(a, b, out=out)
         best = min(best, time.perf_counter() - t0)
-    return 2 * n ** 3 / best / 1e9
+    return 2 * n**3 / best / 1e9
 
 
 def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
@@ -314,22 +333,34 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     naive_flops, _ = _flops(lambda: naive.step(audio[k], face[k], head[k]))
     H, W = cfg.lstm_hidden, cfg.window
     analytic_lstm = W * H * 4 * H  # MACs of one 17-step recurrence (h·W_hh per step)
-    lstm_counted = _flops(lambda: lstm_window(torch.zeros(1, W, 4 * H), torch.zeros(1, H), torch.zeros(1, H),
-                                             torch.zeros(H, 4 * H)))[0] // 2
+    lstm_counted = (
+        _flops(
+            lambda: lstm_window(torch.zeros(1, W, 4 * H), torch.zeros(1, H), torch.zeros(1, H), torch.zeros(H, 4 * H))
+        )[0]
+        // 2
+    )
     peak = cpu_peak_gflops(512 if quick else 1024, 4 if quick else 8)
     step_mean_s = float(step_ms.mean()) / 1e3
     rate = step_flops / step_mean_s / 1e9
     audio_feat = times["audio_frontend"] + times["audio_tcn"]
     return {
         "inputs": label,
-        "per_frame": {"frames": T, "batch": 1, "threads": torch.get_num_threads(),
-                      "mean_ms": round(float(step_ms.mean()), 4), "p50_ms": round(float(np.median(step_ms)), 4),
-                      "p99_ms": round(float(np.percentile(step_ms, 99)), 4), "max_ms": round(float(step_ms.max()), 4),
-                      "total_s": round(total_s, 4)},
-        "audio_features_ms": {"mean": round(float(audio_feat.mean()), 4),
-                              "p50": round(float(np.median(audio_feat)), 4),
-                              "what": "audio frontend (strided convs over 1067 samples) + one cached audio TCN step "
-                                      "+ MLP → z_A (profiled)"},
+        "per_frame": {
+            "frames": T,
+            "batch": 1,
+            "threads": torch.get_num_threads(),
+            "mean_ms": round(float(step_ms.mean()), 4),
+            "p50_ms": round(float(np.median(step_ms)), 4),
+            "p99_ms": round(float(np.percentile(step_ms, 99)), 4),
+            "max_ms": round(float(step_ms.max()), 4),
+            "total_s": round(total_s, 4),
+        },
+        "audio_features_ms": {
+            "mean": round(float(audio_feat.mean()), 4),
+            "p50": round(float(np.median(audio_feat)), 4),
+            "what": "audio frontend (strided convs over 1067 samples) + one cached audio TCN step "
+            "+ MLP → z_A (profiled)",
+        },
         "stages_ms": stage_ms,
         "stages_profiled_frames": n_prof,
         "stages_sum_ms_mean": round(float(sum(v.mean() for v in times.values())), 4),
@@ -340,9 +371,12 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
             "macs_per_frame_by_op": {n: f // 2 for n, f in step_ops.items()},
             "naive_macs_per_frame": naive_flops // 2,
             "counter": "torch.utils.flop_counter.FlopCounterMode (matmul/conv FLOPs = 2·MACs; element-wise ops "
-                       "not counted)",
-            "lstm_window_check": {"counted_macs": int(lstm_counted), "analytic_macs": int(analytic_lstm),
-                                  "counted_equals_analytic": bool(lstm_counted == analytic_lstm)},
+            "not counted)",
+            "lstm_window_check": {
+                "counted_macs": int(lstm_counted),
+                "analytic_macs": int(analytic_lstm),
+                "counted_equals_analytic": bool(lstm_counted == analytic_lstm),
+            },
         },
         "cpu_peak_gflops_1thread": round(peak, 2),
         "step_gflops_per_s": round(rate, 4),

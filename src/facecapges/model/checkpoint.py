@@ -110,8 +110,9 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
     styles = list_styles()
     if name not in styles:
         known = ", ".join(styles) or "none installed"
-        raise UserError(f"unknown style {name!r} (installed: {known}; install your own with "
-                        "`facecapges styles install RUN`)")
+        raise UserError(
+            f"unknown style {name!r} (installed: {known}; install your own with `facecapges styles install RUN`)"
+        )
     return styles[name]
 
 

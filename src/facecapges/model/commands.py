@@ -17,15 +17,25 @@ def register(app: typer.Typer) -> None:
         head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
         checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
         style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
-        face_out: Path | None = typer.Option(None, "--face-out", help="Also write the face to show with the "
-                                                                          "motion (face JSON): --face resampled, or "
-                                                                          "without --face, jaw and lips from the "
-                                                                          "speech."),
+        face_out: Path | None = typer.Option(
+            None,
+            "--face-out",
+            help="Also write the face to show with the "
+            "motion (face JSON): --face resampled, or "
+            "without --face, jaw and lips from the "
+            "speech.",
+        ),
         json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
-        vrma: Path | None = typer.Option(None, "--vrma", help="Also write the gestures (+ the --face weights) "
-                                                                 "as VRM Animation (.vrma) for any VRM avatar."),
-        vrma_face: str = typer.Option("presets", "--vrma-face", help="Face in the .vrma: presets (VRM presets from "
-                                                                     "ARKit, any VRM) or perfect-sync (52 ARKit)."),
+        vrma: Path | None = typer.Option(
+            None,
+            "--vrma",
+            help="Also write the gestures (+ the --face weights) as VRM Animation (.vrma) for any VRM avatar.",
+        ),
+        vrma_face: str = typer.Option(
+            "presets",
+            "--vrma-face",
+            help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
+        ),
         force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
@@ -81,17 +91,28 @@ def register(app: typer.Typer) -> None:
             write_pose_vrma(vrma, skel, np.concatenate(kept), ckpt.fps, inputs.face if face else None, vrma_face)
             typer.echo(f"wrote {vrma} (VRM Animation)", err=json_out)
         ms, n = timing_ms[0], inputs.n_frames
-        summary = {"out": str(out), "frames": int(n), "fps": ckpt.fps,
-                   "duration_s": round(n / ckpt.fps, 3), "ms_per_frame": round(ms, 3),
-                   "checkpoint": str(ckpt.path), "warnings": inputs.notes}
+        summary = {
+            "out": str(out),
+            "frames": int(n),
+            "fps": ckpt.fps,
+            "duration_s": round(n / ckpt.fps, 3),
+            "ms_per_frame": round(ms, 3),
+            "checkpoint": str(ckpt.path),
+            "warnings": inputs.notes,
+        }
         if json_out:
             typer.echo(json.dumps(summary))
         else:
-            typer.echo(f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
-                       f"({summary['duration_s']} s), {ms:.2f} ms/frame")
+            typer.echo(
+                f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
+                f"({summary['duration_s']} s), {ms:.2f} ms/frame"
+            )
 
-    styles_app = typer.Typer(help="The installed speaking styles (per-speaker models): list, install.",
-                             invoke_without_command=True, no_args_is_help=False)
+    styles_app = typer.Typer(
+        help="The installed speaking styles (per-speaker models): list, install.",
+        invoke_without_command=True,
+        no_args_is_help=False,
+    )
     app.add_typer(styles_app, name="styles")
 
     def _list(json_out: bool) -> None:
@@ -100,17 +121,27 @@ def register(app: typer.Typer) -> None:
         rows = []
         for name, path in list_styles().items():
             meta = load_checkpoint(path).meta
-            rows.append({"name": name, "default": name == DEFAULT_STYLE, "speaker": meta.get("speaker"),
-                         "epochs": meta.get("epochs_trained"), "inputs": meta.get("inputs"),
-                         "shipped": path.parent == styles_dir(), "path": str(path)})
+            rows.append(
+                {
+                    "name": name,
+                    "default": name == DEFAULT_STYLE,
+                    "speaker": meta.get("speaker"),
+                    "epochs": meta.get("epochs_trained"),
+                    "inputs": meta.get("inputs"),
+                    "shipped": path.parent == styles_dir(),
+                    "path": str(path),
+                }
+            )
         if json_out:
             typer.echo(json.dumps(rows, indent=2))
             return
         if not rows:
             typer.echo("no styles installed")
         for r in rows:
-            typer.echo(f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
-                       f"{r['epochs']} epochs  {'shipped' if r['shipped'] else 'user'}  {r['path']}")
+            typer.echo(
+                f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
+                f"{r['epochs']} epochs  {'shipped' if r['shipped'] else 'user'}  {r['path']}"
+            )
 
     @styles_app.callback()
     def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:

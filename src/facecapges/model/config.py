@@ -119,19 +119,47 @@ class TrainConfig:
 # message naming the setting, never a traceback deep in training.
 LIMITS: dict[str, dict[str, tuple | set]] = {
     "ModelConfig": {
-        "fps": (1, 240), "sr": (8000, 192000), "audio_repr": {"raw", "mel"}, "n_history": (1, 256),
-        "n_joints": {47}, "n_torso": (1, 46), "n_face": {52}, "audio_frontend_channels": (1, 4096),
-        "audio_tcn_channels": (1, 4096), "audio_tcn_dilations": (1, 256), "audio_dim": (1, 4096),
-        "face_tcn_channels": (1, 4096), "face_tcn_dilations": (1, 256), "face_dim": (1, 4096),
-        "head_hidden": (1, 4096), "head_dim": (0, 4096), "lstm_hidden": (1, 4096), "lstm_layers": (1, 16),
-        "mlp_hidden": (1, 8192), "dropout": (0.0, 0.99), "disc_channels": (1, 4096),
+        "fps": (1, 240),
+        "sr": (8000, 192000),
+        "audio_repr": {"raw", "mel"},
+        "n_history": (1, 256),
+        "n_joints": {47},
+        "n_torso": (1, 46),
+        "n_face": {52},
+        "audio_frontend_channels": (1, 4096),
+        "audio_tcn_channels": (1, 4096),
+        "audio_tcn_dilations": (1, 256),
+        "audio_dim": (1, 4096),
+        "face_tcn_channels": (1, 4096),
+        "face_tcn_dilations": (1, 256),
+        "face_dim": (1, 4096),
+        "head_hidden": (1, 4096),
+        "head_dim": (0, 4096),
+        "lstm_hidden": (1, 4096),
+        "lstm_layers": (1, 16),
+        "mlp_hidden": (1, 8192),
+        "dropout": (0.0, 0.99),
+        "disc_channels": (1, 4096),
     },
     "TrainConfig": {
-        "clip_len": (2, 100_000), "stride": (1, 100_000), "batch_size": (1, 1 << 20), "lr_base": (1e-12, 100.0),
-        "d_lr_ratio": (0.0, 1000.0), "optimizer": {"sgd", "adam"}, "momentum": (0.0, 0.999),
-        "epochs": (1, 1_000_000), "adv_start_epoch": (1, 1_000_000), "huber_beta": (1e-9, 1000.0),
-        "w_rec": (0.0, 1e9), "w_vel": (0.0, 1e9), "w_acc": (0.0, 1e9), "w_adv": (0.0, 1e9),
-        "grad_clip": (0.0, 1e9), "seed": (0, 2**32 - 1), "holdout_from": (1, None), "num_threads": (0, 1024),
+        "clip_len": (2, 100_000),
+        "stride": (1, 100_000),
+        "batch_size": (1, 1 << 20),
+        "lr_base": (1e-12, 100.0),
+        "d_lr_ratio": (0.0, 1000.0),
+        "optimizer": {"sgd", "adam"},
+        "momentum": (0.0, 0.999),
+        "epochs": (1, 1_000_000),
+        "adv_start_epoch": (1, 1_000_000),
+        "huber_beta": (1e-9, 1000.0),
+        "w_rec": (0.0, 1e9),
+        "w_vel": (0.0, 1e9),
+        "w_acc": (0.0, 1e9),
+        "w_adv": (0.0, 1e9),
+        "grad_clip": (0.0, 1e9),
+        "seed": (0, 2**32 - 1),
+        "holdout_from": (1, None),
+        "num_threads": (0, 1024),
         "holdout_fraction": (0.0, 0.9),
     },
 }
@@ -139,6 +167,7 @@ LIMITS: dict[str, dict[str, tuple | set]] = {
 
 def _check_value(where: str, kind: str, v, limits):
     """One setting against its type (the field's annotation) and its limits; returns the clean value."""
+
     def bad(expected: str):
         return UserError(f"{where} must be {expected}, got {v!r}")
 
@@ -179,8 +208,11 @@ def check_fields(cls, data) -> dict:
     if unknown:
         raise UserError(f"unknown {cls.__name__} setting(s): {', '.join(unknown)}")
     limits = LIMITS.get(cls.__name__, {})
-    return {f.name: _check_value(f"{section}.{f.name}", str(f.type), data[f.name], limits.get(f.name))
-            for f in fields(cls) if f.name in data}
+    return {
+        f.name: _check_value(f"{section}.{f.name}", str(f.type), data[f.name], limits.get(f.name))
+        for f in fields(cls)
+        if f.name in data
+    }
 
 
 def _from_dict(cls, data: dict):
@@ -194,8 +226,10 @@ def model_config_from_dict(data: dict) -> ModelConfig:
 def train_config_from_dict(data: dict, model: ModelConfig | None = None) -> TrainConfig:
     cfg = _from_dict(TrainConfig, data)
     if model is not None and cfg.clip_len <= model.n_history:
-        raise UserError(f"train.clip_len must be more than model.n_history = {model.n_history} (the warm-up "
-                        f"frames; the rest are generated), got {cfg.clip_len}")
+        raise UserError(
+            f"train.clip_len must be more than model.n_history = {model.n_history} (the warm-up "
+            f"frames; the rest are generated), got {cfg.clip_len}"
+        )
     return cfg
 
 
@@ -225,6 +259,3 @@ def load_config_file(path: str | Path) -> tuple[dict, dict]:
     except UserError as exc:
         raise UserError(f"{p}: {exc}") from None
     return dict(model), dict(train)
-
-
-

@@ -84,22 +84,29 @@ class StreamedInputs:
             audio = np.zeros((kb - k, spf), np.float32)  # frames past the end of the audio are silent
             for row, (a, b) in enumerate(zip(starts - offset, ends - offset)):
                 chunk = buf[a:b]
-                audio[row, :len(chunk)] = chunk
-            buf, offset = buf[starts[-1] - offset:], int(starts[-1])
+                audio[row, : len(chunk)] = chunk
+            buf, offset = buf[starts[-1] - offset :], int(starts[-1])
             yield audio, self.face[k:kb], self.head[k:kb]
             k = kb
 
 
-def plan_inputs(audio_path: str | Path, face_path: str | Path | None = None, head_path: str | Path | None = None,
-                fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> StreamedInputs:
+def plan_inputs(
+    audio_path: str | Path,
+    face_path: str | Path | None = None,
+    head_path: str | Path | None = None,
+    fps: float = timing.MODEL_FPS,
+    sr: int = timing.AUDIO_SR,
+) -> StreamedInputs:
     """Check the input files and read everything but the audio (module docstring); memory flat in length."""
     from facecapges.io.audio import SILENCE_DB, audio_level
 
     notes: list[str] = []
     audio_s, level_db = audio_level(audio_path)  # block by block: 1 h of silence is refused in flat memory
     if audio_s * sr < timing.samples_per_frame(fps, sr) - 1:
-        raise file_error(audio_path, f"audio is shorter than one frame ({audio_s * sr:.0f} samples at {sr} Hz, "
-                                     f"one frame is {sr / fps:.0f})")
+        raise file_error(
+            audio_path,
+            f"audio is shorter than one frame ({audio_s * sr:.0f} samples at {sr} Hz, one frame is {sr / fps:.0f})",
+        )
     if level_db < SILENCE_DB:
         raise file_error(audio_path, "audio is silent (below -50 dBFS): there is no speech to gesture to")
     T = timing.n_frames_for(audio_s, fps)
@@ -116,8 +123,11 @@ def plan_inputs(audio_path: str | Path, face_path: str | Path | None = None, hea
             raise file_error(face_path, "face track has no frames")
         face_s = track.n_frames / track.fps
         if abs(face_s - audio_s) > max(0.5, 0.05 * audio_s):
-            notes.append(f"{face_path}: the face track lasts {face_s:.1f} s, the audio {audio_s:.1f} s; "
-                         + ("its last frame is held" if face_s < audio_s else "it is cut") + " (are they the same take?)")
+            notes.append(
+                f"{face_path}: the face track lasts {face_s:.1f} s, the audio {audio_s:.1f} s; "
+                + ("its last frame is held" if face_s < audio_s else "it is cut")
+                + " (are they the same take?)"
+            )
         face = _fit(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
         if track.head_rot6d is not None and head_path is None:
             head = _fit(timing.resample(track.head_rot6d, track.fps, fps), T).astype(np.float32)
@@ -137,16 +147,26 @@ def plan_inputs(audio_path: str | Path, face_path: str | Path | None = None, hea
     return StreamedInputs(Path(audio_path), T, face, head, fps, sr, notes)
 
 
-def prepare_inputs(audio_path: str | Path, face_path: str | Path | None = None, head_path: str | Path | None = None,
-                   fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> FrameInputs:
+def prepare_inputs(
+    audio_path: str | Path,
+    face_path: str | Path | None = None,
+    head_path: str | Path | None = None,
+    fps: float = timing.MODEL_FPS,
+    sr: int = timing.AUDIO_SR,
+) -> FrameInputs:
     """Every frame's inputs in memory (:func:`plan_inputs` + all its blocks at once)."""
     plan = plan_inputs(audio_path, face_path, head_path, fps, sr)
-    audio = np.concatenate([a for a, _, _ in plan.blocks()]) if plan.n_frames else \
-        np.zeros((0, timing.samples_per_frame(fps, sr)), np.float32)
+    audio = (
+        np.concatenate([a for a, _, _ in plan.blocks()])
+        if plan.n_frames
+        else np.zeros((0, timing.samples_per_frame(fps, sr)), np.float32)
+    )
     return FrameInputs(audio=audio, face=plan.face, head=plan.head, fps=fps, notes=plan.notes)
 
 
-def generate_blocks(checkpoint, blocks, n_frames: int, fps: float, progress: bool = True, timing_ms: list | None = None):
+def generate_blocks(
+    checkpoint, blocks, n_frames: int, fps: float, progress: bool = True, timing_ms: list | None = None
+):
     """Run one streaming generator over consecutive input blocks ``(audio, face, head)``; yields pose blocks
     (n, 47, 6). ``timing_ms`` (a list) receives the model's ms per frame at the end."""
     if abs(fps - checkpoint.fps) > 1e-6:
@@ -187,8 +207,9 @@ def generate_blocks(checkpoint, blocks, n_frames: int, fps: float, progress: boo
 def generate_poses(checkpoint, inputs: FrameInputs, progress: bool = True) -> tuple[np.ndarray, float]:
     """Run the streaming generator over every frame: poses (T, 47, 6), ms per frame."""
     ms: list[float] = []
-    blocks = generate_blocks(checkpoint, [(inputs.audio, inputs.face, inputs.head)], inputs.n_frames, inputs.fps,
-                             progress, ms)
+    blocks = generate_blocks(
+        checkpoint, [(inputs.audio, inputs.face, inputs.head)], inputs.n_frames, inputs.fps, progress, ms
+    )
     poses = list(blocks)
     out = np.concatenate(poses) if poses else np.empty((0, 47, 6), np.float32)
     return out, ms[0]

@@ -73,11 +73,13 @@ class AudioFrontend(nn.Module):
         self.register_buffer("in_mean", torch.zeros(1))
         self.register_buffer("in_scale", torch.ones(1))
         c1, c2, c3 = cfg.audio_frontend_channels
-        self.convs = nn.ModuleList([
-            nn.Conv1d(1, c1, 15, stride=5),
-            nn.Conv1d(c1, c2, 9, stride=4),
-            nn.Conv1d(c2, c3, 9, stride=4),
-        ])
+        self.convs = nn.ModuleList(
+            [
+                nn.Conv1d(1, c1, 15, stride=5),
+                nn.Conv1d(c1, c2, 9, stride=4),
+                nn.Conv1d(c2, c3, 9, stride=4),
+            ]
+        )
         length = cfg.samples_per_frame
         for conv in self.convs:
             assert isinstance(conv, nn.Conv1d)
@@ -128,8 +130,9 @@ class CausalTCN(nn.Module):
         self.layers = nn.ModuleList([nn.Linear(2 * channels, channels) for _ in dilations])
         self.extra = nn.Linear(extra_dim, channels, bias=False) if extra_dim else None
 
-    def layer(self, i: int, x_past: torch.Tensor, x_now: torch.Tensor,
-              extra: torch.Tensor | None = None) -> torch.Tensor:
+    def layer(
+        self, i: int, x_past: torch.Tensor, x_now: torch.Tensor, extra: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Layer ``i``'s activation from its input d_i frames ago and now (…, C) each."""
         y = self.layers[i](torch.cat([x_past, x_now], -1))
         if i == len(self.layers) - 1 and self.extra is not None:
@@ -223,8 +226,9 @@ class Decoder(nn.Module):
         z = torch.zeros(shape, device=device)
         return (z, z.clone()), (z.clone(), z.clone())
 
-    def forward(self, fuse: torch.Tensor, state: tuple[LSTMState, LSTMState]
-                ) -> tuple[torch.Tensor, tuple[LSTMState, LSTMState]]:
+    def forward(
+        self, fuse: torch.Tensor, state: tuple[LSTMState, LSTMState]
+    ) -> tuple[torch.Tensor, tuple[LSTMState, LSTMState]]:
         # fuse (B, N+1, D) -> pose (B, J*6) of the window's last frame, new states
         fuse = self.drop(fuse)
         o_t, st_t = self.lstm_t(fuse, state[0])  # (B, N+1, H)   eq. 4.12
@@ -281,7 +285,7 @@ class FaceCapGes(nn.Module):
         hist = warmup
         outs = []
         for m in range(L - N):
-            pose, state = self.step(z[:, m:m + N + 1], hist[:, -N:], state)
+            pose, state = self.step(z[:, m : m + N + 1], hist[:, -N:], state)
             outs.append(pose)
             hist = torch.cat([hist[:, 1:], pose[:, None]], 1)
         return torch.stack(outs, 1)
@@ -298,9 +302,12 @@ class SegmentDiscriminator(nn.Module):
         super().__init__()
         C = cfg.disc_channels
         self.net = nn.Sequential(
-            nn.Conv1d(cfg.pose_dim * 2, C, 3, padding=1), nn.LeakyReLU(0.2),
-            nn.Conv1d(C, C, 3, stride=2, padding=1), nn.LeakyReLU(0.2),
-            nn.Conv1d(C, C, 3, stride=2, padding=1), nn.LeakyReLU(0.2),
+            nn.Conv1d(cfg.pose_dim * 2, C, 3, padding=1),
+            nn.LeakyReLU(0.2),
+            nn.Conv1d(C, C, 3, stride=2, padding=1),
+            nn.LeakyReLU(0.2),
+            nn.Conv1d(C, C, 3, stride=2, padding=1),
+            nn.LeakyReLU(0.2),
         )
         self.out = nn.Linear(C, 1)
 
@@ -325,8 +332,9 @@ def input_norm_layers(model: Any) -> dict[str, Any]:  # model: FaceCapGes-like (
 
 
 @torch.no_grad()
-def set_input_statistics(model: nn.Module, stats: Mapping[str, tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray]]
-                         ) -> None:
+def set_input_statistics(
+    model: nn.Module, stats: Mapping[str, tuple[torch.Tensor | np.ndarray, torch.Tensor | np.ndarray]]
+) -> None:
     """Set ``in_mean``/``in_scale`` of the inputs named in ``stats`` ({name: (mean, scale)})."""
     layers = input_norm_layers(model)
     for name, (mean, scale) in stats.items():

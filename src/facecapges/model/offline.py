@@ -100,8 +100,7 @@ class OfflineDecoder(nn.Module):
         o_u, _ = self.lstm_u(torch.cat([u, o_t], -1))  # (B, L, 2H)
         return torch.cat([self.head_t(o_t), self.head_u(o_u)], -1)  # every frame decoded
 
-    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor,
-                seed: torch.Tensor) -> torch.Tensor:
+    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor, seed: torch.Tensor) -> torch.Tensor:
         return self.decode(self.encode(audio, face, head), seed)
 
     # ------------------------------------------------------------- inference
@@ -126,7 +125,7 @@ class OfflineDecoder(nn.Module):
         z = self.encode(a, f, h)  # (1, T, E)
         z0 = self.no_input_embedding().expand(1, cfg.n_history, -1)
         s = torch.from_numpy(seed.reshape(1, cfg.n_history, -1).copy())
-        out = self.decode(torch.cat([z0, z], 1), s)[0, cfg.n_history:]
+        out = self.decode(torch.cat([z0, z], 1), s)[0, cfg.n_history :]
         return out.reshape(-1, cfg.n_joints, 6).numpy().copy()
 
 

@@ -111,9 +111,14 @@ class NaiveStreamingGenerator:
     def _window(self, audio, face, head) -> torch.Tensor:
         """Push the frame's raw inputs; the window's N+1 embeddings (N+1, E), encoded afresh."""
         cfg, W = self.cfg, self.cfg.window
-        self.raw.append((_frame_audio(audio, cfg.samples_per_frame), _clean(face, cfg.n_face, "face"),
-                         _clean(head, 6, "head rot6d")))
-        self.raw = self.raw[-(2 * cfg.n_history + 1):]  # window frames + each one's past
+        self.raw.append(
+            (
+                _frame_audio(audio, cfg.samples_per_frame),
+                _clean(face, cfg.n_face, "face"),
+                _clean(head, 6, "head rot6d"),
+            )
+        )
+        self.raw = self.raw[-(2 * cfg.n_history + 1) :]  # window frames + each one's past
         a, f, h = (torch.stack([r[i] for r in self.raw])[None] for i in range(3))
         z = self.model.encode(a, f, h)[0][-W:]  # (≤ N+1, E)
         self.frames += 1

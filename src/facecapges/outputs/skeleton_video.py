@@ -82,10 +82,17 @@ def _frame_mapper(all_xy: np.ndarray, panel_w: int, panel_h: int, margin: float,
     return to_px, scale
 
 
-def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], skeleton: Skeleton,
-                          out_path: str | Path, fps: float = 15.0, wav: str | Path | None = None,
-                          panel_size: tuple[int, int] = (480, 540), crf: int = 23,
-                          progress: bool = False) -> Path:
+def render_skeleton_video(
+    poses: Sequence[np.ndarray],
+    titles: Sequence[str],
+    skeleton: Skeleton,
+    out_path: str | Path,
+    fps: float = 15.0,
+    wav: str | Path | None = None,
+    panel_size: tuple[int, int] = (480, 540),
+    crf: int = 23,
+    progress: bool = False,
+) -> Path:
     """Render poses side by side (titled) to an MP4 at ``out_path``; returns the path.
 
     ``poses``: list of (T_i, 47, 6) rot6d; ``titles``: one per panel; ``wav``: optional
@@ -103,8 +110,10 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
     all_xy = np.concatenate([pos[:, used, :2].reshape(-1, 2) for pos in positions])
     to_px, _ = _frame_mapper(all_xy, pw, ph, 0.06, top)
     pix = [np.round(to_px(pos[..., :2]) * 4).astype(np.int32) for pos in positions]  # 2 fractional bits
-    head, head_end = skeleton.names.index("Head") if "Head" in skeleton.names else None, \
-        skeleton.names.index("HeadEnd") if "HeadEnd" in skeleton.names else None
+    head, head_end = (
+        skeleton.names.index("Head") if "Head" in skeleton.names else None,
+        skeleton.names.index("HeadEnd") if "HeadEnd" in skeleton.names else None,
+    )
     T = max(len(p) for p in positions)
     W, H = pw * len(poses), ph
     out = Path(out_path)
@@ -114,8 +123,9 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
     writer = Mp4Writer(out, fps, audio=wav, crf=crf)
     background = np.full((H, W, 3), 250, np.uint8)
     for k, title in enumerate(titles):
-        cv2.putText(background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2,
-                    cv2.LINE_AA)
+        cv2.putText(
+            background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2, cv2.LINE_AA
+        )
         if k:
             cv2.line(background, (k * pw, 0), (k * pw, H), (200, 200, 200), 1)
     from rich.progress import Progress
@@ -134,8 +144,16 @@ def render_skeleton_video(poses: Sequence[np.ndarray], titles: Sequence[str], sk
                         c = (f[head] + f[head_end]) // 2 + off
                         r = max(int(np.linalg.norm(f[head_end] - f[head]) * 0.6), 8)
                         cv2.circle(frame, tuple(c), r, _TORSO, 3, cv2.LINE_AA, shift=2)
-                cv2.putText(frame, f"{t / fps:5.1f} s", (W - 110, H - 14), cv2.FONT_HERSHEY_SIMPLEX, 0.6,
-                            (80, 80, 80), 1, cv2.LINE_AA)
+                cv2.putText(
+                    frame,
+                    f"{t / fps:5.1f} s",
+                    (W - 110, H - 14),
+                    cv2.FONT_HERSHEY_SIMPLEX,
+                    0.6,
+                    (80, 80, 80),
+                    1,
+                    cv2.LINE_AA,
+                )
                 writer.write(frame)
                 bar.advance(task)
         writer.close()

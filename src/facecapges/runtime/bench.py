@@ -81,15 +81,39 @@ def per_frame(ckpt, video: Path, max_frames: int | None = None) -> dict:
     finally:
         sess.close()
     lat = rep["latency_ms"]
-    return {"frames": rep["frames"], "latency_ms": lat, "target_ms": {"p50": 30, "p99": 50},
-            "meets_target": lat["total"]["p50"] <= 30 and lat["total"]["p99"] <= 50, "events": rep["events"]}
+    return {
+        "frames": rep["frames"],
+        "latency_ms": lat,
+        "target_ms": {"p50": 30, "p99": 50},
+        "meets_target": lat["total"]["p50"] <= 30 and lat["total"]["p99"] <= 50,
+        "events": rep["events"],
+    }
 
 
 def looped_video(src: Path, seconds: float, out: Path) -> Path:
     import imageio_ffmpeg
 
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-stream_loop", "-1", "-i", str(src),
-           "-t", f"{seconds:g}", "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "aac", str(out)]
+    cmd = [
+        imageio_ffmpeg.get_ffmpeg_exe(),
+        "-y",
+        "-loglevel",
+        "error",
+        "-stream_loop",
+        "-1",
+        "-i",
+        str(src),
+        "-t",
+        f"{seconds:g}",
+        "-c:v",
+        "libx264",
+        "-preset",
+        "veryfast",
+        "-crf",
+        "18",
+        "-c:a",
+        "aac",
+        str(out),
+    ]
     subprocess.run(cmd, check=True)
     return out
 
@@ -102,10 +126,16 @@ def run_60s(ckpt, clip: Path, seconds: float = 60.0) -> dict:
         t0 = time.perf_counter()
         rep = run_video(video, Path(tmp) / "out", ckpt, progress=False)
         wall = time.perf_counter() - t0
-    return {"input_seconds": seconds, "frames": rep["frames"], "wall_s": round(wall, 2), "phases_s": rep["seconds"],
-            "wall_s_per_60s_input": round(wall * 60.0 / seconds, 1),
-            "latency_ms_total": rep["latency_ms"]["total"], "target_s": 180 * seconds / 60.0,
-            "meets_target": wall <= 180 * seconds / 60.0}
+    return {
+        "input_seconds": seconds,
+        "frames": rep["frames"],
+        "wall_s": round(wall, 2),
+        "phases_s": rep["seconds"],
+        "wall_s_per_60s_input": round(wall * 60.0 / seconds, 1),
+        "latency_ms_total": rep["latency_ms"]["total"],
+        "target_s": 180 * seconds / 60.0,
+        "meets_target": wall <= 180 * seconds / 60.0,
+    }
 
 
 class PoseRange:
@@ -173,20 +203,30 @@ def session(ckpt, video: Path, train_bvh: Path, seconds: float) -> dict:
     finally:
         sess.close()
     wall = time.perf_counter() - t0
-    warm = rss[max(1, len(rss) // 10):] or rss
+    warm = rss[max(1, len(rss) // 10) :] or rss
     base = warm[0]
     seg_mean = [round(s / max(c, 1), 3) for s, c in zip(dist_sum, dist_n)]
-    return {"stream_seconds": round(rep["frames"] / ckpt.fps, 1), "frames": rep["frames"], "wall_s": round(wall, 1),
-            "loops_of_clip": video.loops,
-            "rss_mb": {"first_after_warmup": round(base, 1), "last": round(warm[-1], 1),
-                       "min": round(min(warm), 1), "max": round(max(warm), 1), "samples": len(rss)},
-            "rss_change_pct": round(100 * (warm[-1] - base) / base, 2),
-            "rss_max_deviation_pct": round(100 * max(abs(x - base) for x in warm) / base, 2),
-            "memory_flat": all(abs(x - base) <= 0.05 * base for x in warm),
-            "pose_inside_training_range_pct": round(100 * inside / max(rep["frames"], 1), 2),
-            "worst_excess_over_training_range_deg": round(worst, 2),
-            "mean_distance_to_training_mean_deg_per_tenth": seg_mean,
-            "latency_ms_total": rep["latency_ms"]["total"], "events": rep["events"]}
+    return {
+        "stream_seconds": round(rep["frames"] / ckpt.fps, 1),
+        "frames": rep["frames"],
+        "wall_s": round(wall, 1),
+        "loops_of_clip": video.loops,
+        "rss_mb": {
+            "first_after_warmup": round(base, 1),
+            "last": round(warm[-1], 1),
+            "min": round(min(warm), 1),
+            "max": round(max(warm), 1),
+            "samples": len(rss),
+        },
+        "rss_change_pct": round(100 * (warm[-1] - base) / base, 2),
+        "rss_max_deviation_pct": round(100 * max(abs(x - base) for x in warm) / base, 2),
+        "memory_flat": all(abs(x - base) <= 0.05 * base for x in warm),
+        "pose_inside_training_range_pct": round(100 * inside / max(rep["frames"], 1), 2),
+        "worst_excess_over_training_range_deg": round(worst, 2),
+        "mean_distance_to_training_mean_deg_per_tenth": seg_mean,
+        "latency_ms_total": rep["latency_ms"]["total"],
+        "events": rep["events"],
+    }
 
 
 def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
@@ -229,9 +269,12 @@ def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
                         break
             sender.close()
             st = sender.stats()
-            out[blend] = {"p50_ms": round(float(np.median(ms)), 3), "p99_ms": round(float(np.percentile(ms, 99)), 3),
-                          "datagrams_per_frame": round(st["datagrams"] / max(st["frames"], 1), 2),
-                          "largest_datagram_bytes": st["largest_datagram_bytes"]}
+            out[blend] = {
+                "p50_ms": round(float(np.median(ms)), 3),
+                "p99_ms": round(float(np.percentile(ms, 99)), 3),
+                "datagrams_per_frame": round(st["datagrams"] / max(st["frames"], 1), 2),
+                "largest_datagram_bytes": st["largest_datagram_bytes"],
+            }
     finally:
         rx.close()
     return out

@@ -133,7 +133,10 @@ def head_follow(poses: np.ndarray, heads: np.ndarray, found: np.ndarray | None =
         return [round(float(x.min()), 1), round(float(x.max()), 1)]
 
     r = {k: _corr(a[:, i], c[:, i]) for i, k in ((0, "yaw_r"), (1, "pitch_r"))}
-    return {"frames": int(keep.sum()), **{k: None if v is None else round(v, 4) for k, v in r.items()},
-            "yaw_range_deg": {"captured": rng(c[:, 0]), "avatar": rng(a[:, 0])},
-            "pitch_range_deg": {"captured": rng(c[:, 1]), "avatar": rng(a[:, 1])},
-            "mean_error_deg": round(float(err.mean()), 2)}
+    return {
+        "frames": int(keep.sum()),
+        **{k: None if v is None else round(v, 4) for k, v in r.items()},
+        "yaw_range_deg": {"captured": rng(c[:, 0]), "avatar": rng(a[:, 0])},
+        "pitch_range_deg": {"captured": rng(c[:, 1]), "avatar": rng(a[:, 1])},
+        "mean_error_deg": round(float(err.mean()), 2),
+    }

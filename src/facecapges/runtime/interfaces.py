@@ -63,7 +63,6 @@ class AudioSource(Protocol):
     @property
     def name(self) -> str: ...  # an attribute or a property
 
-
     def start(self, t0: float) -> None: ...
 
     def ended_at(self, sample: int) -> bool:

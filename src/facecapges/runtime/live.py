@@ -35,9 +35,11 @@ def default_outputs(web: str | None, vmc: str | None, record: Path | None) -> tu
     if web is not None or vmc is not None or record is not None:
         return web, None
     port = DEFAULT_VIEWER_PORT if _port_free("127.0.0.1", DEFAULT_VIEWER_PORT) else 0
-    return (f"127.0.0.1:{port}",
-            "no --web, --vmc or --record given: opening the browser viewer (add --vmc 127.0.0.1:39539 to drive "
-            "VSeeFace / Warudo / VNyan, --record DIR to save motion.bvh + face.json)")
+    return (
+        f"127.0.0.1:{port}",
+        "no --web, --vmc or --record given: opening the browser viewer (add --vmc 127.0.0.1:39539 to drive "
+        "VSeeFace / Warudo / VNyan, --record DIR to save motion.bvh + face.json)",
+    )
 
 
 def livelink_hint(feed, bind: str, waiting: bool = False) -> str | None:
@@ -53,14 +55,24 @@ def livelink_hint(feed, bind: str, waiting: bool = False) -> str | None:
             return "no packets yet — is the phone set to this machine's LAN address? use --host 0.0.0.0"
         return f"no packets yet — is the phone's Live Link target this machine's LAN address, port {port}?"
     if loop:
-        return (f"Live Link listens on {bind}:{port}, which a phone cannot reach: add --host 0.0.0.0 and set the "
-                f"app's target to this machine's LAN address, port {port}")
+        return (
+            f"Live Link listens on {bind}:{port}, which a phone cannot reach: add --host 0.0.0.0 and set the "
+            f"app's target to this machine's LAN address, port {port}"
+        )
     return None
 
 
-def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, int] | None, *,
-                   vmc_blend: str = "both", vmc_avatar=None, rate: float | None = None,
-                   face_layout: str = "beat"):
+def per_face_sinks(
+    ckpt,
+    faces: int,
+    record: Path | None,
+    vmc_addr: tuple[str, int] | None,
+    *,
+    vmc_blend: str = "both",
+    vmc_avatar=None,
+    rate: float | None = None,
+    face_layout: str = "beat",
+):
     """Recorders and VMC senders, one set per face (module docstring).
 
     Returns ``(sinks, senders, upsamplers)``: what the session writes to, the VMC senders
@@ -78,8 +90,10 @@ def per_face_sinks(ckpt, faces: int, record: Path | None, vmc_addr: tuple[str, i
         sfx = "" if faces == 1 else f"_{i + 1}"
         per: list[Sink] = []
         if record is not None:
-            per += [BvhRecorder(record / f"motion{sfx}.bvh", ckpt.skeleton, ckpt.fps),
-                    FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout)]
+            per += [
+                BvhRecorder(record / f"motion{sfx}.bvh", ckpt.skeleton, ckpt.fps),
+                FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout),
+            ]
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 

@@ -87,18 +87,73 @@ VERSION = 6
 N_VALUES = 61
 MAX_NAME_BYTES = 256  # longer id / subject fields are treated as malformed
 _BLEND = [
-    "EyeBlinkLeft", "EyeLookDownLeft", "EyeLookInLeft", "EyeLookOutLeft", "EyeLookUpLeft", "EyeSquintLeft",
-    "EyeWideLeft", "EyeBlinkRight", "EyeLookDownRight", "EyeLookInRight", "EyeLookOutRight", "EyeLookUpRight",
-    "EyeSquintRight", "EyeWideRight", "JawForward", "JawLeft", "JawRight", "JawOpen", "MouthClose", "MouthFunnel",
-    "MouthPucker", "MouthLeft", "MouthRight", "MouthSmileLeft", "MouthSmileRight", "MouthFrownLeft",
-    "MouthFrownRight", "MouthDimpleLeft", "MouthDimpleRight", "MouthStretchLeft", "MouthStretchRight",
-    "MouthRollLower", "MouthRollUpper", "MouthShrugLower", "MouthShrugUpper", "MouthPressLeft", "MouthPressRight",
-    "MouthLowerDownLeft", "MouthLowerDownRight", "MouthUpperUpLeft", "MouthUpperUpRight", "BrowDownLeft",
-    "BrowDownRight", "BrowInnerUp", "BrowOuterUpLeft", "BrowOuterUpRight", "CheekPuff", "CheekSquintLeft",
-    "CheekSquintRight", "NoseSneerLeft", "NoseSneerRight", "TongueOut",
+    "EyeBlinkLeft",
+    "EyeLookDownLeft",
+    "EyeLookInLeft",
+    "EyeLookOutLeft",
+    "EyeLookUpLeft",
+    "EyeSquintLeft",
+    "EyeWideLeft",
+    "EyeBlinkRight",
+    "EyeLookDownRight",
+    "EyeLookInRight",
+    "EyeLookOutRight",
+    "EyeLookUpRight",
+    "EyeSquintRight",
+    "EyeWideRight",
+    "JawForward",
+    "JawLeft",
+    "JawRight",
+    "JawOpen",
+    "MouthClose",
+    "MouthFunnel",
+    "MouthPucker",
+    "MouthLeft",
+    "MouthRight",
+    "MouthSmileLeft",
+    "MouthSmileRight",
+    "MouthFrownLeft",
+    "MouthFrownRight",
+    "MouthDimpleLeft",
+    "MouthDimpleRight",
+    "MouthStretchLeft",
+    "MouthStretchRight",
+    "MouthRollLower",
+    "MouthRollUpper",
+    "MouthShrugLower",
+    "MouthShrugUpper",
+    "MouthPressLeft",
+    "MouthPressRight",
+    "MouthLowerDownLeft",
+    "MouthLowerDownRight",
+    "MouthUpperUpLeft",
+    "MouthUpperUpRight",
+    "BrowDownLeft",
+    "BrowDownRight",
+    "BrowInnerUp",
+    "BrowOuterUpLeft",
+    "BrowOuterUpRight",
+    "CheekPuff",
+    "CheekSquintLeft",
+    "CheekSquintRight",
+    "NoseSneerLeft",
+    "NoseSneerRight",
+    "TongueOut",
 ]
-LIVELINK_NAMES: tuple[str, ...] = tuple(_BLEND + ["HeadYaw", "HeadPitch", "HeadRoll", "LeftEyeYaw", "LeftEyePitch",
-                                                  "LeftEyeRoll", "RightEyeYaw", "RightEyePitch", "RightEyeRoll"])
+LIVELINK_NAMES: tuple[str, ...] = tuple(
+    _BLEND
+    + [
+        "HeadYaw",
+        "HeadPitch",
+        "HeadRoll",
+        "LeftEyeYaw",
+        "LeftEyePitch",
+        "LeftEyeRoll",
+        "RightEyeYaw",
+        "RightEyePitch",
+        "RightEyeRoll",
+    ]
+)
 assert len(LIVELINK_NAMES) == N_VALUES
 # index into the 61 values of each ARKIT_NAMES channel
 _TO_ARKIT = np.zeros(N_BLENDSHAPES, np.int64)
@@ -158,7 +213,7 @@ def _string(data: bytes, pos: int, what: str) -> tuple[str, int]:
     if pos + n > len(data):
         raise PacketError(f"truncated inside the {what}")
     try:
-        s = data[pos:pos + n].decode("utf-8")
+        s = data[pos : pos + n].decode("utf-8")
     except UnicodeDecodeError:
         raise PacketError(f"{what} is not UTF-8") from None
     return s, pos + n
@@ -192,16 +247,28 @@ def decode_packet(data: bytes) -> LiveLinkFrame:
     return LiveLinkFrame(device, subject, frame, sub, (num, den), values)
 
 
-def encode_packet(values: np.ndarray, device_id: str = "00000000-0000-0000-0000-000000000000",
-                  subject: str = "iPhone", frame_number: int = 0, sub_frame: float = 0.0,
-                  rate: tuple[int, int] = (60, 1)) -> bytes:
+def encode_packet(
+    values: np.ndarray,
+    device_id: str = "00000000-0000-0000-0000-000000000000",
+    subject: str = "iPhone",
+    frame_number: int = 0,
+    sub_frame: float = 0.0,
+    rate: tuple[int, int] = (60, 1),
+) -> bytes:
     """The inverse of :func:`decode_packet` (a sender for tools and demos)."""
     v = np.asarray(values, np.float32).reshape(-1)
     if v.shape[0] != N_VALUES:
         raise ValueError(f"need {N_VALUES} values, got {v.shape[0]}")
     d, s = device_id.encode(), subject.encode()
-    return (struct.pack(">Bi", VERSION, len(d)) + d + struct.pack(">i", len(s)) + s
-            + _TIME.pack(frame_number, sub_frame, *rate) + bytes([N_VALUES]) + _VALUES.pack(*v.tolist()))
+    return (
+        struct.pack(">Bi", VERSION, len(d))
+        + d
+        + struct.pack(">i", len(s))
+        + s
+        + _TIME.pack(frame_number, sub_frame, *rate)
+        + bytes([N_VALUES])
+        + _VALUES.pack(*v.tolist())
+    )
 
 
 class LiveLinkReceiver:

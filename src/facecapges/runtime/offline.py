@@ -50,8 +50,9 @@ def _label(img: np.ndarray, text: str, x: int, dark: bool = False) -> None:
 
     if not dark:
         cv2.putText(img, text, (x, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (0, 0, 0), 4, cv2.LINE_AA)
-    cv2.putText(img, text, (x, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (40, 40, 40) if dark else (255, 255, 255), 2,
-                cv2.LINE_AA)
+    cv2.putText(
+        img, text, (x, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (40, 40, 40) if dark else (255, 255, 255), 2, cv2.LINE_AA
+    )
 
 
 def _frames(mp4: Path):
@@ -68,8 +69,16 @@ def _frames(mp4: Path):
         reader.close()
 
 
-def side_by_side(video: Path, avatar_mp4s: list[Path], out: Path, fps: float, n_frames: int, audio_wav: Path | None,
-                 height: int = 480, with_input: bool = True) -> None:
+def side_by_side(
+    video: Path,
+    avatar_mp4s: list[Path],
+    out: Path,
+    fps: float,
+    n_frames: int,
+    audio_wav: Path | None,
+    height: int = 480,
+    with_input: bool = True,
+) -> None:
     """Input frame used by model frame k (newest before (k+1)/fps) | avatar frame(s) k → ``out`` (H.264 + AAC).
 
     Several avatars (one per face, left to right as the faces' slots) stand next to each
@@ -98,19 +107,25 @@ def side_by_side(video: Path, avatar_mp4s: list[Path], out: Path, fps: float, n_
             panels = []
             if with_input:
                 src = frame if frame is not None else np.zeros((height, height, 3), np.uint8)
-                panels.append(cv2.resize(src, (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
-                                         interpolation=cv2.INTER_AREA))
+                panels.append(
+                    cv2.resize(
+                        src,
+                        (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
+                        interpolation=cv2.INTER_AREA,
+                    )
+                )
             for av in avs:
                 if av.shape[0] != height:
-                    av = cv2.resize(av, (int(round(av.shape[1] * height / av.shape[0])), height),
-                                    interpolation=cv2.INTER_AREA)
+                    av = cv2.resize(
+                        av, (int(round(av.shape[1] * height / av.shape[0])), height), interpolation=cv2.INTER_AREA
+                    )
                 panels.append(av)
             img = np.hstack(panels)
             x = 0
             if with_input:
                 _label(img, "input", 10)
                 x = panels[0].shape[1]
-            for i, p in enumerate(panels[int(with_input):]):
+            for i, p in enumerate(panels[int(with_input) :]):
                 _label(img, "avatar" if len(avs) == 1 else f"avatar {i + 1}", x + 10, dark=True)
                 x += p.shape[1]
             writer.write(img)
@@ -147,11 +162,22 @@ def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple
     return w // 2 * 2, h // 2 * 2
 
 
-def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | Path | None = None,
-              max_frames: int | None = None, force: bool = False, progress: bool = True, videos: bool = True,
-              estimator: str = "hybrid", head: str = "capture", faces: int = 1,
-              video_size: tuple[int, int] = (640, 480), avatar: str | Path | None = None,
-              face_layout: str = "beat") -> dict:
+def run_video(
+    video: str | Path,
+    out_dir: str | Path,
+    checkpoint,
+    audio: str | Path | None = None,
+    max_frames: int | None = None,
+    force: bool = False,
+    progress: bool = True,
+    videos: bool = True,
+    estimator: str = "hybrid",
+    head: str = "capture",
+    faces: int = 1,
+    video_size: tuple[int, int] = (640, 480),
+    avatar: str | Path | None = None,
+    face_layout: str = "beat",
+) -> dict:
     """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
     shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
     from rich.progress import Progress
@@ -182,11 +208,15 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         sfx = "" if faces == 1 else f"_{i + 1}"
         mem = MemoryRecorder()
         mems.append(mem)
-        per: list[Sink] = [BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
-               FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout), mem]
+        per: list[Sink] = [
+            BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
+            FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout),
+            mem,
+        ]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
-    sess = build_session(checkpoint, video=video, audio=audio, realtime=False, estimator=estimator,
-                         sinks=sinks, head=head, faces=faces)
+    sess = build_session(
+        checkpoint, video=video, audio=audio, realtime=False, estimator=estimator, sinks=sinks, head=head, faces=faces
+    )
     sched = sess.scheduler
     audio_src = sess.audio
     assert isinstance(audio_src, FileAudio)  # run reads its speech from a file
@@ -211,11 +241,20 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
         sess.close()
     if why == "interrupted":
         raise KeyboardInterrupt
-    report = {"video": str(video), "audio": str(audio or video), "checkpoint": str(checkpoint.path),
-              **sched.report(), "head": head, "faces": faces, "face_found_frames": found[0], "outputs": {}}
+    report = {
+        "video": str(video),
+        "audio": str(audio or video),
+        "checkpoint": str(checkpoint.path),
+        **sched.report(),
+        "head": head,
+        "faces": faces,
+        "face_found_frames": found[0],
+        "outputs": {},
+    }
     T = sched.frames
-    follow = [head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0}
-              for m in mems]
+    follow = [
+        head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0} for m in mems
+    ]
     report["head_follow"] = follow[0] if faces == 1 else follow
     report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
     report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
@@ -238,11 +277,21 @@ def run_video(video: str | Path, out_dir: str | Path, checkpoint, audio: str | P
                     from facecapges.avatar.retarget import upper_body_locals
                     from facecapges.avatar.vrm_view import render_vrm_video
 
-                    render_vrm_video(driver, upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights, fps,
-                                     dest, audio=wav, progress=progress, width=width, height=height)
+                    render_vrm_video(
+                        driver,
+                        upper_body_locals(checkpoint.skeleton, np.stack(m.quats)),
+                        weights,
+                        fps,
+                        dest,
+                        audio=wav,
+                        progress=progress,
+                        width=width,
+                        height=height,
+                    )
                 else:
-                    render_video(glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width,
-                                 height=height)
+                    render_video(
+                        glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height
+                    )
                 renders.append(dest)
             if faces > 1:
                 side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)

@@ -70,20 +70,46 @@ def _r(x: float, nd: int) -> float:
 
 
 def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> str:
-    return json.dumps({"type": "hello", "protocol": PROTOCOL, "fps": fps, "sr": sr,
-                       "samples_per_frame": timing.samples_per_frame(fps, sr), "joints": list(UPPER_BODY),
-                       "blendshapes": list(ARKIT_NAMES), "max_message_bytes": MAX_MESSAGE_BYTES})
+    return json.dumps(
+        {
+            "type": "hello",
+            "protocol": PROTOCOL,
+            "fps": fps,
+            "sr": sr,
+            "samples_per_frame": timing.samples_per_frame(fps, sr),
+            "joints": list(UPPER_BODY),
+            "blendshapes": list(ARKIT_NAMES),
+            "max_message_bytes": MAX_MESSAGE_BYTES,
+        }
+    )
 
 
 def encode_pose(out: OutputFrame) -> str:
     """One :class:`OutputFrame` as a ``pose`` message."""
-    return next(encode_poses([out.index], [out.time_s], np.asarray(out.quats)[None], np.asarray(out.face)[None],
-                             np.asarray(out.head)[None], [out.face_found], [out.latency_ms], [out.face_index]))
+    return next(
+        encode_poses(
+            [out.index],
+            [out.time_s],
+            np.asarray(out.quats)[None],
+            np.asarray(out.face)[None],
+            np.asarray(out.head)[None],
+            [out.face_found],
+            [out.latency_ms],
+            [out.face_index],
+        )
+    )
 
 
-def encode_poses(frames: Sequence[int], times_s: Sequence[float], quats: np.ndarray, faces: np.ndarray,
-                 heads: np.ndarray, face_found: Sequence[bool], latency_ms,
-                 face_index: Sequence[int] | None = None) -> Iterator[str]:
+def encode_poses(
+    frames: Sequence[int],
+    times_s: Sequence[float],
+    quats: np.ndarray,
+    faces: np.ndarray,
+    heads: np.ndarray,
+    face_found: Sequence[bool],
+    latency_ms,
+    face_index: Sequence[int] | None = None,
+) -> Iterator[str]:
     """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
     one-frame use). ``quats`` (B, 47, 4), ``faces`` (B, 52), ``heads`` (B, 6) are rounded at once
     (6, 5 and 6 decimals). ``latency_ms``: B dicts, or a function of the row called just before
@@ -96,18 +122,35 @@ def encode_poses(frames: Sequence[int], times_s: Sequence[float], quats: np.ndar
     h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
     lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
     for i in range(B):
-        yield json.dumps({"type": "pose", "frame": int(frames[i]), "time": _r(times_s[i], 6), "pose": q[i],
-                          "weights": w[i], "head": h[i], "face_found": bool(face_found[i]),
-                          "face": int(face_index[i]) if face_index is not None else 0,
-                          "latency_ms": {k: _r(v, 3) for k, v in lat(i).items()},
-                          "sent_ms": _r(time.time() * 1000.0, 1)}, separators=(",", ":"))
+        yield json.dumps(
+            {
+                "type": "pose",
+                "frame": int(frames[i]),
+                "time": _r(times_s[i], 6),
+                "pose": q[i],
+                "weights": w[i],
+                "head": h[i],
+                "face_found": bool(face_found[i]),
+                "face": int(face_index[i]) if face_index is not None else 0,
+                "latency_ms": {k: _r(v, 3) for k, v in lat(i).items()},
+                "sent_ms": _r(time.time() * 1000.0, 1),
+            },
+            separators=(",", ":"),
+        )
 
 
 def encode_input(frame: int, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> str:
     a = np.ascontiguousarray(np.asarray(audio, np.float32).reshape(-1)).astype("<f4")
-    return json.dumps({"type": "input", "frame": int(frame), "audio": base64.b64encode(a.tobytes()).decode("ascii"),
-                       "face": [float(v) for v in np.asarray(face).reshape(-1)],
-                       "head": [float(v) for v in np.asarray(head).reshape(-1)]}, separators=(",", ":"))
+    return json.dumps(
+        {
+            "type": "input",
+            "frame": int(frame),
+            "audio": base64.b64encode(a.tobytes()).decode("ascii"),
+            "face": [float(v) for v in np.asarray(face).reshape(-1)],
+            "head": [float(v) for v in np.asarray(head).reshape(-1)],
+        },
+        separators=(",", ":"),
+    )
 
 
 def _floats(obj, n: int, what: str) -> np.ndarray:

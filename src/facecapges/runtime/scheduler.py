@@ -118,8 +118,12 @@ class Timings:
         for s in STAGES:
             a = np.array(self.ms[s], np.float64)  # a copy: the array keeps growing
             a = a[skip:] if len(a) > skip else (a if len(a) else np.zeros(1))
-            out[s] = {"p50": round(float(np.percentile(a, 50)), 3), "p99": round(float(np.percentile(a, 99)), 3),
-                      "mean": round(float(a.mean()), 3), "max": round(float(a.max()), 3)}
+            out[s] = {
+                "p50": round(float(np.percentile(a, 50)), 3),
+                "p99": round(float(np.percentile(a, 99)), 3),
+                "mean": round(float(a.mean()), 3),
+                "max": round(float(a.max()), 3),
+            }
         return out
 
 
@@ -161,11 +165,23 @@ class Scheduler:
     then face ``i`` goes through generator ``i``; all of them share the audio.
     """
 
-    def __init__(self, generator, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR,
-                 video: VideoSource | None = None, face_feed: FaceFeed | None = None,
-                 audio: AudioSource | None = None, capture=None, sinks: Sequence[Sink] = (),
-                 realtime: bool = False, input_slack_s: float = 0.0, hold_ms: float = 500.0,
-                 ease_ms: float = 1000.0, head: str = "capture", speech_mouth: bool = True):
+    def __init__(
+        self,
+        generator,
+        fps: float = timing.MODEL_FPS,
+        sr: int = timing.AUDIO_SR,
+        video: VideoSource | None = None,
+        face_feed: FaceFeed | None = None,
+        audio: AudioSource | None = None,
+        capture=None,
+        sinks: Sequence[Sink] = (),
+        realtime: bool = False,
+        input_slack_s: float = 0.0,
+        hold_ms: float = 500.0,
+        ease_ms: float = 1000.0,
+        head: str = "capture",
+        speech_mouth: bool = True,
+    ):
         if video is not None and capture is None:
             raise ValueError("a video source needs a FaceCapture")
         gens = list(generator) if isinstance(generator, (list, tuple)) else [generator]
@@ -177,12 +193,20 @@ class Scheduler:
         self.realtime, self.input_slack_s = realtime, input_slack_s
         self.speech_mouth = speech_mouth
         policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
-        self.streams = [Stream(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy),
-                               SpeechMouth(self.fps, self.sr)) for i, g in enumerate(gens)]
+        self.streams = [
+            Stream(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
+            for i, g in enumerate(gens)
+        ]
         self.spf = timing.samples_per_frame(self.fps, self.sr)
         self.timings = Timings()
-        self.events = {"face_lost_frames": 0, "face_lost_events": 0, "input_frames_reused": 0,
-                       "audio_underruns": 0, "late_frames": 0, "video_frames_skipped": 0}
+        self.events = {
+            "face_lost_frames": 0,
+            "face_lost_events": 0,
+            "input_frames_reused": 0,
+            "audio_underruns": 0,
+            "late_frames": 0,
+            "video_frames_skipped": 0,
+        }
         self.frames = 0
         self.t0: float | None = None
         self.stopped_by = ""
@@ -237,9 +261,14 @@ class Scheduler:
                 res = [self.capture.process(vf.image, vf.ts_s * 1000.0, vf.depth_mm)]
             else:
                 res = self.capture.process_slots(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
-            return [FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found)) if r is not None else
-                    FaceSample(vf.ts_s, np.zeros(N_BLENDSHAPES, np.float32),
-                               rot.identity_rot6d().astype(np.float32), False) for r in res]
+            return [
+                FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found))
+                if r is not None
+                else FaceSample(
+                    vf.ts_s, np.zeros(N_BLENDSHAPES, np.float32), rot.identity_rot6d().astype(np.float32), False
+                )
+                for r in res
+            ]
         assert self.face_feed is not None  # a scheduler has a video or a face feed
         sample = self.face_feed.next_face(deadline)
         self._t_input = time.perf_counter()
@@ -278,7 +307,7 @@ class Scheduler:
         else:
             a = np.zeros(0, np.float32)
         audio = np.zeros(e - s, np.float32)
-        audio[:len(a)] = a[:e - s]
+        audio[: len(a)] = a[: e - s]
         inputs = []
         for st, sample in zip(self.streams, samples):
             if sample is not None:
@@ -351,7 +380,11 @@ class Scheduler:
 
     def report(self, warmup: int = 5) -> dict:
         """Frames, latency percentiles per stage (warm-up frames excluded) and event counts."""
-        return {"frames": self.frames, "fps": self.fps, "latency_ms": self.timings.summary(skip=warmup),
-                "latency_warmup_frames_excluded": min(warmup, max(self.frames - 1, 0)),
-                "events": dict(self.events), "stopped_by": self.stopped_by}
-
+        return {
+            "frames": self.frames,
+            "fps": self.fps,
+            "latency_ms": self.timings.summary(skip=warmup),
+            "latency_warmup_frames_excluded": min(warmup, max(self.frames - 1, 0)),
+            "events": dict(self.events),
+            "stopped_by": self.stopped_by,
+        }

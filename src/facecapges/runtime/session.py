@@ -80,11 +80,25 @@ def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
     return out
 
 
-def build_session(checkpoint, *, video: str | Path | None = None, camera: int | None = None,
-                  livelink: int | None = None, audio: str | Path | None = None, mic: str | None = None,
-                  realtime: bool = False, loop: bool = False, depth_dir=None, intrinsics=None,
-                  estimator: str = "hybrid", host: str = "127.0.0.1", sinks=(), silent_ok: bool = False,
-                  head: str = "capture", faces: int = 1) -> Session:
+def build_session(
+    checkpoint,
+    *,
+    video: str | Path | None = None,
+    camera: int | None = None,
+    livelink: int | None = None,
+    audio: str | Path | None = None,
+    mic: str | None = None,
+    realtime: bool = False,
+    loop: bool = False,
+    depth_dir=None,
+    intrinsics=None,
+    estimator: str = "hybrid",
+    host: str = "127.0.0.1",
+    sinks=(),
+    silent_ok: bool = False,
+    head: str = "capture",
+    faces: int = 1,
+) -> Session:
     """Open the sources and build the scheduler (sinks are added by the caller).
 
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
@@ -132,8 +146,9 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
                 sess.notes.append(f"{video}: no readable audio track; the speech input is silence")
         if loop and isinstance(sess.video, S.FileVideo):  # video and audio loop with one period
             v = sess.video
-            v.loop_period_s = sess.audio.duration_s if isinstance(sess.audio, S.FileAudio) else \
-                (v.n_frames or 1) / v.fps
+            v.loop_period_s = (
+                sess.audio.duration_s if isinstance(sess.audio, S.FileAudio) else (v.n_frames or 1) / v.fps
+            )
         if sess.video is not None:
             from facecapges.capture.models import resolve_model
             from facecapges.capture.pipeline import FaceCapture
@@ -151,9 +166,19 @@ def build_session(checkpoint, *, video: str | Path | None = None, camera: int | 
             slack = sess.audio.latency_s + 0.02  # one 20 ms block
         sess.sinks = list(sinks)
         gens = [checkpoint.streaming() for _ in range(int(faces))]
-        sess.scheduler = Scheduler(gens if faces > 1 else gens[0], fps=fps, sr=sr, video=sess.video,
-                                   face_feed=sess.face_feed, audio=sess.audio, capture=sess.capture, sinks=sess.sinks,
-                                   realtime=realtime, input_slack_s=slack, head=head)
+        sess.scheduler = Scheduler(
+            gens if faces > 1 else gens[0],
+            fps=fps,
+            sr=sr,
+            video=sess.video,
+            face_feed=sess.face_feed,
+            audio=sess.audio,
+            capture=sess.capture,
+            sinks=sess.sinks,
+            realtime=realtime,
+            input_slack_s=slack,
+            head=head,
+        )
     except BaseException:
         sess.close()
         raise

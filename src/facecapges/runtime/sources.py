@@ -131,8 +131,11 @@ class FileVideo:
             if self._ts(self._i) >= deadline_s:
                 return None
             # is the frame after this one also due? then skip this one without decoding it
-            if self._in_loop(self._i + 1) and self._ts(self._i + 1) < deadline_s and \
-                    (self.n_frames is None or self._i + 1 < self.n_frames):
+            if (
+                self._in_loop(self._i + 1)
+                and self._ts(self._i + 1) < deadline_s
+                and (self.n_frames is None or self._i + 1 < self.n_frames)
+            ):
                 if not self._src.cap.grab():
                     if not self._restart():
                         return None
@@ -298,7 +301,7 @@ class FileAudio:
             end = min(end, int(np.floor(now_s * self.sr + 1e-6)))
         end = max(end, start)
         if not self.loop:
-            return self.samples[start:min(end, len(self.samples))]
+            return self.samples[start : min(end, len(self.samples))]
         idx = np.arange(start, end) % len(self.samples)
         return self.samples[idx]
 
@@ -326,11 +329,19 @@ class MicAudio:
         self._t0: float | None = None
         try:
             sd.check_input_settings(device=dev, channels=1, samplerate=sr, dtype="float32")
-            self.stream = sd.InputStream(device=dev, channels=1, samplerate=sr, dtype="float32",
-                                         blocksize=int(sr * 0.02), callback=self._callback)
+            self.stream = sd.InputStream(
+                device=dev,
+                channels=1,
+                samplerate=sr,
+                dtype="float32",
+                blocksize=int(sr * 0.02),
+                callback=self._callback,
+            )
         except Exception as exc:  # noqa: BLE001 - PortAudio raises many types; all mean "cannot open"
-            raise UserError(f"{label} cannot be opened ({str(exc).strip() or type(exc).__name__}); list devices with "
-                            f"`python -m sounddevice`") from None
+            raise UserError(
+                f"{label} cannot be opened ({str(exc).strip() or type(exc).__name__}); list devices with "
+                f"`python -m sounddevice`"
+            ) from None
         self.latency_s = float(getattr(self.stream, "latency", 0.0) or 0.0)
 
     def _callback(self, indata, frames, time_info, status) -> None:
@@ -341,8 +352,8 @@ class MicAudio:
             n = len(self._buf)
             i = self.written % n
             k = min(len(x), n - i)
-            self._buf[i:i + k] = x[:k]
-            self._buf[:len(x) - k] = x[k:]
+            self._buf[i : i + k] = x[:k]
+            self._buf[: len(x) - k] = x[k:]
             self.written += len(x)
 
     def start(self, t0: float) -> None:
@@ -362,7 +373,7 @@ class MicAudio:
             out = np.zeros(hi - start, np.float32)  # samples older than the ring are gone: zeros
             if hi > lo:
                 idx = np.arange(lo, hi) % n
-                out[lo - start:] = self._buf[idx]
+                out[lo - start :] = self._buf[idx]
             return out
 
     def close(self) -> None:

@@ -57,9 +57,16 @@ def blend_frames(a: OutputFrame, b: OutputFrame, t: float) -> OutputFrame:
     head = rot.matrix_to_rot6d(rot.quaternion_to_matrix(rot.quaternion_slerp(ha, hb, t)))
     face = (1.0 - t) * np.asarray(a.face, np.float64) + t * np.asarray(b.face, np.float64)
     pose = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q))
-    return OutputFrame(b.index, (1.0 - t) * a.time_s + t * b.time_s, pose.astype(np.float32),
-                       q.astype(np.float32), face.astype(np.float32), head.astype(np.float32), b.face_found,
-                       dict(b.latency_ms))
+    return OutputFrame(
+        b.index,
+        (1.0 - t) * a.time_s + t * b.time_s,
+        pose.astype(np.float32),
+        q.astype(np.float32),
+        face.astype(np.float32),
+        head.astype(np.float32),
+        b.face_found,
+        dict(b.latency_ms),
+    )
 
 
 class Upsampler:

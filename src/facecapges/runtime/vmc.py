@@ -124,7 +124,7 @@ def vrm_to_unity(bone: str) -> str:
     name = bone[0].upper() + bone[1:]
     for old, new in (("ThumbProximal", "ThumbIntermediate"), ("ThumbMetacarpal", "ThumbProximal")):
         if name.endswith(old):
-            return name[:-len(old)] + new
+            return name[: -len(old)] + new
     return name
 
 
@@ -185,8 +185,9 @@ class VmcMapping:
         if missing:  # the user's skeleton: the same error as the avatar's check_skeleton
             from facecapges.errors import UserError
 
-            raise UserError(f"not a BEAT skeleton; VMC needs the joints {missing[:5]}"
-                            f"{' …' if len(missing) > 5 else ''}")
+            raise UserError(
+                f"not a BEAT skeleton; VMC needs the joints {missing[:5]}{' …' if len(missing) > 5 else ''}"
+            )
         table = {b: u for b, u in BEAT_TO_UNITY.items() if positions is None or u in positions or u == "Hips"}
         self.upper_idx = np.array([names.index(n) for n in UPPER_BODY])
         self.bones: list[tuple[str, list[int], np.ndarray]] = []
@@ -303,8 +304,15 @@ class VmcSender:
         max_datagram: the largest datagram, bytes.
     """
 
-    def __init__(self, skeleton: Skeleton, host: str = DEFAULT_HOST, port: int = DEFAULT_PORT, blend: str = "vrm",
-                 avatar: str | Path | None = None, max_datagram: int = MAX_DATAGRAM_BYTES):
+    def __init__(
+        self,
+        skeleton: Skeleton,
+        host: str = DEFAULT_HOST,
+        port: int = DEFAULT_PORT,
+        blend: str = "vrm",
+        avatar: str | Path | None = None,
+        max_datagram: int = MAX_DATAGRAM_BYTES,
+    ):
         if blend not in BLEND_MODES:
             raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
         self.mapping = VmcMapping(skeleton, vrm_rest_positions(avatar) if avatar is not None else None)
@@ -323,8 +331,9 @@ class VmcSender:
         """The frame's OSC messages, in sending order (module docstring)."""
         msgs = [_ROOT]
         for name, p, q in self.mapping.local_rotations(out.quats):
-            msgs.append(_prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name)
-                        + _F7.pack(p[0], p[1], p[2], q[1], q[2], q[3], q[0]))
+            msgs.append(
+                _prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) + _F7.pack(p[0], p[1], p[2], q[1], q[2], q[3], q[0])
+            )
         for name, w in blend_values(out.face, self.blend):
             msgs.append(_prefix("/VMC/Ext/Blend/Val", ",sf", name) + _F1.pack(w))
         msgs += [_APPLY, _OK, _msg("/VMC/Ext/T", float(out.time_s))]
@@ -344,8 +353,13 @@ class VmcSender:
             self.errors += 1
 
     def stats(self) -> dict:
-        return {"frames": self.sent, "datagrams": self.datagrams, "largest_datagram_bytes": self.largest_datagram,
-                "errors": self.errors, "blend": self.blend}
+        return {
+            "frames": self.sent,
+            "datagrams": self.datagrams,
+            "largest_datagram_bytes": self.largest_datagram,
+            "errors": self.errors,
+            "blend": self.blend,
+        }
 
     def close(self) -> None:
         try:

@@ -46,7 +46,7 @@ class VrmViewerServer(ViewerServer):
         if path == "/vrm/layout.json":
             return self.layout, TYPES[".json"]
         if path.startswith("/pixiv/"):
-            full = (self.pixiv_dir / path[len("/pixiv/"):]).resolve()
+            full = (self.pixiv_dir / path[len("/pixiv/") :]).resolve()
             if self.pixiv_dir in full.parents and full.is_file():
                 return full.read_bytes(), TYPES.get(full.suffix.lower(), "application/octet-stream")
             return None
@@ -54,14 +54,19 @@ class VrmViewerServer(ViewerServer):
 
 
 def encode_vrm_pose(out: OutputFrame, quats: np.ndarray, weights: np.ndarray) -> str:
-    return json.dumps({
-        "type": "vrm_pose", "frame": int(out.index), "time": round(float(out.time_s), 6),
-        "pose": [round(float(v), 6) for v in np.asarray(quats).reshape(-1)],
-        "weights": [round(float(v), 5) for v in np.asarray(weights).reshape(-1)],
-        "face_found": bool(out.face_found),
-        "latency_ms": {k: round(float(v), 3) for k, v in out.latency_ms.items()},
-        "sent_ms": round(time.time() * 1000.0, 1),
-    }, separators=(",", ":"))
+    return json.dumps(
+        {
+            "type": "vrm_pose",
+            "frame": int(out.index),
+            "time": round(float(out.time_s), 6),
+            "pose": [round(float(v), 6) for v in np.asarray(quats).reshape(-1)],
+            "weights": [round(float(v), 5) for v in np.asarray(weights).reshape(-1)],
+            "face_found": bool(out.face_found),
+            "latency_ms": {k: round(float(v), 3) for k, v in out.latency_ms.items()},
+            "sent_ms": round(time.time() * 1000.0, 1),
+        },
+        separators=(",", ":"),
+    )
 
 
 class VrmWebFeed:

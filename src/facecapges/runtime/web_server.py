@@ -49,8 +49,14 @@ if TYPE_CHECKING:
 
 __all__ = ["ViewerServer", "WebFeed", "is_loopback", "parse_address"]
 
-TYPES = {".js": "text/javascript", ".mjs": "text/javascript", ".html": "text/html; charset=utf-8",
-         ".glb": "model/gltf-binary", ".json": "application/json", ".css": "text/css"}
+TYPES = {
+    ".js": "text/javascript",
+    ".mjs": "text/javascript",
+    ".html": "text/html; charset=utf-8",
+    ".glb": "model/gltf-binary",
+    ".json": "application/json",
+    ".css": "text/css",
+}
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web") -> tuple[str, int]:
@@ -69,8 +75,16 @@ def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web
 class ViewerServer:
     """HTTP + WebSocket server of the viewer (module docstring). Use :meth:`start` / :meth:`close`."""
 
-    def __init__(self, glb: bytes, host: str = "127.0.0.1", port: int = 8765, fps: float = 15.0,
-                 web_dir: Path | None = None, three_dir: Path | None = None, log=None):
+    def __init__(
+        self,
+        glb: bytes,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        fps: float = 15.0,
+        web_dir: Path | None = None,
+        three_dir: Path | None = None,
+        log=None,
+    ):
         from facecapges.avatar.render.browser import three_dir as find_three
         from facecapges.avatar.render.browser import web_dir as find_web
 
@@ -100,13 +114,16 @@ class ViewerServer:
         for prefix, root in (("/web/", self.web_dir), ("/three/", self.three_dir)):
             if path.startswith(prefix):
                 try:  # a name the file system cannot hold (too long, NUL) is simply not there
-                    full = (root / path[len(prefix):]).resolve()
+                    full = (root / path[len(prefix) :]).resolve()
                     found = root in full.parents and full.is_file()
                 except (OSError, ValueError):
                     return None
                 if found:
-                    ctype = TYPES.get(full.suffix.lower()) or mimetypes.guess_type(full.name)[0] or \
-                        "application/octet-stream"
+                    ctype = (
+                        TYPES.get(full.suffix.lower())
+                        or mimetypes.guess_type(full.name)[0]
+                        or "application/octet-stream"
+                    )
                     return full.read_bytes(), ctype
         return None
 
@@ -128,8 +145,14 @@ class ViewerServer:
         if found is None:
             return connection.respond(404, "not found\n")
         body, ctype = found
-        headers = Headers([("Content-Type", ctype), ("Content-Length", str(len(body))),
-                           ("Cache-Control", "no-store"), ("Connection", "close")])
+        headers = Headers(
+            [
+                ("Content-Type", ctype),
+                ("Content-Length", str(len(body))),
+                ("Cache-Control", "no-store"),
+                ("Connection", "close"),
+            ]
+        )
         return Response(200, "OK", headers, body)
 
     # ------------------------------------------------------------------ WebSocket
@@ -165,11 +188,11 @@ class ViewerServer:
         from websockets.asyncio.server import serve
 
         try:
-            self._server = await serve(self._handler, self.host, self.port, process_request=self._process_request,
-                                       **SERVE_OPTIONS)
+            self._server = await serve(
+                self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
+            )
         except OSError as exc:
-            self._error = UserError(f"viewer server cannot listen on {self.host}:{self.port} "
-                                    f"({exc.strerror or exc})")
+            self._error = UserError(f"viewer server cannot listen on {self.host}:{self.port} ({exc.strerror or exc})")
             self._ready.set()
             return
         sock = next(iter(self._server.sockets))
@@ -215,6 +238,7 @@ class ViewerServer:
 
     def close(self) -> None:
         if self._loop is not None and self._server is not None:
+
             def shut():
                 self._server.close()
 

@@ -26,8 +26,12 @@ from facecapges.runtime import protocol
 
 LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 HANDSHAKE_TIMEOUT = 10.0  # seconds from TCP connect to the end of the WebSocket handshake
-SERVE_OPTIONS: dict[str, Any] = {"max_size": protocol.MAX_MESSAGE_BYTES, "ping_interval": None, "server_header": None,
-                 "open_timeout": HANDSHAKE_TIMEOUT}
+SERVE_OPTIONS: dict[str, Any] = {
+    "max_size": protocol.MAX_MESSAGE_BYTES,
+    "ping_interval": None,
+    "server_header": None,
+    "open_timeout": HANDSHAKE_TIMEOUT,
+}
 
 
 def is_loopback(host: str) -> bool:
@@ -78,8 +82,10 @@ class ConnectionLog:
         key = id(ws)
         if key not in self._logged:
             self._logged.add(key)
-            self.log(f"{self.what}: client {peer_host(ws)} sent a bad message ({str(exc)[:160]}); further bad "
-                     "messages on this connection are answered but not logged")
+            self.log(
+                f"{self.what}: client {peer_host(ws)} sent a bad message ({str(exc)[:160]}); further bad "
+                "messages on this connection are answered but not logged"
+            )
 
     def closed(self, ws) -> None:
         self._logged.discard(id(ws))

@@ -35,19 +35,29 @@ TARGET = 150  # concurrent real-time streams with p99 under one frame period
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 
 
-
-
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def start_server(port: int, checkpoint: str | None = None, threads: int = 1,
-                 extra: tuple[str, ...] = ()) -> subprocess.Popen:
+def start_server(
+    port: int, checkpoint: str | None = None, threads: int = 1, extra: tuple[str, ...] = ()
+) -> subprocess.Popen:
     """``facecapges serve`` on 127.0.0.1:port as a child process; returns once it listens."""
-    cmd = [sys.executable, "-m", "facecapges.cli", "serve", "--host", "127.0.0.1", "--port", str(port),
-           "--threads", str(threads), *extra]
+    cmd = [
+        sys.executable,
+        "-m",
+        "facecapges.cli",
+        "serve",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(port),
+        "--threads",
+        str(threads),
+        *extra,
+    ]
     if checkpoint:
         cmd += ["--checkpoint", checkpoint]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -99,8 +109,12 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
     messages = loadgen.input_messages(audio, int(seconds * 15) + 15)
     load_before = [round(x, 2) for x in os.getloadavg()]
     port = free_port()
-    proc = start_server(port, os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None, threads,
-                        ("--max-streams", "2048", "--idle-timeout", "0"))
+    proc = start_server(
+        port,
+        os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None,
+        threads,
+        ("--max-streams", "2048", "--idle-timeout", "0"),
+    )
     url = f"ws://127.0.0.1:{port}/"
     trials: list[dict] = []
 
@@ -114,8 +128,12 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         s["server_cpu_ms_per_frame"] = round(1e3 * srv_cpu / frames, 3)
         s["client_cpu_ms_per_frame"] = round(1e3 * cli_cpu / frames, 3)
         trials.append(s)
-        print(f"bench: serve {n} clients: p99 {s.get('p99_ms')} ms, lost {s['lost']}, errors {s['errors']}, "
-              f"load {s['load_average']} → {'pass' if s['ok'] else 'fail'}", file=sys.stderr, flush=True)
+        print(
+            f"bench: serve {n} clients: p99 {s.get('p99_ms')} ms, lost {s['lost']}, errors {s['errors']}, "
+            f"load {s['load_average']} → {'pass' if s['ok'] else 'fail'}",
+            file=sys.stderr,
+            flush=True,
+        )
         time.sleep(0.5)  # let the server drop the finished streams
         return s["ok"]
 
@@ -142,12 +160,22 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
     # the two cores could carry if nothing else ran — an estimate, not a measurement
     ref = at_best or trials[0]
     per_frame = ref["server_cpu_ms_per_frame"] + ref["client_cpu_ms_per_frame"]
-    return {"streams_at_15fps": best, "target": TARGET, "meets_target": best >= TARGET,
-            "period_ms": round(period_ms, 2), "p99_ms_at_best": at_best.get("p99_ms"),
-            "p50_ms_at_best": at_best.get("p50_ms"), "seconds_per_trial": seconds, "server_threads": threads,
-            "load_average_before": load_before, "load_average_after": [round(x, 2) for x in os.getloadavg()],
-            "cpu_count": os.cpu_count(), "niceness": os.nice(0),
-            "server_cpu_ms_per_frame": ref["server_cpu_ms_per_frame"],
-            "client_cpu_ms_per_frame": ref["client_cpu_ms_per_frame"],
-            "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * 15.0)),
-            "trials": trials, "server_summary": served}
+    return {
+        "streams_at_15fps": best,
+        "target": TARGET,
+        "meets_target": best >= TARGET,
+        "period_ms": round(period_ms, 2),
+        "p99_ms_at_best": at_best.get("p99_ms"),
+        "p50_ms_at_best": at_best.get("p50_ms"),
+        "seconds_per_trial": seconds,
+        "server_threads": threads,
+        "load_average_before": load_before,
+        "load_average_after": [round(x, 2) for x in os.getloadavg()],
+        "cpu_count": os.cpu_count(),
+        "niceness": os.nice(0),
+        "server_cpu_ms_per_frame": ref["server_cpu_ms_per_frame"],
+        "client_cpu_ms_per_frame": ref["client_cpu_ms_per_frame"],
+        "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * 15.0)),
+        "trials": trials,
+        "server_summary": served,
+    }

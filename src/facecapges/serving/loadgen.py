@@ -27,8 +27,9 @@ from facecapges.runtime import protocol
 _FRAME = re.compile(r'"frame":(\d+)')
 
 
-def input_messages(audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR,
-                   seed: int = 0) -> list[str]:
+def input_messages(
+    audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, seed: int = 0
+) -> list[str]:
     """``n_frames`` consecutive ``input`` messages from a 16 kHz recording (looped)."""
     rng = np.random.default_rng(seed)
     bounds = [timing.frame_sample_bounds(k, fps, sr) for k in range(n_frames)]
@@ -56,8 +57,15 @@ class ClientResult:
     closed: str | None = None  # why the server closed us early, if it did
 
 
-async def run_client(url: str, messages: list[str], seconds: float, warmup_s: float = 1.0,
-                     fps: float = timing.MODEL_FPS, phase: float = 0.0, drain_s: float = 5.0) -> ClientResult:
+async def run_client(
+    url: str,
+    messages: list[str],
+    seconds: float,
+    warmup_s: float = 1.0,
+    fps: float = timing.MODEL_FPS,
+    phase: float = 0.0,
+    drain_s: float = 5.0,
+) -> ClientResult:
     """One client for ``seconds`` of stream time; latencies of frames sent after ``warmup_s``;
     after the last frame it waits up to ``drain_s`` for the missing poses."""
     from websockets.asyncio.client import connect
@@ -69,8 +77,9 @@ async def run_client(url: str, messages: list[str], seconds: float, warmup_s: fl
     sent_at: dict[int, float] = {}
     measured: set[int] = set()
     try:
-        async with connect(url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None,
-                           open_timeout=30) as ws:
+        async with connect(
+            url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None, open_timeout=30
+        ) as ws:
             hello = await ws.recv(decode=True)
             if '"hello"' not in hello:
                 res.errors.append(f"no hello: {hello[:80]}")
@@ -108,8 +117,9 @@ async def run_client(url: str, messages: list[str], seconds: float, warmup_s: fl
                 sent_at[k] = now
                 if k * period >= warmup_s:
                     measured.add(k)
-                await ws.send(messages[k % len(messages)].replace('"frame":0,', f'"frame":{k},', 1)
-                              if k else messages[0])
+                await ws.send(
+                    messages[k % len(messages)].replace('"frame":0,', f'"frame":{k},', 1) if k else messages[0]
+                )
                 res.sent += 1
             try:
                 await asyncio.wait_for(done.wait(), timeout=drain_s)
@@ -126,14 +136,27 @@ def _frame0(messages: list[str]) -> list[str]:
     return [re.sub(r'"frame":\d+,', '"frame":0,', m, count=1) for m in messages]
 
 
-async def run_clients(url: str, n_clients: int, seconds: float, messages: list[str], warmup_s: float = 1.0,
-                      fps: float = timing.MODEL_FPS, seed: int = 0, drain_s: float = 5.0) -> list[ClientResult]:
+async def run_clients(
+    url: str,
+    n_clients: int,
+    seconds: float,
+    messages: list[str],
+    warmup_s: float = 1.0,
+    fps: float = timing.MODEL_FPS,
+    seed: int = 0,
+    drain_s: float = 5.0,
+) -> list[ClientResult]:
     """``n_clients`` concurrent clients, random phases within one frame period."""
     rng = np.random.default_rng(seed)
     msgs = _frame0(messages)
-    return list(await asyncio.gather(*[
-        run_client(url, msgs, seconds, warmup_s, fps, phase=float(rng.uniform(0, 1.0 / fps)), drain_s=drain_s)
-        for _ in range(n_clients)]))
+    return list(
+        await asyncio.gather(
+            *[
+                run_client(url, msgs, seconds, warmup_s, fps, phase=float(rng.uniform(0, 1.0 / fps)), drain_s=drain_s)
+                for _ in range(n_clients)
+            ]
+        )
+    )
 
 
 def summarize(results: list[ClientResult], period_ms: float) -> dict:
@@ -143,11 +166,20 @@ def summarize(results: list[ClientResult], period_ms: float) -> dict:
     received = sum(r.received for r in results)
     errors = sum(len(r.errors) for r in results)
     closed = sum(r.closed is not None for r in results)
-    out: dict[str, float] = {"clients": len(results), "frames_sent": sent, "frames_returned": received, "lost": sent - received,
-           "errors": errors, "closed_early": closed, "measured_frames": int(lat.size)}
+    out: dict[str, float] = {
+        "clients": len(results),
+        "frames_sent": sent,
+        "frames_returned": received,
+        "lost": sent - received,
+        "errors": errors,
+        "closed_early": closed,
+        "measured_frames": int(lat.size),
+    }
     if lat.size:
-        out.update(p50_ms=round(float(np.percentile(lat, 50)), 2), p99_ms=round(float(np.percentile(lat, 99)), 2),
-                   max_ms=round(float(lat.max()), 2))
-    out["ok"] = bool(lat.size and sent == received and errors == 0 and closed == 0
-                     and out["p99_ms"] <= period_ms)
+        out.update(
+            p50_ms=round(float(np.percentile(lat, 50)), 2),
+            p99_ms=round(float(np.percentile(lat, 99)), 2),
+            max_ms=round(float(lat.max()), 2),
+        )
+    out["ok"] = bool(lat.size and sent == received and errors == 0 and closed == 0 and out["p99_ms"] <= period_ms)
     return out

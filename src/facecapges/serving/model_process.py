@@ -73,9 +73,21 @@ class ModelProcess:
         self._head = torch.zeros(max_rows, 6).share_memory_()
         self._pose = torch.zeros(max_rows, cfg.n_joints, 6).share_memory_()
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve_model, name="facecapges-serve-model", daemon=True,
-                                 args=(child, model, np.asarray(neutral_window, np.float32), threads, self._audio,
-                                       self._face, self._head, self._pose))
+        self._proc = ctx.Process(
+            target=_serve_model,
+            name="facecapges-serve-model",
+            daemon=True,
+            args=(
+                child,
+                model,
+                np.asarray(neutral_window, np.float32),
+                threads,
+                self._audio,
+                self._face,
+                self._head,
+                self._pose,
+            ),
+        )
         self._proc.start()
         child.close()
         self._open: set[int] = set()

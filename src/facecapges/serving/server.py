@@ -134,8 +134,9 @@ class StreamServer:
         # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
         self.gen = ModelProcess(checkpoint.model, checkpoint.neutral_window, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
-        self.per_address = c.max_per_address if c.max_per_address is not None else \
-            (c.max_streams if self.loopback_only else 16)
+        self.per_address = (
+            c.max_per_address if c.max_per_address is not None else (c.max_streams if self.loopback_only else 16)
+        )
         self.log = log or (lambda *_: None)
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
@@ -200,8 +201,7 @@ class StreamServer:
             except OSError:
                 pass
         now = time.monotonic()
-        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now,
-                     address=address)
+        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now, address=address)
         self._next_id += 1
         self.streams[st.id] = st
         self.stats["connections"] += 1
@@ -213,8 +213,9 @@ class StreamServer:
                     self.stats["rate_limited"] += 1
                     if now - st.last_limit_error >= 1.0:
                         st.last_limit_error = now
-                        await ws.send(_error(f"rate limit: at most {self.cfg.rate_limit:g} messages per second; "
-                                             "messages dropped"))
+                        await ws.send(
+                            _error(f"rate limit: at most {self.cfg.rate_limit:g} messages per second; messages dropped")
+                        )
                     continue
                 try:
                     msg = protocol.decode_client(message, self.fps, self.sr)
@@ -232,8 +233,12 @@ class StreamServer:
                     st.window_t0 = now
                 if len(st.pending) >= self.cfg.max_pending:
                     self.stats["dropped_busy"] += 1
-                    await ws.send(_error(f"busy: frame {msg['input'].index} dropped "
-                                         f"({self.cfg.max_pending} frames of this stream are waiting)"))
+                    await ws.send(
+                        _error(
+                            f"busy: frame {msg['input'].index} dropped "
+                            f"({self.cfg.max_pending} frames of this stream are waiting)"
+                        )
+                    )
                     continue
                 st.pending.append((msg["input"], now))
                 self._wake.set()
@@ -308,8 +313,9 @@ class StreamServer:
             items = [st.pending.popleft() for st in due]
             t0 = time.monotonic()
             try:
-                _, quats = await loop.run_in_executor(self._pool, self._compute, [st.slot for st in due if st.slot is not None],
-                                                          [it[0] for it in items])
+                _, quats = await loop.run_in_executor(
+                    self._pool, self._compute, [st.slot for st in due if st.slot is not None], [it[0] for it in items]
+                )
             except Exception as exc:  # noqa: BLE001  never expected: report it to the streams of this tick
                 self.stats["tick_errors"] += 1
                 self.log(f"tick failed: {exc!r}")
@@ -321,13 +327,23 @@ class StreamServer:
 
             def latency(i: int) -> dict:
                 now = time.monotonic()
-                return {"queue": (t0 - items[i][1]) * 1e3, "model": (t1 - t0) * 1e3, "output": (now - t1) * 1e3,
-                        "total": (now - items[i][1]) * 1e3}
+                return {
+                    "queue": (t0 - items[i][1]) * 1e3,
+                    "model": (t1 - t0) * 1e3,
+                    "output": (now - t1) * 1e3,
+                    "total": (now - items[i][1]) * 1e3,
+                }
 
             index = [i.index for i in inputs]
-            texts = protocol.encode_poses(index, [k / self.fps for k in index], quats,
-                                          np.stack([i.face for i in inputs]), np.stack([i.head for i in inputs]),
-                                          [i.face_found for i in inputs], latency)
+            texts = protocol.encode_poses(
+                index,
+                [k / self.fps for k in index],
+                quats,
+                np.stack([i.face for i in inputs]),
+                np.stack([i.head for i in inputs]),
+                [i.face_found for i in inputs],
+                latency,
+            )
             for st, text in zip(due, texts):
                 st.frames += 1
                 self._send(st, text)
@@ -372,8 +388,9 @@ class StreamServer:
         self._wake, self._stop = asyncio.Event(), asyncio.Event()
         c = self.cfg
         try:
-            self._server = await serve(self._handler, c.host, c.port, process_request=self._process_request,
-                                       compression=None, **SERVE_OPTIONS)
+            self._server = await serve(
+                self._handler, c.host, c.port, process_request=self._process_request, compression=None, **SERVE_OPTIONS
+            )
         except OSError as exc:
             self._error = UserError(f"cannot listen on {c.host}:{c.port} ({exc.strerror or exc})")
             self._ready.set()
@@ -427,8 +444,12 @@ class StreamServer:
 
     def summary(self) -> dict:
         b = list(self.batch_sizes)
-        return dict(self.stats, streams=len(self.streams),
-                    mean_batch=round(float(np.mean(b)), 2) if b else 0.0, max_batch=max(b) if b else 0)
+        return dict(
+            self.stats,
+            streams=len(self.streams),
+            mean_batch=round(float(np.mean(b)), 2) if b else 0.0,
+            max_batch=max(b) if b else 0,
+        )
 
     def close(self) -> None:
         if self._loop is not None and self._stop is not None and not self._loop.is_closed():

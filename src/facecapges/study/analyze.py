@@ -114,9 +114,14 @@ def analyze_criterion(answers: list[dict], systems: list[str], criterion: str) -
     counts = [[int((R[:, i] == r).sum()) for r in range(1, k + 1)] for i in range(k)]
     res: dict = {
         "n_answers": n,
-        "systems": {s: {"mean_rank": float(mean[i]),
-                        "ci95": None if ci is None else [float(ci[i, 0]), float(ci[i, 1])],
-                        "rank_counts": counts[i]} for i, s in enumerate(systems)},
+        "systems": {
+            s: {
+                "mean_rank": float(mean[i]),
+                "ci95": None if ci is None else [float(ci[i, 0]), float(ci[i, 1])],
+                "rank_counts": counts[i],
+            }
+            for i, s in enumerate(systems)
+        },
     }
     if k >= 3 and n >= 2:
         chi2, p = (float(x) for x in stats.friedmanchisquare(*R.T))
@@ -132,9 +137,17 @@ def analyze_criterion(answers: list[dict], systems: list[str], criterion: str) -
             else:
                 w = stats.wilcoxon(R[:, i], R[:, j], zero_method="wilcox", alternative="two-sided")
                 stat, p = float(w.statistic), float(w.pvalue)
-            pairs.append({"a": systems[i], "b": systems[j], "mean_diff": float(d.mean()) if n else float("nan"),
-                          "a_better": int((d < 0).sum()), "b_better": int((d > 0).sum()),
-                          "wilcoxon_w": stat, "p": p})
+            pairs.append(
+                {
+                    "a": systems[i],
+                    "b": systems[j],
+                    "mean_diff": float(d.mean()) if n else float("nan"),
+                    "a_better": int((d < 0).sum()),
+                    "b_better": int((d > 0).sum()),
+                    "wilcoxon_w": stat,
+                    "p": p,
+                }
+            )
             raw.append(p)
     for pr, adj in zip(pairs, holm(raw) if raw else []):
         pr["p_holm"] = adj
@@ -151,11 +164,15 @@ def _fmt_p(p: float | None) -> str:
 
 def markdown(results: dict) -> str:
     systems = results["systems"]
-    lines = [f"# User study: {results['n_participants']} participants, {results['n_answers']} answers, "
-             f"{results['n_clips']} clips, {len(systems)} systems", "",
-             "Mean rank (1 = best) with the 95 % participant-bootstrap interval.", "",
-             "| system | " + " | ".join(c.name for c in CRITERIA) + " |",
-             "|---|" + "---|" * len(CRITERIA)]
+    lines = [
+        f"# User study: {results['n_participants']} participants, {results['n_answers']} answers, "
+        f"{results['n_clips']} clips, {len(systems)} systems",
+        "",
+        "Mean rank (1 = best) with the 95 % participant-bootstrap interval.",
+        "",
+        "| system | " + " | ".join(c.name for c in CRITERIA) + " |",
+        "|---|" + "---|" * len(CRITERIA),
+    ]
     for s in systems:
         cells = []
         for c in CRITERIA:
@@ -163,22 +180,34 @@ def markdown(results: dict) -> str:
             ci = r["ci95"]
             cells.append(f"{r['mean_rank']:.2f}" + (f" [{ci[0]:.2f}, {ci[1]:.2f}]" if ci else ""))
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
-    lines += ["", "Friedman test per criterion (blocks = answers):", "",
-              "| criterion | χ² | df | p | Kendall's W |", "|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Friedman test per criterion (blocks = answers):",
+        "",
+        "| criterion | χ² | df | p | Kendall's W |",
+        "|---|---|---|---|---|",
+    ]
     for c in CRITERIA:
         f = results["criteria"][c.key]["friedman"]
         if f is None:
             lines.append(f"| {c.name} | – | – | – | – |")
         else:
             lines.append(f"| {c.name} | {f['chi2']:.2f} | {f['df']} | {_fmt_p(f['p'])} | {f['kendall_w']:.3f} |")
-    lines += ["", "Post-hoc pairs: Wilcoxon signed-rank on paired ranks, Holm-corrected per criterion "
-              "(a<b: answers ranking a above b).", "",
-              "| criterion | pair | a<b | b<a | mean rank a−b | p | p (Holm) |", "|---|---|---|---|---|---|---|"]
+    lines += [
+        "",
+        "Post-hoc pairs: Wilcoxon signed-rank on paired ranks, Holm-corrected per criterion "
+        "(a<b: answers ranking a above b).",
+        "",
+        "| criterion | pair | a<b | b<a | mean rank a−b | p | p (Holm) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for c in CRITERIA:
         for pr in results["criteria"][c.key]["pairwise"]:
             star = " *" if pr.get("significant") else ""
-            lines.append(f"| {c.name} | {pr['a']} vs {pr['b']} | {pr['a_better']} | {pr['b_better']} | "
-                         f"{pr['mean_diff']:+.2f} | {_fmt_p(pr['p'])} | {_fmt_p(pr['p_holm'])}{star} |")
+            lines.append(
+                f"| {c.name} | {pr['a']} vs {pr['b']} | {pr['a_better']} | {pr['b_better']} | "
+                f"{pr['mean_diff']:+.2f} | {_fmt_p(pr['p'])} | {_fmt_p(pr['p_holm'])}{star} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -238,8 +267,9 @@ def plot(results: dict, out: Path) -> list[Path]:
 def _has_cjk_font() -> bool:
     from matplotlib import font_manager
 
-    return any("CJK" in f.name or "WenQuanYi" in f.name or "Noto Sans SC" in f.name
-               for f in font_manager.fontManager.ttflist)
+    return any(
+        "CJK" in f.name or "WenQuanYi" in f.name or "Noto Sans SC" in f.name for f in font_manager.fontManager.ttflist
+    )
 
 
 def analyze_study(study: Study, out: str | Path, participants: list[str] | None = None) -> dict:
@@ -254,14 +284,21 @@ def analyze_study(study: Study, out: str | Path, participants: list[str] | None 
         answers = [a for a in answers if a["participant"] in set(participants)]
     systems = study.systems
     results = {
-        "study": str(study.dir), "systems": systems, "n_clips": len(study.plan.clips),
-        "n_participants": len({a["participant"] for a in answers}), "n_answers": len(answers),
+        "study": str(study.dir),
+        "systems": systems,
+        "n_clips": len(study.plan.clips),
+        "n_participants": len({a["participant"] for a in answers}),
+        "n_answers": len(answers),
         "participants": sorted({a["participant"] for a in answers}),
-        "criteria": {c.key: {"name": c.name, "name_zh": c.name_zh, **analyze_criterion(answers, systems, c.key)}
-                     for c in CRITERIA},
-        "methods": {"ci": f"participant bootstrap, {N_BOOT} resamples, percentile 95 %",
-                    "omnibus": "Friedman (scipy.stats.friedmanchisquare), blocks = answers",
-                    "post_hoc": "Wilcoxon signed-rank, two-sided, Holm-corrected per criterion"},
+        "criteria": {
+            c.key: {"name": c.name, "name_zh": c.name_zh, **analyze_criterion(answers, systems, c.key)}
+            for c in CRITERIA
+        },
+        "methods": {
+            "ci": f"participant bootstrap, {N_BOOT} resamples, percentile 95 %",
+            "omnibus": "Friedman (scipy.stats.friedmanchisquare), blocks = answers",
+            "post_hoc": "Wilcoxon signed-rank, two-sided, Holm-corrected per criterion",
+        },
     }
     out.mkdir(parents=True, exist_ok=True)
     (out / "results.json").write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")

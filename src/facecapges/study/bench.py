@@ -56,8 +56,9 @@ def run(quick: bool, shared: Path) -> dict:
         for s, mo in systems.items():
             write_bvh(tmp / f"{s}.bvh", b.skeleton, mo, b.fps)
         save_audio(tmp / "a.wav", load_audio(wav_path)[: int(seconds * AUDIO_SR)])
-        (tmp / "CLIPS.yaml").write_text(yaml.safe_dump(
-            {"clips": [{"id": "c", "audio": "a.wav", "bvh": {s: f"{s}.bvh" for s in systems}}]}))
+        (tmp / "CLIPS.yaml").write_text(
+            yaml.safe_dump({"clips": [{"id": "c", "audio": "a.wav", "bvh": {s: f"{s}.bvh" for s in systems}}]})
+        )
         t = time.perf_counter()
         create_study(tmp / "CLIPS.yaml", tmp / "study", 1, progress=False)
         out["create_s"] = round(time.perf_counter() - t, 2)
@@ -70,9 +71,11 @@ def run(quick: bool, shared: Path) -> dict:
         serve_in_thread(server)
         try:
             with Browser({"/blank.json": b"{}"}, "/blank.json", 1200, 1000, timeout=90) as br:
+
                 def js(expr: str):
-                    r = br.call("Runtime.evaluate", expression=expr, awaitPromise=True, returnByValue=True,
-                                userGesture=True)
+                    r = br.call(
+                        "Runtime.evaluate", expression=expr, awaitPromise=True, returnByValue=True, userGesture=True
+                    )
                     return r.get("result", {}).get("value")
 
                 def wait(expr: str, limit: float = 60.0) -> float:

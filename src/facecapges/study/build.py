@@ -77,8 +77,10 @@ INVITATIONS_FILE = "invitations.txt"
 def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://127.0.0.1:8770") -> Path:
     """``invitations.txt``: one line per participant, ``ID  URL/?invite=TOKEN`` (written atomically)."""
     f = Path(study_dir) / INVITATIONS_FILE
-    lines = ["# one link per participant; each link is that participant's only credential",
-             *(f"{p.id}\t{base_url.rstrip('/')}/?invite={p.token}" for p in plan.participants)]
+    lines = [
+        "# one link per participant; each link is that participant's only credential",
+        *(f"{p.id}\t{base_url.rstrip('/')}/?invite={p.token}" for p in plan.participants),
+    ]
     tmp = f.with_name(f.name + ".part")
     tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
     tmp.replace(f)
@@ -102,8 +104,15 @@ def ensure_tokens(study: Study) -> int:
     return len(missing)
 
 
-def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | None = None, seed: int = 0,
-                 force: bool = False, progress: bool = True, avatar: str | Path | None = None) -> dict:
+def create_study(
+    clips_yaml: str | Path,
+    out: str | Path,
+    n_participants: int | None = None,
+    seed: int = 0,
+    force: bool = False,
+    progress: bool = True,
+    avatar: str | Path | None = None,
+) -> dict:
     """Validate the clips, write the study folder; returns a summary (counts and balance)."""
     from facecapges.study.clips import load_clips
 
@@ -113,8 +122,11 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     if (out / STUDY_FILE).exists():
         answered = sorted((out / "responses").glob("*.json")) if (out / "responses").is_dir() else []
         if answered:
-            raise file_error(out, f"holds the answers of {len(answered)} participant(s) in responses/; move them "
-                                  "away before re-creating this study")
+            raise file_error(
+                out,
+                f"holds the answers of {len(answered)} participant(s) in responses/; move them "
+                "away before re-creating this study",
+            )
         if not force:
             raise file_error(out / STUDY_FILE, "already exists; pass --force to overwrite the study")
     elif out.exists() and any(out.iterdir()) and not force:
@@ -166,8 +178,10 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
             names = list(ARKIT_NAMES)
             if driver is not None:
                 w, names = driver.faces(w), list(driver.faces.names)
-            (d / "face.json").write_text(json.dumps({"fps": cs.fps, "frames": n, "names": names,
-                                                     "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}), "utf-8")
+            (d / "face.json").write_text(
+                json.dumps({"fps": cs.fps, "frames": n, "names": names, "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}),
+                "utf-8",
+            )
             bar.advance(task)
             for s in cs.systems:
                 b = motions[clip.id][s]
@@ -181,10 +195,16 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
                     doc = {"fps": cs.fps, "frames": n, "bone_names": list(driver.retarget.bones)}
                 motion_file(out, clip.id, s).write_text(json.dumps({**doc, "quats": _numbers(q)}), "utf-8")
                 bar.advance(task)
-            clips_meta.append({"id": clip.id, "frames": n, "duration": clip.duration,
-                               "audio_source": str(clip.audio_path),
-                               "face_source": str(clip.face_path) if clip.face_path else None,
-                               "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()}})
+            clips_meta.append(
+                {
+                    "id": clip.id,
+                    "frames": n,
+                    "duration": clip.duration,
+                    "audio_source": str(clip.audio_path),
+                    "face_source": str(clip.face_path) if clip.face_path else None,
+                    "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()},
+                }
+            )
     doc = {
         "format": FORMAT,
         "created": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -202,8 +222,13 @@ def create_study(clips_yaml: str | Path, out: str | Path, n_participants: int | 
     tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
     tmp.replace(out / STUDY_FILE)
     write_invitations(out, plan)
-    return {"clips": len(cs.clips), "systems": len(cs.systems), "participants": len(plan.participants),
-            "fps": cs.fps, "balance": doc["balance"]}
+    return {
+        "clips": len(cs.clips),
+        "systems": len(cs.systems),
+        "participants": len(plan.participants),
+        "fps": cs.fps,
+        "balance": doc["balance"],
+    }
 
 
 @dataclass

@@ -137,8 +137,9 @@ def parse_clips(path: str | Path) -> ClipSet:
             raise file_error(path, f"clip {cid!r} has no 'bvh' mapping (system: file)")
         extra = [s for s in bvh if s not in systems]
         if extra:
-            raise file_error(path, f"clip {cid!r} has a BVH for system {extra[0]!r}, which is not one of the "
-                                   f"systems {systems}")
+            raise file_error(
+                path, f"clip {cid!r} has a BVH for system {extra[0]!r}, which is not one of the systems {systems}"
+            )
         paths = {}
         for s in systems:
             if not isinstance(bvh.get(s), str):
@@ -175,23 +176,28 @@ def load_clips(path: str | Path):
             if ref is None:
                 ref = (b.skeleton, where)
             elif not b.skeleton.is_same_tree(ref[0]):
-                raise UserError(f"{where}: its skeleton's joints differ from those of {ref[1]}; every BVH must "
-                                "have the same BEAT joint tree")
+                raise UserError(
+                    f"{where}: its skeleton's joints differ from those of {ref[1]}; every BVH must "
+                    "have the same BEAT joint tree"
+                )
             expected = clip.duration * b.fps
             if abs(b.n_frames - expected) > cs.tolerance_frames + 1e-6:
                 raise UserError(
                     f"{where}: {b.n_frames} frames at {b.fps:g} fps ({b.n_frames / b.fps:.3f} s) but the clip's "
                     f"audio lasts {clip.duration:.3f} s ({expected:.1f} frames); all versions of a clip must be "
                     f"as long as its audio (tolerance {cs.tolerance_frames:g} frame; 'tolerance_frames' in the clips file "
-                    "sets it)")
+                    "sets it)"
+                )
             motions[clip.id][s] = b
         if clip.face_path is not None:
             tr = read_face_json(clip.face_path)
             face_dur = tr.n_frames / tr.fps
             if abs(face_dur - clip.duration) * cs.fps > cs.tolerance_frames + 1e-6:
-                raise UserError(f"{cs.path}: clip {clip.id!r}: the face track {clip.face_path} lasts {face_dur:.3f} s "
-                                f"but the audio {clip.duration:.3f} s (tolerance {cs.tolerance_frames:g} frame at "
-                                f"{cs.fps:g} fps)")
+                raise UserError(
+                    f"{cs.path}: clip {clip.id!r}: the face track {clip.face_path} lasts {face_dur:.3f} s "
+                    f"but the audio {clip.duration:.3f} s (tolerance {cs.tolerance_frames:g} frame at "
+                    f"{cs.fps:g} fps)"
+                )
             faces[clip.id] = tr
         else:
             faces[clip.id] = None

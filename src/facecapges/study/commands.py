@@ -8,38 +8,56 @@ import typer
 
 
 def register(app: typer.Typer) -> None:
-    study = typer.Typer(help="Blind side-by-side user study: K versions of each clip ranked on realism, "
-                             "synchrony and diversity.", no_args_is_help=True)
+    study = typer.Typer(
+        help="Blind side-by-side user study: K versions of each clip ranked on realism, synchrony and diversity.",
+        no_args_is_help=True,
+    )
     app.add_typer(study, name="study")
 
     @study.command("create")
     def create_cmd(
-        clips: Path = typer.Option(..., "--clips", help="CLIPS.yaml: the clips (speech, face track) and one BVH per "
-                                                        "system and clip (format: facecapges.study.clips)."),
+        clips: Path = typer.Option(
+            ...,
+            "--clips",
+            help="CLIPS.yaml: the clips (speech, face track) and one BVH per "
+            "system and clip (format: facecapges.study.clips).",
+        ),
         out: Path = typer.Option(..., "--out", help="Study folder to write."),
-        participants: int = typer.Option(None, "--participants", help="Number of participant plans (default: one "
-                                                                      "per row of the balanced Latin square: N clips, "
-                                                                      "2N for odd N)."),
+        participants: int = typer.Option(
+            None,
+            "--participants",
+            help="Number of participant plans (default: one "
+            "per row of the balanced Latin square: N clips, "
+            "2N for odd N).",
+        ),
         seed: int = typer.Option(0, "--seed", help="Seed of the clip assignment and the screen positions."),
         force: bool = typer.Option(False, "--force", help="Overwrite an existing study (never one with answers)."),
-        avatar: Path = typer.Option(None, "--avatar", help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB "
-                                                           "(default: ours, built from the first BVH)."),
+        avatar: Path = typer.Option(
+            None,
+            "--avatar",
+            help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB (default: ours, built from the first BVH).",
+        ),
     ) -> None:
         """Validate the clips, build the avatar, precompute every pose track and write the participant plans."""
         from facecapges.study.build import create_study
 
         s = create_study(clips, out, participants, seed, force, avatar=avatar)
         b = s["balance"]
-        typer.echo(f"{out}: {s['clips']} clips × {s['systems']} systems at {s['fps']:g} fps, "
-                   f"{s['participants']} participants (ids P01…)")
+        typer.echo(
+            f"{out}: {s['clips']} clips × {s['systems']} systems at {s['fps']:g} fps, "
+            f"{s['participants']} participants (ids P01…)"
+        )
         notes = []
         if b["serial_position_spread"] or b["carry_over_spread"]:
             notes.append(f"clip order is exactly balanced only for a multiple of {b['sequences']} participants")
         if b["position_spread"]:
-            notes.append(f"screen positions are exactly balanced only when participants × clips is a multiple of "
-                         f"{s['systems']}")
-        typer.echo("balance: " + ("; ".join(notes) if notes else "clip order, carry-over and screen positions "
-                                                                 "exactly balanced"))
+            notes.append(
+                f"screen positions are exactly balanced only when participants × clips is a multiple of {s['systems']}"
+            )
+        typer.echo(
+            "balance: "
+            + ("; ".join(notes) if notes else "clip order, carry-over and screen positions exactly balanced")
+        )
         typer.echo(f"invitation links (one per participant, keep them private): {out / 'invitations.txt'}")
         typer.echo(f"next: facecapges study serve {out}")
 
@@ -48,8 +66,11 @@ def register(app: typer.Typer) -> None:
         study_dir: Path = typer.Argument(..., help="Study folder made by 'facecapges study create'."),
         host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (0.0.0.0: every interface)."),
         port: int = typer.Option(8770, "--port", help="TCP port."),
-        language: str = typer.Option("en", "--language", help="Language the page starts in: en (English) or zh "
-                                                              "(Chinese); participants can switch."),
+        language: str = typer.Option(
+            "en",
+            "--language",
+            help="Language the page starts in: en (English) or zh (Chinese); participants can switch.",
+        ),
     ) -> None:
         """Serve the study page; answers go to STUDY_DIR/responses/ as they are given. Ctrl-C stops.
 
@@ -68,8 +89,11 @@ def register(app: typer.Typer) -> None:
         st = open_study(study_dir)
         added = ensure_tokens(st)
         if added:
-            typer.echo(f"note: this study had no invitation tokens; gave {added} participant(s) one. Answers given "
-                       "before are left out of the analysis.", err=True)
+            typer.echo(
+                f"note: this study had no invitation tokens; gave {added} participant(s) one. Answers given "
+                "before are left out of the analysis.",
+                err=True,
+            )
 
         def log(msg: str) -> None:
             typer.echo(f"{datetime.now():%H:%M:%S} {msg}")
@@ -81,11 +105,14 @@ def register(app: typer.Typer) -> None:
         shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
         base = f"http://{shown if ':' not in shown else f'[{shown}]'}:{server.server_address[1]}"
         inv = write_invitations(st.dir, st.plan, base)
-        typer.echo(f"study {study_dir}: {len(st.plan.participants)} participants "
-                   f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips")
-        typer.echo(f"serving {base}/ (Ctrl-C stops); give each participant his own link from {inv}"
-                   + (" (replace 127.0.0.1 by this machine's address on the network)" if host in ("0.0.0.0", "")
-                      else ""))
+        typer.echo(
+            f"study {study_dir}: {len(st.plan.participants)} participants "
+            f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips"
+        )
+        typer.echo(
+            f"serving {base}/ (Ctrl-C stops); give each participant his own link from {inv}"
+            + (" (replace 127.0.0.1 by this machine's address on the network)" if host in ("0.0.0.0", "") else "")
+        )
         try:
             server.serve_forever()
         except KeyboardInterrupt:
@@ -109,9 +136,12 @@ def register(app: typer.Typer) -> None:
         left_out: list[str] = []
         answers = collect_answers(st, left_out)
         if left_out:
-            typer.secho(f"warning: left out {len(left_out)} answer(s) not given with the participant's invitation "
-                        f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})", err=True,
-                        fg=typer.colors.YELLOW)
+            typer.secho(
+                f"warning: left out {len(left_out)} answer(s) not given with the participant's invitation "
+                f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})",
+                err=True,
+                fg=typer.colors.YELLOW,
+            )
         if not answers:
             raise UserError(f"{study_dir}: no answers yet in responses/ (that were given with an invitation token)")
         chosen = None

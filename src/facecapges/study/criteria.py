@@ -33,7 +33,7 @@ CRITERIA: tuple[Criterion, ...] = (
         name="Realism",
         name_zh="真实性",
         definition="Is the motion as a whole natural and fluent, without anything obviously out of place, "
-                   "such as an abnormal orientation or a sudden jitter?",
+        "such as an abnormal orientation or a sudden jitter?",
         definition_zh="整体动作是否自然流畅，是否存在明显的违和感，如朝向异常或突然抖动",
     ),
     Criterion(
@@ -48,7 +48,7 @@ CRITERIA: tuple[Criterion, ...] = (
         name="Diversity",
         name_zh="多样性",
         definition="Are the gestures rich and varied, avoiding long stretches of stillness or the repetition of a "
-                   "single movement?",
+        "single movement?",
         definition_zh="手势是否丰富多变，避免长时间静止或重复单一动作",
     ),
 )

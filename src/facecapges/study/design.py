@@ -96,18 +96,31 @@ class StudyPlan:
 
     def to_json(self) -> dict:
         return {
-            "clips": list(self.clips), "systems": list(self.systems), "seed": self.seed,
-            "participants": [{"id": p.id, "sequence": p.sequence,
-                              "trials": [{"clip": t.clip, "systems": list(t.systems)} for t in p.trials],
-                              **({"token": p.token} if p.token else {})}
-                             for p in self.participants],
+            "clips": list(self.clips),
+            "systems": list(self.systems),
+            "seed": self.seed,
+            "participants": [
+                {
+                    "id": p.id,
+                    "sequence": p.sequence,
+                    "trials": [{"clip": t.clip, "systems": list(t.systems)} for t in p.trials],
+                    **({"token": p.token} if p.token else {}),
+                }
+                for p in self.participants
+            ],
         }
 
     @classmethod
     def from_json(cls, doc: dict) -> StudyPlan:
-        parts = [ParticipantPlan(p["id"], int(p["sequence"]),
-                                 [Trial(t["clip"], tuple(t["systems"])) for t in p["trials"]], str(p.get("token", "")))
-                 for p in doc["participants"]]
+        parts = [
+            ParticipantPlan(
+                p["id"],
+                int(p["sequence"]),
+                [Trial(t["clip"], tuple(t["systems"])) for t in p["trials"]],
+                str(p.get("token", "")),
+            )
+            for p in doc["participants"]
+        ]
         return cls(list(doc["clips"]), list(doc["systems"]), int(doc["seed"]), parts)
 
 
@@ -188,7 +201,11 @@ def balance_report(plan: StudyPlan) -> dict:
         return max(x) - min(x) if x else 0
 
     return {
-        "participants": len(plan.participants), "clips": n, "systems": k, "sequences": n_sequences(n),
-        "position_spread": spread(pos_counts), "serial_position_spread": spread(serial_counts),
+        "participants": len(plan.participants),
+        "clips": n,
+        "systems": k,
+        "sequences": n_sequences(n),
+        "position_spread": spread(pos_counts),
+        "serial_position_spread": spread(serial_counts),
         "carry_over_spread": spread(carry_counts),
     }

@@ -50,9 +50,16 @@ from facecapges.study.design import ParticipantPlan
 from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
 
 PAGE_DIR = Path(__file__).with_name("page")
-CONTENT_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
-                 ".css": "text/css; charset=utf-8", ".json": "application/json", ".wav": "audio/wav",
-                 ".glb": "model/gltf-binary", ".vrm": "model/gltf-binary", ".png": "image/png"}
+CONTENT_TYPES = {
+    ".html": "text/html; charset=utf-8",
+    ".js": "text/javascript; charset=utf-8",
+    ".css": "text/css; charset=utf-8",
+    ".json": "application/json",
+    ".wav": "audio/wav",
+    ".glb": "model/gltf-binary",
+    ".vrm": "model/gltf-binary",
+    ".png": "image/png",
+}
 _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\.json)$")
 MAX_BODY = 64 * 1024
 SOCKET_TIMEOUT = 15.0  # seconds a connection may stay silent (headers, body, keep-alive)
@@ -108,10 +115,15 @@ class StudyApp:
         return i
 
     def info(self) -> dict:
-        return {"criteria": self.study.doc["criteria"], "clips": len(self.study.plan.clips),
-                "versions": len(self.study.plan.systems), "fps": self.study.doc["fps"],
-                "avatar": "vrm" if self.study.doc.get("avatar") == VRM_FILE else "glb",
-                "language": self.language, "languages": list(LANGUAGES)}
+        return {
+            "criteria": self.study.doc["criteria"],
+            "clips": len(self.study.plan.clips),
+            "versions": len(self.study.plan.systems),
+            "fps": self.study.doc["fps"],
+            "avatar": "vrm" if self.study.doc.get("avatar") == VRM_FILE else "glb",
+            "language": self.language,
+            "languages": list(LANGUAGES),
+        }
 
     def _plan(self, pid: str) -> ParticipantPlan:
         plan = self.study.plan.participant(pid)
@@ -123,10 +135,17 @@ class StudyApp:
         t = self._plan(pid).trials[i]
         meta = self.study.clips[t.clip]
         base = f"/media/{self._plan(pid).token}/{i}"
-        return {"index": i, "total": len(self.study.plan.clips), "fps": self.study.doc["fps"],
-                "frames": meta["frames"], "duration": meta["duration"], "versions": len(t.systems),
-                "audio": f"{base}/audio.wav", "face": f"{base}/face.json",
-                "motions": [f"{base}/motion-{j}.json" for j in range(len(t.systems))]}
+        return {
+            "index": i,
+            "total": len(self.study.plan.clips),
+            "fps": self.study.doc["fps"],
+            "frames": meta["frames"],
+            "duration": meta["duration"],
+            "versions": len(t.systems),
+            "audio": f"{base}/audio.wav",
+            "face": f"{base}/face.json",
+            "motions": [f"{base}/motion-{j}.json" for j in range(len(t.systems))],
+        }
 
     def media(self, path: str) -> Path | None:
         m = _MEDIA.match(path)
@@ -158,7 +177,7 @@ class StudyApp:
         for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three), ("/pixiv/", self.three.parent / "@pixiv")):
             if path.startswith(prefix):
                 try:  # a name too long or otherwise impossible for the file system is simply not there
-                    full = (root / path[len(prefix):]).resolve()
+                    full = (root / path[len(prefix) :]).resolve()
                     if root.resolve() in full.parents and full.is_file():
                         return full
                 except (OSError, ValueError):
@@ -185,8 +204,11 @@ class StudyApp:
         if str(exc) not in self._damaged:  # one line per damaged file, not one per request
             self._damaged.add(str(exc))
             self.on_event(f"error: {exc}")
-        return HttpError(500, "your answers cannot be recorded right now (the study's answer file is damaged); "
-                              "please tell the person running the study")
+        return HttpError(
+            500,
+            "your answers cannot be recorded right now (the study's answer file is damaged); "
+            "please tell the person running the study",
+        )
 
     def post(self, path: str, body: dict) -> dict:
         if path not in ("/api/session", "/api/event", "/api/answer"):
@@ -195,8 +217,11 @@ class StudyApp:
         try:
             if path == "/api/session":
                 st = self.store.session(pid)
-                self.on_event(f"{pid}: {'resumed at' if st['next'] else 'started,'} clip {st['next'] + 1} of "
-                              f"{st['total']}" if not st["done"] else f"{pid}: came back after finishing")
+                self.on_event(
+                    f"{pid}: {'resumed at' if st['next'] else 'started,'} clip {st['next'] + 1} of {st['total']}"
+                    if not st["done"]
+                    else f"{pid}: came back after finishing"
+                )
                 return st
             if path == "/api/event":
                 i = self.current(pid, body.get("index"))
@@ -321,9 +346,15 @@ class StudyServer(ThreadingHTTPServer):
         pass
 
 
-def make_server(study: Study, host: str = "127.0.0.1", port: int = 8770,
-                on_event: Callable[[str], None] | None = None, language: str = "en",
-                timeout: float = SOCKET_TIMEOUT, max_connections: int = MAX_CONNECTIONS) -> StudyServer:
+def make_server(
+    study: Study,
+    host: str = "127.0.0.1",
+    port: int = 8770,
+    on_event: Callable[[str], None] | None = None,
+    language: str = "en",
+    timeout: float = SOCKET_TIMEOUT,
+    max_connections: int = MAX_CONNECTIONS,
+) -> StudyServer:
     """An HTTP server for ``study`` bound to ``host:port`` (port 0: any free port); not yet serving.
 
     ``timeout``: seconds a connection may stay silent; ``max_connections``: served at once.

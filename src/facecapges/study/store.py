@@ -128,13 +128,18 @@ class AnswerStore:
             return {"participant": pid, "history": []}
         try:
             doc = json.loads(p.read_text(encoding="utf-8"))
-            if not isinstance(doc, dict) or not isinstance(doc.get("history"), list) or \
-                    not all(isinstance(ev, dict) for ev in doc["history"]):
+            if (
+                not isinstance(doc, dict)
+                or not isinstance(doc.get("history"), list)
+                or not all(isinstance(ev, dict) for ev in doc["history"])
+            ):
                 raise ValueError("no list of events")
             answers_of(doc)
         except (ValueError, KeyError, TypeError, RecursionError, OSError) as exc:
-            raise DamagedFileError(f"{p}: damaged answer file ({exc.__class__.__name__}); nothing more is "
-                                   "recorded for this participant until it is repaired or moved away") from None
+            raise DamagedFileError(
+                f"{p}: damaged answer file ({exc.__class__.__name__}); nothing more is "
+                "recorded for this participant until it is repaired or moved away"
+            ) from None
         return doc
 
     def state(self, pid: str) -> dict:
@@ -178,8 +183,12 @@ class AnswerStore:
         clean = {}
         for c in self.criteria:
             r = ranks_by_position[c]
-            if (not isinstance(r, list) or len(r) != k or any(isinstance(x, bool) or not isinstance(x, int) for x in r)
-                    or sorted(r) != list(range(1, k + 1))):
+            if (
+                not isinstance(r, list)
+                or len(r) != k
+                or any(isinstance(x, bool) or not isinstance(x, int) for x in r)
+                or sorted(r) != list(range(1, k + 1))
+            ):
                 raise AnswerError(f"ranks for {c} must be 1..{k}, each once, one per position; got {r!r}")
             clean[c] = [int(x) for x in r]
         with self._lock(pid):
@@ -187,11 +196,21 @@ class AnswerStore:
             if st["done"]:
                 raise AnswerError("every clip has already been ranked")
             if trial != st["next"]:
-                raise AnswerError(f"trial {trial} is not the current trial ({st['next']}); answers cannot be "
-                                  "changed or skipped")
+                raise AnswerError(
+                    f"trial {trial} is not the current trial ({st['next']}); answers cannot be changed or skipped"
+                )
             t = part.trials[trial]
             ranks = {c: {s: clean[c][j] for j, s in enumerate(t.systems)} for c in self.criteria}
-            self._append(pid, {"type": "answer", "trial": trial, "clip": t.clip, "positions": list(t.systems),
-                               "ranks_by_position": clean, "ranks": ranks,
-                               **({"auth": token_digest(part.token)} if part.token else {})})
+            self._append(
+                pid,
+                {
+                    "type": "answer",
+                    "trial": trial,
+                    "clip": t.clip,
+                    "positions": list(t.systems),
+                    "ranks_by_position": clean,
+                    "ranks": ranks,
+                    **({"auth": token_digest(part.token)} if part.token else {}),
+                },
+            )
             return self.state(pid)

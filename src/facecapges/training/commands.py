@@ -13,17 +13,22 @@ def register(app: typer.Typer) -> None:
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         speaker: int = typer.Option(..., help="BEAT speaker id: one checkpoint per speaker."),
         out: Path = typer.Option(..., help="Run folder: last.pt, model.safetensors, log.csv."),
-        config: Path | None = typer.Option(None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: "
-                                                       "configs/demo-beat2-scott.yaml)."),
+        config: Path | None = typer.Option(
+            None, help="YAML/JSON with 'model:' and 'train:' overrides (small data: configs/demo-beat2-scott.yaml)."
+        ),
         epochs: int | None = typer.Option(None, help="Number of epochs (default 375)."),
-        split: str | None = typer.Option(None, help="Clips to train on: train (default), val, test or all; "
-                                                       "a resumed run keeps its own."),
+        split: str | None = typer.Option(
+            None, help="Clips to train on: train (default), val, test or all; a resumed run keeps its own."
+        ),
         holdout_from: int | None = typer.Option(None, help="Hold out frames >= this of every clip."),
-        resume: bool = typer.Option(False, "--resume", help="Continue the run in OUT exactly where it stopped "
-                                                            "(any number of processes)."),
+        resume: bool = typer.Option(
+            False, "--resume", help="Continue the run in OUT exactly where it stopped (any number of processes)."
+        ),
         force: bool = typer.Option(False, "--force", help="Start over in a run folder that has a run."),
-        device: str = typer.Option("auto", help="auto (a GPU when there is one), cpu or cuda; under torchrun "
-                                                "each process takes GPU LOCAL_RANK."),
+        device: str = typer.Option(
+            "auto",
+            help="auto (a GPU when there is one), cpu or cuda; under torchrun each process takes GPU LOCAL_RANK.",
+        ),
         amp: bool = typer.Option(False, "--amp", help="float16 mixed precision on GPU (no effect on CPU)."),
     ) -> None:
         """Train a FaceCapGes model with closed-loop sliding-window rollout.
@@ -62,8 +67,9 @@ def register(app: typer.Typer) -> None:
                 if chosen not in ("train", "val", "test", "all"):
                     raise UserError(f"--split must be train, val, test or all, got {chosen!r}")
                 if (out / "last.pt").exists() and not (resume or force):
-                    raise UserError(f"{out}: holds a training run; pass --resume to continue it or --force to "
-                                    "start over")
+                    raise UserError(
+                        f"{out}: holds a training run; pass --resume to continue it or --force to start over"
+                    )
                 return chosen, state
 
             chosen_split, state = ctx.run_on_main(run_folder)
@@ -77,16 +83,26 @@ def register(app: typer.Typer) -> None:
             cache_obj, clips = load_clips(cache, speaker, chosen_split)
             if abs(cache_obj.fps - model_over.get("fps", 15)) > 1e-6:
                 model_over["fps"] = int(round(cache_obj.fps))
-            meta = {"speaker": speaker, "clips": [c.name for c in clips], "split": chosen_split,
-                    "skeleton": cache_obj.index["skeleton"], "cache": str(cache)}
+            meta = {
+                "speaker": speaker,
+                "clips": [c.name for c in clips],
+                "split": chosen_split,
+                "skeleton": cache_obj.index["skeleton"],
+                "cache": str(cache),
+            }
             if amp and ctx.device.type != "cuda":
                 say("note: --amp is GPU-only; training on CPU in float32", err=True)
             trainer = build_trainer(clips, out, model_over, train_over, meta, resume, state=state, dist=ctx, amp=amp)
-            say(f"training on {len(clips)} clip(s), {len(trainer.train_set)} segments"
+            say(
+                f"training on {len(clips)} clip(s), {len(trainer.train_set)} segments"
                 + (f", {len(trainer.held_set)} held-out" if trainer.held_set else "")
                 + f"; epochs {trainer.epoch}/{trainer.tcfg.epochs}"
-                + (f"; {ctx.world_size} processes, global batch {trainer.global_batch}, lr_g {trainer.lr_g:.3g}"
-                   if ctx.enabled else ""))
+                + (
+                    f"; {ctx.world_size} processes, global batch {trainer.global_batch}, lr_g {trainer.lr_g:.3g}"
+                    if ctx.enabled
+                    else ""
+                )
+            )
             trainer.fit()
             say(f"checkpoint: {out / 'model.safetensors'}  log: {out / 'log.csv'}")
         finally:

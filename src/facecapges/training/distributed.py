@@ -68,8 +68,10 @@ def pick_device(device: str, local_rank: int = 0) -> torch.device:
         return torch.device("cpu")
     n = torch.cuda.device_count()
     if local_rank >= n:
-        raise UserError(f"LOCAL_RANK={local_rank} but only {n} GPU(s) are visible: start at most {n} processes "
-                        "per node (torchrun --nproc_per_node) or train with --device cpu")
+        raise UserError(
+            f"LOCAL_RANK={local_rank} but only {n} GPU(s) are visible: start at most {n} processes "
+            "per node (torchrun --nproc_per_node) or train with --device cpu"
+        )
     return torch.device("cuda", local_rank)
 
 
@@ -92,7 +94,7 @@ class DistContext:
 
     def shard(self, idx: np.ndarray) -> np.ndarray:
         """This rank's share of a global batch: ``idx[rank::world_size]``."""
-        return idx[self.rank::self.world_size] if self.enabled else idx
+        return idx[self.rank :: self.world_size] if self.enabled else idx
 
     def all_sum(self, values: list[float]) -> list[float]:
         """Element-wise sum of a list of floats over all ranks (float64)."""
@@ -151,8 +153,9 @@ def init_distributed(device: str = "auto") -> DistContext:
     if dev.type == "cuda":
         torch.cuda.set_device(dev)
     if not dist.is_initialized():
-        dist.init_process_group(backend="nccl" if dev.type == "cuda" else "gloo", init_method="env://",
-                                rank=rank, world_size=world)
+        dist.init_process_group(
+            backend="nccl" if dev.type == "cuda" else "gloo", init_method="env://", rank=rank, world_size=world
+        )
     return DistContext(rank=rank, world_size=world, local_rank=local_rank, device=dev)
 
 
@@ -163,4 +166,3 @@ def shutdown(ctx: DistContext) -> None:
 
         if dist.is_initialized():
             dist.destroy_process_group()
-

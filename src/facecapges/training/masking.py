@@ -42,15 +42,19 @@ def masked_huber(x: torch.Tensor, y: torch.Tensor, beta: float, mask: torch.Tens
     return (per * mask).sum() / mask.sum().clamp(min=1.0)
 
 
-def masked_reconstruction_losses(gen: torch.Tensor, gt: torch.Tensor, beta: float,
-                                 mask: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+def masked_reconstruction_losses(
+    gen: torch.Tensor, gt: torch.Tensor, beta: float, mask: torch.Tensor | None = None
+) -> dict[str, torch.Tensor]:
     """Pose, velocity and acceleration Huber losses over (B, M, D), masked by (B, M, J) joints."""
     m = channel_mask(mask, gen.shape[-1])
     vg, vt = gen[:, 1:] - gen[:, :-1], gt[:, 1:] - gt[:, :-1]
     mv = None if m is None else m[:, 1:] * m[:, :-1]
     ma = None if mv is None else mv[:, 1:] * mv[:, :-1]
-    return {"rec": masked_huber(gen, gt, beta, m), "vel": masked_huber(vg, vt, beta, mv),
-            "acc": masked_huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta, ma)}
+    return {
+        "rec": masked_huber(gen, gt, beta, m),
+        "vel": masked_huber(vg, vt, beta, mv),
+        "acc": masked_huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta, ma),
+    }
 
 
 def discriminator_view(gen: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor | None) -> torch.Tensor:
@@ -63,6 +67,11 @@ def discriminator_view(gen: torch.Tensor, gt: torch.Tensor, mask: torch.Tensor |
 
 def mirrored(clip):
     """A left/right mirrored copy of a ``ClipArrays`` (name suffixed ``~mirror``)."""
-    return dataclasses.replace(clip, name=f"{clip.name}~mirror", pose=mirror_pose(clip.pose),
-                               head=mirror_head(clip.head), face=mirror_face(clip.face),
-                               mask=None if getattr(clip, "mask", None) is None else mirror_mask(clip.mask))
+    return dataclasses.replace(
+        clip,
+        name=f"{clip.name}~mirror",
+        pose=mirror_pose(clip.pose),
+        head=mirror_head(clip.head),
+        face=mirror_face(clip.face),
+        mask=None if getattr(clip, "mask", None) is None else mirror_mask(clip.mask),
+    )

@@ -37,12 +37,18 @@ def offline_batch(model: OfflineDecoder, batch: dict[str, torch.Tensor]) -> tupl
     return out[:, N:], batch["pose"][:, N:]
 
 
-OFFLINE = Variant(name="offline", build=OfflineDecoder, forward=offline_batch,
-                  output_heads=lambda G: (G.head_t, G.head_u), export=save_offline,
-                  meta={"variant": "offline decoding"})
+OFFLINE = Variant(
+    name="offline",
+    build=OfflineDecoder,
+    forward=offline_batch,
+    output_heads=lambda G: (G.head_t, G.head_u),
+    export=save_offline,
+    meta={"variant": "offline decoding"},
+)
 
 
-def build_offline_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict,
-                          meta: dict) -> Trainer:
+def build_offline_trainer(
+    clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict
+) -> Trainer:
     """A new offline-decoding trainer from the same override dicts as ``build_trainer``."""
     return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=OFFLINE)

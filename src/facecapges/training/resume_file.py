@@ -69,8 +69,11 @@ def load_state(path: str | Path, required: tuple[str, ...] = ()) -> dict:
     try:
         state = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001  pickle.UnpicklingError beyond data, or a corrupt file
-        why = "it holds more than tensors and plain values (refused: loading it could run code)" \
-            if "weights_only" in str(exc) or "global" in str(exc).lower() else f"{exc.__class__.__name__}"
+        why = (
+            "it holds more than tensors and plain values (refused: loading it could run code)"
+            if "weights_only" in str(exc) or "global" in str(exc).lower()
+            else f"{exc.__class__.__name__}"
+        )
         raise UserError(f"{p}: cannot read the training state ({why})") from None
     if not isinstance(state, dict):
         raise UserError(f"{p}: not a training state (a {type(state).__name__}, expected a mapping)")
@@ -111,8 +114,10 @@ class RunFolderLock:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError:
                 os.close(fd)
-                raise UserError(f"{self.folder}: another training is using this run folder; wait for it to end "
-                                "(or stop it) before starting or resuming here") from None
+                raise UserError(
+                    f"{self.folder}: another training is using this run folder; wait for it to end "
+                    "(or stop it) before starting or resuming here"
+                ) from None
             _HELD[key] = [fd, 1]
         self._key = key
         return self

@@ -82,8 +82,9 @@ def load_clips(cache_path: Path, speaker: int, split: str):
     clips = []
     for e in cache.select(speaker, split):
         a = cache.load(e["name"])
-        clips.append(ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"],
-                                mask=a["mask"]))
+        clips.append(
+            ClipArrays(name=e["name"], pose=a["pose"], head=a["head"], face=a["face"], audio=a["audio"], mask=a["mask"])
+        )
     return cache, clips
 
 
@@ -101,8 +102,14 @@ class SegmentSet:
     N + L frames (each segment frame's causal window) and the L poses.
     """
 
-    def __init__(self, clips: list[ClipArrays], cfg: ModelConfig, clip_len: int, stride: int,
-                 frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None)):
+    def __init__(
+        self,
+        clips: list[ClipArrays],
+        cfg: ModelConfig,
+        clip_len: int,
+        stride: int,
+        frame_range: tuple[int, int | None] | list[tuple[int, int | None]] = (0, None),
+    ):
         N = cfg.n_history
         self.N, self.L = N, clip_len
 
@@ -141,15 +148,19 @@ class SegmentSet:
         s = self.starts[idx]
         win = s[:, None] + np.arange(-self.N, self.L)[None]  # (B, N + L)
         seg = s[:, None] + np.arange(self.L)[None]
-        return {"audio": torch.from_numpy(self.audio[win]), "face": torch.from_numpy(self.face[win]),
-                "head": torch.from_numpy(self.head[win]), "pose": torch.from_numpy(self.pose[seg]),
-                "mask": torch.from_numpy(self.mask[seg])}
+        return {
+            "audio": torch.from_numpy(self.audio[win]),
+            "face": torch.from_numpy(self.face[win]),
+            "head": torch.from_numpy(self.head[win]),
+            "pose": torch.from_numpy(self.pose[seg]),
+            "mask": torch.from_numpy(self.mask[seg]),
+        }
 
 
 def encode_segments(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> torch.Tensor:
     """Embeddings (B, L, E) of the segment frames, each from its own causal window."""
     z = model.encode(batch["audio"], batch["face"], batch["head"])
-    return z[:, model.cfg.n_history:]
+    return z[:, model.cfg.n_history :]
 
 
 # ----------------------------------------------------------------------- losses
@@ -191,14 +202,13 @@ def neutral_window(clips: list[ClipArrays], n: int, frame_limit: int | list[int 
         energy = np.convolve(v, np.ones(n - 1), mode="valid")  # motion inside each window
         i = int(np.argmin(energy))
         if energy[i] < best_e:
-            best, best_e = c.pose[i:i + n], energy[i]
+            best, best_e = c.pose[i : i + n], energy[i]
     if best is None:
         raise UserError(f"no clip has the {n} frames needed for a cold-start window")
     return best.astype(np.float32)
 
 
-def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
-                 ) -> tuple[SegmentSet, SegmentSet | None]:
+def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig) -> tuple[SegmentSet, SegmentSet | None]:
     """Training segments (frames < each clip's hold-out frame) and held-out ones (frames ≥ it, or None)."""
     F_ = holdout_frames(clips, tcfg)
     train_ranges = [(0, f) for f in F_]
@@ -209,25 +219,32 @@ def segment_sets(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
     held_set = None
     if any(f is not None for f in F_):
         try:
-            held_set = SegmentSet(clips, mcfg, tcfg.clip_len, tcfg.stride,
-                                  [(len(c.pose) if f is None else f, None) for c, f in zip(clips, F_)])
+            held_set = SegmentSet(
+                clips,
+                mcfg,
+                tcfg.clip_len,
+                tcfg.stride,
+                [(len(c.pose) if f is None else f, None) for c, f in zip(clips, F_)],
+            )
         except UserError:  # too few held-out frames for one segment
             held_set = None
     return train_set, held_set
 
 
-def start_heads_at_mean(head_t: torch.nn.Sequential, head_u: torch.nn.Sequential, train_set: SegmentSet,
-                        mcfg: ModelConfig) -> None:
+def start_heads_at_mean(
+    head_t: torch.nn.Sequential, head_u: torch.nn.Sequential, train_set: SegmentSet, mcfg: ModelConfig
+) -> None:
     """Start the output heads at the training mean pose, so the first rollouts are sane."""
     real = train_set.pose.any(1)  # the zero frames padding each clip are not poses
     mean = torch.from_numpy(train_set.pose.reshape(-1, mcfg.pose_dim)[real].mean(0))
     with torch.no_grad():
         head_t[-1].get_parameter("bias").copy_(mean[: mcfg.n_torso * 6])
-        head_u[-1].get_parameter("bias").copy_(mean[mcfg.n_torso * 6:])
+        head_u[-1].get_parameter("bias").copy_(mean[mcfg.n_torso * 6 :])
 
 
-def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
-                     ) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict, np.ndarray | None]:
+def input_statistics(
+    clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConfig
+) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict, np.ndarray | None]:
     """Normalisation of each input from the training frames (< ``holdout_from``) only.
 
     Returns ({input: (in_mean, in_scale)} for :func:`~facecapges.model.network.set_input_statistics`,
@@ -246,17 +263,23 @@ def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConf
     from facecapges.capture.head_pose import mean_rotation, skeleton_head_to_camera
     from facecapges.model.audio_features import AudioFeatures
 
-    cut = [slice(0, len(c.pose) if lim is None else min(lim, len(c.pose))) for c, lim in
-           zip(clips, holdout_frames(clips, tcfg))]
+    cut = [
+        slice(0, len(c.pose) if lim is None else min(lim, len(c.pose)))
+        for c, lim in zip(clips, holdout_frames(clips, tcfg))
+    ]
     head = np.concatenate([c.head[s] for c, s in zip(clips, cut)]).astype(np.float64)
     face = np.concatenate([c.face[s] for c, s in zip(clips, cut)]).astype(np.float64)
     ref = mean_rotation(head) if tcfg.head_to_camera else None
     if ref is not None:
         head = skeleton_head_to_camera(head, ref).astype(np.float64)
     face_seen = bool(np.abs(face).max() > 0) if len(face) else False
-    meta = {"face": face_seen, "audio": mcfg.audio_repr,
-            "head_frame": "camera (speaker's mean head rotation = facing the camera)" if ref is not None
-            else "skeleton (as in the data)"}
+    meta = {
+        "face": face_seen,
+        "audio": mcfg.audio_repr,
+        "head_frame": "camera (speaker's mean head rotation = facing the camera)"
+        if ref is not None
+        else "skeleton (as in the data)",
+    }
     if not tcfg.normalize_inputs:
         return {"face": (np.zeros(mcfg.n_face), np.full(mcfg.n_face, float(face_seen)))}, meta, ref
     h_mean = head.mean(0)
@@ -273,8 +296,9 @@ def input_statistics(clips: list[ClipArrays], mcfg: ModelConfig, tcfg: TrainConf
     else:
         feats = AudioFeatures(mcfg.sr, mcfg.samples_per_frame)
         with torch.no_grad():
-            f = np.concatenate([feats(torch.from_numpy(frame_audio(a, s.stop, mcfg.fps, mcfg.sr))).numpy()
-                                for a, s in zip(audio, cut)]).astype(np.float64)
+            f = np.concatenate(
+                [feats(torch.from_numpy(frame_audio(a, s.stop, mcfg.fps, mcfg.sr))).numpy() for a, s in zip(audio, cut)]
+            ).astype(np.float64)
         stats["audio"] = (f.mean(0), 1.0 / np.maximum(f.std(0), 1e-3))
     return stats, meta, ref
 
@@ -310,8 +334,13 @@ class Variant(Generic[M]):
     meta: dict = field(default_factory=dict)
 
 
-CLOSED_LOOP = Variant(name="closed-loop", build=FaceCapGes, forward=rollout_batch,
-                      output_heads=lambda G: (G.decoder.head_t, G.decoder.head_u), export=save_checkpoint)
+CLOSED_LOOP = Variant(
+    name="closed-loop",
+    build=FaceCapGes,
+    forward=rollout_batch,
+    output_heads=lambda G: (G.decoder.head_t, G.decoder.head_u),
+    export=save_checkpoint,
+)
 
 
 class TrainingForward(torch.nn.Module):
@@ -378,9 +407,18 @@ class Trainer:
     mixed precision on a GPU (no effect on CPU).
     """
 
-    def __init__(self, clips: list[ClipArrays], out: Path, model_cfg: ModelConfig, train_cfg: TrainConfig,
-                 meta: dict, log=print, dist: DistContext | None = None, amp: bool = False,
-                 variant: Variant = CLOSED_LOOP):
+    def __init__(
+        self,
+        clips: list[ClipArrays],
+        out: Path,
+        model_cfg: ModelConfig,
+        train_cfg: TrainConfig,
+        meta: dict,
+        log=print,
+        dist: DistContext | None = None,
+        amp: bool = False,
+        variant: Variant = CLOSED_LOOP,
+    ):
         self.out, self.mcfg, self.tcfg, self.meta, self.log = Path(out), model_cfg, train_cfg, meta, log
         self.variant = variant
         self.dist = dist or DistContext()
@@ -396,8 +434,9 @@ class Trainer:
         if ref is not None:  # the model's head input is in the camera frame (capture.head_pose)
             from facecapges.capture.head_pose import skeleton_head_to_camera
 
-            clips = [ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask)
-                     for c in clips]
+            clips = [
+                ClipArrays(c.name, c.pose, skeleton_head_to_camera(c.head, ref), c.face, c.audio, c.mask) for c in clips
+            ]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
         self.neutral = neutral_window(clips, model_cfg.n_history, holdout_frames(clips, train_cfg))
         start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
@@ -425,10 +464,20 @@ class Trainer:
 
     # ------------------------------------------------------------- state
     def state_dict(self) -> dict:
-        sd = {"G": self.G.state_dict(), "D": self.D.state_dict(), "opt_g": self.opt_g.state_dict(),
-              "opt_d": self.opt_d.state_dict(), "epoch": self.epoch, "history": self.history,
-              "model_config": to_dict(self.mcfg), "train_config": to_dict(self.tcfg), "meta": self.meta,
-              "neutral": self.neutral, "world_size": self.dist.world_size, "variant": self.variant.name}
+        sd = {
+            "G": self.G.state_dict(),
+            "D": self.D.state_dict(),
+            "opt_g": self.opt_g.state_dict(),
+            "opt_d": self.opt_d.state_dict(),
+            "epoch": self.epoch,
+            "history": self.history,
+            "model_config": to_dict(self.mcfg),
+            "train_config": to_dict(self.tcfg),
+            "meta": self.meta,
+            "neutral": self.neutral,
+            "world_size": self.dist.world_size,
+            "variant": self.variant.name,
+        }
         if self.precision.on:
             sd["grad_scalers"] = self.precision.state_dict()
         return sd
@@ -459,11 +508,17 @@ class Trainer:
 
     def export(self, path: Path) -> Path:
         last = self.history[-1] if self.history else {}
-        meta = dict(self.meta, **self.variant.meta, neutral_window=self.neutral.tolist(), train_config=to_dict(self.tcfg),
-                    inputs=self.inputs,
-                    head_reference_rot6d=None if self.head_reference is None else self.head_reference.tolist(),
-                    epochs_trained=self.epoch, global_batch=self.global_batch,
-                    final_losses={k: v for k, v in last.items() if k != "epoch"})
+        meta = dict(
+            self.meta,
+            **self.variant.meta,
+            neutral_window=self.neutral.tolist(),
+            train_config=to_dict(self.tcfg),
+            inputs=self.inputs,
+            head_reference_rot6d=None if self.head_reference is None else self.head_reference.tolist(),
+            epochs_trained=self.epoch,
+            global_batch=self.global_batch,
+            final_losses={k: v for k, v in last.items() if k != "epoch"},
+        )
         G = self.G
         if self.device.type != "cpu":
             import copy
@@ -494,7 +549,7 @@ class Trainer:
         adv_on = self._adv_on(epoch)
         sums: dict[str, float] = {}
         for b in range(n_batches):
-            chunk = order[b * gb:(b + 1) * gb]
+            chunk = order[b * gb : (b + 1) * gb]
             idx = dist.shard(chunk)
             n_local = len(idx)
             # weight: DDP's gradient average becomes the mean over the whole global batch
@@ -505,14 +560,15 @@ class Trainer:
             with prec.autocast():
                 gen, gt = self.G_fwd(batch)
             gen = gen.float()
-            mask = batch["mask"][:, self.mcfg.n_history:]  # (B, M, 47): masked joints add no loss
+            mask = batch["mask"][:, self.mcfg.n_history :]  # (B, M, 47): masked joints add no loss
             logs: dict[str, torch.Tensor] = {}
             if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
                 with prec.autocast():
                     d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
-                d_real, d_fake = d_out[: len(gt)], d_out[len(gt):]
-                loss_d = F.binary_cross_entropy_with_logits(d_real, torch.ones_like(d_real)) + \
-                    F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
+                d_real, d_fake = d_out[: len(gt)], d_out[len(gt) :]
+                loss_d = F.binary_cross_entropy_with_logits(
+                    d_real, torch.ones_like(d_real)
+                ) + F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
                 self.opt_d.zero_grad(set_to_none=True)
                 prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
                 prec.step("d", self.opt_d)
@@ -542,8 +598,7 @@ class Trainer:
             else:
                 values = {k: logs[k].item() for k in keys}
             if not math.isfinite(values["total"]):
-                raise UserError(f"training diverged at epoch {epoch} (loss {values['total']}); "
-                                "lower the learning rate")
+                raise UserError(f"training diverged at epoch {epoch} (loss {values['total']}); lower the learning rate")
             for k, v in values.items():
                 sums[k] = sums.get(k, 0.0) + v
             if progress is not None:
@@ -559,11 +614,11 @@ class Trainer:
         n = 0
         mine = self.dist.shard(np.arange(len(seg_set)))
         for b in range(0, len(mine), batch_size):
-            idx = mine[b:b + batch_size]
+            idx = mine[b : b + batch_size]
             batch = self._gather(seg_set, idx)
             with self.precision.autocast():
                 gen, gt = self.variant.forward(self.G, batch)
-            mask = batch["mask"][:, self.mcfg.n_history:]
+            mask = batch["mask"][:, self.mcfg.n_history :]
             for k, v in masked_reconstruction_losses(gen.float(), gt, self.tcfg.huber_beta, mask).items():
                 sums[k] += v.item() * len(idx)
             n += len(idx)
@@ -578,15 +633,37 @@ class Trainer:
         total = epochs or self.tcfg.epochs
         main = self.dist.is_main
         log_path = self.out / "log.csv"
-        fields = ["epoch", "total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc", "seconds",
-                  "processes", "global_batch"]
+        fields = [
+            "epoch",
+            "total",
+            "rec",
+            "vel",
+            "acc",
+            "adv",
+            "d",
+            "held_rec",
+            "held_vel",
+            "held_acc",
+            "seconds",
+            "processes",
+            "global_batch",
+        ]
         if main:
             self.out.mkdir(parents=True, exist_ok=True)
         label = "train" if self.variant is CLOSED_LOOP else f"train {self.variant.name}"
         lock = RunFolderLock(self.out) if main else contextlib.nullcontext()  # one training per run folder
-        with lock, Progress(TextColumn(f"[bold]{label}"), BarColumn(), MofNCompleteColumn(),
-                            TextColumn("{task.fields[info]}"), TimeRemainingColumn(), transient=False,
-                            disable=not (main and progress)) as bar:
+        with (
+            lock,
+            Progress(
+                TextColumn(f"[bold]{label}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[info]}"),
+                TimeRemainingColumn(),
+                transient=False,
+                disable=not (main and progress),
+            ) as bar,
+        ):
             if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
                 write_log(log_path, self.history, fields)
             task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
@@ -613,20 +690,30 @@ class Trainer:
 
 
 def load_resume(out: Path) -> dict:
-    return load_state(Path(out) / "last.pt", required=("G", "D", "opt_g", "opt_d", "epoch", "history",
-                                                      "model_config", "train_config", "meta"))
+    return load_state(
+        Path(out) / "last.pt",
+        required=("G", "D", "opt_g", "opt_d", "epoch", "history", "model_config", "train_config", "meta"),
+    )
 
 
-def build_trainer(clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict,
-                  resume: bool, state: dict | None = None, dist: DistContext | None = None,
-                  amp: bool = False, variant: Variant = CLOSED_LOOP) -> Trainer:
+def build_trainer(
+    clips: list[ClipArrays],
+    out: Path,
+    model_over: dict,
+    train_over: dict,
+    meta: dict,
+    resume: bool,
+    state: dict | None = None,
+    dist: DistContext | None = None,
+    amp: bool = False,
+    variant: Variant = CLOSED_LOOP,
+) -> Trainer:
     """A new trainer, or (``resume``) one restored from ``state`` (default: OUT/last.pt)."""
     if resume:
         sd = state if state is not None else load_resume(out)
         mcfg = model_config_from_dict(sd["model_config"])
         tdict = dict(sd["train_config"], **{k: v for k, v in train_over.items() if k == "epochs"})
-        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"], dist=dist, amp=amp,
-                     variant=variant)
+        tr = Trainer(clips, out, mcfg, train_config_from_dict(tdict), sd["meta"], dist=dist, amp=amp, variant=variant)
         tr.load_state_dict(sd)
         return tr
     mcfg = model_config_from_dict(model_over)

@@ -33,10 +33,23 @@ if TYPE_CHECKING:
     from websockets.sync.client import ClientConnection
 
 CHROMIUM_FLAGS = [
-    "--headless", "--no-sandbox", "--disable-gpu", "--enable-unsafe-swiftshader", "--use-angle=swiftshader",
-    "--disable-quic", "--no-first-run", "--no-default-browser-check", "--disable-background-networking",
-    "--disable-component-update", "--disable-sync", "--disable-extensions", "--disable-default-apps",
-    "--mute-audio", "--hide-scrollbars", "--disable-dev-shm-usage", "--remote-debugging-port=0",
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--enable-unsafe-swiftshader",
+    "--use-angle=swiftshader",
+    "--disable-quic",
+    "--no-first-run",
+    "--no-default-browser-check",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-extensions",
+    "--disable-default-apps",
+    "--mute-audio",
+    "--hide-scrollbars",
+    "--disable-dev-shm-usage",
+    "--remote-debugging-port=0",
     "--remote-allow-origins=*",
 ]
 SETUP_HINT = "run scripts/setup-avatar.sh"
@@ -81,7 +94,7 @@ class _Handler(SimpleHTTPRequestHandler):
         path = path.split("?", 1)[0].split("#", 1)[0]
         for prefix, target in sorted(self.routes.items(), key=lambda kv: -len(kv[0])):
             if isinstance(target, Path) and path.startswith(prefix):
-                rel = path[len(prefix):].lstrip("/")
+                rel = path[len(prefix) :].lstrip("/")
                 full = (target / rel).resolve()
                 if target.resolve() in full.parents or full == target.resolve():
                     return str(full)
@@ -104,15 +117,21 @@ class _Handler(SimpleHTTPRequestHandler):
             return
         super().do_GET()
 
-    extensions_map = {**SimpleHTTPRequestHandler.extensions_map,  # noqa: RUF012  http.server's own attribute ".js": "text/javascript", ".mjs": "text/javascript",
-                      ".glb": "model/gltf-binary", ".html": "text/html"}
+    extensions_map = {  # noqa: RUF012  http.server's own attribute
+        **SimpleHTTPRequestHandler.extensions_map,
+        ".js": "text/javascript",
+        ".mjs": "text/javascript",
+        ".glb": "model/gltf-binary",
+        ".html": "text/html",
+    }
 
 
 class Browser:
     """One headless Chromium page on a loopback HTTP server. Use as a context manager."""
 
-    def __init__(self, routes: dict[str, object], page: str, width: int = 640, height: int = 480,
-                 timeout: float = 60.0):
+    def __init__(
+        self, routes: dict[str, object], page: str, width: int = 640, height: int = 480, timeout: float = 60.0
+    ):
         self.routes = dict(routes)
         self.page = page
         self.width, self.height = width, height
@@ -131,9 +150,16 @@ class Browser:
         port = self.server.server_address[1]
         self.profile = tempfile.mkdtemp(prefix="facecapges-chromium-")
         self.proc = subprocess.Popen(
-            [chromium_path(), *CHROMIUM_FLAGS, f"--user-data-dir={self.profile}",
-             f"--window-size={self.width},{self.height}", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+            [
+                chromium_path(),
+                *CHROMIUM_FLAGS,
+                f"--user-data-dir={self.profile}",
+                f"--window-size={self.width},{self.height}",
+                "about:blank",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         try:
             devtools = self._devtools_port()
             targets = json.load(urllib.request.urlopen(f"http://127.0.0.1:{devtools}/json/list", timeout=10))
@@ -215,7 +241,9 @@ class Browser:
         """Poll until ``expression`` is defined, then evaluate it (awaiting it)."""
         deadline = time.time() + (timeout or self.timeout)
         while time.time() < deadline:
-            ok = self.evaluate(f"(() => {{ try {{ return ({expression}) !== undefined; }} catch (e) {{ return false; }} }})()")
+            ok = self.evaluate(
+                f"(() => {{ try {{ return ({expression}) !== undefined; }} catch (e) {{ return false; }} }})()"
+            )
             if ok:
                 return self.evaluate(expression)
             time.sleep(0.05)

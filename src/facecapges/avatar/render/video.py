@@ -31,8 +31,7 @@ from facecapges.skeleton import Skeleton, local_matrices, motion_to_euler
 PAGE = "/web/render.html"
 
 
-def bvh_quaternions(avatar_joint_names: list[str], skel: Skeleton, motion: np.ndarray, name: str = "BVH"
-                    ) -> np.ndarray:
+def bvh_quaternions(avatar_joint_names: list[str], skel: Skeleton, motion: np.ndarray, name: str = "BVH") -> np.ndarray:
     """Local joint rotations (T, J, 4) (w, x, y, z) of ``motion`` on ``skel``, in the avatar's joint order."""
     if list(skel.names) != list(avatar_joint_names):
         missing = [n for n in avatar_joint_names if n not in skel.names]
@@ -47,10 +46,15 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
-def _open_page(glb: bytes, width: int, height: int, inset: bool = False, page: str = PAGE,
-               routes: dict | None = None) -> tuple[Browser, dict]:
-    b = Browser(routes if routes is not None else avatar_routes(glb),
-                f"{page}?w={width}&h={height}&inset={int(inset)}", width, height)
+def _open_page(
+    glb: bytes, width: int, height: int, inset: bool = False, page: str = PAGE, routes: dict | None = None
+) -> tuple[Browser, dict]:
+    b = Browser(
+        routes if routes is not None else avatar_routes(glb),
+        f"{page}?w={width}&h={height}&inset={int(inset)}",
+        width,
+        height,
+    )
     b.__enter__()
     try:
         info = b.wait_for("window.facecapges.ready")
@@ -63,10 +67,22 @@ def _open_page(glb: bytes, width: int, height: int, inset: bool = False, page: s
     return b, info
 
 
-def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float, out: str | Path,
-                 audio: str | Path | None = None, width: int = 640, height: int = 480, batch: int = 30,
-                 progress: bool = True, crf: int = 20, inset: bool = True, page: str = PAGE,
-                 routes: dict | None = None) -> dict:
+def render_video(
+    glb: bytes,
+    quats: np.ndarray,
+    weights: np.ndarray,
+    fps: float,
+    out: str | Path,
+    audio: str | Path | None = None,
+    width: int = 640,
+    height: int = 480,
+    batch: int = 30,
+    progress: bool = True,
+    crf: int = 20,
+    inset: bool = True,
+    page: str = PAGE,
+    routes: dict | None = None,
+) -> dict:
     """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
 
     ``inset``: draw the face close-up in the top-right corner (module docstring).
@@ -85,8 +101,10 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
     writer = Mp4Writer(out, fps, audio=audio, crf=crf, jpeg=True)
     try:
         if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
-            raise ValueError(f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
-                             f"{info['joints']} / {info['blendshapes']}")
+            raise ValueError(
+                f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
+                f"{info['joints']} / {info['blendshapes']}"
+            )
         b.routes["/motion/quats.bin"] = np.ascontiguousarray(quats, np.float32).tobytes()
         b.routes["/motion/weights.bin"] = np.ascontiguousarray(weights, np.float32).tobytes()
         b.evaluate(f"window.facecapges.loadMotion({T})")
@@ -105,13 +123,28 @@ def render_video(glb: bytes, quats: np.ndarray, weights: np.ndarray, fps: float,
     finally:
         b.close()
     t1 = time.perf_counter()
-    return {"frames": T, "fps": fps, "size": [width, height], "startup_s": t_ready - t0,
-            "render_s": t1 - t_ready, "total_s": t1 - t0, "frames_per_s": T / max(t1 - t_ready, 1e-9)}
+    return {
+        "frames": T,
+        "fps": fps,
+        "size": [width, height],
+        "startup_s": t_ready - t0,
+        "render_s": t1 - t_ready,
+        "total_s": t1 - t0,
+        "frames_per_s": T / max(t1 - t_ready, 1e-9),
+    }
 
 
-def render_stills(glb: bytes, poses: list[np.ndarray | None], weights: list[np.ndarray | None], view: str = "body",
-                  width: int = 640, height: int = 480, inset: bool = False, page: str = PAGE,
-                  routes: dict | None = None) -> list[np.ndarray]:
+def render_stills(
+    glb: bytes,
+    poses: list[np.ndarray | None],
+    weights: list[np.ndarray | None],
+    view: str = "body",
+    width: int = 640,
+    height: int = 480,
+    inset: bool = False,
+    page: str = PAGE,
+    routes: dict | None = None,
+) -> list[np.ndarray]:
     """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
     import cv2
 
@@ -145,9 +178,8 @@ def contact_sheet(glb: bytes, names: list[str], out: str | Path, cols: int = 8, 
     for k, (img, label) in enumerate(zip(images, labels)):
         r, c = divmod(k, cols)
         y, x = r * (cell + 22), c * cell
-        sheet[y:y + cell, x:x + cell] = img
-        cv2.putText(sheet, label, (x + 4, y + cell + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1,
-                    cv2.LINE_AA)
+        sheet[y : y + cell, x : x + cell] = img
+        cv2.putText(sheet, label, (x + 4, y + cell + 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 20), 1, cv2.LINE_AA)
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(out), sheet):
