@@ -68,27 +68,16 @@ def _riff_truncation(path: Path) -> str | None:
         return "truncated WAV: no complete 'data' chunk"
 
 
-def _decode_ffmpeg(path: Path, sr: int) -> np.ndarray:
+def _ffmpeg_pcm_cmd(path: Path, sr: int) -> list[str]:
+    """ffmpeg decoding ``path``'s audio to mono float32 little-endian PCM at ``sr`` on stdout."""
     import imageio_ffmpeg
 
-    cmd = [
-        imageio_ffmpeg.get_ffmpeg_exe(),
-        "-nostdin",
-        "-v",
-        "error",
-        "-i",
-        str(path),
-        "-vn",
-        "-ac",
-        "1",
-        "-ar",
-        str(sr),
-        "-f",
-        "f32le",
-        "-acodec",
-        "pcm_f32le",
-        "pipe:1",
-    ]
+    return [imageio_ffmpeg.get_ffmpeg_exe(), "-nostdin", "-v", "error", "-i", str(path), "-vn", "-ac", "1",
+            "-ar", str(sr), "-f", "f32le", "-acodec", "pcm_f32le", "pipe:1"]  # fmt: skip
+
+
+def _decode_ffmpeg(path: Path, sr: int) -> np.ndarray:
+    cmd = _ffmpeg_pcm_cmd(path, sr)
     proc = subprocess.run(cmd, capture_output=True, check=False)
     err = proc.stderr.decode("utf-8", "replace").strip()
     if proc.returncode != 0:
@@ -214,27 +203,8 @@ def _native_blocks(path: Path, sr: int | None, block_s: float):
     """(rate, iterator of mono float32 blocks): at the file's own rate when ``sr`` is None."""
     f = _check_readable(path)
     if f is None:  # ffmpeg decodes (and resamples) onto a pipe we read in pieces
-        import imageio_ffmpeg
-
         rate = sr or AUDIO_SR
-        cmd = [
-            imageio_ffmpeg.get_ffmpeg_exe(),
-            "-nostdin",
-            "-v",
-            "error",
-            "-i",
-            str(path),
-            "-vn",
-            "-ac",
-            "1",
-            "-ar",
-            str(rate),
-            "-f",
-            "f32le",
-            "-acodec",
-            "pcm_f32le",
-            "pipe:1",
-        ]
+        cmd = _ffmpeg_pcm_cmd(path, rate)
 
         def gen():
             proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
