@@ -36,9 +36,9 @@ def test_avatar_head_follows_the_captured_head(tmp_path, clip, face_video, megam
     assert got["frames"] > 100
     assert got["yaw_r"] >= 0.9 and got["pitch_r"] >= 0.9, got
     assert got["mean_error_deg"] < 3.0
-    # the model's own neck does not follow a nod (the measure can fail)
+    # the model's own neck (it gets the head as an input) follows the person less closely (the measure can fail)
     old = run_head(tmp_path, video, "model", audio, frames)
-    assert old["pitch_r"] < 0.5 and old["mean_error_deg"] > 8.0, old
+    assert old["mean_error_deg"] > got["mean_error_deg"] + 2.0, old
     half = run_head(tmp_path, video, "blend", audio, frames)
     assert old["mean_error_deg"] > half["mean_error_deg"] > got["mean_error_deg"]
 
