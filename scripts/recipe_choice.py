@@ -2,7 +2,7 @@
 
 The last 20 % of every paired take is never used for a choice: each clip is cut at
 ``--train-until`` (default: 80 % of its frames), and of what is left the last
-``--val-fraction`` (default 20 %) is the validation part the trainer reports as
+``--val-fraction`` (default 20 %) of each clip is the validation part the trainer reports as
 ``held_*``. Usage::
 
     python scripts/recipe_choice.py --cache build/cache-beat --speaker 2 --config configs/X.yaml \
@@ -42,15 +42,15 @@ def main() -> None:
         (model_over if section == "model" else train_over)[name] = yaml.safe_load(value)
     cache, clips = load_clips(args.cache, args.speaker, "all")
     cut_clips = [clip_head(c, int(len(c.pose) * args.train_until), cache.fps, cache.sr) for c in clips]
-    T0 = min(len(c.pose) for c in cut_clips)
-    train_over["holdout_from"] = int(T0 * (1 - args.val_fraction))
+    train_over["holdout_from"] = None  # per clip: frames >= floor(T_cut * (1 - val_fraction)) validate
+    train_over["holdout_fraction"] = args.val_fraction
     meta = {"speaker": args.speaker, "clips": [c.name for c in clips], "split": "all",
             "skeleton": cache.index["skeleton"], "cache": str(args.cache), "choice_run": True}
     tr = build_trainer(cut_clips, args.out, model_over, train_over, meta, resume=False)
     hist = tr.fit()
     best = min(hist, key=lambda r: r.get("held_rec", float("inf")))
-    result = {"settings": args.set, "config": str(args.config), "train_frames": train_over["holdout_from"],
-              "val_frames": [train_over["holdout_from"], T0], "last": hist[-1], "best_epoch": best,
+    val = {c.name: [int(len(c.pose) * (1 - args.val_fraction)), len(c.pose)] for c in cut_clips}
+    result = {"settings": args.set, "config": str(args.config), "val_frames": val, "last": hist[-1], "best_epoch": best,
               "minutes": sum(r["seconds"] for r in hist) / 60}
     (args.out / "choice.json").write_text(json.dumps(result, indent=2))
     print(json.dumps({k: result[k] for k in ("settings", "minutes")}), hist[-1].get("held_rec"), best.get("held_rec"))

@@ -41,6 +41,8 @@ def main() -> None:
     ap.add_argument("--speaker", type=int, required=True)
     ap.add_argument("--holdout-from", type=int)
     ap.add_argument("--until-frame", type=int, help="cut every take here first (a validation split's end)")
+    ap.add_argument("--validation", action="store_true",
+                    help="report on recipe_choice.py's validation part instead: each take cut at 80 %%, its last 20 %%")
     ap.add_argument("--audio", type=Path, action="append", default=[])
     ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args()
@@ -59,13 +61,17 @@ def main() -> None:
     train_stats = []
     for e in cache.select(args.speaker, "all"):
         a = cache.load(e["name"])
-        if args.until_frame:
+        until = int(len(a["pose"]) * 0.8) if args.validation else args.until_frame
+        if until:
             from facecapges.timing import frame_sample_bounds
 
-            S = int(frame_sample_bounds(args.until_frame, fps, sr)[0])
-            a = {k: (v[:S] if k == "audio" else v[: args.until_frame]) if k in ("pose", "head", "face", "audio")
+            S = int(frame_sample_bounds(until, fps, sr)[0])
+            a = {k: (v[:S] if k == "audio" else v[:until]) if k in ("pose", "head", "face", "audio")
                  else v for k, v in a.items()}
-        start = args.holdout_from or e.get("holdout_from") or int(len(a["pose"]) * 0.8)
+        if args.validation:
+            start = int(len(a["pose"]) * 0.8)
+        else:
+            start = args.holdout_from or e.get("holdout_from") or int(len(a["pose"]) * 0.8)
         train_stats.append(motion_stats(wrist_positions(skel, a["pose"][:start]), fps))
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ref)
         gen, _ = generate_poses(ck, inputs, progress=False)
