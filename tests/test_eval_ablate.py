@@ -115,15 +115,23 @@ def test_offline_trainer_learns_the_segments(tmp_path):
     assert len(lines) == 9 and lines[0].startswith("epoch,total,rec")
 
 
-def test_shipped_checkpoint_is_the_full_variant_of_the_demo_recipe():
-    """The reuse rule accepts the installed default style for its own recipe and rejects any other."""
+def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_same_recipe():
+    """The reuse rule accepts a checkpoint of the ablation's own recipe and rejects any other.
+
+    The ablation trains every variant from random weights (a config's ``init_from`` is
+    dropped), so the shipped default style, fine-tuned from zeggs-speech, is not reused.
+    """
     from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
     from facecapges.model.checkpoint import load_checkpoint
 
     assert default_config_path().is_file()
-    meta = load_checkpoint().meta
+    shipped = load_checkpoint().meta
     recipe = make_recipe(None, 2, None, None, None, 15.0)
-    assert recipe.split == "all" and recipe.holdout_from == 766
+    assert recipe.split == "all" and recipe.holdout_from == 766 and "init_from" not in recipe.train_over
+    assert shipped["train_config"]["init_from"]  # fine-tuned …
+    assert _same_recipe(shipped, recipe, None, ["2_scott_0_1_1"]) == "training config differs"  # … so not reused
+    mcfg, tcfg = recipe.resolved()
+    meta = dict(shipped, model_config=mcfg, train_config=tcfg, epochs_trained=tcfg["epochs"])
     assert _same_recipe(meta, recipe, None, ["2_scott_0_1_1"]) is None
     assert _same_recipe(meta, make_recipe(None, 2, None, 3, None, 15.0), None, ["2_scott_0_1_1"])
     assert _same_recipe(meta, recipe, {"head_dim": 0}, ["2_scott_0_1_1"]) == "model config differs"

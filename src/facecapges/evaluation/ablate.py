@@ -133,6 +133,9 @@ def make_recipe(
     if config is None and not path.is_file():
         raise UserError(f"{path}: the default base config is missing (run from a source checkout or pass --config)")
     model_over, train_over = load_config_file(path)
+    # every variant starts from random weights: a fine-tuning base (train.init_from) has one
+    # model's settings, and the variants differ in theirs — they are compared on equal terms
+    train_over.pop("init_from", None)
     if epochs is not None:
         if epochs < 1:
             raise UserError("--epochs must be at least 1")
