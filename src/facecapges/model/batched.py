@@ -434,7 +434,10 @@ class BatchedStreamingGenerator:
 
         self.x_audio = grow("x_audio", self._audio_tcn.register(capacity))
         self.x_face = grow("x_face", self._face_tcn.register(capacity))
-        self.frames = grow("frames", torch.zeros(capacity, dtype=torch.long))
+        frames = np.zeros(capacity, np.int64)  # a NumPy counter: no torch call per step to read or bump it
+        if old:
+            frames[:old] = self.frames
+        self.frames: np.ndarray = frames
         if self.fast:
             self.gx = grow("gx", torch.zeros(capacity, N, 8 * H))  # history frames' [torso | limb] input gates
             self.hc = grow("hc", torch.zeros(capacity, 2, 2 * H))  # [h_t | h_u], [c_t | c_u]
@@ -553,22 +556,21 @@ class BatchedStreamingGenerator:
         self.hist[idx, torch.remainder(frames, N)] = pose
         return pose
 
-    def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, list[int]]:
         ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
         if len(set(ids)) != len(ids):
             raise ValueError("a stream can take only one frame per batched step")
         closed = [s for s in ids if s not in self._open]
         if closed:
             raise KeyError(f"slot(s) {closed} are not open")
-        idx = torch.tensor(ids, dtype=torch.long)
-        return idx, self.frames[idx]
+        return torch.tensor(ids, dtype=torch.long), ids
 
     # ------------------------------------------------------------------ API
     @torch.inference_mode()
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame with a known pose per stream (no generation, LSTM state untouched)."""
         with self._lock:
-            idx, frames = self._ids(slots)
+            idx, ids = self._ids(slots)
             a, f, h = self._clean_inputs(audio, face, head, len(idx))
             e = self._encode(idx, a, f, h)
             p = torch.from_numpy(np.asarray(pose, dtype=np.float32).reshape(len(idx), -1).copy())
@@ -577,17 +579,17 @@ class BatchedStreamingGenerator:
                 new = torch.addmm(bl.b, e, bl.w_e).addmm_(p, bl.w_s)
                 self.gx.index_copy_(0, idx, torch.cat([self.gx.index_select(0, idx)[:, 1:], new[:, None]], 1))
             else:
-                N, W = self.cfg.n_history, self.cfg.window
+                N, W, frames = self.cfg.n_history, self.cfg.window, torch.from_numpy(self.frames[ids])
                 self.emb[idx, torch.remainder(frames, W)] = e
                 self.hist[idx, torch.remainder(frames, N)] = p
-            self.frames[idx] = frames + 1
+            self.frames[ids] += 1
 
     @torch.inference_mode()
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame for each stream in ``slots``: audio (B, ≤S) (array or list), face (B, 52),
         head (B, 6) → poses (B, 47, 6) rot6d, in the order of ``slots``."""
         with self._lock:
-            idx, frames = self._ids(slots)
+            idx, ids = self._ids(slots)
             B = len(idx)
             if B == 0:
                 return np.zeros((0, self.cfg.n_joints, 6), np.float32)
@@ -595,6 +597,9 @@ class BatchedStreamingGenerator:
                 a, f, h = self._clean_inputs(audio, face, head, B)
             e = self._encode(idx, a, f, h)
             with stage("decoder"):
-                pose = self._decode(idx, e) if self.fast else self._decode_model(idx, frames, e)
-            self.frames[idx] = frames + 1
+                if self.fast:
+                    pose = self._decode(idx, e)
+                else:
+                    pose = self._decode_model(idx, torch.from_numpy(self.frames[ids]), e)
+            self.frames[ids] += 1
             return pose.reshape(B, self.cfg.n_joints, 6).numpy()
