@@ -301,9 +301,9 @@ def lstm_window(
 class Cascade:
     """The torso LSTM and the limb LSTM it conditions (eq. 4.12–4.13) over one window.
 
-    :meth:`run` takes the input gates of each window step, ``gx_t``, ``gx_u`` (B, W, 4H),
-    without the limb's torso-output term, and the carried states ``h``, ``c`` (B, 2H) as
-    ``[torso | limb]``; it returns the final ``h``, ``c``. Two schedules of the same
+    :meth:`run` takes the input gates of each window step, ``gx`` (B, W, 8H) as
+    ``[torso | limb]``, the limb's without its torso-output term, and the carried states
+    ``hc`` (B, 2, 2H) = ``[[h_t | h_u], [c_t | c_u]]``; it returns the final ones. Two schedules of the same
     recurrence (same gates as ``torch.nn.LSTM``, order i, f, g, o), chosen by batch size:
 
     * **lockstep** (B ≤ :attr:`LOCKSTEP_MAX_BATCH`): iteration m runs torso step m and
@@ -335,20 +335,24 @@ class Cascade:
         bottom = torch.stack([torch.zeros(H, 4, H), self.w_u.reshape(H, 4, H)], 2)
         self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).numpy().copy()  # (2H, 8H), NumPy
 
-    def run(
-        self, gx_t: torch.Tensor, gx_u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        batch, W, _ = gx_t.shape
+    def run(self, gx: torch.Tensor, hc: torch.Tensor) -> torch.Tensor:
+        """Input gates ``gx`` (B, W, 8H) = [torso | limb] per window step, carried ``hc`` (B, 2, 2H)
+        = [[h_t | h_u], [c_t | c_u]] → the final ``hc``."""
+        batch, W, _ = gx.shape
         B, H = batch, self.H
         if batch > self.lockstep_max_batch:
-            o_t, c_t = lstm_window(gx_t, h[:, :H], c[:, :H], self.w_t)
-            o_u, c_u = lstm_window(gx_u + torch.matmul(torch.stack(o_t, 1), self.w_x), h[:, H:], c[:, H:], self.w_u)
-            return torch.cat([o_t[-1], o_u[-1]], 1), torch.cat([c_t, c_u], 1)
+            h, c = hc[:, 0], hc[:, 1]
+            o_t, c_t = lstm_window(gx[..., : 4 * H], h[:, :H], c[:, :H], self.w_t)
+            gx_u = gx[..., 4 * H :] + torch.matmul(torch.stack(o_t, 1), self.w_x)
+            o_u, c_u = lstm_window(gx_u, h[:, H:], c[:, H:], self.w_u)
+            return torch.stack([torch.cat([o_t[-1], o_u[-1]], 1), torch.cat([c_t, c_u], 1)], 1)
+        g_in = gx.numpy()
         x = np.zeros((B, W + 1, 4, 2, H), np.float32)  # iteration m: torso gates of step m, limb's of m − 1
-        x[:, :W, :, 0] = gx_t.numpy().reshape(B, W, 4, H)
-        x[:, 1:, :, 1] = gx_u.numpy().reshape(B, W, 4, H)
-        hn, cn = h.numpy(), c.numpy()
+        x[:, :W, :, 0] = g_in[..., : 4 * H].reshape(B, W, 4, H)
+        x[:, 1:, :, 1] = g_in[..., 4 * H :].reshape(B, W, 4, H)
+        hn, cn = hc.numpy().transpose(1, 0, 2)
         w, g_ = self.w, slice(4 * H, 6 * H)
+        out = np.empty((B, 2, 2 * H), np.float32)
         for m, xm in enumerate(x.reshape(B, W + 1, 8 * H).transpose(1, 0, 2)):
             g = xm + hn @ w
             s = expit(g)
@@ -357,11 +361,10 @@ class Cascade:
             if m == 0:  # there is no limb step −1: the limb state stays as carried
                 h_new[:, H:], c_new[:, H:] = hn[:, H:], cn[:, H:]
             elif m == W - 1:  # the torso's last step
-                h_t, c_t = h_new[:, :H], c_new[:, :H]
+                out[:, 0, :H], out[:, 1, :H] = h_new[:, :H], c_new[:, :H]
             hn, cn = h_new, c_new
-        return torch.from_numpy(np.concatenate([h_t, hn[:, H:]], 1)), torch.from_numpy(
-            np.concatenate([c_t, cn[:, H:]], 1)
-        )
+        out[:, 0, H:], out[:, 1, H:] = hn[:, H:], cn[:, H:]
+        return torch.from_numpy(out)
 
 
 class _LSTMBlocks:
@@ -536,9 +539,9 @@ class BatchedStreamingGenerator:
         cur = torch.addmm(bl.b, e, bl.w_e)  # the current frame: its pose slot is zero (eq. 3.5)
         held = self.gx.index_select(0, idx)  # (B, N, 8H): the history, oldest first
         gx = torch.cat([held, cur[:, None]], 1)  # (B, N+1, 8H)
-        hc = self.hc.index_select(0, idx)  # (B, 2, 2H)
-        h, c = self._cascade.run(gx[..., : 4 * H], gx[..., 4 * H :], hc[:, 0], hc[:, 1])  # eq. 4.12-4.13
-        self.hc.index_copy_(0, idx, torch.stack([h, c], 1))
+        hc = self._cascade.run(gx, self.hc.index_select(0, idx))  # eq. 4.12-4.13, (B, 2, 2H)
+        self.hc.index_copy_(0, idx, hc)
+        h = hc[:, 0]
         pose = torch.cat([self._head_t(h[:, :H]), self._head_u(h[:, H:])], -1)  # only the last step is decoded
         # the frame joins the history with its pose (eq. 4.11): the oldest frame leaves
         self.gx.index_copy_(0, idx, torch.cat([held[:, 1:], torch.addmm(cur, pose, bl.w_s)[:, None]], 1))
