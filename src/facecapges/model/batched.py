@@ -79,27 +79,32 @@ every checkpoint shape and batch size on first use (every ``run``, ``live``, tes
 ``serve`` start would pay it on a fresh machine); ``torch.export``'s program, run from
 Python, is slower than the eager code it records. So the kernel is **eager**, with the
 per-operation cost cut instead: one stream's step made 404 torch calls before and makes
-185 now (shift registers instead of ring indices, the TCNs' past taps as one
+172 now (shift registers instead of ring indices, the TCNs' past taps as one
 ``baddbmm``, :func:`affine_chain`, both LSTMs' projections as one product, the lockstep
 recurrence in NumPy — :class:`Cascade`), and the Mel front end lost half its calls
 (one FFT call for the frame's windows, a fast autocorrelation length). Side by side in
 one process (default Mel checkpoint, one thread, 450 frames in alternating blocks of
-25, load average 3.6; wall-clock p50 ms per frame; the TorchScript step is the one of
-commit 740f14e^ run on today's model):
+25, load average 5.0; wall-clock p50 ms per frame; the TorchScript step is the one of
+commit 740f14e^ run on today's model; the naive loop is timed with main's code and with
+this one's, whose Mel front end makes it 1.5× faster too):
 
-============================================  =======  ==============  =================
-kernel                                        step     step + Euler    naive loop / step
-============================================  =======  ==============  =================
-eager before this change (main, 2026-12-01)   1.708    1.987           2.15×
-TorchScript step (740f14e^)                   1.300    1.533           2.83×
-eager, this module                            0.916    1.070           4.02×
-naive re-windowed loop (the oracle)           3.679    —               1
-============================================  =======  ==============  =================
+============================================  =====  ============  ===========  ===========
+kernel                                        step   step + Euler  main's naive this naive
+                                                                   / step       / step
+============================================  =====  ============  ===========  ===========
+eager before this change (main, 2026-12-01)   1.756  2.046         2.03×        1.36×
+TorchScript step (740f14e^)                   1.353  1.592         2.63×        1.77×
+eager, this module                            0.922  1.075         3.86×        2.60×
+naive re-windowed loop, main's code           3.559  —             1            —
+naive re-windowed loop, this code             2.394  —             —            1
+============================================  =====  ============  ===========  ===========
 
 Where the CPU's peak goes. The step does 1.12 M multiply–adds (``bench``'s
-``compute``: 95 % of them in the decoder) — 2.2 MFLOP, i.e. ~2.4 GFLOP/s at 0.92 ms,
-~2.5 % of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``).
-The rest goes to: (1) per-call overhead — 185 torch calls and ~200 NumPy calls per
+``compute``: 95 % of them in the decoder) — 2.2 MFLOP, ~2 GFLOP/s at its ~1 ms, 2–3 %
+of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``, 1.9 % at
+load 6). (The 6.9 GFLOP/s once quoted were an older, larger default model's 12 MFLOP
+per step: the rate follows the model's size more than the kernel's speed.)
+The rest goes to: (1) per-call overhead — 172 torch calls and ~200 NumPy calls per
 frame cost 1–3 µs and 0.5–1 µs each whatever their size, most of the step at B = 1;
 (2) memory, not arithmetic, for the products that remain: at B = 1 every product is a
 matrix–vector one, 1 multiply–add per 4-byte weight read, and the recurrence streams

@@ -47,7 +47,7 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
 * ``cpu_peak_gflops_1thread`` — a 1024×1024 float32 matmul on one thread (best of
   several), the practical peak of this CPU for dense float32 work;
   ``step_gflops_per_s`` = counted FLOPs / measured step time, and
-  ``fraction_of_peak`` their ratio. Where the rest goes (per-call overhead of ~185
+  ``fraction_of_peak`` their ratio. Where the rest goes (per-call overhead of ~172
   torch and ~200 NumPy calls per frame, matrix–vector products bound by reading their
   weights from L2 — the recurrence's 4.7 MB per frame —, FFTs and element-wise work
   the counter does not count): :mod:`facecapges.model.batched`'s docs.
