@@ -9,6 +9,8 @@
   frame). Per take, for the real and the generated motion: energy–wrist-speed
   correlation and its z against shifted audio, BeatAlign and its gap against shifted
   audio (in sd units), wrist jerk and spread as ratios to the real held-out motion.
+* All paired takes together: their energy–speed z and BeatAlign-gap z combined by
+  Stouffer's method (:func:`facecapges.evaluation.synchrony.stouffer_z`).
 * Unseen audio (no motion): the same figures, ratios to the real motion of the
   speaker's training frames (frames before each take's hold-out).
 All metric code is :mod:`facecapges.evaluation.synchrony` and
@@ -80,6 +82,14 @@ def main() -> None:
                                     "real": _row(skel, real, audio, sr, fps, real_stats),
                                     "generated": _row(skel, gen, audio, sr, fps, real_stats)}
         print(e["name"], json.dumps(out["paired"][e["name"]]["generated"]))
+    from facecapges.evaluation.synchrony import stouffer_z
+
+    takes = out["paired"].values()
+    out["paired_combined"] = {  # the takes' z-scores combined (Stouffer): all held-out audio as one test
+        who: {k: round(stouffer_z([t[who][k] for t in takes]), 4) for k in ("ES_z", "BA_gap_sd")}
+        for who in ("real", "generated")
+    } if out["paired"] else {}
+    print("combined", json.dumps(out["paired_combined"]))
     pooled = pooled_stats(train_stats)
     for p in args.audio:
         from facecapges.io.audio import load_audio

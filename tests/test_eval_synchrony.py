@@ -116,3 +116,13 @@ def test_suite_reports_synchrony_for_every_row(beat):
 
     md = markdown_table(res)
     assert "energy–speed r" in md and "wrist jerk × real" in md and "BA (BEAT script)" in md
+
+
+def test_stouffer_combines_independent_takes_as_one_test():
+    from facecapges.evaluation.synchrony import stouffer_z
+
+    assert abs(stouffer_z([2.0, 2.0, 2.0]) - 2.0 * 3**0.5) < 1e-12  # three takes at z 2: 3.46
+    assert abs(stouffer_z([1.5, float("nan")]) - 1.5) < 1e-12  # a take without a figure is left out
+    rng = np.random.default_rng(0)  # under the null (independent N(0,1) per take) it stays N(0,1)
+    combined = [stouffer_z(rng.normal(size=5)) for _ in range(4000)]
+    assert abs(np.std(combined) - 1.0) < 0.05 and abs(np.mean(combined)) < 0.05

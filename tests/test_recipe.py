@@ -190,3 +190,25 @@ def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
     (tmp_path / "junk.safetensors").write_bytes(b"not a checkpoint")
     with pytest.raises(UserError):
         install_style(tmp_path / "junk.safetensors")
+
+
+def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics(tmp_path):
+    """``train.init_from``: the base's learned weights, this speaker's own input statistics."""
+    from facecapges.errors import UserError
+    from facecapges.training.train import build_trainer
+
+    over = dict(epochs=1, batch_size=8, holdout_from=120, num_threads=1)
+    base = build_trainer([_clip(seed=1)], tmp_path / "base", dict(TINY), over, {}, resume=False)
+    base.fit(progress=False)
+    ft = build_trainer([_clip(face=True)], tmp_path / "ft", dict(TINY), dict(over, init_from=str(tmp_path / "base")),
+                       {}, resume=False)
+    for k, v in base.G.state_dict().items():
+        if k.endswith(("in_mean", "in_scale")):
+            continue
+        assert torch.equal(ft.G.state_dict()[k], v), k  # every learned weight, the output heads included
+    c = _clip(face=True)  # … and the fine-tuned speaker's own statistics (the base had no face)
+    np.testing.assert_allclose(ft.G.face_enc.inp.in_mean.numpy(), c.face[:120].mean(0), atol=1e-5)
+    assert float(base.G.face_enc.inp.in_scale.abs().max()) == 0.0
+    with pytest.raises(UserError, match="model.lstm_hidden is 16, this run's is 24"):
+        build_trainer([_clip()], tmp_path / "bad", dict(TINY, lstm_hidden=24),
+                      dict(over, init_from=str(tmp_path / "base")), {}, resume=False)

@@ -183,6 +183,18 @@ def energy_speed_control(
     return EnergySpeedControl(r, mean, sd, float(z), used, [float(x) for x in arr])
 
 
+def stouffer_z(zs: Sequence[float]) -> float:
+    """The z-scores of independent takes combined as one: ``Σ z_i / √k`` (Stouffer's method).
+
+    Each take's z is already in units of its own shifted-audio spread; their sum over
+    √k is what one z over all k takes' audio would be if each take were an independent
+    test. Unlike the mean of the z's it grows with the amount of audio, as evidence
+    does (three takes at z 2 each: combined 3.5). NaNs are left out.
+    """
+    z = np.asarray([v for v in zs if np.isfinite(v)], np.float64)
+    return float(z.sum() / np.sqrt(len(z))) if len(z) else float("nan")
+
+
 def beat_align_gap_sd(control) -> float:
     """BeatAlign gap in sd units: ``(matched − shifted_mean) / shifted_sd`` of a BeatAlignControl."""
     sd = control.shifted_sd

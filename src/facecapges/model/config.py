@@ -107,6 +107,10 @@ class TrainConfig:
     holdout_fraction: float | None = None
     mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
     num_threads: int = 0  # 0 = torch default
+    # (ours) fine-tuning: start the generator from a trained style's weights (a checkpoint
+    # file or an installed style's name; same model settings) instead of at random. The
+    # input statistics and head reference are this run's own speaker's, not the base's.
+    init_from: str | None = None
 
     def learning_rates(self, world_size: int = 1) -> tuple[float, float]:
         """(lr_g, lr_d) by the linear rule on the global batch ``batch_size × world_size`` (eq. 5.1–5.2)."""

@@ -21,6 +21,11 @@ def register(app: typer.Typer) -> None:
             None, help="Clips to train on: train (default), val, test or all; a resumed run keeps its own."
         ),
         holdout_from: int | None = typer.Option(None, help="Hold out frames >= this of every clip."),
+        init_from: str | None = typer.Option(
+            None,
+            help="Fine-tune: start from a trained style's weights (a style name or checkpoint with the same model "
+            "settings as --config), e.g. one trained on more data.",
+        ),
         resume: bool = typer.Option(
             False, "--resume", help="Continue the run in OUT exactly where it stopped (any number of processes)."
         ),
@@ -80,6 +85,8 @@ def register(app: typer.Typer) -> None:
                 train_over["epochs"] = epochs
             if holdout_from is not None:
                 train_over["holdout_from"] = holdout_from
+            if init_from is not None:
+                train_over["init_from"] = init_from
             cache_obj, clips = load_clips(cache, speaker, chosen_split)
             if abs(cache_obj.fps - model_over.get("fps", 15)) > 1e-6:
                 model_over["fps"] = int(round(cache_obj.fps))

@@ -303,6 +303,37 @@ def input_statistics(
     return stats, meta, ref
 
 
+def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) -> None:
+    """Fine-tuning (``train.init_from``): ``model`` takes the weights of a trained style.
+
+    ``source`` is a checkpoint file or an installed style's name. Its model settings
+    must equal this run's (a clear error names the first that differs); its input
+    normalisation buffers are not taken — the trainer sets this speaker's own next.
+    """
+    from dataclasses import asdict
+
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.network import NORM_BUFFERS
+
+    path = Path(source)
+    base = load_checkpoint(path) if path.suffix or path.exists() else load_checkpoint(style=source)
+    theirs, ours = asdict(base.model.cfg), asdict(mcfg)
+    diff = [k for k in ours if ours[k] != theirs.get(k)]
+    if diff:
+        k = diff[0]
+        raise UserError(
+            f"train.init_from {source!r}: its model.{k} is {theirs.get(k)!r}, this run's is {ours[k]!r} "
+            "(fine-tuning needs the same model settings: use the base style's config)"
+        )
+    if not isinstance(model, FaceCapGes):
+        raise UserError(
+            f"train.init_from {source!r}: fine-tuning starts a FaceCapGes model, not a {type(model).__name__}"
+        )
+    weights = {k: v for k, v in base.model.state_dict().items() if k.rsplit(".", 1)[-1] not in NORM_BUFFERS}
+    missing, unexpected = model.load_state_dict(weights, strict=False)
+    assert not unexpected and all(k.rsplit(".", 1)[-1] in NORM_BUFFERS for k in missing)
+
+
 def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torch.optim.Optimizer:
     """SGD (thesis 5.1) or Adam, at the linearly scaled learning rate."""
     if cfg.optimizer == "sgd":
@@ -428,6 +459,8 @@ class Trainer:
         torch.manual_seed(train_cfg.seed)  # the same initial weights on every rank
         self.G = variant.build(model_cfg)
         self.D = SegmentDiscriminator(model_cfg)
+        if train_cfg.init_from:
+            load_base_weights(self.G, train_cfg.init_from, model_cfg)
         norms, self.inputs, ref = input_statistics(clips, model_cfg, train_cfg)
         set_input_statistics(self.G, norms)
         self.head_reference = ref
@@ -439,7 +472,8 @@ class Trainer:
             ]
         self.train_set, self.held_set = segment_sets(clips, model_cfg, train_cfg)
         self.neutral = neutral_window(clips, model_cfg.n_history, holdout_frames(clips, train_cfg))
-        start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
+        if not train_cfg.init_from:  # a fine-tuned model keeps the output heads it learned
+            start_heads_at_mean(*variant.output_heads(self.G), self.train_set, model_cfg)
         self.G.to(self.device)
         self.D.to(self.device)
         self.precision = _Precision(amp, self.device)
