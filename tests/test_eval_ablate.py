@@ -230,10 +230,12 @@ def test_bench_counts_macs_of_the_streaming_step():
             macs += length * conv.out_channels * conv.in_channels * conv.kernel_size[0]
         assert comp["macs_per_frame_by_stage"]["audio_frontend"] == macs
     else:  # Mel features: at least the Mel filter bank and the two linear layers
-        macs = fe.features.mel_basis.numel() * 5 + fe.proj.weight.numel() + fe.out.weight.numel()
+        macs = fe.features.mel_basis.numel() + fe.proj.weight.numel() + fe.out.weight.numel()  # power averaged first
         assert comp["macs_per_frame_by_stage"]["audio_frontend"] >= macs
     H, W = cfg.lstm_hidden, cfg.window
     assert comp["macs_per_frame_by_stage"]["decoder"] > 2 * W * H * 4 * H  # both 17-step recurrences at least
-    assert comp["naive_macs_per_frame"] > 2 * comp["macs_per_frame"]  # 2.1x for the shipped small Mel model
+    # 1.6x for the shipped small Mel model: its encoders, which the naive loop re-runs over the window,
+    # are small beside the decoder, which both loops run in full
+    assert comp["naive_macs_per_frame"] > 1.3 * comp["macs_per_frame"]
     assert rep["per_frame"]["frames"] == 60 and rep["cpu_peak_gflops_1thread"] > 0
     assert 0 < rep["fraction_of_peak"] < 1

@@ -286,8 +286,14 @@ def pose_to_motion(skel: Skeleton, pose: np.ndarray, root_pos: np.ndarray | None
     """Upper-body pose rot6d (T, 47, 6) → BVH motion (T, C); other joints at rest (0°)."""
     if pose.ndim != 3 or pose.shape[1:] != (N_JOINTS, 6):
         raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {pose.shape}")
-    T = pose.shape[0]
-    mats = np.broadcast_to(np.eye(3), (T, skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(pose.astype(np.float64))
-    euler = matrices_to_euler(skel, mats)
+    # only the 47 generated joints are converted (the rest stay at 0°): once per frame when streaming
+    idx, layout = upper_body_indices(skel), _channel_layout(skel)
+    cached = skel.__dict__.get("_upper_body_orders")  # their Euler orders, kept beside what they come from
+    if cached is None or cached[0] is not layout or cached[1] is not idx:
+        cached = skel.__dict__["_upper_body_orders"] = (layout, idx, tuple(layout[0][j] for j in idx))
+    angles = rot.matrix_to_euler(rot.rot6d_to_matrix(pose.astype(np.float64)), cached[2], degrees=True)
+    if angles.shape[0] > 1:
+        angles = np.unwrap(angles, period=360.0, axis=0)  # as matrices_to_euler
+    euler = np.zeros((pose.shape[0], skel.n_joints, 3))
+    euler[:, idx] = angles
     return euler_to_motion(skel, euler, root_pos)

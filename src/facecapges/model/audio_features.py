@@ -25,8 +25,8 @@ frames) and the streaming path (one (1, S) frame per step) call the same
 :meth:`AudioFeatures.forward` and get the same values (``test_audio_features``). Librosa's
 ``power_to_db(top_db=80)`` is *not* used: it clips relative to the maximum of the whole
 input, which would make a frame's value depend on the future. The module is pure
-torch (``torch.stft``, ``torch.fft``) so it runs inside the model and in TorchScript;
-its Mel matrix comes from Librosa.
+torch (``torch.fft``: one call for the frame's five windows, one for the autocorrelation)
+so it runs inside the model; its Mel matrix comes from Librosa.
 """
 
 from __future__ import annotations
@@ -50,6 +50,8 @@ class AudioFeatures(nn.Module):
     """(…, S) frames of samples → (…, 43) log-Mel, energy, log-F0, voicing (module docs)."""
 
     mel_basis: torch.Tensor  # (40, 257) buffer
+    mel_basis_t: torch.Tensor  # its transpose (257, 40)
+    log_f0_of_lag: torch.Tensor  # log2(F0 / 100 Hz) of each autocorrelation lag lag_min … lag_max
     window: torch.Tensor  # (N_FFT,) buffer
 
     def __init__(self, sr: int, samples_per_frame: int):
@@ -60,30 +62,36 @@ class AudioFeatures(nn.Module):
             raise ValueError(f"a frame of {samples_per_frame} samples is shorter than the {N_FFT}-sample FFT")
         mel = librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)  # (40, 257), Slaney scale and norm
         self.register_buffer("mel_basis", torch.from_numpy(mel).float(), persistent=False)
+        self.register_buffer("mel_basis_t", self.mel_basis.t().contiguous(), persistent=False)
         self.register_buffer("window", torch.hann_window(N_FFT, periodic=True), persistent=False)
         self.sr = float(sr)
         self.lag_min = int(math.floor(sr / F0_MAX_HZ))
         self.lag_max = int(math.ceil(sr / F0_MIN_HZ))
+        # FFT length of the autocorrelation: any n ≥ S + lag_max leaves lags ≤ lag_max free of
+        # wrap-around; the smallest 2^k or 3·2^k above it is a fast length (1536 for 1067 samples)
+        need = samples_per_frame + self.lag_max
+        self.n_ac = 1 << (need - 1).bit_length()
+        if 3 * self.n_ac // 4 >= need:
+            self.n_ac = 3 * self.n_ac // 4
+        lags = torch.arange(self.lag_min, self.lag_max + 1, dtype=torch.float32)
+        self.register_buffer("log_f0_of_lag", torch.log2(self.sr / lags / 100.0), persistent=False)
         self.dim = FEATURE_DIM
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         shape = frames.shape[:-1]
         x = frames.reshape(-1, frames.shape[-1]).float()  # (B, S)
-        spec = torch.stft(x, N_FFT, HOP, N_FFT, self.window, center=False, return_complex=True)  # (B, 257, n)
-        power = spec.real**2 + spec.imag**2
-        mel = torch.matmul(self.mel_basis, power).mean(-1)  # (B, 40)
-        log_mel = 10.0 * torch.log10(torch.clamp(mel, min=1e-10))
-        energy = 10.0 * torch.log10((x * x).mean(-1, keepdim=True) + 1e-10)  # (B, 1)
+        # = torch.stft(x, N_FFT, HOP, window=self.window, center=False): the frame's windows, one FFT call
+        spec = torch.fft.rfft(x.unfold(-1, N_FFT, HOP) * self.window)  # (B, n, 257)
+        power = (spec * spec.conj()).real.mean(1)  # (B, 257): |X|² averaged over the windows (the Mel map is linear)
+        log_mel = torch.log10(torch.matmul(power, self.mel_basis_t).clamp_(min=1e-10)).mul_(10.0)  # (B, 40)
+        energy = torch.log10((x * x).mean(-1, keepdim=True).add_(1e-10)).mul_(10.0)  # (B, 1)
         # F0: normalised autocorrelation of the mean-removed frame (zero-padded FFT, no wrap-around)
         x0 = x - x.mean(-1, keepdim=True)
-        n = 2 * x.shape[-1]
-        f = torch.fft.rfft(x0, n=n)
-        ac = torch.fft.irfft(f.real**2 + f.imag**2, n=n)[:, : self.lag_max + 1]
-        norm = ac[:, self.lag_min : self.lag_max + 1] / torch.clamp(ac[:, :1], min=1e-8)
+        f = torch.fft.rfft(x0, n=self.n_ac)
+        ac = torch.fft.irfft((f * f.conj()).real, n=self.n_ac)[:, : self.lag_max + 1]
+        norm = ac[:, self.lag_min :] / ac[:, :1].clamp(min=1e-8)
         peak, idx = norm.max(-1)
-        voicing = torch.clamp(peak, 0.0, 1.0)
-        f0 = self.sr / (idx + self.lag_min).float()
-        voiced = (voicing >= VOICED_MIN).float()
-        log_f0 = torch.log2(f0 / 100.0) * voiced
+        voicing = peak.clamp_(0.0, 1.0)
+        log_f0 = torch.where(voicing >= VOICED_MIN, self.log_f0_of_lag[idx], 0.0)  # log2(F0 / 100 Hz), 0 unvoiced
         out = torch.cat([log_mel, energy, log_f0[:, None], voicing[:, None]], -1)
         return out.reshape(shape + (FEATURE_DIM,))

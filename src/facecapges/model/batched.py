@@ -13,15 +13,21 @@ LSTM states, "no input" — zero features — before the stream):
 ==================  =====================  ===========================================
 tensor              shape                  meaning
 ==================  =====================  ===========================================
-``x_audio``         (S, R_a, L_a, C_a)     ring of the audio TCN's layer inputs of the
-                                           last R_a = max(d_i) frames (row f mod R_a)
+``x_audio``         (S, R_a, L_a, C_a)     shift register of the audio TCN's layer
+                                           inputs of the last R_a = max(d_i) frames,
+                                           newest first (:class:`TCNTaps`)
 ``x_face``          (S, R_f, L_f, C_f)     same for the face TCN
-``gx_t``, ``gx_u``  (S, N, 4H)             ring of the history frames' LSTM input
-                                           projections ``W_ih·[z_τ; s_τ] + b``
+``gx``              (S, N, 8H)             the history frames' LSTM input projections
+                                           ``W_ih·[z_τ; s_τ] + b``, torso | limb,
+                                           oldest first
 ``hc``              (S, 2, 2H)             [h_t | h_u], [c_t | c_u]: torso and limb
                                            LSTM states, carried across steps (4.1.4)
 ``frames``          (S,)                   frames pushed so far
 ==================  =====================  ===========================================
+
+A step reads each of its slots' rows with one gather and writes them back shifted
+by one frame (``index_select`` / ``index_copy_``), so every stream's past sits at the
+same rows whatever its frame count and no ring index is computed per step.
 
 The kernel of one step, stage by stage (each stage is a ``torch.profiler`` scope named
 ``facecapges::<stage>``, so ``bench`` reads the stage timings from a profile of the
@@ -30,16 +36,20 @@ real step, not from a copy of it):
 * ``input_prep`` — samples / weights → (B, S), (B, 52), (B, 6) tensors, NaN → 0;
 * ``audio_frontend`` — :meth:`audio_features`, the model's per-frame audio front end
   over this frame's samples only (a separate call, so another front end slots in);
-* ``audio_tcn`` / ``face_encoder`` — one :func:`tcn_tap` per TCN layer: layer i reads
-  its input of d_i frames ago from the ring (kernel 2, causal), so a new frame costs
-  one tap per layer and gives the same embedding as encoding the whole stream;
+* ``audio_tcn`` / ``face_encoder`` — :meth:`TCNTaps.step`: layer i reads its input of
+  d_i frames ago from the shift register (kernel 2, causal), so a new frame costs one
+  tap per layer and gives the same embedding as encoding the whole stream;
 * ``head_encoder`` — the head MLP;
 * ``decoder`` — both LSTMs over the N+1 window. The input projection of a history
   frame is fixed once its pose is known, so it is computed once per frame and kept
-  (``gx_*``); a step projects only the current frame (pose slot zero, eq. 3.5) and the
+  (``gx``); a step projects only the current frame (pose slot zero, eq. 3.5) and the
   torso outputs that feed the limb LSTM (eq. 4.13), runs both N+1-step recurrences
   (:class:`Cascade`) from the carried state, decodes the last step with the MLP
-  heads, and writes the new frame's projections into the history ring (eq. 4.11).
+  heads, and shifts the new frame's projections into the history (eq. 4.11).
+
+The encoders' and heads' small layers run as :func:`affine_chain` calls (weights
+transposed once, input standardisation folded in) rather than as module calls, whose
+dispatch costs more than the arithmetic of a 32-wide layer.
 
 Decoders with more than one LSTM layer run ``FaceCapGes.step`` on the gathered
 windows instead (the training code path; rings of embeddings and poses).
@@ -48,16 +58,15 @@ Nothing mixes across the batch axis: each stream's output equals the naive
 re-windowed loop's on the same inputs (tested to 1e-5), and a one-slot generator gives
 the same poses as a slot of a batch.
 
-What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13): measured
-on this 2-core machine, default checkpoint, one thread, the candidates interleaved in
-one run; CPU ms per step (``time.thread_time``, so the other helpers' load — average
-16–22 during the run — inflates all alike, ~3× a quiet machine's figures):
+What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13), chosen by
+measurement. A first session measured, CPU ms per step, default checkpoint of the time,
+one thread, interleaved in one run under heavy load (~3× a quiet machine's figures):
 
 =====================================  =========  =========  ===============================
 kernel                                 B = 1      B = 64     start-up
 =====================================  =========  =========  ===============================
 TorchScript (the old step)             2.47       19.7       ~1 s (scripting)
-eager, this module (before lockstep)   3.20       22.6       none
+eager, before lockstep                 3.20       22.6       none
 torch.compile (inductor) of the step   2.42       18.4       191 s (B = 1), 210 s (B = 64)
                                                              cold, per batch shape; 5.5 s
                                                              from a warm on-disk cache
@@ -65,27 +74,46 @@ torch.export, the LSTM window only     1.74       —          18.6 s to export
   (same window in eager: 1.08)
 =====================================  =========  =========  ===============================
 
-Chosen: **eager**. torch.compile runs no faster than TorchScript did and needs minutes
-of compilation for every checkpoint shape and batch size on first use — every
-``run``, ``live``, test and ``serve`` start would pay it on a fresh machine;
-``torch.export``'s program, run from Python, is slower than the eager code it records
-(and AOT-compiling it costs what inductor costs). What eager loses (1.3× CPU at one
-stream) is won back where it matters: the two LSTMs run in lockstep for small batches
-(:class:`Cascade`: 1.53 vs 1.67 ms for the decoder at B = 1, same run), Euler
-conversion moved to one vectorised pass (:func:`facecapges.rotations.matrix_to_euler`),
-and ``serve`` — which needed TorchScript's single GIL-free call so its event loop and
-the model would not wait for each other — runs this kernel in a process of its own
-(:mod:`facecapges.serving.model_process`).
+torch.compile runs no faster than TorchScript did and needs minutes of compilation for
+every checkpoint shape and batch size on first use (every ``run``, ``live``, test and
+``serve`` start would pay it on a fresh machine); ``torch.export``'s program, run from
+Python, is slower than the eager code it records. So the kernel is **eager**, with the
+per-operation cost cut instead: one stream's step made 404 torch calls before and makes
+172 now (shift registers instead of ring indices, the TCNs' past taps as one
+``baddbmm``, :func:`affine_chain`, both LSTMs' projections as one product, the lockstep
+recurrence in NumPy — :class:`Cascade`), and the Mel front end lost half its calls
+(one FFT call for the frame's windows, a fast autocorrelation length). Side by side in
+one process (default Mel checkpoint, one thread, 450 frames in alternating blocks of
+25, load average 5.0; wall-clock p50 ms per frame; the TorchScript step is the one of
+commit 740f14e^ run on today's model; the naive loop is timed with main's code and with
+this one's, whose Mel front end makes it 1.5× faster too):
 
-Where the rest of the CPU's peak goes (the step's 12 MFLOP reach a few % of the
-~100 GFLOP/s single-thread matmul peak, ``bench``'s ``fraction_of_peak``): the step is
-~360 small tensor operations, each a few µs of dispatch and allocation whatever its
-size (per-op overhead, most of the time at B = 1); its products are matrix–vector
-products (B = 1) that read every weight once per use — ~9 MB of weights per frame
-(the LSTMs' W_hh 17 times each) streamed from L2/L3, so they run at memory speed, not
-at the FMA units' peak; the audio front end's small strided convolutions are far
-from GEMM efficiency. Batching (``serve``) turns the products into matrix–matrix ones
-and spreads the per-op overhead over the streams.
+============================================  =====  ============  ===========  ===========
+kernel                                        step   step + Euler  main's naive this naive
+                                                                   / step       / step
+============================================  =====  ============  ===========  ===========
+eager before this change (main, 2026-12-01)   1.756  2.046         2.03×        1.36×
+TorchScript step (740f14e^)                   1.353  1.592         2.63×        1.77×
+eager, this module                            0.922  1.075         3.86×        2.60×
+naive re-windowed loop, main's code           3.559  —             1            —
+naive re-windowed loop, this code             2.394  —             —            1
+============================================  =====  ============  ===========  ===========
+
+Where the CPU's peak goes. The step does 1.12 M multiply–adds (``bench``'s
+``compute``: 95 % of them in the decoder) — 2.2 MFLOP, ~2 GFLOP/s at its ~1 ms, 2–3 %
+of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``, 1.9 % at
+load 6). (The 6.9 GFLOP/s once quoted were an older, larger default model's 12 MFLOP
+per step: the rate follows the model's size more than the kernel's speed.)
+The rest goes to: (1) per-call overhead — 172 torch calls and ~200 NumPy calls per
+frame cost 1–3 µs and 0.5–1 µs each whatever their size, most of the step at B = 1;
+(2) memory, not arithmetic, for the products that remain: at B = 1 every product is a
+matrix–vector one, 1 multiply–add per 4-byte weight read, and the recurrence streams
+its (2H × 8H) weight 18 times per frame (4.7 MB, from L2) — at L2 speed (~40–50 GB/s)
+that alone caps a matrix–vector product at ~20–25 GFLOP/s, a quarter of the FMA
+units' peak, before any overhead; (3) work the counter does not count — the FFTs and
+the element-wise gates, activations and Euler trigonometry. Batching (``serve``)
+turns the products into matrix–matrix ones and spreads the per-call overhead over
+the streams; at one stream only fewer calls (or native code) would close the gap.
 
 Thread safety: every public method takes one internal lock, so one thread may
 open/close slots while another steps.
@@ -100,9 +128,10 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.special import expit
 from torch.autograd.profiler import record_function
 
-from facecapges.model.network import FaceCapGes
+from facecapges.model.network import FaceCapGes, MelFrontend
 
 STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_encoder", "decoder")
 _NO_SCOPE = contextlib.nullcontext()
@@ -133,6 +162,11 @@ def initial_window(initial_pose: np.ndarray | None, neutral_window: np.ndarray) 
     return window
 
 
+def _finite(a: np.ndarray) -> np.ndarray:
+    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small arrays)."""
+    return np.where(np.isfinite(a), a, a.dtype.type(0))
+
+
 def pack_audio(frames: Sequence[np.ndarray], samples_per_frame: int) -> np.ndarray:
     """Per-stream frame audio (each ≤ S samples) → (B, S) float32, zero padded, NaN → 0."""
     out = np.zeros((len(frames), samples_per_frame), np.float32)
@@ -141,14 +175,14 @@ def pack_audio(frames: Sequence[np.ndarray], samples_per_frame: int) -> np.ndarr
         if a.shape[0] > samples_per_frame:
             raise ValueError(f"a frame owns at most {samples_per_frame} audio samples, got {a.shape[0]}")
         out[i, : a.shape[0]] = a
-    return np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0, copy=False)
+    return _finite(out)
 
 
 def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:
     a = np.asarray(x, dtype=np.float32).reshape(batch, -1)
     if a.shape[1] != n:
         raise ValueError(f"{what} must have {n} values per stream, got {a.shape[1]}")
-    return torch.from_numpy(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0))
+    return torch.from_numpy(_finite(a))
 
 
 def no_input_embedding(model) -> torch.Tensor:
@@ -164,38 +198,89 @@ def no_input_embedding(model) -> torch.Tensor:
     return torch.cat([z_a, z_f, model.head_enc(torch.zeros(1, 1, 6))], -1)[0, 0]
 
 
-# ------------------------------------------------------------------ the kernel's pieces
-def tcn_tap(
-    x_now: torch.Tensor,
-    x_past: torch.Tensor,
-    b: torch.Tensor,
-    w_now: torch.Tensor,
-    w_past: torch.Tensor,
-    extra: torch.Tensor | None = None,
-) -> torch.Tensor:
-    """One frame through one causal TCN layer: ``act(W [x_{t-d}; x_t] + b (+ extra))``.
-
-    The arithmetic of :meth:`~facecapges.model.network.CausalTCN.layer` with its weight
-    split into the blocks acting on the past and the current tap (``w_past``, ``w_now``,
-    transposed, (C, C) each); ``x_now``, ``x_past`` (B, C).
+def affine_chain(module: torch.nn.Module | Sequence[torch.nn.Module]) -> Callable[[torch.Tensor], torch.Tensor]:
+    """``module`` (a Linear, StandardizedLinear, (Leaky)ReLU or a sequence of them) as
+    plain ``addmm`` / activation calls on weights transposed once: the same function of
+    (B, in) rows without a module call per layer (~2 µs each, more than a small layer's
+    arithmetic). A StandardizedLinear's standardisation is folded into its weights,
+    ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``. Other modules are called as they are.
     """
-    y = torch.addmm(b, x_now, w_now).addmm_(x_past, w_past)
-    if extra is not None:
-        y += extra
-    return F.leaky_relu(y, 0.2)
+    from facecapges.model.network import StandardizedLinear
+
+    def affine(w_t: torch.Tensor, b_row: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
+        return lambda x: torch.addmm(b_row, x, w_t)
+
+    def leaky(slope: float) -> Callable[[torch.Tensor], torch.Tensor]:
+        return lambda x: F.leaky_relu(x, slope)
+
+    steps: list[Callable[[torch.Tensor], torch.Tensor]] = []
+    mods = list(module) if isinstance(module, (torch.nn.Sequential, list, tuple)) else [module]
+    for mod in mods:
+        if isinstance(mod, torch.nn.Linear) and type(mod) in (torch.nn.Linear, StandardizedLinear):
+            w = mod.weight.detach()
+            b = mod.bias.detach() if mod.bias is not None else torch.zeros(w.shape[0])
+            if isinstance(mod, StandardizedLinear):
+                b = b - w @ (mod.in_mean * mod.in_scale)
+                w = w * mod.in_scale
+            steps.append(affine(w.t().contiguous(), b[None].clone()))
+        elif isinstance(mod, torch.nn.LeakyReLU):
+            steps.append(leaky(mod.negative_slope))
+        elif isinstance(mod, torch.nn.ReLU):
+            steps.append(torch.relu)
+        else:
+            assert isinstance(mod, torch.nn.Module)
+            steps.append(mod)
+    if len(steps) == 1:
+        return steps[0]
+
+    def run(x: torch.Tensor) -> torch.Tensor:
+        for f in steps:
+            x = f(x)
+        return x
+
+    return run
 
 
-def split_tcn(tcn) -> list[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
-    """Each layer's (b, W_now^T, W_past^T) of a CausalTCN, split once for :func:`tcn_tap`."""
-    C = tcn.layers[0].weight.shape[0]
-    return [
-        (
-            lin.bias.detach()[None].clone(),
-            lin.weight.detach()[:, C:].t().contiguous(),
-            lin.weight.detach()[:, :C].t().contiguous(),
-        )
-        for lin in tcn.layers
-    ]
+class TCNTaps:
+    """A CausalTCN split for one new frame at a time: the taps of :meth:`CausalTCN.layer`.
+
+    Layer i computes ``act(W_i [x_{t-d_i}; x_t] + b_i (+ extra))``, its weight split into
+    the blocks acting on the past tap and on the current one. The past inputs live in a
+    *shift register* ``reg`` (S, R, L, C) per slot: ``reg[s, r, i]`` is layer i's input
+    r + 1 frames ago (R = max d_i, newest first), so the past tap of layer i is always
+    row d_i − 1 — a fixed gather, the same for every stream whatever its frame count.
+    The past taps of all layers are known before the frame starts: they go through their
+    blocks as one batched product (``baddbmm``); the current taps run layer by layer.
+    """
+
+    def __init__(self, tcn):
+        w = torch.stack([lin.weight.detach() for lin in tcn.layers])  # (L, C, 2C) = [past | now]
+        L, C = w.shape[0], w.shape[1]
+        self.R, self.L, self.C = max(tcn.dilations), L, C
+        self.past_rows = torch.tensor([(d - 1) * L + i for i, d in enumerate(tcn.dilations)])  # into (R·L, C)
+        self.w_past = w[:, :, :C].transpose(1, 2).contiguous()  # (L, C, C), acting on the right of x
+        self.w_now = [w[i, :, C:].t().contiguous() for i in range(L)]
+        self.b = torch.stack([lin.bias.detach() for lin in tcn.layers])[:, None]  # (L, 1, C)
+
+    def register(self, capacity: int) -> torch.Tensor:
+        """Zero shift registers (the causal zeros before a stream) for ``capacity`` slots."""
+        return torch.zeros(capacity, self.R, self.L, self.C)
+
+    def step(self, reg: torch.Tensor, idx: torch.Tensor, x: torch.Tensor, extra: torch.Tensor | None = None):
+        """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
+        B = x.shape[0]
+        held = reg.index_select(0, idx)  # (B, R, L, C)
+        past = held.view(B, self.R * self.L, self.C).index_select(1, self.past_rows).transpose(0, 1)  # (L, B, C)
+        pre = torch.baddbmm(self.b, past, self.w_past).unbind(0)  # each layer's b + W_past x_{t-d}
+        x0, xs = x, []
+        for i, w_now in enumerate(self.w_now):
+            xs.append(x)
+            y = torch.addmm(pre[i], x, w_now)
+            if extra is not None and i == self.L - 1:
+                y += extra
+            x = x + F.leaky_relu(y, 0.2)  # residual; x − x0 is the sum of the layers' outputs (the skips)
+        reg.index_copy_(0, idx, torch.cat([torch.stack(xs, 1)[:, None], held[:, :-1]], 1))
+        return x - x0
 
 
 def lstm_window(
@@ -221,68 +306,83 @@ def lstm_window(
 class Cascade:
     """The torso LSTM and the limb LSTM it conditions (eq. 4.12–4.13) over one window.
 
-    :meth:`run` takes the input gates of each window step, ``gx_t``, ``gx_u`` (B, W, 4H),
-    without the limb's torso-output term, and the carried states ``h``, ``c`` (B, 2H) as
-    ``[torso | limb]``; it returns the final ``h``, ``c``. Two schedules of the same
+    :meth:`run` takes the input gates of each window step, ``gx`` (B, W, 8H) as
+    ``[torso | limb]``, the limb's without its torso-output term, and the carried states
+    ``hc`` (B, 2, 2H) = ``[[h_t | h_u], [c_t | c_u]]``; it returns the final ones. Two schedules of the same
     recurrence (same gates as ``torch.nn.LSTM``, order i, f, g, o), chosen by batch size:
 
     * **lockstep** (B ≤ :attr:`LOCKSTEP_MAX_BATCH`): iteration m runs torso step m and
       limb step m − 1 as one cell — the limb's input at step m − 1 is the torso output
       h_t,m−1, exactly the torso half of the state iteration m starts from, so one
       ``[h_t | h_u] @ w`` (2H × 8H, gate columns interleaved ``[i_t i_u f_t f_u …]``)
-      gives both cells' recurrent gates and the limb's torso term: W + 1 cells of ~9
-      ops instead of 2W. Fewer ops win when the per-op overhead dominates (one stream);
-    * **sequential** (larger batches): the torso over the whole window, its outputs'
-      projection as one GEMM, then the limb — fewer multiply–adds (no zero block, W_x
-      read once), which wins once the products dominate.
+      gives both cells' recurrent gates and the limb's torso term: W + 1 cells instead
+      of 2W. It runs in NumPy: at one stream each cell is a (1 × 2H)·(2H × 8H) product
+      and a few element-wise operations on 128–512 numbers, where a NumPy call costs
+      ~0.5 µs and a torch call 1–3 µs of dispatch;
+    * **sequential** (larger batches, torch): the torso over the whole window, its
+      outputs' projection as one GEMM, then the limb — fewer multiply–adds (no zero
+      block, W_x read once), which wins once the products dominate.
 
-    Measured (CPU ms per kernel step, same run): lockstep vs sequential 1.53 vs 1.67 at
-    B = 1, 28.5 vs 22.6 at B = 64 (load 19, so ~3× a quiet machine's figures).
+    Measured (µs per window, one thread, same run): lockstep in torch 372 vs NumPy 161
+    at B = 1, 636 vs 368 at B = 4; at B = 64 the NumPy loop falls far behind (71 ms
+    against 3.6 ms for torch's sequential schedule), hence the split.
     """
 
     LOCKSTEP_MAX_BATCH = 4
 
     def __init__(self, lstm_t: torch.nn.LSTM, lstm_u: torch.nn.LSTM):
+        self.lockstep_max_batch = self.LOCKSTEP_MAX_BATCH  # 0: always sequential (``bench`` counts its FLOPs)
         H = self.H = lstm_t.hidden_size
         self.w_t = lstm_t.get_parameter("weight_hh_l0").detach().t().contiguous()  # (H, 4H)
         self.w_x = lstm_u.get_parameter("weight_ih_l0").detach()[:, -H:].t().contiguous()  # limb input = [e; s; o_t]
         self.w_u = lstm_u.get_parameter("weight_hh_l0").detach().t().contiguous()
         top = torch.stack([self.w_t.reshape(H, 4, H), self.w_x.reshape(H, 4, H)], 2)
         bottom = torch.stack([torch.zeros(H, 4, H), self.w_u.reshape(H, 4, H)], 2)
-        self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).contiguous()
+        self.w = torch.cat([top, bottom], 0).reshape(2 * H, 8 * H).numpy().copy()  # (2H, 8H), NumPy
 
-    def run(
-        self, gx_t: torch.Tensor, gx_u: torch.Tensor, h: torch.Tensor, c: torch.Tensor
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        B, W, _ = gx_t.shape
-        H = self.H
-        if B > self.LOCKSTEP_MAX_BATCH:
-            o_t, c_t = lstm_window(gx_t, h[:, :H], c[:, :H], self.w_t)
-            o_u, c_u = lstm_window(gx_u + torch.matmul(torch.stack(o_t, 1), self.w_x), h[:, H:], c[:, H:], self.w_u)
-            return torch.cat([o_t[-1], o_u[-1]], 1), torch.cat([c_t, c_u], 1)
-        z = gx_t.new_zeros(B, 1, 4, H)
-        gx = torch.stack([torch.cat([gx_t.view(B, W, 4, H), z], 1), torch.cat([z, gx_u.view(B, W, 4, H)], 1)], 3)
-        h_u, c_u = h[:, H:], c[:, H:]
-        for m, x in enumerate(gx.view(B, W + 1, 8 * H).unbind(1)):
-            g = torch.addmm(x, h, self.w)
-            i, f, _, o = g.sigmoid().chunk(4, 1)
-            c = torch.addcmul(f * c, i, g[:, 4 * H : 6 * H].tanh())
-            h = o * c.tanh()
+    def run(self, gx: torch.Tensor, hc: torch.Tensor) -> torch.Tensor:
+        """Input gates ``gx`` (B, W, 8H) = [torso | limb] per window step, carried ``hc`` (B, 2, 2H)
+        = [[h_t | h_u], [c_t | c_u]] → the final ``hc``."""
+        batch, W, _ = gx.shape
+        B, H = batch, self.H
+        if batch > self.lockstep_max_batch:
+            h, c = hc[:, 0], hc[:, 1]
+            o_t, c_t = lstm_window(gx[..., : 4 * H], h[:, :H], c[:, :H], self.w_t)
+            gx_u = gx[..., 4 * H :] + torch.matmul(torch.stack(o_t, 1), self.w_x)
+            o_u, c_u = lstm_window(gx_u, h[:, H:], c[:, H:], self.w_u)
+            return torch.stack([torch.cat([o_t[-1], o_u[-1]], 1), torch.cat([c_t, c_u], 1)], 1)
+        g_in = gx.numpy()
+        x = np.zeros((B, W + 1, 4, 2, H), np.float32)  # iteration m: torso gates of step m, limb's of m − 1
+        x[:, :W, :, 0] = g_in[..., : 4 * H].reshape(B, W, 4, H)
+        x[:, 1:, :, 1] = g_in[..., 4 * H :].reshape(B, W, 4, H)
+        hn, cn = hc.numpy().transpose(1, 0, 2)
+        w, g_ = self.w, slice(4 * H, 6 * H)
+        out = np.empty((B, 2, 2 * H), np.float32)
+        for m, xm in enumerate(x.reshape(B, W + 1, 8 * H).transpose(1, 0, 2)):
+            g = xm + hn @ w
+            s = expit(g)
+            c_new = s[:, 2 * H : 4 * H] * cn + s[:, : 2 * H] * np.tanh(g[:, g_])
+            h_new = s[:, 6 * H :] * np.tanh(c_new)
             if m == 0:  # there is no limb step −1: the limb state stays as carried
-                h, c = torch.cat([h[:, :H], h_u], 1), torch.cat([c[:, :H], c_u], 1)
+                h_new[:, H:], c_new[:, H:] = hn[:, H:], cn[:, H:]
             elif m == W - 1:  # the torso's last step
-                h_t, c_t = h[:, :H], c[:, :H]
-        return torch.cat([h_t, h[:, H:]], 1), torch.cat([c_t, c[:, H:]], 1)
+                out[:, 0, :H], out[:, 1, :H] = h_new[:, :H], c_new[:, :H]
+            hn, cn = h_new, c_new
+        out[:, 0, H:], out[:, 1, H:] = hn[:, H:], cn[:, H:]
+        return torch.from_numpy(out)
 
 
 class _LSTMBlocks:
-    """A one-layer ``nn.LSTM``'s W_ih blocks acting on the embedding and the pose of [e; s; extra]."""
+    """Both one-layer LSTMs' W_ih blocks acting on the embedding and the pose of [e; s; extra],
+    side by side ``[torso | limb]`` (4H + 4H gate columns), and their summed biases."""
 
-    def __init__(self, lstm: torch.nn.LSTM, e_dim: int, s_dim: int):
-        w = lstm.get_parameter("weight_ih_l0").detach()
-        self.w_e = w[:, :e_dim].t().contiguous()  # (E, 4H)
-        self.w_s = w[:, e_dim : e_dim + s_dim].t().contiguous()  # (J*6, 4H)
-        self.b = (lstm.get_parameter("bias_ih_l0") + lstm.get_parameter("bias_hh_l0")).detach()[None]  # (1, 4H)
+    def __init__(self, lstms: Sequence[torch.nn.LSTM], e_dim: int, s_dim: int):
+        w = [lstm.get_parameter("weight_ih_l0").detach() for lstm in lstms]
+        self.w_e = torch.cat([x[:, :e_dim] for x in w]).t().contiguous()  # (E, 8H)
+        self.w_s = torch.cat([x[:, e_dim : e_dim + s_dim] for x in w]).t().contiguous()  # (J*6, 8H)
+        self.b = torch.cat(
+            [(lstm.get_parameter("bias_ih_l0") + lstm.get_parameter("bias_hh_l0")).detach() for lstm in lstms]
+        )[None]  # (1, 8H)
 
 
 class BatchedStreamingGenerator:
@@ -297,15 +397,24 @@ class BatchedStreamingGenerator:
             raise ValueError(f"neutral window must be ({N}, {cfg.n_joints}, 6), got {nw.shape}")
         self.neutral_window = nw
         self._lock = threading.RLock()
-        self._audio_layers = split_tcn(model.audio_enc.tcn)
-        self._face_layers = split_tcn(model.face_enc.tcn)
-        self._d_audio = torch.tensor(cfg.audio_tcn_dilations)
-        self._d_face = torch.tensor(cfg.face_tcn_dilations)
+        self._audio_tcn = TCNTaps(model.audio_enc.tcn)
+        self._face_tcn = TCNTaps(model.face_enc.tcn)
+        fe, dec = model.face_enc, model.decoder
+        self._audio_mlp, self._face_inp, self._face_mlp = (
+            affine_chain(x) for x in (model.audio_enc.mlp, fe.inp, fe.mlp)
+        )
+        self._face_extra = affine_chain(fe.tcn.extra) if fe.tcn.extra is not None else None
+        self._head_t, self._head_u = affine_chain(dec.head_t), affine_chain(dec.head_u)
+        he = model.head_enc  # HeadEncoder.forward: fc2(relu(fc1(head))), or nothing without head pose
+        front = model.audio_enc.frontend  # MelFrontend.forward: out(leaky_relu(proj(features(samples))))
+        self._mel_mlp = (
+            affine_chain([front.proj, torch.nn.LeakyReLU(0.2), front.out]) if isinstance(front, MelFrontend) else None
+        )
+        self._head_enc = affine_chain([he.fc1, torch.nn.ReLU(), he.fc2]) if he.dim else he
         self.E = cfg.audio_dim + cfg.face_dim + cfg.head_dim
         self.fast = cfg.lstm_layers == 1
         if self.fast:
-            self._bt = _LSTMBlocks(model.decoder.lstm_t, self.E, cfg.pose_dim)
-            self._bu = _LSTMBlocks(model.decoder.lstm_u, self.E, cfg.pose_dim)
+            self._blocks = _LSTMBlocks((model.decoder.lstm_t, model.decoder.lstm_u), self.E, cfg.pose_dim)
             self._cascade = Cascade(model.decoder.lstm_t, model.decoder.lstm_u)
         self._hist_offsets = torch.arange(-N, 0)
         with torch.inference_mode():
@@ -316,36 +425,34 @@ class BatchedStreamingGenerator:
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ storage
-    # Every per-frame store is a ring: slot s's frame f lives at row f mod R (R = the
-    # ring length), so a step writes one row per stream and reads by index in time
-    # order instead of shifting whole windows. ``frames[s]`` counts s's frames.
+    # The TCNs' past inputs and the decoder's history are shift registers (newest last
+    # for the history, oldest first): a step reads a slot's rows in one gather and writes
+    # them back shifted by one frame. The multi-layer path keeps rings: slot s's frame f
+    # at row f mod R. ``frames[s]`` counts s's frames.
     def _alloc(self, capacity: int) -> None:
         """(Re)allocate the stacked state for ``capacity`` slots, keeping existing rows."""
         cfg, N, W, H, L = self.cfg, self.cfg.n_history, self.cfg.window, self.cfg.lstm_hidden, self.cfg.lstm_layers
         old = self.capacity
 
-        def grow(name: str, shape: tuple[int, ...], axis: int = 0, dtype: torch.dtype = torch.float32):
-            new = torch.zeros(shape, dtype=dtype)
+        def grow(name: str, new: torch.Tensor, axis: int = 0):
             if old:
                 prev = getattr(self, name)
                 new.narrow(axis, 0, prev.shape[axis]).copy_(prev)
             return new
 
-        self.x_audio = grow(
-            "x_audio", (capacity, max(cfg.audio_tcn_dilations), len(cfg.audio_tcn_dilations), cfg.audio_tcn_channels)
-        )
-        self.x_face = grow(
-            "x_face", (capacity, max(cfg.face_tcn_dilations), len(cfg.face_tcn_dilations), cfg.face_tcn_channels)
-        )
-        self.frames = grow("frames", (capacity,), dtype=torch.long)
+        self.x_audio = grow("x_audio", self._audio_tcn.register(capacity))
+        self.x_face = grow("x_face", self._face_tcn.register(capacity))
+        frames = np.zeros(capacity, np.int64)  # a NumPy counter: no torch call per step to read or bump it
+        if old:
+            frames[:old] = self.frames
+        self.frames: np.ndarray = frames
         if self.fast:
-            self.gx_t = grow("gx_t", (capacity, N, 4 * H))
-            self.gx_u = grow("gx_u", (capacity, N, 4 * H))
-            self.hc = grow("hc", (capacity, 2, 2 * H))  # [h_t | h_u], [c_t | c_u]
+            self.gx = grow("gx", torch.zeros(capacity, N, 8 * H))  # history frames' [torso | limb] input gates
+            self.hc = grow("hc", torch.zeros(capacity, 2, 2 * H))  # [h_t | h_u], [c_t | c_u]
         else:  # the model's own step: rings of embeddings and poses, (L, S, H) states
-            self.emb = grow("emb", (capacity, W, self.E))
-            self.hist = grow("hist", (capacity, N, cfg.pose_dim))
-            self.state = grow("state", (4, L, capacity, H), axis=2)
+            self.emb = grow("emb", torch.zeros(capacity, W, self.E))
+            self.hist = grow("hist", torch.zeros(capacity, N, cfg.pose_dim))
+            self.state = grow("state", torch.zeros(4, L, capacity, H), axis=2)
         self._free = sorted(set(self._free) | set(range(old, capacity)), reverse=True)
         self.capacity = capacity
 
@@ -391,9 +498,8 @@ class BatchedStreamingGenerator:
             self.x_audio[slot] = 0.0  # before the stream: the encoders' causal zeros
             self.x_face[slot] = 0.0
             if self.fast:
-                e = self._e0.expand(N, -1)
-                for blocks, ring in ((self._bt, self.gx_t), (self._bu, self.gx_u)):
-                    ring[slot] = torch.addmm(blocks.b, e, blocks.w_e).addmm_(hist, blocks.w_s)
+                bl = self._blocks
+                self.gx[slot] = torch.addmm(bl.b, self._e0.expand(N, -1), bl.w_e).addmm_(hist, bl.w_s)
                 self.hc[slot] = 0.0
             else:
                 self.hist[slot] = hist
@@ -403,73 +509,47 @@ class BatchedStreamingGenerator:
     # ------------------------------------------------------------- the kernel
     def audio_features(self, audio: torch.Tensor) -> torch.Tensor:
         """The audio front end of one frame per stream: (B, S) samples → (B, C) TCN input."""
-        return self.model.audio_enc.frontend(audio[:, None])[:, 0]
+        front = self.model.audio_enc.frontend
+        if isinstance(front, MelFrontend) and self._mel_mlp is not None:
+            return self._mel_mlp(front.features(audio))
+        return front(audio[:, None])[:, 0]
 
     def _clean_inputs(self, audio, face, head, B: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """(B, S) audio, (B, 52) face, (B, 6) head tensors; NaN/inf → 0."""
         cfg = self.cfg
         if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == cfg.samples_per_frame:
-            a = torch.from_numpy(np.nan_to_num(audio.astype(np.float32, copy=False), nan=0.0, posinf=0.0, neginf=0.0))
+            a = torch.from_numpy(_finite(audio.astype(np.float32, copy=False)))
         else:
             a = torch.from_numpy(pack_audio(audio, cfg.samples_per_frame))
         if a.shape[0] != B:
             raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
         return a, _rows(face, cfg.n_face, "face", B), _rows(head, 6, "head rot6d", B)
 
-    @staticmethod
-    def _tcn(
-        layers,
-        ring: torch.Tensor,
-        dil: torch.Tensor,
-        idx: torch.Tensor,
-        frames: torch.Tensor,
-        x: torch.Tensor,
-        extra: torch.Tensor | None = None,
-    ) -> torch.Tensor:
-        """New frames (B, C) of streams ``idx`` through a CausalTCN; updates its ring, returns the skip sum."""
-        R, L = ring.shape[1], ring.shape[2]
-        past = ring[idx[:, None], torch.remainder(frames[:, None] - dil, R), torch.arange(L)].unbind(1)
-        xs, ys = [], []
-        for i, (b, w_now, w_past) in enumerate(layers):
-            xs.append(x)
-            y = tcn_tap(x, past[i], b, w_now, w_past, extra if i == L - 1 else None)
-            ys.append(y)
-            x = x + y
-        ring[idx, torch.remainder(frames, R)] = torch.stack(xs, 1)
-        return torch.stack(ys).sum(0)
-
-    def _encode(
-        self, idx: torch.Tensor, frames: torch.Tensor, a: torch.Tensor, f: torch.Tensor, h: torch.Tensor
-    ) -> torch.Tensor:
+    def _encode(self, idx: torch.Tensor, a: torch.Tensor, f: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
         """This frame of every stream in ``idx`` → its embedding [z_A; z_F; z_H] (B, E)."""
-        m = self.model
         with stage("audio_frontend"):
             feat = self.audio_features(a)
         with stage("audio_tcn"):
-            z_a = m.audio_enc.mlp(self._tcn(self._audio_layers, self.x_audio, self._d_audio, idx, frames, feat))
+            z_a = self._audio_mlp(self._audio_tcn.step(self.x_audio, idx, feat))
         with stage("face_encoder"):
-            extra = m.face_enc.tcn.extra(z_a) if m.face_enc.tcn.extra is not None else None
-            z_f = m.face_enc.mlp(
-                self._tcn(self._face_layers, self.x_face, self._d_face, idx, frames, m.face_enc.inp(f), extra)
-            )
+            extra = self._face_extra(z_a) if self._face_extra is not None else None
+            z_f = self._face_mlp(self._face_tcn.step(self.x_face, idx, self._face_inp(f), extra))
         with stage("head_encoder"):
-            z_h = m.head_enc(h)
+            z_h = self._head_enc(h)
         return torch.cat([z_a, z_f, z_h], -1)
 
-    def _decode(self, idx: torch.Tensor, frames: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
+    def _decode(self, idx: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
         """Both LSTMs over each stream's window from the cached projections → pose (B, J*6)."""
-        N, dec, bt, bu = self.cfg.n_history, self.model.decoder, self._bt, self._bu
-        rows = torch.remainder(frames[:, None] + self._hist_offsets, N)  # (B, N): history, oldest first
-        cur_t = torch.addmm(bt.b, e, bt.w_e)  # the current frame: its pose slot is zero (eq. 3.5)
-        cur_u = torch.addmm(bu.b, e, bu.w_e)
-        hc = self.hc[idx]  # (B, 2, 2H)
-        gx_t = torch.cat([self.gx_t[idx[:, None], rows], cur_t[:, None]], 1)  # (B, N+1, 4H)
-        gx_u = torch.cat([self.gx_u[idx[:, None], rows], cur_u[:, None]], 1)
-        h, c = self._cascade.run(gx_t, gx_u, hc[:, 0], hc[:, 1])  # eq. 4.12-4.13
-        self.hc[idx] = torch.stack([h, c], 1)
-        H = self.cfg.lstm_hidden
-        pose = torch.cat([dec.head_t(h[:, :H]), dec.head_u(h[:, H:])], -1)  # only the last step is decoded
-        self._push_pose(idx, frames, e, pose, (cur_t, cur_u))
+        bl, H = self._blocks, self.cfg.lstm_hidden
+        cur = torch.addmm(bl.b, e, bl.w_e)  # the current frame: its pose slot is zero (eq. 3.5)
+        held = self.gx.index_select(0, idx)  # (B, N, 8H): the history, oldest first
+        gx = torch.cat([held, cur[:, None]], 1)  # (B, N+1, 8H)
+        hc = self._cascade.run(gx, self.hc.index_select(0, idx))  # eq. 4.12-4.13, (B, 2, 2H)
+        self.hc.index_copy_(0, idx, hc)
+        h = hc[:, 0]
+        pose = torch.cat([self._head_t(h[:, :H]), self._head_u(h[:, H:])], -1)  # only the last step is decoded
+        # the frame joins the history with its pose (eq. 4.11): the oldest frame leaves
+        self.gx.index_copy_(0, idx, torch.cat([held[:, 1:], torch.addmm(cur, pose, bl.w_s)[:, None]], 1))
         return pose
 
     def _decode_model(self, idx: torch.Tensor, frames: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
@@ -481,71 +561,53 @@ class BatchedStreamingGenerator:
         st = self.state[:, :, idx]
         pose, ((h_t, c_t), (h_u, c_u)) = self.model.step(emb, hist, ((st[0], st[1]), (st[2], st[3])))
         self.state[:, :, idx] = torch.stack([h_t, c_t, h_u, c_u])
-        self._push_pose(idx, frames, e, pose)
+        self.hist[idx, torch.remainder(frames, N)] = pose
         return pose
 
-    def _push_pose(
-        self,
-        idx: torch.Tensor,
-        frames: torch.Tensor,
-        e: torch.Tensor | None,
-        pose: torch.Tensor,
-        cur: tuple[torch.Tensor, torch.Tensor] | None = None,
-    ) -> None:
-        """Frame f's pose (B, J*6) joins the history of streams ``idx`` (eq. 4.11).
-
-        One-layer decoders keep it as the frame's LSTM input projections (``cur``: its
-        pose-free part ``W_e e + b`` if already made).
-        """
-        row = torch.remainder(frames, self.cfg.n_history)
-        if self.fast:
-            for blocks, ring, c in (
-                (self._bt, self.gx_t, cur[0] if cur else None),
-                (self._bu, self.gx_u, cur[1] if cur else None),
-            ):
-                if c is None:
-                    assert e is not None  # without ``cur`` the embedding makes the pose-free part
-                    c = torch.addmm(blocks.b, e, blocks.w_e)
-                ring[idx, row] = c.addmm(pose, blocks.w_s)
-        else:
-            self.hist[idx, row] = pose
-        self.frames[idx] = frames + 1
-
-    def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, list[int]]:
         ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
         if len(set(ids)) != len(ids):
             raise ValueError("a stream can take only one frame per batched step")
         closed = [s for s in ids if s not in self._open]
         if closed:
             raise KeyError(f"slot(s) {closed} are not open")
-        idx = torch.tensor(ids, dtype=torch.long)
-        return idx, self.frames[idx]
+        return torch.tensor(ids, dtype=torch.long), ids
 
     # ------------------------------------------------------------------ API
     @torch.inference_mode()
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame with a known pose per stream (no generation, LSTM state untouched)."""
         with self._lock:
-            idx, frames = self._ids(slots)
+            idx, ids = self._ids(slots)
             a, f, h = self._clean_inputs(audio, face, head, len(idx))
-            e = self._encode(idx, frames, a, f, h)
+            e = self._encode(idx, a, f, h)
             p = torch.from_numpy(np.asarray(pose, dtype=np.float32).reshape(len(idx), -1).copy())
-            if not self.fast:
-                self.emb[idx, torch.remainder(frames, self.cfg.window)] = e
-            self._push_pose(idx, frames, e, p)
+            if self.fast:
+                bl = self._blocks
+                new = torch.addmm(bl.b, e, bl.w_e).addmm_(p, bl.w_s)
+                self.gx.index_copy_(0, idx, torch.cat([self.gx.index_select(0, idx)[:, 1:], new[:, None]], 1))
+            else:
+                N, W, frames = self.cfg.n_history, self.cfg.window, torch.from_numpy(self.frames[ids])
+                self.emb[idx, torch.remainder(frames, W)] = e
+                self.hist[idx, torch.remainder(frames, N)] = p
+            self.frames[ids] += 1
 
     @torch.inference_mode()
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame for each stream in ``slots``: audio (B, ≤S) (array or list), face (B, 52),
         head (B, 6) → poses (B, 47, 6) rot6d, in the order of ``slots``."""
         with self._lock:
-            idx, frames = self._ids(slots)
+            idx, ids = self._ids(slots)
             B = len(idx)
             if B == 0:
                 return np.zeros((0, self.cfg.n_joints, 6), np.float32)
             with stage("input_prep"):
                 a, f, h = self._clean_inputs(audio, face, head, B)
-            e = self._encode(idx, frames, a, f, h)
+            e = self._encode(idx, a, f, h)
             with stage("decoder"):
-                pose = self._decode(idx, frames, e) if self.fast else self._decode_model(idx, frames, e)
+                if self.fast:
+                    pose = self._decode(idx, e)
+                else:
+                    pose = self._decode_model(idx, torch.from_numpy(self.frames[ids]), e)
+            self.frames[ids] += 1
             return pose.reshape(B, self.cfg.n_joints, 6).numpy()
