@@ -18,6 +18,7 @@ same name as a shipped one takes precedence.
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from importlib import resources
@@ -124,8 +125,9 @@ class Checkpoint:
     meta: dict
     path: Path
 
-    @property
+    @functools.cached_property
     def skeleton(self) -> Skeleton:
+        """The checkpoint's skeleton, built once (its per-joint caches then serve every frame)."""
         return skeleton_from_dict(self.meta["skeleton"])
 
     @property
