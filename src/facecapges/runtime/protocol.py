@@ -51,6 +51,7 @@ import time
 from collections.abc import Iterator, Sequence
 
 import numpy as np
+import orjson
 
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
@@ -121,8 +122,8 @@ def encode_poses(
     w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5).tolist()
     h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6).tolist()
     lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
-    for i in range(B):
-        yield json.dumps(
+    for i in range(B):  # orjson: the same compact JSON as json.dumps, ~8x faster (it is serve's cost per frame)
+        yield orjson.dumps(
             {
                 "type": "pose",
                 "frame": int(frames[i]),
@@ -134,9 +135,8 @@ def encode_poses(
                 "face": int(face_index[i]) if face_index is not None else 0,
                 "latency_ms": {k: _r(v, 3) for k, v in lat(i).items()},
                 "sent_ms": _r(time.time() * 1000.0, 1),
-            },
-            separators=(",", ":"),
-        )
+            }
+        ).decode()
 
 
 def encode_input(frame: int, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> str:
@@ -172,8 +172,8 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
     if len(text.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
         raise ProtocolError(f"message larger than {MAX_MESSAGE_BYTES} bytes")
     try:
-        msg = json.loads(text)
-    except json.JSONDecodeError as exc:
+        msg = orjson.loads(text)  # ~7x faster than json.loads; deeper than 1,024 levels is an error
+    except json.JSONDecodeError as exc:  # orjson.JSONDecodeError is one
         raise ProtocolError(f"not JSON ({exc.msg})") from None
     except ValueError as exc:  # e.g. an integer of more digits than Python converts
         raise ProtocolError(f"not JSON ({str(exc)[:80]})") from None
@@ -212,7 +212,7 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
 def decode_pose(text: str) -> dict:
     """Parse a ``pose`` message (for clients and tests): arrays as numpy; ProtocolError if it is not one."""
     try:
-        msg = json.loads(text)
+        msg = orjson.loads(text)
     except (ValueError, RecursionError):
         raise ProtocolError("not a JSON message") from None
     if not isinstance(msg, dict) or msg.get("type") != "pose":
