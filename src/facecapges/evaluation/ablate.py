@@ -355,7 +355,7 @@ def evaluate_variants(
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.run import heldout_inputs
-    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired
+    from facecapges.evaluation.suite import Method, PairedClips
 
     if samples < 1:
         raise UserError("--samples must be at least 1")
@@ -385,8 +385,7 @@ def evaluate_variants(
     n_hist = next(iter(runners.values())).cfg.n_history
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
     rng = np.random.default_rng(seed)
-    per_clip, real_clips = [], []
-    method_clips: dict[str, list[np.ndarray]] = {}
+    scored = PairedClips(sr, fps, offsets_s, progress)
     for name in evaluated:
         a = loaded[name]
         real, audio, _ = heldout_inputs(a, start, fps, sr)
@@ -411,25 +410,8 @@ def evaluate_variants(
         }
         for v, r in runners.items():
             methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
-        lam = a["semantic"][start:] if weighted else None
-        per_clip.append(
-            evaluate_paired(
-                real,
-                methods,
-                audio,
-                sr,
-                fps,
-                fgd=None,
-                semantic_weights=lam,
-                offsets_s=offsets_s,
-                progress=progress,
-                skeleton=c.skeleton(name),
-            )
-        )
-        real_clips.append(real)
-        for k, m in methods.items():
-            method_clips.setdefault(k, []).extend([m] if isinstance(m, np.ndarray) else m)
-    result = combine_clips(per_clip, fgd, real_clips, method_clips)
+        scored.add(real, methods, audio, a["semantic"][start:] if weighted else None, c.skeleton(name))
+    result = scored.combine(fgd)
     result.update(
         clips=evaluated,
         first_frame=start,

@@ -150,7 +150,7 @@ def run_eval(
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
-    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired, evaluate_unpaired
+    from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
 
@@ -214,8 +214,7 @@ def run_eval(
     if not weighted:
         warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
     rng = np.random.default_rng(seed)
-    per_clip, real_clips, ms_all = [], [], []
-    method_clips: dict[str, list[np.ndarray]] = {}
+    scored, ms_all = PairedClips(sr, fps, offsets_s, progress), []
     first: tuple[str, np.ndarray, dict[str, np.ndarray], np.ndarray] | None = None  # its first sample per method
     for name in evaluated:
         a = loaded[name]
@@ -240,27 +239,10 @@ def run_eval(
             "random real segment": segment,
             model_name: gens,
         }
-        lam = a["semantic"][start:] if weighted else None
-        per_clip.append(
-            evaluate_paired(
-                real,
-                methods,
-                audio,
-                sr,
-                fps,
-                fgd=None,
-                semantic_weights=lam,
-                offsets_s=offsets_s,
-                progress=progress,
-                skeleton=c.skeleton(name),
-            )
-        )
-        real_clips.append(real)
-        for k, v in methods.items():
-            method_clips.setdefault(k, []).extend([v] if isinstance(v, np.ndarray) else v)
+        scored.add(real, methods, audio, a["semantic"][start:] if weighted else None, c.skeleton(name))
         if first is None:
             first = (name, real, {k: v if isinstance(v, np.ndarray) else v[0] for k, v in methods.items()}, audio)
-    result = combine_clips(per_clip, fgd, real_clips, method_clips)
+    result = scored.combine(fgd)
     result.update(
         checkpoint=str(ckpt.path),
         cache=str(cache),
