@@ -26,7 +26,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from facecapges.runtime.options import LiveOptions, echo, echo_warning
+from facecapges.errors import echo, echo_warning
+from facecapges.runtime.options import LiveOptions
 
 DEFAULT_VIEWER_PORT = 8765
 LOOPBACK = "127.0.0.1"

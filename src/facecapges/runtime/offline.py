@@ -33,8 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, check_output_dir
-from facecapges.runtime.options import DEFAULT_VIDEO_SIZE, RunOptions, echo, echo_warning
+from facecapges.errors import UserError, check_output_dir, echo, echo_warning
+from facecapges.runtime.options import DEFAULT_VIDEO_SIZE, RunOptions
 from facecapges.timing import AUDIO_SR
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")

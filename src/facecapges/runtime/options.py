@@ -1,25 +1,13 @@
 """The options of ``run`` and ``live``: the command line's defaults are these classes' defaults.
 
 Kept apart from :mod:`.offline` and :mod:`.live` (which do the work) so that the command line
-imports nothing heavy to show ``--help``; ``say``/``warn`` defaults for the library's
-messages are here too.
+imports nothing heavy to show ``--help``.
 """
 
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
 from pathlib import Path
-
-
-def echo(text: str, err: bool = False) -> None:
-    """The default ``say``: a line on stdout (stderr with ``err``)."""
-    print(text, file=sys.stderr if err else sys.stdout, flush=True)
-
-
-def echo_warning(text: str) -> None:
-    """The default ``warn``: a line on stderr."""
-    print(text, file=sys.stderr, flush=True)
 
 
 @dataclass
