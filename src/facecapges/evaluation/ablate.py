@@ -537,11 +537,24 @@ def run_ablation(
     say=print,
     given: Mapping[str, str] | None = None,
     command: str | None = None,
+    force: bool = False,
 ) -> dict:
-    """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
+    """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document.
+
+    Every output is checked before any training (``force``: write over a table; ``retrain``
+    replaces the runs' models, so they count as outputs). ``say`` gets the progress, the
+    table and the files written."""
     from facecapges.data.cache import Cache
+    from facecapges.errors import check_output_dir
     from facecapges.evaluation.report import write_metrics_json
 
+    if fgd_epochs < 1:
+        raise UserError("--fgd-epochs must be at least 1")
+    check_output_dir(
+        out,
+        ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in variants] if retrain else []),
+        force,
+    )
     bad = [v for v in variants if v not in VARIANTS]
     if bad or not variants:
         raise UserError(f"--variants must be a comma-separated subset of {', '.join(VARIANTS)}, got {bad or '[]'}")
@@ -587,4 +600,6 @@ def run_ablation(
     }
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
+    say((out / "ablation.md").read_text())
+    say(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} ({len(doc['variants'])} variant(s))")
     return doc

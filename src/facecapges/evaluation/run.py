@@ -34,13 +34,13 @@ of the speaker's real motion in the cache.
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from facecapges import timing
-from facecapges.errors import UserError, file_error
+from facecapges.errors import UserError, check_output_dir, echo, echo_warning, file_error
 
 
 def load_real_clips(
@@ -144,8 +144,14 @@ def run_eval(
     seed: int = 0,
     samples: int = 3,
     progress: bool = True,
+    force: bool = False,
+    say: Callable[[str], None] = echo,
+    warn: Callable[[str], None] = echo_warning,
 ) -> dict:
-    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing."""
+    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing.
+
+    Every output in ``out`` is checked first (``force`` writes over them); ``warn`` gets the
+    warnings, ``say`` the table and the files written."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
@@ -154,6 +160,14 @@ def run_eval(
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
 
+    check_output_dir(
+        out,
+        ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+        + (["real_vs_generated.mp4"] if video else []),
+        force,
+    )
+    if split not in ("train", "val", "test", "all"):
+        raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
     ckpt = load_checkpoint(checkpoint, style)
     model_name = f"FaceCapGes ({ckpt.path.stem})"
@@ -325,4 +339,8 @@ def run_eval(
                     progress=progress,
                 )
             )
+    for w in warnings:
+        warn(f"warning: {w}")
+    say((out / "metrics.md").read_text())
+    say("wrote " + ", ".join(files.values()))
     return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}
