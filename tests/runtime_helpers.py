@@ -49,3 +49,25 @@ def refused(p: subprocess.CompletedProcess, *words: str) -> None:
     assert "Traceback" not in p.stderr and p.stderr.startswith("error:"), p.stderr
     for w in words:
         assert w in p.stderr, p.stderr
+
+
+def viewer_page(proc: subprocess.Popen, done, width: int, height: int, timeout: float = 90) -> tuple[dict | None, bytes]:
+    """Open the viewer a ``live --web`` process announces in headless Chromium; wait (``timeout`` s) for
+    ``done(state)`` on its ``window.facecapgesViewer``; return (the last state, a PNG screenshot)."""
+    import base64
+    import time
+
+    from facecapges.avatar.render.browser import Browser
+
+    line = wait_line(proc, "viewer: ")
+    assert line, proc.stderr.read()[-2000:]
+    with Browser({}, "/", width=width, height=height, timeout=timeout) as b:
+        b.call("Page.navigate", url=line.split()[1])
+        state = None
+        deadline = time.time() + timeout
+        while time.time() < deadline:
+            state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer)) : null")
+            if state and done(state):
+                break
+            time.sleep(0.5)
+        return state, base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])

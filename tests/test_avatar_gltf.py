@@ -11,7 +11,8 @@ import pygltflib
 import pytest
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.avatar.body import default_avatar, rest_positions
+from facecapges.avatar.body import default_avatar
+from facecapges.skeleton import rest_positions
 from facecapges.avatar.gltf import avatar_to_gltf
 from facecapges.io.bvh import read_bvh
 from facecapges.skeleton import UPPER_BODY

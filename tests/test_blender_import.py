@@ -69,7 +69,7 @@ def test_bvh_joint_positions_match_our_fk(blender):
 
 
 def test_glb_skeleton_shape_keys_and_jaw(blender):
-    from facecapges.avatar.body import rest_positions
+    from facecapges.skeleton import rest_positions
 
     ours, out = blender
     glb = out["glb"]

@@ -154,32 +154,14 @@ def test_run_and_live_drive_one_avatar_per_face(two_faces, tmp_path):
 
 
 def test_viewer_shows_every_face(two_faces, tmp_path):
-    import base64
-    import time
-
-    from facecapges.avatar.render.browser import Browser
-
-    from runtime_helpers import cli_popen, wait_line
+    from runtime_helpers import cli_popen, viewer_page
 
     proc = cli_popen("live", "--video", str(two_faces), "--realtime", "--loop", "--faces", "2", "--web", "127.0.0.1:0",
                      "--max-seconds", "120")
     try:
-        line = wait_line(proc, "viewer: ")
-        assert line, proc.stderr.read()[-2000:]
-        url = line.split()[1]
-        with Browser({}, "/", width=900, height=600, timeout=90) as b:
-            b.call("Page.navigate", url=url)
-            state = None
-            deadline = time.time() + 90
-            while time.time() < deadline:
-                state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer)) "
-                                   ": null")
-                if state and state["ready"] and state["drawn"] >= 10 and state["avatars"] == 2:
-                    break
-                time.sleep(0.5)
-            assert state and state["avatars"] == 2 and state["errors"] == [], state
-            shot = base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])
-            (tmp_path / "viewer_two.png").write_bytes(shot)
+        state, shot = viewer_page(proc, lambda s: s["ready"] and s["drawn"] >= 10 and s["avatars"] == 2, 900, 600)
+        assert state and state["avatars"] == 2 and state["errors"] == [], state
+        (tmp_path / "viewer_two.png").write_bytes(shot)
     finally:
         proc.kill()
         proc.wait()

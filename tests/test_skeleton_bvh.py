@@ -10,7 +10,7 @@ from facecapges import rotations as rot
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh, write_bvh
 from facecapges.skeleton import (N_JOINTS, UPPER_BODY, global_transforms, joint_positions, local_matrices,
-                                 motion_to_euler, motion_to_pose, pose_to_motion)
+                                 motion_to_euler, motion_to_pose, pose_to_motion, rest_positions)
 
 
 @pytest.fixture(scope="module")
@@ -31,6 +31,16 @@ def test_sample_header(sample):
     _, euler = motion_to_euler(skel, sample.motion)
     moving = {skel.names[j] for j in range(skel.n_joints) if np.abs(euler[:, j]).max() > 0}
     assert moving <= set(UPPER_BODY) and len(moving) >= 40
+
+
+def test_rest_positions_are_the_forward_kinematics_of_the_rest_pose(sample):
+    skel = sample.skeleton
+    eye = np.broadcast_to(np.eye(3), (1, skel.n_joints, 3, 3)).copy()
+    P = rest_positions(skel)
+    assert P.shape == (75, 3)
+    np.testing.assert_allclose(P, global_transforms(skel, eye)[1][0], atol=1e-12)
+    head, neck1 = skel.index("Head"), skel.index("Neck1")
+    np.testing.assert_allclose(P[head] - P[neck1], skel.offsets[head])  # a child sits at its offset from its parent
 
 
 def test_write_read_round_trip(sample, tmp_path):

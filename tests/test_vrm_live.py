@@ -10,11 +10,9 @@
 
 from __future__ import annotations
 
-import base64
 import json
 import signal
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +21,7 @@ import pytest
 from facecapges.avatar.vrm import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import cli, cli_popen, wait_line  # noqa: E402
+from runtime_helpers import cli, cli_popen, viewer_page  # noqa: E402
 from vrm_samples import build_sample  # noqa: E402
 from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
@@ -62,39 +60,24 @@ def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
 def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     import cv2
 
-    from facecapges.avatar.render.browser import Browser
-
     avatar = tmp_path / "sample.vrm"
     avatar.write_bytes(build_sample("vrm0"))
     rec = tmp_path / "rec"
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
                      "--avatar", str(avatar), "--record", str(rec), "--vrma", "--max-seconds", "120")
     try:
-        line = wait_line(proc, "viewer: ")
-        assert line, proc.stderr.read()[-2000:]
-        url = line.split()[1]
-        with Browser({}, "/", width=640, height=480, timeout=90) as b:
-            b.call("Page.navigate", url=url)
-            state = None
-            deadline = time.time() + 90
-            while time.time() < deadline:
-                state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer))"
-                                   " : null")
-                if state and state["ready"] and state["drawn"] >= 10:
-                    break
-                time.sleep(0.5)
-            assert state and state["ready"] and state["errors"] == [] and state["drawn"] >= 10, state
-            assert state["metaVersion"] == "0" and state["bones"] == 22
-            shot = cv2.imdecode(np.frombuffer(base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"]),
-                                              np.uint8), cv2.IMREAD_COLOR)
-            Path("/tmp/facecapges-vrm-viewer.png").write_bytes(cv2.imencode(".png", shot)[1].tobytes())
-            bgr = shot.astype(int)
-            red = ((bgr[..., 2] > 180) & (bgr[..., 1] < 80) & (bgr[..., 0] < 80)).sum()
-            blue = ((bgr[..., 0] > 180) & (bgr[..., 1] < 80) & (bgr[..., 2] < 80)).sum()
-            body = (np.abs(bgr - np.array([0xf3, 0xf0, 0xee])).sum(-1) > 60).mean()
-            # the body is drawn; the red/blue hands are counted only as a note: with the default style's
-            # arms hanging low they can fall below this 640-wide view's bottom edge
-            assert body > 0.02, (red, blue, body)
+        state, png = viewer_page(proc, lambda s: s["ready"] and s["drawn"] >= 10, 640, 480)
+        assert state and state["ready"] and state["errors"] == [] and state["drawn"] >= 10, state
+        assert state["metaVersion"] == "0" and state["bones"] == 22
+        shot = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
+        Path("/tmp/facecapges-vrm-viewer.png").write_bytes(png)
+        bgr = shot.astype(int)
+        red = ((bgr[..., 2] > 180) & (bgr[..., 1] < 80) & (bgr[..., 0] < 80)).sum()
+        blue = ((bgr[..., 0] > 180) & (bgr[..., 1] < 80) & (bgr[..., 2] < 80)).sum()
+        body = (np.abs(bgr - np.array([0xf3, 0xf0, 0xee])).sum(-1) > 60).mean()
+        # the body is drawn; the red/blue hands are counted only as a note: with the default style's
+        # arms hanging low they can fall below this 640-wide view's bottom edge
+        assert body > 0.02, (red, blue, body)
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err[-2000:]

@@ -19,15 +19,31 @@ The error policy, one rule per kind of failure:
   server and never reach the user as a traceback.
 * Process-wide state a function changes (torch's thread count) is restored by it or by
   the object that owns it (``Session.close``).
+
+Messages that are not errors: a library function that talks to the user while it works
+takes ``say(text, err=False)`` (a line on stdout, or stderr) and ``warn(text)`` (a
+warning or note on stderr); the command line passes typer's (warnings in yellow),
+:func:`echo` and :func:`echo_warning` are the defaults.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 
 class UserError(Exception):
     """A problem with the user's input, described in words the user can act on."""
+
+
+def echo(text: str, err: bool = False) -> None:
+    """The default ``say``: a line on stdout (stderr with ``err``)."""
+    print(text, file=sys.stderr if err else sys.stdout, flush=True)
+
+
+def echo_warning(text: str) -> None:
+    """The default ``warn``: a line on stderr."""
+    print(text, file=sys.stderr, flush=True)
 
 
 def file_error(path: str | Path, problem: str) -> UserError:

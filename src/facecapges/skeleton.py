@@ -227,6 +227,15 @@ def matrices_to_euler(skel: Skeleton, mats: np.ndarray, unwrap: bool = True) -> 
     return out
 
 
+def rest_positions(skel: Skeleton) -> np.ndarray:
+    """Joint positions (J, 3) of the rest pose (every rotation 0): the offsets summed from the root down."""
+    P = np.zeros((skel.n_joints, 3))
+    for j in range(skel.n_joints):
+        p = skel.parents[j]
+        P[j] = skel.offsets[j] + (P[p] if p >= 0 else 0.0)
+    return P
+
+
 def global_transforms(
     skel: Skeleton, local_mats: np.ndarray, root_pos: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray]:

@@ -42,7 +42,7 @@ import numpy as np
 
 from facecapges.avatar.mesh import TriMesh
 from facecapges.errors import UserError
-from facecapges.skeleton import UPPER_BODY, Skeleton
+from facecapges.skeleton import UPPER_BODY, Skeleton, rest_positions
 
 SKIN = "skin"
 SHIRT = "shirt"
@@ -100,15 +100,6 @@ class Avatar:
     body: SkinnedMesh
     face: FaceMesh
     info: dict = field(default_factory=dict)
-
-
-def rest_positions(skel: Skeleton) -> np.ndarray:
-    """Joint positions (J, 3) with every rotation at 0: the summed offsets."""
-    P = np.zeros((skel.n_joints, 3))
-    for j in range(skel.n_joints):
-        p = skel.parents[j]
-        P[j] = skel.offsets[j] + (P[p] if p >= 0 else 0.0)
-    return P
 
 
 def check_skeleton(skel: Skeleton, name: str = "skeleton") -> None:

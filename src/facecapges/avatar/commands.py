@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from facecapges.avatar.render.motion_file import RenderOptions
+
 
 def _skeleton(bvh: Path | None):
     """The BEAT skeleton from ``bvh``, else the one stored with the default checkpoint."""
@@ -164,93 +166,11 @@ def register(app: typer.Typer) -> None:
             "BVH's skeleton).",
         ),
         contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
-        size: str = typer.Option("640x480", help="Video size WIDTHxHEIGHT."),
-        force: bool = typer.Option(False, "--force", help="Overwrite outputs that exist."),
+        size: str = typer.Option(RenderOptions.size, help="Video size WIDTHxHEIGHT."),
+        force: bool = typer.Option(RenderOptions.force, "--force", help="Overwrite outputs that exist."),
     ) -> None:
         """Render the avatar (front view) driven by a BVH and optional face weights, with the audio muxed."""
-        import numpy as np
+        options = RenderOptions(**locals())  # before any other name is bound here
+        from facecapges.avatar.render.motion_file import render_motion_file
 
-        from facecapges.arkit import ARKIT_NAMES
-        from facecapges.avatar.body import check_skeleton, default_avatar
-        from facecapges.avatar.gltf import avatar_to_gltf
-        from facecapges.avatar.render.video import bvh_quaternions, render_video
-        from facecapges.avatar.render.video import contact_sheet as make_sheet
-        from facecapges.errors import UserError, check_output_file, file_error, require_file
-        from facecapges.io.bvh import read_bvh
-
-        check_output_file(out, force)
-        if contact_sheet is not None:
-            check_output_file(contact_sheet, force)
-        if audio is not None:  # used only at the final mux: check it before the whole render
-            from facecapges.io.audio import check_audio
-
-            check_audio(audio)
-        try:
-            width, height = (int(x) for x in size.lower().split("x"))
-        except ValueError:
-            raise UserError(f"--size must be WIDTHxHEIGHT, got {size!r}") from None
-        if not (16 <= width <= 4096 and 16 <= height <= 4096):
-            raise UserError(f"--size {size} is out of range")
-        motion = read_bvh(bvh)
-        check_skeleton(motion.skeleton, str(bvh))
-        if audio is not None:
-            require_file(audio, "audio")
-        if face is not None:
-            require_file(face, "face JSON")
-        from facecapges.avatar.vrm_view import face_weights as _face_weights
-        from facecapges.avatar.vrm_view import is_vrm_file
-
-        def _shown_face(T: int):
-            """The face JSON's weights; without one, jaw and lips from the speech (capture.speech_mouth)."""
-            if face is None and audio is not None:
-                from facecapges.capture.speech_mouth import speech_frames, speech_mouth_track
-                from facecapges.io.audio import load_audio
-
-                return speech_mouth_track(speech_frames(load_audio(audio), motion.fps, T), motion.fps)
-            return _face_weights(face, motion.fps, T)
-
-        if avatar_glb is not None and is_vrm_file(require_file(avatar_glb, "avatar")):
-            from facecapges.avatar.vrm_view import VrmDriver, bvh_local_matrices, render_vrm_video
-
-            driver = VrmDriver.from_file(avatar_glb, motion.skeleton)
-            typer.echo(f"avatar: {driver.describe()}")
-            if contact_sheet is not None:
-                raise UserError("--contact-sheet needs our own avatar (its 52 morph targets), not a VRM")
-            weights = _shown_face(len(motion.motion))
-            figures = render_vrm_video(
-                driver,
-                bvh_local_matrices(motion.skeleton, motion.motion),
-                weights,
-                motion.fps,
-                out,
-                audio=audio,
-                width=width,
-                height=height,
-            )
-            typer.echo(
-                f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s"
-            )
-            return
-        if avatar_glb is not None:
-            import pygltflib
-
-            p = require_file(avatar_glb, "avatar")
-            try:
-                glb = p.read_bytes()
-                doc = pygltflib.GLTF2.load_from_bytes(glb)
-                joint_names = doc.extras["facecapges"]["joint_names"]
-            except Exception as exc:  # noqa: BLE001 - any parse failure is the user's file
-                raise file_error(p, f"not a facecapges avatar .glb ({exc})") from None
-        else:
-            doc = avatar_to_gltf(default_avatar(motion.skeleton))
-            glb = b"".join(doc.save_to_bytes())
-            joint_names = list(motion.skeleton.names)
-        quats = bvh_quaternions(joint_names, motion.skeleton, motion.motion, str(bvh))
-        weights = _shown_face(quats.shape[0])
-        figures = render_video(
-            glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, out, audio=audio, width=width, height=height
-        )
-        typer.echo(f"{out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")
-        if contact_sheet is not None:
-            make_sheet(glb, list(ARKIT_NAMES), contact_sheet)
-            typer.echo(f"{contact_sheet}: contact sheet of the 52 blendshapes")
+        render_motion_file(options, say=typer.echo)

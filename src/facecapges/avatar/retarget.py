@@ -111,7 +111,7 @@ class Retargeter:
     """BEAT skeleton ``skel`` → ``model``'s normalised humanoid bones (module docstring)."""
 
     def __init__(self, skel: Skeleton, model: VrmModel):
-        from facecapges.avatar.body import rest_positions
+        from facecapges.skeleton import rest_positions
 
         self.model = model
         self.skel = skel

@@ -250,8 +250,9 @@ def avatar_to_vrm(avatar):
     """The glTF document of ``avatar`` (facecapges.avatar.body.Avatar) as a VRM 1.0 (module docstring)."""
     import pygltflib as g
 
-    from facecapges.avatar.body import EYE, rest_positions
+    from facecapges.avatar.body import EYE
     from facecapges.avatar.gltf import CM_TO_M, avatar_to_gltf
+    from facecapges.skeleton import rest_positions
 
     doc = avatar_to_gltf(avatar)
     skel = avatar.skeleton

@@ -49,7 +49,7 @@ def check_face_mode(face: str) -> str:
 
 def beat_model(skel) -> VrmModel:
     """BEAT skeleton ``skel`` seen as a humanoid model (its rest pose, metres)."""
-    from facecapges.avatar.body import rest_positions
+    from facecapges.skeleton import rest_positions
 
     P = rest_positions(skel) * 0.01
     bones = {b: skel.names.index(j) for b, j in BEAT_BONES.items() if j in skel.names}
@@ -63,9 +63,9 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     import pygltflib as g
 
     from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
-    from facecapges.avatar.body import rest_positions
     from facecapges.avatar.retarget import Retargeter
     from facecapges.rotations import matrix_to_quaternion
+    from facecapges.skeleton import rest_positions
 
     check_face_mode(face)
     T = local_mats.shape[0]

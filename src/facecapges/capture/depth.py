@@ -163,14 +163,11 @@ class DepthHeadTracker:
     Args:
         template_m: (N, 3) template points in metres, head frame (the canonical mesh / 100).
         K: depth camera intrinsics.
-        max_points: clouds are subsampled to at most this many points (speed).
     """
 
-    def __init__(self, template_m: np.ndarray, K: Intrinsics, max_points: int = 800, seed: int = 0):
+    def __init__(self, template_m: np.ndarray, K: Intrinsics):
         self.template = np.asarray(template_m, np.float64)
         self.K = K
-        self.max_points = max_points
-        self.rng = np.random.default_rng(seed)
         self.prev: np.ndarray | None = None
         self.pose: HeadPose | None = None
 

@@ -43,11 +43,10 @@ from facecapges.data.retarget import (
     Retargeted,
     load_map,
     pose_from_world,
-    rest_positions,
     shipped_map_path,
 )
 from facecapges.errors import UserError, file_error, require_file
-from facecapges.skeleton import UPPER_BODY, Skeleton
+from facecapges.skeleton import UPPER_BODY, Skeleton, rest_positions
 
 
 @dataclass

@@ -53,7 +53,15 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, global_transforms, local_matrices, motion_to_euler
+from facecapges.skeleton import (
+    N_JOINTS,
+    UPPER_BODY,
+    Skeleton,
+    global_transforms,
+    local_matrices,
+    motion_to_euler,
+    rest_positions,
+)
 
 #: BEAT joints every source must drive; the others (neck, clavicles, fingers) are masked when absent.
 REQUIRED: tuple[str, ...] = (
@@ -170,12 +178,6 @@ def auto_map(source: Skeleton, where: str = "source") -> JointMap:
 
 
 # ----------------------------------------------------------- rest corrections
-def rest_positions(skel: Skeleton) -> np.ndarray:
-    """World joint positions (J, 3) of the rest pose (all channels 0)."""
-    eye = np.broadcast_to(np.eye(3), (1, skel.n_joints, 3, 3))
-    return global_transforms(skel, np.array(eye))[1][0]
-
-
 def direction_child(target: Skeleton, t: int, mapped: set[str]) -> int | None:
     """The nearest mapped joint below ``t`` (breadth first, file order), or None."""
     kids = target.children()

@@ -355,7 +355,7 @@ def evaluate_variants(
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.run import heldout_inputs
-    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired
+    from facecapges.evaluation.suite import Method, PairedClips
 
     if samples < 1:
         raise UserError("--samples must be at least 1")
@@ -385,8 +385,7 @@ def evaluate_variants(
     n_hist = next(iter(runners.values())).cfg.n_history
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
     rng = np.random.default_rng(seed)
-    per_clip, real_clips = [], []
-    method_clips: dict[str, list[np.ndarray]] = {}
+    scored = PairedClips(sr, fps, offsets_s, progress)
     for name in evaluated:
         a = loaded[name]
         real, audio, _ = heldout_inputs(a, start, fps, sr)
@@ -411,25 +410,8 @@ def evaluate_variants(
         }
         for v, r in runners.items():
             methods[LABELS[v]] = [r.run(inputs_for(r), h, progress) for h in histories]
-        lam = a["semantic"][start:] if weighted else None
-        per_clip.append(
-            evaluate_paired(
-                real,
-                methods,
-                audio,
-                sr,
-                fps,
-                fgd=None,
-                semantic_weights=lam,
-                offsets_s=offsets_s,
-                progress=progress,
-                skeleton=c.skeleton(name),
-            )
-        )
-        real_clips.append(real)
-        for k, m in methods.items():
-            method_clips.setdefault(k, []).extend([m] if isinstance(m, np.ndarray) else m)
-    result = combine_clips(per_clip, fgd, real_clips, method_clips)
+        scored.add(real, methods, audio, a["semantic"][start:] if weighted else None, c.skeleton(name))
+    result = scored.combine(fgd)
     result.update(
         clips=evaluated,
         first_frame=start,
@@ -555,11 +537,24 @@ def run_ablation(
     say=print,
     given: Mapping[str, str] | None = None,
     command: str | None = None,
+    force: bool = False,
 ) -> dict:
-    """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document."""
+    """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document.
+
+    Every output is checked before any training (``force``: write over a table; ``retrain``
+    replaces the runs' models, so they count as outputs). ``say`` gets the progress, the
+    table and the files written."""
     from facecapges.data.cache import Cache
+    from facecapges.errors import check_output_dir
     from facecapges.evaluation.report import write_metrics_json
 
+    if fgd_epochs < 1:
+        raise UserError("--fgd-epochs must be at least 1")
+    check_output_dir(
+        out,
+        ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in variants] if retrain else []),
+        force,
+    )
     bad = [v for v in variants if v not in VARIANTS]
     if bad or not variants:
         raise UserError(f"--variants must be a comma-separated subset of {', '.join(VARIANTS)}, got {bad or '[]'}")
@@ -605,4 +600,6 @@ def run_ablation(
     }
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
+    say((out / "ablation.md").read_text())
+    say(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} ({len(doc['variants'])} variant(s))")
     return doc

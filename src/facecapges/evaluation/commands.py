@@ -151,18 +151,9 @@ def register(app: typer.Typer) -> None:
         quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
     ) -> None:
         """Evaluate a checkpoint on held-out motion: FGD, SRGR, BeatAlign, L1DIV, with and without the head."""
-        from facecapges.errors import check_output_dir
         from facecapges.evaluation.run import run_eval
 
-        check_output_dir(
-            out,
-            ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
-            + (["real_vs_generated.mp4"] if video else []),
-            force,
-        )
-        if split not in ("train", "val", "test", "all"):
-            raise UserError(f"--split must be train, val, test or all, got {split!r}")
-        summary = run_eval(
+        run_eval(
             cache=cache,
             out=out,
             checkpoint=checkpoint,
@@ -177,11 +168,10 @@ def register(app: typer.Typer) -> None:
             seed=seed,
             samples=samples,
             progress=not quiet,
+            force=force,
+            say=typer.echo,
+            warn=lambda m: typer.secho(m, err=True, fg=typer.colors.YELLOW),
         )
-        for w in summary["warnings"]:
-            typer.secho(f"warning: {w}", err=True, fg=typer.colors.YELLOW)
-        typer.echo((out / "metrics.md").read_text())
-        typer.echo("wrote " + ", ".join(summary["files"].values()))
 
     @app.command("ablate")
     def ablate_cmd(
@@ -242,19 +232,9 @@ def register(app: typer.Typer) -> None:
         """Ablation study: train the model's variants with one budget, evaluate them side by side."""
         import sys
 
-        from facecapges.errors import check_output_dir
         from facecapges.evaluation.ablate import run_ablation
 
-        if fgd_epochs < 1:
-            raise UserError("--fgd-epochs must be at least 1")
-        chosen = tuple(v.strip() for v in variants.split(",") if v.strip())
-        # every output is checked before any training; --retrain would replace the runs' models
-        check_output_dir(
-            out,
-            ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in chosen] if retrain else []),
-            force,
-        )
-        doc = run_ablation(
+        run_ablation(
             cache=cache,
             out=out,
             speaker=speaker,
@@ -262,7 +242,7 @@ def register(app: typer.Typer) -> None:
             epochs=epochs,
             split=split,
             holdout_from=holdout_from,
-            variants=chosen,
+            variants=tuple(v.strip() for v in variants.split(",") if v.strip()),
             reuse_default=reuse_default,
             retrain=retrain,
             fgd_location=fgd,
@@ -274,6 +254,5 @@ def register(app: typer.Typer) -> None:
             say=typer.echo,
             given=_parse_given(given),
             command="facecapges " + " ".join(sys.argv[1:]),
+            force=force,
         )
-        typer.echo((out / "ablation.md").read_text())
-        typer.echo(f"wrote {out / 'ablation.md'} and {out / 'ablation.json'} ({len(doc['variants'])} variant(s))")

@@ -34,13 +34,13 @@ of the speaker's real motion in the cache.
 from __future__ import annotations
 
 import tempfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
 
 from facecapges import timing
-from facecapges.errors import UserError, file_error
+from facecapges.errors import UserError, check_output_dir, echo, echo_warning, file_error
 
 
 def load_real_clips(
@@ -144,16 +144,30 @@ def run_eval(
     seed: int = 0,
     samples: int = 3,
     progress: bool = True,
+    force: bool = False,
+    say: Callable[[str], None] = echo,
+    warn: Callable[[str], None] = echo_warning,
 ) -> dict:
-    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing."""
+    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing.
+
+    Every output in ``out`` is checked first (``force`` writes over them); ``warn`` gets the
+    warnings, ``say`` the table and the files written."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
-    from facecapges.evaluation.suite import Method, combine_clips, evaluate_paired, evaluate_unpaired
+    from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
 
+    check_output_dir(
+        out,
+        ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+        + (["real_vs_generated.mp4"] if video else []),
+        force,
+    )
+    if split not in ("train", "val", "test", "all"):
+        raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
     ckpt = load_checkpoint(checkpoint, style)
     model_name = f"FaceCapGes ({ckpt.path.stem})"
@@ -214,8 +228,7 @@ def run_eval(
     if not weighted:
         warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
     rng = np.random.default_rng(seed)
-    per_clip, real_clips, ms_all = [], [], []
-    method_clips: dict[str, list[np.ndarray]] = {}
+    scored, ms_all = PairedClips(sr, fps, offsets_s, progress), []
     first: tuple[str, np.ndarray, dict[str, np.ndarray], np.ndarray] | None = None  # its first sample per method
     for name in evaluated:
         a = loaded[name]
@@ -240,27 +253,10 @@ def run_eval(
             "random real segment": segment,
             model_name: gens,
         }
-        lam = a["semantic"][start:] if weighted else None
-        per_clip.append(
-            evaluate_paired(
-                real,
-                methods,
-                audio,
-                sr,
-                fps,
-                fgd=None,
-                semantic_weights=lam,
-                offsets_s=offsets_s,
-                progress=progress,
-                skeleton=c.skeleton(name),
-            )
-        )
-        real_clips.append(real)
-        for k, v in methods.items():
-            method_clips.setdefault(k, []).extend([v] if isinstance(v, np.ndarray) else v)
+        scored.add(real, methods, audio, a["semantic"][start:] if weighted else None, c.skeleton(name))
         if first is None:
             first = (name, real, {k: v if isinstance(v, np.ndarray) else v[0] for k, v in methods.items()}, audio)
-    result = combine_clips(per_clip, fgd, real_clips, method_clips)
+    result = scored.combine(fgd)
     result.update(
         checkpoint=str(ckpt.path),
         cache=str(cache),
@@ -343,4 +339,8 @@ def run_eval(
                     progress=progress,
                 )
             )
+    for w in warnings:
+        warn(f"warning: {w}")
+    say((out / "metrics.md").read_text())
+    say("wrote " + ", ".join(files.values()))
     return {"files": files, "warnings": warnings, "ms_per_frame": result["ms_per_frame"]}

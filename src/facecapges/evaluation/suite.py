@@ -38,6 +38,7 @@ regions): ``{"methods": {name: {"BA_BEAT", "BA_BEAT_true_times", "BA_EMAGE",
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -181,34 +182,13 @@ def _evaluate(
                 bar.advance(task)
             result["regions"][region] = {"joints": list(region_joints(region)), "methods": rows}
     if skeleton is not None:
-        result["synchrony"] = _synchrony(samples, skeleton, audio, sr, fps, real, real_stats, offsets_s)
-        result["peers"] = _peers(samples, skeleton, audio, sr, fps, real, semantic_weights)
+        result.update(
+            _skeleton_metrics(samples, skeleton, audio, sr, fps, real, real_stats, offsets_s, semantic_weights)
+        )
     return result
 
 
-def _peers(
-    samples: Mapping[str, list[np.ndarray]],
-    skeleton,
-    audio: np.ndarray,
-    sr: int,
-    fps: float,
-    real: np.ndarray | None,
-    weights: np.ndarray | None,
-) -> dict:
-    """:func:`facecapges.evaluation.peers.peer_metrics` per method on all 47 joints (mean over samples)."""
-    from facecapges.evaluation import peers
-
-    n = len(next(iter(samples.values()))[0]) if samples else 0
-    a = ba.fit_audio(audio, n, fps, sr)
-    speech = peers.peer_speech(a, sr)
-    methods = {}
-    for name, arrs in samples.items():
-        rows = [peers.peer_metrics(real, x, a, sr, fps, skeleton, weights, speech) for x in arrs]
-        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
-    return {"methods": methods, "n_speech_beats": {k: int(len(v)) for k, v in speech.items()}}
-
-
-def _synchrony(
+def _skeleton_metrics(
     samples: Mapping[str, list[np.ndarray]],
     skeleton,
     audio: np.ndarray,
@@ -217,25 +197,44 @@ def _synchrony(
     real: np.ndarray | None,
     real_stats: sy.MotionStats | None,
     offsets_s: Sequence[float],
+    weights: np.ndarray | None,
 ) -> dict:
-    """:func:`facecapges.evaluation.synchrony.synchrony_row` per method (mean over samples).
+    """The metrics that need joint positions, per method (mean over samples), on all 47 joints.
 
-    Jerk/spread ratios are to the real motion (paired) or to ``real_stats`` (unpaired);
-    ``"reference"`` records those reference figures."""
+    ``"synchrony"``: :func:`facecapges.evaluation.synchrony.synchrony_row`; jerk/spread ratios are to
+    the real motion (paired) or to ``real_stats`` (unpaired), ``"reference"`` records those
+    reference figures. ``"peers"``: :func:`facecapges.evaluation.peers.peer_metrics`."""
+    from facecapges.evaluation import peers
+
     if real is not None:
         ref = sy.motion_stats(sy.wrist_positions(skeleton, real), fps)
     else:
         ref = real_stats
-    methods = {}
-    for name, arrs in samples.items():
-        rows = [sy.synchrony_row(sy.wrist_positions(skeleton, a), audio, sr, fps, ref, offsets_s) for a in arrs]
-        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
+    n = len(next(iter(samples.values()))[0]) if samples else 0
+    a = ba.fit_audio(audio, n, fps, sr)
+    speech = peers.peer_speech(a, sr)
     reference = {
         "jerk": ref.jerk if ref else None,
         "spread": ref.spread if ref else None,
         "source": "the real motion" if real is not None else "the speaker's real clips",
     }
-    return {"methods": methods, "reference": reference}
+    sync = _mean_rows(
+        samples, lambda x: sy.synchrony_row(sy.wrist_positions(skeleton, x), audio, sr, fps, ref, offsets_s)
+    )
+    peer = _mean_rows(samples, lambda x: peers.peer_metrics(real, x, a, sr, fps, skeleton, weights, speech))
+    return {
+        "synchrony": {"methods": sync, "reference": reference},
+        "peers": {"methods": peer, "n_speech_beats": {k: int(len(v)) for k, v in speech.items()}},
+    }
+
+
+def _mean_rows(samples: Mapping[str, list[np.ndarray]], row) -> dict:
+    """Per method, each figure of ``row(sample)`` averaged over the method's samples (:func:`_finite_mean`)."""
+    methods = {}
+    for name, arrs in samples.items():
+        rows = [row(x) for x in arrs]
+        methods[name] = {k: _finite_mean([r[k] for r in rows]) for k in rows[0]}
+    return methods
 
 
 def _finite_mean(vals) -> float | None:
@@ -417,3 +416,41 @@ def combine_clips(
             },
         }
     return out
+
+
+@dataclass
+class PairedClips:
+    """The suite over several held-out clips: :meth:`add` scores one (:func:`evaluate_paired`, FGD left
+    out), :meth:`combine` pools them (:func:`combine_clips`, FGD over every clip's windows)."""
+
+    sr: int
+    fps: float
+    offsets_s: Sequence[float] = DEFAULT_OFFSETS_S
+    progress: bool = True
+    per_clip: list[dict] = field(default_factory=list)
+    real_clips: list[np.ndarray] = field(default_factory=list)
+    method_clips: dict[str, list[np.ndarray]] = field(default_factory=dict)
+
+    def add(self, real: np.ndarray, methods: Mapping[str, Method], audio: np.ndarray, semantic_weights, skeleton):
+        """Score one clip's ``methods`` against its ``real`` motion; keep their sequences for FGD."""
+        self.per_clip.append(
+            evaluate_paired(
+                real,
+                methods,
+                audio,
+                self.sr,
+                self.fps,
+                fgd=None,
+                semantic_weights=semantic_weights,
+                offsets_s=self.offsets_s,
+                progress=self.progress,
+                skeleton=skeleton,
+            )
+        )
+        self.real_clips.append(real)
+        for k, m in methods.items():
+            self.method_clips.setdefault(k, []).extend([m] if isinstance(m, np.ndarray) else m)
+
+    def combine(self, fgd: FGDEvaluator | None) -> dict:
+        """Every clip's results in one (:func:`combine_clips`)."""
+        return combine_clips(self.per_clip, fgd, self.real_clips, self.method_clips)

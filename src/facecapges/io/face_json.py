@@ -54,10 +54,19 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES, BEAT_NAMES, N_BLENDSHAPES, to_arkit52
-from facecapges.errors import file_error, require_file
+from facecapges.errors import UserError, file_error, require_file
 
 BEAT_FACE_FPS = 60.0
 FACE_LAYOUTS = ("beat", "full")
+
+
+def check_face_layout(layout: str) -> str:
+    """``layout`` if it is one of :data:`FACE_LAYOUTS`, else the user's error (``--face-json``)."""
+    if layout not in FACE_LAYOUTS:
+        raise UserError(f"--face-json {layout}: choose {' or '.join(FACE_LAYOUTS)}")
+    return layout
+
+
 FPS_RANGE = (1.0, 1000.0)  # frame rates a face track may have
 
 

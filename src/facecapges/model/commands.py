@@ -7,6 +7,8 @@ from pathlib import Path
 
 import typer
 
+from facecapges.outputs.recording import GenerateOptions
+
 
 def register(app: typer.Typer) -> None:
     @app.command()
@@ -25,88 +27,24 @@ def register(app: typer.Typer) -> None:
             "without --face, jaw and lips from the "
             "speech.",
         ),
-        json_out: bool = typer.Option(False, "--json", help="Print a JSON summary instead of text."),
+        json_out: bool = typer.Option(GenerateOptions.json_out, "--json", help="Print a JSON summary instead of text."),
         vrma: Path | None = typer.Option(
             None,
             "--vrma",
             help="Also write the gestures (+ the --face weights) as VRM Animation (.vrma) for any VRM avatar.",
         ),
         vrma_face: str = typer.Option(
-            "presets",
+            GenerateOptions.vrma_face,
             "--vrma-face",
             help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
         ),
-        force: bool = typer.Option(False, "--force", help="Overwrite OUT if it exists."),
+        force: bool = typer.Option(GenerateOptions.force, "--force", help="Overwrite OUT if it exists."),
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
-        import numpy as np
+        options = GenerateOptions(**locals())  # before any other name is bound here
+        from facecapges.outputs.recording import generate_recording
 
-        from facecapges.errors import check_output_file
-        from facecapges.io.bvh import BvhWriter
-        from facecapges.model.checkpoint import load_checkpoint
-        from facecapges.model.generate import generate_blocks, plan_inputs
-        from facecapges.rotations import normalize_rot6d
-        from facecapges.skeleton import pose_to_motion
-
-        check_output_file(out, force)  # before the work: existing, folder, unwritable
-        if face_out is not None:
-            check_output_file(face_out, force)
-        if vrma is not None:
-            from facecapges.avatar.vrma import check_face_mode
-
-            check_output_file(vrma, force)
-            check_face_mode(vrma_face)
-        ckpt = load_checkpoint(checkpoint, style)
-        inputs = plan_inputs(audio, face, head, fps=ckpt.fps)
-        for note in inputs.notes:
-            typer.secho(f"warning: {note}", err=True, fg=typer.colors.YELLOW)
-        skel = ckpt.skeleton
-        timing_ms: list[float] = []
-        mouth = None
-        if face_out is not None and face is None:  # no face track: jaw and lips from the speech
-            from facecapges.capture.speech_mouth import SpeechMouth
-
-            mouth, spoken = SpeechMouth(ckpt.fps), []
-
-        def blocks():
-            for a, f, h in inputs.blocks():
-                if mouth is not None:
-                    spoken.extend(mouth.step(x) for x in a)
-                yield a, f, h
-
-        kept = []  # the poses, only when a .vrma is asked for
-        with BvhWriter(out, skel, inputs.n_frames, ckpt.fps) as bvh:  # block by block: memory flat in length
-            for poses in generate_blocks(ckpt, blocks(), inputs.n_frames, ckpt.fps, not json_out, timing_ms):
-                bvh.write(pose_to_motion(skel, normalize_rot6d(poses)))
-                if vrma is not None:
-                    kept.append(normalize_rot6d(poses))
-        if face_out is not None:
-            from facecapges.io.face_json import write_face_json
-
-            shown = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)
-            write_face_json(face_out, shown, ckpt.fps, inputs.head)
-        if vrma is not None:
-            from facecapges.avatar.vrma import write_pose_vrma
-
-            write_pose_vrma(vrma, skel, np.concatenate(kept), ckpt.fps, inputs.face if face else None, vrma_face)
-            typer.echo(f"wrote {vrma} (VRM Animation)", err=json_out)
-        ms, n = timing_ms[0], inputs.n_frames
-        summary = {
-            "out": str(out),
-            "frames": int(n),
-            "fps": ckpt.fps,
-            "duration_s": round(n / ckpt.fps, 3),
-            "ms_per_frame": round(ms, 3),
-            "checkpoint": str(ckpt.path),
-            "warnings": inputs.notes,
-        }
-        if json_out:
-            typer.echo(json.dumps(summary))
-        else:
-            typer.echo(
-                f"wrote {out}: {summary['frames']} frames at {ckpt.fps} fps "
-                f"({summary['duration_s']} s), {ms:.2f} ms/frame"
-            )
+        generate_recording(options, say=typer.echo, warn=lambda m: typer.secho(m, err=True, fg=typer.colors.YELLOW))
 
     styles_app = typer.Typer(
         help="The installed speaking styles (per-speaker models): list, install.",

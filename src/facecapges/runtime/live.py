@@ -11,14 +11,40 @@
   appear) gets its own recorder files (``motion_i.bvh``, ``face_i.json``) and VMC port
   ``PORT + i − 1`` (a receiver per avatar; VMC has no notion of several performers on
   one port); the viewer gets every face on one feed (the ``face`` field of ``pose``).
+
+:func:`run_live` is the whole command: :class:`~facecapges.runtime.options.LiveOptions`
+holds its options, ``say``/``warn`` say where its messages go.
 """
 
 from __future__ import annotations
 
+import json
 import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
+
+from facecapges.errors import echo, echo_warning
+from facecapges.runtime.options import LiveOptions
 
 DEFAULT_VIEWER_PORT = 8765
+LOOPBACK = "127.0.0.1"
+STATUS_EVERY_S = 5.0  # the status line's period
+
+
+@dataclass
+class _Outputs:
+    """What :func:`run_live` opened for the user's outputs (for the start line and the report)."""
+
+    web_addr: tuple[str, int] | None
+    vmc_addr: tuple[str, int] | None
+    bind: str
+    default_note: str | None
+    senders: list = field(default_factory=list)
+    ups: list = field(default_factory=list)
+    server: Any = None
 
 
 def _port_free(host: str, port: int) -> bool:
@@ -106,3 +132,234 @@ def per_face_sinks(
                 per.append(sender)
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     return sinks, senders, ups
+
+
+def _check(o: LiveOptions) -> _Outputs:
+    """Every check that needs no device and no model, in the order the user meets them."""
+    from facecapges.errors import UserError, check_output_dir, check_port
+    from facecapges.io.face_json import check_face_layout
+    from facecapges.runtime.web_server import is_loopback, parse_address
+
+    if o.livelink is not None:
+        check_port(o.livelink, "--livelink")
+    if o.camera is None and o.video is None and o.livelink is None:
+        o.camera = 0
+    o.web, default_note = default_outputs(o.web, o.vmc, o.record)
+    if o.realtime and o.video is None:
+        raise UserError("--realtime paces a --video file; devices are always real time")
+    if o.loop and o.video is None:
+        raise UserError("--loop needs --video")
+    bind = o.host or LOOPBACK
+    web_addr = None
+    if o.web is not None:
+        web_addr = parse_address(o.web, bind, "--web")
+        if not is_loopback(web_addr[0]) and o.host is None:
+            raise UserError(f"--web {o.web}: refusing to serve on a non-loopback address without --host {web_addr[0]}")
+    vmc_addr = parse_address(o.vmc, LOOPBACK, "--vmc") if o.vmc is not None else None
+    if o.avatar is not None:
+        from facecapges.avatar.vrm import load_model
+
+        if web_addr is None:
+            raise UserError(
+                "--avatar is the avatar of the browser viewer; pass --web too (VMC receivers show their own avatar)"
+            )
+        load_model(o.avatar)  # a bad file fails here, before any device opens
+    if o.vrma and o.record is None:
+        raise UserError("--vrma records into --record DIR; pass --record too")
+    if o.record is not None:
+        from facecapges.runtime.offline import output_names
+
+        if o.vrma and o.faces > 1:
+            raise UserError("--vrma records one performer; use it with --faces 1")
+        n = max(o.faces, 1)
+        check_output_dir(
+            o.record, (*output_names(n)[: 2 * n], "report.json", *(("motion.vrma",) if o.vrma else ())), o.force
+        )
+    if o.max_seconds is not None and o.max_seconds <= 0:
+        raise UserError("--max-seconds must be positive")
+    if o.vmc_avatar is not None and o.vmc is None:
+        raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+    check_face_layout(o.face_json)
+    if o.vmc_blend not in ("vrm", "perfect-sync", "both"):
+        raise UserError(f"--vmc-blend {o.vmc_blend}: choose vrm, perfect-sync or both")
+    return _Outputs(web_addr, vmc_addr, bind, default_note)
+
+
+def _check_rate(rate: float | None, fps: float) -> None:
+    from facecapges.errors import UserError
+    from facecapges.runtime.upsample import substeps
+
+    if rate is not None:
+        try:
+            substeps(rate, fps)
+        except ValueError as exc:
+            raise UserError(f"--rate {rate:g}: {exc}") from None
+
+
+def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
+    """The browser viewer on ``outs.web_addr`` (ours, or the --avatar VRM), added to the session's sinks."""
+    from facecapges.runtime.offline import avatar_glb
+    from facecapges.runtime.web_server import ViewerServer, WebFeed
+
+    ckpt = sess.checkpoint
+    assert outs.web_addr is not None
+    if o.avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
+        from facecapges.runtime.vrm_viewer import open_vrm_viewer
+
+        server, feed_sink = open_vrm_viewer(o.avatar, ckpt, outs.web_addr)
+        if o.faces > 1:  # the VRM viewer shows one avatar: the first face
+            from facecapges.runtime.sinks import ForFace
+
+            feed_sink = ForFace(0, feed_sink)
+    else:
+        server = ViewerServer(avatar_glb(ckpt.skeleton), outs.web_addr[0], outs.web_addr[1], fps=ckpt.fps).start()
+        feed_sink = WebFeed(server)
+    sess.closers.append(server)
+    outs.server = server
+    if o.rate is not None and o.rate != ckpt.fps and o.faces == 1:
+        from facecapges.runtime.upsample import Upsampler
+
+        outs.ups.append(Upsampler([feed_sink], ckpt.fps, o.rate))  # the viewer at --rate too
+        feed_sink = outs.ups[-1]
+    sess.add_sink(feed_sink)
+
+
+def _start_line(o: LiveOptions, outs: _Outputs, sess) -> str:
+    src = sess.video or sess.face_feed
+    assert src is not None  # build_session opened one input
+    vmc_text = []
+    if outs.vmc_addr:
+        host, port = outs.vmc_addr
+        vmc_text = [
+            f"VMC {host}:{port}" if o.faces == 1 else f"VMC {host}:{port}…{port + o.faces - 1} (face i on port +i-1)"
+        ]
+    shown = [*vmc_text, *(["viewer"] if outs.server else []), *([f"record {o.record}"] if o.record else [])]
+    return (
+        f"live: {src.name} + {sess.audio.name if sess.audio else 'silence'} → " + ", ".join(shown) + "  (Ctrl-C stops)"
+    )
+
+
+def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], None]:
+    """The scheduler's ``on_frame``: a status line on stderr every :data:`STATUS_EVERY_S` seconds."""
+    feed, last = sess.face_feed, [time.monotonic()]
+
+    def status(out) -> None:
+        now = time.monotonic()
+        if now - last[0] >= STATUS_EVERY_S:
+            last[0] = now
+            lat = sess.scheduler.timings.ms["total"][-75:]
+            lat = sorted(lat)[len(lat) // 2] if lat else 0.0
+            waiting = livelink_hint(feed, outs.bind, waiting=True) if feed is not None else None
+            say(
+                f"frame {out.index}  compute p50 {lat:.1f} ms  face {'tracked' if out.face_found else 'lost'}"
+                + (f"  viewers {len(outs.server.clients)}" if outs.server else "")
+                + (f"  — {waiting}" if waiting else ""),
+                err=True,
+            )
+
+    return status
+
+
+def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
+    """The scheduler's report + what stopped the run and each output's counters."""
+    from facecapges.runtime.sources import LiveLinkFace
+
+    report = scheduler.report() if scheduler is not None else {}
+    report["stopped_by"] = why
+    if isinstance(feed, LiveLinkFace):
+        report["livelink"] = feed.receiver.stats()
+    if outs.server is not None:
+        report["viewer"] = {
+            "frames_sent": outs.server.frames_sent,
+            "rejected_requests": outs.server.rejected_requests,
+            "oversized_closes": outs.server.oversized_closes,
+        }
+    if outs.senders:
+        report["vmc"] = outs.senders[0].stats() if o.faces == 1 else [x.stats() for x in outs.senders]
+    if outs.ups:
+        report["output"] = {
+            "rate_hz": outs.ups[0].rate_hz,
+            "interpolation_added_latency_ms": round(outs.ups[0].added_latency_ms, 1),
+            "frames_emitted": outs.ups[0].emitted,
+        }
+    return report
+
+
+def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
+    """The whole ``live`` command: check ``o``, open inputs and outputs, run until stopped; returns the report.
+
+    ``say(text, err=False)`` gets the start line, the status lines (``err=True``) and the
+    summary; ``warn(text)`` the warnings and notes. The report is also written to
+    ``--record``'s ``report.json``.
+    """
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.runtime.session import build_session
+
+    o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
+    outs = _check(o)
+    ckpt = load_checkpoint(o.checkpoint, o.style)
+    _check_rate(o.rate, ckpt.fps)
+    sinks, outs.senders, outs.ups = per_face_sinks(
+        ckpt,
+        o.faces,
+        o.record,
+        outs.vmc_addr,
+        vmc_blend=o.vmc_blend,
+        vmc_avatar=o.vmc_avatar,
+        rate=o.rate,
+        face_layout=o.face_json,
+    )
+    if o.vrma and o.record is not None:  # --vrma without --record was refused by _check
+        from facecapges.avatar.vrma import VrmaRecorder
+
+        sinks.append(VrmaRecorder(o.record / "motion.vrma", ckpt.skeleton, ckpt.fps))
+    sess = build_session(
+        ckpt,
+        video=o.video,
+        camera=o.camera,
+        livelink=o.livelink,
+        audio=o.audio,
+        mic=o.mic,
+        realtime=o.realtime or o.video is None,
+        loop=o.loop,
+        depth_dir=o.depth,
+        intrinsics=o.intrinsics,
+        estimator=o.estimator,
+        host=outs.bind,
+        sinks=sinks,
+        silent_ok=True,
+        head=o.head,
+        faces=o.faces,
+    )
+    feed = sess.face_feed  # close() forgets it; the report asks it for its stats
+    try:
+        for note in sess.notes:
+            warn(f"warning: {note}")
+        if outs.web_addr is not None:
+            _open_viewer(o, outs, sess)
+            say(f"viewer: {outs.server.url}")
+        if outs.default_note:
+            say(outs.default_note)
+        hint = livelink_hint(sess.face_feed, outs.bind) if sess.face_feed is not None else None
+        if hint:
+            warn(f"note: {hint}")
+        say(_start_line(o, outs, sess))
+        max_frames = int(round(o.max_seconds * ckpt.fps)) if o.max_seconds else None
+        why = sess.scheduler.run(max_frames=max_frames, on_frame=_status(sess, outs, say))
+    except KeyboardInterrupt:
+        why = "interrupted"
+    finally:
+        written = sess.close()
+    report = _report(o, outs, sess.scheduler, feed, why)
+    if o.record is not None:
+        o.record.mkdir(parents=True, exist_ok=True)
+        (o.record / "report.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        written.append(o.record / "report.json")
+    lat = report.get("latency_ms", {}).get("total", {})
+    say(
+        f"stopped ({why}) after {report.get('frames', 0)} frames; compute p50 {lat.get('p50', 0):.1f} ms, "
+        f"p99 {lat.get('p99', 0):.1f} ms; events {json.dumps(report.get('events', {}))}"
+    )
+    for p in written:
+        say(f"wrote {p}")
+    return report

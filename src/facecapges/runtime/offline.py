@@ -28,11 +28,13 @@ from __future__ import annotations
 import json
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, check_output_dir
+from facecapges.errors import UserError, check_output_dir, echo, echo_warning
+from facecapges.runtime.options import DEFAULT_VIDEO_SIZE, RunOptions
 from facecapges.timing import AUDIO_SR
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
@@ -149,7 +151,7 @@ def output_names(faces: int) -> tuple[str, ...]:
     return per + OUTPUTS[2:]
 
 
-def parse_size(text: str | None, default: tuple[int, int] = (640, 480)) -> tuple[int, int]:
+def parse_size(text: str | None, default: tuple[int, int] = DEFAULT_VIDEO_SIZE) -> tuple[int, int]:
     """``"WxH"`` (even, 160…3840 × 120…2160) → (width, height); None → ``default``."""
     if text is None:
         return default
@@ -174,7 +176,7 @@ def run_video(
     estimator: str = "hybrid",
     head: str = "capture",
     faces: int = 1,
-    video_size: tuple[int, int] = (640, 480),
+    video_size: tuple[int, int] = DEFAULT_VIDEO_SIZE,
     avatar: str | Path | None = None,
     face_layout: str = "beat",
 ) -> dict:
@@ -308,4 +310,60 @@ def run_video(
     tmp = out_dir / "report.json.part"
     tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     tmp.replace(out_dir / "report.json")
+    return report
+
+
+def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
+    """The whole ``run`` command: check ``o``, :func:`run_video`, tell the user; returns the report.
+
+    ``say`` gets the summary (the report as JSON with ``o.json_out``), ``warn`` a
+    warning when no face was found at all.
+    """
+    from facecapges.errors import require_file
+    from facecapges.io.face_json import check_face_layout
+    from facecapges.model.checkpoint import load_checkpoint
+
+    size = parse_size(o.video_size)
+    require_file(o.video, "video")
+    if o.audio is not None:
+        require_file(o.audio, "audio")
+    check_face_layout(o.face_json)
+    ckpt = load_checkpoint(o.checkpoint, o.style)
+    report = run_video(
+        o.video,
+        o.out,
+        ckpt,
+        audio=o.audio,
+        max_frames=o.max_frames,
+        force=o.force,
+        progress=not o.json_out,
+        videos=not o.no_video,
+        estimator=o.estimator,
+        head=o.head,
+        faces=o.faces,
+        video_size=size,
+        avatar=o.avatar,
+        face_layout=o.face_json,
+    )
+    if o.json_out:
+        say(json.dumps(report, indent=2))
+        return report
+    lat = report["latency_ms"]["total"]
+    say(
+        f"{report['frames']} frames → {o.out}  (compute per frame p50 {lat['p50']:.1f} ms, "
+        f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)"
+    )
+    ev = {k: v for k, v in report["events"].items() if v and k != "video_frames_skipped"}
+    if ev:
+        say("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))
+    if report["events"].get("video_frames_skipped"):  # decimation to the model rate, not a loss
+        say(
+            f"note: {report['events']['video_frames_skipped']} video frames were not needed at the "
+            f"model's {report['fps']:g} fps (normal frame-rate conversion)"
+        )
+    if report.get("face_found_frames") == 0 and report["frames"]:
+        warn(
+            "warning: no face was found in any frame of the video; the avatar's face stayed neutral "
+            "and its head at rest"
+        )
     return report

@@ -141,7 +141,7 @@ _UNITY_X = np.array([-1.0, 1.0, 1.0])  # right-handed (BEAT, VRM 1.0 glTF) → U
 
 def hip_height_cm(skeleton: Skeleton) -> float:
     """Height of the hips joint above the lowest joint (the feet) in the rest pose, cm."""
-    from facecapges.avatar.body import rest_positions
+    from facecapges.skeleton import rest_positions
 
     rest = rest_positions(skeleton)
     return float(rest[0, 1] - rest[:, 1].min())

@@ -60,7 +60,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from facecapges.errors import UserError
+from facecapges.errors import UserError, echo, echo_warning
 from facecapges.runtime import protocol
 from facecapges.runtime.ws import (
     SERVE_OPTIONS,
@@ -71,28 +71,12 @@ from facecapges.runtime.ws import (
     pong_message,
     refuse_foreign_host,
 )
+from facecapges.serving.config import ServeConfig
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
-
-
-@dataclass
-class ServeConfig:
-    host: str = "127.0.0.1"
-    port: int = 8780
-    max_streams: int = 256
-    rate_limit: float = 30.0  # messages per second per connection (2× the model rate)
-    max_pending: int = 4  # frames a stream may have waiting for a tick
-    idle_timeout: float = 60.0  # seconds without input before a stream is closed (0 = never)
-    send_buffer_bytes: int = 1 << 20  # unsent output above this closes a client that stopped reading
-    threads: int = 1  # torch threads of the batched model call
-    tick_ms: float = 15.0  # least time between the starts of two ticks (lets batches fill)
-    first_input_timeout: float = 10.0  # seconds from hello to the first input (0 = no limit)
-    min_input_rate: float = 1.0  # inputs per second a stream must keep over each rate_window (0 = none)
-    rate_window: float = 10.0  # seconds
-    max_per_address: int | None = None  # streams per client address; None: 16, unlimited on loopback
 
 
 @dataclass
@@ -461,3 +445,28 @@ class StreamServer:
             self._thread.join(timeout=10)
         self._pool.shutdown(wait=True)
         self.gen.shutdown()
+
+
+def serve_streams(checkpoint, style: str | None, cfg: ServeConfig, say=echo, warn=echo_warning) -> dict:
+    """The whole ``serve`` command: check ``cfg``, load the style, serve until interrupted; returns the summary.
+
+    ``say(text, err=False)`` gets the start line, the server's log (``err=True``) and the
+    summary; ``warn`` a warning when the address is not a loopback one."""
+    from facecapges.model.checkpoint import load_checkpoint
+
+    cfg.check()
+    ckpt = load_checkpoint(checkpoint, style)
+    server = StreamServer(ckpt, cfg, log=lambda m: say(m, err=True))
+    if not is_loopback(cfg.host):
+        warn(f"warning: listening on {cfg.host}: anyone who can reach it can use it (no authentication)")
+    server.start()
+    say(
+        f"serving {ckpt.path.name} on {server.url} (max {cfg.max_streams} streams, "
+        f"{cfg.rate_limit:g} msg/s per stream); Ctrl-C stops"
+    )
+    try:
+        server.run()
+    finally:
+        summary = server.summary()
+        say(f"served: {summary}")
+    return summary

@@ -77,48 +77,9 @@ def register(app: typer.Typer) -> None:
         Each participant opens his own invitation link (listed in STUDY_DIR/invitations.txt);
         the link's token is his only credential.
         """
-        from datetime import datetime
+        from facecapges.study.server import serve_study
 
-        from facecapges.errors import UserError, check_port
-        from facecapges.study.build import ensure_tokens, open_study, write_invitations
-        from facecapges.study.server import LANGUAGES, make_server
-
-        check_port(port, "--port")
-        if language not in LANGUAGES:
-            raise UserError(f"--language must be one of {', '.join(LANGUAGES)}, got {language!r}")
-        st = open_study(study_dir)
-        added = ensure_tokens(st)
-        if added:
-            typer.echo(
-                f"note: this study had no invitation tokens; gave {added} participant(s) one. Answers given "
-                "before are left out of the analysis.",
-                err=True,
-            )
-
-        def log(msg: str) -> None:
-            typer.echo(f"{datetime.now():%H:%M:%S} {msg}")
-
-        try:
-            server = make_server(st, host, port, on_event=log, language=language)
-        except OSError as exc:
-            raise UserError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from None
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else host
-        base = f"http://{shown if ':' not in shown else f'[{shown}]'}:{server.server_address[1]}"
-        inv = write_invitations(st.dir, st.plan, base)
-        typer.echo(
-            f"study {study_dir}: {len(st.plan.participants)} participants "
-            f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips"
-        )
-        typer.echo(
-            f"serving {base}/ (Ctrl-C stops); give each participant his own link from {inv}"
-            + (" (replace 127.0.0.1 by this machine's address on the network)" if host in ("0.0.0.0", "") else "")
-        )
-        try:
-            server.serve_forever()
-        except KeyboardInterrupt:
-            typer.echo("stopped")
-        finally:
-            server.server_close()
+        serve_study(study_dir, host, port, language, say=typer.echo)
 
     @study.command("analyze")
     def analyze_cmd(

@@ -45,6 +45,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from facecapges.errors import echo
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
 from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
@@ -369,3 +370,48 @@ def serve_in_thread(server: ThreadingHTTPServer) -> threading.Thread:
     t = threading.Thread(target=server.serve_forever, daemon=True)
     t.start()
     return t
+
+
+def serve_study(study_dir: Path, host: str = "127.0.0.1", port: int = 8770, language: str = "en", say=echo) -> None:
+    """The whole ``study serve`` command: check, give every participant a token, write the invitation
+    links for this address, serve until Ctrl-C. ``say(text, err=False)`` gets the notes and the log."""
+    from datetime import datetime
+
+    from facecapges.errors import UserError, check_port
+    from facecapges.study.build import ensure_tokens, open_study, write_invitations
+
+    check_port(port, "--port")
+    if language not in LANGUAGES:
+        raise UserError(f"--language must be one of {', '.join(LANGUAGES)}, got {language!r}")
+    st = open_study(study_dir)
+    added = ensure_tokens(st)
+    if added:
+        say(
+            f"note: this study had no invitation tokens; gave {added} participant(s) one. Answers given "
+            "before are left out of the analysis.",
+            err=True,
+        )
+    try:
+        server = make_server(
+            st, host, port, on_event=lambda m: say(f"{datetime.now():%H:%M:%S} {m}"), language=language
+        )
+    except OSError as exc:
+        raise UserError(f"cannot listen on {host}:{port} ({exc.strerror or exc})") from None
+    every = host in ("0.0.0.0", "")
+    shown = "127.0.0.1" if every else host
+    base = f"http://{shown if ':' not in shown else f'[{shown}]'}:{server.server_address[1]}"
+    inv = write_invitations(st.dir, st.plan, base)
+    say(
+        f"study {study_dir}: {len(st.plan.participants)} participants "
+        f"({st.plan.participants[0].id}…{st.plan.participants[-1].id}), {len(st.plan.clips)} clips"
+    )
+    say(
+        f"serving {base}/ (Ctrl-C stops); give each participant his own link from {inv}"
+        + (" (replace 127.0.0.1 by this machine's address on the network)" if every else "")
+    )
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        say("stopped")
+    finally:
+        server.server_close()
