@@ -174,6 +174,8 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
     try:
         msg = orjson.loads(text)  # ~7x faster than json.loads; deeper than 1,024 levels is an error
     except json.JSONDecodeError as exc:  # orjson.JSONDecodeError is one
+        if "recursion" in exc.msg:  # '[[[[…' deeper than the parser goes: bad input, not a crash
+            raise ProtocolError("JSON nested too deeply") from None
         raise ProtocolError(f"not JSON ({exc.msg})") from None
     except ValueError as exc:  # e.g. an integer of more digits than Python converts
         raise ProtocolError(f"not JSON ({str(exc)[:80]})") from None
