@@ -41,6 +41,7 @@ import torch
 Array = Any  # numpy.ndarray or torch.Tensor
 
 _EPS = 1e-8
+_CROSS_I, _CROSS_J = np.array([1, 2, 0]), np.array([2, 0, 1])  # _cross's index arrays, made once
 
 
 # --------------------------------------------------------------------------- helpers
@@ -60,7 +61,7 @@ def _stack(items: list[Array], axis: int, like: Array) -> Array:
 def _cross(a: Array, b: Array) -> Array:
     if _is_torch(a):
         return torch.linalg.cross(a, b, dim=-1)
-    i, j = [1, 2, 0], [2, 0, 1]  # np.cross is slow on small arrays
+    i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays
     return a[..., i] * b[..., j] - a[..., j] * b[..., i]
 
 
@@ -155,8 +156,10 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
             sign = torch.as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
             v = flat[..., rows, cols]  # (..., J, 7): the seven entries used, each joint's own
         else:  # the same entries by one np.take over each matrix set's J·9 numbers, then as below
-            v = np.take(matrix.reshape(tuple(matrix.shape[:-3]) + (-1,)), rows * 9 + cols, axis=-1)
-            return _euler_from_entries(v, sign, degrees)
+            take, signs = _orders_take(tuple(order))
+            return _euler_from_entries(
+                np.take(matrix.reshape(tuple(matrix.shape[:-3]) + (-1,)), take, axis=-1), signs, degrees
+            )
         ii, ij, ik, jk, kk, kj, jj = (v[..., n] for n in range(7))
     # For R = R_i(a) R_j(b) R_k(c): R[i, k] = sign * sin(b)
     sb = lib.clip(sign * ik, -1.0, 1.0)
@@ -176,19 +179,33 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     return out
 
 
-def _euler_from_entries(v: np.ndarray, sign: np.ndarray, degrees: bool) -> np.ndarray:
-    """:func:`matrix_to_euler`'s angles from each matrix's entries (..., J, 7) = R[i,i], R[i,j],
-    R[i,k], R[j,k], R[k,k], R[k,j], R[j,j] and the orders' signs (J,): the same formulas in
-    fewer NumPy calls (the per-frame BVH conversion of a stream runs it on 47 joints)."""
-    s = v * np.stack([np.ones_like(sign), -sign, sign, -sign, np.ones_like(sign), sign, np.ones_like(sign)], -1)
-    ac = np.arctan2(s[..., [3, 1]], s[..., [4, 0]])  # a, c: atan2(-sign R[j,k], R[k,k]), atan2(-sign R[i,j], R[i,i])
-    b = np.arcsin(np.clip(s[..., 2], -1.0, 1.0))
-    locked = np.hypot(v[..., 0], v[..., 1]) < 1e-6  # gimbal lock: cos(b) ~ 0, put everything in a
+def _euler_from_entries(v: np.ndarray, signs: np.ndarray, degrees: bool) -> np.ndarray:
+    """:func:`matrix_to_euler`'s angles from each matrix's entries (..., J, 7) = R[j,k], R[i,j],
+    R[k,k], R[i,i], R[i,k], R[k,j], R[j,j] and their signs (J, 7) (:func:`_orders_take`): the
+    same formulas in fewer NumPy calls (the per-frame BVH conversion of a stream runs it on 47 joints)."""
+    s = v * signs
+    ac = np.arctan2(s[..., 0:2], s[..., 2:4])  # a, c: atan2(-sign R[j,k], R[k,k]), atan2(-sign R[i,j], R[i,i])
+    out = np.empty(v.shape[:-1] + (3,))
+    out[..., 1] = np.arcsin(np.clip(s[..., 4], -1.0, 1.0))
+    locked = np.hypot(v[..., 3], v[..., 1]) < 1e-6  # gimbal lock: cos(b) ~ 0, put everything in a
     if locked.any():
         ac[..., 0] = np.where(locked, np.arctan2(s[..., 5], s[..., 6]), ac[..., 0])
         ac[..., 1] = np.where(locked, 0.0, ac[..., 1])
-    out = np.stack([ac[..., 0], b, ac[..., 1]], -1)
-    return out * (180.0 / math.pi) if degrees else out
+    out[..., ::2] = ac
+    if degrees:
+        out *= 180.0 / math.pi
+    return out
+
+
+@functools.lru_cache(maxsize=64)
+def _orders_take(orders: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Per order: the flat indices into its matrix's 9 entries, offset by 9 per joint, of R[j,k],
+    R[i,j], R[k,k], R[i,i], R[i,k], R[k,j], R[j,j] (J, 7), and the signs they take (J, 7)
+    (−sign, −sign, 1, 1, sign, sign, 1) — for :func:`_euler_from_entries`."""
+    rows, cols, sign = _orders_index(orders)
+    one = np.ones_like(sign)
+    signs = np.stack([-sign, -sign, one, one, sign, sign, one], -1)
+    return (rows * 9 + cols)[:, [3, 1, 4, 0, 2, 5, 6]], signs
 
 
 @functools.lru_cache(maxsize=64)

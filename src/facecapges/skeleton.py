@@ -297,12 +297,19 @@ def pose_to_motion(skel: Skeleton, pose: np.ndarray, root_pos: np.ndarray | None
         raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {pose.shape}")
     # only the 47 generated joints are converted (the rest stay at 0°): once per frame when streaming
     idx, layout = upper_body_indices(skel), _channel_layout(skel)
-    cached = skel.__dict__.get("_upper_body_orders")  # their Euler orders, kept beside what they come from
+    cached = skel.__dict__.get("_upper_body_motion")  # kept beside what they come from:
     if cached is None or cached[0] is not layout or cached[1] is not idx:
-        cached = skel.__dict__["_upper_body_orders"] = (layout, idx, tuple(layout[0][j] for j in idx))
+        # their Euler orders, and the motion columns of their angles with where each sits in (47·3)
+        where = {(int(j), r): n for n, (j, r) in enumerate((j, r) for j in idx for r in range(3))}
+        cols = [(int(c), where[int(j), int(a)]) for j, a, c in zip(*layout[1:4]) if (int(j), int(a)) in where]
+        dst, src = (np.array(x, np.int64) for x in zip(*cols))
+        cached = skel.__dict__["_upper_body_motion"] = (layout, idx, tuple(layout[0][j] for j in idx), dst, src)
     angles = rot.matrix_to_euler(rot.rot6d_to_matrix(pose.astype(np.float64)), cached[2], degrees=True)
     if angles.shape[0] > 1:
         angles = np.unwrap(angles, period=360.0, axis=0)  # as matrices_to_euler
-    euler = np.zeros((pose.shape[0], skel.n_joints, 3))
-    euler[:, idx] = angles
-    return euler_to_motion(skel, euler, root_pos)
+    # = euler_to_motion of the (T, J, 3) angles with the other joints at 0°, without building them
+    motion = np.zeros((pose.shape[0], skel.n_channels))
+    motion[:, cached[3]] = angles.reshape(pose.shape[0], -1)[:, cached[4]]
+    if root_pos is not None:
+        motion[:, layout[4]] = root_pos[:, layout[5]]
+    return motion

@@ -356,19 +356,28 @@ class Cascade:
         x[:, :W, :, 0] = g_in[..., : 4 * H].reshape(B, W, 4, H)
         x[:, 1:, :, 1] = g_in[..., 4 * H :].reshape(B, W, 4, H)
         hn, cn = hc.numpy().transpose(1, 0, 2)
-        w, g_ = self.w, slice(4 * H, 6 * H)
-        out = np.empty((B, 2, 2 * H), np.float32)
+        # every cell writes into buffers made once per window (two of each state, in turn),
+        # and q = [tanh(g) | c] lies beside s's [i | f] columns: f·c and i·tanh(g) are one product
+        w, H2 = self.w, 2 * H
+        g, s, p, t = (np.empty((B, n), np.float32) for n in (8 * H, 8 * H, 4 * H, H2))
+        q, hs = [np.empty((B, 4 * H), np.float32) for _ in "ab"], [np.empty((B, H2), np.float32) for _ in "ab"]
+        q[0][:, H2:], hs[0][:] = cn, hn
+        g_g, s_if, s_o, p_i, p_f = g[:, 4 * H : 6 * H], s[:, : 4 * H], s[:, 6 * H :], p[:, :H2], p[:, H2:]
+        out = np.empty((B, 2, H2), np.float32)
         for m, xm in enumerate(x.reshape(B, W + 1, 8 * H).transpose(1, 0, 2)):
-            g = xm + hn @ w
-            s = expit(g)
-            c_new = s[:, 2 * H : 4 * H] * cn + s[:, : 2 * H] * np.tanh(g[:, g_])
-            h_new = s[:, 6 * H :] * np.tanh(c_new)
+            q_old, q_new, h_old, h_new = q[m % 2], q[1 - m % 2], hs[m % 2], hs[1 - m % 2]
+            np.add(xm, np.dot(h_old, w, out=g), out=g)  # the gates, x_m + h·W (np.dot: the same product, faster)
+            expit(g, out=s)
+            np.tanh(g_g, out=q_old[:, :H2])
+            np.multiply(s_if, q_old, out=p)  # [i·tanh(g) | f·c]
+            c_new = q_new[:, H2:]
+            np.add(p_f, p_i, out=c_new)  # c' = f·c + i·tanh(g)
+            np.multiply(s_o, np.tanh(c_new, out=t), out=h_new)  # h' = o·tanh(c')
             if m == 0:  # there is no limb step −1: the limb state stays as carried
-                h_new[:, H:], c_new[:, H:] = hn[:, H:], cn[:, H:]
+                h_new[:, H:], c_new[:, H:] = h_old[:, H:], q_old[:, H2 + H :]
             elif m == W - 1:  # the torso's last step
                 out[:, 0, :H], out[:, 1, :H] = h_new[:, :H], c_new[:, :H]
-            hn, cn = h_new, c_new
-        out[:, 0, H:], out[:, 1, H:] = hn[:, H:], cn[:, H:]
+        out[:, 0, H:], out[:, 1, H:] = hs[(W + 1) % 2][:, H:], q[(W + 1) % 2][:, H2 + H :]
         return torch.from_numpy(out)
 
 
