@@ -77,18 +77,60 @@ def test_the_command_line_reads_its_defaults_from_these_classes():
 
     from facecapges.avatar.render.motion_file import RenderOptions
     from facecapges.cli import app
+    from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
     from facecapges.outputs.recording import GenerateOptions
     from facecapges.runtime.options import LiveOptions, RunOptions
     from facecapges.serving.config import ServeConfig
+    from facecapges.study.options import StudyAnalyzeOptions, StudyCreateOptions, StudyServeOptions
     from facecapges.training.launch import TrainOptions
 
-    commands = typer.main.get_command(app).commands
+    group = typer.main.get_command(app)
+    commands = dict(group.commands)
+    commands.update({f"study {n}": c for n, c in group.commands["study"].commands.items()})
     pairs = [("live", LiveOptions), ("run", RunOptions), ("generate", GenerateOptions), ("render", RenderOptions),
-             ("train", TrainOptions), ("serve", ServeConfig)]
+             ("train", TrainOptions), ("serve", ServeConfig), ("eval", EvalOptions), ("ablate", AblateOptions),
+             ("fgd-train", FgdTrainOptions), ("study create", StudyCreateOptions),
+             ("study serve", StudyServeOptions), ("study analyze", StudyAnalyzeOptions)]
     for name, cls in pairs:
         params = {p.name: p.default for p in commands[name].params}
         fields = {f.name: f.default for f in dataclasses.fields(cls) if f.default is not dataclasses.MISSING}
         shared = set(params) & set(fields)
-        assert len(shared) >= 3, (name, shared)
+        assert len(shared) >= min(3, len(fields)), (name, shared)
         for field in shared:
             assert params[field] == fields[field], (name, field)
+
+
+def test_the_library_takes_the_same_defaults_as_the_command_line():
+    """The functions behind eval, ablate, fgd-train and study default to the option classes' values."""
+    import dataclasses
+    import inspect
+
+    from facecapges.evaluation.ablate import VARIANTS, run_ablation
+    from facecapges.evaluation.commands import _parse_offsets
+    from facecapges.evaluation.fgd import FGDConfig
+    from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
+    from facecapges.evaluation.regions import REGIONS
+    from facecapges.evaluation.run import run_eval
+    from facecapges.study.build import create_study
+    from facecapges.study.options import StudyCreateOptions, StudyServeOptions
+    from facecapges.study.server import make_server, serve_study
+
+    def defaults(fn):
+        return {k: v.default for k, v in inspect.signature(fn).parameters.items()}
+
+    renamed = {"fgd": "fgd_location", "participants": "n_participants"}
+    for fn, cls in [(run_eval, EvalOptions), (run_ablation, AblateOptions), (create_study, StudyCreateOptions),
+                    (serve_study, StudyServeOptions), (make_server, StudyServeOptions)]:
+        got = defaults(fn)
+        shared = [f for f in dataclasses.fields(cls) if renamed.get(f.name, f.name) in got and f.name != "variants"]
+        assert len(shared) >= 3, (fn.__name__, shared)
+        for f in shared:
+            assert got[renamed.get(f.name, f.name)] == f.default, (fn.__name__, f.name)
+    for fn, cls in [(run_eval, EvalOptions), (run_ablation, AblateOptions)]:
+        assert tuple(_parse_offsets(cls.offsets)) == defaults(fn)["offsets_s"], fn.__name__
+    assert tuple(AblateOptions.variants.split(",")) == VARIANTS == defaults(run_ablation)["variants"]
+    assert tuple(FgdTrainOptions.regions.split(",")) == REGIONS
+    fgd = FGDConfig()
+    assert (FgdTrainOptions.epochs, FgdTrainOptions.batch_size, FgdTrainOptions.momentum, FgdTrainOptions.seed) == (
+        fgd.epochs, fgd.batch_size, fgd.momentum, fgd.seed)
+    assert AblateOptions.fgd_epochs == fgd.epochs

@@ -22,8 +22,8 @@ The error policy, one rule per kind of failure:
 
 Messages that are not errors: a library function that talks to the user while it works
 takes ``say(text, err=False)`` (a line on stdout, or stderr) and ``warn(text)`` (a
-warning or note on stderr); the command line passes typer's (warnings in yellow),
-:func:`echo` and :func:`echo_warning` are the defaults.
+warning or note on stderr); :func:`echo` and :func:`echo_warning` (yellow on a terminal)
+are the defaults, and every command warns with :func:`echo_warning`.
 """
 
 from __future__ import annotations
@@ -42,8 +42,13 @@ def echo(text: str, err: bool = False) -> None:
 
 
 def echo_warning(text: str) -> None:
-    """The default ``warn``: a line on stderr."""
-    print(text, file=sys.stderr, flush=True)
+    """The one ``warn``: a line on stderr, in yellow when stderr is a terminal (plain text otherwise)."""
+    if sys.stderr.isatty():
+        from rich.console import Console
+
+        Console(stderr=True, soft_wrap=True, markup=False, highlight=False, emoji=False).print(text, style="yellow")
+    else:
+        print(text, file=sys.stderr, flush=True)
 
 
 def file_error(path: str | Path, problem: str) -> UserError:

@@ -78,6 +78,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError
+from facecapges.evaluation.options import AblateOptions
 
 VARIANTS: tuple[str, ...] = ("full", "no_head", "offline", "camn")
 LABELS = {
@@ -520,24 +521,24 @@ def ablation_markdown(full: dict) -> str:
 def run_ablation(
     cache: Path,
     out: Path,
-    speaker: int = 2,
-    config: Path | None = None,
-    epochs: int | None = None,
-    split: str | None = None,
-    holdout_from: int | None = None,
+    speaker: int = AblateOptions.speaker,
+    config: Path | None = AblateOptions.config,
+    epochs: int | None = AblateOptions.epochs,
+    split: str | None = AblateOptions.split,
+    holdout_from: int | None = AblateOptions.holdout_from,
     variants: Sequence[str] = VARIANTS,
-    reuse_default: bool = True,
-    retrain: bool = False,
-    fgd_location: Path | None = None,
-    fgd_epochs: int = 400,
-    samples: int = 3,
-    seed: int = 0,
+    reuse_default: bool = AblateOptions.reuse_default,
+    retrain: bool = AblateOptions.retrain,
+    fgd_location: Path | None = AblateOptions.fgd,
+    fgd_epochs: int = AblateOptions.fgd_epochs,
+    samples: int = AblateOptions.samples,
+    seed: int = AblateOptions.seed,
     offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
     progress: bool = True,
     say=print,
     given: Mapping[str, str] | None = None,
     command: str | None = None,
-    force: bool = False,
+    force: bool = AblateOptions.force,
 ) -> dict:
     """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document.
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import typer
 
 from facecapges.errors import UserError
+from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
 
 
 def _parse_regions(text: str) -> tuple[str, ...]:
@@ -66,28 +67,33 @@ def _parse_given(text: str | None) -> dict[str, str]:
 def register(app: typer.Typer) -> None:
     @app.command("fgd-train")
     def fgd_train(
-        cache: Path | None = typer.Option(None, help="A cache written by `facecapges prepare`."),
-        speaker: int = typer.Option(2, help="BEAT speaker id (one FGD autoencoder per speaker)."),
-        split: str = typer.Option("train", help="Cache clips to train on: train, val, test or all."),
+        cache: Path | None = typer.Option(FgdTrainOptions.cache, help="A cache written by `facecapges prepare`."),
+        speaker: int = typer.Option(FgdTrainOptions.speaker, help="BEAT speaker id (one FGD autoencoder per speaker)."),
+        split: str = typer.Option(FgdTrainOptions.split, help="Cache clips to train on: train, val, test or all."),
         holdout_from: int | None = typer.Option(
-            None, help="Use only frames before this frame of every clip (the rest is held out for evaluation)."
+            FgdTrainOptions.holdout_from,
+            help="Use only frames before this frame of every clip (the rest is held out for evaluation).",
         ),
         bvh: list[Path] | None = typer.Option(
             None, help="BEAT BVH file(s) to train on instead of a cache (repeat the option for several files)."
         ),
-        out: Path | None = typer.Option(None, help="Directory to write fgd_autoencoder.safetensors/.json into."),
+        out: Path | None = typer.Option(
+            FgdTrainOptions.out, help="Directory to write fgd_autoencoder.safetensors/.json into."
+        ),
         checkpoint: Path | None = typer.Option(
-            None,
+            FgdTrainOptions.checkpoint,
             help="Gesture checkpoint to store the autoencoder next "
             "to (in the folder NAME.fgd/), when --out is not given.",
         ),
-        epochs: int = typer.Option(400, help="Training epochs."),
-        batch_size: int = typer.Option(256, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."),
-        momentum: float = typer.Option(0.9, help="SGD momentum (0 = plain SGD)."),
-        regions: str = typer.Option("with_head,without_head", help="Regions to train an autoencoder for."),
-        seed: int = typer.Option(0, help="Random seed."),
-        force: bool = typer.Option(False, "--force", help="Overwrite an existing FGD autoencoder."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+        epochs: int = typer.Option(FgdTrainOptions.epochs, help="Training epochs."),
+        batch_size: int = typer.Option(
+            FgdTrainOptions.batch_size, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."
+        ),
+        momentum: float = typer.Option(FgdTrainOptions.momentum, help="SGD momentum (0 = plain SGD)."),
+        regions: str = typer.Option(FgdTrainOptions.regions, help="Regions to train an autoencoder for."),
+        seed: int = typer.Option(FgdTrainOptions.seed, help="Random seed."),
+        force: bool = typer.Option(FgdTrainOptions.force, "--force", help="Overwrite an existing FGD autoencoder."),
+        quiet: bool = typer.Option(FgdTrainOptions.quiet, "--quiet", help="No progress bar."),
     ) -> None:
         """Train the skeleton-aware FGD autoencoder on a speaker's real motion (what `eval` measures FGD with)."""
         from facecapges.errors import refuse_overwrite
@@ -125,30 +131,41 @@ def register(app: typer.Typer) -> None:
     def eval_cmd(
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: metrics.json, metrics.md, PNG plots, MP4."),
-        checkpoint: Path | None = typer.Option(None, help="Gesture checkpoint (default: the installed default style)."),
-        style: str | None = typer.Option(None, help="Installed style name instead of --checkpoint."),
-        speaker: int | None = typer.Option(None, help="Speaker to evaluate (default: the checkpoint's)."),
-        split: str = typer.Option("test", help="Clips to evaluate when --holdout-from is not given."),
+        checkpoint: Path | None = typer.Option(
+            EvalOptions.checkpoint, help="Gesture checkpoint (default: the installed default style)."
+        ),
+        style: str | None = typer.Option(EvalOptions.style, help="Installed style name instead of --checkpoint."),
+        speaker: int | None = typer.Option(
+            EvalOptions.speaker, help="Speaker to evaluate (default: the checkpoint's)."
+        ),
+        split: str = typer.Option(EvalOptions.split, help="Clips to evaluate when --holdout-from is not given."),
         holdout_from: int | None = typer.Option(
-            None,
+            EvalOptions.holdout_from,
             help="Evaluate frames from this frame on of every clip of the speaker; earlier frames are the real pool.",
         ),
         audio: list[Path] | None = typer.Option(
             None, help="Extra unseen speech (no motion): BeatAlign, L1DIV and FGD against the speaker's real motion."
         ),
         fgd: Path | None = typer.Option(
-            None, help="FGD autoencoder (directory or checkpoint it sits next to; default: next to the checkpoint)."
+            EvalOptions.fgd,
+            help="FGD autoencoder (directory or checkpoint it sits next to; default: next to the checkpoint).",
         ),
-        offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
-        video: bool = typer.Option(True, "--video/--no-video", help="Write real_vs_generated.mp4."),
-        seed: int = typer.Option(0, help="Seed for the random real segment baseline and the sample starts."),
+        offsets: str = typer.Option(
+            EvalOptions.offsets, help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."
+        ),
+        video: bool = typer.Option(EvalOptions.video, "--video/--no-video", help="Write real_vs_generated.mp4."),
+        seed: int = typer.Option(
+            EvalOptions.seed, help="Seed for the random real segment baseline and the sample starts."
+        ),
         samples: int = typer.Option(
-            3,
+            EvalOptions.samples,
             help="Model runs per clip (different cold-start histories) for the "
             "diversity across samples (L1DIV); metrics average over them.",
         ),
-        force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has metrics."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+        force: bool = typer.Option(
+            EvalOptions.force, "--force", help="Write into an OUT folder that already has metrics."
+        ),
+        quiet: bool = typer.Option(EvalOptions.quiet, "--quiet", help="No progress bars."),
     ) -> None:
         """Evaluate a checkpoint on held-out motion: FGD, SRGR, BeatAlign, L1DIV, with and without the head."""
         from facecapges.evaluation.run import run_eval
@@ -170,43 +187,43 @@ def register(app: typer.Typer) -> None:
             progress=not quiet,
             force=force,
             say=typer.echo,
-            warn=lambda m: typer.secho(m, err=True, fg=typer.colors.YELLOW),
         )
 
     @app.command("ablate")
     def ablate_cmd(
         cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
         out: Path = typer.Option(..., help="Output folder: ablation.md, ablation.json, runs/<variant>/."),
-        speaker: int = typer.Option(2, help="BEAT speaker id to train and evaluate."),
+        speaker: int = typer.Option(AblateOptions.speaker, help="BEAT speaker id to train and evaluate."),
         config: Path | None = typer.Option(
-            None,
+            AblateOptions.config,
             help="Base YAML/JSON recipe with 'model:'/'train:' sections "
             "(default: configs/demo-beat2-scott.yaml, the shipped "
             "model's recipe).",
         ),
         epochs: int | None = typer.Option(
-            None,
+            AblateOptions.epochs,
             help="Epochs for every variant (default: the config's). Not the "
             "FGD autoencoder's: that is --fgd-epochs (400) when none "
             "is found; pass --fgd to use an existing one.",
         ),
         split: str | None = typer.Option(
-            None, help="Clips to train on (default: all with a hold-out frame, else train)."
+            AblateOptions.split, help="Clips to train on (default: all with a hold-out frame, else train)."
         ),
         holdout_from: int | None = typer.Option(
-            None, help="Hold out frames >= this of every clip (default: the config's holdout_from); they are evaluated."
+            AblateOptions.holdout_from,
+            help="Hold out frames >= this of every clip (default: the config's holdout_from); they are evaluated.",
         ),
         variants: str = typer.Option(
-            ",".join(("full", "no_head", "offline", "camn")),
+            AblateOptions.variants,
             help="Comma-separated variants: full, no_head, offline, camn (the CaMN baseline).",
         ),
         reuse_default: bool = typer.Option(
-            True,
+            AblateOptions.reuse_default,
             "--reuse-default/--no-reuse-default",
             help="Use the shipped default checkpoint as 'full' when its stored recipe and data match.",
         ),
         given: str | None = typer.Option(
-            None,
+            AblateOptions.given,
             "--given",
             help="VARIANT=CHECKPOINT[,…]: take these rows from "
             "existing checkpoints as they are (a file, or an "
@@ -214,20 +231,30 @@ def register(app: typer.Typer) -> None:
             "their recipe, e.g. full=beat2-scott-demo.",
         ),
         retrain: bool = typer.Option(
-            False, "--retrain", help="Train every variant even if OUT/runs holds a finished model of this recipe."
+            AblateOptions.retrain,
+            "--retrain",
+            help="Train every variant even if OUT/runs holds a finished model of this recipe.",
         ),
         fgd: Path | None = typer.Option(
-            None,
+            AblateOptions.fgd,
             help="FGD autoencoder (directory or checkpoint it sits next to); "
             "default: the shipped one when 'full' is the shipped "
             "checkpoint, else trained into OUT/fgd.",
         ),
-        fgd_epochs: int = typer.Option(400, help="Epochs when an FGD autoencoder must be trained."),
-        samples: int = typer.Option(3, help="Runs per variant and clip (different start histories)."),
-        offsets: str = typer.Option("2:60:2", help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."),
-        seed: int = typer.Option(0, help="Seed of the random real segment and the start histories."),
-        force: bool = typer.Option(False, "--force", help="Write into an OUT folder that already has a table."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bars."),
+        fgd_epochs: int = typer.Option(
+            AblateOptions.fgd_epochs, help="Epochs when an FGD autoencoder must be trained."
+        ),
+        samples: int = typer.Option(
+            AblateOptions.samples, help="Runs per variant and clip (different start histories)."
+        ),
+        offsets: str = typer.Option(
+            AblateOptions.offsets, help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."
+        ),
+        seed: int = typer.Option(AblateOptions.seed, help="Seed of the random real segment and the start histories."),
+        force: bool = typer.Option(
+            AblateOptions.force, "--force", help="Write into an OUT folder that already has a table."
+        ),
+        quiet: bool = typer.Option(AblateOptions.quiet, "--quiet", help="No progress bars."),
     ) -> None:
         """Ablation study: train the model's variants with one budget, evaluate them side by side."""
         import sys

@@ -41,6 +41,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError, check_output_dir, echo, echo_warning, file_error
+from facecapges.evaluation.options import EvalOptions
 
 
 def load_real_clips(
@@ -132,19 +133,19 @@ def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarra
 def run_eval(
     cache: Path,
     out: Path,
-    checkpoint: Path | None = None,
-    style: str | None = None,
-    speaker: int | None = None,
-    split: str = "test",
-    holdout_from: int | None = None,
+    checkpoint: Path | None = EvalOptions.checkpoint,
+    style: str | None = EvalOptions.style,
+    speaker: int | None = EvalOptions.speaker,
+    split: str = EvalOptions.split,
+    holdout_from: int | None = EvalOptions.holdout_from,
     extra_audio: Sequence[Path] = (),
-    fgd_location: Path | None = None,
+    fgd_location: Path | None = EvalOptions.fgd,
     offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
-    video: bool = True,
-    seed: int = 0,
-    samples: int = 3,
+    video: bool = EvalOptions.video,
+    seed: int = EvalOptions.seed,
+    samples: int = EvalOptions.samples,
     progress: bool = True,
-    force: bool = False,
+    force: bool = EvalOptions.force,
     say: Callable[[str], None] = echo,
     warn: Callable[[str], None] = echo_warning,
 ) -> dict:

@@ -44,7 +44,7 @@ def register(app: typer.Typer) -> None:
         options = GenerateOptions(**locals())  # before any other name is bound here
         from facecapges.outputs.recording import generate_recording
 
-        generate_recording(options, say=typer.echo, warn=lambda m: typer.secho(m, err=True, fg=typer.colors.YELLOW))
+        generate_recording(options, say=typer.echo)
 
     styles_app = typer.Typer(
         help="The installed speaking styles (per-speaker models): list, install.",

@@ -17,10 +17,6 @@ HEAD_HELP = (
 FACES_HELP = "Faces to follow, each with its own avatar (1-8; files, VMC ports and viewer avatars per face)."
 
 
-def _warn(text: str) -> None:
-    typer.secho(text, err=True, fg=typer.colors.YELLOW)
-
-
 def register(app: typer.Typer) -> None:
     @app.command("run")
     def run_cmd(
@@ -56,7 +52,7 @@ def register(app: typer.Typer) -> None:
         options = RunOptions(**locals())  # before any other name is bound here
         from facecapges.runtime.offline import run_offline
 
-        run_offline(options, say=typer.echo, warn=_warn)
+        run_offline(options, say=typer.echo)
 
     @app.command("live")
     def live_cmd(
@@ -142,4 +138,4 @@ def register(app: typer.Typer) -> None:
         options = LiveOptions(**locals())  # before any other name is bound here
         from facecapges.runtime.live import run_live
 
-        run_live(options, say=typer.echo, warn=_warn)
+        run_live(options, say=typer.echo)

@@ -58,6 +58,4 @@ def register(app: typer.Typer) -> None:
             tick_ms=tick_ms,
             max_per_address=max_per_address,
         )
-        serve_streams(
-            checkpoint, style, cfg, say=typer.echo, warn=lambda m: typer.secho(m, err=True, fg=typer.colors.YELLOW)
-        )
+        serve_streams(checkpoint, style, cfg, say=typer.echo)

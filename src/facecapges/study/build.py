@@ -45,6 +45,7 @@ import numpy as np
 from facecapges.errors import UserError, file_error
 from facecapges.study.criteria import CRITERIA
 from facecapges.study.design import StudyPlan, balance_report, make_plan, new_token
+from facecapges.study.options import StudyCreateOptions
 
 STUDY_FILE = "study.json"
 AVATAR_FILE = "avatar.glb"
@@ -107,11 +108,11 @@ def ensure_tokens(study: Study) -> int:
 def create_study(
     clips_yaml: str | Path,
     out: str | Path,
-    n_participants: int | None = None,
-    seed: int = 0,
-    force: bool = False,
+    n_participants: int | None = StudyCreateOptions.participants,
+    seed: int = StudyCreateOptions.seed,
+    force: bool = StudyCreateOptions.force,
     progress: bool = True,
-    avatar: str | Path | None = None,
+    avatar: str | Path | None = StudyCreateOptions.avatar,
 ) -> dict:
     """Validate the clips, write the study folder; returns a summary (counts and balance)."""
     from facecapges.study.clips import load_clips

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from facecapges.study.options import StudyAnalyzeOptions, StudyCreateOptions, StudyServeOptions
+
 
 def register(app: typer.Typer) -> None:
     study = typer.Typer(
@@ -24,16 +26,20 @@ def register(app: typer.Typer) -> None:
         ),
         out: Path = typer.Option(..., "--out", help="Study folder to write."),
         participants: int = typer.Option(
-            None,
+            StudyCreateOptions.participants,
             "--participants",
             help="Number of participant plans (default: one "
             "per row of the balanced Latin square: N clips, "
             "2N for odd N).",
         ),
-        seed: int = typer.Option(0, "--seed", help="Seed of the clip assignment and the screen positions."),
-        force: bool = typer.Option(False, "--force", help="Overwrite an existing study (never one with answers)."),
+        seed: int = typer.Option(
+            StudyCreateOptions.seed, "--seed", help="Seed of the clip assignment and the screen positions."
+        ),
+        force: bool = typer.Option(
+            StudyCreateOptions.force, "--force", help="Overwrite an existing study (never one with answers)."
+        ),
         avatar: Path = typer.Option(
-            None,
+            StudyCreateOptions.avatar,
             "--avatar",
             help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB (default: ours, built from the first BVH).",
         ),
@@ -64,10 +70,12 @@ def register(app: typer.Typer) -> None:
     @study.command("serve")
     def serve_cmd(
         study_dir: Path = typer.Argument(..., help="Study folder made by 'facecapges study create'."),
-        host: str = typer.Option("127.0.0.1", "--host", help="Address to listen on (0.0.0.0: every interface)."),
-        port: int = typer.Option(8770, "--port", help="TCP port."),
+        host: str = typer.Option(
+            StudyServeOptions.host, "--host", help="Address to listen on (0.0.0.0: every interface)."
+        ),
+        port: int = typer.Option(StudyServeOptions.port, "--port", help="TCP port."),
         language: str = typer.Option(
-            "en",
+            StudyServeOptions.language,
             "--language",
             help="Language the page starts in: en (English) or zh (Chinese); participants can switch.",
         ),
@@ -85,11 +93,13 @@ def register(app: typer.Typer) -> None:
     def analyze_cmd(
         study_dir: Path = typer.Argument(..., help="Study folder with answers in responses/."),
         out: Path = typer.Option(..., "--out", help="Folder for results.json, results.md and the PNG plots."),
-        only: str = typer.Option("", "--only", help="Comma-separated participant ids to analyse (default: all)."),
-        force: bool = typer.Option(False, "--force", help="Overwrite results already in --out."),
+        only: str = typer.Option(
+            StudyAnalyzeOptions.only, "--only", help="Comma-separated participant ids to analyse (default: all)."
+        ),
+        force: bool = typer.Option(StudyAnalyzeOptions.force, "--force", help="Overwrite results already in --out."),
     ) -> None:
         """Mean ranks with 95 % intervals, Friedman test, Holm-corrected Wilcoxon pairs, bar plots."""
-        from facecapges.errors import UserError, refuse_overwrite
+        from facecapges.errors import UserError, echo_warning, refuse_overwrite
         from facecapges.study.analyze import analyze_study, collect_answers
         from facecapges.study.build import open_study
 
@@ -97,11 +107,9 @@ def register(app: typer.Typer) -> None:
         left_out: list[str] = []
         answers = collect_answers(st, left_out)
         if left_out:
-            typer.secho(
+            echo_warning(
                 f"warning: left out {len(left_out)} answer(s) not given with the participant's invitation "
-                f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})",
-                err=True,
-                fg=typer.colors.YELLOW,
+                f"token ({', '.join(left_out[:5])}{', …' if len(left_out) > 5 else ''})"
             )
         if not answers:
             raise UserError(f"{study_dir}: no answers yet in responses/ (that were given with an invitation token)")

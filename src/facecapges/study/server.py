@@ -48,6 +48,7 @@ from urllib.parse import parse_qs, urlsplit
 from facecapges.errors import echo
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
+from facecapges.study.options import StudyServeOptions
 from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
 
 PAGE_DIR = Path(__file__).with_name("page")
@@ -349,10 +350,10 @@ class StudyServer(ThreadingHTTPServer):
 
 def make_server(
     study: Study,
-    host: str = "127.0.0.1",
-    port: int = 8770,
+    host: str = StudyServeOptions.host,
+    port: int = StudyServeOptions.port,
     on_event: Callable[[str], None] | None = None,
-    language: str = "en",
+    language: str = StudyServeOptions.language,
     timeout: float = SOCKET_TIMEOUT,
     max_connections: int = MAX_CONNECTIONS,
 ) -> StudyServer:
@@ -372,7 +373,13 @@ def serve_in_thread(server: ThreadingHTTPServer) -> threading.Thread:
     return t
 
 
-def serve_study(study_dir: Path, host: str = "127.0.0.1", port: int = 8770, language: str = "en", say=echo) -> None:
+def serve_study(
+    study_dir: Path,
+    host: str = StudyServeOptions.host,
+    port: int = StudyServeOptions.port,
+    language: str = StudyServeOptions.language,
+    say=echo,
+) -> None:
     """The whole ``study serve`` command: check, give every participant a token, write the invitation
     links for this address, serve until Ctrl-C. ``say(text, err=False)`` gets the notes and the log."""
     from datetime import datetime
