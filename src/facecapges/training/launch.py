@@ -102,6 +102,7 @@ def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
             )
         )
         trainer.fit()
+        ctx.barrier()  # every rank done with its collectives before any tears the group down (a gloo abort else)
         say(f"checkpoint: {o.out / 'model.safetensors'}  log: {o.out / 'log.csv'}")
     finally:
         shutdown(ctx)
