@@ -212,3 +212,14 @@ def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics
     with pytest.raises(UserError, match="model.lstm_hidden is 16, this run's is 24"):
         build_trainer([_clip()], tmp_path / "bad", dict(TINY, lstm_hidden=24),
                       dict(over, init_from=str(tmp_path / "base")), {}, resume=False)
+
+
+def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
+    from facecapges.errors import UserError
+    from facecapges.model.checkpoint import load_checkpoint_or_style
+
+    assert load_checkpoint_or_style("zeggs-speech").path.name == "zeggs-speech.safetensors"
+    with pytest.raises(UserError, match="checkpoint not found"):  # a path that is not there is not a style name
+        load_checkpoint_or_style(str(tmp_path / "missing.safetensors"))
+    with pytest.raises(UserError, match="unknown style 'no-such-style'"):
+        load_checkpoint_or_style("no-such-style")

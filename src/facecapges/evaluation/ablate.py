@@ -215,7 +215,7 @@ def train_variants(
     """
     import json
 
-    from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
+    from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, load_checkpoint_or_style
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -235,7 +235,7 @@ def train_variants(
             if v in SEGMENT_DECODERS:
                 path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
             else:
-                ck = load_checkpoint(ref) if ref.is_file() or ref.is_dir() else load_checkpoint(style=given[v])
+                ck = load_checkpoint_or_style(ref)
                 path, meta = ck.path, ck.meta
             why = _same_recipe(meta, recipe, extra, names)
             source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")

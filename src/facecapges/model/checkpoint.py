@@ -224,6 +224,14 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     return Checkpoint(model=model.eval(), meta=meta, path=p)
 
 
+def load_checkpoint_or_style(spec: str | Path) -> Checkpoint:
+    """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
+    path: a suffix or a folder in it) or else by an installed style's name."""
+    p = Path(spec)
+    looks_like_path = p.exists() or bool(p.suffix) or len(p.parts) > 1
+    return load_checkpoint(p) if looks_like_path else load_checkpoint(style=str(spec))
+
+
 def load_skeleton(checkpoint_path: str | Path | None = None) -> Skeleton:
     """The BEAT skeleton stored with a checkpoint (default: the default style's)."""
     return load_checkpoint(checkpoint_path).skeleton

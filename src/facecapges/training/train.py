@@ -312,11 +312,10 @@ def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) ->
     """
     from dataclasses import asdict
 
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.checkpoint import load_checkpoint_or_style
     from facecapges.model.network import NORM_BUFFERS
 
-    path = Path(source)
-    base = load_checkpoint(path) if path.suffix or path.exists() else load_checkpoint(style=source)
+    base = load_checkpoint_or_style(source)
     theirs, ours = asdict(base.model.cfg), asdict(mcfg)
     diff = [k for k in ours if ours[k] != theirs.get(k)]
     if diff:
