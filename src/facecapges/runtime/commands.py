@@ -14,6 +14,7 @@ HEAD_HELP = (
     "What the avatar's head shows: capture (the person's head; the model's when the face is lost), "
     "model (the gesture model's neck) or blend (half-way)."
 )
+FACE_JSON_HELP = "face.json layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at the model rate)."
 FACES_HELP = "Faces to follow, each with its own avatar (1-8; files, VMC ports and viewer avatars per face)."
 
 
@@ -35,7 +36,7 @@ def register(app: typer.Typer) -> None:
         face_json: str = typer.Option(
             RunOptions.face_json,
             "--face-json",
-            help="face.json layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at the model rate).",
+            help=FACE_JSON_HELP,
         ),
         video_size: str | None = typer.Option(
             None, "--video-size", help="Avatar video size WxH (default 640x480; side_by_side.mp4 has its height)."
@@ -110,7 +111,7 @@ def register(app: typer.Typer) -> None:
         face_json: str = typer.Option(
             LiveOptions.face_json,
             "--face-json",
-            help="face.json layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at the model rate).",
+            help=FACE_JSON_HELP,
         ),
         vrma: bool = typer.Option(
             LiveOptions.vrma,
