@@ -8,7 +8,9 @@
   style runs from a cold start on the held-out inputs (head mapped into its camera
   frame). Per take, for the real and the generated motion: energy–wrist-speed
   correlation and its z against shifted audio, BeatAlign and its gap against shifted
-  audio (in sd units), wrist jerk and spread as ratios to the real held-out motion.
+  audio (in sd units), wrist jerk and spread as ratios to the real held-out motion;
+  and the same for the style given the take's audio with the head held still
+  (``generated_still_head``: the input an audio file without a head track gives it).
 * All paired takes together: their energy–speed z and BeatAlign-gap z combined by
   Stouffer's method (:func:`facecapges.evaluation.synchrony.stouffer_z`).
 * Unseen audio (no motion): the same figures, ratios to the real motion of the
@@ -20,6 +22,7 @@ All metric code is :mod:`facecapges.evaluation.synchrony` and
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -54,6 +57,7 @@ def main() -> None:
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, wrist_positions
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
+    from facecapges.rotations import identity_rot6d
 
     ck = load_checkpoint(args.checkpoint)
     skel, fps, sr = ck.skeleton, ck.fps, ck.model.cfg.sr
@@ -77,10 +81,14 @@ def main() -> None:
         train_stats.append(motion_stats(wrist_positions(skel, a["pose"][:start]), fps))
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ref)
         gen, _ = generate_poses(ck, inputs, progress=False)
+        # the same audio with the head at rest (what an audio file without a head track gives)
+        still = dataclasses.replace(inputs, head=np.broadcast_to(identity_rot6d(), inputs.head.shape).copy())
+        gen_still, _ = generate_poses(ck, still, progress=False)
         real_stats = motion_stats(wrist_positions(skel, real), fps)
         out["paired"][e["name"]] = {"from_frame": int(start), "frames": len(real),
                                     "real": _row(skel, real, audio, sr, fps, real_stats),
-                                    "generated": _row(skel, gen, audio, sr, fps, real_stats)}
+                                    "generated": _row(skel, gen, audio, sr, fps, real_stats),
+                                    "generated_still_head": _row(skel, gen_still, audio, sr, fps, real_stats)}
         print(e["name"], json.dumps(out["paired"][e["name"]]["generated"]))
     from facecapges.evaluation.synchrony import stouffer_z
 

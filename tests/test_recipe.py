@@ -223,3 +223,26 @@ def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
         load_checkpoint_or_style(str(tmp_path / "missing.safetensors"))
     with pytest.raises(UserError, match="unknown style 'no-such-style'"):
         load_checkpoint_or_style("no-such-style")
+
+
+def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
+    """``train.head_dropout``: a segment's head input is held at the camera frame's identity, whole."""
+    from facecapges.errors import UserError
+    from facecapges.training.train import build_trainer, hold_head_still
+
+    torch.manual_seed(0)
+    head = torch.randn(400, 50, 6)
+    before = head.clone()
+    hold_head_still(head, 0.3)
+    still = (head == torch.tensor(rot.identity_rot6d())).all(-1).all(-1)  # (400,)
+    assert 0.2 < float(still.float().mean()) < 0.4
+    assert torch.equal(head[~still], before[~still])  # the others untouched, whole segments only
+    assert bool((head == torch.tensor(rot.identity_rot6d())).all(-1).any(-1).eq(still).all())
+    over = dict(epochs=1, batch_size=8, holdout_from=120, num_threads=1)
+    logs = []
+    for p in (0.0, 1.0):
+        tr = build_trainer([_clip()], tmp_path / f"run{p}", dict(TINY), dict(over, head_dropout=p), {}, resume=False)
+        logs.append(tr.fit(progress=False)[-1]["rec"])
+    assert logs[0] != logs[1]  # the setting reaches the training loop
+    with pytest.raises(UserError, match="head_dropout"):
+        build_trainer([_clip()], tmp_path / "bad", dict(TINY), dict(over, head_dropout=1.5), {}, resume=False)

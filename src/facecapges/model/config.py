@@ -106,6 +106,11 @@ class TrainConfig:
     # the cache's rule for takes of other sources (their ``holdout_from``)
     holdout_fraction: float | None = None
     mirror: bool = False  # also train on a left/right mirrored copy of every clip (data/mirror.py)
+    # (ours) the chance that a training segment's head input is held still at "facing the
+    # camera" (the identity rotation of the model's camera frame) over its whole window:
+    # the style then also learns to gesture from the audio alone, the input an audio file
+    # without a head track gives it (model.generate: the head at rest). 0 = off.
+    head_dropout: float = 0.0
     num_threads: int = 0  # 0 = torch default
     # (ours) fine-tuning: start the generator from a trained style's weights (a checkpoint
     # file or an installed style's name; same model settings) instead of at random. The
@@ -165,6 +170,7 @@ LIMITS: dict[str, dict[str, tuple | set]] = {
         "holdout_from": (1, None),
         "num_threads": (0, 1024),
         "holdout_fraction": (0.0, 0.9),
+        "head_dropout": (0.0, 1.0),
     },
 }
 

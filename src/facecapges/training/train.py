@@ -55,6 +55,7 @@ from facecapges.errors import UserError
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
 from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
+from facecapges.rotations import identity_rot6d
 from facecapges.timing import frame_audio, frame_sample_bounds
 from facecapges.training.distributed import DistContext
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
@@ -155,6 +156,18 @@ class SegmentSet:
             "pose": torch.from_numpy(self.pose[seg]),
             "mask": torch.from_numpy(self.mask[seg]),
         }
+
+
+def hold_head_still(head: torch.Tensor, p: float) -> torch.Tensor:
+    """``TrainConfig.head_dropout``: each segment's head input (B, N + L, 6), with chance
+    ``p``, set in place to the identity rotation — "facing the camera" in the model's
+    camera frame (:mod:`facecapges.capture.head_pose`), what a still head or an audio
+    file without a head track gives the style at run time. Drawn from torch's generator,
+    which ``train_epoch`` seeds per epoch (a resumed run draws the same segments)."""
+    held = torch.rand(head.shape[0]) < p
+    if bool(held.any()):
+        head[held] = torch.from_numpy(identity_rot6d()).to(head)
+    return head
 
 
 def encode_segments(model: FaceCapGes, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -590,6 +603,8 @@ class Trainer:
             if n_local == 0:  # more ranks than segments left: join the all-reduce with weight 0
                 idx = chunk[:1]
             batch = self._gather(self.train_set, idx)
+            if t.head_dropout > 0:
+                hold_head_still(batch["head"], t.head_dropout)
             with prec.autocast():
                 gen, gt = self.G_fwd(batch)
             gen = gen.float()
