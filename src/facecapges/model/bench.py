@@ -328,9 +328,10 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     stage_ms = {k: {"mean": round(float(v.mean()), 4), "p50": round(float(np.median(v)), 4)} for k, v in times.items()}
     # counted MACs: one step (mid-stream), per stage, and one naive step
     gen3 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
-    # the LSTM window in torch's sequential schedule: the counter sees only torch operations, and
-    # the one-stream lockstep (NumPy) multiplies a zero block besides (Cascade docs)
-    gen3.kernel._cascade.lockstep_max_batch = 0
+    # the torch schedules of the TCNs and the LSTM window: the counter sees only torch operations,
+    # not the one-stream native ones (model.native)
+    gen3.kernel._cascade.native_max_batch = 0
+    gen3.kernel._audio_tcn.native_max_batch = gen3.kernel._face_tcn.native_max_batch = 0
     naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
     k = min(T - 1, 3 * cfg.n_history)
     for t in range(k):  # a full window of real history first
