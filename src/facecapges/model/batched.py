@@ -403,6 +403,7 @@ class BatchedStreamingGenerator:
             raise ValueError(f"neutral window must be ({N}, {cfg.n_joints}, 6), got {nw.shape}")
         self.neutral_window = nw
         self._lock = threading.RLock()
+        native.warm()  # the small-batch schedules' machine code, before the first frame
         self._audio_tcn = TCNTaps(model.audio_enc.tcn)
         self._face_tcn = TCNTaps(model.face_enc.tcn)
         fe, dec = model.face_enc, model.decoder
