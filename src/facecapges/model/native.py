@@ -7,6 +7,9 @@ These functions run the same computations as whole loops in one call each:
 
 * :func:`tcn_taps` — :meth:`~facecapges.model.batched.TCNTaps.step` (all layers of
   one causal TCN for one new frame, shift register included);
+* :func:`mel_energy`, :func:`power_spectrum`, :func:`pitch` — the work of
+  :meth:`~facecapges.model.audio_features.AudioFeatures.forward` between its FFTs
+  (:meth:`~facecapges.model.audio_features.AudioFeatures.forward_native`);
 * :func:`cascade` — :meth:`~facecapges.model.batched.Cascade.run` (the torso LSTM and
   the limb LSTM it conditions over one window, in lockstep: iteration m runs torso
   step m and limb step m − 1, whose input is the torso output the iteration starts
@@ -175,4 +178,71 @@ def warm() -> None:
         np.zeros((1, 4), f32),
         np.zeros((1, 2, 2), f32),
     )
+    mel_energy(np.zeros((1, 1, 1, 2), f32), x, np.zeros((1, 1)), np.zeros((1, 2), f32), x.copy())
+    power_spectrum(np.zeros((1, 1, 2), f32), x)
+    pitch(np.zeros((1, 2), f32), 0, 1, np.zeros(2, f32), f32(0.3), np.zeros((1, 2), f32))
     _warm = True
+
+
+@_jit
+def mel_energy(spec: np.ndarray, x: np.ndarray, mel_t: np.ndarray, out: np.ndarray, x0: np.ndarray) -> None:
+    """:class:`AudioFeatures` around its first FFT: the frames' window spectra ``spec``
+    (B, n, F, 2) (re, im), their samples ``x`` (B, S) and the Mel map ``mel_t`` (F, 40) →
+    ``out[:, :40]`` log-Mel dB, ``out[:, 40]`` energy dB; ``x0`` (B, n_ac) ← the mean-removed
+    samples, zero padded (the autocorrelation's input)."""
+    B, n, F = spec.shape[0], spec.shape[1], spec.shape[2]
+    S, M = x.shape[1], mel_t.shape[1]
+    power, mel = np.empty(F), np.empty(M)
+    for b in range(B):
+        power[:] = 0.0
+        for w in range(n):
+            for k in range(F):
+                re, im = float(spec[b, w, k, 0]), float(spec[b, w, k, 1])
+                power[k] += re * re + im * im
+        mel[:] = 0.0
+        for k in range(F):  # the power's mean over the windows, through the (linear) Mel map
+            p, m_k = power[k] / n, mel_t[k]
+            for j in range(M):
+                mel[j] += p * m_k[j]
+        for j in range(M):
+            out[b, j] = 10.0 * np.log10(max(mel[j], 1e-10))
+        total, sq = 0.0, 0.0
+        for i in range(S):
+            v = float(x[b, i])
+            total += v
+            sq += v * v
+        out[b, M] = 10.0 * np.log10(sq / S + 1e-10)
+        mean = total / S
+        for i in range(S):
+            x0[b, i] = x[b, i] - mean
+        x0[b, S:] = 0.0
+
+
+@_jit
+def power_spectrum(spec: np.ndarray, out: np.ndarray) -> None:
+    """|X|² of spectra ``spec`` (B, F, 2) (re, im) into ``out`` (B, F)."""
+    for b in range(spec.shape[0]):
+        for k in range(spec.shape[1]):
+            re, im = spec[b, k, 0], spec[b, k, 1]
+            out[b, k] = re * re + im * im
+
+
+@_jit
+def pitch(
+    ac: np.ndarray, lag_min: int, lag_max: int, log_f0_of_lag: np.ndarray, voiced_min: np.float32, out: np.ndarray
+) -> None:
+    """:class:`AudioFeatures`' F0 from the frames' autocorrelations ``ac`` (B, ≥ lag_max + 1): the lag
+    lag_min … lag_max of the highest normalised value (the first on ties) → ``out[:, 0]`` its
+    log2(F0 / 100 Hz) (0 when unvoiced) into ``out[:, -2]``, the voicing (that value, clipped to
+    0 … 1) into ``out[:, -1]``."""
+    for b in range(ac.shape[0]):
+        norm = np.float32(max(ac[b, 0], np.float32(1e-8)))
+        best, arg = ac[b, lag_min] / norm, 0
+        for lag in range(lag_min + 1, lag_max + 1):
+            v = ac[b, lag] / norm
+            if v > best:
+                best, arg = v, lag - lag_min
+        voicing = min(max(best, np.float32(0.0)), np.float32(1.0))
+        last = out.shape[1] - 1
+        out[b, last - 1] = log_f0_of_lag[arg] if voicing >= voiced_min else 0.0
+        out[b, last] = voicing
