@@ -26,7 +26,11 @@ frames) and the streaming path (one (1, S) frame per step) call the same
 ``power_to_db(top_db=80)`` is *not* used: it clips relative to the maximum of the whole
 input, which would make a frame's value depend on the future. The module is pure
 torch (``torch.fft``: one call for the frame's five windows, one for the autocorrelation)
-so it runs inside the model; its Mel matrix comes from Librosa.
+so it runs inside the model; its Mel matrix comes from Librosa. The streaming kernel's
+small batches take :meth:`AudioFeatures.forward_native` instead, a second schedule of
+the same computation: the same FFT calls, the work between them in compiled loops
+(:mod:`facecapges.model.native`), equal values to float rounding (tested); the naive
+loop, training and the offline path run :meth:`AudioFeatures.forward`.
 """
 
 from __future__ import annotations

@@ -78,42 +78,64 @@ torch.compile runs no faster than TorchScript did and needs minutes of compilati
 every checkpoint shape and batch size on first use (every ``run``, ``live``, test and
 ``serve`` start would pay it on a fresh machine); ``torch.export``'s program, run from
 Python, is slower than the eager code it records. So the kernel is **eager**, with the
-per-operation cost cut instead: one stream's step made 404 torch calls before and makes
-172 now (shift registers instead of ring indices, the TCNs' past taps as one
-``baddbmm``, :func:`affine_chain`, both LSTMs' projections as one product, the lockstep
-recurrence in NumPy — :class:`Cascade`), and the Mel front end lost half its calls
-(one FFT call for the frame's windows, a fast autocorrelation length). Side by side in
-one process (default Mel checkpoint, one thread, 450 frames in alternating blocks of
-25, load average 5.0; wall-clock p50 ms per frame; the TorchScript step is the one of
-commit 740f14e^ run on today's model; the naive loop is timed with main's code and with
-this one's, whose Mel front end makes it 1.5× faster too):
+per-operation cost cut instead: one stream's step made 404 torch calls, then 172 (shift
+registers instead of ring indices, the TCNs' past taps as one ``baddbmm``,
+:func:`affine_chain`, both LSTMs' projections as one product, a lockstep recurrence in
+NumPy, a Mel front end with one FFT call for the frame's windows and a fast
+autocorrelation length), and now 70 torch calls and 6 native ones: for small batches
+the TCN taps, the LSTM cascade and the Mel front end's work between its FFTs each run
+as one loop compiled by Numba (:mod:`facecapges.model.native`; :class:`TCNTaps`,
+:class:`Cascade` and :data:`BatchedStreamingGenerator.MEL_NATIVE_MAX_BATCH` give the
+measured batch-size splits; above them the torch schedules run unchanged). The machine
+code is cached on disk: a fresh machine compiles it once (~7 s), later processes load
+it when their first generator is built (~0.1–0.3 s). Side by side in one process
+(default Mel checkpoint, one thread, 450 frames in alternating blocks of 25, load
+average 1.3–1.5 — a training run on the other core; p50 ms per frame, wall clock;
+main's code imported from commit 5c0d2f5 under another package name; its naive loop
+and this one's are the same code):
 
-============================================  =====  ============  ===========  ===========
-kernel                                        step   step + Euler  main's naive this naive
-                                                                   / step       / step
-============================================  =====  ============  ===========  ===========
-eager before this change (main, 2026-12-01)   1.756  2.046         2.03×        1.36×
-TorchScript step (740f14e^)                   1.353  1.592         2.63×        1.77×
-eager, this module                            0.922  1.075         3.86×        2.60×
-naive re-windowed loop, main's code           3.559  —             1            —
-naive re-windowed loop, this code             2.394  —             —            1
-============================================  =====  ============  ===========  ===========
+=============================================  =====  ============  ===========  ===========
+kernel                                         step   step + Euler  naive / step naive / step
+                                                                    (wall)       (CPU time)
+=============================================  =====  ============  ===========  ===========
+eager + NumPy lockstep (main, 5c0d2f5)         1.416  1.632         2.48×        2.47×
+eager + native small-batch loops (this)        0.644  0.815         5.45×        5.43×
+naive re-windowed loop                         3.513  —             1            1
+=============================================  =====  ============  ===========  ===========
+
+(That run's machine was slower than the bench's usual: ``bench`` at load 1.6 gave step
+0.464, naive 2.538, ``speedup`` 5.47, CPU-time speedup 5.43, step + Euler 0.579.)
+Whole batched steps, same run (p50 ms, wall clock, main → this): B = 1 1.329 → 0.546
+(2.43×), B = 4 1.753 → 0.822 (2.13×), B = 16 4.601 → 3.270 (1.41×), B = 64 9.734 → 9.896,
+B = 240 30.7 → 33.3; at B = 64 and 240 repeated runs (CPU time, orders swapped) gave
+0.94–1.09× — the machine's noise: above B = 64 every stage runs its torch schedule,
+main's code, and two generators of main's own code in one run differed by 4 %.
+
+(Earlier, load 5.0, the same kind of run gave: main's eager step of 2026-12-01 1.756,
+the TorchScript step of commit 740f14e^ 1.353, the eager step with 172 calls 0.922,
+the naive loop 2.394.)
 
 Where the CPU's peak goes. The step does 1.12 M multiply–adds (``bench``'s
-``compute``: 95 % of them in the decoder) — 2.2 MFLOP, ~2 GFLOP/s at its ~1 ms, 2–3 %
-of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``, 1.9 % at
-load 6). (The 6.9 GFLOP/s once quoted were an older, larger default model's 12 MFLOP
-per step: the rate follows the model's size more than the kernel's speed.)
-The rest goes to: (1) per-call overhead — 172 torch calls and ~200 NumPy calls per
-frame cost 1–3 µs and 0.5–1 µs each whatever their size, most of the step at B = 1;
-(2) memory, not arithmetic, for the products that remain: at B = 1 every product is a
+``compute``: 95 % of them in the decoder) — 2.2 MFLOP, ~6 GFLOP/s at its ~0.4 ms,
+~6 % of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``
+0.063 at load 1.6; 2–3 % with the 172-call step). (The 6.9 GFLOP/s once quoted were an
+older, larger default model's 12 MFLOP per step: the rate follows the model's size
+more than the kernel's speed.) Per stage (``bench``'s ``stages_ms``, p50, the run of
+``fraction_of_peak`` 0.063): audio front end 0.105 ms — of which the three FFT calls take ~35 µs —,
+audio TCN 0.018, face encoder 0.017, head encoder 0.007, decoder 0.161 (the native
+cascade ~0.07 of it), input preparation 0.022. The rest goes to: (1) per-call
+overhead — the 70 torch calls cost 1–3 µs each whatever their size, now mostly the
+decoder's glue around the cascade (the current frame's projection, the history's
+gather and shifted write-back, the MLP heads, the new frame's projection) and the
+small MLPs; (2) memory, not arithmetic, for the products: at B = 1 every product is a
 matrix–vector one, 1 multiply–add per 4-byte weight read, and the recurrence streams
-its (2H × 8H) weight 18 times per frame (4.7 MB, from L2) — at L2 speed (~40–50 GB/s)
+its H × 12H weights 18 times per frame (3.5 MB, from L2) — at L2 speed (~40–50 GB/s)
 that alone caps a matrix–vector product at ~20–25 GFLOP/s, a quarter of the FMA
-units' peak, before any overhead; (3) work the counter does not count — the FFTs and
-the element-wise gates, activations and Euler trigonometry. Batching (``serve``)
-turns the products into matrix–matrix ones and spreads the per-call overhead over
-the streams; at one stream only fewer calls (or native code) would close the gap.
+units' peak; (3) work the counter does not count — the FFTs and the element-wise
+gates (in the native loops, an exponential that vectorises: libm's scalar ``tanhf``
+would cost ~19 ns a call), activations and Euler trigonometry. Batching (``serve``)
+turns the products into matrix–matrix ones and spreads the per-call overhead over the
+streams.
 
 Thread safety: every public method takes one internal lock, so one thread may
 open/close slots while another steps.
@@ -396,8 +418,10 @@ class BatchedStreamingGenerator:
 
     # the Mel front end's native schedule (AudioFeatures.forward_native) up to this batch; µs per
     # call, default checkpoint, one thread, same run, load ~2.7: torch 195 vs native 57 at B = 1,
-    # 326 vs 202 at B = 16, 721 vs 647 at B = 64, 2674 vs 2493 at B = 240 (the FFTs are the same calls)
-    MEL_NATIVE_MAX_BATCH = 256
+    # 326 vs 202 at B = 16, 721 vs 647 at B = 64, 2674 vs 2493 at B = 240 (the FFTs are the same
+    # calls) — but above 64 whole batched steps with either are within the machine's noise, so
+    # large batches keep the torch schedules throughout (TCN and LSTM cascade as well)
+    MEL_NATIVE_MAX_BATCH = 64
 
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray, capacity: int = 8):
         self.model = model.eval()
