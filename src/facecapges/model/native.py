@@ -16,16 +16,18 @@ These functions run the same computations as whole loops in one call each:
   from; the limb's recurrent product skips the torso columns, so no zero block).
 
 They are the second schedule of each computation, chosen by batch size (the callers'
-``native_max_batch``; at large batches the torch schedule's matrix–matrix products
-win), and are tested against the naive loop like the torch one. Gates are computed
+``native_max_batch``, the kernel's ``mel_native_max_batch``; at large batches the torch
+schedule's matrix–matrix products win), and are tested against the naive loop like the
+torch one. Gates are computed
 in float64 with an exponential of this module (:func:`_exp`: 2^k · Taylor series of
 e^r for |r| ≤ ln 2 / 2, relative error ~1e-16 before the float32 rounding) because it
 compiles to SIMD code, where each libm ``expf``/``tanhf`` call is scalar (5 and 19 ns);
 tanh(x) = 2σ(2x) − 1. Sums run in another order than torch's, so values agree to float
-rounding (~1e-7), not bit for bit.
+rounding (~1e-7 relative), not bit for bit.
 
 Compiled on first use and cached on disk (``cache=True``, beside this file): a fresh
-machine pays a few seconds once; later processes load the machine code (:func:`warm`).
+machine pays ~8 s once (``make setup`` does it); later processes load the machine code
+when their first generator is built (:func:`warm`).
 """
 
 from __future__ import annotations
