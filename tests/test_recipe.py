@@ -64,6 +64,26 @@ def test_mel_features_streaming_equal_offline_and_causal():
     np.testing.assert_array_equal(feats(later).numpy()[:30], offline[:30])
 
 
+def test_mel_features_native_schedule_equals_torch():
+    """The streaming kernel's small-batch schedule of the features (native loops between the same
+    FFTs) gives forward's values: speech, noise, tones, silence, one frame or many."""
+    from facecapges.model.audio_features import N_MELS, AudioFeatures
+    from facecapges.timing import frame_audio
+
+    feats = AudioFeatures(SR, SPF)
+    rng = np.random.default_rng(3)
+    tones = [np.sin(2 * np.pi * f0 * np.arange(SPF) / SR) for f0 in (70.0, 130.0, 390.0)]
+    frames = np.concatenate([frame_audio(_speech_like(2.0, seed=2), 30, 15, SR), rng.normal(0, 0.2, (5, SPF)),
+                             np.stack(tones), np.zeros((2, SPF))]).astype(np.float32)
+    x = torch.from_numpy(frames)
+    ref = feats(x).numpy()
+    for got in (feats.forward_native(x).numpy(), np.concatenate([feats.forward_native(x[t:t + 1]).numpy()
+                                                                 for t in range(len(x))])):
+        np.testing.assert_allclose(got[:, : N_MELS + 1], ref[:, : N_MELS + 1], atol=1e-4, rtol=0)  # dB
+        np.testing.assert_allclose(got[:, N_MELS + 1 :], ref[:, N_MELS + 1 :], atol=1e-6, rtol=0)  # F0, voicing
+    assert (ref[:, N_MELS + 2] >= 0.3).sum() > 10  # voiced frames were compared
+
+
 def test_mel_model_streams_like_its_training_rollout():
     from facecapges.model.network import FaceCapGes
     from facecapges.model.streaming import StreamingGenerator

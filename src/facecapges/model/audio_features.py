@@ -26,13 +26,18 @@ frames) and the streaming path (one (1, S) frame per step) call the same
 ``power_to_db(top_db=80)`` is *not* used: it clips relative to the maximum of the whole
 input, which would make a frame's value depend on the future. The module is pure
 torch (``torch.fft``: one call for the frame's five windows, one for the autocorrelation)
-so it runs inside the model; its Mel matrix comes from Librosa.
+so it runs inside the model; its Mel matrix comes from Librosa. The streaming kernel's
+small batches take :meth:`AudioFeatures.forward_native` instead, a second schedule of
+the same computation: the same FFT calls, the work between them in compiled loops
+(:mod:`facecapges.model.native`), equal values to float rounding (tested); the naive
+loop, training and the offline path run :meth:`AudioFeatures.forward`.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 import torch.nn as nn
 
@@ -76,6 +81,7 @@ class AudioFeatures(nn.Module):
         lags = torch.arange(self.lag_min, self.lag_max + 1, dtype=torch.float32)
         self.register_buffer("log_f0_of_lag", torch.log2(self.sr / lags / 100.0), persistent=False)
         self.dim = FEATURE_DIM
+        self._native: tuple[np.ndarray, np.ndarray] | None = None  # NumPy copies for forward_native
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         shape = frames.shape[:-1]
@@ -95,3 +101,25 @@ class AudioFeatures(nn.Module):
         log_f0 = torch.where(voicing >= VOICED_MIN, self.log_f0_of_lag[idx], 0.0)  # log2(F0 / 100 Hz), 0 unvoiced
         out = torch.cat([log_mel, energy, log_f0[:, None], voicing[:, None]], -1)
         return out.reshape(shape + (FEATURE_DIM,))
+
+    def forward_native(self, x: torch.Tensor) -> torch.Tensor:
+        """:meth:`forward` of (B, S) frames as the streaming kernel's small-batch schedule: the
+        same torch FFT calls, and everything between them in three compiled loops
+        (:mod:`facecapges.model.native`) instead of ~25 torch calls. Same values to float
+        rounding (sums in another order, in float64)."""
+        from facecapges.model import native
+
+        if self._native is None:
+            self._native = (self.mel_basis_t.double().numpy().copy(), self.log_f0_of_lag.numpy().copy())
+        mel_t, log_f0_of_lag = self._native
+        B = x.shape[0]
+        out = np.empty((B, FEATURE_DIM), np.float32)
+        x0 = np.empty((B, self.n_ac), np.float32)
+        spec = torch.view_as_real(torch.fft.rfft(x.unfold(-1, N_FFT, HOP) * self.window))  # (B, n, 257, 2)
+        native.mel_energy(spec.numpy(), x.numpy(), mel_t, out, x0)
+        f = torch.view_as_real(torch.fft.rfft(torch.from_numpy(x0)))
+        power = np.empty((B, f.shape[1]), np.float32)
+        native.power_spectrum(f.numpy(), power)
+        ac = torch.fft.irfft(torch.from_numpy(power), n=self.n_ac).numpy()
+        native.pitch(ac, self.lag_min, self.lag_max, log_f0_of_lag, np.float32(VOICED_MIN), out)
+        return torch.from_numpy(out)

@@ -37,9 +37,10 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
 * ``compute`` — multiply–accumulates per frame, **counted** with
   ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
   per kernel stage too (a nested counter per stage scope). The counted step runs the
-  LSTM window in torch's sequential schedule (:class:`~facecapges.model.batched.Cascade`):
-  the one-stream lockstep runs in NumPy, which the counter cannot see, and multiplies
-  a zero block besides — the count is the arithmetic the step needs. The counter counts matrix
+  kernel's torch schedules (``native_max_batch`` = 0 on the TCNs and the
+  :class:`~facecapges.model.batched.Cascade`, ``mel_native_max_batch`` = 0): the
+  one-stream native loops (:mod:`facecapges.model.native`) are the same arithmetic, which
+  the counter cannot see. The counter counts matrix
   products and convolutions as 2 FLOPs per MAC, so MACs = FLOPs / 2; element-wise
   work (activations, gates, additions) is not counted and is small beside the
   products. ``lstm_window_check`` compares the count for one 17-step LSTM window with
@@ -47,10 +48,10 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
 * ``cpu_peak_gflops_1thread`` — a 1024×1024 float32 matmul on one thread (best of
   several), the practical peak of this CPU for dense float32 work;
   ``step_gflops_per_s`` = counted FLOPs / measured step time, and
-  ``fraction_of_peak`` their ratio. Where the rest goes (per-call overhead of ~172
-  torch and ~200 NumPy calls per frame, matrix–vector products bound by reading their
-  weights from L2 — the recurrence's 4.7 MB per frame —, FFTs and element-wise work
-  the counter does not count): :mod:`facecapges.model.batched`'s docs.
+  ``fraction_of_peak`` their ratio. Where the rest goes (per-call overhead of 70
+  torch calls per frame, matrix–vector products bound by reading their weights from
+  L2 — the recurrence's 3.5 MB per frame —, FFTs and element-wise work the counter
+  does not count): :mod:`facecapges.model.batched`'s docs.
 """
 
 from __future__ import annotations
@@ -328,9 +329,11 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     stage_ms = {k: {"mean": round(float(v.mean()), 4), "p50": round(float(np.median(v)), 4)} for k, v in times.items()}
     # counted MACs: one step (mid-stream), per stage, and one naive step
     gen3 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
-    # the LSTM window in torch's sequential schedule: the counter sees only torch operations, and
-    # the one-stream lockstep (NumPy) multiplies a zero block besides (Cascade docs)
-    gen3.kernel._cascade.lockstep_max_batch = 0
+    # the torch schedules of the TCNs and the LSTM window: the counter sees only torch operations,
+    # not the one-stream native ones (model.native)
+    gen3.kernel._cascade.native_max_batch = 0
+    gen3.kernel._audio_tcn.native_max_batch = gen3.kernel._face_tcn.native_max_batch = 0
+    gen3.kernel.mel_native_max_batch = 0
     naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
     k = min(T - 1, 3 * cfg.n_history)
     for t in range(k):  # a full window of real history first
