@@ -17,6 +17,10 @@
   of each clip of T frames, the cache's per-take rule): segments are taken from frames < F for
   training and from frames ≥ F (warm-up included) for the held-out losses logged
   every epoch.
+* Head dropout (ours, ``head_dropout``, off by default): a share of the segments get a
+  still head ("facing the camera") over their whole window (:func:`hold_head_still`),
+  so a style also learns to gesture from the speech alone — what an audio file without
+  a head track, or a user who keeps still, gives it at run time.
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
   exactly (data order and dropout are seeded by epoch). ``RUN/log.csv`` has one line
   per epoch; ``RUN/model.safetensors`` is the inference checkpoint of the last epoch.
