@@ -234,9 +234,9 @@ def pitch(
     ac: np.ndarray, lag_min: int, lag_max: int, log_f0_of_lag: np.ndarray, voiced_min: np.float32, out: np.ndarray
 ) -> None:
     """:class:`AudioFeatures`' F0 from the frames' autocorrelations ``ac`` (B, ≥ lag_max + 1): the lag
-    lag_min … lag_max of the highest normalised value (the first on ties) → ``out[:, 0]`` its
-    log2(F0 / 100 Hz) (0 when unvoiced) into ``out[:, -2]``, the voicing (that value, clipped to
-    0 … 1) into ``out[:, -1]``."""
+    lag_min … lag_max of the highest normalised value (the first on ties) → its log2(F0 / 100 Hz)
+    (0 when unvoiced) into ``out[:, -2]``, the voicing (that value, clipped to 0 … 1) into
+    ``out[:, -1]``."""
     for b in range(ac.shape[0]):
         norm = np.float32(max(ac[b, 0], np.float32(1e-8)))
         best, arg = ac[b, lag_min] / norm, 0
