@@ -68,8 +68,7 @@ def test_each_stream_equals_the_naive_loop(layers, audio_repr):
     assert bg.fast == (layers == 1)
     bt = BatchedStreamingGenerator(model, neutral, capacity=2)  # the same, torch schedules only
     if bt.fast:
-        bt._cascade.native_max_batch = bt._audio_tcn.native_max_batch = bt._face_tcn.native_max_batch = 0
-        bt.mel_native_max_batch = 0
+        bt.torch_schedules_only()
     slots: dict[int, int] = {}
     got: dict[int, list] = {s: [] for s in range(S)}
     got_torch: dict[int, list] = {s: [] for s in range(S)}

@@ -612,6 +612,15 @@ class BatchedStreamingGenerator:
             raise KeyError(f"slot(s) {closed} are not open")
         return torch.tensor(ids, dtype=torch.long), ids
 
+    def torch_schedules_only(self) -> None:
+        """Run every stage in its torch schedule whatever the batch size (the native
+        small-batch loops off): the arithmetic ``bench``'s FLOP counter can see, and the
+        second schedule the tests compare with the naive loop."""
+        self.mel_native_max_batch = 0
+        self._audio_tcn.native_max_batch = self._face_tcn.native_max_batch = 0
+        if self.fast:
+            self._cascade.native_max_batch = 0
+
     # ------------------------------------------------------------------ API
     @torch.inference_mode()
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:

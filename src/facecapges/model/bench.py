@@ -331,9 +331,7 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     gen3 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
     # the torch schedules of the TCNs and the LSTM window: the counter sees only torch operations,
     # not the one-stream native ones (model.native)
-    gen3.kernel._cascade.native_max_batch = 0
-    gen3.kernel._audio_tcn.native_max_batch = gen3.kernel._face_tcn.native_max_batch = 0
-    gen3.kernel.mel_native_max_batch = 0
+    gen3.kernel.torch_schedules_only()
     naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
     k = min(T - 1, 3 * cfg.n_history)
     for t in range(k):  # a full window of real history first
