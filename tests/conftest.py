@@ -17,7 +17,18 @@ from pathlib import Path
 # only spin against each other (and against subprocesses the tests start).
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import signal  # noqa: E402
+
 import pytest  # noqa: E402
+
+# Four tests stop a `serve` / `live` subprocess with Ctrl-C (SIGINT) and check it exits
+# cleanly. A suite started in the background of a script (`make test &`, nohup) inherits
+# SIGINT *ignored*, which every child keeps across exec: Python then installs no
+# KeyboardInterrupt handler, the commands never see the Ctrl-C, and those tests time out
+# (seen in two fresh-clone runs). A handler — unlike "ignored" — is reset to the default
+# on exec, so with this line the children get Ctrl-C however the suite was started.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"
