@@ -266,3 +266,25 @@ def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
     assert logs[0] != logs[1]  # the setting reaches the training loop
     with pytest.raises(UserError, match="head_dropout"):
         build_trainer([_clip()], tmp_path / "bad", dict(TINY), dict(over, head_dropout=1.5), {}, resume=False)
+
+
+def test_amplitude_loss_asks_for_the_swing_not_its_timing(tmp_path):
+    """``train.w_amp``: a stroke made a little off time costs nothing, holding still does."""
+    from facecapges.training.masking import amplitude_loss, masked_reconstruction_losses
+    from facecapges.training.train import build_trainer
+
+    t = torch.arange(22, dtype=torch.float32)  # 22 frames: two 9-frame strokes in the 18 smoothed ones
+    stroke = lambda shift: torch.sin(2 * np.pi * (t - shift) / 9)[None, :, None].repeat(2, 1, 12) * 0.2
+    real, late, still = stroke(0.0), stroke(2.0), torch.zeros(2, 22, 12)
+    late_losses, still_losses = (masked_reconstruction_losses(g, real, 0.1) for g in (late, still))
+    assert late_losses["rec"] > 0.5 * still_losses["rec"]  # the pose loss: a late stroke ~ no stroke
+    assert float(late_losses["amp"]) < 0.05 * float(still_losses["amp"])
+    jitter = real + 0.1 * (-1.0) ** t[None, :, None]  # the same swing bought with frame-to-frame jitter
+    assert float(amplitude_loss(jitter, real, 0.1, None)) > 0.02 + float(late_losses["amp"])
+    x = still.clone().requires_grad_(True)
+    amplitude_loss(x, real, 0.1, None).backward()
+    assert torch.isfinite(x.grad).all()  # finite at rest (the sd's epsilon)
+    over = dict(epochs=1, batch_size=8, holdout_from=120, num_threads=1)
+    logs = [build_trainer([_clip()], tmp_path / f"run{w}", dict(TINY), dict(over, w_amp=w), {}, resume=False)
+            .fit(progress=False)[-1] for w in (0.0, 1000.0)]
+    assert logs[0]["total"] != logs[1]["total"] and "held_amp" in logs[1]  # the setting reaches the loop

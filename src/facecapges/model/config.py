@@ -95,6 +95,10 @@ class TrainConfig:
     w_vel: float = 1000.0
     w_acc: float = 1000.0
     w_adv: float = 0.1
+    # (ours) motion amplitude: each channel's sd over the generated frames, slow part
+    # (< ~2 Hz) and fast rest, against the real segment's (training.masking.amplitude_loss);
+    # 0 = off, the thesis recipe
+    w_amp: float = 0.0
     # max grad norm (0 = off, as in the thesis). The thesis recipe has no clipping; at
     # 1.0 a start-of-training norm of ~28 makes every plain-SGD step ~28x smaller.
     grad_clip: float = 0.0
@@ -165,6 +169,7 @@ LIMITS: dict[str, dict[str, tuple | set]] = {
         "w_vel": (0.0, 1e9),
         "w_acc": (0.0, 1e9),
         "w_adv": (0.0, 1e9),
+        "w_amp": (0.0, 1e9),
         "grad_clip": (0.0, 1e9),
         "seed": (0, 2**32 - 1),
         "holdout_from": (1, None),

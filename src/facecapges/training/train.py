@@ -21,6 +21,9 @@
   still head ("facing the camera") over their whole window (:func:`hold_head_still`),
   so a style also learns to gesture from the speech alone — what an audio file without
   a head track, or a user who keeps still, gives it at run time.
+* Motion amplitude (ours, ``w_amp``, off by default): a loss on how far each generated
+  segment swings against the real one, not when (:func:`~facecapges.training.masking.amplitude_loss`;
+  logged as ``amp`` / ``held_amp``).
 * Every epoch writes ``RUN/last.pt`` (full state) atomically; ``resume`` continues
   exactly (data order and dropout are seeded by epoch). ``RUN/log.csv`` has one line
   per epoch; ``RUN/model.safetensors`` is the inference checkpoint of the last epoch.
@@ -627,6 +630,8 @@ class Trainer:
                 logs["d"] = loss_d.detach()
             rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
             loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
+            if t.w_amp > 0:
+                loss = loss + t.w_amp * rec["amp"]
             if adv_on:
                 # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
                 self.D.requires_grad_(False)
@@ -661,7 +666,7 @@ class Trainer:
     def evaluate(self, seg_set: SegmentSet, batch_size: int = 256) -> dict:
         """Mean reconstruction losses of a segment set (eval mode, closed loop), shared among ranks."""
         self.G.eval()
-        keys = ("rec", "vel", "acc")
+        keys = ("rec", "vel", "acc", "amp")
         sums = dict.fromkeys(keys, 0.0)
         n = 0
         mine = self.dist.shard(np.arange(len(seg_set)))
@@ -691,11 +696,13 @@ class Trainer:
             "rec",
             "vel",
             "acc",
+            "amp",
             "adv",
             "d",
             "held_rec",
             "held_vel",
             "held_acc",
+            "held_amp",
             "seconds",
             "processes",
             "global_batch",
