@@ -57,11 +57,11 @@ def masked_reconstruction_losses(
         "rec": masked_huber(gen, gt, beta, m),
         "vel": masked_huber(vg, vt, beta, mv),
         "acc": masked_huber(vg[:, 1:] - vg[:, :-1], vt[:, 1:] - vt[:, :-1], beta, ma),
-        "amp": amplitude_loss(gen, gt, beta, m),
+        "amp": amplitude_loss(gen, gt, m),
     }
 
 
-def amplitude_loss(gen: torch.Tensor, gt: torch.Tensor, beta: float, m: torch.Tensor | None) -> torch.Tensor:
+def amplitude_loss(gen: torch.Tensor, gt: torch.Tensor, m: torch.Tensor | None = None) -> torch.Tensor:
     """(ours, ``TrainConfig.w_amp``) how far the motion swings, not when: per channel, the
     sd over a segment's frames of its slow part (a moving average over ``AMP_SMOOTH``
     frames, 1/3 s at 15 fps: below ~2 Hz, where a speaker's arm motion lives) and of
@@ -69,9 +69,8 @@ def amplitude_loss(gen: torch.Tensor, gt: torch.Tensor, beta: float, m: torch.Te
     charge a stroke made slightly off time twice (where it is, and where it should
     have been), so on ambiguous data they prefer small motion; this term does not
     care about timing. Matching the fast part's sd too keeps the swing from being
-    bought with jitter. ``beta`` is unused (kept for the losses' common signature);
-    ``m`` is a channel mask (B, M, D): a channel counts in a segment only when present
-    in all its frames."""
+    bought with jitter. ``m`` is a channel mask (B, M, D): a channel counts in a segment
+    only when present in all its frames."""
     k = min(AMP_SMOOTH, gen.shape[1])
 
     def bands(x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
