@@ -1,0 +1,415 @@
+"""Realism controls of issue #25 §3: transitions, repetition, silence and a real-vs-generated classifier.
+
+Plain functions over upper-body poses (T, 47, 6) rot6d in ``facecapges.skeleton.UPPER_BODY``
+order, ``fps`` in the signatures; they hold for any engine (network or motion matching).
+Where a function takes "clips", it takes one array or a sequence of arrays (several takes):
+nothing is computed across a border between two clips.
+
+**Transitions** (:func:`transitions`): the acceleration of a joint at a frame is the
+Frobenius norm of the second difference of its local rotation matrix,
+``‖R_{t+1} − 2R_t + R_{t−1}‖_F · fps² / √2`` (rad/s² for a small rotation about one axis; at
+speed it also counts the turning of the joint's axes); a frame's figure combines **all 47
+joints** as the root of the sum of their squares (:func:`joint_acceleration`). A frame is a
+transition when it exceeds the 99.9th percentile of the same figure on the real motion
+(interior frames): the real motion itself has 0.1 % of its frames above (0.9 a minute at 15 fps).
+Target: at most one a minute. Why all joints, not per joint: the real motion's own per-joint
+tails are wide (a frame where any joint passes its own 99.9th percentile: ~30 a minute on
+2_scott_0_1_1), while the whole-body figure caught 35 of 40 hard cuts between random real
+stretches of that take (the largest single-joint ratio to its median: 6 of 40). The joints
+carrying most of the squared acceleration at those frames are reported (a pop shows on the wrists).
+
+**Repetition** (:func:`repetition`): every generated frame is matched to its nearest database
+frame (a k-d tree, :class:`scipy.spatial.cKDTree`) by the pose distance ``d = ‖x − y‖ / √47``
+of the flattened rot6d (the RMS over joints of each joint's rot6d distance). A frame counts
+as *copied* when ``d`` is below ``tolerance`` — by default :data:`COPY_TOLERANCE` times the
+database's own median distance between consecutive frames (a frame closer to a database
+frame than half of one frame's step of the real motion: blends near a clip count, a
+different motion does not). From the copied frames: the longest run where consecutive
+generated frames map to consecutive frames of one database clip (seconds); the share of
+database frames used; and *returns*: a played stretch (a run of at least ``min_stretch_s``,
+1 s) whose database frames overlap those of an earlier stretch that ended at most
+``within_s`` (20 s) before it started, per minute of generated motion.
+
+**Silence** (:func:`silence_ratio`): speech and pause frames from the audio by an energy
+VAD (:func:`speech_frames`: the per-frame RMS of :func:`facecapges.evaluation.synchrony.energy_envelope`
+in dB; a frame is voiced above ``max(floor + 12 dB, peak − 35 dB)`` with floor and peak
+the 10th and 95th percentiles of the clip's frame levels; speech holds ``hangover_s`` =
+0.3 s after the last voiced frame). The wrist spread (:func:`facecapges.evaluation.synchrony.wrist_spread`)
+is taken within each pause and each speech stretch of at least ``min_segment_s`` (0.5 s)
+around that stretch's own mean, pooled as an RMS over frames; the ratio pause / speech is
+the figure (target 0.1–0.5: idle, not frozen).
+
+**Real vs generated** (:func:`real_vs_generated`): 2-s windows (hop 0.5 s) of each side are
+described by 26 features (:func:`window_features`): for both wrists and elbows, the mean
+position relative to the rest skeleton's root (x, y, z), their spread (RMS distance from
+the window mean), mean speed and mean acceleration magnitude; for both wrists, the share of
+the speed's power above 2 Hz. A standardised logistic regression (scikit-learn) is
+cross-validated over ``folds`` contiguous blocks of each side's time line: block k of both
+sides is fold k's test set, windows never cross a block border (so no two overlapping windows
+fall into different folds), and the larger class is subsampled to the smaller one in every
+block (balanced). Accuracy 0.5 = indistinguishable. :func:`real_vs_real_control` runs the
+same on two stretches of real motion of the same speaker: the figure means something only
+when it is near 0.5.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges.evaluation import synchrony as sy
+from facecapges.skeleton import N_JOINTS, UPPER_BODY
+
+Clips = np.ndarray | Sequence[np.ndarray]
+TRANSITION_PERCENTILE = 99.9
+TRANSITION_TARGET_PER_MIN = 1.0
+COPY_TOLERANCE = 0.5
+RETURN_WITHIN_S = 20.0
+MIN_STRETCH_S = 1.0
+SILENCE_TARGET = (0.1, 0.5)
+WINDOW_S, HOP_S, FOLDS = 2.0, 0.5, 5
+ARM_POINTS: tuple[str, ...] = ("RightForeArm", "LeftForeArm", "RightHand", "LeftHand")  # elbows, wrists
+HIGH_BAND_HZ = 2.0
+
+
+def as_clips(x: Clips) -> list[np.ndarray]:
+    """One (T, 47, 6) array or several → a list of float64 arrays, shapes checked."""
+    arrs = (
+        [np.asarray(x, np.float64)]
+        if isinstance(x, np.ndarray) and np.ndim(x) == 3
+        else [np.asarray(c, np.float64) for c in x]
+    )
+    for a in arrs:
+        if a.ndim != 3 or a.shape[1:] != (N_JOINTS, 6):
+            raise ValueError(f"poses must be (T, {N_JOINTS}, 6) rot6d, got {a.shape}")
+    return arrs
+
+
+# ------------------------------------------------------------------ transitions
+def joint_acceleration(pose: np.ndarray, fps: float, per_joint: bool = False) -> np.ndarray:
+    """Angular acceleration of rot6d poses (T, 47, 6): (T,) over all joints, or (T, 47) per joint.
+
+    ``‖R_{t+1} − 2R_t + R_{t−1}‖_F · fps² / √2`` per joint (module docstring); all joints: the root
+    of the sum of squares over joints. The first and last frame (no second difference) are 0.
+    """
+    p = as_clips(pose)[0]
+    acc = np.zeros((len(p), p.shape[1]))
+    if len(p) >= 3:
+        R = rot.rot6d_to_matrix(p)
+        d2 = R[2:] - 2.0 * R[1:-1] + R[:-2]
+        acc[1:-1] = np.sqrt((d2**2).sum((-1, -2))) * fps**2 / np.sqrt(2.0)
+    return acc if per_joint else np.sqrt((acc**2).sum(-1))
+
+
+def transition_threshold(real: Clips, fps: float, percentile: float = TRANSITION_PERCENTILE) -> float:
+    """The ``percentile`` of the whole-body joint acceleration over the interior frames of real clips."""
+    vals = [joint_acceleration(c, fps)[1:-1] for c in as_clips(real) if len(c) >= 3]
+    if not vals:
+        raise ValueError("the real motion needs at least 3 frames for an acceleration threshold")
+    return float(np.percentile(np.concatenate(vals), percentile))
+
+
+@dataclass
+class Transitions:
+    """Frames whose whole-body joint acceleration exceeds the real motion's percentile (module docstring)."""
+
+    count: int
+    per_minute: float
+    threshold: float  # rad/s², all 47 joints
+    minutes: float
+    frames: list[int] = field(default_factory=list)  # frame indices over the clips laid end to end
+    top_joints: list[str] = field(default_factory=list)  # the joints carrying most of the acceleration there
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def transitions(pose: Clips, real_pose: Clips, fps: float, percentile: float = TRANSITION_PERCENTILE) -> Transitions:
+    """Count of frames of ``pose`` above the real motion's acceleration percentile, and their rate a minute."""
+    thr = transition_threshold(real_pose, fps, percentile)
+    frames: list[int] = []
+    share = np.zeros(N_JOINTS)
+    offset, n = 0, 0
+    for c in as_clips(pose):
+        per = joint_acceleration(c, fps, per_joint=True)
+        total = np.sqrt((per**2).sum(-1))
+        hit = np.flatnonzero(total > thr)
+        frames += [int(offset + i) for i in hit]
+        if len(hit):
+            share += (per[hit] ** 2 / total[hit, None] ** 2).sum(0)
+        offset += len(c)
+        n += len(c)
+    minutes = n / fps / 60.0
+    top = [UPPER_BODY[j] for j in np.argsort(-share, kind="stable")[:3] if share[j] > 0]
+    rate = len(frames) / minutes if minutes > 0 else float("nan")
+    return Transitions(len(frames), float(rate), thr, float(minutes), frames, top)
+
+
+# ------------------------------------------------------------------ repetition
+def _flat(clips: list[np.ndarray]) -> np.ndarray:
+    return np.concatenate([c.reshape(len(c), -1) for c in clips]) / np.sqrt(N_JOINTS)
+
+
+@dataclass
+class Repetition:
+    """How much of the motion is replayed from a database (module docstring)."""
+
+    longest_copy_s: float
+    copied_share: float  # share of generated frames within the tolerance of a database frame
+    database_share_used: float
+    returns: int
+    returns_per_minute: float
+    tolerance: float
+    median_distance: float  # median nearest-database-frame distance of the generated frames
+    database_frames: int
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _runs(idx: np.ndarray, copied: np.ndarray, clip_of: np.ndarray) -> list[tuple[int, int, int, int]]:
+    """Runs (gen_start, gen_end, db_start, db_end), ends exclusive, of copied frames playing one database clip."""
+    runs, start = [], None
+    for t in range(len(idx)):
+        cont = start is not None and copied[t] and idx[t] == idx[t - 1] + 1 and clip_of[idx[t]] == clip_of[idx[t - 1]]
+        if not cont:
+            if start is not None:
+                runs.append((start, t, int(idx[start]), int(idx[t - 1]) + 1))
+            start = t if copied[t] else None
+    if start is not None:
+        runs.append((start, len(idx), int(idx[start]), int(idx[-1]) + 1))
+    return runs
+
+
+def _returns(runs: list[tuple[int, int, int, int]], min_len: int, within: int) -> int:
+    """Stretches (≥ ``min_len`` frames) whose database frames overlap an earlier stretch's that ended ≤ ``within`` before."""
+    long = [r for r in runs if r[1] - r[0] >= min_len]
+    count = 0
+    for j, (gs, _ge, ds, de) in enumerate(long):
+        if any(gs - pe <= within and ds < pde and pds < de for (_ps, pe, pds, pde) in long[:j]):
+            count += 1
+    return count
+
+
+def repetition(
+    pose: Clips,
+    database_pose: Clips,
+    fps: float,
+    tolerance: float | None = None,
+    min_stretch_s: float = MIN_STRETCH_S,
+    within_s: float = RETURN_WITHIN_S,
+) -> Repetition:
+    """Copying from ``database_pose`` of generated ``pose`` (module docstring); ``tolerance`` in pose distance."""
+    from scipy.spatial import cKDTree
+
+    db = as_clips(database_pose)
+    clip_of = np.concatenate([np.full(len(c), i) for i, c in enumerate(db)])
+    X = _flat(db)
+    if len(X) < 2:
+        raise ValueError("the database needs at least 2 frames")
+    if tolerance is None:
+        steps = np.concatenate([np.linalg.norm(np.diff(_flat([c]), axis=0), axis=1) for c in db if len(c) > 1])
+        tolerance = COPY_TOLERANCE * float(np.median(steps))
+    tree = cKDTree(X)
+    used = np.zeros(len(X), bool)
+    longest, returns, n, n_copied, dists = 0, 0, 0, 0, []
+    for c in as_clips(pose):
+        if not len(c):
+            continue
+        d, idx = tree.query(_flat([c]))
+        copied = d <= tolerance
+        used[idx[copied]] = True
+        runs = _runs(idx, copied, clip_of)
+        longest = max([longest] + [r[1] - r[0] for r in runs])
+        returns += _returns(runs, max(int(round(min_stretch_s * fps)), 1), int(round(within_s * fps)))
+        n += len(c)
+        n_copied += int(copied.sum())
+        dists.append(d)
+    minutes = n / fps / 60.0
+    return Repetition(
+        longest_copy_s=longest / fps,
+        copied_share=n_copied / n if n else float("nan"),
+        database_share_used=float(used.mean()),
+        returns=returns,
+        returns_per_minute=returns / minutes if minutes > 0 else float("nan"),
+        tolerance=float(tolerance),
+        median_distance=float(np.median(np.concatenate(dists))) if dists else float("nan"),
+        database_frames=len(X),
+    )
+
+
+# ------------------------------------------------------------------ silence
+VAD_FLOOR_PCT, VAD_PEAK_PCT = 10.0, 95.0
+VAD_ABOVE_FLOOR_DB, VAD_BELOW_PEAK_DB = 12.0, 35.0
+HANGOVER_S, MIN_SEGMENT_S = 0.3, 0.5
+
+
+def speech_frames(audio: np.ndarray, sr: int, fps: float, n_frames: int | None = None, hangover_s: float = HANGOVER_S):
+    """Per motion frame: True while speaking (energy VAD with hangover; module docstring)."""
+    level = 20.0 * np.log10(sy.energy_envelope(audio, sr, fps, n_frames) + 1e-10)
+    if not len(level):
+        return np.zeros(0, bool)
+    floor, peak = np.percentile(level, VAD_FLOOR_PCT), np.percentile(level, VAD_PEAK_PCT)
+    voiced = level > max(floor + VAD_ABOVE_FLOOR_DB, peak - VAD_BELOW_PEAK_DB)
+    hang = max(int(round(hangover_s * fps)), 0)
+    held = voiced.copy()
+    for k in range(1, hang + 1):  # a voiced frame keeps the next ``hang`` frames voiced
+        held[k:] |= voiced[:-k]
+    return held
+
+
+def _segments(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Runs [start, end) of equal values of a boolean mask."""
+    edges = np.flatnonzero(np.diff(mask.astype(np.int8))) + 1
+    bounds = np.concatenate([[0], edges, [len(mask)]])
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b > a]
+
+
+@dataclass
+class Silence:
+    """Wrist spread during pauses against during speech (module docstring)."""
+
+    ratio: float  # pause spread / speech spread; target 0.1–0.5
+    pause_spread: float
+    speech_spread: float
+    pause_s: float  # seconds of pause stretches that counted (≥ min_segment_s)
+    speech_s: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _positions(pose: np.ndarray, skeleton, points: Sequence[str]) -> np.ndarray:
+    p = np.asarray(pose, np.float64)
+    if p.ndim == 3 and p.shape[-1] == 3:
+        return p
+    if skeleton is None:
+        raise ValueError("rot6d poses need the skeleton for joint positions")
+    return sy.wrist_positions(skeleton, p, points)
+
+
+def silence_ratio(
+    pose: np.ndarray, audio: np.ndarray, sr: int, fps: float, skeleton=None, min_segment_s: float = MIN_SEGMENT_S
+) -> Silence:
+    """Spread of the wrists in pauses / in speech of one clip: rot6d poses (T, 47, 6) with ``skeleton``,
+    or wrist positions (T, W, 3)."""
+    w = _positions(pose, skeleton, sy.WRISTS)
+    speech = speech_frames(audio, sr, fps, len(w))
+    min_len = max(int(round(min_segment_s * fps)), 2)
+    sums = {True: [0.0, 0], False: [0.0, 0]}
+    for a, b in _segments(speech):
+        if b - a >= min_len:
+            s = sums[bool(speech[a])]
+            s[0] += sy.wrist_spread(w[a:b]) ** 2 * (b - a)
+            s[1] += b - a
+    sp, pa = (float(np.sqrt(sums[k][0] / sums[k][1])) if sums[k][1] else float("nan") for k in (True, False))
+    return Silence(sy.ratio(pa, sp), pa, sp, sums[False][1] / fps, sums[True][1] / fps)
+
+
+# ------------------------------------------------------------------ real vs generated
+FEATURES: tuple[str, ...] = tuple(
+    [f"{j} mean {ax}" for j in ARM_POINTS for ax in "xyz"]
+    + [f"{j} {k}" for k in ("spread", "speed", "acceleration") for j in ARM_POINTS]
+    + [f"{j} speed power above {HIGH_BAND_HZ:g} Hz" for j in ARM_POINTS[2:]]
+)
+
+
+def window_features(points: np.ndarray, fps: float) -> np.ndarray:
+    """The 26 features (:data:`FEATURES`) of one window of elbow and wrist positions (n, 4, 3)."""
+    p = np.asarray(points, np.float64)
+    vel = np.diff(p, axis=0) * fps
+    speed = np.linalg.norm(vel, axis=-1)  # (n-1, 4)
+    acc = np.linalg.norm(np.diff(vel, axis=0), axis=-1) * fps
+    spread = np.sqrt(((p - p.mean(0)) ** 2).sum(-1).mean(0))
+    spec = np.abs(np.fft.rfft(speed[:, 2:] - speed[:, 2:].mean(0), axis=0)) ** 2
+    f = np.fft.rfftfreq(len(speed), 1.0 / fps)
+    high = spec[f > HIGH_BAND_HZ].sum(0) / np.maximum(spec.sum(0), 1e-12)
+    return np.concatenate([p.mean(0).ravel(), spread, speed.mean(0), acc.mean(0), high])
+
+
+def _block_windows(clips: list[np.ndarray], fps: float, folds: int, win: int, hop: int):
+    """Features and block ids of the windows of clips laid end to end, none crossing a block border."""
+    total = sum(len(c) for c in clips)
+    edges = np.round(np.linspace(0, total, folds + 1)).astype(int)
+    feats, blocks, offset = [], [], 0
+    for c in clips:
+        for k in range(folds):
+            a, b = max(offset, edges[k]) - offset, min(offset + len(c), edges[k + 1]) - offset
+            for s in range(a, b - win + 1, hop):
+                feats.append(window_features(c[s : s + win], fps))
+                blocks.append(k)
+        offset += len(c)
+    return np.array(feats).reshape(len(feats), len(FEATURES)), np.array(blocks, int)
+
+
+@dataclass
+class RealismCheck:
+    """Cross-validated accuracy of a classifier telling real windows from the other side's."""
+
+    accuracy: float  # mean over folds; 0.5 = indistinguishable
+    sd: float  # spread (sd) over folds
+    fold_accuracy: list[float]
+    n_windows: int  # per class, after balancing
+    window_s: float
+    hop_s: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _points(clips: Clips, skeleton) -> list[np.ndarray]:
+    if isinstance(clips, np.ndarray) and clips.ndim == 4 and clips.shape[-1] == 3:
+        return [clips]
+    arrs = [clips] if isinstance(clips, np.ndarray) and clips.ndim in (3, 4) else list(clips)
+    return [_positions(a, skeleton, ARM_POINTS) for a in arrs]
+
+
+def real_vs_generated(
+    real_pose: Clips,
+    gen_pose: Clips,
+    fps: float,
+    skeleton=None,
+    window_s: float = WINDOW_S,
+    folds: int = FOLDS,
+    seed: int = 0,
+    hop_s: float = HOP_S,
+) -> RealismCheck:
+    """Accuracy of a logistic regression telling 2-s windows of ``real_pose`` from ``gen_pose`` (module
+    docstring). Each side: rot6d clips (with ``skeleton``) or elbow/wrist positions (T, 4, 3) in
+    :data:`ARM_POINTS` order. Fewer than 2 usable folds give NaN."""
+    from sklearn.linear_model import LogisticRegression
+    from sklearn.model_selection import LeaveOneGroupOut
+    from sklearn.pipeline import make_pipeline
+    from sklearn.preprocessing import StandardScaler
+
+    win, hop = max(int(round(window_s * fps)), 4), max(int(round(hop_s * fps)), 1)
+    rng = np.random.default_rng(seed)
+    Xr, gr = _block_windows(_points(real_pose, skeleton), fps, folds, win, hop)
+    Xg, gg = _block_windows(_points(gen_pose, skeleton), fps, folds, win, hop)
+    X, y, g = [], [], []
+    for k in range(folds):  # balanced classes in every block
+        ir, ig = np.flatnonzero(gr == k), np.flatnonzero(gg == k)
+        n = min(len(ir), len(ig))
+        for rows, src, label in ((rng.choice(ir, n, replace=False), Xr, 1), (rng.choice(ig, n, replace=False), Xg, 0)):
+            X.append(src[rows])
+            y += [label] * n
+            g += [k] * n
+    Xa, ya, ga = np.concatenate(X), np.array(y), np.array(g)
+    acc = []
+    if len(set(ga.tolist())) >= 2:
+        for train, test in LeaveOneGroupOut().split(Xa, ya, ga):
+            clf = make_pipeline(StandardScaler(), LogisticRegression(C=1.0, max_iter=2000))
+            clf.fit(Xa[train], ya[train])
+            acc.append(float(clf.score(Xa[test], ya[test])))
+    mean = float(np.mean(acc)) if len(acc) >= 2 else float("nan")
+    sd = float(np.std(acc)) if len(acc) >= 2 else float("nan")
+    return RealismCheck(mean, sd, acc, int(len(ya) // 2), window_s, hop_s)
+
+
+def real_vs_real_control(real_a: Clips, real_b: Clips, fps: float, skeleton=None, **kw) -> RealismCheck:
+    """The same classifier on two stretches of real motion of one speaker: near 0.5, or the check means nothing."""
+    return real_vs_generated(real_a, real_b, fps, skeleton, **kw)

@@ -1,0 +1,113 @@
+"""Realism controls of issue #25 §3 (transitions, repetition, silence, real-vs-generated) on real BEAT motion."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from facecapges import rotations as rot
+from facecapges.evaluation import realism as R
+
+FPS = 15
+
+
+@pytest.fixture(scope="module")
+def take(beat_bvh):
+    """The real take 2_scott_0_1_1: rot6d poses (957, 47, 6) and its skeleton."""
+    from facecapges.io.bvh import read_bvh
+    from facecapges.skeleton import motion_to_pose
+
+    b = read_bvh(beat_bvh)
+    return motion_to_pose(b.skeleton, b.motion)[0].astype(np.float64), b.skeleton
+
+
+def test_transitions_real_take_and_hard_cuts(take):
+    pose, _ = take
+    train = pose[:766]
+    own = R.transitions(train, train, FPS)
+    assert own.count <= 2 and own.threshold > 0  # 0.1 % of its own frames at most
+    clean = R.transitions(pose[766:], train, FPS)
+    assert clean.per_minute <= 5.0
+    starts = [700, 50, 400, 200, 600, 120]
+    cuts = np.concatenate([train[s : s + 20] for s in starts])  # a hard cut every 20 frames
+    res = R.transitions(cuts, train, FPS)
+    near = {f // 20 for f in res.frames if f % 20 in (19, 0)}  # frames around each of the 5 cuts
+    assert len(near) >= 4 and res.count > clean.count
+    assert res.per_minute == pytest.approx(res.count / (len(cuts) / FPS / 60))
+    assert set(res.top_joints) & {"RightArm", "RightForeArm", "RightHand", "LeftArm", "LeftForeArm", "LeftHand"}
+    assert R.joint_acceleration(pose[:10], FPS, per_joint=True).shape == (10, 47)
+
+
+def test_repetition_of_a_crude_replay(take):
+    pose, _ = take
+    db = pose[:766]
+    replay = np.concatenate([db[100:250], db[400:500], db[100:250]])
+    res = R.repetition(replay, db, FPS)
+    assert res.copied_share == 1.0 and res.longest_copy_s == pytest.approx(150 / FPS)
+    assert res.database_share_used == pytest.approx(250 / 766)
+    assert res.returns == 1  # the second play of frames 100–249 starts 6.7 s after the first ended
+    assert res.returns_per_minute == pytest.approx(1 / (400 / FPS / 60))
+    far = np.concatenate([db[100:250], db[400:720], db[100:250]])  # 21 s of other motion in between
+    assert R.repetition(far, db, FPS).returns == 0
+    rng = np.random.default_rng(0)
+    blended = rot.normalize_rot6d(replay + rng.normal(0, 0.2 * res.tolerance / np.sqrt(6), replay.shape))
+    assert R.repetition(blended, db, FPS).longest_copy_s > 5.0  # near a clip still counts as copied
+    held_out = R.repetition(pose[766:], db, FPS)  # the real motion of later seconds is no copy
+    assert held_out.copied_share < 0.05 and held_out.longest_copy_s < 0.5 and held_out.returns == 0
+    two = R.repetition(replay, [db[:300], db[300:766]], FPS)  # a database of two clips: same runs
+    assert two.longest_copy_s == pytest.approx(150 / FPS) and two.database_frames == 766
+
+
+def test_silence_ratio_on_synthetic_speech():
+    sr, n = 16000, 300  # 20 s: speech 0–10 s, a pause 10–20 s
+    rng = np.random.default_rng(0)
+    audio = np.zeros(n * sr // FPS, np.float32)
+    audio[: 10 * sr] = 0.1 * rng.standard_normal(10 * sr)
+    audio[10 * sr :] = 1e-4 * rng.standard_normal(len(audio) - 10 * sr)
+    speech = R.speech_frames(audio, sr, FPS, n)
+    assert speech[:150].all() and not speech[150 + round(0.3 * FPS) :].any()  # 0.3 s hangover
+    t = np.arange(n) / FPS
+    amp = np.where(t < 10, 10.0, 2.0)
+    wrists = np.stack([np.stack([amp * np.sin(2 * t), np.zeros(n), np.zeros(n)], -1)] * 2, 1)  # (T, 2, 3)
+    res = R.silence_ratio(wrists, audio, sr, FPS)
+    assert res.ratio == pytest.approx(0.2, abs=0.03) and res.pause_s == pytest.approx((150 - round(0.3 * FPS)) / FPS)
+    frozen = R.silence_ratio(np.where(t[:, None, None] < 10, wrists, wrists[150]), audio, sr, FPS)
+    assert frozen.ratio < 1e-9
+
+
+def test_silence_ratio_on_the_real_take(take, beat_wav):
+    from facecapges.io.audio import load_audio
+
+    pose, skel = take
+    res = R.silence_ratio(pose, load_audio(beat_wav), 16000, FPS, skel)
+    assert res.pause_s > 1.0 and res.speech_s > 30.0 and 0.2 < res.ratio < 1.5
+    with pytest.raises(ValueError, match="skeleton"):
+        R.silence_ratio(pose, load_audio(beat_wav), 16000, FPS)
+
+
+def test_real_vs_generated_separates_a_jittered_mean_pose(take):
+    pose, skel = take
+    rng = np.random.default_rng(0)
+    fake = rot.normalize_rot6d(pose.mean(0) + rng.normal(0, 0.02, pose.shape))
+    res = R.real_vs_generated(pose, fake, FPS, skel, seed=0)
+    assert res.accuracy >= 0.95 and len(res.fold_accuracy) == 5 and res.n_windows > 20
+
+
+def test_real_vs_generated_is_chance_on_interleavings_of_one_take(take):
+    pose, skel = take
+    chunks = [pose[i : i + 45] for i in range(0, len(pose) - 44, 45)]  # 3-s chunks
+    accs = []
+    for seed in range(3):
+        side = np.random.default_rng(seed).permutation(len(chunks)) % 2
+        a = [c for c, s in zip(chunks, side) if s == 0]
+        b = [c for c, s in zip(chunks, side) if s == 1]
+        accs.append(R.real_vs_real_control(a, b, FPS, skel, seed=seed).accuracy)
+    assert 0.3 < np.mean(accs) < 0.7, accs
+
+
+def test_control_on_the_two_halves_of_the_take(take):
+    pose, skel = take
+    half = len(pose) // 2
+    res = R.real_vs_real_control(pose[:half], pose[half:], FPS, skel)
+    assert 0.4 < res.accuracy < 0.9 and np.isfinite(res.sd)  # his halves differ a little (arms higher in one)
+    assert np.isnan(R.real_vs_generated(pose[:40], pose[40:80], FPS, skel).accuracy)  # too short for 2 folds
