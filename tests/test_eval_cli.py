@@ -101,8 +101,17 @@ def test_eval_with_a_checkpoint_on_the_held_out_frames(cache, tmp_path, unseen_w
         assert model["n_samples"] == 2 and model["L1DIV_samples"] >= 0 and rows["ground truth"]["L1DIV_samples"] is None
     unseen = data["unseen_audio"][str(short_wav)]["regions"]["with_head"]["methods"]["FaceCapGes (model)"]
     assert unseen["FGD"] is not None and unseen["SRGR"] is None and 0 <= unseen["BA"] <= 1
+    realism = paired["realism"]  # issue #25 §3 figures, engine-agnostic (evaluation.realism)
+    assert set(realism["methods"]) == set(rows) and realism["database"]["frames"] == 860
+    model_real = realism["methods"]["FaceCapGes (model)"]
+    assert model_real["transitions_per_min"] >= 0 and 0 <= model_real["database_share_used"] <= 1
+    assert realism["methods"]["random real segment"]["longest_copy_s"] == pytest.approx(97 / 15)  # it is copied
+    assert "classifier" not in realism["methods"]["ground truth"] and "classifier" in model_real
+    unseen_real = data["unseen_audio"][str(short_wav)]["realism"]["methods"]["FaceCapGes (model)"]
+    assert unseen_real["classifier_windows"] >= 0 and unseen_real["speech_s"] > 0
     md = (out / "metrics.md").read_text()
     assert "Upper body (without head)" in md and "Unseen audio" in md
+    assert md.count("Against the targets of issue #25 §3") == 2 and "transitions a minute | ≤ 1 |" in md
     for f in ("beat_timeline.png", "joint_speed.png", "real_vs_generated.mp4"):
         assert (out / f).stat().st_size > 1000
     one_line_error(run("eval", "--cache", cache, "--checkpoint", ckpt, "--holdout-from", 860, "--out", out,

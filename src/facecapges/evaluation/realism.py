@@ -55,7 +55,7 @@ when it is near 0.5.
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -413,3 +413,89 @@ def real_vs_generated(
 def real_vs_real_control(real_a: Clips, real_b: Clips, fps: float, skeleton=None, **kw) -> RealismCheck:
     """The same classifier on two stretches of real motion of one speaker: near 0.5, or the check means nothing."""
     return real_vs_generated(real_a, real_b, fps, skeleton, **kw)
+
+
+# ------------------------------------------------------------------ the section of a report
+CLASSIFIER_TARGET = 0.9  # the motion-matching issue's bar for the classifier against a held-out take
+
+
+def pooled_silence(parts: Sequence[Silence]) -> Silence:
+    """Several clips' silence figures as one: spreads pooled as RMS weighted by their seconds."""
+
+    def pool(spread: str, secs: str) -> float:
+        ok = [(getattr(p, spread), getattr(p, secs)) for p in parts if getattr(p, secs) > 0]
+        tot = sum(s for _, s in ok)
+        return float(np.sqrt(sum(v * v * s for v, s in ok) / tot)) if tot else float("nan")
+
+    pa, sp = pool("pause_spread", "pause_s"), pool("speech_spread", "speech_s")
+    return Silence(sy.ratio(pa, sp), pa, sp, sum(p.pause_s for p in parts), sum(p.speech_s for p in parts))
+
+
+def realism_row(
+    clips: Sequence[np.ndarray],
+    audios: Sequence[np.ndarray],
+    sr: int,
+    fps: float,
+    skeleton,
+    real_heldout: Sequence[np.ndarray],
+    reference: Sequence[np.ndarray],
+    database: Sequence[np.ndarray] | None,
+    classify: bool = True,
+    seed: int = 0,
+) -> dict:
+    """Every figure of this module for one method's clips (each with its audio), JSON-able.
+
+    Transitions against ``reference`` (the speaker's real training motion), repetition against
+    ``database`` (None: not computed), silence on each clip's audio, the classifier against
+    ``real_heldout`` windows (``classify=False``: not computed, e.g. for the held-out motion itself).
+    """
+    tr = transitions(clips, reference, fps)
+    row: dict = {"transitions": tr.count, "transitions_per_min": tr.per_minute, "transition_joints": tr.top_joints}
+    if database is not None:
+        rep = repetition(clips, database, fps)
+        row.update(
+            longest_copy_s=rep.longest_copy_s,
+            copied_share=rep.copied_share,
+            database_share_used=rep.database_share_used,
+            returns=rep.returns,
+            returns_per_min=rep.returns_per_minute,
+        )
+    sil = pooled_silence([silence_ratio(c, a, sr, fps, skeleton) for c, a in zip(clips, audios)])
+    row.update(silence_ratio=sil.ratio, pause_s=sil.pause_s, speech_s=sil.speech_s)
+    if classify:
+        chk = real_vs_generated(list(real_heldout), list(clips), fps, skeleton, seed=seed)
+        row.update(classifier=chk.accuracy, classifier_sd=chk.sd, classifier_windows=chk.n_windows)
+    return row
+
+
+def realism_section(
+    methods: Mapping[str, Sequence[np.ndarray]],
+    audios: Sequence[np.ndarray],
+    sr: int,
+    fps: float,
+    skeleton,
+    real_heldout: Sequence[np.ndarray],
+    reference: Sequence[np.ndarray],
+    database: Sequence[np.ndarray] | None,
+    database_source: str,
+    no_classifier: Sequence[str] = (),
+    seed: int = 0,
+) -> dict:
+    """The ``realism`` section of ``facecapges eval``: a row per method (:func:`realism_row`), the
+    classifier's real-vs-real control (held-out real windows against the ``reference`` motion), the
+    transition threshold and where the database came from."""
+    rows = {
+        name: realism_row(
+            clips, audios, sr, fps, skeleton, real_heldout, reference, database, name not in no_classifier, seed
+        )
+        for name, clips in methods.items()
+    }
+    ctl = real_vs_real_control(list(real_heldout), list(reference), fps, skeleton, seed=seed)
+    return {
+        "methods": rows,
+        "control": {"classifier": ctl.accuracy, "classifier_sd": ctl.sd, "classifier_windows": ctl.n_windows},
+        "transition_threshold": transition_threshold(reference, fps),
+        "database": {"source": database_source, "frames": sum(len(d) for d in database) if database else None},
+        "window_s": WINDOW_S,
+        "folds": FOLDS,
+    }

@@ -10,6 +10,8 @@
   (rad/s), real vs each generated motion.
 * :func:`markdown_unseen_table` — BeatAlign (+ control), L1DIV and FGD of motion
   generated for unseen audio.
+* :func:`realism_lines` — issue #25 §3's figures beside their targets (✓/✗), with the
+  realism section's notes (:mod:`facecapges.evaluation.realism`).
 * :func:`write_report` — all of the above into one directory.
 
 The side-by-side skeleton video lives in :mod:`facecapges.outputs.skeleton_video`.
@@ -60,6 +62,7 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
                 f"{_fmt(m['BA_shifted_sd'])} | {_fmt(m['BA_gap'], 4)} |"
             )
     lines += synchrony_lines(result)
+    lines += realism_lines(result)
     lines += peer_lines(result)
     if any(m.get("L1DIV_samples") is not None for r in regions for m in result["regions"][r]["methods"].values()):
         lines += [
@@ -136,6 +139,78 @@ def synchrony_lines(result: dict, audio_label: str | None = None) -> list[str]:
     return lines
 
 
+def _mark(value, lo: float | None, hi: float | None) -> str:
+    """✓ when ``value`` is within [lo, hi] (either may be open), ✗ outside, nothing when unknown."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    ok = (lo is None or value >= lo) and (hi is None or value <= hi)
+    return " ✓" if ok else " ✗"
+
+
+def target_rows(result: dict, name: str) -> list[tuple[str, str, str]]:
+    """Issue #25 §3's figures of one method: (figure, value with ✓/✗, target) rows."""
+    from facecapges.evaluation import realism as rl
+
+    sync = (result.get("synchrony") or {}).get("methods", {}).get(name, {})
+    real = (result.get("realism") or {}).get("methods", {}).get(name, {})
+    gap = result.get("regions", {}).get("with_head", {}).get("methods", {}).get(name, {}).get("BA_gap_sd")
+    lo, hi = rl.SILENCE_TARGET
+    ctl = (result.get("realism") or {}).get("control", {}).get("classifier")
+    rows = [
+        ("wrist spread × real", sync.get("spread_ratio"), 2, (0.8, 1.25), "0.8–1.25"),
+        ("wrist jerk × real", sync.get("jerk_ratio"), 2, (0.8, 1.25), "0.8–1.25"),
+        ("BeatAlign gap vs shifted audio (sd, with head)", gap, 2, (1.0, None), "≥ +1"),
+        ("energy–wrist-speed z", sync.get("ES_z"), 2, (3.0, None), "≥ 3 (ZEGGS speaker; BEAT scott's real motion ≈ 0)"),
+        ("transitions a minute", real.get("transitions_per_min"), 2, (None, rl.TRANSITION_TARGET_PER_MIN), "≤ 1"),
+        ("longest verbatim copy (s)", real.get("longest_copy_s"), 1, (None, None), "— (informative)"),
+        ("share of the database used", real.get("database_share_used"), 3, (None, None), "— (informative)"),
+        ("returns within 20 s, a minute", real.get("returns_per_min"), 2, (None, None), "— (informative)"),
+        ("silence: spread in pauses / in speech", real.get("silence_ratio"), 2, (lo, hi), f"{lo:g}–{hi:g}"),
+        (
+            "real-vs-generated classifier accuracy",
+            real.get("classifier"),
+            2,
+            (None, rl.CLASSIFIER_TARGET),
+            f"≤ {rl.CLASSIFIER_TARGET:g} (0.5 = indistinguishable; control {_fmt(ctl, 2)})",
+        ),
+    ]
+    out = [(fig, _fmt(v, d) + (_mark(v, *rng) if rng != (None, None) else ""), t) for fig, v, d, rng, t in rows]
+    if real and real.get("silence_ratio") is None and not real.get("pause_s"):
+        out[8] = (out[8][0], "— (no pause ≥ 0.5 s)", out[8][2])
+    return out
+
+
+def realism_lines(result: dict, audio_label: str | None = None) -> list[str]:
+    """Issue #25 §3's table (every figure beside its target) and the realism table of each method."""
+    section = result.get("realism")
+    if not section:
+        return []
+    names = list(section["methods"])
+    where = f" — {audio_label}" if audio_label else ""
+    lines = ["", f"### Against the targets of issue #25 §3{where}", ""]
+    lines += ["| Figure | Target | " + " | ".join(names) + " |", "|---|---|" + "---|" * len(names)]
+    per = {n: target_rows(result, n) for n in names}
+    for i, (fig, _, target) in enumerate(per[names[0]]):
+        lines.append(f"| {fig} | {target} | " + " | ".join(per[n][i][1] for n in names) + " |")
+    ctl, db = section["control"], section["database"]
+    lines += [
+        "",
+        "✓ / ✗: the target reached or not (the reference rows show where the real motion itself stands). "
+        f"Transitions: frames whose joint acceleration (all 47 joints) exceeds the real motion's 99.9th "
+        f"percentile ({_fmt(section['transition_threshold'], 0)} rad/s², from the speaker's training motion). "
+        f"Repetition against {db['source']}"
+        + (f" ({db['frames']} frames)" if db["frames"] else "")
+        + ": nearest database frame within half the database's median frame step counts as copied. "
+        "Silence: wrist spread within pauses / within speech (energy VAD with 0.3 s hangover). "
+        f"Classifier: logistic regression on {section['window_s']:g}-s windows, {section['folds']} contiguous "
+        f"blocks as folds, balanced; its control (held-out real vs the speaker's training motion) scores "
+        f"{_fmt(ctl['classifier'], 2)} ± {_fmt(ctl['classifier_sd'], 2)} over {ctl['classifier_windows']} "
+        "windows a class — the figure means something only when the control is near 0.5 "
+        "(`facecapges.evaluation.realism`). Sample 0 of each method.",
+    ]
+    return lines
+
+
 def peer_lines(result: dict) -> list[str]:
     """BA, SRGR and L1div as the peers' scripts compute them (empty without a ``peers`` section)."""
     peers = result.get("peers")
@@ -185,6 +260,7 @@ def markdown_unseen_table(unseen: dict) -> str:
                 )
     for path, res in unseen.items():
         lines += synchrony_lines(res, Path(path).name)
+        lines += realism_lines(res, Path(path).name)
     return "\n".join(lines) + "\n"
 
 

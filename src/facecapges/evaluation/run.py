@@ -33,6 +33,7 @@ of the speaker's real motion in the cache.
 
 from __future__ import annotations
 
+import functools
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -115,19 +116,43 @@ def _real_window(pool: Sequence[np.ndarray], n: int, rng: np.random.Generator) -
 
 
 def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarray:
-    """Like :func:`facecapges.model.generate.generate_poses`, starting from ``window`` as history."""
-    from facecapges.model.streaming import StreamingGenerator
+    """Like :func:`facecapges.model.generate.generate_poses`, starting from ``window`` as history.
 
-    gen = StreamingGenerator(ckpt.model, window)
-    out = np.empty((inputs.n_frames, ckpt.model.cfg.n_joints, 6), np.float32)
+    Engine-agnostic: the checkpoint's own stream (``ckpt.streaming()``, network or motion
+    matching) restarted with ``reset(initial_pose=window)``."""
     from rich.progress import track
 
+    from facecapges.skeleton import N_JOINTS
+
+    gen = ckpt.streaming()
+    gen.reset(initial_pose=window)
+    out = np.empty((inputs.n_frames, N_JOINTS, 6), np.float32)
     frames = track(range(inputs.n_frames), description="generating (other start)", transient=True, disable=not progress)
     for t in frames:
         out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
     if not np.isfinite(out).all():
         raise UserError("the model produced non-finite poses; the checkpoint is unusable")
     return out
+
+
+def history_frames(ckpt) -> int:
+    """Frames of pose history a stream of ``ckpt`` starts from (its neutral window's length)."""
+    return len(ckpt.neutral_window)
+
+
+def engine_name(ckpt) -> str:
+    """The method's name in the tables: ``FaceCapGes (stem)`` for the network, ``motion matching (stem)``."""
+    label = "motion matching" if getattr(ckpt, "engine", "network") == "matching" else "FaceCapGes"
+    return f"{label} ({ckpt.path.stem})"
+
+
+def engine_database(ckpt, training: Sequence[np.ndarray]) -> tuple[list[np.ndarray] | None, str]:
+    """The frames repetition is measured against: a matching engine's database, else the training frames."""
+    if getattr(ckpt, "engine", "network") == "matching" and hasattr(ckpt, "database_poses"):
+        return [np.asarray(ckpt.database_poses(), np.float32)], "the engine's database"
+    if training:
+        return [np.asarray(x, np.float32) for x in training], "the speaker's training frames in the cache"
+    return None, "no database (no training frames): repetition not computed"
 
 
 def run_eval(
@@ -156,6 +181,7 @@ def run_eval(
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
+    from facecapges.evaluation.realism import realism_section
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
@@ -171,7 +197,7 @@ def run_eval(
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
     ckpt = load_checkpoint(checkpoint, style)
-    model_name = f"FaceCapGes ({ckpt.path.stem})"
+    model_name = engine_name(ckpt)
     c = Cache(cache)
     fps, sr = c.fps, c.sr
     if abs(fps - ckpt.fps) > 1e-6:
@@ -209,12 +235,13 @@ def run_eval(
         pool = [loaded[n]["pose"][:holdout_from] for n in loaded]
     else:
         pool = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker, split="train") if e["name"] not in loaded]
-        if not pool:
-            warnings.append(
-                f"no train clips of speaker {speaker} outside the evaluated ones: mean pose and random "
-                "segment come from the evaluated clips"
-            )
-            pool = [loaded[n]["pose"] for n in evaluated]
+    training = list(pool)  # the speaker's training frames (empty when the cache has none outside the evaluated clips)
+    if holdout_from is None and not pool:
+        warnings.append(
+            f"no train clips of speaker {speaker} outside the evaluated ones: mean pose and random "
+            "segment come from the evaluated clips"
+        )
+        pool = [loaded[n]["pose"] for n in evaluated]
     # FGD autoencoder
     fgd = None
     loc = fgd_location if fgd_location is not None else ckpt.path
@@ -230,6 +257,9 @@ def run_eval(
         warnings.append("not every evaluated clip has a semantic file: SRGR is unweighted")
     rng = np.random.default_rng(seed)
     scored, ms_all = PairedClips(sr, fps, offsets_s, progress), []
+    shown_clips: dict[str, list[np.ndarray]] = {}  # each method's first sample per clip, for the realism section
+    heldout_real: list[np.ndarray] = []
+    heldout_audio: list[np.ndarray] = []
     first: tuple[str, np.ndarray, dict[str, np.ndarray], np.ndarray] | None = None  # its first sample per method
     for name in evaluated:
         a = loaded[name]
@@ -237,7 +267,7 @@ def run_eval(
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
         gens = [gen] + [
-            generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+            generate_from(ckpt, inputs, _real_window(pool, history_frames(ckpt), rng), progress)
             for _ in range(samples - 1)
         ]
         if holdout_from is not None:
@@ -255,9 +285,28 @@ def run_eval(
             model_name: gens,
         }
         scored.add(real, methods, audio, a["semantic"][start:] if weighted else None, c.skeleton(name))
+        heldout_real.append(real)
+        heldout_audio.append(audio)
+        for k, v in methods.items():
+            shown_clips.setdefault(k, []).append(v if isinstance(v, np.ndarray) else v[0])
         if first is None:
             first = (name, real, {k: v if isinstance(v, np.ndarray) else v[0] for k, v in methods.items()}, audio)
     result = scored.combine(fgd)
+    skel = c.skeleton(evaluated[0])
+    database, db_source = engine_database(ckpt, training)
+    reference = training or heldout_real
+    realism = functools.partial(
+        realism_section,
+        sr=sr,
+        fps=fps,
+        skeleton=skel,
+        real_heldout=heldout_real,
+        reference=reference,
+        database=database,
+        database_source=db_source,
+        seed=seed,
+    )
+    result["realism"] = realism(shown_clips, heldout_audio, no_classifier=["ground truth"])
     result.update(
         checkpoint=str(ckpt.path),
         cache=str(cache),
@@ -278,11 +327,11 @@ def run_eval(
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
             gens = [gen] + [
-                generate_from(ckpt, inputs, _real_window(pool, ckpt.model.cfg.n_history, rng), progress)
+                generate_from(ckpt, inputs, _real_window(pool, history_frames(ckpt), rng), progress)
                 for _ in range(samples - 1)
             ]
             wav = load_audio(path, sr)
-            unseen[str(path)] = evaluate_unpaired(
+            res = evaluate_unpaired(
                 {model_name: gens},
                 wav,
                 sr,
@@ -291,8 +340,10 @@ def run_eval(
                 fgd_reference=all_real,
                 offsets_s=offsets_s,
                 progress=progress,
-                skeleton=c.skeleton(evaluated[0]),
+                skeleton=skel,
             )
+            res["realism"] = realism({model_name: [gens[0]]}, [wav])
+            unseen[str(path)] = res
     out = Path(out)
     assert first is not None  # at least one clip was evaluated
     name, real0, methods0, audio0 = first
