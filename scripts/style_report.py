@@ -15,8 +15,14 @@
   Stouffer's method (:func:`facecapges.evaluation.synchrony.stouffer_z`).
 * Unseen audio (no motion): the same figures, ratios to the real motion of the
   speaker's training frames (frames before each take's hold-out).
+* Issue #25 §3 (``realism``, :mod:`facecapges.evaluation.realism`), per take, for all takes'
+  held-out frames together and per unseen audio: transitions against the training frames'
+  acceleration, repetition against the engine's database (a matching style's own, else the
+  training frames), the silence ratio, and the real-vs-generated classifier against the
+  held-out real windows beside its control (held-out real vs the training frames).
 All metric code is :mod:`facecapges.evaluation.synchrony` and
-:mod:`facecapges.evaluation.beat_align` (what ``facecapges eval`` reports).
+:mod:`facecapges.evaluation.beat_align` and :mod:`facecapges.evaluation.realism` (what
+``facecapges eval`` reports). The style runs through ``ckpt.streaming()`` (any engine).
 """
 
 from __future__ import annotations
@@ -39,6 +45,47 @@ def _row(skel, pose, audio, sr, fps, ref_stats):
     return {k: (round(float(v), 4) if isinstance(v, (float, np.floating)) else v) for k, v in row.items()}
 
 
+def _realism(rows_in, skel, fps, sr, heldout, training, database, db_source, seed=0):
+    """Issue #25 §3's figures (:func:`facecapges.evaluation.realism.realism_row`) of several methods' clips,
+    with the classifier's real-vs-real control (held-out real against the training frames)."""
+    from facecapges.evaluation.realism import real_vs_real_control, realism_row
+
+    def rnd(v):  # NaN (e.g. no pause to measure) → null: the file stays standard JSON
+        if isinstance(v, (float, np.floating)):
+            return round(float(v), 4) if np.isfinite(v) else None
+        return v
+
+    out = {}
+    for name, (clips, audios, classify) in rows_in.items():
+        row = realism_row(clips, audios, sr, fps, skel, heldout, training, database, classify, seed)
+        out[name] = {k: rnd(v) for k, v in row.items()}
+    ctl = real_vs_real_control(heldout, training, fps, skel, seed=seed)
+    out["control"] = {"classifier": rnd(ctl.accuracy), "classifier_sd": rnd(ctl.sd),
+                      "classifier_windows": ctl.n_windows, "what": "held-out real vs the training frames"}
+    out["database"] = {"source": db_source, "frames": sum(len(d) for d in database) if database else None}
+    return out
+
+
+def _takes(cache, args, fps, sr):
+    """Each take of the speaker, cut as the options say, with its first held-out frame."""
+    from facecapges.timing import frame_sample_bounds
+
+    takes = []
+    for e in cache.select(args.speaker, "all"):
+        a = cache.load(e["name"])
+        until = int(len(a["pose"]) * 0.8) if args.validation else args.until_frame
+        if until:
+            S = int(frame_sample_bounds(until, fps, sr)[0])
+            a = {k: (v[:S] if k == "audio" else v[:until]) if k in ("pose", "head", "face", "audio")
+                 else v for k, v in a.items()}
+        if args.validation:
+            start = int(len(a["pose"]) * 0.8)
+        else:
+            start = args.holdout_from or e.get("holdout_from") or int(len(a["pose"]) * 0.8)
+        takes.append((e["name"], a, int(start)))
+    return takes
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--checkpoint", type=Path, required=True)
@@ -53,50 +100,52 @@ def main() -> None:
     args = ap.parse_args()
 
     from facecapges.data.cache import Cache
-    from facecapges.evaluation.run import heldout_inputs
-    from facecapges.evaluation.synchrony import motion_stats, pooled_stats, wrist_positions
+    from facecapges.evaluation.run import engine_database, heldout_inputs
+    from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
     from facecapges.rotations import identity_rot6d
+    from facecapges.timing import AUDIO_SR
 
     ck = load_checkpoint(args.checkpoint)
-    skel, fps, sr = ck.skeleton, ck.fps, ck.model.cfg.sr
+    skel, fps = ck.skeleton, ck.fps
+    sr = int(ck.meta.get("model_config", {}).get("sr", AUDIO_SR))
     cache = Cache(args.cache)
     ref = ck.meta.get("head_reference_rot6d")
     out = {"checkpoint": str(args.checkpoint), "paired": {}, "unseen": {}}
-    train_stats = []
-    for e in cache.select(args.speaker, "all"):
-        a = cache.load(e["name"])
-        until = int(len(a["pose"]) * 0.8) if args.validation else args.until_frame
-        if until:
-            from facecapges.timing import frame_sample_bounds
-
-            S = int(frame_sample_bounds(until, fps, sr)[0])
-            a = {k: (v[:S] if k == "audio" else v[:until]) if k in ("pose", "head", "face", "audio")
-                 else v for k, v in a.items()}
-        if args.validation:
-            start = int(len(a["pose"]) * 0.8)
-        else:
-            start = args.holdout_from or e.get("holdout_from") or int(len(a["pose"]) * 0.8)
-        train_stats.append(motion_stats(wrist_positions(skel, a["pose"][:start]), fps))
+    takes = _takes(cache, args, fps, sr)
+    training = [a["pose"][:start] for _, a, start in takes]
+    database, db_source = engine_database(ck, training)
+    train_stats = [motion_stats(wrist_positions(skel, t), fps) for t in training]
+    heldout, pooled_gen = [], ([], [])
+    for name, a, start in takes:
         real, audio, inputs = heldout_inputs(a, start, fps, sr, ref)
         gen, _ = generate_poses(ck, inputs, progress=False)
         # the same audio with the head at rest (what an audio file without a head track gives)
         still = dataclasses.replace(inputs, head=np.broadcast_to(identity_rot6d(), inputs.head.shape).copy())
         gen_still, _ = generate_poses(ck, still, progress=False)
         real_stats = motion_stats(wrist_positions(skel, real), fps)
-        out["paired"][e["name"]] = {"from_frame": int(start), "frames": len(real),
-                                    "real": _row(skel, real, audio, sr, fps, real_stats),
-                                    "generated": _row(skel, gen, audio, sr, fps, real_stats),
-                                    "generated_still_head": _row(skel, gen_still, audio, sr, fps, real_stats)}
-        print(e["name"], json.dumps(out["paired"][e["name"]]["generated"]))
-    from facecapges.evaluation.synchrony import stouffer_z
+        out["paired"][name] = {"from_frame": int(start), "frames": len(real),
+                               "real": _row(skel, real, audio, sr, fps, real_stats),
+                               "generated": _row(skel, gen, audio, sr, fps, real_stats),
+                               "generated_still_head": _row(skel, gen_still, audio, sr, fps, real_stats)}
+        rows = {"real": ([real], [audio], False), "generated": ([gen], [audio], True),
+                "generated_still_head": ([gen_still], [audio], True)}
+        out["paired"][name]["realism"] = _realism(rows, skel, fps, sr, [real], training, database, db_source)
+        heldout.append(real)
+        pooled_gen[0].append(gen)
+        pooled_gen[1].append(audio)
+        print(name, json.dumps(out["paired"][name]["generated"]))
+        print(name, "realism", json.dumps(out["paired"][name]["realism"]["generated"]))
 
-    takes = out["paired"].values()
+    takes_out = out["paired"].values()
     out["paired_combined"] = {  # the takes' z-scores combined (Stouffer): all held-out audio as one test
-        who: {k: round(stouffer_z([t[who][k] for t in takes]), 4) for k in ("ES_z", "BA_gap_sd")}
+        who: {k: round(stouffer_z([t[who][k] for t in takes_out]), 4) for k in ("ES_z", "BA_gap_sd")}
         for who in ("real", "generated")
     } if out["paired"] else {}
+    if heldout:  # every take's held-out frames together: one transitions/repetition/classifier figure
+        rows = {"generated": (pooled_gen[0], pooled_gen[1], True)}
+        out["paired_combined"]["realism"] = _realism(rows, skel, fps, sr, heldout, training, database, db_source)
     print("combined", json.dumps(out["paired_combined"]))
     pooled = pooled_stats(train_stats)
     for p in args.audio:
@@ -104,7 +153,11 @@ def main() -> None:
 
         inputs = prepare_inputs(p, fps=fps)
         gen, _ = generate_poses(ck, inputs, progress=False)
-        out["unseen"][p.name] = _row(skel, gen, load_audio(p, sr), sr, fps, pooled)
+        wav = load_audio(p, sr)
+        out["unseen"][p.name] = _row(skel, gen, wav, sr, fps, pooled)
+        if heldout:  # ratios to the training frames; the classifier against the held-out real windows
+            rows = {"generated": ([gen], [wav], True)}
+            out["unseen"][p.name]["realism"] = _realism(rows, skel, fps, sr, heldout, training, database, db_source)
         print(p.name, json.dumps(out["unseen"][p.name]))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(out, indent=2))

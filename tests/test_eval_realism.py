@@ -111,3 +111,34 @@ def test_control_on_the_two_halves_of_the_take(take):
     res = R.real_vs_real_control(pose[:half], pose[half:], FPS, skel)
     assert 0.4 < res.accuracy < 0.9 and np.isfinite(res.sd)  # his halves differ a little (arms higher in one)
     assert np.isnan(R.real_vs_generated(pose[:40], pose[40:80], FPS, skel).accuracy)  # too short for 2 folds
+
+
+def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_wav):
+    """``generate_from`` uses ``ckpt.streaming()`` + ``reset(initial_pose)``: the same poses as the network's
+    streaming generator built on that window by hand (the path it replaced)."""
+    from facecapges import timing
+    from facecapges.evaluation.run import engine_database, engine_name, generate_from, history_frames
+    from facecapges.io.audio import load_audio
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.generate import FrameInputs
+    from facecapges.model.streaming import StreamingGenerator
+
+    pose, _ = take
+    ckpt = load_checkpoint(style="beat2-scott-demo")
+    n = 30
+    audio = load_audio(beat_wav)[: timing.frame_sample_bounds(n, FPS)[0]]
+    head = np.broadcast_to(rot.identity_rot6d(), (n, 6)).copy()
+    inputs = FrameInputs(
+        audio=timing.frame_audio(audio, n, FPS), face=np.zeros((n, 52), np.float32), head=head, fps=FPS, notes=[]
+    )
+    window = pose[200 : 200 + history_frames(ckpt)].astype(np.float32)
+    got = generate_from(ckpt, inputs, window, progress=False)
+    by_hand = StreamingGenerator(ckpt.model, window)
+    want = np.stack([by_hand.step(inputs.audio[t], inputs.face[t], inputs.head[t]) for t in range(n)])
+    np.testing.assert_allclose(got, want, atol=1e-5)
+    cold = generate_from(ckpt, inputs, ckpt.neutral_window, progress=False)
+    assert np.abs(cold - got).max() > 1e-3  # the start window is really used
+    assert engine_name(ckpt) == "FaceCapGes (beat2-scott-demo)"
+    db, source = engine_database(ckpt, [pose[:766]])
+    assert db is not None and len(db[0]) == 766 and "training frames" in source
+    assert engine_database(ckpt, [])[0] is None

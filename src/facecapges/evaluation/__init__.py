@@ -14,6 +14,10 @@ signatures:
 * :mod:`~facecapges.evaluation.synchrony` — synchrony controls: audio-energy / wrist-speed
   correlation against shifted audio (z), BeatAlign gap in sd units, wrist jerk and spread
   as ratios to the real motion.
+* :mod:`~facecapges.evaluation.realism` — issue #25 §3, for any engine: transitions (frames above
+  the real motion's 99.9th-percentile joint acceleration), repetition against a database (longest
+  verbatim copy, share used, returns within 20 s), wrist spread in pauses vs speech, and a
+  real-vs-generated window classifier with its real-vs-real control.
 * :mod:`~facecapges.evaluation.peers` — BA, SRGR and L1div exactly as BEAT/CaMN's and
   EMAGE's scripts compute them (for comparisons with published numbers).
 * :mod:`~facecapges.evaluation.regions` — the two evaluation regions (5.5.5).

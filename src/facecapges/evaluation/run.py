@@ -7,13 +7,13 @@ evaluated whole and the pool is the speaker's train clips (falling back to the
 evaluated clips themselves, with a warning, when the cache has none).
 
 **Generation.** The checkpoint runs frame by frame through
-:func:`facecapges.model.generate.generate_poses` — the streaming path of live use —
+:func:`facecapges.model.generate.generate_poses` — the streaming path of live use, whatever the engine —
 from a cold start at the first evaluated frame, on the clip's own audio, face
 weights and head rotation from the cache.
 
 **Samples.** The model is run ``samples`` times per clip: sample 0 starts from the
 checkpoint's own cold-start window, sample k > 0 from a random real window of
-``n_history`` frames of the pool as its history. SRGR, BA and L1DIV are averaged over
+frames of the pool as its history (as many as the checkpoint's neutral window). SRGR, BA and L1DIV are averaged over
 samples, FGD pools them, and eq. 5.11 (``L1DIV_samples``) is computed across them.
 Plots and video show sample 0.
 
@@ -25,6 +25,17 @@ SRGR is semantic-weighted only when every evaluated clip has a semantic file.
 **Unseen audio** (``extra_audio``): the model runs with neutral face and resting head
 (no face/head track exists for it); BeatAlign (+ control), L1DIV and FGD against all
 of the speaker's real motion in the cache.
+
+**Realism** (issue #25 §3, :mod:`facecapges.evaluation.realism`): the ``realism`` section of
+``paired`` and of each unseen audio, on sample 0 of every method: transitions against the
+speaker's training frames (the real pool), repetition against the engine's database (a
+matching checkpoint's ``database_poses()``, else the training frames), the silence ratio, and
+the real-vs-generated classifier against the held-out real windows with its control (held-out
+real vs the training frames). ``metrics.md`` shows each figure beside its target.
+
+**Engines.** Generation only uses the checkpoint's stream (``ckpt.streaming()``,
+``reset(initial_pose=…)``, ``step``), ``fps``, ``meta``, ``skeleton`` and ``neutral_window``:
+the thesis network and a motion-matching checkpoint run the same path.
 
 **Files** in ``out``: ``metrics.json`` (``paired`` and ``unseen_audio`` sections),
 ``metrics.md``, ``beat_timeline.png``, ``joint_speed.png`` and
