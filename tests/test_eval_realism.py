@@ -142,3 +142,24 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_wav)
     db, source = engine_database(ckpt, [pose[:766]])
     assert db is not None and len(db[0]) == 766 and "training frames" in source
     assert engine_database(ckpt, [])[0] is None
+
+
+def test_realism_section_and_its_table(take, beat_wav):
+    from facecapges.evaluation.report import realism_lines
+    from facecapges.io.audio import load_audio
+
+    pose, skel = take
+    audio = load_audio(beat_wav)
+    real, train = pose[766:], pose[:766]
+    s0 = 766 * 16000 // FPS
+    methods = {"ground truth": [real], "frozen": [np.repeat(real[:1], len(real), 0)], "replay": [train[:191]]}
+    kw = dict(sr=16000, fps=FPS, skeleton=skel, real_heldout=[real], reference=[train], database=[train])
+    sec = R.realism_section(methods, [audio[s0:]], **kw, database_source="training", no_classifier=["ground truth"])
+    rows = sec["methods"]
+    assert rows["replay"]["longest_copy_s"] == pytest.approx(191 / FPS) and rows["frozen"]["classifier"] >= 0.9
+    assert sec["control"]["classifier"] is None  # no other real motion given: no control
+    md = "\n".join(realism_lines({"realism": sec, "regions": {}, "synchrony": None}))
+    assert "no control" in md and "| transitions a minute | ≤ 1 | 0.00 ✓ | 0.00 ✓ |" in md
+    sec = R.realism_section(methods, [audio[s0:]], **kw, database_source="training", control_reference=[train])
+    assert 0.0 <= sec["control"]["classifier"] <= 1.0 and sec["control"]["classifier_windows"] > 0
+    assert "its control (held-out real vs" in "\n".join(realism_lines({"realism": sec}))

@@ -480,21 +480,27 @@ def realism_section(
     database_source: str,
     no_classifier: Sequence[str] = (),
     seed: int = 0,
+    control_reference: Sequence[np.ndarray] | None = None,
+    reference_source: str = "the speaker's training motion",
 ) -> dict:
     """The ``realism`` section of ``facecapges eval``: a row per method (:func:`realism_row`), the
-    classifier's real-vs-real control (held-out real windows against the ``reference`` motion), the
-    transition threshold and where the database came from."""
+    classifier's real-vs-real control (held-out real windows against ``control_reference``, other real
+    motion of the speaker; None: no control), the transition threshold and where the database came from."""
     rows = {
         name: realism_row(
             clips, audios, sr, fps, skeleton, real_heldout, reference, database, name not in no_classifier, seed
         )
         for name, clips in methods.items()
     }
-    ctl = real_vs_real_control(list(real_heldout), list(reference), fps, skeleton, seed=seed)
+    control = {"classifier": None, "classifier_sd": None, "classifier_windows": 0}
+    if control_reference:
+        ctl = real_vs_real_control(list(real_heldout), list(control_reference), fps, skeleton, seed=seed)
+        control = {"classifier": ctl.accuracy, "classifier_sd": ctl.sd, "classifier_windows": ctl.n_windows}
     return {
         "methods": rows,
-        "control": {"classifier": ctl.accuracy, "classifier_sd": ctl.sd, "classifier_windows": ctl.n_windows},
+        "control": control,
         "transition_threshold": transition_threshold(reference, fps),
+        "reference_source": reference_source,
         "database": {"source": database_source, "frames": sum(len(d) for d in database) if database else None},
         "window_s": WINDOW_S,
         "folds": FOLDS,

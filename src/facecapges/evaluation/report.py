@@ -197,16 +197,20 @@ def realism_lines(result: dict, audio_label: str | None = None) -> list[str]:
         "",
         "✓ / ✗: the target reached or not (the reference rows show where the real motion itself stands). "
         f"Transitions: frames whose joint acceleration (all 47 joints) exceeds the real motion's 99.9th "
-        f"percentile ({_fmt(section['transition_threshold'], 0)} rad/s², from the speaker's training motion). "
+        f"percentile ({_fmt(section['transition_threshold'], 0)} rad/s², from {section.get('reference_source', 'the real motion')}). "
         f"Repetition against {db['source']}"
         + (f" ({db['frames']} frames)" if db["frames"] else "")
         + ": nearest database frame within half the database's median frame step counts as copied. "
         "Silence: wrist spread within pauses / within speech (energy VAD with 0.3 s hangover). "
         f"Classifier: logistic regression on {section['window_s']:g}-s windows, {section['folds']} contiguous "
-        f"blocks as folds, balanced; its control (held-out real vs the speaker's training motion) scores "
-        f"{_fmt(ctl['classifier'], 2)} ± {_fmt(ctl['classifier_sd'], 2)} over {ctl['classifier_windows']} "
-        "windows a class — the figure means something only when the control is near 0.5 "
-        "(`facecapges.evaluation.realism`). Sample 0 of each method.",
+        + (
+            f"blocks as folds, balanced; its control (held-out real vs the speaker's training motion) scores "
+            f"{_fmt(ctl['classifier'], 2)} ± {_fmt(ctl['classifier_sd'], 2)} over {ctl['classifier_windows']} "
+            "windows a class — the figure means something only when the control is near 0.5 "
+            if ctl["classifier"] is not None
+            else "blocks as folds, balanced; no control (no other real motion of the speaker) — "
+        )
+        + "(`facecapges.evaluation.realism`). Sample 0 of each method.",
     ]
     return lines
 

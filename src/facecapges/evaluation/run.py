@@ -316,6 +316,10 @@ def run_eval(
         database=database,
         database_source=db_source,
         seed=seed,
+        control_reference=training or None,  # no other real motion of the speaker: no control
+        reference_source="the speaker's training motion"
+        if training
+        else "the evaluated real motion (no training frames)",
     )
     result["realism"] = realism(shown_clips, heldout_audio, no_classifier=["ground truth"])
     result.update(
