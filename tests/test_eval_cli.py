@@ -118,3 +118,5 @@ def test_eval_with_a_checkpoint_on_the_held_out_frames(cache, tmp_path, unseen_w
                        "--quiet"), "metrics.json", "--force")
     one_line_error(run("eval", "--cache", cache, "--checkpoint", ckpt, "--out", tmp_path / "e2", "--quiet",
                        "--split", "train"), "no 'train' clips")
+    one_line_error(run("eval", "--cache", cache, "--checkpoint", ckpt, "--holdout-from", 400, "--samples", 1,
+                       "--no-video", "--out", tmp_path / "e3", "--quiet"), "557 frames", "later --holdout-from")

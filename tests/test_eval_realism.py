@@ -73,6 +73,8 @@ def test_silence_ratio_on_synthetic_speech():
     assert res.ratio == pytest.approx(0.2, abs=0.03) and res.pause_s == pytest.approx((150 - round(0.3 * FPS)) / FPS)
     frozen = R.silence_ratio(np.where(t[:, None, None] < 10, wrists, wrists[150]), audio, sr, FPS)
     assert frozen.ratio < 1e-9
+    still = R.silence_ratio(np.repeat(wrists[:1], n, 0), audio, sr, FPS)  # a motion that never moves
+    assert np.isnan(still.ratio) and still.speech_s > 0
 
 
 def test_silence_ratio_on_the_real_take(take, beat_wav):

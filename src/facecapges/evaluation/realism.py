@@ -246,6 +246,7 @@ def repetition(
 VAD_FLOOR_PCT, VAD_PEAK_PCT = 10.0, 95.0
 VAD_ABOVE_FLOOR_DB, VAD_BELOW_PEAK_DB = 12.0, 35.0
 HANGOVER_S, MIN_SEGMENT_S = 0.3, 0.5
+STILL_SPREAD = 1e-6  # skeleton units (BEAT: cm): a spread below this is rounding, not motion
 
 
 def speech_frames(audio: np.ndarray, sr: int, fps: float, n_frames: int | None = None, hangover_s: float = HANGOVER_S):
@@ -307,7 +308,8 @@ def silence_ratio(
             s[0] += sy.wrist_spread(w[a:b]) ** 2 * (b - a)
             s[1] += b - a
     sp, pa = (float(np.sqrt(sums[k][0] / sums[k][1])) if sums[k][1] else float("nan") for k in (True, False))
-    return Silence(sy.ratio(pa, sp), pa, sp, sums[False][1] / fps, sums[True][1] / fps)
+    ratio = sy.ratio(pa, sp) if sp > STILL_SPREAD else float("nan")  # no motion in speech: nothing to compare
+    return Silence(ratio, pa, sp, sums[False][1] / fps, sums[True][1] / fps)
 
 
 # ------------------------------------------------------------------ real vs generated

@@ -288,7 +288,15 @@ def run_eval(
         try:
             segment = bl.random_segment(seg_pool, len(real), rng, exclude=excl)
         except ValueError:
-            segment = bl.random_segment(pool + [a["pose"]], len(real), rng, exclude=(len(pool), start, len(a["pose"])))
+            try:
+                segment = bl.random_segment(
+                    pool + [a["pose"]], len(real), rng, exclude=(len(pool), start, len(a["pose"]))
+                )
+            except ValueError:
+                raise UserError(
+                    f"clip {name}: {len(real)} frames from frame {start} on, but no real stretch that long outside "
+                    "them for the random real segment; use a later --holdout-from"
+                ) from None
         methods: dict[str, Method] = {
             "ground truth": bl.ground_truth(real),
             "mean pose": bl.mean_pose_sequence(pool, len(real)),
