@@ -161,6 +161,7 @@ def test_realism_section_and_its_table(take, beat_wav):
     assert rows["replay"]["longest_copy_s"] == pytest.approx(191 / FPS) and rows["frozen"]["classifier"] >= 0.9
     assert sec["control"]["classifier"] is None  # no other real motion given: no control
     md = "\n".join(realism_lines({"realism": sec, "regions": {}, "synchrony": None}))
+    assert "| — (no pause ≥ 0.5 s) |" in md  # the held-out 12.7 s have no pause that long
     assert "no control" in md and "| transitions a minute | ≤ 1 | 0.00 ✓ | 0.00 ✓ |" in md
     sec = R.realism_section(methods, [audio[s0:]], **kw, database_source="training", control_reference=[train])
     assert 0.0 <= sec["control"]["classifier"] <= 1.0 and sec["control"]["classifier_windows"] > 0

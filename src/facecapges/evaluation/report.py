@@ -175,7 +175,7 @@ def target_rows(result: dict, name: str) -> list[tuple[str, str, str]]:
         ),
     ]
     out = [(fig, _fmt(v, d) + (_mark(v, *rng) if rng != (None, None) else ""), t) for fig, v, d, rng, t in rows]
-    if real and real.get("silence_ratio") is None and not real.get("pause_s"):
+    if real and not real.get("pause_s"):
         out[8] = (out[8][0], "— (no pause ≥ 0.5 s)", out[8][2])
     return out
 
