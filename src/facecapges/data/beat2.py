@@ -162,9 +162,13 @@ def read_beat2(path: str | Path) -> Beat2Take:
     if not path.is_file():
         raise file_error(path, "BEAT2 take not found")
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if not isinstance(z, np.lib.npyio.NpzFile):
-                raise file_error(path, "not a BEAT2 take (a single .npy array, not an .npz archive)")
+        z = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
+        raise file_error(path, f"unreadable BEAT2 take ({exc.__class__.__name__}: {str(exc)[:120]})") from None
+    if not isinstance(z, np.lib.npyio.NpzFile):
+        raise file_error(path, "not a BEAT2 take (a single .npy array, not an .npz archive)")
+    try:
+        with z:
             missing = [k for k in ("poses", "mocap_frame_rate") if k not in z.files]
             if missing:
                 raise file_error(path, f"not a BEAT2 take: no {', '.join(repr(k) for k in missing)} array")
@@ -426,7 +430,11 @@ def fit_joint(M: np.ndarray, L: np.ndarray, iters: int = 30) -> tuple[np.ndarray
         P = A @ M  # ‖P B − L‖ = ‖Bᵀ Pᵀ − Lᵀ‖: rows of P onto rows of L
         B = _align(L.reshape(-1, 3), P.reshape(-1, 3)).T
         Q = M @ B  # ‖A Q − L‖: columns of Q onto columns of L
-        A = _align(np.swapaxes(L, -1, -2).reshape(-1, 3), np.swapaxes(Q, -1, -2).reshape(-1, 3))
+        A_new = _align(np.swapaxes(L, -1, -2).reshape(-1, 3), np.swapaxes(Q, -1, -2).reshape(-1, 3))
+        done = np.abs(A_new - A).max() < 1e-8
+        A = A_new
+        if done:
+            break
     return A, B
 
 
