@@ -163,8 +163,8 @@ def read_beat2(path: str | Path) -> Beat2Take:
         raise file_error(path, "BEAT2 take not found")
     try:
         z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
-        raise file_error(path, f"unreadable BEAT2 take ({exc.__class__.__name__}: {str(exc)[:120]})") from None
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # numpy's text would suggest allow_pickle
+        raise file_error(path, "not a BEAT2 take: not a readable .npz archive (damaged or another format)") from None
     if not isinstance(z, np.lib.npyio.NpzFile):
         raise file_error(path, "not a BEAT2 take (a single .npy array, not an .npz archive)")
     try:
