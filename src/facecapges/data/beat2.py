@@ -20,7 +20,13 @@ axis-angle (radians, local to the parent, SMPL-X joint order) and ``mocap_frame_
    both rest poses world-aligned, ``B_j`` is the BEAT joint's rest frame seen from the
    SMPL-X joint's, and ``A_j`` the same for the parent (it also absorbs the constant
    rotation of a BEAT joint SMPL-X lacks between them).
-4. BEAT joints SMPL-X lacks — the metacarpals ``*HandIndex``, ``*HandRing``,
+4. **Twist and flexion lines**: BEAT's skeleton solver and the SMPL-X fit share the twist along
+   each arm differently (BEAT keeps the wrist's twist in the forearm), and SMPL-X's fingers bend
+   about twice as far as BEAT's. For the upper arm, forearm and hand of each side the rotation
+   about the bone (x) is followed by ``Rx(c · [τ_arm, τ_forearm, τ_hand, 1])``, a least-squares
+   line of the chain's twists; each index/middle/ring/little finger joint likewise gets
+   ``Rz(c · [φ, 1])`` of its own flexion φ (:data:`TWIST_CHAINS`, :func:`fit_twist`).
+5. BEAT joints SMPL-X lacks — the metacarpals ``*HandIndex``, ``*HandRing``,
    ``*HandPinky`` and ``Neck1`` — hold a constant: their mean rotation in the BEAT
    take (they move by 1–2° there). BEAT's ``Spine`` is driven by SMPL-X ``spine1``
    relative to the pelvis, ``Neck`` by ``neck`` relative to ``spine3`` (BEAT's data
@@ -111,6 +117,18 @@ SOURCES: dict[str, tuple[str, str] | None] = {
     **_arm_sources("Left"),
 }
 assert set(SOURCES) == set(UPPER_BODY)
+
+#: (axis, joints): the arm chains whose twist about the bone (x, along BEAT's arms) is redistributed,
+#: and the finger joints whose flexion (about z) is rescaled (module docstring, step 4).
+TWIST_CHAINS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("X", ("RightArm", "RightForeArm", "RightHand")),
+    ("X", ("LeftArm", "LeftForeArm", "LeftHand")),
+) + tuple(
+    ("Z", (f"{side}Hand{finger}{k}",))
+    for side in ("Right", "Left")
+    for finger in ("Middle", "Ring", "Pinky", "Index")
+    for k in (1, 2, 3)
+)
 
 
 # ------------------------------------------------------------------ reading
@@ -243,8 +261,9 @@ class Beat2Map:
             off, scale = float(d["jaw"]["offset"]), float(d["jaw"]["scale_per_rad"])
             twist = {str(n): np.asarray(c, np.float64) for n, c in d.get("twist", {}).items()}
             for n, c in twist.items():
-                if n not in UPPER_BODY or c.shape != (4,) or not np.isfinite(c).all():
-                    raise ValueError(f"twist of {n!r} must be 4 numbers of a joint in UPPER_BODY")
+                width = {j: len(chain) + 1 for _, chain in TWIST_CHAINS for j in chain}.get(n)
+                if width is None or c.shape != (width,) or not np.isfinite(c).all():
+                    raise ValueError(f"twist of {n!r}: not a joint of TWIST_CHAINS or not {width} numbers")
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{origin}: not a BEAT2 correction map ({exc.__class__.__name__}: {exc})") from None
         if not (np.isfinite(off) and np.isfinite(scale)):
@@ -290,27 +309,27 @@ def convert_matrices(take: Beat2Take, mapping: Beat2Map | None = None) -> np.nda
     return redistribute_twist(m.left[None] @ source_rotations(take.poses) @ m.right[None], m.twist)
 
 
-def twist_angles(R: np.ndarray) -> np.ndarray:
-    """Twist (radians, −π…π) of rotations (..., 3, 3) about the x axis (swing-twist decomposition)."""
+def twist_angles(R: np.ndarray, axis: str = "X") -> np.ndarray:
+    """Twist (radians, −π…π) of rotations (..., 3, 3) about ``axis`` (swing-twist decomposition)."""
     q = rot.matrix_to_quaternion(R)
-    return (2.0 * np.arctan2(q[..., 1], q[..., 0]) + np.pi) % (2 * np.pi) - np.pi
+    return (2.0 * np.arctan2(q[..., 1 + "XYZ".index(axis)], q[..., 0]) + np.pi) % (2 * np.pi) - np.pi
 
 
-def twist_features(P: np.ndarray, chain: tuple[str, ...]) -> np.ndarray:
-    """(T, len(chain) + 1): the chain's twists about their bones (x) and a 1 column."""
-    tw = twist_angles(P[:, [UPPER_BODY.index(n) for n in chain]])
+def twist_features(P: np.ndarray, axis: str, chain: tuple[str, ...]) -> np.ndarray:
+    """(T, len(chain) + 1): the chain's twists about ``axis`` and a 1 column."""
+    tw = twist_angles(P[:, [UPPER_BODY.index(n) for n in chain]], axis)
     return np.concatenate([tw, np.ones((len(P), 1))], axis=1)
 
 
 def redistribute_twist(P: np.ndarray, twist: dict[str, np.ndarray]) -> np.ndarray:
-    """``L_j = P_j · Rx(features · c_j)`` for the arm joints of :data:`TWIST_CHAINS` (module docstring)."""
+    """``L_j = P_j · R_axis(features · c_j)`` for the joints of :data:`TWIST_CHAINS` in ``twist``."""
     out = P.copy()
-    for chain in TWIST_CHAINS:
-        X = twist_features(P, chain)
+    for axis, chain in TWIST_CHAINS:
+        X = twist_features(P, axis, chain)
         for n in chain:
             if n in twist:
                 i = UPPER_BODY.index(n)
-                out[:, i] = P[:, i] @ rot.axis_angle_matrix("X", X @ twist[n])
+                out[:, i] = P[:, i] @ rot.axis_angle_matrix(axis, X @ twist[n])
     return out
 
 
@@ -371,11 +390,6 @@ def find_takes(root: str | Path) -> dict[str, Path]:
 
 
 # ------------------------------------------------------------------ fitting on a pair
-#: Arm chains whose twist about the bone (x, along BEAT's arms) is redistributed (module docstring).
-TWIST_CHAINS: tuple[tuple[str, ...], ...] = (
-    ("RightArm", "RightForeArm", "RightHand"),
-    ("LeftArm", "LeftForeArm", "LeftHand"),
-)
 ELBOWS = (("RightForeArm", "right_elbow"), ("LeftForeArm", "left_elbow"))
 MAX_LAG = 8  # source frames searched either way by measure_lag
 
@@ -458,13 +472,14 @@ def fit_corrections(M: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarra
 
 
 def fit_twist(P: np.ndarray, L: np.ndarray) -> dict[str, np.ndarray]:
-    """Per arm joint, the least-squares line from the chain's twists (P, corrected) to the residual twist of L."""
+    """Per joint of :data:`TWIST_CHAINS`, the least-squares line from its chain's twists (P, corrected)
+    to the residual twist of L about the same axis."""
     out: dict[str, np.ndarray] = {}
-    for chain in TWIST_CHAINS:
-        X = twist_features(P, chain)
+    for axis, chain in TWIST_CHAINS:
+        X = twist_features(P, axis, chain)
         for n in chain:
             i = UPPER_BODY.index(n)
-            y = twist_angles(np.swapaxes(P[:, i], -1, -2) @ L[:, i])
+            y = twist_angles(np.swapaxes(P[:, i], -1, -2) @ L[:, i], axis)
             out[n] = np.linalg.lstsq(X, y, rcond=None)[0]
     return out
 
