@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import collections
 import io
+import json
 import math
 
 import numpy as np
@@ -271,3 +272,22 @@ def test_prepare_beat_and_beat2_together(tmp_path):
     assert any("the .bvh is used" in w for w in index["warnings"])
     seconds = sum(c["n_frames"] for c in clips.values()) / 15
     assert 123 < seconds < 125 and index["stats"]["2"]["n_frames"] == 957 + 902
+
+
+def test_bad_correction_map_is_a_user_error(tmp_path):
+    good = beat2.load_map().to_dict()
+    cases = {
+        "not_json.json": "{",
+        "list.json": "[]",
+        "no_joints.json": '{"jaw": {"offset": 0, "scale_per_rad": 1}}',
+        "bad_quat.json": json.dumps(
+            {**good, "joints": {**good["joints"], "Spine": {"left": [0, 0, 0, 0], "right": [1, 0, 0, 0]}}}
+        ),
+        "bad_twist.json": json.dumps({**good, "twist": {"Spine": [1, 2]}}),
+    }
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        with pytest.raises(UserError):
+            beat2.load_map(tmp_path / name)
+    with pytest.raises(UserError, match="not found"):
+        beat2.load_map(tmp_path / "missing.json")

@@ -15,7 +15,14 @@ For every clip that has both a ``.bvh`` and a ``.wav`` (a *training clip*):
    and cut to T, or padded by repeating its last frame; semantic and emotion files are
    evaluated at the T frame times. Missing ones give zeros and ``*_present = False``.
 
-Clips of the selected speakers without a ``.bvh`` are not training clips: they are
+**BEAT2 takes** (``smplxflame_30/<BEAT name>.npz`` anywhere under the root, with the
+clip's ``.wav`` — BEAT2 keeps it in ``wave16k/``) are training clips too: their SMPL-X
+motion is converted to the 47 joints by :mod:`facecapges.data.beat2` on the first BEAT
+BVH's skeleton (or ``target``), and without a face JSON their face is the jaw's jawOpen
+track (``face_source: "jaw"``). A clip with both a ``.bvh`` and a BEAT2 take uses the
+``.bvh``. Their entries say ``dataset: "BEAT2"``, ``origin: "beat2"``.
+
+Clips of the selected speakers without a ``.bvh`` (or BEAT2 take) are not training clips: they are
 listed in ``index["skipped"]`` and counted in the summary as "audio only" (or "no
 motion, no audio"); a ``.bvh`` without a ``.wav`` is skipped as "motion only".
 
