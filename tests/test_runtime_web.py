@@ -144,6 +144,46 @@ def test_browser_viewer_shows_the_avatar(live, tmp_path):
         assert np.abs(shot2.astype(int) - img.astype(int)).sum(-1).astype(bool).mean() > 0.001
 
 
+def test_viewer_slider_sets_the_intensity(live):
+    """The viewer's intensity slider reaches the generator: at 0 the avatar holds the rest pose."""
+    from websockets.sync.client import connect
+
+    from facecapges.avatar.render.browser import Browser
+
+    ws_url = live["url"].replace("http://", "ws://") + "ws"
+
+    def poses(ws, n):
+        out = []
+        while len(out) < n:
+            msg = json.loads(ws.recv(timeout=10))
+            if msg["type"] == "pose":
+                out.append(np.array(msg["pose"]).reshape(47, 4))
+        return np.array(out)
+
+    with connect(ws_url, max_size=None) as ws, Browser({}, "/", width=800, height=600, timeout=90) as b:
+        assert json.loads(ws.recv(timeout=10))["intensity"] == 1.0
+        b.call("Page.navigate", url=live["url"])
+        deadline = time.time() + 90
+        while time.time() < deadline and not b.evaluate("!!(window.facecapgesViewer && window.facecapgesViewer.connected)"):
+            time.sleep(0.3)
+        b.evaluate("(() => { const s = document.getElementById('intensity'); s.value = '0';"
+                   " s.dispatchEvent(new Event('input')); })()")
+        while True:  # the server's answer to every viewer
+            msg = json.loads(ws.recv(timeout=10))
+            if msg["type"] == "intensity":
+                assert msg["value"] == 0.0
+                break
+        p = poses(ws, 12)[2:, 3:]  # a frame or two may have been on their way; arms (the head is the person's)
+        assert np.abs(np.abs((p * p[:1]).sum(-1)) - 1).max() < 1e-5  # one pose: the rest
+        assert b.evaluate("document.getElementById('intensity-value').textContent") == "0.00"
+        ws.send(json.dumps({"type": "intensity", "value": 1.0}))  # back, as the other tests expect
+        while json.loads(ws.recv(timeout=10)).get("type") != "intensity":
+            pass
+        p = poses(ws, 12)[2:, 3:]
+        assert np.abs(np.abs((p * p[:1]).sum(-1)) - 1).max() > 1e-4  # moving again
+        assert b.evaluate("document.getElementById('intensity-value').textContent") == "1.00"
+
+
 def test_ctrl_c_stops_cleanly_and_closes_files(live):
     proc = live["proc"]
     time.sleep(1.0)

@@ -426,3 +426,15 @@ def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     w1 = np.where(small, t, np.sin(t * theta) / safe)
     out = w0 * q0 + w1 * q1
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def rot6d_slerp(r0: np.ndarray, r1: np.ndarray, t) -> np.ndarray:
+    """Per rotation, the slerp from ``r0`` to ``r1`` (both rot6d (..., 6)) at fraction ``t``; numpy only.
+
+    ``t`` is a float or an array broadcastable to (..., 1). ``t = 0`` gives ``r0``, ``t = 1``
+    gives ``r1``, and ``t > 1`` goes on past ``r1`` along the same arc (a motion amplified about
+    ``r0``); the result is rot6d (..., 6) float64. Uses :func:`quaternion_slerp`.
+    """
+    q0 = rot6d_to_quaternion(np.asarray(r0, np.float64))
+    q1 = rot6d_to_quaternion(np.asarray(r1, np.float64))
+    return matrix_to_rot6d(quaternion_to_matrix(quaternion_slerp(q0, q1, t)))

@@ -41,7 +41,8 @@ def register(app: typer.Typer) -> None:
         beat_root: Path | None = typer.Argument(
             None,
             help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
-            "{end}.bvh/.wav/.json/.txt/.csv), searched recursively.",
+            "{end}.bvh/.wav/.json/.txt/.csv), searched recursively; BEAT2 takes "
+            "(smplxflame_30/*.npz beside wave16k/*.wav) are converted to the BEAT skeleton.",
         ),
         out: Path = typer.Option(..., "--out", help="Cache folder to create."),
         speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
@@ -71,7 +72,7 @@ def register(app: typer.Typer) -> None:
         ),
         target: Path | None = typer.Option(
             None,
-            help="BEAT-skeleton BVH the other sources are written on "
+            help="BEAT-skeleton BVH the other sources and BEAT2 takes are written on "
             "(default: the first BEAT BVH, else the default style's skeleton).",
         ),
         force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
@@ -86,9 +87,11 @@ def register(app: typer.Typer) -> None:
         from facecapges.errors import check_output_dir
 
         check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
+        from facecapges.data.prepare import needs_target
+
         target_skel = None
-        if (mocap or joints9) and (target is not None or beat_root is None):
-            target_skel = _target_skeleton(target)
+        if ((mocap or joints9) and (target is not None or beat_root is None)) or needs_target(beat_root):
+            target_skel = _target_skeleton(target)  # BEAT2 takes without a BEAT BVH need it too
         index = run_prepare(
             beat_root,
             out,

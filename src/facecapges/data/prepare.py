@@ -15,7 +15,14 @@ For every clip that has both a ``.bvh`` and a ``.wav`` (a *training clip*):
    and cut to T, or padded by repeating its last frame; semantic and emotion files are
    evaluated at the T frame times. Missing ones give zeros and ``*_present = False``.
 
-Clips of the selected speakers without a ``.bvh`` are not training clips: they are
+**BEAT2 takes** (``smplxflame_30/<BEAT name>.npz`` anywhere under the root, with the
+clip's ``.wav`` — BEAT2 keeps it in ``wave16k/``) are training clips too: their SMPL-X
+motion is converted to the 47 joints by :mod:`facecapges.data.beat2` on the first BEAT
+BVH's skeleton (or ``target``), and without a face JSON their face is the jaw's jawOpen
+track (``face_source: "jaw"``). A clip with both a ``.bvh`` and a BEAT2 take uses the
+``.bvh``. Their entries say ``dataset: "BEAT2"``, ``origin: "beat2"``.
+
+Clips of the selected speakers without a ``.bvh`` (or BEAT2 take) are not training clips: they are
 listed in ``index["skipped"]`` and counted in the summary as "audio only" (or "no
 motion, no audio"); a ``.bvh`` without a ``.wav`` is skipped as "motion only".
 
@@ -98,13 +105,48 @@ def prepare_clip(
     files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Skeleton, Path] | None
 ) -> tuple[dict[str, np.ndarray], dict, Skeleton, list[str]]:
     """Arrays, index entry, skeleton and warnings of one clip that has .bvh and .wav."""
-    bvh_path, wav_path = files.files["bvh"], files.files["wav"]  # callers pass only clips with both
+    bvh_path = files.files["bvh"]  # callers pass only clips with .bvh and .wav
     bvh = read_bvh(bvh_path)
     check_skeleton(bvh.skeleton, bvh_path, reference)
     motion = timing.resample(bvh.motion, bvh.fps, fps)
-    T = len(motion)
     pose, head = motion_to_pose(bvh.skeleton, motion)
+    arrays, entry, warnings = _clip_arrays(files, pose, head, bvh.skeleton, fps, sr, bvh.fps)
+    return arrays, entry, bvh.skeleton, warnings
 
+
+def prepare_beat2_clip(
+    files: beat.ClipFiles, fps: float, sr: int, target: Skeleton
+) -> tuple[dict[str, np.ndarray], dict, list[str]]:
+    """Arrays, index entry and warnings of a BEAT2 take (SMPL-X .npz + .wav; :mod:`facecapges.data.beat2`).
+
+    Its pose is written on ``target`` (the run's BEAT skeleton); without a face JSON its
+    face is the jawOpen track of the take's jaw.
+    """
+    from facecapges.data import beat2
+
+    take = beat2.read_beat2(files.files["npz"])
+    pose, jaw_face = beat2.convert_take(take, fps)
+    arrays, entry, warnings = _clip_arrays(
+        files, pose, _head_of(target, pose), target, fps, sr, take.fps, jaw_face=jaw_face
+    )
+    entry.update(dataset="BEAT2", origin="beat2", joint_map=beat2.MAP_NAME)
+    entry["file"] = f"{CLIP_DIR}/{files.clip.stem}.npz"
+    return arrays, entry, warnings
+
+
+def _clip_arrays(
+    files: beat.ClipFiles,
+    pose: np.ndarray,
+    head: np.ndarray,
+    skel: Skeleton,
+    fps: float,
+    sr: int,
+    source_fps: float,
+    jaw_face: np.ndarray | None = None,
+) -> tuple[dict[str, np.ndarray], dict, list[str]]:
+    """The arrays and index entry of a BEAT-named clip from its pose (T, 47, 6) and side files."""
+    T = len(pose)
+    wav_path = files.files["wav"]
     audio_full = load_audio(wav_path, sr)
     S = int(math.floor(T * sr / fps + 1e-6))
     audio = _fit_length(audio_full, S, pad="zero")
@@ -112,11 +154,15 @@ def prepare_clip(
     warnings: list[str] = []
     face = np.zeros((T, N_BLENDSHAPES), np.float32)
     face_path = files.get("json")
+    face_source = None
     if face_path is not None:
         track = read_face_json(face_path)
         if track.unknown_names:
             warnings.append(f"{face_path}: ignored unknown blendshape names {track.unknown_names}")
         face = _fit_length(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
+        face_source = "json"
+    elif jaw_face is not None:
+        face, face_source = jaw_face.astype(np.float32), "jaw"
 
     sem_path, emo_path = files.get("txt"), files.get("csv")
     semantic = beat.read_semantic(sem_path, T, fps) if sem_path else np.zeros(T, np.float32)
@@ -126,13 +172,13 @@ def prepare_clip(
         "pose": pose.astype(np.float32),
         "head": head.astype(np.float32),
         "face": face,
-        "face_present": np.array(face_path is not None),
+        "face_present": np.array(face_source is not None),
         "semantic": semantic.astype(np.float32),
         "semantic_present": np.array(sem_path is not None),
         "emotion": emotion.astype(np.int16),
         "emotion_present": np.array(emo_path is not None),
         "audio": audio.astype(np.float32),
-        "offsets": bvh.skeleton.offsets.astype(np.float64),
+        "offsets": skel.offsets.astype(np.float64),
         "mask": np.ones(N_JOINTS, bool),
     }
     clip = files.clip
@@ -144,9 +190,10 @@ def prepare_clip(
         "n_frames": T,
         "duration_s": round(T / fps, 6),
         "audio_s": round(len(audio_full) / sr, 6),
-        "source_fps": bvh.fps,
+        "source_fps": source_fps,
         "file": f"{CLIP_DIR}/{clip.stem}.npz",
-        "has_face": face_path is not None,
+        "has_face": face_source is not None,
+        "face_source": face_source,
         "has_semantic": sem_path is not None,
         "has_emotion": emo_path is not None,
         "dataset": "BEAT",
@@ -155,7 +202,51 @@ def prepare_clip(
         "n_masked": 0,
         "holdout_from": holdout_frame(T),
     }
-    return arrays, entry, bvh.skeleton, warnings
+    return arrays, entry, warnings
+
+
+def _motion_of(c: beat.ClipFiles) -> Path | None:
+    """The clip's motion file: its BEAT .bvh, else its BEAT2 .npz."""
+    return c.get("bvh") or c.get("npz")
+
+
+def _with_beat2_takes(root: Path, warnings: list[str]) -> list[beat.ClipFiles]:
+    """BEAT clips under ``root`` with BEAT2 takes (``smplxflame_30/*.npz``) added as their ``npz``.
+
+    A clip with both a .bvh and a BEAT2 take uses the .bvh (a warning says so).
+    """
+    from facecapges.data import beat2
+
+    found = beat.find_clips(root)
+    takes = beat2.find_takes(root)
+    if not found and not takes:
+        return beat.require_beat_clips(root)  # its error
+    by_name = {c.name: c for c in found}
+    for stem, npz in takes.items():
+        clip = beat.parse_clip_name(stem)
+        if clip is None:
+            warnings.append(f"{npz}: not a BEAT clip name ({{speaker}}_{{name}}_{{type}}_{{start}}_{{end}}); ignored")
+            continue
+        c = by_name.setdefault(stem, beat.ClipFiles(clip))
+        c.files["npz"] = npz
+        if c.get("bvh"):
+            warnings.append(f"{stem}: has a BEAT .bvh and a BEAT2 .npz; the .bvh is used")
+    return sorted(by_name.values(), key=lambda c: (c.clip.speaker, c.clip.type, c.clip.start, c.clip.end))
+
+
+def needs_target(beat_root: Path | None) -> bool:
+    """True when ``beat_root`` has BEAT2 takes but no BEAT .bvh to take the skeleton from."""
+    if beat_root is None or not Path(beat_root).is_dir():
+        return False
+    from facecapges.data import beat2
+
+    return bool(beat2.find_takes(beat_root)) and not any(c.get("bvh") for c in beat.find_clips(beat_root))
+
+
+def _require_target(target: Skeleton | None, path: Path) -> Skeleton:
+    if target is None:
+        raise file_error(path, "a BEAT2 take needs the BEAT skeleton to write its pose on: give --target BVH")
+    return target
 
 
 def holdout_frame(T: int) -> int:
@@ -333,9 +424,10 @@ def prepare(
     _check_out(out, force)
     usable: list[beat.ClipFiles] = []
     skipped: list[dict] = []
+    warnings: list[str] = []
     if beat_root is not None:
         beat_root = Path(beat_root)
-        found = beat.require_beat_clips(beat_root)
+        found = _with_beat2_takes(beat_root, warnings)
         if speakers:
             chosen = [c for c in found if c.clip.speaker in set(speakers)]
             if not chosen:
@@ -343,13 +435,13 @@ def prepare(
                 raise UserError(f"{beat_root}: no clips of speaker(s) {sorted(speakers)} (found speakers {have})")
         else:
             chosen = found
-        usable = [c for c in chosen if c.get("bvh") and c.get("wav")]
+        usable = [c for c in chosen if _motion_of(c) and c.get("wav")]
         for c in chosen:
-            if c.get("bvh") and c.get("wav"):
+            if _motion_of(c) and c.get("wav"):
                 continue
             reason = (
                 ("audio only" if c.get("wav") else "motion only")
-                if (c.get("wav") or c.get("bvh"))
+                if (c.get("wav") or _motion_of(c))
                 else "no motion, no audio"
             )
             skipped.append(
@@ -367,7 +459,7 @@ def prepare(
         if beat_root is None:
             raise UserError("nothing to prepare: give a BEAT folder, --mocap or --joints9")
         raise UserError(
-            f"{beat_root}: no clip has both a .bvh and a .wav ({len(skipped)} incomplete clip(s): "
+            f"{beat_root}: no clip has both motion (.bvh, or a BEAT2 smplxflame_30/*.npz) and a .wav ({len(skipped)} incomplete clip(s): "
             f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})"
         )
 
@@ -375,7 +467,7 @@ def prepare(
     if tmp.exists():
         shutil.rmtree(tmp)
     (tmp / CLIP_DIR).mkdir(parents=True)
-    entries, warnings = [], []
+    entries: list[dict] = []
     reference: tuple[Skeleton, Path] | None = None
     speaker_info: dict[str, dict] = {}
     masks: dict[str, np.ndarray] = {}
@@ -410,15 +502,20 @@ def prepare(
                         acc["face"].add(arrays["face"])
                 bar.advance(task)
 
-            for files in usable:
+            for files in [c for c in usable if c.get("bvh")] + [c for c in usable if not c.get("bvh")]:
                 bar.update(task, description=files.name)
-                arrays, entry, skel, warn = prepare_clip(files, fps, sr, reference)
-                if reference is None:
-                    reference = (skel, files.files["bvh"])
+                if files.get("bvh"):
+                    arrays, entry, skel, warn = prepare_clip(files, fps, sr, reference)
+                    if reference is None:
+                        reference = (skel, files.files["bvh"])
+                else:  # a BEAT2 take, written on the first BVH's skeleton or ``target``
+                    if reference is None:
+                        reference = (_require_target(target, files.files["npz"]), Path("target skeleton"))
+                    arrays, entry, warn = prepare_beat2_clip(files, fps, sr, reference[0])
                 warnings.extend(warn)
                 speaker_info.setdefault(
                     str(entry["speaker"]),
-                    {"dataset": "BEAT", "licence": "CC BY-NC 4.0", "performer": files.clip.performer},
+                    {"dataset": entry["dataset"], "licence": "CC BY-NC 4.0", "performer": files.clip.performer},
                 )
                 add(arrays, entry)
             if others:

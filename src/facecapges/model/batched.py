@@ -153,6 +153,7 @@ import torch.nn.functional as F
 from torch.autograd.profiler import record_function
 
 from facecapges.model import native
+from facecapges.model.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.model.network import FaceCapGes, MelFrontend
 
 STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_encoder", "decoder")
@@ -431,6 +432,7 @@ class BatchedStreamingGenerator:
         if nw.shape != (N, cfg.n_joints, 6):
             raise ValueError(f"neutral window must be ({N}, {cfg.n_joints}, 6), got {nw.shape}")
         self.neutral_window = nw
+        self.rest = rest_pose(nw)  # what the intensity dial scales about (facecapges.model.intensity)
         self._lock = threading.RLock()
         native.warm()  # the small-batch schedules' machine code, before the first frame
         self.mel_native_max_batch = self.MEL_NATIVE_MAX_BATCH  # 0: always torch (``bench`` counts its FLOPs)
@@ -483,6 +485,10 @@ class BatchedStreamingGenerator:
         if old:
             frames[:old] = self.frames
         self.frames: np.ndarray = frames
+        gain = np.ones(capacity)  # each slot's intensity (set_intensity)
+        if old:
+            gain[:old] = self.intensity
+        self.intensity: np.ndarray = gain
         if self.fast:
             self.gx = grow("gx", torch.zeros(capacity, N, 8 * H))  # history frames' [torso | limb] input gates
             self.hc = grow("hc", torch.zeros(capacity, 2, 2 * H))  # [h_t | h_u], [c_t | c_u]
@@ -509,6 +515,7 @@ class BatchedStreamingGenerator:
                 self._alloc(self.capacity * 2)
             slot = self._free.pop()
             self._open.add(slot)
+            self.intensity[slot] = 1.0
             try:
                 self.reset(slot, initial_pose)
             except Exception:
@@ -658,4 +665,17 @@ class BatchedStreamingGenerator:
                 else:
                     pose = self._decode_model(idx, torch.from_numpy(self.frames[ids]), e)
             self.frames[ids] += 1
-            return pose.reshape(B, self.cfg.n_joints, 6).numpy()
+            out = pose.reshape(B, self.cfg.n_joints, 6).numpy()
+            gain = self.intensity[ids]
+            dial = np.flatnonzero(gain != 1.0)
+            if len(dial):  # shown poses only: the history above keeps the unscaled ones
+                out[dial] = scale_pose(out[dial], self.rest, gain[dial])
+            return out
+
+    def set_intensity(self, slot: int, value: float) -> None:
+        """The intensity dial of one stream (:mod:`facecapges.model.intensity`), from its next step on."""
+        v = check_intensity(value)
+        with self._lock:
+            if slot not in self._open:
+                raise KeyError(f"slot {slot} is not open")
+            self.intensity[slot] = v

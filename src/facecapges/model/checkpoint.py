@@ -138,10 +138,18 @@ class Checkpoint:
     def fps(self) -> int:
         return int(self.meta["model_config"]["fps"])
 
+    engine = "network"  # the thesis network (the motion-matching engine's styles: facecapges.matching)
+
     def streaming(self):
         from facecapges.model.streaming import StreamingGenerator
 
         return StreamingGenerator(self.model, self.neutral_window)
+
+    def batched(self, capacity: int = 8):
+        """Many streams of this style stepped as one batch (what ``serve`` runs)."""
+        from facecapges.model.batched import BatchedStreamingGenerator
+
+        return BatchedStreamingGenerator(self.model, self.neutral_window, capacity=capacity)
 
 
 def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> Path:

@@ -19,6 +19,11 @@ def register(app: typer.Typer) -> None:
         head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
         checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
         style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+        intensity: float = typer.Option(
+            GenerateOptions.intensity,
+            "--intensity",
+            help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
+        ),
         face_out: Path | None = typer.Option(
             None,
             "--face-out",

@@ -165,15 +165,23 @@ def prepare_inputs(
 
 
 def generate_blocks(
-    checkpoint, blocks, n_frames: int, fps: float, progress: bool = True, timing_ms: list | None = None
+    checkpoint,
+    blocks,
+    n_frames: int,
+    fps: float,
+    progress: bool = True,
+    timing_ms: list | None = None,
+    intensity: float = 1.0,
 ):
     """Run one streaming generator over consecutive input blocks ``(audio, face, head)``; yields pose blocks
-    (n, 47, 6). ``timing_ms`` (a list) receives the model's ms per frame at the end."""
+    (n, 47, 6). ``timing_ms`` (a list) receives the model's ms per frame at the end; ``intensity``: the
+    generator's dial (:mod:`facecapges.model.intensity`)."""
     if abs(fps - checkpoint.fps) > 1e-6:
         raise UserError(f"inputs are at {fps} fps, the checkpoint runs at {checkpoint.fps} fps")
     import torch
 
     gen = checkpoint.streaming()
+    gen.intensity = intensity
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one small step at a time: more threads only spin
     bar = None

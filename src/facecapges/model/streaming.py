@@ -53,6 +53,15 @@ class StreamingGenerator:
         """Start a new stream. ``initial_pose``: (47, 6), (N, 47, 6) or None (neutral)."""
         self.kernel.reset(self._slot[0], initial_pose)
 
+    @property
+    def intensity(self) -> float:
+        """The intensity dial, 0 (rest) … 1 (as generated) … 1.3 (:mod:`facecapges.model.intensity`)."""
+        return float(self.kernel.intensity[self._slot[0]])
+
+    @intensity.setter
+    def intensity(self, value: float) -> None:
+        self.kernel.set_intensity(self._slot[0], value)
+
     def warmup(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray, pose: np.ndarray) -> None:
         """Push one frame whose pose is known (no generation, LSTM state untouched)."""
         self.kernel.warmup(self._slot, [audio], face, head, pose)

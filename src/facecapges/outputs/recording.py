@@ -32,6 +32,7 @@ class GenerateOptions:
     head: Path | None = None
     checkpoint: Path | None = None
     style: str | None = None
+    intensity: float = 1.0
     face_out: Path | None = None
     json_out: bool = False
     vrma: Path | None = None
@@ -54,9 +55,11 @@ def generate_recording(
     from facecapges.io.bvh import BvhWriter
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_blocks, plan_inputs
+    from facecapges.model.intensity import check_intensity
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
 
+    check_intensity(o.intensity)
     check_output_file(o.out, o.force)  # before the work: existing, folder, unwritable
     if o.face_out is not None:
         check_output_file(o.face_out, o.force)
@@ -85,7 +88,9 @@ def generate_recording(
 
     kept = []  # the poses, only when a .vrma is asked for
     with BvhWriter(o.out, skel, inputs.n_frames, ckpt.fps) as bvh:  # block by block: memory flat in length
-        for poses in generate_blocks(ckpt, blocks(), inputs.n_frames, ckpt.fps, not o.json_out, timing_ms):
+        for poses in generate_blocks(
+            ckpt, blocks(), inputs.n_frames, ckpt.fps, not o.json_out, timing_ms, intensity=o.intensity
+        ):
             bvh.write(pose_to_motion(skel, normalize_rot6d(poses)))
             if o.vrma is not None:
                 kept.append(normalize_rot6d(poses))

@@ -15,6 +15,10 @@ HEAD_HELP = (
     "model (the gesture model's neck) or blend (half-way)."
 )
 FACE_JSON_HELP = "face.json layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at the model rate)."
+INTENSITY_HELP = (
+    "Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded); "
+    "the viewer has a slider for it."
+)
 FACES_HELP = "Faces to follow, each with its own avatar (1-8; files, VMC ports and viewer avatars per face)."
 
 
@@ -28,6 +32,7 @@ def register(app: typer.Typer) -> None:
         audio: Path | None = typer.Option(None, "--audio", help="Speech audio file instead of the video's track."),
         checkpoint: Path | None = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: str | None = typer.Option(None, "--style", help=STYLE_HELP),
+        intensity: float = typer.Option(RunOptions.intensity, "--intensity", help=INTENSITY_HELP),
         estimator: str = typer.Option(
             RunOptions.estimator, help="Face capture estimator: geometric, mediapipe or hybrid."
         ),
@@ -123,6 +128,7 @@ def register(app: typer.Typer) -> None:
         ),
         checkpoint: Path | None = typer.Option(None, "--checkpoint", help=CKPT_HELP),
         style: str | None = typer.Option(None, "--style", help=STYLE_HELP),
+        intensity: float = typer.Option(LiveOptions.intensity, "--intensity", help=INTENSITY_HELP),
         estimator: str = typer.Option(
             LiveOptions.estimator, help="Face capture estimator: geometric, mediapipe or hybrid."
         ),

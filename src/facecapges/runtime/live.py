@@ -214,6 +214,8 @@ def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
     else:
         server = ViewerServer(avatar_glb(ckpt.skeleton), outs.web_addr[0], outs.web_addr[1], fps=ckpt.fps).start()
         feed_sink = WebFeed(server)
+    server.on_intensity = sess.set_intensity  # the viewer's slider
+    server.intensity = o.intensity
     sess.closers.append(server)
     outs.server = server
     if o.rate is not None and o.rate != ckpt.fps and o.faces == 1:
@@ -330,6 +332,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         silent_ok=True,
         head=o.head,
         faces=o.faces,
+        intensity=o.intensity,
     )
     feed = sess.face_feed  # close() forgets it; the report asks it for its stats
     try:

@@ -179,6 +179,7 @@ def run_video(
     video_size: tuple[int, int] = DEFAULT_VIDEO_SIZE,
     avatar: str | Path | None = None,
     face_layout: str = "beat",
+    intensity: float = 1.0,
 ) -> dict:
     """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
     shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
@@ -217,7 +218,15 @@ def run_video(
         ]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
     sess = build_session(
-        checkpoint, video=video, audio=audio, realtime=False, estimator=estimator, sinks=sinks, head=head, faces=faces
+        checkpoint,
+        video=video,
+        audio=audio,
+        realtime=False,
+        estimator=estimator,
+        sinks=sinks,
+        head=head,
+        faces=faces,
+        intensity=intensity,
     )
     sched = sess.scheduler
     audio_src = sess.audio
@@ -344,6 +353,7 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
         video_size=size,
         avatar=o.avatar,
         face_layout=o.face_json,
+        intensity=o.intensity,
     )
     if o.json_out:
         say(json.dumps(report, indent=2))

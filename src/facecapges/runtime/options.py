@@ -33,6 +33,7 @@ class LiveOptions:
     avatar: Path | None = None
     checkpoint: Path | None = None
     style: str | None = None
+    intensity: float = 1.0
     estimator: str = "hybrid"
     depth: Path | None = None
     intrinsics: Path | None = None
@@ -54,6 +55,7 @@ class RunOptions:
     audio: Path | None = None
     checkpoint: Path | None = None
     style: str | None = None
+    intensity: float = 1.0
     estimator: str = "hybrid"
     max_frames: int | None = None
     no_video: bool = False

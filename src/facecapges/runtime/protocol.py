@@ -13,7 +13,10 @@ Server → client
     {"type": "hello", "protocol": 1, "fps": 15, "sr": 16000, "samples_per_frame": 1067,
      "joints": [47 names, facecapges.skeleton.UPPER_BODY order],
      "blendshapes": [52 names, facecapges.arkit.ARKIT_NAMES order],
-     "max_message_bytes": 65536}
+     "max_message_bytes": 65536, "intensity": 1.0}
+
+``intensity`` — the gesture intensity now (0 … 1.3, :mod:`facecapges.model.intensity`); also sent as
+``{"type": "intensity", "value": v}`` in reply to a client's ``intensity`` message.
 
 ``pose`` — one output frame (the viewer's feed; ``serve``'s reply to an ``input``)::
 
@@ -36,6 +39,10 @@ Client → server
      "face": [52 floats], "head": [6 floats]}
 
 ``ping`` — ``{"type": "ping"}``; the server answers ``{"type": "pong", "sent_ms": ..}``.
+
+``intensity`` — ``{"type": "intensity", "value": 0.8}``: the gesture intensity dial, 0 (rest / idle
+only) … 1 (as the style moves) … 1.3; ``serve`` applies it to that client's stream, the viewer of
+``live`` to every avatar (its slider sends it). The server answers with the value it applied.
 
 Malformed client messages raise :class:`ProtocolError` in :func:`decode_client`; a
 server answers ``{"type": "error", "message": ..}`` and keeps the connection.
@@ -70,7 +77,7 @@ def _r(x: float, nd: int) -> float:
     return round(float(x), nd)
 
 
-def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> str:
+def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, intensity: float = 1.0) -> str:
     return json.dumps(
         {
             "type": "hello",
@@ -81,8 +88,14 @@ def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> st
             "joints": list(UPPER_BODY),
             "blendshapes": list(ARKIT_NAMES),
             "max_message_bytes": MAX_MESSAGE_BYTES,
+            "intensity": intensity,
         }
     )
+
+
+def encode_intensity(value: float) -> str:
+    """The server's ``intensity`` message: the value now applied."""
+    return json.dumps({"type": "intensity", "value": round(float(value), 4)})
 
 
 def encode_pose(out: OutputFrame) -> str:
@@ -165,8 +178,19 @@ def _floats(obj, n: int, what: str) -> np.ndarray:
     return a.astype(np.float32)
 
 
+def _intensity(value) -> float:
+    from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY
+
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ProtocolError("'value' of an intensity message must be a number")
+    if not MIN_INTENSITY <= value <= MAX_INTENSITY:
+        raise ProtocolError(f"'value' must be from {MIN_INTENSITY:g} to {MAX_INTENSITY:g}, got {value}")
+    return float(value)
+
+
 def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> dict:
-    """Parse a client message: ``{"type": "ping"}`` or ``{"type": "input", "input": InputFrame}``."""
+    """Parse a client message: ``{"type": "ping"}``, ``{"type": "intensity", "value": v}`` or
+    ``{"type": "input", "input": InputFrame}``."""
     if isinstance(text, (bytes, bytearray)):
         raise ProtocolError("binary messages are not part of the protocol (send JSON text)")
     if len(text.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
@@ -182,8 +206,10 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
     kind = msg["type"]
     if kind == "ping":
         return {"type": "ping"}
+    if kind == "intensity":
+        return {"type": "intensity", "value": _intensity(msg.get("value"))}
     if kind != "input":
-        raise ProtocolError(f"unknown message type {kind!r} (expected 'input' or 'ping')")
+        raise ProtocolError(f"unknown message type {kind!r} (expected 'input', 'intensity' or 'ping')")
     k = msg.get("frame")
     if not isinstance(k, int) or isinstance(k, bool) or k < 0:
         raise ProtocolError("'frame' must be a non-negative integer")

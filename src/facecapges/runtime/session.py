@@ -38,6 +38,16 @@ class Session:
     notes: list[str] = field(default_factory=list)
     faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
     torch_threads: int | None = None  # torch's thread count before the session; restored by close()
+    generators: list = field(default_factory=list)  # one per face, in face order
+
+    def set_intensity(self, value: float) -> float:
+        """Every avatar's intensity dial (:mod:`facecapges.model.intensity`), from the next frame on."""
+        from facecapges.model.intensity import check_intensity
+
+        v = check_intensity(value, "intensity")
+        for gen in self.generators:
+            gen.intensity = v
+        return v
 
     def add_sink(self, sink) -> None:
         """A sink that starts receiving frames now (and is closed with the session)."""
@@ -98,6 +108,7 @@ def build_session(
     silent_ok: bool = False,
     head: str = "capture",
     faces: int = 1,
+    intensity: float = 1.0,
 ) -> Session:
     """Open the sources and build the scheduler (sinks are added by the caller).
 
@@ -114,6 +125,9 @@ def build_session(
     if audio is not None and mic is not None:
         raise UserError("choose one audio input: --mic DEVICE or --audio FILE")
     check_head_mode(head)
+    from facecapges.model.intensity import check_intensity
+
+    check_intensity(intensity)
     if not 1 <= int(faces) <= 8:
         raise UserError(f"--faces must be 1 to 8, got {faces}")
     if faces > 1 and livelink is not None:
@@ -165,7 +179,8 @@ def build_session(
         if isinstance(sess.audio, S.MicAudio):
             slack = sess.audio.latency_s + 0.02  # one 20 ms block
         sess.sinks = list(sinks)
-        gens = [checkpoint.streaming() for _ in range(int(faces))]
+        gens = sess.generators = [checkpoint.streaming() for _ in range(int(faces))]
+        sess.set_intensity(intensity)
         sess.scheduler = Scheduler(
             gens if faces > 1 else gens[0],
             fps=fps,

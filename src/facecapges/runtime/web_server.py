@@ -29,6 +29,7 @@ import asyncio
 import mimetypes
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
@@ -99,6 +100,9 @@ class ViewerServer:
         self.oversized_closes = 0
         self.bad_messages = 0
         self.conn_log = ConnectionLog(log or (lambda m: print(m, file=sys.stderr)), "viewer")
+        # the intensity slider: ``on_intensity(value) -> applied`` (set by ``live``); None: not adjustable
+        self.on_intensity: Callable[[float], float] | None = None
+        self.intensity = 1.0
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: Server | None = None
         self._thread: threading.Thread | None = None
@@ -161,7 +165,7 @@ class ViewerServer:
 
         self.clients.add(ws)
         try:
-            await ws.send(protocol.encode_hello(self.fps))
+            await ws.send(protocol.encode_hello(self.fps, intensity=self.intensity))
             async for message in ws:
                 try:
                     msg = protocol.decode_client(message, self.fps)
@@ -172,6 +176,11 @@ class ViewerServer:
                     continue
                 if msg["type"] == "ping":
                     await ws.send(pong_message())
+                elif msg["type"] == "intensity" and self.on_intensity is not None:
+                    self.intensity = self.on_intensity(msg["value"])
+                    from websockets.asyncio.server import broadcast
+
+                    broadcast(set(self.clients), protocol.encode_intensity(self.intensity))  # every slider agrees
                 else:
                     await ws.send(error_message("this server is a viewer feed; it takes no inputs"))
         except ConnectionClosed:

@@ -39,6 +39,11 @@ def register(app: typer.Typer) -> None:
             ServeConfig.max_per_address,
             help="Most streams one client address may hold (default 16; no limit on a loopback server).",
         ),
+        intensity: float = typer.Option(
+            ServeConfig.intensity,
+            help="Gesture intensity of each new stream, 0 (rest / idle only) … 1 … 1.3; a client changes its own "
+            "with an 'intensity' message.",
+        ),
     ) -> None:
         """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
@@ -57,5 +62,6 @@ def register(app: typer.Typer) -> None:
             threads=threads,
             tick_ms=tick_ms,
             max_per_address=max_per_address,
+            intensity=intensity,
         )
         serve_streams(checkpoint, style, cfg, say=typer.echo)

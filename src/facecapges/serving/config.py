@@ -23,6 +23,7 @@ class ServeConfig:
     min_input_rate: float = 1.0  # inputs per second a stream must keep over each rate_window (0 = none)
     rate_window: float = 10.0  # seconds
     max_per_address: int | None = None  # streams per client address; None: 16, unlimited on loopback
+    intensity: float = 1.0  # each new stream's gesture intensity (a client changes its own: protocol docs)
 
     def check(self) -> None:
         """UserError for a setting no server can have (each named by its command-line option)."""
@@ -34,5 +35,8 @@ class ServeConfig:
             raise UserError("--tick-ms must be >= 0")
         if self.threads < 1:
             raise UserError("--threads must be at least 1")
+        from facecapges.model.intensity import check_intensity
+
+        check_intensity(self.intensity)
         if self.max_per_address is not None and self.max_per_address < 1:
             raise UserError("--max-per-address must be at least 1")

@@ -23,15 +23,20 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from facecapges import timing
+from facecapges.arkit import N_BLENDSHAPES
 from facecapges.model.batched import pack_audio
+from facecapges.skeleton import N_JOINTS
 
 
-def _serve_model(conn, model, neutral_window, threads: int, audio, face, head, pose) -> None:
-    """The child process: one BatchedStreamingGenerator, driven by messages on ``conn``."""
-    from facecapges.model.batched import BatchedStreamingGenerator
-
+def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose) -> None:
+    """The child process: the style's batched generator, driven by messages on ``conn``."""
     torch.set_num_threads(max(1, threads))
-    gen = BatchedStreamingGenerator(model, neutral_window, capacity=64)
+    try:
+        gen = checkpoint.batched(capacity=64)  # either engine
+    except Exception as exc:  # noqa: BLE001  reported to the server, which says it
+        conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
+        return
     a, f, h, p = audio.numpy(), face.numpy(), head.numpy(), pose.numpy()
     conn.send(("ok", None))
     while True:
@@ -50,6 +55,9 @@ def _serve_model(conn, model, neutral_window, threads: int, audio, face, head, p
             elif kind == "close":
                 gen.close(msg[1])
                 res = None
+            elif kind == "intensity":
+                gen.set_intensity(msg[1], msg[2])
+                res = None
             else:  # "quit"
                 conn.send(("ok", None))
                 return
@@ -59,19 +67,19 @@ def _serve_model(conn, model, neutral_window, threads: int, audio, face, head, p
 
 
 class ModelProcess:
-    """A BatchedStreamingGenerator of ``model`` in a child process (module docs).
+    """The batched generator of a loaded style (``checkpoint.batched``: either engine) in a child
+    process (module docs); the checkpoint object travels to the child when it starts.
 
     ``max_rows``: the most streams one :meth:`step` takes (the server's ``max_streams``).
     """
 
-    def __init__(self, model, neutral_window: np.ndarray, threads: int = 1, max_rows: int = 256):
+    def __init__(self, checkpoint, threads: int = 1, max_rows: int = 256):
         ctx = torch.multiprocessing.get_context("spawn")
-        cfg = model.cfg
-        self.samples_per_frame = cfg.samples_per_frame
-        self._audio = torch.zeros(max_rows, cfg.samples_per_frame).share_memory_()
-        self._face = torch.zeros(max_rows, cfg.n_face).share_memory_()
+        self.samples_per_frame = timing.samples_per_frame(timing.MODEL_FPS, timing.AUDIO_SR)
+        self._audio = torch.zeros(max_rows, self.samples_per_frame).share_memory_()
+        self._face = torch.zeros(max_rows, N_BLENDSHAPES).share_memory_()
         self._head = torch.zeros(max_rows, 6).share_memory_()
-        self._pose = torch.zeros(max_rows, cfg.n_joints, 6).share_memory_()
+        self._pose = torch.zeros(max_rows, N_JOINTS, 6).share_memory_()
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
             target=_serve_model,
@@ -79,8 +87,7 @@ class ModelProcess:
             daemon=True,
             args=(
                 child,
-                model,
-                np.asarray(neutral_window, np.float32),
+                checkpoint,
                 threads,
                 self._audio,
                 self._face,
@@ -113,6 +120,10 @@ class ModelProcess:
     def close(self, slot: int) -> None:
         self._call("close", slot)
         self._open.discard(slot)
+
+    def set_intensity(self, slot: int, value: float) -> None:
+        """One stream's intensity dial (:mod:`facecapges.model.intensity`), from its next step on."""
+        self._call("intensity", int(slot), float(value))
 
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """Poses (B, 47, 6) of one frame per stream, as ``BatchedStreamingGenerator.step``."""

@@ -72,6 +72,7 @@ from facecapges.runtime.ws import (
     refuse_foreign_host,
 )
 from facecapges.serving.config import ServeConfig
+from facecapges.timing import AUDIO_SR
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
@@ -94,6 +95,8 @@ class _Stream:
     address: str = "?"
     inputs: int = 0  # inputs received in the current rate window
     window_t0: float | None = None  # start of the rate window (the first input)
+    intensity: float = 1.0  # the stream's intensity dial (its client's `intensity` messages)
+    applied: float | None = None  # the value its slot has (set between ticks)
 
 
 _error = error_message
@@ -114,9 +117,9 @@ class StreamServer:
             raise UserError("--rate-limit must be a positive number of frames per second")
         self.ckpt = checkpoint
         self.fps = checkpoint.fps  # an int, as in the viewer's hello
-        self.sr = int(checkpoint.model.cfg.sr)
+        self.sr = AUDIO_SR
         # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
-        self.gen = ModelProcess(checkpoint.model, checkpoint.neutral_window, c.threads, c.max_streams)
+        self.gen = ModelProcess(checkpoint, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
         self.per_address = (
             c.max_per_address if c.max_per_address is not None else (c.max_streams if self.loopback_only else 16)
@@ -185,12 +188,20 @@ class StreamServer:
             except OSError:
                 pass
         now = time.monotonic()
-        st = _Stream(ws=ws, id=self._next_id, tokens=self.cfg.rate_limit, t_tokens=now, last_input=now, address=address)
+        st = _Stream(
+            ws=ws,
+            id=self._next_id,
+            tokens=self.cfg.rate_limit,
+            t_tokens=now,
+            last_input=now,
+            address=address,
+            intensity=self.cfg.intensity,
+        )
         self._next_id += 1
         self.streams[st.id] = st
         self.stats["connections"] += 1
         try:
-            await ws.send(protocol.encode_hello(self.fps, self.sr))
+            await ws.send(protocol.encode_hello(self.fps, self.sr, intensity=st.intensity))
             async for message in ws:
                 now = time.monotonic()
                 if not self._allow(st, now):
@@ -210,6 +221,10 @@ class StreamServer:
                     continue
                 if msg["type"] == "ping":
                     await ws.send(pong_message())
+                    continue
+                if msg["type"] == "intensity":  # applied to the stream's slot between ticks
+                    st.intensity = msg["value"]
+                    await ws.send(protocol.encode_intensity(st.intensity))
                     continue
                 st.last_input = now
                 st.inputs += 1
@@ -259,6 +274,9 @@ class StreamServer:
         for st in self.streams.values():
             if st.slot is None:
                 st.slot = self.gen.open()
+            if st.applied != st.intensity:
+                self.gen.set_intensity(st.slot, st.intensity)
+                st.applied = st.intensity
 
     def _send(self, st: _Stream, text: str) -> None:
         """Write without waiting for the client; close a client that stopped reading."""

@@ -9,6 +9,9 @@
 import * as THREE from 'three';
 import * as SkeletonUtils from 'three/addons/utils/SkeletonUtils.js';
 import { AvatarScene, VIEWS } from './avatar_scene.js';
+import { intensitySlider } from './intensity.js';
+
+const slider = intensitySlider();
 
 const $ = (id) => document.getElementById(id);
 const canvas = $('c');
@@ -94,6 +97,7 @@ function rate(list, now) {
 
 function connect() {
   const ws = new WebSocket(`ws://${location.host}/ws`);
+  slider.attach(ws);
   ws.onopen = () => { state.connected = true; $('status').textContent = 'connected'; $('status').className = 'ok'; };
   ws.onclose = () => {
     state.connected = false; $('status').textContent = 'disconnected (retrying)'; $('status').className = 'bad';
@@ -101,6 +105,7 @@ function connect() {
   };
   ws.onmessage = (ev) => {
     const msg = JSON.parse(ev.data);
+    if (slider.handle(msg)) return;
     if (msg.type === 'hello') { state.hello = msg; if (state.ready) buildMaps(); return; }
     if (msg.type !== 'pose') return;
     if (msg.face) { others.set(msg.face, msg); return; }

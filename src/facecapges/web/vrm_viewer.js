@@ -5,6 +5,9 @@
 // retargeted by the server: facecapges/runtime/vrm_viewer.py) on every animation frame.
 // State for tests: window.facecapgesViewer.
 import { VrmScene } from './vrm_scene.js';
+import { intensitySlider } from './intensity.js';
+
+const slider = intensitySlider();
 
 const $ = (id) => document.getElementById(id);
 const scene = new VrmScene($('c'), { width: innerWidth, height: innerHeight });
@@ -23,6 +26,7 @@ addEventListener('resize', resize);
 
 function connect() {
   const ws = new WebSocket(`ws://${location.host}/ws`);
+  slider.attach(ws);
   ws.onopen = () => { state.connected = true; $('status').textContent = 'connected'; $('status').className = 'ok'; };
   ws.onclose = () => {
     state.connected = false; $('status').textContent = 'disconnected (retrying)'; $('status').className = 'bad';
@@ -30,6 +34,7 @@ function connect() {
   };
   ws.onmessage = (ev) => {
     const msg = JSON.parse(ev.data);
+    if (slider.handle(msg)) return;
     if (msg.type !== 'vrm_pose') return;
     state.frames += 1;
     arrivals.push(performance.now());
