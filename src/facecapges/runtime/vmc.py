@@ -326,6 +326,21 @@ class VmcMapping:
         return [(unity, pos, q[k]) for k, (unity, _, pos) in enumerate(self.bones)]
 
 
+def vmc_note(avatar: str | Path | None, parts: str = "all") -> str:
+    """What ``live`` says at start about the VMC stream's bones (module docstring)."""
+    if parts == "arms":
+        what = "arms, hands and fingers only (no root, hips, spine, head or face: your face tracker keeps them)"
+    else:
+        what = "the upper body without root and hips" if parts == "upper" else "root, upper body and face"
+    if avatar is not None:
+        return f"VMC sends {what} in the bone positions and frames of {Path(avatar).name}"
+    return (
+        f"VMC sends {what} with our avatar's bone positions (avatar build --format vrm / vrm0): for another VRM "
+        "pass --vmc-avatar YOUR.vrm (the one the app shows), or turn the app's bone-position sync off "
+        "(EVMC4U: Bone Position Synchronize), else the app gives your avatar our proportions"
+    )
+
+
 def blend_values(face52: np.ndarray, blend: str = "vrm") -> list[tuple[str, float]]:
     """(clip name, weight) pairs to send for one frame's ARKit weights (module docstring)."""
     if blend not in BLEND_MODES:
