@@ -429,6 +429,34 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     assert doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]["count"] == 12
 
 
+def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
+    """``render --avatar`` with a VRM whose head is 3× ours: the camera frames the avatar's own top, nothing cropped."""
+    import imageio_ffmpeg
+
+    from facecapges.io.bvh import write_bvh
+
+    avatar = tmp_path / "bighead.vrm"
+    avatar.write_bytes(build_sample("vrm0", head_scale=3.0))
+    bvh = tmp_path / "short.bvh"
+    write_bvh(bvh, beat["skel"], beat["motion"].motion[300:302], beat["motion"].fps)
+    out = tmp_path / "big.mp4"
+    r = _cli("render", "--bvh", str(bvh), "--avatar", str(avatar), "--out", str(out), "--size", "320x240")
+    assert r.returncode == 0, r.stderr
+    reader = imageio_ffmpeg.read_frames(str(out))
+    meta = next(reader)
+    w, h = meta["size"]
+    img = np.frombuffer(next(reader), np.uint8).reshape(h, w, 3).astype(int)
+    import cv2
+
+    cv2.imwrite("/tmp/facecapges-vrm-bighead.png", img[..., ::-1].astype(np.uint8))
+    body = img[:, : int(w * 0.6)]  # left of the face inset (top right)
+    bg = body[0, 0]
+    rows = np.where((np.abs(body - bg).sum(-1) > 60).any(1))[0]
+    assert len(rows) and rows[0] > 3, rows[:5]  # the top of the head is inside the frame, below a margin
+    assert rows[0] < 0.25 * h  # … and near the top, not a tiny figure
+    FIGURES["big_head_top_row_px"] = int(rows[0])
+
+
 def test_vrm_bench_runs():
     from facecapges.avatar.vrm_bench import run
 

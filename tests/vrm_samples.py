@@ -104,8 +104,10 @@ def _bone_axes(P: np.ndarray, parents: list[int]) -> list[np.ndarray]:
     return out
 
 
-def build_sample(variant: str) -> bytes:
-    """The sample avatar ``variant`` ("vrm1", "vrm1_blender", "vrm0" or "glb") as binary glTF bytes."""
+def build_sample(variant: str, head_scale: float = 1.0) -> bytes:
+    """The sample avatar ``variant`` ("vrm1", "vrm1_blender", "vrm0" or "glb") as binary glTF bytes.
+
+    ``head_scale`` scales the head box (a big-headed avatar: 2–3 × ours)."""
     names, parents, P = skeleton(variant)
     J = len(names)
     flip = np.array([-1.0, 1.0, -1.0]) if variant == "vrm0" else np.ones(3)
@@ -135,7 +137,7 @@ def build_sample(variant: str) -> bytes:
         if n.endswith("Hand"):
             b = a + along * 0.09
         elif n == "head":
-            b = a + np.array([0, 0.2, 0])
+            b = a + np.array([0, 0.2 * head_scale, 0])
         elif kids[i]:
             b = Pw[kids[i][0]]
         else:
@@ -153,7 +155,7 @@ def build_sample(variant: str) -> bytes:
         if "Proximal" in n or "Intermediate" in n or "Distal" in n or "Metacarpal" in n:
             r = 0.008
         if n == "head":
-            r = 0.09
+            r = 0.09 * head_scale
         base = len(V)
         for s in (0, 1):
             for cv, cw in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
