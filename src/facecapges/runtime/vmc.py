@@ -6,10 +6,10 @@ as a few OSC 1.0 bundles, every datagram at most :data:`MAX_DATAGRAM_BYTES`
 fragmented — one bundle with everything was 6.3 KB, five IP fragments, lost whole
 when one fragment is). In order::
 
-    /VMC/Ext/Root/Pos  "root"  0 0 0  0 0 0 1                           (bundle 1 …)
-    /VMC/Ext/Bone/Pos  <HumanBodyBones name>  px py pz  qx qy qz qw     (one per bone)
-    /VMC/Ext/Blend/Val <clip name> weight                               (… the face clips)
-    /VMC/Ext/Blend/Apply                                                (last bundle)
+    /VMC/Ext/Root/Pos  "root"  0 0 0  0 0 0 1                   (bundle 1 …; parts "all" only)
+    /VMC/Ext/Bone/Pos  <HumanBodyBones name>  px py pz  qx qy qz qw     (one per sent bone)
+    /VMC/Ext/Blend/Val <clip name> weight                 (… the face clips; not with "arms")
+    /VMC/Ext/Blend/Apply                                     (last bundle; not with "arms")
     /VMC/Ext/OK 1
     /VMC/Ext/T  <stream time, s>
 
@@ -19,7 +19,8 @@ messages greedily in this order.
 
 Face clips (``blend``, ``live --vmc-blend``)
 --------------------------------------------
-VMC receivers look the name up in the avatar's ``BlendShapeProxy`` **case-sensitively**:
+VMC receivers look the name up in the avatar's clips; some **case-sensitively** (EVMC4U
+lower-cases both sides and maps VRM 1.0 names to 0.x ones), so the spelling matters:
 
 * ``vrm`` (default) — the VRM 0.x presets ``Blink``, ``Blink_L``, ``Blink_R``, ``A`` ``I``
   ``U`` ``E`` ``O``, ``Joy``, ``Angry``, ``Sorrow``, ``Fun``, ``Surprised``, ``LookUp`` …
