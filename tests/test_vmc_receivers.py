@@ -43,14 +43,14 @@ def beat():
 
     m = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh"))
     L = bvh_local_matrices(m.skeleton, m.motion)[list(FRAMES)]
-    _, P = global_transforms(m.skeleton, L)
+    G, P = global_transforms(m.skeleton, L)
     torso_still = L.copy()  # the torso at rest (arms only: the other tracker has it)
     torso_still[:, [m.skeleton.names.index(j) for j in ("Hips", "Spine", "Spine1", "Spine2", "Spine3")]] = np.eye(3)
     _, P_arms = global_transforms(m.skeleton, torso_still)
     q = rot.matrix_to_quaternion(L[:, upper_body_indices(m.skeleton)])
     frames = [OutputFrame(k, k / 15, rot.matrix_to_rot6d(L[i, upper_body_indices(m.skeleton)]), q[i],
                           np.zeros(52), rot.identity_rot6d(), True) for i, k in enumerate(FRAMES)]
-    return {"skel": m.skeleton, "P": P, "P_arms": P_arms, "frames": frames, "bvh": shared_file("data/beat/2_scott_0_1_1.bvh")}
+    return {"skel": m.skeleton, "P": P, "G": G, "P_arms": P_arms, "frames": frames, "bvh": shared_file("data/beat/2_scott_0_1_1.bvh")}
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +99,15 @@ def measure(rx: Receiver, beat, i: int, fk: str = "P") -> dict:
         else:
             want = (beat[fk][i, names.index(B)] - beat[fk][i, names.index(A)]) * [-1, 1, 1]  # BEAT → Unity: x → −x
             errs.append(_angle(rx.position(b) - rx.position(a), want))
+    # the bone (and the mesh skinned to it) turned by BEAT's global rotation from its own rest frame
+    X = np.diag([-1.0, 1.0, 1.0])  # BEAT (right-handed) → Unity
+    turn = []
+    for bone, joint in (("LeftUpperArm", "LeftArm"), ("LeftLowerArm", "LeftForeArm"), ("RightHand", "RightHand")):
+        got = rx.rotation(bone) @ rx.rest_world[1][rx.bones[bone]].T
+        want = X @ beat["G"][i, names.index(joint)] @ X
+        turn.append(float(np.degrees(np.arccos(np.clip((np.trace(got.T @ want) - 1) / 2, -1, 1)))))
     return {"hips": float(rx.position("Hips")[1]), "hips_rest": float(rx.position("Hips", rest=True)[1]),
+            "turn_err": turn,
             "length_ratio": (float(min(lengths)), float(max(lengths))), "arm_err": errs}
 
 
@@ -120,6 +128,7 @@ def test_the_stream_keeps_the_avatar_whole(beat, avatars, name, avatar_flag, pos
         assert len(m["arm_err"]) == 6 and max(arms) < 2.0, m
         # a finger's rest direction differs a little between BEAT and the samples (the spec leaves it open)
         assert max(fingers) < 8.0, m
+        assert max(m["turn_err"]) < 0.5, m  # the bone frames too, not only the joint positions
         if name.startswith("ours"):
             assert 0.85 < m["hips"] < 0.92 and max(m["arm_err"]) < 0.5, m  # BEAT's own skeleton: exact
 
@@ -129,6 +138,9 @@ def test_without_the_avatar_rest_rotations_and_proportions_go_wrong(beat, avatar
     rx = Receiver(avatars["vrm1_blender"], bone_positions=False)
     rx.apply(stream(beat, beat["frames"][0]))
     assert np.median(measure(rx, beat, 0)["arm_err"]) > 30  # the arm segments turn by their rest rotations
+    rx = Receiver(avatars["vrm1_blender"], bone_positions=True)
+    rx.apply(stream(beat, beat["frames"][0]))
+    assert min(measure(rx, beat, 0)["turn_err"]) > 30  # positions on: the joints land, the bone frames do not
     rx = Receiver(avatars["vrm0"], bone_positions=True)
     rx.apply(stream(beat, beat["frames"][0]))
     lo, hi = measure(rx, beat, 0)["length_ratio"]
