@@ -294,6 +294,21 @@ def test_vmcp_parses_a_frame(skeleton):
     assert any(isinstance(e, StateEvent) for e in events) and any(isinstance(e, BlendShapeApplyEvent) for e in events)
 
 
+def test_vmcp_parses_an_arms_only_frame(skeleton):
+    """The second independent parser on ``parts="arms"``: bones it knows, no root, no blend shapes."""
+    from vmcp.events import BlendShapeEvent, BoneTransformEvent, RootTransformEvent
+
+    def send(host, port):
+        s = VmcSender(skeleton, host, port, parts="arms")
+        s.write(frame_with({"RightArm": axis_quat("Z", 30.0)}, eyeBlinkRight=0.8))
+        s.close()
+
+    events = vmcp_receive(send, until_times=1)
+    bones = {e.joint.value for e in events if isinstance(e, BoneTransformEvent)}
+    assert len(bones) == 38 and not {"Hips", "Spine", "Chest", "UpperChest", "Neck", "Head"} & bones
+    assert not any(isinstance(e, (RootTransformEvent, BlendShapeEvent)) for e in events)
+
+
 def test_vmcp_receives_interpolated_60hz(skeleton):
     """Upsampler → VmcSender at 60 Hz: frames on the upsampler's clock, rotations slerped, the last one exact."""
     from vmcp.events import BoneTransformEvent, RelativeTimeEvent
