@@ -287,6 +287,18 @@ def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
     return out
 
 
+def _delivered(stamps: list[float]) -> dict:
+    """Frames a second from arrival times: the median over 0.5 s windows and overall (after 0.25 s of start-up)."""
+    t = np.asarray(stamps)
+    t = t[t > t[0] + 0.25] if len(t) else t
+    edges = np.arange(t[0], t[-1], 0.5) if len(t) > 2 else np.array([])
+    windows = [np.sum((t >= a) & (t < a + 0.5)) / 0.5 for a in edges[:-1]]
+    return {
+        "delivered_hz_median": round(float(np.median(windows)), 2) if windows else 0.0,
+        "delivered_hz_overall": round(float((len(t) - 1) / (t[-1] - t[0])), 2) if len(t) > 2 else 0.0,
+    }
+
+
 _BUSY = "import time\nend = time.monotonic() + {s}\nwhile time.monotonic() < end:\n    pass\n"
 
 
@@ -346,14 +358,9 @@ def vmc_rate(skeleton, rate_hz: float, seconds: float = 3.0, busy: bool = True) 
         if spin is not None:
             spin.kill()
             spin.wait()
-    t = np.asarray(stamps)
-    t = t[t > t[0] + 0.25] if len(t) else t  # after the first frame's start-up
-    edges = np.arange(t[0], t[-1], 0.5) if len(t) > 2 else np.array([])
-    windows = [np.sum((t >= a) & (t < a + 0.5)) / 0.5 for a in edges[:-1]]
     return {
         "rate_hz": rate_hz,
-        "delivered_hz_median": round(float(np.median(windows)), 2) if windows else 0.0,
-        "delivered_hz_overall": round(float((len(t) - 1) / (t[-1] - t[0])), 2) if len(t) > 2 else 0.0,
+        **_delivered(stamps),
         "late_ticks": up.late,
         "resyncs": up.resyncs,
         "other_core_busy": busy,
