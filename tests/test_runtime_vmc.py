@@ -294,8 +294,23 @@ def test_vmcp_parses_a_frame(skeleton):
     assert any(isinstance(e, StateEvent) for e in events) and any(isinstance(e, BlendShapeApplyEvent) for e in events)
 
 
+def test_vmcp_parses_an_arms_only_frame(skeleton):
+    """The second independent parser on ``parts="arms"``: bones it knows, no root, no blend shapes."""
+    from vmcp.events import BlendShapeEvent, BoneTransformEvent, RootTransformEvent
+
+    def send(host, port):
+        s = VmcSender(skeleton, host, port, parts="arms")
+        s.write(frame_with({"RightArm": axis_quat("Z", 30.0)}, eyeBlinkRight=0.8))
+        s.close()
+
+    events = vmcp_receive(send, until_times=1)
+    bones = {e.joint.value for e in events if isinstance(e, BoneTransformEvent)}
+    assert len(bones) == 38 and not {"Hips", "Spine", "Chest", "UpperChest", "Neck", "Head"} & bones
+    assert not any(isinstance(e, (RootTransformEvent, BlendShapeEvent)) for e in events)
+
+
 def test_vmcp_receives_interpolated_60hz(skeleton):
-    """Upsampler → VmcSender at 60 Hz: four bundles sets per model frame, rotations slerped, the last one exact."""
+    """Upsampler → VmcSender at 60 Hz: frames on the upsampler's clock, rotations slerped, the last one exact."""
     from vmcp.events import BoneTransformEvent, RelativeTimeEvent
 
     from facecapges.runtime.upsample import Upsampler
@@ -304,20 +319,87 @@ def test_vmcp_receives_interpolated_60hz(skeleton):
 
     def send(host, port):
         up = Upsampler([VmcSender(skeleton, host, port)], fps=15, rate_hz=60)
+        t0 = time.monotonic()
         for k, fr in enumerate(frames):
+            time.sleep(max(0.0, t0 + k / 15 - time.monotonic()))
             up.write(fr)
-            deadline = time.time() + 10  # the next frame once this one is fully out (a loaded machine is late)
-            while up.emitted < 1 + 4 * k and time.time() < deadline:
-                time.sleep(0.002)
+        time.sleep(0.1)
         up.close()
 
-    events = vmcp_receive(send, until_times=1 + 4 + 4)
+    events = vmcp_receive(send, until_times=12)
     times = [e.delta for e in events if isinstance(e, RelativeTimeEvent)]
-    assert len(times) == 9  # the first frame once, then 4 per model frame
-    np.testing.assert_allclose(times, [k / 60 for k in range(9)], atol=1e-6)
+    assert len(times) >= 12 and np.all(np.diff(times) >= 0)
+    assert np.median(np.diff(times)) == pytest.approx(1 / 60, abs=2e-3)  # the stream time follows the 60 Hz clock
     arm = [e.rotation for e in events if isinstance(e, BoneTransformEvent) and e.joint.value == "RightUpperArm"]
-    angles = [np.degrees(2 * np.arctan2(-q.z, q.w)) for q in arm]  # Unity: −angle about Z
-    np.testing.assert_allclose(angles, [0, 10, 20, 30, 40, 50, 60, 70, 80], atol=1e-3)
+    angles = np.array([np.degrees(2 * np.arctan2(-q.z, q.w)) for q in arm])  # Unity: −angle about Z
+    assert angles[0] == pytest.approx(0, abs=1e-3) and angles[-1] == pytest.approx(80, abs=1e-3)
+    assert np.all(np.diff(angles) > -1e-3)
+    between = angles[(angles > 1) & (angles < 79) & (np.abs(angles - 40) > 1)]
+    assert len(between) >= 4  # in-betweens, slerped
+
+
+def _spin(seconds: float):
+    """A process that keeps one core busy for at most ``seconds`` (the test ends it sooner)."""
+    import subprocess
+    import sys
+
+    code = f"import time\nend = time.monotonic() + {seconds}\nwhile time.monotonic() < end:\n    pass\n"
+    return subprocess.Popen([sys.executable, "-c", code])
+
+
+@pytest.mark.parametrize("rate", [30, 60])
+def test_steady_rate_under_load(skeleton, rate):
+    """``--rate 30/60`` with the other core busy and the model's frames jittery: delivered rate within 2 %.
+
+    A loopback receiver timestamps each frame's last datagram (the one with ``/VMC/Ext/T``); the rate is
+    the median over 0.5 s windows of 4 s. The feeding thread also holds the GIL 10 ms a frame, as the
+    model's thread does.
+    """
+    import socket
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.2)
+    stamps, stop = [], threading.Event()
+
+    def receive():
+        while not stop.is_set():
+            try:
+                d = rx.recv(65535)
+            except OSError:
+                continue
+            if b"/VMC/Ext/T" in d:
+                stamps.append(time.monotonic())
+
+    from facecapges.runtime.upsample import Upsampler
+
+    spin = _spin(30)
+    th = threading.Thread(target=receive, daemon=True)
+    th.start()
+    up = Upsampler([VmcSender(skeleton, *rx.getsockname())], 15, rate)
+    rng = np.random.default_rng(1)
+    try:
+        t0 = time.monotonic()
+        for k in range(int(4.5 * 15)):
+            time.sleep(max(0.0, t0 + k / 15 + rng.uniform(-0.025, 0.025) - time.monotonic()))
+            busy_until = time.monotonic() + 0.010
+            while time.monotonic() < busy_until:  # the model's compute, holding the GIL
+                pass
+            up.write(frame_with({"RightArm": axis_quat("Z", 40 * np.sin(k / 5))}, index=k))
+        up.close()
+    finally:
+        stop.set()
+        th.join(2)
+        rx.close()
+        spin.kill()
+        spin.wait()
+    t = np.asarray(stamps)
+    assert len(t) > 3 * rate, len(t)
+    t = t[(t > t[0] + 0.25) & (t < t[0] + 4.25)]
+    windows = [np.sum((t >= a) & (t < a + 0.5)) / 0.5 for a in np.arange(t[0], t[-1] - 0.5, 0.5)]
+    assert len(windows) >= 6
+    assert np.median(windows) == pytest.approx(rate, rel=0.02), windows
+    assert (len(t) - 1) / (t[-1] - t[0]) == pytest.approx(rate, rel=0.02)
 
 
 def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
@@ -348,12 +430,43 @@ def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
     assert rep["frames"] == 30 and rep["output"]["interpolation_added_latency_ms"] == pytest.approx(33.3)
     assert rep["vmc"]["largest_datagram_bytes"] <= MAX_DATAGRAM_BYTES
     times = [args[0] for a, args in got if a == "/VMC/Ext/T"]
-    # two per model frame when the machine keeps up (a late frame cuts its predecessor's in-between short)
-    assert rep["frames"] < len(times) <= 2 * rep["frames"] and rep["vmc"]["frames"] == len(times)
-    assert np.all(np.diff(times) > 0) and np.min(np.diff(times)) == pytest.approx(1 / 30, abs=1e-4)
-    assert times[-1] == pytest.approx(29 / 15, abs=1e-5)  # ends on the last model frame
+    # the upsampler's own 30 Hz clock from the first model frame to the end (a loaded machine delivers the
+    # model's frames late or in bursts: the count follows the wall time; the rate itself: test_steady_rate_…)
+    assert len(times) > rep["frames"] // 2 and rep["vmc"]["frames"] == len(times)
+    assert np.all(np.diff(times) >= 0) and np.median(np.diff(times)) == pytest.approx(1 / 30, abs=2e-3)
+    assert times[-1] >= 29 / 15 - 1e-5  # ends on (or after) the last model frame
     names = {args[0] for a, args in got if a == "/VMC/Ext/Blend/Val"}
     assert {"Blink_L", "A", "EyeBlinkLeft", "JawOpen"} <= names
+    assert "our avatar's bone positions" in r.stderr and "--vmc-avatar" in r.stderr  # said at start
+
+
+def test_live_arms_only(face_video, beat_wav):
+    """``live --vmc-parts arms``: arm bones only, no root, no face; a bad value is one clear error."""
+    from pythonosc.dispatcher import Dispatcher
+    from pythonosc.osc_server import BlockingOSCUDPServer
+
+    from runtime_helpers import cli
+
+    got = []
+    disp = Dispatcher()
+    disp.set_default_handler(lambda address, *args: got.append((address, args)))
+    server = BlockingOSCUDPServer(("127.0.0.1", 0), disp)
+    th = threading.Thread(target=server.serve_forever, daemon=True)
+    th.start()
+    try:
+        r = cli("live", "--video", str(face_video), "--audio", str(beat_wav), "--max-seconds", "1",
+                "--vmc", "127.0.0.1:%d" % server.server_address[1], "--vmc-parts", "arms")
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert r.returncode == 0, r.stderr[-2000:]
+    bones = {args[0] for a, args in got if a == "/VMC/Ext/Bone/Pos"}
+    arms = ("Shoulder", "UpperArm", "LowerArm", "Hand", "Thumb", "Index", "Middle", "Ring", "Little")
+    assert len(bones) == 38 and all(any(w in b for w in arms) for b in bones), bones
+    assert {a for a, _ in got} == {"/VMC/Ext/Bone/Pos", "/VMC/Ext/OK", "/VMC/Ext/T"}
+    assert "arms, hands and fingers only" in r.stderr
+    r = cli("live", "--video", str(face_video), "--vmc", "127.0.0.1:39539", "--vmc-parts", "legs")
+    assert r.returncode != 0 and "--vmc-parts legs" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_live_rejects_a_rate_that_is_not_a_multiple(face_video):

@@ -121,14 +121,22 @@ def test_our_vrm_matches_the_vrm_1_0_schemas_and_the_khronos_validator(files):
     ext = doc["extensions"]["VRMC_vrm"]
     assert ext["meta"]["licenseUrl"] == "https://vrm.dev/licenses/1.0/" and ext["meta"]["avatarPermission"] == "everyone"
     assert len(ext["humanoid"]["humanBones"]) == 52 and ext["lookAt"]["type"] == "expression"
-    assert len(ext["expressions"]["custom"]) == 52 and len(ext["expressions"]["preset"]) == 18
-    # the soles stand on y = 0 (VRM T-pose): hips about 0.9 m up
+    # every preset but neutral, which binds nothing (the schema wants a bind: minItems 1)
+    assert len(ext["expressions"]["custom"]) == 52 and len(ext["expressions"]["preset"]) == 17
+    assert "neutral" not in ext["expressions"]["preset"]
+    # the soles stand on y = 0 (VRM T-pose): hips about 0.9 m up, the lift on Hips itself (as VRoid's exports:
+    # a VMC sender's Hips position is its height above the avatar's origin), Root at the origin
     nodes = doc["nodes"]
     root = next(n for n in nodes if n["name"] == "Root")
-    assert 0.8 < root["translation"][1] < 1.0
+    hips = next(n for n in nodes if n["name"] == "Hips")
+    assert root.get("translation", [0, 0, 0]) == [0, 0, 0] and 0.8 < hips["translation"][1] < 1.0
     # the schema can fail: no licence, a preset name used for a custom expression
     bad = json.loads(json.dumps(ext))
     del bad["meta"]["licenseUrl"]
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, VRMC_VRM, cls=jsonschema.Draft202012Validator)
+    bad = json.loads(json.dumps(ext))
+    bad["expressions"]["preset"]["neutral"] = {"morphTargetBinds": []}
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(bad, VRMC_VRM, cls=jsonschema.Draft202012Validator)
     bad = json.loads(json.dumps(ext))
@@ -152,6 +160,14 @@ def test_our_vrm0_matches_the_vrm_0_x_schema(files):
     jsonschema.validate(ext, VRM0, cls=jsonschema.Draft202012Validator)
     groups = {g["name"]: g for g in ext["blendShapeMaster"]["blendShapeGroups"]}
     assert len(groups) == 70 and groups["Joy"]["presetName"] == "joy" and groups["EyeBlinkLeft"]["binds"]
+    # the licence lets importers edit it without asking: Blender's VRM add-on (importer/license_validation.py)
+    # asks for a confirmation on CC_BY_ND / CC_BY_NC_ND, on "Other" and on any other-licence or -permission URL
+    meta = ext["meta"]
+    assert meta["licenseName"] not in ("CC_BY_ND", "CC_BY_NC_ND", "Other", "Redistribution_Prohibited"), meta
+    assert not meta.get("otherPermissionUrl") and not meta.get("otherLicenseUrl"), meta
+    # BlendShape lookAt: a 30° look (ARKit eyeLook* = 1) maps to weight 1 (xRange degrees → yRange weight)
+    for k in ("lookAtHorizontalInner", "lookAtHorizontalOuter", "lookAtVerticalDown", "lookAtVerticalUp"):
+        assert ext["firstPerson"][k]["xRange"] == 30 and ext["firstPerson"][k]["yRange"] == 1, ext["firstPerson"][k]
     # VRM 0.x faces -Z: the left hand is at -X
     nodes = doc["nodes"]
     left = next(n for n in nodes if n["name"] == "LeftArm")
@@ -309,6 +325,21 @@ def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat
         b.close()
 
 
+@pytest.mark.parametrize("name", ["ours", "ours0"])
+def test_our_gaze_range_in_three_vrm(files, beat, name):
+    """three-vrm's lookAt maps a 30° look (ARKit eyeLook* = 1) to expression weight 1 on both our VRMs."""
+    b, _, _ = _session(files[name], beat, size=(160, 120))
+    try:
+        js = ("(() => { const a = window.facecapges.scene.vrm.lookAt.applier; return ['rangeMapHorizontalInner', "
+              "'rangeMapHorizontalOuter', 'rangeMapVerticalDown', 'rangeMapVerticalUp'].map(k => [a[k].map(30), "
+              "a[k].map(15)]); })()")
+        for full, half in b.evaluate(js):
+            assert full == pytest.approx(1.0) and half == pytest.approx(0.5)
+        assert b.evaluate("window.facecapges.errors") == []
+    finally:
+        b.close()
+
+
 def test_our_vrm_expressions_drive_its_morph_targets(files, beat):
     from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
@@ -396,6 +427,34 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     doc, _ = split_glb((tmp_path / "s.vrma").read_bytes())
     _validate(doc, "VRMC_vrm_animation", VRMC_VRM_ANIMATION)
     assert doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]["count"] == 12
+
+
+def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
+    """``render --avatar`` with a VRM whose head is 3× ours: the camera frames the avatar's own top, nothing cropped."""
+    import imageio_ffmpeg
+
+    from facecapges.io.bvh import write_bvh
+
+    avatar = tmp_path / "bighead.vrm"
+    avatar.write_bytes(build_sample("vrm0", head_scale=3.0))
+    bvh = tmp_path / "short.bvh"
+    write_bvh(bvh, beat["skel"], beat["motion"].motion[300:302], beat["motion"].fps)
+    out = tmp_path / "big.mp4"
+    r = _cli("render", "--bvh", str(bvh), "--avatar", str(avatar), "--out", str(out), "--size", "320x240")
+    assert r.returncode == 0, r.stderr
+    reader = imageio_ffmpeg.read_frames(str(out))
+    meta = next(reader)
+    w, h = meta["size"]
+    img = np.frombuffer(next(reader), np.uint8).reshape(h, w, 3).astype(int)
+    import cv2
+
+    cv2.imwrite("/tmp/facecapges-vrm-bighead.png", img[..., ::-1].astype(np.uint8))
+    body = img[:, : int(w * 0.6)]  # left of the face inset (top right)
+    bg = body[0, 0]
+    rows = np.where((np.abs(body - bg).sum(-1) > 60).any(1))[0]
+    assert len(rows) and rows[0] > 3, rows[:5]  # the top of the head is inside the frame, below a margin
+    assert rows[0] < 0.25 * h  # … and near the top, not a tiny figure
+    FIGURES["big_head_top_row_px"] = int(rows[0])
 
 
 def test_vrm_bench_runs():

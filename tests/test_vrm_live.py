@@ -126,6 +126,40 @@ def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     assert p.returncode == 2 and "--vrma-face" in p.stderr and not (tmp_path / "h.bvh").exists()
 
 
+def test_generate_vrma_without_face_has_the_speech_mouth_and_names_follow_formats(unseen_wav, tmp_path):
+    """``generate --vrma`` without ``--face``: the jaw and lips from the speech, as the viewer shows them;
+    ``--out x.vrma`` (a BVH under a VRMA name) and ``--vrma x.bvh`` are refused, nothing written."""
+    import soundfile as sf
+
+    audio, sr = sf.read(unseen_wav)
+    wav = tmp_path / "a.wav"
+    sf.write(wav, audio[: 4 * sr], sr)
+    p = cli("generate", "--audio", str(wav), "--out", str(tmp_path / "g.bvh"), "--vrma", str(tmp_path / "g.vrma"))
+    assert p.returncode == 0, p.stderr
+    doc = _vrma_ok(tmp_path / "g.vrma")
+    ext = doc["extensions"]["VRMC_vrm_animation"]
+    assert {"aa", "oh"} <= set(ext["expressions"]["preset"])
+    played = _play_vrma(tmp_path / "g.vrma", "vrm0")
+    assert played["errors"] == [] and played["expressionTracks"] == 13
+    # the mouth moves with the speech: the "aa" track's own values
+    node = ext["expressions"]["preset"]["aa"]["node"]
+    anim = doc["animations"][0]
+    ch = next(c for c in anim["channels"] if c["target"]["node"] == node)
+    acc = doc["accessors"][anim["samplers"][ch["sampler"]]["output"]]
+    from facecapges.avatar.vrm import split_glb as _split
+
+    _, blob = _split((tmp_path / "g.vrma").read_bytes())
+    view = doc["bufferViews"][acc["bufferView"]]
+    xyz = np.frombuffer(blob, np.float32, acc["count"] * 3, view.get("byteOffset", 0) + acc.get("byteOffset", 0))
+    aa = xyz.reshape(-1, 3)[:, 0]
+    assert aa.max() > 0.2 and (aa < 0.05).mean() > 0.05, (aa.max(), (aa < 0.05).mean())
+    for args, msg in ((("--out", str(tmp_path / "t.vrma")), "--vrma t.vrma"),
+                      (("--out", str(tmp_path / "t.bvh"), "--vrma", str(tmp_path / "t.bvh2")), "end in .vrma")):
+        p = cli("generate", "--audio", str(wav), *args)
+        assert p.returncode == 2 and msg in p.stderr and "Traceback" not in p.stderr, p.stderr
+    assert not list(tmp_path.glob("t.*"))
+
+
 def test_run_renders_the_vrm(face_video, tmp_path):
     import imageio_ffmpeg
 

@@ -9,6 +9,10 @@ screenshot shows where the hands are. Variants:
   rotation (translations compensate, the appearance is the T-pose), so three-vrm's
   bone normalisation and our rest-pose handling are both exercised; 52 perfect-sync
   custom expressions.
+* ``"vrm1_blender"`` — the same VRM 1.0 with rest rotations as Blender's VRM add-on exports
+  them: each bone's local +Y points along the bone to its first child (Blender's bone
+  axis), +Z as near the model's forward axis as that allows (e.g. the left shoulder's
+  rest rotation turns +Y to +X).
 * ``"vrm0"`` — VRM 0.x (``VRM`` extension), facing −Z as VRM 0.x does, identity rest
   rotations, presets only (blink, a, joy …) on a few morph targets.
 * ``"glb"`` — a plain GLB with Mixamo joint names (``mixamorig:LeftArm`` …), arms in an
@@ -69,7 +73,8 @@ def _quat_xyzw(R: np.ndarray) -> list[float]:
 
 def skeleton(variant: str) -> tuple[list[str], list[int], np.ndarray]:
     """Bone names (VRM), parent indices and canonical rest world positions (+Z facing)."""
-    bones = _TORSO + _side("left", 1, variant == "vrm1") + _side("right", -1, variant == "vrm1")
+    fingers = variant.startswith("vrm1")
+    bones = _TORSO + _side("left", 1, fingers) + _side("right", -1, fingers)
     names = [b for b, _, _ in bones]
     parents = [names.index(p) if p else -1 for _, p, _ in bones]
     P = np.zeros((len(bones), 3))
@@ -85,14 +90,32 @@ def skeleton(variant: str) -> tuple[list[str], list[int], np.ndarray]:
     return names, parents, P
 
 
-def build_sample(variant: str) -> bytes:
-    """The sample avatar ``variant`` ("vrm1", "vrm0" or "glb") as binary glTF bytes."""
+def _bone_axes(P: np.ndarray, parents: list[int]) -> list[np.ndarray]:
+    """Blender-style rest frames: +Y along the bone (to the first child, else the parent's way), +Z forward-most."""
+    out = []
+    for i in range(len(P)):
+        kids = [c for c in range(len(P)) if parents[c] == i]
+        d = P[kids[0]] - P[i] if kids else P[i] - P[parents[i]]
+        y = d / np.linalg.norm(d)
+        ref = np.array([0.0, 0.0, 1.0]) if abs(y[2]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        z = ref - y * (ref @ y)
+        z /= np.linalg.norm(z)
+        out.append(np.stack([np.cross(y, z), y, z], axis=1))
+    return out
+
+
+def build_sample(variant: str, head_scale: float = 1.0) -> bytes:
+    """The sample avatar ``variant`` ("vrm1", "vrm1_blender", "vrm0" or "glb") as binary glTF bytes.
+
+    ``head_scale`` scales the head box (a big-headed avatar: 2–3 × ours)."""
     names, parents, P = skeleton(variant)
     J = len(names)
     flip = np.array([-1.0, 1.0, -1.0]) if variant == "vrm0" else np.ones(3)
     Pw = P * flip
     rng = np.random.default_rng(7)
     Rw = [(_rot(rng.normal(size=3), rng.uniform(0.3, 1.2)) if variant == "vrm1" else np.eye(3)) for _ in range(J)]
+    if variant == "vrm1_blender":
+        Rw = _bone_axes(Pw, parents)
     nodes = []
     for i in range(J):
         p = parents[i]
@@ -114,7 +137,7 @@ def build_sample(variant: str) -> bytes:
         if n.endswith("Hand"):
             b = a + along * 0.09
         elif n == "head":
-            b = a + np.array([0, 0.2, 0])
+            b = a + np.array([0, 0.2 * head_scale, 0])
         elif kids[i]:
             b = Pw[kids[i][0]]
         else:
@@ -132,7 +155,7 @@ def build_sample(variant: str) -> bytes:
         if "Proximal" in n or "Intermediate" in n or "Distal" in n or "Metacarpal" in n:
             r = 0.008
         if n == "head":
-            r = 0.09
+            r = 0.09 * head_scale
         base = len(V)
         for s in (0, 1):
             for cv, cw in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
@@ -188,7 +211,7 @@ def build_sample(variant: str) -> bytes:
     head = names.index("head")
     fv = np.array([[-0.04, 0.06, 0.1], [0.04, 0.06, 0.1], [0.04, 0.12, 0.1], [-0.04, 0.12, 0.1]], np.float32)
     fv = (fv * flip).astype(np.float32)
-    targets_names = list(PERFECT_SYNC_NAMES) if variant == "vrm1" else ["Blink", "Mouth_A", "Smile"]
+    targets_names = list(PERFECT_SYNC_NAMES) if variant.startswith("vrm1") else ["Blink", "Mouth_A", "Smile"]
     fpos = add(fv, g.VEC3, g.ARRAY_BUFFER, True)
     targets = []
     for k in range(len(targets_names)):
@@ -211,7 +234,7 @@ def build_sample(variant: str) -> bytes:
                   scenes=[g.Scene(nodes=[0, J])], nodes=nodes, meshes=meshes, skins=[skin], materials=materials,
                   accessors=accs, bufferViews=views, buffers=[g.Buffer(byteLength=len(blob))],
                   extensionsUsed=["KHR_materials_unlit"])
-    if variant == "vrm1":
+    if variant.startswith("vrm1"):
         doc.extensionsUsed.append("VRMC_vrm")
         bind = lambda k: {"morphTargetBinds": [{"node": face_node, "index": k, "weight": 1.0}]}  # noqa: E731
         doc.extensions = {"VRMC_vrm": {

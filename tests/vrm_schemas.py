@@ -33,7 +33,7 @@ _override = {"enum": ["none", "block", "blend"]}
 _expression = {
     "type": "object",
     "properties": {
-        "morphTargetBinds": {"type": "array", "items": {
+        "morphTargetBinds": {"type": "array", "minItems": 1, "items": {
             "type": "object", "required": ["node", "index", "weight"],
             "properties": {"node": _index, "index": _index, "weight": {"type": "number", "minimum": 0, "maximum": 1},
                            **_ext}}},

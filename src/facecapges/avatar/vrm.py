@@ -14,14 +14,15 @@ Our avatar's glTF (:mod:`facecapges.avatar.gltf`) plus ``VRMC_vrm``:
   MediaPipe face mesh's Apache-2.0 notice in ``thirdPartyLicenses``.
 * **humanoid** — :data:`BEAT_BONES`: BEAT joint → VRM bone. BEAT's extra joints
   (Spine2, Neck1, the Index/Ring/Pinky metacarpals, fingertips, ForeFoot) stay as
-  non-humanoid nodes between humanoid ones, which the spec allows. A ``Root`` node
-  above Hips lifts the body so the soles (BEAT ForeFoot) stand on y = 0, as the VRM
-  T-pose wants; BEAT's rest pose already is a T-pose facing +Z, left hand at +X.
+  non-humanoid nodes between humanoid ones, which the spec allows. Hips is lifted so
+  the soles (BEAT ForeFoot) stand on y = 0, as the VRM T-pose wants (under a ``Root``
+  node at the origin); BEAT's rest pose already is a T-pose facing +Z, left hand at +X.
 * **expressions** — the 52 ARKit blendshapes as *custom* expressions in perfect-sync
   spelling (``EyeBlinkLeft``, ``JawOpen`` …: :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`,
   the clip names VMC senders and perfect-sync avatars use), each bound to its morph
-  target (named as in ARKit) at weight 1, and the VRM presets (``happy`` … ``neutral``)
-  as fixed combinations of ARKit targets (:data:`PRESET_BINDS`).
+  target (named as in ARKit) at weight 1, and the VRM presets (``happy`` …) as fixed
+  combinations of ARKit targets (:data:`PRESET_BINDS`); ``neutral`` binds nothing and
+  is left out (the schema wants at least one bind per expression).
 * **lookAt** — type ``expression`` (the face has no eye bones): ``lookUp/Down/Left/
   Right`` move the eyes with the ARKit eyeLook targets; the look-at origin is the
   centre of the eye openings.
@@ -246,13 +247,22 @@ def vrm_meta(name: str = "FaceCapGes avatar", version: str = "0.1.0") -> dict:
     }
 
 
+def sole_lift(skel) -> float:
+    """How far (metres) the BEAT skeleton ``skel`` must be lifted for its soles (ForeFoot) to stand on y = 0."""
+    from facecapges.avatar.gltf import CM_TO_M
+    from facecapges.skeleton import rest_positions
+
+    P = rest_positions(skel) * CM_TO_M
+    sole = skel.names.index("LeftForeFoot") if "LeftForeFoot" in skel.names else skel.names.index("LeftFoot")
+    return float(-P[sole, 1])
+
+
 def avatar_to_vrm(avatar):
     """The glTF document of ``avatar`` (facecapges.avatar.body.Avatar) as a VRM 1.0 (module docstring)."""
     import pygltflib as g
 
     from facecapges.avatar.body import EYE
     from facecapges.avatar.gltf import CM_TO_M, avatar_to_gltf
-    from facecapges.skeleton import rest_positions
 
     doc = avatar_to_gltf(avatar)
     skel = avatar.skeleton
@@ -260,12 +270,15 @@ def avatar_to_vrm(avatar):
     missing = [b for b in REQUIRED_BONES if BEAT_BONES[b] not in skel.names]
     if missing:
         raise UserError(f"the skeleton lacks the joints of VRM bones {missing}")
-    P = rest_positions(skel) * CM_TO_M
-    sole = skel.names.index("LeftForeFoot") if "LeftForeFoot" in skel.names else skel.names.index("LeftFoot")
-    lift = float(-P[sole, 1])
+    lift = sole_lift(skel)
     hips = names.index("Hips")
     root = len(doc.nodes)
-    doc.nodes.append(g.Node(name="Root", translation=[0.0, lift, 0.0], children=[hips]))
+    # the lift is on Hips (Root stays at the origin), as VRoid / UniVRM exports have it: a VMC sender's
+    # Hips local position is then its height above the avatar's origin, whatever the avatar
+    doc.nodes[hips].translation = [
+        float(x) for x in np.add(doc.nodes[hips].translation or [0.0, 0.0, 0.0], [0, lift, 0])
+    ]
+    doc.nodes.append(g.Node(name="Root", translation=[0.0, 0.0, 0.0], children=[hips]))
     scene = doc.scenes[0]
     scene.nodes = [root if n == hips else n for n in scene.nodes]
     face_node = names.index("Face")
@@ -283,7 +296,8 @@ def avatar_to_vrm(avatar):
             "overrideMouth": "none",
         }
 
-    preset = {p: expr(b) for p, b in PRESET_BINDS.items()}
+    # a preset with nothing to bind (neutral) is left out: the schema wants at least one bind
+    preset = {p: expr(b) for p, b in PRESET_BINDS.items() if b}
     for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
         preset[p]["overrideBlink"] = preset[p]["overrideMouth"] = "blend"
     from facecapges.arkit import arkit_index
@@ -349,7 +363,7 @@ def avatar_to_vrm0(avatar):
     −Z (VRM 0.x's rule; a rotation of the data, no node rotation), UniVRM's blend shape
     groups — the presets with UniVRM's lower-case ``presetName`` plus the 52 ARKit shapes
     named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`)
-    — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``Other`` (MIT).
+    — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``CC_BY`` (editing allowed).
     """
     from facecapges.arkit_vrm import VRM1_NAMES
 
@@ -372,15 +386,14 @@ def avatar_to_vrm0(avatar):
         }
 
     v0_name = {v: k for k, v in VRM1_NAMES.items()}
-    groups = [group("Neutral", "neutral", v1["expressions"]["preset"]["neutral"])]
+    groups = [group("Neutral", "neutral", {"morphTargetBinds": []})]  # UniVRM's empty Neutral clip
     for p, expr in v1["expressions"]["preset"].items():
-        if p == "neutral":
-            continue
         clip = v0_name[p]
         groups.append(group(clip, clip.lower() if clip != "Surprised" else "unknown", expr))
     for ps, expr in v1["expressions"]["custom"].items():
         groups.append(group(ps, "unknown", expr))
-    look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": 90.0, "yRange": EYE_RANGE_DEG / 90.0}
+    # BlendShape lookAt: xRange = the gaze angle (degrees) that gives yRange = weight 1; linear curve
+    look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": EYE_RANGE_DEG, "yRange": 1.0}
     head = v1["humanoid"]["humanBones"]["head"]["node"]
     off = v1["lookAt"]["offsetFromHeadBone"]
     meta = v1["meta"]
@@ -400,8 +413,10 @@ def avatar_to_vrm0(avatar):
                 "sexualUssageName": "Disallow",
                 "commercialUssageName": "Allow",
                 "otherPermissionUrl": "",
-                "licenseName": "Other",
-                "otherLicenseUrl": "https://opensource.org/license/mit",
+                # a named licence that allows editing: "Other" (or an other-licence URL) makes importers
+                # such as Blender's VRM add-on ask for a licence confirmation before they load the file
+                "licenseName": "CC_BY",
+                "otherLicenseUrl": "",
             },
             "humanoid": {
                 "humanBones": [

@@ -10,11 +10,27 @@ import typer
 from facecapges.outputs.recording import GenerateOptions
 
 
+def _check_extensions(out: Path, vrma: Path | None) -> None:
+    """An output's format follows its name: ``--out`` is a BVH, ``--vrma`` a VRM Animation; any other suffix is refused."""
+    from facecapges.errors import UserError
+
+    if out.suffix and out.suffix.lower() != ".bvh":
+        hint = f" --vrma {out.name}" if out.suffix.lower() == ".vrma" else ""
+        raise UserError(
+            f"--out {out}: generate writes BVH motion there, so it must end in .bvh "
+            f"(e.g. --out {out.with_suffix('.bvh').name}{hint})"
+        )
+    if vrma is not None and vrma.suffix.lower() != ".vrma":
+        raise UserError(
+            f"--vrma {vrma}: VRM Animation files end in .vrma (e.g. --vrma {vrma.with_suffix('.vrma').name})"
+        )
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def generate(
         audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
-        out: Path = typer.Option(..., help="Output BVH file (full BEAT skeleton, model fps)."),
+        out: Path = typer.Option(..., help="Output BVH file, .bvh (full BEAT skeleton, model fps)."),
         face: Path | None = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
         head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
         checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
@@ -36,7 +52,8 @@ def register(app: typer.Typer) -> None:
         vrma: Path | None = typer.Option(
             None,
             "--vrma",
-            help="Also write the gestures (+ the --face weights) as VRM Animation (.vrma) for any VRM avatar.",
+            help="Also write the gestures and the face (--face, else jaw and lips from the speech) as VRM Animation "
+            "(.vrma) for any VRM avatar.",
         ),
         vrma_face: str = typer.Option(
             GenerateOptions.vrma_face,
@@ -47,6 +64,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
         options = GenerateOptions(**locals())  # before any other name is bound here
+        _check_extensions(out, vrma)
         from facecapges.outputs.recording import generate_recording
 
         generate_recording(options, say=typer.echo)

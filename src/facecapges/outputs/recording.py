@@ -7,7 +7,8 @@ the recording's length) and writes:
 * ``out`` — the gestures on the checkpoint's BEAT skeleton at the model rate (BVH);
 * ``face_out`` — the face to show with them (face JSON): the ``face`` track resampled,
   or without one, jaw and lips from the speech (:class:`facecapges.capture.speech_mouth.SpeechMouth`);
-* ``vrma`` — the gestures (+ the ``face`` weights) as VRM Animation for any VRM avatar.
+* ``vrma`` — the gestures and the face (the ``face`` weights, or jaw and lips from the speech)
+  as VRM Animation for any VRM avatar.
 
 It returns the summary ``generate --json`` prints. This module imports nothing heavy, so the
 command line reads :class:`GenerateOptions`' defaults for ``--help``.
@@ -75,7 +76,7 @@ def generate_recording(
     skel = ckpt.skeleton
     timing_ms: list[float] = []
     mouth, spoken = None, []
-    if o.face_out is not None and o.face is None:  # no face track: jaw and lips from the speech
+    if (o.face_out is not None or o.vrma is not None) and o.face is None:  # no face: jaw and lips from the speech
         from facecapges.capture.speech_mouth import SpeechMouth
 
         mouth = SpeechMouth(ckpt.fps)
@@ -102,7 +103,8 @@ def generate_recording(
     if o.vrma is not None:
         from facecapges.avatar.vrma import write_pose_vrma
 
-        write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, inputs.face if o.face else None, o.vrma_face)
+        face = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)  # what the viewer shows
+        write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, face, o.vrma_face)
         say(f"wrote {o.vrma} (VRM Animation)", err=o.json_out)
     ms, n = timing_ms[0], inputs.n_frames
     summary = {

@@ -88,10 +88,14 @@ def register(app: typer.Typer) -> None:
         vmc_avatar: Path | None = typer.Option(
             None,
             "--vmc-avatar",
-            help="The receiver's VRM file: send its own "
-            "rest bone positions (receivers that "
-            "apply bone positions keep its "
-            "proportions).",
+            help="The receiver's VRM file: send in its own rest bone positions and bone frames (it keeps its "
+            "proportions, and a VRM 1.0 with rest rotations moves right). Default: our avatar's (avatar build).",
+        ),
+        vmc_parts: str = typer.Option(
+            LiveOptions.vmc_parts,
+            "--vmc-parts",
+            help="What VMC drives: all (root, body, face), upper (no root/hips), or arms (shoulders, arms, "
+            "hands, fingers only: your own face tracker keeps the head and face).",
         ),
         rate: float | None = typer.Option(
             None,

@@ -96,6 +96,7 @@ def per_face_sinks(
     *,
     vmc_blend: str = "both",
     vmc_avatar=None,
+    vmc_parts: str = "all",
     rate: float | None = None,
     face_layout: str = "beat",
 ):
@@ -123,7 +124,9 @@ def per_face_sinks(
         if vmc_addr is not None:
             from facecapges.runtime.vmc import VmcSender
 
-            sender = VmcSender(ckpt.skeleton, vmc_addr[0], vmc_addr[1] + i, blend=vmc_blend, avatar=vmc_avatar)
+            sender = VmcSender(
+                ckpt.skeleton, vmc_addr[0], vmc_addr[1] + i, blend=vmc_blend, avatar=vmc_avatar, parts=vmc_parts
+            )
             senders.append(sender)
             if rate is not None and rate != ckpt.fps:
                 ups.append(Upsampler([sender], ckpt.fps, rate))
@@ -182,6 +185,14 @@ def _check(o: LiveOptions) -> _Outputs:
     check_face_layout(o.face_json)
     if o.vmc_blend not in ("vrm", "perfect-sync", "both"):
         raise UserError(f"--vmc-blend {o.vmc_blend}: choose vrm, perfect-sync or both")
+    if o.vmc_parts not in ("all", "upper", "arms"):
+        raise UserError(f"--vmc-parts {o.vmc_parts}: choose all, upper or arms")
+    if o.vmc_parts != "all" and o.vmc is None:
+        raise UserError("--vmc-parts needs --vmc HOST:PORT")
+    if o.vmc_avatar is not None:
+        from facecapges.avatar.vrm import load_model
+
+        load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
     return _Outputs(web_addr, vmc_addr, bind, default_note)
 
 
@@ -283,6 +294,8 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
             "rate_hz": outs.ups[0].rate_hz,
             "interpolation_added_latency_ms": round(outs.ups[0].added_latency_ms, 1),
             "frames_emitted": outs.ups[0].emitted,
+            "late_ticks": outs.ups[0].late,
+            "resyncs": outs.ups[0].resyncs,
         }
     return report
 
@@ -308,6 +321,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         outs.vmc_addr,
         vmc_blend=o.vmc_blend,
         vmc_avatar=o.vmc_avatar,
+        vmc_parts=o.vmc_parts,
         rate=o.rate,
         face_layout=o.face_json,
     )
@@ -343,6 +357,10 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
             say(f"viewer: {outs.server.url}")
         if outs.default_note:
             say(outs.default_note)
+        if outs.senders:
+            from facecapges.runtime.vmc import vmc_note
+
+            warn(f"note: {vmc_note(o.vmc_avatar, o.vmc_parts)}")
         hint = livelink_hint(sess.face_feed, outs.bind) if sess.face_feed is not None else None
         if hint:
             warn(f"note: {hint}")

@@ -24,6 +24,7 @@ class LiveOptions:
     vmc: str | None = None
     vmc_blend: str = "vrm"
     vmc_avatar: Path | None = None
+    vmc_parts: str = "all"
     rate: float | None = None
     web: str | None = None
     host: str | None = None

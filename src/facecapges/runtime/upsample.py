@@ -2,30 +2,36 @@
 
 The model makes one pose every ``P = 1/fps`` s (66.7 ms at 15 fps). Receivers that
 draw only what arrives (most VMC apps, the viewer) show a 15 Hz staircase. An
-:class:`Upsampler` sits between the scheduler and those sinks and emits ``n = rate/fps``
-frames per model period (``rate`` a multiple of ``fps``: 30 or 60 Hz at 15 fps):
+:class:`Upsampler` sits between the scheduler and those sinks and sends at ``rate``
+Hz (a multiple of ``fps``: 30 or 60 Hz at 15 fps, ``n = rate/fps`` frames per period)
+**on its own clock**: tick ``k`` is due at ``t0 + k/rate``, an absolute schedule that
+does not drift, whatever the model's frames do — late, early, bursty, or none at all
+(an idle generator, a changed intensity: it sends from the latest pose it has, whatever
+produced it).
 
-When model frame ``k`` arrives at wall time ``t_k`` it emits, at ``t_k + j·P/n`` for
-``j = 0 … n−1``, the blend of the frame shown last (``S``) and frame ``k`` with weight
-``(j + 1)/n`` (:func:`blend_frames`): local-joint rotations and the head by quaternion
-slerp, face weights linearly, stream time linearly. The last of them *is* frame ``k``.
-``S`` is what was shown last (frame ``k−1``, or an intermediate blend if frame ``k``
-came early), so the output never jumps.
+At each tick it sends the blend (:func:`blend_frames`) of the frame shown when the
+newest model frame ``k`` arrived (``S``) and frame ``k``, with weight
+``min(1, (t − t_k)/P + 1/n)`` (``t`` the tick's due time, ``t_k`` the arrival):
+local-joint rotations and the head by quaternion slerp, face weights linearly. Frame
+``k`` is fully shown ``(n−1)/n · P`` after it arrives, and held after that until the
+next one comes; the output never jumps (``S`` is what was on screen). The stream time
+sent (``/VMC/Ext/T``) advances with the clock and never goes back.
 
-Added latency: frame ``k`` is fully shown ``(n−1)/n · P`` after it exists instead of at
-once — **33.3 ms at 30 Hz, 50.0 ms at 60 Hz** (15 fps model); for any intermediate
-motion the delay is the same constant ``(n−1)/n · P`` (a linear ramp is reproduced
-exactly, shifted). At ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
+Added latency: **33.3 ms at 30 Hz, 50.0 ms at 60 Hz** (15 fps model), ``(n−1)/n · P``;
+at ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
 
-The emitting thread calls the wrapped sinks' ``write`` (VMC sender, viewer feed: both
-thread-safe); :meth:`Upsampler.close` shows the last frame, stops the thread and closes
-them.
+A tick that comes late (the machine busy) is sent at once and the schedule kept, so the
+delivered rate stays the asked one; only a lag above :data:`MAX_LAG_S` (a stall) drops
+the missed ticks and restarts the schedule (counted in ``resyncs``). The emitting thread
+calls the wrapped sinks' ``write`` (VMC sender, viewer feed: both thread-safe);
+:meth:`Upsampler.close` shows the last frame, stops the thread and closes them.
 """
 
 from __future__ import annotations
 
 import threading
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -69,8 +75,11 @@ def blend_frames(a: OutputFrame, b: OutputFrame, t: float) -> OutputFrame:
     )
 
 
+MAX_LAG_S = 0.25  # a tick this late (a stall) restarts the schedule instead of catching up
+
+
 class Upsampler:
-    """Sink wrapper: re-emits model frames to ``sinks`` at ``rate_hz``, interpolated (module docstring)."""
+    """Sink wrapper: sends the latest model frame to ``sinks`` at ``rate_hz`` on its own clock (module docstring)."""
 
     def __init__(self, sinks, fps: float, rate_hz: float):
         self.sinks = list(sinks)
@@ -79,11 +88,14 @@ class Upsampler:
         self.rate_hz = float(rate_hz)
         self.period_s = 1.0 / self.fps
         self.emitted = 0
+        self.late = 0  # ticks sent more than one output period after they were due
+        self.resyncs = 0
         self._shown: OutputFrame | None = None  # what the sinks got last
         self._target: OutputFrame | None = None  # newest model frame
-        self._start: OutputFrame | None = None  # the segment's start (what was shown when it began)
-        self._t0 = 0.0
-        self._j = 0  # next substep of the segment
+        self._start: OutputFrame | None = None  # what was shown when it arrived
+        self._t0 = 0.0  # its arrival time
+        self._last_time = -np.inf  # the stream time sent last
+        self._reached: OutputFrame | None = None  # the model frame shown in full last
         self._cond = threading.Condition()
         self._stop = False
         self._closed = False
@@ -109,29 +121,45 @@ class Upsampler:
             self._start = self._shown
             self._target = out
             self._t0 = time.monotonic()
-            self._j = 0
             self._cond.notify()
 
+    def _frame_at(self, due: float, start: OutputFrame | None, target: OutputFrame, t0: float) -> OutputFrame:
+        """What tick ``due`` shows: the blend towards ``target``, its stream time on the clock."""
+        w = 1.0 if start is None else min(1.0, (due - t0) / self.period_s + 1.0 / self.n)
+        self._reached = target if w >= 1.0 else None
+        fr = blend_frames(start, target, w) if start is not None else target
+        t = target.time_s + (due - t0) - (self.n - 1) / self.n * self.period_s
+        t = max(t, self._last_time, fr.time_s if start is None else -np.inf)
+        self._last_time = t
+        return fr if t == fr.time_s else replace(fr, time_s=t)
+
     def _run(self) -> None:
+        tick = 1.0 / self.rate_hz
+        due: float | None = None
         while True:
             with self._cond:
-                while not self._stop and (self._target is None or self._j >= self.n):
+                while not self._stop and self._target is None:
                     self._cond.wait()
                 if self._stop:
                     return
-                due = self._t0 + self._j * self.period_s / self.n
-                wait = due - time.monotonic()
-                if wait > 0:
-                    self._cond.wait(wait)  # a new frame (or close) may cut the wait short
+                now = time.monotonic()
+                if due is None:
+                    due = now
+                if due - now > 0:
+                    self._cond.wait(due - now)  # close() may cut the wait short
                     continue
-                j, start, target = self._j, self._start, self._target
+                if now - due > MAX_LAG_S:  # a stall: drop the missed ticks
+                    self.resyncs += 1
+                    due = now
+                elif now - due > tick:
+                    self.late += 1
+                start, target, t0 = self._start, self._target, self._t0
                 assert target is not None  # the wait above ends only with a frame
-                self._j = self.n if start is None else self._j + 1  # the very first frame: shown once
-            fr = target if start is None else blend_frames(start, target, (j + 1) / self.n)
+            fr = self._frame_at(due, start, target, t0)
             with self._cond:
-                if target is self._target:  # not superseded while blending
-                    self._shown = fr
+                self._shown = fr
             self._emit(fr)
+            due += tick
 
     def close(self) -> None:
         if self._closed:
@@ -142,7 +170,8 @@ class Upsampler:
             self._cond.notify()
         if self._thread is not None:
             self._thread.join(timeout=2)
-            if self._target is not None and self._shown is not self._target:
-                self._emit(self._target)  # end on the last model frame
+            target = self._target
+            if target is not None and self._reached is not target:  # end on the last model frame
+                self._emit(replace(target, time_s=max(target.time_s, self._last_time)))
         for s in self.sinks:
             s.close()

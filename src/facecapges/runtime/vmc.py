@@ -6,10 +6,10 @@ as a few OSC 1.0 bundles, every datagram at most :data:`MAX_DATAGRAM_BYTES`
 fragmented — one bundle with everything was 6.3 KB, five IP fragments, lost whole
 when one fragment is). In order::
 
-    /VMC/Ext/Root/Pos  "root"  0 0 0  0 0 0 1                           (bundle 1 …)
-    /VMC/Ext/Bone/Pos  <HumanBodyBones name>  px py pz  qx qy qz qw     (one per bone)
-    /VMC/Ext/Blend/Val <clip name> weight                               (… the face clips)
-    /VMC/Ext/Blend/Apply                                                (last bundle)
+    /VMC/Ext/Root/Pos  "root"  0 0 0  0 0 0 1                   (bundle 1 …; parts "all" only)
+    /VMC/Ext/Bone/Pos  <HumanBodyBones name>  px py pz  qx qy qz qw     (one per sent bone)
+    /VMC/Ext/Blend/Val <clip name> weight                 (… the face clips; not with "arms")
+    /VMC/Ext/Blend/Apply                                     (last bundle; not with "arms")
     /VMC/Ext/OK 1
     /VMC/Ext/T  <stream time, s>
 
@@ -19,7 +19,8 @@ messages greedily in this order.
 
 Face clips (``blend``, ``live --vmc-blend``)
 --------------------------------------------
-VMC receivers look the name up in the avatar's ``BlendShapeProxy`` **case-sensitively**:
+VMC receivers look the name up in the avatar's clips; some **case-sensitively** (EVMC4U
+lower-cases both sides and maps VRM 1.0 names to 0.x ones), so the spelling matters:
 
 * ``vrm`` (default) — the VRM 0.x presets ``Blink``, ``Blink_L``, ``Blink_R``, ``A`` ``I``
   ``U`` ``E`` ``O``, ``Joy``, ``Angry``, ``Sorrow``, ``Fun``, ``Surprised``, ``LookUp`` …
@@ -30,38 +31,63 @@ VMC receivers look the name up in the avatar's ``BlendShapeProxy`` **case-sensit
 * ``both`` — presets and perfect-sync clips. For a receiver that picks what its avatar
   has; on an avatar with both sets the mouth would move twice (``A`` + ``JawOpen``).
 
-Bone positions and the root
----------------------------
-Established senders (Virtual Motion Capture, VSeeFace, waidayo) send *their loaded
-avatar's own* local bone positions, and receivers such as EVMC4U apply them by default
-(``BonePositionSynchronize``): the avatar keeps its proportions because both ends load
-the same VRM. We do the same:
+Which bones (``parts``, ``live --vmc-parts``)
+---------------------------------------------
+* ``all`` (default) — ``Root/Pos``, every bone below and the face clips.
+* ``upper`` — the bones from Spine up (no ``Root/Pos``, no Hips) and the face: the
+  receiver keeps its own placement and legs.
+* ``arms`` — shoulders, arms, hands and fingers only: no root, hips, spine, neck or head,
+  no ``Blend/Val`` / ``Blend/Apply``. For a receiver that takes head and face from the
+  user's own face tracker (VSeeFace, VTube Studio, an iPhone) and the arms from us; a
+  shoulder's rotation is relative to its parent bone, so the arms follow the torso the
+  other tracker moves.
 
+Bone positions and rest frames (the receiver's rules)
+-----------------------------------------------------
+What a receiver does with ``/VMC/Ext/Bone/Pos`` (EVMC4U's ``ExternalReceiver``, the
+reference receiver): it finds the bone's ``Transform`` through Unity's humanoid
+``Animator.GetBoneTransform`` and sets ``localRotation`` to the sent rotation and, with
+*Bone Position Synchronize* (on by default), ``localPosition`` to the sent position;
+``/VMC/Ext/Root/Pos`` becomes the model's own transform. Both are *local* to the bone's
+parent ``Transform`` — the parent *node* in the file, humanoid or not. A VRM 0.x is
+normalised (every node's rest rotation is the identity, the T-pose); UniVRM loads a
+VRM 1.0 as it is (the spec dropped normalisation; EVMC4U loads it without a control
+rig by default), so its bones keep the rest rotations their file gives them (Blender
+exports have them). The sender must therefore know the avatar, as established senders
+do (Virtual Motion Capture, VSeeFace send their own loaded avatar's transforms):
+
+* :class:`VmcRig` is that knowledge: per humanoid bone its rest local position and
+  the rest world rotations of its parent node ``Wp`` and of itself ``Wb`` (Unity frame).
+  A bone's rotation is sent as ``Wp⁻¹ · Q · Wb``, ``Q`` being the pose's rotation
+  relative to the nearest sent humanoid ancestor in the normalised (T-pose = identity)
+  frame: the bone then ends up turned by exactly the pose from its rest, whatever its
+  rest frame. With identity rest rotations (VRM 0.x, ours) that is ``Q`` itself.
+* By default (no ``avatar``) the rig is **our own avatar** (``avatar build --format
+  vrm``/``vrm0``, :func:`our_rig`): the positions are its node translations (Hips
+  at its height above the avatar's origin, Head from BEAT's Neck1 node, fingers from the
+  metacarpal nodes), so our avatar stays whole with or without position sync. For any
+  other avatar that applies positions, ``live`` says at start to pass the avatar or
+  turn position sync off.
+* with ``avatar`` (``live --vmc-avatar model.vrm``, the VRM the receiver shows) the rig
+  is read from that file (:func:`vrm_rig`): its own rest positions and frames, so
+  applying positions changes nothing and a VRM 1.0 with rest rotations moves right;
+  bones the model lacks (``UpperChest`` is optional in VRM) are not sent and their
+  rotation folds into the next bone down.
 * ``/VMC/Ext/Root/Pos`` is the avatar's placement, the identity at the origin: the
-  receiver's avatar stays where it stands (EVMC4U writes it into the model transform).
-* with ``avatar`` (``live --vmc-avatar model.vrm``, the VRM the receiver shows) every
-  bone carries that model's own rest local position (:func:`vrm_rest_positions`), so
-  applying positions changes nothing; bones the model lacks (``UpperChest`` is
-  optional in VRM) are not sent and their rotation folds into the next bone down.
-* without it, bones carry BEAT's rest offsets in metres and Hips stands at BEAT's hip
-  height (0.89 m above the feet, from the leg chain), never at the floor. A receiver
-  that applies bone positions must then have that off (EVMC4U: "Bone Position
-  Synchronize"), as iFacialMocap's VMC output also asks; receivers that retarget use
-  only the rotations and the root.
+  receiver's avatar stays where it stands.
 
 Conventions
 -----------
 * Rotations are **local** quaternions in Unity's left-handed, Y-up frame, sent as
-  ``(x, y, z, w)``: the right-handed BVH rotation converted by
-  :func:`facecapges.rotations.quaternion_to_unity` (X mirrored). Positions are metres
-  with ``x → −x`` (BEAT faces +Z with its right side at −x; Unity's humanoid faces +Z
-  with its right at +x).
+  ``(x, y, z, w)``: the right-handed rotation with X mirrored
+  (:func:`facecapges.rotations.quaternion_to_unity`). Positions are metres. UniVRM
+  imports a VRM 1.0 (facing +Z) with ``x → −x`` and a VRM 0.x (facing −Z) with
+  ``z → −z``; both then face +Z in Unity, as BEAT does with ``x → −x``.
 * BEAT's rest pose is a T-pose with every joint frame aligned to the world axes, so a
-  local rotation is directly the rotation from the T-pose, which is what VMC
-  receivers apply to a (VRM-normalised) humanoid.
+  local rotation is directly the rotation from the T-pose (the normalised frame).
 * BEAT has more joints than Unity's humanoid (four spine joints, two neck joints, a
-  metacarpal per finger). A bone's local rotation is therefore taken *relative to its
-  Unity parent's BEAT joint*: ``q = G(parent)⁻¹ · G(joint)`` with ``G`` the BEAT global
+  metacarpal per finger). A bone's ``Q`` is therefore taken *relative to its
+  Unity parent's BEAT joint*: ``Q = G(parent)⁻¹ · G(joint)`` with ``G`` the BEAT global
   rotations, so every mapped bone ends up with exactly the BEAT orientation and the
   rotations of unmapped joints (marked "folded" below) are carried by the next mapped
   bone down the chain.
@@ -100,6 +126,7 @@ from __future__ import annotations
 import functools
 import socket
 import struct
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +164,21 @@ def _table() -> dict[str, str]:
 
 BEAT_TO_UNITY: dict[str, str] = _table()  # the table of the module docstring (from facecapges.avatar.vrm)
 _UNITY_X = np.array([-1.0, 1.0, 1.0])  # right-handed (BEAT, VRM 1.0 glTF) → Unity positions
+PARTS = ("all", "upper", "arms")
+_ARM_WORDS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "Thumb", "Index", "Middle", "Ring", "Little")
+
+
+def bone_in_parts(unity: str, parts: str) -> bool:
+    """Whether the Unity bone ``unity`` is sent with ``parts`` (module docstring)."""
+    if parts == "arms":
+        return any(w in unity for w in _ARM_WORDS)
+    return parts == "all" or unity != "Hips"
+
+
+def check_parts(parts: str) -> str:
+    if parts not in PARTS:
+        raise ValueError(f"parts must be one of {PARTS}, got {parts!r}")
+    return parts
 
 
 def hip_height_cm(skeleton: Skeleton) -> float:
@@ -147,39 +189,99 @@ def hip_height_cm(skeleton: Skeleton) -> float:
     return float(rest[0, 1] - rest[:, 1].min())
 
 
-def vrm_rest_positions(path: str | Path) -> dict[str, np.ndarray]:
-    """A VRM avatar's humanoid bones → their rest local positions in Unity's frame (metres), Unity bone names.
+@dataclass
+class VmcRig:
+    """The receiver's avatar as the sender must know it (module docstring), Unity frame, Unity bone names.
 
-    The file is read by :func:`facecapges.avatar.vrm.load_model` (VRM 0.x / 1.0 / humanoid
-    GLB; UserError otherwise). The position is the bone node's ``translation`` (relative to
-    its parent node), which is the ``Transform.localPosition`` a VMC receiver sets. VRM 0.x
-    faces −Z in glTF and UniVRM imports it with z negated; VRM 1.0 (and GLB) faces +Z and
-    is imported with x negated.
+    ``positions``: rest local position of each humanoid bone (its node's translation, metres);
+    ``parent_rest`` / ``bone_rest``: rest world rotations (3, 3) of the bone's parent node and of
+    the bone itself; ``source``: what it was read from (for the messages).
     """
-    from facecapges.avatar.vrm import load_model, split_glb
+
+    source: str
+    positions: dict[str, np.ndarray]
+    parent_rest: dict[str, np.ndarray]
+    bone_rest: dict[str, np.ndarray]
+
+
+def our_rig(skeleton: Skeleton) -> VmcRig:
+    """Our own avatar's rig (``avatar build --format vrm``): every BEAT joint a node, identity rest rotations.
+
+    A bone's parent node is its BEAT parent joint (Neck1 for Head, the metacarpal for a finger's
+    first bone …), so its position is its own BEAT offset; Hips carries the lift that stands the
+    soles on the floor (:func:`facecapges.avatar.vrm.sole_lift`), as the VRM writer does.
+    """
+    from facecapges.avatar.vrm import sole_lift
+
+    names = list(skeleton.names)
+    pos = {}
+    for beat, unity in BEAT_TO_UNITY.items():
+        p = np.asarray(skeleton.offsets[names.index(beat)], np.float64) / 100.0
+        if unity == "Hips":
+            p = p + np.array([0.0, sole_lift(skeleton), 0.0])
+        pos[unity] = p * _UNITY_X
+    eye = {u: np.eye(3) for u in pos}
+    return VmcRig("our avatar (avatar build --format vrm / vrm0)", pos, eye, dict(eye))
+
+
+def _rotation_part(m: np.ndarray) -> np.ndarray:
+    """The rotation of a 3×3 block that may carry a scale (nearest orthonormal matrix)."""
+    u, _, vt = np.linalg.svd(m)
+    r = u @ vt
+    return r if np.linalg.det(r) > 0 else u @ np.diag([1.0, 1.0, -1.0]) @ vt
+
+
+def vrm_rig(path: str | Path) -> VmcRig:
+    """A VRM 0.x / 1.0 (or humanoid GLB) file's rig, as UniVRM loads it (module docstring).
+
+    The file is read by :func:`facecapges.avatar.vrm.load_model` (UserError if it is no avatar).
+    A bone's position is its node's rest translation relative to its parent node — the
+    ``Transform.localPosition`` a VMC receiver sets. VRM 0.x faces −Z in glTF and UniVRM
+    imports it with z negated; VRM 1.0 (and GLB) faces +Z and is imported with x negated.
+    """
+    from facecapges.avatar.vrm import load_model, node_world_matrices, split_glb
 
     model = load_model(path)
     doc, _ = split_glb(model.data, str(path))
     nodes = doc.get("nodes") or []
-    flip = np.array([1.0, 1.0, -1.0]) if model.kind == "vrm0" else _UNITY_X
-    out = {}
+    world = node_world_matrices(doc)
+    parent = np.full(len(nodes), -1)
+    for i, n in enumerate(nodes):
+        for c in n.get("children") or []:
+            if isinstance(c, int) and 0 <= c < len(nodes):
+                parent[c] = i
+    M = np.diag([1.0, 1.0, -1.0]) if model.kind == "vrm0" else np.diag(_UNITY_X)
+    rig = VmcRig(f"{Path(path).name} ({model.kind})", {}, {}, {})
     for bone, node in model.bones.items():
-        t = np.asarray(nodes[node].get("translation", [0.0, 0.0, 0.0]), np.float64)
-        if t.shape == (3,) and np.isfinite(t).all():
-            out[vrm_to_unity(bone)] = t * flip
-    return out
+        p = int(parent[node])
+        wp = world[p] if p >= 0 else np.eye(4)
+        local = np.linalg.solve(wp, world[node])
+        t = local[:3, 3]
+        if not np.isfinite(t).all():
+            continue
+        u = vrm_to_unity(bone)
+        rig.positions[u] = M @ t
+        rig.parent_rest[u] = M @ _rotation_part(wp[:3, :3]) @ M
+        rig.bone_rest[u] = M @ _rotation_part(world[node][:3, :3]) @ M
+    return rig
+
+
+def vrm_rest_positions(path: str | Path) -> dict[str, np.ndarray]:
+    """A VRM avatar's humanoid bones → their rest local positions in Unity's frame (metres), Unity bone names."""
+    return vrm_rig(path).positions
 
 
 class VmcMapping:
-    """Precomputed paths: for each mapped bone, the BEAT joints whose rotations it carries.
+    """Precomputed paths: for each sent bone, the BEAT joints whose rotations it carries, and its rig.
 
-    ``positions`` (Unity bone name → local position, e.g. :func:`vrm_rest_positions`)
-    limits the mapping to those bones and sends their positions; without it every bone
-    of :data:`BEAT_TO_UNITY` is sent with BEAT's rest offsets (module docstring).
+    ``rig`` (:class:`VmcRig`; default :func:`our_rig`) limits the mapping to the bones the
+    avatar has, gives their positions and rest frames; ``parts`` (:data:`PARTS`) which of
+    them are sent (module docstring).
     """
 
-    def __init__(self, skeleton: Skeleton, positions: dict[str, np.ndarray] | None = None):
+    def __init__(self, skeleton: Skeleton, rig: VmcRig | None = None, parts: str = "all"):
         self.skeleton = skeleton
+        self.parts = check_parts(parts)
         names = list(skeleton.names)
         missing = [n for n in BEAT_TO_UNITY if n not in names]
         if missing:  # the user's skeleton: the same error as the avatar's check_skeleton
@@ -188,9 +290,11 @@ class VmcMapping:
             raise UserError(
                 f"not a BEAT skeleton; VMC needs the joints {missing[:5]}{' …' if len(missing) > 5 else ''}"
             )
-        table = {b: u for b, u in BEAT_TO_UNITY.items() if positions is None or u in positions or u == "Hips"}
+        self.rig = rig if rig is not None else our_rig(skeleton)
+        table = {b: u for b, u in BEAT_TO_UNITY.items() if u in self.rig.positions}
         self.upper_idx = np.array([names.index(n) for n in UPPER_BODY])
         self.bones: list[tuple[str, list[int], np.ndarray]] = []
+        rest_p, rest_b = [], []
         for beat, unity in table.items():
             j = names.index(beat)
             path = [j]
@@ -198,17 +302,17 @@ class VmcMapping:
             while a >= 0 and names[a] not in table:
                 path.append(a)
                 a = int(skeleton.parents[a])
+            if not bone_in_parts(unity, self.parts):
+                continue  # (its rotation is still relative to its mapped ancestor, sent or not)
             path.reverse()  # from just below the mapped ancestor down to the joint
-            if positions is not None and unity in positions:
-                pos = np.asarray(positions[unity], np.float64)
-            elif a < 0:  # Hips: standing at BEAT's hip height above the root, not on the floor
-                pos = np.array([0.0, hip_height_cm(skeleton) / 100.0, 0.0])
-            else:  # rest position relative to the mapped ancestor (cm → m, Unity: x mirrored)
-                pos = np.sum(skeleton.offsets[path], axis=0) / 100.0 * _UNITY_X
-            self.bones.append((unity, path, pos))
+            self.bones.append((unity, path, np.asarray(self.rig.positions[unity], np.float64)))
+            rest_p.append(self.rig.parent_rest[unity].T)
+            rest_b.append(self.rig.bone_rest[unity])
+        self._wp_inv = np.asarray(rest_p).reshape(-1, 3, 3)
+        self._wb = np.asarray(rest_b).reshape(-1, 3, 3)
 
     def local_rotations(self, quats47: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
-        """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per mapped bone."""
+        """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per sent bone."""
         n = self.skeleton.n_joints
         mats = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         mats[self.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
@@ -217,8 +321,25 @@ class VmcMapping:
             R[k] = mats[path[0]]
             for j in path[1:]:
                 R[k] = R[k] @ mats[j]
-        q = rot.quaternion_to_unity(rot.matrix_to_quaternion(R))  # one batched conversion
+        X = np.diag(_UNITY_X)
+        local = self._wp_inv @ (X @ R @ X) @ self._wb  # Wp⁻¹ · Q · Wb in Unity's frame (module docstring)
+        q = rot.matrix_to_quaternion(local)
         return [(unity, pos, q[k]) for k, (unity, _, pos) in enumerate(self.bones)]
+
+
+def vmc_note(avatar: str | Path | None, parts: str = "all") -> str:
+    """What ``live`` says at start about the VMC stream's bones (module docstring)."""
+    if parts == "arms":
+        what = "arms, hands and fingers only (no root, hips, spine, head or face: your face tracker keeps them)"
+    else:
+        what = "the upper body without root and hips" if parts == "upper" else "root, upper body and face"
+    if avatar is not None:
+        return f"VMC sends {what} in the bone positions and frames of {Path(avatar).name}"
+    return (
+        f"VMC sends {what} with our avatar's bone positions (avatar build --format vrm / vrm0): for another VRM "
+        "pass --vmc-avatar YOUR.vrm (the one the app shows), or turn the app's bone-position sync off "
+        "(EVMC4U: Bone Position Synchronize), else the app gives your avatar our proportions"
+    )
 
 
 def blend_values(face52: np.ndarray, blend: str = "vrm") -> list[tuple[str, float]]:
@@ -300,7 +421,9 @@ class VmcSender:
         skeleton: the checkpoint's BEAT skeleton.
         host, port: the receiver.
         blend: which face clips to send, one of :data:`BLEND_MODES`.
-        avatar: the receiver's VRM file; its rest bone positions are sent (module docstring).
+        avatar: the receiver's VRM file: its rest positions and bone frames are used (module
+            docstring); default: our own avatar's.
+        parts: which bones (and whether the root and the face) are sent, one of :data:`PARTS`.
         max_datagram: the largest datagram, bytes.
     """
 
@@ -311,17 +434,20 @@ class VmcSender:
         port: int = DEFAULT_PORT,
         blend: str = "vrm",
         avatar: str | Path | None = None,
+        parts: str = "all",
         max_datagram: int = MAX_DATAGRAM_BYTES,
     ):
         if blend not in BLEND_MODES:
             raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
-        self.mapping = VmcMapping(skeleton, vrm_rest_positions(avatar) if avatar is not None else None)
+        self.mapping = VmcMapping(skeleton, vrm_rig(avatar) if avatar is not None else None, parts)
         self.blend = blend
+        self.parts = parts
         self.host, self.port = host, port
         self.max_datagram = int(max_datagram)
         self.address: tuple  # (host, port[, flow, scope]) as getaddrinfo gives it
         family, _, _, _, self.address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
+        blend_values(np.zeros(len(PERFECT_SYNC_NAMES)), blend)  # its first call loads SciPy: not on the first frame
         self.sent = 0  # frames
         self.datagrams = 0
         self.largest_datagram = 0
@@ -329,14 +455,17 @@ class VmcSender:
 
     def messages(self, out: OutputFrame) -> list[bytes]:
         """The frame's OSC messages, in sending order (module docstring)."""
-        msgs = [_ROOT]
+        msgs = [_ROOT] if self.parts == "all" else []
         for name, p, q in self.mapping.local_rotations(out.quats):
             msgs.append(
                 _prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) + _F7.pack(p[0], p[1], p[2], q[1], q[2], q[3], q[0])
             )
-        for name, w in blend_values(out.face, self.blend):
-            msgs.append(_prefix("/VMC/Ext/Blend/Val", ",sf", name) + _F1.pack(w))
-        msgs += [_APPLY, _OK, _msg("/VMC/Ext/T", float(out.time_s))]
+        if self.parts != "arms":
+            msgs += [
+                _prefix("/VMC/Ext/Blend/Val", ",sf", n) + _F1.pack(w) for n, w in blend_values(out.face, self.blend)
+            ]
+            msgs.append(_APPLY)
+        msgs += [_OK, _msg("/VMC/Ext/T", float(out.time_s))]
         return msgs
 
     def datagrams_for(self, out: OutputFrame) -> list[bytes]:
@@ -359,6 +488,9 @@ class VmcSender:
             "largest_datagram_bytes": self.largest_datagram,
             "errors": self.errors,
             "blend": self.blend,
+            "parts": self.parts,
+            "bones": len(self.mapping.bones),
+            "rig": self.mapping.rig.source,
         }
 
     def close(self) -> None:

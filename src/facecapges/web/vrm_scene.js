@@ -55,7 +55,16 @@ export class VrmScene extends AvatarScene {
     return n ? n.getWorldPosition(new THREE.Vector3()) : null;
   }
 
-  // the body view frames head to hips and both hands at rest; the face view the head
+  // the top of the avatar's own meshes at rest (skinned vertices), or null without any
+  meshTop() {
+    const box = new THREE.Box3();
+    this.vrm.scene.updateMatrixWorld(true);
+    this.vrm.scene.traverse((o) => { if (o.isMesh && o.geometry) box.expandByObject(o, true); });
+    return box.isEmpty() ? null : box.max.y;
+  }
+
+  // the body view frames the avatar's own top (its head and hair, however large) to below the hips, and
+  // both hands at rest; the face view the head
   setView(name) {
     if (!this.vrm) return;  // (AvatarScene's constructor frames before there is a model)
     const head = this.bonePosition('head'), hips = this.bonePosition('hips');
@@ -67,7 +76,9 @@ export class VrmScene extends AvatarScene {
       target = head.clone().add(new THREE.Vector3(0, 0.07, 0));
       dist = 0.55;
     } else {
-      const top = head.y + 0.25, bottom = hips.y - 0.2;
+      if (this._top === undefined) this._top = this.meshTop();
+      const top = this._top !== null ? Math.max(this._top + 0.05, head.y + 0.1) : head.y + 0.25;
+      const bottom = hips.y - 0.2;
       target = new THREE.Vector3(0, (top + bottom) / 2, 0);
       const halfH = (top - bottom) / 2, halfW = Math.abs(l.x - r.x) / 2 + 0.1;
       const t = Math.tan((fov / 2) * Math.PI / 180);
