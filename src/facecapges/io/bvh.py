@@ -134,7 +134,8 @@ def read_bvh(path: str | Path) -> BVH:
         raise file_error(path, "malformed MOTION header (expected 'Frames:' and 'Frame Time:')") from None
     if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
         raise file_error(
-            path, f"Frame Time {frame_time:g} s is out of range ({MIN_FRAME_TIME:g}–{MAX_FRAME_TIME:g} s, i.e. 1–1000 fps)"
+            path,
+            f"Frame Time {frame_time:g} s is out of range ({MIN_FRAME_TIME:g}–{MAX_FRAME_TIME:g} s, i.e. 1–1000 fps)",
         )
     if n_frames < 1:
         raise file_error(path, f"Frames: {n_frames}; a BVH needs at least one motion frame")
