@@ -32,6 +32,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
+from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
@@ -150,6 +151,7 @@ class ViewerServer:
                 ("Content-Type", ctype),
                 ("Content-Length", str(len(body))),
                 ("Cache-Control", "no-store"),
+                ("Content-Security-Policy", CONTENT_SECURITY_POLICY),
                 ("Connection", "close"),
             ]
         )

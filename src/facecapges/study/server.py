@@ -45,6 +45,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import echo
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
@@ -257,6 +258,7 @@ class _Handler(BaseHTTPRequestHandler):
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(data)))
         self.send_header("Cache-Control", "no-store")
+        self.send_header("Content-Security-Policy", CONTENT_SECURITY_POLICY)
         self.end_headers()
         if self.command != "HEAD":
             self.wfile.write(data)
