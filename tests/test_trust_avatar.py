@@ -20,7 +20,6 @@ import pytest
 from facecapges.avatar.gltf_check import MAX_DEPTH, MAX_FILE_BYTES
 from facecapges.avatar.vrm import join_glb, load_model, parse_model, split_glb
 from facecapges.errors import UserError
-
 from vrm_samples import build_sample
 
 
@@ -193,7 +192,7 @@ def test_crafted_vrm0_is_one_clear_user_error(vrm0, case):
             v["blendShapeMaster"]["blendShapeGroups"] = {"a": 1}
         else:
             v["blendShapeMaster"]["blendShapeGroups"][0]["binds"] = [{"mesh": 999, "index": 0, "weight": 100}]
-    with pytest.raises(UserError, match="crafted.vrm: "):
+    with pytest.raises(UserError, match=r"crafted\.vrm: "):
         parse_model(_edit(vrm0, fn), "crafted.vrm")
 
 
@@ -279,10 +278,10 @@ def test_our_pages_carry_a_csp_that_blocks_other_origins(leak, tmp_path):
 def _our_avatar_with(tmp_path, uri_kind: str, leak_url: str):
     import pygltflib
 
+    from conftest import shared_file
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
     from facecapges.io.bvh import read_bvh
-    from conftest import shared_file
 
     skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
     doc, binary = split_glb(b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes()))
