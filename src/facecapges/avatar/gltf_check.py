@@ -221,7 +221,7 @@ def _check_buffers(d: _Doc, bin_len: int) -> None:
                 raise d.fail(f"{w}.byteStride", "must be a multiple of 4 within 4…252")
     for i, a in enumerate(d.array("accessors")):
         w = f"accessors[{i}]"
-        size = COMPONENT_BYTES.get(a.get("componentType"), 0) * TYPE_COUNT.get(a.get("type"), 0)  # type: ignore[arg-type]
+        size = COMPONENT_BYTES.get(a.get("componentType"), 0) * TYPE_COUNT.get(a.get("type"), 0)
         if not size:
             raise d.fail(w, "has an unknown componentType or type")
         cnt = d.count(a.get("count"), f"{w}.count", 1)

@@ -207,6 +207,8 @@ class Checkpoint:
     @functools.cached_property
     def skeleton(self) -> Skeleton:
         """The checkpoint's skeleton, built once (its per-joint caches then serve every frame)."""
+        if "skeleton" not in self.meta:
+            raise file_error(self.path, "checkpoint has no skeleton in its metadata: it cannot write motion")
         return skeleton_from_dict(self.meta["skeleton"])
 
     @property
@@ -292,6 +294,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         cfg = model_config_from_dict(meta["model_config"])
     except UserError as exc:
         raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
+    _check_meta(p, meta)
     model = FaceCapGes(cfg)
     try:
         model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)
@@ -301,6 +304,35 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     if not all(torch.isfinite(v).all() for v in model.state_dict().values()):
         raise file_error(p, "checkpoint weights contain NaN or infinite values")
     return Checkpoint(model=model.eval(), meta=meta, path=p)
+
+
+CHANNEL_NAMES = {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
+
+
+def _check_meta(p: Path, meta: dict) -> None:
+    """The metadata a Checkpoint reads later (neutral window, skeleton): types and shapes, or a UserError."""
+    try:
+        if "neutral_window" not in meta:
+            raise KeyError("no neutral_window")
+        w = np.asarray(meta["neutral_window"], dtype=np.float64)
+        if w.ndim != 3 or w.shape[0] < 1 or w.shape[1:] != (47, 6) or not (np.abs(w) < 1e3).all():
+            raise ValueError(f"neutral_window has shape {w.shape}, expected (N, 47, 6) finite numbers")
+        if "skeleton" in meta:
+            sk = meta["skeleton"]
+            names, parents, channels = sk["names"], [int(x) for x in sk["parents"]], sk["channels"]
+            J = len(names)
+            offsets = np.asarray(sk["offsets"], dtype=np.float64)
+            if not J or len(parents) != J or len(channels) != J or offsets.shape != (J, 3):
+                raise ValueError("skeleton arrays of different lengths")
+            if not all(isinstance(n, str) for n in names) or len(set(names)) != J:
+                raise ValueError("skeleton names are not unique strings")
+            if any(not -1 <= q < i for i, q in enumerate(parents)) or not np.isfinite(offsets).all():
+                raise ValueError("skeleton parents or offsets out of range")
+            if not all(isinstance(c, list) and set(c) <= CHANNEL_NAMES for c in channels):
+                raise ValueError("skeleton channels are not BVH channel names")
+            skeleton_from_dict(sk)
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
+        raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
 
 
 def load_checkpoint_or_style(spec: str | Path) -> Checkpoint:
