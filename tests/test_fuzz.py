@@ -2,7 +2,11 @@
 
 Parsers: BVH files, BEAT face JSON, Live Link Face UDP packets, the WebSocket protocol
 (client messages and pose messages), the study server's API (in process, and raw HTTP
-over loopback), and ``train --config`` YAML. VMC/OSC is only sent by the project, never
+over loopback), ``train --config`` YAML, and (issue 28) the VRM/GLB avatar reader,
+CLIPS.yaml, study.json, a ``styles install`` run folder (links, loops, FIFOs, sparse
+giants), WAV headers, checkpoint metadata, the cache index and its npz files, and the
+viewer's HTTP paths. The BEAT2 npz reader (issue 20) has its own fuzz test beside it
+(tests/test_data_beat2.py). VMC/OSC is only sent by the project, never
 parsed, so it has no parser to fuzz. Each property runs a bounded, derandomized number of
 examples (``MAX_EXAMPLES``, no deadline: the machine is shared); the cases tried are
 counted in ``CASES`` and printed at the end of the test session (tests/conftest.py).
@@ -316,3 +320,343 @@ def test_fuzz_study_raw_http(study_http, data):
     with socket.create_connection(("127.0.0.1", study_http), timeout=5) as s:  # and the server still serves
         s.sendall(b"GET /api/info HTTP/1.0\r\n\r\n")
         assert s.recv(20).startswith(b"HTTP/1.0 200")
+
+
+# ============================================================================ issue 28: every other parser
+def _json_edit(doc: dict, paths: list[str]):
+    """Strategy: ``doc`` (a JSON object) with one value at a path from ``paths`` replaced by a random one."""
+    import copy
+
+    @st.composite
+    def _e(draw):
+        d = copy.deepcopy(doc)
+        path = draw(st.sampled_from(paths)).split(".")
+        value = draw(json_values | st.integers(-3, 60))
+        node = d
+        for k in path[:-1]:
+            node = node[int(k)] if isinstance(node, list) else node.setdefault(k, {})
+            if not isinstance(node, (dict, list)):
+                return d
+        if isinstance(node, list):
+            if node:
+                node[int(path[-1]) % len(node)] = value
+        else:
+            node[path[-1]] = value
+        return d
+    return _e()
+
+
+# ---------------------------------------------------------------------------- VRM / GLB avatars
+def _vrm_sample() -> bytes:
+    from vrm_samples import build_sample
+
+    return build_sample("vrm1")
+
+
+_VRM = _vrm_sample()
+_VRM_PATHS = ["nodes", "nodes.0", "nodes.0.children", "nodes.3.children.0", "nodes.2.translation", "nodes.1.rotation",
+              "nodes.1.mesh", "nodes.1.skin", "nodes.4.matrix", "nodes.5.name", "meshes.0.primitives",
+              "meshes.0.primitives.0.attributes.POSITION", "meshes.0.primitives.0.indices",
+              "meshes.0.primitives.0.targets", "meshes.0.extras.targetNames", "accessors.0.count",
+              "accessors.1.bufferView", "accessors.0.componentType", "bufferViews.0.byteLength",
+              "bufferViews.0.buffer", "buffers.0.byteLength", "buffers.0.uri", "skins.0.joints",
+              "skins.0.inverseBindMatrices", "scenes.0.nodes", "scene", "extensions", "extensionsRequired",
+              "extensions.VRMC_vrm", "extensions.VRMC_vrm.specVersion", "extensions.VRMC_vrm.humanoid.humanBones",
+              "extensions.VRMC_vrm.humanoid.humanBones.hips", "extensions.VRMC_vrm.humanoid.humanBones.hips.node",
+              "extensions.VRMC_vrm.humanoid.humanBones.head.node", "extensions.VRMC_vrm.expressions.custom",
+              "extensions.VRMC_vrm.meta.name", "materials", "images", "textures", "animations"]
+
+
+def _vrm_docs():
+    from facecapges.avatar.vrm import join_glb, split_glb
+
+    doc, binary = split_glb(_VRM)
+    return st.one_of(
+        mutate(_VRM[:4000]).map(lambda b: b + _VRM[4000:]),  # the header and JSON chunk
+        _json_edit(doc, _VRM_PATHS).map(lambda d: join_glb(d, binary)),
+        st.integers(1, 3000).map(lambda n: join_glb({}, b"")[:12] + b"[" * n * 4),
+        st.binary(max_size=200).map(lambda b: b"glTF" + b),
+    )
+
+
+@FUZZ
+@given(_vrm_docs())
+def test_fuzz_vrm_glb(data):
+    from facecapges.avatar.vrm import REQUIRED_BONES, parse_model
+
+    CASES["vrm_glb"] += 1
+    try:
+        m = parse_model(data, "fuzz.vrm")
+    except UserError as exc:
+        assert str(exc).startswith("fuzz.vrm: ") and "\n" not in str(exc)
+        return
+    assert all(b in m.bones for b in REQUIRED_BONES)
+    assert all(np.isfinite(v).all() for v in m.rest.values())
+
+
+# ---------------------------------------------------------------------------- CLIPS.yaml
+_CLIPS = (b"systems: [a, b]\nfps: 15\nclips:\n  - id: c1\n    audio: media/c1.wav\n    face: media/c1.json\n"
+          b"    bvh: {a: media/c1-a.bvh, b: media/c1-b.bvh}\n")
+
+
+@FUZZ
+@given(st.one_of(
+    mutate(_CLIPS),
+    st.fixed_dictionaries({"systems": json_values, "clips": json_values, "fps": json_values}).map(
+        lambda d: yaml.safe_dump(d).encode()),
+    st.fixed_dictionaries({"clips": st.lists(st.fixed_dictionaries(
+        {"id": json_values, "audio": json_values, "bvh": json_values}), max_size=3)}).map(
+        lambda d: yaml.safe_dump(d).encode()),
+    st.integers(1, 3000).map(lambda n: b"clips: " + b"[" * n * 3),
+    st.binary(max_size=200),
+))
+def test_fuzz_clips_yaml(data):
+    from facecapges.study.clips import parse_clips
+
+    CASES["clips_yaml"] += 1
+    try:
+        cs = parse_clips(_file("CLIPS.yaml", data))
+    except UserError:
+        return
+    assert cs.clips and cs.systems
+
+
+# ---------------------------------------------------------------------------- study.json
+def _study_doc() -> dict:
+    from facecapges.study.build import FORMAT
+    from facecapges.study.design import make_plan, new_token
+
+    plan = make_plan(["c1", "c2"], ["a", "b"], 2, seed=0)
+    for p in plan.participants:
+        p.token = new_token()
+    return {"format": FORMAT, "fps": 15, "systems": ["a", "b"], "clips": [{"id": "c1"}, {"id": "c2"}],
+            "plan": plan.to_json()}
+
+
+_STUDY = _study_doc()
+
+
+@FUZZ
+@given(st.one_of(
+    mutate(json.dumps(_STUDY).encode()),
+    _json_edit(_STUDY, ["format", "plan", "plan.participants", "plan.participants.0",
+                        "plan.participants.0.id", "plan.participants.0.token", "plan.participants.0.trials",
+                        "plan.clips", "plan.systems", "systems"]).map(lambda d: json.dumps(d).encode()),
+    st.integers(1, 3000).map(lambda n: b"[" * n * 40),
+    st.binary(max_size=200),
+))
+def test_fuzz_study_json(data):
+    from facecapges.study.build import STUDY_FILE, open_study
+
+    CASES["study_json"] += 1
+    d = TMP / f"study-{threading.get_ident()}"
+    d.mkdir(exist_ok=True)
+    (d / STUDY_FILE).write_bytes(data)
+    try:
+        s = open_study(d)
+    except UserError as exc:
+        assert "study" in str(exc)
+        return
+    assert s.plan.participants is not None
+
+
+# ---------------------------------------------------------------------------- styles install run folder
+_RUN_ENTRIES = ["log.csv", "model_card.md", "model.fgd", "model.fgd/a.json", "model.fgd/sub", "model.fgd/sub/b.pt"]
+_KINDS = ["file", "big", "dir", "link-passwd", "link-outside-dir", "link-loop", "link-sibling", "fifo"]
+
+
+@settings(FUZZ, max_examples=60)
+@given(st.lists(st.tuples(st.sampled_from(_RUN_ENTRIES), st.sampled_from(_KINDS)), max_size=6))
+def test_fuzz_styles_install_run_folder(entries):
+    import os
+    import shutil
+
+    from facecapges.model.checkpoint import install_style, styles_dir
+
+    CASES["styles_install"] += 1
+    root = Path(tempfile.mkdtemp(dir=TMP))
+    run, store, outside = root / "run", root / "store", root / "outside"
+    run.mkdir()
+    outside.mkdir()
+    (outside / "secret").write_text("secret")
+    shutil.copyfile(sorted(styles_dir().glob("*.safetensors"))[0], run / "model.safetensors")
+    for rel, kind in entries:
+        p = run / rel
+        if p.exists() or p.is_symlink() or not p.parent.is_dir():
+            continue
+        if kind == "file":
+            p.write_text("x")
+        elif kind == "big":
+            with p.open("wb") as f:
+                f.truncate(3 << 30)  # sparse: no disk
+        elif kind == "dir":
+            p.mkdir()
+        elif kind == "link-passwd":
+            p.symlink_to("/etc/passwd")
+        elif kind == "link-outside-dir":
+            p.symlink_to(outside)
+        elif kind == "link-loop":
+            p.symlink_to(p)
+        elif kind == "link-sibling":
+            p.symlink_to(run / "model.safetensors")
+        else:
+            os.mkfifo(p)
+    os.environ["FACECAPGES_STYLES"] = str(store)
+    try:
+        install_style(run, name="fz", force=True)
+    except UserError:
+        pass
+    finally:
+        del os.environ["FACECAPGES_STYLES"]
+    if store.exists():  # whatever happened: only regular files and folders, nothing of outside, nothing half-made
+        for p in store.rglob("*"):
+            assert not p.is_symlink() and (p.is_file() or p.is_dir()), p
+            assert not p.name.startswith(".install-") and (not p.is_file() or p.stat().st_size < 64 << 20)
+            assert not p.is_file() or p.read_bytes() != b"secret"
+    shutil.rmtree(root, ignore_errors=True)
+
+
+# ---------------------------------------------------------------------------- WAV headers
+def _wav() -> bytes:
+    import io
+
+    import soundfile as sf
+
+    buf = io.BytesIO()
+    sf.write(buf, (np.sin(np.arange(1600) / 5) * 0.3).astype(np.float32), 16000, format="WAV", subtype="PCM_16")
+    return buf.getvalue()
+
+
+@FUZZ
+@given(st.one_of(mutate(_wav()[:200]).map(lambda b: b + _wav()[200:]), mutate(_wav()), st.binary(max_size=100).map(
+    lambda b: b"RIFF" + b)))
+def test_fuzz_wav_headers(data):
+    from facecapges.io.audio import check_audio, load_audio
+
+    CASES["wav"] += 1
+    p = _file("a.wav", data)
+    try:
+        check_audio(p)
+        a = load_audio(p)
+    except UserError:
+        return
+    assert a.ndim == 1 and np.isfinite(a).all()
+
+
+# ---------------------------------------------------------------------------- checkpoint metadata
+def _ckpt_parts():
+    from safetensors import safe_open
+
+    p = sorted(__import__("facecapges.model.checkpoint", fromlist=["x"]).styles_dir().glob("*.safetensors"))[0]
+    with safe_open(str(p), framework="pt") as f:
+        return json.loads(f.metadata()["facecapges"]), {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
+
+
+_CKPT_META, _CKPT_TENSORS = _ckpt_parts()
+
+
+@settings(FUZZ, max_examples=100)
+@given(st.one_of(
+    _json_edit(_CKPT_META, ["format", "model_config", "model_config.lstm_hidden", "model_config.fps",
+                            "model_config.n_joints", "neutral_window", "skeleton", "skeleton.names",
+                            "skeleton.parents", "speaker"]).map(json.dumps),
+    mutate(json.dumps({k: _CKPT_META[k] for k in ("format", "model_config")}).encode()).map(
+        lambda b: b.decode("utf-8", "replace")),
+    st.integers(1, 3000).map(lambda n: "[" * n * 40),
+))
+def test_fuzz_checkpoint_metadata(meta):
+    from safetensors.torch import save_file
+
+    from facecapges.model.checkpoint import load_checkpoint
+
+    CASES["checkpoint_meta"] += 1
+    p = TMP / f"{threading.get_ident()}-c.safetensors"
+    save_file(_CKPT_TENSORS, str(p), metadata={"facecapges": meta})
+    try:
+        ck = load_checkpoint(p)
+    except UserError:
+        return
+    assert ck.fps >= 1 and ck.neutral_window.shape[1:] == (47, 6) and np.isfinite(ck.neutral_window).all()
+    try:
+        assert ck.skeleton.n_joints >= 1
+    except UserError:  # no skeleton: said so where one is needed
+        pass
+
+
+# ---------------------------------------------------------------------------- cache index and npz
+def _cache_index() -> dict:
+    from facecapges.data.cache import CACHE_VERSION
+
+    return {"version": CACHE_VERSION, "fps": 15, "sr": 16000, "skeleton": {}, "stats": {},
+            "clips": [{"name": "a", "file": "a.npz", "speaker": 2, "split": "train"}]}
+
+
+def _npz() -> bytes:
+    import io
+
+    from facecapges.data.cache import PRESENCE_KEYS
+
+    buf = io.BytesIO()
+    np.savez(buf, pose=np.zeros((4, 47, 6), np.float32), **{k: np.array(True) for k in PRESENCE_KEYS})
+    return buf.getvalue()
+
+
+@FUZZ
+@given(st.one_of(
+    _json_edit(_cache_index(), ["version", "fps", "sr", "clips", "clips.0", "clips.0.name", "clips.0.file",
+                                "clips.0.speaker", "clips.0.split", "skeleton", "stats"]).map(json.dumps).map(str.encode),
+    mutate(json.dumps(_cache_index()).encode()),
+    st.integers(1, 3000).map(lambda n: b"[" * n * 40),
+), st.one_of(st.just(_npz()), mutate(_npz()), st.binary(max_size=300)))
+def test_fuzz_cache_index_and_npz(index, npz):
+    from facecapges.data.cache import INDEX_NAME, Cache
+
+    CASES["cache"] += 1
+    d = Path(tempfile.mkdtemp(dir=TMP))
+    (d / INDEX_NAME).write_bytes(index)
+    (d / "a.npz").write_bytes(npz)
+    try:
+        c = Cache(d)
+        names = [e["name"] for e in c.clips()]
+        assert c.fps > 0 and c.sr > 0 and isinstance(c.speakers, list)
+        for n in names:
+            clip = c.load(n)
+            assert all(isinstance(clip[k], bool) for k in clip if k.endswith("_present"))
+    except UserError:
+        return
+
+
+# ---------------------------------------------------------------------------- viewer HTTP paths
+@pytest.fixture(scope="module")
+def viewer_port():
+    from facecapges.runtime.web_server import ViewerServer
+
+    s = ViewerServer(b"glTF-not-really", "127.0.0.1", 0).start()
+    yield s.bound[1] if getattr(s, "bound", None) else s.port
+    s.close()
+
+
+VIEWER_GET = b"GET /web/viewer.html HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
+
+
+@FUZZ
+@given(st.one_of(
+    st.text(max_size=200).map(lambda t: b"GET /" + t.encode("utf-8", "surrogatepass") + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"),
+    st.sampled_from(["/../../../etc/passwd", "/web/../../pyproject.toml", "/three/%2e%2e/%2e%2e/x", "/web/\0",
+                     "/three/" + "a/" * 3000, "/avatar.glb?x=1", "/ws", "//etc/passwd"]).map(
+        lambda t: b"GET " + t.encode() + b" HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"),
+    mutate(VIEWER_GET),
+))
+def test_fuzz_viewer_http_paths(viewer_port, data):
+    CASES["viewer_http"] += 1
+    with socket.create_connection(("127.0.0.1", viewer_port), timeout=5) as s:
+        try:
+            s.sendall(data)
+            got = s.recv(4096)
+        except (ConnectionResetError, BrokenPipeError, TimeoutError):
+            got = b""
+    assert got == b"" or got.startswith(b"HTTP/1.1 ")
+    assert b"root:" not in got and b"[project]" not in got  # nothing outside the served folders
+    with socket.create_connection(("127.0.0.1", viewer_port), timeout=5) as s:  # and it still serves
+        s.sendall(VIEWER_GET)
+        assert s.recv(20).startswith(b"HTTP/1.1 200")

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import typer
 
+from facecapges.errors import UserError
+
 BENCHMARKS: dict[str, str] = {
     "capture": "facecapges.capture.bench",
     "data": "facecapges.data.bench",
@@ -57,6 +59,18 @@ def _log(msg: str) -> None:
     print(f"bench: {msg}", file=sys.stderr, flush=True)
 
 
+SHARED_FILES = ("data/beat/2_scott_0_1_1.bvh", "data/beat/2_scott_0_1_1.wav", "data/face/WDA_KatieHill_000.mp4")
+
+
+def check_shared(shared: Path) -> None:
+    """UserError unless ``shared`` is a folder holding the shared clips the areas measure on."""
+    if not shared.is_dir():
+        raise UserError(f"{shared}: shared data folder not found (pass --shared PATH)")
+    missing = [f for f in SHARED_FILES if not (shared / f).is_file()]
+    if len(missing) == len(SHARED_FILES):
+        raise UserError(f"{shared}: not the shared data folder (none of {', '.join(SHARED_FILES)}); pass --shared PATH")
+
+
 def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
     """Run the areas in order; (result document, every area ran without error)."""
     import torch
@@ -78,6 +92,10 @@ def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
         t0 = time.perf_counter()
         try:
             result[area] = importlib.import_module(BENCHMARKS[area]).run(quick=quick, shared=shared)
+        except UserError as exc:  # the user's shared folder or options: one line, no traceback
+            ok = False
+            result[area] = {"error": str(exc)}
+            _log(f"{area} FAILED: {exc}")
         except Exception as exc:  # noqa: BLE001  one broken area must not hide the others' figures
             ok = False
             result[area] = {"error": f"{exc.__class__.__name__}: {exc}"}
@@ -110,14 +128,11 @@ def register(app: typer.Typer) -> None:
         ),
     ) -> None:
         """Measure speed and memory of every stage and print the figures."""
-        from facecapges.errors import UserError
-
         areas = [a.strip() for a in only.split(",") if a.strip()] or list(BENCHMARKS)
         unknown = [a for a in areas if a not in BENCHMARKS]
         if unknown:
             raise UserError(f"unknown benchmark area(s) {unknown}; known: {list(BENCHMARKS)}")
-        if not shared.is_dir():
-            raise UserError(f"{shared}: shared data folder not found (pass --shared PATH)")
+        check_shared(shared)
         result, ok = run_areas(areas, quick, shared.resolve())
         if json_out:
             print(json.dumps(result, indent=2, allow_nan=False))

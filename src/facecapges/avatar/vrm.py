@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.errors import UserError, file_error
+from facecapges.errors import UserError
 
 LICENSE_URL = "https://vrm.dev/licenses/1.0/"
 SPEC_VERSION = "1.0"
@@ -473,27 +473,20 @@ def write_vrm(avatar, path: str | Path, version: str = "1.0") -> Path:
 
 # ===================================================================== reading
 def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
-    """A binary glTF's JSON (parsed) and its BIN chunk; UserError if ``data`` is not one."""
-    if len(data) < 20 or data[:4] != b"glTF":
-        raise UserError(f"{name}: not a VRM or binary glTF file (.vrm/.glb); no glTF header")
-    version, _length = struct.unpack_from("<II", data, 4)
-    if version != 2:
-        raise UserError(f"{name}: glTF version {version}; only glTF 2.0 (VRM 0.x and 1.0) is supported")
-    jlen, jtype = struct.unpack_from("<II", data, 12)
-    if jtype != 0x4E4F534A or 20 + jlen > len(data):
-        raise UserError(f"{name}: broken binary glTF (no JSON chunk)")
-    try:
-        doc = json.loads(data[20 : 20 + jlen].decode("utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise UserError(f"{name}: broken binary glTF JSON ({exc})") from None
-    if not isinstance(doc, dict):
-        raise UserError(f"{name}: broken binary glTF JSON (not an object)")
+    """A binary glTF's JSON (parsed and checked, :mod:`facecapges.avatar.gltf_check`) and its BIN chunk.
+
+    UserError if ``data`` is not one, or is not a self-contained, well-formed glTF."""
+    from facecapges.avatar.gltf_check import BIN_CHUNK, check_document, check_header, decode_json
+
+    jlen = check_header(data[:20], len(data), name)
+    doc = decode_json(data[20 : 20 + jlen], name)
     off = 20 + ((jlen + 3) & ~3)
     binary = b""
     if off + 8 <= len(data):
         blen, btype = struct.unpack_from("<II", data, off)
-        if btype == 0x004E4942:
+        if btype == BIN_CHUNK:
             binary = data[off + 8 : off + 8 + blen]
+    check_document(doc, len(binary), name)
     return doc, binary
 
 
@@ -522,11 +515,15 @@ def _quat_matrix(q) -> np.ndarray:
 
 
 def node_world_matrices(doc: dict) -> np.ndarray:
-    """World matrices (N, 4, 4) of every node at rest (scene roots at the origin)."""
+    """World matrices (N, 4, 4) of every node at rest (scene roots at the origin).
+
+    Walked parents first without recursion (a long node chain is fine); the tree was checked
+    by :func:`facecapges.avatar.gltf_check.check_document` (one parent per node, no cycle)."""
     nodes = doc.get("nodes") or []
     N = len(nodes)
     local = np.zeros((N, 4, 4))
-    parent = np.full(N, -1)
+    children: list[list[int]] = [[] for _ in range(N)]
+    has_parent = np.zeros(N, bool)
     for i, n in enumerate(nodes):
         if "matrix" in n:
             local[i] = np.asarray(n["matrix"], float).reshape(4, 4).T
@@ -536,19 +533,20 @@ def node_world_matrices(doc: dict) -> np.ndarray:
             m[:3, 3] = n.get("translation", [0, 0, 0])
             local[i] = m
         for c in n.get("children", []):
-            if 0 <= c < N:
-                parent[c] = i
+            if 0 <= c < N and not has_parent[c]:
+                children[i].append(c)
+                has_parent[c] = True
     world = np.full((N, 4, 4), np.nan)
-
-    def get(i: int, depth: int = 0) -> np.ndarray:
-        if np.isnan(world[i, 0, 0]):
-            if depth > N:
-                raise UserError("the glTF node tree has a cycle")
-            world[i] = local[i] if parent[i] < 0 else get(int(parent[i]), depth + 1) @ local[i]
-        return world[i]
-
-    for i in range(N):
-        get(i)
+    stack = [int(i) for i in np.flatnonzero(~has_parent)]
+    for i in stack:
+        world[i] = local[i]
+    while stack:
+        i = stack.pop()
+        for c in children[i]:
+            world[c] = world[i] @ local[c]
+            stack.append(c)
+    if np.isnan(world[:, 0, 0]).any():
+        raise UserError("the glTF node tree has a cycle")
     return world
 
 
@@ -637,10 +635,9 @@ def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
 
 def load_model(path: str | Path) -> VrmModel:
     """Read a VRM 0.x / 1.0 or humanoid GLB file (module docstring); UserError if it is none."""
-    p = Path(path)
-    if not p.is_file():
-        raise file_error(p, "avatar file not found")
-    return parse_model(p.read_bytes(), str(p))
+    from facecapges.avatar.gltf_check import read_avatar_file
+
+    return parse_model(read_avatar_file(path), str(Path(path)))
 
 
 def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
@@ -658,7 +655,7 @@ def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
         kind = "vrm1"
         ex = v.get("expressions") or {}
         expressions = [n for n in (ex.get("preset") or {}) if n in PRESET_BINDS] + list(ex.get("custom") or {})
-        title = (v.get("meta") or {}).get("name") or title
+        title = str((v.get("meta") or {}).get("name") or title)
     elif "VRM" in ext:
         v = ext["VRM"]
         bones = {}
@@ -673,7 +670,7 @@ def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
             n = VRM0_PRESETS.get(preset) or grp.get("name")
             if n and n not in expressions:
                 expressions.append(n)
-        title = (v.get("meta") or {}).get("title") or title
+        title = str((v.get("meta") or {}).get("title") or title)
     else:
         bones = humanoid_from_names(doc)
         kind = "glb"

@@ -36,13 +36,11 @@ def pixiv_dir() -> Path:
 
 def is_vrm_file(path: str | Path) -> bool:
     """True unless ``path`` is an avatar .glb written by ``facecapges avatar build`` (BEAT joints, no VRM)."""
+    from facecapges.avatar.gltf_check import read_avatar_file
     from facecapges.avatar.vrm import split_glb
 
-    data = Path(path).read_bytes()
-    try:
-        doc, _ = split_glb(data, str(path))
-    except UserError:
-        return True  # let the VRM reader say what is wrong with it
+    data = read_avatar_file(path)  # too large, not a glTF: refused here, before anything else reads it
+    doc, _ = split_glb(data, str(path))  # and not self-contained or not well-formed
     ext = doc.get("extensions") or {}
     ours = "joint_names" in ((doc.get("extras") or {}).get("facecapges") or {})
     return "VRMC_vrm" in ext or "VRM" in ext or not ours

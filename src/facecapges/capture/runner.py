@@ -43,6 +43,42 @@ def result_record(res, time_s: float) -> dict:
     }
 
 
+class Records:
+    """One face's per-frame results, kept compactly: float64 arrays grown by doubling (~0.5 kB a frame,
+    where a dict per frame took several) — with the streaming face JSON writer, ``capture`` memory
+    stays flat in the video's length."""
+
+    def __init__(self) -> None:
+        self.n = 0
+        self.weights = np.zeros((1024, 52))
+        self.head = np.zeros((1024, 6))
+        self.found = np.zeros(1024, bool)
+        self.distance = np.zeros(1024)
+
+    def append(self, res) -> None:
+        if self.n == len(self.found):
+            for k in ("weights", "head", "found", "distance"):
+                a = getattr(self, k)
+                setattr(self, k, np.concatenate([a, np.zeros_like(a)]))
+        r = result_record(res, 0.0)
+        self.weights[self.n], self.head[self.n], self.found[self.n] = r["weights"], r["head_rot6d"], r["face_found"]
+        self.distance[self.n] = np.nan if r["distance_m"] is None else r["distance_m"]
+        self.n += 1
+
+    def __len__(self) -> int:
+        return self.n
+
+    def write(self, path: Path, fps: float, layout: str) -> None:
+        from facecapges.io.face_json import write_face_json
+
+        n = self.n
+        extras: dict[str, list] = {
+            "face_found": [bool(x) for x in self.found[:n]],
+            "distance_m": [None if not math.isfinite(d) else float(d) for d in self.distance[:n]],
+        }
+        write_face_json(path, self.weights[:n], fps, self.head[:n], layout=layout, extras=extras)
+
+
 def capture_video(
     source: str,
     out: str | Path,
@@ -94,7 +130,7 @@ def capture_video(
 
         cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
     writer = None
-    records: list[list[dict]] = [[] for _ in outs]
+    records = [Records() for _ in outs]
     n_found = [0] * len(outs)
     n_several = 0  # input frames with more than one face in view (one-face capture)
     try:
@@ -130,7 +166,7 @@ def capture_video(
                 while (k * 1000.0 / fps) <= ts + 1e-6 and (max_frames is None or k < max_frames):
                     for i, res in enumerate(results):
                         n_found[i] += bool(res.face_found)
-                        records[i].append(result_record(res, k / fps))
+                        records[i].append(res)
                     if writer is not None:
                         from facecapges.capture.overlay import draw_overlay
 
@@ -145,19 +181,10 @@ def capture_video(
         src.close()
         if writer is not None:
             writer.close()
-    if not records[0]:
+    if not len(records[0]):
         raise UserError(f"{source}: no frames could be read")
-    from facecapges.io.face_json import write_face_json
-
     for p, rec in zip(outs, records):
-        write_face_json(
-            p,
-            np.stack([r["weights"] for r in rec]),
-            fps,
-            np.stack([r["head_rot6d"] for r in rec]),
-            layout=face_layout,
-            extras={k: [r[k] for r in rec] for k in ("face_found", "distance_m")},
-        )
+        rec.write(p, fps, face_layout)
     warnings = []
     if src.bad_frames:
         warnings.append(

@@ -127,6 +127,36 @@ class RunningStats:
 
 
 # ------------------------------------------------------------------------ loader
+def _index_problem(index: dict) -> str | None:
+    """What is wrong with a cache index's structure (a file from outside: types, and clip files
+    that stay inside the cache folder), or None."""
+    import math
+
+    clips = index.get("clips")
+    if not isinstance(clips, list) or not all(isinstance(c, dict) for c in clips):
+        return "'clips' is not a list of objects"
+    for c in clips:
+        name, file = c.get("name"), c.get("file")
+        if not isinstance(name, str) or not isinstance(file, str):
+            return "a clip without a 'name' and 'file'"
+        parts = Path(file).parts
+        if not parts or Path(file).is_absolute() or ".." in parts or "\0" in file:
+            return f"clip {name[:40]!r}: its file {file[:60]!r} is not inside the cache folder"
+        sp = c.get("speaker")
+        if isinstance(sp, bool) or not isinstance(sp, (int, str)) or not str(sp).strip().lstrip("-").isdigit():
+            return f"clip {name[:40]!r}: speaker {str(sp)[:20]!r} is not a number"
+        if not isinstance(c.get("split", ""), str):
+            return f"clip {name[:40]!r}: split is not a name"
+    for key in ("fps", "sr"):
+        v = index.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            return f"'{key}' is not a positive number"
+    for key in ("skeleton", "stats"):
+        if not isinstance(index.get(key, {}), dict):
+            return f"'{key}' is not an object"
+    return None
+
+
 class Cache:
     """Read access to a prepared cache folder.
 
@@ -146,11 +176,16 @@ class Cache:
             self.index: dict = json.loads(index_path.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise file_error(index_path, f"malformed cache index ({exc})") from None
-        if self.index.get("version") != CACHE_VERSION:
+        except RecursionError:
+            raise file_error(index_path, "malformed cache index (nested too deeply)") from None
+        if not isinstance(self.index, dict) or self.index.get("version") != CACHE_VERSION:
+            v = self.index.get("version") if isinstance(self.index, dict) else None
             raise file_error(
-                index_path,
-                f"cache version {self.index.get('version')} is not {CACHE_VERSION}; prepare it again with --force",
+                index_path, f"cache version {str(v)[:40]} is not {CACHE_VERSION}; prepare it again with --force"
             )
+        problem = _index_problem(self.index)
+        if problem:
+            raise file_error(index_path, f"malformed cache index ({problem}); prepare it again with --force")
         self._by_name = {c["name"]: c for c in self.index["clips"]}
 
     @property

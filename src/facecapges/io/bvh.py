@@ -114,6 +114,10 @@ def _parse_hierarchy(lines: list[str], path: Path) -> tuple[Skeleton, int]:
     return skel, i
 
 
+MIN_FRAME_TIME = 0.001  # 1000 fps: the fastest motion rate read (header values outside are refused)
+MAX_FRAME_TIME = 1.0  # 1 fps
+
+
 def read_bvh(path: str | Path) -> BVH:
     """Read a BVH file. Raises :class:`~facecapges.errors.UserError` naming the file."""
     path = require_file(path, "BVH file")
@@ -128,13 +132,16 @@ def read_bvh(path: str | Path) -> BVH:
         frame_time = float(lines[i + 1].split(":")[1])
     except (IndexError, ValueError):
         raise file_error(path, "malformed MOTION header (expected 'Frames:' and 'Frame Time:')") from None
-    if frame_time <= 0:
-        raise file_error(path, f"Frame Time must be positive, got {frame_time}")
+    if not MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME:
+        raise file_error(
+            path,
+            f"Frame Time {frame_time:g} s is out of range ({MIN_FRAME_TIME:g}–{MAX_FRAME_TIME:g} s, i.e. 1–1000 fps)",
+        )
+    if n_frames < 1:
+        raise file_error(path, f"Frames: {n_frames}; a BVH needs at least one motion frame")
     rows = [ln for ln in lines[i + 2 :] if ln.strip()]
     if len(rows) < n_frames:
         raise file_error(path, f"truncated BVH: header says {n_frames} frames, file has {len(rows)}")
-    if n_frames == 0:
-        raise file_error(path, "BVH has no motion frames")
     try:
         motion = np.array([np.array(r.split(), dtype=np.float64) for r in rows[:n_frames]])
     except ValueError:

@@ -46,6 +46,7 @@ output time); BEAT's loaders ignore the keys they do not know.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from dataclasses import dataclass, field
@@ -166,6 +167,31 @@ def _resample_grid(T: int, src_fps: float, dst_fps: float) -> tuple[np.ndarray, 
     return k0, np.minimum(k0 + 1, T - 1), np.maximum(pos - k0, 0.0)[:, None]
 
 
+WRITE_BLOCK = 4096  # output frames made and written at a time
+
+
+def _frame_block(w, head_rot6d, extras, k0, k1, a, first: int, out_fps: float, n_names: int) -> list[dict]:
+    """Face JSON frames ``first`` … of output frames blending source frames k0, k1 by a."""
+    rows = (1.0 - a) * w[k0] + a * w[k1]
+    head = None
+    if isinstance(head_rot6d, tuple):  # resampled: (quaternions of the source frames,)
+        from facecapges import rotations as rot
+
+        q = head_rot6d[0]
+        head = rot.matrix_to_rot6d(rot.quaternion_to_matrix(rot.quaternion_slerp(q[k0], q[k1], a)))
+    elif head_rot6d is not None:
+        head = head_rot6d[k0]
+    frames = []
+    for i, row in enumerate(rows):
+        fr: dict = {"time": round((first + i) / out_fps, 6), "weights": [round(float(v), 6) for v in row[:n_names]]}
+        if head is not None:
+            fr["head_rot6d"] = [round(float(v), 7) for v in head[i]]
+        for key, values in extras.items():
+            fr[key] = values[int(k0[i])]
+        frames.append(fr)
+    return frames
+
+
 def write_face_json(
     path: str | Path,
     weights52: np.ndarray,
@@ -201,32 +227,27 @@ def write_face_json(
             raise ValueError(f"extras[{key!r}] must have {w.shape[0]} values, got {len(values)}")
     names = list(ARKIT_NAMES)
     out_fps = float(fps)
-    src = np.arange(w.shape[0])
+    k0 = k1 = np.arange(w.shape[0])
+    a = np.zeros((w.shape[0], 1))
     if layout == "beat":
         names = list(BEAT_NAMES)
         out_fps = BEAT_FACE_FPS
         if w.shape[0] and abs(fps - out_fps) > 1e-9:
             k0, k1, a = _resample_grid(w.shape[0], fps, out_fps)
-            w, src = (1.0 - a) * w[k0] + a * w[k1], k0
             if head_rot6d is not None:
                 from facecapges import rotations as rot
 
-                q = rot.matrix_to_quaternion(rot.rot6d_to_matrix(head_rot6d))
-                head_rot6d = rot.matrix_to_rot6d(rot.quaternion_to_matrix(rot.quaternion_slerp(q[k0], q[k1], a)))
-        w = w[:, : len(BEAT_NAMES)]
-    frames = []
-    for i, row in enumerate(w):
-        fr: dict = {"time": round(i / out_fps, 6), "weights": [round(float(v), 6) for v in row]}
-        if head_rot6d is not None:
-            fr["head_rot6d"] = [round(float(v), 7) for v in head_rot6d[i]]
-        for key, values in extras.items():
-            fr[key] = values[int(src[i])]
-        frames.append(fr)
+                head_rot6d = (rot.matrix_to_quaternion(rot.rot6d_to_matrix(head_rot6d)),)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
-    tmp.write_text(
-        json.dumps({"names": names, "fps": out_fps, "frames": frames}, separators=(",", ":")), encoding="utf-8"
-    )
+    dumps = functools.partial(json.dumps, separators=(",", ":"))
+    with tmp.open("w", encoding="utf-8") as f:  # frame blocks as they are made: memory flat in the length
+        f.write('{"names":' + dumps(names) + ',"fps":' + dumps(out_fps) + ',"frames":[')
+        for b in range(0, len(k0), WRITE_BLOCK):
+            sl = slice(b, b + WRITE_BLOCK)
+            frames = _frame_block(w, head_rot6d, extras, k0[sl], k1[sl], a[sl], b, out_fps, len(names))
+            f.write(("," if b else "") + ",".join(dumps(fr) for fr in frames))
+        f.write("]}")
     tmp.replace(path)
     return path

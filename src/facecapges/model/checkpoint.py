@@ -61,6 +61,10 @@ def list_styles() -> dict[str, Path]:
     return out
 
 
+MAX_INSTALL_BYTES = {"checkpoint": 1 << 30, "log": 64 << 20, "card": 1 << 20, "fgd": 256 << 20}
+MAX_INSTALL_FILES = 256  # files of a model.fgd/ folder
+
+
 def install_style(run: str | Path, name: str | None = None, force: bool = False) -> Path:
     """Copy a trained model (a run folder or a ``.safetensors`` file) into :func:`user_styles_dir`.
 
@@ -69,31 +73,106 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     one (``model_card.md``) and its FGD autoencoder folder if ``fgd-train`` wrote one
     (``model.fgd/`` → ``NAME.fgd/``). An existing user style of that name is replaced
     only with ``force``.
+
+    What is copied comes from outside: a symbolic link anywhere in it (the checkpoint, the
+    log, the card, inside ``model.fgd/``) is refused, each file's size is capped
+    (:data:`MAX_INSTALL_BYTES`, checked while copying too), and everything is first copied
+    into a temporary folder of the styles store and moved into place only when all of it
+    was copied — a refused or failed install leaves the store as it was.
     """
     import re
     import shutil
+    import tempfile
 
     src = resolve(run)
     folder = src.parent
     name = name or (folder.name if src.name == "model.safetensors" else src.stem)
     if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
         raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    _no_link(src)
     load_checkpoint(src)  # refuse what would not load
     dest_dir = user_styles_dir()
     dest = dest_dir / f"{name}.safetensors"
     if dest.exists() and not force:
         raise UserError(f"{dest}: a style named {name!r} is installed; pass --force to replace it")
     dest_dir.mkdir(parents=True, exist_ok=True)
-    shutil.copyfile(src, dest)
-    extras = [(folder / "log.csv", dest_dir / f"{name}.log.csv"), (folder / "model_card.md", dest_dir / f"{name}.md")]
-    for a, b in extras:
-        if a.is_file():
-            shutil.copyfile(a, b)
+    parts = [(src, f"{name}.safetensors", "checkpoint")]
+    parts += [
+        (f, n, k)
+        for f, n, k in (
+            (folder / "log.csv", f"{name}.log.csv", "log"),
+            (folder / "model_card.md", f"{name}.md", "card"),
+        )
+        if f.is_symlink() or f.exists()
+    ]
     fgd = src.with_suffix(".fgd")
-    if fgd.is_dir():
-        shutil.rmtree(dest_dir / f"{name}.fgd", ignore_errors=True)
-        shutil.copytree(fgd, dest_dir / f"{name}.fgd")
+    stage = Path(tempfile.mkdtemp(prefix=f".install-{name}-", dir=dest_dir))
+    try:
+        for f, n, kind in parts:
+            _copy_regular(f, stage / n, MAX_INSTALL_BYTES[kind])
+        if fgd.is_symlink() or fgd.exists():
+            _copy_tree(fgd, stage / f"{name}.fgd")
+        for f in sorted(stage.iterdir(), key=lambda p: p.suffix == ".safetensors"):  # the checkpoint last
+            target = dest_dir / f.name
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            f.replace(target)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     return dest
+
+
+def _no_link(p: Path) -> None:
+    if p.is_symlink():
+        raise file_error(p, "is a symbolic link; styles install copies only the run's own files (copy it in)")
+
+
+def _copy_regular(src: Path, dst: Path, cap: int) -> int:
+    """Copy one regular file (never through a link), at most ``cap`` bytes; returns its size."""
+    import os
+    import stat
+
+    _no_link(src)
+    if not stat.S_ISREG(src.lstat().st_mode):  # a FIFO would block the open, a device never end
+        raise file_error(src, "is not a regular file")
+    try:  # no link, no blocking, even if it was swapped since the check
+        fd = os.open(src, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        raise file_error(src, f"cannot be read ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "rb") as f:
+        st = os.fstat(f.fileno())
+        if not stat.S_ISREG(st.st_mode):
+            raise file_error(src, "is not a regular file")
+        if st.st_size > cap:
+            raise file_error(src, f"is {st.st_size / 2**20:.1f} MB, more than a style's file may be ({cap >> 20} MB)")
+        n = 0
+        with open(dst, "wb") as out:
+            while chunk := f.read(1 << 20):
+                n += len(chunk)
+                if n > cap:  # it grew while we read
+                    raise file_error(src, f"is more than {cap >> 20} MB")
+                out.write(chunk)
+    return n
+
+
+def _copy_tree(src: Path, dst: Path) -> None:
+    """Copy a folder of regular files and folders (no links, at most MAX_INSTALL_FILES files, capped in size)."""
+    import os
+
+    _no_link(src)
+    if not src.is_dir():
+        raise file_error(src, "is not a folder")
+    budget, files = MAX_INSTALL_BYTES["fgd"], 0
+    for root, dirs, names in os.walk(src, followlinks=False):
+        r = Path(root)
+        (dst / r.relative_to(src)).mkdir(parents=True, exist_ok=True)
+        for d in dirs:
+            _no_link(r / d)
+        for n in names:
+            files += 1
+            if files > MAX_INSTALL_FILES:
+                raise file_error(src, f"holds more than {MAX_INSTALL_FILES} files")
+            budget -= _copy_regular(r / n, dst / r.relative_to(src) / n, budget)
 
 
 def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> Path:
@@ -128,6 +207,8 @@ class Checkpoint:
     @functools.cached_property
     def skeleton(self) -> Skeleton:
         """The checkpoint's skeleton, built once (its per-joint caches then serve every frame)."""
+        if "skeleton" not in self.meta:
+            raise file_error(self.path, "checkpoint has no skeleton in its metadata: it cannot write motion")
         return skeleton_from_dict(self.meta["skeleton"])
 
     @property
@@ -221,6 +302,7 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         cfg = model_config_from_dict(meta["model_config"])
     except UserError as exc:
         raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
+    _check_meta(p, meta)
     model = FaceCapGes(cfg)
     try:
         model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)
@@ -230,6 +312,35 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     if not all(torch.isfinite(v).all() for v in model.state_dict().values()):
         raise file_error(p, "checkpoint weights contain NaN or infinite values")
     return Checkpoint(model=model.eval(), meta=meta, path=p)
+
+
+CHANNEL_NAMES = {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
+
+
+def _check_meta(p: Path, meta: dict) -> None:
+    """The metadata a Checkpoint reads later (neutral window, skeleton): types and shapes, or a UserError."""
+    try:
+        if "neutral_window" not in meta:
+            raise KeyError("no neutral_window")
+        w = np.asarray(meta["neutral_window"], dtype=np.float64)
+        if w.ndim != 3 or w.shape[0] < 1 or w.shape[1:] != (47, 6) or not (np.abs(w) < 1e3).all():
+            raise ValueError(f"neutral_window has shape {w.shape}, expected (N, 47, 6) finite numbers")
+        if "skeleton" in meta:
+            sk = meta["skeleton"]
+            names, parents, channels = sk["names"], [int(x) for x in sk["parents"]], sk["channels"]
+            J = len(names)
+            offsets = np.asarray(sk["offsets"], dtype=np.float64)
+            if not J or len(parents) != J or len(channels) != J or offsets.shape != (J, 3):
+                raise ValueError("skeleton arrays of different lengths")
+            if not all(isinstance(n, str) for n in names) or len(set(names)) != J:
+                raise ValueError("skeleton names are not unique strings")
+            if any(not -1 <= q < i for i, q in enumerate(parents)) or not np.isfinite(offsets).all():
+                raise ValueError("skeleton parents or offsets out of range")
+            if not all(isinstance(c, list) and set(c) <= CHANNEL_NAMES for c in channels):
+                raise ValueError("skeleton channels are not BVH channel names")
+            skeleton_from_dict(sk)
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
+        raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
 
 
 def load_checkpoint_or_style(spec: str | Path) -> Checkpoint:

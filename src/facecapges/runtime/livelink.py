@@ -86,6 +86,7 @@ DEFAULT_PORT = 11111
 VERSION = 6
 N_VALUES = 61
 MAX_NAME_BYTES = 256  # longer id / subject fields are treated as malformed
+MAX_SUBJECTS = 16  # subject names a receiver remembers (a sender picks them: memory must not follow)
 _BLEND = [
     "EyeBlinkLeft",
     "EyeLookDownLeft",
@@ -292,7 +293,8 @@ class LiveLinkReceiver:
         self.packets = 0
         self.bad_packets = 0
         self.last_error = ""
-        self.subjects: set[str] = set()
+        self.subjects: set[str] = set()  # the first MAX_SUBJECTS names seen
+        self.other_subjects = 0  # packets of further names (not kept)
         self._latest: LiveLinkFrame | None = None
         self._seq = 0
         self._lock = threading.Lock()
@@ -320,7 +322,11 @@ class LiveLinkReceiver:
             fr.received_s = time.monotonic()
             with self._lock:
                 self.packets += 1
-                self.subjects.add(fr.subject)
+                if fr.subject not in self.subjects:
+                    if len(self.subjects) < MAX_SUBJECTS:
+                        self.subjects.add(fr.subject)
+                    else:
+                        self.other_subjects += 1  # counted, not kept: senders choose the names
                 self._latest = fr
                 self._seq += 1
 

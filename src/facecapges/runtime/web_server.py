@@ -33,6 +33,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
+from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import UserError
 from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
@@ -154,6 +155,7 @@ class ViewerServer:
                 ("Content-Type", ctype),
                 ("Content-Length", str(len(body))),
                 ("Cache-Control", "no-store"),
+                ("Content-Security-Policy", CONTENT_SECURITY_POLICY),
                 ("Connection", "close"),
             ]
         )

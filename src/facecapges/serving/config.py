@@ -22,8 +22,10 @@ class ServeConfig:
     first_input_timeout: float = 10.0  # seconds from hello to the first input (0 = no limit)
     min_input_rate: float = 1.0  # inputs per second a stream must keep over each rate_window (0 = none)
     rate_window: float = 10.0  # seconds
-    max_per_address: int | None = None  # streams per client address; None: 16, unlimited on loopback
     intensity: float = 1.0  # each new stream's gesture intensity (a client changes its own: protocol docs)
+    max_per_address: int | None = (
+        None  # streams per client address; None: 16 (unlimited on loopback, 16 per forwarded address)
+    )
 
     def check(self) -> None:
         """UserError for a setting no server can have (each named by its command-line option)."""

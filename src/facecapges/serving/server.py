@@ -38,7 +38,18 @@ Slots are for streams, not for sockets: the handshake must end within 10 s
 least ``min_input_rate`` inputs per second over every ``rate_window`` seconds (a live
 stream sends 15) — else it is closed (1008) and its slot freed. One client address may
 hold at most ``max_per_address`` streams (1013 beyond); by default 16, and no limit
-while the server is bound to loopback (every client is this machine, e.g. a local proxy).
+while the server is bound to loopback (every client is this machine) — except that a
+connection from loopback with an ``X-Forwarded-For`` header (a local reverse proxy) counts
+against the forwarded address, capped at ``max_per_address`` or 16.
+
+Fair admission when full: while some slot-holding stream has sent no input for
+:data:`EVICT_IDLE_S` seconds, a new client is not refused but let in *on probation* (a
+hello, no slot; at most ``max_streams`` such at once, the one waiting the longest closed to
+make room for a newer one). Its first input takes the slot of
+the stream idle the longest, which is closed (1013, "evicted"); a newcomer that sends no
+input evicts nobody and is closed by ``first_input_timeout``. A live stream (15 inputs a
+second) is never evicted, so clients that reopen idle sockets as they are closed cannot
+lock real ones out, even when every client shares one address (loopback, a proxy).
 Bad messages are answered and logged on one line per connection.
 
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
@@ -78,6 +89,22 @@ if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
+EVICT_IDLE_S = 2.0  # a stream without input this long gives its slot to a new client when the server is full
+
+
+def client_address(ws) -> tuple[str, bool]:
+    """(the address a stream counts against, whether a local proxy forwarded it).
+
+    A connection from loopback that carries ``X-Forwarded-For`` (a reverse proxy on this
+    machine) counts against the address the proxy saw — its last entry — so the per-address
+    cap holds behind a proxy too; from anywhere else the header is ignored (it is the client's word)."""
+    address = peer_host(ws)
+    if is_loopback(address):
+        request = getattr(ws, "request", None)
+        fwd = request.headers.get("X-Forwarded-For") if request is not None else None
+        if fwd and fwd.split(",")[-1].strip():
+            return fwd.split(",")[-1].strip()[:64], True
+    return address, False
 
 
 @dataclass
@@ -97,6 +124,7 @@ class _Stream:
     window_t0: float | None = None  # start of the rate window (the first input)
     intensity: float = 1.0  # the stream's intensity dial (its client's `intensity` messages)
     applied: float | None = None  # the value its slot has (set between ticks)
+    probation: bool = False  # connected while full: no slot until its first input takes an idle one
 
 
 _error = error_message
@@ -121,9 +149,8 @@ class StreamServer:
         # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
         self.gen = ModelProcess(checkpoint, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
-        self.per_address = (
-            c.max_per_address if c.max_per_address is not None else (c.max_streams if self.loopback_only else 16)
-        )
+        # streams per client address: None = no cap (loopback without a proxy: every client is this machine)
+        self.per_address = c.max_per_address if c.max_per_address is not None else (None if self.loopback_only else 16)
         self.log = log or (lambda *_: None)
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
@@ -166,14 +193,25 @@ class StreamServer:
     async def _handler(self, ws) -> None:
         from websockets.exceptions import ConnectionClosed
 
-        address = peer_host(ws)
+        address, forwarded = client_address(ws)
+        per_address = (self.cfg.max_per_address or 16) if forwarded else self.per_address
         refusal = None
-        if len(self.streams) >= self.cfg.max_streams:
-            self.stats["refused_full"] += 1
-            refusal = f"server full: {self.cfg.max_streams} streams; try again later"
-        elif sum(st.address == address for st in self.streams.values()) >= self.per_address:
+        probation = False
+        if per_address is not None and sum(st.address == address for st in self.streams.values()) >= per_address:
             self.stats["refused_address"] += 1
-            refusal = f"at most {self.per_address} streams per client address; try again later"
+            refusal = f"at most {per_address} streams per client address; try again later"
+        elif sum(not st.probation for st in self.streams.values()) >= self.cfg.max_streams:
+            probation = self._idlest(time.monotonic()) is not None
+            waiting = [st for st in self.streams.values() if st.probation and not st.closed]
+            if probation and len(waiting) >= self.cfg.max_streams:  # the oldest waiting one makes room
+                old = min(waiting, key=lambda s: s.last_input)
+                old.closed = True
+                self.streams.pop(old.id, None)
+                self.stats["evicted_waiting"] += 1
+                self._close_later(old.ws, 1013, "evicted: no input while the server was full")
+            if not probation:
+                self.stats["refused_full"] += 1
+                refusal = f"server full: {self.cfg.max_streams} streams; try again later"
         if refusal is not None:
             try:
                 await ws.send(_error(refusal))
@@ -196,6 +234,7 @@ class StreamServer:
             last_input=now,
             address=address,
             intensity=self.cfg.intensity,
+            probation=probation,
         )
         self._next_id += 1
         self.streams[st.id] = st
@@ -226,6 +265,11 @@ class StreamServer:
                     st.intensity = msg["value"]
                     await ws.send(protocol.encode_intensity(st.intensity))
                     continue
+                if st.probation and not self._admit(st, now):
+                    refusal = f"server full: {self.cfg.max_streams} streams; try again later"
+                    await ws.send(_error(refusal))
+                    await ws.close(1013, "server full")
+                    break
                 st.last_input = now
                 st.inputs += 1
                 if st.window_t0 is None:
@@ -255,6 +299,30 @@ class StreamServer:
                 self.stats["oversized_closes"] += 1
             self._wake.set()  # the batching task frees the slot between ticks
 
+    def _idlest(self, now: float) -> _Stream | None:
+        """The slot-holding stream without input for the longest, if that is :data:`EVICT_IDLE_S` or more."""
+        idle = [
+            st
+            for st in self.streams.values()
+            if not st.closed and not st.probation and now - st.last_input >= EVICT_IDLE_S
+        ]
+        return min(idle, key=lambda s: s.last_input) if idle else None
+
+    def _admit(self, st: _Stream, now: float) -> bool:
+        """A stream on probation sent its first input: give it a slot — a free one, or that of the
+        idlest stream, which is closed (1013, "evicted"). False when every slot streams."""
+        if sum(not s.probation for s in self.streams.values()) >= self.cfg.max_streams:
+            victim = self._idlest(now)
+            if victim is None:
+                self.stats["refused_full"] += 1
+                return False
+            victim.closed = True
+            self.streams.pop(victim.id, None)  # its slot is freed at the next tick, before this one's opens
+            self.stats["evicted_idle"] += 1
+            self._close_later(victim.ws, 1013, "evicted: idle while the server was full")
+        st.probation = False
+        return True
+
     # ---------------------------------------------------------------- ticks
     def _compute(self, slots: list[int], inputs: list) -> tuple[np.ndarray, np.ndarray]:
         """The worker thread's part of a tick: one batched step + quaternions."""
@@ -272,9 +340,9 @@ class StreamServer:
         for slot in self.gen.open_slots - live:
             self.gen.close(slot)
         for st in self.streams.values():
-            if st.slot is None:
+            if st.slot is None and not st.probation:
                 st.slot = self.gen.open()
-            if st.applied != st.intensity:
+            if st.slot is not None and st.applied != st.intensity:
                 self.gen.set_intensity(st.slot, st.intensity)
                 st.applied = st.intensity
 

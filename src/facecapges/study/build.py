@@ -75,6 +75,20 @@ def motion_file(study_dir: Path, clip: str, system: str) -> Path:
 INVITATIONS_FILE = "invitations.txt"
 
 
+def write_private(path: Path, text: str) -> Path:
+    """Write ``text`` atomically to ``path``, readable by its owner only (0600: it holds participant tokens)."""
+    import os
+
+    tmp = path.with_name(path.name + ".part")
+    tmp.unlink(missing_ok=True)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+    os.chmod(tmp, 0o600)  # whatever the umask
+    tmp.replace(path)
+    return path
+
+
 def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://127.0.0.1:8770") -> Path:
     """``invitations.txt``: one line per participant, ``ID  URL/?invite=TOKEN`` (written atomically)."""
     f = Path(study_dir) / INVITATIONS_FILE
@@ -82,9 +96,7 @@ def write_invitations(study_dir: Path, plan: StudyPlan, base_url: str = "http://
         "# one link per participant; each link is that participant's only credential",
         *(f"{p.id}\t{base_url.rstrip('/')}/?invite={p.token}" for p in plan.participants),
     ]
-    tmp = f.with_name(f.name + ".part")
-    tmp.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    tmp.replace(f)
+    write_private(f, "\n".join(lines) + "\n")
     return f
 
 
@@ -99,9 +111,7 @@ def ensure_tokens(study: Study) -> int:
         p.token = new_token()
     if missing:
         study.doc["plan"] = study.plan.to_json()
-        tmp = study.dir / (STUDY_FILE + ".part")
-        tmp.write_text(json.dumps(study.doc, indent=1) + "\n", encoding="utf-8")
-        tmp.replace(study.dir / STUDY_FILE)
+        write_private(study.dir / STUDY_FILE, json.dumps(study.doc, indent=1) + "\n")
     return len(missing)
 
 
@@ -219,9 +229,7 @@ def create_study(
         "plan": plan.to_json(),
     }
     (out / "responses").mkdir(exist_ok=True)
-    tmp = out / (STUDY_FILE + ".part")
-    tmp.write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-    tmp.replace(out / STUDY_FILE)
+    write_private(out / STUDY_FILE, json.dumps(doc, indent=1) + "\n")
     write_invitations(out, plan)
     return {
         "clips": len(cs.clips),
@@ -261,9 +269,13 @@ def open_study(study_dir: str | Path) -> Study:
         raise file_error(d, f"not a study folder (no {STUDY_FILE}); make one with 'facecapges study create'")
     try:
         doc = json.loads(f.read_text(encoding="utf-8"))
+        if not isinstance(doc, dict):
+            raise ValueError("not a JSON object")
         if doc.get("format") != FORMAT:
-            raise ValueError(f"format is {doc.get('format')!r}, expected {FORMAT!r}")
+            raise ValueError(f"format is {str(doc.get('format'))[:40]!r}, expected {FORMAT!r}")
         plan = StudyPlan.from_json(doc["plan"])
-    except (ValueError, KeyError, TypeError) as exc:
-        raise file_error(f, f"not a valid study file ({exc})") from None
+    except RecursionError:
+        raise file_error(f, "not a valid study file (nested too deeply)") from None
+    except (ValueError, KeyError, TypeError, AttributeError, IndexError) as exc:
+        raise file_error(f, f"not a valid study file ({exc.__class__.__name__}: {str(exc)[:100]})") from None
     return Study(d, doc, plan)

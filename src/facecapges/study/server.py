@@ -29,8 +29,11 @@ same invitation link resumes at the first unanswered clip.
 
 Bounds: a request body must state its ``Content-Length`` (411 without, 400 when it is
 not a number ≥ 0, 413 above :data:`MAX_BODY`); a connection that sends nothing for
-:data:`SOCKET_TIMEOUT` seconds is closed; at most :data:`MAX_CONNECTIONS` are served
-at once (more are answered 503 and closed); JSON nested deeper than Python can parse
+:data:`SOCKET_TIMEOUT` seconds is closed, and one whose request (head and body) has not
+all arrived :data:`REQUEST_DEADLINE` seconds after the server began waiting for it is cut
+(a client trickling a header line every few seconds holds no slot for long); at most
+:data:`MAX_CONNECTIONS` are served at once, :data:`MAX_PER_ADDRESS` of them from one client
+address (more are answered 503 and closed); JSON nested deeper than Python can parse
 is a 400; a damaged answer file is a 500 naming the file, logged once.
 """
 
@@ -45,6 +48,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import echo
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
@@ -66,6 +70,8 @@ _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\
 MAX_BODY = 64 * 1024
 SOCKET_TIMEOUT = 15.0  # seconds a connection may stay silent (headers, body, keep-alive)
 MAX_CONNECTIONS = 64  # connections served at once; more get 503
+MAX_PER_ADDRESS = 32  # of those, from one client address (half: a lab behind one NAT still gets in)
+REQUEST_DEADLINE = 30.0  # seconds from a request's first wait to its whole head and body (a trickle is cut)
 LANGUAGES = ("en", "zh")
 
 
@@ -249,14 +255,40 @@ class _Handler(BaseHTTPRequestHandler):
     timeout = SOCKET_TIMEOUT  # socket timeout of every read: a silent client is dropped
     default_request_version = "HTTP/1.0"  # error replies to garbage still carry a status line
 
+    request_deadline = REQUEST_DEADLINE
+
     def log_message(self, *args) -> None:  # the app reports what matters
         pass
 
+    def handle_one_request(self) -> None:
+        """One request, whose head and body must arrive within ``request_deadline`` (the socket
+        timeout bounds each read, this the whole: a client sending a byte now and then is cut)."""
+        self._deadline = threading.Timer(self.request_deadline, self._cut)
+        self._deadline.daemon = True
+        self._deadline.start()
+        try:
+            super().handle_one_request()
+        finally:
+            self._deadline.cancel()
+
+    def _cut(self) -> None:
+        import socket
+
+        self.close_connection = True
+        try:
+            self.connection.shutdown(socket.SHUT_RDWR)
+        except OSError:
+            pass
+
     def _send(self, status: int, data: bytes, ctype: str) -> None:
+        deadline = getattr(self, "_deadline", None)
+        if deadline is not None:  # the request has arrived: the reply is not under the deadline
+            deadline.cancel()
         self.send_response(status)
         self.send_header("Content-Type", ctype)
         self.send_header("Content-Length", str(len(data)))
         self.send_header("Cache-Control", "no-store")
+        self.send_header("Content-Security-Policy", CONTENT_SECURITY_POLICY)
         self.end_headers()
         if self.command != "HEAD":
             self.wfile.write(data)
@@ -317,13 +349,35 @@ class StudyServer(ThreadingHTTPServer):
     daemon_threads = True
     max_connections = MAX_CONNECTIONS
 
+    max_per_address = MAX_PER_ADDRESS
+    request_queue_size = 128  # listen backlog: connections past it wait unaccepted (and unanswered)
+
     def __init__(self, *args, **kwargs):
         self._slots = threading.BoundedSemaphore(self.max_connections)
+        self._per_address: dict[str, int] = {}
+        self._lock = threading.Lock()
         self.refused = 0
         super().__init__(*args, **kwargs)
 
+    def _take(self, address: str) -> bool:
+        with self._lock:
+            if self._per_address.get(address, 0) >= self.max_per_address:
+                return False
+            if not self._slots.acquire(blocking=False):
+                return False
+            self._per_address[address] = self._per_address.get(address, 0) + 1
+            return True
+
+    def _give(self, address: str) -> None:
+        with self._lock:
+            self._per_address[address] -= 1
+            if not self._per_address[address]:
+                del self._per_address[address]
+            self._slots.release()
+
     def process_request(self, request, client_address) -> None:
-        if not self._slots.acquire(blocking=False):
+        address = str(client_address[0]) if client_address else "?"
+        if not self._take(address):
             self.refused += 1
             try:
                 request.settimeout(1.0)
@@ -335,14 +389,14 @@ class StudyServer(ThreadingHTTPServer):
         try:
             super().process_request(request, client_address)
         except BaseException:
-            self._slots.release()
+            self._give(address)
             raise
 
     def process_request_thread(self, request, client_address) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._slots.release()
+            self._give(str(client_address[0]) if client_address else "?")
 
     def handle_error(self, request, client_address) -> None:  # a dropped client is no news
         pass
@@ -356,13 +410,21 @@ def make_server(
     language: str = StudyServeOptions.language,
     timeout: float = SOCKET_TIMEOUT,
     max_connections: int = MAX_CONNECTIONS,
+    max_per_address: int = MAX_PER_ADDRESS,
+    request_deadline: float = REQUEST_DEADLINE,
 ) -> StudyServer:
     """An HTTP server for ``study`` bound to ``host:port`` (port 0: any free port); not yet serving.
 
-    ``timeout``: seconds a connection may stay silent; ``max_connections``: served at once.
+    ``timeout``: seconds a connection may stay silent; ``max_connections``: served at once,
+    ``max_per_address`` of them from one address; ``request_deadline``: seconds a request may take to arrive.
     """
-    handler = type("StudyHandler", (_Handler,), {"app": StudyApp(study, on_event, language), "timeout": timeout})
-    server_cls = type("BoundStudyServer", (StudyServer,), {"max_connections": int(max_connections)})
+    app = StudyApp(study, on_event, language)
+    handler = type("StudyHandler", (_Handler,), {"app": app, "timeout": timeout, "request_deadline": request_deadline})
+    server_cls = type(
+        "BoundStudyServer",
+        (StudyServer,),
+        {"max_connections": int(max_connections), "max_per_address": int(max_per_address)},
+    )
     return server_cls((host, port), handler)
 
 

@@ -5,7 +5,10 @@
 ``chromium`` with software WebGL and no network use (a fresh ``--user-data-dir``,
 ``--remote-debugging-port=0``), opens one page and offers :meth:`Browser.evaluate`:
 run a JavaScript expression in the page, await it if it is a promise, and return its
-JSON value. Nothing is fetched from outside this machine.
+JSON value. Nothing is fetched from outside this machine: every request the page makes is
+intercepted (DevTools ``Fetch`` domain) and only our server's origin, the origins of pages we
+navigate to ourselves, and ``data:``/``blob:`` URLs go through; anything else fails unfetched
+and is listed in :attr:`Browser.blocked`. The pages also carry :data:`CONTENT_SECURITY_POLICY`.
 
 The page's three.js comes from ``node_modules/three`` of the project checkout
 (``scripts/setup-avatar.sh`` installs the pinned 0.187.0); :func:`three_dir` finds it.
@@ -54,6 +57,18 @@ CHROMIUM_FLAGS = [
 ]
 SETUP_HINT = "run scripts/setup-avatar.sh"
 
+# The Content-Security-Policy of every page we serve (renderer, live viewer, study): scripts, styles,
+# data and sockets from the serving origin only ('self'; in Chromium it covers ws:// to the same
+# host), embedded images/buffers as data: or blob: URLs. A crafted avatar or page cannot make the
+# browser reach anything else. Inline scripts are allowed: the pages' import maps and render loops
+# are inline, and nothing a user supplies is ever put into a page.
+CONTENT_SECURITY_POLICY = (
+    "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
+    "img-src 'self' data: blob:; media-src 'self' data: blob:; connect-src 'self' data: blob:; "
+    "font-src 'self' data:; worker-src 'self' blob:; object-src 'none'; base-uri 'none'; "
+    "form-action 'self'; frame-ancestors 'none'"
+)
+
 
 def web_dir() -> Path:
     """The package's web assets (avatar_scene.js, render.html)."""
@@ -88,6 +103,7 @@ class _Handler(SimpleHTTPRequestHandler):
 
     def end_headers(self) -> None:
         self.send_header("Cache-Control", "no-store")
+        self.send_header("Content-Security-Policy", CONTENT_SECURITY_POLICY)
         super().end_headers()
 
     def translate_path(self, path: str) -> str:
@@ -137,6 +153,8 @@ class Browser:
         self.width, self.height = width, height
         self.timeout = timeout
         self._id = 0
+        self.origins: set[str] = set()  # where the page may fetch from: our server and pages we navigate to
+        self.blocked: list[str] = []  # every other URL the page asked for (failed, never fetched)
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Browser:
@@ -148,6 +166,7 @@ class Browser:
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
         self._thread.start()
         port = self.server.server_address[1]
+        self.origins.add(f"http://127.0.0.1:{port}")
         self.profile = tempfile.mkdtemp(prefix="facecapges-chromium-")
         self.proc = subprocess.Popen(
             [
@@ -168,6 +187,7 @@ class Browser:
             self.ws = self._ws_cm.__enter__()
             self.call("Runtime.enable")
             self.call("Page.enable")
+            self.call("Fetch.enable", patterns=[{"urlPattern": "*"}])  # every request: _on_event decides
             self.call("Page.navigate", url=f"http://127.0.0.1:{port}{self.page}")
         except BaseException:
             self.close()
@@ -218,15 +238,31 @@ class Browser:
     # ------------------------------------------------------------------- protocol
     def call(self, method: str, **params) -> dict:
         """Send one DevTools command and return its result (events in between are skipped)."""
-        self._id += 1
-        my_id = self._id
-        self.ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        if method == "Page.navigate":  # a page we open ourselves: its origin may serve it
+            self.origins.add(_origin(str(params.get("url", ""))))
+        my_id = self._send(method, **params)
         while True:
             msg = json.loads(self.ws.recv(timeout=self.timeout))
             if msg.get("id") == my_id:
                 if "error" in msg:
                     raise RuntimeError(f"{method}: {msg['error']}")
                 return msg.get("result", {})
+            if msg.get("method") == "Fetch.requestPaused":
+                self._on_request(msg["params"])
+
+    def _send(self, method: str, **params) -> int:
+        self._id += 1
+        self.ws.send(json.dumps({"id": self._id, "method": method, "params": params}))
+        return self._id
+
+    def _on_request(self, params: dict) -> None:
+        """Request interception: our origins (and data:/blob:) go on, anything else fails unfetched."""
+        url = str(params.get("request", {}).get("url", ""))
+        if url.startswith(("data:", "blob:")) or _origin(url) in self.origins:
+            self._send("Fetch.continueRequest", requestId=params["requestId"])
+        else:
+            self.blocked.append(url)
+            self._send("Fetch.failRequest", requestId=params["requestId"], errorReason="BlockedByClient")
 
     def evaluate(self, expression: str):
         """Value of a JavaScript expression in the page (promises awaited), JSON-decoded."""
@@ -248,6 +284,18 @@ class Browser:
                 return self.evaluate(expression)
             time.sleep(0.05)
         raise RuntimeError(f"page never defined {expression}")
+
+
+def _origin(url: str) -> str:
+    """``scheme://host:port`` of a URL (the port spelled out), "" when it has none."""
+    from urllib.parse import urlsplit
+
+    try:
+        u = urlsplit(url)
+        port = u.port or {"http": 80, "https": 443, "ws": 80, "wss": 443}.get(u.scheme, 0)
+    except ValueError:
+        return ""
+    return f"{u.scheme}://{u.hostname}:{port}" if u.hostname else ""
 
 
 def avatar_routes(glb: bytes | Path) -> dict[str, object]:

@@ -70,15 +70,16 @@ def _our_avatar(o: RenderOptions, skeleton) -> tuple[bytes, list[str]]:
 
         doc = avatar_to_gltf(default_avatar(skeleton))
         return b"".join(doc.save_to_bytes()), list(skeleton.names)
-    import pygltflib
+    from facecapges.avatar.gltf_check import read_avatar_file
+    from facecapges.avatar.vrm import split_glb
 
     p = require_file(o.avatar_glb, "avatar")
-    try:
-        glb = p.read_bytes()
-        doc = pygltflib.GLTF2.load_from_bytes(glb)
-        return glb, doc.extras["facecapges"]["joint_names"]
-    except Exception as exc:  # noqa: BLE001 - any parse failure is the user's file
-        raise file_error(p, f"not a facecapges avatar .glb ({exc})") from None
+    glb = read_avatar_file(p)
+    doc, _ = split_glb(glb, str(p))  # self-contained and well-formed (avatar.gltf_check)
+    names = ((doc.get("extras") or {}).get("facecapges") or {}).get("joint_names")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise file_error(p, "not a facecapges avatar .glb (no joint_names in its extras)")
+    return glb, names
 
 
 def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dict:

@@ -60,7 +60,15 @@ def _open_page(
         info = b.wait_for("window.facecapges.ready")
         errors = b.evaluate("window.facecapges.errors")
         if errors:
-            raise RuntimeError(f"avatar page errors: {errors}")
+            raise UserError(f"the browser could not show the avatar: {str(errors)[:300]}")
+    except RuntimeError as exc:
+        b.close()
+        if "page error" not in str(exc):
+            raise
+        # the file passed avatar.gltf_check but three.js / three-vrm could not use it: still the user's file
+        raise UserError(
+            f"the browser could not load the avatar ({str(exc)[:300]}); re-export it as VRM / glTF 2.0"
+        ) from None
     except BaseException:
         b.close()
         raise

@@ -1,0 +1,195 @@
+"""Issue 28, items 3 and 4: slow clients cannot hold the servers' slots.
+
+* the study server: 70 sockets trickling one header line every second (from 127.0.0.2, another
+  loopback address) leave a participant (127.0.0.1) served, and each trickler is cut at the
+  request deadline;
+* ``serve`` on loopback (every client shares 127.0.0.1, as behind a local proxy): clients that
+  reopen idle sockets as they are closed do not lock a real client out (idle streams are evicted
+  first), and proxy-forwarded addresses are capped.
+
+Loopback only, bounded in sockets and seconds."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import socket
+import time
+import urllib.request
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from _study_media import make_clips
+from facecapges.study.build import create_study, open_study
+from facecapges.study.server import make_server, serve_in_thread
+
+
+@pytest.fixture(scope="module")
+def study_dir(tmp_path_factory, beat_bvh, beat_wav):
+    tmp = tmp_path_factory.mktemp("trust_servers")
+    y = make_clips(tmp / "src", beat_bvh, beat_wav, n_clips=2, seconds=1.0)
+    create_study(y, tmp / "study", 2, seed=5, progress=False)
+    return tmp / "study"
+
+
+def _trickler(port: int) -> socket.socket:
+    s = socket.create_connection(("127.0.0.1", port), timeout=5, source_address=("127.0.0.2", 0))
+    s.sendall(b"GET /api/info HTTP/1.1\r\n")
+    return s
+
+
+def test_trickling_clients_cannot_hold_the_study_server(study_dir):
+    server = make_server(open_study(study_dir), "127.0.0.1", 0, timeout=5.0, max_connections=64,
+                         request_deadline=3.0)
+    serve_in_thread(server)
+    port = server.server_address[1]
+    socks = []
+    try:
+        for _ in range(70):
+            try:
+                socks.append(_trickler(port))
+            except OSError:
+                pass
+        t0 = time.monotonic()
+        served = 0
+        while time.monotonic() - t0 < 2.5:  # the tricklers keep sending, the participant is served
+            for s in socks:
+                try:
+                    s.sendall(b"X-Slow: 1\r\n")
+                except OSError:
+                    pass
+            with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/info", timeout=5) as r:
+                served += r.status == 200
+            time.sleep(0.5)
+        assert served >= 4
+        assert server.refused >= 70 - server.max_per_address  # the rest of 127.0.0.2 got 503 at once
+        # … and the ones that got a slot are cut at the deadline although they never stopped sending
+        time.sleep(1.5)
+        cut = 0
+        for s in socks:
+            try:
+                s.sendall(b"X-Slow: 1\r\n")
+                s.settimeout(0.5)
+                cut += s.recv(100) == b""
+            except TimeoutError:  # still open, silent: not cut
+                pass
+            except OSError:  # reset / broken pipe: cut
+                cut += 1
+        assert cut == len(socks)
+    finally:
+        for s in socks:
+            s.close()
+        server.shutdown()
+        server.server_close()
+
+
+# ------------------------------------------------------------------ serve on loopback
+TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
+            lstm_hidden=16, mlp_hidden=16, disc_channels=8)
+
+
+@pytest.fixture(scope="module")
+def stream_server():
+    from facecapges.model.checkpoint import Checkpoint
+    from facecapges.model.config import ModelConfig
+    from facecapges.model.network import FaceCapGes
+    from facecapges.serving.server import ServeConfig, StreamServer
+
+    torch.manual_seed(0)
+    model = FaceCapGes(ModelConfig(**TINY)).eval()
+    neutral = np.zeros((16, 47, 6), np.float32)
+    neutral[..., 0] = neutral[..., 4] = 1.0
+    ck = Checkpoint(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+                    path=Path("random-init"))
+    servers = []
+
+    def make(**over):
+        s = StreamServer(ck, ServeConfig(port=0, **over)).start()
+        servers.append(s)
+        return s
+
+    yield make
+    for s in servers:
+        s.close()
+
+
+def _frame(k: int) -> str:
+    from facecapges.runtime import protocol
+
+    return protocol.encode_input(k, np.zeros(1067, np.float32), np.zeros(52, np.float32),
+                                 np.array([1, 0, 0, 0, 1, 0], np.float32))
+
+
+def test_reopened_idle_sockets_do_not_lock_out_a_real_client(stream_server):
+    from websockets.asyncio.client import connect
+
+    srv = stream_server(max_streams=6)  # first_input_timeout: the default 10 s
+    assert srv.loopback_only
+
+    async def attacker(stop: asyncio.Event):  # keeps every slot taken: reopens each socket as it is closed
+        async def one():
+            while not stop.is_set():
+                try:
+                    async with connect(srv.url) as ws:
+                        async for _ in ws:
+                            pass
+                except Exception:  # noqa: BLE001  refused or evicted: reopen at once
+                    await asyncio.sleep(0.05)
+        await asyncio.gather(*[one() for _ in range(12)])
+
+    async def good_client() -> bool:
+        try:
+            async with connect(srv.url) as ws:
+                if json.loads(await ws.recv())["type"] != "hello":
+                    return False
+                for k in range(20):  # a live stream: 15 frames a second
+                    await ws.send(_frame(k))
+                    if json.loads(await asyncio.wait_for(ws.recv(), 5))["type"] != "pose":
+                        return False
+                    await asyncio.sleep(1 / 15)
+                return True
+        except Exception:  # noqa: BLE001  refused or closed: not served
+            return False
+
+    async def main():
+        stop = asyncio.Event()
+        att = asyncio.ensure_future(attacker(stop))
+        await asyncio.sleep(3.0)  # every slot held by the attacker
+        results = []
+        for _ in range(6):
+            results.append(await good_client())
+            await asyncio.sleep(0.3)
+        stop.set()
+        att.cancel()
+        return results
+
+    results = asyncio.run(asyncio.wait_for(main(), 90))
+    assert sum(results) >= 5, results  # was 0 of 11 before the admission rule
+    assert srv.summary().get("evicted_idle", srv.stats["evicted_idle"]) >= 5
+
+
+def test_forwarded_addresses_are_capped_behind_a_local_proxy(stream_server):
+    from websockets.asyncio.client import connect
+
+    srv = stream_server(max_streams=20, max_per_address=3)
+
+    async def main():
+        held = []
+        for _ in range(3):
+            ws = await connect(srv.url, additional_headers={"X-Forwarded-For": "203.0.113.7"})
+            await ws.recv()
+            held.append(ws)
+        extra = await connect(srv.url, additional_headers={"X-Forwarded-For": "10.0.0.1, 203.0.113.7"})
+        msg = json.loads(await extra.recv())
+        other = await connect(srv.url, additional_headers={"X-Forwarded-For": "198.51.100.9"})
+        ok = json.loads(await other.recv())
+        for ws in (*held, extra, other):
+            await ws.close()
+        return msg, ok
+
+    msg, ok = asyncio.run(asyncio.wait_for(main(), 30))
+    assert msg["type"] == "error" and "per client address" in msg["message"]
+    assert ok["type"] == "hello"
