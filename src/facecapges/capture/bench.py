@@ -9,6 +9,13 @@
   with ``landmarks_ms_per_frame`` the MediaPipe part; video decoding is not counted;
 * quality: ``capture-eval`` on the HDTF clip (r of jawOpen / eyeBlink, head-pose
   median error; quick: first 100 frames only) and the synthetic-sequence MAE.
+
+Memory against video length is measured apart (it takes ~40 s per minute of video):
+``scripts/capture_memory.py --minutes 1 10 30`` loops the HDTF clip's frames into
+longer videos and reports ``capture``'s peak RSS. 2026-12-01 (issue 28, this 2-core
+machine, shared): 431 / 454 / 470 MB at 1 / 10 / 30 min of 25 fps video (the in-loop
+RSS 430 → 447 MB over 30 min, steps where the result arrays double). Before
+(per-frame dicts, the face JSON built whole in memory) it grew ~16 MB a minute.
 """
 
 from __future__ import annotations
