@@ -432,6 +432,8 @@ class BatchedEncoders:
     # calls) — but above 64 whole batched steps with either are within the machine's noise, so
     # large batches keep the torch schedules throughout (TCN and LSTM cascade as well)
     MEL_NATIVE_MAX_BATCH = 64
+    x_audio: torch.Tensor  # (slots, R_a, L_a, C_a): the audio TCN's shift registers
+    x_face: torch.Tensor  # (slots, R_f, L_f, C_f)
 
     def __init__(self, model, capacity: int = 8):
         self.model, cfg = model, model.cfg

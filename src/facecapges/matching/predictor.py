@@ -1,0 +1,516 @@
+"""The speech reader of the motion-matching engine: the near future of the arms, from the last second of speech.
+
+Each frame it estimates, causally, what the database is searched by (:mod:`facecapges.matching.targets`):
+the mean wrist speed and wrist height over the next 0.3 s and 0.6 s (:data:`TARGET_NAMES`, in the
+targets' own units), and the probability that the speaker is speaking now.
+
+**Network** (:class:`SpeechReader`). The thesis's causal encoders from :mod:`facecapges.model.network`
+— :class:`~facecapges.model.network.AudioEncoder` (Mel or raw front end, 12-layer kernel-2 TCN),
+:class:`~facecapges.model.network.FaceEncoder` (8-layer TCN, the audio embedding joined at layer 8)
+and :class:`~facecapges.model.network.HeadEncoder` (6 → 36 → 12) — built from a
+:class:`~facecapges.model.config.ModelConfig` with the thesis's dilations (receptive field 17
+frames, 1.1 s) and the same or smaller widths (:class:`PredictorSettings`), then a small MLP
+``[z_A; z_F; z_H] → K + 1`` (the K normalised targets and the speaking logit). Trained from
+scratch on the style's own takes: never initialised from a shipped style.
+
+**Training** (:func:`train_predictor`). Only frames before each take's ``train_until`` are read (the
+held-out 20 % is never touched: not its motion, audio, face or head); the last 20 % of those
+frames is the validation part, and every target is computed from the motion of its own part only
+(a training frame's future never reaches into validation motion, a validation frame's never into
+the held-out motion). Segments of :attr:`PredictorSettings.segment` frames; the first 16 frames
+of a segment that does not start the take only warm the TCNs up (no loss), so every loss frame sees
+exactly the causal context it sees when streaming. Face dropout (the whole segment's face zero: the
+"no face" input) and head dropout (the whole segment's head held at the camera-frame identity:
+the input an audio file gives, and BEAT's head is the Spine→Neck chain, which moves with the arms).
+Adam, early stopping on the validation loss **with the head held still**.
+
+**Inputs at run time**: per frame ≤ 1067 samples of 16 kHz audio, the 52 ARKit weights (zeros: no
+face) and the head rotation as rot6d in the model's camera frame (identity: facing the camera, the
+speaker's mean head rotation in the takes; :meth:`Predictor.camera_head` maps a take's skeleton
+head into it, as the thesis trainer does).
+
+**Speaking labels** (:func:`speaking_frames`): the code base has no voice-activity detector
+(``capture.speech_mouth`` only gates the jaw), so it is here: an energy VAD with hangover on a
+take's own audio (constants a priori, none fitted on evaluation data).
+
+**Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs the encoders through the
+generator's kernel (:class:`facecapges.model.batched.BatchedEncoders`: TCN shift registers, native
+small-batch loops), so a frame costs one tap per TCN layer; its outputs equal the network's
+over the whole sequence (tested).
+"""
+
+from __future__ import annotations
+
+import copy
+import itertools
+import math
+import threading
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from facecapges import rotations as rot
+from facecapges import timing
+from facecapges.matching.takes import Take
+from facecapges.matching.targets import TARGET_NAMES, arm_positions, future_targets
+from facecapges.model.audio_features import FEATURE_DIM, AudioFeatures
+from facecapges.model.config import ModelConfig
+from facecapges.model.network import (
+    AudioEncoder,
+    FaceEncoder,
+    HeadEncoder,
+    MelFrontend,
+    mlp,
+    set_input_statistics,
+)
+
+K = len(TARGET_NAMES)
+OUTPUT_NAMES: tuple[str, ...] = (*TARGET_NAMES, "speaking")
+FORMAT = "facecapges-speech-predictor"
+VERSION = 1
+VALIDATION_FRACTION = 0.2  # the last 20 % of each take's training frames
+
+# --------------------------------------------------------------------------- speaking labels
+VAD_GATE = 0.3  # speech: level above floor + 0.3 · (peak − floor), and at least 6 dB above the floor
+VAD_MIN_DB = 6.0
+VAD_FLOOR_PCT, VAD_PEAK_PCT = 10.0, 95.0  # the take's noise floor and speech peak, dB percentiles
+VAD_GAP_S = 0.2  # pauses shorter than this inside speech are speech (stops, short breaths)
+VAD_HANGOVER_S = 0.3  # speech is held this long after the level drops
+
+
+def frame_levels(audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR):
+    """Per-frame level (T,) in dB, ``10·log10(mean x² + 1e-10)`` over each frame's own samples."""
+    start, end = timing.frame_sample_bounds(np.arange(n_frames), fps, sr)
+    a = np.asarray(audio, np.float64)
+    sq = np.concatenate([[0.0], np.cumsum(a * a)])
+    s, e = np.minimum(start, len(a)), np.minimum(end, len(a))
+    return 10.0 * np.log10((sq[e] - sq[s]) / np.maximum(end - start, 1) + 1e-10)
+
+
+def speaking_frames(
+    audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR
+) -> np.ndarray:
+    """Energy VAD with hangover: (T,) bool, True where the speaker speaks (a training label, not causal).
+
+    A frame is loud when its level (:func:`frame_levels`) is above the take's noise floor (10th
+    percentile) by :data:`VAD_GATE` of the floor-to-peak range (peak: 95th percentile) and by
+    6 dB at least. Speech is the loud frames with gaps shorter than 0.2 s filled, each run
+    held 0.3 s longer (hangover).
+    """
+    lev = frame_levels(audio, n_frames, fps, sr)
+    if n_frames == 0:
+        return np.zeros(0, bool)
+    floor, peak = np.percentile(lev, [VAD_FLOOR_PCT, VAD_PEAK_PCT])
+    loud = lev > floor + max(VAD_MIN_DB, VAD_GATE * (peak - floor))
+    gap, hang = round(VAD_GAP_S * fps), round(VAD_HANGOVER_S * fps)
+    out = loud.copy()
+    idx = np.flatnonzero(loud)
+    for a, b in itertools.pairwise(idx):
+        if 1 < b - a <= gap + 1:
+            out[a:b] = True
+    for t in np.flatnonzero(loud):
+        out[t : t + hang + 1] = True
+    return out
+
+
+# --------------------------------------------------------------------------- the network
+@dataclass(frozen=True)
+class PredictorSettings:
+    """Sizes and training settings (ours; the widths the thesis's ModelConfig or smaller)."""
+
+    audio_repr: str = "mel"  # "mel" or "raw" (ModelConfig.audio_repr)
+    audio_tcn_channels: int = 64
+    audio_dim: int = 64
+    face_tcn_channels: int = 32
+    face_dim: int = 16
+    head_dim: int = 12
+    hidden: int = 64  # the output MLP's hidden width
+    segment: int = 48  # training segment (frames); the first 16 only warm the TCNs up
+    batch: int = 32
+    steps: int = 800  # at most; early stopping usually ends before
+    lr: float = 2e-3
+    weight_decay: float = 1e-4
+    face_dropout: float = 0.5
+    head_dropout: float = 0.5
+    eval_every: int = 25
+    patience: int = 8  # evaluations without a better validation loss
+    speaking_weight: float = 0.5
+
+    def model_config(self) -> ModelConfig:
+        return ModelConfig(
+            audio_repr=self.audio_repr,
+            audio_tcn_channels=self.audio_tcn_channels,
+            audio_dim=self.audio_dim,
+            face_tcn_channels=self.face_tcn_channels,
+            face_dim=self.face_dim,
+            head_dim=self.head_dim,
+        ).validate()
+
+
+class SpeechReader(nn.Module):
+    """The thesis's causal encoders + an MLP: per frame (audio, face, head) → K + 1 outputs (module docs)."""
+
+    def __init__(self, cfg: ModelConfig, hidden: int):
+        super().__init__()
+        self.cfg = cfg.validate()
+        self.audio_enc = AudioEncoder(cfg)
+        self.face_enc = FaceEncoder(cfg)
+        self.head_enc = HeadEncoder(cfg)
+        self.out = mlp([cfg.audio_dim + cfg.face_dim + cfg.head_dim, hidden, hidden, K + 1])
+
+    def audio_input(self, audio: torch.Tensor) -> torch.Tensor:
+        """(B, T, S) samples, or (B, T, 43) precomputed Mel features → (B, T, C) the audio TCN's input."""
+        front = self.audio_enc.frontend
+        if isinstance(front, MelFrontend) and audio.shape[-1] == FEATURE_DIM:
+            return front.out(F.leaky_relu(front.proj(audio), 0.2))  # MelFrontend.forward past its features
+        return front(audio)
+
+    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
+        """Whole sequences, causally: audio (B, T, S | 43), face (B, T, 52), head (B, T, 6) → (B, T, K + 1)."""
+        z_a = self.audio_enc.from_features(self.audio_input(audio))
+        z = torch.cat([z_a, self.face_enc(face, z_a), self.head_enc(head)], -1)
+        return self.out(z)
+
+
+# --------------------------------------------------------------------------- data
+def camera_head(head: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """A take's skeleton-frame head rotations (T, 6) → the model's camera frame (reference = facing it)."""
+    from facecapges.capture.head_pose import skeleton_head_to_camera
+
+    return skeleton_head_to_camera(head, reference)
+
+
+def take_targets(take: Take, stop: int) -> np.ndarray:
+    """:func:`future_targets` (stop, K) of the take's motion before frame ``stop`` only."""
+    pose = take.pose[:stop]
+    return future_targets(arm_positions(take.skeleton, pose), timing.MODEL_FPS)
+
+
+@dataclass
+class _Part:
+    """One take's training frames as arrays: audio input (T, S | 43), face, camera head, targets, labels."""
+
+    name: str
+    audio: np.ndarray
+    face: np.ndarray
+    head: np.ndarray
+    targets: np.ndarray  # (T, K) raw units: frames < v0 from the training motion, ≥ v0 from the validation's
+    speaking: np.ndarray  # (T,) float
+    v0: int  # first validation frame
+
+
+def audio_frames(audio: np.ndarray, n_frames: int, cfg: ModelConfig) -> np.ndarray:
+    """The network's audio input of ``n_frames`` frames: samples (T, 1067), or Mel features (T, 43)."""
+    frames = timing.frame_audio(audio, n_frames, cfg.fps, cfg.sr)
+    if cfg.audio_repr == "raw":
+        return frames
+    with torch.no_grad():
+        return AudioFeatures(cfg.sr, cfg.samples_per_frame)(torch.from_numpy(frames)).numpy()
+
+
+def _part(take: Take, cfg: ModelConfig, reference: np.ndarray) -> _Part:
+    stop = int(take.train_until)
+    v0 = int(math.floor(stop * (1.0 - VALIDATION_FRACTION)))
+    samples = int(timing.frame_sample_bounds(stop, cfg.fps, cfg.sr)[0])
+    audio = np.asarray(take.audio[:samples], np.float32)
+    targets = take_targets(take, stop)
+    targets[:v0] = take_targets(take, v0)
+    return _Part(
+        name=take.name,
+        audio=audio_frames(audio, stop, cfg),
+        face=np.asarray(take.face[:stop], np.float32),
+        head=camera_head(take.head[:stop], reference),
+        targets=targets,
+        speaking=speaking_frames(audio, stop, cfg.fps, cfg.sr).astype(np.float32),
+        v0=v0,
+    )
+
+
+def _input_statistics(parts: list[_Part], cfg: ModelConfig) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Input standardisation from the training frames, as the thesis trainer's (training.train.input_statistics)."""
+    head = np.concatenate([p.head for p in parts]).astype(np.float64)
+    face = np.concatenate([p.face for p in parts]).astype(np.float64)
+    h_mean = head.mean(0)
+    stats = {"head": (h_mean, np.full(6, 1.0 / max(float(np.sqrt(((head - h_mean) ** 2).sum(1).mean() / 6)), 1e-3)))}
+    if np.abs(face).max() > 0:
+        stats["face"] = (face.mean(0), 1.0 / np.maximum(face.std(0), 0.01))
+    else:  # no training frame has a face: the face never reaches the model
+        stats["face"] = (np.zeros(cfg.n_face), np.zeros(cfg.n_face))
+    audio = np.concatenate([p.audio for p in parts]).astype(np.float64)
+    if cfg.audio_repr == "raw":
+        stats["audio"] = (np.zeros(1), np.ones(1) / max(float(np.sqrt(np.mean(audio**2))), 1e-4))
+    else:
+        stats["audio"] = (audio.mean(0), 1.0 / np.maximum(audio.std(0), 1e-3))
+    return stats
+
+
+# --------------------------------------------------------------------------- training
+WARM = 16  # frames a segment's TCNs need before their output equals the streaming one (receptive field − 1)
+
+
+class _Batches:
+    """Random training segments of the parts' frames < v0, with face and head dropout (module docs)."""
+
+    def __init__(self, parts: list[_Part], s: PredictorSettings, mean: np.ndarray, sd: np.ndarray, seed: int):
+        self.L = max(2, min([s.segment] + [p.v0 for p in parts]))
+        self.s, self.rng = s, np.random.default_rng(seed)
+        self.parts = [p for p in parts if p.v0 >= self.L]
+        self.tensors = [
+            tuple(torch.from_numpy(np.ascontiguousarray(x)) for x in (p.audio, p.face, p.head, (p.targets - mean) / sd))
+            + (torch.from_numpy(p.speaking),)
+            for p in self.parts
+        ]
+        n = np.array([p.v0 - self.L + 1 for p in self.parts], np.float64)
+        self.weights = n / n.sum()
+        self.identity = torch.from_numpy(rot.identity_rot6d().astype(np.float32))
+
+    def sample(self) -> tuple[torch.Tensor, ...]:
+        """audio, face, head (B, L, …), normalised targets (B, L, K), speaking (B, L), loss mask (B, L)."""
+        B, L = self.s.batch, self.L
+        which = self.rng.choice(len(self.parts), size=B, p=self.weights)
+        rows = []
+        for k in which:
+            start = int(self.rng.integers(0, self.parts[k].v0 - L + 1))
+            rows.append([x[start : start + L] for x in self.tensors[k]] + [start])
+        audio, face, head, tgt, spk = (torch.stack([r[i] for r in rows]) for i in range(5))
+        mask = torch.ones(B, L)
+        for b, r in enumerate(rows):
+            if r[5] > 0:
+                mask[b, : min(WARM, L - 1)] = 0.0  # the TCNs' zero padding is not the take's past
+        face = face * (torch.from_numpy(self.rng.random(B) >= self.s.face_dropout).float()[:, None, None])
+        still = torch.from_numpy(self.rng.random(B) < self.s.head_dropout)
+        head = torch.where(still[:, None, None], self.identity.expand_as(head), head)
+        return audio, face, head, tgt, spk, mask
+
+
+def _loss(out: torch.Tensor, tgt: torch.Tensor, spk: torch.Tensor, mask: torch.Tensor, w_spk: float):
+    """Masked mean squared error of the normalised targets + w · the speaking logit's cross-entropy."""
+    m = mask / mask.sum().clamp(min=1.0)
+    mse = (((out[..., :K] - tgt) ** 2).mean(-1) * m).sum()
+    bce = (F.binary_cross_entropy_with_logits(out[..., K], spk, reduction="none") * m).sum()
+    return mse + w_spk * bce, mse, bce
+
+
+@torch.no_grad()
+def _validation_loss(net: SpeechReader, parts: list[_Part], mean, sd, w_spk: float, still: bool) -> float:
+    """The loss over every part's validation frames (the whole training part encoded: causal context)."""
+    total, n = 0.0, 0
+    ident = torch.from_numpy(rot.identity_rot6d().astype(np.float32))
+    for p in parts:
+        if p.v0 >= len(p.targets):
+            continue
+        head = torch.from_numpy(p.head)[None]
+        if still:
+            head = ident.expand_as(head)
+        out = net(torch.from_numpy(p.audio)[None], torch.from_numpy(p.face)[None], head)[0, p.v0 :]
+        tgt = torch.from_numpy((p.targets[p.v0 :] - mean) / sd)
+        loss, _, _ = _loss(out, tgt, torch.from_numpy(p.speaking[p.v0 :]), torch.ones(len(tgt)), w_spk)
+        total, n = total + float(loss) * len(tgt), n + len(tgt)
+    return total / max(n, 1)
+
+
+def train_predictor(
+    takes: list[Take], *, seed: int = 0, progress: bool = True, settings: PredictorSettings | None = None
+) -> Predictor:
+    """Train the speech reader on the takes' frames before ``train_until`` (module docs)."""
+    s = settings or PredictorSettings()
+    if not takes:
+        raise ValueError("train_predictor needs at least one take")
+    torch.manual_seed(seed)
+    cfg = s.model_config()
+    from facecapges.capture.head_pose import mean_rotation
+
+    reference = mean_rotation(np.concatenate([t.head[: t.train_until] for t in takes]))
+    parts = [_part(t, cfg, reference) for t in takes]
+    train_t = np.concatenate([p.targets[: p.v0] for p in parts]).astype(np.float64)
+    mean, sd = train_t.mean(0), np.maximum(train_t.std(0), 1e-6)
+    net = SpeechReader(cfg, s.hidden)
+    set_input_statistics(net, _input_statistics(parts, cfg))
+    best, history = _fit(net, parts, s, mean.astype(np.float32), sd.astype(np.float32), seed, progress)
+    net.load_state_dict(best)
+    config = {
+        "format": FORMAT,
+        "version": VERSION,
+        "outputs": list(OUTPUT_NAMES),
+        "settings": asdict(s),
+        "model": _json(asdict(cfg)),
+        "target_mean": [float(x) for x in mean],
+        "target_sd": [float(x) for x in sd],
+        "head_reference": [float(x) for x in np.asarray(reference).reshape(6)],
+        "takes": [t.name for t in takes],
+        "seed": int(seed),
+        "training": history,
+    }
+    return Predictor(net.eval(), config)
+
+
+def _fit(net: SpeechReader, parts: list[_Part], s: PredictorSettings, mean, sd, seed: int, progress: bool):
+    """Adam with early stopping on the head-still validation loss → (best weights, a summary of the run)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    batches = _Batches(parts, s, mean, sd, seed)
+    opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=s.weight_decay)
+    best_loss, best, best_step, waited, step = math.inf, copy.deepcopy(net.state_dict()), 0, 0, 0
+    columns = (TextColumn("[bold]speech predictor"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+    with Progress(*columns, TextColumn("{task.fields[info]}"), disable=not progress, transient=True) as bar:
+        task = bar.add_task("train", total=s.steps, info="")
+        for step in range(1, s.steps + 1):
+            net.train()
+            audio, face, head, tgt, spk, mask = batches.sample()
+            loss, _, _ = _loss(net(audio, face, head), tgt, spk, mask, s.speaking_weight)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            if step % s.eval_every == 0 or step == s.steps:
+                net.eval()
+                val = _validation_loss(net, parts, mean, sd, s.speaking_weight, still=True)
+                if val < best_loss:
+                    best_loss, best, best_step, waited = val, copy.deepcopy(net.state_dict()), step, 0
+                else:
+                    waited += 1
+                bar.update(task, info=f"validation {val:.3f} (best {best_loss:.3f} at {best_step})")
+                if waited >= s.patience:
+                    break
+            bar.update(task, advance=1)
+    return best, {"steps": step, "best_step": best_step, "validation_loss_head_still": best_loss}
+
+
+def _json(d: dict) -> dict:
+    return {k: list(v) if isinstance(v, tuple) else v for k, v in d.items()}
+
+
+# --------------------------------------------------------------------------- the trained predictor
+class Predictor:
+    """A trained speech reader: its network, and ``config`` (JSON: sizes, target normalisation, head reference)."""
+
+    def __init__(self, net: SpeechReader, config: dict[str, Any]):
+        self.net = net.eval()
+        self.config = config
+        self.mean = np.asarray(config["target_mean"], np.float32)
+        self.sd = np.asarray(config["target_sd"], np.float32)
+
+    def state_dict(self) -> dict[str, torch.Tensor]:
+        return {k: v.detach().clone() for k, v in self.net.state_dict().items()}
+
+    @classmethod
+    def from_state(cls, config: dict[str, Any], tensors: dict[str, torch.Tensor]) -> Predictor:
+        if config.get("format") != FORMAT or int(config.get("version", 0)) > VERSION:
+            raise ValueError(f"not a speech predictor of version ≤ {VERSION}: {config.get('format')!r}")
+        known = {f.name for f in fields(ModelConfig)}
+        mc: dict[str, Any] = {
+            k: tuple(v) if isinstance(v, list) else v for k, v in config["model"].items() if k in known
+        }
+        net = SpeechReader(ModelConfig(**mc), int(config["settings"]["hidden"]))
+        net.load_state_dict(tensors)
+        return cls(net, config)
+
+    @property
+    def output_names(self) -> tuple[str, ...]:
+        return OUTPUT_NAMES
+
+    def camera_head(self, head: np.ndarray) -> np.ndarray:
+        """Skeleton-frame head rotations (…, 6) of a take → the camera frame the predictor reads."""
+        return camera_head(head, np.asarray(self.config["head_reference"], np.float64))
+
+    def outputs(self, raw: np.ndarray) -> np.ndarray:
+        """Network outputs (…, K + 1) → targets in their units and the speaking probability."""
+        out = np.empty(raw.shape, np.float32)
+        out[..., :K] = raw[..., :K] * self.sd + self.mean
+        out[..., K] = 1.0 / (1.0 + np.exp(-np.clip(raw[..., K], -60.0, 60.0)))
+        return out
+
+    @torch.no_grad()
+    def predict(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
+        """A whole recording at once: audio (S,), face (T, 52), camera-frame head (T, 6) → (T, K + 1).
+
+        The network over the sequence (causal padding): the same values as stepping a stream.
+        """
+        cfg, T = self.net.cfg, len(face)
+        a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
+        f = torch.from_numpy(np.asarray(face, np.float32))[None]
+        h = torch.from_numpy(np.asarray(head, np.float32))[None]
+        return self.outputs(self.net(a, f, h)[0].numpy())
+
+    def stream(self) -> PredictorStream:
+        return PredictorStream(self)
+
+    def batched(self, capacity: int = 8) -> BatchedPredictor:
+        return BatchedPredictor(self, capacity)
+
+
+class BatchedPredictor:
+    """Independent causal streams of one predictor, stepped as one batch (slots as the generator's kernel)."""
+
+    def __init__(self, predictor: Predictor, capacity: int = 8):
+        from facecapges.model.batched import BatchedEncoders, affine_chain
+
+        self.predictor = predictor
+        self._lock = threading.RLock()
+        self._enc = BatchedEncoders(predictor.net, max(1, capacity))
+        self._out = affine_chain(predictor.net.out)
+        self._free: list[int] = list(range(self._enc.capacity - 1, -1, -1))
+        self._open: set[int] = set()
+
+    @property
+    def capacity(self) -> int:
+        return self._enc.capacity
+
+    def open(self) -> int:
+        """A new stream (before its first frame: the encoders' causal zeros); returns its slot."""
+        with self._lock:
+            if not self._free:
+                old = self._enc.capacity
+                self._enc.alloc(2 * old)
+                self._free = list(range(2 * old - 1, old - 1, -1))
+            slot = self._free.pop()
+            self._open.add(slot)
+            self._enc.reset(slot)
+            return slot
+
+    def close(self, slot: int) -> None:
+        with self._lock:
+            if slot in self._open:
+                self._open.discard(slot)
+                self._free.append(slot)
+
+    def reset(self, slot: int) -> None:
+        with self._lock:
+            if slot not in self._open:
+                raise KeyError(f"slot {slot} is not open")
+            self._enc.reset(slot)
+
+    @torch.inference_mode()
+    def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
+        """One frame per stream: audio (B, ≤ 1067), face (B, 52), camera-frame head (B, 6) → (B, K + 1)."""
+        with self._lock:
+            ids = [int(s) for s in slots]
+            if len(set(ids)) != len(ids):
+                raise ValueError("a stream can take only one frame per batched step")
+            closed = [s for s in ids if s not in self._open]
+            if closed:
+                raise KeyError(f"slot(s) {closed} are not open")
+            if not ids:
+                return np.zeros((0, K + 1), np.float32)
+            a, f, h = self._enc.clean_inputs(audio, face, head, len(ids))
+            e = self._enc.encode(torch.tensor(ids, dtype=torch.long), a, f, h)
+            return self.predictor.outputs(self._out(e).numpy())
+
+
+class PredictorStream:
+    """One causal stream: :meth:`step` per model frame (a one-slot :class:`BatchedPredictor`)."""
+
+    def __init__(self, predictor: Predictor):
+        self._batch = BatchedPredictor(predictor, 1)
+        self._slot = self._batch.open()
+
+    def step(self, audio_chunk: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
+        """This frame's audio (≤ 1067 samples), face (52,), camera-frame head (6,) → (K + 1,) float32."""
+        return self._batch.step([self._slot], [audio_chunk], face, head)[0]
+
+    def reset(self) -> None:
+        self._batch.reset(self._slot)
