@@ -130,6 +130,7 @@ class PredictorSettings:
     face_dim: int = 16
     head_dim: int = 12
     hidden: int = 64  # the output MLP's hidden width
+    dropout: float = 0.1  # on the embeddings [z_A; z_F; z_H] before the output MLP, training only
     segment: int = 48  # training segment (frames); the first 16 only warm the TCNs up
     batch: int = 32
     steps: int = 800  # at most; early stopping usually ends before
@@ -155,9 +156,10 @@ class PredictorSettings:
 class SpeechReader(nn.Module):
     """The thesis's causal encoders + an MLP: per frame (audio, face, head) → K + 1 outputs (module docs)."""
 
-    def __init__(self, cfg: ModelConfig, hidden: int):
+    def __init__(self, cfg: ModelConfig, hidden: int, dropout: float = 0.0):
         super().__init__()
         self.cfg = cfg.validate()
+        self.dropout = float(dropout)
         self.audio_enc = AudioEncoder(cfg)
         self.face_enc = FaceEncoder(cfg)
         self.head_enc = HeadEncoder(cfg)
@@ -174,7 +176,7 @@ class SpeechReader(nn.Module):
         """Whole sequences, causally: audio (B, T, S | 43), face (B, T, 52), head (B, T, 6) → (B, T, K + 1)."""
         z_a = self.audio_enc.from_features(self.audio_input(audio))
         z = torch.cat([z_a, self.face_enc(face, z_a), self.head_enc(head)], -1)
-        return self.out(z)
+        return self.out(F.dropout(z, self.dropout, self.training))
 
 
 # --------------------------------------------------------------------------- data
@@ -329,7 +331,7 @@ def train_predictor(
     parts = [_part(t, cfg, reference) for t in takes]
     train_t = np.concatenate([p.targets[: p.v0] for p in parts]).astype(np.float64)
     mean, sd = train_t.mean(0), np.maximum(train_t.std(0), 1e-6)
-    net = SpeechReader(cfg, s.hidden)
+    net = SpeechReader(cfg, s.hidden, s.dropout)
     set_input_statistics(net, _input_statistics(parts, cfg))
     best, history = _fit(net, parts, s, mean.astype(np.float32), sd.astype(np.float32), seed, progress)
     net.load_state_dict(best)
@@ -433,7 +435,7 @@ class Predictor:
         cfg, T = self.net.cfg, len(face)
         a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
         f = torch.from_numpy(np.asarray(face, np.float32))[None]
-        h = torch.from_numpy(np.asarray(head, np.float32))[None]
+        h = torch.from_numpy(np.array(head, np.float32))[None]
         return self.outputs(self.net(a, f, h)[0].numpy())
 
     def stream(self) -> PredictorStream:
@@ -514,3 +516,55 @@ class PredictorStream:
 
     def reset(self) -> None:
         self._batch.reset(self._slot)
+
+
+# --------------------------------------------------------------------------- figures
+def evaluation_frames(take: Take, part: str) -> tuple[int, int, np.ndarray]:
+    """(first, stop, targets (stop − first, K)) of a take's ``part``: "validation" (the last 20 % of
+    the training frames, motion before ``train_until`` only) or "heldout" (frames ≥ ``train_until``)."""
+    stop = int(take.train_until)
+    if part == "validation":
+        first = int(math.floor(stop * (1.0 - VALIDATION_FRACTION)))
+        return first, stop, take_targets(take, stop)[first:]
+    if part == "heldout":
+        return stop, take.n_frames, take_targets(take, take.n_frames)[stop:]
+    raise ValueError(f"part must be 'validation' or 'heldout', got {part!r}")
+
+
+def evaluate_predictor(predictor: Predictor, takes: list[Take], part: str = "validation") -> dict[str, Any]:
+    """Per target the correlation and R² (against the part's own mean) of predicted vs real, with the
+    take's head and with the head held still (identity), also against the training frames' mean
+    (the constant a predictor that learnt nothing would give), and the speaking probability's ROC AUC
+    against :func:`speaking_frames` of the part's audio. Inputs run causally from the take's start
+    to the part's end (never past it)."""
+    from sklearn.metrics import roc_auc_score
+
+    rows: dict[str, list[np.ndarray]] = {"real": [], "head": [], "still": [], "speaking": []}
+    for t in takes:
+        first, stop, real = evaluation_frames(t, part)
+        if stop <= first:
+            continue
+        samples = int(timing.frame_sample_bounds(stop)[0])
+        head = predictor.camera_head(t.head[:stop])
+        still = np.broadcast_to(rot.identity_rot6d().astype(np.float32), head.shape)
+        rows["real"].append(real)
+        rows["head"].append(predictor.predict(t.audio[:samples], t.face[:stop], head)[first:])
+        rows["still"].append(predictor.predict(t.audio[:samples], t.face[:stop], still)[first:])
+        seg = t.audio[int(timing.frame_sample_bounds(first)[0]) : samples]
+        rows["speaking"].append(speaking_frames(seg, stop - first))
+    real, spk = np.concatenate(rows["real"]), np.concatenate(rows["speaking"])
+    out: dict[str, Any] = {"part": part, "frames": len(real), "takes": [t.name for t in takes]}
+    for which in ("head", "still"):
+        pred = np.concatenate(rows[which])
+        per = {}
+        for k, name in enumerate(TARGET_NAMES):
+            y, p = real[:, k].astype(np.float64), pred[:, k].astype(np.float64)
+            r = float(np.corrcoef(y, p)[0, 1]) if y.std() > 0 and p.std() > 0 else float("nan")
+            sse = float(((y - p) ** 2).sum())
+            r2 = 1.0 - sse / max(float(((y - y.mean()) ** 2).sum()), 1e-12)
+            skill = 1.0 - sse / max(float(((y - predictor.mean[k]) ** 2).sum()), 1e-12)
+            per[name] = {"r": r, "r2": r2, "r2_vs_training_mean": skill}
+        auc = float(roc_auc_score(spk, pred[:, K])) if 0 < spk.mean() < 1 else float("nan")
+        out["real_head" if which == "head" else "head_still"] = {"targets": per, "speaking_auc": auc}
+    out["speaking_share"] = float(spk.mean())
+    return out
