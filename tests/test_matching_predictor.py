@@ -9,11 +9,12 @@ import numpy as np
 import pytest
 import torch
 
+from conftest import shared_file
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.matching.predictor import (
-    K,
     OUTPUT_NAMES,
+    K,
     Predictor,
     PredictorSettings,
     evaluate_predictor,
@@ -23,7 +24,6 @@ from facecapges.matching.predictor import (
 )
 from facecapges.matching.takes import load_take, make_take, mirror_take
 from facecapges.matching.targets import TARGET_NAMES
-from tests.conftest import shared_file
 
 TINY = PredictorSettings(
     audio_tcn_channels=16,
