@@ -158,7 +158,7 @@ def run_eval(
     from facecapges.evaluation.fgd import fgd_paths, load_fgd
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.checkpoint import load_checkpoint, network_only
     from facecapges.model.generate import generate_poses, prepare_inputs
 
     check_output_dir(
@@ -170,7 +170,7 @@ def run_eval(
     if split not in ("train", "val", "test", "all"):
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
-    ckpt = load_checkpoint(checkpoint, style)
+    ckpt = network_only(load_checkpoint(checkpoint, style), "eval")
     model_name = f"FaceCapGes ({ckpt.path.stem})"
     c = Cache(cache)
     fps, sr = c.fps, c.sr

@@ -157,6 +157,7 @@ class Database:
         return ((raw - self.mean) * self.feature_weights()).astype(np.float32)
 
     def tensors(self) -> dict[str, np.ndarray]:
+        assert self.mean is not None and self.scale is not None
         return {
             "db.pose": self.pose,
             "db.features": self.features,

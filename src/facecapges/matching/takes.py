@@ -112,7 +112,7 @@ def load_bvh_take(bvh_path: str | Path, wav_path: str | Path, target: Skeleton |
     if not bvh.skeleton.missing(UPPER_BODY):
         motion = timing.resample(bvh.motion, bvh.fps, timing.MODEL_FPS)
         pose, head = motion_to_pose(bvh.skeleton, motion)
-        return make_take(bvh_path.stem, pose, audio, bvh.skeleton, head=head, source=str(bvh_path))
+        return make_take(bvh_path.stem, pose, audio, bvh.skeleton, head=head, source=str(bvh_path), licence="")
     if target is None:
         raise file_error(bvh_path, "not a BEAT skeleton, and no BEAT skeleton was given to retarget it onto")
     from facecapges.data.retarget import retarget_bvh
@@ -138,17 +138,20 @@ def load_take(motion_path: str | Path, wav_path: str | Path, target: Skeleton | 
 
 
 def load_beat2_take(npz_path: Path, wav_path: Path, target: Skeleton | None) -> Take:
-    """A BEAT2 SMPL-X take (needs :mod:`facecapges.data.beat2`) on the BEAT skeleton ``target``."""
-    try:
-        from facecapges.data import beat2  # type: ignore[attr-defined]
-    except ImportError:
-        raise file_error(npz_path, "BEAT2 .npz takes are not supported by this version") from None
+    """A BEAT2 SMPL-X take (:mod:`facecapges.data.beat2`: BEAT upper body + jawOpen face) on ``target``.
+
+    ``target`` is the BEAT skeleton the poses belong to (BEAT2 has none of its own): a BEAT BVH's
+    or a style's (:func:`facecapges.model.checkpoint.load_skeleton`).
+    """
+    from facecapges.data import beat2
     from facecapges.io.audio import load_audio
 
     if target is None:
         raise file_error(npz_path, "a BEAT2 take needs a BEAT skeleton to put its poses on")
-    loaded = beat2.load_beat2(npz_path, fps=timing.MODEL_FPS)
-    return make_take(npz_path.stem, loaded.pose, load_audio(wav_path), target, face=loaded.face, source=str(npz_path))
+    pose, face = beat2.load_beat2_take(npz_path, fps=timing.MODEL_FPS)
+    return make_take(
+        npz_path.stem, pose, load_audio(wav_path), target, face=face, source=str(npz_path), licence="CC BY-NC 4.0"
+    )
 
 
 def mirror_take(take: Take) -> Take:

@@ -31,10 +31,12 @@ from facecapges.errors import UserError, file_error
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
+    from facecapges.matching.style import MatchingCheckpoint
     from facecapges.model.network import FaceCapGes
 
 DEFAULT_STYLE = "beat2-scott-demo"
 FORMAT = "facecapges-checkpoint-1"
+MATCHING_FORMAT = "facecapges-matching-1"  # a motion-matching style: facecapges.matching.style
 
 
 def styles_dir() -> Path:
@@ -124,6 +126,7 @@ class Checkpoint:
     model: FaceCapGes  # eval mode
     meta: dict
     path: Path
+    engine: str = "network"  # a matching style loads as facecapges.matching.style.MatchingCheckpoint
 
     @functools.cached_property
     def skeleton(self) -> Skeleton:
@@ -142,6 +145,11 @@ class Checkpoint:
         from facecapges.model.streaming import StreamingGenerator
 
         return StreamingGenerator(self.model, self.neutral_window)
+
+    def batched(self, capacity: int = 8):
+        from facecapges.model.batched import BatchedStreamingGenerator
+
+        return BatchedStreamingGenerator(self.model, self.neutral_window, capacity=capacity)
 
 
 def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> Path:
@@ -182,8 +190,14 @@ def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
     return tensors, meta
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
-    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint | MatchingCheckpoint:
+    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
+
+    A network style gives a :class:`Checkpoint` (``engine == "network"``), a motion-matching
+    style (format ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`
+    (``engine == "matching"``); both have ``meta``, ``path``, ``fps``, ``skeleton``,
+    ``neutral_window``, ``streaming()`` and ``batched(capacity)``.
+    """
     import torch
     from safetensors import SafetensorError, safe_open
 
@@ -203,6 +217,10 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         meta = json.loads(raw_meta)
     except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
+    if isinstance(meta, dict) and meta.get("format") == MATCHING_FORMAT:
+        from facecapges.matching.style import from_file
+
+        return from_file(p, tensors, meta)
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         fmt = meta.get("format") if isinstance(meta, dict) else None
         raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
@@ -224,7 +242,14 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     return Checkpoint(model=model.eval(), meta=meta, path=p)
 
 
-def load_checkpoint_or_style(spec: str | Path) -> Checkpoint:
+def network_only(ckpt: Checkpoint | MatchingCheckpoint, what: str) -> Checkpoint:
+    """``ckpt`` if it is a network style; a clear error for a matching style where only a network fits."""
+    if not isinstance(ckpt, Checkpoint):
+        raise UserError(f"{ckpt.path}: a motion-matching style; {what} needs a network style (FaceCapGes)")
+    return ckpt
+
+
+def load_checkpoint_or_style(spec: str | Path) -> Checkpoint | MatchingCheckpoint:
     """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
     path: a suffix or a folder in it) or else by an installed style's name."""
     p = Path(spec)
