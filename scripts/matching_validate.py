@@ -7,7 +7,7 @@ on the held-out [0.8·T, T) — only once the choices are final.
 
 Figures (per take and pooled): wrist spread and jerk ratios to the real motion, BeatAlign gap
 in sd of its shifted-audio control, pops a minute (frames whose largest joint angular
-acceleration exceeds the real training motion's 99.9th percentile), spread in pauses / spread
+acceleration exceeds the 99.9th percentile of every joint's acceleration in the real training motion), spread in pauses / spread
 in speech.
 
     PYTHONPATH=src python scripts/matching_validate.py --take BVH WAV [--take …] [--set k=v …]
@@ -53,7 +53,7 @@ def run(gen: MatchingGenerator, take, a: int, b: int) -> np.ndarray:
     return out
 
 
-def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: np.ndarray, switches: int) -> dict:
+def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, switches: int) -> dict:
     skel = take.skeleton
     real = take.pose[a:b]
     wr_g, wr_r = sy.wrist_positions(skel, gen_pose), sy.wrist_positions(skel, real)
@@ -102,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
         evals = [(int(0.64 * t.n_frames), t.train_until) for t in takes]
     db = build_database(takes, ranges, mirror=not args.no_mirror, **({"weights": weights} if weights else {}))
     train_acc = np.concatenate([joint_acceleration(t.pose[a:b]) for t, (a, b) in zip(takes, ranges)])
-    pop_thr = np.percentile(train_acc, 99.9, axis=0) + 1e-6  # per joint
+    pop_thr = float(np.percentile(train_acc, 99.9))  # over every joint and frame of the real training motion
     gen = MatchingGenerator(db, cfg)
     rows = []
     for take, (a, b) in zip(takes, evals):

@@ -102,12 +102,22 @@ def build_style(
     config: EngineConfig | None = None,
     target: Skeleton | None = None,
     say: Callable[[str], None] = print,
+    predictor_steps: int | None = None,
 ) -> Path:
     """Build, write and (without ``out``) install a matching style; returns its path (module docs)."""
-    from facecapges.matching.predictor import train_predictor
+    from dataclasses import replace
+
+    from facecapges.matching.predictor import PredictorSettings, train_predictor
     from facecapges.model.checkpoint import user_styles_dir
 
     check_name(name)
+    settings = PredictorSettings()
+    if predictor_steps is not None:
+        if predictor_steps < 1:
+            raise UserError(f"--steps must be at least 1, got {predictor_steps}")
+        settings = replace(
+            settings, steps=int(predictor_steps), eval_every=min(settings.eval_every, int(predictor_steps))
+        )
     dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
     if dest.suffix != ".safetensors":
         raise file_error(dest, "a style file must end in .safetensors")
@@ -120,7 +130,7 @@ def build_style(
     say("building the database (training frames and their mirror images)")
     db = build_database(takes)
     say(f"  {len(db)} frames ({len(db) / timing.MODEL_FPS:.0f} s)")
-    predictor = train_predictor(takes, seed=seed, progress=progress)
+    predictor = train_predictor(takes, seed=seed, progress=progress, settings=settings)
     licences = sorted({licence_of(t) for t in takes})
     meta = {
         "name": name,

@@ -124,6 +124,9 @@ def register(app: typer.Typer) -> None:
         out: Path | None = typer.Option(None, "--out", help="Write the style here instead of installing it."),
         force: bool = typer.Option(False, "--force", help="Replace an existing style file of that name."),
         seed: int = typer.Option(0, help="Seed of the speech predictor's training."),
+        steps: int | None = typer.Option(
+            None, help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial)."
+        ),
     ) -> None:
         """Build a motion-matching style from paired takes (motion + speech): database + speech predictor.
 
@@ -136,7 +139,7 @@ def register(app: typer.Typer) -> None:
         pairs = _take_pairs(take, wav or [])
         if not pairs:
             raise UserError("give at least one --take MOTION WAV")
-        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo)
+        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
 
     def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:
         """`--take MOTION WAV` pairs: typer reads one value per --take; each WAV follows as an extra argument."""
