@@ -18,7 +18,6 @@ from facecapges.matching.predictor import (
     Predictor,
     PredictorSettings,
     evaluate_predictor,
-    speaking_frames,
     take_targets,
     train_predictor,
 )
@@ -72,22 +71,6 @@ def _inputs(T: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     angles = rng.normal(0, 0.2, (T, 3))
     head = rot.euler_to_rot6d(angles, "XYZ").astype(np.float32)
     return audio, face, head
-
-
-def test_speaking_labels_follow_the_voice_with_hangover():
-    sr, fps = timing.AUDIO_SR, timing.MODEL_FPS
-    t = np.arange(10 * sr) / sr
-    loud = np.zeros_like(t)
-    loud[(t >= 2) & (t < 5)] = 1  # 3 s of voice, a 0.1 s stop inside it, then 5 s of near silence
-    loud[(t >= 3.5) & (t < 3.6)] = 0
-    rng = np.random.default_rng(0)
-    audio = (0.2 * loud * np.sin(2 * np.pi * 220 * t) + 1e-4 * rng.normal(size=len(t))).astype(np.float32)
-    lab = speaking_frames(audio, 150)
-    times = np.arange(150) / fps
-    assert not lab[times < 1.9].any()
-    assert lab[(times >= 2.1) & (times < 4.9)].all()  # the short stop is bridged
-    assert lab[(times >= 5.0) & (times < 5.25)].all()  # hangover
-    assert not lab[times >= 5.5].any()
 
 
 def test_stream_is_strictly_causal_and_equals_the_network(quick, beat_take):

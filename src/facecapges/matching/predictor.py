@@ -29,9 +29,8 @@ face) and the head rotation as rot6d in the model's camera frame (identity: faci
 speaker's mean head rotation in the takes; :meth:`Predictor.camera_head` maps a take's skeleton
 head into it, as the thesis trainer does).
 
-**Speaking labels** (:func:`speaking_frames`): the code base has no voice-activity detector
-(``capture.speech_mouth`` only gates the jaw), so it is here: an energy VAD with hangover on a
-take's own audio (constants a priori, none fitted on evaluation data).
+**Speaking labels** (:func:`speaking_frames`): the engine's energy VAD with hangover
+(:mod:`facecapges.matching.speech`, the one the database annotates with) over the take's own audio.
 
 **Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs the encoders through the
 generator's kernel (:class:`facecapges.model.batched.BatchedEncoders`: TCN shift registers, native
@@ -42,7 +41,6 @@ over the whole sequence (tested).
 from __future__ import annotations
 
 import copy
-import itertools
 import math
 import threading
 from collections.abc import Sequence
@@ -75,47 +73,15 @@ FORMAT = "facecapges-speech-predictor"
 VERSION = 1
 VALIDATION_FRACTION = 0.2  # the last 20 % of each take's training frames
 
+
 # --------------------------------------------------------------------------- speaking labels
-VAD_GATE = 0.3  # speech: level above floor + 0.3 · (peak − floor), and at least 6 dB above the floor
-VAD_MIN_DB = 6.0
-VAD_FLOOR_PCT, VAD_PEAK_PCT = 10.0, 95.0  # the take's noise floor and speech peak, dB percentiles
-VAD_GAP_S = 0.2  # pauses shorter than this inside speech are speech (stops, short breaths)
-VAD_HANGOVER_S = 0.3  # speech is held this long after the level drops
+def speaking_frames(audio: np.ndarray, n_frames: int) -> np.ndarray:
+    """(T,) bool: the engine's own VAD (:func:`facecapges.matching.speech.speech_track`) over the audio —
+    the speaking state the database annotates its frames with, so the probability predicted here
+    means what the database's ``speaking`` feature means."""
+    from facecapges.matching.speech import speech_track
 
-
-def frame_levels(audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR):
-    """Per-frame level (T,) in dB, ``10·log10(mean x² + 1e-10)`` over each frame's own samples."""
-    start, end = timing.frame_sample_bounds(np.arange(n_frames), fps, sr)
-    a = np.asarray(audio, np.float64)
-    sq = np.concatenate([[0.0], np.cumsum(a * a)])
-    s, e = np.minimum(start, len(a)), np.minimum(end, len(a))
-    return 10.0 * np.log10((sq[e] - sq[s]) / np.maximum(end - start, 1) + 1e-10)
-
-
-def speaking_frames(
-    audio: np.ndarray, n_frames: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR
-) -> np.ndarray:
-    """Energy VAD with hangover: (T,) bool, True where the speaker speaks (a training label, not causal).
-
-    A frame is loud when its level (:func:`frame_levels`) is above the take's noise floor (10th
-    percentile) by :data:`VAD_GATE` of the floor-to-peak range (peak: 95th percentile) and by
-    6 dB at least. Speech is the loud frames with gaps shorter than 0.2 s filled, each run
-    held 0.3 s longer (hangover).
-    """
-    lev = frame_levels(audio, n_frames, fps, sr)
-    if n_frames == 0:
-        return np.zeros(0, bool)
-    floor, peak = np.percentile(lev, [VAD_FLOOR_PCT, VAD_PEAK_PCT])
-    loud = lev > floor + max(VAD_MIN_DB, VAD_GATE * (peak - floor))
-    gap, hang = round(VAD_GAP_S * fps), round(VAD_HANGOVER_S * fps)
-    out = loud.copy()
-    idx = np.flatnonzero(loud)
-    for a, b in itertools.pairwise(idx):
-        if 1 < b - a <= gap + 1:
-            out[a:b] = True
-    for t in np.flatnonzero(loud):
-        out[t : t + hang + 1] = True
-    return out
+    return np.asarray(speech_track(audio, n_frames).speaking, bool)
 
 
 # --------------------------------------------------------------------------- the network
@@ -228,7 +194,7 @@ def _part(take: Take, cfg: ModelConfig, reference: np.ndarray) -> _Part:
         face=np.asarray(take.face[:stop], np.float32),
         head=camera_head(take.head[:stop], reference),
         targets=targets,
-        speaking=speaking_frames(audio, stop, cfg.fps, cfg.sr).astype(np.float32),
+        speaking=speaking_frames(audio, stop).astype(np.float32),
         v0=v0,
     )
 
