@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -41,19 +42,77 @@ def joint_acceleration(pose: np.ndarray) -> np.ndarray:
     return np.linalg.norm(np.diff(v, axis=0), axis=-1) * FPS
 
 
+def switch_pops(pop: np.ndarray, jumps: np.ndarray) -> int:
+    """Pop frames (acceleration index t is frame t + 1) within 2 frames after a clip switch."""
+    near = np.zeros(len(jumps), bool)
+    for d in range(3):
+        near[d:] |= jumps[: len(jumps) - d]
+    return int((pop & near[1 : len(pop) + 1]).sum())
+
+
 def spread(w: np.ndarray) -> float:
     return float(sy.wrist_spread(w)) if len(w) > 3 else float("nan")
 
 
-def run(gen: MatchingGenerator, take, a: int, b: int) -> np.ndarray:
+def run(
+    gen: MatchingGenerator, take, a: int, b: int, predictor=None, lead_in: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Poses of frames [a, b) and whether each frame starts a new clip; the stream starts ``lead_in``
+    frames earlier (inputs only: different lead-ins give different paths through the database)."""
     gen.reset()
+    head = take.head if predictor is None else predictor.camera_head(take.head).astype(np.float32)
     out = np.empty((b - a, 47, 6), np.float32)
-    for t in range(a, b):
-        out[t - a] = gen.step(take.audio[t * SPF : (t + 1) * SPF], take.face[t], take.head[t])
-    return out
+    jumps = np.zeros(b - a, bool)
+    prev = gen.playing_row
+    for t in range(a - lead_in, b):
+        p = gen.step(take.audio[t * SPF : (t + 1) * SPF], take.face[t], head[t])
+        if t >= a:
+            out[t - a] = p
+            jumps[t - a] = gen.playing_row != prev + 1
+        prev = gen.playing_row
+    return out, jumps
 
 
-def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, switches: int) -> dict:
+def run_network(style: str, take, a: int, b: int, lead_in: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """The network style's streaming poses of frames [a, b) (its camera-frame head as eval feeds it)."""
+    from facecapges.capture.head_pose import skeleton_head_to_camera
+    from facecapges.model.checkpoint import load_checkpoint
+
+    ck = load_checkpoint(style=style)
+    ref = ck.meta.get("head_reference_rot6d")
+    head = take.head if ref is None else skeleton_head_to_camera(take.head, ref).astype(np.float32)
+    gen = ck.streaming()
+    out = np.empty((b - a, 47, 6), np.float32)
+    for t in range(a - lead_in, b):
+        p = gen.step(take.audio[t * SPF : (t + 1) * SPF], take.face[t], head[t])
+        if t >= a:
+            out[t - a] = p
+    return out, np.zeros(b - a, bool)
+
+
+def cached_predictor(takes, stop: list[int], steps: int | None):
+    """The speech predictor trained on frames [0, stop) of each take (cached in /tmp by takes and stops)."""
+    import hashlib
+    from dataclasses import replace
+
+    from safetensors.torch import load_file, save_file
+
+    from facecapges.matching.predictor import Predictor, PredictorSettings, train_predictor
+
+    key = hashlib.sha1(json.dumps([[t.name for t in takes], stop, steps]).encode()).hexdigest()[:12]
+    path = Path(f"/tmp/mm-predictor-{key}.safetensors")
+    if path.is_file():
+        meta = json.loads(path.with_suffix(".json").read_text())
+        return Predictor.from_state(meta, load_file(str(path)))
+    s = PredictorSettings() if steps is None else replace(PredictorSettings(), steps=steps)
+    cut = [replace(t, train_until=b) for t, b in zip(takes, stop, strict=True)]
+    pred = train_predictor(cut, seed=0, progress=False, settings=s)
+    save_file({k: v.contiguous() for k, v in pred.state_dict().items()}, str(path))
+    path.with_suffix(".json").write_text(json.dumps(pred.config))
+    return pred
+
+
+def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: np.ndarray) -> dict:
     skel = take.skeleton
     real = take.pose[a:b]
     wr_g, wr_r = sy.wrist_positions(skel, gen_pose), sy.wrist_positions(skel, real)
@@ -74,7 +133,8 @@ def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, switches
         "ba_gap_sd_real": sy.beat_align_gap_sd(ctl_r),
         "pops_per_min": float((acc > 1).sum() / (dur / 60.0)),
         "pops_per_min_real": float((acc_r > 1).sum() / (dur / 60.0)),
-        "switches_per_s": float(switches / dur),
+        "switch_pops_per_min": float(switch_pops(acc > 1, jumps) / (dur / 60.0)),
+        "switches_per_s": float(jumps[1:].sum() / dur),
         "pause_share": float(1.0 - sp.mean()),
         "pause_over_speech_spread": spread(wr_g[~sp]) / spread(wr_g[sp]),
         "pause_over_speech_spread_real": spread(wr_r[~sp]) / spread(wr_r[sp]),
@@ -89,6 +149,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--weights", nargs="*", default=[], help="feature group weights k=v")
     ap.add_argument("--heldout", action="store_true")
     ap.add_argument("--no-mirror", action="store_true")
+    ap.add_argument("--predictor", action="store_true", help="train (or reuse) the speech predictor on the same frames")
+    ap.add_argument("--network", default=None, help="score this network style instead (same windows, same figures)")
+    ap.add_argument("--starts", type=int, default=1, help="runs per window with lead-ins of 0, 1, 2 … s")
+    ap.add_argument("--steps", type=int, default=None, help="predictor training steps")
     args = ap.parse_args(argv)
     target = load_take(*args.skeleton_from.split(",")).skeleton if args.skeleton_from else None
     takes = [load_take(m, w, target) for m, w in args.take]
@@ -103,11 +167,18 @@ def main(argv: list[str] | None = None) -> int:
     db = build_database(takes, ranges, mirror=not args.no_mirror, **({"weights": weights} if weights else {}))
     train_acc = np.concatenate([joint_acceleration(t.pose[a:b]) for t, (a, b) in zip(takes, ranges)])
     pop_thr = float(np.percentile(train_acc, 99.9))  # over every joint and frame of the real training motion
-    gen = MatchingGenerator(db, cfg)
+    predictor = (
+        cached_predictor(takes, [b for _, b in ranges], args.steps) if args.predictor and not args.network else None
+    )
+    gen = MatchingGenerator(db, cfg, predictor)
     rows = []
     for take, (a, b) in zip(takes, evals):
-        pose = run(gen, take, a, b)
-        rows.append(figures(take, pose, a, b, pop_thr, int(gen.kernel.switches[0])))
+        for k in range(args.starts):
+            if args.network:
+                pose, jumps = run_network(args.network, take, a, b, lead_in=min(a, 15 * k))
+            else:
+                pose, jumps = run(gen, take, a, b, predictor, lead_in=min(a, 15 * k))
+            rows.append(figures(take, pose, a, b, pop_thr, jumps))
     keys = [k for k in rows[0] if k not in ("take", "frames")]
     pooled = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
     json.dump({"config": cfg.as_dict(), "weights": db.weights, "rows": rows, "mean": pooled}, sys.stdout, indent=1)
