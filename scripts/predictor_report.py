@@ -75,8 +75,32 @@ def main() -> None:
                 run["heldout"] = evaluate_predictor(pred, own, "heldout")
             report["runs"].append(run)
             print(summary(run), flush=True)
+    for line in aggregate(report["runs"]):
+        print(line)
     if args.out:
         args.out.write_text(json.dumps(report, indent=1))
+
+
+def aggregate(runs: list[dict]) -> list[str]:
+    """Mean ± sd over seeds, per speaker, part and head input: r and R² (vs the training mean) per target, AUC."""
+    lines = []
+    for name in dict.fromkeys(r["speaker"] for r in runs):
+        own = [r for r in runs if r["speaker"] == name]
+        for part in ("validation", "heldout"):
+            for which in ("real_head", "head_still"):
+                if part not in own[0]:
+                    continue
+                figs = [r[part][which] for r in own]
+                cells = []
+                for k in figs[0]["targets"]:
+                    r_ = np.array([f["targets"][k]["r"] for f in figs])
+                    r2 = np.array([f["targets"][k]["r2_vs_training_mean"] for f in figs])
+                    cells.append(f"{k}: r {r_.mean():+.2f}±{r_.std():.2f} R² {r2.mean():+.2f}±{r2.std():.2f}")
+                auc = np.array([f["speaking_auc"] for f in figs])
+                lines.append(
+                    f"{name} {part} {which} ({len(own)} seeds): " + "  ".join(cells) + f"  AUC {auc.mean():.2f}"
+                )
+    return lines
 
 
 def summary(run: dict) -> str:

@@ -180,6 +180,7 @@ def test_trained_predictor_beats_the_mean_on_zeggs_validation(zeggs_take):
     figures = evaluate_predictor(pred, [zeggs_take], "validation")["head_still"]
     for name in ("wrist_speed_0.3s", "wrist_speed_0.6s"):
         f = figures["targets"][name]
-        assert f["r"] > 0.3, (name, f)
-        assert f["r2_vs_training_mean"] > 0.0, (name, f)
-    assert figures["speaking_auc"] > 0.8
+        # five seeds gave r 0.45–0.59, R² 0.19–0.32; untrained (one step): R² −0.06 … 0.00
+        assert f["r"] > 0.35, (name, f)
+        assert f["r2_vs_training_mean"] > 0.1, (name, f)
+    assert figures["speaking_auc"] > 0.9

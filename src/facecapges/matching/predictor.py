@@ -90,12 +90,12 @@ class PredictorSettings:
     """Sizes and training settings (ours; the widths the thesis's ModelConfig or smaller)."""
 
     audio_repr: str = "mel"  # "mel" or "raw" (ModelConfig.audio_repr)
-    audio_tcn_channels: int = 64
-    audio_dim: int = 64
-    face_tcn_channels: int = 32
-    face_dim: int = 16
-    head_dim: int = 12
-    hidden: int = 64  # the output MLP's hidden width
+    audio_tcn_channels: int = 32  # the thesis config: 64
+    audio_dim: int = 32  # 128
+    face_tcn_channels: int = 32  # 32
+    face_dim: int = 8  # 32
+    head_dim: int = 12  # 12
+    hidden: int = 32  # the output MLP's hidden width
     dropout: float = 0.1  # on the embeddings [z_A; z_F; z_H] before the output MLP, training only
     segment: int = 48  # training segment (frames); the first 16 only warm the TCNs up
     batch: int = 32
@@ -314,7 +314,19 @@ def train_predictor(
         "seed": int(seed),
         "training": history,
     }
-    return Predictor(net.eval(), config)
+    pred = Predictor(net.eval(), config)
+    own = [t for t in takes if not t.mirrored] or takes  # a mirror has the same audio and targets
+    config["validation"] = _finite_json(evaluate_predictor(pred, own, "validation"))
+    return pred
+
+
+def _finite_json(x: Any) -> Any:
+    """``x`` with NaN / inf floats as None (strict JSON)."""
+    if isinstance(x, dict):
+        return {k: _finite_json(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite_json(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
 
 
 def _fit(net: SpeechReader, parts: list[_Part], s: PredictorSettings, mean, sd, seed: int, progress: bool):
@@ -516,8 +528,7 @@ def evaluate_predictor(predictor: Predictor, takes: list[Take], part: str = "val
         rows["real"].append(real)
         rows["head"].append(predictor.predict(t.audio[:samples], t.face[:stop], head)[first:])
         rows["still"].append(predictor.predict(t.audio[:samples], t.face[:stop], still)[first:])
-        seg = t.audio[int(timing.frame_sample_bounds(first)[0]) : samples]
-        rows["speaking"].append(speaking_frames(seg, stop - first))
+        rows["speaking"].append(speaking_frames(t.audio[:samples], stop)[first:])  # the VAD from the take's start
     real, spk = np.concatenate(rows["real"]), np.concatenate(rows["speaking"])
     out: dict[str, Any] = {"part": part, "frames": len(real), "takes": [t.name for t in takes]}
     for which in ("head", "still"):
