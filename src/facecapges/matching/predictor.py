@@ -36,6 +36,19 @@ head into it, as the thesis trainer does).
 generator's kernel (:class:`facecapges.model.batched.BatchedEncoders`: TCN shift registers, native
 small-batch loops), so a frame costs one tap per TCN layer; its outputs equal the network's
 over the whole sequence (tested).
+
+**Choices and figures** (``scripts/predictor_report.py``; head held still; mean of seeds 0–2;
+r and R² against the training mean). Mel front end, not raw samples: a raw training step cost 13×
+a Mel one (2.99 vs 0.23 s, same run, loaded machine), past the ~2 min a ``styles build`` may take.
+Widths (audio TCN 32, z_A 32, z_F 8, MLP 32) chosen over the thesis's (64, 128, 32) and two
+regularised variants by the head-still validation loss over speaker 2 (BEAT 1_1 + BEAT2 0_2_2)
+and ZEGGS: 1.083 vs 1.094 / 1.131 — within noise, so the cheaper one (training 7–15 s per
+speaker). Validation: ZEGGS wrist speed +0.3 s / +0.6 s r 0.58 / 0.49 (R² 0.30 / 0.18), height
+r 0.40 / 0.42 (R² 0.15 / 0.16); speaker 2 speed r 0.21 / 0.27 (R² 0.01 / 0.01), height r ≈ 0
+(R² −0.2: the validation stretch holds the arms lower than training). Held-out 20 % (once,
+after the choices): ZEGGS speed r 0.59 / 0.52 (R² 0.21 / 0.11), height r 0.22 / 0.11; speaker 2
+r ≈ 0 for every target (R² −0.17 … −0.27): a minute of speaker 2 does not say from the speech
+how his arms will move; the same with the real head (BEAT's head chain leaks little here).
 """
 
 from __future__ import annotations
