@@ -108,6 +108,7 @@ def save_matching_style(
     )
     tmp = path.with_name(path.name + ".part")
     save_file(tensors, str(tmp), metadata={"facecapges": json.dumps(meta)})
+    tmp.chmod(0o644)  # readable like any installed file (the writer creates it private)
     tmp.replace(path)
     return path
 
