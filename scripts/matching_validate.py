@@ -112,7 +112,7 @@ def cached_predictor(takes, stop: list[int], steps: int | None):
     return pred
 
 
-def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: np.ndarray) -> dict:
+def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: np.ndarray, speaker=None) -> dict:
     skel = take.skeleton
     real = take.pose[a:b]
     wr_g, wr_r = sy.wrist_positions(skel, gen_pose), sy.wrist_positions(skel, real)
@@ -129,6 +129,8 @@ def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: n
         "frames": [a, b],
         "spread_ratio": sy.ratio(sy.wrist_spread(wr_g), sy.wrist_spread(wr_r)),
         "jerk_ratio": sy.ratio(sy.wrist_jerk(wr_g, FPS), sy.wrist_jerk(wr_r, FPS)),
+        "spread_ratio_speaker": sy.ratio(sy.wrist_spread(wr_g), speaker.spread) if speaker else float("nan"),
+        "jerk_ratio_speaker": sy.ratio(sy.wrist_jerk(wr_g, FPS), speaker.jerk) if speaker else float("nan"),
         "ba_gap_sd": sy.beat_align_gap_sd(ctl_g),
         "ba_gap_sd_real": sy.beat_align_gap_sd(ctl_r),
         "pops_per_min": float((acc > 1).sum() / (dur / 60.0)),
@@ -166,6 +168,9 @@ def main(argv: list[str] | None = None) -> int:
         evals = [(int(0.64 * t.n_frames), t.train_until) for t in takes]
     db = build_database(takes, ranges, mirror=not args.no_mirror, **({"weights": weights} if weights else {}))
     train_acc = np.concatenate([joint_acceleration(t.pose[a:b]) for t, (a, b) in zip(takes, ranges)])
+    speaker = sy.pooled_stats(
+        [sy.motion_stats(sy.wrist_positions(t.skeleton, t.pose[a:b]), FPS) for t, (a, b) in zip(takes, ranges)]
+    )  # the speaker's real motion in the database's frames: "moves like him"
     pop_thr = float(np.percentile(train_acc, 99.9))  # over every joint and frame of the real training motion
     predictor = (
         cached_predictor(takes, [b for _, b in ranges], args.steps) if args.predictor and not args.network else None
@@ -178,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
                 pose, jumps = run_network(args.network, take, a, b, lead_in=min(a, 15 * k))
             else:
                 pose, jumps = run(gen, take, a, b, predictor, lead_in=min(a, 15 * k))
-            rows.append(figures(take, pose, a, b, pop_thr, jumps))
+            rows.append(figures(take, pose, a, b, pop_thr, jumps, speaker))
     keys = [k for k in rows[0] if k not in ("take", "frames")]
     pooled = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
     json.dump({"config": cfg.as_dict(), "weights": db.weights, "rows": rows, "mean": pooled}, sys.stdout, indent=1)
