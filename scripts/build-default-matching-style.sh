@@ -17,7 +17,13 @@ mkdir -p "$WORK" "$STYLES"
 TAKES=(--take "$BEAT/2_scott_0_1_1.bvh" "$BEAT/2_scott_0_1_1.wav" --take "$BEAT2/2_scott_0_2_2.npz" "$BEAT/2_scott_0_2_2.wav")
 $FC styles build beat2-scott-mm "${TAKES[@]}" --out "$STYLES/beat2-scott-mm.safetensors" --force
 if [ -z "${NO_FIGURES:-}" ]; then
-    SK="$BEAT/2_scott_0_1_1.bvh,$BEAT/2_scott_0_1_1.wav"
-    $PY scripts/matching_validate.py "${TAKES[@]}" --skeleton-from "$SK" --predictor > "$WORK/validation.json"
-    $PY scripts/matching_validate.py "${TAKES[@]}" --skeleton-from "$SK" --predictor --heldout > "$WORK/heldout.json"
+    V=(scripts/matching_validate.py "${TAKES[@]}" --skeleton-from "$BEAT/2_scott_0_1_1.bvh,$BEAT/2_scott_0_1_1.wav" --starts 4)
+    $PY "${V[@]}" --predictor > "$WORK/validation.json"
+    $PY "${V[@]}" --predictor --heldout > "$WORK/heldout.json"
+    $PY "${V[@]}" --network beat2-scott-demo > "$WORK/network-validation.json"
+    $PY "${V[@]}" --network beat2-scott-demo --heldout > "$WORK/network-heldout.json"
+    $PY scripts/matching_card_figures.py "$STYLES/beat2-scott-mm.md" \
+        "matching, validation=$WORK/validation.json" \
+        "network beat2-scott-demo, validation (it trained on 1_1's validation frames)=$WORK/network-validation.json" \
+        "matching, held-out=$WORK/heldout.json" "network beat2-scott-demo, held-out=$WORK/network-heldout.json"
 fi
