@@ -121,6 +121,10 @@ def run(quick: bool, shared: Path) -> dict:
     if not wav.is_file():
         raise UserError(f"{wav}: the matching benchmark needs this shared clip")
     ck = load_checkpoint(style=BENCH_STYLE)
+    from facecapges.matching.style import MatchingCheckpoint
+
+    if not isinstance(ck, MatchingCheckpoint):
+        raise UserError(f"style {BENCH_STYLE!r} is not a matching style")
     audio = load_audio(wav)
     n = 150 if quick else 900
     threads = torch.get_num_threads()
