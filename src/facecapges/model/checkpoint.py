@@ -88,6 +88,10 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     dest_dir.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(src, dest)
     extras = [(folder / "log.csv", dest_dir / f"{name}.log.csv"), (folder / "model_card.md", dest_dir / f"{name}.md")]
+    if src.with_suffix(".md").is_file() and src.with_suffix(".md") != dest.with_suffix(".md"):
+        extras.append(
+            (src.with_suffix(".md"), dest_dir / f"{name}.md")
+        )  # a style file's card beside it (styles build --out)
     for a, b in extras:
         if a.is_file():
             shutil.copyfile(a, b)
