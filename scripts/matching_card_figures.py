@@ -45,6 +45,17 @@ def main(argv: list[str]) -> int:
         mean = json.loads(Path(path).read_text())["mean"]
         cells = [f"{mean[k]:.2f}" if isinstance(mean.get(k), float) else "–" for k, _ in COLUMNS]
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        'Reading the figures: the real motion itself "pops" many times a minute by this definition (BEAT2\'s',
+        "converted fingers, the windows' own accelerations: see the real-motion columns), so the engine's own",
+        'transitions are the "pops at switches" column. The windows are 10–12 s per take: a BeatAlign gap moves',
+        'by about ± 0.5 sd between runs of the same engine. "× speaker" compares with the speaker\'s motion in',
+        "the database's frames (what replaying him should match), \"× real (window)\" with the scored window's.",
+        "",
+        "Engine settings: `engine_config` in the file's metadata (`facecapges.matching.engine.EngineConfig`).",
+        "Rebuild: `scripts/build-default-matching-style.sh`.",
+    ]
     card.write_text(card.read_text(encoding="utf-8").rstrip("\n") + "\n" + "\n".join(lines) + "\n", encoding="utf-8")
     return 0
 
