@@ -7,7 +7,7 @@ The layers follow the data path a user's frame takes (README "Layout"):
    viewer share, so it sits beside ``arkit`` rather than in ``avatar`` or ``runtime``)
 1. ``io`` — file formats
 2. ``capture`` (camera → face), ``data`` (datasets, the cache), ``features`` (audio framing)
-3. ``model`` — the network and its generators
+3. ``model`` — the network and its generators; ``matching`` — the motion-matching engine beside it
 4. ``training``, ``outputs``, ``avatar``
 5. ``evaluation``, ``runtime``
 6. ``serving``, ``study``
@@ -30,7 +30,7 @@ LAYERS: dict[str, int] = {
     "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "arkit_vrm": 0, "constants": 0,
     "io": 1,
     "capture": 2, "data": 2, "features": 2,
-    "model": 3,
+    "model": 3, "matching": 3,
     "training": 4, "outputs": 4, "avatar": 4,
     "evaluation": 5, "runtime": 5,
     "serving": 6, "study": 6,

@@ -36,6 +36,7 @@ BENCHMARKS: dict[str, str] = {
     "data": "facecapges.data.bench",
     "evaluation": "facecapges.evaluation.bench",
     "model": "facecapges.model.bench",
+    "matching": "facecapges.matching.bench",
     "render": "facecapges.avatar.bench",
     "study": "facecapges.study.bench",
     "runtime": "facecapges.runtime.bench",

@@ -307,9 +307,9 @@ class _Runner:
             self.model, self.meta = _resolve(SEGMENT_DECODERS[variant.name][0])(variant.path)
             self.ckpt = None
         else:
-            from facecapges.model.checkpoint import load_checkpoint
+            from facecapges.model.checkpoint import load_checkpoint, network_only
 
-            self.ckpt = load_checkpoint(variant.path)
+            self.ckpt = network_only(load_checkpoint(variant.path), "ablate")
             self.model, self.meta = self.ckpt.model, self.ckpt.meta
         self.cfg = self.model.cfg
         self.neutral = np.asarray(self.meta["neutral_window"], np.float32)

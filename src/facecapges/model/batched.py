@@ -8,7 +8,9 @@ over some slots runs their current frames as one batched call.
 re-encoding every window) is its test oracle.
 
 Per slot it keeps (cold start as thesis 4.1.1: the neutral window as history, zero
-LSTM states, "no input" — zero features — before the stream):
+LSTM states, "no input" — zero features — before the stream; the encoders' registers
+in its :class:`BatchedEncoders`, the encoder stage alone, which the motion-matching
+engine's speech reader runs too):
 
 ==================  =====================  ===========================================
 tensor              shape                  meaning
@@ -414,8 +416,16 @@ class _LSTMBlocks:
         )[None]  # (1, 8H)
 
 
-class BatchedStreamingGenerator:
-    """Independent causal streams of one model, stepped as one batch (module docs)."""
+class BatchedEncoders:
+    """The kernel's encoder stage alone: per-frame audio, face and head of many streams → their
+    embeddings [z_A; z_F; z_H] (B, E), causally, one frame per step (module docs, stages
+    ``audio_frontend`` … ``head_encoder``).
+
+    ``model``: anything with the FaceCapGes encoders (``cfg``, ``audio_enc``, ``face_enc``,
+    ``head_enc``) — the generator's network, or the motion-matching engine's speech reader
+    (:mod:`facecapges.matching.predictor`). Keeps the TCNs' shift registers ``x_audio``,
+    ``x_face`` per slot; slot bookkeeping and locking are the caller's.
+    """
 
     # the Mel front end's native schedule (AudioFeatures.forward_native) up to this batch; µs per
     # call, default checkpoint, one thread, same run, load ~2.7: torch 195 vs native 57 at B = 1,
@@ -423,6 +433,86 @@ class BatchedStreamingGenerator:
     # calls) — but above 64 whole batched steps with either are within the machine's noise, so
     # large batches keep the torch schedules throughout (TCN and LSTM cascade as well)
     MEL_NATIVE_MAX_BATCH = 64
+    x_audio: torch.Tensor  # (slots, R_a, L_a, C_a): the audio TCN's shift registers
+    x_face: torch.Tensor  # (slots, R_f, L_f, C_f)
+
+    def __init__(self, model, capacity: int = 8):
+        self.model, cfg = model, model.cfg
+        self.cfg = cfg
+        native.warm()  # the small-batch schedules' machine code, before the first frame
+        self.mel_native_max_batch = self.MEL_NATIVE_MAX_BATCH  # 0: always torch (``bench`` counts its FLOPs)
+        self._audio_tcn = TCNTaps(model.audio_enc.tcn)
+        self._face_tcn = TCNTaps(model.face_enc.tcn)
+        fe = model.face_enc
+        self._audio_mlp, self._face_inp, self._face_mlp = (
+            affine_chain(x) for x in (model.audio_enc.mlp, fe.inp, fe.mlp)
+        )
+        self._face_extra = affine_chain(fe.tcn.extra) if fe.tcn.extra is not None else None
+        he = model.head_enc  # HeadEncoder.forward: fc2(relu(fc1(head))), or nothing without head pose
+        front = model.audio_enc.frontend  # MelFrontend.forward: out(leaky_relu(proj(features(samples))))
+        self._mel_mlp = (
+            affine_chain([front.proj, torch.nn.LeakyReLU(0.2), front.out]) if isinstance(front, MelFrontend) else None
+        )
+        self._head_enc = affine_chain([he.fc1, torch.nn.ReLU(), he.fc2]) if he.dim else he
+        self.E = cfg.audio_dim + cfg.face_dim + cfg.head_dim
+        self.capacity = 0
+        self.alloc(max(1, capacity))
+
+    def alloc(self, capacity: int) -> None:
+        """(Re)allocate the shift registers for ``capacity`` slots, keeping existing rows."""
+        old, xa, xf = self.capacity, self._audio_tcn.register(capacity), self._face_tcn.register(capacity)
+        if old:
+            xa[:old], xf[:old] = self.x_audio, self.x_face
+        self.x_audio, self.x_face, self.capacity = xa, xf, capacity
+
+    def reset(self, slot: int) -> None:
+        """Slot ``slot`` back to before its stream: the encoders' causal zeros."""
+        self.x_audio[slot] = 0.0
+        self.x_face[slot] = 0.0
+
+    def torch_schedules_only(self) -> None:
+        """Every encoder stage in its torch schedule whatever the batch size."""
+        self.mel_native_max_batch = 0
+        self._audio_tcn.native_max_batch = self._face_tcn.native_max_batch = 0
+
+    def audio_features(self, audio: torch.Tensor) -> torch.Tensor:
+        """The audio front end of one frame per stream: (B, S) samples → (B, C) TCN input."""
+        front = self.model.audio_enc.frontend
+        if isinstance(front, MelFrontend) and self._mel_mlp is not None:
+            if audio.shape[0] <= self.mel_native_max_batch:  # the small-batch schedule (AudioFeatures docs)
+                return self._mel_mlp(front.features.forward_native(audio))
+            return self._mel_mlp(front.features(audio))
+        return front(audio[:, None])[:, 0]
+
+    def clean_inputs(self, audio, face, head, B: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """(B, S) audio, (B, 52) face, (B, 6) head tensors; NaN/inf → 0."""
+        cfg = self.cfg
+        if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == cfg.samples_per_frame:
+            a = torch.from_numpy(_finite(audio.astype(np.float32, copy=False)))
+        else:
+            a = torch.from_numpy(pack_audio(audio, cfg.samples_per_frame))
+        if a.shape[0] != B:
+            raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
+        return a, _rows(face, cfg.n_face, "face", B), _rows(head, 6, "head rot6d", B)
+
+    def encode(self, idx: torch.Tensor, a: torch.Tensor, f: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
+        """This frame of every stream in ``idx`` → its embedding [z_A; z_F; z_H] (B, E); shifts the registers."""
+        with stage("audio_frontend"):
+            feat = self.audio_features(a)
+        with stage("audio_tcn"):
+            z_a = self._audio_mlp(self._audio_tcn.step(self.x_audio, idx, feat))
+        with stage("face_encoder"):
+            extra = self._face_extra(z_a) if self._face_extra is not None else None
+            z_f = self._face_mlp(self._face_tcn.step(self.x_face, idx, self._face_inp(f), extra))
+        with stage("head_encoder"):
+            z_h = self._head_enc(h)
+        return torch.cat([z_a, z_f, z_h], -1)
+
+
+class BatchedStreamingGenerator:
+    """Independent causal streams of one model, stepped as one batch (module docs)."""
+
+    MEL_NATIVE_MAX_BATCH = BatchedEncoders.MEL_NATIVE_MAX_BATCH
 
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray, capacity: int = 8):
         self.model = model.eval()
@@ -434,23 +524,10 @@ class BatchedStreamingGenerator:
         self.neutral_window = nw
         self.rest = rest_pose(nw)  # what the intensity dial scales about (facecapges.model.intensity)
         self._lock = threading.RLock()
-        native.warm()  # the small-batch schedules' machine code, before the first frame
-        self.mel_native_max_batch = self.MEL_NATIVE_MAX_BATCH  # 0: always torch (``bench`` counts its FLOPs)
-        self._audio_tcn = TCNTaps(model.audio_enc.tcn)
-        self._face_tcn = TCNTaps(model.face_enc.tcn)
-        fe, dec = model.face_enc, model.decoder
-        self._audio_mlp, self._face_inp, self._face_mlp = (
-            affine_chain(x) for x in (model.audio_enc.mlp, fe.inp, fe.mlp)
-        )
-        self._face_extra = affine_chain(fe.tcn.extra) if fe.tcn.extra is not None else None
+        self.encoders = BatchedEncoders(model, 1)  # audio, face, head → [z_A; z_F; z_H] (stages up to the decoder)
+        dec = model.decoder
         self._head_t, self._head_u = affine_chain(dec.head_t), affine_chain(dec.head_u)
-        he = model.head_enc  # HeadEncoder.forward: fc2(relu(fc1(head))), or nothing without head pose
-        front = model.audio_enc.frontend  # MelFrontend.forward: out(leaky_relu(proj(features(samples))))
-        self._mel_mlp = (
-            affine_chain([front.proj, torch.nn.LeakyReLU(0.2), front.out]) if isinstance(front, MelFrontend) else None
-        )
-        self._head_enc = affine_chain([he.fc1, torch.nn.ReLU(), he.fc2]) if he.dim else he
-        self.E = cfg.audio_dim + cfg.face_dim + cfg.head_dim
+        self.E = self.encoders.E
         self.fast = cfg.lstm_layers == 1
         if self.fast:
             self._blocks = _LSTMBlocks((model.decoder.lstm_t, model.decoder.lstm_u), self.E, cfg.pose_dim)
@@ -479,8 +556,7 @@ class BatchedStreamingGenerator:
                 new.narrow(axis, 0, prev.shape[axis]).copy_(prev)
             return new
 
-        self.x_audio = grow("x_audio", self._audio_tcn.register(capacity))
-        self.x_face = grow("x_face", self._face_tcn.register(capacity))
+        self.encoders.alloc(capacity)
         frames = np.zeros(capacity, np.int64)  # a NumPy counter: no torch call per step to read or bump it
         if old:
             frames[:old] = self.frames
@@ -539,8 +615,7 @@ class BatchedStreamingGenerator:
                 raise KeyError(f"slot {slot} is not open")
             hist = torch.from_numpy(np.ascontiguousarray(window).reshape(N, -1).copy())
             self.frames[slot] = 0  # history frame -N + j sits at ring row j (= (-N + j) mod N)
-            self.x_audio[slot] = 0.0  # before the stream: the encoders' causal zeros
-            self.x_face[slot] = 0.0
+            self.encoders.reset(slot)  # before the stream: the encoders' causal zeros
             if self.fast:
                 bl = self._blocks
                 self.gx[slot] = torch.addmm(bl.b, self._e0.expand(N, -1), bl.w_e).addmm_(hist, bl.w_s)
@@ -551,38 +626,18 @@ class BatchedStreamingGenerator:
                 self.state[:, :, slot] = 0.0
 
     # ------------------------------------------------------------- the kernel
+    @property
+    def mel_native_max_batch(self) -> int:
+        """The Mel front end's native schedule up to this batch (:class:`BatchedEncoders`)."""
+        return self.encoders.mel_native_max_batch
+
+    @mel_native_max_batch.setter
+    def mel_native_max_batch(self, value: int) -> None:
+        self.encoders.mel_native_max_batch = value
+
     def audio_features(self, audio: torch.Tensor) -> torch.Tensor:
         """The audio front end of one frame per stream: (B, S) samples → (B, C) TCN input."""
-        front = self.model.audio_enc.frontend
-        if isinstance(front, MelFrontend) and self._mel_mlp is not None:
-            if audio.shape[0] <= self.mel_native_max_batch:  # the small-batch schedule (AudioFeatures docs)
-                return self._mel_mlp(front.features.forward_native(audio))
-            return self._mel_mlp(front.features(audio))
-        return front(audio[:, None])[:, 0]
-
-    def _clean_inputs(self, audio, face, head, B: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """(B, S) audio, (B, 52) face, (B, 6) head tensors; NaN/inf → 0."""
-        cfg = self.cfg
-        if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == cfg.samples_per_frame:
-            a = torch.from_numpy(_finite(audio.astype(np.float32, copy=False)))
-        else:
-            a = torch.from_numpy(pack_audio(audio, cfg.samples_per_frame))
-        if a.shape[0] != B:
-            raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
-        return a, _rows(face, cfg.n_face, "face", B), _rows(head, 6, "head rot6d", B)
-
-    def _encode(self, idx: torch.Tensor, a: torch.Tensor, f: torch.Tensor, h: torch.Tensor) -> torch.Tensor:
-        """This frame of every stream in ``idx`` → its embedding [z_A; z_F; z_H] (B, E)."""
-        with stage("audio_frontend"):
-            feat = self.audio_features(a)
-        with stage("audio_tcn"):
-            z_a = self._audio_mlp(self._audio_tcn.step(self.x_audio, idx, feat))
-        with stage("face_encoder"):
-            extra = self._face_extra(z_a) if self._face_extra is not None else None
-            z_f = self._face_mlp(self._face_tcn.step(self.x_face, idx, self._face_inp(f), extra))
-        with stage("head_encoder"):
-            z_h = self._head_enc(h)
-        return torch.cat([z_a, z_f, z_h], -1)
+        return self.encoders.audio_features(audio)
 
     def _decode(self, idx: torch.Tensor, e: torch.Tensor) -> torch.Tensor:
         """Both LSTMs over each stream's window from the cached projections → pose (B, J*6)."""
@@ -623,8 +678,7 @@ class BatchedStreamingGenerator:
         """Run every stage in its torch schedule whatever the batch size (the native
         small-batch loops off): the arithmetic ``bench``'s FLOP counter can see, and the
         second schedule the tests compare with the naive loop."""
-        self.mel_native_max_batch = 0
-        self._audio_tcn.native_max_batch = self._face_tcn.native_max_batch = 0
+        self.encoders.torch_schedules_only()
         if self.fast:
             self._cascade.native_max_batch = 0
 
@@ -634,8 +688,8 @@ class BatchedStreamingGenerator:
         """Push one frame with a known pose per stream (no generation, LSTM state untouched)."""
         with self._lock:
             idx, ids = self._ids(slots)
-            a, f, h = self._clean_inputs(audio, face, head, len(idx))
-            e = self._encode(idx, a, f, h)
+            a, f, h = self.encoders.clean_inputs(audio, face, head, len(idx))
+            e = self.encoders.encode(idx, a, f, h)
             p = torch.from_numpy(np.asarray(pose, dtype=np.float32).reshape(len(idx), -1).copy())
             if self.fast:
                 bl = self._blocks
@@ -657,8 +711,8 @@ class BatchedStreamingGenerator:
             if B == 0:
                 return np.zeros((0, self.cfg.n_joints, 6), np.float32)
             with stage("input_prep"):
-                a, f, h = self._clean_inputs(audio, face, head, B)
-            e = self._encode(idx, a, f, h)
+                a, f, h = self.encoders.clean_inputs(audio, face, head, B)
+            e = self.encoders.encode(idx, a, f, h)
             with stage("decoder"):
                 if self.fast:
                     pose = self._decode(idx, e)

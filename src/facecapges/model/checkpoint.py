@@ -31,10 +31,12 @@ from facecapges.errors import UserError, file_error
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
+    from facecapges.matching.style import MatchingCheckpoint
     from facecapges.model.network import FaceCapGes
 
 DEFAULT_STYLE = "beat2-scott-demo"
 FORMAT = "facecapges-checkpoint-1"
+MATCHING_FORMAT = "facecapges-matching-1"  # a motion-matching style: facecapges.matching.style
 
 
 def styles_dir() -> Path:
@@ -105,6 +107,9 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
         )
         if f.is_symlink() or f.exists()
     ]
+    card = src.with_suffix(".md")  # a style file's card beside it (`styles build --out`)
+    if not (folder / "model_card.md").exists() and (card.is_symlink() or card.exists()):
+        parts.append((card, f"{name}.md", "card"))
     fgd = src.with_suffix(".fgd")
     stage = Path(tempfile.mkdtemp(prefix=f".install-{name}-", dir=dest_dir))
     try:
@@ -203,6 +208,7 @@ class Checkpoint:
     model: FaceCapGes  # eval mode
     meta: dict
     path: Path
+    engine: str = "network"  # a matching style loads as facecapges.matching.style.MatchingCheckpoint
 
     @functools.cached_property
     def skeleton(self) -> Skeleton:
@@ -271,8 +277,14 @@ def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
     return tensors, meta
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint:
-    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files."""
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint | MatchingCheckpoint:
+    """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
+
+    A network style gives a :class:`Checkpoint` (``engine == "network"``), a motion-matching
+    style (format ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`
+    (``engine == "matching"``); both have ``meta``, ``path``, ``fps``, ``skeleton``,
+    ``neutral_window``, ``streaming()`` and ``batched(capacity)``.
+    """
     import torch
     from safetensors import SafetensorError, safe_open
 
@@ -292,6 +304,11 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
         meta = json.loads(raw_meta)
     except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
+    if isinstance(meta, dict) and meta.get("format") == MATCHING_FORMAT:
+        from facecapges.matching.style import from_file
+
+        _check_meta(p, meta)
+        return from_file(p, tensors, meta)
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         fmt = meta.get("format") if isinstance(meta, dict) else None
         raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
@@ -343,7 +360,14 @@ def _check_meta(p: Path, meta: dict) -> None:
         raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
 
 
-def load_checkpoint_or_style(spec: str | Path) -> Checkpoint:
+def network_only(ckpt: Checkpoint | MatchingCheckpoint, what: str) -> Checkpoint:
+    """``ckpt`` if it is a network style; a clear error for a matching style where only a network fits."""
+    if not isinstance(ckpt, Checkpoint):
+        raise UserError(f"{ckpt.path}: a motion-matching style; {what} needs a network style (FaceCapGes)")
+    return ckpt
+
+
+def load_checkpoint_or_style(spec: str | Path) -> Checkpoint | MatchingCheckpoint:
     """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
     path: a suffix or a folder in it) or else by an installed style's name."""
     p = Path(spec)

@@ -81,10 +81,12 @@ def register(app: typer.Typer) -> None:
 
         rows = []
         for name, path in list_styles().items():
-            meta = load_checkpoint(path).meta
+            ckpt = load_checkpoint(path)
+            meta = ckpt.meta
             rows.append(
                 {
                     "name": name,
+                    "engine": ckpt.engine,
                     "default": name == DEFAULT_STYLE,
                     "speaker": meta.get("speaker"),
                     "epochs": meta.get("epochs_trained"),
@@ -100,8 +102,9 @@ def register(app: typer.Typer) -> None:
             typer.echo("no styles installed")
         for r in rows:
             typer.echo(
-                f"{'*' if r['default'] else ' '} {r['name']}  speaker {r['speaker']}  "
-                f"{r['epochs']} epochs  {'shipped' if r['shipped'] else 'user'}  {r['path']}"
+                f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
+                + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")
+                + f"{'shipped' if r['shipped'] else 'user'}  {r['path']}"
             )
 
     @styles_app.callback()
@@ -130,3 +133,41 @@ def register(app: typer.Typer) -> None:
 
         dest = install_style(run, name, force)
         typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
+
+    @styles_app.command("build")
+    def styles_build(
+        name: str = typer.Argument(..., help="The style's name (letters, digits, '.', '_', '-')."),
+        take: list[str] = typer.Option(
+            ...,
+            "--take",
+            help="MOTION WAV: a paired take (BEAT BVH, BEAT2 .npz, or another skeleton's BVH, retargeted). Repeat.",
+            metavar="MOTION WAV",
+        ),
+        wav: list[str] = typer.Argument(None, hidden=True),
+        out: Path | None = typer.Option(None, "--out", help="Write the style here instead of installing it."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing style file of that name."),
+        seed: int = typer.Option(0, help="Seed of the speech predictor's training."),
+        steps: int | None = typer.Option(
+            None, help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial)."
+        ),
+    ) -> None:
+        """Build a motion-matching style from paired takes (motion + speech): database + speech predictor.
+
+        Each take's last 20 % is held out (never read). The style is installed into the user styles
+        folder (or written to --out) with a model card NAME.md; use it with --style NAME.
+        """
+        from facecapges.errors import UserError
+        from facecapges.matching.build import build_style
+
+        pairs = _take_pairs(take, wav or [])
+        if not pairs:
+            raise UserError("give at least one --take MOTION WAV")
+        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+
+    def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:
+        """`--take MOTION WAV` pairs: typer reads one value per --take; each WAV follows as an extra argument."""
+        from facecapges.errors import UserError
+
+        if len(rest) != len(take):
+            raise UserError("each --take needs two paths: --take MOTION WAV (motion file, then its .wav)")
+        return [(Path(m), Path(w)) for m, w in zip(take, rest, strict=True)]

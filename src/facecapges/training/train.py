@@ -332,10 +332,10 @@ def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) ->
     """
     from dataclasses import asdict
 
-    from facecapges.model.checkpoint import load_checkpoint_or_style
+    from facecapges.model.checkpoint import load_checkpoint_or_style, network_only
     from facecapges.model.network import NORM_BUFFERS
 
-    base = load_checkpoint_or_style(source)
+    base = network_only(load_checkpoint_or_style(source), "train.init_from")
     theirs, ours = asdict(base.model.cfg), asdict(mcfg)
     diff = [k for k in ours if ours[k] != theirs.get(k)]
     if diff:

@@ -1,0 +1,185 @@
+"""``facecapges styles build``: a matching style from paired takes, in minutes on a CPU.
+
+Steps: read and check every ``--take MOTION WAV`` (BEAT BVH at any rate, BEAT2 ``.npz``, or a
+BVH of another skeleton — ZEGGS, a user's mocap — retargeted onto the BEAT skeleton), build the
+database from each take's training frames and their mirror images, train the speech predictor
+on the same frames, write the style (:mod:`facecapges.matching.style`) and its model card
+``NAME.md`` beside it. Frames from ``train_until`` (the last 20 % of every take) are never read
+for any of it.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from facecapges import timing
+from facecapges.errors import UserError, file_error
+from facecapges.matching.database import build_database
+from facecapges.matching.engine import EngineConfig
+from facecapges.matching.style import save_matching_style
+from facecapges.matching.takes import Take, load_take
+from facecapges.skeleton import Skeleton
+
+BEAT_ATTRIBUTION = "BEAT / BEAT2 (Liu et al., ECCV 2022; EMAGE, CVPR 2024), CC BY-NC 4.0"
+ZEGGS_ATTRIBUTION = "ZEGGS (Ubisoft La Forge ZeroEGGS), CC BY-NC-ND 4.0: built on this machine, never distribute"
+MIN_TRAIN_S = 10.0
+
+
+def check_name(name: str) -> str:
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name or ""):
+        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    return name
+
+
+def licence_of(take: Take) -> tuple[str, str]:
+    """(licence, attribution) of a take, from its source (BEAT/BEAT2 names, a retarget map's licence)."""
+    from facecapges.data.beat import parse_clip_name
+
+    if "ND" in take.licence:
+        return take.licence, ZEGGS_ATTRIBUTION
+    if take.licence or parse_clip_name(Path(take.source).stem) is not None:
+        return take.licence or "CC BY-NC 4.0", BEAT_ATTRIBUTION
+    return "the user's own", "the user's own recordings"
+
+
+def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, say=print) -> list[Take]:
+    """Load every (motion, wav) pair; non-BEAT skeletons go onto ``target`` (default: the default style's)."""
+    if not pairs:
+        raise UserError("give at least one --take MOTION WAV")
+    takes: list[Take] = []
+    for motion, wav in pairs:
+        motion, wav = Path(motion), Path(wav)
+        if motion.suffix.lower() not in (".bvh", ".npz"):
+            raise file_error(motion, "a --take's motion must be a .bvh or a BEAT2 .npz file")
+        if target is None and motion.suffix.lower() == ".npz":
+            target = _default_skeleton(takes)
+        try:
+            take = load_take(motion, wav, target)
+        except UserError as exc:
+            if "no BEAT skeleton was given" not in str(exc):
+                raise
+            take = load_take(motion, wav, _default_skeleton(takes))
+        if take.train_until / timing.MODEL_FPS < MIN_TRAIN_S:
+            raise file_error(motion, f"too short: a take needs {MIN_TRAIN_S / 0.8:.1f} s at least (its 80 % trains)")
+        if target is None and not take.skeleton.missing():
+            target = take.skeleton
+        say(f"  {motion.name}: {take.n_frames / timing.MODEL_FPS:.1f} s, training frames [0, {take.train_until})")
+        takes.append(take)
+    skel = takes[0].skeleton
+    if any(not t.skeleton.is_same_tree(skel) for t in takes):
+        raise UserError("the takes are on different BEAT skeletons; give takes of one speaker's skeleton")
+    return takes
+
+
+def _speaker(takes: list[Take]) -> int | None:
+    """The BEAT speaker id if every take is named as a BEAT/BEAT2 take of one speaker, else None."""
+    from facecapges.data.beat import parse_clip_name
+
+    ids = {getattr(parse_clip_name(Path(t.source).stem), "speaker", None) for t in takes}
+    return ids.pop() if len(ids) == 1 else None
+
+
+def _default_skeleton(takes: list[Take]) -> Skeleton:
+    for t in takes:
+        if not t.skeleton.missing():
+            return t.skeleton
+    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+
+    return load_checkpoint(style=DEFAULT_STYLE).skeleton
+
+
+def build_style(
+    name: str,
+    pairs: list[tuple[Path, Path]],
+    out: Path | None = None,
+    force: bool = False,
+    progress: bool = True,
+    seed: int = 0,
+    config: EngineConfig | None = None,
+    target: Skeleton | None = None,
+    say: Callable[[str], None] = print,
+    predictor_steps: int | None = None,
+) -> Path:
+    """Build, write and (without ``out``) install a matching style; returns its path (module docs)."""
+    from dataclasses import replace
+
+    from facecapges.matching.predictor import PredictorSettings, train_predictor
+    from facecapges.model.checkpoint import user_styles_dir
+
+    check_name(name)
+    settings = PredictorSettings()
+    if predictor_steps is not None:
+        if predictor_steps < 1:
+            raise UserError(f"--steps must be at least 1, got {predictor_steps}")
+        settings = replace(
+            settings, steps=int(predictor_steps), eval_every=min(settings.eval_every, int(predictor_steps))
+        )
+    dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
+    if dest.suffix != ".safetensors":
+        raise file_error(dest, "a style file must end in .safetensors")
+    card = dest.with_suffix(".md")
+    for p in (dest, card):
+        if p.exists() and not force:
+            raise file_error(p, "exists; pass --force to replace it")
+    say(f"reading {len(pairs)} take(s)")
+    takes = read_takes([(Path(m), Path(w)) for m, w in pairs], target, say)
+    say("building the database (training frames and their mirror images)")
+    db = build_database(takes)
+    say(f"  {len(db)} frames ({len(db) / timing.MODEL_FPS:.0f} s)")
+    predictor = train_predictor(takes, seed=seed, progress=progress, settings=settings)
+    licences = sorted({licence_of(t) for t in takes})
+    meta = {
+        "name": name,
+        "speaker": _speaker(takes),
+        "takes": [
+            {
+                "name": t.name,
+                "source": Path(t.source).name,
+                "frames_used": [0, t.train_until],
+                "held_out": [t.train_until, t.n_frames],
+            }
+            for t in takes
+        ],
+        "licence": "; ".join(lic for lic, _ in licences),
+        "attribution": "; ".join(att for _, att in licences),
+        "predictor_training": predictor.config.get("training"),
+    }
+    path = save_matching_style(dest, db, config or EngineConfig(), takes[0].skeleton, predictor, meta)
+    card.write_text(model_card(name, meta, len(db), db.pause.mean()), encoding="utf-8")
+    say(f"wrote {path} and {card.name}")
+    return path
+
+
+def model_card(name: str, meta: dict, n_rows: int, pause_share: float, figures: str = "") -> str:
+    """The style's model card (markdown)."""
+    rows = "\n".join(
+        f"| {t['name']} | {t['source']} | {t['frames_used'][0]}–{t['frames_used'][1]} | "
+        f"{t['held_out'][0]}–{t['held_out'][1]} |"
+        for t in meta["takes"]
+    )
+    tr = meta.get("predictor_training") or {}
+    return f"""# {name} — a motion-matching style
+
+Engine: **matching** (facecapges.matching): replays the speaker's real motion (database of
+{n_rows} frames = {n_rows / timing.MODEL_FPS:.0f} s at {timing.MODEL_FPS} fps, the takes' training frames and their mirror
+images; {100 * pause_share:.0f} % pause frames), chosen each 100–200 ms and at speech onsets by the
+speech predictor's expected wrist motion, blended by inertialization.
+
+## Data
+
+| take | file | frames used (15 fps) | held out (never used) |
+|---|---|---|---|
+{rows}
+
+Licence: {meta["licence"]}. Attribution: {meta["attribution"]}.
+
+## Speech predictor
+
+Trained on the same training frames: {tr.get("steps", "?")} steps (best at {tr.get("best_step", "?")}),
+validation loss with the head held still {np.round(tr.get("validation_loss_head_still", float("nan")), 4)}.
+{figures}
+"""

@@ -1,0 +1,414 @@
+"""The streaming motion matcher: per 15 fps frame, the speaker's real motion chosen by the speech.
+
+:class:`BatchedMatchingGenerator` runs independent causal streams over one
+:class:`~facecapges.matching.database.Database` (one stream is a one-slot use of it:
+:class:`MatchingGenerator`), so a served batch and a single stream give the same poses.
+
+Per step and stream (only the current frame's inputs and the stream's own state are read):
+
+1. **Speech cues** of the frame's samples (:class:`~facecapges.matching.speech.SpeechTracker`):
+   speaking, onset, frames since the last onset. A muted or silent microphone (all-zero or no
+   samples) is a pause.
+2. **Predictor** (if the style has one): the future wrist speed/height targets of
+   :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
+   face and head. Without one the query keeps the playing frame's own future (continue as is).
+3. **Advance** the playing clip by one frame.
+4. **Search** when ``search_interval`` frames have passed since the last search, at an onset,
+   when speaking starts or stops, or when the clip runs out. The query is the playing frame's
+   features (arm position and velocity) with the predicted future, the speaking state and the
+   onset recency put in; the cost of every database row is the squared distance of the
+   normalised features (:meth:`Database.normalised`), brute force in NumPy, plus:
+
+   * rows not ``searchable`` (a take end within reach) are excluded; while not speaking, or at
+     ``intensity`` ≈ 0, only idle rows (pause frames and rest-phase frames) are searched;
+   * **memory**: a row played within the last ``memory_s`` seconds costs ``memory_penalty`` more
+     (a stretch does not come back while others fit); rows within ``near_frames`` of the playing
+     one are not candidates (that is continuing);
+   * **onset preference**: for ``onset_frames`` frames after an onset, a row's cost falls by
+     ``onset_bonus · min(lead, 3)`` — a row whose wrist speed rises over the next 2–4 frames, a
+     stroke that lands just after the onset;
+   * **margin**: the stream switches only if the best row beats continuing by ``margin``.
+
+5. **Blend** by inertialization (:mod:`~facecapges.matching.inertialize`) on all 47 joints'
+   rotations, half-life ``halflife_s``.
+6. **Intensity** (:func:`gain_of`): each joint's rotation is scaled about the style's idle mean
+   rotation (quaternion power), smoothed over ``intensity_tau_s`` so a change never pops.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, fields
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges import timing
+from facecapges.matching import inertialize as inz
+from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
+from facecapges.matching.speech import SpeechTracker
+from facecapges.skeleton import N_JOINTS
+
+
+@dataclass
+class EngineConfig:
+    """The matcher's knobs. Chosen on validation (speaker 2, frames [0.64 T, 0.8 T) of both takes, database
+    and predictor from [0, 0.64 T), 4 lead-ins each; scripts/matching_validate.py): search every 2 frames
+    (BeatAlign gap +0.30 sd against −0.40 at 3, −0.25 at 4), onset bonus 2 (+0.47; 0: −0.58), margin 1
+    (+0.55, fewer pops at switches: 16 against 25 a minute); half-lives 0.1–0.2 s and the future-target
+    weight changed nothing beyond the noise (the 10 s windows make every figure noisy: ± 0.5 sd)."""
+
+    search_interval: int = 2  # frames between searches (133 ms at 15 fps)
+    margin: float = 1.0  # a switch must beat continuing by this much cost
+    halflife_s: float = 0.15  # inertialization half-life
+    memory_s: float = 20.0
+    memory_penalty: float = 100.0
+    near_frames: int = 8
+    onset_bonus: float = 2.0
+    onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
+    intensity_tau_s: float = 0.3
+    use_predictor: bool = True
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> EngineConfig:
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in d.items() if k in names})
+
+
+def gain_of(intensity: float | np.ndarray) -> np.ndarray:
+    """The rotation gain of an intensity: ``0.5 + 0.5·i`` below 1, ``i`` from 1 (0 → 0.5, 1 → 1, 1.3 → 1.3).
+
+    The played rotation of each joint is ``m · (m⁻¹ q)^gain`` with ``m`` its idle mean rotation:
+    at 1 the motion is as recorded, above it every joint swings further from the idle pose;
+    below it the swing shrinks (at 0, where only idle rows play, to half the idle motion: still
+    moving, never frozen).
+    """
+    i = np.clip(np.asarray(intensity, np.float64), 0.0, 2.0)
+    return np.where(i < 1.0, 0.5 + 0.5 * i, i)
+
+
+IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
+
+
+class BatchedMatchingGenerator:
+    """Independent causal matching streams over one database (module docs)."""
+
+    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None, capacity: int = 8):
+        self.db = db
+        self.config = config or EngineConfig()
+        self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
+        self.fps = timing.MODEL_FPS
+        self._lock = threading.RLock()
+        self._prepare_db()
+        self.speech = SpeechTracker(1)
+        self.capacity = 0
+        self._free: list[int] = []
+        self._open: set[int] = set()
+        self._pred_slot: dict[int, int] = {}
+        self._alloc(max(1, capacity))
+
+    # ------------------------------------------------------------ database caches
+    def _prepare_db(self) -> None:
+        db = self.db
+        self.F = db.normalised()  # (N, F)
+        self.F_sq = np.einsum("nf,nf->n", self.F, self.F)
+        self.Q = quaternions(db.pose)  # (N, 47, 4) float64
+        V = np.zeros(self.Q.shape[:-1] + (3,))
+        seg = db.segment
+        for s in np.unique(seg):
+            rows = np.flatnonzero(seg == s)
+            V[rows] = inz.angular_velocity(self.Q[rows], self.fps)
+        self.V = V
+        N = len(db)
+        self.next_row = np.arange(1, N + 1)
+        last = np.r_[seg[1:] != seg[:-1], True]
+        self.next_row[last] = -1  # the clip ends here
+        self.idle_play = idle_rows(db)  # rows idle motion may play through
+        self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
+        if not self.idle.any():
+            self.idle = db.searchable.copy()
+        self.idle_mean = inz.quaternion_mean(self.Q[self.idle])  # (47, 4)
+        self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
+        sl = group_slices()
+        self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
+        self.w = db.feature_weights()
+
+    # ---------------------------------------------------------------- storage
+    def _alloc(self, capacity: int) -> None:
+        old, N = self.capacity, len(self.db)
+
+        def grow(name: str, shape: tuple, fill, dtype) -> np.ndarray:
+            new = np.full((capacity, *shape), fill, dtype)
+            if old:
+                new[:old] = getattr(self, name)
+            return new
+
+        self.row = grow("row", (), 0, np.int64)
+        self.t = grow("t", (), 0, np.int64)
+        self.since_search = grow("since_search", (), 0, np.int64)
+        self.was_speaking = grow("was_speaking", (), False, bool)
+        self.off_x = grow("off_x", (N_JOINTS, 3), 0.0, np.float64)
+        self.off_v = grow("off_v", (N_JOINTS, 3), 0.0, np.float64)
+        self.last_used = grow("last_used", (N,), -(10**9), np.int64)
+        self.intensity_target = grow("intensity_target", (), 1.0, np.float64)
+        self.intensity_now = grow("intensity_now", (), 1.0, np.float64)
+        self.switches = grow("switches", (), 0, np.int64)
+        self.speech.ensure(capacity)
+        self._free = sorted(set(self._free) | set(range(old, capacity)), reverse=True)
+        self.capacity = capacity
+
+    @property
+    def n_open(self) -> int:
+        return len(self._open)
+
+    @property
+    def open_slots(self) -> frozenset[int]:
+        return frozenset(self._open)
+
+    def open(self, initial_pose: np.ndarray | None = None) -> int:
+        """A new stream (:meth:`reset`); returns its slot id."""
+        with self._lock:
+            if not self._free:
+                self._alloc(self.capacity * 2)
+            slot = self._free.pop()
+            self._open.add(slot)
+            if self.predictor is not None:
+                self._pred_slot[slot] = self.predictor.open()
+            try:
+                self.reset(slot, initial_pose)
+            except Exception:
+                self.close(slot)
+                raise
+            return slot
+
+    def close(self, slot: int) -> None:
+        with self._lock:
+            if slot in self._open:
+                self._open.discard(slot)
+                self._free.append(slot)
+                ps = self._pred_slot.pop(slot, None)
+                if ps is not None and self.predictor is not None:
+                    self.predictor.close(ps)
+
+    def set_intensity(self, slot: int, value: float) -> None:
+        """The stream's intensity (0 … 1 … 1.3, clipped to [0, 2]); reached smoothly (module docs)."""
+        v = float(value)
+        if not np.isfinite(v):
+            raise ValueError(f"intensity must be a finite number, got {value!r}")
+        self.intensity_target[slot] = float(np.clip(v, 0.0, 2.0))
+
+    def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
+        """Cold start: ``initial_pose`` (47, 6), (N, 47, 6) or None (the style's idle pose)."""
+        with self._lock:
+            if slot not in self._open:
+                raise KeyError(f"slot {slot} is not open")
+            self.speech.reset(slot)
+            if self.predictor is not None:
+                self.predictor.reset(self._pred_slot[slot])
+            self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
+            self.was_speaking[slot] = False
+            self.last_used[slot] = -(10**9)
+            self.intensity_now[slot] = self.intensity_target[slot]
+            self._start_at(slot, initial_pose)
+
+    def _start_at(self, slot: int, pose: np.ndarray | None) -> None:
+        """Play from the idle row nearest ``pose`` with the offset that makes the output ``pose``."""
+        rows = np.flatnonzero(self.idle)
+        if pose is None:
+            target = self.idle_mean
+            cand = rows[np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.Q[rows], target)), axis=1))]
+            self.row[slot], self.off_x[slot], self.off_v[slot] = cand, 0.0, 0.0
+            return
+        p = np.asarray(pose, np.float32)
+        if p.ndim == 2:
+            p = p[None]
+        if p.ndim != 3 or p.shape[1:] != (N_JOINTS, 6):
+            raise ValueError(f"initial pose must be ({N_JOINTS}, 6) or (N, {N_JOINTS}, 6), got {np.shape(pose)}")
+        q = quaternions(p[-2:])
+        cur = q[-1]
+        cand = int(rows[np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.Q[rows], cur)), axis=1))])
+        vel = inz.angular_velocity(q, self.fps)[0] if len(q) > 1 else np.zeros((N_JOINTS, 3))
+        self.row[slot] = cand
+        self.off_x[slot] = inz.qlog(inz.qabs(inz.qmul(cur, inz.qconj(self.Q[cand]))))
+        self.off_v[slot] = vel - self.V[cand] if len(q) > 1 else 0.0
+
+    # ------------------------------------------------------------- the step
+    def _ids(self, slots: Sequence[int]) -> np.ndarray:
+        ids = np.array([int(s) for s in np.asarray(slots).reshape(-1)], np.int64)
+        if len(set(ids.tolist())) != len(ids):
+            raise ValueError("a slot appears twice in one step")
+        for s in ids:
+            if int(s) not in self._open:
+                raise KeyError(f"slot {int(s)} is not open")
+        return ids
+
+    def _inputs(self, audio, face, head, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        spf = timing.samples_per_frame()
+        if isinstance(audio, np.ndarray) and audio.ndim == 2:
+            a = np.asarray(audio, np.float32)
+            if a.shape[0] != B or a.shape[1] > spf:
+                raise ValueError(f"audio must be (B, ≤{spf}), got {a.shape}")
+        else:
+            a = np.zeros((B, spf), np.float32)
+            for i, x in enumerate(audio):
+                x = np.asarray(x, np.float32).reshape(-1)
+                if len(x) > spf:
+                    raise ValueError(f"a frame owns at most {spf} audio samples, got {len(x)}")
+                a[i, : len(x)] = x
+        f = np.asarray(face, np.float32).reshape(B, -1)
+        h = np.asarray(head, np.float32).reshape(B, -1)
+        if f.shape[1] != 52 or h.shape[1] != 6:
+            raise ValueError(f"face must be (B, 52) and head (B, 6), got {f.shape} and {h.shape}")
+        clean = [np.where(np.isfinite(x), x, np.float32(0)) for x in (a, f, h)]
+        return clean[0], clean[1], clean[2]
+
+    def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
+        """One frame per stream: audio (B, ≤1067), face (B, 52), head (B, 6) → poses (B, 47, 6) rot6d."""
+        with self._lock:
+            ids = self._ids(slots)
+            B = len(ids)
+            if B == 0:
+                return np.zeros((0, N_JOINTS, 6), np.float32)
+            a, f, h = self._inputs(audio, face, head, B)
+            sp = self.speech.step(ids, a)
+            pred = None
+            if self.predictor is not None and self.config.use_predictor:
+                pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+            self._advance_and_search(ids, sp, pred)
+            q = self._blend(ids)
+            self.last_used[ids, self.row[ids]] = self.t[ids]
+            self.t[ids] += 1
+            return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
+
+    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None) -> None:
+        cfg = self.config
+        nxt = self.next_row[self.row[ids]]
+        ended = nxt < 0
+        nxt = np.where(ended, self.row[ids], nxt)
+        idle_only = (~sp.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
+        off_state = idle_only & ~self.idle_play[nxt]
+        changed = sp.speaking != self.was_speaking[ids]
+        self.since_search[ids] += 1
+        need = ended | off_state | changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        self.was_speaking[ids] = sp.speaking
+        self.row[ids] = nxt
+        if not need.any():
+            return
+        w = np.flatnonzero(need)
+        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w])
+        self.since_search[ids[w]] = 0
+        for k in np.flatnonzero(switch):
+            s, b = int(ids[w[k]]), int(best[k])
+            src = int(nxt[w[k]])
+            self.off_x[s], self.off_v[s] = inz.transition(
+                self.off_x[s], self.off_v[s], self.Q[src], self.V[src], self.Q[b], self.V[b]
+            )
+            self.row[s] = b
+            self.switches[s] += 1
+
+    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
+        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in."""
+        db = self.db
+        raw = db.features[rows].copy()
+        if pred is not None:
+            raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
+        raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
+        raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
+        return (raw - db.mean) * self.w
+
+    def _search(self, ids, rows, sp, w, pred, idle_only, forced) -> tuple[np.ndarray, np.ndarray]:
+        """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
+        cfg = self.config
+        q = self._query(rows, sp, w, pred)
+        # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
+        # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
+        dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
+        cost = self.F_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", q, q)[:, None]  # (Bs, N)
+        cur = cost[np.arange(len(rows)), rows].copy()
+        onset_now = sp.since_onset[w] < cfg.onset_frames
+        if onset_now.any():
+            cost[onset_now] -= cfg.onset_bonus * self.lead[None]
+            cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
+        recent = (self.t[ids, None] - self.last_used[ids]) < cfg.memory_s * self.fps
+        cost += cfg.memory_penalty * recent
+        allowed = np.where(idle_only[:, None], self.idle[None], self.db.searchable[None])
+        N = len(self.db)
+        near = np.abs(np.arange(N)[None] - rows[:, None]) < cfg.near_frames
+        near &= self.db.segment[None] == self.db.segment[rows][:, None]
+        cost[~allowed | near] = np.inf
+        best = np.argmin(cost, axis=1)
+        bc = cost[np.arange(len(rows)), best]
+        cur = np.where(forced, np.inf, cur)
+        switch = np.isfinite(bc) & (bc < cur - cfg.margin)
+        return best, switch
+
+    def _blend(self, ids: np.ndarray) -> np.ndarray:
+        """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
+        cfg = self.config
+        dt = 1.0 / self.fps
+        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], cfg.halflife_s, dt)
+        self.off_x[ids], self.off_v[ids] = x, v
+        q = inz.qmul(inz.qexp(x), self.Q[self.row[ids]])
+        alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
+        now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
+        self.intensity_now[ids] = now
+        g = gain_of(now)
+        if np.any(np.abs(g - 1.0) > 1e-9):
+            q = inz.qpow_about(q, self.idle_mean[None], g)
+        return q
+
+    def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
+        """Push one frame whose pose is known per stream: the cues and predictor see its inputs, and
+        the stream continues from ``pose`` (the idle row nearest it, offset to match)."""
+        with self._lock:
+            ids = self._ids(slots)
+            a, f, h = self._inputs(audio, face, head, len(ids))
+            sp = self.speech.step(ids, a)
+            if self.predictor is not None and self.config.use_predictor:
+                self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+            p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
+            for k, s in enumerate(ids):
+                self._start_at(int(s), p[k])
+            self.was_speaking[ids] = sp.speaking
+            self.t[ids] += 1
+
+
+class MatchingGenerator:
+    """One causal matching stream: a one-slot :class:`BatchedMatchingGenerator` (same poses)."""
+
+    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None):
+        self.kernel = BatchedMatchingGenerator(db, config, predictor, capacity=1)
+        self._slot = [self.kernel.open()]
+
+    @property
+    def intensity(self) -> float:
+        return float(self.kernel.intensity_target[self._slot[0]])
+
+    @intensity.setter
+    def intensity(self, value: float) -> None:
+        self.kernel.set_intensity(self._slot[0], value)
+
+    @property
+    def frames(self) -> int:
+        return int(self.kernel.t[self._slot[0]])
+
+    @property
+    def playing_row(self) -> int:
+        """The database row the stream plays now (for tests and diagnostics)."""
+        return int(self.kernel.row[self._slot[0]])
+
+    def reset(self, initial_pose: np.ndarray | None = None) -> None:
+        """Start a new stream. ``initial_pose``: (47, 6), (N, 47, 6) or None (idle)."""
+        self.kernel.reset(self._slot[0], initial_pose)
+
+    def warmup(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray, pose: np.ndarray) -> None:
+        """Push one frame whose pose is known (cheap: no search)."""
+        self.kernel.warmup(self._slot, [audio], np.asarray(face)[None], np.asarray(head)[None], np.asarray(pose)[None])
+
+    def step(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
+        """The current frame's pose (47, 6) rot6d from this frame's inputs."""
+        return self.kernel.step(self._slot, [audio], np.asarray(face)[None], np.asarray(head)[None])[0]

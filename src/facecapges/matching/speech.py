@@ -1,0 +1,153 @@
+"""Causal speech cues of the matching engine: speaking or pause, onsets, loudness — per frame.
+
+Each 15 fps frame owns ≤ 1067 samples (16 kHz). :class:`SpeechTracker` reads only the current
+frame's samples and its own running state, for B independent streams at once (one stream is
+B = 1), so the database's annotations (the take's own audio through the same tracker, frame by
+frame) and the live engine agree by construction.
+
+Per frame and stream:
+
+* ``level`` — the frame's RMS in dBFS (floor −100).
+* ``speaking`` — an energy VAD: the level above ``max(SILENCE_DB, noise floor + VAD_MARGIN_DB)``
+  opens speech at once; it stays open for ``HANGOVER`` frames after the level falls (short
+  gaps between words stay speech). The noise floor follows the quietest frames: it drops to a
+  lower level at once and rises by at most ``FLOOR_RISE_DB`` a frame.
+* ``onset`` — spectral flux: the frame's last 1024 samples (Hann) in ``N_BANDS`` log-spaced
+  bands 80 Hz – 8 kHz, log power; the flux is the mean positive rise of the bands against the
+  previous frame. An onset fires while speaking when the flux exceeds the mean + ``ONSET_K`` sd
+  of the flux over the last ``FLUX_HISTORY`` frames (and ``MIN_FLUX``), at most once every
+  ``REFRACTORY`` frames.
+* ``since_onset`` — frames since the last onset (capped at ``SINCE_CAP``).
+* ``energy`` — the level smoothed over ~0.3 s (exponential), for the loudness class.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facecapges import timing
+
+SILENCE_DB = -50.0
+VAD_MARGIN_DB = 20.0
+FLOOR_RISE_DB = 0.05
+HANGOVER = 3
+N_FFT = 1024
+N_BANDS = 8
+FLUX_HISTORY = 23  # ~1.5 s
+ONSET_K = 1.0
+MIN_FLUX = 0.5
+REFRACTORY = 3
+SINCE_CAP = 30
+ENERGY_ALPHA = 0.2
+
+
+def _band_matrix(sr: int = timing.AUDIO_SR) -> np.ndarray:
+    freqs = np.fft.rfftfreq(N_FFT, 1.0 / sr)
+    edges = np.geomspace(80.0, 8000.0, N_BANDS + 1)
+    m = np.zeros((len(freqs), N_BANDS), np.float32)
+    for b in range(N_BANDS):
+        m[(freqs >= edges[b]) & (freqs < edges[b + 1]), b] = 1.0
+    return m / np.maximum(m.sum(0, keepdims=True), 1.0)
+
+
+_BANDS = _band_matrix()
+_WINDOW = np.hanning(N_FFT).astype(np.float32)
+
+
+@dataclass
+class SpeechFrame:
+    """The cues of one frame for B streams (module docs)."""
+
+    level: np.ndarray  # (B,) dBFS
+    speaking: np.ndarray  # (B,) bool
+    onset: np.ndarray  # (B,) bool
+    since_onset: np.ndarray  # (B,) int
+    energy: np.ndarray  # (B,) smoothed dBFS
+
+
+class SpeechTracker:
+    """Causal speaking/onset/loudness state of ``capacity`` streams (module docs)."""
+
+    def __init__(self, capacity: int = 1):
+        self.capacity = 0
+        self._alloc(capacity)
+
+    def _alloc(self, capacity: int) -> None:
+        old = self.capacity
+
+        def grow(name: str, shape: tuple, fill: float, dtype=np.float32) -> np.ndarray:
+            new = np.full((capacity, *shape), fill, dtype)
+            if old:
+                new[:old] = getattr(self, name)
+            return new
+
+        self.floor = grow("floor", (), 0.0)
+        self.hang = grow("hang", (), 0, np.int64)
+        self.prev_bands = grow("prev_bands", (N_BANDS,), np.nan)
+        self.flux_hist = grow("flux_hist", (FLUX_HISTORY,), np.nan)
+        self.since = grow("since", (), SINCE_CAP, np.int64)
+        self.energy = grow("energy", (), -100.0)
+        self.count = grow("count", (), 0, np.int64)
+        self.capacity = capacity
+
+    def ensure(self, capacity: int) -> None:
+        if capacity > self.capacity:
+            self._alloc(capacity)
+
+    def reset(self, slot: int) -> None:
+        self.floor[slot], self.hang[slot], self.since[slot] = 0.0, 0, SINCE_CAP
+        self.prev_bands[slot], self.flux_hist[slot] = np.nan, np.nan
+        self.energy[slot], self.count[slot] = -100.0, 0
+
+    def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
+        """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
+        a = np.asarray(audio, np.float32).reshape(len(idx), -1)
+        rms = np.sqrt(np.mean(np.square(a, dtype=np.float64), axis=1) + 1e-20) if a.shape[1] else np.zeros(len(idx))
+        level = np.maximum(20.0 * np.log10(rms + 1e-12), -100.0).astype(np.float32)
+        first = self.count[idx] == 0
+        floor = np.where(first, level, np.minimum(level, self.floor[idx] + FLOOR_RISE_DB))
+        loud = level > np.maximum(SILENCE_DB, floor + VAD_MARGIN_DB)
+        hang = np.where(loud, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
+        speaking = loud | (hang > 0)
+        bands = self._bands(a)
+        prev = self.prev_bands[idx]
+        flux = np.where(np.isnan(prev[:, 0]), 0.0, np.maximum(bands - prev, 0.0).mean(axis=1))
+        hist = self.flux_hist[idx]
+        valid = ~np.isnan(hist)
+        n = valid.sum(axis=1)
+        mean = np.where(n > 0, np.nansum(hist, axis=1) / np.maximum(n, 1), 0.0)
+        var = np.where(
+            n > 0, np.nansum(np.where(valid, (hist - mean[:, None]) ** 2, 0.0), axis=1) / np.maximum(n, 1), 0.0
+        )
+        since = np.minimum(self.since[idx] + 1, SINCE_CAP)
+        onset = speaking & (flux > np.maximum(mean + ONSET_K * np.sqrt(var), MIN_FLUX)) & (since >= REFRACTORY)
+        since = np.where(onset, 0, since)
+        energy = np.where(first, level, self.energy[idx] + ENERGY_ALPHA * (level - self.energy[idx]))
+        self.floor[idx], self.hang[idx], self.prev_bands[idx] = floor, hang, bands
+        self.flux_hist[idx] = np.concatenate([hist[:, 1:], flux[:, None]], axis=1)
+        self.since[idx], self.energy[idx], self.count[idx] = since, energy, self.count[idx] + 1
+        return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32))
+
+    @staticmethod
+    def _bands(a: np.ndarray) -> np.ndarray:
+        x = np.zeros((len(a), N_FFT), np.float32)
+        n = min(N_FFT, a.shape[1])
+        if n:
+            x[:, N_FFT - n :] = a[:, a.shape[1] - n :]
+        spec = np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2
+        return np.log(spec.astype(np.float32) @ _BANDS + 1e-10)
+
+
+def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:
+    """The tracker run over a whole take's audio, frame by frame: every field (n_frames,)."""
+    tr = SpeechTracker(1)
+    spf = timing.samples_per_frame()
+    idx = np.zeros(1, np.int64)
+    a = np.asarray(audio, np.float32)
+    rows = []
+    for t in range(n_frames):
+        chunk = a[t * spf : (t + 1) * spf]
+        rows.append(tr.step(idx, chunk[None] if len(chunk) else np.zeros((1, 0), np.float32)))
+    return SpeechFrame(*(np.concatenate([getattr(r, k) for r in rows]) for k in SpeechFrame.__dataclass_fields__))

@@ -1,0 +1,215 @@
+"""The motion-matching engine: causal, blended, idle at intensity 0, one kernel for one and many streams,
+its style file, and `styles build` end to end (a ZEGGS piece built from ../shared into tmp_path, never committed)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import shared_file
+from facecapges import timing
+from facecapges.matching import inertialize as inz
+from facecapges.matching.database import build_database, idle_rows, quaternions
+from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator, gain_of
+from facecapges.matching.predictor import PredictorSettings, train_predictor
+from facecapges.matching.style import save_matching_style
+from facecapges.matching.takes import load_take
+from facecapges.model.checkpoint import load_checkpoint
+from runtime_helpers import cli, refused
+
+SPF = timing.samples_per_frame()
+FPS = timing.MODEL_FPS
+TINY = PredictorSettings(
+    audio_tcn_channels=8, audio_dim=8, face_tcn_channels=4, face_dim=4, head_dim=4, hidden=8, batch=8, segment=40
+)
+
+
+@pytest.fixture(scope="session")
+def take():
+    return load_take(shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav"))
+
+
+@pytest.fixture(scope="session")
+def db(take):
+    return build_database([take], [(0, 450)])
+
+
+@pytest.fixture(scope="session")
+def predictor(take):
+    short = replace(take, train_until=450)  # what the database holds: nothing after it is read
+    return train_predictor([short], seed=0, progress=False, settings=replace(TINY, steps=20, eval_every=10))
+
+
+def run(gen, take, a: int, b: int, audio=None) -> np.ndarray:
+    audio = take.audio if audio is None else audio
+    return np.stack([gen.step(audio[t * SPF : (t + 1) * SPF], take.face[t], take.head[t]) for t in range(a, b)])
+
+
+def accelerations(pose: np.ndarray) -> np.ndarray:
+    """Joint angular accelerations (T-2, 47) rad/s² of rot6d poses."""
+    v = inz.angular_velocity(quaternions(pose), FPS)[:-1]
+    return np.linalg.norm(np.diff(v, axis=0), axis=-1) * FPS
+
+
+def test_database_keeps_to_the_training_range_and_annotates(take, db):
+    assert len(db) == 2 * 450  # the range and its mirror image, nothing past frame 450
+    assert np.array_equal(db.pose[:450], take.pose[:450])
+    assert not db.searchable[440:450].any() and db.searchable[:440].all()
+    assert set(np.unique(db.phase)) <= set(range(5)) and len(np.unique(db.phase)) >= 4
+    assert db.pause.any() and (~db.pause).any()
+    idle = idle_rows(db)
+    assert 0.2 <= idle.mean() < 0.9
+
+
+def test_strictly_causal(take, db, predictor):
+    """Changing the audio from frame 40 on changes no output frame before 40 (with the predictor)."""
+    other = take.audio.copy()
+    rng = np.random.default_rng(0)
+    other[540 * SPF :] = rng.normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
+    g = MatchingGenerator(db, EngineConfig(), predictor)
+    a = run(g, take, 500, 580)
+    g.reset()
+    b = run(g, take, 500, 580, audio=other)
+    assert np.array_equal(a[:40], b[:40])
+    assert not np.allclose(a[40:], b[40:])  # the change does reach later frames
+
+
+def test_no_pop_over_clip_switches(take, db, predictor):
+    """Inertialization keeps every switch under the real motion's largest joint acceleration; without it
+    (a half-life of 0.1 ms) the same switches pop."""
+    real_max = accelerations(take.pose[:450]).max()
+    out = {}
+    for h in (0.15, 1e-4):
+        g = MatchingGenerator(db, EngineConfig(halflife_s=h, margin=0.0), predictor)
+        pose = run(g, take, 450, 765)
+        out[h] = (int((accelerations(pose) > real_max).any(axis=1).sum()), int(g.kernel.switches[0]))
+    (pops, switches), (raw_pops, raw_switches) = out[0.15], out[1e-4]
+    assert switches >= 10 and raw_switches >= 10, out
+    assert pops <= 1, out
+    assert raw_pops >= 3, out  # the check can fail: unblended switches pop
+
+
+def test_intensity_zero_plays_idle_frames_only_and_moves(take, db):
+    g = MatchingGenerator(db)
+    g.intensity = 0.0
+    rows, poses = [], []
+    for t in range(450, 765):
+        poses.append(g.step(take.audio[t * SPF : (t + 1) * SPF], take.face[t], take.head[t]))
+        rows.append(g.playing_row)
+    rows = np.array(rows)
+    assert g.kernel.idle_play[rows[3:]].all()  # after the first search, idle rows only
+    poses = np.array(poses)
+    assert np.degrees(np.abs(np.diff(poses, axis=0)).max()) > 0.5  # not frozen
+    assert len(np.unique(db.segment[rows] * 10_000 + rows // 30)) >= 3  # not one stretch looping
+    assert float(gain_of(0.0)) == 0.5 and float(gain_of(1.0)) == 1.0 and float(gain_of(1.3)) == pytest.approx(1.3)
+
+
+def test_silence_fades_to_idle(take, db):
+    g = MatchingGenerator(db)
+    silent = np.zeros(SPF, np.float32)
+    rows = [g.playing_row]
+    for _ in range(60):
+        g.step(silent, np.zeros(52, np.float32), take.head[0])
+        rows.append(g.playing_row)
+    assert g.kernel.idle_play[np.array(rows[2:])].all()
+
+
+def test_intensity_change_never_pops(take, db):
+    g = MatchingGenerator(db)
+    a = run(g, take, 450, 500)
+    g.intensity = 1.3
+    b = run(g, take, 500, 560)
+    pose = np.concatenate([a, b])
+    real_max = accelerations(take.pose[:450]).max()
+    assert (accelerations(pose[40:70]) <= real_max).all()
+    assert g.intensity == pytest.approx(1.3)
+
+
+def test_batched_equals_single_streams(take, db, predictor):
+    starts = (450, 520, 600)
+    singles = []
+    for s in starts:
+        g = MatchingGenerator(db, EngineConfig(), predictor)
+        singles.append(run(g, take, s, s + 40))
+    kb = BatchedMatchingGenerator(db, EngineConfig(), predictor, capacity=2)  # grows to 3
+    extra = kb.open()
+    slots = [kb.open() for _ in starts]
+    kb.close(extra)
+    out = np.zeros((len(starts), 40, 47, 6), np.float32)
+    for k in range(40):
+        ts = [s + k for s in starts]
+        audio = np.stack([take.audio[t * SPF : (t + 1) * SPF] for t in ts])
+        out[:, k] = kb.step(slots, audio, take.face[ts], take.head[ts])
+    for i in range(len(starts)):
+        assert np.allclose(out[i], singles[i], atol=1e-5), i
+
+
+def test_style_file_round_trip(tmp_path, take, db, predictor):
+    path = save_matching_style(tmp_path / "s.safetensors", db, EngineConfig(margin=0.7), take.skeleton, predictor)
+    ck = load_checkpoint(path)
+    assert ck.engine == "matching" and ck.fps == FPS and ck.meta["format"] == "facecapges-matching-1"
+    assert ck.config.margin == 0.7 and ck.skeleton.names == take.skeleton.names
+    assert ck.database_poses().shape == (len(db), 47, 6) and ck.neutral_window.shape[1:] == (47, 6)
+    for k, v in db.tensors().items():
+        assert np.array_equal(ck.db.tensors()[k], v), k
+    a = run(MatchingGenerator(db, EngineConfig(margin=0.7), predictor), take, 450, 500)
+    b = run(ck.streaming(), take, 450, 500)
+    assert np.array_equal(a, b)
+    assert load_checkpoint(style=None).engine == "network"
+
+
+@pytest.fixture(scope="module")
+def zeggs_piece(tmp_path_factory):
+    """16 s of the ZEGGS take (motion + speech), written to tmp: built at run time, never committed."""
+    from facecapges.io.audio import load_audio, save_audio
+    from facecapges.io.bvh import read_bvh, write_bvh
+
+    d = tmp_path_factory.mktemp("zeggs")
+    bvh = read_bvh(shared_file("data/zeggs/067_Speech_2_x_1_0.bvh"))
+    n = int(16 * bvh.fps)
+    write_bvh(d / "piece.bvh", bvh.skeleton, bvh.motion[:n], bvh.fps)
+    audio = load_audio(shared_file("data/zeggs/067_Speech_2_x_1_0.wav"))
+    save_audio(d / "piece.wav", audio[: 16 * timing.AUDIO_SR])
+    return d / "piece.bvh", d / "piece.wav"
+
+
+def test_styles_build_end_to_end_on_zeggs(tmp_path, zeggs_piece):
+    env_dir = tmp_path / "styles"
+    env = {"FACECAPGES_STYLES": str(env_dir)}
+    import os
+
+    env = {**os.environ, **env}
+    bvh, wav = zeggs_piece
+    p = cli("styles", "build", "zeggs-mm", "--take", str(bvh), str(wav), "--steps", "20", env=env)
+    assert p.returncode == 0, p.stderr[-3000:]
+    style = env_dir / "zeggs-mm.safetensors"
+    card = (env_dir / "zeggs-mm.md").read_text()
+    assert "ND" in card and "never distribute" in card
+    listed = json.loads(cli("styles", "--json", env=env).stdout)
+    row = next(r for r in listed if r["name"] == "zeggs-mm")
+    assert row["engine"] == "matching" and row["path"] == str(style)
+    out = tmp_path / "g.bvh"
+    p = cli("generate", "--audio", str(wav), "--out", str(out), "--style", "zeggs-mm", env=env)
+    assert p.returncode == 0 and out.is_file(), p.stderr[-3000:]
+    p = cli("styles", "build", "zeggs-mm", "--take", str(bvh), str(wav), "--steps", "20", env=env)
+    refused(p, "--force")  # an installed style is not replaced without --force
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--take", "missing.bvh", "missing.wav"], ["missing.bvh"]),
+        (["--take", "{wav}", "{wav}"], ["must be a .bvh"]),
+        (["--take", "{bvh}"], ["two paths"]),
+        (["--take", "{bvh}", "{bvh}"], ["2_scott_0_1_1.bvh"]),
+    ],
+)
+def test_styles_build_refuses_bad_takes(tmp_path, args, words):
+    bvh, wav = shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav")
+    args = [a.format(bvh=bvh, wav=wav) for a in args]
+    p = cli("styles", "build", "bad", *args, "--out", str(tmp_path / "x.safetensors"))
+    refused(p, *words)
+    assert not (tmp_path / "x.safetensors").exists()
