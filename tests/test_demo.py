@@ -11,22 +11,27 @@ import numpy as np
 import soundfile as sf
 
 from facecapges.demo import demo_speech
-from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint
+from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
 
 
-def test_default_style_is_installed_and_complete():
-    assert DEFAULT_STYLE in list_styles()
+def test_default_styles_are_installed_and_complete():
+    assert DEFAULT_STYLE in list_styles() and DEFAULT_NETWORK_STYLE in list_styles()
     ck = load_checkpoint()
+    assert ck.engine == "matching" and ck.path.stem == DEFAULT_STYLE
     assert ck.path.stat().st_size <= 20 * 1024 * 1024
     assert ck.skeleton.n_joints == 75 and not ck.skeleton.missing()
-    assert ck.neutral_window.shape == (16, 47, 6)
-    assert ck.meta["speaker"] == 2 and ck.meta["epochs_trained"] >= 1
-    card = ck.path.with_suffix(".md")
-    assert card.is_file() and "held" in card.read_text().lower()
+    takes = ck.meta["takes"]
+    assert {t["name"] for t in takes} == {"2_scott_0_1_1", "2_scott_0_2_2"}
+    card = ck.path.with_suffix(".md").read_text()
+    assert "held" in card.lower() and "CC BY-NC 4.0" in card and "BEAT" in card
+    net = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
+    assert net.engine == "network" and net.neutral_window.shape == (16, 47, 6)
+    assert net.meta["speaker"] == 2 and net.meta["epochs_trained"] >= 1
+    assert "held" in net.path.with_suffix(".md").read_text().lower()
 
 
-def test_default_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
-    """The shipped model, on the real clip: streaming == training-time rollout."""
+def test_network_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
+    """The shipped network model, on the real clip: streaming == training-time rollout."""
     import torch
 
     from facecapges.io.audio import load_audio
@@ -34,7 +39,7 @@ def test_default_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
     from facecapges.skeleton import motion_to_pose
     from facecapges.timing import frame_audio
 
-    ck = load_checkpoint()
+    ck = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
     b = read_bvh(beat_bvh)
     pose, head = motion_to_pose(b.skeleton, b.motion)
     T, N = 80, 16
@@ -66,6 +71,7 @@ def test_demo_writes_bvh_and_video(tmp_path):
     assert bvh.n_frames == summary["frames"]
     arms = bvh.motion[:, 3:].std(0)
     assert arms.max() > 1.0  # degrees: the avatar actually gestures
+    _hands_leave_rest_like_the_speaker(bvh)
     import imageio_ffmpeg
 
     for video in ("demo.mp4", "demo_avatar.mp4"):
@@ -75,3 +81,26 @@ def test_demo_writes_bvh_and_video(tmp_path):
     p2 = subprocess.run([sys.executable, "-m", "facecapges.cli", "demo", "--out", str(out)],
                         capture_output=True, text=True, timeout=300)
     assert p2.returncode != 0 and "--force" in p2.stderr and "Traceback" not in p2.stderr
+
+
+def _hands_leave_rest_like_the_speaker(bvh):
+    """The demo's hands leave the rest pose as often and as far as the real speaker's (issue #25: wrist
+    spread within 0.8–1.25× his; the share of frames with a wrist raised 10 cm above his hanging height
+    within 0.8–1.25× his share), against his training frames (2_scott_0_1_1 before its held-out 20 %)."""
+    from conftest import shared_file
+
+    from facecapges.evaluation.synchrony import wrist_positions, wrist_spread
+    from facecapges.io.bvh import read_bvh
+    from facecapges.matching.targets import arm_positions
+    from facecapges.skeleton import motion_to_pose
+
+    real = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh"))
+    rpose = motion_to_pose(real.skeleton, real.motion)[0][: int(0.8 * real.n_frames)]
+    gpose = motion_to_pose(bvh.skeleton, bvh.motion)[0]
+    spread = wrist_spread(wrist_positions(bvh.skeleton, gpose)) / wrist_spread(wrist_positions(real.skeleton, rpose))
+    rh = arm_positions(real.skeleton, rpose)[:, :2, 1]  # wrist heights in the chest frame, cm
+    gh = arm_positions(bvh.skeleton, gpose)[:, :2, 1]
+    hanging = np.percentile(rh, 10, axis=0)
+    raised = (gh > hanging + 10).mean() / (rh > hanging + 10).mean()
+    assert 0.8 <= spread <= 1.25, spread
+    assert 0.8 <= raised <= 1.25, raised

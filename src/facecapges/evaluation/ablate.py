@@ -215,7 +215,12 @@ def train_variants(
     """
     import json
 
-    from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, load_checkpoint_or_style
+    from facecapges.model.checkpoint import (
+        DEFAULT_NETWORK_STYLE,
+        list_styles,
+        load_checkpoint,
+        load_checkpoint_or_style,
+    )
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -242,8 +247,8 @@ def train_variants(
             say(f"[{v}] {path} taken as given" + ("" if why is None else f"; note: {why}"))
             result[v] = TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
             continue
-        if v == "full" and reuse_default and not retrain and DEFAULT_STYLE in list_styles():
-            ck = load_checkpoint(style=DEFAULT_STYLE)
+        if v == "full" and reuse_default and not retrain and DEFAULT_NETWORK_STYLE in list_styles():
+            ck = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
             why = _same_recipe(ck.meta, recipe, None, names)
             if why is None:
                 say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")

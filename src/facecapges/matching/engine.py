@@ -48,6 +48,7 @@ from facecapges import timing
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
 from facecapges.matching.speech import SpeechTracker
+from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.skeleton import N_JOINTS
 
 
@@ -87,7 +88,7 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
     below it the swing shrinks (at 0, where only idle rows play, to half the idle motion: still
     moving, never frozen).
     """
-    i = np.clip(np.asarray(intensity, np.float64), 0.0, 2.0)
+    i = np.clip(np.asarray(intensity, np.float64), MIN_INTENSITY, MAX_INTENSITY)
     return np.where(i < 1.0, 0.5 + 0.5 * i, i)
 
 
@@ -195,11 +196,8 @@ class BatchedMatchingGenerator:
                     self.predictor.close(ps)
 
     def set_intensity(self, slot: int, value: float) -> None:
-        """The stream's intensity (0 … 1 … 1.3, clipped to [0, 2]); reached smoothly (module docs)."""
-        v = float(value)
-        if not np.isfinite(v):
-            raise ValueError(f"intensity must be a finite number, got {value!r}")
-        self.intensity_target[slot] = float(np.clip(v, 0.0, 2.0))
+        """The stream's intensity (:mod:`facecapges.model.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
+        self.intensity_target[slot] = check_intensity(value)
 
     def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
         """Cold start: ``initial_pose`` (47, 6), (N, 47, 6) or None (the style's idle pose)."""

@@ -89,7 +89,7 @@ def _to_bvh_euler(skel):
 
 
 def run(quick: bool = False, shared: Path | None = None) -> dict:
-    from facecapges.model.checkpoint import load_checkpoint, network_only
+    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint, network_only
     from facecapges.model.generate import FrameInputs, generate_poses
     from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
 
@@ -97,7 +97,7 @@ def run(quick: bool = False, shared: Path | None = None) -> dict:
     torch.set_num_threads(1)
     load_before = [round(x, 2) for x in os.getloadavg()]
     try:
-        ckpt = network_only(load_checkpoint(), "the model bench")
+        ckpt = network_only(load_checkpoint(style=DEFAULT_NETWORK_STYLE), "the model bench")
         cfg = ckpt.model.cfg
         n = 150 if quick else 450
         audio, face, head = _inputs(n, cfg.samples_per_frame)

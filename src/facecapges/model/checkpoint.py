@@ -8,7 +8,8 @@ the speaker, and the skeleton header (the BEAT hierarchy the poses belong to, so
 can be written).
 
 Styles ship in ``facecapges/assets/styles/<name>.safetensors`` with a model card
-``<name>.md``; ``DEFAULT_STYLE`` is the one trained on the shared BEAT clip. Styles a
+``<name>.md``; ``DEFAULT_STYLE`` is the motion-matching style of the shared BEAT speaker
+(``DEFAULT_NETWORK_STYLE`` the thesis network trained on the same speaker). Styles a
 user trains are installed (``facecapges styles install RUN``) into the user data
 folder :func:`user_styles_dir` — ``$FACECAPGES_STYLES`` if set, else
 ``$XDG_DATA_HOME/facecapges/styles`` (``~/.local/share/facecapges/styles`` by
@@ -34,7 +35,8 @@ if TYPE_CHECKING:
     from facecapges.matching.style import MatchingCheckpoint
     from facecapges.model.network import FaceCapGes
 
-DEFAULT_STYLE = "beat2-scott-demo"
+DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
+DEFAULT_NETWORK_STYLE = "beat2-scott-demo"  # the thesis network of the same speaker (train / ablate / its bench)
 FORMAT = "facecapges-checkpoint-1"
 MATCHING_FORMAT = "facecapges-matching-1"  # a motion-matching style: facecapges.matching.style
 
