@@ -6,9 +6,10 @@ against the real motion of those frames. ``--heldout`` instead builds from [0, 0
 on the held-out [0.8·T, T) — only once the choices are final.
 
 Figures (per take and pooled): wrist spread and jerk ratios to the real motion, BeatAlign gap
-in sd of its shifted-audio control, pops a minute (frames whose largest joint angular
-acceleration exceeds the 99.9th percentile of every joint's acceleration in the real training motion), spread in pauses / spread
-in speech.
+in sd of its shifted-audio control, pops a minute (:func:`facecapges.evaluation.realism.transitions`,
+what ``facecapges eval`` reports: frames whose acceleration over all joints exceeds the real
+training motion's 99.9th percentile) and those within 2 frames after a clip switch, spread in
+pauses / spread in speech.
 
     PYTHONPATH=src python scripts/matching_validate.py --take BVH WAV [--take …] [--set k=v …]
 """
@@ -24,6 +25,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.evaluation import beat_align as ba
+from facecapges.evaluation import realism as rz
 from facecapges.evaluation import synchrony as sy
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, quaternions
@@ -33,13 +35,6 @@ from facecapges.matching.takes import load_take
 
 FPS = timing.MODEL_FPS
 SPF = timing.samples_per_frame()
-
-
-def joint_acceleration(pose: np.ndarray) -> np.ndarray:
-    """Joint angular accelerations (T-2, 47) rad/s² of rot6d poses (T, 47, 6)."""
-    q = quaternions(pose)
-    v = inz.angular_velocity(q, FPS)[:-1]  # (T-1, 47, 3)
-    return np.linalg.norm(np.diff(v, axis=0), axis=-1) * FPS
 
 
 def switch_pops(pop: np.ndarray, jumps: np.ndarray) -> int:
@@ -112,7 +107,7 @@ def cached_predictor(takes, stop: list[int], steps: int | None):
     return pred
 
 
-def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: np.ndarray, speaker=None) -> dict:
+def figures(take, gen_pose: np.ndarray, a: int, b: int, real_train: list, jumps: np.ndarray, speaker=None) -> dict:
     skel = take.skeleton
     real = take.pose[a:b]
     wr_g, wr_r = sy.wrist_positions(skel, gen_pose), sy.wrist_positions(skel, real)
@@ -122,8 +117,9 @@ def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: n
     ctl_g = ba.beat_align_control(gen_pose, audio, timing.AUDIO_SR, FPS, offsets_s=offs)
     ctl_r = ba.beat_align_control(real, audio, timing.AUDIO_SR, FPS, offsets_s=offs)
     sp = speech_track(audio, b - a).speaking
-    acc = (joint_acceleration(gen_pose) / pop_thr).max(axis=1)
-    acc_r = (joint_acceleration(real) / pop_thr).max(axis=1)
+    pops = np.zeros(b - a, bool)
+    pops[rz.transitions(gen_pose, real_train, FPS).frames] = True
+    pops_r = rz.transitions(real, real_train, FPS)
     return {
         "take": take.name,
         "frames": [a, b],
@@ -133,9 +129,9 @@ def figures(take, gen_pose: np.ndarray, a: int, b: int, pop_thr: float, jumps: n
         "jerk_ratio_speaker": sy.ratio(sy.wrist_jerk(wr_g, FPS), speaker.jerk) if speaker else float("nan"),
         "ba_gap_sd": sy.beat_align_gap_sd(ctl_g),
         "ba_gap_sd_real": sy.beat_align_gap_sd(ctl_r),
-        "pops_per_min": float((acc > 1).sum() / (dur / 60.0)),
-        "pops_per_min_real": float((acc_r > 1).sum() / (dur / 60.0)),
-        "switch_pops_per_min": float(switch_pops(acc > 1, jumps) / (dur / 60.0)),
+        "pops_per_min": float(pops.sum() / (dur / 60.0)),
+        "pops_per_min_real": float(pops_r.count / (dur / 60.0)),
+        "switch_pops_per_min": float(switch_pops(pops[1:], jumps) / (dur / 60.0)),
         "switches_per_s": float(jumps[1:].sum() / dur),
         "pause_share": float(1.0 - sp.mean()),
         "pause_over_speech_spread": spread(wr_g[~sp]) / spread(wr_g[sp]),
@@ -167,11 +163,10 @@ def main(argv: list[str] | None = None) -> int:
         ranges = [(0, int(0.64 * t.n_frames)) for t in takes]
         evals = [(int(0.64 * t.n_frames), t.train_until) for t in takes]
     db = build_database(takes, ranges, mirror=not args.no_mirror, **({"weights": weights} if weights else {}))
-    train_acc = np.concatenate([joint_acceleration(t.pose[a:b]) for t, (a, b) in zip(takes, ranges)])
+    real_train = [t.pose[a:b] for t, (a, b) in zip(takes, ranges)]
     speaker = sy.pooled_stats(
         [sy.motion_stats(sy.wrist_positions(t.skeleton, t.pose[a:b]), FPS) for t, (a, b) in zip(takes, ranges)]
     )  # the speaker's real motion in the database's frames: "moves like him"
-    pop_thr = float(np.percentile(train_acc, 99.9))  # over every joint and frame of the real training motion
     predictor = (
         cached_predictor(takes, [b for _, b in ranges], args.steps) if args.predictor and not args.network else None
     )
@@ -183,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
                 pose, jumps = run_network(args.network, take, a, b, lead_in=min(a, 15 * k))
             else:
                 pose, jumps = run(gen, take, a, b, predictor, lead_in=min(a, 15 * k))
-            rows.append(figures(take, pose, a, b, pop_thr, jumps, speaker))
+            rows.append(figures(take, pose, a, b, real_train, jumps, speaker))
     keys = [k for k in rows[0] if k not in ("take", "frames")]
     pooled = {k: float(np.nanmean([r[k] for r in rows])) for k in keys}
     json.dump({"config": cfg.as_dict(), "weights": db.weights, "rows": rows, "mean": pooled}, sys.stdout, indent=1)

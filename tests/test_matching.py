@@ -17,7 +17,7 @@ from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, M
 from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
-from facecapges.model.checkpoint import load_checkpoint
+from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
 from runtime_helpers import cli, refused
 
 SPF = timing.samples_per_frame()
@@ -69,7 +69,7 @@ def test_strictly_causal(take, db, predictor):
     other = take.audio.copy()
     rng = np.random.default_rng(0)
     other[540 * SPF :] = rng.normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
-    g = MatchingGenerator(db, EngineConfig(), predictor)
+    g = MatchingGenerator(db, EngineConfig(margin=0.0), predictor)  # switches often: the change shows soon
     a = run(g, take, 500, 580)
     g.reset()
     b = run(g, take, 500, 580, audio=other)
@@ -158,7 +158,8 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     a = run(MatchingGenerator(db, EngineConfig(margin=0.7), predictor), take, 450, 500)
     b = run(ck.streaming(), take, 450, 500)
     assert np.array_equal(a, b)
-    assert load_checkpoint(style=None).engine == "network"
+    assert load_checkpoint(style=None).engine == "matching"  # the default style
+    assert load_checkpoint(style=DEFAULT_NETWORK_STYLE).engine == "network"
 
 
 @pytest.fixture(scope="module")

@@ -56,13 +56,15 @@ from facecapges.skeleton import N_JOINTS
 class EngineConfig:
     """The matcher's knobs. Chosen on validation (speaker 2, frames [0.64 T, 0.8 T) of both takes, database
     and predictor from [0, 0.64 T), 4 lead-ins each; scripts/matching_validate.py): search every 2 frames
-    (BeatAlign gap +0.30 sd against −0.40 at 3, −0.25 at 4), onset bonus 2 (+0.47; 0: −0.58), margin 1
-    (+0.55, fewer pops at switches: 16 against 25 a minute); half-lives 0.1–0.2 s and the future-target
-    weight changed nothing beyond the noise (the 10 s windows make every figure noisy: ± 0.5 sd)."""
+    (BeatAlign gap +0.30 sd against −0.40 at 3, −0.25 at 4), onset bonus 2 (+0.47; 0: −0.58). Then, with
+    transitions counted as ``facecapges eval`` counts them (evaluation.realism, 2 lead-ins): margin 1 and
+    half-life 0.15 s gave 1.5 transitions a minute and wrist jerk 1.14× the speaker's; margin 3 and half-life
+    0.3 s give 0 a minute, jerk 1.00×, spread 0.77×, BeatAlign gap +0.56 sd (margin 2: 0, 1.01×, −0.07 sd;
+    margin 2 with onset bonus 3: 0, 1.16×, +0.73 sd). The 10 s windows make every figure noisy (± 0.5 sd)."""
 
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
-    margin: float = 1.0  # a switch must beat continuing by this much cost
-    halflife_s: float = 0.15  # inertialization half-life
+    margin: float = 3.0  # a switch must beat continuing by this much cost
+    halflife_s: float = 0.3  # inertialization half-life
     memory_s: float = 20.0
     memory_penalty: float = 100.0
     near_frames: int = 8
