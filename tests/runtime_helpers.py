@@ -18,15 +18,83 @@ def checkpoint():
     return load_checkpoint()
 
 
-def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
-    """Run ``facecapges ARGS`` in a subprocess (real exit codes and stderr)."""
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, **kw)
+class CliResult(subprocess.CompletedProcess):
+    """What :func:`cli` returns: the fields of a finished subprocess (``returncode``, ``stdout``, ``stderr``)."""
+
+
+def cli(*args: str, timeout: float | None = None, env: dict[str, str] | None = None) -> CliResult:
+    """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.cli.main``.
+
+    It is what the subprocess did, minus 5-10 s of interpreter start, torch import and checkpoint load: the
+    same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
+    exits 2, and an exception that escapes ``main()`` is printed as the interpreter would (a ``Traceback`` on
+    stderr, status 1), so "one clear line, no traceback" is still checked. Python warnings go to stderr as
+    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only; ``timeout`` is
+    accepted for the call sites' sake and not enforced (a hung command hangs the test, as pytest shows).
+    For what only a real process shows (signals, servers, the installed script, torchrun) use
+    :func:`cli_process`.
+    """
+    import contextlib
+    import io
+    import os
+    import signal
+    import traceback
+    import warnings
+
+    from facecapges.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    argv, saved_env = list(sys.argv), dict(os.environ)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    code: int | str | None = 0
+    sys.argv = ["facecapges", *map(str, args)]
+    os.environ.update(env or {})
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            warnings.resetwarnings()  # the filters of a fresh interpreter, not pytest's
+            for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+                warnings.simplefilter("ignore", category)
+            try:
+                main()
+            except SystemExit as exc:
+                code = exc.code
+            except Exception:  # what the interpreter does with an exception nobody caught
+                traceback.print_exc()
+                code = 1
+    finally:
+        sys.argv = argv
+        os.environ.clear()
+        os.environ.update(saved_env)
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):  # sys.exit("message"): the message goes to stderr, status 1
+        err.write(f"{code}\n")
+        code = 1
+    return CliResult(["facecapges", *map(str, args)], code, out.getvalue(), err.getvalue())
+
+
+def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] = ("-m", "facecapges.cli"),
+                timeout: float = 300, **kw) -> subprocess.CompletedProcess | subprocess.Popen:
+    """Run ``facecapges ARGS`` in a real subprocess: the one helper for the tests where the process matters
+    (Ctrl-C and other signals, servers and ``live`` loops, the installed entry point, torchrun, read-only
+    mounts). ``launcher`` is what runs between the interpreter and ``ARGS`` (default ``-m facecapges.cli``;
+    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges.cli")``); a ``launcher`` starting with
+    ``"/"`` or without ``"-m"``/``"-c"`` first is a full command line instead (e.g. the installed script).
+    ``background=True`` returns the running ``Popen`` (stdout/stderr piped, text, unbuffered)."""
+    if launcher and not launcher[0].startswith("-"):
+        cmd = [*launcher, *map(str, args)]
+    else:
+        cmd = [sys.executable, "-u", *launcher, *map(str, args)]
+    if background:
+        return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def cli_popen(*args: str, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-u", "-m", "facecapges.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+    """``facecapges ARGS`` running in the background (see :func:`cli_process`)."""
+    return cli_process(*args, background=True, **kw)
 
 
 def wait_line(proc: subprocess.Popen, prefix: str, timeout: float = 120.0) -> str | None:
