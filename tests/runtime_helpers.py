@@ -58,7 +58,7 @@ def cli(*args: str, timeout: float | None = None, env: dict[str, str] | None = N
                 main()
             except SystemExit as exc:
                 code = exc.code
-            except Exception:  # what the interpreter does with an exception nobody caught
+            except Exception:  # noqa: BLE001 — what the interpreter does with an exception nobody caught
                 traceback.print_exc()
                 code = 1
     finally:
