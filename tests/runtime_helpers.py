@@ -22,15 +22,20 @@ class CliResult(subprocess.CompletedProcess):
     """What :func:`cli` returns: the fields of a finished subprocess (``returncode``, ``stdout``, ``stderr``)."""
 
 
-def cli(*args: str, timeout: float | None = None, env: dict[str, str] | None = None) -> CliResult:
+class _TimedOut(BaseException):
+    """Raised in the main thread by SIGALRM when an in-process command runs past its ``timeout``."""
+
+
+def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> CliResult:
     """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.cli.main``.
 
     It is what the subprocess did, minus 5-10 s of interpreter start, torch import and checkpoint load: the
     same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
     exits 2, and an exception that escapes ``main()`` is printed as the interpreter would (a ``Traceback`` on
     stderr, status 1), so "one clear line, no traceback" is still checked. Python warnings go to stderr as
-    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only; ``timeout`` is
-    accepted for the call sites' sake and not enforced (a hung command hangs the test, as pytest shows).
+    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only. A command still
+    running after ``timeout`` s is stopped (SIGALRM) and ``subprocess.TimeoutExpired`` raised, as
+    ``subprocess.run`` does.
     For what only a real process shows (signals, servers, the installed script, torchrun) use
     :func:`cli_process`.
     """
@@ -45,10 +50,16 @@ def cli(*args: str, timeout: float | None = None, env: dict[str, str] | None = N
 
     out, err = io.StringIO(), io.StringIO()
     argv, saved_env = list(sys.argv), dict(os.environ)
-    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP)}
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGALRM)}
     code: int | str | None = 0
     sys.argv = ["facecapges", *map(str, args)]
     os.environ.update(env or {})
+
+    def alarm(signum, frame):
+        raise _TimedOut
+
+    signal.signal(signal.SIGALRM, alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
             warnings.resetwarnings()  # the filters of a fresh interpreter, not pytest's
@@ -61,7 +72,11 @@ def cli(*args: str, timeout: float | None = None, env: dict[str, str] | None = N
             except Exception:  # noqa: BLE001 — what the interpreter does with an exception nobody caught
                 traceback.print_exc()
                 code = 1
+    except _TimedOut:
+        raise subprocess.TimeoutExpired(["facecapges", *map(str, args)], timeout, out.getvalue(),
+                                       err.getvalue()) from None
     finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
         sys.argv = argv
         os.environ.clear()
         os.environ.update(saved_env)

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,14 +12,14 @@ import yaml
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
 from facecapges.model.offline import OfflineDecoder, load_offline, save_offline
+from runtime_helpers import cli
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
             lstm_hidden=16, mlp_hidden=16, disc_channels=8, dropout=0.0)
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=300)
+def run(*args):
+    return cli(*map(str, args))
 
 
 def _inputs(T: int, cfg: ModelConfig, seed: int = 0):
@@ -141,7 +139,6 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
     from conftest import shared_file
-
     from facecapges.data.prepare import prepare
 
     bvh = shared_file("data/beat/2_scott_0_1_1.bvh")

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +12,7 @@ import soundfile as sf
 import torch
 
 from facecapges.arkit import BEAT_NAMES
+from runtime_helpers import cli
 
 TINY = """
 model:
@@ -32,8 +31,8 @@ train:
 """
 
 
-def run(*args: str, ok: bool = True) -> subprocess.CompletedProcess:
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True, timeout=600)
+def run(*args: str, ok: bool = True):
+    p = cli(*args)
     if ok:
         assert p.returncode == 0, p.stderr + p.stdout
     else:

@@ -32,6 +32,8 @@ websockets = pytest.importorskip("websockets")
 from websockets.asyncio.client import connect  # noqa: E402
 from websockets.exceptions import ConnectionClosed  # noqa: E402
 
+from runtime_helpers import cli  # noqa: E402
+
 
 @pytest.fixture(autouse=True, scope="module")
 def one_thread():
@@ -266,8 +268,7 @@ def test_pose_messages_are_the_runtime_format():
 
 def test_serve_command(tmp_path, ckpt):
     path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(tmp_path / "none")],
-                       capture_output=True, text=True, timeout=120)
+    p = cli("serve", "--checkpoint", str(tmp_path / "none"), timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "none" in p.stderr
     from facecapges.errors import UserError
 

@@ -28,6 +28,7 @@ import pytest
 from facecapges.avatar.vrm import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
+from runtime_helpers import cli  # noqa: E402
 from vrm_samples import build_sample  # noqa: E402
 from vrm_schemas import VRM0, VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
@@ -67,7 +68,6 @@ def _angle(a, b) -> float:
 @pytest.fixture(scope="module")
 def beat():
     from conftest import shared_file
-
     from facecapges.avatar.vrm_view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import global_transforms
@@ -87,9 +87,8 @@ def files(beat, tmp_path_factory):
     ours = d / "ours.vrm"
     from conftest import shared_file
 
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--format", "vrm", "--skeleton",
-                        str(shared_file("data/beat/2_scott_0_1_1.bvh")), "--out", str(ours)],
-                       capture_output=True, text=True)
+    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(shared_file("data/beat/2_scott_0_1_1.bvh")),
+            "--out", str(ours))
     assert r.returncode == 0, r.stderr
     ours0 = d / "ours0.vrm"  # the VRM 0.x writer in-process (the CLI path is the same but for --format)
     from facecapges.avatar.body import default_avatar
@@ -374,7 +373,7 @@ def test_vrma_files_match_the_vrm_animation_schema(files):
 
 # --------------------------------------------------------------------------------- bad files
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True)
+    return cli(*args)
 
 
 def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
@@ -458,9 +457,8 @@ def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
 
 
 def test_vrm_bench_runs():
-    from facecapges.avatar.vrm_bench import run
-
     from conftest import SHARED
+    from facecapges.avatar.vrm_bench import run
 
     r = run(quick=True, shared=SHARED)
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000
