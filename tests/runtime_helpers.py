@@ -33,7 +33,8 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
     same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
     exits 2, and an exception that escapes ``main()`` is printed as the interpreter would (a ``Traceback`` on
     stderr, status 1), so "one clear line, no traceback" is still checked. Python warnings go to stderr as
-    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only. A command still
+    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only, and torch's thread
+    count (which ``generate``/``run``/``live`` set) is put back afterwards. A command still
     running after ``timeout`` s is stopped (SIGALRM) and ``subprocess.TimeoutExpired`` raised, as
     ``subprocess.run`` does.
     For what only a real process shows (signals, servers, the installed script, torchrun) use
@@ -51,6 +52,8 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
     out, err = io.StringIO(), io.StringIO()
     argv, saved_env = list(sys.argv), dict(os.environ)
     handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGALRM)}
+    torch = sys.modules.get("torch")
+    threads = torch.get_num_threads() if torch is not None else None
     code: int | str | None = 0
     sys.argv = ["facecapges", *map(str, args)]
     os.environ.update(env or {})
@@ -77,9 +80,15 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
                                        err.getvalue()) from None
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
+        torch = sys.modules.get("torch")
+        if torch is not None:
+            torch.set_num_threads(threads or int(os.environ.get("OMP_NUM_THREADS", "1")))
         sys.argv = argv
-        os.environ.clear()
-        os.environ.update(saved_env)
+        for key in set(os.environ) - set(saved_env):
+            del os.environ[key]
+        for key, value in saved_env.items():
+            if os.environ.get(key) != value:
+                os.environ[key] = value
         for s, h in handlers.items():
             signal.signal(s, h)
     if code is None:
@@ -95,8 +104,9 @@ def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] 
     """Run ``facecapges ARGS`` in a real subprocess: the one helper for the tests where the process matters
     (Ctrl-C and other signals, servers and ``live`` loops, the installed entry point, torchrun, read-only
     mounts). ``launcher`` is what runs between the interpreter and ``ARGS`` (default ``-m facecapges.cli``;
-    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges.cli")``); a ``launcher`` starting with
-    ``"/"`` or without ``"-m"``/``"-c"`` first is a full command line instead (e.g. the installed script).
+    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges.cli")``); a ``launcher`` whose first word
+    is not an interpreter option (no leading ``-``) is the whole command before ``ARGS`` instead (the
+    installed ``facecapges`` script, ``unshare ... python -m facecapges.cli``).
     ``background=True`` returns the running ``Popen`` (stdout/stderr piped, text, unbuffered)."""
     if launcher and not launcher[0].startswith("-"):
         cmd = [*launcher, *map(str, args)]

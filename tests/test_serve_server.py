@@ -11,8 +11,6 @@ import asyncio
 import json
 import signal
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -32,7 +30,7 @@ websockets = pytest.importorskip("websockets")
 from websockets.asyncio.client import connect  # noqa: E402
 from websockets.exceptions import ConnectionClosed  # noqa: E402
 
-from runtime_helpers import cli  # noqa: E402
+from runtime_helpers import cli, cli_process  # noqa: E402
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -274,8 +272,7 @@ def test_serve_command(tmp_path, ckpt):
 
     with pytest.raises(UserError, match="--max-streams"):
         StreamServer(ckpt, ServeConfig(max_streams=0))
-    proc = subprocess.Popen([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(path), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = cli_process("serve", "--checkpoint", str(path), "--port", "0", background=True)
     try:
         line = proc.stdout.readline()
         assert line.startswith("serving"), line + proc.stderr.read()
