@@ -28,21 +28,19 @@ def test_default_style_is_installed_and_complete():
     assert card.is_file() and "held" in card.read_text().lower()
 
 
-def test_default_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
+def test_default_style_streams_like_its_training_rollout(beat_audio, beat_take, default_checkpoint):
     """The shipped model, on the real clip: streaming == training-time rollout."""
     import torch
 
-    from facecapges.io.audio import load_audio
-    from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import motion_to_pose
     from facecapges.timing import frame_audio
 
-    ck = load_checkpoint()
-    b = read_bvh(beat_bvh)
+    ck = default_checkpoint
+    b = beat_take
     pose, head = motion_to_pose(b.skeleton, b.motion)
     T, N = 80, 16
     s = 770  # a held-out stretch
-    audio = frame_audio(load_audio(beat_wav), s + T)[s:]
+    audio = frame_audio(beat_audio, s + T)[s:]
     face = np.zeros((T, 52), np.float32)
     with torch.no_grad():
         z = ck.model.encode(torch.from_numpy(audio)[None], torch.from_numpy(face)[None],

@@ -202,12 +202,10 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
 
 
-def test_bench_counts_macs_of_the_streaming_step():
+def test_bench_counts_macs_of_the_streaming_step(default_checkpoint):
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
     from facecapges.model.bench import speed_report
-    from facecapges.model.checkpoint import load_checkpoint
-
-    ckpt = load_checkpoint()
+    ckpt = default_checkpoint
     cfg = ckpt.model.cfg
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
