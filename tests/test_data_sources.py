@@ -113,6 +113,7 @@ def test_export_moves_arms_and_fingers(exported):
         assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.1, (a, b)
 
 
+@pytest.mark.slow
 def test_export_plays_in_blender(exported, tmp_path):
     blender = shutil.which("blender")
     if blender is None:

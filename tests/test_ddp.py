@@ -69,6 +69,7 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
         shutdown(ctx)
 
 
+@pytest.mark.slow
 def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
     from facecapges.training.train import build_trainer, load_clips
 
@@ -102,6 +103,7 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
             assert torch.allclose(r0[net][k], v, atol=1e-6, rtol=1e-5), (net, k)
 
 
+@pytest.mark.slow
 def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     import yaml
 

@@ -89,6 +89,7 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
         load_checkpoint(p)
 
 
+@pytest.mark.slow
 def test_offline_trainer_learns_the_segments(tmp_path):
     """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
     from facecapges.training.offline import build_offline_trainer
@@ -151,6 +152,7 @@ def cache(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(yaml.safe_dump({"model": {k: list(v) if isinstance(v, tuple) else v for k, v in TINY.items()},
@@ -202,6 +204,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
 
 
+@pytest.mark.slow
 def test_bench_counts_macs_of_the_streaming_step(default_checkpoint):
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
     from facecapges.model.bench import speed_report

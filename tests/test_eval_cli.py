@@ -42,6 +42,7 @@ def cache(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_fgd_train_from_cache_and_bvh(cache, tmp_path, beat_bvh):
     out = tmp_path / "fgd"
     res = run("fgd-train", "--cache", cache, "--speaker", 2, "--split", "all", "--holdout-from", 766,

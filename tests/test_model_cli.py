@@ -59,6 +59,7 @@ def trained(tmp_path_factory, cache) -> Path:
     return d / "run"
 
 
+@pytest.mark.slow
 def test_train_writes_checkpoint_log_and_resumes_exactly(tmp_path, cache, trained):
     log = (trained / "log.csv").read_text().splitlines()
     assert log[0].startswith("epoch,total,rec") and len(log) == 3
@@ -92,6 +93,7 @@ def test_train_bad_inputs(tmp_path, cache):
     assert "lstm_hiden" in p.stderr
 
 
+@pytest.mark.slow
 def test_generate_audio_only_frame_count_and_bvh(tmp_path, trained, unseen_wav):
     out = tmp_path / "g.bvh"
     p = run("generate", "--audio", str(unseen_wav), "--checkpoint", str(trained / "model.safetensors"),
@@ -107,6 +109,7 @@ def test_generate_audio_only_frame_count_and_bvh(tmp_path, trained, unseen_wav):
     run("generate", "--audio", str(unseen_wav), "--checkpoint", str(trained), "--out", str(out), ok=False)  # exists
 
 
+@pytest.mark.slow
 def test_generate_with_face_json_any_fps_and_unknown_names(tmp_path, trained, beat_wav):
     T = 60 * 5  # 5 s at 60 fps, BEAT's face rate
     rng = np.random.default_rng(0)
@@ -124,6 +127,7 @@ def test_generate_with_face_json_any_fps_and_unknown_names(tmp_path, trained, be
     assert "f.json" in p.stderr
 
 
+@pytest.mark.slow
 def test_generate_bad_audio_and_checkpoint(tmp_path, trained):
     silent = tmp_path / "silent.wav"
     sf.write(silent, np.zeros(16000, np.float32), 16000)

@@ -456,6 +456,7 @@ def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
     FIGURES["big_head_top_row_px"] = int(rows[0])
 
 
+@pytest.mark.slow
 def test_vrm_bench_runs():
     from conftest import SHARED
     from facecapges.avatar.vrm_bench import run
