@@ -6,6 +6,7 @@ missing they fail (nothing is skipped).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from functools import lru_cache
@@ -26,14 +27,15 @@ class _TimedOut(BaseException):
     """Raised in the main thread by SIGALRM when an in-process command runs past its ``timeout``."""
 
 
-def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> CliResult:
+def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None, cwd: str | os.PathLike | None = None
+        ) -> CliResult:
     """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.cli.main``.
 
     It is what the subprocess did, minus 5-10 s of interpreter start, torch import and checkpoint load: the
     same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
     exits 2, and an exception that escapes ``main()`` is printed as the interpreter would (a ``Traceback`` on
     stderr, status 1), so "one clear line, no traceback" is still checked. Python warnings go to stderr as
-    they would in a fresh interpreter. ``env`` is set in ``os.environ`` for the call only, and torch's thread
+    they would in a fresh interpreter. ``env`` is set in ``os.environ`` and ``cwd`` made the working folder for the call only, and torch's thread
     count (which ``generate``/``run``/``live`` set) is put back afterwards. A command still
     running after ``timeout`` s is stopped (SIGALRM) and ``subprocess.TimeoutExpired`` raised, as
     ``subprocess.run`` does.
@@ -42,7 +44,6 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
     """
     import contextlib
     import io
-    import os
     import signal
     import traceback
     import warnings
@@ -50,13 +51,15 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
     from facecapges.cli import main
 
     out, err = io.StringIO(), io.StringIO()
-    argv, saved_env = list(sys.argv), dict(os.environ)
+    argv, saved_env, saved_cwd = list(sys.argv), dict(os.environ), os.getcwd()
     handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGALRM)}
     torch = sys.modules.get("torch")
     threads = torch.get_num_threads() if torch is not None else None
     code: int | str | None = 0
     sys.argv = ["facecapges", *map(str, args)]
     os.environ.update(env or {})
+    if cwd is not None:
+        os.chdir(cwd)
 
     def alarm(signum, frame):
         raise _TimedOut
@@ -84,6 +87,7 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None) -> 
         if torch is not None:
             torch.set_num_threads(threads or int(os.environ.get("OMP_NUM_THREADS", "1")))
         sys.argv = argv
+        os.chdir(saved_cwd)
         for key in set(os.environ) - set(saved_env):
             del os.environ[key]
         for key, value in saved_env.items():
