@@ -149,6 +149,7 @@ def test_linear_blend_skinning_of_the_rest_pose_is_identity_and_bends_the_elbow(
 
 
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium not installed (scripts/setup-avatar.sh)")
+@pytest.mark.slow
 def test_glb_loads_in_threejs_gltfloader_without_errors(built):
     from facecapges.avatar.render.browser import Browser, avatar_routes
 

@@ -27,6 +27,7 @@ def glb():
     return b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
 
 
+@pytest.mark.slow
 def test_blendshapes_show_on_the_rendered_face_on_the_right_side(glb):
     from facecapges.avatar.render.video import render_stills
 
@@ -43,6 +44,7 @@ def test_blendshapes_show_on_the_rendered_face_on_the_right_side(glb):
     assert diff_jaw[110:].sum() > 5 * diff_jaw[:90].sum()  # below the nose, not the forehead
 
 
+@pytest.mark.slow
 def test_render_cli_writes_mp4_with_audio_and_contact_sheet(tmp_path, beat_bvh, beat_wav):
     import cv2
     import imageio_ffmpeg

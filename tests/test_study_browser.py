@@ -133,6 +133,7 @@ def do_trial(page: Page, st, pid: str, i: int, replay: bool = False, shot=None, 
     page.click("submit")
 
 
+@pytest.mark.slow
 def test_two_participants_complete_the_study(served):
     tmp, st, url = served
     # P01 answers the first clip, then the browser closes mid-study

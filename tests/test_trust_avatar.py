@@ -237,6 +237,7 @@ def test_a_large_fake_avatar_is_refused_unread(tmp_path):
 
 
 # ------------------------------------------------------------------ the browser (item 1)
+@pytest.mark.slow
 def test_the_browser_fetches_nothing_outside_our_server(leak):
     """Request interception alone (the page comes from a server without CSP): the leak server is never hit."""
     from facecapges.avatar.render.browser import Browser
@@ -260,6 +261,7 @@ def test_the_browser_fetches_nothing_outside_our_server(leak):
         pages.close()
 
 
+@pytest.mark.slow
 def test_our_pages_carry_a_csp_that_blocks_other_origins(leak, tmp_path):
     """A page served by our renderer server cannot fetch from another origin (CSP), and says so."""
     from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY, Browser

@@ -254,6 +254,7 @@ def _screenshot_errors(b, driver, beat, k: int, quats: np.ndarray, pos: dict) ->
 
 
 @pytest.mark.parametrize("name", ["ours", "ours0", "vrm1", "vrm0", "glb"])
+@pytest.mark.slow
 def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
     b, driver, info = _session(files[name], beat, vrma=files["vrma"])
     fig = FIGURES.setdefault("avatars", {}).setdefault(name, {})
@@ -311,6 +312,7 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
         b.close()
 
 
+@pytest.mark.slow
 def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat):
     """The negative control: the same A-pose GLB driven without the correction misses by the A-pose angle."""
     b, driver, _ = _session(files["glb"], beat, correction=False)
@@ -325,6 +327,7 @@ def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat
 
 
 @pytest.mark.parametrize("name", ["ours", "ours0"])
+@pytest.mark.slow
 def test_our_gaze_range_in_three_vrm(files, beat, name):
     """three-vrm's lookAt maps a 30° look (ARKit eyeLook* = 1) to expression weight 1 on both our VRMs."""
     b, _, _ = _session(files[name], beat, size=(160, 120))
@@ -339,6 +342,7 @@ def test_our_gaze_range_in_three_vrm(files, beat, name):
         b.close()
 
 
+@pytest.mark.slow
 def test_our_vrm_expressions_drive_its_morph_targets(files, beat):
     from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
@@ -407,6 +411,7 @@ def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
     assert not (tmp_path / "x.mp4").exists()
 
 
+@pytest.mark.slow
 def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     import imageio_ffmpeg
 
@@ -428,6 +433,7 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     assert doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]["count"] == 12
 
 
+@pytest.mark.slow
 def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
     """``render --avatar`` with a VRM whose head is 3× ours: the camera frames the avatar's own top, nothing cropped."""
     import imageio_ffmpeg
