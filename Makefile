@@ -6,7 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test setup clean
+.PHONY: demo test test-fast setup clean
 
 demo: setup
 	$(VENV)/bin/facecapges demo --out out --force
@@ -17,6 +17,13 @@ test: setup
 	$(VENV)/bin/ruff format --check src
 	$(VENV)/bin/mypy
 	$(PY) -m pytest -q --durations=15
+
+# The inner loop (docs/testing.md): lint and every test not marked `slow` (Chromium, Blender,
+# torchrun, training runs, the bench). `make test` and CI still run everything.
+test-fast: setup
+	$(VENV)/bin/ruff check src
+	$(VENV)/bin/ruff format --check src
+	$(PY) -m pytest -q -m "not slow" --durations=10
 
 setup: $(STAMP)
 

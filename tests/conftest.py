@@ -70,6 +70,37 @@ def megamind_video() -> Path:
     return shared_file("data/face/Megamind.avi")
 
 
+# Decoded once per session: the sample take and its speech, and the installed default style. Their
+# arrays are read-only, so a test that changed them in place would fail instead of changing the next test.
+@pytest.fixture(scope="session")
+def beat_take(beat_bvh):
+    """``read_bvh`` of the BEAT sample take (motion read-only)."""
+    from facecapges.io.bvh import read_bvh
+
+    take = read_bvh(beat_bvh)
+    take.motion.setflags(write=False)
+    return take
+
+
+@pytest.fixture(scope="session")
+def beat_audio(beat_wav):
+    """``load_audio`` of the BEAT sample take's speech (16 kHz mono float32, read-only)."""
+    from facecapges.io.audio import load_audio
+
+    audio = load_audio(beat_wav)
+    audio.setflags(write=False)
+    return audio
+
+
+@pytest.fixture(scope="session")
+def default_checkpoint():
+    """``load_checkpoint()`` of the installed default style, loaded once (the object ``runtime_helpers.checkpoint``
+    returns, so tests using either share it); its model stays in eval mode and must not be trained in place."""
+    from runtime_helpers import checkpoint
+
+    return checkpoint()
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI nothing may be skipped: a skip there means a missing install or file."""

@@ -6,6 +6,7 @@ missing they fail (nothing is skipped).
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from functools import lru_cache
@@ -18,15 +19,111 @@ def checkpoint():
     return load_checkpoint()
 
 
-def cli(*args: str, timeout: float = 300, **kw) -> subprocess.CompletedProcess:
-    """Run ``facecapges ARGS`` in a subprocess (real exit codes and stderr)."""
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
-                          timeout=timeout, **kw)
+class CliResult(subprocess.CompletedProcess):
+    """What :func:`cli` returns: the fields of a finished subprocess (``returncode``, ``stdout``, ``stderr``)."""
+
+
+class _TimedOut(BaseException):
+    """Raised in the main thread by SIGALRM when an in-process command runs past its ``timeout``."""
+
+
+def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None, cwd: str | os.PathLike | None = None
+        ) -> CliResult:
+    """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.cli.main``.
+
+    It is what the subprocess did, minus 5-10 s of interpreter start, torch import and checkpoint load: the
+    same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
+    exits 2, and an exception that escapes ``main()`` is printed as the interpreter would (a ``Traceback`` on
+    stderr, status 1), so "one clear line, no traceback" is still checked. Python warnings go to stderr as
+    they would in a fresh interpreter. ``env`` is set in ``os.environ`` and ``cwd`` made the working folder for the call only, and torch's thread
+    count (which ``generate``/``run``/``live`` set) is put back afterwards. A command still
+    running after ``timeout`` s is stopped (SIGALRM) and ``subprocess.TimeoutExpired`` raised, as
+    ``subprocess.run`` does.
+    For what only a real process shows (signals, servers, the installed script, torchrun) use
+    :func:`cli_process`.
+    """
+    import contextlib
+    import io
+    import signal
+    import traceback
+    import warnings
+
+    from facecapges.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    argv, saved_env, saved_cwd = list(sys.argv), dict(os.environ), os.getcwd()
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGHUP, signal.SIGALRM)}
+    torch = sys.modules.get("torch")
+    threads = torch.get_num_threads() if torch is not None else None
+    code: int | str | None = 0
+    sys.argv = ["facecapges", *map(str, args)]
+    os.environ.update(env or {})
+    if cwd is not None:
+        os.chdir(cwd)
+
+    def alarm(signum, frame):
+        raise _TimedOut
+
+    signal.signal(signal.SIGALRM, alarm)
+    signal.setitimer(signal.ITIMER_REAL, timeout)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), warnings.catch_warnings():
+            warnings.resetwarnings()  # the filters of a fresh interpreter, not pytest's
+            for category in (DeprecationWarning, PendingDeprecationWarning, ImportWarning, ResourceWarning):
+                warnings.simplefilter("ignore", category)
+            try:
+                main()
+            except SystemExit as exc:
+                code = exc.code
+            except Exception:  # noqa: BLE001 — what the interpreter does with an exception nobody caught
+                traceback.print_exc()
+                code = 1
+    except _TimedOut:
+        raise subprocess.TimeoutExpired(["facecapges", *map(str, args)], timeout, out.getvalue(),
+                                       err.getvalue()) from None
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        torch = sys.modules.get("torch")
+        if torch is not None:
+            torch.set_num_threads(threads or int(os.environ.get("OMP_NUM_THREADS", "1")))
+        sys.argv = argv
+        os.chdir(saved_cwd)
+        for key in set(os.environ) - set(saved_env):
+            del os.environ[key]
+        for key, value in saved_env.items():
+            if os.environ.get(key) != value:
+                os.environ[key] = value
+        for s, h in handlers.items():
+            signal.signal(s, h)
+    if code is None:
+        code = 0
+    elif not isinstance(code, int):  # sys.exit("message"): the message goes to stderr, status 1
+        err.write(f"{code}\n")
+        code = 1
+    return CliResult(["facecapges", *map(str, args)], code, out.getvalue(), err.getvalue())
+
+
+def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] = ("-m", "facecapges.cli"),
+                timeout: float = 300, **kw) -> subprocess.CompletedProcess | subprocess.Popen:
+    """Run ``facecapges ARGS`` in a real subprocess: the one helper for the tests where the process matters
+    (Ctrl-C and other signals, servers and ``live`` loops, the installed entry point, torchrun, read-only
+    mounts). ``launcher`` is what runs between the interpreter and ``ARGS`` (default ``-m facecapges.cli``;
+    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges.cli")``); a ``launcher`` whose first word
+    is not an interpreter option (no leading ``-``) is the whole command before ``ARGS`` instead (the
+    installed ``facecapges`` script, ``unshare ... python -m facecapges.cli``).
+    ``background=True`` returns the running ``Popen`` (stdout/stderr piped, text, unbuffered)."""
+    if launcher and not launcher[0].startswith("-"):
+        cmd = [*launcher, *map(str, args)]
+    else:
+        cmd = [sys.executable, "-u", *launcher, *map(str, args)]
+    if background:
+        return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
 
 
 def cli_popen(*args: str, **kw) -> subprocess.Popen:
-    return subprocess.Popen([sys.executable, "-u", "-m", "facecapges.cli", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kw)
+    """``facecapges ARGS`` running in the background (see :func:`cli_process`)."""
+    return cli_process(*args, background=True, **kw)
 
 
 def wait_line(proc: subprocess.Popen, prefix: str, timeout: float = 120.0) -> str | None:

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,6 +12,7 @@ from facecapges.avatar import blendshape_table as bt
 from facecapges.avatar.blendshapes import arkit_blendshapes
 from facecapges.avatar.mesh import TriMesh, canonical_face, read_obj, write_obj
 from facecapges.errors import UserError
+from runtime_helpers import cli
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +92,7 @@ def test_table_validation_errors():
 
 
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True, text=True)
+    return cli(*map(str, args))
 
 
 def test_blendshapes_cli_on_any_mesh_and_table(tmp_path):

@@ -53,6 +53,7 @@ def test_eyeballs_turn_with_eyelook_targets(avatar):
     assert np.abs(f.deltas[f.names.index("jawOpen")][sclera]).max() == 0
 
 
+@pytest.mark.slow
 def test_blinks_and_gaze_show_in_the_render():
     import cv2
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pygltflib
@@ -12,10 +11,10 @@ import pytest
 
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.avatar.body import default_avatar
-from facecapges.skeleton import rest_positions
 from facecapges.avatar.gltf import avatar_to_gltf
 from facecapges.io.bvh import read_bvh
-from facecapges.skeleton import UPPER_BODY
+from facecapges.skeleton import UPPER_BODY, rest_positions
+from runtime_helpers import cli
 
 _NP = {pygltflib.FLOAT: np.float32, pygltflib.UNSIGNED_SHORT: np.uint16, pygltflib.UNSIGNED_INT: np.uint32,
        pygltflib.UNSIGNED_BYTE: np.uint8}
@@ -150,6 +149,7 @@ def test_linear_blend_skinning_of_the_rest_pose_is_identity_and_bends_the_elbow(
 
 
 @pytest.mark.skipif(shutil.which("chromium") is None, reason="chromium not installed (scripts/setup-avatar.sh)")
+@pytest.mark.slow
 def test_glb_loads_in_threejs_gltfloader_without_errors(built):
     from facecapges.avatar.render.browser import Browser, avatar_routes
 
@@ -171,8 +171,7 @@ def test_avatar_build_cli(tmp_path):
 
     bvh = shared_file("data/beat/2_scott_0_1_1.bvh")
     out = tmp_path / "a.glb"
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--skeleton", str(bvh),
-                        "--out", str(out)], capture_output=True, text=True)
+    r = cli("avatar", "build", "--skeleton", str(bvh), "--out", str(out))
     assert r.returncode == 0, r.stderr
     doc = pygltflib.GLTF2.load(str(out))
     assert doc.meshes[1].extras["targetNames"] == list(ARKIT_NAMES)
@@ -181,8 +180,7 @@ def test_avatar_build_cli(tmp_path):
     other.write_text("HIERARCHY\nROOT Root\n{\n OFFSET 0 0 0\n CHANNELS 6 Xposition Yposition Zposition "
                      "Zrotation Xrotation Yrotation\n End Site\n {\n  OFFSET 0 1 0\n }\n}\nMOTION\nFrames: 1\n"
                      "Frame Time: 0.0666667\n0 0 0 0 0 0\n")
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--skeleton", str(other),
-                        "--out", str(tmp_path / "b.glb")], capture_output=True, text=True)
+    r = cli("avatar", "build", "--skeleton", str(other), "--out", str(tmp_path / "b.glb"))
     assert r.returncode == 2 and "not a BEAT skeleton" in r.stderr and "Traceback" not in r.stderr
 
 

@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
-from facecapges.avatar.laplacian import (LaplacianDeformer, cotangent_laplacian, cotangent_weights,
-                                         deformation_factors, spread_displacements)
+from facecapges.avatar.laplacian import (
+    LaplacianDeformer,
+    cotangent_laplacian,
+    cotangent_weights,
+    deformation_factors,
+    spread_displacements,
+)
 from facecapges.avatar.mesh import TriMesh, check_manifold, read_obj, write_obj
 from facecapges.errors import UserError
+from runtime_helpers import cli
 
 
 def grid(n: int = 9, bump: float = 0.0) -> TriMesh:
@@ -147,7 +150,6 @@ def test_cli_rejects_unreadable_and_non_manifold_meshes(tmp_path):
     table = tmp_path / "t.json"
     table.write_text('{"controls": [0], "targets": {"a": {"0": [0, 0, 1]}}}')
     for mesh, message in ((binary, "cannot read"), (nm, "non-manifold"), (tmp_path / "none.obj", "not found")):
-        r = subprocess.run([sys.executable, "-m", "facecapges.cli", "blendshapes", "--mesh", str(mesh),
-                            "--controls", str(table), "--out", str(tmp_path / "out")], capture_output=True, text=True)
+        r = cli("blendshapes", "--mesh", str(mesh), "--controls", str(table), "--out", str(tmp_path / "out"))
         assert r.returncode == 2, r.stderr
         assert message in r.stderr and "Traceback" not in r.stderr

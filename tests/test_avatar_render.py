@@ -5,13 +5,13 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from facecapges.arkit import ARKIT_NAMES, arkit_index
 from facecapges.io.bvh import read_bvh, write_bvh
+from runtime_helpers import cli
 
 pytestmark = pytest.mark.skipif(shutil.which("chromium") is None,
                                 reason="chromium not installed (scripts/setup-avatar.sh)")
@@ -20,7 +20,6 @@ pytestmark = pytest.mark.skipif(shutil.which("chromium") is None,
 @pytest.fixture(scope="module")
 def glb():
     from conftest import shared_file
-
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
 
@@ -28,6 +27,7 @@ def glb():
     return b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
 
 
+@pytest.mark.slow
 def test_blendshapes_show_on_the_rendered_face_on_the_right_side(glb):
     from facecapges.avatar.render.video import render_stills
 
@@ -44,9 +44,10 @@ def test_blendshapes_show_on_the_rendered_face_on_the_right_side(glb):
     assert diff_jaw[110:].sum() > 5 * diff_jaw[:90].sum()  # below the nose, not the forehead
 
 
+@pytest.mark.slow
 def test_render_cli_writes_mp4_with_audio_and_contact_sheet(tmp_path, beat_bvh, beat_wav):
-    import imageio_ffmpeg
     import cv2
+    import imageio_ffmpeg
 
     from facecapges.io.face_json import write_face_json
 
@@ -56,9 +57,8 @@ def test_render_cli_writes_mp4_with_audio_and_contact_sheet(tmp_path, beat_bvh, 
     weights[:, arkit_index("jawOpen")] = np.linspace(0, 1, 120)
     face = write_face_json(tmp_path / "face.json", weights, 60.0)
     out, sheet = tmp_path / "out.mp4", tmp_path / "sheet.png"
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "render", "--bvh", str(bvh), "--face", str(face),
-                        "--audio", str(beat_wav), "--out", str(out), "--contact-sheet", str(sheet),
-                        "--size", "320x240"], capture_output=True, text=True)
+    r = cli("render", "--bvh", str(bvh), "--face", str(face), "--audio", str(beat_wav), "--out", str(out),
+            "--contact-sheet", str(sheet), "--size", "320x240")
     assert r.returncode == 0, r.stderr
     probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out)], capture_output=True, text=True).stderr
     assert re.search(r"Video: h264.*320x240", probe) and "Audio: aac" in probe
@@ -67,8 +67,7 @@ def test_render_cli_writes_mp4_with_audio_and_contact_sheet(tmp_path, beat_bvh, 
     img = cv2.imread(str(sheet))
     assert img is not None and img.shape[1] == 8 * 240 and img.shape[0] == 7 * (240 + 22)
     # refuses to overwrite
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "render", "--bvh", str(bvh), "--out", str(out)],
-                       capture_output=True, text=True)
+    r = cli("render", "--bvh", str(bvh), "--out", str(out))
     assert r.returncode == 2 and "--force" in r.stderr
 
 
@@ -78,8 +77,7 @@ def test_render_rejects_a_bvh_of_another_skeleton(tmp_path):
                      "Zrotation Xrotation Yrotation\n JOINT Spine\n {\n  OFFSET 0 10 0\n  CHANNELS 3 Zrotation "
                      "Xrotation Yrotation\n  End Site\n  {\n   OFFSET 0 10 0\n  }\n }\n}\nMOTION\nFrames: 2\n"
                      "Frame Time: 0.0666667\n0 0 0 0 0 0 0 0 0\n0 0 0 0 0 0 0 0 0\n")
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "render", "--bvh", str(other), "--out",
-                        str(tmp_path / "o.mp4")], capture_output=True, text=True)
+    r = cli("render", "--bvh", str(other), "--out", str(tmp_path / "o.mp4"))
     assert r.returncode == 2 and "not a BEAT skeleton" in r.stderr and "Traceback" not in r.stderr
 
 

@@ -8,20 +8,20 @@ every area present and none failed, and progress must reach stderr.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
-
 from pathlib import Path
 
+import pytest
+
 from facecapges.benchmarks import BENCHMARKS
+from runtime_helpers import cli_process
 
 REPO = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video):
     shared = beat_bvh.parents[2]  # ../shared (data/beat/<clip>.bvh)
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "bench", "--quick", "--json", "--shared", str(shared)],
-                       capture_output=True, text=True, timeout=900, cwd=REPO)
+    p = cli_process("bench", "--quick", "--json", "--shared", str(shared), timeout=900, cwd=REPO)
     assert p.returncode == 0, p.stderr[-4000:]
     doc = json.loads(p.stdout)  # strict JSON: no NaN
     failed = {a: doc[a]["error"] for a in BENCHMARKS if "error" in doc.get(a, {"error": "missing"})}

@@ -49,6 +49,7 @@ def blender(tmp_path_factory):
     return ours, json.loads((tmp / "out.json").read_text())
 
 
+@pytest.mark.slow
 def test_bvh_joint_positions_match_our_fk(blender):
     ours, out = blender
     bvh = out["bvh"]
@@ -68,6 +69,7 @@ def test_bvh_joint_positions_match_our_fk(blender):
     assert spread > 5.0  # the frames really differ: the hand moves by centimetres
 
 
+@pytest.mark.slow
 def test_glb_skeleton_shape_keys_and_jaw(blender):
     from facecapges.skeleton import rest_positions
 

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -13,6 +11,7 @@ from typer.testing import CliRunner
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.cli import app
 from facecapges.errors import UserError
+from runtime_helpers import cli
 
 runner = CliRunner()
 
@@ -61,8 +60,7 @@ def test_capture_eval_writes_report_and_plot(face_video, tmp_path):
 
 
 def _run_cli(*args):
-    return subprocess.run([sys.executable, "-c", "from facecapges.cli import main; main()", *args],
-                          capture_output=True, text=True, timeout=120)
+    return cli(*args, timeout=120)
 
 
 def test_errors_exit_nonzero_with_one_clear_line(tmp_path, face_video):

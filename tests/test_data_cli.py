@@ -3,18 +3,17 @@
 from __future__ import annotations
 
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from facecapges.io.bvh import read_bvh, write_bvh
 from facecapges.skeleton import joint_positions
+from runtime_helpers import cli
 
 
-def run(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=120)
+def run(*args: str):
+    return cli(*map(str, args))
 
 
 def assert_one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:

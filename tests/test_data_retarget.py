@@ -2,29 +2,38 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 from conftest import shared_file
 from facecapges import rotations as rot
-from facecapges.data.retarget import (auto_map, load_map, rest_corrections, retarget_bvh, retarget_motion,
-                                      shipped_map_path)
+from facecapges.data.retarget import (
+    auto_map,
+    load_map,
+    rest_corrections,
+    retarget_bvh,
+    retarget_motion,
+    shipped_map_path,
+)
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh
-from facecapges.skeleton import (UPPER_BODY, global_transforms, local_matrices, motion_to_euler, motion_to_pose,
-                                 pose_to_motion)
+from facecapges.skeleton import (
+    UPPER_BODY,
+    global_transforms,
+    local_matrices,
+    motion_to_euler,
+    motion_to_pose,
+    pose_to_motion,
+)
+from runtime_helpers import cli
 
 ARM_BONES = [(f"{s}{a}", f"{s}{b}") for s in ("Right", "Left") for a, b in
              (("Shoulder", "Arm"), ("Arm", "ForeArm"), ("ForeArm", "Hand"), ("Hand", "HandMiddle1"),
               ("HandIndex1", "HandIndex2"), ("HandThumb2", "HandThumb3"))]
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=300)
+def run(*args):
+    return cli(*map(str, args))
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +14,7 @@ from conftest import shared_file
 from facecapges.data.cache import Cache
 from facecapges.io.bvh import read_bvh
 from facecapges.skeleton import UPPER_BODY, joint_positions
+from runtime_helpers import cli
 
 REPO = Path(__file__).resolve().parents[1]
 ZEGGS = "zeggs_067_Speech_2_x_1_0"
@@ -37,9 +37,8 @@ _open(out, "w").write(json.dumps(res))
 '''
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=600)
+def run(*args):
+    return cli(*map(str, args))
 
 
 @pytest.fixture(scope="module")
@@ -114,6 +113,7 @@ def test_export_moves_arms_and_fingers(exported):
         assert np.degrees(np.arccos(np.clip(cos, -1, 1))).max() < 0.1, (a, b)
 
 
+@pytest.mark.slow
 def test_export_plays_in_blender(exported, tmp_path):
     blender = shutil.which("blender")
     if blender is None:

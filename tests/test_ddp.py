@@ -11,13 +11,15 @@ from __future__ import annotations
 import os
 import socket
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 import torch.multiprocessing as mp
+
+from runtime_helpers import cli as run_cli
+from runtime_helpers import cli_process
 
 TINY_MODEL = dict(audio_frontend_channels=[8, 8, 8], audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
                   face_dim=8, lstm_hidden=16, mlp_hidden=16, disc_channels=8, dropout=0.0)
@@ -32,12 +34,12 @@ def free_port() -> int:
 
 
 def cli(*args: str, torchrun: int = 0, port: int = 0) -> subprocess.CompletedProcess:
+    """``facecapges ARGS`` under ``torchrun`` (``torchrun`` ranks, a real process group), else in-process."""
     if torchrun:
-        cmd = [sys.executable, "-m", "torch.distributed.run", f"--nproc_per_node={torchrun}",
-               "--master_addr=127.0.0.1", f"--master_port={port}", "-m", "facecapges.cli", *args]
+        p = cli_process(*args, launcher=("-m", "torch.distributed.run", f"--nproc_per_node={torchrun}",
+                                         "--master_addr=127.0.0.1", f"--master_port={port}", "-m", "facecapges.cli"))
     else:
-        cmd = [sys.executable, "-m", "facecapges.cli", *args]
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        p = run_cli(*args)
     assert p.returncode == 0, p.stderr[-3000:] + p.stdout[-2000:]
     return p
 
@@ -50,9 +52,8 @@ def cache(tmp_path_factory, beat_bvh) -> Path:
 
 
 def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> None:
-    from facecapges.training.train import load_clips
     from facecapges.training.distributed import init_distributed, shutdown
-    from facecapges.training.train import build_trainer
+    from facecapges.training.train import build_trainer, load_clips
 
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world),
                       LOCAL_RANK=str(rank))
@@ -68,9 +69,9 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
         shutdown(ctx)
 
 
+@pytest.mark.slow
 def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
-    from facecapges.training.train import load_clips
-    from facecapges.training.train import build_trainer
+    from facecapges.training.train import build_trainer, load_clips
 
     mp.spawn(_rank_worker, args=(2, free_port(), cache, tmp_path), nprocs=2, join=True)
     r0 = torch.load(tmp_path / "rank0.pt", weights_only=False)
@@ -102,6 +103,7 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
             assert torch.allclose(r0[net][k], v, atol=1e-6, rtol=1e-5), (net, k)
 
 
+@pytest.mark.slow
 def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     import yaml
 

@@ -6,12 +6,15 @@ import json
 import math
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
+import pytest
 import soundfile as sf
 
 from facecapges.demo import demo_speech
 from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
+from runtime_helpers import cli, cli_process
 
 
 def test_default_styles_are_installed_and_complete():
@@ -30,21 +33,19 @@ def test_default_styles_are_installed_and_complete():
     assert "held" in net.path.with_suffix(".md").read_text().lower()
 
 
-def test_network_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
+def test_network_style_streams_like_its_training_rollout(beat_audio, beat_take):
     """The shipped network model, on the real clip: streaming == training-time rollout."""
     import torch
 
-    from facecapges.io.audio import load_audio
-    from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import motion_to_pose
     from facecapges.timing import frame_audio
 
     ck = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
-    b = read_bvh(beat_bvh)
+    b = beat_take
     pose, head = motion_to_pose(b.skeleton, b.motion)
     T, N = 80, 16
     s = 770  # a held-out stretch
-    audio = frame_audio(load_audio(beat_wav), s + T)[s:]
+    audio = frame_audio(beat_audio, s + T)[s:]
     face = np.zeros((T, 52), np.float32)
     with torch.no_grad():
         z = ck.model.encode(torch.from_numpy(audio)[None], torch.from_numpy(face)[None],
@@ -57,10 +58,13 @@ def test_network_style_streams_like_its_training_rollout(beat_wav, beat_bvh):
     np.testing.assert_allclose(out.reshape(T - N, -1), ref, atol=1e-5)
 
 
+@pytest.mark.slow
 def test_demo_writes_bvh_and_video(tmp_path):
+    """``make demo`` end to end through the installed ``facecapges`` script (the console entry point)."""
     out = tmp_path / "out"
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "demo", "--out", str(out)],
-                       capture_output=True, text=True, timeout=900)
+    script = Path(sys.executable).parent / "facecapges"
+    assert script.is_file(), f"{script}: the console script is missing (make setup)"
+    p = cli_process("demo", "--out", str(out), launcher=(str(script),), timeout=900)
     assert p.returncode == 0, p.stderr
     summary = json.loads(p.stdout[: p.stdout.rindex("}") + 1])
     info = sf.info(str(demo_speech()))
@@ -78,8 +82,7 @@ def test_demo_writes_bvh_and_video(tmp_path):
         probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(out / video)], capture_output=True, text=True)
         assert "Video: h264" in probe.stderr and "Audio:" in probe.stderr, video
     # a second run never overwrites without asking
-    p2 = subprocess.run([sys.executable, "-m", "facecapges.cli", "demo", "--out", str(out)],
-                        capture_output=True, text=True, timeout=300)
+    p2 = cli("demo", "--out", str(out), timeout=300)
     assert p2.returncode != 0 and "--force" in p2.stderr and "Traceback" not in p2.stderr
 
 

@@ -7,14 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+from runtime_helpers import cli_process
+
 ROOT = Path(__file__).resolve().parents[1]
 DEMO_WAV = ROOT / "src" / "facecapges" / "assets" / "demo" / "speech.wav"
 
 
 def test_serve_client_example_streams_against_a_real_server():
     """docs/examples/serve_client.py against `facecapges serve` with the installed default style."""
-    proc = subprocess.Popen([sys.executable, "-m", "facecapges.cli", "serve", "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = cli_process("serve", "--port", "0", background=True)
     try:
         line = proc.stdout.readline()
         assert line.startswith("serving"), line + proc.stderr.read()

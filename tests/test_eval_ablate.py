@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,14 +12,14 @@ import yaml
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
 from facecapges.model.offline import OfflineDecoder, load_offline, save_offline
+from runtime_helpers import cli
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
             lstm_hidden=16, mlp_hidden=16, disc_channels=8, dropout=0.0)
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=300)
+def run(*args):
+    return cli(*map(str, args))
 
 
 def _inputs(T: int, cfg: ModelConfig, seed: int = 0):
@@ -91,6 +89,7 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
         load_checkpoint(p)
 
 
+@pytest.mark.slow
 def test_offline_trainer_learns_the_segments(tmp_path):
     """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
     from facecapges.training.offline import build_offline_trainer
@@ -141,7 +140,6 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
     from conftest import shared_file
-
     from facecapges.data.prepare import prepare
 
     bvh = shared_file("data/beat/2_scott_0_1_1.bvh")
@@ -154,6 +152,7 @@ def cache(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     cfg = tmp_path / "tiny.yaml"
     cfg.write_text(yaml.safe_dump({"model": {k: list(v) if isinstance(v, tuple) else v for k, v in TINY.items()},
@@ -205,12 +204,13 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     assert bad.returncode == 2 and bad.stderr.startswith("error: ") and "--variants" in bad.stderr
 
 
+@pytest.mark.slow
 def test_bench_counts_macs_of_the_streaming_step():
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
     from facecapges.model.bench import speed_report
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
 
-    ckpt = load_checkpoint()
+    ckpt = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
     cfg = ckpt.model.cfg
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -84,6 +84,7 @@ def _clips(n=2, T=160):
     return out
 
 
+@pytest.mark.slow
 def test_trained_by_the_one_trainer_and_round_trips(tmp_path, monkeypatch):
     import facecapges.evaluation.camn as camn_mod
 

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -14,11 +13,11 @@ from facecapges.data.prepare import prepare
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
+from runtime_helpers import cli
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=300)
+def run(*args):
+    return cli(*map(str, args))
 
 
 def one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:
@@ -43,6 +42,7 @@ def cache(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_fgd_train_from_cache_and_bvh(cache, tmp_path, beat_bvh):
     out = tmp_path / "fgd"
     res = run("fgd-train", "--cache", cache, "--speaker", 2, "--split", "all", "--holdout-from", 766,

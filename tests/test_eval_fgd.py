@@ -131,6 +131,7 @@ def test_velocity_term_of_the_loss():
     assert F.reconstruction_loss(ramp, x, 0.0, 0.1).item() == pytest.approx(0.1)
 
 
+@pytest.mark.slow
 def test_training_on_the_real_clip_lowers_the_loss_and_scores_gt_as_zero(real_pose, tmp_path):
     skel, pose = real_pose
     cfg = F.FGDConfig(epochs=4)

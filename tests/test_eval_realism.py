@@ -12,12 +12,11 @@ FPS = 15
 
 
 @pytest.fixture(scope="module")
-def take(beat_bvh):
+def take(beat_take):
     """The real take 2_scott_0_1_1: rot6d poses (957, 47, 6) and its skeleton."""
-    from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import motion_to_pose
 
-    b = read_bvh(beat_bvh)
+    b = beat_take
     return motion_to_pose(b.skeleton, b.motion)[0].astype(np.float64), b.skeleton
 
 
@@ -77,14 +76,13 @@ def test_silence_ratio_on_synthetic_speech():
     assert np.isnan(still.ratio) and still.speech_s > 0
 
 
-def test_silence_ratio_on_the_real_take(take, beat_wav):
-    from facecapges.io.audio import load_audio
+def test_silence_ratio_on_the_real_take(take, beat_audio):
 
     pose, skel = take
-    res = R.silence_ratio(pose, load_audio(beat_wav), 16000, FPS, skel)
+    res = R.silence_ratio(pose, beat_audio, 16000, FPS, skel)
     assert res.pause_s > 1.0 and res.speech_s > 30.0 and 0.2 < res.ratio < 1.5
     with pytest.raises(ValueError, match="skeleton"):
-        R.silence_ratio(pose, load_audio(beat_wav), 16000, FPS)
+        R.silence_ratio(pose, beat_audio, 16000, FPS)
 
 
 def test_real_vs_generated_separates_a_jittered_mean_pose(take):
@@ -115,12 +113,11 @@ def test_control_on_the_two_halves_of_the_take(take):
     assert np.isnan(R.real_vs_generated(pose[:40], pose[40:80], FPS, skel).accuracy)  # too short for 2 folds
 
 
-def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_wav):
+def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audio):
     """``generate_from`` uses ``ckpt.streaming()`` + ``reset(initial_pose)``: the same poses as the network's
     streaming generator built on that window by hand (the path it replaced)."""
     from facecapges import timing
     from facecapges.evaluation.run import engine_database, engine_name, generate_from, history_frames
-    from facecapges.io.audio import load_audio
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import FrameInputs
     from facecapges.model.streaming import StreamingGenerator
@@ -128,7 +125,7 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_wav)
     pose, _ = take
     ckpt = load_checkpoint(style="beat2-scott-demo")
     n = 30
-    audio = load_audio(beat_wav)[: timing.frame_sample_bounds(n, FPS)[0]]
+    audio = beat_audio[: timing.frame_sample_bounds(n, FPS)[0]]
     head = np.broadcast_to(rot.identity_rot6d(), (n, 6)).copy()
     inputs = FrameInputs(
         audio=timing.frame_audio(audio, n, FPS), face=np.zeros((n, 52), np.float32), head=head, fps=FPS, notes=[]
@@ -146,12 +143,11 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_wav)
     assert engine_database(ckpt, [])[0] is None
 
 
-def test_realism_section_and_its_table(take, beat_wav):
+def test_realism_section_and_its_table(take, beat_audio):
     from facecapges.evaluation.report import realism_lines
-    from facecapges.io.audio import load_audio
 
     pose, skel = take
-    audio = load_audio(beat_wav)
+    audio = beat_audio
     real, train = pose[766:], pose[:766]
     s0 = 766 * 16000 // FPS
     methods = {"ground truth": [real], "frozen": [np.repeat(real[:1], len(real), 0)], "replay": [train[:191]]}

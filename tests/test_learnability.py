@@ -20,6 +20,7 @@ asserts that the wrists really move.)
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from facecapges import rotations as rot
@@ -124,12 +125,14 @@ def test_synthetic_target_follows_its_bursts():
     assert z_shift < 3
 
 
+@pytest.mark.slow
 def test_trained_strokes_follow_the_bursts_of_new_audio(tmp_path):
     f = train_and_measure(tmp_path)
     assert f["arm_range_gen"] > 0.2, f  # the arms move
     assert f["z_gen"] >= 3.0 and f["r_gen"] > 0.3, f  # … with the new audio, far above the shifted control
 
 
+@pytest.mark.slow
 def test_the_check_fails_when_the_audio_does_not_reach_the_decoder(tmp_path):
     f = train_and_measure(tmp_path, cut_audio=True)
     assert f["arm_range_gen"] > 0.2, f  # it still moves …

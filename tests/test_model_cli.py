@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +12,7 @@ import soundfile as sf
 import torch
 
 from facecapges.arkit import BEAT_NAMES
+from runtime_helpers import cli
 
 TINY = """
 model:
@@ -32,8 +31,8 @@ train:
 """
 
 
-def run(*args: str, ok: bool = True) -> subprocess.CompletedProcess:
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True, timeout=600)
+def run(*args: str, ok: bool = True):
+    p = cli(*args)
     if ok:
         assert p.returncode == 0, p.stderr + p.stdout
     else:
@@ -60,6 +59,7 @@ def trained(tmp_path_factory, cache) -> Path:
     return d / "run"
 
 
+@pytest.mark.slow
 def test_train_writes_checkpoint_log_and_resumes_exactly(tmp_path, cache, trained):
     log = (trained / "log.csv").read_text().splitlines()
     assert log[0].startswith("epoch,total,rec") and len(log) == 3
@@ -93,6 +93,7 @@ def test_train_bad_inputs(tmp_path, cache):
     assert "lstm_hiden" in p.stderr
 
 
+@pytest.mark.slow
 def test_generate_audio_only_frame_count_and_bvh(tmp_path, trained, unseen_wav):
     out = tmp_path / "g.bvh"
     p = run("generate", "--audio", str(unseen_wav), "--checkpoint", str(trained / "model.safetensors"),
@@ -108,6 +109,7 @@ def test_generate_audio_only_frame_count_and_bvh(tmp_path, trained, unseen_wav):
     run("generate", "--audio", str(unseen_wav), "--checkpoint", str(trained), "--out", str(out), ok=False)  # exists
 
 
+@pytest.mark.slow
 def test_generate_with_face_json_any_fps_and_unknown_names(tmp_path, trained, beat_wav):
     T = 60 * 5  # 5 s at 60 fps, BEAT's face rate
     rng = np.random.default_rng(0)
@@ -125,6 +127,7 @@ def test_generate_with_face_json_any_fps_and_unknown_names(tmp_path, trained, be
     assert "f.json" in p.stderr
 
 
+@pytest.mark.slow
 def test_generate_bad_audio_and_checkpoint(tmp_path, trained):
     silent = tmp_path / "silent.wav"
     sf.write(silent, np.zeros(16000, np.float32), 16000)

@@ -136,6 +136,7 @@ def _clip(T: int = 160, seed: int = 0, face: bool = False):
     return ClipArrays("synthetic", pose, pitch, f, _speech_like(T / 15 + 0.1, seed)[: T * SR // 15])
 
 
+@pytest.mark.slow
 def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.training.train import build_trainer
@@ -160,6 +161,7 @@ def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
     np.testing.assert_allclose(tr2.G.face_enc.inp.in_mean.numpy(), c.face[:120].mean(0), atol=1e-5)
 
 
+@pytest.mark.slow
 def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
     """The offline decoder gets resume by construction: 2 + 1 epochs equal 3 in one go."""
     from facecapges.training.offline import OFFLINE
@@ -183,6 +185,7 @@ def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
 
 
 # ------------------------------------------------------------- styles install
+@pytest.mark.slow
 def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
     from facecapges.errors import UserError
     from facecapges.model.checkpoint import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
@@ -212,6 +215,7 @@ def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
         install_style(tmp_path / "junk.safetensors")
 
 
+@pytest.mark.slow
 def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics(tmp_path):
     """``train.init_from``: the base's learned weights, this speaker's own input statistics."""
     from facecapges.errors import UserError
@@ -245,6 +249,7 @@ def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
         load_checkpoint_or_style("no-such-style")
 
 
+@pytest.mark.slow
 def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
     """``train.head_dropout``: a segment's head input is held at the camera frame's identity, whole."""
     from facecapges.errors import UserError
@@ -268,6 +273,7 @@ def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
         build_trainer([_clip()], tmp_path / "bad", dict(TINY), dict(over, head_dropout=1.5), {}, resume=False)
 
 
+@pytest.mark.slow
 def test_amplitude_loss_asks_for_the_swing_not_its_timing(tmp_path):
     """``train.w_amp``: a stroke made a little off time costs nothing, holding still does."""
     from facecapges.training.masking import amplitude_loss, masked_reconstruction_losses

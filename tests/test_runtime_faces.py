@@ -108,6 +108,7 @@ def _free_udp_pair() -> int:
     raise RuntimeError("no two consecutive free UDP ports")
 
 
+@pytest.mark.slow
 def test_run_and_live_drive_one_avatar_per_face(two_faces, tmp_path):
     out = tmp_path / "run"
     r = cli("run", str(two_faces), "--faces", "2", "--out", str(out), "--max-frames", "12", "--video-size", "320x240",
@@ -153,6 +154,7 @@ def test_run_and_live_drive_one_avatar_per_face(two_faces, tmp_path):
             s.close()
 
 
+@pytest.mark.slow
 def test_viewer_shows_every_face(two_faces, tmp_path):
     from runtime_helpers import cli_popen, viewer_page
 

@@ -149,6 +149,7 @@ def test_vmc_receiver_sees_the_captured_head(tmp_path, face_video):
     assert report["frames"] >= len(captured)
 
 
+@pytest.mark.slow
 def test_the_video_shows_the_head(tmp_path, face_video):
     """MediaPipe, run on the face close-up of the rendered avatar.mp4, sees the person's yaw and pitch."""
     import cv2

@@ -32,6 +32,7 @@ def probe(path):
     return meta, n
 
 
+@pytest.mark.slow
 def test_outputs_written(run_dir):
     for name in ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json"):
         assert (run_dir / name).stat().st_size > 0, name
@@ -43,6 +44,7 @@ def test_outputs_written(run_dir):
     assert face.weights.max() > 0.1  # a talking face: the jaw and the eyes move
 
 
+@pytest.mark.slow
 def test_videos(run_dir):
     meta, n = probe(run_dir / "avatar.mp4")
     assert n == N and meta["fps"] == pytest.approx(15) and meta["audio_codec"]
@@ -50,6 +52,7 @@ def test_videos(run_dir):
     assert n2 == N and meta2["size"][0] > meta2["size"][1] > 0 and meta2["audio_codec"]
 
 
+@pytest.mark.slow
 def test_report(run_dir):
     rep = json.loads((run_dir / "report.json").read_text())
     assert rep["frames"] == N
@@ -60,6 +63,7 @@ def test_report(run_dir):
     assert rep["events"]["video_frames_skipped"] > 0  # 25 fps source at the 15 fps model rate
 
 
+@pytest.mark.slow
 def test_refuses_to_overwrite(run_dir, face_video):
     r = cli("run", str(face_video), "--out", str(run_dir), "--max-frames", "2", "--no-video")
     assert r.returncode == 2 and "already exists" in r.stderr and "Traceback" not in r.stderr

@@ -109,6 +109,7 @@ def test_websocket_feed_and_oversized_message(live):
         assert ws.protocol.close_rcvd.code == 1009  # message too big
 
 
+@pytest.mark.slow
 def test_browser_viewer_shows_the_avatar(live, tmp_path):
     import cv2
 
@@ -144,6 +145,7 @@ def test_browser_viewer_shows_the_avatar(live, tmp_path):
         assert np.abs(shot2.astype(int) - img.astype(int)).sum(-1).astype(bool).mean() > 0.001
 
 
+@pytest.mark.slow
 def test_viewer_slider_sets_the_intensity(live):
     """The viewer's intensity slider reaches the generator: at 0 the avatar only idles."""
     from websockets.sync.client import connect

@@ -11,8 +11,6 @@ import asyncio
 import json
 import signal
 import socket
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -31,6 +29,8 @@ from facecapges.serving.server import ServeConfig, StreamServer
 websockets = pytest.importorskip("websockets")
 from websockets.asyncio.client import connect  # noqa: E402
 from websockets.exceptions import ConnectionClosed  # noqa: E402
+
+from runtime_helpers import cli, cli_process  # noqa: E402
 
 
 @pytest.fixture(autouse=True, scope="module")
@@ -266,15 +266,13 @@ def test_pose_messages_are_the_runtime_format():
 
 def test_serve_command(tmp_path, ckpt):
     path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(tmp_path / "none")],
-                       capture_output=True, text=True, timeout=120)
+    p = cli("serve", "--checkpoint", str(tmp_path / "none"), timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "none" in p.stderr
     from facecapges.errors import UserError
 
     with pytest.raises(UserError, match="--max-streams"):
         StreamServer(ckpt, ServeConfig(max_streams=0))
-    proc = subprocess.Popen([sys.executable, "-m", "facecapges.cli", "serve", "--checkpoint", str(path), "--port", "0"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = cli_process("serve", "--checkpoint", str(path), "--port", "0", background=True)
     try:
         line = proc.stdout.readline()
         assert line.startswith("serving"), line + proc.stderr.read()

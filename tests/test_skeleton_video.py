@@ -8,7 +8,6 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from facecapges.io.bvh import read_bvh
 from facecapges.outputs.skeleton_video import drawn_bones, pose_positions, render_skeleton_video
 from facecapges.skeleton import joint_positions, motion_to_pose, pose_to_motion
 
@@ -19,8 +18,8 @@ def _probe(path):
     return out.stderr
 
 
-def test_positions_match_bvh_fk(beat_bvh):
-    bvh = read_bvh(beat_bvh)
+def test_positions_match_bvh_fk(beat_take):
+    bvh = beat_take
     pose = motion_to_pose(bvh.skeleton, bvh.motion[:20])[0]
     ours = pose_positions(bvh.skeleton, pose)
     ref = joint_positions(bvh.skeleton, pose_to_motion(bvh.skeleton, pose))
@@ -29,8 +28,8 @@ def test_positions_match_bvh_fk(beat_bvh):
     assert "RightHandIndex3" in names and "HeadEnd" in names and "RightUpLeg" not in names
 
 
-def test_two_panels_with_audio(beat_bvh, beat_wav, tmp_path):
-    bvh = read_bvh(beat_bvh)
+def test_two_panels_with_audio(beat_take, beat_wav, tmp_path):
+    bvh = beat_take
     pose = motion_to_pose(bvh.skeleton, bvh.motion[:45])[0]
     out = render_skeleton_video([pose, pose[::-1]], ["real", "generated"], bvh.skeleton, tmp_path / "v.mp4",
                                 fps=15, wav=beat_wav, panel_size=(320, 360))
@@ -45,8 +44,8 @@ def test_two_panels_with_audio(beat_bvh, beat_wav, tmp_path):
         assert (panel < 160).sum() > 200 and np.median(panel) > 230
 
 
-def test_no_audio_and_bad_arguments(beat_bvh, tmp_path):
-    bvh = read_bvh(beat_bvh)
+def test_no_audio_and_bad_arguments(beat_take, tmp_path):
+    bvh = beat_take
     pose = motion_to_pose(bvh.skeleton, bvh.motion[:10])[0]
     out = render_skeleton_video([pose], ["only"], bvh.skeleton, tmp_path / "a" / "v.mp4")
     info = _probe(out)

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import base64
 import json
-import subprocess
-import sys
 import time
 import urllib.request
 
@@ -17,6 +15,7 @@ from facecapges.avatar.render.browser import Browser
 from facecapges.study.build import create_study, open_study
 from facecapges.study.criteria import CRITERION_KEYS
 from facecapges.study.server import make_server, serve_in_thread
+from runtime_helpers import cli
 
 TOKENS: dict[str, str] = {}  # participant id -> invitation token (from the study's plan)
 
@@ -134,6 +133,7 @@ def do_trial(page: Page, st, pid: str, i: int, replay: bool = False, shot=None, 
     page.click("submit")
 
 
+@pytest.mark.slow
 def test_two_participants_complete_the_study(served):
     tmp, st, url = served
     # P01 answers the first clip, then the browser closes mid-study
@@ -189,8 +189,7 @@ def test_two_participants_complete_the_study(served):
     assert plays == [0, 1, 1, 2]
 
     out = tmp / "results"
-    res = subprocess.run([sys.executable, "-m", "facecapges.cli", "study", "analyze", str(tmp / "study"),
-                          "--out", str(out)], capture_output=True, text=True, timeout=120)
+    res = cli("study", "analyze", str(tmp / "study"), "--out", str(out), timeout=120)
     assert res.returncode == 0, res.stderr
     results = json.loads((out / "results.json").read_text())
     assert results["n_participants"] == 2 and results["n_answers"] == 6
@@ -205,8 +204,7 @@ def test_two_participants_complete_the_study(served):
             assert got["rank_counts"] == counts
     assert (out / "mean_rank.png").is_file() and (out / "rank_shares.png").is_file()
     # one participant alone (like thesis fig. 5.3 beside 5.2): exactly that participant's ranks
-    res = subprocess.run([sys.executable, "-m", "facecapges.cli", "study", "analyze", str(tmp / "study"),
-                          "--out", str(tmp / "p02"), "--only", "p02"], capture_output=True, text=True, timeout=120)
+    res = cli("study", "analyze", str(tmp / "study"), "--out", str(tmp / "p02"), "--only", "p02", timeout=120)
     assert res.returncode == 0, res.stderr
     alone = json.loads((tmp / "p02" / "results.json").read_text())
     assert alone["participants"] == ["P02"] and alone["n_answers"] == 3

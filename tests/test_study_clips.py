@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -18,11 +17,11 @@ from facecapges.rotations import quaternion_to_matrix
 from facecapges.skeleton import local_matrices, motion_to_euler
 from facecapges.study.build import create_study, open_study
 from facecapges.study.clips import load_clips
+from runtime_helpers import cli
 
 
-def run(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *map(str, args)], capture_output=True, text=True,
-                          timeout=120)
+def run(*args):
+    return cli(*map(str, args))
 
 
 def one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> str:

@@ -20,6 +20,7 @@ import pytest
 from facecapges.avatar.gltf_check import MAX_DEPTH, MAX_FILE_BYTES
 from facecapges.avatar.vrm import join_glb, load_model, parse_model, split_glb
 from facecapges.errors import UserError
+from runtime_helpers import cli
 from vrm_samples import build_sample
 
 
@@ -236,6 +237,7 @@ def test_a_large_fake_avatar_is_refused_unread(tmp_path):
 
 
 # ------------------------------------------------------------------ the browser (item 1)
+@pytest.mark.slow
 def test_the_browser_fetches_nothing_outside_our_server(leak):
     """Request interception alone (the page comes from a server without CSP): the leak server is never hit."""
     from facecapges.avatar.render.browser import Browser
@@ -259,6 +261,7 @@ def test_the_browser_fetches_nothing_outside_our_server(leak):
         pages.close()
 
 
+@pytest.mark.slow
 def test_our_pages_carry_a_csp_that_blocks_other_origins(leak, tmp_path):
     """A page served by our renderer server cannot fetch from another origin (CSP), and says so."""
     from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY, Browser
@@ -299,8 +302,7 @@ def _our_avatar_with(tmp_path, uri_kind: str, leak_url: str):
 @pytest.mark.parametrize("uri_kind", ["image", "buffer"])
 def test_render_refuses_an_avatar_with_outside_uris(tmp_path, leak, beat_bvh, uri_kind):
     avatar = _our_avatar_with(tmp_path, uri_kind, leak.url)
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "render", "--bvh", str(beat_bvh), "--avatar",
-                        str(avatar), "--out", str(tmp_path / "o.mp4")], capture_output=True, text=True, timeout=180)
+    r = cli("render", "--bvh", str(beat_bvh), "--avatar", str(avatar), "--out", str(tmp_path / "o.mp4"), timeout=180)
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr[-3000:]
     assert "self-contained" in r.stderr and not (tmp_path / "o.mp4").exists()
     time.sleep(0.2)
@@ -323,8 +325,7 @@ def test_every_avatar_option_refuses_an_outside_uri(tmp_path, leak, vrm1, beat_b
          "--max-seconds", "1"],
     ]
     for args in runs:
-        r = subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True,
-                           timeout=180)
+        r = cli(*args, timeout=180)
         assert r.returncode == 2 and "Traceback" not in r.stderr, (args, r.stderr[-3000:])
         assert "self-contained" in r.stderr, (args, r.stderr[-2000:])
     assert leak.hits == []

@@ -8,8 +8,6 @@ import json
 import os
 import socket
 import stat
-import subprocess
-import sys
 import time
 
 import numpy as np
@@ -17,6 +15,7 @@ import pytest
 
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh
+from runtime_helpers import cli
 
 BVH = """HIERARCHY
 ROOT Hips
@@ -62,8 +61,7 @@ def test_bvh_header_in_range_reads_every_row(tmp_path):
 def test_cli_refuses_frame_time_without_traceback(tmp_path):
     p = tmp_path / "h.bvh"
     p.write_text(BVH.format(frames=3, dt="1e-300"))
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "render", "--bvh", str(p), "--out",
-                        str(tmp_path / "o.mp4")], capture_output=True, text=True, timeout=120)
+    r = cli("render", "--bvh", str(p), "--out", str(tmp_path / "o.mp4"), timeout=120)
     assert r.returncode != 0 and "Traceback" not in r.stderr and "Frame Time" in r.stderr, r.stderr[-2000:]
     assert not (tmp_path / "o.mp4").exists()
 
@@ -90,8 +88,7 @@ def test_deep_or_wrong_study_json_is_a_user_error(tmp_path, text):
 
 def test_study_server_on_deep_study_json_exits_cleanly(tmp_path):
     (tmp_path / "study.json").write_text("[" * 100_000)
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "study", "serve", str(tmp_path), "--port", "0"],
-                       capture_output=True, text=True, timeout=120)
+    r = cli("study", "serve", str(tmp_path), "--port", "0", timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr and "not a valid study file" in r.stderr, r.stderr
 
 
@@ -145,8 +142,7 @@ def test_bench_on_a_bad_shared_folder_is_one_line(tmp_path, layout):
     if layout == "broken":
         (shared / "data" / "beat" / "2_scott_0_1_1.bvh").write_text("HIERARCHY\nnot a bvh\n")
         (shared / "data" / "beat" / "2_scott_0_1_1.wav").write_bytes(b"RIFF\0\0\0\0WAVE")
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "bench", "--json", "--only", "data",
-                        "--shared", str(shared)], capture_output=True, text=True, timeout=300)
+    r = cli("bench", "--json", "--only", "data", "--shared", str(shared), timeout=300)
     assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr[-3000:]
     if layout == "empty":
         assert r.returncode == 2 and "not the shared data folder" in r.stderr

@@ -13,17 +13,16 @@ import numpy as np
 import pytest
 
 from facecapges.errors import UserError, check_output_dir, check_output_file
-
-from runtime_helpers import cli, refused
+from runtime_helpers import cli, cli_process, refused
 
 
 def read_only(folder: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     """Run the CLI with ``folder`` mounted read-only (a private mount namespace; nothing else changes)."""
     if shutil.which("unshare") is None:
         pytest.fail("unshare (util-linux) is needed to mount a read-only file system for this test")
-    cmd = " ".join(f"'{a}'" for a in (sys.executable, "-m", "facecapges.cli", *args))
-    return subprocess.run(["unshare", "-rm", "sh", "-c", f"mount -t tmpfs -o ro tmpfs '{folder}' && exec {cmd}"],
-                          capture_output=True, text=True, timeout=timeout)
+    mount = f"mount -t tmpfs -o ro tmpfs '{folder}' && exec \"$0\" \"$@\""
+    return cli_process(*args, launcher=("unshare", "-rm", "sh", "-c", mount, sys.executable, "-m", "facecapges.cli"),
+                       timeout=timeout)
 
 
 def test_output_checks(tmp_path):

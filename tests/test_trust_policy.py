@@ -23,14 +23,13 @@ def test_a_skeleton_without_beat_joints_is_a_user_error_everywhere():
             check()
 
 
-def test_a_session_gives_back_torch_threads(face_video):
-    from facecapges.model.checkpoint import load_checkpoint
+def test_a_session_gives_back_torch_threads(face_video, default_checkpoint):
     from facecapges.runtime.session import build_session
 
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        sess = build_session(load_checkpoint(), video=face_video, silent_ok=True)
+        sess = build_session(default_checkpoint, video=face_video, silent_ok=True)
         assert torch.get_num_threads() == 1  # one thread while live (see build_session)
         sess.close()
         assert torch.get_num_threads() == 2

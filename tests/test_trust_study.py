@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import socket
-import subprocess
-import sys
 import time
 import urllib.error
 import urllib.request
@@ -18,6 +16,7 @@ from facecapges.study.analyze import collect_answers
 from facecapges.study.build import INVITATIONS_FILE, create_study, ensure_tokens, open_study
 from facecapges.study.server import MAX_BODY, make_server, serve_in_thread
 from facecapges.study.store import MAX_PLAYS
+from runtime_helpers import cli
 
 GOOD = {"realism": [1, 2, 3], "synchrony": [3, 1, 2], "diversity": [2, 3, 1]}
 
@@ -185,6 +184,5 @@ def test_play_events_and_sessions_are_bounded_and_a_damaged_file_is_one_clear_er
 
 
 def test_serve_rejects_an_impossible_port(study_dir):
-    p = subprocess.run([sys.executable, "-m", "facecapges.cli", "study", "serve", str(study_dir), "--port", "70000"],
-                       capture_output=True, text=True, timeout=60)
+    p = cli("study", "serve", str(study_dir), "--port", "70000", timeout=60)
     assert p.returncode == 2 and "out of range" in p.stderr and "Traceback" not in p.stderr

@@ -5,13 +5,12 @@ and a refused install leaves the styles store as it was (everything is staged, t
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 
 import pytest
 
 from facecapges.errors import UserError
 from facecapges.model.checkpoint import install_style, list_styles, styles_dir, user_styles_dir
+from runtime_helpers import cli
 
 
 @pytest.fixture()
@@ -114,7 +113,6 @@ def test_a_crafted_run_is_refused_and_the_store_is_untouched(store, run, tmp_pat
 
 def test_the_cli_refuses_without_traceback(store, run, tmp_path):
     _card_to_passwd(run, tmp_path)
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "styles", "install", str(run)],
-                       capture_output=True, text=True, timeout=120, env={**os.environ, "FACECAPGES_STYLES": str(store)})
+    r = cli("styles", "install", str(run), timeout=120, env={"FACECAPGES_STYLES": str(store)})
     assert r.returncode == 2 and "Traceback" not in r.stderr and "symbolic link" in r.stderr, r.stderr[-2000:]
     assert _store_files(store) == []

@@ -126,6 +126,7 @@ def _clips():
                        rng.normal(scale=0.1, size=T * 1067).astype(np.float32))]
 
 
+@pytest.mark.slow
 def test_a_log_row_lost_to_a_kill_comes_back_on_resume(tmp_path):
     from facecapges.training.train import build_trainer
 

@@ -10,7 +10,6 @@ tracker's stream.
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+from runtime_helpers import cli
 from vmc_receiver import Receiver, osc_messages
 from vrm_samples import build_sample
 
@@ -59,8 +59,7 @@ def avatars(beat, tmp_path_factory):
     from facecapges.avatar.vrm import write_vrm
 
     d = tmp_path_factory.mktemp("vmc_avatars")
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--format", "vrm", "--skeleton",
-                        str(beat["bvh"]), "--out", str(d / "ours.vrm")], capture_output=True, text=True)
+    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat["bvh"]), "--out", str(d / "ours.vrm"))
     assert r.returncode == 0, r.stderr
     out = {"ours": d / "ours.vrm", "ours0": write_vrm(default_avatar(beat["skel"]), d / "ours0.vrm", "0.x")}
     for v in ("vrm0", "vrm1", "vrm1_blender"):

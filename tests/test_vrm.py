@@ -28,6 +28,7 @@ import pytest
 from facecapges.avatar.vrm import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
+from runtime_helpers import cli  # noqa: E402
 from vrm_samples import build_sample  # noqa: E402
 from vrm_schemas import VRM0, VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
@@ -67,7 +68,6 @@ def _angle(a, b) -> float:
 @pytest.fixture(scope="module")
 def beat():
     from conftest import shared_file
-
     from facecapges.avatar.vrm_view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import global_transforms
@@ -87,9 +87,8 @@ def files(beat, tmp_path_factory):
     ours = d / "ours.vrm"
     from conftest import shared_file
 
-    r = subprocess.run([sys.executable, "-m", "facecapges.cli", "avatar", "build", "--format", "vrm", "--skeleton",
-                        str(shared_file("data/beat/2_scott_0_1_1.bvh")), "--out", str(ours)],
-                       capture_output=True, text=True)
+    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(shared_file("data/beat/2_scott_0_1_1.bvh")),
+            "--out", str(ours))
     assert r.returncode == 0, r.stderr
     ours0 = d / "ours0.vrm"  # the VRM 0.x writer in-process (the CLI path is the same but for --format)
     from facecapges.avatar.body import default_avatar
@@ -255,6 +254,7 @@ def _screenshot_errors(b, driver, beat, k: int, quats: np.ndarray, pos: dict) ->
 
 
 @pytest.mark.parametrize("name", ["ours", "ours0", "vrm1", "vrm0", "glb"])
+@pytest.mark.slow
 def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
     b, driver, info = _session(files[name], beat, vrma=files["vrma"])
     fig = FIGURES.setdefault("avatars", {}).setdefault(name, {})
@@ -312,6 +312,7 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
         b.close()
 
 
+@pytest.mark.slow
 def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat):
     """The negative control: the same A-pose GLB driven without the correction misses by the A-pose angle."""
     b, driver, _ = _session(files["glb"], beat, correction=False)
@@ -326,6 +327,7 @@ def test_without_rest_pose_correction_the_a_pose_avatar_points_wrong(files, beat
 
 
 @pytest.mark.parametrize("name", ["ours", "ours0"])
+@pytest.mark.slow
 def test_our_gaze_range_in_three_vrm(files, beat, name):
     """three-vrm's lookAt maps a 30° look (ARKit eyeLook* = 1) to expression weight 1 on both our VRMs."""
     b, _, _ = _session(files[name], beat, size=(160, 120))
@@ -340,6 +342,7 @@ def test_our_gaze_range_in_three_vrm(files, beat, name):
         b.close()
 
 
+@pytest.mark.slow
 def test_our_vrm_expressions_drive_its_morph_targets(files, beat):
     from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
 
@@ -374,7 +377,7 @@ def test_vrma_files_match_the_vrm_animation_schema(files):
 
 # --------------------------------------------------------------------------------- bad files
 def _cli(*args):
-    return subprocess.run([sys.executable, "-m", "facecapges.cli", *args], capture_output=True, text=True)
+    return cli(*args)
 
 
 def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
@@ -408,6 +411,7 @@ def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
     assert not (tmp_path / "x.mp4").exists()
 
 
+@pytest.mark.slow
 def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     import imageio_ffmpeg
 
@@ -429,6 +433,7 @@ def test_render_cli_draws_a_vrm(files, tmp_path, beat):
     assert doc["accessors"][doc["animations"][0]["samplers"][0]["input"]]["count"] == 12
 
 
+@pytest.mark.slow
 def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
     """``render --avatar`` with a VRM whose head is 3× ours: the camera frames the avatar's own top, nothing cropped."""
     import imageio_ffmpeg
@@ -457,10 +462,10 @@ def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
     FIGURES["big_head_top_row_px"] = int(rows[0])
 
 
+@pytest.mark.slow
 def test_vrm_bench_runs():
-    from facecapges.avatar.vrm_bench import run
-
     from conftest import SHARED
+    from facecapges.avatar.vrm_bench import run
 
     r = run(quick=True, shared=SHARED)
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000

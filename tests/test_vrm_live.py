@@ -57,6 +57,7 @@ def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
     return info
 
 
+@pytest.mark.slow
 def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     import cv2
 
@@ -97,6 +98,7 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     assert played["duration"] == pytest.approx((n - 1) / 15, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     import soundfile as sf
 
@@ -126,6 +128,7 @@ def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     assert p.returncode == 2 and "--vrma-face" in p.stderr and not (tmp_path / "h.bvh").exists()
 
 
+@pytest.mark.slow
 def test_generate_vrma_without_face_has_the_speech_mouth_and_names_follow_formats(unseen_wav, tmp_path):
     """``generate --vrma`` without ``--face``: the jaw and lips from the speech, as the viewer shows them;
     ``--out x.vrma`` (a BVH under a VRMA name) and ``--vrma x.bvh`` are refused, nothing written."""
@@ -160,6 +163,7 @@ def test_generate_vrma_without_face_has_the_speech_mouth_and_names_follow_format
     assert not list(tmp_path.glob("t.*"))
 
 
+@pytest.mark.slow
 def test_run_renders_the_vrm(face_video, tmp_path):
     import imageio_ffmpeg
 
@@ -174,6 +178,7 @@ def test_run_renders_the_vrm(face_video, tmp_path):
     assert rep["frames"] == 15
 
 
+@pytest.mark.slow
 def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
     """``study create --avatar SAMPLE.vrm``: the participant page shows the VRM three times and plays a clip."""
     import cv2
