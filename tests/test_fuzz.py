@@ -649,7 +649,9 @@ VIEWER_GET = b"GET /web/viewer.html HTTP/1.1\r\nHost: 127.0.0.1\r\n\r\n"
 ))
 def test_fuzz_viewer_http_paths(viewer_port, data):
     CASES["viewer_http"] += 1
-    with socket.create_connection(("127.0.0.1", viewer_port), timeout=5) as s:
+    # 1 s: a cut-off request the server keeps waiting on until its handshake timeout reads as no answer
+    # (allowed below); the check that matters is that it still serves afterwards
+    with socket.create_connection(("127.0.0.1", viewer_port), timeout=1) as s:
         try:
             s.sendall(data)
             s.shutdown(socket.SHUT_WR)  # all of the request: the server answers or closes, no waiting
