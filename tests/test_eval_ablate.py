@@ -118,13 +118,13 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
     """The reuse rule accepts a checkpoint of the ablation's own recipe and rejects any other.
 
     The ablation trains every variant from random weights (a config's ``init_from`` is
-    dropped), so the shipped default style, fine-tuned from zeggs-speech, is not reused.
+    dropped), so the shipped network style, fine-tuned from zeggs-speech, is not reused.
     """
     from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
 
     assert default_config_path().is_file()
-    shipped = load_checkpoint().meta
+    shipped = load_checkpoint(style=DEFAULT_NETWORK_STYLE).meta
     recipe = make_recipe(None, 2, None, None, None, 15.0)
     assert recipe.split == "all" and recipe.holdout_from == 766 and "init_from" not in recipe.train_over
     assert shipped["train_config"]["init_from"]  # fine-tuned …
