@@ -323,7 +323,7 @@ def test_vmcp_receives_interpolated_60hz(skeleton):
         for k, fr in enumerate(frames):
             time.sleep(max(0.0, t0 + k / 15 - time.monotonic()))
             up.write(fr)
-        time.sleep(0.1)
+        time.sleep(0.4)  # the last pose held: enough 60 Hz frames even if the first ones are slow to start
         up.close()
 
     events = vmcp_receive(send, until_times=12)
