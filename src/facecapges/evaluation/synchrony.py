@@ -49,7 +49,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from facecapges import rotations as rot
 from facecapges import timing
 
 SMOOTH_S = 0.5
@@ -210,14 +209,9 @@ def wrist_positions(skel, pose: np.ndarray, wrists: Sequence[str] = WRISTS) -> n
     rest (identity) and the root stays at its rest offset — the motion
     :func:`facecapges.skeleton.pose_to_motion` writes. Units: the skeleton's (BEAT: cm).
     """
-    from facecapges.skeleton import N_JOINTS, global_transforms, upper_body_indices
+    from facecapges.skeleton import upper_body_transforms
 
-    p = np.asarray(pose, np.float64)
-    if p.ndim != 3 or p.shape[1:] != (N_JOINTS, 6):
-        raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {p.shape}")
-    mats = np.broadcast_to(np.eye(3), (len(p), skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(p)
-    _, P = global_transforms(skel, mats)
+    _, P = upper_body_transforms(skel, pose)
     return P[:, [skel.index(n) for n in wrists]]
 
 

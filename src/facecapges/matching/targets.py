@@ -17,8 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facecapges import rotations as rot
-from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms, upper_body_indices
+from facecapges.skeleton import Skeleton, upper_body_transforms
 
 HORIZONS_S: tuple[float, ...] = (0.3, 0.6)
 ARM_JOINTS: tuple[str, ...] = ("RightHand", "LeftHand", "RightForeArm", "LeftForeArm")
@@ -32,12 +31,7 @@ def chest_index(skel: Skeleton) -> int:
 
 def arm_positions(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
     """Upper-body rot6d poses (T, 47, 6) → positions (T, 4, 3) of :data:`ARM_JOINTS` in the chest frame."""
-    p = np.asarray(pose, np.float64)
-    if p.ndim != 3 or p.shape[1:] != (N_JOINTS, 6):
-        raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {p.shape}")
-    mats = np.broadcast_to(np.eye(3), (len(p), skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(p)
-    G, P = global_transforms(skel, mats)
+    G, P = upper_body_transforms(skel, pose)
     c = chest_index(skel)
     rel = P[:, [skel.index(n) for n in ARM_JOINTS]] - P[:, c, None]
     return np.einsum("tji,tkj->tki", G[:, c], rel)  # G_cᵀ · (p − p_c): into the chest's frame
