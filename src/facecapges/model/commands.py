@@ -70,7 +70,7 @@ def register(app: typer.Typer) -> None:
         generate_recording(options, say=typer.echo)
 
     styles_app = typer.Typer(
-        help="The installed speaking styles (per-speaker models): list, install.",
+        help="The installed speaking styles (per-speaker models, either engine): list, install, build.",
         invoke_without_command=True,
         no_args_is_help=False,
     )
