@@ -29,7 +29,7 @@ class _TimedOut(BaseException):
 
 def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None, cwd: str | os.PathLike | None = None
         ) -> CliResult:
-    """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.cli.main``.
+    """Run ``facecapges ARGS`` in this process, through the console entry point ``facecapges.commands.cli.main``.
 
     It is what the subprocess did, minus 5-10 s of interpreter start, torch import and checkpoint load: the
     same ``main()`` turns a ``UserError`` into one ``error:`` line on stderr and exit status 2, a usage error
@@ -48,7 +48,7 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None, cwd
     import traceback
     import warnings
 
-    from facecapges.cli import main
+    from facecapges.commands.cli import main
 
     out, err = io.StringIO(), io.StringIO()
     argv, saved_env, saved_cwd = list(sys.argv), dict(os.environ), os.getcwd()
@@ -103,14 +103,14 @@ def cli(*args: str, timeout: float = 300, env: dict[str, str] | None = None, cwd
     return CliResult(["facecapges", *map(str, args)], code, out.getvalue(), err.getvalue())
 
 
-def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] = ("-m", "facecapges.cli"),
+def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] = ("-m", "facecapges"),
                 timeout: float = 300, **kw) -> subprocess.CompletedProcess | subprocess.Popen:
     """Run ``facecapges ARGS`` in a real subprocess: the one helper for the tests where the process matters
     (Ctrl-C and other signals, servers and ``live`` loops, the installed entry point, torchrun, read-only
-    mounts). ``launcher`` is what runs between the interpreter and ``ARGS`` (default ``-m facecapges.cli``;
-    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges.cli")``); a ``launcher`` whose first word
+    mounts). ``launcher`` is what runs between the interpreter and ``ARGS`` (default ``-m facecapges``;
+    e.g. ``("-m", "torch.distributed.run", ..., "-m", "facecapges")``); a ``launcher`` whose first word
     is not an interpreter option (no leading ``-``) is the whole command before ``ARGS`` instead (the
-    installed ``facecapges`` script, ``unshare ... python -m facecapges.cli``).
+    installed ``facecapges`` script, ``unshare ... python -m facecapges``).
     ``background=True`` returns the running ``Popen`` (stdout/stderr piped, text, unbuffered)."""
     if launcher and not launcher[0].startswith("-"):
         cmd = [*launcher, *map(str, args)]

@@ -9,7 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.cli import app
+from facecapges.commands.cli import app
 from facecapges.errors import UserError
 from runtime_helpers import cli
 

@@ -76,7 +76,7 @@ def test_the_command_line_reads_its_defaults_from_these_classes():
     import typer.main
 
     from facecapges.avatar.render.motion_file import RenderOptions
-    from facecapges.cli import app
+    from facecapges.commands.cli import app
     from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
     from facecapges.outputs.recording import GenerateOptions
     from facecapges.runtime.options import LiveOptions, RunOptions
@@ -105,8 +105,8 @@ def test_the_library_takes_the_same_defaults_as_the_command_line():
     import dataclasses
     import inspect
 
+    from facecapges.commands.evaluation import _parse_offsets
     from facecapges.evaluation.ablate import VARIANTS, run_ablation
-    from facecapges.evaluation.commands import _parse_offsets
     from facecapges.evaluation.fgd import FGDConfig
     from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
     from facecapges.evaluation.regions import REGIONS

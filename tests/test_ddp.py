@@ -37,7 +37,7 @@ def cli(*args: str, torchrun: int = 0, port: int = 0) -> subprocess.CompletedPro
     """``facecapges ARGS`` under ``torchrun`` (``torchrun`` ranks, a real process group), else in-process."""
     if torchrun:
         p = cli_process(*args, launcher=("-m", "torch.distributed.run", f"--nproc_per_node={torchrun}",
-                                         "--master_addr=127.0.0.1", f"--master_port={port}", "-m", "facecapges.cli"))
+                                         "--master_addr=127.0.0.1", f"--master_port={port}", "-m", "facecapges"))
     else:
         p = run_cli(*args)
     assert p.returncode == 0, p.stderr[-3000:] + p.stdout[-2000:]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import soundfile as sf
 
-from facecapges.demo import demo_speech
+from facecapges.commands.demo import demo_speech
 from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
 from runtime_helpers import cli, cli_process
 

@@ -207,7 +207,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
 @pytest.mark.slow
 def test_bench_counts_macs_of_the_streaming_step():
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
-    from facecapges.model.bench import speed_report
+    from facecapges.benchmarks.model import speed_report
     from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
 
     ckpt = load_checkpoint(style=DEFAULT_NETWORK_STYLE)

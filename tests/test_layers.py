@@ -6,15 +6,17 @@ The layers follow the data path a user's frame takes (README "Layout"):
    ARKit → VRM expression mapping: a naming convention over ``arkit`` that VMC, the VRM writer and the
    viewer share, so it sits beside ``arkit`` rather than in ``avatar`` or ``runtime``)
 1. ``io`` — file formats
-2. ``capture`` (camera → face), ``data`` (datasets, the cache), ``features`` (audio framing)
+2. ``capture`` (camera → face), ``data`` (datasets, the cache)
 3. ``model`` — the network and its generators; ``matching`` — the motion-matching engine beside it
 4. ``training``, ``outputs``, ``avatar``
 5. ``evaluation``, ``runtime``
 6. ``serving``, ``study``
-7. the command line: ``cli``, ``demo``, ``benchmarks`` and every area's ``commands`` module
+7. ``commands`` (the command line: ``cli`` and one module per command group, with ``__main__`` for
+   ``python -m facecapges``), ``benchmarks`` (the ``bench`` runner and one module per area), and the
+   package's ``__init__`` (the Python API, imported lazily)
 
-A module may import its own layer or lower ones, never a ``commands`` module of another area (the library
-does not depend on the CLI), and never a private (``_name``) of another module.
+A module may import its own layer or lower ones, never a private (``_name``) of another module, and only
+``commands`` and ``__main__`` may import ``commands`` (the library does not depend on the CLI).
 """
 
 from __future__ import annotations
@@ -27,14 +29,14 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "src" / "facecapges"
 
 LAYERS: dict[str, int] = {
-    "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "arkit_vrm": 0, "constants": 0,
+    "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "arkit_vrm": 0,
     "io": 1,
-    "capture": 2, "data": 2, "features": 2,
+    "capture": 2, "data": 2,
     "model": 3, "matching": 3,
     "training": 4, "outputs": 4, "avatar": 4,
     "evaluation": 5, "runtime": 5,
     "serving": 6, "study": 6,
-    "cli": 7, "demo": 7, "benchmarks": 7, "__init__": 7,
+    "commands": 7, "benchmarks": 7, "__main__": 7, "__init__": 7,
 }
 TOP = 7
 
@@ -46,16 +48,14 @@ def _modules():
 
 
 def _layer(parts: tuple[str, ...]) -> int:
-    if parts[-1] == "commands" or parts[-1] == "__main__":
-        return TOP
     area = parts[1] if len(parts) > 1 else "__init__"
     assert area in LAYERS, f"{'.'.join(parts)}: area {area!r} has no layer in tests/test_layers.py"
     return LAYERS[area]
 
 
-def _imports(path: Path, parts: tuple[str, ...]):
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    package = parts[:-1] if parts[-1] != "__init__" else parts[:-1]
+def _imports(source: str, parts: tuple[str, ...]):
+    tree = ast.parse(source)
+    package = parts[:-1]
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
@@ -72,23 +72,28 @@ def _imports(path: Path, parts: tuple[str, ...]):
             yield node.lineno, mod, [a.name for a in node.names]
 
 
+def _module_violations(source: str, parts: tuple[str, ...]) -> list[str]:
+    """What module ``parts`` (its text ``source``) imports across the layers."""
+    out = []
+    own = _layer(parts)
+    for lineno, mod, names in _imports(source, parts):
+        where = f"{'/'.join(parts[1:])}.py:{lineno}"
+        targets = [mod] if len(mod) > 1 else [mod + (n,) for n in names] or [mod + ("__init__",)]
+        for target in targets:
+            if _layer(target) > own:
+                out.append(f"{where} imports {'.'.join(target)} (layer {_layer(target)} > {own})")
+            if target[1] == "commands" and parts[1] not in ("commands", "__main__"):
+                out.append(f"{where} imports the command line {'.'.join(target)} (the library never does)")
+        for name in names:
+            if name.startswith("_") and not name.startswith("__") and mod != parts[:-1]:
+                out.append(f"{where} imports the private {name} of {'.'.join(mod)}")
+    return out
+
+
 def _violations():
     out = []
     for path, parts in _modules():
-        own = _layer(parts)
-        for lineno, mod, names in _imports(path, parts):
-            where = f"{'/'.join(parts[1:])}.py:{lineno}"
-            targets = [mod] if len(mod) > 1 else [mod + (n,) for n in names] or [mod + ("__init__",)]
-            for target in targets:
-                if _layer(target) > own:
-                    out.append(f"{where} imports {'.'.join(target)} (layer {_layer(target)} > {own})")
-            target = targets[0]
-            if target[-1] == "commands" and target[:2] != parts[:2] and parts[-1] != "cli":
-                if own != TOP or parts[-1] != "commands":
-                    out.append(f"{where} imports another area's commands module {'.'.join(mod)}")
-            for name in names:
-                if name.startswith("_") and not name.startswith("__") and mod != parts[:-1]:
-                    out.append(f"{where} imports the private {name} of {'.'.join(mod)}")
+        out += _module_violations(path.read_text(encoding="utf-8"), parts)
     return out
 
 
@@ -102,12 +107,26 @@ def test_no_upward_or_private_imports():
     assert not bad, "imports that cut across the layers:\n" + "\n".join(bad)
 
 
-@pytest.mark.parametrize("low,high", [("io", "model"), ("model", "training"), ("capture", "runtime")])
-def test_the_check_sees_an_upward_import(tmp_path, low, high):
+@pytest.mark.parametrize(
+    "module,source",
+    [
+        ("io.bvh", "from facecapges.model import network\n"),
+        ("model.network", "import facecapges.training.train\n"),
+        ("capture.pipeline", "from facecapges.runtime.session import Session\n"),
+        ("data.prepare", "from facecapges.model.checkpoint import load_checkpoint\n"),
+        ("serving.server", "from facecapges.commands.cli import app\n"),
+        ("benchmarks.model", "from facecapges.commands.styles import register\n"),
+        ("__init__", "from facecapges.commands import cli\n"),
+        ("runtime.live", "from facecapges.skeleton import _private\n"),
+    ],
+)
+def test_the_check_sees_a_planted_violation(module, source):
     """The checker itself must catch a planted violation (a test that cannot fail proves nothing)."""
-    assert LAYERS[low] < LAYERS[high]
-    src = f"from facecapges.{high} import something\n"
-    tree = ast.parse(src)
-    node = tree.body[0]
-    assert isinstance(node, ast.ImportFrom)
-    assert _layer(tuple(node.module.split("."))) > _layer(("facecapges", low, "x"))
+    parts = ("facecapges",) + tuple(module.split("."))
+    assert _module_violations(source, parts), f"{module}: {source!r} was not caught"
+
+
+def test_the_command_line_may_import_the_library():
+    for source in ("from facecapges.serving.server import serve\n", "from facecapges.commands.cli import main\n"):
+        assert not _module_violations(source, ("facecapges", "commands", "serving"))
+    assert not _module_violations("from facecapges.commands.cli import main\n", ("facecapges", "__main__"))

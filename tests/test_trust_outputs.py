@@ -21,7 +21,7 @@ def read_only(folder: Path, *args: str, timeout: float = 300) -> subprocess.Comp
     if shutil.which("unshare") is None:
         pytest.fail("unshare (util-linux) is needed to mount a read-only file system for this test")
     mount = f"mount -t tmpfs -o ro tmpfs '{folder}' && exec \"$0\" \"$@\""
-    return cli_process(*args, launcher=("unshare", "-rm", "sh", "-c", mount, sys.executable, "-m", "facecapges.cli"),
+    return cli_process(*args, launcher=("unshare", "-rm", "sh", "-c", mount, sys.executable, "-m", "facecapges"),
                        timeout=timeout)
 
 

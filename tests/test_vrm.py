@@ -465,7 +465,7 @@ def test_render_frames_a_big_headed_vrm_whole(tmp_path, beat):
 @pytest.mark.slow
 def test_vrm_bench_runs():
     from conftest import SHARED
-    from facecapges.avatar.vrm_bench import run
+    from facecapges.benchmarks.vrm import run
 
     r = run(quick=True, shared=SHARED)
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000

@@ -12,7 +12,7 @@ The data path of one frame, one module each:
 * :mod:`.samples` / :mod:`.ranges` — weighted sample set, range estimation (3.2.1–3.2.2);
 * :mod:`.estimator` — units → ARKit names; geometric | mediapipe | hybrid;
 * :mod:`.pipeline` — :class:`FaceCapture`, the frame-by-frame API (face lost: hold, ease);
-* :mod:`.runner`, :mod:`.overlay`, :mod:`.evaluate`, :mod:`.commands`, :mod:`.bench`,
+* :mod:`.runner`, :mod:`.overlay`, :mod:`.evaluate`, :mod:`facecapges.commands.capture`, :mod:`facecapges.benchmarks.capture`,
   :mod:`.synthetic` — the commands around it.
 
 ``from facecapges.capture import FaceCapture`` imports MediaPipe only when a capture

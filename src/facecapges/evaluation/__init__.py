@@ -29,12 +29,12 @@ signatures:
 * :mod:`~facecapges.evaluation.report` — ``metrics.json``, the Table 5.2 Markdown
   table and the PNG plots.
 * :mod:`~facecapges.evaluation.run` — ``facecapges eval`` end to end (checkpoint +
-  cache → report); :mod:`~facecapges.evaluation.commands` — ``fgd-train``, ``eval`` and
+  cache → report); :mod:`~facecapges.commands.evaluation` — ``fgd-train``, ``eval`` and
   ``ablate``.
 * :mod:`~facecapges.evaluation.ablate` — the ablation study of 5.7 (Table 5.3): full
   model, without head pose, offline decoding (:mod:`facecapges.model.offline`) and the
   CaMN baseline, trained with one recipe and evaluated on the held-out frames.
-* :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools and the
+* :mod:`~facecapges.benchmarks.evaluation` — speed of the evaluation tools and the
   peer-architecture timing (FaceCapGes streaming vs CaMN online/offline).
 
 The side-by-side skeleton video is :mod:`facecapges.outputs.skeleton_video`.

@@ -14,7 +14,7 @@ The data path of one frame at the model rate, one module each:
 * :mod:`.protocol` — the WebSocket message format (viewer feed now, ``serve`` later);
   :mod:`.web_server` — the loopback HTTP + WebSocket server of the browser viewer
   (``facecapges/web/viewer.html``);
-* :mod:`.commands` — ``facecapges run`` and ``facecapges live``; :mod:`.offline` — the
-  files ``run`` writes (report, avatar and side-by-side videos); :mod:`.bench` — speed,
+* :mod:`facecapges.commands.runtime` — ``facecapges run`` and ``facecapges live``; :mod:`.offline` — the
+  files ``run`` writes (report, avatar and side-by-side videos); :mod:`facecapges.benchmarks.runtime` — speed,
   the 60 s ``run`` and the long simulated live session.
 """

@@ -5,6 +5,6 @@
   all streams due in a tick stepped as one batched call; messages in the format of
   :mod:`facecapges.runtime.protocol`.
 * :mod:`.loadgen` — simulated live clients (the benchmark's and the tests' load).
-* :mod:`.bench` — ``streams_at_15fps``.
-* :mod:`.commands` — the ``serve`` command.
+* :mod:`facecapges.benchmarks.serving` — ``streams_at_15fps``.
+* :mod:`facecapges.commands.serving` — the ``serve`` command.
 """

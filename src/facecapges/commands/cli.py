@@ -1,7 +1,7 @@
 """The ``facecapges`` command line.
 
-Each area of the project keeps its commands in its own ``commands.py`` with a
-``register(app)`` function; this file only assembles them and turns
+Each command group has its own module in this package with a ``register(app)``
+function; this file only assembles them and turns
 :class:`~facecapges.errors.UserError` into one line on stderr and exit status 2.
 Heavy libraries (torch, mediapipe) are imported inside the commands so ``--help``
 stays fast.
@@ -26,17 +26,17 @@ app = typer.Typer(
 
 # The areas along the data path, in the order a user's frame meets them.
 COMMAND_MODULES = [
-    "facecapges.capture.commands",  # capture, capture-eval
-    "facecapges.data.commands",  # prepare, export
-    "facecapges.model.commands",  # generate, styles
-    "facecapges.training.commands",  # train
-    "facecapges.avatar.commands",  # blendshapes, avatar build, render
-    "facecapges.evaluation.commands",  # fgd-train, eval
-    "facecapges.runtime.commands",  # run, live
-    "facecapges.serving.commands",  # serve
-    "facecapges.study.commands",  # study create/serve/analyze
-    "facecapges.demo",  # demo
-    "facecapges.benchmarks",  # bench
+    "facecapges.commands.capture",  # capture, capture-eval
+    "facecapges.commands.data",  # prepare, export
+    "facecapges.commands.styles",  # generate, styles
+    "facecapges.commands.training",  # train
+    "facecapges.commands.avatar",  # blendshapes, avatar build, render
+    "facecapges.commands.evaluation",  # fgd-train, eval
+    "facecapges.commands.runtime",  # run, live
+    "facecapges.commands.serving",  # serve
+    "facecapges.commands.study",  # study create/serve/analyze
+    "facecapges.commands.demo",  # demo
+    "facecapges.commands.bench",  # bench
 ]
 
 for _name in COMMAND_MODULES:

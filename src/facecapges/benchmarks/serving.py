@@ -48,7 +48,7 @@ def start_server(
     cmd = [
         sys.executable,
         "-m",
-        "facecapges.cli",
+        "facecapges",
         "serve",
         "--host",
         "127.0.0.1",

@@ -1,8 +1,9 @@
-"""``facecapges bench``: every area's benchmark, one JSON document.
+"""The benchmark runner behind ``facecapges bench``: every area's benchmark, one JSON document.
 
 Speed and memory targets are shown here, never by timed unit tests. Each area has a
-``bench.py`` with ``run(quick: bool, shared: Path) -> dict``; its results appear under
-the area's key. Areas are listed in ``BENCHMARKS`` (module path of each ``run``).
+module in this package (``benchmarks/<area>.py``) with ``run(quick: bool, shared: Path) -> dict``;
+its results appear under the area's key. Areas are listed in ``BENCHMARKS`` (module path of
+each ``run``); the command itself is :mod:`facecapges.commands.bench`.
 ``shared`` is the folder of shared data (``../shared``: ``data/beat``, ``data/face``…),
 given by the command (``--shared``), never looked up by the areas themselves.
 
@@ -18,7 +19,6 @@ within about 1 minute.
 from __future__ import annotations
 
 import importlib
-import json
 import math
 import os
 import platform
@@ -27,21 +27,19 @@ import time
 import traceback
 from pathlib import Path
 
-import typer
-
 from facecapges.errors import UserError
 
 BENCHMARKS: dict[str, str] = {
-    "capture": "facecapges.capture.bench",
-    "data": "facecapges.data.bench",
-    "evaluation": "facecapges.evaluation.bench",
-    "model": "facecapges.model.bench",
-    "matching": "facecapges.matching.bench",
-    "render": "facecapges.avatar.bench",
-    "study": "facecapges.study.bench",
-    "runtime": "facecapges.runtime.bench",
-    "serve": "facecapges.serving.bench",
-    "vrm": "facecapges.avatar.vrm_bench",
+    "capture": "facecapges.benchmarks.capture",
+    "data": "facecapges.benchmarks.data",
+    "evaluation": "facecapges.benchmarks.evaluation",
+    "model": "facecapges.benchmarks.model",
+    "matching": "facecapges.benchmarks.matching",
+    "render": "facecapges.benchmarks.render",
+    "study": "facecapges.benchmarks.study",
+    "runtime": "facecapges.benchmarks.runtime",
+    "serve": "facecapges.benchmarks.serving",
+    "vrm": "facecapges.benchmarks.vrm",
 }
 
 
@@ -113,38 +111,3 @@ def run_areas(areas: list[str], quick: bool, shared: Path) -> tuple[dict, bool]:
     }
     _log(f"all {len(areas)} area(s) in {total:.1f} s" + ("" if ok else " — some failed"))
     return _finite_or_null(result), ok
-
-
-def register(app: typer.Typer) -> None:
-    @app.command()
-    def bench(
-        json_out: bool = typer.Option(False, "--json", help="Print one JSON document (default: a table)."),
-        only: str = typer.Option("", help=f"Comma-separated areas to run, of: {', '.join(BENCHMARKS)}."),
-        quick: bool = typer.Option(False, help="Fewer repetitions (smoke run, about a minute)."),
-        shared: Path = typer.Option(
-            Path("../shared"),
-            "--shared",
-            envvar="FACECAPGES_SHARED",
-            help="The shared data folder (holds data/beat, data/face …).",
-        ),
-    ) -> None:
-        """Measure speed and memory of every stage and print the figures."""
-        areas = [a.strip() for a in only.split(",") if a.strip()] or list(BENCHMARKS)
-        unknown = [a for a in areas if a not in BENCHMARKS]
-        if unknown:
-            raise UserError(f"unknown benchmark area(s) {unknown}; known: {list(BENCHMARKS)}")
-        check_shared(shared)
-        result, ok = run_areas(areas, quick, shared.resolve())
-        if json_out:
-            print(json.dumps(result, indent=2, allow_nan=False))
-        else:
-            from rich.console import Console
-            from rich.table import Table
-
-            table = Table("area", "figure", "value")
-            for area in areas:
-                for k, v in result[area].items():
-                    table.add_row(area, k, json.dumps(v) if not isinstance(v, str) else v)
-            Console().print(table)
-        if not ok:
-            raise typer.Exit(1)

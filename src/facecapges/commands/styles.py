@@ -1,4 +1,4 @@
-"""Commands of the model area: ``generate``, ``styles`` (``train`` is in :mod:`facecapges.training.commands`)."""
+"""Commands of the model area: ``generate``, ``styles`` (``train`` is in :mod:`facecapges.commands.training`)."""
 
 from __future__ import annotations
 
