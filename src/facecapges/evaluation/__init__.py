@@ -37,5 +37,5 @@ signatures:
 * :mod:`~facecapges.evaluation.bench` — speed of the evaluation tools and the
   peer-architecture timing (FaceCapGes streaming vs CaMN online/offline).
 
-The side-by-side skeleton video is :mod:`facecapges.outputs.skeleton_video`.
+The side-by-side skeleton video is :mod:`facecapges.avatar.render.skeleton_video`.
 """
