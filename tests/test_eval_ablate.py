@@ -9,9 +9,9 @@ import pytest
 import torch
 import yaml
 
+from facecapges.model.bidirectional import OfflineDecoder, load_offline, save_offline
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
-from facecapges.model.offline import OfflineDecoder, load_offline, save_offline
 from runtime_helpers import cli
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
@@ -92,7 +92,7 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
 @pytest.mark.slow
 def test_offline_trainer_learns_the_segments(tmp_path):
     """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
-    from facecapges.training.offline import build_offline_trainer
+    from facecapges.training.bidirectional import build_offline_trainer
     from facecapges.training.train import ClipArrays
 
     rng = np.random.default_rng(0)

@@ -164,7 +164,7 @@ def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
 @pytest.mark.slow
 def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
     """The offline decoder gets resume by construction: 2 + 1 epochs equal 3 in one go."""
-    from facecapges.training.offline import OFFLINE
+    from facecapges.training.bidirectional import OFFLINE
     from facecapges.training.train import build_trainer
 
     over = dict(epochs=3, batch_size=8, optimizer="adam", lr_base=0.016, adv_start_epoch=2, holdout_from=120,

@@ -7,9 +7,9 @@ discriminator schedule, seed):
 * ``full`` — FaceCapGes as is (closed-loop trainer :mod:`facecapges.training.train`).
 * ``no_head`` — "without head pose": ``ModelConfig(head_dim=0)``, no head encoder, the
   head rotation never reaches the network; same trainer and recipe.
-* ``offline`` — "offline decoding": :class:`facecapges.model.offline.OfflineDecoder`
+* ``offline`` — "offline decoding": :class:`facecapges.model.bidirectional.OfflineDecoder`
   (same encoders, bidirectional torso/limb LSTMs over a whole segment, no closed-loop
-  rollout), trained by :mod:`facecapges.training.offline` on the same L = 34
+  rollout), trained by :mod:`facecapges.training.bidirectional` on the same L = 34
   segments with the first N = 16 real poses as seed and losses on the 18 frames after.
 * ``camn`` — the CaMN baseline (thesis 5.2.1, Table 5.2/5.3's CaMN row):
   :class:`facecapges.evaluation.camn.CaMN`, BEAT's cascaded bidirectional body/hands
@@ -89,7 +89,10 @@ LABELS = {
 }
 #: Variants decoded offline (one pass per sequence): their loader and trainer builder.
 SEGMENT_DECODERS = {
-    "offline": ("facecapges.model.offline:load_offline", "facecapges.training.offline:build_offline_trainer"),
+    "offline": (
+        "facecapges.model.bidirectional:load_offline",
+        "facecapges.training.bidirectional:build_offline_trainer",
+    ),
     "camn": ("facecapges.evaluation.camn:load_camn", "facecapges.evaluation.camn:build_camn_trainer"),
 }
 

@@ -1,4 +1,4 @@
-"""The "offline decoding" ablation (:mod:`facecapges.model.offline`) as a training variant.
+"""The "offline decoding" ablation (:mod:`facecapges.model.bidirectional`) as a training variant.
 
 It is trained by the one trainer (:mod:`facecapges.training.train`) — the same data,
 budget, objective, optimizers, DDP, AMP and resume as the closed-loop model; only
@@ -14,7 +14,7 @@ the :class:`~facecapges.training.train.Variant` differs:
 * Losses on the M = 18 frames after the seed only (the same frames the closed-loop
   trainer generates), with the closed-loop trainer's weights, discriminator and
   schedule. The checkpoint is ``model.safetensors`` in format ``facecapges-offline-1``
-  (:func:`facecapges.model.offline.save_offline`) with ``variant: "offline decoding"``
+  (:func:`facecapges.model.bidirectional.save_offline`) with ``variant: "offline decoding"``
   and the cold-start ``neutral_window`` chosen exactly as for the closed-loop model,
   so both are seeded alike at evaluation.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from facecapges.model.offline import OfflineDecoder, save_offline
+from facecapges.model.bidirectional import OfflineDecoder, save_offline
 from facecapges.training.train import ClipArrays, Trainer, Variant, build_trainer
 
 
