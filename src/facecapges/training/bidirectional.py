@@ -14,7 +14,7 @@ the :class:`~facecapges.training.train.Variant` differs:
 * Losses on the M = 18 frames after the seed only (the same frames the closed-loop
   trainer generates), with the closed-loop trainer's weights, discriminator and
   schedule. The checkpoint is ``model.safetensors`` in format ``facecapges-offline-1``
-  (:func:`facecapges.model.bidirectional.save_offline`) with ``variant: "offline decoding"``
+  (:func:`facecapges.model.bidirectional.save_bidirectional`) with ``variant: "offline decoding"``
   and the cold-start ``neutral_window`` chosen exactly as for the closed-loop model,
   so both are seeded alike at evaluation.
 """
@@ -25,11 +25,13 @@ from pathlib import Path
 
 import torch
 
-from facecapges.model.bidirectional import OfflineDecoder, save_offline
+from facecapges.model.bidirectional import BidirectionalDecoder, save_bidirectional
 from facecapges.training.train import ClipArrays, Trainer, Variant, build_trainer
 
 
-def offline_batch(model: OfflineDecoder, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+def bidirectional_batch(
+    model: BidirectionalDecoder, batch: dict[str, torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Decoded (B, M, D) and real (B, M, D) poses of the frames after the N-frame seed."""
     N = model.cfg.n_history
     z = model.encode(batch["audio"], batch["face"], batch["head"])[:, N:]  # (B, L, E), own causal windows
@@ -37,18 +39,18 @@ def offline_batch(model: OfflineDecoder, batch: dict[str, torch.Tensor]) -> tupl
     return out[:, N:], batch["pose"][:, N:]
 
 
-OFFLINE = Variant(
+BIDIRECTIONAL = Variant(
     name="offline",
-    build=OfflineDecoder,
-    forward=offline_batch,
+    build=BidirectionalDecoder,
+    forward=bidirectional_batch,
     output_heads=lambda G: (G.head_t, G.head_u),
-    export=save_offline,
+    export=save_bidirectional,
     meta={"variant": "offline decoding"},
 )
 
 
-def build_offline_trainer(
+def build_bidirectional_trainer(
     clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict
 ) -> Trainer:
     """A new offline-decoding trainer from the same override dicts as ``build_trainer``."""
-    return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=OFFLINE)
+    return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=BIDIRECTIONAL)

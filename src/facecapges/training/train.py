@@ -38,7 +38,7 @@
   between the closed-loop FaceCapGes generator and the ablation/baseline decoders is a
   :class:`Variant` — how to build the generator, its training forward (generated and
   real poses of a batch of segments), where its output heads are and how it is
-  exported. :data:`CLOSED_LOOP` is FaceCapGes; :data:`facecapges.training.bidirectional.OFFLINE`
+  exported. :data:`CLOSED_LOOP` is FaceCapGes; :data:`facecapges.training.bidirectional.BIDIRECTIONAL`
   the offline-decoding ablation. Every variant gets DDP, AMP, resume, the held-out
   losses and the same learning-rate rule (:meth:`TrainConfig.learning_rates`).
 """
