@@ -93,7 +93,7 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
 def test_offline_trainer_learns_the_segments(tmp_path):
     """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
     from facecapges.training.bidirectional import build_bidirectional_trainer
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(0)
     T = 200

@@ -125,7 +125,7 @@ def test_skeleton_head_maps_to_camera_frame_around_the_speaker_mean():
 
 # --------------------------------------------------------------- what a style saw
 def _clip(T: int = 160, seed: int = 0, face: bool = False):
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(seed)
     t = np.arange(T)[:, None, None]
@@ -253,7 +253,8 @@ def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
 def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
     """``train.head_dropout``: a segment's head input is held at the camera frame's identity, whole."""
     from facecapges.errors import UserError
-    from facecapges.training.train import build_trainer, hold_head_still
+    from facecapges.training.segments import hold_head_still
+    from facecapges.training.train import build_trainer
 
     torch.manual_seed(0)
     head = torch.randn(400, 50, 6)

@@ -194,7 +194,7 @@ class TrainedVariant:
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
-    from facecapges.training.train import load_clips
+    from facecapges.training.segments import load_clips
 
     return load_clips(cache, speaker, split)
 

@@ -4,7 +4,7 @@ It is trained by the one trainer (:mod:`facecapges.training.train`) — the same
 budget, objective, optimizers, DDP, AMP and resume as the closed-loop model; only
 the :class:`~facecapges.training.train.Variant` differs:
 
-* Segments: the same :class:`~facecapges.training.train.SegmentSet` — L = 34 frames,
+* Segments: the same :class:`~facecapges.training.segments.SegmentSet` — L = 34 frames,
   stride 10, frames < ``holdout_from`` for training and ≥ it for the held-out losses;
   each segment frame's encoder input is its own causal window, as in the full model.
 * Seed and mask: the first N = 16 real poses of a segment are given as seed poses
@@ -26,7 +26,8 @@ from pathlib import Path
 import torch
 
 from facecapges.model.bidirectional import BidirectionalDecoder, save_bidirectional
-from facecapges.training.train import ClipArrays, Trainer, Variant, build_trainer
+from facecapges.training.segments import ClipArrays
+from facecapges.training.train import Trainer, Variant, build_trainer
 
 
 def bidirectional_batch(
