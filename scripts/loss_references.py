@@ -26,7 +26,7 @@ def main() -> None:
     args = ap.parse_args()
     from facecapges.model.config import ModelConfig, TrainConfig
     from facecapges.training.masking import masked_reconstruction_losses
-    from facecapges.training.train import clip_head, load_clips, segment_sets
+    from facecapges.training.segments import clip_head, load_clips, segment_sets
 
     cache, clips = load_clips(args.cache, args.speaker, "all")
     if args.until_fraction < 1:

@@ -33,7 +33,8 @@ def main() -> None:
     args = ap.parse_args()
 
     from facecapges.model.config import load_config_file
-    from facecapges.training.train import build_trainer, clip_head, load_clips
+    from facecapges.training.segments import clip_head, load_clips
+    from facecapges.training.train import build_trainer
 
     model_over, train_over = load_config_file(args.config)
     for item in args.set:

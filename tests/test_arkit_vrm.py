@@ -104,7 +104,7 @@ def test_real_iphone_face_blinks_are_exact():
 
     from conftest import shared_file
 
-    from facecapges.runtime.livelink import decode_packet
+    from facecapges.runtime.inputs.livelink import decode_packet
 
     raw = gzip.decompress(shared_file("data/livelink/dao.gesichter").read_bytes())
     pos, W = 5, []

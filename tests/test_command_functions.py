@@ -31,8 +31,8 @@ def test_live_refuses_contradictory_options_before_opening_anything(tmp_path):
 
 
 def test_run_checks_the_video_size_and_the_inputs_first(tmp_path):
-    from facecapges.runtime.offline import run_offline
     from facecapges.runtime.options import RunOptions
+    from facecapges.runtime.run import run_offline
 
     with pytest.raises(UserError, match="--video-size must look like 640x480"):
         run_offline(RunOptions(tmp_path / "missing.mp4", tmp_path / "out", video_size="big"))
@@ -42,7 +42,7 @@ def test_run_checks_the_video_size_and_the_inputs_first(tmp_path):
 
 def test_generate_and_render_refuse_to_overwrite(tmp_path):
     from facecapges.avatar.render.motion_file import RenderOptions, parse_render_size, render_motion_file
-    from facecapges.outputs.recording import GenerateOptions, generate_recording
+    from facecapges.runtime.generate import GenerateOptions, generate_recording
 
     out = tmp_path / "m.bvh"
     out.write_text("mine")
@@ -78,7 +78,7 @@ def test_the_command_line_reads_its_defaults_from_these_classes():
     from facecapges.avatar.render.motion_file import RenderOptions
     from facecapges.commands.cli import app
     from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
-    from facecapges.outputs.recording import GenerateOptions
+    from facecapges.runtime.generate import GenerateOptions
     from facecapges.runtime.options import LiveOptions, RunOptions
     from facecapges.serving.config import ServeConfig
     from facecapges.study.options import StudyAnalyzeOptions, StudyCreateOptions, StudyServeOptions

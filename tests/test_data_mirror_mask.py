@@ -13,7 +13,8 @@ from facecapges.data.mirror import REFLECT, mirror_face, mirror_mask, mirror_pos
 from facecapges.io.bvh import read_bvh
 from facecapges.skeleton import UPPER_BODY, joint_positions, motion_to_pose, pose_to_motion
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses, mirrored
-from facecapges.training.train import ClipArrays, SegmentSet, reconstruction_losses
+from facecapges.training.segments import ClipArrays, SegmentSet
+from facecapges.training.train import reconstruction_losses
 
 
 @pytest.fixture(scope="module")

@@ -53,7 +53,8 @@ def cache(tmp_path_factory, beat_bvh) -> Path:
 
 def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> None:
     from facecapges.training.distributed import init_distributed, shutdown
-    from facecapges.training.train import build_trainer, load_clips
+    from facecapges.training.segments import load_clips
+    from facecapges.training.train import build_trainer
 
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world),
                       LOCAL_RANK=str(rank))
@@ -71,7 +72,8 @@ def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> No
 
 @pytest.mark.slow
 def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
-    from facecapges.training.train import build_trainer, load_clips
+    from facecapges.training.segments import load_clips
+    from facecapges.training.train import build_trainer
 
     mp.spawn(_rank_worker, args=(2, free_port(), cache, tmp_path), nprocs=2, join=True)
     r0 = torch.load(tmp_path / "rank0.pt", weights_only=False)

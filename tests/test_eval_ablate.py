@@ -9,9 +9,9 @@ import pytest
 import torch
 import yaml
 
+from facecapges.model.bidirectional import BidirectionalDecoder, load_bidirectional, save_bidirectional
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
-from facecapges.model.offline import OfflineDecoder, load_offline, save_offline
 from runtime_helpers import cli
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
@@ -33,7 +33,7 @@ def test_offline_is_bidirectional_unlike_facecapges():
     torch.manual_seed(0)
     cfg = ModelConfig(**TINY)
     N, L = cfg.n_history, 34
-    off, fcg = OfflineDecoder(cfg).eval(), FaceCapGes(cfg).eval()
+    off, fcg = BidirectionalDecoder(cfg).eval(), FaceCapGes(cfg).eval()
     audio, face, head = _inputs(N + L, cfg)
     seed = torch.randn(1, N, cfg.pose_dim) * 0.1
 
@@ -64,7 +64,7 @@ def test_offline_is_bidirectional_unlike_facecapges():
 def test_offline_generate_and_checkpoint_round_trip(tmp_path):
     torch.manual_seed(1)
     cfg = ModelConfig(**TINY)
-    m = OfflineDecoder(cfg).eval()
+    m = BidirectionalDecoder(cfg).eval()
     T = 40
     rng = np.random.default_rng(0)
     audio = rng.normal(0, 0.1, (T, cfg.samples_per_frame)).astype(np.float32)
@@ -78,8 +78,8 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
                        m.encode(*(torch.from_numpy(x)[None] for x in (audio, face, head)))], 1)
         ref = m.decode(z, torch.from_numpy(seed.reshape(1, cfg.n_history, -1)))[0, cfg.n_history:]
     np.testing.assert_allclose(out.reshape(T, -1), ref.numpy(), atol=1e-6)
-    p = save_offline(tmp_path / "off.safetensors", m, {"neutral_window": seed.tolist()})
-    m2, meta = load_offline(p)
+    p = save_bidirectional(tmp_path / "off.safetensors", m, {"neutral_window": seed.tolist()})
+    m2, meta = load_bidirectional(p)
     np.testing.assert_array_equal(m2.generate(audio, face, head, seed), out)
     assert meta["format"] == "facecapges-offline-1" and meta["model_config"]["lstm_hidden"] == 16
     from facecapges.errors import UserError
@@ -92,8 +92,8 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
 @pytest.mark.slow
 def test_offline_trainer_learns_the_segments(tmp_path):
     """A few epochs of the offline trainer lower its loss on the M frames after the seed."""
-    from facecapges.training.offline import build_offline_trainer
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.bidirectional import build_bidirectional_trainer
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(0)
     T = 200
@@ -102,12 +102,12 @@ def test_offline_trainer_learns_the_segments(tmp_path):
             + np.array([1, 0, 0, 0, 1, 0], np.float32)).astype(np.float32)
     clip = ClipArrays("synthetic", pose, rng.normal(0, 1, (T, 6)).astype(np.float32),
                       np.zeros((T, 52), np.float32), rng.normal(0, 0.05, T * 1067).astype(np.float32))
-    tr = build_offline_trainer([clip], tmp_path / "run", dict(TINY),
+    tr = build_bidirectional_trainer([clip], tmp_path / "run", dict(TINY),
                                dict(epochs=8, batch_size=8, optimizer="adam", lr_base=0.016, adv_start_epoch=4,
                                     holdout_from=150, num_threads=1), {"speaker": 2, "clips": ["synthetic"]})
     hist = tr.fit(progress=False)
     assert hist[-1]["rec"] < hist[0]["rec"] and "adv" in hist[-1] and "held_rec" in hist[-1]
-    m, meta = load_offline(tmp_path / "run" / "model.safetensors")
+    m, meta = load_bidirectional(tmp_path / "run" / "model.safetensors")
     assert meta["epochs_trained"] == 8 and meta["train_config"]["holdout_from"] == 150
     assert np.asarray(meta["neutral_window"]).shape == (16, 47, 6)
     lines = (tmp_path / "run" / "log.csv").read_text().splitlines()

@@ -71,7 +71,7 @@ def test_generate_places_the_seed_before_the_sequence():
 
 
 def _clips(n=2, T=160):
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(0)
     from facecapges import rotations as rot

@@ -92,7 +92,7 @@ def test_training_input_reading_takes_both_layouts(tmp_path):
 
 def test_recorders_of_run_and_live_write_beats_layout(tmp_path):
     from facecapges.runtime.frames import OutputFrame
-    from facecapges.runtime.sinks import FaceJsonRecorder
+    from facecapges.runtime.outputs.recorders import FaceJsonRecorder
 
     w = talking_face(45)
     rec = FaceJsonRecorder(tmp_path / "face.json", 15.0)

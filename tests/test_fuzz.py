@@ -141,7 +141,7 @@ def test_fuzz_face_json(data):
 
 # ---------------------------------------------------------------------------- Live Link packets
 def _packet() -> bytes:
-    from facecapges.runtime.livelink import N_VALUES, encode_packet
+    from facecapges.runtime.inputs.livelink import N_VALUES, encode_packet
 
     return encode_packet(np.linspace(0, 1, N_VALUES, dtype=np.float32))
 
@@ -149,7 +149,7 @@ def _packet() -> bytes:
 @FUZZ
 @given(st.one_of(mutate(_packet()), st.binary(max_size=400)))
 def test_fuzz_livelink_packets(data):
-    from facecapges.runtime.livelink import PacketError, decode_packet
+    from facecapges.runtime.inputs.livelink import PacketError, decode_packet
 
     CASES["livelink"] += 1
     try:
@@ -161,7 +161,7 @@ def test_fuzz_livelink_packets(data):
 
 # ---------------------------------------------------------------------------- WebSocket protocol
 def _input_message() -> str:
-    from facecapges.runtime import protocol
+    from facecapges.runtime.outputs import protocol
 
     return protocol.encode_input(3, np.zeros(1067, np.float32), np.full(52, 0.5, np.float32),
                                  np.array([1, 0, 0, 0, 1, 0], np.float32))
@@ -181,7 +181,7 @@ client_messages = st.one_of(
 @FUZZ
 @given(client_messages)
 def test_fuzz_websocket_client_messages(text):
-    from facecapges.runtime import protocol
+    from facecapges.runtime.outputs import protocol
 
     CASES["ws_client"] += 1
     try:
@@ -200,7 +200,7 @@ def test_fuzz_websocket_client_messages(text):
                  st.fixed_dictionaries({"type": st.just("pose"), "pose": json_values, "weights": json_values,
                                         "head": json_values}).map(json.dumps)))
 def test_fuzz_websocket_pose_messages(text):
-    from facecapges.runtime import protocol
+    from facecapges.runtime.outputs import protocol
 
     CASES["ws_pose"] += 1
     try:
@@ -629,7 +629,7 @@ def test_fuzz_cache_index_and_npz(index, npz):
 # ---------------------------------------------------------------------------- viewer HTTP paths
 @pytest.fixture(scope="module")
 def viewer_port():
-    from facecapges.runtime.web_server import ViewerServer
+    from facecapges.runtime.outputs.viewer import ViewerServer
 
     s = ViewerServer(b"glTF-not-really", "127.0.0.1", 0).start()
     yield s.bound[1] if getattr(s, "bound", None) else s.port

@@ -16,7 +16,7 @@ from facecapges.model.checkpoint import Checkpoint
 from facecapges.model.config import ModelConfig
 from facecapges.model.intensity import MAX_INTENSITY, check_intensity, rest_pose, scale_pose
 from facecapges.model.network import FaceCapGes
-from facecapges.runtime import protocol
+from facecapges.runtime.outputs import protocol
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ The layers follow the data path a user's frame takes (README "Layout"):
 1. ``io`` — file formats
 2. ``capture`` (camera → face), ``data`` (datasets, the cache)
 3. ``model`` — the network and its generators; ``matching`` — the motion-matching engine beside it
-4. ``training``, ``outputs``, ``avatar``
+4. ``training``, ``avatar``
 5. ``evaluation``, ``runtime``
 6. ``serving``, ``study``
 7. ``commands`` (the command line: ``cli`` and one module per command group, with ``__main__`` for
@@ -33,7 +33,7 @@ LAYERS: dict[str, int] = {
     "io": 1,
     "capture": 2, "data": 2,
     "model": 3, "matching": 3,
-    "training": 4, "outputs": 4, "avatar": 4,
+    "training": 4, "avatar": 4,
     "evaluation": 5, "runtime": 5,
     "serving": 6, "study": 6,
     "commands": 7, "benchmarks": 7, "__main__": 7, "__init__": 7,

@@ -77,7 +77,8 @@ def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import FrameInputs, generate_poses
     from facecapges.timing import frame_audio
-    from facecapges.training.train import ClipArrays, build_trainer
+    from facecapges.training.segments import ClipArrays
+    from facecapges.training.train import build_trainer
 
     clips = []
     for seed in range(3):

@@ -125,7 +125,7 @@ def test_skeleton_head_maps_to_camera_frame_around_the_speaker_mean():
 
 # --------------------------------------------------------------- what a style saw
 def _clip(T: int = 160, seed: int = 0, face: bool = False):
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(seed)
     t = np.arange(T)[:, None, None]
@@ -164,16 +164,16 @@ def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
 @pytest.mark.slow
 def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
     """The offline decoder gets resume by construction: 2 + 1 epochs equal 3 in one go."""
-    from facecapges.training.offline import OFFLINE
+    from facecapges.training.bidirectional import BIDIRECTIONAL
     from facecapges.training.train import build_trainer
 
     over = dict(epochs=3, batch_size=8, optimizer="adam", lr_base=0.016, adv_start_epoch=2, holdout_from=120,
                 num_threads=1)
-    one = build_trainer([_clip()], tmp_path / "one", dict(TINY), over, {}, resume=False, variant=OFFLINE)
+    one = build_trainer([_clip()], tmp_path / "one", dict(TINY), over, {}, resume=False, variant=BIDIRECTIONAL)
     one.fit(progress=False)
-    two = build_trainer([_clip()], tmp_path / "two", dict(TINY), over, {}, resume=False, variant=OFFLINE)
+    two = build_trainer([_clip()], tmp_path / "two", dict(TINY), over, {}, resume=False, variant=BIDIRECTIONAL)
     two.fit(epochs=2, progress=False)
-    again = build_trainer([_clip()], tmp_path / "two", {}, {"epochs": 3}, {}, resume=True, variant=OFFLINE)
+    again = build_trainer([_clip()], tmp_path / "two", {}, {"epochs": 3}, {}, resume=True, variant=BIDIRECTIONAL)
     again.fit(progress=False)
     for k, v in one.G.state_dict().items():
         assert torch.allclose(again.G.state_dict()[k], v, atol=1e-6), k
@@ -253,7 +253,8 @@ def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
 def test_head_dropout_holds_whole_segments_still_facing_the_camera(tmp_path):
     """``train.head_dropout``: a segment's head input is held at the camera frame's identity, whole."""
     from facecapges.errors import UserError
-    from facecapges.training.train import build_trainer, hold_head_still
+    from facecapges.training.segments import hold_head_still
+    from facecapges.training.train import build_trainer
 
     torch.manual_seed(0)
     head = torch.randn(400, 50, 6)

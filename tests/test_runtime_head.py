@@ -21,7 +21,7 @@ MEGAMIND_FRAMES = 168  # the clip's 11.3 s at 15 fps (it has no audio: a BEAT cl
 
 
 def run_head(tmp_path, video, head, audio=None, frames=None) -> dict:
-    from facecapges.runtime.offline import run_video
+    from facecapges.runtime.run import run_video
 
     rep = run_video(video, tmp_path / head, checkpoint(), audio=audio, max_frames=frames, progress=False,
                     videos=False, head=head)
@@ -155,7 +155,7 @@ def test_the_video_shows_the_head(tmp_path, face_video):
     import cv2
 
     from facecapges.capture.pipeline import FaceCapture
-    from facecapges.runtime.offline import run_video
+    from facecapges.runtime.run import run_video
 
     out = tmp_path / "run"
     run_video(face_video, out, checkpoint(), max_frames=75, progress=False, head="capture")

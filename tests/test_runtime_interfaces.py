@@ -7,8 +7,7 @@ import inspect
 import pytest
 
 from facecapges.runtime import interfaces as I
-from facecapges.runtime import sources as S
-
+from facecapges.runtime.inputs import sources as S
 from runtime_helpers import checkpoint
 
 
@@ -46,9 +45,9 @@ def test_device_sources_have_the_protocol_methods(cls, proto):
 
 
 def test_generator_and_sinks(tmp_path):
-    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
-    from facecapges.runtime.vmc import VmcSender
-    from facecapges.runtime.web_server import ViewerServer, WebFeed
+    from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
+    from facecapges.runtime.outputs.viewer import ViewerServer, WebFeed
+    from facecapges.runtime.outputs.vmc import VmcSender
 
     ck = checkpoint()
     assert isinstance(ck.streaming(), I.Generator)

@@ -8,7 +8,7 @@ import struct
 import time
 
 from facecapges.runtime.live import livelink_hint
-from facecapges.runtime.sources import LiveLinkFace
+from facecapges.runtime.inputs.sources import LiveLinkFace
 
 from runtime_helpers import cli
 

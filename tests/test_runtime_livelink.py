@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from facecapges import rotations as rot
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.runtime.livelink import (LIVELINK_NAMES, LiveLinkReceiver, PacketError, decode_packet,
+from facecapges.runtime.inputs.livelink import (LIVELINK_NAMES, LiveLinkReceiver, PacketError, decode_packet,
                                          encode_packet)
 
 DEVICE = "1F2E3D4C-5B6A-7980-A1B2-C3D4E5F60718"

@@ -11,7 +11,7 @@ from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.runtime.scheduler import FaceHold, Scheduler
-from facecapges.runtime.sources import FaceSample, FileAudio
+from facecapges.runtime.inputs.sources import FaceSample, FileAudio
 
 from runtime_helpers import checkpoint
 

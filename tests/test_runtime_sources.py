@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from facecapges.runtime.sources import FileVideo
+from facecapges.runtime.inputs.sources import FileVideo
 
 from runtime_helpers import checkpoint
 

@@ -10,7 +10,7 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.upsample import Upsampler, added_latency_s, blend_frames, substeps
+from facecapges.runtime.outputs.upsample import Upsampler, added_latency_s, blend_frames, substeps
 
 
 def frame(k: int, arm_deg: float, jaw: float, head_yaw_deg: float = 0.0) -> OutputFrame:
@@ -117,7 +117,7 @@ def test_viewer_gets_30_frames_a_second(face_video):
     """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
     from websockets.sync.client import connect
 
-    from facecapges.runtime import protocol
+    from facecapges.runtime.outputs import protocol
     from runtime_helpers import cli_popen, wait_line
 
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",

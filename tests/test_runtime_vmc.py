@@ -13,7 +13,7 @@ from facecapges.arkit import ARKIT_NAMES
 from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
 from facecapges.io.bvh import read_bvh
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,
+from facecapges.runtime.outputs.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,
                                     vrm_rest_positions)
 from facecapges.skeleton import UPPER_BODY
 
@@ -313,7 +313,7 @@ def test_vmcp_receives_interpolated_60hz(skeleton):
     """Upsampler → VmcSender at 60 Hz: frames on the upsampler's clock, rotations slerped, the last one exact."""
     from vmcp.events import BoneTransformEvent, RelativeTimeEvent
 
-    from facecapges.runtime.upsample import Upsampler
+    from facecapges.runtime.outputs.upsample import Upsampler
 
     frames = [frame_with({"RightArm": axis_quat("Z", a)}, index=k) for k, a in enumerate((0.0, 40.0, 80.0))]
 
@@ -371,7 +371,7 @@ def test_steady_rate_under_load(skeleton, rate):
             if b"/VMC/Ext/T" in d:
                 stamps.append(time.monotonic())
 
-    from facecapges.runtime.upsample import Upsampler
+    from facecapges.runtime.outputs.upsample import Upsampler
 
     spin = _spin(30)
     th = threading.Thread(target=receive, daemon=True)

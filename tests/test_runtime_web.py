@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecapges.runtime import protocol
+from facecapges.runtime.outputs import protocol
 
 from runtime_helpers import cli, cli_popen
 
@@ -220,7 +220,7 @@ def test_camera_that_cannot_open(tmp_path):
 
 def test_camera_error_names_the_device(face_video):
     from facecapges.errors import UserError
-    from facecapges.runtime.sources import CameraVideo
+    from facecapges.runtime.inputs.sources import CameraVideo
 
     with pytest.raises(UserError, match="camera 7"):
         CameraVideo(7)

@@ -23,7 +23,7 @@ from facecapges.model.checkpoint import Checkpoint, save_checkpoint
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
 from facecapges.model.streaming import StreamingGenerator
-from facecapges.runtime import protocol
+from facecapges.runtime.outputs import protocol
 from facecapges.serving.server import ServeConfig, StreamServer
 
 websockets = pytest.importorskip("websockets")

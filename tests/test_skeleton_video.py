@@ -8,7 +8,7 @@ import imageio_ffmpeg
 import numpy as np
 import pytest
 
-from facecapges.outputs.skeleton_video import drawn_bones, pose_positions, render_skeleton_video
+from facecapges.avatar.render.skeleton_video import drawn_bones, pose_positions, render_skeleton_video
 from facecapges.skeleton import joint_positions, motion_to_pose, pose_to_motion
 
 

@@ -114,7 +114,7 @@ def test_study_secrets_are_written_0600(tmp_path, beat_bvh, beat_wav):
 
 # ------------------------------------------------------------------ Live Link subject names
 def test_livelink_receiver_keeps_a_bounded_set_of_subject_names():
-    from facecapges.runtime.livelink import MAX_SUBJECTS, N_VALUES, LiveLinkReceiver, encode_packet
+    from facecapges.runtime.inputs.livelink import MAX_SUBJECTS, N_VALUES, LiveLinkReceiver, encode_packet
 
     rx = LiveLinkReceiver(port=0)
     try:

@@ -14,7 +14,7 @@ def test_a_skeleton_without_beat_joints_is_a_user_error_everywhere():
     import numpy as np
 
     from facecapges.avatar.body import check_skeleton
-    from facecapges.runtime.vmc import VmcMapping
+    from facecapges.runtime.outputs.vmc import VmcMapping
 
     skel = Skeleton(names=["Hips", "Spine"], parents=np.array([-1, 0]), offsets=np.zeros((2, 3)),
                     channels=[["Xrotation"], ["Xrotation"]], end_sites={})

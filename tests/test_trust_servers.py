@@ -117,7 +117,7 @@ def stream_server():
 
 
 def _frame(k: int) -> str:
-    from facecapges.runtime import protocol
+    from facecapges.runtime.outputs import protocol
 
     return protocol.encode_input(k, np.zeros(1067, np.float32), np.zeros(52, np.float32),
                                  np.array([1, 0, 0, 0, 1, 0], np.float32))

@@ -114,7 +114,7 @@ def test_one_training_per_run_folder(tmp_path):
 
 
 def _clips():
-    from facecapges.training.train import ClipArrays
+    from facecapges.training.segments import ClipArrays
 
     rng = np.random.default_rng(0)
     T = 140

@@ -16,8 +16,8 @@ import torch
 from facecapges.model.checkpoint import Checkpoint
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
-from facecapges.runtime import protocol
-from facecapges.runtime.web_server import ViewerServer
+from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.viewer import ViewerServer
 from facecapges.serving.server import ServeConfig, StreamServer
 
 from websockets.asyncio.client import connect  # noqa: E402

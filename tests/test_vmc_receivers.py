@@ -69,7 +69,7 @@ def avatars(beat, tmp_path_factory):
 
 
 def stream(beat, frame, **kw) -> list:
-    from facecapges.runtime.vmc import VmcSender
+    from facecapges.runtime.outputs.vmc import VmcSender
 
     s = VmcSender(beat["skel"], "127.0.0.1", 9, **kw)
     try:

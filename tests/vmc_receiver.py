@@ -1,6 +1,6 @@
 """A VMC receiver that applies a stream to a VRM file by the receivers' own rules — independent of our sender.
 
-Written from the public sources, not from facecapges.runtime.vmc (it reads the file with
+Written from the public sources, not from facecapges.runtime.outputs.vmc (it reads the file with
 pygltflib and does its rotations with scipy):
 
 * EVMC4U ``ExternalReceiver.cs`` (gpsnmeajp/EasyVirtualMotionCaptureForUnity), the reference

@@ -12,8 +12,8 @@ The error policy, one rule per kind of failure:
   joints, in the avatar and in the VMC sender alike).
 * **ValueError** (and ``TypeError``) — a programming error: a function called with
   arrays of the wrong shape by our own code. Never caught; a test fails.
-* **Protocol errors of servers** — :class:`facecapges.runtime.protocol.ProtocolError`,
-  ``runtime.livelink.PacketError``, ``study.store.AnswerError``: bad messages from a
+* **Protocol errors of servers** — :class:`facecapges.runtime.outputs.protocol.ProtocolError`,
+  ``runtime.inputs.livelink.PacketError``, ``study.store.AnswerError``: bad messages from a
   client over the network. They are answered (an ``error`` message, an HTTP status)
   or counted and dropped, and logged at most once per connection; they never stop a
   server and never reach the user as a traceback.

@@ -3,7 +3,7 @@
 Figures, on the shared BEAT clip (``../shared/data/beat/2_scott_0_1_1``):
 
 * ``skeleton_video_s_per_min`` — seconds to render and encode 60 s of 15 fps video
-  with two skeleton panels and audio (:mod:`facecapges.outputs.skeleton_video`);
+  with two skeleton panels and audio (:mod:`facecapges.avatar.render.skeleton_video`);
   target ≤ 60 s. ``skeleton_video_fps`` is the same as frames per second.
 * ``fgd_train_s_per_epoch_per_1k_windows`` — FGD autoencoder training time for one
   epoch over 1000 windows (B = 256, one region); ×400 epochs is the default run.
@@ -60,6 +60,7 @@ def run(quick: bool, shared: Path) -> dict:
     import soundfile as sf
     import torch
 
+    from facecapges.avatar.render.skeleton_video import render_skeleton_video
     from facecapges.evaluation import beat_align as ba
     from facecapges.evaluation.fgd import (
         FGDAutoencoder,
@@ -68,7 +69,6 @@ def run(quick: bool, shared: Path) -> dict:
         make_windows,
         reconstruction_loss,
     )
-    from facecapges.outputs.skeleton_video import render_skeleton_video
     from facecapges.skeleton import UPPER_BODY
 
     skel, pose, audio, sr, source = _data(shared)

@@ -126,7 +126,7 @@ def looped_video(src: Path, seconds: float, out: Path) -> Path:
 
 
 def run_60s(ckpt, clip: Path, seconds: float = 60.0) -> dict:
-    from facecapges.runtime.offline import run_video
+    from facecapges.runtime.run import run_video
 
     with tempfile.TemporaryDirectory(prefix="facecapges-bench-") as tmp:
         video = looped_video(clip, seconds, Path(tmp) / "talk.mp4")
@@ -168,8 +168,8 @@ class PoseRange:
 
 
 def session(ckpt, video: Path, train_bvh: Path, seconds: float) -> dict:
+    from facecapges.runtime.inputs.sources import FileVideo
     from facecapges.runtime.session import build_session
-    from facecapges.runtime.sources import FileVideo
 
     rng = PoseRange(train_bvh)
     sess = build_session(ckpt, video=video, loop=True)
@@ -247,7 +247,7 @@ def vmc_output(ckpt, train_bvh: Path, frames: int = 300) -> dict:
     from facecapges import rotations as rot
     from facecapges.io.bvh import read_bvh
     from facecapges.runtime.frames import OutputFrame
-    from facecapges.runtime.vmc import BLEND_MODES, VmcSender
+    from facecapges.runtime.outputs.vmc import BLEND_MODES, VmcSender
     from facecapges.skeleton import motion_to_pose
 
     bvh = read_bvh(train_bvh)
@@ -310,8 +310,8 @@ def vmc_rate(skeleton, rate_hz: float, seconds: float = 3.0, busy: bool = True) 
 
     from facecapges import rotations as rot
     from facecapges.runtime.frames import OutputFrame
-    from facecapges.runtime.upsample import Upsampler
-    from facecapges.runtime.vmc import VmcSender
+    from facecapges.runtime.outputs.upsample import Upsampler
+    from facecapges.runtime.outputs.vmc import VmcSender
 
     spin = subprocess.Popen([sys.executable, "-c", _BUSY.format(s=seconds + 10)]) if busy else None
     rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

@@ -36,13 +36,13 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     clip) with the default style; ``say`` gets the summary (JSON) and where the files are. Returns it."""
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
+    from facecapges.avatar.render.skeleton_video import render_skeleton_video
     from facecapges.avatar.render.video import bvh_quaternions, render_video
     from facecapges.capture.speech_mouth import speech_mouth_track
     from facecapges.errors import check_output_file
     from facecapges.io.bvh import write_bvh
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
-    from facecapges.outputs.skeleton_video import render_skeleton_video
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
 

@@ -56,7 +56,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Video → face capture → gestures → avatar, frame by frame as live, as fast as it goes, to files."""
         options = RunOptions(**locals())  # before any other name is bound here
-        from facecapges.runtime.offline import run_offline
+        from facecapges.runtime.run import run_offline
 
         run_offline(options, say=typer.echo)
 

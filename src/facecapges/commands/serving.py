@@ -47,7 +47,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
-        Speaks the runtime's message format (facecapges.runtime.protocol): 'hello' on
+        Speaks the runtime's message format (facecapges.runtime.outputs.protocol): 'hello' on
         connect, one 'input' per frame from the client, one 'pose' back per frame.
         The frames of all streams waiting at the same moment run as one batched call.
         """

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import typer
 
-from facecapges.outputs.recording import GenerateOptions
+from facecapges.runtime.generate import GenerateOptions
 
 
 def _check_extensions(out: Path, vrma: Path | None) -> None:
@@ -65,7 +65,7 @@ def register(app: typer.Typer) -> None:
         """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
         options = GenerateOptions(**locals())  # before any other name is bound here
         _check_extensions(out, vrma)
-        from facecapges.outputs.recording import generate_recording
+        from facecapges.runtime.generate import generate_recording
 
         generate_recording(options, say=typer.echo)
 

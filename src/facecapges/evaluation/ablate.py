@@ -7,9 +7,9 @@ discriminator schedule, seed):
 * ``full`` — FaceCapGes as is (closed-loop trainer :mod:`facecapges.training.train`).
 * ``no_head`` — "without head pose": ``ModelConfig(head_dim=0)``, no head encoder, the
   head rotation never reaches the network; same trainer and recipe.
-* ``offline`` — "offline decoding": :class:`facecapges.model.offline.OfflineDecoder`
+* ``offline`` — "offline decoding": :class:`facecapges.model.bidirectional.BidirectionalDecoder`
   (same encoders, bidirectional torso/limb LSTMs over a whole segment, no closed-loop
-  rollout), trained by :mod:`facecapges.training.offline` on the same L = 34
+  rollout), trained by :mod:`facecapges.training.bidirectional` on the same L = 34
   segments with the first N = 16 real poses as seed and losses on the 18 frames after.
 * ``camn`` — the CaMN baseline (thesis 5.2.1, Table 5.2/5.3's CaMN row):
   :class:`facecapges.evaluation.camn.CaMN`, BEAT's cascaded bidirectional body/hands
@@ -47,7 +47,7 @@ and the three variants; ``samples`` runs per variant and clip:
   (the live path), sample 0 from their cold-start neutral window, sample k > 0 from a
   random real N-frame window of the pool as history — exactly as ``facecapges eval``;
 * the offline variant decodes the whole held-out sequence of a clip in one pass
-  (:meth:`OfflineDecoder.generate`), seeded by **the same N-frame history** the
+  (:meth:`BidirectionalDecoder.generate`), seeded by **the same N-frame history** the
   streaming variants start from (sample 0: its own neutral window, chosen from the
   training frames as the closed-loop trainer chooses it; sample k: the same random
   real window), placed as the N frames before the sequence with "no input"
@@ -89,7 +89,10 @@ LABELS = {
 }
 #: Variants decoded offline (one pass per sequence): their loader and trainer builder.
 SEGMENT_DECODERS = {
-    "offline": ("facecapges.model.offline:load_offline", "facecapges.training.offline:build_offline_trainer"),
+    "offline": (
+        "facecapges.model.bidirectional:load_bidirectional",
+        "facecapges.training.bidirectional:build_bidirectional_trainer",
+    ),
     "camn": ("facecapges.evaluation.camn:load_camn", "facecapges.evaluation.camn:build_camn_trainer"),
 }
 
@@ -191,7 +194,7 @@ class TrainedVariant:
 
 
 def _load_clip_arrays(cache: Path, speaker: int, split: str):
-    from facecapges.training.train import load_clips
+    from facecapges.training.segments import load_clips
 
     return load_clips(cache, speaker, split)
 

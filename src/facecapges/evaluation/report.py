@@ -14,7 +14,7 @@
   realism section's notes (:mod:`facecapges.evaluation.realism`).
 * :func:`write_report` — all of the above into one directory.
 
-The side-by-side skeleton video lives in :mod:`facecapges.outputs.skeleton_video`.
+The side-by-side skeleton video lives in :mod:`facecapges.avatar.render.skeleton_video`.
 """
 
 from __future__ import annotations

@@ -398,7 +398,7 @@ def run_eval(
     if video:
         import soundfile as sf
 
-        from facecapges.outputs.skeleton_video import render_skeleton_video
+        from facecapges.avatar.render.skeleton_video import render_skeleton_video
 
         with tempfile.TemporaryDirectory() as td:
             wav = Path(td) / "audio.wav"

@@ -4,12 +4,12 @@ The scheduler (:mod:`.scheduler`) talks to its parts only through these protocol
 (``typing.Protocol``; ``isinstance`` works on them, which the tests use to check that
 every source and sink of the project satisfies its protocol):
 
-* :class:`VideoSource` — frames to capture a face from (:class:`~.sources.FileVideo`,
-  :class:`~.sources.CameraVideo`);
-* :class:`FaceFeed` — faces that need no capture (:class:`~.sources.LiveLinkFace`);
-* :class:`AudioSource` — the speech (:class:`~.sources.FileAudio`, :class:`~.sources.MicAudio`);
+* :class:`VideoSource` — frames to capture a face from (:class:`~.inputs.sources.FileVideo`,
+  :class:`~.inputs.sources.CameraVideo`);
+* :class:`FaceFeed` — faces that need no capture (:class:`~.inputs.sources.LiveLinkFace`);
+* :class:`AudioSource` — the speech (:class:`~.inputs.sources.FileAudio`, :class:`~.inputs.sources.MicAudio`);
 * :class:`Generator` — one gesture stream (:class:`~facecapges.model.streaming.StreamingGenerator`);
-* :class:`Sink` — where output frames go (:mod:`.sinks`, :mod:`.vmc`, :mod:`.web_server`).
+* :class:`Sink` — where output frames go (:mod:`.outputs.recorders`, :mod:`.outputs.vmc`, :mod:`.outputs.viewer`).
 
 Stream time is seconds since the session started (:meth:`start` gets its monotonic
 ``t0``). A visual source's ``ended`` is a state (the file is over); an audio source ends

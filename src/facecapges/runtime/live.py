@@ -70,7 +70,7 @@ def default_outputs(web: str | None, vmc: str | None, record: Path | None) -> tu
 
 def livelink_hint(feed, bind: str, waiting: bool = False) -> str | None:
     """What to tell a Live Link user: at start (``waiting=False``) and while no packet has come."""
-    from facecapges.runtime.web_server import is_loopback
+    from facecapges.runtime.outputs.viewer import is_loopback
 
     port = feed.receiver.address[1]
     loop = is_loopback(bind)
@@ -107,8 +107,8 @@ def per_face_sinks(
     the senders sit behind (recorders always get the model's own frames).
     """
     from facecapges.runtime.interfaces import Sink
-    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace
-    from facecapges.runtime.upsample import Upsampler
+    from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace
+    from facecapges.runtime.outputs.upsample import Upsampler
 
     sinks: list[Sink] = []
     senders: list[VmcSender] = []
@@ -122,7 +122,7 @@ def per_face_sinks(
                 FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout),
             ]
         if vmc_addr is not None:
-            from facecapges.runtime.vmc import VmcSender
+            from facecapges.runtime.outputs.vmc import VmcSender
 
             sender = VmcSender(
                 ckpt.skeleton, vmc_addr[0], vmc_addr[1] + i, blend=vmc_blend, avatar=vmc_avatar, parts=vmc_parts
@@ -141,7 +141,7 @@ def _check(o: LiveOptions) -> _Outputs:
     """Every check that needs no device and no model, in the order the user meets them."""
     from facecapges.errors import UserError, check_output_dir, check_port
     from facecapges.io.face_json import check_face_layout
-    from facecapges.runtime.web_server import is_loopback, parse_address
+    from facecapges.runtime.outputs.viewer import is_loopback, parse_address
 
     if o.livelink is not None:
         check_port(o.livelink, "--livelink")
@@ -170,7 +170,7 @@ def _check(o: LiveOptions) -> _Outputs:
     if o.vrma and o.record is None:
         raise UserError("--vrma records into --record DIR; pass --record too")
     if o.record is not None:
-        from facecapges.runtime.offline import output_names
+        from facecapges.runtime.run import output_names
 
         if o.vrma and o.faces > 1:
             raise UserError("--vrma records one performer; use it with --faces 1")
@@ -198,7 +198,7 @@ def _check(o: LiveOptions) -> _Outputs:
 
 def _check_rate(rate: float | None, fps: float) -> None:
     from facecapges.errors import UserError
-    from facecapges.runtime.upsample import substeps
+    from facecapges.runtime.outputs.upsample import substeps
 
     if rate is not None:
         try:
@@ -209,17 +209,17 @@ def _check_rate(rate: float | None, fps: float) -> None:
 
 def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
     """The browser viewer on ``outs.web_addr`` (ours, or the --avatar VRM), added to the session's sinks."""
-    from facecapges.runtime.offline import avatar_glb
-    from facecapges.runtime.web_server import ViewerServer, WebFeed
+    from facecapges.runtime.outputs.viewer import ViewerServer, WebFeed
+    from facecapges.runtime.run import avatar_glb
 
     ckpt = sess.checkpoint
     assert outs.web_addr is not None
-    if o.avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/vrm_viewer.py)
-        from facecapges.runtime.vrm_viewer import open_vrm_viewer
+    if o.avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/outputs/vrm_viewer.py)
+        from facecapges.runtime.outputs.vrm_viewer import open_vrm_viewer
 
         server, feed_sink = open_vrm_viewer(o.avatar, ckpt, outs.web_addr)
         if o.faces > 1:  # the VRM viewer shows one avatar: the first face
-            from facecapges.runtime.sinks import ForFace
+            from facecapges.runtime.outputs.recorders import ForFace
 
             feed_sink = ForFace(0, feed_sink)
     else:
@@ -230,7 +230,7 @@ def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
     sess.closers.append(server)
     outs.server = server
     if o.rate is not None and o.rate != ckpt.fps and o.faces == 1:
-        from facecapges.runtime.upsample import Upsampler
+        from facecapges.runtime.outputs.upsample import Upsampler
 
         outs.ups.append(Upsampler([feed_sink], ckpt.fps, o.rate))  # the viewer at --rate too
         feed_sink = outs.ups[-1]
@@ -275,7 +275,7 @@ def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], N
 
 def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
     """The scheduler's report + what stopped the run and each output's counters."""
-    from facecapges.runtime.sources import LiveLinkFace
+    from facecapges.runtime.inputs.sources import LiveLinkFace
 
     report = scheduler.report() if scheduler is not None else {}
     report["stopped_by"] = why
@@ -358,7 +358,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         if outs.default_note:
             say(outs.default_note)
         if outs.senders:
-            from facecapges.runtime.vmc import vmc_note
+            from facecapges.runtime.outputs.vmc import vmc_note
 
             warn(f"note: {vmc_note(o.vmc_avatar, o.vmc_parts)}")
         hint = livelink_hint(sess.face_feed, outs.bind) if sess.face_feed is not None else None

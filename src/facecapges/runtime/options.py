@@ -1,6 +1,6 @@
 """The options of ``run`` and ``live``: the command line's defaults are these classes' defaults.
 
-Kept apart from :mod:`.offline` and :mod:`.live` (which do the work) so that the command line
+Kept apart from :mod:`.run` and :mod:`.live` (which do the work) so that the command line
 imports nothing heavy to show ``--help``.
 """
 

@@ -58,8 +58,8 @@ from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
 from facecapges.capture.speech_mouth import SpeechMouth
 from facecapges.runtime.frames import InputFrame, OutputFrame
 from facecapges.runtime.head import HeadDriver
+from facecapges.runtime.inputs.sources import FaceSample
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Generator, Sink, VideoSource
-from facecapges.runtime.sources import FaceSample
 
 STAGES = ("capture", "features", "model", "output", "total")
 
@@ -153,7 +153,7 @@ class Scheduler:
         capture: a :class:`~facecapges.capture.FaceCapture` for ``video``.
         sinks: objects satisfying :class:`~facecapges.runtime.interfaces.Sink` (closed by the owner); each
             gets every face's frames (``OutputFrame.face_index``); wrap one in
-            :class:`~facecapges.runtime.sinks.ForFace` to give it one face only.
+            :class:`~facecapges.runtime.outputs.recorders.ForFace` to give it one face only.
         realtime: pace frames by the wall clock (live) instead of as fast as possible.
         input_slack_s: extra wait after each deadline in realtime mode (device latency).
         head: what the avatar's head shows, ``capture``, ``model`` or ``blend``

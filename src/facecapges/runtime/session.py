@@ -115,8 +115,8 @@ def build_session(
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
     how many faces of the video drive an avatar each (one generator per face).
     """
-    from facecapges.runtime import sources as S
     from facecapges.runtime.head import check_head_mode
+    from facecapges.runtime.inputs import sources as S
     from facecapges.runtime.scheduler import Scheduler
 
     chosen = [x for x in (video, camera, livelink) if x is not None]

@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from facecapges import timing
-from facecapges.runtime import protocol
+from facecapges.runtime.outputs import protocol
 
 _FRAME = re.compile(r'"frame":(\d+)')
 

@@ -2,7 +2,7 @@
 
 Every WebSocket connection is one live stream with its own history and LSTM state —
 a slot of a :class:`~facecapges.model.batched.BatchedStreamingGenerator`. Messages are
-those of :mod:`facecapges.runtime.protocol` (the browser viewer's format): the server
+those of :mod:`facecapges.runtime.outputs.protocol` (the browser viewer's format): the server
 sends ``hello`` on connect; the client sends one ``input`` per frame (its audio
 samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 ``frame`` number; ``ping`` → ``pong``; a bad message → ``error`` (the connection stays).
@@ -33,7 +33,7 @@ unsent output shows up in ours); one that stops sending is closed after ``idle_t
 new connection gets an ``error`` and is closed with 1013 ("try again later").
 
 Slots are for streams, not for sockets: the handshake must end within 10 s
-(:data:`facecapges.runtime.ws.HANDSHAKE_TIMEOUT`), the first ``input`` must come within
+(:data:`facecapges.runtime.outputs.ws.HANDSHAKE_TIMEOUT`), the first ``input`` must come within
 ``first_input_timeout`` seconds of the ``hello``, and afterwards a stream must keep at
 least ``min_input_rate`` inputs per second over every ``rate_window`` seconds (a live
 stream sends 15) — else it is closed (1008) and its slot freed. One client address may
@@ -53,7 +53,7 @@ lock real ones out, even when every client shares one address (loopback, a proxy
 Bad messages are answered and logged on one line per connection.
 
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
-answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.ws`,
+answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.outputs.ws`,
 as the viewer server does). There is no authentication: bind other addresses only on
 trusted networks.
 """
@@ -72,8 +72,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from facecapges.errors import UserError, echo, echo_warning
-from facecapges.runtime import protocol
-from facecapges.runtime.ws import (
+from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.ws import (
     SERVE_OPTIONS,
     ConnectionLog,
     error_message,

@@ -62,7 +62,8 @@ def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
     from facecapges.model.config import load_config_file
     from facecapges.timing import MODEL_FPS
     from facecapges.training.distributed import init_distributed, shutdown
-    from facecapges.training.train import build_trainer, load_clips
+    from facecapges.training.segments import load_clips
+    from facecapges.training.train import build_trainer
 
     ctx = init_distributed(o.device)
     try:

@@ -1,6 +1,6 @@
 // The gesture intensity slider of both viewers (viewer.html, vrm_viewer.html): an <input type=range id=intensity>
 // 0 … 1.3 and a <span id=intensity-value>. Moving it sends {"type": "intensity", "value": v} over the feed's
-// WebSocket (facecapges/runtime/protocol.py); the server's `hello` and `intensity` messages set it, so every
+// WebSocket (facecapges/runtime/outputs/protocol.py); the server's `hello` and `intensity` messages set it, so every
 // open viewer shows the value that is applied.
 const $ = (id) => document.getElementById(id);
 

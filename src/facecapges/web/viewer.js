@@ -1,7 +1,7 @@
 // FaceCapGes live viewer (ES module, three.js 0.187.0).
 //
 // Connects to ws://<this host>/ws, reads the `hello` message (joint and blendshape names) and then one
-// `pose` message per frame (facecapges/runtime/protocol.py): local joint quaternions (w, x, y, z) of the
+// `pose` message per frame (facecapges/runtime/outputs/protocol.py): local joint quaternions (w, x, y, z) of the
 // 47 upper-body BEAT joints and 52 ARKit weights. Joints the feed does not name stay at rest. Draws the
 // newest frame on every animation frame; shows frame rate, compute and transport latency; a checkbox
 // toggles a skeleton overlay. Several faces (`live --faces N`): the `face` field of a pose message picks the

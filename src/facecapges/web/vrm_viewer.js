@@ -2,7 +2,7 @@
 //
 // Loads /avatar.vrm and /vrm/layout.json ({"bones", "expressions"}), connects to ws://<host>/ws and draws
 // the newest `vrm_pose` message (normalised bone quaternions (w, x, y, z) + expression weights, already
-// retargeted by the server: facecapges/runtime/vrm_viewer.py) on every animation frame.
+// retargeted by the server: facecapges/runtime/outputs/vrm_viewer.py) on every animation frame.
 // State for tests: window.facecapgesViewer.
 import { VrmScene } from './vrm_scene.js';
 import { intensitySlider } from './intensity.js';

@@ -187,10 +187,10 @@ def run_video(
 
     from facecapges.io.audio import save_audio
     from facecapges.runtime.head import check_head_mode, head_follow
+    from facecapges.runtime.inputs.sources import FileAudio
     from facecapges.runtime.interfaces import Sink
+    from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
     from facecapges.runtime.session import build_session, full_quaternions
-    from facecapges.runtime.sinks import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
-    from facecapges.runtime.sources import FileAudio
 
     t_start = time.perf_counter()
     video = Path(video)

@@ -29,9 +29,9 @@ Encoders: the TCNs stay causal (they are the full model's encoders, unchanged); 
 bidirectional context comes from the decoder. Embeddings of the seed frames at
 inference are those of "no input" (zero features, the causal padding of the encoders
 — exactly what the streaming generator uses before a stream starts), see
-:meth:`OfflineDecoder.generate`.
+:meth:`BidirectionalDecoder.generate`.
 
-Checkpoint: ``save_offline`` / ``load_offline`` write one ``.safetensors`` with
+Checkpoint: ``save_bidirectional`` / ``load_bidirectional`` write one ``.safetensors`` with
 metadata format ``facecapges-offline-1`` (the :class:`ModelConfig` and training
 summary); :func:`facecapges.model.checkpoint.load_checkpoint` refuses such files (not
 a streaming model).
@@ -49,10 +49,10 @@ from facecapges.errors import UserError
 from facecapges.model.config import ModelConfig, model_config_from_dict
 from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
 
-OFFLINE_FORMAT = "facecapges-offline-1"
+BIDIRECTIONAL_FORMAT = "facecapges-offline-1"
 
 
-class OfflineDecoder(nn.Module):
+class BidirectionalDecoder(nn.Module):
     """Encoders of FaceCapGes + bidirectional torso/limb LSTMs over a whole segment."""
 
     def __init__(self, cfg: ModelConfig):
@@ -129,20 +129,20 @@ class OfflineDecoder(nn.Module):
         return out.reshape(-1, cfg.n_joints, 6).numpy().copy()
 
 
-def save_offline(path: str | Path, model: OfflineDecoder, meta: dict) -> Path:
+def save_bidirectional(path: str | Path, model: BidirectionalDecoder, meta: dict) -> Path:
     """Weights + metadata (format ``facecapges-offline-1``) atomically."""
     from facecapges.model.checkpoint import save_checkpoint
 
-    return save_checkpoint(path, model, meta, fmt=OFFLINE_FORMAT)
+    return save_checkpoint(path, model, meta, fmt=BIDIRECTIONAL_FORMAT)
 
 
-def load_offline(path: str | Path) -> tuple[OfflineDecoder, dict]:
+def load_bidirectional(path: str | Path) -> tuple[BidirectionalDecoder, dict]:
     """An offline-decoding checkpoint (eval mode) and its metadata."""
     from facecapges.model.checkpoint import read_weights
 
     p = Path(path)
-    tensors, meta = read_weights(p, OFFLINE_FORMAT, "offline-decoding checkpoint")
-    model = OfflineDecoder(model_config_from_dict(meta["model_config"]))
+    tensors, meta = read_weights(p, BIDIRECTIONAL_FORMAT, "offline-decoding checkpoint")
+    model = BidirectionalDecoder(model_config_from_dict(meta["model_config"]))
     try:
         model.load_state_dict(with_default_norms(model, tensors), strict=True)
     except RuntimeError as exc:

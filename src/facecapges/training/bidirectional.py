@@ -1,10 +1,10 @@
-"""The "offline decoding" ablation (:mod:`facecapges.model.offline`) as a training variant.
+"""The "offline decoding" ablation (:mod:`facecapges.model.bidirectional`) as a training variant.
 
 It is trained by the one trainer (:mod:`facecapges.training.train`) — the same data,
 budget, objective, optimizers, DDP, AMP and resume as the closed-loop model; only
 the :class:`~facecapges.training.train.Variant` differs:
 
-* Segments: the same :class:`~facecapges.training.train.SegmentSet` — L = 34 frames,
+* Segments: the same :class:`~facecapges.training.segments.SegmentSet` — L = 34 frames,
   stride 10, frames < ``holdout_from`` for training and ≥ it for the held-out losses;
   each segment frame's encoder input is its own causal window, as in the full model.
 * Seed and mask: the first N = 16 real poses of a segment are given as seed poses
@@ -14,7 +14,7 @@ the :class:`~facecapges.training.train.Variant` differs:
 * Losses on the M = 18 frames after the seed only (the same frames the closed-loop
   trainer generates), with the closed-loop trainer's weights, discriminator and
   schedule. The checkpoint is ``model.safetensors`` in format ``facecapges-offline-1``
-  (:func:`facecapges.model.offline.save_offline`) with ``variant: "offline decoding"``
+  (:func:`facecapges.model.bidirectional.save_bidirectional`) with ``variant: "offline decoding"``
   and the cold-start ``neutral_window`` chosen exactly as for the closed-loop model,
   so both are seeded alike at evaluation.
 """
@@ -25,11 +25,14 @@ from pathlib import Path
 
 import torch
 
-from facecapges.model.offline import OfflineDecoder, save_offline
-from facecapges.training.train import ClipArrays, Trainer, Variant, build_trainer
+from facecapges.model.bidirectional import BidirectionalDecoder, save_bidirectional
+from facecapges.training.segments import ClipArrays
+from facecapges.training.train import Trainer, Variant, build_trainer
 
 
-def offline_batch(model: OfflineDecoder, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+def bidirectional_batch(
+    model: BidirectionalDecoder, batch: dict[str, torch.Tensor]
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Decoded (B, M, D) and real (B, M, D) poses of the frames after the N-frame seed."""
     N = model.cfg.n_history
     z = model.encode(batch["audio"], batch["face"], batch["head"])[:, N:]  # (B, L, E), own causal windows
@@ -37,18 +40,18 @@ def offline_batch(model: OfflineDecoder, batch: dict[str, torch.Tensor]) -> tupl
     return out[:, N:], batch["pose"][:, N:]
 
 
-OFFLINE = Variant(
+BIDIRECTIONAL = Variant(
     name="offline",
-    build=OfflineDecoder,
-    forward=offline_batch,
+    build=BidirectionalDecoder,
+    forward=bidirectional_batch,
     output_heads=lambda G: (G.head_t, G.head_u),
-    export=save_offline,
+    export=save_bidirectional,
     meta={"variant": "offline decoding"},
 )
 
 
-def build_offline_trainer(
+def build_bidirectional_trainer(
     clips: list[ClipArrays], out: Path, model_over: dict, train_over: dict, meta: dict
 ) -> Trainer:
     """A new offline-decoding trainer from the same override dicts as ``build_trainer``."""
-    return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=OFFLINE)
+    return build_trainer(clips, out, model_over, train_over, meta, resume=False, variant=BIDIRECTIONAL)

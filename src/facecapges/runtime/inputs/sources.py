@@ -1,10 +1,10 @@
 """Input sources of the runtime: video frames, face feeds and audio, on one stream clock.
 
-Each satisfies its protocol of :mod:`.interfaces` (``VideoSource``, ``FaceFeed``,
+Each satisfies its protocol of :mod:`..interfaces` (``VideoSource``, ``FaceFeed``,
 ``AudioSource``).
 
 Stream time ``t`` (seconds) starts at 0 when a session starts. The scheduler asks each
-source only for what exists *before* a frame's deadline (:mod:`.scheduler`): sources
+source only for what exists *before* a frame's deadline (:mod:`..scheduler`): sources
 never hand out data from the future, and they never block waiting for it.
 
 Visual sources (one per session)
@@ -243,7 +243,7 @@ class LiveLinkFace:
     is_live = True
 
     def __init__(self, port: int, host: str = "127.0.0.1"):
-        from facecapges.runtime.livelink import LiveLinkReceiver
+        from facecapges.runtime.inputs.livelink import LiveLinkReceiver
 
         self.receiver = LiveLinkReceiver(port, host)
         self.name = f"Live Link UDP {self.receiver.address[0]}:{self.receiver.address[1]}"

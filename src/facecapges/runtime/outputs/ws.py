@@ -1,4 +1,4 @@
-"""What the project's two WebSocket servers share: the viewer feed (:mod:`.web_server`) and
+"""What the project's two WebSocket servers share: the viewer feed (:mod:`.viewer`) and
 ``serve`` (:mod:`facecapges.serving.server`).
 
 * :func:`is_loopback` / :func:`refuse_foreign_host` — while a server is bound to a
@@ -22,7 +22,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from facecapges.runtime import protocol
+from facecapges.runtime.outputs import protocol
 
 LOOPBACK_NAMES = {"localhost", "127.0.0.1", "::1", "[::1]"}
 HANDSHAKE_TIMEOUT = 10.0  # seconds from TCP connect to the end of the WebSocket handshake

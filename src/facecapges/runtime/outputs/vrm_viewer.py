@@ -1,6 +1,6 @@
 """``live --web --avatar FILE.vrm``: the browser viewer showing a VRM (0.x / 1.0 / humanoid GLB).
 
-:class:`VrmViewerServer` is the viewer server (:mod:`.web_server`: same security rules,
+:class:`VrmViewerServer` is the viewer server (:mod:`.viewer`: same security rules,
 same ``/ws`` feed socket) serving ``web/vrm_viewer.html`` at ``/``, the avatar at
 ``/avatar.vrm``, three-vrm at ``/pixiv/*`` and the frame layout at ``/vrm/layout.json``
 (``{"bones": [VRM bone names], "expressions": [names]}``). :class:`VrmWebFeed` is its
@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.web_server import TYPES, ViewerServer
+from facecapges.runtime.outputs.viewer import TYPES, ViewerServer
 
 
 class VrmViewerServer(ViewerServer):

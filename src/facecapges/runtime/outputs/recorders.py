@@ -7,7 +7,7 @@ so a long ``live --record`` keeps no motion in memory and a cut-off one still op
 the face JSON is written atomically by ``close`` through
 :func:`facecapges.io.face_json.write_face_json`. ``close`` runs on Ctrl-C and on
 SIGTERM/SIGHUP (the command line turns both into an interrupt). Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
-:mod:`.web_server`.
+:mod:`.viewer`.
 
 * :class:`BvhRecorder` — the full BEAT skeleton of the checkpoint at the model rate;
   the 47 generated joints, every other joint at rest (``skeleton.pose_to_motion``).

@@ -35,9 +35,9 @@ from typing import TYPE_CHECKING, Self
 
 from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import UserError
-from facecapges.runtime import protocol
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.ws import (
+from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.ws import (
     SERVE_OPTIONS,
     ConnectionLog,
     error_message,
