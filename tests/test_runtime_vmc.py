@@ -10,7 +10,7 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
 from facecapges.io.bvh import read_bvh
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,

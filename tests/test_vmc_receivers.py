@@ -36,7 +36,7 @@ ARMS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "Thumb", "Index", "Middle", 
 def beat():
     from conftest import shared_file
     from facecapges import rotations as rot
-    from facecapges.avatar.vrm_view import bvh_local_matrices
+    from facecapges.avatar.vrm.view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
     from facecapges.runtime.frames import OutputFrame
     from facecapges.skeleton import global_transforms, upper_body_indices

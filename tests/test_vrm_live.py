@@ -42,7 +42,7 @@ def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
 
     from facecapges.avatar.render.browser import Browser
     from facecapges.avatar.vrm import parse_model
-    from facecapges.avatar.vrm_view import PAGE, VrmDriver
+    from facecapges.avatar.vrm.view import PAGE, VrmDriver
     from facecapges.io.bvh import read_bvh
 
     skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
@@ -103,7 +103,7 @@ def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     import soundfile as sf
 
     from facecapges.arkit import ARKIT_NAMES
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
     from facecapges.io.face_json import write_face_json
 
     audio, sr = sf.read(unseen_wav)

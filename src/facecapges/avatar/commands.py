@@ -136,7 +136,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
         from facecapges.avatar.body import check_skeleton
-        from facecapges.avatar.vrma import check_face_mode, write_bvh_as_vrma
+        from facecapges.avatar.vrm.animation import check_face_mode, write_bvh_as_vrma
         from facecapges.errors import refuse_overwrite, require_file
         from facecapges.io.bvh import read_bvh
 

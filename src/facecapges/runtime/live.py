@@ -326,7 +326,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         face_layout=o.face_json,
     )
     if o.vrma and o.record is not None:  # --vrma without --record was refused by _check
-        from facecapges.avatar.vrma import VrmaRecorder
+        from facecapges.avatar.vrm.animation import VrmaRecorder
 
         sinks.append(VrmaRecorder(o.record / "motion.vrma", ckpt.skeleton, ckpt.fps))
     sess = build_session(

@@ -24,9 +24,9 @@ lower-cases both sides and maps VRM 1.0 names to 0.x ones), so the spelling matt
 
 * ``vrm`` (default) — the VRM 0.x presets ``Blink``, ``Blink_L``, ``Blink_R``, ``A`` ``I``
   ``U`` ``E`` ``O``, ``Joy``, ``Angry``, ``Sorrow``, ``Fun``, ``Surprised``, ``LookUp`` …
-  derived from the ARKit weights by :mod:`facecapges.arkit_vrm`. Every VRM has them.
+  derived from the ARKit weights by :mod:`facecapges.avatar.vrm.expressions`. Every VRM has them.
 * ``perfect-sync`` — the 52 ARKit clips in the spelling perfect-sync avatars use
-  (``EyeBlinkLeft``, ``JawOpen``, …; :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`).
+  (``EyeBlinkLeft``, ``JawOpen``, …; :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`).
   Only avatars made with those 52 extra clips move; they move in full detail.
 * ``both`` — presets and perfect-sync clips. For a receiver that picks what its avatar
   has; on an avatar with both sets the mouth would move twice (``A`` + ``JawOpen``).
@@ -132,7 +132,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_weights
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_weights
 from facecapges.runtime.frames import OutputFrame
 from facecapges.skeleton import UPPER_BODY, Skeleton
 

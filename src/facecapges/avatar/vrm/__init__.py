@@ -18,7 +18,7 @@ Our avatar's glTF (:mod:`facecapges.avatar.gltf`) plus ``VRMC_vrm``:
   the soles (BEAT ForeFoot) stand on y = 0, as the VRM T-pose wants (under a ``Root``
   node at the origin); BEAT's rest pose already is a T-pose facing +Z, left hand at +X.
 * **expressions** — the 52 ARKit blendshapes as *custom* expressions in perfect-sync
-  spelling (``EyeBlinkLeft``, ``JawOpen`` …: :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`,
+  spelling (``EyeBlinkLeft``, ``JawOpen`` …: :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`,
   the clip names VMC senders and perfect-sync avatars use), each bound to its morph
   target (named as in ARKit) at weight 1, and the VRM presets (``happy`` …) as fixed
   combinations of ARKit targets (:data:`PRESET_BINDS`); ``neutral`` binds nothing and
@@ -41,7 +41,7 @@ version.
 
 Faces (:class:`ExpressionMap`): a model with perfect-sync expressions gets the ARKit
 weights as they are; any other gets its VRM presets from the ARKit weights by
-:mod:`facecapges.arkit_vrm` (the project's one ARKit → VRM preset mapping).
+:mod:`facecapges.avatar.vrm.expressions` (the project's one ARKit → VRM preset mapping).
 """
 
 from __future__ import annotations
@@ -174,12 +174,12 @@ SUPPORTED_EXTENSIONS = frozenset(
 def _preset_binds() -> dict[str, dict[str, float]]:
     """The VRM presets of the avatar we write, as combinations of its ARKit targets.
 
-    They are the inverse of :mod:`facecapges.arkit_vrm`'s ARKit → preset mapping (the
+    They are the inverse of :mod:`facecapges.avatar.vrm.expressions`'s ARKit → preset mapping (the
     one mapping of the project): the visemes are its mouth prototypes spelled as ARKit
     targets, the emotions sit at the top of its ramps, so that a face showing preset
     ``p`` maps back to ``p`` (tested).
     """
-    from facecapges.arkit_vrm import VISEME_PROTOTYPES, VISEMES, VRM1_NAMES
+    from facecapges.avatar.vrm.expressions import VISEME_PROTOTYPES, VISEMES, VRM1_NAMES
 
     binds: dict[str, dict[str, float]] = {}
     for v, (opening, funnel, pucker, stretch, lower, upper) in zip(VISEMES, VISEME_PROTOTYPES):
@@ -216,7 +216,7 @@ EYE_RANGE_DEG = 30.0
 
 # VRM 0.x preset names → 1.0
 def _vrm0_presets() -> dict[str, str]:
-    from facecapges.arkit_vrm import VRM1_NAMES
+    from facecapges.avatar.vrm.expressions import VRM1_NAMES
 
     return {**{k.lower(): v for k, v in VRM1_NAMES.items()}, "neutral": "neutral"}
 
@@ -301,7 +301,7 @@ def avatar_to_vrm(avatar):
     for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
         preset[p]["overrideBlink"] = preset[p]["overrideMouth"] = "blend"
     from facecapges.arkit import arkit_index
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
 
     custom = {PERFECT_SYNC_NAMES[arkit_index(a)]: expr({a: 1.0}) for a in face.names if arkit_index(a) is not None}
     eye_v = np.unique(face.faces[EYE].reshape(-1)) if EYE in face.faces else np.arange(len(face.vertices))
@@ -362,10 +362,10 @@ def avatar_to_vrm0(avatar):
     The same content as :func:`avatar_to_vrm` in VRM 0.x terms: the model turned to face
     −Z (VRM 0.x's rule; a rotation of the data, no node rotation), UniVRM's blend shape
     groups — the presets with UniVRM's lower-case ``presetName`` plus the 52 ARKit shapes
-    named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`)
+    named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`)
     — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``CC_BY`` (editing allowed).
     """
-    from facecapges.arkit_vrm import VRM1_NAMES
+    from facecapges.avatar.vrm.expressions import VRM1_NAMES
 
     doc = avatar_to_vrm(_turned(avatar))
     v1 = doc.extensions["VRMC_vrm"]
@@ -611,7 +611,7 @@ def _morph_names(doc: dict) -> list[str]:
 def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
     """Give a plain humanoid GLB a minimal VRMC_vrm extension (in memory): bones + ARKit customs."""
     from facecapges.arkit import arkit_index
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
 
     custom: dict[str, dict] = {}
     for ni, node in enumerate(doc.get("nodes") or []):
@@ -708,12 +708,12 @@ class ExpressionMap:
 
     Perfect-sync models (≥ :data:`PERFECT_SYNC_MIN` expressions named as ARKit shapes, any
     case) get the ARKit weights as they are; the others their VRM presets, derived by
-    :func:`facecapges.arkit_vrm.vrm0_weights` (the project's one ARKit → preset mapping).
+    :func:`facecapges.avatar.vrm.expressions.vrm0_weights` (the project's one ARKit → preset mapping).
     """
 
     def __init__(self, model: VrmModel):
         from facecapges.arkit import arkit_index
-        from facecapges.arkit_vrm import VRM1_EXPRESSIONS
+        from facecapges.avatar.vrm.expressions import VRM1_EXPRESSIONS
 
         direct: dict[int, str] = {}
         for n in model.expressions:
@@ -729,7 +729,7 @@ class ExpressionMap:
             self.names = [VRM1_EXPRESSIONS[k] for k in self._index]
 
     def __call__(self, arkit: np.ndarray) -> np.ndarray:
-        from facecapges.arkit_vrm import vrm0_weights
+        from facecapges.avatar.vrm.expressions import vrm0_weights
 
         arkit = np.clip(np.asarray(arkit, np.float64), 0.0, 1.0)
         w = arkit if self.perfect_sync else vrm0_weights(arkit)
