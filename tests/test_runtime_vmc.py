@@ -168,7 +168,8 @@ def test_every_datagram_under_the_mtu_and_apply_last(skeleton):
 def vrm_files(skeleton, tmp_path_factory):
     """Our avatar as real VRM 1.0 and VRM 0.x files (facecapges.avatar.vrm), and a 1.0 file without a neck bone."""
     from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm import join_glb, split_glb, write_vrm
+    from facecapges.avatar.vrm.glb import join_glb, split_glb
+    from facecapges.avatar.vrm.write import write_vrm
 
     tmp = tmp_path_factory.mktemp("vrm")
     av = default_avatar(skeleton)

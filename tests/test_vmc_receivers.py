@@ -56,7 +56,7 @@ def beat():
 @pytest.fixture(scope="module")
 def avatars(beat, tmp_path_factory):
     from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm import write_vrm
+    from facecapges.avatar.vrm.write import write_vrm
 
     d = tmp_path_factory.mktemp("vmc_avatars")
     r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat["bvh"]), "--out", str(d / "ours.vrm"))

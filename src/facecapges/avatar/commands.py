@@ -112,7 +112,7 @@ def register(app: typer.Typer) -> None:
         av = default_avatar(skel)
         out.parent.mkdir(parents=True, exist_ok=True)
         if fmt in ("vrm", "vrm0"):
-            from facecapges.avatar.vrm import write_vrm
+            from facecapges.avatar.vrm.write import write_vrm
 
             write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
         else:

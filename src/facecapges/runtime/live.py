@@ -160,7 +160,7 @@ def _check(o: LiveOptions) -> _Outputs:
             raise UserError(f"--web {o.web}: refusing to serve on a non-loopback address without --host {web_addr[0]}")
     vmc_addr = parse_address(o.vmc, LOOPBACK, "--vmc") if o.vmc is not None else None
     if o.avatar is not None:
-        from facecapges.avatar.vrm import load_model
+        from facecapges.avatar.vrm.read import load_model
 
         if web_addr is None:
             raise UserError(
@@ -190,7 +190,7 @@ def _check(o: LiveOptions) -> _Outputs:
     if o.vmc_parts != "all" and o.vmc is None:
         raise UserError("--vmc-parts needs --vmc HOST:PORT")
     if o.vmc_avatar is not None:
-        from facecapges.avatar.vrm import load_model
+        from facecapges.avatar.vrm.read import load_model
 
         load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
     return _Outputs(web_addr, vmc_addr, bind, default_note)

@@ -71,7 +71,7 @@ def _our_avatar(o: RenderOptions, skeleton) -> tuple[bytes, list[str]]:
         doc = avatar_to_gltf(default_avatar(skeleton))
         return b"".join(doc.save_to_bytes()), list(skeleton.names)
     from facecapges.avatar.gltf_check import read_avatar_file
-    from facecapges.avatar.vrm import split_glb
+    from facecapges.avatar.vrm.glb import split_glb
 
     p = require_file(o.avatar_glb, "avatar")
     glb = read_avatar_file(p)

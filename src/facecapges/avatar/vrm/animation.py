@@ -7,7 +7,7 @@ Players (``@pixiv/three-vrm-animation``, VRM apps) retarget it onto any VRM.
 
 Layout written by :func:`motion_to_vrma`
 ----------------------------------------
-* **Nodes**: the VRM humanoid bones BEAT has (:data:`facecapges.avatar.vrm.BEAT_BONES`:
+* **Nodes**: the VRM humanoid bones BEAT has (:data:`facecapges.avatar.vrm.humanoid.BEAT_BONES`:
   52 of them, fingers included), in a tree of humanoid bones only, each at its BEAT
   rest offset (metres) with the identity as rest rotation — BEAT's rest pose is the VRM
   T-pose, facing +Z. A ``Root`` node lifts the hips so the soles stand on y = 0. BEAT
@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.avatar.vrm import BEAT_BONES, VrmModel
+from facecapges.avatar.vrm.humanoid import BEAT_BONES
+from facecapges.avatar.vrm.read import VrmModel
 from facecapges.errors import UserError
 
 SPEC_VERSION = "1.0"
