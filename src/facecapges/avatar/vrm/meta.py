@@ -1,4 +1,4 @@
-"""VRM meta: who made the model, its version and its licence (``VRMC_vrm.meta``, VRM 1.0)."""
+"""VRM meta: who made the model, its version and its licence, VRM 1.0 (``VRMC_vrm.meta``) and 0.x (``VRM.meta``)."""
 
 from __future__ import annotations
 
@@ -24,4 +24,24 @@ def vrm_meta(name: str = "FaceCapGes avatar", version: str = "0.1.0") -> dict:
         "allowRedistribution": True,
         "modification": "allowModificationRedistribution",
         "thirdPartyLicenses": "Face mesh: MediaPipe canonical face model (Google), Apache License 2.0.",
+    }
+
+
+def vrm0_meta(meta: dict) -> dict:
+    """The VRM 0.x ``VRM.meta`` of our avatar, from its VRM 1.0 ``meta`` (:func:`vrm_meta`)."""
+    return {
+        "title": meta["name"],
+        "version": meta["version"],
+        "author": meta["authors"][0],
+        "contactInformation": "",
+        "reference": "",
+        "allowedUserName": "Everyone",
+        "violentUssageName": "Disallow",
+        "sexualUssageName": "Disallow",
+        "commercialUssageName": "Allow",
+        "otherPermissionUrl": "",
+        # a named licence that allows editing: "Other" (or an other-licence URL) makes importers
+        # such as Blender's VRM add-on ask for a licence confirmation before they load the file
+        "licenseName": "CC_BY",
+        "otherLicenseUrl": "",
     }

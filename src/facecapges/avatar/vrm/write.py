@@ -31,7 +31,7 @@ import numpy as np
 
 from facecapges.avatar.vrm.expressions import PRESET_BINDS
 from facecapges.avatar.vrm.humanoid import BEAT_BONES, REQUIRED_BONES, VRM0_RENAME, sole_lift
-from facecapges.avatar.vrm.meta import SPEC_VERSION, vrm_meta
+from facecapges.avatar.vrm.meta import SPEC_VERSION, vrm0_meta, vrm_meta
 from facecapges.errors import UserError
 
 # ARKit eye rotation range (degrees) behind eyeLook* = 1; the lookAt range maps use it
@@ -177,28 +177,12 @@ def avatar_to_vrm0(avatar):
     look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": EYE_RANGE_DEG, "yRange": 1.0}
     head = v1["humanoid"]["humanBones"]["head"]["node"]
     off = v1["lookAt"]["offsetFromHeadBone"]
-    meta = v1["meta"]
     doc.extensionsUsed = ["VRM"]
     doc.extensions = {
         "VRM": {
             "exporterVersion": "facecapges-0.1.0",
             "specVersion": "0.0",
-            "meta": {
-                "title": meta["name"],
-                "version": meta["version"],
-                "author": meta["authors"][0],
-                "contactInformation": "",
-                "reference": "",
-                "allowedUserName": "Everyone",
-                "violentUssageName": "Disallow",
-                "sexualUssageName": "Disallow",
-                "commercialUssageName": "Allow",
-                "otherPermissionUrl": "",
-                # a named licence that allows editing: "Other" (or an other-licence URL) makes importers
-                # such as Blender's VRM add-on ask for a licence confirmation before they load the file
-                "licenseName": "CC_BY",
-                "otherLicenseUrl": "",
-            },
+            "meta": vrm0_meta(v1["meta"]),
             "humanoid": {
                 "humanBones": [
                     {"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
