@@ -8,6 +8,7 @@ import struct
 import numpy as np
 
 from facecapges.errors import UserError
+from facecapges.rotations import quaternion_to_matrix
 
 
 def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
@@ -39,19 +40,6 @@ def join_glb(doc: dict, binary: bytes) -> bytes:
     return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
 
 
-def _quat_matrix(q) -> np.ndarray:
-    x, y, z, w = (float(v) for v in q)
-    n = np.sqrt(x * x + y * y + z * z + w * w) or 1.0
-    x, y, z, w = x / n, y / n, z / n, w / n
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
 def node_world_matrices(doc: dict) -> np.ndarray:
     """World matrices (N, 4, 4) of every node at rest (scene roots at the origin).
 
@@ -67,7 +55,8 @@ def node_world_matrices(doc: dict) -> np.ndarray:
             local[i] = np.asarray(n["matrix"], float).reshape(4, 4).T
         else:
             m = np.eye(4)
-            m[:3, :3] = _quat_matrix(n.get("rotation", [0, 0, 0, 1])) * np.asarray(n.get("scale", [1, 1, 1]), float)
+            x, y, z, w = np.asarray(n.get("rotation", [0, 0, 0, 1]), float)  # glTF stores (x, y, z, w)
+            m[:3, :3] = quaternion_to_matrix(np.array([w, x, y, z])) * np.asarray(n.get("scale", [1, 1, 1]), float)
             m[:3, 3] = n.get("translation", [0, 0, 0])
             local[i] = m
         for c in n.get("children", []):
