@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.arkit_vrm import (PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_EXPRESSIONS, vrm0_presets, vrm0_weights,
-                                  vrm1_expressions)
+from facecapges.avatar.vrm.expressions import (PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_EXPRESSIONS, vrm0_presets,
+                                                vrm0_weights, vrm1_expressions)
 
 
 def face(**weights) -> np.ndarray:

@@ -368,7 +368,7 @@ _VRM_PATHS = ["nodes", "nodes.0", "nodes.0.children", "nodes.3.children.0", "nod
 
 
 def _vrm_docs():
-    from facecapges.avatar.vrm import join_glb, split_glb
+    from facecapges.avatar.vrm.glb import join_glb, split_glb
 
     doc, binary = split_glb(_VRM)
     return st.one_of(
@@ -382,7 +382,8 @@ def _vrm_docs():
 @FUZZ
 @given(_vrm_docs())
 def test_fuzz_vrm_glb(data):
-    from facecapges.avatar.vrm import REQUIRED_BONES, parse_model
+    from facecapges.avatar.vrm.humanoid import REQUIRED_BONES
+    from facecapges.avatar.vrm.read import parse_model
 
     CASES["vrm_glb"] += 1
     try:

@@ -2,9 +2,7 @@
 
 The layers follow the data path a user's frame takes (README "Layout"):
 
-0. conventions — ``errors``, ``rotations``, ``skeleton``, ``timing``, ``arkit``, ``arkit_vrm`` (the one
-   ARKit → VRM expression mapping: a naming convention over ``arkit`` that VMC, the VRM writer and the
-   viewer share, so it sits beside ``arkit`` rather than in ``avatar`` or ``runtime``)
+0. conventions — ``errors``, ``rotations``, ``skeleton``, ``timing``, ``arkit``
 1. ``io`` — file formats
 2. ``capture`` (camera → face), ``data`` (datasets, the cache)
 3. ``model`` — the network and its generators; ``matching`` — the motion-matching engine beside it
@@ -29,7 +27,7 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "src" / "facecapges"
 
 LAYERS: dict[str, int] = {
-    "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "arkit_vrm": 0,
+    "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0,
     "io": 1,
     "capture": 2, "data": 2,
     "model": 3, "matching": 3,

@@ -10,7 +10,7 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
 from facecapges.io.bvh import read_bvh
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.outputs.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,
@@ -168,7 +168,8 @@ def test_every_datagram_under_the_mtu_and_apply_last(skeleton):
 def vrm_files(skeleton, tmp_path_factory):
     """Our avatar as real VRM 1.0 and VRM 0.x files (facecapges.avatar.vrm), and a 1.0 file without a neck bone."""
     from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm import join_glb, split_glb, write_vrm
+    from facecapges.avatar.vrm.glb import join_glb, split_glb
+    from facecapges.avatar.vrm.write import write_vrm
 
     tmp = tmp_path_factory.mktemp("vrm")
     av = default_avatar(skeleton)

@@ -18,7 +18,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 import pytest
 
 from facecapges.avatar.gltf_check import MAX_DEPTH, MAX_FILE_BYTES
-from facecapges.avatar.vrm import join_glb, load_model, parse_model, split_glb
+from facecapges.avatar.vrm.glb import join_glb, split_glb
+from facecapges.avatar.vrm.read import load_model, parse_model
 from facecapges.errors import UserError
 from runtime_helpers import cli
 from vrm_samples import build_sample
@@ -219,7 +220,7 @@ def test_a_large_fake_avatar_is_refused_unread(tmp_path):
         f.truncate(200 * 2**20)
     code = (
         "import resource, sys\n"
-        "from facecapges.avatar.vrm import load_model\n"
+        "from facecapges.avatar.vrm.read import load_model\n"
         "from facecapges.errors import UserError\n"
         "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
         "for p in sys.argv[1:]:\n"

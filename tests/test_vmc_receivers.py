@@ -36,7 +36,7 @@ ARMS = ("Shoulder", "UpperArm", "LowerArm", "Hand", "Thumb", "Index", "Middle", 
 def beat():
     from conftest import shared_file
     from facecapges import rotations as rot
-    from facecapges.avatar.vrm_view import bvh_local_matrices
+    from facecapges.avatar.vrm.view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
     from facecapges.runtime.frames import OutputFrame
     from facecapges.skeleton import global_transforms, upper_body_indices
@@ -56,7 +56,7 @@ def beat():
 @pytest.fixture(scope="module")
 def avatars(beat, tmp_path_factory):
     from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm import write_vrm
+    from facecapges.avatar.vrm.write import write_vrm
 
     d = tmp_path_factory.mktemp("vmc_avatars")
     r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat["bvh"]), "--out", str(d / "ours.vrm"))

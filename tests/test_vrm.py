@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecapges.avatar.vrm import split_glb
+from facecapges.avatar.vrm.glb import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
 from runtime_helpers import cli  # noqa: E402
@@ -68,7 +68,7 @@ def _angle(a, b) -> float:
 @pytest.fixture(scope="module")
 def beat():
     from conftest import shared_file
-    from facecapges.avatar.vrm_view import bvh_local_matrices
+    from facecapges.avatar.vrm.view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import global_transforms
 
@@ -81,7 +81,7 @@ def beat():
 @pytest.fixture(scope="module")
 def files(beat, tmp_path_factory):
     """Our VRM (through the CLI), the samples, and a 6 s .vrma of the BEAT take with a face."""
-    from facecapges.avatar.vrma import write_vrma
+    from facecapges.avatar.vrm.animation import write_vrma
 
     d = tmp_path_factory.mktemp("vrm")
     ours = d / "ours.vrm"
@@ -92,7 +92,7 @@ def files(beat, tmp_path_factory):
     assert r.returncode == 0, r.stderr
     ours0 = d / "ours0.vrm"  # the VRM 0.x writer in-process (the CLI path is the same but for --format)
     from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm import write_vrm
+    from facecapges.avatar.vrm.write import write_vrm
 
     write_vrm(default_avatar(beat["skel"]), ours0, "0.x")
     out = {"ours": ours, "ours0": ours0}
@@ -181,8 +181,7 @@ def test_our_vrm0_matches_the_vrm_0_x_schema(files):
 def test_presets_we_write_map_back_to_themselves():
     """The preset clips of our VRM, read by the project's ARKit → VRM mapping, give that preset."""
     from facecapges.arkit import ARKIT_NAMES
-    from facecapges.arkit_vrm import vrm1_expressions
-    from facecapges.avatar.vrm import PRESET_BINDS
+    from facecapges.avatar.vrm.expressions import PRESET_BINDS, vrm1_expressions
 
     for preset, binds in PRESET_BINDS.items():
         if not binds:
@@ -198,7 +197,7 @@ def test_presets_we_write_map_back_to_themselves():
 # ---------------------------------------------------------------------- three-vrm in Chromium
 def _session(path: Path, beat, vrma: Path | None = None, size=(480, 360), correction: bool = True):
     from facecapges.avatar.render.browser import Browser
-    from facecapges.avatar.vrm_view import PAGE, VrmDriver
+    from facecapges.avatar.vrm.view import PAGE, VrmDriver
 
     driver = VrmDriver.from_file(path, beat["skel"])
     if not correction:
@@ -344,7 +343,7 @@ def test_our_gaze_range_in_three_vrm(files, beat, name):
 
 @pytest.mark.slow
 def test_our_vrm_expressions_drive_its_morph_targets(files, beat):
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
 
     b, driver, info = _session(files["ours"], beat, size=(160, 120))
     try:
@@ -381,7 +380,7 @@ def _cli(*args):
 
 
 def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
-    from facecapges.avatar.vrm import join_glb
+    from facecapges.avatar.vrm.glb import join_glb
 
     bvh = tmp_path / "short.bvh"
     from facecapges.io.bvh import write_bvh
@@ -399,7 +398,7 @@ def test_bad_avatars_get_one_clear_error(files, tmp_path, beat):
     (tmp_path / "draco.vrm").write_bytes(join_glb(draco, blob))
     cases = (("notes.vrm", "not a VRM or binary glTF"), ("nohand.vrm", "lacks the required bones ['leftHand']"),
              ("draco.vrm", "KHR_draco_mesh_compression"))
-    from facecapges.avatar.vrm import load_model
+    from facecapges.avatar.vrm.read import load_model
     from facecapges.errors import UserError
 
     for f, msg in cases:

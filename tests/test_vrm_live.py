@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from facecapges.avatar.vrm import split_glb
+from facecapges.avatar.vrm.glb import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
 from runtime_helpers import cli, cli_popen, viewer_page  # noqa: E402
@@ -41,8 +41,8 @@ def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
     from conftest import shared_file
 
     from facecapges.avatar.render.browser import Browser
-    from facecapges.avatar.vrm import parse_model
-    from facecapges.avatar.vrm_view import PAGE, VrmDriver
+    from facecapges.avatar.vrm.read import parse_model
+    from facecapges.avatar.vrm.view import PAGE, VrmDriver
     from facecapges.io.bvh import read_bvh
 
     skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
@@ -103,7 +103,7 @@ def test_generate_writes_vrma_with_the_face(unseen_wav, tmp_path):
     import soundfile as sf
 
     from facecapges.arkit import ARKIT_NAMES
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
     from facecapges.io.face_json import write_face_json
 
     audio, sr = sf.read(unseen_wav)
@@ -149,7 +149,7 @@ def test_generate_vrma_without_face_has_the_speech_mouth_and_names_follow_format
     anim = doc["animations"][0]
     ch = next(c for c in anim["channels"] if c["target"]["node"] == node)
     acc = doc["accessors"][anim["samplers"][ch["sampler"]]["output"]]
-    from facecapges.avatar.vrm import split_glb as _split
+    from facecapges.avatar.vrm.glb import split_glb as _split
 
     _, blob = _split((tmp_path / "g.vrma").read_bytes())
     view = doc["bufferViews"][acc["bufferView"]]

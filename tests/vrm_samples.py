@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 import pygltflib as g
 
-from facecapges.arkit_vrm import PERFECT_SYNC_NAMES
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
 
 # bone, parent, canonical rest position relative to the parent (metres, +Z forward, left = +X)
 _TORSO = [("hips", None, (0, 0.95, 0)), ("spine", "hips", (0, 0.08, -0.01)), ("chest", "spine", (0, 0.10, 0)),

@@ -40,7 +40,8 @@ from __future__ import annotations
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.avatar.vrm import BEAT_BONES, BONE_NAMES, BONE_PARENT, VrmModel
+from facecapges.avatar.vrm.humanoid import BEAT_BONES, BONE_NAMES, BONE_PARENT
+from facecapges.avatar.vrm.read import VrmModel
 from facecapges.errors import UserError
 from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms
 

@@ -25,9 +25,9 @@ from facecapges.skeleton import N_JOINTS
 def run(quick: bool, shared: Path) -> dict:
     from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.retarget import Retargeter, upper_body_locals
-    from facecapges.avatar.vrm import PRESET_BINDS, ExpressionMap
-    from facecapges.avatar.vrm_view import bvh_local_matrices
-    from facecapges.avatar.vrma import beat_model, write_vrma
+    from facecapges.avatar.vrm.animation import beat_model, write_vrma
+    from facecapges.avatar.vrm.expressions import PRESET_BINDS, ExpressionMap
+    from facecapges.avatar.vrm.view import bvh_local_matrices
     from facecapges.benchmarks.render import shared_file, synthetic_face
 
     bvh = shared_file(shared, "data/beat/2_scott_0_1_1.bvh")

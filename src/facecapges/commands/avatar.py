@@ -112,7 +112,7 @@ def register(app: typer.Typer) -> None:
         av = default_avatar(skel)
         out.parent.mkdir(parents=True, exist_ok=True)
         if fmt in ("vrm", "vrm0"):
-            from facecapges.avatar.vrm import write_vrm
+            from facecapges.avatar.vrm.write import write_vrm
 
             write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
         else:
@@ -136,7 +136,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
         from facecapges.avatar.body import check_skeleton
-        from facecapges.avatar.vrma import check_face_mode, write_bvh_as_vrma
+        from facecapges.avatar.vrm.animation import check_face_mode, write_bvh_as_vrma
         from facecapges.errors import refuse_overwrite, require_file
         from facecapges.io.bvh import read_bvh
 

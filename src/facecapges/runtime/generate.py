@@ -65,7 +65,7 @@ def generate_recording(
     if o.face_out is not None:
         check_output_file(o.face_out, o.force)
     if o.vrma is not None:
-        from facecapges.avatar.vrma import check_face_mode
+        from facecapges.avatar.vrm.animation import check_face_mode
 
         check_output_file(o.vrma, o.force)
         check_face_mode(o.vrma_face)
@@ -101,7 +101,7 @@ def generate_recording(
         shown = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)
         write_face_json(o.face_out, shown, ckpt.fps, inputs.head)
     if o.vrma is not None:
-        from facecapges.avatar.vrma import write_pose_vrma
+        from facecapges.avatar.vrm.animation import write_pose_vrma
 
         face = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)  # what the viewer shows
         write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, face, o.vrma_face)

@@ -160,7 +160,7 @@ def _check(o: LiveOptions) -> _Outputs:
             raise UserError(f"--web {o.web}: refusing to serve on a non-loopback address without --host {web_addr[0]}")
     vmc_addr = parse_address(o.vmc, LOOPBACK, "--vmc") if o.vmc is not None else None
     if o.avatar is not None:
-        from facecapges.avatar.vrm import load_model
+        from facecapges.avatar.vrm.read import load_model
 
         if web_addr is None:
             raise UserError(
@@ -190,7 +190,7 @@ def _check(o: LiveOptions) -> _Outputs:
     if o.vmc_parts != "all" and o.vmc is None:
         raise UserError("--vmc-parts needs --vmc HOST:PORT")
     if o.vmc_avatar is not None:
-        from facecapges.avatar.vrm import load_model
+        from facecapges.avatar.vrm.read import load_model
 
         load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
     return _Outputs(web_addr, vmc_addr, bind, default_note)
@@ -326,7 +326,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         face_layout=o.face_json,
     )
     if o.vrma and o.record is not None:  # --vrma without --record was refused by _check
-        from facecapges.avatar.vrma import VrmaRecorder
+        from facecapges.avatar.vrm.animation import VrmaRecorder
 
         sinks.append(VrmaRecorder(o.record / "motion.vrma", ckpt.skeleton, ckpt.fps))
     sess = build_session(

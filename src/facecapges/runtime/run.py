@@ -182,7 +182,7 @@ def run_video(
     intensity: float = 1.0,
 ) -> dict:
     """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
-    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm_view)."""
+    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view)."""
     from rich.progress import Progress
 
     from facecapges.io.audio import save_audio
@@ -202,7 +202,7 @@ def run_video(
     fps = checkpoint.fps
     driver = None
     if avatar is not None and videos:
-        from facecapges.avatar.vrm_view import VrmDriver
+        from facecapges.avatar.vrm.view import VrmDriver
 
         driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
     mems: list[MemoryRecorder] = []
@@ -286,7 +286,7 @@ def run_video(
                 dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
                 if driver is not None:
                     from facecapges.avatar.retarget import upper_body_locals
-                    from facecapges.avatar.vrm_view import render_vrm_video
+                    from facecapges.avatar.vrm.view import render_vrm_video
 
                     render_vrm_video(
                         driver,

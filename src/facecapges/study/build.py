@@ -163,7 +163,7 @@ def create_study(
     joint_names = list(skel.names)
     driver = None
     if avatar is not None:
-        from facecapges.avatar.vrm_view import VrmDriver
+        from facecapges.avatar.vrm.view import VrmDriver
 
         driver = VrmDriver.from_file(avatar, skel)
     if (out / STUDY_FILE).exists() and (out / "media").is_dir():  # an old study's media (--force)

@@ -3,7 +3,7 @@
 :func:`render_motion_file` checks every output and input before the work, then renders
 our avatar (built from the BVH's skeleton, or an avatar ``.glb`` of ours) with
 :func:`facecapges.avatar.render.video.render_video`, or a VRM / humanoid GLB with
-:func:`facecapges.avatar.vrm_view.render_vrm_video`. The face is the face JSON's weights;
+:func:`facecapges.avatar.vrm.view.render_vrm_video`. The face is the face JSON's weights;
 without one, the jaw and lips follow the audio (:mod:`facecapges.capture.speech_mouth`).
 This module imports nothing heavy, so the command line reads :class:`RenderOptions`'
 defaults for ``--help``.
@@ -55,7 +55,7 @@ def _shown_face(o: RenderOptions, fps: float, T: int):
         from facecapges.io.audio import load_audio
 
         return speech_mouth_track(speech_frames(load_audio(o.audio), fps, T), fps)
-    from facecapges.avatar.vrm_view import face_weights
+    from facecapges.avatar.vrm.view import face_weights
 
     return face_weights(o.face, fps, T)
 
@@ -71,7 +71,7 @@ def _our_avatar(o: RenderOptions, skeleton) -> tuple[bytes, list[str]]:
         doc = avatar_to_gltf(default_avatar(skeleton))
         return b"".join(doc.save_to_bytes()), list(skeleton.names)
     from facecapges.avatar.gltf_check import read_avatar_file
-    from facecapges.avatar.vrm import split_glb
+    from facecapges.avatar.vrm.glb import split_glb
 
     p = require_file(o.avatar_glb, "avatar")
     glb = read_avatar_file(p)
@@ -91,7 +91,7 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
     from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.body import check_skeleton
     from facecapges.avatar.render.video import bvh_quaternions, contact_sheet, render_video
-    from facecapges.avatar.vrm_view import is_vrm_file
+    from facecapges.avatar.vrm.view import is_vrm_file
     from facecapges.errors import UserError, check_output_file, require_file
     from facecapges.io.bvh import read_bvh
 
@@ -110,7 +110,7 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
     if o.face is not None:
         require_file(o.face, "face JSON")
     if o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar")):
-        from facecapges.avatar.vrm_view import VrmDriver, bvh_local_matrices, render_vrm_video
+        from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices, render_vrm_video
 
         driver = VrmDriver.from_file(o.avatar_glb, motion.skeleton)
         say(f"avatar: {driver.describe()}")

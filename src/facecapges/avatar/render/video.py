@@ -94,7 +94,7 @@ def render_video(
     """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
 
     ``inset``: draw the face close-up in the top-right corner (module docstring).
-    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm_view)."""
+    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm.view)."""
     import time
 
     from rich.progress import Progress

@@ -24,9 +24,9 @@ lower-cases both sides and maps VRM 1.0 names to 0.x ones), so the spelling matt
 
 * ``vrm`` (default) — the VRM 0.x presets ``Blink``, ``Blink_L``, ``Blink_R``, ``A`` ``I``
   ``U`` ``E`` ``O``, ``Joy``, ``Angry``, ``Sorrow``, ``Fun``, ``Surprised``, ``LookUp`` …
-  derived from the ARKit weights by :mod:`facecapges.arkit_vrm`. Every VRM has them.
+  derived from the ARKit weights by :mod:`facecapges.avatar.vrm.expressions`. Every VRM has them.
 * ``perfect-sync`` — the 52 ARKit clips in the spelling perfect-sync avatars use
-  (``EyeBlinkLeft``, ``JawOpen``, …; :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`).
+  (``EyeBlinkLeft``, ``JawOpen``, …; :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`).
   Only avatars made with those 52 extra clips move; they move in full detail.
 * ``both`` — presets and perfect-sync clips. For a receiver that picks what its avatar
   has; on an avatar with both sets the mouth would move twice (``A`` + ``JawOpen``).
@@ -93,7 +93,7 @@ Conventions
   bone down the chain.
 
 BEAT → HumanBodyBones (``Left``/``Right`` alike; BEAT's side prefix kept; derived from
-:data:`facecapges.avatar.vrm.BEAT_BONES`, the project's one BEAT → humanoid table)
+:data:`facecapges.avatar.vrm.humanoid.BEAT_BONES`, the project's one BEAT → humanoid table)
 
 =====================  ==========================  ==================================
 BEAT joint             HumanBodyBones              note
@@ -132,7 +132,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_weights
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_weights
 from facecapges.runtime.frames import OutputFrame
 from facecapges.skeleton import UPPER_BODY, Skeleton
 
@@ -156,7 +156,7 @@ def vrm_to_unity(bone: str) -> str:
 
 
 def _table() -> dict[str, str]:
-    from facecapges.avatar.vrm import BEAT_BONES  # the one BEAT → humanoid bone table
+    from facecapges.avatar.vrm.humanoid import BEAT_BONES  # the one BEAT → humanoid bone table
 
     legs = ("UpperLeg", "LowerLeg", "Foot", "Toes")  # not generated: the receiver keeps its own legs
     return {beat: vrm_to_unity(b) for b, beat in BEAT_BONES.items() if not b.endswith(legs)}
@@ -209,9 +209,9 @@ def our_rig(skeleton: Skeleton) -> VmcRig:
 
     A bone's parent node is its BEAT parent joint (Neck1 for Head, the metacarpal for a finger's
     first bone …), so its position is its own BEAT offset; Hips carries the lift that stands the
-    soles on the floor (:func:`facecapges.avatar.vrm.sole_lift`), as the VRM writer does.
+    soles on the floor (:func:`facecapges.avatar.vrm.humanoid.sole_lift`), as the VRM writer does.
     """
-    from facecapges.avatar.vrm import sole_lift
+    from facecapges.avatar.vrm.humanoid import sole_lift
 
     names = list(skeleton.names)
     pos = {}
@@ -234,12 +234,13 @@ def _rotation_part(m: np.ndarray) -> np.ndarray:
 def vrm_rig(path: str | Path) -> VmcRig:
     """A VRM 0.x / 1.0 (or humanoid GLB) file's rig, as UniVRM loads it (module docstring).
 
-    The file is read by :func:`facecapges.avatar.vrm.load_model` (UserError if it is no avatar).
+    The file is read by :func:`facecapges.avatar.vrm.read.load_model` (UserError if it is no avatar).
     A bone's position is its node's rest translation relative to its parent node — the
     ``Transform.localPosition`` a VMC receiver sets. VRM 0.x faces −Z in glTF and UniVRM
     imports it with z negated; VRM 1.0 (and GLB) faces +Z and is imported with x negated.
     """
-    from facecapges.avatar.vrm import load_model, node_world_matrices, split_glb
+    from facecapges.avatar.vrm.glb import node_world_matrices, split_glb
+    from facecapges.avatar.vrm.read import load_model
 
     model = load_model(path)
     doc, _ = split_glb(model.data, str(path))

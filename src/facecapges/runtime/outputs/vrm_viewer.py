@@ -6,7 +6,7 @@ same ``/ws`` feed socket) serving ``web/vrm_viewer.html`` at ``/``, the avatar a
 (``{"bones": [VRM bone names], "expressions": [names]}``). :class:`VrmWebFeed` is its
 sink: each frame's BEAT pose is retargeted onto the avatar's normalised humanoid bones
 and its ARKit weights mapped to the avatar's expressions in Python
-(:class:`facecapges.avatar.vrm_view.VrmDriver`, the one retargeting implementation),
+(:class:`facecapges.avatar.vrm.view.VrmDriver`, the one retargeting implementation),
 then broadcast as a ``vrm_pose`` message::
 
     {"type": "vrm_pose", "frame": k, "time": k / fps, "pose": [B × (w, x, y, z)],
@@ -29,7 +29,7 @@ from facecapges.runtime.outputs.viewer import TYPES, ViewerServer
 
 class VrmViewerServer(ViewerServer):
     def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = 15.0):
-        from facecapges.avatar.vrm_view import pixiv_dir
+        from facecapges.avatar.vrm.view import pixiv_dir
 
         super().__init__(b"", host, port, fps)
         self.driver = driver
@@ -91,7 +91,7 @@ class VrmWebFeed:
 
 def open_vrm_viewer(avatar: str | Path, ckpt, address: tuple[str, int]):
     """Start the VRM viewer for ``avatar`` on ``address``; returns (server, sink)."""
-    from facecapges.avatar.vrm_view import VrmDriver
+    from facecapges.avatar.vrm.view import VrmDriver
 
     driver = VrmDriver.from_file(avatar, ckpt.skeleton)
     server = VrmViewerServer(driver, address[0], address[1], fps=ckpt.fps).start()

@@ -7,7 +7,7 @@ Players (``@pixiv/three-vrm-animation``, VRM apps) retarget it onto any VRM.
 
 Layout written by :func:`motion_to_vrma`
 ----------------------------------------
-* **Nodes**: the VRM humanoid bones BEAT has (:data:`facecapges.avatar.vrm.BEAT_BONES`:
+* **Nodes**: the VRM humanoid bones BEAT has (:data:`facecapges.avatar.vrm.humanoid.BEAT_BONES`:
   52 of them, fingers included), in a tree of humanoid bones only, each at its BEAT
   rest offset (metres) with the identity as rest rotation — BEAT's rest pose is the VRM
   T-pose, facing +Z. A ``Root`` node lifts the hips so the soles stand on y = 0. BEAT
@@ -20,10 +20,10 @@ Layout written by :func:`motion_to_vrma`
   them still).
 * **Expressions**: one node per expression whose translation X is its weight (the
   spec's encoding), with ``face="presets"`` the VRM presets derived from the ARKit
-  weights by :func:`facecapges.arkit_vrm.vrm0_weights` (any VRM can play them; the
+  weights by :func:`facecapges.avatar.vrm.expressions.vrm0_weights` (any VRM can play them; the
   look presets are left out — the spec reserves them for lookAt), with
   ``face="perfect-sync"`` the 52 ARKit weights as custom expressions in perfect-sync
-  spelling (``EyeBlinkLeft`` …, :data:`facecapges.arkit_vrm.PERFECT_SYNC_NAMES`), the names
+  spelling (``EyeBlinkLeft`` …, :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`), the names
   of the clips of perfect-sync avatars such as ours.
 """
 
@@ -34,7 +34,8 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.avatar.vrm import BEAT_BONES, VrmModel
+from facecapges.avatar.vrm.humanoid import BEAT_BONES
+from facecapges.avatar.vrm.read import VrmModel
 from facecapges.errors import UserError
 
 SPEC_VERSION = "1.0"
@@ -62,8 +63,8 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     """The ``.vrma`` glTF document (pygltflib) of BEAT local rotations (T, J, 3, 3) (+ (T, 52) ARKit)."""
     import pygltflib as g
 
-    from facecapges.arkit_vrm import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
     from facecapges.avatar.retarget import Retargeter
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
     from facecapges.rotations import matrix_to_quaternion
     from facecapges.skeleton import rest_positions
 
@@ -179,14 +180,14 @@ def write_bvh_as_vrma(
     bvh: str | Path, out: str | Path, face_json: str | Path | None = None, face: str = "presets"
 ) -> Path:
     """A BEAT BVH (+ face JSON, resampled to the BVH's rate) → ``.vrma``."""
-    from facecapges.avatar.vrm_view import bvh_local_matrices
+    from facecapges.avatar.vrm.view import bvh_local_matrices
     from facecapges.io.bvh import read_bvh
 
     motion = read_bvh(bvh)
     L = bvh_local_matrices(motion.skeleton, motion.motion)
     arkit = None
     if face_json is not None:
-        from facecapges.avatar.vrm_view import face_weights
+        from facecapges.avatar.vrm.view import face_weights
 
         arkit = face_weights(Path(face_json), motion.fps, len(L))
     return write_vrma(out, motion.skeleton, L, motion.fps, arkit, face)

@@ -73,13 +73,26 @@ Per frame, every value in [0, 1]:
 
 The thresholds are engineering choices (no published reference maps ARKit to VRM
 presets); they are here, once, for every consumer.
+
+The other way and on a model
+----------------------------
+* :data:`PRESET_BINDS` — the presets of the avatar we write, as combinations of its ARKit
+  morph targets (the inverse of the mapping above).
+* :class:`ExpressionMap` — a model read by :mod:`facecapges.avatar.vrm.read`: a model with
+  perfect-sync expressions gets the ARKit weights as they are; any other gets its VRM
+  presets from :func:`vrm0_weights`.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+
+if TYPE_CHECKING:
+    from facecapges.avatar.vrm.read import VrmModel
 
 VRM0_PRESETS: tuple[str, ...] = (
     "Blink",
@@ -228,3 +241,73 @@ def vrm0_presets(face52: np.ndarray) -> dict[str, float]:
 def vrm1_expressions(face52: np.ndarray) -> dict[str, float]:
     """One frame's (52,) ARKit weights → ``{VRM 1.0 expression name: weight}``."""
     return {VRM1_NAMES[k]: v for k, v in vrm0_presets(face52).items()}
+
+
+def _preset_binds() -> dict[str, dict[str, float]]:
+    """The VRM presets of the avatar we write, as combinations of its ARKit targets.
+
+    They are the inverse of this module's ARKit → preset mapping (:func:`vrm0_weights`, the
+    one mapping of the project): the visemes are its mouth prototypes spelled as ARKit
+    targets, the emotions sit at the top of its ramps, so that a face showing preset
+    ``p`` maps back to ``p`` (tested).
+    """
+    binds: dict[str, dict[str, float]] = {}
+    for v, (opening, funnel, pucker, stretch, lower, upper) in zip(VISEMES, VISEME_PROTOTYPES):
+        b = {"jawOpen": opening, "mouthFunnel": funnel, "mouthPucker": pucker}
+        for side in ("Left", "Right"):
+            b.update({f"mouthStretch{side}": stretch, f"mouthLowerDown{side}": lower, f"mouthUpperUp{side}": upper})
+        binds[VRM1_NAMES[v]] = {a: float(w) for a, w in b.items() if w > 0}
+    both = lambda stem, w: {f"{stem}Left": w, f"{stem}Right": w}  # noqa: E731
+    binds.update(
+        {
+            "happy": {**both("mouthSmile", 0.8), **both("cheekSquint", 0.6), **both("eyeSquint", 0.3)},
+            "relaxed": both("mouthSmile", 0.8),
+            "angry": {**both("browDown", 0.8), **both("noseSneer", 0.4), **both("mouthPress", 0.3)},
+            "sad": {"browInnerUp": 0.8, **both("mouthFrown", 0.7)},
+            "surprised": {**both("eyeWide", 0.8), **both("browOuterUp", 0.8), "browInnerUp": 0.5},
+            "blink": both("eyeBlink", 1.0),
+            "blinkLeft": {"eyeBlinkLeft": 1.0},
+            "blinkRight": {"eyeBlinkRight": 1.0},
+            # the model's left is +X: looking left turns the left eye out and the right eye in
+            "lookUp": both("eyeLookUp", 1.0),
+            "lookDown": both("eyeLookDown", 1.0),
+            "lookLeft": {"eyeLookOutLeft": 1.0, "eyeLookInRight": 1.0},
+            "lookRight": {"eyeLookInLeft": 1.0, "eyeLookOutRight": 1.0},
+            "neutral": {},
+        }
+    )
+    return binds
+
+
+PRESET_BINDS: dict[str, dict[str, float]] = _preset_binds()
+PERFECT_SYNC_MIN = 26  # a model with at least this many ARKit-named expressions is driven by them
+
+
+class ExpressionMap:
+    """ARKit weights (T, 52) → the model's expression weights (T, E), E = ``names``.
+
+    Perfect-sync models (≥ :data:`PERFECT_SYNC_MIN` expressions named as ARKit shapes, any
+    case) get the ARKit weights as they are; the others their VRM presets, derived by
+    :func:`vrm0_weights` (the project's one ARKit → preset mapping).
+    """
+
+    def __init__(self, model: VrmModel):
+        from facecapges.arkit import arkit_index
+
+        direct: dict[int, str] = {}
+        for n in model.expressions:
+            a = arkit_index(n)
+            if a is not None:
+                direct.setdefault(a, n)
+        self.perfect_sync = len(direct) >= PERFECT_SYNC_MIN
+        if self.perfect_sync:
+            self._index = sorted(direct)
+            self.names = [direct[a] for a in self._index]
+        else:
+            self._index = [k for k, n in enumerate(VRM1_EXPRESSIONS) if n in model.expressions]
+            self.names = [VRM1_EXPRESSIONS[k] for k in self._index]
+
+    def __call__(self, arkit: np.ndarray) -> np.ndarray:
+        arkit = np.clip(np.asarray(arkit, np.float64), 0.0, 1.0)
+        w = arkit if self.perfect_sync else vrm0_weights(arkit)
+        return np.ascontiguousarray(w[..., self._index], dtype=np.float32)

@@ -1,8 +1,8 @@
 """A VRM avatar driven by BEAT motion + ARKit face weights, rendered by @pixiv/three-vrm.
 
-:class:`VrmDriver` holds a model (:func:`facecapges.avatar.vrm.load_model`), its
+:class:`VrmDriver` holds a model (:func:`facecapges.avatar.vrm.read.load_model`), its
 :class:`~facecapges.avatar.retarget.Retargeter` and its
-:class:`~facecapges.avatar.vrm.ExpressionMap`, and turns BEAT local rotations + 52
+:class:`~facecapges.avatar.vrm.expressions.ExpressionMap`, and turns BEAT local rotations + 52
 ARKit weights into what ``web/vrm_scene.js`` sets: normalised bone quaternions
 (T, B, 4) and expression weights (T, E), in the order of :attr:`VrmDriver.layout`.
 :func:`render_vrm_video` renders them to an MP4 with the avatar renderer's machinery
@@ -37,7 +37,7 @@ def pixiv_dir() -> Path:
 def is_vrm_file(path: str | Path) -> bool:
     """True unless ``path`` is an avatar .glb written by ``facecapges avatar build`` (BEAT joints, no VRM)."""
     from facecapges.avatar.gltf_check import read_avatar_file
-    from facecapges.avatar.vrm import split_glb
+    from facecapges.avatar.vrm.glb import split_glb
 
     data = read_avatar_file(path)  # too large, not a glTF: refused here, before anything else reads it
     doc, _ = split_glb(data, str(path))  # and not self-contained or not well-formed
@@ -51,7 +51,7 @@ class VrmDriver:
 
     def __init__(self, model, skeleton):
         from facecapges.avatar.retarget import Retargeter
-        from facecapges.avatar.vrm import ExpressionMap
+        from facecapges.avatar.vrm.expressions import ExpressionMap
 
         self.model = model
         self.retarget = Retargeter(skeleton, model)
@@ -59,7 +59,7 @@ class VrmDriver:
 
     @classmethod
     def from_file(cls, path: str | Path, skeleton) -> VrmDriver:
-        from facecapges.avatar.vrm import load_model
+        from facecapges.avatar.vrm.read import load_model
 
         return cls(load_model(path), skeleton)
 
