@@ -20,21 +20,14 @@
 
 * ``vmc_output`` — the VMC sender's cost per frame (OSC messages, bundles ≤ 1200 B,
   ``sendto`` on loopback) for each ``--vmc-blend`` mode, with datagrams per frame and the
-  largest one. (Measured Dec 2026, machine shared by 8 jobs: p50 0.4–0.8 ms per frame;
-  4 datagrams for ``vrm``, 6 for ``perfect-sync`` / ``both``, largest 1196 B.)
+  largest one.
 
 * ``vmc_rate`` — the VMC stream's delivered rate at ``--rate 30`` and ``60`` with the other
   core kept busy by a spinning process: a loopback receiver timestamps each frame's last
   datagram; the median over 0.5 s windows and the overall rate, with model frames arriving
   with ±20 ms jitter (the upsampler sends on its own clock). Target: within 2 % of the rate.
-  (Measured Dec 2026, 3 s runs, load average ~8 from other jobs: median 30.0 / 60.0 Hz, overall
-  30.03–30.26 / 60.0–60.53 Hz, no resync.)
 
-Measured on this machine (2 cores shared with a training run, default style, Nov 2026):
-per frame on the 8 s clip p50 14–30 ms, p99 15–41 ms depending on the load (MediaPipe
-capture is ~80 % of it); ``run`` on 60 s: 135 s wall (pipeline 48 s, avatar video 62 s,
-side-by-side 23 s); the full 1 h session: 54 000 frames in 21 min, RSS +1.8 %, every
-frame inside the training range, distance to the training mean 4.06° in every tenth.
+Figures measured so far, with their loads: docs/performance.md.
 """
 
 from __future__ import annotations

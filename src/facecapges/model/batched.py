@@ -60,84 +60,18 @@ Nothing mixes across the batch axis: each stream's output equals the naive
 re-windowed loop's on the same inputs (tested to 1e-5), and a one-slot generator gives
 the same poses as a slot of a batch.
 
-What replaced TorchScript (``torch.jit.script`` is deprecated in torch 2.13), chosen by
-measurement. A first session measured, CPU ms per step, default checkpoint of the time,
-one thread, interleaved in one run under heavy load (~3× a quiet machine's figures):
-
-=====================================  =========  =========  ===============================
-kernel                                 B = 1      B = 64     start-up
-=====================================  =========  =========  ===============================
-TorchScript (the old step)             2.47       19.7       ~1 s (scripting)
-eager, before lockstep                 3.20       22.6       none
-torch.compile (inductor) of the step   2.42       18.4       191 s (B = 1), 210 s (B = 64)
-                                                             cold, per batch shape; 5.5 s
-                                                             from a warm on-disk cache
-torch.export, the LSTM window only     1.74       —          18.6 s to export
-  (same window in eager: 1.08)
-=====================================  =========  =========  ===============================
-
-torch.compile runs no faster than TorchScript did and needs minutes of compilation for
-every checkpoint shape and batch size on first use (every ``run``, ``live``, test and
-``serve`` start would pay it on a fresh machine); ``torch.export``'s program, run from
-Python, is slower than the eager code it records. So the kernel is **eager**, with the
-per-operation cost cut instead: one stream's step made 404 torch calls, then 172 (shift
-registers instead of ring indices, the TCNs' past taps as one ``baddbmm``,
-:func:`affine_chain`, both LSTMs' projections as one product, a lockstep recurrence in
-NumPy, a Mel front end with one FFT call for the frame's windows and a fast
-autocorrelation length), and now 70 torch calls and 6 native ones: for small batches
-the TCN taps, the LSTM cascade and the Mel front end's work between its FFTs each run
-as one loop compiled by Numba (:mod:`facecapges.model.native`; :class:`TCNTaps`,
-:class:`Cascade` and :data:`BatchedStreamingGenerator.MEL_NATIVE_MAX_BATCH` give the
-measured batch-size splits; above them the torch schedules run unchanged). The machine
-code is cached on disk: a fresh machine compiles it once (~7 s), later processes load
-it when their first generator is built (~0.1–0.3 s). Side by side in one process
-(default Mel checkpoint, one thread, 450 frames in alternating blocks of 25, load
-average 1.3–1.5 — a training run on the other core; p50 ms per frame, wall clock;
-main's code imported from commit 5c0d2f5 under another package name; its naive loop
-and this one's are the same code):
-
-=============================================  =====  ============  ===========  ===========
-kernel                                         step   step + Euler  naive / step naive / step
-                                                                    (wall)       (CPU time)
-=============================================  =====  ============  ===========  ===========
-eager + NumPy lockstep (main, 5c0d2f5)         1.416  1.632         2.48×        2.47×
-eager + native small-batch loops (this)        0.644  0.815         5.45×        5.43×
-naive re-windowed loop                         3.513  —             1            1
-=============================================  =====  ============  ===========  ===========
-
-(That run's machine was slower than the bench's usual: ``bench`` at load 1.6 gave step
-0.464, naive 2.538, ``speedup`` 5.47, CPU-time speedup 5.43, step + Euler 0.579.)
-Whole batched steps, same run (p50 ms, wall clock, main → this): B = 1 1.329 → 0.546
-(2.43×), B = 4 1.753 → 0.822 (2.13×), B = 16 4.601 → 3.270 (1.41×), B = 64 9.734 → 9.896,
-B = 240 30.7 → 33.3; at B = 64 and 240 repeated runs (CPU time, orders swapped) gave
-0.94–1.09× — the machine's noise: above B = 64 every stage runs its torch schedule,
-main's code, and two generators of main's own code in one run differed by 4 %.
-
-(Earlier, load 5.0, the same kind of run gave: main's eager step of 2026-12-01 1.756,
-the TorchScript step of commit 740f14e^ 1.353, the eager step with 172 calls 0.922,
-the naive loop 2.394.)
-
-Where the CPU's peak goes. The step does 1.12 M multiply–adds (``bench``'s
-``compute``: 95 % of them in the decoder) — 2.2 MFLOP, ~6 GFLOP/s at its ~0.4 ms,
-~6 % of the ~100 GFLOP/s single-thread float32 matmul peak (``fraction_of_peak``
-0.063 at load 1.6; 2–3 % with the 172-call step). (The 6.9 GFLOP/s once quoted were an
-older, larger default model's 12 MFLOP per step: the rate follows the model's size
-more than the kernel's speed.) Per stage (``bench``'s ``stages_ms``, p50, the run of
-``fraction_of_peak`` 0.063): audio front end 0.105 ms — of which the three FFT calls take ~35 µs —,
-audio TCN 0.018, face encoder 0.017, head encoder 0.007, decoder 0.161 (the native
-cascade ~0.07 of it), input preparation 0.022. The rest goes to: (1) per-call
-overhead — the 70 torch calls cost 1–3 µs each whatever their size, now mostly the
-decoder's glue around the cascade (the current frame's projection, the history's
-gather and shifted write-back, the MLP heads, the new frame's projection) and the
-small MLPs; (2) memory, not arithmetic, for the products: at B = 1 every product is a
-matrix–vector one, 1 multiply–add per 4-byte weight read, and the recurrence streams
-its H × 12H weights 18 times per frame (3.5 MB, from L2) — at L2 speed (~40–50 GB/s)
-that alone caps a matrix–vector product at ~20–25 GFLOP/s, a quarter of the FMA
-units' peak; (3) work the counter does not count — the FFTs and the element-wise
-gates (in the native loops, an exponential that vectorises: libm's scalar ``tanhf``
-would cost ~19 ns a call), activations and Euler trigonometry. Batching (``serve``)
-turns the products into matrix–matrix ones and spreads the per-call overhead over the
-streams.
+Why eager with native small-batch loops and not TorchScript, ``torch.compile`` or ``torch.export``:
+each was measured against it (docs/performance.md, "The streaming kernel": the tables, the commits
+and the loads they were measured at). ``torch.compile`` needs minutes of compilation per checkpoint
+shape and batch size on a fresh machine and ran no faster; ``torch.export``'s program is slower from
+Python than the eager code it records. So the kernel is eager, with the per-operation cost cut
+instead (shift registers, one ``baddbmm`` for the TCNs' past taps, :func:`affine_chain`, one product
+for both LSTMs' projections), and for small batches the TCN taps, the LSTM cascade and the Mel front
+end's work between its FFTs each run as one loop compiled by Numba (:mod:`facecapges.model.native`;
+:class:`TCNTaps`, :class:`Cascade` and :data:`BatchedStreamingGenerator.MEL_NATIVE_MAX_BATCH` hold the
+measured batch-size splits; above them the torch schedules run). At one stream the step is bound by
+per-call overhead and memory, not arithmetic; batching (``serve``) turns the products into
+matrix–matrix ones and spreads the per-call overhead over the streams.
 
 Thread safety: every public method takes one internal lock, so one thread may
 open/close slots while another steps.
@@ -284,9 +218,7 @@ class TCNTaps:
       go through their blocks as one batched product (``baddbmm``); the current taps run
       layer by layer as (B × C)·(C × C) products.
 
-    Measured (µs per step, default checkpoint, one thread, same run, load ~2): audio TCN
-    torch 91.6 vs native 9.9 at B = 1, 186 vs 146 at B = 64, 418 vs 522 at B = 240; face
-    TCN 114 vs 5.8, 114 vs 53, 320 vs 245.
+    The batch-size split is measured (docs/performance.md, "Small-batch splits").
     """
 
     NATIVE_MAX_BATCH = 64
@@ -372,9 +304,7 @@ class Cascade:
       outputs' projection as one GEMM, then the limb — the same multiply–adds as
       matrix–matrix products, which win once the products dominate.
 
-    Measured (µs per window, default checkpoint, one thread, same run, load ~2): torch
-    759 vs native 71 at B = 1, 1270 vs 1101 at B = 16, 1588 vs 1620 at B = 24, 3107 vs
-    4477 at B = 64, hence the split (the NumPy lockstep this replaced took ~165 at B = 1).
+    The batch-size split is measured (docs/performance.md, "Small-batch splits").
     """
 
     NATIVE_MAX_BATCH = 16
