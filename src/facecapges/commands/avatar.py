@@ -27,150 +27,154 @@ def _skeleton(bvh: Path | None):
         ) from None
 
 
-def register(app: typer.Typer) -> None:
-    @app.command("blendshapes")
-    def blendshapes_cmd(
-        mesh: Path = typer.Option(..., "--mesh", help="Neutral triangle mesh (.obj, an oriented manifold)."),
-        controls: Path = typer.Option(
-            ..., "--controls", help="Control table JSON (control vertices and per-target displacements)."
-        ),
-        out: Path = typer.Option(..., "--out", help="Output directory: one OBJ per target + report.json."),
-        no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
-        force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
-    ) -> None:
-        """Generate the 52 ARKit blendshape targets by Laplacian deformation with areas of influence."""
-        import json
-        import time
+def blendshapes_cmd(
+    mesh: Path = typer.Option(..., "--mesh", help="Neutral triangle mesh (.obj, an oriented manifold)."),
+    controls: Path = typer.Option(
+        ..., "--controls", help="Control table JSON (control vertices and per-target displacements)."
+    ),
+    out: Path = typer.Option(..., "--out", help="Output directory: one OBJ per target + report.json."),
+    no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
+    force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
+) -> None:
+    """Generate the 52 ARKit blendshape targets by Laplacian deformation with areas of influence."""
+    import json
+    import time
 
-        from rich.progress import Progress
+    from rich.progress import Progress
 
-        from facecapges.avatar.blendshape_table import load_table
-        from facecapges.avatar.blendshapes import build_blendshapes
-        from facecapges.avatar.mesh import TriMesh, check_manifold, read_obj, write_obj
-        from facecapges.errors import refuse_overwrite
+    from facecapges.avatar.blendshape_table import load_table
+    from facecapges.avatar.blendshapes import build_blendshapes
+    from facecapges.avatar.mesh import TriMesh, check_manifold, read_obj, write_obj
+    from facecapges.errors import refuse_overwrite
 
-        neutral = read_obj(mesh)
-        check_manifold(neutral, mesh)
-        table = load_table(controls, neutral.n_vertices)
-        out.mkdir(parents=True, exist_ok=True)
-        paths = {n: out / f"{n}.obj" for n in table.names}
-        for p in [*paths.values(), out / "report.json"]:
-            refuse_overwrite(p, force)
-        t0 = time.perf_counter()
-        with Progress(transient=True) as bar:
-            task = bar.add_task("deforming", total=len(table.names))
-            shapes = build_blendshapes(neutral, table, aoi=not no_aoi, progress=lambda k: bar.advance(task))
-        elapsed = time.perf_counter() - t0
-        for k, n in enumerate(shapes.names):
-            write_obj(paths[n], TriMesh(shapes.targets[k], neutral.faces), header=f"blendshape {n} of {mesh.name}")
-        report = {"mesh": str(mesh), "controls": str(controls), "seconds": elapsed, **shapes.report}
-        (out / "report.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
-        r = shapes.report
+    neutral = read_obj(mesh)
+    check_manifold(neutral, mesh)
+    table = load_table(controls, neutral.n_vertices)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {n: out / f"{n}.obj" for n in table.names}
+    for p in [*paths.values(), out / "report.json"]:
+        refuse_overwrite(p, force)
+    t0 = time.perf_counter()
+    with Progress(transient=True) as bar:
+        task = bar.add_task("deforming", total=len(table.names))
+        shapes = build_blendshapes(neutral, table, aoi=not no_aoi, progress=lambda k: bar.advance(task))
+    elapsed = time.perf_counter() - t0
+    for k, n in enumerate(shapes.names):
+        write_obj(paths[n], TriMesh(shapes.targets[k], neutral.faces), header=f"blendshape {n} of {mesh.name}")
+    report = {"mesh": str(mesh), "controls": str(controls), "seconds": elapsed, **shapes.report}
+    (out / "report.json").write_text(json.dumps(report, indent=1) + "\n", encoding="utf-8")
+    r = shapes.report
+    typer.echo(
+        f"{len(shapes.names)} targets in {elapsed:.2f} s → {out}; control error {r['max_control_error']:.2e} "
+        f"of face size"
+    )
+    if "mean_far_motion_aoi" in r:
         typer.echo(
-            f"{len(shapes.names)} targets in {elapsed:.2f} s → {out}; control error {r['max_control_error']:.2e} "
-            f"of face size"
+            f"far-vertex motion (mean, fraction of face size): with AOI {r['mean_far_motion_aoi']:.2e}, "
+            f"without AOI {r['mean_far_motion_no_aoi']:.2e}, plain edit {r['mean_far_motion_plain']:.2e}"
         )
-        if "mean_far_motion_aoi" in r:
-            typer.echo(
-                f"far-vertex motion (mean, fraction of face size): with AOI {r['mean_far_motion_aoi']:.2e}, "
-                f"without AOI {r['mean_far_motion_no_aoi']:.2e}, plain edit {r['mean_far_motion_plain']:.2e}"
-            )
 
+
+def avatar_build(
+    out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
+    skeleton: Path = typer.Option(
+        None,
+        "--skeleton",
+        help="A BEAT BVH whose hierarchy and rest offsets to use "
+        "(default: the skeleton stored with the default model).",
+    ),
+    fmt: str = typer.Option(
+        "glb",
+        "--format",
+        help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
+        "presets + 52 ARKit perfect-sync expressions, lookAt, "
+        "licence) or vrm0 (the same as VRM 0.x, for apps that "
+        "read only 0.x, such as VSeeFace).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+) -> None:
+    """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.gltf import write_glb
+    from facecapges.errors import UserError, check_output_file
+
+    if fmt not in ("glb", "vrm", "vrm0"):
+        raise UserError(f"--format must be glb, vrm or vrm0, got {fmt!r}")
+    check_output_file(out, force)
+    skel, source = _skeleton(skeleton)
+    av = default_avatar(skel)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if fmt in ("vrm", "vrm0"):
+        from facecapges.avatar.vrm.write import write_vrm
+
+        write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
+    else:
+        write_glb(av, out)
+    typer.echo(
+        f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
+        f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets"
+    )
+
+
+def avatar_vrma(
+    bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh."),
+    out: Path = typer.Option(..., "--out", help="Output .vrma (VRM Animation 1.0)."),
+    face: Path = typer.Option(None, "--face", help="Face JSON to add as expressions (resampled to the BVH)."),
+    face_mode: str = typer.Option(
+        "presets",
+        "--vrma-face",
+        help="presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit expressions).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+) -> None:
+    """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
+    from facecapges.avatar.body import check_skeleton
+    from facecapges.avatar.vrm.animation import check_face_mode, write_bvh_as_vrma
+    from facecapges.errors import refuse_overwrite, require_file
+    from facecapges.io.bvh import read_bvh
+
+    refuse_overwrite(out, force)
+    check_face_mode(face_mode)
+    check_skeleton(read_bvh(require_file(bvh, "BVH")).skeleton, str(bvh))
+    if face is not None:
+        require_file(face, "face JSON")
+    p = write_bvh_as_vrma(bvh, out, face, face_mode)
+    typer.echo(f"{p}: VRM Animation, {p.stat().st_size} bytes")
+
+
+def render_cmd(
+    bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
+    out: Path = typer.Option(..., "--out", help="Output .mp4."),
+    face: Path = typer.Option(
+        None,
+        "--face",
+        help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); without it, the jaw and lips follow --audio.",
+    ),
+    audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
+    avatar_glb: Path = typer.Option(
+        None,
+        "--avatar",
+        help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
+        "skeleton, or our .glb (default: built from the "
+        "BVH's skeleton).",
+    ),
+    contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
+    size: str = typer.Option(RenderOptions.size, help="Video size WIDTHxHEIGHT."),
+    force: bool = typer.Option(RenderOptions.force, "--force", help="Overwrite outputs that exist."),
+) -> None:
+    """Render the avatar (front view) driven by a BVH and optional face weights, with the audio muxed."""
+    options = RenderOptions(**locals())  # before any other name is bound here
+    from facecapges.avatar.render.motion_file import render_motion_file
+
+    render_motion_file(options, say=typer.echo)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("blendshapes")(blendshapes_cmd)
     avatar = typer.Typer(
         help="Build the avatar (skinned BEAT body + 52-blendshape face) as glTF.", no_args_is_help=True
     )
     app.add_typer(avatar, name="avatar")
-
-    @avatar.command("build")
-    def avatar_build(
-        out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
-        skeleton: Path = typer.Option(
-            None,
-            "--skeleton",
-            help="A BEAT BVH whose hierarchy and rest offsets to use "
-            "(default: the skeleton stored with the default model).",
-        ),
-        fmt: str = typer.Option(
-            "glb",
-            "--format",
-            help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
-            "presets + 52 ARKit perfect-sync expressions, lookAt, "
-            "licence) or vrm0 (the same as VRM 0.x, for apps that "
-            "read only 0.x, such as VSeeFace).",
-        ),
-        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
-    ) -> None:
-        """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
-        from facecapges.avatar.body import default_avatar
-        from facecapges.avatar.gltf import write_glb
-        from facecapges.errors import UserError, check_output_file
-
-        if fmt not in ("glb", "vrm", "vrm0"):
-            raise UserError(f"--format must be glb, vrm or vrm0, got {fmt!r}")
-        check_output_file(out, force)
-        skel, source = _skeleton(skeleton)
-        av = default_avatar(skel)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        if fmt in ("vrm", "vrm0"):
-            from facecapges.avatar.vrm.write import write_vrm
-
-            write_vrm(av, out, "0.x" if fmt == "vrm0" else "1.0")
-        else:
-            write_glb(av, out)
-        typer.echo(
-            f"{out}: {av.info['joints']} joints (skeleton from {source}), {av.info['body_vertices']} body + "
-            f"{av.info['face_vertices']} face vertices, {av.info['morph_targets']} morph targets"
-        )
-
-    @avatar.command("vrma")
-    def avatar_vrma(
-        bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh."),
-        out: Path = typer.Option(..., "--out", help="Output .vrma (VRM Animation 1.0)."),
-        face: Path = typer.Option(None, "--face", help="Face JSON to add as expressions (resampled to the BVH)."),
-        face_mode: str = typer.Option(
-            "presets",
-            "--vrma-face",
-            help="presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit expressions).",
-        ),
-        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
-    ) -> None:
-        """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
-        from facecapges.avatar.body import check_skeleton
-        from facecapges.avatar.vrm.animation import check_face_mode, write_bvh_as_vrma
-        from facecapges.errors import refuse_overwrite, require_file
-        from facecapges.io.bvh import read_bvh
-
-        refuse_overwrite(out, force)
-        check_face_mode(face_mode)
-        check_skeleton(read_bvh(require_file(bvh, "BVH")).skeleton, str(bvh))
-        if face is not None:
-            require_file(face, "face JSON")
-        p = write_bvh_as_vrma(bvh, out, face, face_mode)
-        typer.echo(f"{p}: VRM Animation, {p.stat().st_size} bytes")
-
-    @app.command("render")
-    def render_cmd(
-        bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
-        out: Path = typer.Option(..., "--out", help="Output .mp4."),
-        face: Path = typer.Option(
-            None,
-            "--face",
-            help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); without it, the jaw and lips follow --audio.",
-        ),
-        audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
-        avatar_glb: Path = typer.Option(
-            None,
-            "--avatar",
-            help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
-            "skeleton, or our .glb (default: built from the "
-            "BVH's skeleton).",
-        ),
-        contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
-        size: str = typer.Option(RenderOptions.size, help="Video size WIDTHxHEIGHT."),
-        force: bool = typer.Option(RenderOptions.force, "--force", help="Overwrite outputs that exist."),
-    ) -> None:
-        """Render the avatar (front view) driven by a BVH and optional face weights, with the audio muxed."""
-        options = RenderOptions(**locals())  # before any other name is bound here
-        from facecapges.avatar.render.motion_file import render_motion_file
-
-        render_motion_file(options, say=typer.echo)
+    avatar.command("build")(avatar_build)
+    avatar.command("vrma")(avatar_vrma)
+    app.command("render")(render_cmd)

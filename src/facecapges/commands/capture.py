@@ -7,108 +7,105 @@ from pathlib import Path
 import typer
 
 
+def capture(
+    source: str = typer.Argument(..., help="A video file, or a camera index (0, 1, …)."),
+    out: Path = typer.Option(..., "--out", help="Face JSON to write (ARKit weights + head rot6d per frame)."),
+    estimator: str = typer.Option("hybrid", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator)."),
+    fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
+    face_json: str = typer.Option(
+        "beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at --fps)."
+    ),
+    overlay: Path | None = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
+    depth: Path | None = typer.Option(
+        None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."
+    ),
+    intrinsics: Path | None = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
+    model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
+    max_frames: int | None = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
+    faces: int = typer.Option(
+        1,
+        "--faces",
+        help="Faces to follow (1-8); several write OUT_1.json … one per face, "
+        "numbered left to right, kept by position.",
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+) -> None:
+    """Face capture without calibration: video/camera → ARKit blendshapes + head pose (face JSON)."""
+    from rich.console import Console
+
+    from facecapges.capture.runner import capture_video
+    from facecapges.errors import UserError
+
+    if face_json not in ("beat", "full"):
+        raise UserError(f"--face-json {face_json}: choose beat or full")
+    if estimator not in ("geometric", "mediapipe", "hybrid"):
+        raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
+    s = capture_video(
+        source,
+        out,
+        estimator=estimator,
+        fps=fps,
+        overlay=overlay,
+        depth_dir=depth,
+        intrinsics=intrinsics,
+        model=model,
+        force=force,
+        max_frames=max_frames,
+        faces=faces,
+        face_layout=face_json,
+    )
+    console = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the width
+    for w in s.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    console.print(
+        f"wrote {s['out']}: {s['frames']} frames captured at {s['fps']:g} fps, "
+        f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else "")
+    )
+
+
+def capture_eval(
+    video: Path = typer.Argument(..., help="A video of a face."),
+    out: Path = typer.Option(Path("capture_eval"), "--out", help="Directory for capture_eval.json and tracks.png."),
+    skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
+    model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
+    max_frames: int | None = typer.Option(None, help="Only the first N frames."),
+    force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
+) -> None:
+    """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""
+    import math
+
+    from rich.console import Console
+    from rich.table import Table
+
+    from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
+    from facecapges.errors import check_output_dir, require_file
+
+    require_file(video, "video")
+    check_output_dir(out, ("capture_eval.json", "tracks.png"), force)
+    tr = run_tracks(video, model=model, max_frames=max_frames, progress=True)
+    rep = evaluate_tracks(tr, skip)
+    rep["video"] = str(video)
+    out.mkdir(parents=True, exist_ok=True)
+    path = write_report(rep, out)
+    plot_tracks(tr, out / "tracks.png", skip)
+    table = Table(
+        "channel", "Pearson r", "MAE", "target", title=f"geometric vs MediaPipe, {video.name}, after {skip:g} s"
+    )
+    for name, c in rep["channels"].items():
+        tgt = rep["targets"].get(name)
+        mark = "" if tgt is None else (f"≥ {tgt['target']} " + ("ok" if tgt["met"] else "MISSED"))
+        table.add_row(name, "n/a" if math.isnan(c["r"]) else f"{c['r']:.3f}", f"{c['mae']:.3f}", mark)
+    con = Console()
+    con.print(table)
+    h = rep["head_pose"]
+    ok = "ok" if rep["targets"]["head_pose_median_deg"]["met"] else "MISSED"
+    con.print(f"head pose vs MediaPipe transform: median {h['median_deg']:.2f}°, p90 {h['p90_deg']:.2f}° (≤ 3° {ok})")
+    con.print(
+        f"landmarks {rep['landmarks_ms_per_frame']:.1f} ms/frame, rest of capture {rep['per_face_ms_per_frame']:.2f} ms/frame"
+    )
+    con.print(f"wrote {path} and {out / 'tracks.png'}")
+
+
 def register(app: typer.Typer) -> None:
-    @app.command("capture")
-    def capture(
-        source: str = typer.Argument(..., help="A video file, or a camera index (0, 1, …)."),
-        out: Path = typer.Option(..., "--out", help="Face JSON to write (ARKit weights + head rot6d per frame)."),
-        estimator: str = typer.Option(
-            "hybrid", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator)."
-        ),
-        fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
-        face_json: str = typer.Option(
-            "beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at --fps)."
-        ),
-        overlay: Path | None = typer.Option(
-            None, help="Also write an MP4 with landmarks, head axes and blendshape bars."
-        ),
-        depth: Path | None = typer.Option(
-            None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."
-        ),
-        intrinsics: Path | None = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
-        model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-        max_frames: int | None = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
-        faces: int = typer.Option(
-            1,
-            "--faces",
-            help="Faces to follow (1-8); several write OUT_1.json … one per face, "
-            "numbered left to right, kept by position.",
-        ),
-        force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
-    ) -> None:
-        """Face capture without calibration: video/camera → ARKit blendshapes + head pose (face JSON)."""
-        from rich.console import Console
-
-        from facecapges.capture.runner import capture_video
-        from facecapges.errors import UserError
-
-        if face_json not in ("beat", "full"):
-            raise UserError(f"--face-json {face_json}: choose beat or full")
-        if estimator not in ("geometric", "mediapipe", "hybrid"):
-            raise UserError(f"--estimator must be geometric, mediapipe or hybrid, got {estimator!r}")
-        s = capture_video(
-            source,
-            out,
-            estimator=estimator,
-            fps=fps,
-            overlay=overlay,
-            depth_dir=depth,
-            intrinsics=intrinsics,
-            model=model,
-            force=force,
-            max_frames=max_frames,
-            faces=faces,
-            face_layout=face_json,
-        )
-        console = Console(stderr=True, soft_wrap=True)  # one line per message, whatever the width
-        for w in s.get("warnings", []):
-            console.print(f"[yellow]warning:[/yellow] {w}")
-        console.print(
-            f"wrote {s['out']}: {s['frames']} frames captured at {s['fps']:g} fps, "
-            f"face found in {s['face_found']}" + (f"; overlay {overlay}" if overlay else "")
-        )
-
-    @app.command("capture-eval")
-    def capture_eval(
-        video: Path = typer.Argument(..., help="A video of a face."),
-        out: Path = typer.Option(Path("capture_eval"), "--out", help="Directory for capture_eval.json and tracks.png."),
-        skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
-        model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-        max_frames: int | None = typer.Option(None, help="Only the first N frames."),
-        force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
-    ) -> None:
-        """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""
-        import math
-
-        from rich.console import Console
-        from rich.table import Table
-
-        from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
-        from facecapges.errors import check_output_dir, require_file
-
-        require_file(video, "video")
-        check_output_dir(out, ("capture_eval.json", "tracks.png"), force)
-        tr = run_tracks(video, model=model, max_frames=max_frames, progress=True)
-        rep = evaluate_tracks(tr, skip)
-        rep["video"] = str(video)
-        out.mkdir(parents=True, exist_ok=True)
-        path = write_report(rep, out)
-        plot_tracks(tr, out / "tracks.png", skip)
-        table = Table(
-            "channel", "Pearson r", "MAE", "target", title=f"geometric vs MediaPipe, {video.name}, after {skip:g} s"
-        )
-        for name, c in rep["channels"].items():
-            tgt = rep["targets"].get(name)
-            mark = "" if tgt is None else (f"≥ {tgt['target']} " + ("ok" if tgt["met"] else "MISSED"))
-            table.add_row(name, "n/a" if math.isnan(c["r"]) else f"{c['r']:.3f}", f"{c['mae']:.3f}", mark)
-        con = Console()
-        con.print(table)
-        h = rep["head_pose"]
-        ok = "ok" if rep["targets"]["head_pose_median_deg"]["met"] else "MISSED"
-        con.print(
-            f"head pose vs MediaPipe transform: median {h['median_deg']:.2f}°, p90 {h['p90_deg']:.2f}° (≤ 3° {ok})"
-        )
-        con.print(
-            f"landmarks {rep['landmarks_ms_per_frame']:.1f} ms/frame, rest of capture {rep['per_face_ms_per_frame']:.2f} ms/frame"
-        )
-        con.print(f"wrote {path} and {out / 'tracks.png'}")
+    app.command("capture")(capture)
+    app.command("capture-eval")(capture_eval)

@@ -33,148 +33,150 @@ def _target_skeleton(path: Path | None):
     return skel
 
 
+def prepare(
+    beat_root: Path | None = typer.Argument(
+        None,
+        help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
+        "{end}.bvh/.wav/.json/.txt/.csv), searched recursively; BEAT2 takes "
+        "(smplxflame_30/*.npz beside wave16k/*.wav) are converted to the BEAT skeleton.",
+    ),
+    out: Path = typer.Option(..., "--out", help="Cache folder to create."),
+    speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
+    fps: float = typer.Option(15.0, help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame)."),
+    mocap: list[Path] | None = typer.Option(
+        None,
+        "--mocap",
+        help="BVH file or folder of another skeleton, each with a same-named .wav; retargeted onto BEAT. Repeatable.",
+    ),
+    joint_map: str | None = typer.Option(
+        None,
+        "--map",
+        help="Joint map for --mocap: zeggs, beat or a JSON file (default: detected from the joint names).",
+    ),
+    mocap_speaker: int | None = typer.Option(
+        None, help="Speaker id of the --mocap clips (100 or more; default: the joint map's, ZEGGS 100)."
+    ),
+    joints9: list[Path] | None = typer.Option(
+        None,
+        "--joints9",
+        help="Reduced-joint .npy file or folder (T, 9, 7), each with a same-named .wav. Repeatable.",
+    ),
+    layout: str | None = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
+    joints9_speaker: int | None = typer.Option(
+        None, help="Speaker id of the --joints9 clips (100 or more; default: the layout's, ZEGGS 100)."
+    ),
+    target: Path | None = typer.Option(
+        None,
+        help="BEAT-skeleton BVH the other sources and BEAT2 takes are written on "
+        "(default: the first BEAT BVH, else the default style's skeleton).",
+    ),
+    force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
+    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+) -> None:
+    """Build a training cache (pose, joint masks, head, face, semantic, emotion, audio, splits, stats) from BEAT
+    files and mocap of other skeletons."""
+    from rich.console import Console
+
+    from facecapges.data.prepare import prepare as run_prepare
+    from facecapges.data.prepare import summary_table
+    from facecapges.errors import check_output_dir
+
+    check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
+    from facecapges.data.prepare import needs_target
+
+    target_skel = None
+    if ((mocap or joints9) and (target is not None or beat_root is None)) or needs_target(beat_root):
+        target_skel = _target_skeleton(target)  # BEAT2 takes without a BEAT BVH need it too
+    index = run_prepare(
+        beat_root,
+        out,
+        speakers=parse_speakers(speakers),
+        fps=fps,
+        force=force,
+        progress=not quiet,
+        mocap=list(mocap or []),
+        joints9=list(joints9 or []),
+        joint_map=joint_map,
+        layout=layout,
+        mocap_speaker=mocap_speaker,
+        joints9_speaker=joints9_speaker,
+        target=target_skel,
+    )
+    console = Console()
+    for w in index.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {w}")
+    console.print(summary_table(index))
+    n = len(index["clips"])
+    frames = sum(c["n_frames"] for c in index["clips"])
+    audio_only = sum(1 for s in index["skipped"] if s["reason"] == "audio only")
+    console.print(
+        f"{n} clip{'s' if n != 1 else ''}, {frames} frames, {frames / index['fps']:.1f} s"
+        f"{f', {audio_only} audio only' if audio_only else ''} → {out}"
+    )
+
+
+def retarget(
+    src: Path = typer.Argument(..., help="BVH file of any skeleton (joint names mapped by --map)."),
+    out: Path = typer.Option(..., "--out", help="BVH file to write, on the BEAT skeleton."),
+    fps: float | None = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
+    joint_map: str | None = typer.Option(
+        None, "--map", help="Joint map: zeggs, beat or a JSON file (default: detected from the joint names)."
+    ),
+    target: Path | None = typer.Option(
+        None, help="BEAT-skeleton BVH to write on (default: the skeleton of the default style)."
+    ),
+    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+) -> None:
+    """Map a BVH of another skeleton onto the BEAT 47-joint upper body (joint names + rest-pose correction).
+
+    World-space bone directions of every mapped joint match the source's; joints the
+    source lacks stay at rest (listed). The root's translation and the hips' rotation
+    are not carried over (BEAT's pose is the upper body relative to the pelvis).
+    """
+    from facecapges.data.retarget import retarget_bvh
+    from facecapges.errors import refuse_overwrite
+    from facecapges.io.bvh import write_bvh
+    from facecapges.skeleton import UPPER_BODY, pose_to_motion
+
+    refuse_overwrite(out, force)
+    if fps is not None and fps <= 0:
+        raise UserError(f"--fps must be positive, got {fps}")
+    skel = _target_skeleton(target)
+    r = retarget_bvh(src, skel, joint_map, fps=fps)
+    write_bvh(out, skel, pose_to_motion(skel, r.pose), r.fps)
+    missing = [n for n, m in zip(UPPER_BODY, r.mask) if not m]
+    typer.echo(
+        f"{src.name} → {out}: {r.n_frames} frames at {r.fps:g} fps, joint map {r.map_name!r}, "
+        f"{int(r.mask.sum())}/{len(UPPER_BODY)} joints" + (f" (at rest: {', '.join(missing)})" if missing else "")
+    )
+
+
+def export(
+    cache: Path = typer.Argument(..., help="A cache folder made by `facecapges prepare`."),
+    clip: str = typer.Option(..., "--clip", help="Clip name, e.g. 2_scott_0_1_1."),
+    out: Path = typer.Option(..., "--out", help="BVH file to write."),
+    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+) -> None:
+    """Write a cached clip's motion as BVH on the full BEAT hierarchy (other joints at rest).
+
+    A clip retargeted from another skeleton gives its BEAT pose; joints the source
+    lacks hold the cache's mean rotation."""
+    from facecapges.data.cache import Cache
+    from facecapges.errors import check_output_file
+    from facecapges.io.bvh import write_bvh
+    from facecapges.skeleton import pose_to_motion
+
+    check_output_file(out, force)
+    c = Cache(cache)
+    arrays = c.load(clip)
+    skel = c.skeleton(clip)
+    motion = pose_to_motion(skel, arrays["pose"])
+    write_bvh(out, skel, motion, c.fps)
+    typer.echo(f"{clip}: {len(motion)} frames at {c.fps:g} fps → {out}")
+
+
 def register(app: typer.Typer) -> None:
     """Add the data commands to ``app``."""
-
-    @app.command()
-    def prepare(
-        beat_root: Path | None = typer.Argument(
-            None,
-            help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
-            "{end}.bvh/.wav/.json/.txt/.csv), searched recursively; BEAT2 takes "
-            "(smplxflame_30/*.npz beside wave16k/*.wav) are converted to the BEAT skeleton.",
-        ),
-        out: Path = typer.Option(..., "--out", help="Cache folder to create."),
-        speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
-        fps: float = typer.Option(15.0, help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame)."),
-        mocap: list[Path] | None = typer.Option(
-            None,
-            "--mocap",
-            help="BVH file or folder of another skeleton, "
-            "each with a same-named .wav; retargeted onto BEAT. Repeatable.",
-        ),
-        joint_map: str | None = typer.Option(
-            None,
-            "--map",
-            help="Joint map for --mocap: zeggs, beat or a JSON file (default: detected from the joint names).",
-        ),
-        mocap_speaker: int | None = typer.Option(
-            None, help="Speaker id of the --mocap clips (100 or more; default: the joint map's, ZEGGS 100)."
-        ),
-        joints9: list[Path] | None = typer.Option(
-            None,
-            "--joints9",
-            help="Reduced-joint .npy file or folder (T, 9, 7), each with a same-named .wav. Repeatable.",
-        ),
-        layout: str | None = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
-        joints9_speaker: int | None = typer.Option(
-            None, help="Speaker id of the --joints9 clips (100 or more; default: the layout's, ZEGGS 100)."
-        ),
-        target: Path | None = typer.Option(
-            None,
-            help="BEAT-skeleton BVH the other sources and BEAT2 takes are written on "
-            "(default: the first BEAT BVH, else the default style's skeleton).",
-        ),
-        force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
-        quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
-    ) -> None:
-        """Build a training cache (pose, joint masks, head, face, semantic, emotion, audio, splits, stats) from BEAT
-        files and mocap of other skeletons."""
-        from rich.console import Console
-
-        from facecapges.data.prepare import prepare as run_prepare
-        from facecapges.data.prepare import summary_table
-        from facecapges.errors import check_output_dir
-
-        check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
-        from facecapges.data.prepare import needs_target
-
-        target_skel = None
-        if ((mocap or joints9) and (target is not None or beat_root is None)) or needs_target(beat_root):
-            target_skel = _target_skeleton(target)  # BEAT2 takes without a BEAT BVH need it too
-        index = run_prepare(
-            beat_root,
-            out,
-            speakers=parse_speakers(speakers),
-            fps=fps,
-            force=force,
-            progress=not quiet,
-            mocap=list(mocap or []),
-            joints9=list(joints9 or []),
-            joint_map=joint_map,
-            layout=layout,
-            mocap_speaker=mocap_speaker,
-            joints9_speaker=joints9_speaker,
-            target=target_skel,
-        )
-        console = Console()
-        for w in index.get("warnings", []):
-            console.print(f"[yellow]warning:[/yellow] {w}")
-        console.print(summary_table(index))
-        n = len(index["clips"])
-        frames = sum(c["n_frames"] for c in index["clips"])
-        audio_only = sum(1 for s in index["skipped"] if s["reason"] == "audio only")
-        console.print(
-            f"{n} clip{'s' if n != 1 else ''}, {frames} frames, {frames / index['fps']:.1f} s"
-            f"{f', {audio_only} audio only' if audio_only else ''} → {out}"
-        )
-
-    @app.command()
-    def retarget(
-        src: Path = typer.Argument(..., help="BVH file of any skeleton (joint names mapped by --map)."),
-        out: Path = typer.Option(..., "--out", help="BVH file to write, on the BEAT skeleton."),
-        fps: float | None = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
-        joint_map: str | None = typer.Option(
-            None, "--map", help="Joint map: zeggs, beat or a JSON file (default: detected from the joint names)."
-        ),
-        target: Path | None = typer.Option(
-            None, help="BEAT-skeleton BVH to write on (default: the skeleton of the default style)."
-        ),
-        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
-    ) -> None:
-        """Map a BVH of another skeleton onto the BEAT 47-joint upper body (joint names + rest-pose correction).
-
-        World-space bone directions of every mapped joint match the source's; joints the
-        source lacks stay at rest (listed). The root's translation and the hips' rotation
-        are not carried over (BEAT's pose is the upper body relative to the pelvis).
-        """
-        from facecapges.data.retarget import retarget_bvh
-        from facecapges.errors import refuse_overwrite
-        from facecapges.io.bvh import write_bvh
-        from facecapges.skeleton import UPPER_BODY, pose_to_motion
-
-        refuse_overwrite(out, force)
-        if fps is not None and fps <= 0:
-            raise UserError(f"--fps must be positive, got {fps}")
-        skel = _target_skeleton(target)
-        r = retarget_bvh(src, skel, joint_map, fps=fps)
-        write_bvh(out, skel, pose_to_motion(skel, r.pose), r.fps)
-        missing = [n for n, m in zip(UPPER_BODY, r.mask) if not m]
-        typer.echo(
-            f"{src.name} → {out}: {r.n_frames} frames at {r.fps:g} fps, joint map {r.map_name!r}, "
-            f"{int(r.mask.sum())}/{len(UPPER_BODY)} joints" + (f" (at rest: {', '.join(missing)})" if missing else "")
-        )
-
-    @app.command()
-    def export(
-        cache: Path = typer.Argument(..., help="A cache folder made by `facecapges prepare`."),
-        clip: str = typer.Option(..., "--clip", help="Clip name, e.g. 2_scott_0_1_1."),
-        out: Path = typer.Option(..., "--out", help="BVH file to write."),
-        force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
-    ) -> None:
-        """Write a cached clip's motion as BVH on the full BEAT hierarchy (other joints at rest).
-
-        A clip retargeted from another skeleton gives its BEAT pose; joints the source
-        lacks hold the cache's mean rotation."""
-        from facecapges.data.cache import Cache
-        from facecapges.errors import check_output_file
-        from facecapges.io.bvh import write_bvh
-        from facecapges.skeleton import pose_to_motion
-
-        check_output_file(out, force)
-        c = Cache(cache)
-        arrays = c.load(clip)
-        skel = c.skeleton(clip)
-        motion = pose_to_motion(skel, arrays["pose"])
-        write_bvh(out, skel, motion, c.fps)
-        typer.echo(f"{clip}: {len(motion)} frames at {c.fps:g} fps → {out}")
+    app.command()(prepare)
+    app.command()(retarget)
+    app.command()(export)

@@ -84,12 +84,14 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     return summary
 
 
+def demo(
+    out: Path = typer.Option(Path("out"), help="Output folder."),
+    audio: Path = typer.Option(None, help="Speech to use instead of the bundled clip."),
+    force: bool = typer.Option(False, "--force", help="Overwrite the demo files in OUT."),
+) -> None:
+    """Generate gestures for a speech clip: out/demo.bvh, out/demo.mp4 (skeleton), out/demo_avatar.mp4."""
+    make_demo(out, audio, force, say=typer.echo)
+
+
 def register(app: typer.Typer) -> None:
-    @app.command()
-    def demo(
-        out: Path = typer.Option(Path("out"), help="Output folder."),
-        audio: Path = typer.Option(None, help="Speech to use instead of the bundled clip."),
-        force: bool = typer.Option(False, "--force", help="Overwrite the demo files in OUT."),
-    ) -> None:
-        """Generate gestures for a speech clip: out/demo.bvh, out/demo.mp4 (skeleton), out/demo_avatar.mp4."""
-        make_demo(out, audio, force, say=typer.echo)
+    app.command()(demo)

@@ -26,148 +26,155 @@ def _check_extensions(out: Path, vrma: Path | None) -> None:
         )
 
 
+def generate(
+    audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
+    out: Path = typer.Option(..., help="Output BVH file, .bvh (full BEAT skeleton, model fps)."),
+    face: Path | None = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
+    head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
+    checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
+    style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
+    intensity: float = typer.Option(
+        GenerateOptions.intensity,
+        "--intensity",
+        help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
+    ),
+    face_out: Path | None = typer.Option(
+        None,
+        "--face-out",
+        help="Also write the face to show with the "
+        "motion (face JSON): --face resampled, or "
+        "without --face, jaw and lips from the "
+        "speech.",
+    ),
+    json_out: bool = typer.Option(GenerateOptions.json_out, "--json", help="Print a JSON summary instead of text."),
+    vrma: Path | None = typer.Option(
+        None,
+        "--vrma",
+        help="Also write the gestures and the face (--face, else jaw and lips from the speech) as VRM Animation "
+        "(.vrma) for any VRM avatar.",
+    ),
+    vrma_face: str = typer.Option(
+        GenerateOptions.vrma_face,
+        "--vrma-face",
+        help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
+    ),
+    force: bool = typer.Option(GenerateOptions.force, "--force", help="Overwrite OUT if it exists."),
+) -> None:
+    """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
+    options = GenerateOptions(**locals())  # before any other name is bound here
+    _check_extensions(out, vrma)
+    from facecapges.runtime.generate import generate_recording
+
+    generate_recording(options, say=typer.echo)
+
+
+def _list(json_out: bool) -> None:
+    from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
+
+    rows = []
+    for name, path in list_styles().items():
+        ckpt = load_checkpoint(path)
+        meta = ckpt.meta
+        rows.append(
+            {
+                "name": name,
+                "engine": ckpt.engine,
+                "default": name == DEFAULT_STYLE,
+                "speaker": meta.get("speaker"),
+                "epochs": meta.get("epochs_trained"),
+                "inputs": meta.get("inputs"),
+                "shipped": path.parent == styles_dir(),
+                "path": str(path),
+            }
+        )
+    if json_out:
+        typer.echo(json.dumps(rows, indent=2))
+        return
+    if not rows:
+        typer.echo("no styles installed")
+    for r in rows:
+        typer.echo(
+            f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
+            + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")
+            + f"{'shipped' if r['shipped'] else 'user'}  {r['path']}"
+        )
+
+
+def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """List the installed speaking styles (per-speaker checkpoints); `styles install RUN` adds one."""
+    if ctx.invoked_subcommand is None:
+        _list(json_out)
+
+
+def styles_list(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+    """List the installed styles: shipped ones and the user's own."""
+    _list(json_out)
+
+
+def styles_install(
+    run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
+    name: str | None = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
+    force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
+) -> None:
+    """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).
+
+    Styles go to $FACECAPGES_STYLES, else $XDG_DATA_HOME/facecapges/styles
+    (default ~/.local/share/facecapges/styles).
+    """
+    from facecapges.model.checkpoint import install_style
+
+    dest = install_style(run, name, force)
+    typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
+
+
+def styles_build(
+    name: str = typer.Argument(..., help="The style's name (letters, digits, '.', '_', '-')."),
+    take: list[str] = typer.Option(
+        ...,
+        "--take",
+        help="MOTION WAV: a paired take (BEAT BVH, BEAT2 .npz, or another skeleton's BVH, retargeted). Repeat.",
+        metavar="MOTION WAV",
+    ),
+    wav: list[str] = typer.Argument(None, hidden=True),
+    out: Path | None = typer.Option(None, "--out", help="Write the style here instead of installing it."),
+    force: bool = typer.Option(False, "--force", help="Replace an existing style file of that name."),
+    seed: int = typer.Option(0, help="Seed of the speech predictor's training."),
+    steps: int | None = typer.Option(
+        None, help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial)."
+    ),
+) -> None:
+    """Build a motion-matching style from paired takes (motion + speech): database + speech predictor.
+
+    Each take's last 20 % is held out (never read). The style is installed into the user styles
+    folder (or written to --out) with a model card NAME.md; use it with --style NAME.
+    """
+    from facecapges.errors import UserError
+    from facecapges.matching.build import build_style
+
+    pairs = _take_pairs(take, wav or [])
+    if not pairs:
+        raise UserError("give at least one --take MOTION WAV")
+    build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+
+
+def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:
+    """`--take MOTION WAV` pairs: typer reads one value per --take; each WAV follows as an extra argument."""
+    from facecapges.errors import UserError
+
+    if len(rest) != len(take):
+        raise UserError("each --take needs two paths: --take MOTION WAV (motion file, then its .wav)")
+    return [(Path(m), Path(w)) for m, w in zip(take, rest, strict=True)]
+
+
 def register(app: typer.Typer) -> None:
-    @app.command()
-    def generate(
-        audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
-        out: Path = typer.Option(..., help="Output BVH file, .bvh (full BEAT skeleton, model fps)."),
-        face: Path | None = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
-        head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
-        checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
-        style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
-        intensity: float = typer.Option(
-            GenerateOptions.intensity,
-            "--intensity",
-            help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
-        ),
-        face_out: Path | None = typer.Option(
-            None,
-            "--face-out",
-            help="Also write the face to show with the "
-            "motion (face JSON): --face resampled, or "
-            "without --face, jaw and lips from the "
-            "speech.",
-        ),
-        json_out: bool = typer.Option(GenerateOptions.json_out, "--json", help="Print a JSON summary instead of text."),
-        vrma: Path | None = typer.Option(
-            None,
-            "--vrma",
-            help="Also write the gestures and the face (--face, else jaw and lips from the speech) as VRM Animation "
-            "(.vrma) for any VRM avatar.",
-        ),
-        vrma_face: str = typer.Option(
-            GenerateOptions.vrma_face,
-            "--vrma-face",
-            help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
-        ),
-        force: bool = typer.Option(GenerateOptions.force, "--force", help="Overwrite OUT if it exists."),
-    ) -> None:
-        """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
-        options = GenerateOptions(**locals())  # before any other name is bound here
-        _check_extensions(out, vrma)
-        from facecapges.runtime.generate import generate_recording
-
-        generate_recording(options, say=typer.echo)
-
+    app.command()(generate)
     styles_app = typer.Typer(
         help="The installed speaking styles (per-speaker models, either engine): list, install, build.",
         invoke_without_command=True,
         no_args_is_help=False,
     )
     app.add_typer(styles_app, name="styles")
-
-    def _list(json_out: bool) -> None:
-        from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
-
-        rows = []
-        for name, path in list_styles().items():
-            ckpt = load_checkpoint(path)
-            meta = ckpt.meta
-            rows.append(
-                {
-                    "name": name,
-                    "engine": ckpt.engine,
-                    "default": name == DEFAULT_STYLE,
-                    "speaker": meta.get("speaker"),
-                    "epochs": meta.get("epochs_trained"),
-                    "inputs": meta.get("inputs"),
-                    "shipped": path.parent == styles_dir(),
-                    "path": str(path),
-                }
-            )
-        if json_out:
-            typer.echo(json.dumps(rows, indent=2))
-            return
-        if not rows:
-            typer.echo("no styles installed")
-        for r in rows:
-            typer.echo(
-                f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
-                + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")
-                + f"{'shipped' if r['shipped'] else 'user'}  {r['path']}"
-            )
-
-    @styles_app.callback()
-    def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
-        """List the installed speaking styles (per-speaker checkpoints); `styles install RUN` adds one."""
-        if ctx.invoked_subcommand is None:
-            _list(json_out)
-
-    @styles_app.command("list")
-    def styles_list(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
-        """List the installed styles: shipped ones and the user's own."""
-        _list(json_out)
-
-    @styles_app.command("install")
-    def styles_install(
-        run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
-        name: str | None = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
-        force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
-    ) -> None:
-        """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).
-
-        Styles go to $FACECAPGES_STYLES, else $XDG_DATA_HOME/facecapges/styles
-        (default ~/.local/share/facecapges/styles).
-        """
-        from facecapges.model.checkpoint import install_style
-
-        dest = install_style(run, name, force)
-        typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
-
-    @styles_app.command("build")
-    def styles_build(
-        name: str = typer.Argument(..., help="The style's name (letters, digits, '.', '_', '-')."),
-        take: list[str] = typer.Option(
-            ...,
-            "--take",
-            help="MOTION WAV: a paired take (BEAT BVH, BEAT2 .npz, or another skeleton's BVH, retargeted). Repeat.",
-            metavar="MOTION WAV",
-        ),
-        wav: list[str] = typer.Argument(None, hidden=True),
-        out: Path | None = typer.Option(None, "--out", help="Write the style here instead of installing it."),
-        force: bool = typer.Option(False, "--force", help="Replace an existing style file of that name."),
-        seed: int = typer.Option(0, help="Seed of the speech predictor's training."),
-        steps: int | None = typer.Option(
-            None, help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial)."
-        ),
-    ) -> None:
-        """Build a motion-matching style from paired takes (motion + speech): database + speech predictor.
-
-        Each take's last 20 % is held out (never read). The style is installed into the user styles
-        folder (or written to --out) with a model card NAME.md; use it with --style NAME.
-        """
-        from facecapges.errors import UserError
-        from facecapges.matching.build import build_style
-
-        pairs = _take_pairs(take, wav or [])
-        if not pairs:
-            raise UserError("give at least one --take MOTION WAV")
-        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
-
-    def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:
-        """`--take MOTION WAV` pairs: typer reads one value per --take; each WAV follows as an extra argument."""
-        from facecapges.errors import UserError
-
-        if len(rest) != len(take):
-            raise UserError("each --take needs two paths: --take MOTION WAV (motion file, then its .wav)")
-        return [(Path(m), Path(w)) for m, w in zip(take, rest, strict=True)]
+    styles_app.callback()(styles)
+    styles_app.command("list")(styles_list)
+    styles_app.command("install")(styles_install)
+    styles_app.command("build")(styles_build)
