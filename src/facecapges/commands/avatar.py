@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from facecapges.avatar.render.motion_file import RenderOptions
+from facecapges.commands.params import FORCE_OUT
 
 
 def _skeleton(bvh: Path | None):
@@ -27,14 +29,19 @@ def _skeleton(bvh: Path | None):
         ) from None
 
 
+MESH = typer.Option("--mesh", help="Neutral triangle mesh (.obj, an oriented manifold).")
+CONTROLS = typer.Option("--controls", help="Control table JSON (control vertices and per-target displacements).")
+BLENDSHAPES_OUT = typer.Option("--out", help="Output directory: one OBJ per target + report.json.")
+NO_AOI = typer.Option("--no-aoi", help="Deform without areas of influence (D = I).")
+BLENDSHAPES_FORCE = typer.Option("--force", help="Overwrite files already in --out.")
+
+
 def blendshapes_cmd(
-    mesh: Path = typer.Option(..., "--mesh", help="Neutral triangle mesh (.obj, an oriented manifold)."),
-    controls: Path = typer.Option(
-        ..., "--controls", help="Control table JSON (control vertices and per-target displacements)."
-    ),
-    out: Path = typer.Option(..., "--out", help="Output directory: one OBJ per target + report.json."),
-    no_aoi: bool = typer.Option(False, "--no-aoi", help="Deform without areas of influence (D = I)."),
-    force: bool = typer.Option(False, "--force", help="Overwrite files already in --out."),
+    mesh: Annotated[Path, MESH],
+    controls: Annotated[Path, CONTROLS],
+    out: Annotated[Path, BLENDSHAPES_OUT],
+    no_aoi: Annotated[bool, NO_AOI] = False,
+    force: Annotated[bool, BLENDSHAPES_FORCE] = False,
 ) -> None:
     """Generate the 52 ARKit blendshape targets by Laplacian deformation with areas of influence."""
     import json
@@ -75,23 +82,25 @@ def blendshapes_cmd(
         )
 
 
+AVATAR_BUILD_OUT = typer.Option("--out", help="Output file (.glb, or .vrm with --format vrm / vrm0).")
+SKELETON = typer.Option(
+    "--skeleton",
+    help="A BEAT BVH whose hierarchy and rest offsets to use (default: the skeleton stored with the default model).",
+)
+FMT = typer.Option(
+    "--format",
+    help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
+    "presets + 52 ARKit perfect-sync expressions, lookAt, "
+    "licence) or vrm0 (the same as VRM 0.x, for apps that "
+    "read only 0.x, such as VSeeFace).",
+)
+
+
 def avatar_build(
-    out: Path = typer.Option(..., "--out", help="Output file (.glb, or .vrm with --format vrm / vrm0)."),
-    skeleton: Path = typer.Option(
-        None,
-        "--skeleton",
-        help="A BEAT BVH whose hierarchy and rest offsets to use "
-        "(default: the skeleton stored with the default model).",
-    ),
-    fmt: str = typer.Option(
-        "glb",
-        "--format",
-        help="glb (glTF 2.0), vrm (VRM 1.0: humanoid bones, VRM "
-        "presets + 52 ARKit perfect-sync expressions, lookAt, "
-        "licence) or vrm0 (the same as VRM 0.x, for apps that "
-        "read only 0.x, such as VSeeFace).",
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    out: Annotated[Path, AVATAR_BUILD_OUT],
+    skeleton: Annotated[Path | None, SKELETON] = None,
+    fmt: Annotated[str, FMT] = "glb",
+    force: Annotated[bool, FORCE_OUT] = False,
 ) -> None:
     """Write the avatar: procedural upper body skinned to the BEAT skeleton, face with 52 ARKit morph targets."""
     from facecapges.avatar.body import default_avatar
@@ -116,16 +125,20 @@ def avatar_build(
     )
 
 
+AVATAR_VRMA_BVH = typer.Option("--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh.")
+AVATAR_VRMA_OUT = typer.Option("--out", help="Output .vrma (VRM Animation 1.0).")
+AVATAR_VRMA_FACE = typer.Option("--face", help="Face JSON to add as expressions (resampled to the BVH).")
+FACE_MODE = typer.Option(
+    "--vrma-face", help="presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit expressions)."
+)
+
+
 def avatar_vrma(
-    bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH), e.g. a run's motion.bvh."),
-    out: Path = typer.Option(..., "--out", help="Output .vrma (VRM Animation 1.0)."),
-    face: Path = typer.Option(None, "--face", help="Face JSON to add as expressions (resampled to the BVH)."),
-    face_mode: str = typer.Option(
-        "presets",
-        "--vrma-face",
-        help="presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit expressions).",
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    bvh: Annotated[Path, AVATAR_VRMA_BVH],
+    out: Annotated[Path, AVATAR_VRMA_OUT],
+    face: Annotated[Path | None, AVATAR_VRMA_FACE] = None,
+    face_mode: Annotated[str, FACE_MODE] = "presets",
+    force: Annotated[bool, FORCE_OUT] = False,
 ) -> None:
     """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
     from facecapges.avatar.body import check_skeleton
@@ -142,25 +155,33 @@ def avatar_vrma(
     typer.echo(f"{p}: VRM Animation, {p.stat().st_size} bytes")
 
 
+RENDER_BVH = typer.Option("--bvh", help="Motion (BEAT skeleton BVH).")
+RENDER_OUT = typer.Option("--out", help="Output .mp4.")
+RENDER_FACE = typer.Option(
+    "--face",
+    help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); without it, the jaw and lips follow --audio.",
+)
+AUDIO = typer.Option("--audio", help="Audio to mux into the video (wav or any ffmpeg input).")
+AVATAR_GLB = typer.Option(
+    "--avatar",
+    help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
+    "skeleton, or our .glb (default: built from the "
+    "BVH's skeleton).",
+)
+CONTACT_SHEET = typer.Option("--contact-sheet", help="Also write a PNG of all 52 blendshapes.")
+SIZE = typer.Option("--size", help="Video size WIDTHxHEIGHT.")
+RENDER_FORCE = typer.Option("--force", help="Overwrite outputs that exist.")
+
+
 def render_cmd(
-    bvh: Path = typer.Option(..., "--bvh", help="Motion (BEAT skeleton BVH)."),
-    out: Path = typer.Option(..., "--out", help="Output .mp4."),
-    face: Path = typer.Option(
-        None,
-        "--face",
-        help="Face JSON ({'names', 'frames': [{'time', 'weights'}]}); without it, the jaw and lips follow --audio.",
-    ),
-    audio: Path = typer.Option(None, "--audio", help="Audio to mux into the video (wav or any ffmpeg input)."),
-    avatar_glb: Path = typer.Option(
-        None,
-        "--avatar",
-        help="Avatar: a VRM 0.x/1.0 (.vrm), a GLB with a humanoid "
-        "skeleton, or our .glb (default: built from the "
-        "BVH's skeleton).",
-    ),
-    contact_sheet: Path = typer.Option(None, "--contact-sheet", help="Also write a PNG of all 52 blendshapes."),
-    size: str = typer.Option(RenderOptions.size, help="Video size WIDTHxHEIGHT."),
-    force: bool = typer.Option(RenderOptions.force, "--force", help="Overwrite outputs that exist."),
+    bvh: Annotated[Path, RENDER_BVH],
+    out: Annotated[Path, RENDER_OUT],
+    face: Annotated[Path | None, RENDER_FACE] = None,
+    audio: Annotated[Path | None, AUDIO] = None,
+    avatar_glb: Annotated[Path | None, AVATAR_GLB] = None,
+    contact_sheet: Annotated[Path | None, CONTACT_SHEET] = None,
+    size: Annotated[str, SIZE] = RenderOptions.size,
+    force: Annotated[bool, RENDER_FORCE] = RenderOptions.force,
 ) -> None:
     """Render the avatar (front view) driven by a BVH and optional face weights, with the audio muxed."""
     options = RenderOptions(**locals())  # before any other name is bound here

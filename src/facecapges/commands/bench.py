@@ -4,23 +4,26 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from facecapges.benchmarks import BENCHMARKS, check_shared, run_areas
 from facecapges.errors import UserError
 
+JSON_OUT = typer.Option("--json", help="Print one JSON document (default: a table).")
+ONLY = typer.Option("--only", help=f"Comma-separated areas to run, of: {', '.join(BENCHMARKS)}.")
+QUICK = typer.Option(help="Fewer repetitions (smoke run, about a minute).")
+SHARED = typer.Option(
+    "--shared", envvar="FACECAPGES_SHARED", help="The shared data folder (holds data/beat, data/face …)."
+)
+
 
 def bench(
-    json_out: bool = typer.Option(False, "--json", help="Print one JSON document (default: a table)."),
-    only: str = typer.Option("", help=f"Comma-separated areas to run, of: {', '.join(BENCHMARKS)}."),
-    quick: bool = typer.Option(False, help="Fewer repetitions (smoke run, about a minute)."),
-    shared: Path = typer.Option(
-        Path("../shared"),
-        "--shared",
-        envvar="FACECAPGES_SHARED",
-        help="The shared data folder (holds data/beat, data/face …).",
-    ),
+    json_out: Annotated[bool, JSON_OUT] = False,
+    only: Annotated[str, ONLY] = "",
+    quick: Annotated[bool, QUICK] = False,
+    shared: Annotated[Path, SHARED] = Path("../shared"),
 ) -> None:
     """Measure speed and memory of every stage and print the figures."""
     areas = [a.strip() for a in only.split(",") if a.strip()] or list(BENCHMARKS)

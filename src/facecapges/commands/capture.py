@@ -3,32 +3,43 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
+from facecapges.commands.params import LANDMARK_MODEL
+
+SOURCE = typer.Argument(help="A video file, or a camera index (0, 1, …).")
+CAPTURE_OUT = typer.Option("--out", help="Face JSON to write (ARKit weights + head rot6d per frame).")
+ESTIMATOR = typer.Option("--estimator", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator).")
+FPS = typer.Option("--fps", help="Capture frame rate (frames per second); BEAT's layout is written at 60.")
+FACE_JSON = typer.Option(
+    "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at --fps)."
+)
+OVERLAY = typer.Option("--overlay", help="Also write an MP4 with landmarks, head axes and blendshape bars.")
+DEPTH = typer.Option("--depth", help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame.")
+INTRINSICS = typer.Option("--intrinsics", help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels).")
+CAPTURE_MAX_FRAMES = typer.Option("--max-frames", help="Stop after this many output frames (needed for cameras).")
+FACES = typer.Option(
+    "--faces",
+    help="Faces to follow (1-8); several write OUT_1.json … one per face, numbered left to right, kept by position.",
+)
+CAPTURE_FORCE = typer.Option("--force", help="Overwrite existing output files.")
+
 
 def capture(
-    source: str = typer.Argument(..., help="A video file, or a camera index (0, 1, …)."),
-    out: Path = typer.Option(..., "--out", help="Face JSON to write (ARKit weights + head rot6d per frame)."),
-    estimator: str = typer.Option("hybrid", help="geometric | mediapipe | hybrid (see facecapges.capture.estimator)."),
-    fps: float = typer.Option(15.0, help="Capture frame rate (frames per second); BEAT's layout is written at 60."),
-    face_json: str = typer.Option(
-        "beat", "--face-json", help="Layout: beat (BEAT's: 51 weights at 60 fps) or full (52 weights at --fps)."
-    ),
-    overlay: Path | None = typer.Option(None, help="Also write an MP4 with landmarks, head axes and blendshape bars."),
-    depth: Path | None = typer.Option(
-        None, help="Directory of depth frames (16-bit PNG or .npy, mm), one per video frame."
-    ),
-    intrinsics: Path | None = typer.Option(None, help="Depth camera intrinsics JSON: fx, fy, cx, cy (pixels)."),
-    model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-    max_frames: int | None = typer.Option(None, help="Stop after this many output frames (needed for cameras)."),
-    faces: int = typer.Option(
-        1,
-        "--faces",
-        help="Faces to follow (1-8); several write OUT_1.json … one per face, "
-        "numbered left to right, kept by position.",
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
+    source: Annotated[str, SOURCE],
+    out: Annotated[Path, CAPTURE_OUT],
+    estimator: Annotated[str, ESTIMATOR] = "hybrid",
+    fps: Annotated[float, FPS] = 15.0,
+    face_json: Annotated[str, FACE_JSON] = "beat",
+    overlay: Annotated[Path | None, OVERLAY] = None,
+    depth: Annotated[Path | None, DEPTH] = None,
+    intrinsics: Annotated[Path | None, INTRINSICS] = None,
+    model: Annotated[Path | None, LANDMARK_MODEL] = None,
+    max_frames: Annotated[int | None, CAPTURE_MAX_FRAMES] = None,
+    faces: Annotated[int, FACES] = 1,
+    force: Annotated[bool, CAPTURE_FORCE] = False,
 ) -> None:
     """Face capture without calibration: video/camera → ARKit blendshapes + head pose (face JSON)."""
     from rich.console import Console
@@ -63,13 +74,20 @@ def capture(
     )
 
 
+VIDEO = typer.Argument(help="A video of a face.")
+CAPTURE_EVAL_OUT = typer.Option("--out", help="Directory for capture_eval.json and tracks.png.")
+SKIP = typer.Option("--skip", help="Seconds at the start not scored (cold start).")
+CAPTURE_EVAL_MAX_FRAMES = typer.Option("--max-frames", help="Only the first N frames.")
+CAPTURE_EVAL_FORCE = typer.Option("--force", help="Overwrite capture_eval.json and tracks.png in --out.")
+
+
 def capture_eval(
-    video: Path = typer.Argument(..., help="A video of a face."),
-    out: Path = typer.Option(Path("capture_eval"), "--out", help="Directory for capture_eval.json and tracks.png."),
-    skip: float = typer.Option(2.0, help="Seconds at the start not scored (cold start)."),
-    model: Path | None = typer.Option(None, help="A face_landmarker.task to use instead of the bundled one."),
-    max_frames: int | None = typer.Option(None, help="Only the first N frames."),
-    force: bool = typer.Option(False, "--force", help="Overwrite capture_eval.json and tracks.png in --out."),
+    video: Annotated[Path, VIDEO],
+    out: Annotated[Path, CAPTURE_EVAL_OUT] = Path("capture_eval"),
+    skip: Annotated[float, SKIP] = 2.0,
+    model: Annotated[Path | None, LANDMARK_MODEL] = None,
+    max_frames: Annotated[int | None, CAPTURE_EVAL_MAX_FRAMES] = None,
+    force: Annotated[bool, CAPTURE_EVAL_FORCE] = False,
 ) -> None:
     """Geometric (calibration-free) estimator vs MediaPipe's learned blendshapes and head transform."""
     import math

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
+from facecapges.commands.params import FORCE_OUT, QUIET_BAR
 from facecapges.errors import UserError
 
 
@@ -33,57 +35,60 @@ def _target_skeleton(path: Path | None):
     return skel
 
 
+BEAT_ROOT = typer.Argument(
+    help="Folder with BEAT files ({spk}_{name}_{type}_{start}_{end}.bvh/.wav/.json/.txt/.csv), searched "
+    "recursively; BEAT2 takes (smplxflame_30/*.npz beside wave16k/*.wav) are converted to the BEAT skeleton.",
+)
+CACHE_OUT = typer.Option("--out", help="Cache folder to create.")
+SPEAKERS = typer.Option("--speakers", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all).")
+FPS = typer.Option("--fps", help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame).")
+MOCAP = typer.Option(
+    "--mocap",
+    help="BVH file or folder of another skeleton, each with a same-named .wav; retargeted onto BEAT. Repeatable.",
+)
+JOINT_MAP = typer.Option(
+    "--map", help="Joint map for --mocap: zeggs, beat or a JSON file (default: detected from the joint names)."
+)
+MOCAP_SPEAKER = typer.Option(
+    "--mocap-speaker", help="Speaker id of the --mocap clips (100 or more; default: the joint map's, ZEGGS 100)."
+)
+JOINTS9 = typer.Option(
+    "--joints9", help="Reduced-joint .npy file or folder (T, 9, 7), each with a same-named .wav. Repeatable."
+)
+LAYOUT = typer.Option("--layout", help="Joint layout of --joints9: zeggs9 (default) or a JSON file.")
+JOINTS9_SPEAKER = typer.Option(
+    "--joints9-speaker", help="Speaker id of the --joints9 clips (100 or more; default: the layout's, ZEGGS 100)."
+)
+TARGET = typer.Option(
+    "--target",
+    help="BEAT-skeleton BVH the other sources and BEAT2 takes are written on "
+    "(default: the first BEAT BVH, else the default style's skeleton).",
+)
+PREPARE_FORCE = typer.Option("--force", help="Replace an existing cache at --out.")
+
+
 def prepare(
-    beat_root: Path | None = typer.Argument(
-        None,
-        help="Folder with BEAT files ({spk}_{name}_{type}_{start}_"
-        "{end}.bvh/.wav/.json/.txt/.csv), searched recursively; BEAT2 takes "
-        "(smplxflame_30/*.npz beside wave16k/*.wav) are converted to the BEAT skeleton.",
-    ),
-    out: Path = typer.Option(..., "--out", help="Cache folder to create."),
-    speakers: str = typer.Option("", help="Comma-separated BEAT speaker ids to keep, e.g. 2,4,6,8 (default: all)."),
-    fps: float = typer.Option(15.0, help="Frame rate of the cache (BEAT rule: 120 fps keeps every 8th frame)."),
-    mocap: list[Path] | None = typer.Option(
-        None,
-        "--mocap",
-        help="BVH file or folder of another skeleton, each with a same-named .wav; retargeted onto BEAT. Repeatable.",
-    ),
-    joint_map: str | None = typer.Option(
-        None,
-        "--map",
-        help="Joint map for --mocap: zeggs, beat or a JSON file (default: detected from the joint names).",
-    ),
-    mocap_speaker: int | None = typer.Option(
-        None, help="Speaker id of the --mocap clips (100 or more; default: the joint map's, ZEGGS 100)."
-    ),
-    joints9: list[Path] | None = typer.Option(
-        None,
-        "--joints9",
-        help="Reduced-joint .npy file or folder (T, 9, 7), each with a same-named .wav. Repeatable.",
-    ),
-    layout: str | None = typer.Option(None, help="Joint layout of --joints9: zeggs9 (default) or a JSON file."),
-    joints9_speaker: int | None = typer.Option(
-        None, help="Speaker id of the --joints9 clips (100 or more; default: the layout's, ZEGGS 100)."
-    ),
-    target: Path | None = typer.Option(
-        None,
-        help="BEAT-skeleton BVH the other sources and BEAT2 takes are written on "
-        "(default: the first BEAT BVH, else the default style's skeleton).",
-    ),
-    force: bool = typer.Option(False, "--force", help="Replace an existing cache at --out."),
-    quiet: bool = typer.Option(False, "--quiet", help="No progress bar."),
+    out: Annotated[Path, CACHE_OUT],
+    beat_root: Annotated[Path | None, BEAT_ROOT] = None,
+    speakers: Annotated[str, SPEAKERS] = "",
+    fps: Annotated[float, FPS] = 15.0,
+    mocap: Annotated[list[Path] | None, MOCAP] = None,
+    joint_map: Annotated[str | None, JOINT_MAP] = None,
+    mocap_speaker: Annotated[int | None, MOCAP_SPEAKER] = None,
+    joints9: Annotated[list[Path] | None, JOINTS9] = None,
+    layout: Annotated[str | None, LAYOUT] = None,
+    joints9_speaker: Annotated[int | None, JOINTS9_SPEAKER] = None,
+    target: Annotated[Path | None, TARGET] = None,
+    force: Annotated[bool, PREPARE_FORCE] = False,
+    quiet: Annotated[bool, QUIET_BAR] = False,
 ) -> None:
     """Build a training cache (pose, joint masks, head, face, semantic, emotion, audio, splits, stats) from BEAT
     files and mocap of other skeletons."""
-    from rich.console import Console
-
+    from facecapges.data.prepare import needs_target
     from facecapges.data.prepare import prepare as run_prepare
-    from facecapges.data.prepare import summary_table
     from facecapges.errors import check_output_dir
 
     check_output_dir(out)  # a file in the way or a folder that cannot be written: now, not after the work
-    from facecapges.data.prepare import needs_target
-
     target_skel = None
     if ((mocap or joints9) and (target is not None or beat_root is None)) or needs_target(beat_root):
         target_skel = _target_skeleton(target)  # BEAT2 takes without a BEAT BVH need it too
@@ -102,6 +107,15 @@ def prepare(
         joints9_speaker=joints9_speaker,
         target=target_skel,
     )
+    _print_prepared(index, out)
+
+
+def _print_prepared(index: dict, out: Path) -> None:
+    """The warnings, the summary table and the totals of a cache ``prepare`` wrote."""
+    from rich.console import Console
+
+    from facecapges.data.prepare import summary_table
+
     console = Console()
     for w in index.get("warnings", []):
         console.print(f"[yellow]warning:[/yellow] {w}")
@@ -115,17 +129,24 @@ def prepare(
     )
 
 
+SRC = typer.Argument(help="BVH file of any skeleton (joint names mapped by --map).")
+RETARGET_OUT = typer.Option("--out", help="BVH file to write, on the BEAT skeleton.")
+RETARGET_FPS = typer.Option("--fps", help="Resample to this frame rate (default: the source's).")
+RETARGET_JOINT_MAP = typer.Option(
+    "--map", help="Joint map: zeggs, beat or a JSON file (default: detected from the joint names)."
+)
+RETARGET_TARGET = typer.Option(
+    "--target", help="BEAT-skeleton BVH to write on (default: the skeleton of the default style)."
+)
+
+
 def retarget(
-    src: Path = typer.Argument(..., help="BVH file of any skeleton (joint names mapped by --map)."),
-    out: Path = typer.Option(..., "--out", help="BVH file to write, on the BEAT skeleton."),
-    fps: float | None = typer.Option(None, help="Resample to this frame rate (default: the source's)."),
-    joint_map: str | None = typer.Option(
-        None, "--map", help="Joint map: zeggs, beat or a JSON file (default: detected from the joint names)."
-    ),
-    target: Path | None = typer.Option(
-        None, help="BEAT-skeleton BVH to write on (default: the skeleton of the default style)."
-    ),
-    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    src: Annotated[Path, SRC],
+    out: Annotated[Path, RETARGET_OUT],
+    fps: Annotated[float | None, RETARGET_FPS] = None,
+    joint_map: Annotated[str | None, RETARGET_JOINT_MAP] = None,
+    target: Annotated[Path | None, RETARGET_TARGET] = None,
+    force: Annotated[bool, FORCE_OUT] = False,
 ) -> None:
     """Map a BVH of another skeleton onto the BEAT 47-joint upper body (joint names + rest-pose correction).
 
@@ -151,11 +172,16 @@ def retarget(
     )
 
 
+CACHE = typer.Argument(help="A cache folder made by `facecapges prepare`.")
+CLIP = typer.Option("--clip", help="Clip name, e.g. 2_scott_0_1_1.")
+EXPORT_OUT = typer.Option("--out", help="BVH file to write.")
+
+
 def export(
-    cache: Path = typer.Argument(..., help="A cache folder made by `facecapges prepare`."),
-    clip: str = typer.Option(..., "--clip", help="Clip name, e.g. 2_scott_0_1_1."),
-    out: Path = typer.Option(..., "--out", help="BVH file to write."),
-    force: bool = typer.Option(False, "--force", help="Overwrite --out if it exists."),
+    cache: Annotated[Path, CACHE],
+    clip: Annotated[str, CLIP],
+    out: Annotated[Path, EXPORT_OUT],
+    force: Annotated[bool, FORCE_OUT] = False,
 ) -> None:
     """Write a cached clip's motion as BVH on the full BEAT hierarchy (other joints at rest).
 

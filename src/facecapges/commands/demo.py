@@ -21,6 +21,7 @@ import json
 import time
 from importlib import resources
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
@@ -84,10 +85,15 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     return summary
 
 
+OUT = typer.Option("--out", help="Output folder.")
+AUDIO = typer.Option("--audio", help="Speech to use instead of the bundled clip.")
+FORCE = typer.Option("--force", help="Overwrite the demo files in OUT.")
+
+
 def demo(
-    out: Path = typer.Option(Path("out"), help="Output folder."),
-    audio: Path = typer.Option(None, help="Speech to use instead of the bundled clip."),
-    force: bool = typer.Option(False, "--force", help="Overwrite the demo files in OUT."),
+    out: Annotated[Path, OUT] = Path("out"),
+    audio: Annotated[Path | None, AUDIO] = None,
+    force: Annotated[bool, FORCE] = False,
 ) -> None:
     """Generate gestures for a speech clip: out/demo.bvh, out/demo.mp4 (skeleton), out/demo_avatar.mp4."""
     make_demo(out, audio, force, say=typer.echo)

@@ -17,9 +17,11 @@ into a Table 5.3 report (see :mod:`facecapges.evaluation.ablate`).
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
+from facecapges.commands.params import CACHE, OFFSETS, QUIET, QUIET_BAR
 from facecapges.errors import UserError
 from facecapges.evaluation.options import AblateOptions, EvalOptions, FgdTrainOptions
 
@@ -34,63 +36,42 @@ def _parse_regions(text: str) -> tuple[str, ...]:
     return regions
 
 
-def _parse_offsets(text: str) -> list[float]:
-    """``"2:60:2"`` (start:stop:step, stop included) or ``"2,5,9"`` → offsets in seconds."""
-    try:
-        if ":" in text:
-            a, b, c = (float(x) for x in text.split(":"))
-            if c <= 0 or b < a:
-                raise ValueError
-            n = int((b - a) // c) + 1
-            return [a + i * c for i in range(n)]
-        out = [float(x) for x in text.split(",") if x.strip()]
-        if not out:
-            raise ValueError
-        return out
-    except ValueError:
-        raise UserError(f"--offsets must be START:STOP:STEP or a comma list of seconds, got {text!r}") from None
-
-
-def _parse_given(text: str | None) -> dict[str, str]:
-    """``"full=beat2-scott-demo,camn=run/model.safetensors"`` → {variant: checkpoint}."""
-    if not text:
-        return {}
-    out = {}
-    for item in text.split(","):
-        name, sep, ref = item.partition("=")
-        if not sep or not name.strip() or not ref.strip():
-            raise UserError(f"--given must be VARIANT=CHECKPOINT[,VARIANT=CHECKPOINT…], got {text!r}")
-        out[name.strip()] = ref.strip()
-    return out
+FGD_SPEAKER = typer.Option("--speaker", help="BEAT speaker id (one FGD autoencoder per speaker).")
+FGD_SPLIT = typer.Option("--split", help="Cache clips to train on: train, val, test or all.")
+FGD_HOLDOUT = typer.Option(
+    "--holdout-from", help="Use only frames before this frame of every clip (the rest is held out for evaluation)."
+)
+FGD_BVH = typer.Option(
+    "--bvh", help="BEAT BVH file(s) to train on instead of a cache (repeat the option for several files)."
+)
+FGD_OUT = typer.Option("--out", help="Directory to write fgd_autoencoder.safetensors/.json into.")
+FGD_CHECKPOINT = typer.Option(
+    "--checkpoint",
+    help="Gesture checkpoint to store the autoencoder next to (in the folder NAME.fgd/), when --out is not given.",
+)
+FGD_EPOCHS = typer.Option("--epochs", help="Training epochs.")
+BATCH_SIZE = typer.Option("--batch-size", help="Batch size B; the learning rate scales with it (1.2e-4 · B/128).")
+MOMENTUM = typer.Option("--momentum", help="SGD momentum (0 = plain SGD).")
+REGIONS = typer.Option("--regions", help="Regions to train an autoencoder for.")
+FGD_SEED = typer.Option("--seed", help="Random seed.")
+FGD_FORCE = typer.Option("--force", help="Overwrite an existing FGD autoencoder.")
 
 
 def fgd_train(
-    cache: Path | None = typer.Option(FgdTrainOptions.cache, help="A cache written by `facecapges prepare`."),
-    speaker: int = typer.Option(FgdTrainOptions.speaker, help="BEAT speaker id (one FGD autoencoder per speaker)."),
-    split: str = typer.Option(FgdTrainOptions.split, help="Cache clips to train on: train, val, test or all."),
-    holdout_from: int | None = typer.Option(
-        FgdTrainOptions.holdout_from,
-        help="Use only frames before this frame of every clip (the rest is held out for evaluation).",
-    ),
-    bvh: list[Path] | None = typer.Option(
-        None, help="BEAT BVH file(s) to train on instead of a cache (repeat the option for several files)."
-    ),
-    out: Path | None = typer.Option(
-        FgdTrainOptions.out, help="Directory to write fgd_autoencoder.safetensors/.json into."
-    ),
-    checkpoint: Path | None = typer.Option(
-        FgdTrainOptions.checkpoint,
-        help="Gesture checkpoint to store the autoencoder next to (in the folder NAME.fgd/), when --out is not given.",
-    ),
-    epochs: int = typer.Option(FgdTrainOptions.epochs, help="Training epochs."),
-    batch_size: int = typer.Option(
-        FgdTrainOptions.batch_size, help="Batch size B; the learning rate scales with it (1.2e-4 · B/128)."
-    ),
-    momentum: float = typer.Option(FgdTrainOptions.momentum, help="SGD momentum (0 = plain SGD)."),
-    regions: str = typer.Option(FgdTrainOptions.regions, help="Regions to train an autoencoder for."),
-    seed: int = typer.Option(FgdTrainOptions.seed, help="Random seed."),
-    force: bool = typer.Option(FgdTrainOptions.force, "--force", help="Overwrite an existing FGD autoencoder."),
-    quiet: bool = typer.Option(FgdTrainOptions.quiet, "--quiet", help="No progress bar."),
+    cache: Annotated[Path | None, CACHE] = FgdTrainOptions.cache,
+    speaker: Annotated[int, FGD_SPEAKER] = FgdTrainOptions.speaker,
+    split: Annotated[str, FGD_SPLIT] = FgdTrainOptions.split,
+    holdout_from: Annotated[int | None, FGD_HOLDOUT] = FgdTrainOptions.holdout_from,
+    bvh: Annotated[list[Path] | None, FGD_BVH] = None,
+    out: Annotated[Path | None, FGD_OUT] = FgdTrainOptions.out,
+    checkpoint: Annotated[Path | None, FGD_CHECKPOINT] = FgdTrainOptions.checkpoint,
+    epochs: Annotated[int, FGD_EPOCHS] = FgdTrainOptions.epochs,
+    batch_size: Annotated[int, BATCH_SIZE] = FgdTrainOptions.batch_size,
+    momentum: Annotated[float, MOMENTUM] = FgdTrainOptions.momentum,
+    regions: Annotated[str, REGIONS] = FgdTrainOptions.regions,
+    seed: Annotated[int, FGD_SEED] = FgdTrainOptions.seed,
+    force: Annotated[bool, FGD_FORCE] = FgdTrainOptions.force,
+    quiet: Annotated[bool, QUIET_BAR] = FgdTrainOptions.quiet,
 ) -> None:
     """Train the skeleton-aware FGD autoencoder on a speaker's real motion (what `eval` measures FGD with)."""
     from facecapges.errors import refuse_overwrite
@@ -125,151 +106,123 @@ def fgd_train(
     typer.echo(f"{ev.history.n_windows} windows; final loss {last}\nwrote {w} and {j}")
 
 
+EVAL_OUT = typer.Option("--out", help="Output folder: metrics.json, metrics.md, PNG plots, MP4.")
+EVAL_CHECKPOINT = typer.Option("--checkpoint", help="Gesture checkpoint (default: the installed default style).")
+EVAL_STYLE = typer.Option("--style", help="Installed style name instead of --checkpoint.")
+EVAL_SPEAKER = typer.Option("--speaker", help="Speaker to evaluate (default: the checkpoint's).")
+EVAL_SPLIT = typer.Option("--split", help="Clips to evaluate when --holdout-from is not given.")
+EVAL_HOLDOUT = typer.Option(
+    "--holdout-from",
+    help="Evaluate frames from this frame on of every clip of the speaker; earlier frames are the real pool.",
+)
+EVAL_AUDIO = typer.Option(
+    "--audio", help="Extra unseen speech (no motion): BeatAlign, L1DIV and FGD against the speaker's real motion."
+)
+EVAL_FGD = typer.Option(
+    "--fgd", help="FGD autoencoder (directory or checkpoint it sits next to; default: next to the checkpoint)."
+)
+EVAL_VIDEO = typer.Option("--video/--no-video", help="Write real_vs_generated.mp4.")
+EVAL_SEED = typer.Option("--seed", help="Seed for the random real segment baseline and the sample starts.")
+EVAL_SAMPLES = typer.Option(
+    "--samples",
+    help="Model runs per clip (different cold-start histories) for the "
+    "diversity across samples (L1DIV); metrics average over them.",
+)
+EVAL_FORCE = typer.Option("--force", help="Write into an OUT folder that already has metrics.")
+
+
 def eval_cmd(
-    cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
-    out: Path = typer.Option(..., help="Output folder: metrics.json, metrics.md, PNG plots, MP4."),
-    checkpoint: Path | None = typer.Option(
-        EvalOptions.checkpoint, help="Gesture checkpoint (default: the installed default style)."
-    ),
-    style: str | None = typer.Option(EvalOptions.style, help="Installed style name instead of --checkpoint."),
-    speaker: int | None = typer.Option(EvalOptions.speaker, help="Speaker to evaluate (default: the checkpoint's)."),
-    split: str = typer.Option(EvalOptions.split, help="Clips to evaluate when --holdout-from is not given."),
-    holdout_from: int | None = typer.Option(
-        EvalOptions.holdout_from,
-        help="Evaluate frames from this frame on of every clip of the speaker; earlier frames are the real pool.",
-    ),
-    audio: list[Path] | None = typer.Option(
-        None, help="Extra unseen speech (no motion): BeatAlign, L1DIV and FGD against the speaker's real motion."
-    ),
-    fgd: Path | None = typer.Option(
-        EvalOptions.fgd,
-        help="FGD autoencoder (directory or checkpoint it sits next to; default: next to the checkpoint).",
-    ),
-    offsets: str = typer.Option(
-        EvalOptions.offsets, help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."
-    ),
-    video: bool = typer.Option(EvalOptions.video, "--video/--no-video", help="Write real_vs_generated.mp4."),
-    seed: int = typer.Option(EvalOptions.seed, help="Seed for the random real segment baseline and the sample starts."),
-    samples: int = typer.Option(
-        EvalOptions.samples,
-        help="Model runs per clip (different cold-start histories) for the "
-        "diversity across samples (L1DIV); metrics average over them.",
-    ),
-    force: bool = typer.Option(EvalOptions.force, "--force", help="Write into an OUT folder that already has metrics."),
-    quiet: bool = typer.Option(EvalOptions.quiet, "--quiet", help="No progress bars."),
+    cache: Annotated[Path, CACHE],
+    out: Annotated[Path, EVAL_OUT],
+    checkpoint: Annotated[Path | None, EVAL_CHECKPOINT] = EvalOptions.checkpoint,
+    style: Annotated[str | None, EVAL_STYLE] = EvalOptions.style,
+    speaker: Annotated[int | None, EVAL_SPEAKER] = EvalOptions.speaker,
+    split: Annotated[str, EVAL_SPLIT] = EvalOptions.split,
+    holdout_from: Annotated[int | None, EVAL_HOLDOUT] = EvalOptions.holdout_from,
+    audio: Annotated[list[Path] | None, EVAL_AUDIO] = None,
+    fgd: Annotated[Path | None, EVAL_FGD] = EvalOptions.fgd,
+    offsets: Annotated[str, OFFSETS] = EvalOptions.offsets,
+    video: Annotated[bool, EVAL_VIDEO] = EvalOptions.video,
+    seed: Annotated[int, EVAL_SEED] = EvalOptions.seed,
+    samples: Annotated[int, EVAL_SAMPLES] = EvalOptions.samples,
+    force: Annotated[bool, EVAL_FORCE] = EvalOptions.force,
+    quiet: Annotated[bool, QUIET] = EvalOptions.quiet,
 ) -> None:
     """Evaluate a checkpoint on held-out motion: FGD, SRGR, BeatAlign, L1DIV, with and without the head."""
+    options = EvalOptions(**{**locals(), "audio": list(audio or [])})  # before any other name is bound here
     from facecapges.evaluation.run import run_eval
 
-    run_eval(
-        cache=cache,
-        out=out,
-        checkpoint=checkpoint,
-        style=style,
-        speaker=speaker,
-        split=split,
-        holdout_from=holdout_from,
-        extra_audio=list(audio or []),
-        fgd_location=fgd,
-        offsets_s=_parse_offsets(offsets),
-        video=video,
-        seed=seed,
-        samples=samples,
-        progress=not quiet,
-        force=force,
-        say=typer.echo,
-    )
+    run_eval(options, say=typer.echo)
+
+
+ABLATE_OUT = typer.Option("--out", help="Output folder: ablation.md, ablation.json, runs/<variant>/.")
+ABLATE_SPEAKER = typer.Option("--speaker", help="BEAT speaker id to train and evaluate.")
+CONFIG = typer.Option(
+    "--config",
+    help="Base YAML/JSON recipe with 'model:'/'train:' sections "
+    "(default: configs/demo-beat2-scott.yaml, the shipped model's recipe).",
+)
+ABLATE_EPOCHS = typer.Option(
+    "--epochs",
+    help="Epochs for every variant (default: the config's). Not the FGD autoencoder's: that is --fgd-epochs "
+    "(400) when none is found; pass --fgd to use an existing one.",
+)
+ABLATE_SPLIT = typer.Option("--split", help="Clips to train on (default: all with a hold-out frame, else train).")
+ABLATE_HOLDOUT = typer.Option(
+    "--holdout-from",
+    help="Hold out frames >= this of every clip (default: the config's holdout_from); they are evaluated.",
+)
+VARIANTS = typer.Option(
+    "--variants", help="Comma-separated variants: full, no_head, offline, camn (the CaMN baseline)."
+)
+REUSE_DEFAULT = typer.Option(
+    "--reuse-default/--no-reuse-default",
+    help="Use the shipped default checkpoint as 'full' when its stored recipe and data match.",
+)
+GIVEN = typer.Option(
+    "--given",
+    help="VARIANT=CHECKPOINT[,…]: take these rows from existing checkpoints as they are (a file, or an "
+    "installed style for full/no_head), whatever their recipe, e.g. full=beat2-scott-demo.",
+)
+RETRAIN = typer.Option("--retrain", help="Train every variant even if OUT/runs holds a finished model of this recipe.")
+ABLATE_FGD = typer.Option(
+    "--fgd",
+    help="FGD autoencoder (directory or checkpoint it sits next to); default: the shipped one when 'full' "
+    "is the shipped checkpoint, else trained into OUT/fgd.",
+)
+FGD_EPOCHS_ABLATE = typer.Option("--fgd-epochs", help="Epochs when an FGD autoencoder must be trained.")
+ABLATE_SAMPLES = typer.Option("--samples", help="Runs per variant and clip (different start histories).")
+ABLATE_SEED = typer.Option("--seed", help="Seed of the random real segment and the start histories.")
+ABLATE_FORCE = typer.Option("--force", help="Write into an OUT folder that already has a table.")
 
 
 def ablate_cmd(
-    cache: Path = typer.Option(..., help="A cache written by `facecapges prepare`."),
-    out: Path = typer.Option(..., help="Output folder: ablation.md, ablation.json, runs/<variant>/."),
-    speaker: int = typer.Option(AblateOptions.speaker, help="BEAT speaker id to train and evaluate."),
-    config: Path | None = typer.Option(
-        AblateOptions.config,
-        help="Base YAML/JSON recipe with 'model:'/'train:' sections "
-        "(default: configs/demo-beat2-scott.yaml, the shipped "
-        "model's recipe).",
-    ),
-    epochs: int | None = typer.Option(
-        AblateOptions.epochs,
-        help="Epochs for every variant (default: the config's). Not the "
-        "FGD autoencoder's: that is --fgd-epochs (400) when none "
-        "is found; pass --fgd to use an existing one.",
-    ),
-    split: str | None = typer.Option(
-        AblateOptions.split, help="Clips to train on (default: all with a hold-out frame, else train)."
-    ),
-    holdout_from: int | None = typer.Option(
-        AblateOptions.holdout_from,
-        help="Hold out frames >= this of every clip (default: the config's holdout_from); they are evaluated.",
-    ),
-    variants: str = typer.Option(
-        AblateOptions.variants,
-        help="Comma-separated variants: full, no_head, offline, camn (the CaMN baseline).",
-    ),
-    reuse_default: bool = typer.Option(
-        AblateOptions.reuse_default,
-        "--reuse-default/--no-reuse-default",
-        help="Use the shipped default checkpoint as 'full' when its stored recipe and data match.",
-    ),
-    given: str | None = typer.Option(
-        AblateOptions.given,
-        "--given",
-        help="VARIANT=CHECKPOINT[,…]: take these rows from "
-        "existing checkpoints as they are (a file, or an "
-        "installed style for full/no_head), whatever "
-        "their recipe, e.g. full=beat2-scott-demo.",
-    ),
-    retrain: bool = typer.Option(
-        AblateOptions.retrain,
-        "--retrain",
-        help="Train every variant even if OUT/runs holds a finished model of this recipe.",
-    ),
-    fgd: Path | None = typer.Option(
-        AblateOptions.fgd,
-        help="FGD autoencoder (directory or checkpoint it sits next to); "
-        "default: the shipped one when 'full' is the shipped "
-        "checkpoint, else trained into OUT/fgd.",
-    ),
-    fgd_epochs: int = typer.Option(AblateOptions.fgd_epochs, help="Epochs when an FGD autoencoder must be trained."),
-    samples: int = typer.Option(AblateOptions.samples, help="Runs per variant and clip (different start histories)."),
-    offsets: str = typer.Option(
-        AblateOptions.offsets, help="BeatAlign control: audio shifts in s (START:STOP:STEP or list)."
-    ),
-    seed: int = typer.Option(AblateOptions.seed, help="Seed of the random real segment and the start histories."),
-    force: bool = typer.Option(
-        AblateOptions.force, "--force", help="Write into an OUT folder that already has a table."
-    ),
-    quiet: bool = typer.Option(AblateOptions.quiet, "--quiet", help="No progress bars."),
+    cache: Annotated[Path, CACHE],
+    out: Annotated[Path, ABLATE_OUT],
+    speaker: Annotated[int, ABLATE_SPEAKER] = AblateOptions.speaker,
+    config: Annotated[Path | None, CONFIG] = AblateOptions.config,
+    epochs: Annotated[int | None, ABLATE_EPOCHS] = AblateOptions.epochs,
+    split: Annotated[str | None, ABLATE_SPLIT] = AblateOptions.split,
+    holdout_from: Annotated[int | None, ABLATE_HOLDOUT] = AblateOptions.holdout_from,
+    variants: Annotated[str, VARIANTS] = AblateOptions.variants,
+    reuse_default: Annotated[bool, REUSE_DEFAULT] = AblateOptions.reuse_default,
+    given: Annotated[str | None, GIVEN] = AblateOptions.given,
+    retrain: Annotated[bool, RETRAIN] = AblateOptions.retrain,
+    fgd: Annotated[Path | None, ABLATE_FGD] = AblateOptions.fgd,
+    fgd_epochs: Annotated[int, FGD_EPOCHS_ABLATE] = AblateOptions.fgd_epochs,
+    samples: Annotated[int, ABLATE_SAMPLES] = AblateOptions.samples,
+    offsets: Annotated[str, OFFSETS] = AblateOptions.offsets,
+    seed: Annotated[int, ABLATE_SEED] = AblateOptions.seed,
+    force: Annotated[bool, ABLATE_FORCE] = AblateOptions.force,
+    quiet: Annotated[bool, QUIET] = AblateOptions.quiet,
 ) -> None:
     """Ablation study: train the model's variants with one budget, evaluate them side by side."""
+    options = AblateOptions(**locals())  # before any other name is bound here
     import sys
 
     from facecapges.evaluation.ablate import run_ablation
 
-    run_ablation(
-        cache=cache,
-        out=out,
-        speaker=speaker,
-        config=config,
-        epochs=epochs,
-        split=split,
-        holdout_from=holdout_from,
-        variants=tuple(v.strip() for v in variants.split(",") if v.strip()),
-        reuse_default=reuse_default,
-        retrain=retrain,
-        fgd_location=fgd,
-        fgd_epochs=fgd_epochs,
-        samples=samples,
-        seed=seed,
-        offsets_s=_parse_offsets(offsets),
-        progress=not quiet,
-        say=typer.echo,
-        given=_parse_given(given),
-        command="facecapges " + " ".join(sys.argv[1:]),
-        force=force,
-    )
+    run_ablation(options, say=typer.echo, command="facecapges " + " ".join(sys.argv[1:]))
 
 
 def register(app: typer.Typer) -> None:

@@ -3,45 +3,48 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
+from facecapges.commands.params import STYLE_NAME
 from facecapges.serving.config import ServeConfig
+
+HOST = typer.Option("--host", help="Address to listen on (loopback by default; there is no authentication).")
+PORT = typer.Option("--port", help="TCP port (0 = any free port).")
+CHECKPOINT = typer.Option("--checkpoint", help="Checkpoint file or run folder (default: the installed default style).")
+MAX_STREAMS = typer.Option("--max-streams", help="Most concurrent streams; more connections are refused (1013).")
+RATE_LIMIT = typer.Option(
+    "--rate-limit", help="Most messages per second per connection (FPS); more are dropped with an error."
+)
+IDLE_TIMEOUT = typer.Option("--idle-timeout", help="Close a stream after this many seconds without input (0 = never).")
+THREADS = typer.Option("--threads", help="torch threads for the batched model call.")
+TICK_MS = typer.Option(
+    "--tick-ms", help="Least time between two batched calls (ms): larger batches, a little more latency."
+)
+MAX_PER_ADDRESS = typer.Option(
+    "--max-per-address",
+    help="Most streams one client address may hold (default 16; no limit on a loopback server).",
+)
+INTENSITY = typer.Option(
+    "--intensity",
+    help="Gesture intensity of each new stream, 0 (rest / idle only) … 1 … 1.3; a client changes its own "
+    "with an 'intensity' message.",
+)
 
 
 def serve(
-    host: str = typer.Option(
-        ServeConfig.host, help="Address to listen on (loopback by default; there is no authentication)."
-    ),
-    port: int = typer.Option(ServeConfig.port, help="TCP port (0 = any free port)."),
-    checkpoint: Path | None = typer.Option(
-        None, help="Checkpoint file or run folder (default: the installed default style)."
-    ),
-    style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
-    max_streams: int = typer.Option(
-        ServeConfig.max_streams, help="Most concurrent streams; more connections are refused (1013)."
-    ),
-    rate_limit: float = typer.Option(
-        ServeConfig.rate_limit,
-        help="Most messages per second per connection (FPS); more are dropped with an error.",
-    ),
-    idle_timeout: float = typer.Option(
-        ServeConfig.idle_timeout, help="Close a stream after this many seconds without input (0 = never)."
-    ),
-    threads: int = typer.Option(ServeConfig.threads, help="torch threads for the batched model call."),
-    tick_ms: float = typer.Option(
-        ServeConfig.tick_ms,
-        help="Least time between two batched calls (ms): larger batches, a little more latency.",
-    ),
-    max_per_address: int | None = typer.Option(
-        ServeConfig.max_per_address,
-        help="Most streams one client address may hold (default 16; no limit on a loopback server).",
-    ),
-    intensity: float = typer.Option(
-        ServeConfig.intensity,
-        help="Gesture intensity of each new stream, 0 (rest / idle only) … 1 … 1.3; a client changes its own "
-        "with an 'intensity' message.",
-    ),
+    host: Annotated[str, HOST] = ServeConfig.host,
+    port: Annotated[int, PORT] = ServeConfig.port,
+    checkpoint: Annotated[Path | None, CHECKPOINT] = None,
+    style: Annotated[str | None, STYLE_NAME] = None,
+    max_streams: Annotated[int, MAX_STREAMS] = ServeConfig.max_streams,
+    rate_limit: Annotated[float, RATE_LIMIT] = ServeConfig.rate_limit,
+    idle_timeout: Annotated[float, IDLE_TIMEOUT] = ServeConfig.idle_timeout,
+    threads: Annotated[int, THREADS] = ServeConfig.threads,
+    tick_ms: Annotated[float, TICK_MS] = ServeConfig.tick_ms,
+    max_per_address: Annotated[int | None, MAX_PER_ADDRESS] = ServeConfig.max_per_address,
+    intensity: Annotated[float, INTENSITY] = ServeConfig.intensity,
 ) -> None:
     """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 

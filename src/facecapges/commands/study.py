@@ -3,36 +3,36 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 from facecapges.study.options import StudyAnalyzeOptions, StudyCreateOptions, StudyServeOptions
 
+CLIPS = typer.Option(
+    "--clips",
+    help="CLIPS.yaml: the clips (speech, face track) and one BVH per system and clip (format: facecapges.study.clips).",
+)
+CREATE_OUT = typer.Option("--out", help="Study folder to write.")
+PARTICIPANTS = typer.Option(
+    "--participants",
+    help="Number of participant plans (default: one per row of the balanced Latin square: N clips, 2N for odd N).",
+)
+SEED = typer.Option("--seed", help="Seed of the clip assignment and the screen positions.")
+CREATE_FORCE = typer.Option("--force", help="Overwrite an existing study (never one with answers).")
+AVATAR = typer.Option(
+    "--avatar",
+    help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB (default: ours, built from the first BVH).",
+)
+
 
 def create_cmd(
-    clips: Path = typer.Option(
-        ...,
-        "--clips",
-        help="CLIPS.yaml: the clips (speech, face track) and one BVH per "
-        "system and clip (format: facecapges.study.clips).",
-    ),
-    out: Path = typer.Option(..., "--out", help="Study folder to write."),
-    participants: int = typer.Option(
-        StudyCreateOptions.participants,
-        "--participants",
-        help="Number of participant plans (default: one per row of the balanced Latin square: N clips, 2N for odd N).",
-    ),
-    seed: int = typer.Option(
-        StudyCreateOptions.seed, "--seed", help="Seed of the clip assignment and the screen positions."
-    ),
-    force: bool = typer.Option(
-        StudyCreateOptions.force, "--force", help="Overwrite an existing study (never one with answers)."
-    ),
-    avatar: Path = typer.Option(
-        StudyCreateOptions.avatar,
-        "--avatar",
-        help="Show this avatar: a VRM 0.x/1.0 or a humanoid GLB (default: ours, built from the first BVH).",
-    ),
+    clips: Annotated[Path, CLIPS],
+    out: Annotated[Path, CREATE_OUT],
+    participants: Annotated[int | None, PARTICIPANTS] = StudyCreateOptions.participants,
+    seed: Annotated[int, SEED] = StudyCreateOptions.seed,
+    force: Annotated[bool, CREATE_FORCE] = StudyCreateOptions.force,
+    avatar: Annotated[Path | None, AVATAR] = StudyCreateOptions.avatar,
 ) -> None:
     """Validate the clips, build the avatar, precompute every pose track and write the participant plans."""
     from facecapges.study.build import create_study
@@ -57,15 +57,19 @@ def create_cmd(
     typer.echo(f"next: facecapges study serve {out}")
 
 
+SERVE_STUDY_DIR = typer.Argument(help="Study folder made by 'facecapges study create'.")
+HOST = typer.Option("--host", help="Address to listen on (0.0.0.0: every interface).")
+PORT = typer.Option("--port", help="TCP port.")
+LANGUAGE = typer.Option(
+    "--language", help="Language the page starts in: en (English) or zh (Chinese); participants can switch."
+)
+
+
 def serve_cmd(
-    study_dir: Path = typer.Argument(..., help="Study folder made by 'facecapges study create'."),
-    host: str = typer.Option(StudyServeOptions.host, "--host", help="Address to listen on (0.0.0.0: every interface)."),
-    port: int = typer.Option(StudyServeOptions.port, "--port", help="TCP port."),
-    language: str = typer.Option(
-        StudyServeOptions.language,
-        "--language",
-        help="Language the page starts in: en (English) or zh (Chinese); participants can switch.",
-    ),
+    study_dir: Annotated[Path, SERVE_STUDY_DIR],
+    host: Annotated[str, HOST] = StudyServeOptions.host,
+    port: Annotated[int, PORT] = StudyServeOptions.port,
+    language: Annotated[str, LANGUAGE] = StudyServeOptions.language,
 ) -> None:
     """Serve the study page; answers go to STUDY_DIR/responses/ as they are given. Ctrl-C stops.
 
@@ -77,13 +81,17 @@ def serve_cmd(
     serve_study(study_dir, host, port, language, say=typer.echo)
 
 
+ANALYZE_STUDY_DIR = typer.Argument(help="Study folder with answers in responses/.")
+ANALYZE_OUT = typer.Option("--out", help="Folder for results.json, results.md and the PNG plots.")
+ONLY = typer.Option("--only", help="Comma-separated participant ids to analyse (default: all).")
+ANALYZE_FORCE = typer.Option("--force", help="Overwrite results already in --out.")
+
+
 def analyze_cmd(
-    study_dir: Path = typer.Argument(..., help="Study folder with answers in responses/."),
-    out: Path = typer.Option(..., "--out", help="Folder for results.json, results.md and the PNG plots."),
-    only: str = typer.Option(
-        StudyAnalyzeOptions.only, "--only", help="Comma-separated participant ids to analyse (default: all)."
-    ),
-    force: bool = typer.Option(StudyAnalyzeOptions.force, "--force", help="Overwrite results already in --out."),
+    study_dir: Annotated[Path, ANALYZE_STUDY_DIR],
+    out: Annotated[Path, ANALYZE_OUT],
+    only: Annotated[str, ONLY] = StudyAnalyzeOptions.only,
+    force: Annotated[bool, ANALYZE_FORCE] = StudyAnalyzeOptions.force,
 ) -> None:
     """Mean ranks with 95 % intervals, Friedman test, Holm-corrected Wilcoxon pairs, bar plots."""
     from facecapges.errors import UserError, echo_warning, refuse_overwrite

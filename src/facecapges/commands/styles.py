@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
+from facecapges.commands.params import JSON, STYLE_NAME
 from facecapges.runtime.generate import GenerateOptions
 
 
@@ -26,39 +28,46 @@ def _check_extensions(out: Path, vrma: Path | None) -> None:
         )
 
 
+AUDIO = typer.Option("--audio", help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz).")
+GENERATE_OUT = typer.Option("--out", help="Output BVH file, .bvh (full BEAT skeleton, model fps).")
+FACE = typer.Option("--face", help="BEAT-format face JSON, any fps (resampled).")
+HEAD = typer.Option("--head", help="Head rotation .npy (T, 6) rot6d at the model fps.")
+CHECKPOINT = typer.Option("--checkpoint", help="Checkpoint file (default: the installed default style).")
+INTENSITY = typer.Option(
+    "--intensity",
+    help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
+)
+FACE_OUT = typer.Option(
+    "--face-out",
+    help="Also write the face to show with the motion (face JSON): --face resampled, or without --face, "
+    "jaw and lips from the speech.",
+)
+JSON_OUT = typer.Option("--json", help="Print a JSON summary instead of text.")
+VRMA = typer.Option(
+    "--vrma",
+    help="Also write the gestures and the face (--face, else jaw and lips from the speech) as VRM Animation "
+    "(.vrma) for any VRM avatar.",
+)
+VRMA_FACE = typer.Option(
+    "--vrma-face",
+    help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
+)
+GENERATE_FORCE = typer.Option("--force", help="Overwrite OUT if it exists.")
+
+
 def generate(
-    audio: Path = typer.Option(..., help="Speech audio (any format soundfile/ffmpeg reads; resampled to 16 kHz)."),
-    out: Path = typer.Option(..., help="Output BVH file, .bvh (full BEAT skeleton, model fps)."),
-    face: Path | None = typer.Option(None, help="BEAT-format face JSON, any fps (resampled)."),
-    head: Path | None = typer.Option(None, help="Head rotation .npy (T, 6) rot6d at the model fps."),
-    checkpoint: Path | None = typer.Option(None, help="Checkpoint file (default: the installed default style)."),
-    style: str | None = typer.Option(None, help="Installed style name (see `facecapges styles`)."),
-    intensity: float = typer.Option(
-        GenerateOptions.intensity,
-        "--intensity",
-        help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
-    ),
-    face_out: Path | None = typer.Option(
-        None,
-        "--face-out",
-        help="Also write the face to show with the "
-        "motion (face JSON): --face resampled, or "
-        "without --face, jaw and lips from the "
-        "speech.",
-    ),
-    json_out: bool = typer.Option(GenerateOptions.json_out, "--json", help="Print a JSON summary instead of text."),
-    vrma: Path | None = typer.Option(
-        None,
-        "--vrma",
-        help="Also write the gestures and the face (--face, else jaw and lips from the speech) as VRM Animation "
-        "(.vrma) for any VRM avatar.",
-    ),
-    vrma_face: str = typer.Option(
-        GenerateOptions.vrma_face,
-        "--vrma-face",
-        help="Face in the .vrma: presets (VRM presets from ARKit, any VRM) or perfect-sync (52 ARKit).",
-    ),
-    force: bool = typer.Option(GenerateOptions.force, "--force", help="Overwrite OUT if it exists."),
+    audio: Annotated[Path, AUDIO],
+    out: Annotated[Path, GENERATE_OUT],
+    face: Annotated[Path | None, FACE] = None,
+    head: Annotated[Path | None, HEAD] = None,
+    checkpoint: Annotated[Path | None, CHECKPOINT] = None,
+    style: Annotated[str | None, STYLE_NAME] = None,
+    intensity: Annotated[float, INTENSITY] = GenerateOptions.intensity,
+    face_out: Annotated[Path | None, FACE_OUT] = None,
+    json_out: Annotated[bool, JSON_OUT] = GenerateOptions.json_out,
+    vrma: Annotated[Path | None, VRMA] = None,
+    vrma_face: Annotated[str, VRMA_FACE] = GenerateOptions.vrma_face,
+    force: Annotated[bool, GENERATE_FORCE] = GenerateOptions.force,
 ) -> None:
     """Generate upper-body gestures for a recording, frame by frame, no look-ahead."""
     options = GenerateOptions(**locals())  # before any other name is bound here
@@ -100,21 +109,26 @@ def _list(json_out: bool) -> None:
         )
 
 
-def styles(ctx: typer.Context, json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+def styles(ctx: typer.Context, json_out: Annotated[bool, JSON] = False) -> None:
     """List the installed speaking styles (per-speaker checkpoints); `styles install RUN` adds one."""
     if ctx.invoked_subcommand is None:
         _list(json_out)
 
 
-def styles_list(json_out: bool = typer.Option(False, "--json", help="Print JSON.")) -> None:
+def styles_list(json_out: Annotated[bool, JSON] = False) -> None:
     """List the installed styles: shipped ones and the user's own."""
     _list(json_out)
 
 
+RUN = typer.Argument(help="A training run folder (its model.safetensors) or a .safetensors file.")
+STYLES_INSTALL_NAME = typer.Option("--name", help="Style name for --style (default: the run folder's name).")
+STYLES_INSTALL_FORCE = typer.Option("--force", help="Replace an installed user style of that name.")
+
+
 def styles_install(
-    run: Path = typer.Argument(..., help="A training run folder (its model.safetensors) or a .safetensors file."),
-    name: str | None = typer.Option(None, help="Style name for --style (default: the run folder's name)."),
-    force: bool = typer.Option(False, "--force", help="Replace an installed user style of that name."),
+    run: Annotated[Path, RUN],
+    name: Annotated[str | None, STYLES_INSTALL_NAME] = None,
+    force: Annotated[bool, STYLES_INSTALL_FORCE] = False,
 ) -> None:
     """Install a trained model as a style: `--style NAME` then finds it (the package is not touched).
 
@@ -127,21 +141,30 @@ def styles_install(
     typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
 
 
+STYLES_BUILD_NAME = typer.Argument(help="The style's name (letters, digits, '.', '_', '-').")
+TAKE = typer.Option(
+    "--take",
+    help="MOTION WAV: a paired take (BEAT BVH, BEAT2 .npz, or another skeleton's BVH, retargeted). Repeat.",
+    metavar="MOTION WAV",
+)
+WAV = typer.Argument(hidden=True)
+STYLES_BUILD_OUT = typer.Option("--out", help="Write the style here instead of installing it.")
+STYLES_BUILD_FORCE = typer.Option("--force", help="Replace an existing style file of that name.")
+SEED = typer.Option("--seed", help="Seed of the speech predictor's training.")
+STEPS = typer.Option(
+    "--steps",
+    help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial).",
+)
+
+
 def styles_build(
-    name: str = typer.Argument(..., help="The style's name (letters, digits, '.', '_', '-')."),
-    take: list[str] = typer.Option(
-        ...,
-        "--take",
-        help="MOTION WAV: a paired take (BEAT BVH, BEAT2 .npz, or another skeleton's BVH, retargeted). Repeat.",
-        metavar="MOTION WAV",
-    ),
-    wav: list[str] = typer.Argument(None, hidden=True),
-    out: Path | None = typer.Option(None, "--out", help="Write the style here instead of installing it."),
-    force: bool = typer.Option(False, "--force", help="Replace an existing style file of that name."),
-    seed: int = typer.Option(0, help="Seed of the speech predictor's training."),
-    steps: int | None = typer.Option(
-        None, help="At most this many training steps of the speech predictor (default 800; fewer: a quick trial)."
-    ),
+    name: Annotated[str, STYLES_BUILD_NAME],
+    take: Annotated[list[str], TAKE],
+    wav: Annotated[list[str] | None, WAV] = None,
+    out: Annotated[Path | None, STYLES_BUILD_OUT] = None,
+    force: Annotated[bool, STYLES_BUILD_FORCE] = False,
+    seed: Annotated[int, SEED] = 0,
+    steps: Annotated[int | None, STEPS] = None,
 ) -> None:
     """Build a motion-matching style from paired takes (motion + speech): database + speech predictor.
 

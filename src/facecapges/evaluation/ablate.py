@@ -78,7 +78,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError
-from facecapges.evaluation.options import AblateOptions
+from facecapges.evaluation.options import AblateOptions, parse_given, parse_offsets
 
 VARIANTS: tuple[str, ...] = ("full", "no_head", "offline", "camn")
 LABELS = {
@@ -526,43 +526,25 @@ def ablation_markdown(full: dict) -> str:
     return md + "\n".join(lines)
 
 
-def run_ablation(
-    cache: Path,
-    out: Path,
-    speaker: int = AblateOptions.speaker,
-    config: Path | None = AblateOptions.config,
-    epochs: int | None = AblateOptions.epochs,
-    split: str | None = AblateOptions.split,
-    holdout_from: int | None = AblateOptions.holdout_from,
-    variants: Sequence[str] = VARIANTS,
-    reuse_default: bool = AblateOptions.reuse_default,
-    retrain: bool = AblateOptions.retrain,
-    fgd_location: Path | None = AblateOptions.fgd,
-    fgd_epochs: int = AblateOptions.fgd_epochs,
-    samples: int = AblateOptions.samples,
-    seed: int = AblateOptions.seed,
-    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
-    progress: bool = True,
-    say=print,
-    given: Mapping[str, str] | None = None,
-    command: str | None = None,
-    force: bool = AblateOptions.force,
-) -> dict:
-    """Train + evaluate the variants, write ``ablation.json`` and ``ablation.md``; returns the document.
+def run_ablation(o: AblateOptions, say=print, command: str | None = None) -> dict:
+    """Train + evaluate the variants ``o`` names, write ``ablation.json`` and ``ablation.md``; returns the document.
 
-    Every output is checked before any training (``force``: write over a table; ``retrain``
+    Every output is checked before any training (``o.force``: write over a table; ``o.retrain``
     replaces the runs' models, so they count as outputs). ``say`` gets the progress, the
     table and the files written."""
     from facecapges.data.cache import Cache
     from facecapges.errors import check_output_dir
     from facecapges.evaluation.report import write_metrics_json
 
-    if fgd_epochs < 1:
+    cache, out, speaker, progress = o.cache, Path(o.out), o.speaker, not o.quiet
+    variants = tuple(v.strip() for v in o.variants.split(",") if v.strip())
+    given, offsets_s = parse_given(o.given), parse_offsets(o.offsets)
+    if o.fgd_epochs < 1:
         raise UserError("--fgd-epochs must be at least 1")
     check_output_dir(
         out,
-        ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in variants] if retrain else []),
-        force,
+        ["ablation.json", "ablation.md"] + ([f"runs/{v}/model.safetensors" for v in variants] if o.retrain else []),
+        o.force,
     )
     bad = [v for v in variants if v not in VARIANTS]
     if bad or not variants:
@@ -571,20 +553,19 @@ def run_ablation(
     if not c.clips(speaker=speaker):
         have = sorted({e["speaker"] for e in c.clips()})
         raise UserError(f"{cache}: no clips of speaker {speaker} (speakers in the cache: {have})")
-    recipe = make_recipe(config, speaker, split, epochs, holdout_from, c.fps)
-    out = Path(out)
+    recipe = make_recipe(o.config, speaker, o.split, o.epochs, o.holdout_from, c.fps)
     out.mkdir(parents=True, exist_ok=True)
-    unknown = sorted(set(given or {}) - set(variants))
+    unknown = sorted(set(given) - set(variants))
     if unknown:
         raise UserError(f"--given names variant(s) not in --variants: {', '.join(unknown)}")
-    trained = train_variants(cache, out, recipe, variants, reuse_default, retrain, progress, say, given)
-    fgd, fgd_file = _fgd_for(out, recipe, trained, cache, fgd_location, fgd_epochs, progress, say)
+    trained = train_variants(cache, out, recipe, variants, o.reuse_default, o.retrain, progress, say, given)
+    fgd, fgd_file = _fgd_for(out, recipe, trained, cache, o.fgd, o.fgd_epochs, progress, say)
     say("evaluating the variants on the held-out frames")
-    result = evaluate_variants(cache, recipe, trained, fgd, samples, seed, offsets_s, progress)
+    result = evaluate_variants(cache, recipe, trained, fgd, o.samples, o.seed, offsets_s, progress)
     _, tcfg = recipe.resolved()
     doc = {
         "result": result,
-        "samples": samples,
+        "samples": o.samples,
         "fgd_autoencoder": fgd_file,
         "command": command,
         "recipe": {

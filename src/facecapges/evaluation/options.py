@@ -7,21 +7,26 @@ their defaults from the same fields (``facecapges eval --help`` says what each o
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+
+from facecapges.errors import UserError
 
 OFFSETS = "2:60:2"  # the BeatAlign control's audio shifts in s (START:STOP:STEP, stop included)
 
 
 @dataclass
 class EvalOptions:
-    """The options of ``eval`` that have defaults."""
+    """The options of ``eval``: what :func:`facecapges.evaluation.run.run_eval` takes."""
 
+    cache: Path
+    out: Path
     checkpoint: Path | None = None
     style: str | None = None
     speaker: int | None = None
     split: str = "test"
     holdout_from: int | None = None
+    audio: list[Path] = field(default_factory=list)
     fgd: Path | None = None
     offsets: str = OFFSETS
     video: bool = True
@@ -33,8 +38,10 @@ class EvalOptions:
 
 @dataclass
 class AblateOptions:
-    """The options of ``ablate`` that have defaults."""
+    """The options of ``ablate``: what :func:`facecapges.evaluation.ablate.run_ablation` takes."""
 
+    cache: Path
+    out: Path
     speaker: int = 2
     config: Path | None = None
     epochs: int | None = None
@@ -70,3 +77,33 @@ class FgdTrainOptions:
     seed: int = 0
     force: bool = False
     quiet: bool = False
+
+
+def parse_offsets(text: str) -> list[float]:
+    """``"2:60:2"`` (start:stop:step, stop included) or ``"2,5,9"`` → offsets in seconds."""
+    try:
+        if ":" in text:
+            a, b, c = (float(x) for x in text.split(":"))
+            if c <= 0 or b < a:
+                raise ValueError
+            n = int((b - a) // c) + 1
+            return [a + i * c for i in range(n)]
+        out = [float(x) for x in text.split(",") if x.strip()]
+        if not out:
+            raise ValueError
+        return out
+    except ValueError:
+        raise UserError(f"--offsets must be START:STOP:STEP or a comma list of seconds, got {text!r}") from None
+
+
+def parse_given(text: str | None) -> dict[str, str]:
+    """``"full=beat2-scott-demo,camn=run/model.safetensors"`` → {variant: checkpoint}."""
+    if not text:
+        return {}
+    out = {}
+    for item in text.split(","):
+        name, sep, ref = item.partition("=")
+        if not sep or not name.strip() or not ref.strip():
+            raise UserError(f"--given must be VARIANT=CHECKPOINT[,VARIANT=CHECKPOINT…], got {text!r}")
+        out[name.strip()] = ref.strip()
+    return out

@@ -53,7 +53,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError, check_output_dir, echo, echo_warning, file_error
-from facecapges.evaluation.options import EvalOptions
+from facecapges.evaluation.options import EvalOptions, parse_offsets
 
 
 def load_real_clips(
@@ -167,27 +167,13 @@ def engine_database(ckpt, training: Sequence[np.ndarray]) -> tuple[list[np.ndarr
 
 
 def run_eval(
-    cache: Path,
-    out: Path,
-    checkpoint: Path | None = EvalOptions.checkpoint,
-    style: str | None = EvalOptions.style,
-    speaker: int | None = EvalOptions.speaker,
-    split: str = EvalOptions.split,
-    holdout_from: int | None = EvalOptions.holdout_from,
-    extra_audio: Sequence[Path] = (),
-    fgd_location: Path | None = EvalOptions.fgd,
-    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
-    video: bool = EvalOptions.video,
-    seed: int = EvalOptions.seed,
-    samples: int = EvalOptions.samples,
-    progress: bool = True,
-    force: bool = EvalOptions.force,
+    o: EvalOptions,
     say: Callable[[str], None] = echo,
     warn: Callable[[str], None] = echo_warning,
 ) -> dict:
-    """Evaluate a checkpoint on a cache (see module docstring); returns files, warnings, timing.
+    """Evaluate ``o.checkpoint`` on ``o.cache`` (see module docstring); returns files, warnings, timing.
 
-    Every output in ``out`` is checked first (``force`` writes over them); ``warn`` gets the
+    Every output in ``o.out`` is checked first (``o.force`` writes over them); ``warn`` gets the
     warnings, ``say`` the table and the files written."""
     from facecapges.data.cache import Cache
     from facecapges.evaluation import baselines as bl
@@ -198,16 +184,19 @@ def run_eval(
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses, prepare_inputs
 
+    cache, out, speaker, split, holdout_from = o.cache, o.out, o.speaker, o.split, o.holdout_from
+    seed, samples, progress, offsets_s = o.seed, o.samples, not o.quiet, parse_offsets(o.offsets)
+
     check_output_dir(
         out,
         ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
-        + (["real_vs_generated.mp4"] if video else []),
-        force,
+        + (["real_vs_generated.mp4"] if o.video else []),
+        o.force,
     )
     if split not in ("train", "val", "test", "all"):
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
-    ckpt = load_checkpoint(checkpoint, style)
+    ckpt = load_checkpoint(o.checkpoint, o.style)
     model_name = engine_name(ckpt)
     c = Cache(cache)
     fps, sr = c.fps, c.sr
@@ -255,8 +244,8 @@ def run_eval(
         pool = [loaded[n]["pose"] for n in evaluated]
     # FGD autoencoder
     fgd = None
-    loc = fgd_location if fgd_location is not None else ckpt.path
-    if fgd_paths(loc)[1].exists() or fgd_location is not None:
+    loc = o.fgd if o.fgd is not None else ckpt.path
+    if fgd_paths(loc)[1].exists() or o.fgd is not None:
         fgd = load_fgd(loc)
     else:
         warnings.append(
@@ -341,11 +330,11 @@ def run_eval(
     )
     # unseen audio
     unseen = {}
-    if extra_audio:
+    if o.audio:
         from facecapges.io.audio import load_audio
 
         all_real = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker)]  # every real clip
-        for path in extra_audio:
+        for path in o.audio:
             inputs = prepare_inputs(path, fps=ckpt.fps)
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
@@ -395,7 +384,7 @@ def run_eval(
     if unseen:
         md += markdown_unseen_table(unseen)
     (out / "metrics.md").write_text(md)
-    if video:
+    if o.video:
         import soundfile as sf
 
         from facecapges.avatar.render.skeleton_video import render_skeleton_video
