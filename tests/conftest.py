@@ -101,6 +101,24 @@ def default_checkpoint():
     return checkpoint()
 
 
+@pytest.fixture(scope="session")
+def our_vrms(tmp_path_factory, beat_bvh, beat_take):
+    """Our avatar on the BEAT skeleton, built once: ``ours`` = VRM 1.0 through the command line (``avatar build
+    --format vrm``), ``ours0`` = VRM 0.x by ``write_vrm`` in-process (the CLI path is the same but for
+    ``--format``). The files are read-only: a test that changes one writes a copy."""
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.vrm import write_vrm
+    from runtime_helpers import cli
+
+    d = tmp_path_factory.mktemp("our_vrms")
+    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat_bvh), "--out", str(d / "ours.vrm"))
+    assert r.returncode == 0, r.stderr
+    out = {"ours": d / "ours.vrm", "ours0": write_vrm(default_avatar(beat_take.skeleton), d / "ours0.vrm", "0.x")}
+    for p in out.values():
+        p.chmod(0o444)
+    return out
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI nothing may be skipped: a skip there means a missing install or file."""
