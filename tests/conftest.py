@@ -119,6 +119,39 @@ def our_vrms(tmp_path_factory, beat_bvh, beat_take):
     return out
 
 
+def _read_only_tree(root: Path) -> None:
+    for p in sorted(root.rglob("*"), reverse=True):
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    root.chmod(0o555)
+
+
+@pytest.fixture(scope="session")
+def beat_cache(tmp_path_factory, beat_bvh):
+    """``facecapges prepare <the shared BEAT folder> --speakers 2`` (the sample take; the audio-only takes
+    listed as skipped), built once and read-only: tests only train and evaluate from it."""
+    from runtime_helpers import cli
+
+    out = tmp_path_factory.mktemp("beat_cache") / "c"
+    r = cli("prepare", str(beat_bvh.parent), "--out", str(out), "--speakers", "2", "--quiet")
+    assert r.returncode == 0, r.stderr
+    _read_only_tree(out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def beat_take_cache(tmp_path_factory, beat_bvh, beat_wav):
+    """``prepare()`` of a folder holding only the BEAT sample take (its BVH and WAV), built once and read-only."""
+    from facecapges.data.prepare import prepare
+
+    root = tmp_path_factory.mktemp("beat_take")
+    (root / beat_bvh.name).symlink_to(beat_bvh)
+    (root / beat_wav.name).symlink_to(beat_wav)
+    out = tmp_path_factory.mktemp("beat_take_cache") / "c"
+    prepare(root, out, progress=False)
+    _read_only_tree(out)
+    return out
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI nothing may be skipped: a skip there means a missing install or file."""
