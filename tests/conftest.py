@@ -101,6 +101,57 @@ def default_checkpoint():
     return checkpoint()
 
 
+@pytest.fixture(scope="session")
+def our_vrms(tmp_path_factory, beat_bvh, beat_take):
+    """Our avatar on the BEAT skeleton, built once: ``ours`` = VRM 1.0 through the command line (``avatar build
+    --format vrm``), ``ours0`` = VRM 0.x by ``write_vrm`` in-process (the CLI path is the same but for
+    ``--format``). The files are read-only: a test that changes one writes a copy."""
+    from facecapges.avatar.body import default_avatar
+    from facecapges.avatar.vrm.write import write_vrm
+    from runtime_helpers import cli
+
+    d = tmp_path_factory.mktemp("our_vrms")
+    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat_bvh), "--out", str(d / "ours.vrm"))
+    assert r.returncode == 0, r.stderr
+    out = {"ours": d / "ours.vrm", "ours0": write_vrm(default_avatar(beat_take.skeleton), d / "ours0.vrm", "0.x")}
+    for p in out.values():
+        p.chmod(0o444)
+    return out
+
+
+def _read_only_tree(root: Path) -> None:
+    for p in sorted(root.rglob("*"), reverse=True):
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    root.chmod(0o555)
+
+
+@pytest.fixture(scope="session")
+def beat_cache(tmp_path_factory, beat_bvh):
+    """``facecapges prepare <the shared BEAT folder> --speakers 2`` (the sample take; the audio-only takes
+    listed as skipped), built once and read-only: tests only train and evaluate from it."""
+    from runtime_helpers import cli
+
+    out = tmp_path_factory.mktemp("beat_cache") / "c"
+    r = cli("prepare", str(beat_bvh.parent), "--out", str(out), "--speakers", "2", "--quiet")
+    assert r.returncode == 0, r.stderr
+    _read_only_tree(out)
+    return out
+
+
+@pytest.fixture(scope="session")
+def beat_take_cache(tmp_path_factory, beat_bvh, beat_wav):
+    """``prepare()`` of a folder holding only the BEAT sample take (its BVH and WAV), built once and read-only."""
+    from facecapges.data.prepare import prepare
+
+    root = tmp_path_factory.mktemp("beat_take")
+    (root / beat_bvh.name).symlink_to(beat_bvh)
+    (root / beat_wav.name).symlink_to(beat_wav)
+    out = tmp_path_factory.mktemp("beat_take_cache") / "c"
+    prepare(root, out, progress=False)
+    _read_only_tree(out)
+    return out
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI nothing may be skipped: a skip there means a missing install or file."""

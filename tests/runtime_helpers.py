@@ -121,6 +121,35 @@ def cli_process(*args: str, background: bool = False, launcher: tuple[str, ...] 
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, **kw)
 
 
+_CLI_SEQUENCE = """
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from runtime_helpers import cli
+done = [cli(*args, timeout=timeout) for args, timeout in json.loads(sys.argv[2])]
+sys.stdout.write("\\n" + json.dumps([[r.returncode, r.stdout, r.stderr] for r in done]) + "\\n")
+"""
+
+
+def cli_process_sequence(*commands: tuple[str, ...], launcher: tuple[str, ...] = (), timeout: float = 300
+                         ) -> list[CliResult]:
+    """Run several ``facecapges`` commands one after another in ONE real subprocess (each through :func:`cli`
+    inside it): for checks that need a process of their own but not one per command, e.g. a private mount
+    namespace with a read-only folder (``launcher`` = the command before the interpreter, such as
+    ``("unshare", "-rm", "sh", "-c", "mount ... && exec \"$0\" \"$@\"")``). One interpreter, torch import
+    and checkpoint load instead of one per command; each command's exit status, stdout and stderr as
+    :func:`cli` gives them."""
+    import json
+    from pathlib import Path
+
+    plan = json.dumps([[list(map(str, c)), timeout] for c in commands])
+    p = cli_process(str(Path(__file__).resolve().parent), plan,
+                    launcher=(*launcher, sys.executable, "-c", _CLI_SEQUENCE), timeout=timeout * len(commands))
+    assert p.returncode == 0, p.stdout[-2000:] + p.stderr[-4000:]
+    done = json.loads(p.stdout.rstrip("\n").rsplit("\n", 1)[-1])
+    assert len(done) == len(commands), done
+    return [CliResult(["facecapges", *map(str, c)], code, out, err) for c, (code, out, err) in zip(commands, done)]
+
+
 def cli_popen(*args: str, **kw) -> subprocess.Popen:
     """``facecapges ARGS`` running in the background (see :func:`cli_process`)."""
     return cli_process(*args, background=True, **kw)

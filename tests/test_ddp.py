@@ -45,10 +45,8 @@ def cli(*args: str, torchrun: int = 0, port: int = 0) -> subprocess.CompletedPro
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory, beat_bvh) -> Path:
-    out = tmp_path_factory.mktemp("ddp_cache") / "c"
-    cli("prepare", str(beat_bvh.parent), "--out", str(out), "--speakers", "2", "--quiet")
-    return out
+def cache(beat_cache) -> Path:
+    return beat_cache  # the session's `prepare` of the BEAT sample (tests/conftest.py)
 
 
 def _rank_worker(rank: int, world: int, port: int, cache: Path, out: Path) -> None:

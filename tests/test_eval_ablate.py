@@ -138,18 +138,8 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    from conftest import shared_file
-    from facecapges.data.prepare import prepare
-
-    bvh = shared_file("data/beat/2_scott_0_1_1.bvh")
-    wav = shared_file("data/beat/2_scott_0_1_1.wav")
-    root = tmp_path_factory.mktemp("beat")
-    (root / bvh.name).symlink_to(bvh)
-    (root / wav.name).symlink_to(wav)
-    out = tmp_path_factory.mktemp("cache") / "c"
-    prepare(root, out, progress=False)
-    return out
+def cache(beat_take_cache):
+    return beat_take_cache  # the session's prepare() of the sample take alone (tests/conftest.py)
 
 
 @pytest.mark.slow

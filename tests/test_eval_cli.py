@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from facecapges.data.cache import Cache
-from facecapges.data.prepare import prepare
 from facecapges.model.checkpoint import save_checkpoint
 from facecapges.model.config import ModelConfig
 from facecapges.model.network import FaceCapGes
@@ -29,17 +28,8 @@ def one_line_error(res: subprocess.CompletedProcess, *fragments: str) -> None:
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory):
-    from conftest import shared_file
-
-    bvh = shared_file("data/beat/2_scott_0_1_1.bvh")
-    wav = shared_file("data/beat/2_scott_0_1_1.wav")
-    root = tmp_path_factory.mktemp("beat")
-    (root / bvh.name).symlink_to(bvh)
-    (root / wav.name).symlink_to(wav)
-    out = tmp_path_factory.mktemp("cache") / "c"
-    prepare(root, out, progress=False)
-    return out
+def cache(beat_take_cache):
+    return beat_take_cache  # the session's prepare() of the sample take alone (tests/conftest.py)
 
 
 @pytest.mark.slow

@@ -43,10 +43,8 @@ def run(*args: str, ok: bool = True):
 
 
 @pytest.fixture(scope="module")
-def cache(tmp_path_factory, beat_bvh) -> Path:
-    out = tmp_path_factory.mktemp("cache") / "c"
-    run("prepare", str(beat_bvh.parent), "--out", str(out), "--speakers", "2", "--quiet")
-    return out
+def cache(beat_cache) -> Path:
+    return beat_cache  # the session's `prepare` of the BEAT sample (tests/conftest.py)
 
 
 @pytest.fixture(scope="module")

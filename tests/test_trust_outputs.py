@@ -6,23 +6,22 @@ from __future__ import annotations
 import json
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from facecapges.errors import UserError, check_output_dir, check_output_file
-from runtime_helpers import cli, cli_process, refused
+from runtime_helpers import cli, cli_process_sequence, refused
 
 
-def read_only(folder: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    """Run the CLI with ``folder`` mounted read-only (a private mount namespace; nothing else changes)."""
+def read_only(folder: Path, *commands: tuple[str, ...], timeout: float = 300) -> list[subprocess.CompletedProcess]:
+    """Run CLI commands with ``folder`` mounted read-only (a private mount namespace; nothing else changes),
+    all in one process of their own."""
     if shutil.which("unshare") is None:
         pytest.fail("unshare (util-linux) is needed to mount a read-only file system for this test")
     mount = f"mount -t tmpfs -o ro tmpfs '{folder}' && exec \"$0\" \"$@\""
-    return cli_process(*args, launcher=("unshare", "-rm", "sh", "-c", mount, sys.executable, "-m", "facecapges"),
-                       timeout=timeout)
+    return cli_process_sequence(*commands, launcher=("unshare", "-rm", "sh", "-c", mount), timeout=timeout)
 
 
 def test_output_checks(tmp_path):
@@ -50,10 +49,10 @@ def test_generate_refuses_bad_outputs_before_any_work(tmp_path, beat_wav):
     assert not list(tmp_path.glob("**/*.part"))
     ro = tmp_path / "ro"
     ro.mkdir()
-    refused(read_only(ro, "generate", "--audio", str(beat_wav), "--out", str(ro / "o.bvh")), "read-only")
-    refused(read_only(ro, "avatar", "build", "--out", str(ro / "a.glb")), "read-only")
-    refused(read_only(ro, "prepare", str(beat_wav.parent), "--out", str(ro / "cache"), "--speakers", "2"),
-            "read-only")
+    for p in read_only(ro, ("generate", "--audio", str(beat_wav), "--out", str(ro / "o.bvh")),
+                       ("avatar", "build", "--out", str(ro / "a.glb")),
+                       ("prepare", str(beat_wav.parent), "--out", str(ro / "cache"), "--speakers", "2")):
+        refused(p, "read-only")
 
 
 def test_render_checks_its_audio_first(tmp_path, beat_bvh):

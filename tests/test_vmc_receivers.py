@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import cli
 from vmc_receiver import Receiver, osc_messages
 from vrm_samples import build_sample
 
@@ -54,14 +53,10 @@ def beat():
 
 
 @pytest.fixture(scope="module")
-def avatars(beat, tmp_path_factory):
-    from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm.write import write_vrm
-
+def avatars(beat, tmp_path_factory, our_vrms):
+    """Ours (VRM 1.0 through the CLI, 0.x in-process: the session's ``our_vrms``) and the samples."""
     d = tmp_path_factory.mktemp("vmc_avatars")
-    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(beat["bvh"]), "--out", str(d / "ours.vrm"))
-    assert r.returncode == 0, r.stderr
-    out = {"ours": d / "ours.vrm", "ours0": write_vrm(default_avatar(beat["skel"]), d / "ours0.vrm", "0.x")}
+    out = dict(our_vrms)
     for v in ("vrm0", "vrm1", "vrm1_blender"):
         out[v] = d / f"{v}.vrm"
         out[v].write_bytes(build_sample(v))

@@ -79,23 +79,13 @@ def beat():
 
 
 @pytest.fixture(scope="module")
-def files(beat, tmp_path_factory):
-    """Our VRM (through the CLI), the samples, and a 6 s .vrma of the BEAT take with a face."""
+def files(beat, tmp_path_factory, our_vrms):
+    """Our VRM 1.0 (through the CLI) and 0.x (the session's ``our_vrms``), the samples, and a 6 s .vrma of the
+    BEAT take with a face."""
     from facecapges.avatar.vrm.animation import write_vrma
 
     d = tmp_path_factory.mktemp("vrm")
-    ours = d / "ours.vrm"
-    from conftest import shared_file
-
-    r = cli("avatar", "build", "--format", "vrm", "--skeleton", str(shared_file("data/beat/2_scott_0_1_1.bvh")),
-            "--out", str(ours))
-    assert r.returncode == 0, r.stderr
-    ours0 = d / "ours0.vrm"  # the VRM 0.x writer in-process (the CLI path is the same but for --format)
-    from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.vrm.write import write_vrm
-
-    write_vrm(default_avatar(beat["skel"]), ours0, "0.x")
-    out = {"ours": ours, "ours0": ours0}
+    out = dict(our_vrms)
     for v in ("vrm1", "vrm0", "glb"):
         out[v] = d / f"sample_{v}.{'glb' if v == 'glb' else 'vrm'}"
         out[v].write_bytes(build_sample(v))
