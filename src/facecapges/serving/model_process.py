@@ -15,12 +15,15 @@ tensors, so a tick costs one small message each way.
 The server's event loop neither blocks on nor hands off to a thread for a tick: it
 submits the inputs (:meth:`~ModelProcess.submit`), waits for the pipe to become readable
 (``loop.add_reader`` on :meth:`~ModelProcess.fileno`) while it keeps receiving, then
-collects the outputs (:meth:`~ModelProcess.collect`). Measured (2026-12-02, load 7–10, 30–40
-clients): with a worker thread waiting for the pipe instead, p99 of a tick's model time
-was 115 ms against 24 ms inside the child — the rest was that thread waiting for the GIL
-held by the busy event loop. Opening, closing and intensity changes of one tick travel as
-one :meth:`~ModelProcess.sync` message, not one round trip per stream (40 streams
-connecting at once held the event loop 190 ms).
+collects the outputs (:meth:`~ModelProcess.collect`). Measured (2026-12-02, matching style,
+load 7–9, 30 and 40 clients): with a worker thread waiting for the pipe instead, as before,
+a tick's model time at p99 was 115 ms of which 24 ms inside the child — the rest was that
+thread waiting for the GIL held by the busy event loop. Opening, closing and intensity
+changes of one tick travel as one :meth:`~ModelProcess.sync` message, not one round trip
+per stream (40 streams connecting at once held the event loop 190 ms). Both designs served
+alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round trip 413 ms
+against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
+model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
 It offers the part of the generator's interface the server uses: :meth:`open`,
 :meth:`close`, :attr:`open_slots`, :meth:`step` (same arguments and result), and the
