@@ -298,3 +298,30 @@ def test_loadgen_clients_get_every_frame_back(server, beat_wav):
     s = loadgen.summarize(res, 1000 / 15)
     assert s["frames_sent"] == 90 and s["lost"] == 0 and s["errors"] == 0 and s["measured_frames"] == 3 * 22
     assert s["p50_ms"] > 0 and srv.summary()["frames"] == 90
+
+
+def test_model_process_sync_and_split_step(ckpt):
+    """One ``sync`` round trip opens, closes and dials slots (a new slot named ``-1 - k``); the split
+    submit/collect gives the kernel's poses and their quaternions, as ``step`` does."""
+    from facecapges.serving.model_process import ModelProcess
+
+    gen = ckpt.batched(capacity=4)
+    mp = ModelProcess(ckpt, max_rows=4)
+    try:
+        a, b = mp.sync([], 2, [(-2, 0.5)])  # the second new stream at intensity 0.5
+        assert mp.open_slots == {a, b}
+        ga, gb = gen.open(), gen.open()
+        gen.set_intensity(gb, 0.5)
+        for audio, face, head in frames(6, seed=3):
+            audio2, face2, head2 = [audio, audio[::-1].copy()], np.stack([face, face[::-1]]), np.stack([head, head])
+            mp.submit([a, b], audio2, face2, head2)
+            poses, quats = mp.collect()
+            want = gen.step([ga, gb], audio2, face2, head2)
+            np.testing.assert_allclose(poses, want, atol=1e-6)
+            np.testing.assert_allclose(quats, rot.rot6d_to_quaternion(poses.astype(np.float64)), atol=1e-12)
+        (c,) = mp.sync([a], 1, [])
+        assert mp.open_slots == {b, c}
+        still = np.array([[1.0, 0, 0, 0, 1, 0]])  # the head facing the camera (rot6d)
+        assert mp.step([c], [frames(1, seed=4)[0][0]], np.zeros((1, 52)), still).shape == (1, 47, 6)
+    finally:
+        mp.shutdown()

@@ -135,6 +135,7 @@ class BatchedMatchingGenerator:
         if not self.idle.any():
             self.idle = db.searchable.copy()
         self.idle_mean = inz.quaternion_mean(self.Q[self.idle])  # (47, 4)
+        self._blocked = np.stack([~db.searchable, ~self.idle])  # rows a search may not jump to: [any, idle only]
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
         sl = group_slices()
         self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
@@ -301,9 +302,9 @@ class BatchedMatchingGenerator:
         w = np.flatnonzero(need)
         best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w])
         self.since_search[ids[w]] = 0
-        for k in np.flatnonzero(switch):
-            s, b = int(ids[w[k]]), int(best[k])
-            src = int(nxt[w[k]])
+        if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
+            k = np.flatnonzero(switch)
+            s, b, src = ids[w[k]], best[k], nxt[w[k]]
             self.off_x[s], self.off_v[s] = inz.transition(
                 self.off_x[s], self.off_v[s], self.Q[src], self.V[src], self.Q[b], self.V[b]
             )
@@ -333,13 +334,15 @@ class BatchedMatchingGenerator:
         if onset_now.any():
             cost[onset_now] -= cfg.onset_bonus * self.lead[None]
             cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
-        recent = (self.t[ids, None] - self.last_used[ids]) < cfg.memory_s * self.fps
-        cost += cfg.memory_penalty * recent
-        allowed = np.where(idle_only[:, None], self.idle[None], self.db.searchable[None])
-        N = len(self.db)
-        near = np.abs(np.arange(N)[None] - rows[:, None]) < cfg.near_frames
-        near &= self.db.segment[None] == self.db.segment[rows][:, None]
-        cost[~allowed | near] = np.inf
+        recent = self.last_used[ids] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # played < memory_s ago
+        np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=recent)  # in float64, as before
+        np.copyto(cost, np.inf, where=self._blocked[idle_only.astype(np.intp)])  # rows a search may not jump to
+        # rows within near_frames of the playing one, in its segment (continuing): (Bs, 2 near_frames - 1) only
+        near = rows[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
+        inside = (near >= 0) & (near < len(self.db))
+        near = np.where(inside, near, rows[:, None])
+        inside &= self.db.segment[near] == self.db.segment[rows][:, None]
+        cost[np.nonzero(inside)[0], near[inside]] = np.inf
         best = np.argmin(cost, axis=1)
         bc = cost[np.arange(len(rows)), best]
         cur = np.where(forced, np.inf, cur)

@@ -8,12 +8,27 @@ it waiting at each one: measured on this 2-core machine, 80 clients, one run (lo
 17–24): a worker thread managed 9 ticks in 6 s, the same kernel inline in the event
 loop 44, and the kernel in this separate process never waits for the loop at all. So
 the kernel runs here, in a child process (``spawn``), and the server talks to it over
-a pipe; the inputs and poses of a tick travel through shared-memory tensors, so a
-tick costs one small message each way.
+a pipe; the inputs and outputs of a tick (poses as rot6d and as the quaternions the
+``pose`` messages carry, converted here, beside the kernel) travel through shared-memory
+tensors, so a tick costs one small message each way.
+
+The server's event loop neither blocks on nor hands off to a thread for a tick: it
+submits the inputs (:meth:`~ModelProcess.submit`), waits for the pipe to become readable
+(``loop.add_reader`` on :meth:`~ModelProcess.fileno`) while it keeps receiving, then
+collects the outputs (:meth:`~ModelProcess.collect`). Measured (2026-12-02, matching style,
+load 7–9, 30 and 40 clients): with a worker thread waiting for the pipe instead, as before,
+a tick's model time at p99 was 115 ms of which 24 ms inside the child — the rest was that
+thread waiting for the GIL held by the busy event loop. Opening, closing and intensity
+changes of one tick travel as one :meth:`~ModelProcess.sync` message, not one round trip
+per stream (40 streams connecting at once held the event loop 190 ms). Both designs served
+alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round trip 413 ms
+against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
+model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
 It offers the part of the generator's interface the server uses: :meth:`open`,
-:meth:`close`, :attr:`open_slots`, :meth:`step` (same arguments and result). Not
-thread-safe: one caller at a time (the server's model thread).
+:meth:`close`, :attr:`open_slots`, :meth:`step` (same arguments and result), and the
+split :meth:`submit` / :meth:`collect` with :meth:`sync`. Not thread-safe: one caller
+at a time (the server's event loop).
 """
 
 from __future__ import annotations
@@ -23,13 +38,14 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.model.batched import pack_audio
 from facecapges.skeleton import N_JOINTS
 
 
-def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose) -> None:
+def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) -> None:
     """The child process: the style's batched generator, driven by messages on ``conn``."""
     torch.set_num_threads(max(1, threads))
     try:
@@ -37,7 +53,7 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose) -> Non
     except Exception as exc:  # noqa: BLE001  reported to the server, which says it
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
-    a, f, h, p = audio.numpy(), face.numpy(), head.numpy(), pose.numpy()
+    a, f, h, p, q = audio.numpy(), face.numpy(), head.numpy(), pose.numpy(), quat.numpy()
     conn.send(("ok", None))
     while True:
         try:
@@ -49,7 +65,10 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose) -> Non
             if kind == "step":
                 B = len(msg[1])
                 p[:B] = gen.step(msg[1], a[:B], f[:B], h[:B])
+                q[:B] = rot.rot6d_to_quaternion(p[:B].astype(np.float64))
                 res = None
+            elif kind == "sync":
+                res = _sync(gen, *msg[1:])
             elif kind == "open":
                 res = gen.open()
             elif kind == "close":
@@ -66,6 +85,17 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose) -> Non
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
 
 
+def _sync(gen, close: list[int], n_open: int, intensity: list[tuple[int, float]]) -> list[int]:
+    """Close slots, open ``n_open`` new ones (their ids are returned), then set intensities;
+    ``intensity`` may name a slot opened here by ``-1 - k`` (the k-th new one)."""
+    for slot in close:
+        gen.close(slot)
+    new = [gen.open() for _ in range(n_open)]
+    for slot, value in intensity:
+        gen.set_intensity(new[-1 - slot] if slot < 0 else slot, value)
+    return new
+
+
 class ModelProcess:
     """The batched generator of a loaded style (``checkpoint.batched``: either engine) in a child
     process (module docs); the checkpoint object travels to the child when it starts.
@@ -80,6 +110,8 @@ class ModelProcess:
         self._face = torch.zeros(max_rows, N_BLENDSHAPES).share_memory_()
         self._head = torch.zeros(max_rows, 6).share_memory_()
         self._pose = torch.zeros(max_rows, N_JOINTS, 6).share_memory_()
+        self._quat = torch.zeros(max_rows, N_JOINTS, 4, dtype=torch.float64).share_memory_()
+        self._rows = 0  # streams of the step submitted and not yet collected
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
             target=_serve_model,
@@ -93,6 +125,7 @@ class ModelProcess:
                 self._face,
                 self._head,
                 self._pose,
+                self._quat,
             ),
         )
         self._proc.start()
@@ -125,20 +158,49 @@ class ModelProcess:
         """One stream's intensity dial (:mod:`facecapges.model.intensity`), from its next step on."""
         self._call("intensity", int(slot), float(value))
 
-    def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
-        """Poses (B, 47, 6) of one frame per stream, as ``BatchedStreamingGenerator.step``."""
+    def sync(self, close: Sequence[int], n_open: int, intensity: Sequence[tuple[int, float]] = ()) -> list[int]:
+        """One round trip for the slot changes between two ticks: close ``close``, open ``n_open``
+        streams (their slots are returned, in order), then set each ``(slot, value)`` intensity —
+        a slot ``-1 - k`` is the k-th stream opened by this call."""
+        new = self._call("sync", [int(s) for s in close], int(n_open), [(int(s), float(v)) for s, v in intensity])
+        self._open.difference_update(close)
+        self._open.update(new)
+        return new
+
+    def submit(self, slots: Sequence[int], audio, face, head) -> None:
+        """Start one frame per stream (:meth:`step`'s arguments); :meth:`collect` gets the result.
+        :meth:`fileno` becomes readable when it is ready."""
         B = len(slots)
         if len(self._audio) < B:
             raise ValueError(f"{B} streams in one step; this model process takes at most {len(self._audio)}")
         self._audio.numpy()[:B] = pack_audio(audio, self.samples_per_frame)
         self._face.numpy()[:B] = np.asarray(face, np.float32).reshape(B, -1)
         self._head.numpy()[:B] = np.asarray(head, np.float32).reshape(B, -1)
-        self._call("step", [int(s) for s in slots])
-        return self._pose.numpy()[:B].copy()
+        self._conn.send(("step", [int(s) for s in slots]))
+        self._rows = B
+
+    def collect(self) -> tuple[np.ndarray, np.ndarray]:
+        """The submitted step's poses: rot6d (B, 47, 6) float32 and quaternions (B, 47, 4) float64."""
+        B, self._rows = self._rows, 0
+        kind, value = self._conn.recv()
+        if kind == "error":
+            raise RuntimeError(f"model process: {value}")
+        return self._pose.numpy()[:B].copy(), self._quat.numpy()[:B].copy()
+
+    def fileno(self) -> int:
+        """The pipe's descriptor: readable once a submitted step is done."""
+        return self._conn.fileno()
+
+    def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
+        """Poses (B, 47, 6) of one frame per stream, as ``BatchedStreamingGenerator.step``."""
+        self.submit(slots, audio, face, head)
+        return self.collect()[0]
 
     def shutdown(self) -> None:
         if self._proc.is_alive():
             try:
+                if self._rows:  # a step submitted and never collected (the server stopped during a tick)
+                    self.collect()
                 self._call("quit")
             except (EOFError, OSError, RuntimeError):
                 pass

@@ -10,8 +10,8 @@ samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
 Ticks (continuous batching). A single batching task runs for the whole server: each
 *tick* it takes, from every stream that has a frame waiting, its oldest frame, and
 runs all of them as ONE batched ``step`` (in the model's own process,
-:mod:`facecapges.serving.model_process`, waited for by a worker thread, so the event
-loop keeps receiving); the next tick starts as soon as that one is done, something is waiting
+:mod:`facecapges.serving.model_process`; the event loop keeps receiving while it waits
+for the pipe); the next tick starts as soon as that one is done, something is waiting
 and at least ``tick_ms`` (15 ms by default) have passed since the previous tick
 started — the pause lets the frames of more streams arrive, because a batched call
 costs a fixed ~2 ms plus a fraction of a millisecond per stream. A stream's frames
@@ -62,7 +62,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import concurrent.futures
 import socket
 import threading
 import time
@@ -155,8 +154,6 @@ class StreamServer:
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
         self._next_id = 0
-        self._pool = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="serve-model")
-        self._pool.submit(self._init_worker).result()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: Server | None = None
         self._thread: threading.Thread | None = None
@@ -167,11 +164,6 @@ class StreamServer:
         self.stats: collections.Counter[str] = collections.Counter()
         self._closing: set[asyncio.Future] = set()  # close tasks still running
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
-
-    def _init_worker(self) -> None:
-        import torch
-
-        torch.set_num_threads(max(1, int(self.cfg.threads)))
 
     # ---------------------------------------------------------------- WebSocket
     def _process_request(self, connection, request):
@@ -324,27 +316,45 @@ class StreamServer:
         return True
 
     # ---------------------------------------------------------------- ticks
-    def _compute(self, slots: list[int], inputs: list) -> tuple[np.ndarray, np.ndarray]:
-        """The worker thread's part of a tick: one batched step + quaternions."""
-        from facecapges import rotations as rot
-
-        audio = [i.audio for i in inputs]
+    async def _compute(self, slots: list[int], inputs: list) -> tuple[np.ndarray, np.ndarray]:
+        """One batched step in the model process: poses (B, 47, 6) and quaternions (B, 47, 4). The event
+        loop runs on while the model process works and resumes when its pipe is readable."""
+        loop = asyncio.get_running_loop()
         face = np.stack([i.face for i in inputs])
         head = np.stack([i.head for i in inputs])
-        poses = self.gen.step(slots, audio, face, head)
-        return poses, rot.rot6d_to_quaternion(poses.astype(np.float64))
+        self.gen.submit(slots, [i.audio for i in inputs], face, head)
+        ready = loop.create_future()
+        fd = self.gen.fileno()
+
+        def wake() -> None:
+            if not ready.done():
+                ready.set_result(None)
+
+        loop.add_reader(fd, wake)
+        try:
+            await ready
+        finally:
+            loop.remove_reader(fd)
+        return self.gen.collect()
 
     def _sync_slots(self) -> None:
-        """Between ticks: free the slots of closed streams, give new streams theirs."""
+        """Between ticks, in one round trip: free the slots of closed streams, give new streams theirs,
+        apply changed intensity dials."""
         live = {st.slot for st in self.streams.values() if st.slot is not None}
-        for slot in self.gen.open_slots - live:
-            self.gen.close(slot)
-        for st in self.streams.values():
-            if st.slot is None and not st.probation:
-                st.slot = self.gen.open()
-            if st.slot is not None and st.applied != st.intensity:
-                self.gen.set_intensity(st.slot, st.intensity)
-                st.applied = st.intensity
+        close = sorted(self.gen.open_slots - live)
+        new = [st for st in self.streams.values() if st.slot is None and not st.probation]
+        ref = {id(st): -1 - k for k, st in enumerate(new)}  # the k-th stream opened by this sync
+        dial = [
+            st for st in self.streams.values() if (st.slot is not None or id(st) in ref) and st.applied != st.intensity
+        ]
+        if not (close or new or dial):
+            return
+        dials = [(ref[id(st)] if st.slot is None else st.slot, st.intensity) for st in dial]
+        slots = self.gen.sync(close, len(new), dials)
+        for st, slot in zip(new, slots):
+            st.slot = slot
+        for st in dial:
+            st.applied = st.intensity
 
     def _send(self, st: _Stream, text: str) -> None:
         """Write without waiting for the client; close a client that stopped reading."""
@@ -367,7 +377,6 @@ class StreamServer:
         task.add_done_callback(self._closing.discard)
 
     async def _batch_loop(self) -> None:
-        loop = asyncio.get_running_loop()
         last = -1e9
         while True:
             await self._wake.wait()
@@ -383,9 +392,7 @@ class StreamServer:
             items = [st.pending.popleft() for st in due]
             t0 = time.monotonic()
             try:
-                _, quats = await loop.run_in_executor(
-                    self._pool, self._compute, [st.slot for st in due if st.slot is not None], [it[0] for it in items]
-                )
+                _, quats = await self._compute([st.slot for st in due if st.slot is not None], [it[0] for it in items])
             except Exception as exc:  # noqa: BLE001  never expected: report it to the streams of this tick
                 self.stats["tick_errors"] += 1
                 self.log(f"tick failed: {exc!r}")
@@ -529,7 +536,6 @@ class StreamServer:
                 pass
         if self._thread is not None:
             self._thread.join(timeout=10)
-        self._pool.shutdown(wait=True)
         self.gen.shutdown()
 
 
