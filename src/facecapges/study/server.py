@@ -48,8 +48,8 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
-from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import echo
+from facecapges.io.static_files import CONTENT_SECURITY_POLICY
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
 from facecapges.study.options import StudyServeOptions

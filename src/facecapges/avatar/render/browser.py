@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 from facecapges.errors import UserError
+from facecapges.io.static_files import CONTENT_SECURITY_POLICY
 
 if TYPE_CHECKING:
     from websockets.sync.client import ClientConnection
@@ -56,18 +57,6 @@ CHROMIUM_FLAGS = [
     "--remote-allow-origins=*",
 ]
 SETUP_HINT = "run scripts/setup-avatar.sh"
-
-# The Content-Security-Policy of every page we serve (renderer, live viewer, study): scripts, styles,
-# data and sockets from the serving origin only ('self'; in Chromium it covers ws:// to the same
-# host), embedded images/buffers as data: or blob: URLs. A crafted avatar or page cannot make the
-# browser reach anything else. Inline scripts are allowed: the pages' import maps and render loops
-# are inline, and nothing a user supplies is ever put into a page.
-CONTENT_SECURITY_POLICY = (
-    "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data: blob:; media-src 'self' data: blob:; connect-src 'self' data: blob:; "
-    "font-src 'self' data:; worker-src 'self' blob:; object-src 'none'; base-uri 'none'; "
-    "form-action 'self'; frame-ancestors 'none'"
-)
 
 
 def web_dir() -> Path:

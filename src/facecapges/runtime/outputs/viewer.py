@@ -33,8 +33,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Self
 
-from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import UserError
+from facecapges.io.static_files import CONTENT_SECURITY_POLICY
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.outputs import protocol
 from facecapges.runtime.outputs.ws import (
