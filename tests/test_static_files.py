@@ -17,6 +17,7 @@ from facecapges.io.static_files import (
     content_type,
     file_under,
     find,
+    locate,
     page_headers,
     request_path,
 )
@@ -78,6 +79,8 @@ def test_find_exact_routes_then_the_longest_folder(tmp_path):
                     "/web/deep/../viewer.html"):
         assert find(routes, missing) is None, missing
     assert find({"/gone.html": tmp_path / "gone.html"}, "/gone.html") is None
+    assert locate(routes, "/index.html") == page and locate(routes, "/avatar.vrm") == b"glTF"
+    assert locate(routes, "/web/deep/x.js") == (tmp_path / "other" / "x.js").resolve()
 
 
 def test_page_headers_never_cache_and_carry_the_csp():

@@ -9,8 +9,8 @@
 * :func:`file_under` — a URL path's file inside a folder: resolved (symbolic links
   followed), refused when it leaves the folder (``..``, links out), is no regular file
   or is a name the file system cannot hold (too long, NUL).
-* :func:`find` — a request path's body and type in a route table (exact paths → bytes or
-  a file, ``/prefix/`` → a folder); :func:`page_headers` — the headers of a reply:
+* :func:`locate` / :func:`find` — what a request path names in a route table (exact paths →
+  bytes or a file, ``/prefix/`` → a folder), and its body and type; :func:`page_headers` — the headers of a reply:
   type, length, no caching (``no-store``), the CSP.
 * :class:`PageHandler` — an ``http.server`` handler that sends replies with those headers.
 
@@ -32,6 +32,7 @@ __all__ = [
     "content_type",
     "file_under",
     "find",
+    "locate",
     "page_headers",
     "request_path",
 ]
@@ -90,23 +91,32 @@ def file_under(root: Path, rel: str) -> Path | None:
 Routes = Mapping[str, "bytes | Path"]
 
 
-def find(routes: Routes, path: str) -> tuple[bytes, str] | None:
-    """(body, content type) of ``path`` in ``routes``, or None (a 404).
+def locate(routes: Routes, path: str) -> bytes | Path | None:
+    """What ``path`` names in ``routes``: its bytes, its file, or None (a 404).
 
     A key ending in ``/`` serves the folder it maps to (the longest such prefix of ``path``
-    decides, :func:`file_under`); any other key serves its bytes or its file at that exact path.
-    The type comes from the file's name, for bytes from the path's."""
+    decides, :func:`file_under`); any other key serves its bytes or its file at that exact path."""
     target = None if path.endswith("/") else routes.get(path)
     if isinstance(target, (bytes, bytearray)):
-        return bytes(target), content_type(path)
+        return bytes(target)
     if isinstance(target, Path):
-        return _read(target if target.is_file() else None)
+        return target if target.is_file() else None
     prefixes = [k for k in routes if k.endswith("/") and path.startswith(k)]
     if not prefixes:
         return None
     prefix = max(prefixes, key=len)
     root = routes[prefix]
-    return _read(file_under(root, path[len(prefix) :])) if isinstance(root, Path) else None
+    return file_under(root, path[len(prefix) :]) if isinstance(root, Path) else None
+
+
+def find(routes: Routes, path: str) -> tuple[bytes, str] | None:
+    """(body, content type) of ``path`` in ``routes`` (:func:`locate`), or None (a 404).
+
+    The type comes from the file's name, for bytes from the path's."""
+    found = locate(routes, path)
+    if isinstance(found, bytes):
+        return found, content_type(path)
+    return _read(found)
 
 
 def _read(f: Path | None) -> tuple[bytes, str] | None:
