@@ -18,7 +18,8 @@ reply and one log line per connection; files are served from :attr:`ViewerServer
 the file system cannot hold is a 404; its content types, no caching, the CSP). Nothing is fetched
 from outside this machine.
 
-The server runs its asyncio loop in a background thread; :class:`WebFeed` is the
+The server runs its asyncio loop in a background thread (:mod:`.server_thread`, as ``serve``
+does); :class:`WebFeed` is the
 scheduler's sink: :meth:`WebFeed.write` encodes the frame in the caller's thread and
 hands it to the loop, which broadcasts it to every viewer without waiting for slow
 ones.
@@ -26,17 +27,16 @@ ones.
 
 from __future__ import annotations
 
-import asyncio
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING
 
 from facecapges.errors import UserError
 from facecapges.io.static_files import NOT_FOUND, content_type, find, page_headers, request_path
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.server_thread import ServerThread
 from facecapges.runtime.outputs.ws import (
     SERVE_OPTIONS,
     ConnectionLog,
@@ -70,8 +70,11 @@ def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web
     return host.strip("[]"), p
 
 
-class ViewerServer:
+class ViewerServer(ServerThread):
     """HTTP + WebSocket server of the viewer (module docstring). Use :meth:`start` / :meth:`close`."""
+
+    thread_name = "viewer-server"
+    cannot_listen = "viewer server cannot listen"
 
     def __init__(
         self,
@@ -86,6 +89,7 @@ class ViewerServer:
         from facecapges.avatar.render.browser import three_dir as find_three
         from facecapges.avatar.render.browser import web_dir as find_web
 
+        super().__init__()
         self.glb = glb
         self.host, self.port, self.fps = host, port, fps
         self.web_dir = (web_dir or find_web()).resolve()
@@ -102,11 +106,6 @@ class ViewerServer:
         # the intensity slider: ``on_intensity(value) -> applied`` (set by ``live``); None: not adjustable
         self.on_intensity: Callable[[float], float] | None = None
         self.intensity = 1.0
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Server | None = None
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
 
     # ------------------------------------------------------------------ HTTP
     def _file(self, path: str) -> tuple[bytes, str] | None:
@@ -162,38 +161,18 @@ class ViewerServer:
             if ws.close_code == 1009 or (sent is not None and sent.code == 1009):
                 self.oversized_closes += 1
 
-    # ------------------------------------------------------------------ lifecycle
-    async def _main(self) -> None:
+    # ------------------------------------------------------------------ lifecycle (ServerThread)
+    async def _listen(self) -> Server:
         from websockets.asyncio.server import serve
 
-        try:
-            self._server = await serve(
-                self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
-            )
-        except OSError as exc:
-            self._error = UserError(f"viewer server cannot listen on {self.host}:{self.port} ({exc.strerror or exc})")
-            self._ready.set()
-            return
-        sock = next(iter(self._server.sockets))
-        self.port = sock.getsockname()[1]
-        self.bound = sock.getsockname()[:2]
-        self._ready.set()
-        await self._server.wait_closed()
+        server = await serve(
+            self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
+        )
+        self.port = next(iter(server.sockets)).getsockname()[1]
+        return server
 
-    def start(self) -> Self:
-        def run():
-            self._loop = asyncio.new_event_loop()
-            try:
-                self._loop.run_until_complete(self._main())
-            finally:
-                self._loop.close()
-
-        self._thread = threading.Thread(target=run, name="viewer-server", daemon=True)
-        self._thread.start()
-        self._ready.wait(timeout=20)
-        if self._error is not None:
-            raise self._error
-        return self
+    def _address(self) -> tuple[str, int]:
+        return self.host, self.port
 
     @property
     def url(self) -> str:
@@ -209,24 +188,8 @@ class ViewerServer:
         def send():
             broadcast(set(self.clients), text)
 
-        try:
-            self._loop.call_soon_threadsafe(send)
+        if self.call_soon(send):
             self.frames_sent += 1
-        except RuntimeError:  # loop closed during shutdown
-            pass
-
-    def close(self) -> None:
-        if self._loop is not None and self._server is not None:
-
-            def shut():
-                self._server.close()
-
-            try:
-                self._loop.call_soon_threadsafe(shut)
-            except RuntimeError:
-                pass
-        if self._thread is not None:
-            self._thread.join(timeout=5)
 
 
 class WebFeed:
