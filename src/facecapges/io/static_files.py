@@ -82,7 +82,7 @@ def file_under(root: Path, rel: str) -> Path | None:
     """The regular file ``rel`` names inside ``root``, or None (outside it, missing, impossible)."""
     try:  # a name the file system cannot hold (too long, NUL) is simply not there
         base = root.resolve()
-        full = (base / rel.lstrip("/")).resolve()
+        full = (base / rel).resolve()  # an absolute rel (a doubled slash) is taken as it is
         return full if base in full.parents and full.is_file() else None
     except (OSError, ValueError):
         return None
