@@ -265,7 +265,8 @@ def test_the_browser_fetches_nothing_outside_our_server(leak):
 @pytest.mark.slow
 def test_our_pages_carry_a_csp_that_blocks_other_origins(leak, tmp_path):
     """A page served by our renderer server cannot fetch from another origin (CSP), and says so."""
-    from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY, Browser
+    from facecapges.avatar.render.browser import Browser
+    from facecapges.io.static_files import CONTENT_SECURITY_POLICY
 
     html = (f"<html><body><script>fetch('{leak.url}/csp').then(()=>window.done='fetched',"
             f"()=>window.done='failed')</script></body></html>").encode()

@@ -63,7 +63,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import socket
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -72,6 +71,7 @@ import numpy as np
 
 from facecapges.errors import UserError, echo, echo_warning
 from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.server_thread import ServerThread
 from facecapges.runtime.outputs.ws import (
     SERVE_OPTIONS,
     ConnectionLog,
@@ -129,13 +129,18 @@ class _Stream:
 _error = error_message
 
 
-class StreamServer:
+class StreamServer(ServerThread):
     """The multi-stream WebSocket server (module docs). :meth:`start` runs it in a thread,
-    :meth:`run` in the calling thread until interrupted."""
+    :meth:`run` blocks until interrupted (:class:`~facecapges.runtime.outputs.server_thread.ServerThread`)."""
+
+    thread_name = "serve"
+    start_timeout = 30.0
+    join_timeout = 10.0
 
     def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
         from facecapges.serving.model_process import ModelProcess
 
+        super().__init__()
         self.cfg = config or ServeConfig()
         c = self.cfg
         if c.max_streams < 1:
@@ -154,13 +159,7 @@ class StreamServer:
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
         self._next_id = 0
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Server | None = None
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
-        self._wake, self._stop = asyncio.Event(), asyncio.Event()  # made anew in the server's loop by _main
-        self.bound: tuple[str, int] | None = None
+        self._wake = asyncio.Event()  # made anew in the server's loop by _listen
         self.stats: collections.Counter[str] = collections.Counter()
         self._closing: set[asyncio.Future] = set()  # close tasks still running
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
@@ -458,61 +457,21 @@ class StreamServer:
                     st.closed = True
                     self._close_later(st.ws, why[1], why[2])
 
-    # ---------------------------------------------------------------- lifecycle
-    async def _main(self) -> None:
+    # ---------------------------------------------------------------- lifecycle (ServerThread)
+    async def _listen(self) -> Server:
         from websockets.asyncio.server import serve
 
-        self._wake, self._stop = asyncio.Event(), asyncio.Event()
+        self._wake = asyncio.Event()
         c = self.cfg
-        try:
-            self._server = await serve(
-                self._handler, c.host, c.port, process_request=self._process_request, compression=None, **SERVE_OPTIONS
-            )
-        except OSError as exc:
-            self._error = UserError(f"cannot listen on {c.host}:{c.port} ({exc.strerror or exc})")
-            self._ready.set()
-            return
-        self.bound = next(iter(self._server.sockets)).getsockname()[:2]
-        tasks = [asyncio.ensure_future(self._batch_loop()), asyncio.ensure_future(self._idle_loop())]
-        self._ready.set()
-        try:
-            await self._stop.wait()
-        finally:
-            self._server.close()
-            for t in tasks:
-                t.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
-            await self._server.wait_closed()
+        return await serve(
+            self._handler, c.host, c.port, process_request=self._process_request, compression=None, **SERVE_OPTIONS
+        )
 
-    def _run_loop(self) -> None:
-        self._loop = asyncio.new_event_loop()
-        try:
-            self._loop.run_until_complete(self._main())
-        finally:
-            self._loop.close()
-            self._ready.set()
+    def _address(self) -> tuple[str, int]:
+        return self.cfg.host, self.cfg.port
 
-    def start(self) -> StreamServer:
-        """Serve in a background thread; returns once listening (raises UserError if it cannot)."""
-        self._thread = threading.Thread(target=self._run_loop, name="serve", daemon=True)
-        self._thread.start()
-        self._ready.wait(timeout=30)
-        if self._error is not None:
-            raise self._error
-        return self
-
-    def run(self) -> None:
-        """Block until Ctrl-C / :meth:`close` (starts the server if needed)."""
-        if self._thread is None:
-            self.start()
-        assert self._thread is not None  # start() made it
-        try:
-            while self._thread.is_alive():
-                self._thread.join(timeout=0.5)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            self.close()
+    def _background(self) -> list:
+        return [self._batch_loop(), self._idle_loop()]
 
     @property
     def url(self) -> str:
@@ -529,13 +488,7 @@ class StreamServer:
         )
 
     def close(self) -> None:
-        if self._loop is not None and self._stop is not None and not self._loop.is_closed():
-            try:
-                self._loop.call_soon_threadsafe(self._stop.set)
-            except RuntimeError:
-                pass
-        if self._thread is not None:
-            self._thread.join(timeout=10)
+        super().close()
         self.gen.shutdown()
 
 

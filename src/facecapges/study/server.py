@@ -44,28 +44,18 @@ import json
 import re
 import threading
 from collections.abc import Callable
-from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from http.server import ThreadingHTTPServer
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
-from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import echo
+from facecapges.io.static_files import PageHandler, content_type, locate
 from facecapges.study.build import AVATAR_FILE, VRM_FILE, Study, media_dir, motion_file
 from facecapges.study.design import ParticipantPlan
 from facecapges.study.options import StudyServeOptions
 from facecapges.study.store import AnswerError, AnswerStore, DamagedFileError, LimitError
 
 PAGE_DIR = Path(__file__).with_name("page")
-CONTENT_TYPES = {
-    ".html": "text/html; charset=utf-8",
-    ".js": "text/javascript; charset=utf-8",
-    ".css": "text/css; charset=utf-8",
-    ".json": "application/json",
-    ".wav": "audio/wav",
-    ".glb": "model/gltf-binary",
-    ".vrm": "model/gltf-binary",
-    ".png": "image/png",
-}
 _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\.json)$")
 MAX_BODY = 64 * 1024
 SOCKET_TIMEOUT = 15.0  # seconds a connection may stay silent (headers, body, keep-alive)
@@ -91,6 +81,15 @@ class StudyApp:
         self.store = AnswerStore(study.responses_dir, study.plan)
         self.three = three_dir()
         self.web = web_dir()
+        self.routes: dict[str, bytes | Path] = {  # the page, the avatar and the scripts (io.static_files)
+            "/page/": PAGE_DIR,
+            "/three/": self.three,
+            "/pixiv/": self.three.parent / "@pixiv",
+            "/avatar.glb": study.dir / AVATAR_FILE,
+            "/avatar.vrm": study.dir / VRM_FILE,
+            "/web/avatar_scene.js": self.web / "avatar_scene.js",
+            "/web/vrm_scene.js": self.web / "vrm_scene.js",
+        }
         self.on_event = on_event or (lambda msg: None)
         self.language = language if language in LANGUAGES else "en"
         self._tokens = [(p.token.encode("utf-8"), p.id) for p in study.plan.participants if p.token]
@@ -172,26 +171,8 @@ class StudyApp:
         return motion_file(self.study.dir, t.clip, t.systems[j])
 
     def static(self, path: str) -> Path | None:
-        if path in ("/", "/index.html"):
-            return PAGE_DIR / "study.html"
-        if path == "/avatar.glb":
-            return self.study.dir / AVATAR_FILE
-        if path == "/web/avatar_scene.js":
-            return self.web / "avatar_scene.js"
-        if path == "/avatar.vrm":
-            return self.study.dir / VRM_FILE
-        if path == "/web/vrm_scene.js":
-            return self.web / "vrm_scene.js"
-        for prefix, root in (("/page/", PAGE_DIR), ("/three/", self.three), ("/pixiv/", self.three.parent / "@pixiv")):
-            if path.startswith(prefix):
-                try:  # a name too long or otherwise impossible for the file system is simply not there
-                    full = (root / path[len(prefix) :]).resolve()
-                    if root.resolve() in full.parents and full.is_file():
-                        return full
-                except (OSError, ValueError):
-                    pass
-                return None
-        return None
+        found = locate(self.routes, "/page/study.html" if path in ("/", "/index.html") else path)
+        return found if isinstance(found, Path) else None
 
     # ------------------------------------------------------------------ API
     def get(self, path: str, query: dict) -> tuple[object, Path | None]:
@@ -249,16 +230,13 @@ class StudyApp:
         raise HttpError(404, f"not found: {path[:200]}")
 
 
-class _Handler(BaseHTTPRequestHandler):
+class _Handler(PageHandler):
     app: StudyApp
     server_version = "facecapges-study"
     timeout = SOCKET_TIMEOUT  # socket timeout of every read: a silent client is dropped
     default_request_version = "HTTP/1.0"  # error replies to garbage still carry a status line
 
     request_deadline = REQUEST_DEADLINE
-
-    def log_message(self, *args) -> None:  # the app reports what matters
-        pass
 
     def handle_one_request(self) -> None:
         """One request, whose head and body must arrive within ``request_deadline`` (the socket
@@ -284,14 +262,7 @@ class _Handler(BaseHTTPRequestHandler):
         deadline = getattr(self, "_deadline", None)
         if deadline is not None:  # the request has arrived: the reply is not under the deadline
             deadline.cancel()
-        self.send_response(status)
-        self.send_header("Content-Type", ctype)
-        self.send_header("Content-Length", str(len(data)))
-        self.send_header("Cache-Control", "no-store")
-        self.send_header("Content-Security-Policy", CONTENT_SECURITY_POLICY)
-        self.end_headers()
-        if self.command != "HEAD":
-            self.wfile.write(data)
+        self.send_page(status, data, ctype)
 
     def _json(self, status: int, doc) -> None:
         self._send(status, json.dumps(doc).encode("utf-8"), "application/json")
@@ -307,7 +278,7 @@ class _Handler(BaseHTTPRequestHandler):
             return self._json(404, {"error": "not found"})
         if f is None or data is None:
             return self._json(200, doc)
-        self._send(200, data, CONTENT_TYPES.get(f.suffix, "application/octet-stream"))
+        self._send(200, data, content_type(f.name))
 
     do_HEAD = do_GET
 

@@ -1,14 +1,16 @@
 """Headless Chromium driven through the DevTools protocol, serving pages from 127.0.0.1.
 
 :class:`Browser` starts a small HTTP server on a free loopback port that serves
-``routes`` (URL prefix → directory, or exact URL → bytes), launches the Debian
+``routes`` (URL prefix ``/p/`` → directory, or exact URL → bytes or a file: the route table of
+:mod:`facecapges.io.static_files`, with its content types, no caching and its CSP), launches the Debian
 ``chromium`` with software WebGL and no network use (a fresh ``--user-data-dir``,
 ``--remote-debugging-port=0``), opens one page and offers :meth:`Browser.evaluate`:
 run a JavaScript expression in the page, await it if it is a promise, and return its
 JSON value. Nothing is fetched from outside this machine: every request the page makes is
 intercepted (DevTools ``Fetch`` domain) and only our server's origin, the origins of pages we
 navigate to ourselves, and ``data:``/``blob:`` URLs go through; anything else fails unfetched
-and is listed in :attr:`Browser.blocked`. The pages also carry :data:`CONTENT_SECURITY_POLICY`.
+and is listed in :attr:`Browser.blocked`. The pages also carry
+:data:`~facecapges.io.static_files.CONTENT_SECURITY_POLICY`.
 
 The page's three.js comes from ``node_modules/three`` of the project checkout
 (``scripts/setup-avatar.sh`` installs the pinned 0.187.0); :func:`three_dir` finds it.
@@ -25,12 +27,13 @@ import tempfile
 import threading
 import time
 import urllib.request
-from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from http.server import ThreadingHTTPServer
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar
 
 from facecapges.errors import UserError
+from facecapges.io.static_files import PageHandler, Routes, find, request_path
 
 if TYPE_CHECKING:
     from websockets.sync.client import ClientConnection
@@ -56,18 +59,6 @@ CHROMIUM_FLAGS = [
     "--remote-allow-origins=*",
 ]
 SETUP_HINT = "run scripts/setup-avatar.sh"
-
-# The Content-Security-Policy of every page we serve (renderer, live viewer, study): scripts, styles,
-# data and sockets from the serving origin only ('self'; in Chromium it covers ws:// to the same
-# host), embedded images/buffers as data: or blob: URLs. A crafted avatar or page cannot make the
-# browser reach anything else. Inline scripts are allowed: the pages' import maps and render loops
-# are inline, and nothing a user supplies is ever put into a page.
-CONTENT_SECURITY_POLICY = (
-    "default-src 'self'; script-src 'self' 'unsafe-inline'; style-src 'self' 'unsafe-inline'; "
-    "img-src 'self' data: blob:; media-src 'self' data: blob:; connect-src 'self' data: blob:; "
-    "font-src 'self' data:; worker-src 'self' blob:; object-src 'none'; base-uri 'none'; "
-    "form-action 'self'; frame-ancestors 'none'"
-)
 
 
 def web_dir() -> Path:
@@ -95,59 +86,22 @@ def chromium_path() -> str:
     return exe
 
 
-class _Handler(SimpleHTTPRequestHandler):
-    routes: ClassVar[dict[str, object]] = {}
-
-    def log_message(self, *args) -> None:  # quiet
-        pass
-
-    def end_headers(self) -> None:
-        self.send_header("Cache-Control", "no-store")
-        self.send_header("Content-Security-Policy", CONTENT_SECURITY_POLICY)
-        super().end_headers()
-
-    def translate_path(self, path: str) -> str:
-        path = path.split("?", 1)[0].split("#", 1)[0]
-        for prefix, target in sorted(self.routes.items(), key=lambda kv: -len(kv[0])):
-            if isinstance(target, Path) and path.startswith(prefix):
-                rel = path[len(prefix) :].lstrip("/")
-                full = (target / rel).resolve()
-                if target.resolve() in full.parents or full == target.resolve():
-                    return str(full)
-        return str(Path(tempfile.gettempdir()) / "facecapges-no-such-file")
+class _Handler(PageHandler):
+    routes: ClassVar[Routes] = {}
 
     def do_GET(self) -> None:
-        path = self.path.split("?", 1)[0]
-        blob = self.routes.get(path)
-        if isinstance(blob, (bytes, bytearray)):
-            self.send_response(200)
-            ctype = "application/octet-stream"
-            if path.endswith(".json"):
-                ctype = "application/json"
-            elif path.endswith(".glb"):
-                ctype = "model/gltf-binary"
-            self.send_header("Content-Type", ctype)
-            self.send_header("Content-Length", str(len(blob)))
-            self.end_headers()
-            self.wfile.write(blob)
-            return
-        super().do_GET()
+        found = find(self.routes, request_path(self.path))
+        if found is None:
+            return self.send_not_found()
+        self.send_page(200, *found)
 
-    extensions_map = {  # noqa: RUF012  http.server's own attribute
-        **SimpleHTTPRequestHandler.extensions_map,
-        ".js": "text/javascript",
-        ".mjs": "text/javascript",
-        ".glb": "model/gltf-binary",
-        ".html": "text/html",
-    }
+    do_HEAD = do_GET
 
 
 class Browser:
     """One headless Chromium page on a loopback HTTP server. Use as a context manager."""
 
-    def __init__(
-        self, routes: dict[str, object], page: str, width: int = 640, height: int = 480, timeout: float = 60.0
-    ):
+    def __init__(self, routes: Routes, page: str, width: int = 640, height: int = 480, timeout: float = 60.0):
         self.routes = dict(routes)
         self.page = page
         self.width, self.height = width, height
@@ -298,7 +252,7 @@ def _origin(url: str) -> str:
     return f"{u.scheme}://{u.hostname}:{port}" if u.hostname else ""
 
 
-def avatar_routes(glb: bytes | Path) -> dict[str, object]:
+def avatar_routes(glb: bytes | Path) -> dict[str, bytes | Path]:
     """Routes for render.html: the web assets, three.js and the avatar at /avatar.glb."""
     data = glb.read_bytes() if isinstance(glb, Path) else glb
     return {"/web/": web_dir(), "/three/": three_dir(), "/avatar.glb": data}

@@ -76,7 +76,7 @@ class VrmDriver:
         """(T, J, 3, 3) BEAT local rotations, (T, 52) weights → (T, B, 4) quats, (T, E) weights."""
         return self.retarget(local_mats), self.faces(arkit)
 
-    def routes(self) -> dict[str, object]:
+    def routes(self) -> dict[str, bytes | Path]:
         from facecapges.avatar.render.browser import three_dir, web_dir
 
         return {

@@ -3,8 +3,8 @@
 One ``websockets`` server on one port serves both (plain HTTP GETs are answered in
 ``process_request`` before any WebSocket handshake):
 
-* ``/`` — the viewer page ``facecapges/web/viewer.html`` (+ ``/web/*`` its scripts,
-  ``avatar_scene.js`` included);
+* ``/`` — the viewer page ``facecapges/web/viewer.html`` (:attr:`ViewerServer.page`; + ``/web/*``
+  its scripts, ``avatar_scene.js`` included);
 * ``/three/*`` — three.js from the project's ``node_modules/three`` (npm, pinned);
 * ``/avatar.glb`` — the avatar built for the checkpoint's skeleton;
 * ``/ws`` — the WebSocket feed in the format of :mod:`.protocol`: a ``hello``, then
@@ -13,11 +13,13 @@ One ``websockets`` server on one port serves both (plain HTTP GETs are answered 
 Security: it binds 127.0.0.1 unless the user passes another address (``--host``);
 the Host check, message size limit and handshake timeout are those of every
 WebSocket server of the project (:mod:`.ws`); a bad client message gets an ``error``
-reply and one log line per connection; paths are resolved inside their directory (no
-``..`` escapes; a path the file system cannot hold is a 404). Nothing is fetched
+reply and one log line per connection; files are served from :attr:`ViewerServer.routes` by
+:mod:`facecapges.io.static_files` (paths resolved inside their folder: no ``..`` escapes, a path
+the file system cannot hold is a 404; its content types, no caching, the CSP). Nothing is fetched
 from outside this machine.
 
-The server runs its asyncio loop in a background thread; :class:`WebFeed` is the
+The server runs its asyncio loop in a background thread (:mod:`.server_thread`, as ``serve``
+does); :class:`WebFeed` is the
 scheduler's sink: :meth:`WebFeed.write` encodes the frame in the caller's thread and
 hands it to the loop, which broadcasts it to every viewer without waiting for slow
 ones.
@@ -25,18 +27,16 @@ ones.
 
 from __future__ import annotations
 
-import asyncio
-import mimetypes
 import sys
-import threading
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Self
+from typing import TYPE_CHECKING
 
-from facecapges.avatar.render.browser import CONTENT_SECURITY_POLICY
 from facecapges.errors import UserError
+from facecapges.io.static_files import NOT_FOUND, content_type, find, page_headers, request_path
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.outputs import protocol
+from facecapges.runtime.outputs.server_thread import ServerThread
 from facecapges.runtime.outputs.ws import (
     SERVE_OPTIONS,
     ConnectionLog,
@@ -51,14 +51,10 @@ if TYPE_CHECKING:
 
 __all__ = ["ViewerServer", "WebFeed", "is_loopback", "parse_address"]
 
-TYPES = {
-    ".js": "text/javascript",
-    ".mjs": "text/javascript",
-    ".html": "text/html; charset=utf-8",
-    ".glb": "model/gltf-binary",
-    ".json": "application/json",
-    ".css": "text/css",
-}
+_TEXT = content_type("reply.txt")
+_CLOSE = ("Connection", "close")
+
+INDEX_PATHS = ("/", "/index.html", "/viewer.html")  # the page, by any of its names
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web") -> tuple[str, int]:
@@ -74,8 +70,11 @@ def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web
     return host.strip("[]"), p
 
 
-class ViewerServer:
+class ViewerServer(ServerThread):
     """HTTP + WebSocket server of the viewer (module docstring). Use :meth:`start` / :meth:`close`."""
+
+    thread_name = "viewer-server"
+    cannot_listen = "viewer server cannot listen"
 
     def __init__(
         self,
@@ -90,10 +89,13 @@ class ViewerServer:
         from facecapges.avatar.render.browser import three_dir as find_three
         from facecapges.avatar.render.browser import web_dir as find_web
 
+        super().__init__()
         self.glb = glb
         self.host, self.port, self.fps = host, port, fps
         self.web_dir = (web_dir or find_web()).resolve()
         self.three_dir = (three_dir or find_three()).resolve()
+        self.page = "/web/viewer.html"  # served at INDEX_PATHS
+        self.routes: dict[str, bytes | Path] = {"/avatar.glb": glb, "/web/": self.web_dir, "/three/": self.three_dir}
         self.loopback_only = is_loopback(host)
         self.clients: set = set()
         self.frames_sent = 0
@@ -104,33 +106,10 @@ class ViewerServer:
         # the intensity slider: ``on_intensity(value) -> applied`` (set by ``live``); None: not adjustable
         self.on_intensity: Callable[[float], float] | None = None
         self.intensity = 1.0
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Server | None = None
-        self._thread: threading.Thread | None = None
-        self._ready = threading.Event()
-        self._error: BaseException | None = None
 
     # ------------------------------------------------------------------ HTTP
     def _file(self, path: str) -> tuple[bytes, str] | None:
-        if path in ("/", "/index.html", "/viewer.html"):
-            path = "/web/viewer.html"
-        if path == "/avatar.glb":
-            return self.glb, TYPES[".glb"]
-        for prefix, root in (("/web/", self.web_dir), ("/three/", self.three_dir)):
-            if path.startswith(prefix):
-                try:  # a name the file system cannot hold (too long, NUL) is simply not there
-                    full = (root / path[len(prefix) :]).resolve()
-                    found = root in full.parents and full.is_file()
-                except (OSError, ValueError):
-                    return None
-                if found:
-                    ctype = (
-                        TYPES.get(full.suffix.lower())
-                        or mimetypes.guess_type(full.name)[0]
-                        or "application/octet-stream"
-                    )
-                    return full.read_bytes(), ctype
-        return None
+        return find(self.routes, self.page if path in INDEX_PATHS else path)
 
     def _process_request(self, connection, request):
         from websockets.datastructures import Headers
@@ -140,26 +119,14 @@ class ViewerServer:
         if refused is not None:
             self.rejected_requests += 1
             return refused
-        path = request.path.split("?", 1)[0].split("#", 1)[0]
+        path = request_path(request.path)
         if path == "/ws":
             return None  # continue with the WebSocket handshake
-        try:
-            found = self._file(path)
-        except OSError:  # unreadable file
-            found = None
+        found = self._file(path)
         if found is None:
-            return connection.respond(404, "not found\n")
+            return Response(404, "Not Found", Headers([*page_headers(_TEXT, len(NOT_FOUND)), _CLOSE]), NOT_FOUND)
         body, ctype = found
-        headers = Headers(
-            [
-                ("Content-Type", ctype),
-                ("Content-Length", str(len(body))),
-                ("Cache-Control", "no-store"),
-                ("Content-Security-Policy", CONTENT_SECURITY_POLICY),
-                ("Connection", "close"),
-            ]
-        )
-        return Response(200, "OK", headers, body)
+        return Response(200, "OK", Headers([*page_headers(ctype, len(body)), _CLOSE]), body)
 
     # ------------------------------------------------------------------ WebSocket
     async def _handler(self, ws) -> None:
@@ -194,38 +161,18 @@ class ViewerServer:
             if ws.close_code == 1009 or (sent is not None and sent.code == 1009):
                 self.oversized_closes += 1
 
-    # ------------------------------------------------------------------ lifecycle
-    async def _main(self) -> None:
+    # ------------------------------------------------------------------ lifecycle (ServerThread)
+    async def _listen(self) -> Server:
         from websockets.asyncio.server import serve
 
-        try:
-            self._server = await serve(
-                self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
-            )
-        except OSError as exc:
-            self._error = UserError(f"viewer server cannot listen on {self.host}:{self.port} ({exc.strerror or exc})")
-            self._ready.set()
-            return
-        sock = next(iter(self._server.sockets))
-        self.port = sock.getsockname()[1]
-        self.bound = sock.getsockname()[:2]
-        self._ready.set()
-        await self._server.wait_closed()
+        server = await serve(
+            self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
+        )
+        self.port = next(iter(server.sockets)).getsockname()[1]
+        return server
 
-    def start(self) -> Self:
-        def run():
-            self._loop = asyncio.new_event_loop()
-            try:
-                self._loop.run_until_complete(self._main())
-            finally:
-                self._loop.close()
-
-        self._thread = threading.Thread(target=run, name="viewer-server", daemon=True)
-        self._thread.start()
-        self._ready.wait(timeout=20)
-        if self._error is not None:
-            raise self._error
-        return self
+    def _address(self) -> tuple[str, int]:
+        return self.host, self.port
 
     @property
     def url(self) -> str:
@@ -241,24 +188,8 @@ class ViewerServer:
         def send():
             broadcast(set(self.clients), text)
 
-        try:
-            self._loop.call_soon_threadsafe(send)
+        if self.call_soon(send):
             self.frames_sent += 1
-        except RuntimeError:  # loop closed during shutdown
-            pass
-
-    def close(self) -> None:
-        if self._loop is not None and self._server is not None:
-
-            def shut():
-                self._server.close()
-
-            try:
-                self._loop.call_soon_threadsafe(shut)
-            except RuntimeError:
-                pass
-        if self._thread is not None:
-            self._thread.join(timeout=5)
 
 
 class WebFeed:

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.outputs.viewer import TYPES, ViewerServer
+from facecapges.runtime.outputs.viewer import ViewerServer
 
 
 class VrmViewerServer(ViewerServer):
@@ -35,22 +35,11 @@ class VrmViewerServer(ViewerServer):
         self.driver = driver
         self.pixiv_dir = pixiv_dir().resolve()
         self.layout = json.dumps(driver.layout).encode("utf-8")
-
-    def _file(self, path: str):
-        if path in ("/", "/index.html", "/viewer.html"):
-            path = "/web/vrm_viewer.html"
-        if path == "/avatar.vrm":
-            return self.driver.model.data, TYPES[".glb"]
-        if path == "/avatar.glb":
-            return None
-        if path == "/vrm/layout.json":
-            return self.layout, TYPES[".json"]
-        if path.startswith("/pixiv/"):
-            full = (self.pixiv_dir / path[len("/pixiv/") :]).resolve()
-            if self.pixiv_dir in full.parents and full.is_file():
-                return full.read_bytes(), TYPES.get(full.suffix.lower(), "application/octet-stream")
-            return None
-        return super()._file(path)
+        self.page = "/web/vrm_viewer.html"
+        del self.routes["/avatar.glb"]
+        self.routes.update(
+            {"/avatar.vrm": driver.model.data, "/vrm/layout.json": self.layout, "/pixiv/": self.pixiv_dir}
+        )
 
 
 def encode_vrm_pose(out: OutputFrame, quats: np.ndarray, weights: np.ndarray) -> str:

@@ -12,6 +12,9 @@
 * :class:`ConnectionLog` — one log line per connection for its first bad message (the
   rest are only counted), so a client sending garbage cannot flood the log.
 * :func:`peer_host` — the client's address, for per-address limits.
+
+Their thread and event-loop lifecycle is :class:`.server_thread.ServerThread`; the files the
+viewer sends over HTTP come from :mod:`facecapges.io.static_files`.
 """
 
 from __future__ import annotations
