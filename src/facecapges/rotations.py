@@ -347,6 +347,72 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
     return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
 
 
+# ------------------------------------------------------------- quaternion algebra
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a · b`` of quaternions (…, 4), (w, x, y, z), broadcast; numpy only.
+
+    The rotation of ``a · b`` is ``quaternion_to_matrix(a) @ quaternion_to_matrix(b)`` (``b`` first).
+    """
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quaternion_invert(q: np.ndarray) -> np.ndarray:
+    """The inverse rotations of unit quaternions (…, 4): the conjugates (w, −x, −y, −z); numpy only."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+
+
+def standardize_quaternion(q: np.ndarray) -> np.ndarray:
+    """The same rotations (…, 4) written with w ≥ 0 (the short way round); numpy only."""
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quaternion_log(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (…, 4) → rotation vectors (…, 3) (angle · axis, radians); numpy only.
+
+    The angle is in [0, 2π); it is at most π for a quaternion with w ≥ 0
+    (:func:`standardize_quaternion`). The quaternion form of :func:`log_so3`, batched.
+    """
+    w = q[..., 0]
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, w)
+    k = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
+    return v * k[..., None]
+
+
+def quaternion_exp(r: np.ndarray) -> np.ndarray:
+    """Rotation vectors (…, 3) (angle · axis, radians) → unit quaternions (…, 4); numpy only.
+
+    The inverse of :func:`quaternion_log`; the quaternion form of :func:`exp_so3`, batched.
+    """
+    angle = np.linalg.norm(r, axis=-1)
+    half = 0.5 * angle
+    k = np.where(angle > 1e-9, np.sin(half) / np.maximum(angle, 1e-12), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+
+
+# --------------------------------------------------------------------- averaging
+def quaternion_mean(q: np.ndarray) -> np.ndarray:
+    """Per-joint mean rotation of samples (N, J, 4) → (J, 4), w ≥ 0; numpy only.
+
+    The principal eigenvector of ``Σ q qᵀ`` (Markley et al. 2007): the quaternion chordal
+    L2 mean, blind to each sample's sign. (:func:`mean_rotation` is the matrix chordal mean.)
+    """
+    M = np.einsum("nji,njk->jik", q, q)
+    _, vec = np.linalg.eigh(M)
+    return standardize_quaternion(vec[..., -1])
+
+
 # --------------------------------------------------------------- SO(3) exp / log
 def log_so3(R: np.ndarray) -> np.ndarray:
     """One rotation matrix (3, 3) → rotation vector (3,): axis × angle, radians."""
