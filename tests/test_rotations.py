@@ -194,3 +194,62 @@ def test_rotation_between_is_the_shortest_arc():
     flip = rot.rotation_between(np.array([1.0, 0, 0]), np.array([-1.0, 0, 0]))
     assert np.allclose(flip @ [1, 0, 0], [-1, 0, 0]) and np.isclose(np.linalg.det(flip), 1)
     assert np.allclose(rot.rotation_between(np.zeros(3), np.ones(3)), np.eye(3))
+
+
+def _old_slerp(q0, q1, t):
+    """The sin-weighted slerp formula rotations.quaternion_slerp had before it called quaternion_power_about."""
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    s = np.sin(theta)
+    small = s < 1e-6
+    safe = np.where(small, 1.0, s)
+    out = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe) * q0 + np.where(
+        small, t, np.sin(t * theta) / safe) * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def test_quaternion_algebra_matches_matrices_and_scipy():
+    A, B = random_matrices(300, seed=5), random_matrices(300, seed=6)
+    qa, qb = rot.matrix_to_quaternion(A), rot.matrix_to_quaternion(B)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_multiply(qa, qb)), A @ B, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_invert(qa)), np.swapaxes(A, -1, -2), atol=1e-12)
+    assert np.all(rot.standardize_quaternion(-qa)[:, 0] >= 0)
+    rv = rot.quaternion_log(rot.standardize_quaternion(qa))
+    np.testing.assert_allclose(rv, Rotation.from_matrix(A).as_rotvec(), atol=1e-9)
+    np.testing.assert_allclose(np.stack([rot.log_so3(m) for m in A]), rv, atol=1e-6)  # the matrix form agrees
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_exp(rv)), A, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_exp(np.zeros((2, 3))), [[1, 0, 0, 0]] * 2)
+
+
+def test_quaternion_mean_is_scipys_mean():
+    """Markley's eigenvector mean is what scipy's ``Rotation.mean`` computes (blind to sign)."""
+    R = Rotation.from_rotvec(np.random.default_rng(7).normal(0, 0.4, (50, 3))) * Rotation.from_euler("y", 30, True)
+    q = rot.matrix_to_quaternion(R.as_matrix()) * np.where(np.arange(50) % 3 == 0, -1.0, 1.0)[:, None]
+    m = rot.quaternion_mean(q[:, None])  # (1, 4): one joint
+    np.testing.assert_allclose(rot.quaternion_to_matrix(m[0]), R.mean().as_matrix(), atol=1e-9)
+
+
+def test_power_about_is_the_one_slerp_and_scaling_rule():
+    """quaternion_power_about against two independent forms: the sin-weighted slerp formula and the
+    matrix ``A · exp(t · log(Aᵀ B))``; quaternion_slerp, rot6d_slerp and rotation_power_about are it."""
+    A, B = random_matrices(200, seed=8), random_matrices(200, seed=9)
+    qa, qb = rot.matrix_to_quaternion(A), rot.matrix_to_quaternion(B)
+    for t in (0.0, 0.3, 1.0):
+        np.testing.assert_allclose(rot.quaternion_slerp(qa, qb, t), _old_slerp(qa, qb, t), atol=1e-9)
+    t = np.random.default_rng(10).uniform(-0.5, 1.5, (200, 1))  # one power per rotation, past both ends
+    got = rot.rotation_power_about(B, A, t)
+    want = np.stack([a @ rot.exp_so3(k * rot.log_so3(a.T @ b)) for a, b, k in zip(A, B, t[:, 0], strict=True)])
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_power_about(qb, qa, t)), want, atol=1e-6)
+    np.testing.assert_allclose(rot.rot6d_to_matrix(rot.rot6d_slerp(rot.matrix_to_rot6d(A), rot.matrix_to_rot6d(B), t)),
+                               want, atol=1e-6)
+    # about the identity: R^k is exp(k · log R)
+    np.testing.assert_allclose(rot.rotation_power_about(B, None, 0.4),
+                               np.stack([rot.exp_so3(0.4 * rot.log_so3(b)) for b in B]), atol=1e-6)
+    # the log/exp form the motion-matching intensity had: mean · exp(g · log(mean⁻¹ q))
+    rel = rot.quaternion_log(rot.standardize_quaternion(rot.quaternion_multiply(rot.quaternion_invert(qa), qb)))
+    np.testing.assert_allclose(rot.quaternion_power_about(qb, qa, t),
+                               rot.quaternion_multiply(qa, rot.quaternion_exp(rel * t)), atol=1e-9)
+    np.testing.assert_allclose(rot.rotation_power_about(B, A, 0.0), A, atol=1e-12)
+    np.testing.assert_allclose(rot.rotation_power_about(B, A, 1.0), B, atol=1e-12)

@@ -470,28 +470,65 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(degenerate[..., None, None], np.eye(3), R)
 
 
+# ----------------------------------------------- powers of a rotation about another
+def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
+    """``ref · (ref⁻¹ · q)^power``: rotations ``q`` (…, 4) raised to ``power`` about ``ref`` (…, 4); numpy only.
+
+    The project's one rule for scaling a rotation about another and for interpolating between
+    two: the rotation from ``ref`` to ``q`` is taken the short way round and its angle multiplied by
+    ``power`` about the same axis. ``power = 0`` gives ``ref``, ``1`` gives ``q`` (up to sign),
+    0 … 1 is the slerp from ``ref`` to ``q``, above 1 goes on past ``q`` along the same arc (a motion
+    amplified about ``ref``: the intensity dial) and below 0 turns away from ``q``.
+
+    ``power`` is a float or an array broadcastable to (…, 1) (one per quaternion). Quaternions are
+    (w, x, y, z), unit (to float precision); the result is unit, float64, on ``ref``'s side
+    (``ref · result ≥ 0`` for powers in [0, 1]). Callers: :func:`quaternion_slerp`,
+    :func:`rot6d_slerp` (the model's intensity, :func:`facecapges.model.intensity.scale_pose`),
+    :func:`rotation_power_about` (matrices: the face-lost ease), the motion-matching intensity
+    (:func:`facecapges.matching.inertialize.qpow_about`).
+    """
+    q = np.asarray(q, np.float64)
+    ref = np.asarray(ref, np.float64)
+    _check_last(q, (4,), "quaternion")
+    _check_last(ref, (4,), "quaternion")
+    # the geodesic through ref and q, in the closed form of the slerp (valid for any power):
+    # (sin((1 − p)θ) · ref + sin(pθ) · q) / sin θ, θ the angle between ref and ±q (the nearer one)
+    dot = np.sum(ref * q, axis=-1, keepdims=True)
+    q = np.where(dot < 0.0, -q, q)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    s = np.sin(theta)
+    small = s < 1e-6  # nearly equal rotations: the linear blend, normalised
+    safe = np.where(small, 1.0, s)
+    p = np.asarray(power, np.float64)
+    out = (
+        np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe) * ref
+        + np.where(small, p, np.sin(p * theta) / safe) * q
+    )
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.ndarray:
+    """``ref · (refᵀ · R)^power`` for rotation matrices (…, 3, 3) (``ref=None``: the identity, ``R^power``).
+
+    :func:`quaternion_power_about` on matrices; numpy only, float64. ``power`` is a float or an array
+    broadcastable to the matrices' leading shape + (1,). ``power = 0`` gives ``ref``,
+    ``1`` gives ``R``, 0 … 1 the geodesic from ``ref`` to ``R`` (e.g. the face-lost ease of
+    :mod:`facecapges.capture.face_lost`: ``rotation_power_about(R, None, k)`` eases ``R`` towards the
+    identity, ``rotation_power_about(B, A, k)`` goes ``k`` of the way from ``A`` to ``B``).
+    """
+    q = matrix_to_quaternion(np.asarray(R, np.float64))
+    q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if ref is None else matrix_to_quaternion(np.asarray(ref, np.float64))
+    return quaternion_to_matrix(quaternion_power_about(q, q_ref, power))
+
+
 def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
 
     ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
-    Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
-    ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
-    normalised linear blend.
+    Takes the shorter arc; ``t = 0`` gives ``q0``, ``t = 1`` gives ``q1`` (up to sign), and
+    ``t > 1`` goes on past ``q1``. It is :func:`quaternion_power_about` ``(q1, q0, t)``.
     """
-    q0 = np.asarray(q0, np.float64)
-    q1 = np.asarray(q1, np.float64)
-    _check_last(q0, (4,), "quaternion")
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0.0, -q1, q1)
-    dot = np.clip(np.abs(dot), 0.0, 1.0)
-    theta = np.arccos(dot)
-    s = np.sin(theta)
-    small = s < 1e-6
-    safe = np.where(small, 1.0, s)
-    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
-    w1 = np.where(small, t, np.sin(t * theta) / safe)
-    out = w0 * q0 + w1 * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    return quaternion_power_about(q1, q0, t)
 
 
 def rot6d_slerp(r0: np.ndarray, r1: np.ndarray, t) -> np.ndarray:
@@ -499,8 +536,8 @@ def rot6d_slerp(r0: np.ndarray, r1: np.ndarray, t) -> np.ndarray:
 
     ``t`` is a float or an array broadcastable to (..., 1). ``t = 0`` gives ``r0``, ``t = 1``
     gives ``r1``, and ``t > 1`` goes on past ``r1`` along the same arc (a motion amplified about
-    ``r0``); the result is rot6d (..., 6) float64. Uses :func:`quaternion_slerp`.
+    ``r0``); the result is rot6d (..., 6) float64. :func:`quaternion_power_about` ``(r1, r0, t)``.
     """
     q0 = rot6d_to_quaternion(np.asarray(r0, np.float64))
     q1 = rot6d_to_quaternion(np.asarray(r1, np.float64))
-    return matrix_to_rot6d(quaternion_to_matrix(quaternion_slerp(q0, q1, t)))
+    return matrix_to_rot6d(quaternion_to_matrix(quaternion_power_about(q1, q0, t)))

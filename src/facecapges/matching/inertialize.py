@@ -24,6 +24,7 @@ from facecapges.rotations import quaternion_invert as qconj
 from facecapges.rotations import quaternion_log as qlog
 from facecapges.rotations import quaternion_mean as quaternion_mean
 from facecapges.rotations import quaternion_multiply as qmul
+from facecapges.rotations import quaternion_power_about
 from facecapges.rotations import standardize_quaternion as qabs
 
 LN2 = float(np.log(2.0))
@@ -55,7 +56,8 @@ def transition(
 
 
 def qpow_about(q: np.ndarray, mean: np.ndarray, g: np.ndarray | float) -> np.ndarray:
-    """``mean · (mean⁻¹ · q)^g``: rotations ``q`` scaled by ``g`` about ``mean`` (g = 1: unchanged)."""
-    rel = qlog(qabs(qmul(qconj(mean), q)))
-    g = np.asarray(g, q.dtype)
-    return qmul(mean, qexp(rel * g.reshape(g.shape + (1,) * (rel.ndim - g.ndim))))
+    """``mean · (mean⁻¹ · q)^g``: rotations ``q`` (B, …, 4) scaled by ``g`` (a float or one per leading
+    entry, (B,)) about ``mean`` (g = 1: unchanged) — :func:`facecapges.rotations.quaternion_power_about`."""
+    g = np.asarray(g, np.float64)
+    g = g.reshape(g.shape + (1,) * (q.ndim - g.ndim))
+    return quaternion_power_about(q, mean, g).astype(q.dtype, copy=False)
