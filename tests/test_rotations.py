@@ -253,3 +253,30 @@ def test_power_about_is_the_one_slerp_and_scaling_rule():
                                rot.quaternion_multiply(qa, rot.quaternion_exp(rel * t)), atol=1e-9)
     np.testing.assert_allclose(rot.rotation_power_about(B, A, 0.0), A, atol=1e-12)
     np.testing.assert_allclose(rot.rotation_power_about(B, A, 1.0), B, atol=1e-12)
+
+
+def test_nearest_rotation_and_the_two_means():
+    A = random_matrices(40, seed=11)
+    scaled = A * np.array([2.0, 0.5, 3.0])  # a scale per column: the rotation is still A
+    np.testing.assert_allclose(rot.nearest_rotation(scaled @ np.eye(3)), rot.nearest_rotation(A), atol=1e-12)
+    np.testing.assert_allclose(rot.nearest_rotation(A * 1.7), A, atol=1e-12)
+    mirrored = A @ np.diag([1.0, 1.0, -1.0])  # a reflection becomes a proper rotation
+    assert np.allclose(np.linalg.det(rot.nearest_rotation(mirrored)), 1.0)
+    # the chordal mean of a cluster: the rotation minimising Σ ‖R − R_i‖², close to the quaternion mean
+    c = Rotation.from_rotvec(np.random.default_rng(12).normal(0, 0.2, (60, 3))) * Rotation.from_euler("x", 40, True)
+    m6 = rot.mean_rotation(rot.matrix_to_rot6d(c.as_matrix()))
+    M = rot.rot6d_to_matrix(m6)
+
+    def cost(R):
+        return float(((c.as_matrix() - R) ** 2).sum())
+
+    assert all(cost(M) <= cost(M @ rot.exp_so3(d)) for d in np.eye(3) * 1e-3)
+    assert all(cost(M) <= cost(M @ rot.exp_so3(-d)) for d in np.eye(3) * 1e-3)
+    q = rot.quaternion_mean(rot.matrix_to_quaternion(c.as_matrix())[:, None])[0]
+    assert np.degrees(rot.geodesic_angle(M, rot.quaternion_to_matrix(q))) < 0.1
+
+
+def test_head_angles_are_yxz_euler():
+    R = rot.angles_to_matrix(0.3, -0.2, 0.1)
+    np.testing.assert_allclose(R, Rotation.from_euler("YXZ", [0.3, -0.2, 0.1]).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(rot.head_angles(np.stack([R, R.T @ R])), [[0.3, -0.2, 0.1], [0, 0, 0]], atol=1e-12)

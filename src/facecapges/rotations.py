@@ -179,6 +179,23 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     return out
 
 
+def head_angles(R: Array) -> Array:
+    """ARKit-style head angles (yaw, pitch, roll) in radians (…, 3) of head → camera rotations (…, 3, 3).
+
+    ``R = R_Y(yaw) @ R_X(pitch) @ R_Z(roll)`` (:func:`matrix_to_euler` with order ``"YXZ"``): yaw > 0
+    turns the face towards the image's right, pitch > 0 tilts it down, roll > 0 tilts it
+    counter-clockwise as the camera sees it (:mod:`facecapges.capture.head_pose` has the frames).
+    """
+    if not _is_torch(R):
+        R = np.asarray(R, np.float64)
+    return matrix_to_euler(R, "YXZ")
+
+
+def angles_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """The head → camera rotation (3, 3) of ARKit-style angles in radians: the inverse of :func:`head_angles`."""
+    return euler_to_matrix(np.array([yaw, pitch, roll], np.float64), "YXZ")
+
+
 def _euler_from_entries(v: np.ndarray, signs: np.ndarray, degrees: bool) -> np.ndarray:
     """:func:`matrix_to_euler`'s angles from each matrix's entries (..., J, 7) = R[j,k], R[i,j],
     R[k,k], R[i,i], R[i,k], R[k,j], R[j,j] and their signs (J, 7) (:func:`_orders_take`): the
@@ -402,6 +419,25 @@ def quaternion_exp(r: np.ndarray) -> np.ndarray:
 
 
 # --------------------------------------------------------------------- averaging
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation matrix (…, 3, 3) nearest (Frobenius) to each 3×3 matrix ``M`` (…, 3, 3); numpy only.
+
+    ``U diag(1, 1, d) Vᵀ`` from the SVD ``M = U Σ Vᵀ``, ``d = sign det(U Vᵀ)`` (a reflection is
+    turned into the nearest proper rotation). Strips a scale or shear from a transform's 3×3 block.
+    """
+    u, _, vt = np.linalg.svd(np.asarray(M, np.float64))
+    d = np.sign(np.linalg.det(u @ vt))
+    d = np.where(d == 0, 1.0, d)
+    return (u * np.stack([np.ones_like(d), np.ones_like(d), d], -1)[..., None, :]) @ vt
+
+
+def mean_rotation(rot6d: np.ndarray) -> np.ndarray:
+    """The chordal L2 mean (6,) of rotations given as rot6d (…, 6): the average matrix projected onto
+    SO(3) (:func:`nearest_rotation`); numpy only. (:func:`quaternion_mean` is the quaternion form.)"""
+    m = rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6)).mean(0)
+    return matrix_to_rot6d(nearest_rotation(m))
+
+
 def quaternion_mean(q: np.ndarray) -> np.ndarray:
     """Per-joint mean rotation of samples (N, J, 4) → (J, 4), w ≥ 0; numpy only.
 

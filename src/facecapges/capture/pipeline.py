@@ -29,8 +29,8 @@ from facecapges import rotations as rot
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.capture.canonical_mesh import load_canonical_mesh
 from facecapges.capture.estimator import ExpressionEstimator
-from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
-from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, head_angles
+from facecapges.capture.face_lost import FaceLostPolicy
+from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother
 from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkDetector
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
@@ -124,7 +124,7 @@ class FaceCapture:
         return CaptureResult(
             weights,
             rot.matrix_to_rot6d(R).astype(np.float32),
-            head_angles(R).astype(np.float32),
+            rot.head_angles(R).astype(np.float32),
             out_pose.distance_m,
             True,
             obs.landmarks,
@@ -145,11 +145,11 @@ class FaceCapture:
             return self.neutral(ts, st.face_id)
         k = self.policy.held((ts - st.lost_since) / 1000.0)  # 1 = hold, 0 = neutral
         weights = (last.weights52 * k).astype(np.float32)
-        R = scale_rotation(last.head_R, k)
+        R = rot.rotation_power_about(last.head_R, None, k)
         return CaptureResult(
             weights,
             rot.matrix_to_rot6d(R).astype(np.float32),
-            head_angles(R).astype(np.float32),
+            rot.head_angles(R).astype(np.float32),
             last.distance_m,
             False,
             None,
