@@ -280,3 +280,13 @@ def test_head_angles_are_yxz_euler():
     R = rot.angles_to_matrix(0.3, -0.2, 0.1)
     np.testing.assert_allclose(R, Rotation.from_euler("YXZ", [0.3, -0.2, 0.1]).as_matrix(), atol=1e-12)
     np.testing.assert_allclose(rot.head_angles(np.stack([R, R.T @ R])), [[0.3, -0.2, 0.1], [0, 0, 0]], atol=1e-12)
+
+
+def test_rotation_between_is_the_former_avatar_shortest_rotation():
+    """avatar.retarget's own shortest_rotation (Rodrigues, ``I + [v]× + [v]×² / (1 + c)``) gave the same matrices."""
+    rng = np.random.default_rng(13)
+    for a, b in rng.normal(size=(100, 2, 3)):
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        v = np.cross(a, b)
+        vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        np.testing.assert_allclose(rot.rotation_between(a, b), np.eye(3) + vx + vx @ vx / (1 + a @ b), atol=1e-9)
