@@ -136,6 +136,16 @@ def test_geodesic_angle_is_the_relative_rotation_angle(theta, order):
     assert float(rot.geodesic_angle(base, other)) == pytest.approx(abs(theta), abs=1e-6)
 
 
+def test_geodesic_angle_is_accurate_at_small_angles_and_in_torch():
+    R = random_matrices(5, seed=14)
+    for theta in (1e-10, 1e-7, 1e-4):
+        turned = R @ rot.axis_angle_matrix("Z", np.full(5, theta))
+        np.testing.assert_allclose(rot.geodesic_angle(R, turned), theta, rtol=1e-5)
+    A, B = random_matrices(20, seed=15), random_matrices(20, seed=16)
+    np.testing.assert_allclose(rot.geodesic_angle(torch.from_numpy(A), torch.from_numpy(B)).numpy(),
+                               rot.geodesic_angle(A, B), atol=1e-12)
+
+
 def test_quaternion_to_unity_mirrors_x():
     q = rot.matrix_to_quaternion(random_matrices(10, seed=3))
     u = rot.quaternion_to_unity(q)

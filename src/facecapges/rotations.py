@@ -357,11 +357,18 @@ def quaternion_to_unity(quat: Array) -> Array:
 
 
 def geodesic_angle(r1: Array, r2: Array) -> Array:
-    """Angle in radians between rotation matrices (..., 3, 3), in [0, π]."""
+    """Angle in radians between rotation matrices (..., 3, 3), in [0, π].
+
+    ``atan2(sin θ, cos θ)`` of ``R = r1ᵀ r2``, with ``2 sin θ = |vee(R − Rᵀ)|`` and ``2 cos θ = tr R − 1``:
+    accurate at small angles too (the arccos of the trace alone keeps only ~1e-8 rad there).
+    """
     lib = torch if _is_torch(r1) else np
     rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
-    tr = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
-    return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+    vee = _stack(
+        [rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1, rel
+    )
+    cos = (rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2] - 1.0) / 2.0
+    return lib.arctan2(_norm(vee)[..., 0] / 2.0, cos)
 
 
 # ------------------------------------------------------------- quaternion algebra
