@@ -300,3 +300,15 @@ def test_rotation_between_is_the_former_avatar_shortest_rotation():
         v = np.cross(a, b)
         vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
         np.testing.assert_allclose(rot.rotation_between(a, b), np.eye(3) + vx + vx @ vx / (1 + a @ b), atol=1e-9)
+
+
+def test_continuous_quaternions_is_the_key_by_key_flip():
+    q = rot.matrix_to_quaternion(Rotation.from_rotvec(np.cumsum(np.full((80, 3, 3), 0.4), 0)).as_matrix())
+    q = q * np.random.default_rng(17).choice([-1.0, 1.0], (80, 3, 1))
+    want = q.copy()
+    for t in range(1, len(want)):  # the loop vrm.animation had
+        flip = np.sum(want[t] * want[t - 1], -1) < 0
+        want[t, flip] *= -1
+    got = rot.continuous_quaternions(q)
+    np.testing.assert_array_equal(got, want)
+    assert np.all(np.sum(got[1:] * got[:-1], -1) >= 0)

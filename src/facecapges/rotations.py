@@ -425,6 +425,18 @@ def quaternion_exp(r: np.ndarray) -> np.ndarray:
     return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
 
 
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+    """A sequence of quaternions (T, …, 4) with each key's sign chosen so that consecutive keys have a
+    non-negative dot product (the first key kept): the same rotations, and a linear or slerp
+    interpolation between keys (glTF ``LINEAR``) takes the short way; numpy only."""
+    q = np.asarray(q)
+    if len(q) < 2:
+        return q.copy()
+    step = np.where(np.sum(q[1:] * q[:-1], axis=-1) < 0, -1.0, 1.0)  # flip relative to the previous key
+    sign = np.concatenate([np.ones_like(step[:1]), np.cumprod(step, axis=0)])
+    return q * sign[..., None].astype(q.dtype)
+
+
 # --------------------------------------------------------------------- averaging
 def nearest_rotation(M: np.ndarray) -> np.ndarray:
     """The rotation matrix (…, 3, 3) nearest (Frobenius) to each 3×3 matrix ``M`` (…, 3, 3); numpy only.
