@@ -571,9 +571,12 @@ def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.nda
     :mod:`facecapges.capture.face_lost`: ``rotation_power_about(R, None, k)`` eases ``R`` towards the
     identity, ``rotation_power_about(B, A, k)`` goes ``k`` of the way from ``A`` to ``B``).
     """
-    q = matrix_to_quaternion(np.asarray(R, np.float64))
-    q_ref = np.array([1.0, 0.0, 0.0, 0.0]) if ref is None else matrix_to_quaternion(np.asarray(ref, np.float64))
-    return quaternion_to_matrix(quaternion_power_about(q, q_ref, power))
+    R = np.asarray(R, np.float64)
+    if ref is not None:
+        ref = np.asarray(ref, np.float64)
+        R = np.swapaxes(ref, -1, -2) @ R  # the rotation relative to ref, raised about the identity
+    q = quaternion_power_about(matrix_to_quaternion(R), np.array([1.0, 0.0, 0.0, 0.0]), power)
+    return quaternion_to_matrix(q) if ref is None else ref @ quaternion_to_matrix(q)
 
 
 def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
