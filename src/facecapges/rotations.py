@@ -1,7 +1,11 @@
-"""Rotation conventions for the whole project, stated once.
+"""Rotation conventions for the whole project, stated once, and every rotation helper.
 
-Every function here is pure, batched over leading dimensions and works on both
-``numpy.ndarray`` and ``torch.Tensor`` (the output has the input's type).
+Every function here is pure and, unless its docstring says "numpy only", batched over
+leading dimensions and works on both ``numpy.ndarray`` and ``torch.Tensor`` (the output has
+the input's type). Conversions (Euler, rot6d, quaternions, rotation vectors, ARKit-style head
+angles), the quaternion algebra, averages (:func:`mean_rotation`, :func:`quaternion_mean`) and
+the one rule for scaling or interpolating a rotation about another,
+:func:`quaternion_power_about` (slerp, the intensity dial, the face-lost ease), live here only.
 
 Conventions
 -----------
