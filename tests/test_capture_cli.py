@@ -82,9 +82,9 @@ def test_capture_with_depth_frames(face_video, tmp_path):
 
     from facecapges.capture.canonical_mesh import load_canonical_mesh
     from facecapges.capture.depth import render_depth
-    from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+    from facecapges.capture.head_pose import Intrinsics
     from facecapges.capture.models import resolve_model
-    from facecapges.rotations import geodesic_angle, rot6d_to_matrix
+    from facecapges.rotations import angles_to_matrix, geodesic_angle, rot6d_to_matrix
 
     try:
         mesh = load_canonical_mesh(resolve_model())

@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from facecapges.capture import depth as dp
-from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+from facecapges.capture.head_pose import Intrinsics
 from facecapges.errors import UserError
-from facecapges.rotations import geodesic_angle
+from facecapges.rotations import angles_to_matrix, geodesic_angle
 
 K = Intrinsics(200.0, 200.0, 80.0, 60.0)
 

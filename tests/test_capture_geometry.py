@@ -11,8 +11,8 @@ from hypothesis import strategies as st
 
 from facecapges.capture import head_pose as hp
 from facecapges.capture.metrics import METRIC_NAMES, compute_metrics
-from facecapges.rotations import geodesic_angle, rot6d_to_matrix
 from facecapges.errors import UserError
+from facecapges.rotations import angles_to_matrix, geodesic_angle, head_angles, rot6d_to_matrix
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +34,7 @@ angles = st.floats(-1.2, 1.2)
 def test_procrustes_recovers_a_similarity(a, b, c, s):
     rng = np.random.default_rng(0)
     src = rng.normal(size=(30, 3))
-    R = hp.angles_to_matrix(a, b, c)
+    R = angles_to_matrix(a, b, c)
     t = np.array([1.0, -2.0, 3.0])
     s2, R2, t2 = hp.procrustes(src, s * src @ R.T + t, rng.uniform(0.5, 1, 30))
     assert math.isclose(s2, s, rel_tol=1e-9)
@@ -43,13 +43,13 @@ def test_procrustes_recovers_a_similarity(a, b, c, s):
 
 
 def test_head_angles_round_trip_and_signs():
-    R = hp.angles_to_matrix(0.3, -0.2, 0.1)
-    np.testing.assert_allclose(hp.head_angles(R), [0.3, -0.2, 0.1], atol=1e-12)
+    R = angles_to_matrix(0.3, -0.2, 0.1)
+    np.testing.assert_allclose(head_angles(R), [0.3, -0.2, 0.1], atol=1e-12)
     # yaw > 0 turns the face normal (+Z) towards +X (the image's right)
-    assert hp.angles_to_matrix(0.3, 0, 0)[0, 2] > 0
+    assert angles_to_matrix(0.3, 0, 0)[0, 2] > 0
     # pitch > 0 tilts the face down: normal gets −Y; roll > 0 turns X towards +Y
-    assert hp.angles_to_matrix(0, 0.3, 0)[1, 2] < 0
-    assert hp.angles_to_matrix(0, 0, 0.3)[1, 0] > 0
+    assert angles_to_matrix(0, 0.3, 0)[1, 2] < 0
+    assert angles_to_matrix(0, 0, 0.3)[1, 0] > 0
 
 
 def _project(V, R, dist_cm, W=1280, H=720):
@@ -66,7 +66,7 @@ def _project(V, R, dist_cm, W=1280, H=720):
 @pytest.mark.parametrize("ypr", [(0, 0, 0), (0.4, 0, 0), (0, -0.3, 0.2), (-0.45, 0.25, -0.15)])
 def test_pose_from_projected_canonical_face(mesh, ypr):
     est = hp.HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
-    R = hp.angles_to_matrix(*ypr)
+    R = angles_to_matrix(*ypr)
     pose, pts = est.estimate(_project(mesh.vertices, R, 60.0), 1280, 720)
     assert math.degrees(float(geodesic_angle(pose.R, R))) < 0.5
     assert abs(pose.distance_m - 0.60) < 0.02
@@ -78,7 +78,7 @@ def test_pose_from_projected_canonical_face(mesh, ypr):
 @settings(max_examples=20, deadline=None)
 @given(angles, angles, angles, st.floats(0.1, 10.0))
 def test_metrics_invariant_to_similarity(mesh, a, b, c, s):
-    R = hp.angles_to_matrix(a, b, c)
+    R = angles_to_matrix(a, b, c)
     P = mesh.vertices
     np.testing.assert_allclose(compute_metrics((s * P @ R.T) @ R), compute_metrics(P) * 1.0, atol=1e-9)
 
@@ -100,15 +100,15 @@ def test_smoother_has_no_lag_on_a_ramp_and_reduces_jitter():
     errs_raw, errs_s, lag = [], [], []
     for k in range(60):
         yaw = 0.01 * k  # constant angular velocity
-        R_true = hp.angles_to_matrix(yaw, 0, 0)
-        noisy = hp.angles_to_matrix(yaw + rng.normal(0, 0.01), rng.normal(0, 0.01), 0)
+        R_true = angles_to_matrix(yaw, 0, 0)
+        noisy = angles_to_matrix(yaw + rng.normal(0, 0.01), rng.normal(0, 0.01), 0)
         out = sm(hp.HeadPose(noisy, np.zeros(3)))
         if k >= 5:
             errs_raw.append(float(geodesic_angle(noisy, R_true)))
             errs_s.append(float(geodesic_angle(out.R, R_true)))
-            lag.append(yaw - hp.head_angles(out.R)[0])
+            lag.append(yaw - head_angles(out.R)[0])
     assert np.mean(errs_s) < 0.85 * np.mean(errs_raw)
     assert abs(np.mean(lag)) < 0.01 * 0.5  # well under one frame (0.01 rad per frame)
     # a jump beyond reset_deg is followed at once
-    out = sm(hp.HeadPose(hp.angles_to_matrix(1.5, 0, 0), np.zeros(3)))
-    assert abs(hp.head_angles(out.R)[0] - 1.5) < 1e-9
+    out = sm(hp.HeadPose(angles_to_matrix(1.5, 0, 0), np.zeros(3)))
+    assert abs(head_angles(out.R)[0] - 1.5) < 1e-9

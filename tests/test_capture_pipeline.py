@@ -9,7 +9,7 @@ import pytest
 
 from facecapges.capture.video import open_source
 from facecapges.errors import UserError
-from facecapges.rotations import geodesic_angle
+from facecapges.rotations import geodesic_angle, head_angles, matrix_to_rot6d
 
 
 def _capture(**kw):
@@ -40,6 +40,9 @@ def test_real_face_pose_matches_mediapipe_and_weights_are_valid(face_video):
             assert r.weights52.shape == (52,) and r.weights52.dtype == np.float32
             assert np.all((r.weights52 >= 0) & (r.weights52 <= 1))
             assert r.head_rot6d.shape == (6,) and 0.2 < r.distance_m < 2.0
+            # the head is stored once (head_R); its rot6d and angles are derived from it
+            np.testing.assert_array_equal(r.head_rot6d, matrix_to_rot6d(r.head_R).astype(np.float32))
+            np.testing.assert_array_equal(r.head_angles, head_angles(r.head_R).astype(np.float32))
             errs.append(math.degrees(float(geodesic_angle(r.head_R, r.mp_transform[:3, :3]))))
     assert np.median(errs) <= 3.0
 

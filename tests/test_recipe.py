@@ -107,7 +107,8 @@ def test_mel_model_streams_like_its_training_rollout():
 
 # --------------------------------------------------------------------- head frame
 def test_skeleton_head_maps_to_camera_frame_around_the_speaker_mean():
-    from facecapges.capture.head_pose import angles_to_matrix, head_angles, mean_rotation, skeleton_head_to_camera
+    from facecapges.capture.head_pose import skeleton_head_to_camera
+    from facecapges.rotations import angles_to_matrix, head_angles, mean_rotation
 
     rng = np.random.default_rng(0)
     rest = angles_to_matrix(0.0, np.radians(13.0), 0.0)  # the speaker's head, pitched 13° on average

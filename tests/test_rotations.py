@@ -136,6 +136,16 @@ def test_geodesic_angle_is_the_relative_rotation_angle(theta, order):
     assert float(rot.geodesic_angle(base, other)) == pytest.approx(abs(theta), abs=1e-6)
 
 
+def test_geodesic_angle_is_accurate_at_small_angles_and_in_torch():
+    R = random_matrices(5, seed=14)
+    for theta in (1e-10, 1e-7, 1e-4):
+        turned = R @ rot.axis_angle_matrix("Z", np.full(5, theta))
+        np.testing.assert_allclose(rot.geodesic_angle(R, turned), theta, rtol=1e-5)
+    A, B = random_matrices(20, seed=15), random_matrices(20, seed=16)
+    np.testing.assert_allclose(rot.geodesic_angle(torch.from_numpy(A), torch.from_numpy(B)).numpy(),
+                               rot.geodesic_angle(A, B), atol=1e-12)
+
+
 def test_quaternion_to_unity_mirrors_x():
     q = rot.matrix_to_quaternion(random_matrices(10, seed=3))
     u = rot.quaternion_to_unity(q)
@@ -194,3 +204,111 @@ def test_rotation_between_is_the_shortest_arc():
     flip = rot.rotation_between(np.array([1.0, 0, 0]), np.array([-1.0, 0, 0]))
     assert np.allclose(flip @ [1, 0, 0], [-1, 0, 0]) and np.isclose(np.linalg.det(flip), 1)
     assert np.allclose(rot.rotation_between(np.zeros(3), np.ones(3)), np.eye(3))
+
+
+def _old_slerp(q0, q1, t):
+    """The sin-weighted slerp formula rotations.quaternion_slerp had before it called quaternion_power_about."""
+    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = np.where(dot < 0.0, -q1, q1)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    s = np.sin(theta)
+    small = s < 1e-6
+    safe = np.where(small, 1.0, s)
+    out = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe) * q0 + np.where(
+        small, t, np.sin(t * theta) / safe) * q1
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def test_quaternion_algebra_matches_matrices_and_scipy():
+    A, B = random_matrices(300, seed=5), random_matrices(300, seed=6)
+    qa, qb = rot.matrix_to_quaternion(A), rot.matrix_to_quaternion(B)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_multiply(qa, qb)), A @ B, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_invert(qa)), np.swapaxes(A, -1, -2), atol=1e-12)
+    assert np.all(rot.standardize_quaternion(-qa)[:, 0] >= 0)
+    rv = rot.quaternion_log(rot.standardize_quaternion(qa))
+    np.testing.assert_allclose(rv, Rotation.from_matrix(A).as_rotvec(), atol=1e-9)
+    np.testing.assert_allclose(np.stack([rot.log_so3(m) for m in A]), rv, atol=1e-6)  # the matrix form agrees
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_exp(rv)), A, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_exp(np.zeros((2, 3))), [[1, 0, 0, 0]] * 2)
+
+
+def test_quaternion_mean_is_scipys_mean():
+    """Markley's eigenvector mean is what scipy's ``Rotation.mean`` computes (blind to sign)."""
+    R = Rotation.from_rotvec(np.random.default_rng(7).normal(0, 0.4, (50, 3))) * Rotation.from_euler("y", 30, True)
+    q = rot.matrix_to_quaternion(R.as_matrix()) * np.where(np.arange(50) % 3 == 0, -1.0, 1.0)[:, None]
+    m = rot.quaternion_mean(q[:, None])  # (1, 4): one joint
+    np.testing.assert_allclose(rot.quaternion_to_matrix(m[0]), R.mean().as_matrix(), atol=1e-9)
+
+
+def test_power_about_is_the_one_slerp_and_scaling_rule():
+    """quaternion_power_about against two independent forms: the sin-weighted slerp formula and the
+    matrix ``A · exp(t · log(Aᵀ B))``; quaternion_slerp, rot6d_slerp and rotation_power_about are it."""
+    A, B = random_matrices(200, seed=8), random_matrices(200, seed=9)
+    qa, qb = rot.matrix_to_quaternion(A), rot.matrix_to_quaternion(B)
+    for t in (0.0, 0.3, 1.0):
+        np.testing.assert_allclose(rot.quaternion_slerp(qa, qb, t), _old_slerp(qa, qb, t), atol=1e-9)
+    t = np.random.default_rng(10).uniform(-0.5, 1.5, (200, 1))  # one power per rotation, past both ends
+    got = rot.rotation_power_about(B, A, t)
+    want = np.stack([a @ rot.exp_so3(k * rot.log_so3(a.T @ b)) for a, b, k in zip(A, B, t[:, 0], strict=True)])
+    np.testing.assert_allclose(got, want, atol=1e-6)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_power_about(qb, qa, t)), want, atol=1e-6)
+    np.testing.assert_allclose(rot.rot6d_to_matrix(rot.rot6d_slerp(rot.matrix_to_rot6d(A), rot.matrix_to_rot6d(B), t)),
+                               want, atol=1e-6)
+    # about the identity: R^k is exp(k · log R)
+    np.testing.assert_allclose(rot.rotation_power_about(B, None, 0.4),
+                               np.stack([rot.exp_so3(0.4 * rot.log_so3(b)) for b in B]), atol=1e-6)
+    # the log/exp form the motion-matching intensity had: mean · exp(g · log(mean⁻¹ q))
+    rel = rot.quaternion_log(rot.standardize_quaternion(rot.quaternion_multiply(rot.quaternion_invert(qa), qb)))
+    np.testing.assert_allclose(rot.quaternion_power_about(qb, qa, t),
+                               rot.quaternion_multiply(qa, rot.quaternion_exp(rel * t)), atol=1e-9)
+    np.testing.assert_allclose(rot.rotation_power_about(B, A, 0.0), A, atol=1e-12)
+    np.testing.assert_allclose(rot.rotation_power_about(B, A, 1.0), B, atol=1e-12)
+
+
+def test_nearest_rotation_and_the_two_means():
+    A = random_matrices(40, seed=11)
+    scaled = A * np.array([2.0, 0.5, 3.0])  # a scale per column: the rotation is still A
+    np.testing.assert_allclose(rot.nearest_rotation(scaled @ np.eye(3)), rot.nearest_rotation(A), atol=1e-12)
+    np.testing.assert_allclose(rot.nearest_rotation(A * 1.7), A, atol=1e-12)
+    mirrored = A @ np.diag([1.0, 1.0, -1.0])  # a reflection becomes a proper rotation
+    assert np.allclose(np.linalg.det(rot.nearest_rotation(mirrored)), 1.0)
+    # the chordal mean of a cluster: the rotation minimising Σ ‖R − R_i‖², close to the quaternion mean
+    c = Rotation.from_rotvec(np.random.default_rng(12).normal(0, 0.2, (60, 3))) * Rotation.from_euler("x", 40, True)
+    m6 = rot.mean_rotation(rot.matrix_to_rot6d(c.as_matrix()))
+    M = rot.rot6d_to_matrix(m6)
+
+    def cost(R):
+        return float(((c.as_matrix() - R) ** 2).sum())
+
+    assert all(cost(M) <= cost(M @ rot.exp_so3(d)) for d in np.eye(3) * 1e-3)
+    assert all(cost(M) <= cost(M @ rot.exp_so3(-d)) for d in np.eye(3) * 1e-3)
+    q = rot.quaternion_mean(rot.matrix_to_quaternion(c.as_matrix())[:, None])[0]
+    assert np.degrees(rot.geodesic_angle(M, rot.quaternion_to_matrix(q))) < 0.1
+
+
+def test_head_angles_are_yxz_euler():
+    R = rot.angles_to_matrix(0.3, -0.2, 0.1)
+    np.testing.assert_allclose(R, Rotation.from_euler("YXZ", [0.3, -0.2, 0.1]).as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(rot.head_angles(np.stack([R, R.T @ R])), [[0.3, -0.2, 0.1], [0, 0, 0]], atol=1e-12)
+
+
+def test_rotation_between_is_the_former_avatar_shortest_rotation():
+    """avatar.retarget's own shortest_rotation (Rodrigues, ``I + [v]× + [v]×² / (1 + c)``) gave the same matrices."""
+    rng = np.random.default_rng(13)
+    for a, b in rng.normal(size=(100, 2, 3)):
+        a, b = a / np.linalg.norm(a), b / np.linalg.norm(b)
+        v = np.cross(a, b)
+        vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
+        np.testing.assert_allclose(rot.rotation_between(a, b), np.eye(3) + vx + vx @ vx / (1 + a @ b), atol=1e-9)
+
+
+def test_continuous_quaternions_is_the_key_by_key_flip():
+    q = rot.matrix_to_quaternion(Rotation.from_rotvec(np.cumsum(np.full((80, 3, 3), 0.4), 0)).as_matrix())
+    q = q * np.random.default_rng(17).choice([-1.0, 1.0], (80, 3, 1))
+    want = q.copy()
+    for t in range(1, len(want)):  # the loop vrm.animation had
+        flip = np.sum(want[t] * want[t - 1], -1) < 0
+        want[t, flip] *= -1
+    got = rot.continuous_quaternions(q)
+    np.testing.assert_array_equal(got, want)
+    assert np.all(np.sum(got[1:] * got[:-1], -1) >= 0)

@@ -11,8 +11,8 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.capture.face_lost import FaceLostPolicy
-from facecapges.capture.head_pose import angles_to_matrix, head_angles
 from facecapges.io.face_json import read_face_json
+from facecapges.rotations import angles_to_matrix, head_angles
 from facecapges.runtime.head import HeadDriver, avatar_head_matrix, head_follow, set_head
 
 from runtime_helpers import checkpoint, cli

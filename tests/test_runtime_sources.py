@@ -38,8 +38,9 @@ def test_rgbd_depth_frames_drive_the_head(face_video, tmp_path):
     from facecapges import rotations as rot
     from facecapges.capture.canonical_mesh import load_canonical_mesh
     from facecapges.capture.depth import render_depth
-    from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+    from facecapges.capture.head_pose import Intrinsics
     from facecapges.capture.models import resolve_model
+    from facecapges.rotations import angles_to_matrix
     from facecapges.runtime.session import build_session
 
     mesh = load_canonical_mesh(resolve_model())

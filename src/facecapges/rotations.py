@@ -1,7 +1,11 @@
-"""Rotation conventions for the whole project, stated once.
+"""Rotation conventions for the whole project, stated once, and every rotation helper.
 
-Every function here is pure, batched over leading dimensions and works on both
-``numpy.ndarray`` and ``torch.Tensor`` (the output has the input's type).
+Every function here is pure and, unless its docstring says "numpy only", batched over
+leading dimensions and works on both ``numpy.ndarray`` and ``torch.Tensor`` (the output has
+the input's type). Conversions (Euler, rot6d, quaternions, rotation vectors, ARKit-style head
+angles), the quaternion algebra, averages (:func:`mean_rotation`, :func:`quaternion_mean`) and
+the one rule for scaling or interpolating a rotation about another,
+:func:`quaternion_power_about` (slerp, the intensity dial, the face-lost ease), live here only.
 
 Conventions
 -----------
@@ -179,6 +183,23 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     return out
 
 
+def head_angles(R: Array) -> Array:
+    """ARKit-style head angles (yaw, pitch, roll) in radians (…, 3) of head → camera rotations (…, 3, 3).
+
+    ``R = R_Y(yaw) @ R_X(pitch) @ R_Z(roll)`` (:func:`matrix_to_euler` with order ``"YXZ"``): yaw > 0
+    turns the face towards the image's right, pitch > 0 tilts it down, roll > 0 tilts it
+    counter-clockwise as the camera sees it (:mod:`facecapges.capture.head_pose` has the frames).
+    """
+    if not _is_torch(R):
+        R = np.asarray(R, np.float64)
+    return matrix_to_euler(R, "YXZ")
+
+
+def angles_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """The head → camera rotation (3, 3) of ARKit-style angles in radians: the inverse of :func:`head_angles`."""
+    return euler_to_matrix(np.array([yaw, pitch, roll], np.float64), "YXZ")
+
+
 def _euler_from_entries(v: np.ndarray, signs: np.ndarray, degrees: bool) -> np.ndarray:
     """:func:`matrix_to_euler`'s angles from each matrix's entries (..., J, 7) = R[j,k], R[i,j],
     R[k,k], R[i,i], R[i,k], R[k,j], R[j,j] and their signs (J, 7) (:func:`_orders_take`): the
@@ -340,11 +361,115 @@ def quaternion_to_unity(quat: Array) -> Array:
 
 
 def geodesic_angle(r1: Array, r2: Array) -> Array:
-    """Angle in radians between rotation matrices (..., 3, 3), in [0, π]."""
+    """Angle in radians between rotation matrices (..., 3, 3), in [0, π].
+
+    ``atan2(sin θ, cos θ)`` of ``R = r1ᵀ r2``, with ``2 sin θ = |vee(R − Rᵀ)|`` and ``2 cos θ = tr R − 1``:
+    accurate at small angles too (the arccos of the trace alone keeps only ~1e-8 rad there).
+    """
     lib = torch if _is_torch(r1) else np
     rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
-    tr = rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2]
-    return lib.arccos(lib.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+    vee = _stack(
+        [rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1, rel
+    )
+    cos = (rel[..., 0, 0] + rel[..., 1, 1] + rel[..., 2, 2] - 1.0) / 2.0
+    return lib.arctan2(_norm(vee)[..., 0] / 2.0, cos)
+
+
+# ------------------------------------------------------------- quaternion algebra
+def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a · b`` of quaternions (…, 4), (w, x, y, z), broadcast; numpy only.
+
+    The rotation of ``a · b`` is ``quaternion_to_matrix(a) @ quaternion_to_matrix(b)`` (``b`` first).
+    """
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
+
+
+def quaternion_invert(q: np.ndarray) -> np.ndarray:
+    """The inverse rotations of unit quaternions (…, 4): the conjugates (w, −x, −y, −z); numpy only."""
+    return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+
+
+def standardize_quaternion(q: np.ndarray) -> np.ndarray:
+    """The same rotations (…, 4) written with w ≥ 0 (the short way round); numpy only."""
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def quaternion_log(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions (…, 4) → rotation vectors (…, 3) (angle · axis, radians); numpy only.
+
+    The angle is in [0, 2π); it is at most π for a quaternion with w ≥ 0
+    (:func:`standardize_quaternion`). The quaternion form of :func:`log_so3`, batched.
+    """
+    w = q[..., 0]
+    v = q[..., 1:]
+    s = np.linalg.norm(v, axis=-1)
+    angle = 2.0 * np.arctan2(s, w)
+    k = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
+    return v * k[..., None]
+
+
+def quaternion_exp(r: np.ndarray) -> np.ndarray:
+    """Rotation vectors (…, 3) (angle · axis, radians) → unit quaternions (…, 4); numpy only.
+
+    The inverse of :func:`quaternion_log`; the quaternion form of :func:`exp_so3`, batched.
+    """
+    angle = np.linalg.norm(r, axis=-1)
+    half = 0.5 * angle
+    k = np.where(angle > 1e-9, np.sin(half) / np.maximum(angle, 1e-12), 0.5 - angle**2 / 48.0)
+    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+
+
+def continuous_quaternions(q: np.ndarray) -> np.ndarray:
+    """A sequence of quaternions (T, …, 4) with each key's sign chosen so that consecutive keys have a
+    non-negative dot product (the first key kept): the same rotations, and a linear or slerp
+    interpolation between keys (glTF ``LINEAR``) takes the short way; numpy only."""
+    q = np.asarray(q)
+    if len(q) < 2:
+        return q.copy()
+    step = np.where(np.sum(q[1:] * q[:-1], axis=-1) < 0, -1.0, 1.0)  # flip relative to the previous key
+    sign = np.concatenate([np.ones_like(step[:1]), np.cumprod(step, axis=0)])
+    return q * sign[..., None].astype(q.dtype)
+
+
+# --------------------------------------------------------------------- averaging
+def nearest_rotation(M: np.ndarray) -> np.ndarray:
+    """The rotation matrix (…, 3, 3) nearest (Frobenius) to each 3×3 matrix ``M`` (…, 3, 3); numpy only.
+
+    ``U diag(1, 1, d) Vᵀ`` from the SVD ``M = U Σ Vᵀ``, ``d = sign det(U Vᵀ)`` (a reflection is
+    turned into the nearest proper rotation). Strips a scale or shear from a transform's 3×3 block.
+    """
+    u, _, vt = np.linalg.svd(np.asarray(M, np.float64))
+    d = np.sign(np.linalg.det(u @ vt))
+    d = np.where(d == 0, 1.0, d)
+    return (u * np.stack([np.ones_like(d), np.ones_like(d), d], -1)[..., None, :]) @ vt
+
+
+def mean_rotation(rot6d: np.ndarray) -> np.ndarray:
+    """The chordal L2 mean (6,) of rotations given as rot6d (…, 6): the average matrix projected onto
+    SO(3) (:func:`nearest_rotation`); numpy only. (:func:`quaternion_mean` is the quaternion form.)"""
+    m = rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6)).mean(0)
+    return matrix_to_rot6d(nearest_rotation(m))
+
+
+def quaternion_mean(q: np.ndarray) -> np.ndarray:
+    """Per-joint mean rotation of samples (N, J, 4) → (J, 4), w ≥ 0; numpy only.
+
+    The principal eigenvector of ``Σ q qᵀ`` (Markley et al. 2007): the quaternion chordal
+    L2 mean, blind to each sample's sign. (:func:`mean_rotation` is the matrix chordal mean.)
+    """
+    M = np.einsum("nji,njk->jik", q, q)
+    _, vec = np.linalg.eigh(M)
+    return standardize_quaternion(vec[..., -1])
 
 
 # --------------------------------------------------------------- SO(3) exp / log
@@ -404,28 +529,68 @@ def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.where(degenerate[..., None, None], np.eye(3), R)
 
 
+# ----------------------------------------------- powers of a rotation about another
+def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
+    """``ref · (ref⁻¹ · q)^power``: rotations ``q`` (…, 4) raised to ``power`` about ``ref`` (…, 4); numpy only.
+
+    The project's one rule for scaling a rotation about another and for interpolating between
+    two: the rotation from ``ref`` to ``q`` is taken the short way round and its angle multiplied by
+    ``power`` about the same axis. ``power = 0`` gives ``ref``, ``1`` gives ``q`` (up to sign),
+    0 … 1 is the slerp from ``ref`` to ``q``, above 1 goes on past ``q`` along the same arc (a motion
+    amplified about ``ref``: the intensity dial) and below 0 turns away from ``q``.
+
+    ``power`` is a float or an array broadcastable to (…, 1) (one per quaternion). Quaternions are
+    (w, x, y, z), unit (to float precision); the result is unit, float64, on ``ref``'s side
+    (``ref · result ≥ 0`` for powers in [0, 1]). Callers: :func:`quaternion_slerp`,
+    :func:`rot6d_slerp` (the model's intensity, :func:`facecapges.model.intensity.scale_pose`),
+    :func:`rotation_power_about` (matrices: the face-lost ease), the motion-matching intensity
+    (:func:`facecapges.matching.inertialize.qpow_about`).
+    """
+    q = np.asarray(q, np.float64)
+    ref = np.asarray(ref, np.float64)
+    _check_last(q, (4,), "quaternion")
+    _check_last(ref, (4,), "quaternion")
+    # the geodesic through ref and q, in the closed form of the slerp (valid for any power):
+    # (sin((1 − p)θ) · ref + sin(pθ) · q) / sin θ, θ the angle between ref and ±q (the nearer one)
+    dot = np.sum(ref * q, axis=-1, keepdims=True)
+    q = np.where(dot < 0.0, -q, q)
+    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    s = np.sin(theta)
+    small = s < 1e-6  # nearly equal rotations: the linear blend, normalised
+    safe = np.where(small, 1.0, s)
+    p = np.asarray(power, np.float64)
+    out = (
+        np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe) * ref
+        + np.where(small, p, np.sin(p * theta) / safe) * q
+    )
+    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.ndarray:
+    """``ref · (refᵀ · R)^power`` for rotation matrices (…, 3, 3) (``ref=None``: the identity, ``R^power``).
+
+    :func:`quaternion_power_about` on matrices; numpy only, float64. ``power`` is a float or an array
+    broadcastable to the matrices' leading shape + (1,). ``power = 0`` gives ``ref``,
+    ``1`` gives ``R``, 0 … 1 the geodesic from ``ref`` to ``R`` (e.g. the face-lost ease of
+    :mod:`facecapges.capture.face_lost`: ``rotation_power_about(R, None, k)`` eases ``R`` towards the
+    identity, ``rotation_power_about(B, A, k)`` goes ``k`` of the way from ``A`` to ``B``).
+    """
+    R = np.asarray(R, np.float64)
+    if ref is not None:
+        ref = np.asarray(ref, np.float64)
+        R = np.swapaxes(ref, -1, -2) @ R  # the rotation relative to ref, raised about the identity
+    q = quaternion_power_about(matrix_to_quaternion(R), np.array([1.0, 0.0, 0.0, 0.0]), power)
+    return quaternion_to_matrix(q) if ref is None else ref @ quaternion_to_matrix(q)
+
+
 def quaternion_slerp(q0: np.ndarray, q1: np.ndarray, t) -> np.ndarray:
     """Spherical linear interpolation of unit quaternions (..., 4), (w, x, y, z); numpy only.
 
     ``t`` is a float or an array broadcastable to (..., 1) (one fraction per quaternion).
-    Takes the shorter arc (``q1`` is negated where ``q0·q1 < 0``); ``t = 0`` gives ``q0``,
-    ``t = 1`` gives ``q1`` (up to that sign). Nearly equal rotations fall back to a
-    normalised linear blend.
+    Takes the shorter arc; ``t = 0`` gives ``q0``, ``t = 1`` gives ``q1`` (up to sign), and
+    ``t > 1`` goes on past ``q1``. It is :func:`quaternion_power_about` ``(q1, q0, t)``.
     """
-    q0 = np.asarray(q0, np.float64)
-    q1 = np.asarray(q1, np.float64)
-    _check_last(q0, (4,), "quaternion")
-    dot = np.sum(q0 * q1, axis=-1, keepdims=True)
-    q1 = np.where(dot < 0.0, -q1, q1)
-    dot = np.clip(np.abs(dot), 0.0, 1.0)
-    theta = np.arccos(dot)
-    s = np.sin(theta)
-    small = s < 1e-6
-    safe = np.where(small, 1.0, s)
-    w0 = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe)
-    w1 = np.where(small, t, np.sin(t * theta) / safe)
-    out = w0 * q0 + w1 * q1
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    return quaternion_power_about(q1, q0, t)
 
 
 def rot6d_slerp(r0: np.ndarray, r1: np.ndarray, t) -> np.ndarray:
@@ -433,8 +598,8 @@ def rot6d_slerp(r0: np.ndarray, r1: np.ndarray, t) -> np.ndarray:
 
     ``t`` is a float or an array broadcastable to (..., 1). ``t = 0`` gives ``r0``, ``t = 1``
     gives ``r1``, and ``t > 1`` goes on past ``r1`` along the same arc (a motion amplified about
-    ``r0``); the result is rot6d (..., 6) float64. Uses :func:`quaternion_slerp`.
+    ``r0``); the result is rot6d (..., 6) float64. :func:`quaternion_power_about` ``(r1, r0, t)``.
     """
     q0 = rot6d_to_quaternion(np.asarray(r0, np.float64))
     q1 = rot6d_to_quaternion(np.asarray(r1, np.float64))
-    return matrix_to_rot6d(quaternion_to_matrix(quaternion_slerp(q0, q1, t)))
+    return matrix_to_rot6d(quaternion_to_matrix(quaternion_power_about(q1, q0, t)))

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges import rotations
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.errors import UserError, file_error, require_file
 
@@ -222,8 +223,7 @@ def author_arkit_table(V: np.ndarray) -> dict:
         """Displacements turning points about the jaw hinge (x axis through y=0.5, z=-1.5)."""
         a = np.radians(degrees)
         p = V[idx] - np.array([0.0, 0.5, -1.5])
-        rot = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
-        d = p @ rot.T - p
+        d = p @ rotations.axis_angle_matrix("X", a).T - p
         return d if weight is None else d * np.asarray(weight)[:, None]
 
     jaw_pts = CHIN + lower_lip + [i for i in FACE_OVAL if V[i, 1] < -3.0 and i not in CHIN]

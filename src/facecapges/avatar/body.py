@@ -40,6 +40,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from facecapges import rotations as rot
 from facecapges.avatar.mesh import TriMesh
 from facecapges.errors import UserError
 from facecapges.skeleton import UPPER_BODY, Skeleton, rest_positions
@@ -565,14 +566,6 @@ def back_of_head(
     return new, F, src, ring_no
 
 
-def _rotation(axis: str, deg: float) -> np.ndarray:
-    a = np.radians(deg)
-    c, s_ = np.cos(a), np.sin(a)
-    if axis == "X":
-        return np.array([[1, 0, 0], [0, c, -s_], [0, s_, c]])
-    return np.array([[c, 0, s_], [0, 1, 0], [-s_, 0, c]])
-
-
 def _eye(
     V: np.ndarray, deltas: np.ndarray, tris: np.ndarray, names: list[str], side: str, base: int
 ) -> tuple[np.ndarray, np.ndarray, dict[str, list]]:
@@ -640,9 +633,9 @@ def _eye(
         if name not in names:
             continue
         if direction in ("Up", "Down"):
-            R = _rotation("X", -deg if direction == "Up" else deg)  # +X rotation turns +Z down
+            R = rot.axis_angle_matrix("X", np.radians(-deg if direction == "Up" else deg))  # +X turns +Z down
         else:
-            R = _rotation("Y", deg * (inward if direction == "In" else -inward))  # +Y rotation turns +Z to +X
+            R = rot.axis_angle_matrix("Y", np.radians(deg * (inward if direction == "In" else -inward)))  # +Z to +X
         ball_d[names.index(name)] = (ball - center) @ R.T + center - ball
     return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1), {EYE: sock_f, **ball_f})
 

@@ -84,22 +84,6 @@ def _direction_children() -> dict[str, tuple[str, ...]]:
 DIRECTION_CHILDREN = _direction_children()
 
 
-def shortest_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The 3×3 rotation of smallest angle taking direction ``a`` to direction ``b``."""
-    a = a / np.linalg.norm(a)
-    b = b / np.linalg.norm(b)
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    if c < -1 + 1e-9:  # opposite: turn 180° about any axis perpendicular to a
-        axis = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
-    return np.eye(3) + vx + vx @ vx / (1 + c)
-
-
 def humanoid_parent(bone: str, have) -> str | None:
     """The nearest ancestor of ``bone`` (VRM humanoid tree) among the bones in ``have``."""
     p = BONE_PARENT[bone]
@@ -149,7 +133,7 @@ class Retargeter:
             d = model.rest[child] - model.rest[b]
             s = P[src[child]] - P[src[b]]
             if np.linalg.norm(d) > 1e-6 and np.linalg.norm(s) > 1e-6:
-                C[i] = shortest_rotation(d, s)
+                C[i] = rot.rotation_between(d, s)
                 known[i] = True
         for i in range(len(self.bones)):  # bones without a child bone follow their parent
             if not known[i] and self.parent[i] >= 0:

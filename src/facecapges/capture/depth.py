@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.capture.head_pose import HeadPose, Intrinsics
+from facecapges import rotations as rot
+from facecapges.capture.head_pose import HeadPose, Intrinsics, procrustes
 from facecapges.errors import UserError, file_error
 
 
@@ -113,18 +114,6 @@ def depth_to_points(depth_mm: np.ndarray, K: Intrinsics, mask: np.ndarray | None
     return np.stack([x, -y, -z], axis=1)
 
 
-def _svd_step(C1n: np.ndarray, C2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Algorithm 1, steps 2–4 (row vectors): rotation R (column-vector form) and t with C1n ≈ C2 Rᵀ + t."""
-    m1 = C1n.mean(axis=0)
-    m2 = C2.mean(axis=0)
-    M = (C1n - m1).T @ (C2 - m2) / len(C2)
-    U, _, Vt = np.linalg.svd(M)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt)) or 1.0])
-    R = U @ D @ Vt
-    t = m1 - m2 @ R.T
-    return R, t
-
-
 def icp(
     C1: np.ndarray,
     C2: np.ndarray,
@@ -147,11 +136,11 @@ def icp(
         keep = np.ones(len(d), bool) if max_dist is None else d < max_dist
         if keep.sum() < 6:
             break
-        dR, dt = _svd_step(C1[j[keep]], cur[keep])
+        _, dR, dt = procrustes(cur[keep], C1[j[keep]], with_scale=False)  # Algorithm 1, steps 2–4 (Kabsch)
         R = dR @ R
         t = t @ dR.T + dt
         rms = float(np.sqrt(np.mean(d[keep] ** 2)))
-        step = np.linalg.norm(dt) + np.arccos(np.clip((np.trace(dR) - 1) / 2, -1, 1)) * 0.1
+        step = np.linalg.norm(dt) + float(rot.geodesic_angle(np.eye(3), dR)) * 0.1
         if step < tol:  # converged: the last step moved points by less than tol (m)
             break
     return R, t, rms

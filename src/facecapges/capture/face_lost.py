@@ -7,7 +7,7 @@ what stands in for a face (weights 0 and the head facing the camera for the capt
 and the model's input; the model's own head for the avatar's head,
 :mod:`facecapges.runtime.head`). The ease is a smoothstep of the time since the last
 fresh face, so position and speed are continuous at both ends; rotations ease along the
-geodesic (the rotation vector scaled by the factor).
+geodesic (the rotation raised to the factor, :func:`facecapges.rotations.rotation_power_about`).
 
 When the face comes back, consumers that blend *towards* the face again (the avatar's
 head) use :meth:`FaceLostPolicy.ease_in` over ``ease_in_s`` (0.3 s), also a smoothstep.
@@ -20,10 +20,6 @@ Used by :class:`facecapges.capture.FaceCapture` (per tracked face),
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-import numpy as np
-
-from facecapges.capture.head_pose import exp_so3, log_so3
 
 HOLD_S = 0.5
 EASE_S = 1.0
@@ -61,19 +57,3 @@ class FaceLostPolicy:
     def gone_s(self) -> float:
         """After this long without a face, nothing of it remains."""
         return self.hold_s + self.ease_s
-
-
-def scale_rotation(R: np.ndarray, k: float) -> np.ndarray:
-    """``R`` eased towards the identity: ``exp(k · log R)`` (k = 1: R, k = 0: identity)."""
-    if k >= 1.0:
-        return np.asarray(R, np.float64)
-    return exp_so3(log_so3(np.asarray(R, np.float64)) * k)
-
-
-def slerp_matrix(A: np.ndarray, B: np.ndarray, k: float) -> np.ndarray:
-    """The rotation ``k`` of the way from ``A`` to ``B`` along the geodesic (k = 0: A, k = 1: B)."""
-    if k <= 0.0:
-        return np.asarray(A, np.float64)
-    if k >= 1.0:
-        return np.asarray(B, np.float64)
-    return A @ exp_so3(log_so3(A.T @ B) * k)

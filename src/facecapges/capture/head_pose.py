@@ -22,7 +22,7 @@ Conventions
   the head chain, :func:`facecapges.skeleton.head_rot6d`, Y up, the body facing +Z —
   the same axes as the camera frame of a camera in front of the speaker) is mapped
   into it by :func:`skeleton_head_to_camera`: ``R = R_skel · R_refᵀ``, where
-  ``R_ref`` (:func:`mean_rotation`) is the speaker's mean head rotation over the
+  ``R_ref`` (:func:`facecapges.rotations.mean_rotation`) is the speaker's mean head rotation over the
   training frames — the speaker's average head orientation stands for "facing the
   camera". A head turn of the speaker about the vertical axis is then the same turn of
   a user in front of the camera. The trainer stores ``R_ref`` in the checkpoint
@@ -56,7 +56,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.rotations import exp_so3, log_so3
 
 DEFAULT_VFOV_DEG = 63.0  # MediaPipe's geometry pipeline default
 
@@ -158,7 +157,7 @@ class HeadPose:
     @property
     def angles(self) -> np.ndarray:
         """(yaw, pitch, roll) radians, ``R = R_Y(yaw) R_X(pitch) R_Z(roll)``."""
-        return head_angles(self.R)
+        return rot.head_angles(self.R)
 
     @property
     def distance_m(self) -> float:
@@ -174,16 +173,6 @@ class HeadPose:
     def normal(self) -> np.ndarray:
         """The face's unit normal in camera coordinates (``R @ +Z``)."""
         return self.R[:, 2].copy()
-
-
-def head_angles(R: np.ndarray) -> np.ndarray:
-    """ARKit-style (yaw, pitch, roll) in radians from head→camera rotations (..., 3, 3)."""
-    return rot.matrix_to_euler(np.asarray(R, np.float64), "YXZ")
-
-
-def angles_to_matrix(yaw: float, pitch: float, roll: float) -> np.ndarray:
-    """Inverse of :func:`head_angles`."""
-    return rot.euler_to_matrix(np.array([yaw, pitch, roll], np.float64), "YXZ")
 
 
 class HeadPoseEstimator:
@@ -238,7 +227,7 @@ class PoseSmoother:
 
     def __call__(self, pose: HeadPose) -> HeadPose:
         if self._R:
-            jump = np.linalg.norm(log_so3(self._R[-1].T @ pose.R))
+            jump = np.linalg.norm(rot.log_so3(self._R[-1].T @ pose.R))
             if jump > self.reset:
                 self.reset_state()
         self._R.append(pose.R.copy())
@@ -246,18 +235,10 @@ class PoseSmoother:
         m = len(self._R)
         c = self._coef[m]
         ref = pose.R
-        rv = np.stack([log_so3(ref.T @ Ri) for Ri in self._R])  # (m, 3) relative to newest
-        R = ref @ exp_so3(c @ rv)
+        rv = np.stack([rot.log_so3(ref.T @ Ri) for Ri in self._R])  # (m, 3) relative to newest
+        R = ref @ rot.exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)
-
-
-def mean_rotation(rot6d: np.ndarray) -> np.ndarray:
-    """The chordal L2 mean (…, 6) → (6,) rot6d: the average matrix projected onto SO(3)."""
-    m = rot.rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6)).mean(0)
-    u, _, vt = np.linalg.svd(m)
-    d = np.sign(np.linalg.det(u @ vt)) or 1.0
-    return rot.matrix_to_rot6d((u * np.array([1.0, 1.0, d])) @ vt)
 
 
 def skeleton_head_to_camera(head_rot6d: np.ndarray, reference_rot6d: np.ndarray) -> np.ndarray:

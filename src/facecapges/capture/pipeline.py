@@ -20,7 +20,7 @@ learned ranges.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -29,8 +29,8 @@ from facecapges import rotations as rot
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.capture.canonical_mesh import load_canonical_mesh
 from facecapges.capture.estimator import ExpressionEstimator
-from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
-from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother, head_angles
+from facecapges.capture.face_lost import FaceLostPolicy
+from facecapges.capture.head_pose import HeadPose, HeadPoseEstimator, Intrinsics, PoseSmoother
 from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkDetector
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
@@ -42,11 +42,14 @@ if TYPE_CHECKING:
 
 @dataclass
 class CaptureResult:
-    """One face in one frame. Conventions: :mod:`head_pose` (R head→camera, OpenGL camera)."""
+    """One face in one frame. Conventions: :mod:`head_pose` (R head→camera, OpenGL camera).
+
+    The head is stored once, as the matrix ``head_R``; :attr:`head_rot6d` and :attr:`head_angles`
+    are derived from it.
+    """
 
     weights52: np.ndarray  # (52,) float32 in [0, 1], ARKIT_NAMES order
-    head_rot6d: np.ndarray  # (6,) float32, first two columns of R
-    head_angles: np.ndarray  # (3,) yaw, pitch, roll radians
+    head_R: np.ndarray  # (3, 3) float64 head → camera rotation R
     distance_m: float
     face_found: bool
     landmarks: np.ndarray | None  # (478, 3) normalised MediaPipe landmarks, None when lost
@@ -54,8 +57,17 @@ class CaptureResult:
     timestamp_ms: float = 0.0
     mp_blendshapes: np.ndarray | None = None  # MediaPipe's learned (52,), when found
     mp_transform: np.ndarray | None = None  # MediaPipe's facial transformation matrix
-    head_R: np.ndarray = field(default_factory=lambda: np.eye(3))
     sample_weight: float = 0.0
+
+    @property
+    def head_rot6d(self) -> np.ndarray:
+        """(6,) float32: the first two columns of ``head_R``."""
+        return rot.matrix_to_rot6d(self.head_R).astype(np.float32)
+
+    @property
+    def head_angles(self) -> np.ndarray:
+        """(3,) float32 yaw, pitch, roll in radians (:func:`facecapges.rotations.head_angles`)."""
+        return rot.head_angles(self.head_R).astype(np.float32)
 
 
 class _FaceState:
@@ -120,11 +132,9 @@ class FaceCapture:
         omega = sample_weight(out_pose.distance_m, out_pose.normal)
         st.estimator.update(g, omega)
         weights = st.estimator.weights(obs.blendshapes)
-        R = out_pose.R
         return CaptureResult(
             weights,
-            rot.matrix_to_rot6d(R).astype(np.float32),
-            head_angles(R).astype(np.float32),
+            out_pose.R,
             out_pose.distance_m,
             True,
             obs.landmarks,
@@ -132,7 +142,6 @@ class FaceCapture:
             ts,
             obs.blendshapes,
             obs.transform,
-            R,
             omega,
         )
 
@@ -145,34 +154,13 @@ class FaceCapture:
             return self.neutral(ts, st.face_id)
         k = self.policy.held((ts - st.lost_since) / 1000.0)  # 1 = hold, 0 = neutral
         weights = (last.weights52 * k).astype(np.float32)
-        R = scale_rotation(last.head_R, k)
         return CaptureResult(
-            weights,
-            rot.matrix_to_rot6d(R).astype(np.float32),
-            head_angles(R).astype(np.float32),
-            last.distance_m,
-            False,
-            None,
-            st.face_id,
-            ts,
-            None,
-            None,
-            R,
-            0.0,
+            weights, rot.rotation_power_about(last.head_R, None, k), last.distance_m, False, None, st.face_id, ts
         )
 
     def neutral(self, ts: float = 0.0, face_id: int = -1) -> CaptureResult:
         """Weights 0, head facing the camera, flagged not found."""
-        return CaptureResult(
-            np.zeros(N_BLENDSHAPES, np.float32),
-            rot.identity_rot6d().astype(np.float32),
-            np.zeros(3, np.float32),
-            float("nan"),
-            False,
-            None,
-            face_id,
-            ts,
-        )
+        return CaptureResult(np.zeros(N_BLENDSHAPES, np.float32), np.eye(3), float("nan"), False, None, face_id, ts)
 
     # ------------------------------------------------------------------ frames
     def process_all(

@@ -29,9 +29,10 @@ import math
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
-from facecapges.capture.head_pose import Intrinsics, angles_to_matrix
+from facecapges.capture.head_pose import Intrinsics
 from facecapges.capture.landmarks import N_LANDMARKS
 from facecapges.capture.metrics import BROW_INNER_L, BROW_INNER_R, BROW_L, BROW_R
+from facecapges.rotations import angles_to_matrix
 
 CHANNELS = (
     "jawOpen",

@@ -105,10 +105,7 @@ def joint_angular_speed(pose: np.ndarray, fps: float) -> np.ndarray:
     if p.ndim != 3 or p.shape[-1] != 6:
         raise ValueError(f"pose must be (T, J, 6) rot6d, got {p.shape}")
     R = rot.rot6d_to_matrix(p)
-    Q = np.swapaxes(R[:-1], -1, -2) @ R[1:]  # relative rotations (T-1, J, 3, 3)
-    vee = np.stack([Q[..., 2, 1] - Q[..., 1, 2], Q[..., 0, 2] - Q[..., 2, 0], Q[..., 1, 0] - Q[..., 0, 1]], -1)
-    cos = (Q[..., 0, 0] + Q[..., 1, 1] + Q[..., 2, 2] - 1.0) / 2.0
-    return np.arctan2(np.linalg.norm(vee, axis=-1) / 2.0, cos) * fps
+    return rot.geodesic_angle(R[:-1], R[1:]) * fps
 
 
 def _minima(curve: np.ndarray, order: int) -> np.ndarray:

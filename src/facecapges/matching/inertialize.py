@@ -10,56 +10,24 @@ in Holden's Motion-Matching reference, ``inertialize_pose_transition``):
 ``x ← log(exp(x) · s · d⁻¹)``, ``v ← v + v_s − v_d``. Each frame both decay with a critically
 damped spring of half-life ``h`` (:func:`decay_spring`), so the output keeps its rotation and
 angular velocity across the switch and reaches the new clip within a few half-lives.
+
+The quaternion algebra is :mod:`facecapges.rotations`' (``quaternion_multiply`` …), imported here
+under the short names the formulas above use (``qmul``, ``qconj``, ``qabs``, ``qlog``, ``qexp``).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from facecapges.rotations import quaternion_exp as qexp
+from facecapges.rotations import quaternion_invert as qconj
+from facecapges.rotations import quaternion_log as qlog
+from facecapges.rotations import quaternion_mean as quaternion_mean
+from facecapges.rotations import quaternion_multiply as qmul
+from facecapges.rotations import quaternion_power_about
+from facecapges.rotations import standardize_quaternion as qabs
+
 LN2 = float(np.log(2.0))
-
-
-def qmul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product a·b of quaternions (…, 4)."""
-    aw, ax, ay, az = np.moveaxis(a, -1, 0)
-    bw, bx, by, bz = np.moveaxis(b, -1, 0)
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
-
-
-def qconj(q: np.ndarray) -> np.ndarray:
-    """The inverse of unit quaternions (…, 4)."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
-
-
-def qabs(q: np.ndarray) -> np.ndarray:
-    """The same rotations with w ≥ 0 (the short way round)."""
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-def qlog(q: np.ndarray) -> np.ndarray:
-    """Unit quaternions (…, 4) → rotation vectors (…, 3) (angle in [0, 2π) about the axis)."""
-    w = q[..., 0]
-    v = q[..., 1:]
-    s = np.linalg.norm(v, axis=-1)
-    angle = 2.0 * np.arctan2(s, w)
-    k = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
-    return v * k[..., None]
-
-
-def qexp(r: np.ndarray) -> np.ndarray:
-    """Rotation vectors (…, 3) → unit quaternions (…, 4)."""
-    angle = np.linalg.norm(r, axis=-1)
-    half = 0.5 * angle
-    k = np.where(angle > 1e-9, np.sin(half) / np.maximum(angle, 1e-12), 0.5 - angle**2 / 48.0)
-    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
 
 
 def angular_velocity(q: np.ndarray, fps: float) -> np.ndarray:
@@ -88,14 +56,8 @@ def transition(
 
 
 def qpow_about(q: np.ndarray, mean: np.ndarray, g: np.ndarray | float) -> np.ndarray:
-    """``mean · (mean⁻¹ · q)^g``: rotations ``q`` scaled by ``g`` about ``mean`` (g = 1: unchanged)."""
-    rel = qlog(qabs(qmul(qconj(mean), q)))
-    g = np.asarray(g, q.dtype)
-    return qmul(mean, qexp(rel * g.reshape(g.shape + (1,) * (rel.ndim - g.ndim))))
-
-
-def quaternion_mean(q: np.ndarray) -> np.ndarray:
-    """Per-joint mean rotation of samples (N, J, 4): the principal eigenvector of Σ q qᵀ (Markley)."""
-    M = np.einsum("nji,njk->jik", q, q)
-    _, vec = np.linalg.eigh(M)
-    return qabs(vec[..., -1])
+    """``mean · (mean⁻¹ · q)^g``: rotations ``q`` (B, …, 4) scaled by ``g`` (a float or one per leading
+    entry, (B,)) about ``mean`` (g = 1: unchanged) — :func:`facecapges.rotations.quaternion_power_about`."""
+    g = np.asarray(g, np.float64)
+    g = g.reshape(g.shape + (1,) * (q.ndim - g.ndim))
+    return quaternion_power_about(q, mean, g).astype(q.dtype, copy=False)

@@ -304,7 +304,7 @@ def train_predictor(
         raise ValueError("train_predictor needs at least one take")
     torch.manual_seed(seed)
     cfg = s.model_config()
-    from facecapges.capture.head_pose import mean_rotation
+    from facecapges.rotations import mean_rotation
 
     reference = mean_rotation(np.concatenate([t.head[: t.train_until] for t in takes]))
     parts = [_part(t, cfg, reference) for t in takes]

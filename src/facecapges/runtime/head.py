@@ -34,8 +34,7 @@ from __future__ import annotations
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.capture.face_lost import FaceLostPolicy, slerp_matrix
-from facecapges.capture.head_pose import exp_so3, head_angles, log_so3
+from facecapges.capture.face_lost import FaceLostPolicy
 
 HEAD_MODES = ("capture", "model", "blend")
 _SPINE, _NECK, _NECK1 = 0, 1, 2  # indices in facecapges.skeleton.UPPER_BODY
@@ -60,7 +59,7 @@ def set_head(pose: np.ndarray, R_head: np.ndarray) -> np.ndarray:
     """A copy of ``pose`` (47, 6) whose global head rotation is ``R_head`` (module docstring)."""
     M = rot.rot6d_to_matrix(np.asarray(pose[:3], np.float64))
     L = M[_SPINE].T @ np.asarray(R_head, np.float64)
-    half = rot.matrix_to_rot6d(exp_so3(0.5 * log_so3(L)))
+    half = rot.matrix_to_rot6d(rot.rotation_power_about(L, None, 0.5))
     out = np.array(pose, copy=True)
     out[_NECK] = half
     out[_NECK1] = half
@@ -100,7 +99,7 @@ class HeadDriver:
         w = self.weight * self.share
         if self._R is None or w <= 0.0:
             return pose
-        return set_head(pose, slerp_matrix(avatar_head_matrix(pose), self._R, w))
+        return set_head(pose, rot.rotation_power_about(self._R, avatar_head_matrix(pose), w))
 
 
 def _corr(a: np.ndarray, b: np.ndarray) -> float | None:
@@ -117,7 +116,7 @@ def head_follow(poses: np.ndarray, heads: np.ndarray, found: np.ndarray | None =
     Returns:
         ``{"frames", "yaw_r", "pitch_r", "yaw_range_deg": {"captured", "avatar"}, "pitch_range_deg": …,
         "mean_error_deg"}``: Pearson correlations of the ARKit-style angles
-        (:func:`facecapges.capture.head_pose.head_angles`) and the mean geodesic angle between the two.
+        (:func:`facecapges.rotations.head_angles`) and the mean geodesic angle between the two.
     """
     poses, heads = np.asarray(poses), np.asarray(heads)
     keep = np.ones(len(poses), bool) if found is None else np.asarray(found, bool)
@@ -125,8 +124,8 @@ def head_follow(poses: np.ndarray, heads: np.ndarray, found: np.ndarray | None =
         return {"frames": 0}
     A = avatar_head_matrix(poses[keep])
     C = rot.rot6d_to_matrix(heads[keep].astype(np.float64))
-    a = np.degrees(np.stack([head_angles(R) for R in A]))
-    c = np.degrees(np.stack([head_angles(R) for R in C]))
+    a = np.degrees(rot.head_angles(A))
+    c = np.degrees(rot.head_angles(C))
     err = np.degrees(rot.geodesic_angle(A, C))
 
     def rng(x):

@@ -54,7 +54,7 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
-from facecapges.capture.face_lost import FaceLostPolicy, scale_rotation
+from facecapges.capture.face_lost import FaceLostPolicy
 from facecapges.capture.speech_mouth import SpeechMouth
 from facecapges.runtime.frames import InputFrame, OutputFrame
 from facecapges.runtime.head import HeadDriver
@@ -98,7 +98,7 @@ class FaceHold:
         self.remaining = min(k, self._remaining(now_s)) if self.found else self._remaining(now_s)
         if k >= 1.0:
             return self.weights, self.head, self.found
-        R = scale_rotation(rot.rot6d_to_matrix(self.head.astype(np.float64)), k)
+        R = rot.rotation_power_about(rot.rot6d_to_matrix(self.head.astype(np.float64)), None, k)
         return (self.weights * k).astype(np.float32), rot.matrix_to_rot6d(R).astype(np.float32), False
 
 

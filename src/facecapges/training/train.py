@@ -142,8 +142,9 @@ def input_statistics(
       (all zero) the scale is 0: the style never saw faces, so faces never reach it.
     * audio: raw samples by 1 / RMS; Mel features per channel (1 / max(sd, 1e-3)).
     """
-    from facecapges.capture.head_pose import mean_rotation, skeleton_head_to_camera
+    from facecapges.capture.head_pose import skeleton_head_to_camera
     from facecapges.model.audio_features import AudioFeatures
+    from facecapges.rotations import mean_rotation
 
     cut = [
         slice(0, len(c.pose) if lim is None else min(lim, len(c.pose)))

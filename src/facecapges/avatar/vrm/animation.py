@@ -65,7 +65,7 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
 
     from facecapges.avatar.retarget import Retargeter
     from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
-    from facecapges.rotations import matrix_to_quaternion
+    from facecapges.rotations import continuous_quaternions, matrix_to_quaternion
     from facecapges.skeleton import rest_positions
 
     check_face_mode(face)
@@ -75,12 +75,7 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     model = beat_model(skel)
     rt = Retargeter(skel, model)
     L = rt.local_matrices(local_mats)  # (T, B, 3, 3); corrections are the identity on BEAT itself
-    q = matrix_to_quaternion(L)
-    q = q * np.where(q[..., :1] < 0, -1.0, 1.0)
-    # keep consecutive keys in one hemisphere so LINEAR (slerp) interpolation takes the short way
-    for t in range(1, T):
-        flip = np.sum(q[t] * q[t - 1], -1) < 0
-        q[t, flip] *= -1
+    q = continuous_quaternions(matrix_to_quaternion(L))  # LINEAR (slerp) keys take the short way
     P = rest_positions(skel) * 0.01
     sole = skel.names.index("LeftForeFoot") if "LeftForeFoot" in skel.names else skel.names.index("LeftFoot")
     lift = float(-P[sole, 1])

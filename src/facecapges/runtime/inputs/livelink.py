@@ -53,7 +53,7 @@ face is *not* mirrored. The recordings of the app's packets in ``../shared/data/
   their sign flip.
 
 So the head → camera rotation is ``R = angles_to_matrix(−HeadYaw, HeadPitch, −HeadRoll)``
-(:func:`facecapges.capture.head_pose.angles_to_matrix`: ``R_Y(yaw) @ R_X(pitch) @ R_Z(roll)``
+(:func:`facecapges.rotations.angles_to_matrix`: ``R_Y(yaw) @ R_X(pitch) @ R_Z(roll)``
 in the ARKit-style camera frame, right-handed, Y up, +Z out of the face), then rot6d;
 :attr:`LiveLinkFrame.head_angles` returns the angles already converted. ``tests/
 test_runtime_livelink.py`` checks these figures on the recordings. The eye angles are
@@ -199,9 +199,7 @@ class LiveLinkFrame:
 
     @property
     def head_rot6d(self) -> np.ndarray:
-        from facecapges.capture.head_pose import angles_to_matrix
-
-        return rot.matrix_to_rot6d(angles_to_matrix(*self.head_angles)).astype(np.float32)
+        return rot.matrix_to_rot6d(rot.angles_to_matrix(*self.head_angles)).astype(np.float32)
 
 
 def _string(data: bytes, pos: int, what: str) -> tuple[str, int]:

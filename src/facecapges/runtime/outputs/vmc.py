@@ -224,13 +224,6 @@ def our_rig(skeleton: Skeleton) -> VmcRig:
     return VmcRig("our avatar (avatar build --format vrm / vrm0)", pos, eye, dict(eye))
 
 
-def _rotation_part(m: np.ndarray) -> np.ndarray:
-    """The rotation of a 3×3 block that may carry a scale (nearest orthonormal matrix)."""
-    u, _, vt = np.linalg.svd(m)
-    r = u @ vt
-    return r if np.linalg.det(r) > 0 else u @ np.diag([1.0, 1.0, -1.0]) @ vt
-
-
 def vrm_rig(path: str | Path) -> VmcRig:
     """A VRM 0.x / 1.0 (or humanoid GLB) file's rig, as UniVRM loads it (module docstring).
 
@@ -262,8 +255,8 @@ def vrm_rig(path: str | Path) -> VmcRig:
             continue
         u = vrm_to_unity(bone)
         rig.positions[u] = M @ t
-        rig.parent_rest[u] = M @ _rotation_part(wp[:3, :3]) @ M
-        rig.bone_rest[u] = M @ _rotation_part(world[node][:3, :3]) @ M
+        rig.parent_rest[u] = M @ rot.nearest_rotation(wp[:3, :3]) @ M  # a node's scale stripped
+        rig.bone_rest[u] = M @ rot.nearest_rotation(world[node][:3, :3]) @ M
     return rig
 
 
