@@ -49,6 +49,7 @@ from facecapges.matching import inertialize as inz
 from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
 from facecapges.matching.speech import SpeechTracker
 from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
+from facecapges.model.slots import Slots
 from facecapges.skeleton import N_JOINTS
 
 
@@ -109,8 +110,7 @@ class BatchedMatchingGenerator:
         self._prepare_db()
         self.speech = SpeechTracker(1)
         self.capacity = 0
-        self._free: list[int] = []
-        self._open: set[int] = set()
+        self.slots = Slots()
         self._pred_slot: dict[int, int] = {}
         self._alloc(max(1, capacity))
 
@@ -162,24 +162,21 @@ class BatchedMatchingGenerator:
         self.intensity_now = grow("intensity_now", (), 1.0, np.float64)
         self.switches = grow("switches", (), 0, np.int64)
         self.speech.ensure(capacity)
-        self._free = sorted(set(self._free) | set(range(old, capacity)), reverse=True)
+        self.slots.grown(capacity)
         self.capacity = capacity
 
     @property
     def n_open(self) -> int:
-        return len(self._open)
+        return len(self.slots)
 
     @property
     def open_slots(self) -> frozenset[int]:
-        return frozenset(self._open)
+        return self.slots.open
 
     def open(self, initial_pose: np.ndarray | None = None) -> int:
         """A new stream (:meth:`reset`); returns its slot id."""
         with self._lock:
-            if not self._free:
-                self._alloc(self.capacity * 2)
-            slot = self._free.pop()
-            self._open.add(slot)
+            slot = self.slots.take(self._alloc)
             if self.predictor is not None:
                 self._pred_slot[slot] = self.predictor.open()
             try:
@@ -191,9 +188,7 @@ class BatchedMatchingGenerator:
 
     def close(self, slot: int) -> None:
         with self._lock:
-            if slot in self._open:
-                self._open.discard(slot)
-                self._free.append(slot)
+            if self.slots.release(slot):
                 ps = self._pred_slot.pop(slot, None)
                 if ps is not None and self.predictor is not None:
                     self.predictor.close(ps)
@@ -205,8 +200,7 @@ class BatchedMatchingGenerator:
     def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
         """Cold start: ``initial_pose`` (47, 6), (N, 47, 6) or None (the style's idle pose)."""
         with self._lock:
-            if slot not in self._open:
-                raise KeyError(f"slot {slot} is not open")
+            self.slots.require(slot)
             self.speech.reset(slot)
             if self.predictor is not None:
                 self.predictor.reset(self._pred_slot[slot])
@@ -239,13 +233,7 @@ class BatchedMatchingGenerator:
 
     # ------------------------------------------------------------- the step
     def _ids(self, slots: Sequence[int]) -> np.ndarray:
-        ids = np.array([int(s) for s in np.asarray(slots).reshape(-1)], np.int64)
-        if len(set(ids.tolist())) != len(ids):
-            raise ValueError("a slot appears twice in one step")
-        for s in ids:
-            if int(s) not in self._open:
-                raise KeyError(f"slot {int(s)} is not open")
-        return ids
+        return np.array(self.slots.check(np.asarray(slots).reshape(-1)), np.int64)
 
     def _inputs(self, audio, face, head, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         spf = timing.samples_per_frame()

@@ -79,6 +79,7 @@ from facecapges.model.network import (
     mlp,
     set_input_statistics,
 )
+from facecapges.model.slots import Slots
 
 K = len(TARGET_NAMES)
 OUTPUT_NAMES: tuple[str, ...] = (*TARGET_NAMES, "speaking")
@@ -446,47 +447,38 @@ class BatchedPredictor:
         self._lock = threading.RLock()
         self._enc = BatchedEncoders(predictor.net, max(1, capacity))
         self._out = affine_chain(predictor.net.out)
-        self._free: list[int] = list(range(self._enc.capacity - 1, -1, -1))
-        self._open: set[int] = set()
+        self.slots = Slots()
+        self.slots.grown(self._enc.capacity)
 
     @property
     def capacity(self) -> int:
         return self._enc.capacity
 
+    def _grow(self, capacity: int) -> None:
+        self._enc.alloc(capacity)
+        self.slots.grown(capacity)
+
     def open(self) -> int:
         """A new stream (before its first frame: the encoders' causal zeros); returns its slot."""
         with self._lock:
-            if not self._free:
-                old = self._enc.capacity
-                self._enc.alloc(2 * old)
-                self._free = list(range(2 * old - 1, old - 1, -1))
-            slot = self._free.pop()
-            self._open.add(slot)
+            slot = self.slots.take(self._grow)
             self._enc.reset(slot)
             return slot
 
     def close(self, slot: int) -> None:
         with self._lock:
-            if slot in self._open:
-                self._open.discard(slot)
-                self._free.append(slot)
+            self.slots.release(slot)
 
     def reset(self, slot: int) -> None:
         with self._lock:
-            if slot not in self._open:
-                raise KeyError(f"slot {slot} is not open")
+            self.slots.require(slot)
             self._enc.reset(slot)
 
     @torch.inference_mode()
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame per stream: audio (B, ≤ 1067), face (B, 52), camera-frame head (B, 6) → (B, K + 1)."""
         with self._lock:
-            ids = [int(s) for s in slots]
-            if len(set(ids)) != len(ids):
-                raise ValueError("a stream can take only one frame per batched step")
-            closed = [s for s in ids if s not in self._open]
-            if closed:
-                raise KeyError(f"slot(s) {closed} are not open")
+            ids = self.slots.check(slots)
             if not ids:
                 return np.zeros((0, K + 1), np.float32)
             a, f, h = self._enc.clean_inputs(audio, face, head, len(ids))

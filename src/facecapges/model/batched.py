@@ -91,6 +91,7 @@ from torch.autograd.profiler import record_function
 from facecapges.model import native
 from facecapges.model.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.model.network import FaceCapGes, MelFrontend
+from facecapges.model.slots import Slots
 
 STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_encoder", "decoder")
 _NO_SCOPE = contextlib.nullcontext()
@@ -466,8 +467,7 @@ class BatchedStreamingGenerator:
         with torch.inference_mode():
             self._e0 = no_input_embedding(model).clone()  # (E,)
         self.capacity = 0
-        self._free: list[int] = []
-        self._open: set[int] = set()
+        self.slots = Slots()
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ storage
@@ -502,25 +502,22 @@ class BatchedStreamingGenerator:
             self.emb = grow("emb", torch.zeros(capacity, W, self.E))
             self.hist = grow("hist", torch.zeros(capacity, N, cfg.pose_dim))
             self.state = grow("state", torch.zeros(4, L, capacity, H), axis=2)
-        self._free = sorted(set(self._free) | set(range(old, capacity)), reverse=True)
+        self.slots.grown(capacity)
         self.capacity = capacity
 
     # ---------------------------------------------------------------- slots
     @property
     def n_open(self) -> int:
-        return len(self._open)
+        return len(self.slots)
 
     @property
     def open_slots(self) -> frozenset[int]:
-        return frozenset(self._open)
+        return self.slots.open
 
     def open(self, initial_pose: np.ndarray | None = None) -> int:
         """A new stream in cold-start state (:meth:`reset`); returns its slot id."""
         with self._lock:
-            if not self._free:
-                self._alloc(self.capacity * 2)
-            slot = self._free.pop()
-            self._open.add(slot)
+            slot = self.slots.take(self._alloc)
             self.intensity[slot] = 1.0
             try:
                 self.reset(slot, initial_pose)
@@ -531,9 +528,7 @@ class BatchedStreamingGenerator:
 
     def close(self, slot: int) -> None:
         with self._lock:
-            if slot in self._open:
-                self._open.discard(slot)
-                self._free.append(slot)
+            self.slots.release(slot)
 
     @torch.inference_mode()
     def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
@@ -541,8 +536,7 @@ class BatchedStreamingGenerator:
         N = self.cfg.n_history
         window = initial_window(initial_pose, self.neutral_window)
         with self._lock:
-            if slot not in self._open:
-                raise KeyError(f"slot {slot} is not open")
+            self.slots.require(slot)
             hist = torch.from_numpy(np.ascontiguousarray(window).reshape(N, -1).copy())
             self.frames[slot] = 0  # history frame -N + j sits at ring row j (= (-N + j) mod N)
             self.encoders.reset(slot)  # before the stream: the encoders' causal zeros
@@ -596,12 +590,7 @@ class BatchedStreamingGenerator:
         return pose
 
     def _ids(self, slots: Sequence[int]) -> tuple[torch.Tensor, list[int]]:
-        ids = [int(s) for s in (slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))]
-        if len(set(ids)) != len(ids):
-            raise ValueError("a stream can take only one frame per batched step")
-        closed = [s for s in ids if s not in self._open]
-        if closed:
-            raise KeyError(f"slot(s) {closed} are not open")
+        ids = self.slots.check(slots if isinstance(slots, (list, tuple)) else np.asarray(slots).reshape(-1))
         return torch.tensor(ids, dtype=torch.long), ids
 
     def torch_schedules_only(self) -> None:
@@ -660,6 +649,5 @@ class BatchedStreamingGenerator:
         """The intensity dial of one stream (:mod:`facecapges.model.intensity`), from its next step on."""
         v = check_intensity(value)
         with self._lock:
-            if slot not in self._open:
-                raise KeyError(f"slot {slot} is not open")
+            self.slots.require(slot)
             self.intensity[slot] = v
