@@ -18,6 +18,7 @@ from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
+from facecapges.model.engine import GestureEngine
 from runtime_helpers import cli, refused
 
 SPF = timing.samples_per_frame()
@@ -151,6 +152,7 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     path = save_matching_style(tmp_path / "s.safetensors", db, EngineConfig(margin=0.7), take.skeleton, predictor)
     ck = load_checkpoint(path)
     assert ck.engine == "matching" and ck.fps == FPS and ck.meta["format"] == "facecapges-matching-1"
+    assert isinstance(ck, GestureEngine) and ck.display_name == "motion matching (s)"
     assert ck.config.margin == 0.7 and ck.skeleton.names == take.skeleton.names
     assert ck.database_poses().shape == (len(db), 47, 6) and ck.neutral_window.shape[1:] == (47, 6)
     for k, v in db.tensors().items():

@@ -19,20 +19,19 @@ same name as a shipped one takes precedence.
 
 from __future__ import annotations
 
-import functools
 import json
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from facecapges.errors import UserError, file_error
+from facecapges.model.engine import GestureEngine
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
-    from facecapges.matching.style import MatchingCheckpoint
     from facecapges.model.network import FaceCapGes
 
 DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
@@ -204,30 +203,18 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
 
 
 @dataclass
-class Checkpoint:
-    """A loaded inference checkpoint."""
+class Checkpoint(GestureEngine):
+    """A loaded network style (the thesis network): a :class:`~facecapges.model.engine.GestureEngine`."""
 
     model: FaceCapGes  # eval mode
     meta: dict
     path: Path
-    engine: str = "network"  # a matching style loads as facecapges.matching.style.MatchingCheckpoint
-
-    @functools.cached_property
-    def skeleton(self) -> Skeleton:
-        """The checkpoint's skeleton, built once (its per-joint caches then serve every frame)."""
-        if "skeleton" not in self.meta:
-            raise file_error(self.path, "checkpoint has no skeleton in its metadata: it cannot write motion")
-        return skeleton_from_dict(self.meta["skeleton"])
-
-    @property
-    def neutral_window(self) -> np.ndarray:
-        return np.array(self.meta["neutral_window"], dtype=np.float32)
+    engine: ClassVar[str] = "network"  # the motion-matching engine's styles: facecapges.matching
+    label: ClassVar[str] = "FaceCapGes"
 
     @property
     def fps(self) -> int:
         return int(self.meta["model_config"]["fps"])
-
-    engine = "network"  # the thesis network (the motion-matching engine's styles: facecapges.matching)
 
     def streaming(self):
         from facecapges.model.streaming import StreamingGenerator
@@ -279,13 +266,12 @@ def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
     return tensors, meta
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint | MatchingCheckpoint:
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> GestureEngine:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
 
-    A network style gives a :class:`Checkpoint` (``engine == "network"``), a motion-matching
-    style (format ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`
-    (``engine == "matching"``); both have ``meta``, ``path``, ``fps``, ``skeleton``,
-    ``neutral_window``, ``streaming()`` and ``batched(capacity)``.
+    A network style gives a :class:`Checkpoint`, a motion-matching style (format
+    ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`: both are
+    :class:`~facecapges.model.engine.GestureEngine` s, what every caller uses.
     """
     import torch
     from safetensors import SafetensorError, safe_open
@@ -362,14 +348,14 @@ def _check_meta(p: Path, meta: dict) -> None:
         raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
 
 
-def network_only(ckpt: Checkpoint | MatchingCheckpoint, what: str) -> Checkpoint:
-    """``ckpt`` if it is a network style; a clear error for a matching style where only a network fits."""
+def network_only(ckpt: GestureEngine, what: str) -> Checkpoint:
+    """``ckpt`` if it is a network style; a clear error for another engine's style where only a network fits."""
     if not isinstance(ckpt, Checkpoint):
-        raise UserError(f"{ckpt.path}: a motion-matching style; {what} needs a network style (FaceCapGes)")
+        raise UserError(f"{ckpt.path}: a {ckpt.label} style; {what} needs a network style (FaceCapGes)")
     return ckpt
 
 
-def load_checkpoint_or_style(spec: str | Path) -> Checkpoint | MatchingCheckpoint:
+def load_checkpoint_or_style(spec: str | Path) -> GestureEngine:
     """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
     path: a suffix or a folder in it) or else by an installed style's name."""
     p = Path(spec)
