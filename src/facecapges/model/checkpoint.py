@@ -244,25 +244,35 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
-def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
-    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+def _read_file(p: Path) -> tuple[dict, dict | None]:
+    """A safetensors file's tensors and its ``"facecapges"`` metadata (None when it has none); clear errors."""
     from safetensors import SafetensorError, safe_open
 
-    p = Path(path)
-    if not p.is_file():
-        raise file_error(p, f"{what} not found")
     try:
         with safe_open(str(p), framework="pt") as f:
             raw = (f.metadata() or {}).get("facecapges")
             tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    if raw is None:
+        return tensors, None
     try:
-        meta = json.loads(raw) if raw else {}
-    except json.JSONDecodeError:
+        meta = json.loads(raw)
+    except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != fmt:
-        raise file_error(p, f"not a {what} (format {meta.get('format')!r})")
+    return tensors, meta
+
+
+def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise file_error(p, f"{what} not found")
+    tensors, meta = _read_file(p)
+    meta = meta or {}
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        fmt_found = meta.get("format") if isinstance(meta, dict) else None
+        raise file_error(p, f"not a {what} (format {fmt_found!r})")
     return tensors, meta
 
 
@@ -274,24 +284,14 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     :class:`~facecapges.model.engine.GestureEngine` s, what every caller uses.
     """
     import torch
-    from safetensors import SafetensorError, safe_open
 
     from facecapges.model.config import model_config_from_dict
     from facecapges.model.network import FaceCapGes, with_default_norms
 
     p = resolve(path, style)
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw_meta = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    if raw_meta is None:
+    tensors, meta = _read_file(p)
+    if meta is None:
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
-    try:
-        meta = json.loads(raw_meta)
-    except (ValueError, RecursionError):
-        raise file_error(p, "checkpoint metadata is corrupt") from None
     if isinstance(meta, dict) and meta.get("format") == MATCHING_FORMAT:
         from facecapges.matching.style import from_file
 
