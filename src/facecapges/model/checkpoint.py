@@ -32,7 +32,9 @@ from facecapges.model.engine import GestureEngine
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
+    from facecapges.model.batched import BatchedStreamingGenerator
     from facecapges.model.network import FaceCapGes
+    from facecapges.model.streaming import StreamingGenerator
 
 DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
 DEFAULT_NETWORK_STYLE = "beat2-scott-demo"  # the thesis network of the same speaker (train / ablate / its bench)
@@ -216,12 +218,12 @@ class Checkpoint(GestureEngine):
     def fps(self) -> int:
         return int(self.meta["model_config"]["fps"])
 
-    def streaming(self):
+    def streaming(self) -> StreamingGenerator:
         from facecapges.model.streaming import StreamingGenerator
 
         return StreamingGenerator(self.model, self.neutral_window)
 
-    def batched(self, capacity: int = 8):
+    def batched(self, capacity: int = 8) -> BatchedStreamingGenerator:
         """Many streams of this style stepped as one batch (what ``serve`` runs)."""
         from facecapges.model.batched import BatchedStreamingGenerator
 

@@ -11,7 +11,8 @@ evaluation use only what is defined here, so another engine slots in beside ``mo
 * ``fps`` (the model rate: a recording's inputs are planned at it, :meth:`~GestureEngine.plan_inputs`),
   ``skeleton`` (the BEAT skeleton its poses belong to) and ``neutral_window`` (the cold-start
   history, (N, 47, 6) rot6d) — read from ``meta`` here, once for every engine;
-* ``streaming()`` — one stream (:class:`Stream`), ``batched(capacity)`` — many streams stepped as
+* ``streaming()`` — one stream (:class:`Stream`: ``reset(initial_pose)``, ``step(audio, face, head)``,
+  ``intensity``, ``frames``), ``batched(capacity)`` — many streams stepped as
   one batch (what ``serve`` runs);
 * ``database_poses()`` — the real frames an engine replays (repetition is measured against them), or
   None for an engine that generates its poses.
@@ -39,7 +40,12 @@ if TYPE_CHECKING:
 class Stream(Protocol):
     """One stream of an engine: a pose (47, 6) per frame of inputs, from a history it is reset to."""
 
-    intensity: float
+    intensity: float  # the dial, 0 (rest) … 1 … 1.3 (facecapges.model.intensity)
+
+    @property
+    def frames(self) -> int:
+        """Frames stepped since the last reset."""
+        ...
 
     def reset(self, initial_pose: np.ndarray | None = None) -> None: ...
 
