@@ -45,7 +45,8 @@ and the three variants; ``samples`` runs per variant and clip:
 
 * the two closed-loop variants run frame by frame through the streaming generator
   (the live path), sample 0 from their cold-start neutral window, sample k > 0 from a
-  random real N-frame window of the pool as history — exactly as ``facecapges eval``;
+  random real N-frame window of the pool as history — exactly as ``facecapges eval``, through the
+  same loop (:func:`facecapges.model.generate.generate_poses`);
 * the offline variant decodes the whole held-out sequence of a clip in one pass
   (:meth:`BidirectionalDecoder.generate`), seeded by **the same N-frame history** the
   streaming variants start from (sample 0: its own neutral window, chosen from the
