@@ -103,7 +103,7 @@ def main() -> None:
     from facecapges.evaluation.run import engine_database, heldout_inputs
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses, prepare_inputs
+    from facecapges.model.generate import generate_poses
     from facecapges.rotations import identity_rot6d
     from facecapges.timing import AUDIO_SR
 
@@ -151,7 +151,7 @@ def main() -> None:
     for p in args.audio:
         from facecapges.io.audio import load_audio
 
-        inputs = prepare_inputs(p, fps=fps)
+        inputs = ck.prepare_inputs(p)
         gen, _ = generate_poses(ck, inputs, progress=False)
         wav = load_audio(p, sr)
         out["unseen"][p.name] = _row(skel, gen, wav, sr, fps, pooled)

@@ -114,12 +114,12 @@ def test_control_on_the_two_halves_of_the_take(take):
 
 
 def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audio):
-    """``generate_from`` uses ``ckpt.streaming()`` + ``reset(initial_pose)``: the same poses as the network's
-    streaming generator built on that window by hand (the path it replaced)."""
+    """``generate_poses`` from a history uses ``ckpt.streaming()`` + ``reset(initial_pose)``: the same poses
+    as the network's streaming generator built on that window by hand (the path it replaced)."""
     from facecapges import timing
-    from facecapges.evaluation.run import engine_database, engine_name, generate_from, history_frames
+    from facecapges.evaluation.run import engine_database, history_frames
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import FrameInputs
+    from facecapges.model.generate import FrameInputs, generate_poses
     from facecapges.model.streaming import StreamingGenerator
 
     pose, _ = take
@@ -131,13 +131,14 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
         audio=timing.frame_audio(audio, n, FPS), face=np.zeros((n, 52), np.float32), head=head, fps=FPS, notes=[]
     )
     window = pose[200 : 200 + history_frames(ckpt)].astype(np.float32)
-    got = generate_from(ckpt, inputs, window, progress=False)
+    got, _ = generate_poses(ckpt, inputs, progress=False, history=window)
     by_hand = StreamingGenerator(ckpt.model, window)
     want = np.stack([by_hand.step(inputs.audio[t], inputs.face[t], inputs.head[t]) for t in range(n)])
     np.testing.assert_allclose(got, want, atol=1e-5)
-    cold = generate_from(ckpt, inputs, ckpt.neutral_window, progress=False)
+    cold, _ = generate_poses(ckpt, inputs, progress=False)
+    np.testing.assert_allclose(cold, generate_poses(ckpt, inputs, False, ckpt.neutral_window)[0], atol=1e-5)
     assert np.abs(cold - got).max() > 1e-3  # the start window is really used
-    assert engine_name(ckpt) == "FaceCapGes (beat2-scott-demo)"
+    assert ckpt.display_name == "FaceCapGes (beat2-scott-demo)" and ckpt.database_poses() is None
     db, source = engine_database(ckpt, [pose[:766]])
     assert db is not None and len(db[0]) == 766 and "training frames" in source
     assert engine_database(ckpt, [])[0] is None

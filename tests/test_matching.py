@@ -18,6 +18,8 @@ from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
+from facecapges.model.engine import GestureEngine
+from facecapges.model.generate import FrameInputs, generate_poses
 from runtime_helpers import cli, refused
 
 SPF = timing.samples_per_frame()
@@ -151,6 +153,7 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     path = save_matching_style(tmp_path / "s.safetensors", db, EngineConfig(margin=0.7), take.skeleton, predictor)
     ck = load_checkpoint(path)
     assert ck.engine == "matching" and ck.fps == FPS and ck.meta["format"] == "facecapges-matching-1"
+    assert isinstance(ck, GestureEngine) and ck.display_name == "motion matching (s)"
     assert ck.config.margin == 0.7 and ck.skeleton.names == take.skeleton.names
     assert ck.database_poses().shape == (len(db), 47, 6) and ck.neutral_window.shape[1:] == (47, 6)
     for k, v in db.tensors().items():
@@ -158,6 +161,17 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     a = run(MatchingGenerator(db, EngineConfig(margin=0.7), predictor), take, 450, 500)
     b = run(ck.streaming(), take, 450, 500)
     assert np.array_equal(a, b)
+    # the one whole-recording loop runs this engine as the network, from a history as eval's other samples
+    window = take.pose[600:608].astype(np.float32)
+    frames = range(450, 500)
+    audio = np.stack([take.audio[t * SPF : (t + 1) * SPF] for t in frames])
+    inputs = FrameInputs(audio=audio, face=take.face[450:500], head=take.head[450:500], fps=FPS, notes=[])
+    by_hand = ck.streaming()
+    by_hand.reset(initial_pose=window)
+    from_window = generate_poses(ck, inputs, False, window)[0]
+    np.testing.assert_allclose(from_window, run(by_hand, take, 450, 500), atol=1e-5)
+    assert np.abs(from_window - b).max() > 1e-3  # the history is really used
+    np.testing.assert_allclose(generate_poses(ck, inputs, progress=False)[0], b, atol=1e-5)
     assert load_checkpoint(style=None).engine == "matching"  # the default style
     assert load_checkpoint(style=DEFAULT_NETWORK_STYLE).engine == "network"
 

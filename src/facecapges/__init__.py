@@ -2,7 +2,7 @@
 
 The Python API (README "Python API")::
 
-    ckpt = facecapges.load_checkpoint(style="beat2-scott-demo")
+    ckpt = facecapges.load_checkpoint(style="beat2-scott-demo")  # a GestureEngine (either engine)
     gen = ckpt.streaming()                      # a StreamingGenerator: one live stream
     pose = gen.step(audio_chunk, face, head)    # (47, 6) rot6d, frame by frame
 
@@ -22,6 +22,7 @@ _EXPORTS: dict[str, str] = {
     "list_styles": "facecapges.model.checkpoint",
     "Checkpoint": "facecapges.model.checkpoint",
     "DEFAULT_STYLE": "facecapges.model.checkpoint",
+    "GestureEngine": "facecapges.model.engine",
     "StreamingGenerator": "facecapges.model.streaming",
     "load_audio": "facecapges.io.audio",
     "UserError": "facecapges.errors",
@@ -42,6 +43,7 @@ __all__ = [  # the API first, then the conventions
     "N_JOINTS",
     "UPPER_BODY",
     "Checkpoint",
+    "GestureEngine",
     "StreamingGenerator",
     "UserError",
     "__version__",
@@ -56,6 +58,7 @@ if TYPE_CHECKING:
     from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
     from facecapges.model.checkpoint import DEFAULT_STYLE, Checkpoint, list_styles, load_checkpoint
+    from facecapges.model.engine import GestureEngine
     from facecapges.model.streaming import StreamingGenerator
     from facecapges.skeleton import N_JOINTS, UPPER_BODY
     from facecapges.timing import AUDIO_SR, MODEL_FPS

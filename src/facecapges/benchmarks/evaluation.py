@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.timing import AUDIO_SR
+from facecapges.timing import AUDIO_SR, MODEL_FPS
 
 
 def _data(shared_dir: Path):
@@ -72,7 +72,7 @@ def run(quick: bool, shared: Path) -> dict:
     from facecapges.skeleton import UPPER_BODY
 
     skel, pose, audio, sr, source = _data(shared)
-    fps = 15.0
+    fps = float(MODEL_FPS)
     n = 900  # 60 s at 15 fps
     out: dict = {"data": source}
     # skeleton video: 60 s, 2 panels, audio

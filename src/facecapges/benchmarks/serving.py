@@ -31,6 +31,8 @@ import sys
 import time
 from pathlib import Path
 
+from facecapges.timing import MODEL_FPS
+
 TARGET = 150  # concurrent real-time streams with p99 under one frame period
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 
@@ -175,7 +177,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         "niceness": os.nice(0),
         "server_cpu_ms_per_frame": ref["server_cpu_ms_per_frame"],
         "client_cpu_ms_per_frame": ref["client_cpu_ms_per_frame"],
-        "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * 15.0)),
+        "streams_cpu_bound_estimate": int((os.cpu_count() or 1) * 1000.0 / (per_frame * MODEL_FPS)),
         "trials": trials,
         "server_summary": served,
     }

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.skeleton import N_JOINTS
+from facecapges.timing import MODEL_FPS
 
 
 def run(quick: bool, shared: Path) -> dict:
@@ -39,7 +40,7 @@ def run(quick: bool, shared: Path) -> dict:
     else:
         from facecapges.model.checkpoint import load_skeleton
 
-        skel, fps = load_skeleton(), 15.0
+        skel, fps = load_skeleton(), float(MODEL_FPS)
         L = np.broadcast_to(np.eye(3), (900, skel.n_joints, 3, 3)).copy()
     model = beat_model(skel)
     rt = Retargeter(skel, model)

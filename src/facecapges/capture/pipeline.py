@@ -35,6 +35,7 @@ from facecapges.capture.landmarks import FaceObservation, FaceTracker, LandmarkD
 from facecapges.capture.metrics import compute_metrics
 from facecapges.capture.models import resolve_model
 from facecapges.capture.samples import sample_weight
+from facecapges.timing import MODEL_FPS
 
 if TYPE_CHECKING:
     from facecapges.capture.depth import DepthHeadTracker
@@ -94,7 +95,7 @@ class FaceCapture:
     def __init__(
         self,
         estimator: str = "hybrid",
-        fps: float = 15.0,
+        fps: float = float(MODEL_FPS),
         model=None,
         num_faces: int = 1,
         intrinsics: Intrinsics | None = None,

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.errors import UserError, check_output_file
+from facecapges.timing import MODEL_FPS
 
 
 def result_record(res, time_s: float) -> dict:
@@ -83,7 +84,7 @@ def capture_video(
     source: str,
     out: str | Path,
     estimator: str = "hybrid",
-    fps: float = 15.0,
+    fps: float = float(MODEL_FPS),
     overlay: str | Path | None = None,
     depth_dir=None,
     intrinsics=None,

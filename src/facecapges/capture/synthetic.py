@@ -33,6 +33,7 @@ from facecapges.capture.head_pose import Intrinsics
 from facecapges.capture.landmarks import N_LANDMARKS
 from facecapges.capture.metrics import BROW_INNER_L, BROW_INNER_R, BROW_L, BROW_R
 from facecapges.rotations import angles_to_matrix
+from facecapges.timing import MODEL_FPS
 
 CHANNELS = (
     "jawOpen",
@@ -74,7 +75,7 @@ def _smooth_walk(T: int, rng, amp: float, fps: float) -> np.ndarray:
 def synthetic_sequence(
     canonical: np.ndarray,
     n_frames: int = 300,
-    fps: float = 15.0,
+    fps: float = float(MODEL_FPS),
     seed: int = 0,
     width: int = 1280,
     height: int = 720,

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from facecapges.commands.params import LANDMARK_MODEL
+from facecapges.timing import MODEL_FPS
 
 SOURCE = typer.Argument(help="A video file, or a camera index (0, 1, …).")
 CAPTURE_OUT = typer.Option("--out", help="Face JSON to write (ARKit weights + head rot6d per frame).")
@@ -31,7 +32,7 @@ def capture(
     source: Annotated[str, SOURCE],
     out: Annotated[Path, CAPTURE_OUT],
     estimator: Annotated[str, ESTIMATOR] = "hybrid",
-    fps: Annotated[float, FPS] = 15.0,
+    fps: Annotated[float, FPS] = float(MODEL_FPS),
     face_json: Annotated[str, FACE_JSON] = "beat",
     overlay: Annotated[Path | None, OVERLAY] = None,
     depth: Annotated[Path | None, DEPTH] = None,

@@ -9,6 +9,7 @@ import typer
 
 from facecapges.commands.params import FORCE_OUT, QUIET_BAR
 from facecapges.errors import UserError
+from facecapges.timing import MODEL_FPS
 
 
 def parse_speakers(text: str) -> list[int] | None:
@@ -71,7 +72,7 @@ def prepare(
     out: Annotated[Path, CACHE_OUT],
     beat_root: Annotated[Path | None, BEAT_ROOT] = None,
     speakers: Annotated[str, SPEAKERS] = "",
-    fps: Annotated[float, FPS] = 15.0,
+    fps: Annotated[float, FPS] = float(MODEL_FPS),
     mocap: Annotated[list[Path] | None, MOCAP] = None,
     joint_map: Annotated[str | None, JOINT_MAP] = None,
     mocap_speaker: Annotated[int | None, MOCAP_SPEAKER] = None,

@@ -43,7 +43,7 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     from facecapges.errors import check_output_file
     from facecapges.io.bvh import write_bvh
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses, prepare_inputs
+    from facecapges.model.generate import generate_poses
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
 
@@ -53,7 +53,7 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
         check_output_file(p, force)
     t0 = time.perf_counter()
     ckpt = load_checkpoint()
-    inputs = prepare_inputs(speech, fps=ckpt.fps)
+    inputs = ckpt.prepare_inputs(speech)
     poses, ms = generate_poses(ckpt, inputs)
     poses = normalize_rot6d(poses)
     skel = ckpt.skeleton

@@ -45,7 +45,8 @@ and the three variants; ``samples`` runs per variant and clip:
 
 * the two closed-loop variants run frame by frame through the streaming generator
   (the live path), sample 0 from their cold-start neutral window, sample k > 0 from a
-  random real N-frame window of the pool as history — exactly as ``facecapges eval``;
+  random real N-frame window of the pool as history — exactly as ``facecapges eval``, through the
+  same loop (:func:`facecapges.model.generate.generate_poses`);
 * the offline variant decodes the whole held-out sequence of a clip in one pass
   (:meth:`BidirectionalDecoder.generate`), seeded by **the same N-frame history** the
   streaming variants start from (sample 0: its own neutral window, chosen from the
@@ -324,27 +325,29 @@ class _Runner:
         self.ms: list[float] = []
 
     def run(self, inputs, history: np.ndarray | None, progress: bool) -> np.ndarray:
-        import torch
-
+        """Poses for ``inputs`` from ``history`` (None: the variant's cold-start window); times the call."""
         t0 = time.perf_counter()
         if self.ckpt is None:
-            threads = torch.get_num_threads()
-            torch.set_num_threads(1)
-            try:
-                out = self.model.generate(
-                    inputs.audio, inputs.face, inputs.head, self.neutral if history is None else history
-                )
-            finally:
-                torch.set_num_threads(threads)
-        elif history is None:
+            out = self._decode(inputs, history)
+        else:
             from facecapges.model.generate import generate_poses
 
-            out, _ = generate_poses(self.ckpt, inputs, progress=progress)
-        else:
-            from facecapges.evaluation.run import generate_from
-
-            out = generate_from(self.ckpt, inputs, history, progress)
+            out = generate_poses(self.ckpt, inputs, progress, history)[0]
         self.ms.append((time.perf_counter() - t0) * 1000 / max(inputs.n_frames, 1))
+        return out
+
+    def _decode(self, inputs, history: np.ndarray | None) -> np.ndarray:
+        """A segment decoder's one pass over the whole sequence, seeded by ``history``."""
+        import torch
+
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            out = self.model.generate(
+                inputs.audio, inputs.face, inputs.head, self.neutral if history is None else history
+            )
+        finally:
+            torch.set_num_threads(threads)
         if not np.isfinite(out).all():
             raise UserError(f"variant {self.variant.name}: the model produced non-finite poses")
         return out

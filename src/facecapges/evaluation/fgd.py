@@ -79,6 +79,7 @@ from torch import nn
 
 from facecapges.evaluation.regions import REGIONS, region_indices, region_joints
 from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton
+from facecapges.timing import MODEL_FPS
 
 FGD_WEIGHTS = "fgd_autoencoder.safetensors"
 FGD_CONFIG = "fgd_autoencoder.json"
@@ -165,7 +166,7 @@ class FGDConfig:
     momentum: float = 0.9  # not stated in the thesis; 0 = plain SGD
     epochs: int = 400
     seed: int = 0
-    fps: float = 15.0
+    fps: float = float(MODEL_FPS)
 
     @property
     def lr(self) -> float:

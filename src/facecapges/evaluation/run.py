@@ -7,7 +7,8 @@ evaluated whole and the pool is the speaker's train clips (falling back to the
 evaluated clips themselves, with a warning, when the cache has none).
 
 **Generation.** The checkpoint runs frame by frame through
-:func:`facecapges.model.generate.generate_poses` — the streaming path of live use, whatever the engine —
+:func:`facecapges.model.generate.generate_poses` — the one whole-recording loop, on the streaming path
+of live use, whatever the engine —
 from a cold start at the first evaluated frame, on the clip's own audio, face
 weights and head rotation from the cache.
 
@@ -22,19 +23,19 @@ never overlapping the evaluated frames) and the model. Several clips are merged 
 :func:`facecapges.evaluation.suite.combine_clips` (frame-weighted means; FGD pooled).
 SRGR is semantic-weighted only when every evaluated clip has a semantic file.
 
-**Unseen audio** (``extra_audio``): the model runs with neutral face and resting head
+**Unseen audio** (``--audio``, ``EvalOptions.audio``): the model runs with neutral face and resting head
 (no face/head track exists for it); BeatAlign (+ control), L1DIV and FGD against all
 of the speaker's real motion in the cache.
 
 **Realism** (issue #25 §3, :mod:`facecapges.evaluation.realism`): the ``realism`` section of
 ``paired`` and of each unseen audio, on sample 0 of every method: transitions against the
-speaker's training frames (the real pool), repetition against the engine's database (a
-matching checkpoint's ``database_poses()``, else the training frames), the silence ratio, and
+speaker's training frames (the real pool), repetition against the engine's database (its
+``database_poses()`` when it replays one, as motion matching does, else the training frames), the silence ratio, and
 the real-vs-generated classifier against the held-out real windows with its control (held-out
 real vs the training frames). ``metrics.md`` shows each figure beside its target.
 
-**Engines.** Generation only uses the checkpoint's stream (``ckpt.streaming()``,
-``reset(initial_pose=…)``, ``step``), ``fps``, ``meta``, ``skeleton`` and ``neutral_window``:
+**Engines.** Evaluation uses only the engine interface (:class:`facecapges.model.engine.GestureEngine`:
+its stream, ``fps``, ``meta``, ``skeleton``, ``neutral_window``, ``display_name``, ``database_poses()``):
 the thesis network and a motion-matching checkpoint run the same path.
 
 **Files** in ``out``: ``metrics.json`` (``paired`` and ``unseen_audio`` sections),
@@ -48,12 +49,16 @@ import functools
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError, check_output_dir, echo, echo_warning, file_error
 from facecapges.evaluation.options import EvalOptions, parse_offsets
+
+if TYPE_CHECKING:
+    from facecapges.model.engine import GestureEngine
 
 
 def load_real_clips(
@@ -126,41 +131,17 @@ def _real_window(pool: Sequence[np.ndarray], n: int, rng: np.random.Generator) -
     return random_segment(pool, n, rng)
 
 
-def generate_from(ckpt, inputs, window: np.ndarray, progress: bool) -> np.ndarray:
-    """Like :func:`facecapges.model.generate.generate_poses`, starting from ``window`` as history.
-
-    Engine-agnostic: the checkpoint's own stream (``ckpt.streaming()``, network or motion
-    matching) restarted with ``reset(initial_pose=window)``."""
-    from rich.progress import track
-
-    from facecapges.skeleton import N_JOINTS
-
-    gen = ckpt.streaming()
-    gen.reset(initial_pose=window)
-    out = np.empty((inputs.n_frames, N_JOINTS, 6), np.float32)
-    frames = track(range(inputs.n_frames), description="generating (other start)", transient=True, disable=not progress)
-    for t in frames:
-        out[t] = gen.step(inputs.audio[t], inputs.face[t], inputs.head[t])
-    if not np.isfinite(out).all():
-        raise UserError("the model produced non-finite poses; the checkpoint is unusable")
-    return out
-
-
 def history_frames(ckpt) -> int:
     """Frames of pose history a stream of ``ckpt`` starts from (its neutral window's length)."""
     return len(ckpt.neutral_window)
 
 
-def engine_name(ckpt) -> str:
-    """The method's name in the tables: ``FaceCapGes (stem)`` for the network, ``motion matching (stem)``."""
-    label = "motion matching" if getattr(ckpt, "engine", "network") == "matching" else "FaceCapGes"
-    return f"{label} ({ckpt.path.stem})"
-
-
-def engine_database(ckpt, training: Sequence[np.ndarray]) -> tuple[list[np.ndarray] | None, str]:
-    """The frames repetition is measured against: a matching engine's database, else the training frames."""
-    if getattr(ckpt, "engine", "network") == "matching" and hasattr(ckpt, "database_poses"):
-        return [np.asarray(ckpt.database_poses(), np.float32)], "the engine's database"
+def engine_database(ckpt: GestureEngine, training: Sequence[np.ndarray]) -> tuple[list[np.ndarray] | None, str]:
+    """The frames repetition is measured against: the engine's database if it replays one, else the
+    training frames."""
+    database = ckpt.database_poses()
+    if database is not None:
+        return [np.asarray(database, np.float32)], "the engine's database"
     if training:
         return [np.asarray(x, np.float32) for x in training], "the speaker's training frames in the cache"
     return None, "no database (no training frames): repetition not computed"
@@ -182,7 +163,7 @@ def run_eval(
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses, prepare_inputs
+    from facecapges.model.generate import generate_poses
 
     cache, out, speaker, split, holdout_from = o.cache, o.out, o.speaker, o.split, o.holdout_from
     seed, samples, progress, offsets_s = o.seed, o.samples, not o.quiet, parse_offsets(o.offsets)
@@ -197,7 +178,7 @@ def run_eval(
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     warnings: list[str] = []
     ckpt = load_checkpoint(o.checkpoint, o.style)
-    model_name = engine_name(ckpt)
+    model_name = ckpt.display_name
     c = Cache(cache)
     fps, sr = c.fps, c.sr
     if abs(fps - ckpt.fps) > 1e-6:
@@ -267,7 +248,7 @@ def run_eval(
         gen, ms = generate_poses(ckpt, inputs, progress=progress)
         ms_all.append(ms)
         gens = [gen] + [
-            generate_from(ckpt, inputs, _real_window(pool, history_frames(ckpt), rng), progress)
+            generate_poses(ckpt, inputs, progress, _real_window(pool, history_frames(ckpt), rng))[0]
             for _ in range(samples - 1)
         ]
         if holdout_from is not None:
@@ -335,11 +316,11 @@ def run_eval(
 
         all_real = [c.load(e["name"])["pose"] for e in c.clips(speaker=speaker)]  # every real clip
         for path in o.audio:
-            inputs = prepare_inputs(path, fps=ckpt.fps)
+            inputs = ckpt.prepare_inputs(path)
             warnings += inputs.notes
             gen, _ = generate_poses(ckpt, inputs, progress=progress)
             gens = [gen] + [
-                generate_from(ckpt, inputs, _real_window(pool, history_frames(ckpt), rng), progress)
+                generate_poses(ckpt, inputs, progress, _real_window(pool, history_frames(ckpt), rng))[0]
                 for _ in range(samples - 1)
             ]
             wav = load_audio(path, sr)

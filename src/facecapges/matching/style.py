@@ -13,16 +13,17 @@ the safetensors metadata under ``"facecapges"``, a JSON document:
   used, held-out range), ``licence`` and ``attribution``.
 
 :func:`facecapges.model.checkpoint.load_checkpoint` reads this format and returns a
-:class:`MatchingCheckpoint` (same ``meta``/``path``/``fps``/``skeleton``/``neutral_window``
-and ``streaming()``/``batched()`` as the network's :class:`~facecapges.model.checkpoint.Checkpoint`).
+:class:`MatchingCheckpoint`: a :class:`~facecapges.model.engine.GestureEngine` like the network's
+:class:`~facecapges.model.checkpoint.Checkpoint` (its ``skeleton`` and ``neutral_window`` come from the
+metadata the same way), with the engine's ``database_poses()``.
 """
 
 from __future__ import annotations
 
-import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,30 +31,24 @@ from facecapges import timing
 from facecapges.errors import UserError, file_error
 from facecapges.matching.database import Database
 from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator
-from facecapges.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from facecapges.model.engine import GestureEngine
+from facecapges.skeleton import Skeleton, skeleton_to_dict
 
 FORMAT = "facecapges-matching-1"
 NEUTRAL_FRAMES = 8
 
 
 @dataclass
-class MatchingCheckpoint:
-    """A loaded matching style (module docs)."""
+class MatchingCheckpoint(GestureEngine):
+    """A loaded matching style (module docs): a :class:`~facecapges.model.engine.GestureEngine`."""
 
     db: Database
     config: EngineConfig
     predictor: object | None
     meta: dict
     path: Path
-    engine: str = "matching"
-
-    @functools.cached_property
-    def skeleton(self) -> Skeleton:
-        return skeleton_from_dict(self.meta["skeleton"])
-
-    @property
-    def neutral_window(self) -> np.ndarray:
-        return np.array(self.meta["neutral_window"], dtype=np.float32)
+    engine: ClassVar[str] = "matching"
+    label: ClassVar[str] = "motion matching"
 
     @property
     def fps(self) -> int:

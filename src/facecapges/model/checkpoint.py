@@ -19,21 +19,22 @@ same name as a shipped one takes precedence.
 
 from __future__ import annotations
 
-import functools
 import json
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
 from facecapges.errors import UserError, file_error
+from facecapges.model.engine import GestureEngine
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
-    from facecapges.matching.style import MatchingCheckpoint
+    from facecapges.model.batched import BatchedStreamingGenerator
     from facecapges.model.network import FaceCapGes
+    from facecapges.model.streaming import StreamingGenerator
 
 DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
 DEFAULT_NETWORK_STYLE = "beat2-scott-demo"  # the thesis network of the same speaker (train / ablate / its bench)
@@ -204,37 +205,25 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
 
 
 @dataclass
-class Checkpoint:
-    """A loaded inference checkpoint."""
+class Checkpoint(GestureEngine):
+    """A loaded network style (the thesis network): a :class:`~facecapges.model.engine.GestureEngine`."""
 
     model: FaceCapGes  # eval mode
     meta: dict
     path: Path
-    engine: str = "network"  # a matching style loads as facecapges.matching.style.MatchingCheckpoint
-
-    @functools.cached_property
-    def skeleton(self) -> Skeleton:
-        """The checkpoint's skeleton, built once (its per-joint caches then serve every frame)."""
-        if "skeleton" not in self.meta:
-            raise file_error(self.path, "checkpoint has no skeleton in its metadata: it cannot write motion")
-        return skeleton_from_dict(self.meta["skeleton"])
-
-    @property
-    def neutral_window(self) -> np.ndarray:
-        return np.array(self.meta["neutral_window"], dtype=np.float32)
+    engine: ClassVar[str] = "network"  # the motion-matching engine's styles: facecapges.matching
+    label: ClassVar[str] = "FaceCapGes"
 
     @property
     def fps(self) -> int:
         return int(self.meta["model_config"]["fps"])
 
-    engine = "network"  # the thesis network (the motion-matching engine's styles: facecapges.matching)
-
-    def streaming(self):
+    def streaming(self) -> StreamingGenerator:
         from facecapges.model.streaming import StreamingGenerator
 
         return StreamingGenerator(self.model, self.neutral_window)
 
-    def batched(self, capacity: int = 8):
+    def batched(self, capacity: int = 8) -> BatchedStreamingGenerator:
         """Many streams of this style stepped as one batch (what ``serve`` runs)."""
         from facecapges.model.batched import BatchedStreamingGenerator
 
@@ -257,55 +246,54 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
-def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
-    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+def _read_file(p: Path) -> tuple[dict, dict | None]:
+    """A safetensors file's tensors and its ``"facecapges"`` metadata (None when it has none); clear errors."""
     from safetensors import SafetensorError, safe_open
 
-    p = Path(path)
-    if not p.is_file():
-        raise file_error(p, f"{what} not found")
     try:
         with safe_open(str(p), framework="pt") as f:
             raw = (f.metadata() or {}).get("facecapges")
             tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    if raw is None:
+        return tensors, None
     try:
-        meta = json.loads(raw) if raw else {}
-    except json.JSONDecodeError:
+        meta = json.loads(raw)
+    except (ValueError, RecursionError):
         raise file_error(p, "checkpoint metadata is corrupt") from None
-    if meta.get("format") != fmt:
-        raise file_error(p, f"not a {what} (format {meta.get('format')!r})")
     return tensors, meta
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> Checkpoint | MatchingCheckpoint:
+def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
+    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise file_error(p, f"{what} not found")
+    tensors, meta = _read_file(p)
+    meta = meta or {}
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        fmt_found = meta.get("format") if isinstance(meta, dict) else None
+        raise file_error(p, f"not a {what} (format {fmt_found!r})")
+    return tensors, meta
+
+
+def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> GestureEngine:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
 
-    A network style gives a :class:`Checkpoint` (``engine == "network"``), a motion-matching
-    style (format ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`
-    (``engine == "matching"``); both have ``meta``, ``path``, ``fps``, ``skeleton``,
-    ``neutral_window``, ``streaming()`` and ``batched(capacity)``.
+    A network style gives a :class:`Checkpoint`, a motion-matching style (format
+    ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`: both are
+    :class:`~facecapges.model.engine.GestureEngine` s, what every caller uses.
     """
     import torch
-    from safetensors import SafetensorError, safe_open
 
     from facecapges.model.config import model_config_from_dict
     from facecapges.model.network import FaceCapGes, with_default_norms
 
     p = resolve(path, style)
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw_meta = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    if raw_meta is None:
+    tensors, meta = _read_file(p)
+    if meta is None:
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
-    try:
-        meta = json.loads(raw_meta)
-    except (ValueError, RecursionError):
-        raise file_error(p, "checkpoint metadata is corrupt") from None
     if isinstance(meta, dict) and meta.get("format") == MATCHING_FORMAT:
         from facecapges.matching.style import from_file
 
@@ -362,14 +350,14 @@ def _check_meta(p: Path, meta: dict) -> None:
         raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
 
 
-def network_only(ckpt: Checkpoint | MatchingCheckpoint, what: str) -> Checkpoint:
-    """``ckpt`` if it is a network style; a clear error for a matching style where only a network fits."""
+def network_only(ckpt: GestureEngine, what: str) -> Checkpoint:
+    """``ckpt`` if it is a network style; a clear error for another engine's style where only a network fits."""
     if not isinstance(ckpt, Checkpoint):
-        raise UserError(f"{ckpt.path}: a motion-matching style; {what} needs a network style (FaceCapGes)")
+        raise UserError(f"{ckpt.path}: a {ckpt.label} style; {what} needs a network style (FaceCapGes)")
     return ckpt
 
 
-def load_checkpoint_or_style(spec: str | Path) -> Checkpoint | MatchingCheckpoint:
+def load_checkpoint_or_style(spec: str | Path) -> GestureEngine:
     """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
     path: a suffix or a folder in it) or else by an installed style's name."""
     p = Path(spec)

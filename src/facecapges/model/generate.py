@@ -1,9 +1,11 @@
 """Gestures for a whole recording, through the same per-frame path as live use.
 
-:func:`prepare_inputs` turns files into per-frame model inputs at the checkpoint's
-rate (audio framed, face JSON resampled causally, head rotation aligned) and
-:func:`generate_poses` runs the :class:`~facecapges.model.streaming.StreamingGenerator`
-frame by frame from a cold start. The result has ``ceil(duration·fps)`` frames.
+:func:`prepare_inputs` turns files into per-frame model inputs at the engine's
+rate (audio framed, face JSON resampled causally, head rotation aligned; a loaded style plans
+them at its own rate: :meth:`GestureEngine.plan_inputs <facecapges.model.engine.GestureEngine.plan_inputs>`)
+and :func:`generate_blocks` — the one whole-recording loop, which ``generate``, ``eval`` and
+``ablate`` share — runs the engine's stream frame by frame from its cold start (or a given
+history). The result has ``ceil(duration·fps)`` frames.
 
 Long recordings: :func:`plan_inputs` checks the files (the silence check reads the
 audio block by block) and :meth:`StreamedInputs.blocks` hands out the audio frames a
@@ -19,8 +21,10 @@ audio holds its last frame; a longer one is cut.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -28,6 +32,10 @@ from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.errors import UserError, file_error
 from facecapges.rotations import identity_rot6d
+from facecapges.skeleton import N_JOINTS
+
+if TYPE_CHECKING:
+    from facecapges.model.engine import GestureEngine
 
 BLOCK_FRAMES = 900  # frames per block when a recording is streamed (1 min at 15 fps)
 
@@ -165,22 +173,25 @@ def prepare_inputs(
 
 
 def generate_blocks(
-    checkpoint,
-    blocks,
+    engine: GestureEngine,
+    blocks: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
     n_frames: int,
-    fps: float,
     progress: bool = True,
     timing_ms: list | None = None,
     intensity: float = 1.0,
-):
-    """Run one streaming generator over consecutive input blocks ``(audio, face, head)``; yields pose blocks
-    (n, 47, 6). ``timing_ms`` (a list) receives the model's ms per frame at the end; ``intensity``: the
-    generator's dial (:mod:`facecapges.model.intensity`)."""
-    if abs(fps - checkpoint.fps) > 1e-6:
-        raise UserError(f"inputs are at {fps} fps, the checkpoint runs at {checkpoint.fps} fps")
+    history: np.ndarray | None = None,
+) -> Iterator[np.ndarray]:
+    """The one whole-recording generation loop: one stream of ``engine`` over consecutive input blocks
+    ``(audio, face, head)`` at its rate; yields pose blocks (n, 47, 6), never a non-finite one.
+
+    The stream starts from the engine's cold-start window, or from ``history`` (n, 47, 6) given as the
+    poses before the first frame (evaluation's other samples). ``timing_ms`` (a list) receives the
+    engine's ms per frame at the end; ``intensity``: the stream's dial (:mod:`facecapges.model.intensity`)."""
     import torch
 
-    gen = checkpoint.streaming()
+    gen = engine.streaming()
+    if history is not None:
+        gen.reset(initial_pose=history)
     gen.intensity = intensity
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # one small step at a time: more threads only spin
@@ -190,11 +201,11 @@ def generate_blocks(
 
         bar = Progress(transient=True)
         bar.start()
-        task = bar.add_task("generating", total=n_frames)
+        task = bar.add_task("generating" if history is None else "generating (other start)", total=n_frames)
     spent = 0.0
     try:
         for audio, face, head in blocks:
-            out = np.empty((len(audio), 47, 6), np.float32)
+            out = np.empty((len(audio), N_JOINTS, 6), np.float32)
             t0 = time.perf_counter()
             for t in range(len(audio)):
                 out[t] = gen.step(audio[t], face[t], head[t])
@@ -212,12 +223,14 @@ def generate_blocks(
         timing_ms.append(spent * 1000 / max(n_frames, 1))
 
 
-def generate_poses(checkpoint, inputs: FrameInputs, progress: bool = True) -> tuple[np.ndarray, float]:
-    """Run the streaming generator over every frame: poses (T, 47, 6), ms per frame."""
+def generate_poses(
+    engine: GestureEngine, inputs: FrameInputs, progress: bool = True, history: np.ndarray | None = None
+) -> tuple[np.ndarray, float]:
+    """:func:`generate_blocks` over inputs in memory: poses (T, 47, 6) and the engine's ms per frame."""
     ms: list[float] = []
     blocks = generate_blocks(
-        checkpoint, [(inputs.audio, inputs.face, inputs.head)], inputs.n_frames, inputs.fps, progress, ms
+        engine, [(inputs.audio, inputs.face, inputs.head)], inputs.n_frames, progress, ms, history=history
     )
     poses = list(blocks)
-    out = np.concatenate(poses) if poses else np.empty((0, 47, 6), np.float32)
+    out = np.concatenate(poses) if poses else np.empty((0, N_JOINTS, 6), np.float32)
     return out, ms[0]

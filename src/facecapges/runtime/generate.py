@@ -1,7 +1,8 @@
 """``facecapges generate`` as a function: a recording's speech (+ face, head) → BVH, face JSON, VRM Animation.
 
 :func:`generate_recording` checks every output before the work, plans the inputs
-(:func:`facecapges.model.generate.plan_inputs`), generates block by block (memory flat in
+at the checkpoint's rate (:meth:`facecapges.model.engine.GestureEngine.plan_inputs`), generates block by
+block through the one generation loop (:func:`facecapges.model.generate.generate_blocks`; memory flat in
 the recording's length) and writes:
 
 * ``out`` — the gestures on the checkpoint's BEAT skeleton at the model rate (BVH);
@@ -55,7 +56,7 @@ def generate_recording(
     from facecapges.errors import check_output_file
     from facecapges.io.bvh import BvhWriter
     from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_blocks, plan_inputs
+    from facecapges.model.generate import generate_blocks
     from facecapges.model.intensity import check_intensity
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
@@ -70,7 +71,7 @@ def generate_recording(
         check_output_file(o.vrma, o.force)
         check_face_mode(o.vrma_face)
     ckpt = load_checkpoint(o.checkpoint, o.style)
-    inputs = plan_inputs(o.audio, o.face, o.head, fps=ckpt.fps)
+    inputs = ckpt.plan_inputs(o.audio, o.face, o.head)  # at the checkpoint's rate
     for note in inputs.notes:
         warn(f"warning: {note}")
     skel = ckpt.skeleton
@@ -89,9 +90,7 @@ def generate_recording(
 
     kept = []  # the poses, only when a .vrma is asked for
     with BvhWriter(o.out, skel, inputs.n_frames, ckpt.fps) as bvh:  # block by block: memory flat in length
-        for poses in generate_blocks(
-            ckpt, blocks(), inputs.n_frames, ckpt.fps, not o.json_out, timing_ms, intensity=o.intensity
-        ):
+        for poses in generate_blocks(ckpt, blocks(), inputs.n_frames, not o.json_out, timing_ms, o.intensity):
             bvh.write(pose_to_motion(skel, normalize_rot6d(poses)))
             if o.vrma is not None:
                 kept.append(normalize_rot6d(poses))

@@ -33,9 +33,9 @@ from pathlib import Path
 
 import numpy as np
 
+from facecapges import timing
 from facecapges.errors import UserError, check_output_dir, echo, echo_warning
 from facecapges.runtime.options import DEFAULT_VIDEO_SIZE, RunOptions
-from facecapges.timing import AUDIO_SR
 
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
@@ -232,7 +232,7 @@ def run_video(
     audio_src = sess.audio
     assert isinstance(audio_src, FileAudio)  # run reads its speech from a file
     try:
-        total = int(np.ceil(audio_src.duration_s * fps - 1e-6))
+        total = timing.n_frames_for(audio_src.duration_s, fps)
         if max_frames is not None:
             total = min(total, max_frames)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -277,7 +277,7 @@ def run_video(
         width, height = video_size
         with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
             wav = Path(tmp) / "audio.wav"
-            n = int(round(T / fps * AUDIO_SR))
+            n = int(timing.frame_sample_bounds(T, fps)[0])  # the samples frames 0 … T−1 own
             save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
             renders = []
             for i, m in enumerate(mems):

@@ -21,14 +21,14 @@ from facecapges.timing import AUDIO_SR
 
 if TYPE_CHECKING:
     from facecapges.capture.pipeline import FaceCapture
-    from facecapges.model.checkpoint import Checkpoint
+    from facecapges.model.engine import GestureEngine
     from facecapges.runtime.scheduler import Scheduler
 
 
 @dataclass
 class Session:
     scheduler: Scheduler = field(init=False)  # built last, by build_session
-    checkpoint: Checkpoint
+    checkpoint: GestureEngine  # either engine: only the interface is used
     video: VideoSource | None = None
     face_feed: FaceFeed | None = None
     audio: AudioSource | None = None
@@ -91,7 +91,7 @@ def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
 
 
 def build_session(
-    checkpoint,
+    checkpoint: GestureEngine,
     *,
     video: str | Path | None = None,
     camera: int | None = None,

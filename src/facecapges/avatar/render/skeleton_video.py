@@ -35,6 +35,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms, upper_body_indices
+from facecapges.timing import MODEL_FPS
 
 _RIGHT = (60, 60, 220)  # BGR
 _LEFT = (220, 120, 40)
@@ -87,7 +88,7 @@ def render_skeleton_video(
     titles: Sequence[str],
     skeleton: Skeleton,
     out_path: str | Path,
-    fps: float = 15.0,
+    fps: float = float(MODEL_FPS),
     wav: str | Path | None = None,
     panel_size: tuple[int, int] = (480, 540),
     crf: int = 23,

@@ -45,6 +45,7 @@ from facecapges.runtime.outputs.ws import (
     pong_message,
     refuse_foreign_host,
 )
+from facecapges.timing import MODEL_FPS
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server
@@ -81,7 +82,7 @@ class ViewerServer(ServerThread):
         glb: bytes,
         host: str = "127.0.0.1",
         port: int = 8765,
-        fps: float = 15.0,
+        fps: float = float(MODEL_FPS),
         web_dir: Path | None = None,
         three_dir: Path | None = None,
         log=None,

@@ -25,10 +25,11 @@ import numpy as np
 
 from facecapges.runtime.frames import OutputFrame
 from facecapges.runtime.outputs.viewer import ViewerServer
+from facecapges.timing import MODEL_FPS
 
 
 class VrmViewerServer(ViewerServer):
-    def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = 15.0):
+    def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = float(MODEL_FPS)):
         from facecapges.avatar.vrm.view import pixiv_dir
 
         super().__init__(b"", host, port, fps)
