@@ -1,7 +1,7 @@
 """``live --web --avatar FILE.vrm``: the browser viewer showing a VRM (0.x / 1.0 / humanoid GLB).
 
 :class:`VrmViewerServer` is the viewer server (:mod:`.viewer`: same security rules,
-same ``/ws`` feed socket) serving ``web/vrm_viewer.html`` at ``/``, the avatar at
+same ``/ws`` feed socket) serving the one viewer page ``web/viewer.html`` at ``/``, the avatar at
 ``/avatar.vrm``, three-vrm at ``/pixiv/*`` and the frame layout at ``/vrm/layout.json``
 (``{"bones": [VRM bone names], "expressions": [names]}``). :class:`VrmWebFeed` is its
 sink: each frame's BEAT pose is retargeted onto the avatar's normalised humanoid bones
@@ -38,7 +38,7 @@ class VrmViewerServer(ViewerServer):
 
     def _file(self, path: str):
         if path in ("/", "/index.html", "/viewer.html"):
-            path = "/web/vrm_viewer.html"
+            path = "/web/viewer.html"
         if path == "/avatar.vrm":
             return self.driver.model.data, TYPES[".glb"]
         if path == "/avatar.glb":
