@@ -110,15 +110,9 @@ export class AvatarScene {
     const extras = (gltf.parser.json.extras || {}).facecapges || {};
     this.jointNames = extras.joint_names || [];
     this.blendshapeNames = extras.blendshape_names || [];
-    const byName = {};
-    this.root.traverse((o) => { if (o.isBone || o.type === 'Object3D' || o.isObject3D) { if (!(o.name in byName)) byName[o.name] = o; } });
-    this.joints = this.jointNames.map((n) => byName[n]);
+    const byName = this.bind(this.root);
     const missing = this.jointNames.filter((n, i) => !this.joints[i]);
     if (missing.length) throw new Error(`avatar is missing joints ${missing.join(', ')}`);
-    this.morphMeshes = [];
-    this.root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) this.morphMeshes.push(o); });
-    // map each blendshape name to its morph index in every face primitive
-    this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
     this.root.traverse((o) => { if (o.isMesh) o.frustumCulled = false; });
     this.setLayout(this.jointNames, this.blendshapeNames);
     // the face close-up keeps its rest framing relative to the Head joint, wherever the body takes it
@@ -129,6 +123,19 @@ export class AvatarScene {
       this.faceOffset = new THREE.Vector3(...VIEWS.face.target).sub(h);
     }
     return this;
+  }
+
+  // this avatar's joints and face primitives in `root` (its model or a copy of it); returns nodes by name
+  bind(root) {
+    this.root = root;
+    const byName = {};
+    root.traverse((o) => { if (!(o.name in byName)) byName[o.name] = o; });
+    this.joints = this.jointNames.map((n) => byName[n]);
+    this.morphMeshes = [];
+    root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) this.morphMeshes.push(o); });
+    // map each blendshape name to its morph index in every face primitive
+    this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
+    return byName;
   }
 
   setView(name) {
@@ -167,16 +174,10 @@ export class AvatarScene {
   // another avatar: a clone of the model in this scene, driven in the same layout
   copy() {
     const rig = Object.create(AvatarScene.prototype);
-    rig.root = SkeletonUtils.clone(this.root);
-    this.scene.add(rig.root);
-    const byName = {};
-    rig.root.traverse((o) => { if (!(o.name in byName)) byName[o.name] = o; });
     rig.jointNames = this.jointNames;
     rig.blendshapeNames = this.blendshapeNames;
-    rig.joints = this.jointNames.map((n) => byName[n]);
-    rig.morphMeshes = [];
-    rig.root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) rig.morphMeshes.push(o); });
-    rig.morphIndex = rig.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
+    rig.bind(SkeletonUtils.clone(this.root));
+    this.scene.add(rig.root);
     const poseNames = this.poseNodes.map((n) => (n ? n.name : ''));
     const faceNames = this.faceIndex.map((b) => (b >= 0 ? this.blendshapeNames[b] : ''));
     rig.setLayout(poseNames, faceNames);
