@@ -57,13 +57,13 @@ def test_eyeballs_turn_with_eyelook_targets(avatar):
 def test_blinks_and_gaze_show_in_the_render():
     import cv2
 
-    from facecapges.avatar.render.video import render_stills
+    from facecapges.avatar.render.video import our_avatar, render_stills
     from facecapges.runtime.run import avatar_glb
 
     glb = avatar_glb(checkpoint().skeleton)
     ws = [_w(), _w(eyeBlinkLeft=1, eyeBlinkRight=1), _w(eyeLookOutLeft=1, eyeLookInRight=1),
           _w(eyeLookInLeft=1, eyeLookOutRight=1)]
-    imgs = render_stills(glb, [None] * len(ws), ws, view="face", width=320, height=320)
+    imgs = render_stills(our_avatar(glb), [None] * len(ws), ws, view="face", width=320, height=320)
     Path("/tmp/facecapges-eyes.png").write_bytes(cv2.imencode(".png", np.hstack(imgs))[1].tobytes())
     band = [im[int(0.34 * 320):int(0.42 * 320), int(0.25 * 320):int(0.75 * 320)].astype(int) for im in imgs]
     iris = [(b.max(-1) < 90) for b in band]  # iris and pupil: dark; skin, sclera and brows are lighter

@@ -29,12 +29,12 @@ def glb():
 
 @pytest.mark.slow
 def test_blendshapes_show_on_the_rendered_face_on_the_right_side(glb):
-    from facecapges.avatar.render.video import render_stills
+    from facecapges.avatar.render.video import our_avatar, render_stills
 
     w = np.zeros((3, 52))
     w[1, arkit_index("eyeBlinkLeft")] = 1.0
     w[2, arkit_index("jawOpen")] = 1.0
-    neutral, blink, jaw = (im.astype(float) for im in render_stills(glb, [None] * 3, list(w), view="face",
+    neutral, blink, jaw = (im.astype(float) for im in render_stills(our_avatar(glb), [None] * 3, list(w), view="face",
                                                                     width=200, height=200))
     assert neutral.std() > 20  # something is drawn
     diff_blink = np.abs(blink - neutral).sum(2)

@@ -187,15 +187,16 @@ def test_presets_we_write_map_back_to_themselves():
 # ---------------------------------------------------------------------- three-vrm in Chromium
 def _session(path: Path, beat, vrma: Path | None = None, size=(480, 360), correction: bool = True):
     from facecapges.avatar.render.browser import Browser
-    from facecapges.avatar.vrm.view import PAGE, VrmDriver
+    from facecapges.avatar.vrm.view import VrmDriver
 
     driver = VrmDriver.from_file(path, beat["skel"])
     if not correction:
         driver.retarget.correction[:] = np.eye(3)
-    routes = driver.routes()
+    page = driver.page()
+    routes = dict(page.routes)
     if vrma is not None:
         routes["/anim.vrma"] = vrma.read_bytes()
-    b = Browser(routes, f"{PAGE}?w={size[0]}&h={size[1]}", *size)
+    b = Browser(routes, page.url(*size), *size)
     b.__enter__()
     info = b.wait_for("window.facecapges.ready")
     return b, driver, info

@@ -42,13 +42,13 @@ def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
 
     from facecapges.avatar.render.browser import Browser
     from facecapges.avatar.vrm.read import parse_model
-    from facecapges.avatar.vrm.view import PAGE, VrmDriver
+    from facecapges.avatar.vrm.view import VrmDriver
     from facecapges.io.bvh import read_bvh
 
     skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
     driver = VrmDriver(parse_model(build_sample(variant), variant), skel)
-    routes = {**driver.routes(), "/a.vrma": vrma.read_bytes()}
-    with Browser(routes, f"{PAGE}?w=160&h=120", 160, 120) as b:
+    page = driver.page()
+    with Browser({**page.routes, "/a.vrma": vrma.read_bytes()}, page.url(160, 120), 160, 120) as b:
         b.wait_for("window.facecapges.ready")
         info = b.evaluate("window.facecapges.loadVrma('/a.vrma')")
         info["errors"] = b.evaluate("window.facecapges.errors")

@@ -38,7 +38,7 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
     from facecapges.avatar.render.skeleton_video import render_skeleton_video
-    from facecapges.avatar.render.video import bvh_quaternions, render_video
+    from facecapges.avatar.render.video import bvh_quaternions, our_avatar, render_video
     from facecapges.capture.speech_mouth import speech_mouth_track
     from facecapges.errors import check_output_file
     from facecapges.io.bvh import write_bvh
@@ -65,7 +65,7 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     glb = b"".join(avatar_to_gltf(default_avatar(skel)).save_to_bytes())
     quats = bvh_quaternions(list(skel.names), skel, motion, name=str(bvh_path))
     mouth = speech_mouth_track(inputs.audio[: len(poses)], ckpt.fps)
-    render_video(glb, quats, mouth, ckpt.fps, avatar_path, audio=speech, progress=True)
+    render_video(our_avatar(glb), quats, mouth, ckpt.fps, avatar_path, audio=speech, progress=True)
     summary = {
         "speech": str(speech),
         "frames": int(len(poses)),

@@ -270,7 +270,7 @@ def run_video(
     report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
     report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
     if videos and T > 0:
-        from facecapges.avatar.render.video import render_video
+        from facecapges.avatar.render.video import our_avatar, render_video
 
         t0 = time.perf_counter()
         glb = avatar_glb(checkpoint.skeleton)
@@ -281,28 +281,17 @@ def run_video(
             save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
             renders = []
             for i, m in enumerate(mems):
-                quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
                 weights = np.clip(np.stack(m.weights), 0.0, 1.0)
                 dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
-                if driver is not None:
+                if driver is not None:  # the VRM's frames: its normalised bones and expressions
                     from facecapges.avatar.retarget import upper_body_locals
-                    from facecapges.avatar.vrm.view import render_vrm_video
 
-                    render_vrm_video(
-                        driver,
-                        upper_body_locals(checkpoint.skeleton, np.stack(m.quats)),
-                        weights,
-                        fps,
-                        dest,
-                        audio=wav,
-                        progress=progress,
-                        width=width,
-                        height=height,
-                    )
+                    page = driver.page()
+                    quats, weights = driver.frames(upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights)
                 else:
-                    render_video(
-                        glb, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height
-                    )
+                    page = our_avatar(glb)
+                    quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
+                render_video(page, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height)
                 renders.append(dest)
             if faces > 1:
                 side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)

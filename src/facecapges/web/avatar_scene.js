@@ -9,9 +9,26 @@
 //   * face: the 52 ARKit blendshape weights in [0, 1], in the order of
 //     `scene.blendshapeNames` (facecapges.arkit.ARKIT_NAMES, stored in the glb).
 // Used by the offline renderer (render.html, headless Chromium) and by the browser
-// viewer. The page must map "three" and "three/addons/" in an import map.
+// viewer (viewer.html). The page must map "three" and "three/addons/" in an import map.
+//
+// The avatar-scene interface both pages use, which vrm_scene.js (a VRM, three-vrm) implements too:
+//   open(layout?)         load the avatar the page's server holds (here /avatar.glb); resolves to a list
+//                         of problems (names the avatar lacks), empty when all is well
+//   describe()            what was loaded (counts and names, for tests and the render's checks)
+//   label                 a one-line name for the viewer's HUD
+//   frameSize             {pose: joints, face: weights}: the length of one frame's arrays
+//   setPose(q, off)       one frame's LOCAL quaternions (w, x, y, z), frameSize.pose of them from q[off]
+//   setFace(w, off)       one frame's face weights, frameSize.face of them from w[off]
+//   restPose()            every driven joint at rest
+//   feedMessage           the live feed message this avatar draws ('pose' here, 'vrm_pose' for a VRM)
+//   useHello(hello)       the live feed's `hello` (its joint and blendshape names), see setLayout
+//   feedReady             true once a live feed message can be drawn
+//   copy()                another avatar of the same model in the scene (live --faces N), or null
+//   bonePosition(name)    world position of a joint (null if the model lacks it)
+//   setView(name), render(), and the renderer, camera and scene
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
+import * as SkeletonUtils from 'three/addons/utils/SkeletonUtils.js';
 
 export const VIEWS = {
   // camera target (x, y, z) and distance in metres, vertical field of view in degrees
@@ -45,7 +62,40 @@ export class AvatarScene {
     this.blendshapeNames = [];
     this.joints = [];
     this.morphMeshes = [];
+    this.helloSeen = false;
     this.setView('body');
+  }
+
+  get label() { return 'FaceCapGes avatar (glTF)'; }
+  get feedMessage() { return 'pose'; }
+  get feedReady() { return this.helloSeen; }
+  get frameSize() { return { pose: this.poseNodes.length, face: this.faceIndex.length }; }
+
+  // the page's avatar (or `url`); our avatar lacks nothing it names, so no problems
+  async open(layout = null, url = '/avatar.glb') {
+    await this.load(url);
+    return [];
+  }
+
+  describe() {
+    return {
+      joints: this.jointNames.length, blendshapes: this.blendshapeNames.length, morphMeshes: this.morphMeshes.length,
+      jointNames: this.jointNames, blendshapeNames: this.blendshapeNames,
+    };
+  }
+
+  // which joints / blendshapes (by name) a frame's arrays hold; load() sets the avatar's own order.
+  // Names the avatar lacks are skipped (their joints stay at rest).
+  setLayout(jointNames, blendshapeNames) {
+    const byName = new Map(this.jointNames.map((n, i) => [n, this.joints[i]]));
+    this.poseNodes = jointNames.map((n) => byName.get(n) || null);
+    const bIdx = new Map(this.blendshapeNames.map((n, i) => [n, i]));
+    this.faceIndex = blendshapeNames.map((n) => (bIdx.has(n) ? bIdx.get(n) : -1));
+  }
+
+  useHello(hello) {
+    this.setLayout(hello.joints, hello.blendshapes);
+    this.helloSeen = true;
   }
 
   // source: a URL or an ArrayBuffer holding the .glb
@@ -60,16 +110,11 @@ export class AvatarScene {
     const extras = (gltf.parser.json.extras || {}).facecapges || {};
     this.jointNames = extras.joint_names || [];
     this.blendshapeNames = extras.blendshape_names || [];
-    const byName = {};
-    this.root.traverse((o) => { if (o.isBone || o.type === 'Object3D' || o.isObject3D) { if (!(o.name in byName)) byName[o.name] = o; } });
-    this.joints = this.jointNames.map((n) => byName[n]);
+    const byName = this.bind(this.root);
     const missing = this.jointNames.filter((n, i) => !this.joints[i]);
     if (missing.length) throw new Error(`avatar is missing joints ${missing.join(', ')}`);
-    this.morphMeshes = [];
-    this.root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) this.morphMeshes.push(o); });
-    // map each blendshape name to its morph index in every face primitive
-    this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
     this.root.traverse((o) => { if (o.isMesh) o.frustumCulled = false; });
+    this.setLayout(this.jointNames, this.blendshapeNames);
     // the face close-up keeps its rest framing relative to the Head joint, wherever the body takes it
     this.head = byName.Head || null;
     if (this.head) {
@@ -80,6 +125,19 @@ export class AvatarScene {
     return this;
   }
 
+  // this avatar's joints and face primitives in `root` (its model or a copy of it); returns nodes by name
+  bind(root) {
+    this.root = root;
+    const byName = {};
+    root.traverse((o) => { if (!(o.name in byName)) byName[o.name] = o; });
+    this.joints = this.jointNames.map((n) => byName[n]);
+    this.morphMeshes = [];
+    root.traverse((o) => { if (o.isMesh && o.morphTargetDictionary) this.morphMeshes.push(o); });
+    // map each blendshape name to its morph index in every face primitive
+    this.morphIndex = this.morphMeshes.map((m) => this.blendshapeNames.map((n) => m.morphTargetDictionary[n]));
+    return byName;
+  }
+
   setView(name) {
     const v = VIEWS[name] || name;
     this.camera.fov = v.fov;
@@ -88,12 +146,42 @@ export class AvatarScene {
     this.camera.updateProjectionMatrix();
   }
 
-  // quats: flat array, 4 per joint (w, x, y, z), jointNames order; offset: start index
+  // quats: flat array, 4 per joint (w, x, y, z), in the layout's order (jointNames unless setLayout
+  // said otherwise); offset: start index
   setPose(quats, offset = 0) {
-    for (let j = 0; j < this.joints.length; j++) {
-      const k = offset + 4 * j;
-      this.joints[j].quaternion.set(quats[k + 1], quats[k + 2], quats[k + 3], quats[k]);
+    for (let j = 0; j < this.poseNodes.length; j++) {
+      const n = this.poseNodes[j], k = offset + 4 * j;
+      if (n) n.quaternion.set(quats[k + 1], quats[k + 2], quats[k + 3], quats[k]);
     }
+  }
+
+  restPose() {
+    for (const n of this.poseNodes) if (n) n.quaternion.identity();
+  }
+
+  // weights: flat array in the layout's blendshape order; the avatar's blendshapes it does not name are 0
+  setFace(weights, offset = 0) {
+    const w = new Array(this.blendshapeNames.length).fill(0);
+    this.faceIndex.forEach((b, k) => { if (b >= 0) w[b] = weights[offset + k]; });
+    this.setBlendshapes(w);
+  }
+
+  bonePosition(name) {
+    const i = this.jointNames.indexOf(name);
+    return i >= 0 ? this.joints[i].getWorldPosition(new THREE.Vector3()) : null;
+  }
+
+  // another avatar: a clone of the model in this scene, driven in the same layout
+  copy() {
+    const rig = Object.create(AvatarScene.prototype);
+    rig.jointNames = this.jointNames;
+    rig.blendshapeNames = this.blendshapeNames;
+    rig.bind(SkeletonUtils.clone(this.root));
+    this.scene.add(rig.root);
+    const poseNames = this.poseNodes.map((n) => (n ? n.name : ''));
+    const faceNames = this.faceIndex.map((b) => (b >= 0 ? this.blendshapeNames[b] : ''));
+    rig.setLayout(poseNames, faceNames);
+    return rig;
   }
 
   // weights: flat array in blendshapeNames order; offset: start index
@@ -137,3 +225,5 @@ export class AvatarScene {
     r.setViewport(0, 0, size.x, size.y);
   }
 }
+
+export default AvatarScene;

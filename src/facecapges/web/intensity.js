@@ -1,4 +1,4 @@
-// The gesture intensity slider of both viewers (viewer.html, vrm_viewer.html): an <input type=range id=intensity>
+// The gesture intensity slider of the viewer (viewer.html, our avatar or a VRM): an <input type=range id=intensity>
 // 0 … 1.3 and a <span id=intensity-value>. Moving it sends {"type": "intensity", "value": v} over the feed's
 // WebSocket (facecapges/runtime/outputs/protocol.py); the server's `hello` and `intensity` messages set it, so every
 // open viewer shows the value that is applied.

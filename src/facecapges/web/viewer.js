@@ -1,21 +1,24 @@
-// FaceCapGes live viewer (ES module, three.js 0.187.0).
+// FaceCapGes live viewer (ES module, three.js 0.187.0; @pixiv/three-vrm 3.5.5 for a VRM).
 //
-// Connects to ws://<this host>/ws, reads the `hello` message (joint and blendshape names) and then one
-// `pose` message per frame (facecapges/runtime/outputs/protocol.py): local joint quaternions (w, x, y, z) of the
-// 47 upper-body BEAT joints and 52 ARKit weights. Joints the feed does not name stay at rest. Draws the
-// newest frame on every animation frame; shows frame rate, compute and transport latency; a checkbox
-// toggles a skeleton overlay. Several faces (`live --faces N`): the `face` field of a pose message picks the
-// avatar; avatar i is a clone of the first, placed left to right. State for tests: window.facecapgesViewer.
+// The avatar is plugged in: a server that shows a VRM (`live --web --avatar FILE.vrm`) serves the VRM's
+// frame layout at /vrm/layout.json and the viewer draws it with VrmScene (vrm_scene.js); otherwise our
+// avatar /avatar.glb with AvatarScene (avatar_scene.js). Both implement the avatar-scene interface
+// (avatar_scene.js), so the rest of this page is one: connects to ws://<this host>/ws and draws the newest
+// feed message of the avatar's kind on every animation frame — for our avatar a `pose` message
+// (facecapges/runtime/outputs/protocol.py: local joint quaternions (w, x, y, z) of the 47 upper-body BEAT
+// joints and 52 ARKit weights, in the names of the `hello` message; joints the feed does not name stay at
+// rest), for a VRM a `vrm_pose` message (already retargeted by the server:
+// facecapges/runtime/outputs/vrm_viewer.py). Shows frame rate, compute and transport latency; checkboxes
+// toggle a skeleton overlay and the face close-up. Several faces (`live --faces N`, our avatar): the `face`
+// field of a message picks the avatar; avatar i is a copy of the first, placed left to right.
+// State for tests: window.facecapgesViewer.
 import * as THREE from 'three';
-import * as SkeletonUtils from 'three/addons/utils/SkeletonUtils.js';
-import { AvatarScene, VIEWS } from './avatar_scene.js';
+import { VIEWS } from './avatar_scene.js';
 import { intensitySlider } from './intensity.js';
 
 const slider = intensitySlider();
 
 const $ = (id) => document.getElementById(id);
-const canvas = $('c');
-const scene = new AvatarScene(canvas, { width: innerWidth, height: innerHeight, inset: true });
 const state = {
   ready: false, connected: false, hello: null, frames: 0, drawn: 0, lastFrame: -1, faceFound: null, avatars: 1,
   fpsIn: 0, fpsDrawn: 0, computeMs: null, transportMs: null, errors: [],
@@ -23,76 +26,75 @@ const state = {
 window.facecapgesViewer = state;
 window.addEventListener('error', (e) => state.errors.push(String(e.message || e)));
 
-let jointMap = [];   // feed joint k -> scene joint object
-let blendMap = [];   // feed blendshape k -> index in scene.blendshapeNames
-let pending = null;  // newest unseen pose message (the first face's)
-const others = new Map();  // face index > 0 -> newest unseen pose message
-const clones = [];   // avatars of faces 1, 2, …: {root, joints: feed k -> bone, morphs: [[mesh, idx]]}
+let scene = null;
+let pending = null;  // newest unseen feed message (the first face's)
+const others = new Map();  // face index > 0 -> newest unseen feed message
+const copies = [];   // avatars of faces 1, 2, … (scene.copy())
 const recentCompute = [];
 const arrivals = [];
 const draws = [];
 let helper = null;
 
+// the avatar's scene module: a VRM when the server holds a VRM layout
+async function openScene() {
+  const res = await fetch('/vrm/layout.json');
+  const layout = res.ok ? await res.json() : null;
+  const { default: Scene } = await (layout ? import('./vrm_scene.js') : import('./avatar_scene.js'));
+  // (the face close-up inset in the corner: on our avatar, as ever; a VRM has the face close-up checkbox)
+  scene = new Scene($('c'), { width: innerWidth, height: innerHeight, inset: !layout });
+  const problems = await scene.open(layout);
+  state.errors.push(...problems);
+}
+
 function resize() {
+  if (!scene) return;
   scene.renderer.setSize(innerWidth, innerHeight, false);
   scene.camera.aspect = innerWidth / innerHeight;
   scene.camera.updateProjectionMatrix();
 }
 addEventListener('resize', resize);
 
-function buildMaps() {
-  const byName = new Map(scene.jointNames.map((n, i) => [n, scene.joints[i]]));
-  jointMap = state.hello.joints.map((n) => byName.get(n) || null);
-  const bIdx = new Map(scene.blendshapeNames.map((n, i) => [n, i]));
-  blendMap = state.hello.blendshapes.map((n) => bIdx.has(n) ? bIdx.get(n) : -1);
-}
-
 function place() {
-  const n = 1 + clones.length, gap = 1.1;
-  [scene.root, ...clones.map((c) => c.root)].forEach((r, i) => { r.position.x = (i - (n - 1) / 2) * gap; });
+  const n = 1 + copies.length, gap = 1.1;
+  [scene.root, ...copies.map((c) => c.root)].forEach((r, i) => { r.position.x = (i - (n - 1) / 2) * gap; });
   const v = VIEWS.body;
   scene.setView({ ...v, distance: v.distance * Math.max(1, 0.45 + 0.55 * n) });
   state.avatars = n;
 }
 
-function cloneFor(face) {
-  while (clones.length < face) {
-    const root = SkeletonUtils.clone(scene.root);
-    scene.scene.add(root);
-    const byName = new Map();
-    root.traverse((o) => { if (!byName.has(o.name)) byName.set(o.name, o); });
-    const morphs = [];
-    root.traverse((o) => {
-      if (o.isMesh && o.morphTargetDictionary) morphs.push([o, scene.blendshapeNames.map((n) => o.morphTargetDictionary[n])]);
-    });
-    clones.push({ root, joints: state.hello.joints.map((n) => byName.get(n) || null), morphs });
+function copyFor(face) {
+  while (copies.length < face) {
+    const c = scene.copy();
+    if (!c) return null;
+    copies.push(c);
     place();
   }
-  return clones[face - 1];
+  return copies[face - 1];
 }
 
-function applyClone(c, msg) {
-  const q = msg.pose;
-  c.joints.forEach((j, k) => { if (j) j.quaternion.set(q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], q[4 * k]); });
-  c.morphs.forEach(([m, idx]) => {
-    msg.weights.forEach((v, k) => { const b = blendMap[k]; if (b >= 0 && idx[b] !== undefined) m.morphTargetInfluences[idx[b]] = v; });
-  });
-}
-
-function apply(msg) {
-  const q = msg.pose;
-  for (let k = 0; k < jointMap.length; k++) {
-    const j = jointMap[k];
-    if (j) j.quaternion.set(q[4 * k + 1], q[4 * k + 2], q[4 * k + 3], q[4 * k]);
-  }
-  const w = new Array(scene.blendshapeNames.length).fill(0);
-  msg.weights.forEach((v, k) => { if (blendMap[k] >= 0) w[blendMap[k]] = v; });
-  scene.setBlendshapes(w);
+function draw(target, msg) {
+  target.setPose(msg.pose);
+  target.setFace(msg.weights);
 }
 
 function rate(list, now) {
   while (list.length && now - list[0] > 1000) list.shift();
   return list.length;
+}
+
+function onMessage(msg) {
+  if (msg.type === 'hello') { state.hello = msg; if (state.ready) scene.useHello(msg); return; }
+  if (!scene || msg.type !== scene.feedMessage) return;
+  if (msg.face) { others.set(msg.face, msg); return; }
+  const now = performance.now();
+  state.frames += 1;
+  arrivals.push(now);
+  if (msg.sent_ms !== undefined) state.transportMs = Math.max(0, Date.now() - msg.sent_ms);
+  if (msg.latency_ms && msg.latency_ms.total !== undefined) {
+    recentCompute.push(msg.latency_ms.total);
+    if (recentCompute.length > 30) recentCompute.shift();
+  }
+  pending = msg;
 }
 
 function connect() {
@@ -105,19 +107,7 @@ function connect() {
   };
   ws.onmessage = (ev) => {
     const msg = JSON.parse(ev.data);
-    if (slider.handle(msg)) return;
-    if (msg.type === 'hello') { state.hello = msg; if (state.ready) buildMaps(); return; }
-    if (msg.type !== 'pose') return;
-    if (msg.face) { others.set(msg.face, msg); return; }
-    const now = performance.now();
-    state.frames += 1;
-    arrivals.push(now);
-    state.transportMs = Math.max(0, Date.now() - msg.sent_ms);
-    if (msg.latency_ms && msg.latency_ms.total !== undefined) {
-      recentCompute.push(msg.latency_ms.total);
-      if (recentCompute.length > 30) recentCompute.shift();
-    }
-    pending = msg;
+    if (!slider.handle(msg)) onMessage(msg);
   };
 }
 
@@ -138,13 +128,14 @@ function hud(now) {
 
 function loop() {
   const now = performance.now();
-  if (state.ready && state.hello && others.size) {
-    others.forEach((msg, face) => applyClone(cloneFor(face), msg));
+  const live = state.ready && scene.feedReady;
+  if (live && others.size) {
+    others.forEach((msg, face) => { const c = copyFor(face); if (c) draw(c, msg); });
     others.clear();
     if (!pending) scene.render();
   }
-  if (pending && state.ready && state.hello) {
-    apply(pending);
+  if (pending && live) {
+    draw(scene, pending);
     state.lastFrame = pending.frame;
     state.faceFound = pending.face_found;
     pending = null;
@@ -161,16 +152,24 @@ $('skel').addEventListener('change', (e) => {
   helper.visible = e.target.checked;
   scene.render();
 });
-$('faceview').addEventListener('change', (e) => { scene.setView(e.target.checked ? 'face' : 'body'); scene.render(); });
+$('faceview').addEventListener('change', (e) => {
+  if (!scene) return;
+  scene.setView(e.target.checked ? 'face' : 'body');
+  scene.render();
+});
 
-scene.load('/avatar.glb').then(() => {
+openScene().then(() => {
   helper = new THREE.SkeletonHelper(scene.root);
   helper.visible = false;
   scene.scene.add(helper);
   state.ready = true;
-  state.joints = scene.jointNames.length;
-  if (state.hello) buildMaps();
+  const d = scene.describe();
+  state.joints = d.joints;
+  if (d.metaVersion !== undefined) Object.assign(state, { bones: d.joints, metaVersion: d.metaVersion });
+  $('name').textContent = scene.label;
+  if (state.hello) scene.useHello(state.hello);
   resize();
+  scene.setView('body');
   scene.render();
 }).catch((e) => state.errors.push(String(e)));
 

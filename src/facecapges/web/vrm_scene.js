@@ -7,7 +7,9 @@
 //   * face: for each name of `expressions` its weight in [0, 1] (vrm.expressionManager).
 // vrm.update() then moves the raw bones and morph targets. LookAt is not automatic: the face
 // weights carry the eye movement. The page must map "three", "three/addons/" and
-// "@pixiv/three-vrm" in an import map.
+// "@pixiv/three-vrm" in an import map (and "@pixiv/three-vrm-animation" to play a .vrma).
+// It implements the avatar-scene interface of avatar_scene.js: the live viewer and the render page
+// drive it as they drive our avatar.
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { VRMLoaderPlugin, VRMUtils } from '@pixiv/three-vrm';
@@ -20,6 +22,37 @@ export class VrmScene extends AvatarScene {
     this.bones = [];
     this.boneNodes = [];
     this.expressions = [];
+  }
+
+  get label() { return (this.vrm.meta.name || this.vrm.meta.title || 'VRM') + ` (VRM ${this.metaVersion})`; }
+  // the live feed's `vrm_pose` messages are already in the layout of /vrm/layout.json; its `hello` is not used
+  get feedMessage() { return 'vrm_pose'; }
+  get feedReady() { return !!this.vrm; }
+  get frameSize() { return { pose: this.bones.length, face: this.expressions.length }; }
+  useHello() {}
+  copy() { return null; }
+
+  // the page's VRM (/avatar.vrm) in `layout` ({"bones", "expressions"}; fetched from /vrm/layout.json
+  // without one); resolves to the names three-vrm does not have
+  async open(layout = null, url = '/avatar.vrm') {
+    const lay = layout || await (await fetch('/vrm/layout.json')).json();
+    await this.load(url);
+    const missing = this.setLayout(lay.bones, lay.expressions);
+    this.setView('body');
+    return [
+      ...(missing.bones.length ? [`three-vrm has no normalised bones ${missing.bones.join(', ')}`] : []),
+      ...(missing.expressions.length ? [`three-vrm has no expressions ${missing.expressions.join(', ')}`] : []),
+    ];
+  }
+
+  describe() {
+    const em = this.vrm.expressionManager;
+    return {
+      joints: this.bones.length, blendshapes: this.expressions.length, metaVersion: this.metaVersion,
+      humanBones: Object.keys(this.vrm.humanoid.humanBones).filter((n) => this.vrm.humanoid.getRawBoneNode(n)),
+      expressionNames: em ? em.expressions.map((e) => e.expressionName) : [],
+      metaName: this.vrm.meta.name || this.vrm.meta.title || null,
+    };
   }
 
   // source: a URL or an ArrayBuffer holding the .vrm
@@ -115,6 +148,8 @@ export class VrmScene extends AvatarScene {
     for (const n of this.boneNodes) if (n) n.quaternion.identity();
   }
 
+  setFace(weights, offset = 0) { this.setExpressions(weights, offset); }
+
   setExpressions(weights, offset = 0) {
     const em = this.vrm.expressionManager;
     if (!em) return;
@@ -126,9 +161,37 @@ export class VrmScene extends AvatarScene {
     this.vrm.scene.updateMatrixWorld(true);
   }
 
+  // a .vrma played by @pixiv/three-vrm-animation on this VRM (seekVrma poses it)
+  async playVrma(url) {
+    const { VRMAnimationLoaderPlugin, createVRMAnimationClip } = await import('@pixiv/three-vrm-animation');
+    const loader = new GLTFLoader();
+    loader.register((parser) => new VRMAnimationLoaderPlugin(parser));
+    const gltf = await loader.loadAsync(url);
+    const anims = gltf.userData.vrmAnimations || [];
+    if (!anims.length) throw new Error('no VRM animation in ' + url);
+    const clip = createVRMAnimationClip(anims[0], this.vrm);
+    this.mixer = new THREE.AnimationMixer(this.vrm.scene);
+    this.mixer.clipAction(clip).play();
+    return { duration: clip.duration, tracks: clip.tracks.length, trackNames: clip.tracks.map((t) => t.name),
+             humanoidTracks: anims[0].humanoidTracks.rotation.size,
+             expressionTracks: anims[0].expressionTracks.preset.size + anims[0].expressionTracks.custom.size };
+  }
+
+  // the pose at time t of the .vrma playVrma loaded
+  seekVrma(t) {
+    this.mixer.setTime(t);
+    this.update();
+  }
+
+  expressionValue(name) {
+    const em = this.vrm.expressionManager;
+    return em ? em.getValue(name) : null;
+  }
+
   render() {
     this.update();
     super.render();  // the body view (+ the face inset when the scene was made with inset: true)
   }
 }
 
+export default VrmScene;

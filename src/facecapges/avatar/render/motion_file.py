@@ -2,8 +2,8 @@
 
 :func:`render_motion_file` checks every output and input before the work, then renders
 our avatar (built from the BVH's skeleton, or an avatar ``.glb`` of ours) with
-:func:`facecapges.avatar.render.video.render_video`, or a VRM / humanoid GLB with
-:func:`facecapges.avatar.vrm.view.render_vrm_video`. The face is the face JSON's weights;
+:func:`facecapges.avatar.render.video.render_video`, or a VRM / humanoid GLB the same way
+(:class:`facecapges.avatar.vrm.view.VrmDriver` gives its page and frames). The face is the face JSON's weights;
 without one, the jaw and lips follow the audio (:mod:`facecapges.capture.speech_mouth`).
 This module imports nothing heavy, so the command line reads :class:`RenderOptions`'
 defaults for ``--help``.
@@ -90,7 +90,7 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
 
     from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.body import check_skeleton
-    from facecapges.avatar.render.video import bvh_quaternions, contact_sheet, render_video
+    from facecapges.avatar.render.video import bvh_quaternions, contact_sheet, our_avatar, render_video
     from facecapges.avatar.vrm.view import is_vrm_file
     from facecapges.errors import UserError, check_output_file, require_file
     from facecapges.io.bvh import read_bvh
@@ -110,22 +110,24 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
     if o.face is not None:
         require_file(o.face, "face JSON")
     if o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar")):
-        from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices, render_vrm_video
+        from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices
 
         driver = VrmDriver.from_file(o.avatar_glb, motion.skeleton)
         say(f"avatar: {driver.describe()}")
         if o.contact_sheet is not None:
             raise UserError("--contact-sheet needs our own avatar (its 52 morph targets), not a VRM")
         weights = _shown_face(o, motion.fps, len(motion.motion))
-        local = bvh_local_matrices(motion.skeleton, motion.motion)
-        figures = render_vrm_video(driver, local, weights, motion.fps, o.out, audio=o.audio, width=width, height=height)
+        quats, shown = driver.frames(bvh_local_matrices(motion.skeleton, motion.motion), weights)
+        figures = render_video(
+            driver.page(), quats, shown, motion.fps, o.out, audio=o.audio, width=width, height=height
+        )
         say(f"{o.out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")
         return figures
     glb, joint_names = _our_avatar(o, motion.skeleton)
     quats = bvh_quaternions(joint_names, motion.skeleton, motion.motion, str(o.bvh))
     weights = _shown_face(o, motion.fps, quats.shape[0])
     figures = render_video(
-        glb, quats, np.clip(weights, 0.0, 1.0), motion.fps, o.out, audio=o.audio, width=width, height=height
+        our_avatar(glb), quats, np.clip(weights, 0.0, 1.0), motion.fps, o.out, audio=o.audio, width=width, height=height
     )
     say(f"{o.out}: {figures['frames']} frames at {motion.fps:g} fps rendered in {figures['total_s']:.1f} s")
     if o.contact_sheet is not None:

@@ -1,5 +1,13 @@
 """Avatar videos and blendshape contact sheets, rendered by three.js in headless Chromium.
 
+One page (``web/render.html``) and one path here for both kinds of avatar: an
+:class:`AvatarPage` says which (``"glb"``: our avatar, ``web/avatar_scene.js``, made by
+:func:`our_avatar`; ``"vrm"``: a VRM / humanoid GLB through three-vrm, ``web/vrm_scene.js``,
+made by :meth:`facecapges.avatar.vrm.view.VrmDriver.page`) and what the page fetches; the
+kind chooses only the page's scene module and the per-frame data the caller passes (our
+avatar: BEAT joint quaternions + 52 ARKit weights; a VRM: its normalised bone quaternions
++ expression weights, :meth:`~facecapges.avatar.vrm.view.VrmDriver.frames`).
+
 * :func:`bvh_quaternions` turns BVH motion into the page's input: the local rotation
   of every joint as a (w, x, y, z) quaternion (T, J, 4), joint order = the avatar's
   (the BEAT BVH order). The BVH must have the avatar's skeleton (same joint names and
@@ -19,6 +27,7 @@
 from __future__ import annotations
 
 import base64
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,9 +35,27 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges.avatar.render.browser import Browser, avatar_routes
 from facecapges.errors import UserError
+from facecapges.io.static_files import Routes
 from facecapges.skeleton import Skeleton, local_matrices, motion_to_euler
 
 PAGE = "/web/render.html"
+
+
+@dataclass(frozen=True)
+class AvatarPage:
+    """The avatar the render page shows: its ``kind`` ("glb" or "vrm", the page's scene module) and
+    ``routes``, what the page fetches (:class:`~facecapges.avatar.render.browser.Browser` routes)."""
+
+    kind: str
+    routes: Routes
+
+    def url(self, width: int, height: int, inset: bool = False) -> str:
+        return f"{PAGE}?avatar={self.kind}&w={width}&h={height}&inset={int(inset)}"
+
+
+def our_avatar(glb: bytes) -> AvatarPage:
+    """Our avatar .glb (``facecapges avatar build``) on the render page."""
+    return AvatarPage("glb", avatar_routes(glb))
 
 
 def bvh_quaternions(avatar_joint_names: list[str], skel: Skeleton, motion: np.ndarray, name: str = "BVH") -> np.ndarray:
@@ -46,15 +73,8 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
-def _open_page(
-    glb: bytes, width: int, height: int, inset: bool = False, page: str = PAGE, routes: dict | None = None
-) -> tuple[Browser, dict]:
-    b = Browser(
-        routes if routes is not None else avatar_routes(glb),
-        f"{page}?w={width}&h={height}&inset={int(inset)}",
-        width,
-        height,
-    )
+def _open_page(avatar: AvatarPage, width: int, height: int, inset: bool = False) -> tuple[Browser, dict]:
+    b = Browser(avatar.routes, avatar.url(width, height, inset), width, height)
     b.__enter__()
     try:
         info = b.wait_for("window.facecapges.ready")
@@ -76,7 +96,7 @@ def _open_page(
 
 
 def render_video(
-    glb: bytes,
+    avatar: AvatarPage,
     quats: np.ndarray,
     weights: np.ndarray,
     fps: float,
@@ -88,13 +108,11 @@ def render_video(
     progress: bool = True,
     crf: int = 20,
     inset: bool = True,
-    page: str = PAGE,
-    routes: dict | None = None,
 ) -> dict:
-    """Render (T, J, 4) poses + (T, 52) face weights to an MP4 at ``fps``; returns timing figures.
+    """Render ``avatar`` with (T, J, 4) poses + (T, K) face weights (its kind's frame data, module
+    docstring) to an MP4 at ``fps``; returns timing figures.
 
-    ``inset``: draw the face close-up in the top-right corner (module docstring).
-    ``page``/``routes``: another page with the same API (the VRM page, facecapges.avatar.vrm.view)."""
+    ``inset``: draw the face close-up in the top-right corner (module docstring)."""
     import time
 
     from rich.progress import Progress
@@ -105,7 +123,7 @@ def render_video(
     if weights.shape[0] != T:
         raise ValueError(f"{T} poses but {weights.shape[0]} face frames")
     t0 = time.perf_counter()
-    b, info = _open_page(glb, width, height, inset, page, routes)
+    b, info = _open_page(avatar, width, height, inset)
     writer = Mp4Writer(out, fps, audio=audio, crf=crf, jpeg=True)
     try:
         if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
@@ -143,20 +161,18 @@ def render_video(
 
 
 def render_stills(
-    glb: bytes,
+    avatar: AvatarPage,
     poses: list[np.ndarray | None],
     weights: list[np.ndarray | None],
     view: str = "body",
     width: int = 640,
     height: int = 480,
     inset: bool = False,
-    page: str = PAGE,
-    routes: dict | None = None,
 ) -> list[np.ndarray]:
-    """BGR images (H, W, 3) of the avatar for each (pose (J, 4) or None, weights (52,) or None)."""
+    """BGR images (H, W, 3) of ``avatar`` for each (pose (J, 4) or None, weights (K,) or None)."""
     import cv2
 
-    b, _ = _open_page(glb, width, height, inset, page, routes)
+    b, _ = _open_page(avatar, width, height, inset)
     images: list[np.ndarray] = []
     try:
         b.evaluate(f"window.facecapges.setView({view!r})")
@@ -179,7 +195,7 @@ def contact_sheet(glb: bytes, names: list[str], out: str | Path, cols: int = 8, 
 
     K = len(names)
     weights = [None] + [np.eye(K)[k] for k in range(K)]
-    images = render_stills(glb, [None] * (K + 1), weights, view="face", width=cell, height=cell)
+    images = render_stills(our_avatar(glb), [None] * (K + 1), weights, view="face", width=cell, height=cell)
     labels = ["neutral"] + list(names)
     rows = -(-len(images) // cols)
     sheet = np.full((rows * (cell + 22), cols * cell, 3), 255, np.uint8)

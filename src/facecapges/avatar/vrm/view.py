@@ -5,8 +5,8 @@
 :class:`~facecapges.avatar.vrm.expressions.ExpressionMap`, and turns BEAT local rotations + 52
 ARKit weights into what ``web/vrm_scene.js`` sets: normalised bone quaternions
 (T, B, 4) and expression weights (T, E), in the order of :attr:`VrmDriver.layout`.
-:func:`render_vrm_video` renders them to an MP4 with the avatar renderer's machinery
-(``web/vrm_render.html`` has the same page API as ``render.html``).
+:meth:`VrmDriver.page` is the VRM on the one render page (``web/render.html?avatar=vrm``):
+:func:`facecapges.avatar.render.video.render_video` renders it as it renders our avatar.
 
 three-vrm comes from ``node_modules/@pixiv`` beside three.js (npm, pinned in
 package.json, installed by ``scripts/setup-avatar.sh``).
@@ -16,12 +16,14 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from facecapges.errors import UserError
 
-PAGE = "/web/vrm_render.html"
+if TYPE_CHECKING:
+    from facecapges.avatar.render.video import AvatarPage
 
 
 def pixiv_dir() -> Path:
@@ -84,8 +86,14 @@ class VrmDriver:
             "/three/": three_dir(),
             "/pixiv/": pixiv_dir(),
             "/avatar.vrm": self.model.data,
-            "/motion/layout.json": json.dumps(self.layout).encode("utf-8"),
+            "/vrm/layout.json": json.dumps(self.layout).encode("utf-8"),
         }
+
+    def page(self) -> AvatarPage:
+        """This VRM on the render page (its frames: :meth:`frames`)."""
+        from facecapges.avatar.render.video import AvatarPage
+
+        return AvatarPage("vrm", self.routes())
 
     def describe(self) -> str:
         m = self.model
@@ -126,33 +134,3 @@ def face_weights(face: Path | None, fps: float, T: int):
         if 0 < n < T:
             weights[n:] = w[n - 1]
     return weights
-
-
-def render_vrm_video(
-    driver: VrmDriver,
-    local_mats: np.ndarray,
-    arkit: np.ndarray,
-    fps: float,
-    out: str | Path,
-    audio: str | Path | None = None,
-    width: int = 640,
-    height: int = 480,
-    progress: bool = True,
-) -> dict:
-    """Render the VRM driven by BEAT local rotations (T, J, 3, 3) and ARKit weights (T, 52) to an MP4."""
-    from facecapges.avatar.render.video import render_video
-
-    quats, weights = driver.frames(local_mats, arkit)
-    return render_video(
-        driver.model.data,
-        quats,
-        weights,
-        fps,
-        out,
-        audio=audio,
-        width=width,
-        height=height,
-        progress=progress,
-        page=PAGE,
-        routes=driver.routes(),
-    )

@@ -1,7 +1,7 @@
 """``live --web --avatar FILE.vrm``: the browser viewer showing a VRM (0.x / 1.0 / humanoid GLB).
 
 :class:`VrmViewerServer` is the viewer server (:mod:`.viewer`: same security rules,
-same ``/ws`` feed socket) serving ``web/vrm_viewer.html`` at ``/``, the avatar at
+same ``/ws`` feed socket) serving the one viewer page ``web/viewer.html`` at ``/``, the avatar at
 ``/avatar.vrm``, three-vrm at ``/pixiv/*`` and the frame layout at ``/vrm/layout.json``
 (``{"bones": [VRM bone names], "expressions": [names]}``). :class:`VrmWebFeed` is its
 sink: each frame's BEAT pose is retargeted onto the avatar's normalised humanoid bones
@@ -36,8 +36,7 @@ class VrmViewerServer(ViewerServer):
         self.driver = driver
         self.pixiv_dir = pixiv_dir().resolve()
         self.layout = json.dumps(driver.layout).encode("utf-8")
-        self.page = "/web/vrm_viewer.html"
-        del self.routes["/avatar.glb"]
+        del self.routes["/avatar.glb"]  # the page is the one viewer's: it asks for /vrm/layout.json
         self.routes.update(
             {"/avatar.vrm": driver.model.data, "/vrm/layout.json": self.layout, "/pixiv/": self.pixiv_dir}
         )
