@@ -49,7 +49,7 @@ from facecapges.matching import inertialize as inz
 from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
 from facecapges.matching.speech import SpeechTracker
 from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
-from facecapges.model.slots import Slots
+from facecapges.model.slots import SlotOwner, Slots
 from facecapges.skeleton import N_JOINTS
 
 
@@ -98,7 +98,7 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
 IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
 
 
-class BatchedMatchingGenerator:
+class BatchedMatchingGenerator(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
     def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None, capacity: int = 8):
@@ -164,14 +164,6 @@ class BatchedMatchingGenerator:
         self.speech.ensure(capacity)
         self.slots.grown(capacity)
         self.capacity = capacity
-
-    @property
-    def n_open(self) -> int:
-        return len(self.slots)
-
-    @property
-    def open_slots(self) -> frozenset[int]:
-        return self.slots.open
 
     def open(self, initial_pose: np.ndarray | None = None) -> int:
         """A new stream (:meth:`reset`); returns its slot id."""

@@ -91,7 +91,7 @@ from torch.autograd.profiler import record_function
 from facecapges.model import native
 from facecapges.model.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.model.network import FaceCapGes, MelFrontend
-from facecapges.model.slots import Slots
+from facecapges.model.slots import SlotOwner, Slots
 
 STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_encoder", "decoder")
 _NO_SCOPE = contextlib.nullcontext()
@@ -440,7 +440,7 @@ class BatchedEncoders:
         return torch.cat([z_a, z_f, z_h], -1)
 
 
-class BatchedStreamingGenerator:
+class BatchedStreamingGenerator(SlotOwner):
     """Independent causal streams of one model, stepped as one batch (module docs)."""
 
     MEL_NATIVE_MAX_BATCH = BatchedEncoders.MEL_NATIVE_MAX_BATCH
@@ -506,14 +506,6 @@ class BatchedStreamingGenerator:
         self.capacity = capacity
 
     # ---------------------------------------------------------------- slots
-    @property
-    def n_open(self) -> int:
-        return len(self.slots)
-
-    @property
-    def open_slots(self) -> frozenset[int]:
-        return self.slots.open
-
     def open(self, initial_pose: np.ndarray | None = None) -> int:
         """A new stream in cold-start state (:meth:`reset`); returns its slot id."""
         with self._lock:

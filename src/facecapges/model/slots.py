@@ -65,3 +65,17 @@ class Slots:
     @property
     def open(self) -> frozenset[int]:
         return frozenset(self._open)
+
+
+class SlotOwner:
+    """What a batched generator with :class:`Slots` in ``self.slots`` tells about its streams."""
+
+    slots: Slots
+
+    @property
+    def n_open(self) -> int:
+        return len(self.slots)
+
+    @property
+    def open_slots(self) -> frozenset[int]:
+        return self.slots.open
