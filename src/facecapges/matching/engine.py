@@ -12,6 +12,10 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 2. **Predictor** (if the style has one): the future wrist speed/height targets of
    :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
    face and head. Without one the query keeps the playing frame's own future (continue as is).
+   **Network direction** (if the style has its own thesis network and ``direction_weight`` > 0,
+   :mod:`~facecapges.matching.director`): the network runs on the same inputs; the unit direction
+   of each of its wrists' motion over the last 2 frames is 6 more query columns, matched against
+   each row's real wrist direction over its next 2 frames with weight ``direction_weight``.
 3. **Advance** the playing clip by one frame.
 4. **Search** when ``search_interval`` frames have passed since the last search, at an onset,
    when speaking starts or stops, or when the clip runs out. The query is the playing frame's
@@ -72,6 +76,7 @@ class EngineConfig:
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
     use_predictor: bool = True
+    direction_weight: float = 0.0  # the style's network's wrist direction as a query term (0: off; director.py)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -100,10 +105,15 @@ IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
 class BatchedMatchingGenerator:
     """Independent causal matching streams over one database (module docs)."""
 
-    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None, capacity: int = 8):
+    def __init__(
+        self, db: Database, config: EngineConfig | None = None, predictor=None, capacity: int = 8, director=None
+    ):
         self.db = db
         self.config = config or EngineConfig()
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
+        use_dir = director is not None and self.config.direction_weight > 0
+        self.director = director.batched(max(1, capacity)) if use_dir else None
+        self._dir_skeleton = director.skeleton if use_dir else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
         self._prepare_db()
@@ -112,6 +122,7 @@ class BatchedMatchingGenerator:
         self._free: list[int] = []
         self._open: set[int] = set()
         self._pred_slot: dict[int, int] = {}
+        self._dir_slot: dict[int, int] = {}
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ database caches
@@ -139,6 +150,14 @@ class BatchedMatchingGenerator:
         sl = group_slices()
         self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
         self.w = db.feature_weights()
+        self.dir_w = 0.0
+        if self._dir_skeleton is not None:  # the direction term: F gets 6 columns, each query the same 6
+            from facecapges.matching.director import database_directions
+
+            self.dir_w = float(np.sqrt(self.config.direction_weight))
+            D = database_directions(self._dir_skeleton, db.pose, db.segment)
+            self.F = np.concatenate([self.F, self.dir_w * D], axis=1).astype(np.float32)
+            self.F_sq = np.einsum("nf,nf->n", self.F, self.F)
 
     # ---------------------------------------------------------------- storage
     def _alloc(self, capacity: int) -> None:
@@ -181,6 +200,8 @@ class BatchedMatchingGenerator:
             self._open.add(slot)
             if self.predictor is not None:
                 self._pred_slot[slot] = self.predictor.open()
+            if self.director is not None:
+                self._dir_slot[slot] = self.director.open()
             try:
                 self.reset(slot, initial_pose)
             except Exception:
@@ -196,6 +217,9 @@ class BatchedMatchingGenerator:
                 ps = self._pred_slot.pop(slot, None)
                 if ps is not None and self.predictor is not None:
                     self.predictor.close(ps)
+                ds = self._dir_slot.pop(slot, None)
+                if ds is not None and self.director is not None:
+                    self.director.close(ds)
 
     def set_intensity(self, slot: int, value: float) -> None:
         """The stream's intensity (:mod:`facecapges.model.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
@@ -209,6 +233,8 @@ class BatchedMatchingGenerator:
             self.speech.reset(slot)
             if self.predictor is not None:
                 self.predictor.reset(self._pred_slot[slot])
+            if self.director is not None:
+                self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.was_speaking[slot] = False
             self.last_used[slot] = -(10**9)
@@ -278,13 +304,16 @@ class BatchedMatchingGenerator:
             pred = None
             if self.predictor is not None and self.config.use_predictor:
                 pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
-            self._advance_and_search(ids, sp, pred)
+            direction = None
+            if self.director is not None:
+                direction = self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
+            self._advance_and_search(ids, sp, pred, direction)
             q = self._blend(ids)
             self.last_used[ids, self.row[ids]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
 
-    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None) -> None:
+    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None, direction=None) -> None:
         cfg = self.config
         nxt = self.next_row[self.row[ids]]
         ended = nxt < 0
@@ -299,7 +328,7 @@ class BatchedMatchingGenerator:
         if not need.any():
             return
         w = np.flatnonzero(need)
-        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w])
+        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction)
         self.since_search[ids[w]] = 0
         for k in np.flatnonzero(switch):
             s, b = int(ids[w[k]]), int(best[k])
@@ -310,20 +339,25 @@ class BatchedMatchingGenerator:
             self.row[s] = b
             self.switches[s] += 1
 
-    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
-        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in."""
+    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None, direction=None) -> np.ndarray:
+        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (and, with the
+        style's network on, its wrist directions (B, 6) as 6 more columns)."""
         db = self.db
         raw = db.features[rows].copy()
         if pred is not None:
             raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
         raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
-        return (raw - db.mean) * self.w
+        q = (raw - db.mean) * self.w
+        if self.F.shape[1] > q.shape[1]:
+            d = np.zeros((len(rows), 6), np.float32) if direction is None else direction[w]
+            q = np.concatenate([q, self.dir_w * d], axis=1)
+        return q
 
-    def _search(self, ids, rows, sp, w, pred, idle_only, forced) -> tuple[np.ndarray, np.ndarray]:
+    def _search(self, ids, rows, sp, w, pred, idle_only, forced, direction=None) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
-        q = self._query(rows, sp, w, pred)
+        q = self._query(rows, sp, w, pred, direction)
         # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
         # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
         dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
@@ -370,6 +404,8 @@ class BatchedMatchingGenerator:
             sp = self.speech.step(ids, a)
             if self.predictor is not None and self.config.use_predictor:
                 self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+            if self.director is not None:
+                self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
@@ -380,8 +416,8 @@ class BatchedMatchingGenerator:
 class MatchingGenerator:
     """One causal matching stream: a one-slot :class:`BatchedMatchingGenerator` (same poses)."""
 
-    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None):
-        self.kernel = BatchedMatchingGenerator(db, config, predictor, capacity=1)
+    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None, director=None):
+        self.kernel = BatchedMatchingGenerator(db, config, predictor, capacity=1, director=director)
         self._slot = [self.kernel.open()]
 
     @property
