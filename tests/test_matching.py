@@ -194,7 +194,7 @@ def test_direction_term_is_causal_and_used(take, db, predictor, director):
     other = take.audio.copy()
     other[540 * SPF :] = np.random.default_rng(1).normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
     g = MatchingGenerator(db, cfg, predictor, director)
-    assert g.kernel.director is not None and g.kernel.F.shape[1] == db.features.shape[1] + 6
+    assert g.kernel.director is not None and g.kernel.D is not None and g.kernel.D.shape == (len(db), 6)
     a = run(g, take, 500, 580)
     g.reset()
     b = run(g, take, 500, 580, audio=other)

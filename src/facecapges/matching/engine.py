@@ -64,7 +64,18 @@ class EngineConfig:
     transitions counted as ``facecapges eval`` counts them (evaluation.realism, 2 lead-ins): margin 1 and
     half-life 0.15 s gave 1.5 transitions a minute and wrist jerk 1.14× the speaker's; margin 3 and half-life
     0.3 s give 0 a minute, jerk 1.00×, spread 0.77×, BeatAlign gap +0.56 sd (margin 2: 0, 1.01×, −0.07 sd;
-    margin 2 with onset bonus 3: 0, 1.16×, +0.73 sd). The 10 s windows make every figure noisy (± 0.5 sd)."""
+    margin 2 with onset bonus 3: 0, 1.16×, +0.73 sd). The 10 s windows make every figure noisy (± 0.5 sd).
+
+    ``direction_weight`` (issue #25: the style's own thesis network's wrist direction as a query term,
+    :mod:`~facecapges.matching.director`) was tried on the same validation with a network trained on the
+    same frames [0, 0.64 T) (40 epochs, from scratch): off — spread 0.77×, jerk 1.00×, BeatAlign gap
+    +0.27 sd, 0 transitions a minute; in every search, weight 0.25 / 0.5 / 1 / 2 / 4 / 8 — gap −0.56 / +0.06 /
+    +0.36 / −1.08 / −0.17 / +0.23 sd, jerk 1.00 / 1.03 / 1.12 / 1.49 / 2.02 / 2.53×, transitions 0 / 0 / 1.5 /
+    0 / 0 / 6.3 a minute (the network's direction turns every few frames: the playing clip loses to it,
+    the engine switches 0.65 → 0.85–5.3 times a second); at onsets only (``direction_at_onsets``), weight
+    1 / 2 / 4 — gap −0.27 / +0.42 / +0.69 sd, jerk 1.06 / 1.21 / 1.39×, transitions 1.5 / 0 / 1.5. No
+    setting won on the gap beyond the ± 0.5 sd noise without giving up jerk or transitions, and the network
+    costs more than the rest of the step: off by default."""
 
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
     margin: float = 3.0  # a switch must beat continuing by this much cost
@@ -77,6 +88,7 @@ class EngineConfig:
     intensity_tau_s: float = 0.3
     use_predictor: bool = True
     direction_weight: float = 0.0  # the style's network's wrist direction as a query term (0: off; director.py)
+    direction_at_onsets: bool = False  # the direction term only in the searches of onset frames
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -150,14 +162,12 @@ class BatchedMatchingGenerator:
         sl = group_slices()
         self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
         self.w = db.feature_weights()
-        self.dir_w = 0.0
-        if self._dir_skeleton is not None:  # the direction term: F gets 6 columns, each query the same 6
+        self.D: np.ndarray | None = None  # (N, 6) each row's real wrist directions (director.py)
+        if self._dir_skeleton is not None:
             from facecapges.matching.director import database_directions
 
-            self.dir_w = float(np.sqrt(self.config.direction_weight))
-            D = database_directions(self._dir_skeleton, db.pose, db.segment)
-            self.F = np.concatenate([self.F, self.dir_w * D], axis=1).astype(np.float32)
-            self.F_sq = np.einsum("nf,nf->n", self.F, self.F)
+            self.D = database_directions(self._dir_skeleton, db.pose, db.segment)
+            self.D_sq = np.einsum("nf,nf->n", self.D, self.D)
 
     # ---------------------------------------------------------------- storage
     def _alloc(self, capacity: int) -> None:
@@ -339,31 +349,31 @@ class BatchedMatchingGenerator:
             self.row[s] = b
             self.switches[s] += 1
 
-    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None, direction=None) -> np.ndarray:
-        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (and, with the
-        style's network on, its wrist directions (B, 6) as 6 more columns)."""
+    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
+        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in."""
         db = self.db
         raw = db.features[rows].copy()
         if pred is not None:
             raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
         raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
-        q = (raw - db.mean) * self.w
-        if self.F.shape[1] > q.shape[1]:
-            d = np.zeros((len(rows), 6), np.float32) if direction is None else direction[w]
-            q = np.concatenate([q, self.dir_w * d], axis=1)
-        return q
+        return (raw - db.mean) * self.w
 
     def _search(self, ids, rows, sp, w, pred, idle_only, forced, direction=None) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
-        q = self._query(rows, sp, w, pred, direction)
+        q = self._query(rows, sp, w, pred)
         # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
         # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
         dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
         cost = self.F_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", q, q)[:, None]  # (Bs, N)
-        cur = cost[np.arange(len(rows)), rows].copy()
         onset_now = sp.since_onset[w] < cfg.onset_frames
+        if self.D is not None and direction is not None:  # + weight · Σ_wrists |d_network − d_row|²
+            use = onset_now if cfg.direction_at_onsets else np.ones(len(rows), bool)
+            d = direction[w[use]]
+            dd = np.stack([self.D @ di for di in d]) if len(d) else np.zeros((0, len(self.D)), np.float32)
+            cost[use] += cfg.direction_weight * (self.D_sq[None] - 2.0 * dd + (d * d).sum(1)[:, None])
+        cur = cost[np.arange(len(rows)), rows].copy()
         if onset_now.any():
             cost[onset_now] -= cfg.onset_bonus * self.lead[None]
             cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
