@@ -13,6 +13,7 @@ from conftest import shared_file
 from facecapges import timing
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, idle_rows, quaternions
+from facecapges.matching.director import MIN_MOVE, SPAN, database_directions
 from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator, gain_of
 from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
@@ -43,6 +44,14 @@ def db(take):
 def predictor(take):
     short = replace(take, train_until=450)  # what the database holds: nothing after it is read
     return train_predictor([short], seed=0, progress=False, settings=replace(TINY, steps=20, eval_every=10))
+
+
+@pytest.fixture(scope="session")
+def director(take):
+    """The thesis network trained on the database's frames (one epoch: a real, if rough, network)."""
+    from facecapges.training.director import train_director
+
+    return train_director([take], [450], epochs=1, progress=False)
 
 
 def run(gen, take, a: int, b: int, audio=None) -> np.ndarray:
@@ -174,6 +183,48 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     np.testing.assert_allclose(generate_poses(ck, inputs, progress=False)[0], b, atol=1e-5)
     assert load_checkpoint(style=None).engine == "matching"  # the default style
     assert load_checkpoint(style=DEFAULT_NETWORK_STYLE).engine == "network"
+
+
+def test_database_directions_are_where_each_wrist_goes(take, db):
+    """Each row's 6 direction values: per wrist the unit vector of its displacement over the next SPAN frames
+    (chest frame), zero where it moves less than MIN_MOVE."""
+    from facecapges.matching.targets import arm_positions
+
+    D = database_directions(take.skeleton, db.pose, db.segment)
+    wr = arm_positions(take.skeleton, take.pose[:450])[:, :2]
+    disp = wr[SPAN:] - wr[:-SPAN]
+    d = D[: 450 - SPAN].reshape(-1, 2, 3)
+    moving = np.linalg.norm(disp, axis=-1) >= MIN_MOVE
+    assert moving.mean() > 0.5 and (~moving).any()
+    assert np.allclose(np.linalg.norm(d[moving], axis=-1), 1.0, atol=1e-5)
+    assert (np.einsum("nk,nk->n", d[moving], disp[moving]) > 0).all()
+    assert not d[~moving].any()
+
+
+def test_direction_term_is_causal_and_used(take, db, predictor, director):
+    """With the network's wrist direction in the query the engine stays strictly causal, and the term changes
+    which rows play (weight 0 never runs the network)."""
+    cfg = EngineConfig(margin=0.0, direction_weight=8.0)
+    other = take.audio.copy()
+    other[540 * SPF :] = np.random.default_rng(1).normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
+    g = MatchingGenerator(db, cfg, predictor, director)
+    assert g.kernel.director is not None and g.kernel.D is not None and g.kernel.D.shape == (len(db), 6)
+    a = run(g, take, 500, 580)
+    g.reset()
+    b = run(g, take, 500, 580, audio=other)
+    assert np.array_equal(a[:40], b[:40]) and not np.allclose(a[40:], b[40:])
+    off = MatchingGenerator(db, replace(cfg, direction_weight=0.0), predictor, director)
+    assert off.kernel.director is None
+    assert not np.allclose(run(off, take, 500, 580), a)
+
+
+def test_style_file_keeps_its_network(tmp_path, take, db, predictor, director):
+    cfg = EngineConfig(direction_weight=2.0)
+    path = save_matching_style(tmp_path / "d.safetensors", db, cfg, take.skeleton, predictor, director=director)
+    ck = load_checkpoint(path)
+    assert ck.director is not None and ck.config.direction_weight == 2.0
+    a = run(MatchingGenerator(db, cfg, predictor, director), take, 450, 490)
+    assert np.array_equal(a, run(ck.streaming(), take, 450, 490))
 
 
 @pytest.fixture(scope="module")

@@ -26,13 +26,21 @@ axis-angle (radians, local to the parent, SMPL-X joint order) and ``mocap_frame_
    about the bone (x) is followed by ``Rx(c · [τ_arm, τ_forearm, τ_hand, 1])``, a least-squares
    line of the chain's twists; each index/middle/ring/little finger joint likewise gets
    ``Rz(c · [φ, 1])`` of its own flexion φ (:data:`TWIST_CHAINS`, :func:`fit_twist`).
-5. BEAT joints SMPL-X lacks — the metacarpals ``*HandIndex``, ``*HandRing``,
+5. **Finger amplitudes**: BEAT's skeleton solver keeps the fingers' second and third joints as hinges
+   (they turn about z only, x and y still) and its thumbs move 2–5× less than the SMPL-X (MANO) fit's,
+   whose finger joints also jitter about every axis (on the calibration pair the converted thumbs
+   accelerated 2.5× as hard as BEAT's own mocap of the same frames at the 99th percentile, and
+   0_2_2's left thumb tip swings 95° in two 30 fps frames). Each finger joint's rotation about a
+   constant centre ``c_j`` (its mean over the fitting frames) is scaled per axis,
+   ``L_j ← c_j · exp(g_j ⊙ log(c_j⁻¹ L_j))``, with gains ``g_j`` (3,) fitted by least squares on the
+   pair (:data:`GAIN_JOINTS`, :func:`fit_gains`; g ≈ 0 about a hinge's still axes).
+6. BEAT joints SMPL-X lacks — the metacarpals ``*HandIndex``, ``*HandRing``,
    ``*HandPinky`` and ``Neck1`` — hold a constant: their mean rotation in the BEAT
    take (they move by 1–2° there). BEAT's ``Spine`` is driven by SMPL-X ``spine1``
    relative to the pelvis, ``Neck`` by ``neck`` relative to ``spine3`` (BEAT's data
    keeps Hips, Spine1–3 and Head at rest, as here).
 
-The choice of what drives Spine and Neck1 was made on a validation part of the pair
+Steps 1–5 are :func:`convert_matrices`. The choice of what drives Spine and Neck1 was made on a validation part of the pair
 (``docs/bring-your-own-mocap.md`` has the figures).
 
 **Time.** A take is resampled to the model rate by :func:`facecapges.timing.resample`
@@ -129,6 +137,10 @@ TWIST_CHAINS: tuple[tuple[str, tuple[str, ...]], ...] = (
     for finger in ("Middle", "Ring", "Pinky", "Index")
     for k in (1, 2, 3)
 )
+
+#: The finger joints whose amplitude about their centre is rescaled per axis (module docstring, step 5).
+GAIN_JOINTS: tuple[str, ...] = tuple(n for n in UPPER_BODY if "Hand" in n and n[-1] in "123" and SOURCES[n] is not None)
+MAX_GAIN = 1.5
 
 
 # ------------------------------------------------------------------ reading
@@ -246,12 +258,14 @@ class Beat2Map:
     jaw_scale: float
     twist: dict[str, np.ndarray] = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    gains: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # joint → (centre (3, 3), g (3,))
 
     def to_dict(self) -> dict:
         q = {n: {"left": _q(self.left[i]), "right": _q(self.right[i])} for i, n in enumerate(UPPER_BODY)}
         tw = {n: [round(float(v), 6) for v in c] for n, c in self.twist.items()}
         jaw = {"offset": self.jaw_offset, "scale_per_rad": self.jaw_scale}
-        return {**self.info, "jaw": jaw, "twist": tw, "joints": q}
+        gains = {n: {"centre": _q(c), "gain": [round(float(v), 6) for v in g]} for n, (c, g) in self.gains.items()}
+        return {**self.info, "jaw": jaw, "twist": tw, "gains": gains, "joints": q}
 
     @classmethod
     def from_dict(cls, d: dict, origin: str) -> Beat2Map:
@@ -264,12 +278,18 @@ class Beat2Map:
                 width = {j: len(chain) + 1 for _, chain in TWIST_CHAINS for j in chain}.get(n)
                 if width is None or c.shape != (width,) or not np.isfinite(c).all():
                     raise ValueError(f"twist of {n!r}: not a joint of TWIST_CHAINS or not {width} numbers")
+            gains = {}
+            for n, e in d.get("gains", {}).items():
+                g = np.asarray(e["gain"], np.float64)
+                if n not in GAIN_JOINTS or g.shape != (3,) or not np.isfinite(g).all():
+                    raise ValueError(f"gains of {n!r}: not a joint of GAIN_JOINTS or not 3 numbers")
+                gains[str(n)] = (rot.quaternion_to_matrix(_unit(e["centre"])), g)
         except (KeyError, TypeError, ValueError) as exc:
             raise UserError(f"{origin}: not a BEAT2 correction map ({exc.__class__.__name__}: {exc})") from None
         if not (np.isfinite(off) and np.isfinite(scale)):
             raise UserError(f"{origin}: not a BEAT2 correction map (jaw line not finite)")
-        info = {k: v for k, v in d.items() if k not in ("jaw", "joints", "twist")}
-        return cls(left, right, off, scale, twist, info)
+        info = {k: v for k, v in d.items() if k not in ("jaw", "joints", "twist", "gains")}
+        return cls(left, right, off, scale, twist, info, gains)
 
 
 def _q(m: np.ndarray) -> list[float]:
@@ -306,7 +326,45 @@ def load_map(path: str | Path | None = None) -> Beat2Map:
 def convert_matrices(take: Beat2Take, mapping: Beat2Map | None = None) -> np.ndarray:
     """BEAT local rotations (T, 47, 3, 3) of a take, at its own frame rate."""
     m = mapping or load_map()
-    return redistribute_twist(m.left[None] @ source_rotations(take.poses) @ m.right[None], m.twist)
+    return corrected(source_rotations(take.poses), m)
+
+
+def corrected(M: np.ndarray, m: Beat2Map) -> np.ndarray:
+    """Steps 3–5 of the module docstring on source rotations ``M`` (T, 47, 3, 3): BEAT local rotations."""
+    return finger_amplitudes(redistribute_twist(m.left[None] @ M @ m.right[None], m.twist), m.gains)
+
+
+def _rotvec(R: np.ndarray) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
+
+
+def finger_amplitudes(P: np.ndarray, gains: dict[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
+    """``L_j = c_j · exp(g_j ⊙ log(c_j⁻¹ P_j))`` for the joints in ``gains`` (module docstring, step 5)."""
+    from scipy.spatial.transform import Rotation
+
+    out = P.copy()
+    for n, (c, g) in gains.items():
+        i = UPPER_BODY.index(n)
+        rv = _rotvec(c.T[None] @ P[:, i]) * g
+        out[:, i] = c[None] @ Rotation.from_rotvec(rv).as_matrix()
+    return out
+
+
+def fit_gains(P: np.ndarray, L: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per joint of :data:`GAIN_JOINTS`: its centre (the mean of ``P``) and the per-axis least-squares gain
+    from ``P``'s rotation vector about it to ``L``'s about ``L``'s mean, in [0, :data:`MAX_GAIN`]."""
+    out = {}
+    for n in GAIN_JOINTS:
+        i = UPPER_BODY.index(n)
+        c = mean_rotation(P[:, i])
+        x = _rotvec(c.T[None] @ P[:, i])
+        y = _rotvec(mean_rotation(L[:, i]).T[None] @ L[:, i])
+        x, y = x - x.mean(0), y - y.mean(0)
+        g = np.clip((x * y).sum(0) / np.maximum((x * x).sum(0), 1e-12), 0.0, MAX_GAIN)
+        out[n] = (c, g)
+    return out
 
 
 def twist_angles(R: np.ndarray, axis: str = "X") -> np.ndarray:
@@ -529,19 +587,20 @@ def fit_map(npz_path: str | Path, bvh_path: str | Path, fit_fraction: float = 0.
     M, Lb, frames = aligned_pair(take, L[:n_fit], bfps, lag)
     left, right = fit_corrections(M, Lb)
     twist = fit_twist(left[None] @ M @ right[None], Lb)
+    gains = fit_gains(redistribute_twist(left[None] @ M @ right[None], twist), Lb)
     jaw = take.poses[: int(np.floor(take.n_frames * fit_fraction)), JAW, 0]
     off, scale = fit_jaw(jaw, BEAT_JAWOPEN_MEAN, BEAT_JAWOPEN_STD)
     info = {
         "name": MAP_NAME,
         "description": "SMPL-X (BEAT2) → BEAT upper body: L_j = left_j · M_j · right_j, then the arm twist "
-        "lines (facecapges.data.beat2). Quaternions (w, x, y, z).",
+        "and finger flexion lines, then the finger amplitude gains (facecapges.data.beat2). Quaternions (w, x, y, z).",
         "source": f"fitted on {take.path.name} + {Path(bvh_path).name} (BEAT speaker 2, CC BY-NC 4.0), "
         f"first {fit_fraction:.0%} of the take ({len(frames)} frames)",
         "licence": "CC BY-NC 4.0 (derived from BEAT / BEAT2)",
         "lag_source_frames": lag,
         "lag_elbow_r": round(r, 4),
     }
-    return Beat2Map(left, right, off, scale, twist, info)
+    return Beat2Map(left, right, off, scale, twist, info, gains)
 
 
 def write_map(mapping: Beat2Map, path: str | Path, force: bool = False) -> Path:
@@ -573,8 +632,7 @@ def pair_errors(
     take = read_beat2(npz_path)
     L, bfps = bvh_locals(bvh_path)
     M, Lb, frames = aligned_pair(take, L, bfps, int(m.info.get("lag_source_frames", 0)))
-    pred = redistribute_twist(m.left[None] @ M @ m.right[None], m.twist)
-    return angle_errors(pred, Lb), frames
+    return angle_errors(corrected(M, m), Lb), frames
 
 
 def group_figures(errors: np.ndarray) -> dict[str, tuple[float, float]]:

@@ -5,10 +5,12 @@ the safetensors metadata under ``"facecapges"``, a JSON document:
 
 * tensors ``db.*`` — the :class:`~facecapges.matching.database.Database` arrays (poses, raw
   features, annotations, normalisation); ``predictor.*`` — the speech predictor's weights (absent:
-  a style without predictor, which then matches on speech cues alone);
+  a style without predictor, which then matches on speech cues alone); ``director.*`` — the weights
+  of the style's own thesis network whose wrist direction is a query term
+  (:mod:`facecapges.matching.director`; absent in styles without one);
 * meta — ``format``, ``engine: "matching"``, ``engine_config`` (:class:`EngineConfig`),
   ``database`` (feature weights, the take segments with their frame ranges), ``predictor`` (its
-  JSON config, or null), ``skeleton`` (as the network's checkpoints store it), ``neutral_window``
+  JSON config, or null), ``director`` (the network's config and neutral window, or absent), ``skeleton`` (as the network's checkpoints store it), ``neutral_window``
   (idle frames of the style, (N, 47, 6)), ``fps``, ``speaker``, ``takes`` (name, source, frames
   used, held-out range), ``licence`` and ``attribution``.
 
@@ -32,7 +34,7 @@ from facecapges.errors import UserError, file_error
 from facecapges.matching.database import Database
 from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator
 from facecapges.model.engine import GestureEngine
-from facecapges.skeleton import Skeleton, skeleton_to_dict
+from facecapges.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
 
 FORMAT = "facecapges-matching-1"
 NEUTRAL_FRAMES = 8
@@ -47,6 +49,7 @@ class MatchingCheckpoint(GestureEngine):
     predictor: object | None
     meta: dict
     path: Path
+    director: object | None = None
     engine: ClassVar[str] = "matching"
     label: ClassVar[str] = "motion matching"
 
@@ -55,10 +58,10 @@ class MatchingCheckpoint(GestureEngine):
         return int(self.meta["fps"])
 
     def streaming(self) -> MatchingGenerator:
-        return MatchingGenerator(self.db, self.config, self.predictor)
+        return MatchingGenerator(self.db, self.config, self.predictor, self.director)
 
     def batched(self, capacity: int = 8) -> BatchedMatchingGenerator:
-        return BatchedMatchingGenerator(self.db, self.config, self.predictor, capacity=capacity)
+        return BatchedMatchingGenerator(self.db, self.config, self.predictor, capacity=capacity, director=self.director)
 
     def database_poses(self) -> np.ndarray:
         """Every pose of the database (N, 47, 6) rot6d (the style's real frames and their mirrors)."""
@@ -80,6 +83,7 @@ def save_matching_style(
     skeleton: Skeleton,
     predictor=None,
     extra: dict | None = None,
+    director=None,
 ) -> Path:
     """Write a matching style atomically (temporary file, then rename); returns its path."""
     import torch
@@ -90,6 +94,8 @@ def save_matching_style(
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in db.tensors().items()}
     if predictor is not None:
         tensors.update({f"predictor.{k}": v.detach().float().contiguous() for k, v in predictor.state_dict().items()})
+    if director is not None:
+        tensors.update({f"director.{k}": v for k, v in director.state_dict().items()})
     meta = dict(extra or {})
     meta.update(
         format=FORMAT,
@@ -97,6 +103,7 @@ def save_matching_style(
         engine_config=config.as_dict(),
         database=db.meta(),
         predictor=None if predictor is None else predictor.config,
+        **({} if director is None else {"director": director.config}),
         skeleton=skeleton_to_dict(skeleton),
         neutral_window=np.round(neutral_window(db).astype(np.float64), 6).tolist(),
         fps=timing.MODEL_FPS,
@@ -131,6 +138,21 @@ def from_file(path: Path, tensors: dict, meta: dict) -> MatchingCheckpoint:
         except (KeyError, RuntimeError, ValueError) as exc:
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise file_error(path, f"matching style predictor does not load ({first})") from None
+    director = _director(path, tensors, meta)
     if int(meta["fps"]) != timing.MODEL_FPS:
         raise UserError(f"{path}: matching style at {meta['fps']} fps; this version runs {timing.MODEL_FPS} fps")
-    return MatchingCheckpoint(db=db, config=config, predictor=predictor, meta=meta, path=path)
+    return MatchingCheckpoint(db=db, config=config, predictor=predictor, meta=meta, path=path, director=director)
+
+
+def _director(path: Path, tensors: dict, meta: dict):
+    """The style's network of the wrist-direction term (:mod:`facecapges.matching.director`), or None."""
+    if not meta.get("director"):
+        return None
+    from facecapges.matching.director import Director
+
+    d_t = {k[len("director.") :]: v for k, v in tensors.items() if k.startswith("director.")}
+    try:
+        return Director.from_state(meta["director"], d_t, skeleton_from_dict(meta["skeleton"]))
+    except (KeyError, RuntimeError, TypeError, ValueError, UserError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise file_error(path, f"matching style network does not load ({first})") from None
