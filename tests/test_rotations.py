@@ -312,3 +312,31 @@ def test_continuous_quaternions_is_the_key_by_key_flip():
     got = rot.continuous_quaternions(q)
     np.testing.assert_array_equal(got, want)
     assert np.all(np.sum(got[1:] * got[:-1], -1) >= 0)
+
+
+def test_batched_exp_log_so3_match_scipy_and_invert():
+    """exp_so3 / log_so3 on batches (…, 3) ↔ (…, 3, 3) equal scipy's rotvec conversions, small angles and near π too."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(7)
+    axes = rng.normal(size=(400, 3))
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    angles = np.concatenate([rng.uniform(0, np.pi - 1e-3, 360), np.full(20, 1e-9), np.full(20, np.pi - 1e-6)])
+    v = (axes * angles[:, None]).reshape(20, 20, 3)
+    R = rot.exp_so3(v)
+    np.testing.assert_allclose(R, Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(20, 20, 3, 3), atol=1e-12)
+    back = rot.log_so3(R)
+    assert back.shape == (20, 20, 3)
+    np.testing.assert_allclose(rot.exp_so3(back), R, atol=1e-6)  # near π the sign of the axis may flip: same rotation
+    ok = angles.reshape(20, 20) < np.pi - 1e-3
+    np.testing.assert_allclose(back[ok], v[ok], atol=1e-9)
+    assert rot.exp_so3(np.zeros(3)).tolist() == np.eye(3).tolist()
+
+
+def test_twist_angle_is_the_rotation_about_the_axis():
+    """A twist about x followed by a swing about y or z: twist_angle(…, "X") gives the twist back."""
+    rng = np.random.default_rng(3)
+    tw = rng.uniform(-3.0, 3.0, 50)
+    swing = rng.uniform(-1.0, 1.0, (50, 2))
+    R = rot.exp_so3(np.c_[np.zeros(50), swing]) @ rot.exp_so3(np.c_[tw, np.zeros((50, 2))])
+    np.testing.assert_allclose(rot.twist_angle(R, "X"), tw, atol=1e-9)

@@ -474,28 +474,44 @@ def quaternion_mean(q: np.ndarray) -> np.ndarray:
 
 # --------------------------------------------------------------- SO(3) exp / log
 def log_so3(R: np.ndarray) -> np.ndarray:
-    """One rotation matrix (3, 3) → rotation vector (3,): axis × angle, radians."""
-    c = np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)
-    ang = math.acos(c)
-    v = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    if ang < 1e-6:
-        return 0.5 * v
-    if math.pi - ang < 1e-4:
-        # near 180°: axis from the diagonal
-        axis = np.sqrt(np.maximum((np.diag(R) + 1) / 2, 0))
-        axis *= np.sign(v) + (v == 0)
-        return axis / max(np.linalg.norm(axis), 1e-12) * ang
-    return v * (ang / (2 * math.sin(ang)))
+    """Rotation matrices (…, 3, 3) → rotation vectors (…, 3): axis × angle, radians (0 … π).
+
+    The angle is ``atan2(|v|/2, (tr R − 1)/2)`` with ``v`` the skew part, accurate at small angles; within
+    1e-4 rad of π, where ``v`` vanishes, the axis comes from the diagonal (its sign from ``v``)."""
+    R = np.asarray(R, np.float64)
+    v = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    sn = np.linalg.norm(v, axis=-1) / 2
+    ang = np.arctan2(sn, (np.trace(R, axis1=-2, axis2=-1) - 1) / 2)
+    out = v * np.where(sn > 1e-12, ang / np.maximum(2 * sn, 1e-300), 0.5)[..., None]
+    near_pi = np.pi - ang < 1e-4
+    if np.any(near_pi):
+        axis = np.sqrt(np.maximum((np.diagonal(R, axis1=-2, axis2=-1) + 1) / 2, 0)) * (np.sign(v) + (v == 0))
+        axis = axis / np.maximum(np.linalg.norm(axis, axis=-1, keepdims=True), 1e-12) * ang[..., None]
+        out = np.where(near_pi[..., None], axis, out)
+    return out
 
 
 def exp_so3(v: np.ndarray) -> np.ndarray:
-    """Rotation vector (3,) (axis × angle, radians) → rotation matrix (3, 3) (Rodrigues)."""
-    ang = float(np.linalg.norm(v))
-    if ang < 1e-12:
-        return np.eye(3)
-    k = v / ang
-    Kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(ang) * Kx + (1 - math.cos(ang)) * Kx @ Kx
+    """Rotation vectors (…, 3) (axis × angle, radians) → rotation matrices (…, 3, 3) (Rodrigues)."""
+    v = np.asarray(v, np.float64)
+    ang = np.linalg.norm(v, axis=-1)[..., None, None]
+    k = v / np.maximum(ang[..., 0], 1e-300)
+    zero = np.zeros_like(k[..., 0])
+    K = np.stack(
+        [
+            np.stack([zero, -k[..., 2], k[..., 1]], -1),
+            np.stack([k[..., 2], zero, -k[..., 0]], -1),
+            np.stack([-k[..., 1], k[..., 0], zero], -1),
+        ],
+        -2,
+    )
+    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * (K @ K)
+
+
+def twist_angle(R: np.ndarray, axis: str = "X") -> np.ndarray:
+    """Twist (radians, −π … π) of rotations (…, 3, 3) about the local ``axis`` (swing-twist decomposition)."""
+    q = matrix_to_quaternion(R)
+    return (2.0 * np.arctan2(q[..., 1 + "XYZ".index(axis)], q[..., 0]) + np.pi) % (2 * np.pi) - np.pi
 
 
 def rotation_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -218,17 +218,9 @@ def read_beat2(path: str | Path) -> Beat2Take:
 
 
 # ------------------------------------------------------------------ rotations
-def axis_angle_to_matrix(aa: np.ndarray) -> np.ndarray:
-    """Axis-angle vectors (..., 3), radians → rotation matrices (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    aa = np.asarray(aa, np.float64)
-    return Rotation.from_rotvec(aa.reshape(-1, 3)).as_matrix().reshape(aa.shape[:-1] + (3, 3))
-
-
 def smplx_globals(poses: np.ndarray) -> np.ndarray:
     """Global rotations (T, 55, 3, 3) of SMPL-X axis-angle poses (T, 55, 3) (world-aligned rest)."""
-    local = axis_angle_to_matrix(poses)
+    local = rot.exp_so3(poses)
     G = np.empty_like(local)
     for j, p in enumerate(SMPLX_PARENTS):
         G[:, j] = local[:, j] if p < 0 else G[:, p] @ local[:, j]
@@ -334,21 +326,13 @@ def corrected(M: np.ndarray, m: Beat2Map) -> np.ndarray:
     return finger_amplitudes(redistribute_twist(m.left[None] @ M @ m.right[None], m.twist), m.gains)
 
 
-def _rotvec(R: np.ndarray) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(R.shape[:-2] + (3,))
-
-
 def finger_amplitudes(P: np.ndarray, gains: dict[str, tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     """``L_j = c_j · exp(g_j ⊙ log(c_j⁻¹ P_j))`` for the joints in ``gains`` (module docstring, step 5)."""
-    from scipy.spatial.transform import Rotation
-
     out = P.copy()
     for n, (c, g) in gains.items():
         i = UPPER_BODY.index(n)
-        rv = _rotvec(c.T[None] @ P[:, i]) * g
-        out[:, i] = c[None] @ Rotation.from_rotvec(rv).as_matrix()
+        rv = rot.log_so3(c.T[None] @ P[:, i]) * g
+        out[:, i] = c[None] @ rot.exp_so3(rv)
     return out
 
 
@@ -358,24 +342,18 @@ def fit_gains(P: np.ndarray, L: np.ndarray) -> dict[str, tuple[np.ndarray, np.nd
     out = {}
     for n in GAIN_JOINTS:
         i = UPPER_BODY.index(n)
-        c = mean_rotation(P[:, i])
-        x = _rotvec(c.T[None] @ P[:, i])
-        y = _rotvec(mean_rotation(L[:, i]).T[None] @ L[:, i])
+        c = _mean_matrix(P[:, i])
+        x = rot.log_so3(c.T[None] @ P[:, i])
+        y = rot.log_so3(_mean_matrix(L[:, i]).T[None] @ L[:, i])
         x, y = x - x.mean(0), y - y.mean(0)
         g = np.clip((x * y).sum(0) / np.maximum((x * x).sum(0), 1e-12), 0.0, MAX_GAIN)
         out[n] = (c, g)
     return out
 
 
-def twist_angles(R: np.ndarray, axis: str = "X") -> np.ndarray:
-    """Twist (radians, −π…π) of rotations (..., 3, 3) about ``axis`` (swing-twist decomposition)."""
-    q = rot.matrix_to_quaternion(R)
-    return (2.0 * np.arctan2(q[..., 1 + "XYZ".index(axis)], q[..., 0]) + np.pi) % (2 * np.pi) - np.pi
-
-
 def twist_features(P: np.ndarray, axis: str, chain: tuple[str, ...]) -> np.ndarray:
     """(T, len(chain) + 1): the chain's twists about ``axis`` and a 1 column."""
-    tw = twist_angles(P[:, [UPPER_BODY.index(n) for n in chain]], axis)
+    tw = rot.twist_angle(P[:, [UPPER_BODY.index(n) for n in chain]], axis)
     return np.concatenate([tw, np.ones((len(P), 1))], axis=1)
 
 
@@ -462,7 +440,7 @@ def measure_lag(poses: np.ndarray, src_fps: float, beat_local: np.ndarray, beat_
     Cross-correlation of both elbows' flexion angles (BEAT ForeArm rotation angle against
     the SMPL-X elbow's), over lags −MAX_LAG … MAX_LAG source frames.
     """
-    L = axis_angle_to_matrix(poses[:, [SMPLX_NAMES.index(s) for _, s in ELBOWS]])
+    L = rot.exp_so3(poses[:, [SMPLX_NAMES.index(s) for _, s in ELBOWS]])
     src = _angle(L)  # (Ts, 2)
     ref = _angle(beat_local[:, [UPPER_BODY.index(b) for b, _ in ELBOWS]])  # (Tb, 2)
     base = np.round(np.arange(len(ref)) * src_fps / beat_fps).astype(np.int64)
@@ -510,11 +488,9 @@ def fit_joint(M: np.ndarray, L: np.ndarray, iters: int = 30) -> tuple[np.ndarray
     return A, B
 
 
-def mean_rotation(R: np.ndarray) -> np.ndarray:
-    """The chordal L2 mean of rotations (T, 3, 3) (scipy)."""
-    from scipy.spatial.transform import Rotation
-
-    return Rotation.from_matrix(R).mean().as_matrix()
+def _mean_matrix(R: np.ndarray) -> np.ndarray:
+    """The chordal L2 mean of rotations (T, 3, 3): their average projected onto SO(3)."""
+    return rot.nearest_rotation(np.asarray(R, np.float64).mean(0))
 
 
 def fit_corrections(M: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -523,7 +499,7 @@ def fit_corrections(M: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarra
     right = left.copy()
     for i, name in enumerate(UPPER_BODY):
         if SOURCES[name] is None:
-            left[i] = mean_rotation(L[:, i])
+            left[i] = _mean_matrix(L[:, i])
         else:
             left[i], right[i] = fit_joint(M[:, i], L[:, i])
     return left, right
@@ -537,7 +513,7 @@ def fit_twist(P: np.ndarray, L: np.ndarray) -> dict[str, np.ndarray]:
         X = twist_features(P, axis, chain)
         for n in chain:
             i = UPPER_BODY.index(n)
-            y = twist_angles(np.swapaxes(P[:, i], -1, -2) @ L[:, i], axis)
+            y = rot.twist_angle(np.swapaxes(P[:, i], -1, -2) @ L[:, i], axis)
             out[n] = np.linalg.lstsq(X, y, rcond=None)[0]
     return out
 
