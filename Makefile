@@ -11,19 +11,24 @@ STAMP := $(VENV)/.installed
 demo: setup
 	$(VENV)/bin/facecapges demo --out out --force
 
+# Both run the suite in two passes (docs/testing.md): on two pytest-xdist workers, then the tests
+# marked `serial` (they assert a rate or a wall-clock bound) alone, collected from their files only.
+SERIAL_FILES = $(shell grep -l 'mark\.serial' tests/test_*.py)
 test: setup
 	bash scripts/setup-test.sh
 	$(VENV)/bin/ruff check src
 	$(VENV)/bin/ruff format --check src
 	$(VENV)/bin/mypy
-	$(PY) -m pytest -q --durations=15
+	$(PY) -m pytest -q -n 2 -m "not serial" --durations=15
+	$(PY) -m pytest -q -m serial --durations=5 $(SERIAL_FILES)
 
 # The inner loop (docs/testing.md): lint and every test not marked `slow` (Chromium, Blender,
 # torchrun, training runs, the bench). `make test` and CI still run everything.
 test-fast: setup
 	$(VENV)/bin/ruff check src
 	$(VENV)/bin/ruff format --check src
-	$(PY) -m pytest -q -m "not slow" --durations=10
+	$(PY) -m pytest -q -n 2 -m "not slow and not serial" --durations=10
+	$(PY) -m pytest -q -m "serial and not slow" $(SERIAL_FILES)
 
 setup: $(STAMP)
 

@@ -11,6 +11,8 @@ fails the test, so a broken checkout can never pass by skipping.
 from __future__ import annotations
 
 import os
+import sys
+from collections import Counter
 from pathlib import Path
 
 # The suite runs many tiny per-frame steps on a 2-core machine: extra intra-op threads
@@ -162,10 +164,29 @@ def pytest_runtest_makereport(item, call):
         report.longrepr = f"skipped in CI (CI=true forbids skips): {report.longrepr}"
 
 
+def _fuzz_cases() -> Counter:
+    fuzz = sys.modules.get("test_fuzz")
+    return Counter(fuzz.CASES) if fuzz is not None else Counter()
+
+
+# Under pytest-xdist (`make test` runs `-n 2`) the fuzz cases are counted in the workers: each sends its
+# counts with its results, and the controller adds them up for the summary.
+_WORKER_FUZZ_CASES: Counter = Counter()
+
+
+def pytest_sessionfinish(session):
+    workeroutput = getattr(session.config, "workeroutput", None)
+    if workeroutput is not None:
+        workeroutput["fuzz_cases"] = dict(_fuzz_cases())
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_testnodedown(node, error):
+    _WORKER_FUZZ_CASES.update(getattr(node, "workeroutput", {}).get("fuzz_cases", {}))
+
+
 def pytest_terminal_summary(terminalreporter):
     """The number of cases the fuzz suite (tests/test_fuzz.py) tried, when it ran."""
-    import sys
-
-    fuzz = sys.modules.get("test_fuzz")
-    if fuzz is not None and sum(fuzz.CASES.values()):
-        terminalreporter.write_line(f"fuzz cases tried: {sum(fuzz.CASES.values())} ({dict(fuzz.CASES)})")
+    cases = _fuzz_cases() + _WORKER_FUZZ_CASES
+    if cases.total():
+        terminalreporter.write_line(f"fuzz cases tried: {cases.total()} ({dict(sorted(cases.items()))})")

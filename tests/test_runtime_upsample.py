@@ -70,6 +70,7 @@ def feed(up: Upsampler, frames, period: float = 1 / 15) -> None:
         up.write(fr)
 
 
+@pytest.mark.serial
 def test_upsampler_sends_on_its_clock_and_ends_on_the_last():
     sink = Collect()
     up = Upsampler([sink], fps=15, rate_hz=30)
@@ -103,6 +104,7 @@ def test_a_frame_that_comes_early_starts_from_what_was_shown():
     assert np.all(np.diff(arm) > -1e-3)  # no jump back: the new segment starts where the avatar was
 
 
+@pytest.mark.serial
 def test_an_idle_model_still_gets_the_rate():
     """One model frame and then nothing (an idle or stalled generator): the pose goes out at the rate anyway."""
     sink = Collect()
@@ -113,6 +115,7 @@ def test_an_idle_model_still_gets_the_rate():
     assert 25 <= len(sink.frames) <= 33 and all(f.face[24] == pytest.approx(0.2) for _, f in sink.frames)
 
 
+@pytest.mark.serial
 def test_viewer_gets_30_frames_a_second(face_video):
     """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
     from websockets.sync.client import connect

@@ -310,6 +310,7 @@ def test_vmcp_parses_an_arms_only_frame(skeleton):
     assert not any(isinstance(e, (RootTransformEvent, BlendShapeEvent)) for e in events)
 
 
+@pytest.mark.serial
 def test_vmcp_receives_interpolated_60hz(skeleton):
     """Upsampler → VmcSender at 60 Hz: frames on the upsampler's clock, rotations slerped, the last one exact."""
     from vmcp.events import BoneTransformEvent, RelativeTimeEvent
@@ -348,6 +349,7 @@ def _spin(seconds: float):
     return subprocess.Popen([sys.executable, "-c", code])
 
 
+@pytest.mark.serial
 @pytest.mark.parametrize("rate", [30, 60])
 def test_steady_rate_under_load(skeleton, rate):
     """``--rate 30/60`` with the other core busy and the model's frames jittery: delivered rate within 2 %.
@@ -403,6 +405,7 @@ def test_steady_rate_under_load(skeleton, rate):
     assert (len(t) - 1) / (t[-1] - t[0]) == pytest.approx(rate, rel=0.02)
 
 
+@pytest.mark.serial
 def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
     """``live --video … --realtime --vmc … --rate 30``: a loopback receiver gets two frames per model frame."""
     import json

@@ -146,6 +146,7 @@ def test_browser_viewer_shows_the_avatar(live, tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.serial  # compares two 24-frame windows of the --realtime stream: failed once in three -n 2 runs
 def test_viewer_slider_sets_the_intensity(live):
     """The viewer's intensity slider reaches the generator: at 0 the avatar only idles."""
     from websockets.sync.client import connect

@@ -181,6 +181,7 @@ def test_garbage_stalls_and_disconnects_do_not_affect_others(ckpt, server):
     assert s["bad_messages"] >= 6 and s["idle_closes"] >= 1 and s["streams"] == 0
 
 
+@pytest.mark.serial
 def test_max_streams_and_rate_limit(ckpt, server):
     srv = server(max_streams=2, rate_limit=5.0, max_pending=16)
 

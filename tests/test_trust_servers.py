@@ -41,6 +41,7 @@ def _trickler(port: int) -> socket.socket:
     return s
 
 
+@pytest.mark.serial
 def test_trickling_clients_cannot_hold_the_study_server(study_dir):
     server = make_server(open_study(study_dir), "127.0.0.1", 0, timeout=5.0, max_connections=64,
                          request_deadline=3.0)

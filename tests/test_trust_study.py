@@ -120,6 +120,7 @@ def test_a_study_without_tokens_gets_them_and_its_old_answers_are_left_out(tmp_p
     (b"", 411, b"Content-Length is required"),
     (b"Content-Length: 300000000\r\n", 413, b"request too large"),
 ])
+@pytest.mark.serial
 def test_request_bodies_are_bounded(study_dir, header, status, reason):
     with Served(study_dir) as s:
         t0 = time.monotonic()
@@ -144,6 +145,7 @@ def test_deep_json_and_long_paths_are_bad_input_not_tracebacks(study_dir, capfd)
     assert "Traceback" not in capfd.readouterr().err
 
 
+@pytest.mark.serial
 def test_idle_and_excess_connections_are_dropped(study_dir):
     with Served(study_dir, timeout=1.0, max_connections=4) as s:
         t0 = time.monotonic()

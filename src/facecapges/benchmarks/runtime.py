@@ -5,7 +5,7 @@
   output), over the shared HDTF clip (8 s, 25 fps) run offline; p50 / p99 per stage.
   Targets: p50 ≤ 30 ms, p99 ≤ 50 ms.
 * ``run_60s`` — ``facecapges run`` on a talking-head video (the 8 s clip looped with
-  ffmpeg: 10 s in the full bench, 4 s quick, so the whole bench stays within minutes),
+  ffmpeg: 10 s in the full bench, 2 s quick, so the whole bench stays within minutes),
   both MP4s included; ``wall_s_per_60s_input`` scales it to the target's 60 s of input
   (target ≤ 180 s per 60 s).
 * ``session`` — a simulated live session: the clip and its audio looped as a file
@@ -361,15 +361,15 @@ def vmc_rate(skeleton, rate_hz: float, seconds: float = 3.0, busy: bool = True) 
 
 
 def run(quick: bool, shared: Path, session_s: float | None = None) -> dict:
-    """Quick: 30 frames, ``run`` on 4 s, a 10 s session; full: the whole 8 s clip, ``run`` on
+    """Quick: 30 frames, ``run`` on 2 s, a 10 s session, 1.5 s of each VMC rate; full: the whole 8 s clip, ``run`` on
     10 s (its wall time per 60 s of input reported beside), a 60 s session. ``session_s``
     sets the session length (e.g. 3600 for the 1 h soak of the runtime issue)."""
     ckpt = _checkpoint()
     clip, train = shared_file(shared, CLIP), shared_file(shared, TRAIN_BVH)
     out: dict[str, object] = {"checkpoint": str(ckpt.path)}
     out["vmc_output"] = vmc_output(ckpt, train, 60 if quick else 300)
-    out["vmc_rate"] = {f"{r}hz": vmc_rate(ckpt.skeleton, r, 2.0 if quick else 5.0) for r in (30, 60)}
+    out["vmc_rate"] = {f"{r}hz": vmc_rate(ckpt.skeleton, r, 1.5 if quick else 5.0) for r in (30, 60)}
     out["per_frame"] = per_frame(ckpt, clip, max_frames=30 if quick else None)
-    out["run_60s"] = run_60s(ckpt, clip, 4.0 if quick else 10.0)
+    out["run_60s"] = run_60s(ckpt, clip, 2.0 if quick else 10.0)
     out["session"] = session(ckpt, clip, train, session_s or (10.0 if quick else 60.0))
     return out

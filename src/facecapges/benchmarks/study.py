@@ -2,7 +2,7 @@
 
 Figures: time to plan a large study; ``study create`` time and pose-file size for K = 3
 versions of a clip (the clip, a time-shifted copy and the reversed motion of
-the shared ``data/beat/2_scott_0_1_1``; 10 s quick, 30 s full); and in headless Chromium
+the shared ``data/beat/2_scott_0_1_1``; 5 s quick, 30 s full); and in headless Chromium
 (software WebGL) the page's start-up, trial loading time and playback: the share of
 the clip's frames actually drawn while the three avatars play in one scene
 (1.0 = every frame at the clip's 15 fps).
@@ -45,7 +45,7 @@ def run(quick: bool, shared: Path) -> dict:
     from facecapges.study.build import create_study, open_study
     from facecapges.study.server import make_server, serve_in_thread
 
-    seconds = 10 if quick else 30
+    seconds = 5 if quick else 30
     with tempfile.TemporaryDirectory(prefix="facecapges-study-bench-") as tmp:
         tmp = Path(tmp)
         b = read_bvh(bvh_path)
@@ -94,7 +94,7 @@ def run(quick: bool, shared: Path) -> dict:
                 wait("window.study.playing")
                 d0 = js("window.study.draws")
                 t0 = time.perf_counter()
-                time.sleep(2.0 if quick else 5.0)
+                time.sleep(1.0 if quick else 5.0)
                 drawn = js("window.study.draws") - d0
                 elapsed = time.perf_counter() - t0
                 fps = float(open_study(tmp / "study").doc["fps"])

@@ -256,12 +256,14 @@ def load_config_file(path: str | Path) -> tuple[dict, dict]:
     """Read a YAML/JSON file with optional ``model:`` and ``train:`` sections."""
     import yaml
 
+    from facecapges.io.yaml_text import safe_load
+
     p = Path(path)
     if not p.is_file():
         raise UserError(f"{p}: config file not found")
     try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
-    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as exc:
+        data = safe_load(p.read_text(encoding="utf-8")) or {}
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise UserError(f"{p}: not valid YAML/JSON ({exc.__class__.__name__})") from None
     if not isinstance(data, dict) or set(data) - {"model", "train"}:
         raise UserError(f"{p}: expected a mapping with 'model' and/or 'train' sections")

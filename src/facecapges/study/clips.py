@@ -74,12 +74,12 @@ class ClipSet:
 def _load_yaml(path: Path) -> dict:
     import yaml
 
+    from facecapges.io.yaml_text import safe_load
+
     try:
-        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+        doc = safe_load(path.read_text(encoding="utf-8"))  # nesting bounded: a deep file fails at once
     except UnicodeDecodeError:
         raise file_error(path, "not a text YAML file") from None
-    except RecursionError:
-        raise file_error(path, "malformed YAML: nested too deeply") from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}" if mark is not None else ""
