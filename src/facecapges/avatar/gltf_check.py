@@ -255,12 +255,19 @@ def _check_nodes(d: _Doc) -> None:
             if parent[c] >= 0 or c == i:
                 raise d.fail(f"{w}.children", f"node {c} has two parents (the node tree must be a tree)")
             parent[c] = i
-    for i in range(len(nodes)):  # a cycle has no root: walk up with a step bound
-        j, steps = i, 0
-        while j >= 0:
-            j, steps = parent[j], steps + 1
-            if steps > len(nodes):
-                raise d.fail("nodes", f"form a cycle (node {i})")
+    # a node on or below a cycle has no root: one walk down from the roots reaches every other node once
+    below: list[list[int]] = [[] for _ in nodes]
+    for c, p in enumerate(parent):
+        if p >= 0:
+            below[p].append(c)
+    reached = [False] * len(nodes)
+    todo = [i for i, p in enumerate(parent) if p < 0]
+    while todo:
+        j = todo.pop()
+        reached[j] = True
+        todo.extend(below[j])
+    if not all(reached):
+        raise d.fail("nodes", f"form a cycle (node {reached.index(False)})")
     for i, s in enumerate(d.array("scenes")):
         for n in s.get("nodes", []) if isinstance(s.get("nodes", []), list) else [None]:
             d.index(n, "nodes", f"scenes[{i}].nodes", optional=False)
