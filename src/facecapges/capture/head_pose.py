@@ -235,7 +235,7 @@ class PoseSmoother:
         m = len(self._R)
         c = self._coef[m]
         ref = pose.R
-        rv = np.stack([rot.log_so3(ref.T @ Ri) for Ri in self._R])  # (m, 3) relative to newest
+        rv = rot.log_so3(ref.T @ np.stack(self._R))  # (m, 3) relative to newest
         R = ref @ rot.exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)

@@ -155,9 +155,8 @@ class FaceCapture:
             return self.neutral(ts, st.face_id)
         k = self.policy.held((ts - st.lost_since) / 1000.0)  # 1 = hold, 0 = neutral
         weights = (last.weights52 * k).astype(np.float32)
-        return CaptureResult(
-            weights, rot.rotation_power_about(last.head_R, None, k), last.distance_m, False, None, st.face_id, ts
-        )
+        head = last.head_R if k >= 1.0 else rot.rotation_power_about(last.head_R, None, k)  # held: as it was
+        return CaptureResult(weights, head, last.distance_m, False, None, st.face_id, ts)
 
     def neutral(self, ts: float = 0.0, face_id: int = -1) -> CaptureResult:
         """Weights 0, head facing the camera, flagged not found."""
