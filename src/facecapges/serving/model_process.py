@@ -25,9 +25,9 @@ alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round t
 against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
 model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
-It offers the part of the generator's interface the server uses: :meth:`open`,
-:meth:`close`, :attr:`open_slots`, :meth:`step` (same arguments and result), and the
-split :meth:`submit` / :meth:`collect` with :meth:`sync`. Not thread-safe: one caller
+It offers what the server uses: :attr:`open_slots`, :meth:`sync` (opening, closing and
+dialling streams), the split :meth:`submit` / :meth:`collect`, and :meth:`step` (the two
+together, the generator's own signature and result). Not thread-safe: one caller
 at a time (the server's event loop).
 """
 
@@ -69,14 +69,6 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) 
                 res = None
             elif kind == "sync":
                 res = _sync(gen, *msg[1:])
-            elif kind == "open":
-                res = gen.open()
-            elif kind == "close":
-                gen.close(msg[1])
-                res = None
-            elif kind == "intensity":
-                gen.set_intensity(msg[1], msg[2])
-                res = None
             else:  # "quit"
                 conn.send(("ok", None))
                 return
@@ -144,19 +136,6 @@ class ModelProcess:
     @property
     def open_slots(self) -> frozenset[int]:
         return frozenset(self._open)
-
-    def open(self) -> int:
-        slot = self._call("open")
-        self._open.add(slot)
-        return slot
-
-    def close(self, slot: int) -> None:
-        self._call("close", slot)
-        self._open.discard(slot)
-
-    def set_intensity(self, slot: int, value: float) -> None:
-        """One stream's intensity dial (:mod:`facecapges.model.intensity`), from its next step on."""
-        self._call("intensity", int(slot), float(value))
 
     def sync(self, close: Sequence[int], n_open: int, intensity: Sequence[tuple[int, float]] = ()) -> list[int]:
         """One round trip for the slot changes between two ticks: close ``close``, open ``n_open``

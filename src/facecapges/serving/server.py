@@ -315,13 +315,13 @@ class StreamServer(ServerThread):
         return True
 
     # ---------------------------------------------------------------- ticks
-    async def _compute(self, slots: list[int], inputs: list) -> tuple[np.ndarray, np.ndarray]:
+    async def _compute(
+        self, slots: list[int], audio: list, face: np.ndarray, head: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """One batched step in the model process: poses (B, 47, 6) and quaternions (B, 47, 4). The event
         loop runs on while the model process works and resumes when its pipe is readable."""
         loop = asyncio.get_running_loop()
-        face = np.stack([i.face for i in inputs])
-        head = np.stack([i.head for i in inputs])
-        self.gen.submit(slots, [i.audio for i in inputs], face, head)
+        self.gen.submit(slots, audio, face, head)
         ready = loop.create_future()
         fd = self.gen.fileno()
 
@@ -389,9 +389,14 @@ class StreamServer(ServerThread):
             if not due:
                 continue
             items = [st.pending.popleft() for st in due]
+            inputs = [it[0] for it in items]
+            face = np.stack([i.face for i in inputs])  # the tick's face and head: the step's and the replies'
+            head = np.stack([i.head for i in inputs])
             t0 = time.monotonic()
             try:
-                _, quats = await self._compute([st.slot for st in due if st.slot is not None], [it[0] for it in items])
+                _, quats = await self._compute(
+                    [st.slot for st in due if st.slot is not None], [i.audio for i in inputs], face, head
+                )
             except Exception as exc:  # noqa: BLE001  never expected: report it to the streams of this tick
                 self.stats["tick_errors"] += 1
                 self.log(f"tick failed: {exc!r}")
@@ -399,7 +404,6 @@ class StreamServer(ServerThread):
                     self._send(st, _error(f"internal error in this frame: {exc.__class__.__name__}"))
                 continue
             t1 = time.monotonic()
-            inputs = [it[0] for it in items]
 
             def latency(i: int) -> dict:
                 now = time.monotonic()
@@ -415,8 +419,8 @@ class StreamServer(ServerThread):
                 index,
                 [k / self.fps for k in index],
                 quats,
-                np.stack([i.face for i in inputs]),
-                np.stack([i.head for i in inputs]),
+                face,
+                head,
                 [i.face_found for i in inputs],
                 latency,
             )
