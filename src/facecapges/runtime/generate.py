@@ -91,19 +91,19 @@ def generate_recording(
     kept = []  # the poses, only when a .vrma is asked for
     with BvhWriter(o.out, skel, inputs.n_frames, ckpt.fps) as bvh:  # block by block: memory flat in length
         for poses in generate_blocks(ckpt, blocks(), inputs.n_frames, not o.json_out, timing_ms, o.intensity):
-            bvh.write(pose_to_motion(skel, normalize_rot6d(poses)))
+            poses = normalize_rot6d(poses)
+            bvh.write(pose_to_motion(skel, poses))
             if o.vrma is not None:
-                kept.append(normalize_rot6d(poses))
+                kept.append(poses)
+    shown = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)  # the face the viewer shows
     if o.face_out is not None:
         from facecapges.io.face_json import write_face_json
 
-        shown = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)
         write_face_json(o.face_out, shown, ckpt.fps, inputs.head)
     if o.vrma is not None:
         from facecapges.avatar.vrm.animation import write_pose_vrma
 
-        face = inputs.face if mouth is None else np.stack(spoken).astype(np.float32)  # what the viewer shows
-        write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, face, o.vrma_face)
+        write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, shown, o.vrma_face)
         say(f"wrote {o.vrma} (VRM Animation)", err=o.json_out)
     ms, n = timing_ms[0], inputs.n_frames
     summary = {

@@ -183,10 +183,12 @@ def _check(o: LiveOptions) -> _Outputs:
     if o.vmc_avatar is not None and o.vmc is None:
         raise UserError("--vmc-avatar needs --vmc HOST:PORT")
     check_face_layout(o.face_json)
-    if o.vmc_blend not in ("vrm", "perfect-sync", "both"):
-        raise UserError(f"--vmc-blend {o.vmc_blend}: choose vrm, perfect-sync or both")
-    if o.vmc_parts not in ("all", "upper", "arms"):
-        raise UserError(f"--vmc-parts {o.vmc_parts}: choose all, upper or arms")
+    from facecapges.runtime.outputs.vmc import BLEND_MODES, PARTS
+
+    if o.vmc_blend not in BLEND_MODES:
+        raise UserError(f"--vmc-blend {o.vmc_blend}: choose {', '.join(BLEND_MODES[:-1])} or {BLEND_MODES[-1]}")
+    if o.vmc_parts not in PARTS:
+        raise UserError(f"--vmc-parts {o.vmc_parts}: choose {', '.join(PARTS[:-1])} or {PARTS[-1]}")
     if o.vmc_parts != "all" and o.vmc is None:
         raise UserError("--vmc-parts needs --vmc HOST:PORT")
     if o.vmc_avatar is not None:

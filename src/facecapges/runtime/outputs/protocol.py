@@ -62,6 +62,7 @@ import orjson
 
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+from facecapges.errors import UserError
 from facecapges.runtime.frames import InputFrame, OutputFrame
 from facecapges.skeleton import N_JOINTS, UPPER_BODY
 
@@ -179,13 +180,14 @@ def _floats(obj, n: int, what: str) -> np.ndarray:
 
 
 def _intensity(value) -> float:
-    from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY
+    from facecapges.model.intensity import check_intensity
 
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
         raise ProtocolError("'value' of an intensity message must be a number")
-    if not MIN_INTENSITY <= value <= MAX_INTENSITY:
-        raise ProtocolError(f"'value' must be from {MIN_INTENSITY:g} to {MAX_INTENSITY:g}, got {value}")
-    return float(value)
+    try:
+        return check_intensity(value, "'value'")  # the dial's one range check
+    except UserError as exc:
+        raise ProtocolError(str(exc)) from None
 
 
 def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> dict:

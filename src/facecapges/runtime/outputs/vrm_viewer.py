@@ -30,16 +30,9 @@ from facecapges.timing import MODEL_FPS
 
 class VrmViewerServer(ViewerServer):
     def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = float(MODEL_FPS)):
-        from facecapges.avatar.vrm.view import pixiv_dir
-
         super().__init__(b"", host, port, fps)
         self.driver = driver
-        self.pixiv_dir = pixiv_dir().resolve()
-        self.layout = json.dumps(driver.layout).encode("utf-8")
-        del self.routes["/avatar.glb"]  # the page is the one viewer's: it asks for /vrm/layout.json
-        self.routes.update(
-            {"/avatar.vrm": driver.model.data, "/vrm/layout.json": self.layout, "/pixiv/": self.pixiv_dir}
-        )
+        self.routes = driver.routes()  # the one viewer page asks for /vrm/layout.json: the VRM scene
 
 
 def encode_vrm_pose(out: OutputFrame, quats: np.ndarray, weights: np.ndarray) -> str:
