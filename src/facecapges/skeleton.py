@@ -291,16 +291,27 @@ def motion_to_pose(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.n
     return pose, head_rot6d(skel, mats)
 
 
-def upper_body_transforms(skel: Skeleton, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Forward kinematics of upper-body rot6d poses (T, 47, 6): global rotations (T, J, 3, 3) and
-    positions (T, J, 3) of every joint of ``skel``, the others at rest and the root at its rest offset
-    (the motion :func:`pose_to_motion` writes)."""
+def pose_locals(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
+    """Local rotations (T, J, 3, 3) of every joint of ``skel`` for upper-body rot6d poses (T, 47, 6),
+    the joints outside the 47 at rest."""
     p = np.asarray(pose, np.float64)
     if p.ndim != 3 or p.shape[1:] != (N_JOINTS, 6):
         raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {p.shape}")
     mats = np.broadcast_to(np.eye(3), (len(p), skel.n_joints, 3, 3)).copy()
     mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(p)
-    return global_transforms(skel, mats)
+    return mats
+
+
+def upper_body_transforms(skel: Skeleton, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Forward kinematics of upper-body rot6d poses (T, 47, 6): global rotations (T, J, 3, 3) and
+    positions (T, J, 3) of every joint of ``skel``, the others at rest and the root at its rest offset
+    (the motion :func:`pose_to_motion` writes)."""
+    return global_transforms(skel, pose_locals(skel, pose))
+
+
+def pose_head_rot6d(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
+    """Global head rot6d (T, 6) of upper-body rot6d poses (T, 47, 6) (:func:`head_rot6d`)."""
+    return head_rot6d(skel, pose_locals(skel, pose))
 
 
 def pose_to_motion(skel: Skeleton, pose: np.ndarray, root_pos: np.ndarray | None = None) -> np.ndarray:

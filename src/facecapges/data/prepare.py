@@ -72,7 +72,14 @@ from facecapges.errors import UserError, file_error, refuse_overwrite
 from facecapges.io.audio import load_audio
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
-from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton, head_rot6d, motion_to_pose, skeleton_to_dict
+from facecapges.skeleton import (
+    N_JOINTS,
+    UPPER_BODY,
+    Skeleton,
+    motion_to_pose,
+    pose_head_rot6d,
+    skeleton_to_dict,
+)
 
 
 def _fit_length(x: np.ndarray, n: int, pad: str = "edge") -> np.ndarray:
@@ -127,10 +134,9 @@ def prepare_beat2_clip(
     take = beat2.read_beat2(files.files["npz"])
     pose, jaw_face = beat2.convert_take(take, fps)
     arrays, entry, warnings = _clip_arrays(
-        files, pose, _head_of(target, pose), target, fps, sr, take.fps, jaw_face=jaw_face
+        files, pose, pose_head_rot6d(target, pose), target, fps, sr, take.fps, jaw_face=jaw_face
     )
     entry.update(dataset="BEAT2", origin="beat2", joint_map=beat2.MAP_NAME)
-    entry["file"] = f"{CLIP_DIR}/{files.clip.stem}.npz"
     return arrays, entry, warnings
 
 
@@ -276,16 +282,6 @@ def _paired(paths: list[Path], suffix: str, what: str) -> list[tuple[Path, Path]
     return out
 
 
-def _head_of(target: Skeleton, pose: np.ndarray) -> np.ndarray:
-    """Head rot6d (T, 6) of a pose on ``target`` (undriven joints at rest)."""
-    from facecapges import rotations as rot
-
-    T = len(pose)
-    mats = np.broadcast_to(np.eye(3), (T, target.n_joints, 3, 3)).copy()
-    mats[:, [target.index(n) for n in UPPER_BODY]] = rot.rot6d_to_matrix(pose.astype(np.float64))
-    return head_rot6d(target, mats)
-
-
 def _other_arrays(
     pose: np.ndarray, mask: np.ndarray, target: Skeleton, wav: Path, fps: float, sr: int
 ) -> tuple[dict[str, np.ndarray], float]:
@@ -294,7 +290,7 @@ def _other_arrays(
     S = int(math.floor(T * sr / fps + 1e-6))
     arrays = {
         "pose": pose.astype(np.float32),
-        "head": _head_of(target, pose),
+        "head": pose_head_rot6d(target, pose),
         "face": np.zeros((T, N_BLENDSHAPES), np.float32),
         "face_present": np.array(False),
         "semantic": np.zeros(T, np.float32),
@@ -600,7 +596,7 @@ def _fill_masked_clips(
         with np.load(path, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
         arrays["pose"] = fill_masked(target, arrays["pose"], m, fill)
-        arrays["head"] = _head_of(target, arrays["pose"])
+        arrays["head"] = pose_head_rot6d(target, arrays["pose"])
         np.savez_compressed(path, **arrays)
     return fill
 

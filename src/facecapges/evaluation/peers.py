@@ -180,12 +180,9 @@ def emage_joint_speed(positions: np.ndarray, fps: float) -> np.ndarray:
 
 def emage_positions(skel, pose: np.ndarray, joints: Sequence[str] = EMAGE_JOINTS) -> np.ndarray:
     """World positions (T, J, 3) of ``joints`` for rot6d poses on a BEAT skeleton (others at rest)."""
-    from facecapges.skeleton import global_transforms, upper_body_indices
+    from facecapges.skeleton import upper_body_transforms
 
-    p = _pose(pose)
-    mats = np.broadcast_to(np.eye(3), (len(p), skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(p)
-    return global_transforms(skel, mats)[1][:, [skel.index(n) for n in joints]]
+    return upper_body_transforms(skel, _pose(pose))[1][:, [skel.index(n) for n in joints]]
 
 
 def beat_align_emage(

@@ -23,11 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.errors import UserError, file_error
-from facecapges.skeleton import UPPER_BODY, Skeleton, head_rot6d, motion_to_pose, upper_body_indices
+from facecapges.skeleton import UPPER_BODY, Skeleton, motion_to_pose, pose_head_rot6d
 
 HOLDOUT_FRACTION = 0.2
 
@@ -57,13 +56,6 @@ def train_until_of(T: int) -> int:
     return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
 
 
-def head_of_pose(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
-    """Global head rot6d (T, 6) of upper-body poses (T, 47, 6); joints outside the 47 at rest."""
-    mats = np.broadcast_to(np.eye(3), (len(pose), skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(np.asarray(pose, np.float64))
-    return head_rot6d(skel, mats)
-
-
 def fit_audio(audio: np.ndarray, T: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:
     """Audio cut or zero-padded to the samples of ``T`` frames."""
     S = int(math.floor(T * sr / fps + 1e-6))
@@ -88,7 +80,7 @@ def make_take(
     if T < 30:
         raise UserError(f"{name}: {T} frames at {timing.MODEL_FPS} fps is too short for a take (2 s at least)")
     face = np.zeros((T, N_BLENDSHAPES), np.float32) if face is None else np.asarray(face, np.float32)
-    head = head_of_pose(skeleton, pose) if head is None else np.asarray(head, np.float32)
+    head = pose_head_rot6d(skeleton, pose) if head is None else np.asarray(head, np.float32)
     return Take(
         name=name,
         pose=pose,

@@ -33,8 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges import rotations as rot
-from facecapges.skeleton import N_JOINTS, Skeleton, global_transforms, upper_body_indices
+from facecapges.skeleton import Skeleton, upper_body_transforms
 from facecapges.timing import MODEL_FPS
 
 _RIGHT = (60, 60, 220)  # BGR
@@ -44,13 +43,7 @@ _TORSO = (90, 90, 90)
 
 def pose_positions(skel: Skeleton, pose: np.ndarray) -> np.ndarray:
     """Joint positions (T, J_skel, 3) of upper-body poses (T, 47, 6) on ``skel`` (root at rest)."""
-    pose = np.asarray(pose, np.float64)
-    if pose.ndim != 3 or pose.shape[1:] != (N_JOINTS, 6):
-        raise ValueError(f"pose must be (T, {N_JOINTS}, 6), got {pose.shape}")
-    T = pose.shape[0]
-    mats = np.broadcast_to(np.eye(3), (T, skel.n_joints, 3, 3)).copy()
-    mats[:, upper_body_indices(skel)] = rot.rot6d_to_matrix(pose)
-    return global_transforms(skel, mats)[1]
+    return upper_body_transforms(skel, pose)[1]
 
 
 def drawn_bones(skel: Skeleton) -> list[tuple[int, int, tuple[int, int, int]]]:
