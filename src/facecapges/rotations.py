@@ -454,11 +454,15 @@ def nearest_rotation(M: np.ndarray) -> np.ndarray:
     return (u * np.stack([np.ones_like(d), np.ones_like(d), d], -1)[..., None, :]) @ vt
 
 
+def mean_rotation_matrix(R: np.ndarray) -> np.ndarray:
+    """The chordal L2 mean (3, 3) of rotation matrices (…, 3, 3): their average projected onto SO(3)
+    (:func:`nearest_rotation`); numpy only. (:func:`quaternion_mean` is the quaternion form.)"""
+    return nearest_rotation(np.asarray(R, np.float64).reshape(-1, 3, 3).mean(0))
+
+
 def mean_rotation(rot6d: np.ndarray) -> np.ndarray:
-    """The chordal L2 mean (6,) of rotations given as rot6d (…, 6): the average matrix projected onto
-    SO(3) (:func:`nearest_rotation`); numpy only. (:func:`quaternion_mean` is the quaternion form.)"""
-    m = rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6)).mean(0)
-    return matrix_to_rot6d(nearest_rotation(m))
+    """The chordal L2 mean (6,) of rotations given as rot6d (…, 6) (:func:`mean_rotation_matrix`)."""
+    return matrix_to_rot6d(mean_rotation_matrix(rot6d_to_matrix(np.asarray(rot6d, np.float64).reshape(-1, 6))))
 
 
 def quaternion_mean(q: np.ndarray) -> np.ndarray:

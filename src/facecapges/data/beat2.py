@@ -137,6 +137,7 @@ TWIST_CHAINS: tuple[tuple[str, tuple[str, ...]], ...] = (
     for finger in ("Middle", "Ring", "Pinky", "Index")
     for k in (1, 2, 3)
 )
+_TWIST_WIDTH = {j: len(chain) + 1 for _, chain in TWIST_CHAINS for j in chain}  # coefficients of a joint's line
 
 #: The finger joints whose amplitude about their centre is rescaled per axis (module docstring, step 5).
 GAIN_JOINTS: tuple[str, ...] = tuple(n for n in UPPER_BODY if "Hand" in n and n[-1] in "123" and SOURCES[n] is not None)
@@ -267,7 +268,7 @@ class Beat2Map:
             off, scale = float(d["jaw"]["offset"]), float(d["jaw"]["scale_per_rad"])
             twist = {str(n): np.asarray(c, np.float64) for n, c in d.get("twist", {}).items()}
             for n, c in twist.items():
-                width = {j: len(chain) + 1 for _, chain in TWIST_CHAINS for j in chain}.get(n)
+                width = _TWIST_WIDTH.get(n)
                 if width is None or c.shape != (width,) or not np.isfinite(c).all():
                     raise ValueError(f"twist of {n!r}: not a joint of TWIST_CHAINS or not {width} numbers")
             gains = {}
@@ -342,9 +343,9 @@ def fit_gains(P: np.ndarray, L: np.ndarray) -> dict[str, tuple[np.ndarray, np.nd
     out = {}
     for n in GAIN_JOINTS:
         i = UPPER_BODY.index(n)
-        c = _mean_matrix(P[:, i])
+        c = rot.mean_rotation_matrix(P[:, i])
         x = rot.log_so3(c.T[None] @ P[:, i])
-        y = rot.log_so3(_mean_matrix(L[:, i]).T[None] @ L[:, i])
+        y = rot.log_so3(rot.mean_rotation_matrix(L[:, i]).T[None] @ L[:, i])
         x, y = x - x.mean(0), y - y.mean(0)
         g = np.clip((x * y).sum(0) / np.maximum((x * x).sum(0), 1e-12), 0.0, MAX_GAIN)
         out[n] = (c, g)
@@ -488,18 +489,13 @@ def fit_joint(M: np.ndarray, L: np.ndarray, iters: int = 30) -> tuple[np.ndarray
     return A, B
 
 
-def _mean_matrix(R: np.ndarray) -> np.ndarray:
-    """The chordal L2 mean of rotations (T, 3, 3): their average projected onto SO(3)."""
-    return rot.nearest_rotation(np.asarray(R, np.float64).mean(0))
-
-
 def fit_corrections(M: np.ndarray, L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(left, right) (47, 3, 3) fitted on aligned frames: a joint without source gets its mean rotation."""
     left = np.broadcast_to(np.eye(3), (N_JOINTS, 3, 3)).copy()
     right = left.copy()
     for i, name in enumerate(UPPER_BODY):
         if SOURCES[name] is None:
-            left[i] = _mean_matrix(L[:, i])
+            left[i] = rot.mean_rotation_matrix(L[:, i])
         else:
             left[i], right[i] = fit_joint(M[:, i], L[:, i])
     return left, right
@@ -562,8 +558,9 @@ def fit_map(npz_path: str | Path, bvh_path: str | Path, fit_fraction: float = 0.
     lag, r = measure_lag(take.poses, take.fps, L[:n_fit], bfps)
     M, Lb, frames = aligned_pair(take, L[:n_fit], bfps, lag)
     left, right = fit_corrections(M, Lb)
-    twist = fit_twist(left[None] @ M @ right[None], Lb)
-    gains = fit_gains(redistribute_twist(left[None] @ M @ right[None], twist), Lb)
+    P = left[None] @ M @ right[None]
+    twist = fit_twist(P, Lb)
+    gains = fit_gains(redistribute_twist(P, twist), Lb)
     jaw = take.poses[: int(np.floor(take.n_frames * fit_fraction)), JAW, 0]
     off, scale = fit_jaw(jaw, BEAT_JAWOPEN_MEAN, BEAT_JAWOPEN_STD)
     info = {
