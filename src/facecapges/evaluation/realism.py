@@ -132,9 +132,12 @@ class Transitions:
         return asdict(self)
 
 
-def transitions(pose: Clips, real_pose: Clips, fps: float, percentile: float = TRANSITION_PERCENTILE) -> Transitions:
-    """Count of frames of ``pose`` above the real motion's acceleration percentile, and their rate a minute."""
-    thr = transition_threshold(real_pose, fps, percentile)
+def transitions(
+    pose: Clips, real_pose: Clips, fps: float, percentile: float = TRANSITION_PERCENTILE, threshold: float | None = None
+) -> Transitions:
+    """Count of frames of ``pose`` above the real motion's acceleration percentile, and their rate a minute
+    (``threshold``: that percentile, when the caller has already computed it for ``real_pose``)."""
+    thr = transition_threshold(real_pose, fps, percentile) if threshold is None else threshold
     frames: list[int] = []
     share = np.zeros(N_JOINTS)
     offset, n = 0, 0
@@ -368,9 +371,8 @@ class RealismCheck:
 
 
 def _points(clips: Clips, skeleton) -> list[np.ndarray]:
-    if isinstance(clips, np.ndarray) and clips.ndim == 4 and clips.shape[-1] == 3:
-        return [clips]
-    arrs = [clips] if isinstance(clips, np.ndarray) and clips.ndim in (3, 4) else list(clips)
+    """Elbow and wrist positions (T, 4, 3) of each clip: one 3-D array (rot6d or positions) is one clip."""
+    arrs = [clips] if isinstance(clips, np.ndarray) and clips.ndim == 3 else list(clips)
     return [_positions(a, skeleton, ARM_POINTS) for a in arrs]
 
 
@@ -448,14 +450,16 @@ def realism_row(
     database: Sequence[np.ndarray] | None,
     classify: bool = True,
     seed: int = 0,
+    threshold: float | None = None,
 ) -> dict:
     """Every figure of this module for one method's clips (each with its audio), JSON-able.
 
-    Transitions against ``reference`` (the speaker's real training motion), repetition against
-    ``database`` (None: not computed), silence on each clip's audio, the classifier against
-    ``real_heldout`` windows (``classify=False``: not computed, e.g. for the held-out motion itself).
+    Transitions against ``reference`` (the speaker's real training motion; ``threshold``: its
+    acceleration percentile, when already computed), repetition against ``database`` (None: not
+    computed), silence on each clip's audio, the classifier against ``real_heldout`` windows (rot6d or
+    their elbow and wrist positions; ``classify=False``: not computed, e.g. for the held-out motion itself).
     """
-    tr = transitions(clips, reference, fps)
+    tr = transitions(clips, reference, fps, threshold=threshold)
     row: dict = {"transitions": tr.count, "transitions_per_min": tr.per_minute, "transition_joints": tr.top_joints}
     if database is not None:
         rep = repetition(clips, database, fps)
@@ -492,20 +496,23 @@ def realism_section(
     """The ``realism`` section of ``facecapges eval``: a row per method (:func:`realism_row`), the
     classifier's real-vs-real control (held-out real windows against ``control_reference``, other real
     motion of the speaker; None: no control), the transition threshold and where the database came from."""
+    thr = transition_threshold(reference, fps)  # the reference's figures, once for every method
+    classified = control_reference or any(name not in no_classifier for name in methods)
+    real = _points(list(real_heldout), skeleton) if classified else list(real_heldout)
     rows = {
         name: realism_row(
-            clips, audios, sr, fps, skeleton, real_heldout, reference, database, name not in no_classifier, seed
+            clips, audios, sr, fps, skeleton, real, reference, database, name not in no_classifier, seed, thr
         )
         for name, clips in methods.items()
     }
     control = {"classifier": None, "classifier_sd": None, "classifier_windows": 0}
     if control_reference:
-        ctl = real_vs_real_control(list(real_heldout), list(control_reference), fps, skeleton, seed=seed)
+        ctl = real_vs_real_control(real, list(control_reference), fps, skeleton, seed=seed)
         control = {"classifier": ctl.accuracy, "classifier_sd": ctl.sd, "classifier_windows": ctl.n_windows}
     return {
         "methods": rows,
         "control": control,
-        "transition_threshold": transition_threshold(reference, fps),
+        "transition_threshold": thr,
         "reference_source": reference_source,
         "database": {"source": database_source, "frames": sum(len(d) for d in database) if database else None},
         "window_s": WINDOW_S,
