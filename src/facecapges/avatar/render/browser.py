@@ -35,6 +35,11 @@ from typing import TYPE_CHECKING, ClassVar
 from facecapges.errors import UserError
 from facecapges.io.static_files import PageHandler, Routes, find, request_path
 
+
+class PageError(RuntimeError):
+    """A script of the page threw (:meth:`Browser.evaluate`): what the page did with its inputs, not the browser."""
+
+
 if TYPE_CHECKING:
     from websockets.sync.client import ClientConnection
 
@@ -224,7 +229,7 @@ class Browser:
         if "exceptionDetails" in res:
             det = res["exceptionDetails"]
             text = det.get("exception", {}).get("description") or det.get("text")
-            raise RuntimeError(f"page error: {text}")
+            raise PageError(f"page error: {text}")
         return res.get("result", {}).get("value")
 
     def wait_for(self, expression: str, timeout: float | None = None):

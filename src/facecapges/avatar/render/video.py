@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges import rotations as rot
-from facecapges.avatar.render.browser import Browser, avatar_routes
+from facecapges.avatar.render.browser import Browser, PageError, avatar_routes
 from facecapges.errors import UserError
 from facecapges.io.static_files import Routes
 from facecapges.skeleton import Skeleton, local_matrices, motion_to_euler
@@ -81,10 +81,8 @@ def _open_page(avatar: AvatarPage, width: int, height: int, inset: bool = False)
         errors = b.evaluate("window.facecapges.errors")
         if errors:
             raise UserError(f"the browser could not show the avatar: {str(errors)[:300]}")
-    except RuntimeError as exc:
+    except PageError as exc:
         b.close()
-        if "page error" not in str(exc):
-            raise
         # the file passed avatar.gltf_check but three.js / three-vrm could not use it: still the user's file
         raise UserError(
             f"the browser could not load the avatar ({str(exc)[:300]}); re-export it as VRM / glTF 2.0"
