@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.avatar.vrm.humanoid import BEAT_BONES
+from facecapges.avatar.vrm.humanoid import BEAT_BONES, sole_lift
 from facecapges.avatar.vrm.read import VrmModel
 from facecapges.errors import UserError
 
@@ -66,7 +66,6 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     from facecapges.avatar.retarget import Retargeter
     from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
     from facecapges.rotations import continuous_quaternions, matrix_to_quaternion
-    from facecapges.skeleton import rest_positions
 
     check_face_mode(face)
     T = local_mats.shape[0]
@@ -76,9 +75,7 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     rt = Retargeter(skel, model)
     L = rt.local_matrices(local_mats)  # (T, B, 3, 3); corrections are the identity on BEAT itself
     q = continuous_quaternions(matrix_to_quaternion(L))  # LINEAR (slerp) keys take the short way
-    P = rest_positions(skel) * 0.01
-    sole = skel.names.index("LeftForeFoot") if "LeftForeFoot" in skel.names else skel.names.index("LeftFoot")
-    lift = float(-P[sole, 1])
+    lift = sole_lift(skel)
 
     blob = bytearray()
     views, accs = [], []

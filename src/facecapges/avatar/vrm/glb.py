@@ -7,6 +7,7 @@ import struct
 
 import numpy as np
 
+from facecapges.avatar.gltf_check import BIN_CHUNK, GLB_MAGIC, JSON_CHUNK, check_document, check_header, decode_json
 from facecapges.errors import UserError
 from facecapges.rotations import quaternion_to_matrix
 
@@ -15,8 +16,6 @@ def split_glb(data: bytes, name: str = "file") -> tuple[dict, bytes]:
     """A binary glTF's JSON (parsed and checked, :mod:`facecapges.avatar.gltf_check`) and its BIN chunk.
 
     UserError if ``data`` is not one, or is not a self-contained, well-formed glTF."""
-    from facecapges.avatar.gltf_check import BIN_CHUNK, check_document, check_header, decode_json
-
     jlen = check_header(data[:20], len(data), name)
     doc = decode_json(data[20 : 20 + jlen], name)
     off = 20 + ((jlen + 3) & ~3)
@@ -34,10 +33,10 @@ def join_glb(doc: dict, binary: bytes) -> bytes:
     j = json.dumps(doc, separators=(",", ":")).encode("utf-8")
     j += b" " * (-len(j) % 4)
     b = binary + b"\0" * (-len(binary) % 4)
-    chunks = struct.pack("<II", len(j), 0x4E4F534A) + j
+    chunks = struct.pack("<II", len(j), JSON_CHUNK) + j
     if b:
-        chunks += struct.pack("<II", len(b), 0x004E4942) + b
-    return b"glTF" + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+        chunks += struct.pack("<II", len(b), BIN_CHUNK) + b
+    return GLB_MAGIC + struct.pack("<II", 2, 12 + len(chunks)) + chunks
 
 
 def node_world_matrices(doc: dict) -> np.ndarray:

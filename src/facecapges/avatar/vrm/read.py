@@ -171,10 +171,7 @@ def parse_model(data: bytes, name: str = "avatar") -> VrmModel:
         bones = humanoid_from_names(doc)
         kind = "glb"
         expressions = []
-    bad = [b for b, n in bones.items() if not 0 <= n < len(nodes)]
-    if bad:
-        raise UserError(f"{name}: humanoid bones {bad} point at nodes that do not exist")
-    bones = {b: n for b, n in bones.items() if b in BONE_PARENT}
+    bones = {b: n for b, n in bones.items() if b in BONE_PARENT}  # nodes in range: split_glb checked them
     missing = [b for b in REQUIRED_BONES if b not in bones]
     if missing:
         what = "VRM humanoid" if kind != "glb" else "humanoid skeleton (BEAT / Mixamo joint names)"
