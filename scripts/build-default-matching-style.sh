@@ -2,9 +2,10 @@
 # Rebuild the shipped motion-matching style beat2-scott-mm from ../shared (BEAT speaker 2 "scott"):
 #   BEAT 2_scott_0_1_1 (BVH) + BEAT2 2_scott_0_2_2 (SMPL-X npz, converted by facecapges.data.beat2),
 #   each with its wav; the first 80 % of each take and their mirror images (the last 20 % never read).
-# Then its figures: validation (database and predictor from [0, 0.64 T), scored on [0.64 T, 0.8 T))
-# and held-out (from [0, 0.8 T), scored on [0.8 T, T)) by scripts/matching_validate.py, into
-# build/matching-style/*.json for the model card. A few minutes on an idle 2-core CPU.
+# Then its figures, into build/matching-style/ for the model card: validation (database and predictor
+# from [0, 0.64 T), scored on [0.64 T, 0.8 T)) by scripts/matching_validate.py; held-out (the style from
+# [0, 0.8 T), scored on [0.8 T, T)) and unseen speech by scripts/style_report.py, tabled by
+# scripts/card_heldout_table.py. A few minutes on an idle 2-core CPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 FC=.venv/bin/facecapges

@@ -1,8 +1,8 @@
 """Peak memory of ``facecapges capture`` against video length (issue 28: it must be flat).
 
 Makes an N-minute video by looping a face clip's frames (ffmpeg ``-stream_loop``, no re-encode),
-runs ``capture`` on it in this process and prints the resident memory while it runs (every
-``--every`` seconds of output video) and the peak, as JSON. Usage::
+runs ``capture`` on it in this process and prints the resident memory while it runs (once per
+minute of video) and the peak, as JSON. Usage::
 
     PYTHONPATH=src nice -n 5 python scripts/capture_memory.py --minutes 1 10 30
 
@@ -20,13 +20,6 @@ import tempfile
 import threading
 import time
 from pathlib import Path
-
-
-def rss_mb() -> float:
-    for line in Path("/proc/self/status").read_text().splitlines():
-        if line.startswith("VmRSS"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
 
 
 def looped_video(src: Path, minutes: float, out: Path) -> Path:
@@ -66,6 +59,7 @@ def measure(video: Path, out: Path) -> dict:
 
 def child(video: str, out: str) -> None:
     import facecapges.capture.runner as runner
+    from facecapges.benchmarks.runtime import rss_mb
 
     frames = [0]
     orig = runner.Records.append

@@ -343,8 +343,8 @@ def vmc_rate(skeleton, rate_hz: float, seconds: float = 3.0, busy: bool = True) 
                     {},
                 )
             )
-        up.close()
     finally:
+        up.close()
         done.set()
         th.join(2)
         rx.close()

@@ -14,12 +14,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from facecapges.benchmarks.render import shared_file
 from facecapges.timing import AUDIO_SR
-
-
-def _shared(shared: Path, rel: str) -> Path | None:
-    p = Path(shared) / rel
-    return p if p.exists() else None
 
 
 def run(quick: bool, shared: Path) -> dict:
@@ -33,8 +29,8 @@ def run(quick: bool, shared: Path) -> dict:
     make_plan([f"c{i}" for i in range(40)], [f"s{i}" for i in range(5)], 100, seed=0)
     out["plan_100_participants_40_clips_5_systems_ms"] = round(1000 * (time.perf_counter() - t), 2)
 
-    bvh_path = _shared(shared, "data/beat/2_scott_0_1_1.bvh")
-    wav_path = _shared(shared, "data/beat/2_scott_0_1_1.wav")
+    bvh_path = shared_file(shared, "data/beat/2_scott_0_1_1.bvh")
+    wav_path = shared_file(shared, "data/beat/2_scott_0_1_1.wav")
     if bvh_path is None or wav_path is None:
         from facecapges.errors import UserError
 
