@@ -10,7 +10,6 @@ for any of it.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -30,9 +29,9 @@ MIN_TRAIN_S = 10.0
 
 
 def check_name(name: str) -> str:
-    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name or ""):
-        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
-    return name
+    from facecapges.model.checkpoint import check_style_name
+
+    return check_style_name(name)
 
 
 def licence_of(take: Take) -> tuple[str, str]:
@@ -68,6 +67,8 @@ def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, s
         if target is None and not take.skeleton.missing():
             target = take.skeleton
         say(f"  {motion.name}: {take.n_frames / timing.MODEL_FPS:.1f} s, training frames [0, {take.train_until})")
+        for note in take.notes:
+            say(f"  warning: {note}")
         takes.append(take)
     skel = takes[0].skeleton
     if any(not t.skeleton.is_same_tree(skel) for t in takes):
