@@ -371,3 +371,73 @@ def test_styles_list_marks_a_broken_style_and_lists_the_rest(tmp_path):
     rows = {x["name"]: x for x in json.loads(r.stdout)}
     assert rows["pose-shorter"]["engine"] is None and "db.pose" in rows["pose-shorter"]["error"]
     assert rows["beat2-scott-mm"]["error"] is None
+
+
+# ------------------------------------------------------------------ 8. avatars the browser cannot load
+def _vrm1_edited(fn) -> bytes:
+    from facecapges.avatar.vrm.glb import join_glb, split_glb
+    from vrm_samples import build_sample
+
+    doc, binary = split_glb(build_sample("vrm1"))
+    fn(doc)
+    return join_glb(doc, binary)
+
+
+def _chain_under_head(n: int):
+    def fn(doc):
+        base = len(doc["nodes"])
+        head = doc["extensions"]["VRMC_vrm"]["humanoid"]["humanBones"]["head"]["node"]
+        doc["nodes"][head].setdefault("children", []).append(base)
+        for i in range(n):
+            doc["nodes"].append({"name": f"c{i}", **({"children": [base + i + 1]} if i < n - 1 else {})})
+    return fn
+
+
+AVATARS = {  # what three.js / three-vrm refuse after Chromium has started → what our check says first
+    "chain-5000": (_chain_under_head(5000), "nest more than 1000 levels deep"),
+    "no-licence-url": (lambda d: d["extensions"]["VRMC_vrm"]["meta"].pop("licenseUrl"), "licenseUrl"),
+    "other-licence-url": (
+        lambda d: d["extensions"]["VRMC_vrm"]["meta"].__setitem__("licenseUrl", "https://example.org/mine"),
+        "https://vrm.dev/licenses/1.0/",
+    ),
+    "vrmc-not-used": (lambda d: d["extensionsUsed"].remove("VRMC_vrm"), "extensionsUsed"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(AVATARS))
+def test_an_avatar_three_vrm_refuses_is_refused_before_the_browser(tmp_path, case):
+    from facecapges.avatar.vrm.read import load_model
+
+    p = tmp_path / f"{case}.vrm"
+    p.write_bytes(_vrm1_edited(AVATARS[case][0]))
+    with pytest.raises(UserError, match="invalid glTF") as exc:
+        load_model(p)
+    assert AVATARS[case][1] in str(exc.value)
+    out = tmp_path / "out.mp4"
+    r = cli("render", "--bvh", str(shared_file(BVH_11)), "--avatar", str(p), "--out", str(out), timeout=300)
+    _one_error_line(r, p.name, AVATARS[case][1])
+    assert "the browser could not" not in r.stderr and not out.exists()  # refused by the check: no Chromium
+
+
+def test_the_three_vrm_requirement_is_the_installed_one():
+    """The licence URL our check demands is the one @pixiv/three-vrm-core (node_modules) accepts by default."""
+    from pathlib import Path
+
+    from facecapges.avatar.vrm.meta import LICENSE_URL
+
+    js = Path(__file__).resolve().parents[1] / "node_modules" / "@pixiv" / "three-vrm-core" / "lib"
+    source = (js / "three-vrm-core.module.js").read_text(encoding="utf-8")
+    assert f'options.acceptLicenseUrls) != null ? _b : ["{LICENSE_URL}"]' in source
+    assert "The license url" in source and '"VRMC_vrm"' in source
+
+
+def test_a_page_error_is_shown_by_its_first_line():
+    """What Chromium reported for the 2,150-node chain (its stack cut): only the first line reaches the user."""
+    from facecapges.avatar.render.video import _first_line
+
+    stack = ("page error: RangeError: Maximum call stack size exceeded\n"
+             "    at GLTFParser._loadNodeShallow (http://127.0.0.1:44489/three/examples/jsm/loaders/GLTFLoader.js:4420:18)\n"
+             "    at GLTFParser.loadNode (http://127.0.0.1:44489/three/examples/jsm/loaders/GLTFLoader.js:4343:10)")
+    assert _first_line(stack) == "page error: RangeError: Maximum call stack size exceeded"
+    assert _first_line(["Error: VRMMetaLoaderPlugin: The license url \"undefined\" is not accepted\n    at x"]) == (
+        'Error: VRMMetaLoaderPlugin: The license url "undefined" is not accepted')
