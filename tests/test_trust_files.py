@@ -235,6 +235,10 @@ def test_a_300_character_style_name_is_refused(tmp_path):
             timeout=120, env={"FACECAPGES_STYLES": str(tmp_path / "store")})
     _one_error_line(r, "300 characters", "at most 64")
     assert not (tmp_path / "store").exists()
+    out = tmp_path / ("c" * 300 + ".safetensors")  # --out's name too: an OSError traceback on main
+    r = cli("styles", "build", "short-name", "--take", str(shared_file(BVH_11)), str(shared_file(WAV_11)),
+            "--out", str(out), timeout=120)
+    _one_error_line(r, "at most 200 bytes")
     from facecapges.model.checkpoint import install_style, styles_dir
 
     with pytest.raises(UserError, match="at most 64"):

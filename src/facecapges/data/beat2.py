@@ -242,7 +242,8 @@ def _frame_rate(a: np.ndarray, path: Path) -> float:
 
 def _check_angles(poses: np.ndarray, path: Path) -> None:
     """Axis-angle rotations beyond :data:`MAX_ANGLE` are not a fit's output: refused, not wrapped."""
-    angle = np.linalg.norm(poses.reshape(len(poses), N_SMPLX, 3), axis=-1)
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e300 squared: inf, refused below
+        angle = np.linalg.norm(poses.reshape(len(poses), N_SMPLX, 3), axis=-1)
     bad = np.argwhere(angle > MAX_ANGLE)
     if len(bad):
         t, j = (int(v) for v in bad[0])

@@ -26,6 +26,7 @@ from facecapges.skeleton import Skeleton
 BEAT_ATTRIBUTION = "BEAT / BEAT2 (Liu et al., ECCV 2022; EMAGE, CVPR 2024), CC BY-NC 4.0"
 ZEGGS_ATTRIBUTION = "ZEGGS (Ubisoft La Forge ZeroEGGS), CC BY-NC-ND 4.0: built on this machine, never distribute"
 MIN_TRAIN_S = 10.0
+MAX_FILE_NAME_BYTES = 200  # --out's file name: NAME.safetensors.part must fit the usual 255-byte limit
 
 
 def check_name(name: str) -> str:
@@ -122,9 +123,17 @@ def build_style(
     dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
     if dest.suffix != ".safetensors":
         raise file_error(dest, "a style file must end in .safetensors")
+    if len(dest.name.encode()) > MAX_FILE_NAME_BYTES:
+        raise file_error(
+            dest, f"a file name of at most {MAX_FILE_NAME_BYTES} bytes, please (a style writes NAME.part first)"
+        )
     card = dest.with_suffix(".md")
     for p in (dest, card):
-        if p.exists() and not force:
+        try:
+            there = p.exists()
+        except OSError as exc:  # a folder on the way that is a file, no permission to look …
+            raise file_error(p, f"cannot be checked ({exc.strerror or exc})") from None
+        if there and not force:
             raise file_error(p, "exists; pass --force to replace it")
     say(f"reading {len(pairs)} take(s)")
     takes = read_takes([(Path(m), Path(w)) for m, w in pairs], target, say)
