@@ -164,9 +164,17 @@ def pytest_runtest_makereport(item, call):
         report.longrepr = f"skipped in CI (CI=true forbids skips): {report.longrepr}"
 
 
+#: Modules with fuzz properties and the prefix of their counts in the summary (tests/test_fuzz.py's unprefixed).
+FUZZ_MODULES = {"test_fuzz": "", "test_data_beat2": "beat2_"}
+
+
 def _fuzz_cases() -> Counter:
-    fuzz = sys.modules.get("test_fuzz")
-    return Counter(fuzz.CASES) if fuzz is not None else Counter()
+    out: Counter = Counter()
+    for name, prefix in FUZZ_MODULES.items():
+        mod = sys.modules.get(name)
+        if mod is not None:
+            out.update({prefix + k: v for k, v in mod.CASES.items()})
+    return out
 
 
 # Under pytest-xdist (`make test` runs `-n 2`) the fuzz cases are counted in the workers: each sends its
@@ -186,7 +194,7 @@ def pytest_testnodedown(node, error):
 
 
 def pytest_terminal_summary(terminalreporter):
-    """The number of cases the fuzz suite (tests/test_fuzz.py) tried, when it ran."""
+    """The number of cases the fuzz properties (tests/test_fuzz.py, the BEAT2 reader's) tried, when they ran."""
     cases = _fuzz_cases() + _WORKER_FUZZ_CASES
     if cases.total():
         terminalreporter.write_line(f"fuzz cases tried: {cases.total()} ({dict(sorted(cases.items()))})")

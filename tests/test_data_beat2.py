@@ -235,11 +235,43 @@ def _arrays():
     return st.builds(_array, shapes, dtypes, fill)
 
 
+@st.composite
+def headers(draw):
+    """An archive whose members' npy headers declare any shape and dtype over any amount of data (issue 34:
+    sizes are read from the header and the zip member before anything is unpacked), stored or deflated."""
+    import zipfile
+
+    members = {}
+    for key in draw(st.lists(st.sampled_from(["poses", "mocap_frame_rate", "trans"]), min_size=1, unique=True)):
+        shape = tuple(draw(st.lists(st.sampled_from([0, 1, 2, 3, 165, 10**5, 10**12, 2**62]), max_size=3)))
+        dtype = np.dtype(draw(st.sampled_from(["<f8", ">f4", "<i4", "<f2", "|u1", "<c8"])))
+        head = io.BytesIO()
+        np.lib.format.write_array_header_1_0(
+            head, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": draw(st.booleans()), "shape": shape}
+        )
+        fill = draw(st.sampled_from([0.0, 1.0, 1e300, np.nan, 3 * np.pi]))
+        with np.errstate(invalid="ignore", over="ignore"):
+            data = np.full(draw(st.integers(0, 2000)), fill).astype(dtype).tobytes()
+        members[f"{key}.npy"] = head.getvalue() + data
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", draw(st.sampled_from([zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED]))) as z:
+        for name, data in members.items():
+            z.writestr(name, data)
+    return buf.getvalue()
+
+
 @FUZZ
-@given(st.one_of(damaged(), st.dictionaries(st.sampled_from(["poses", "mocap_frame_rate", "trans"]), _arrays())))
+@given(st.one_of(damaged(), st.dictionaries(st.sampled_from(["poses", "mocap_frame_rate", "trans"]), _arrays()),
+                 headers().map(lambda b: ("headers", b))))
 def test_fuzz_read_beat2(tmp_path_factory, case):
-    kind = "bytes" if isinstance(case, bytes) else "arrays"
-    CASES[kind] += 1
+    if isinstance(case, tuple):
+        CASES["headers"] += 1
+        case = case[1]
+        kind = None
+    else:
+        kind = "bytes" if isinstance(case, bytes) else "arrays"
+    if kind is not None:
+        CASES[kind] += 1
     p = tmp_path_factory.getbasetemp() / "fuzz.npz"
     p.write_bytes(case if isinstance(case, bytes) else _npz(**case))
     try:

@@ -5,7 +5,7 @@ Parsers: BVH files, BEAT face JSON, Live Link Face UDP packets, the WebSocket pr
 over loopback), ``train --config`` YAML, and (issue 28) the VRM/GLB avatar reader,
 CLIPS.yaml, study.json, a ``styles install`` run folder (links, loops, FIFOs, sparse
 giants), WAV headers, checkpoint metadata, the cache index and its npz files, and the
-viewer's HTTP paths. The BEAT2 npz reader (issue 20) has its own fuzz test beside it
+viewer's HTTP paths; (issue 34) matching style files (metadata and database tensors). The BEAT2 npz reader (issue 20) has its own fuzz test beside it
 (tests/test_data_beat2.py). VMC/OSC is only sent by the project, never
 parsed, so it has no parser to fuzz. Each property runs a bounded, derandomized number of
 examples (``MAX_EXAMPLES``, no deadline: the machine is shared); the cases tried are
@@ -582,6 +582,80 @@ def test_fuzz_checkpoint_metadata(meta):
         assert ck.skeleton.n_joints >= 1
     except UserError:  # no skeleton: said so where one is needed
         pass
+
+
+# ---------------------------------------------------------------------------- matching styles (issue 34)
+def _mm_parts():
+    from safetensors import safe_open
+
+    from facecapges.model.checkpoint import styles_dir
+
+    with safe_open(str(styles_dir() / "beat2-scott-mm.safetensors"), framework="pt") as f:
+        return json.loads(f.metadata()["facecapges"]), {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
+
+
+_MM_META, _MM_TENSORS = _mm_parts()
+_MM_PATHS = (["fps", "engine_config", "database", "database.weights", "database.segments", "database.segments.0",
+              "database.segments.0.row", "database.segments.0.name", "predictor", "predictor.model",
+              "predictor.settings.hidden", "predictor.target_mean", "predictor.head_reference", "neutral_window"]
+             + [f"engine_config.{k}" for k in _MM_META["engine_config"]]
+             + [f"database.weights.{k}" for k in _MM_META["database"]["weights"]])
+
+
+@st.composite
+def _mm_tensor_edit(draw):
+    """One database tensor of the style cut, widened, retyped, filled with extreme values or swapped for a scalar."""
+    import torch
+
+    key = draw(st.sampled_from(sorted(k for k in _MM_TENSORS if k.startswith("db."))))
+    v = _MM_TENSORS[key]
+    op = draw(st.sampled_from(["cut", "widen", "retype", "fill", "scalar", "drop"]))
+    if op == "cut":
+        v = v[: draw(st.integers(0, max(len(v) - 1, 0)))]
+    elif op == "widen":
+        v = torch.cat([v, v[..., :1]], dim=-1) if v.ndim else v
+    elif op == "retype":
+        v = v.to(draw(st.sampled_from([torch.float64, torch.int64, torch.uint8, torch.bool, torch.float16])))
+    elif op == "fill":
+        v = torch.full_like(v, draw(st.sampled_from([-1, 0, 7, 255, 1e30])) if v.is_floating_point()
+                            else draw(st.sampled_from([-1, 0, 7, 100])))
+    elif op == "scalar":
+        v = torch.zeros((), dtype=v.dtype)
+    return key, (None if op == "drop" else v.contiguous())
+
+
+@settings(FUZZ, max_examples=120)
+@given(st.one_of(
+    st.tuples(_json_edit(_MM_META, _MM_PATHS).map(json.dumps), st.none()),
+    st.tuples(st.just(json.dumps(_MM_META)), _mm_tensor_edit()),
+))
+def test_fuzz_matching_style(case):
+    """A crafted matching style: refused by its check (UserError), or it loads and runs a few frames."""
+    from safetensors.torch import save_file
+
+    from facecapges.model.checkpoint import load_checkpoint
+
+    meta, edit = case
+    CASES["matching_style"] += 1
+    tensors = dict(_MM_TENSORS)
+    if edit is not None:
+        key, value = edit
+        if value is None:
+            del tensors[key]
+        else:
+            tensors[key] = value
+    p = TMP / f"{threading.get_ident()}-mm.safetensors"
+    save_file(tensors, str(p), metadata={"facecapges": meta})
+    try:
+        ck = load_checkpoint(p)
+    except UserError:
+        return
+    gen = ck.streaming()
+    gen.reset()
+    for t in range(3):
+        pose = gen.step(np.zeros(1067, np.float32) + 0.01 * t, np.zeros(52, np.float32),
+                        np.array([1, 0, 0, 0, 1, 0], np.float32))
+        assert pose.shape == (47, 6) and np.isfinite(pose).all()
 
 
 # ---------------------------------------------------------------------------- cache index and npz

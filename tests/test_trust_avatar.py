@@ -198,9 +198,13 @@ def test_crafted_vrm0_is_one_clear_user_error(vrm0, case):
         parse_model(_edit(vrm0, fn), "crafted.vrm")
 
 
-def test_a_5000_node_chain_loads_without_recursion(vrm1):
-    m = parse_model(_edit(vrm1, _chain(5000)), "chain.vrm")
-    assert m.info["nodes"] >= 5000 and "hips" in m.bones
+def test_a_deep_node_chain_is_checked_without_recursion(vrm1):
+    """The check walks the tree iteratively: 900 levels load; a 5,000-node chain, which three.js's loader
+    cannot load (it recurses; issue 34), is refused before any browser starts (tests/test_trust_files.py)."""
+    m = parse_model(_edit(vrm1, _chain(900)), "chain.vrm")
+    assert m.info["nodes"] >= 900 and "hips" in m.bones
+    with pytest.raises(UserError, match="nest more than 1000 levels deep"):
+        parse_model(_edit(vrm1, _chain(5000)), "chain.vrm")
 
 
 def test_a_valid_vrm_still_loads(vrm1, vrm0):

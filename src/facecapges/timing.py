@@ -75,3 +75,23 @@ def resample_indices(n_src: int, src_fps: float, dst_fps: float = MODEL_FPS) -> 
 def resample(frames: np.ndarray, src_fps: float, dst_fps: float = MODEL_FPS) -> np.ndarray:
     """Resample a (T, ...) sequence from ``src_fps`` to ``dst_fps`` by :func:`resample_indices`."""
     return frames[resample_indices(len(frames), src_fps, dst_fps)]
+
+
+#: Motion and its speech may differ by this many model frames without a word; beyond it a warning, and
+#: beyond ``MISMATCH_REFUSE_SHARE`` of the motion's length a refusal (issue #34: a 5-s wav padded to 63.8 s of
+#: motion, or a take declaring 1000 fps, taught a style silence).
+MISMATCH_WARN_FRAMES = 5
+MISMATCH_REFUSE_SHARE = 0.10
+
+
+def length_mismatch(n_frames: int, fps: float, speech_s: float) -> tuple[str, bool] | None:
+    """How motion of ``n_frames`` at ``fps`` and speech of ``speech_s`` seconds disagree: None when within
+    :data:`MISMATCH_WARN_FRAMES`, else (the problem in words, whether it is beyond
+    :data:`MISMATCH_REFUSE_SHARE` of the motion and so must be refused)."""
+    motion_s = n_frames / fps
+    diff = speech_s - motion_s
+    if abs(diff) * fps <= MISMATCH_WARN_FRAMES:
+        return None
+    effect = "its end is cut" if diff > 0 else f"{-diff:.1f} s of silence are added"
+    text = f"the speech lasts {speech_s:.1f} s and the motion {motion_s:.1f} s ({effect})"
+    return text, abs(diff) > MISMATCH_REFUSE_SHARE * motion_s

@@ -34,6 +34,12 @@ MAX_FILE_BYTES = 512 * 1024 * 1024  # a VRM is a few to ~100 MB; past this it is
 MAX_JSON_BYTES = 64 * 1024 * 1024
 MAX_DEPTH = 64  # nesting of the glTF JSON (real files stay under ~12)
 MAX_ITEMS = 1_000_000  # entries of one glTF array
+#: Levels of the node tree. three.js 0.187's GLTFLoader (loadNode → _loadNodeShallow) recurses once per
+#: level: in headless Chromium 156 a VRM with a chain of 1,850 nodes under its head loads and one of 2,150
+#: fails with "Maximum call stack size exceeded" (scripts in the report of issue 34). Real avatars nest
+#: 10–60 levels (hair and skirt chains); the cap leaves half of the measured limit for other call frames.
+MAX_NODE_DEPTH = 1000
+THREE_DEPTH_LIMIT = "2,000"
 GLB_MAGIC = b"glTF"
 JSON_CHUNK = 0x4E4F534A
 BIN_CHUNK = 0x004E4942
@@ -261,11 +267,17 @@ def _check_nodes(d: _Doc) -> None:
         if p >= 0:
             below[p].append(c)
     reached = [False] * len(nodes)
-    todo = [i for i, p in enumerate(parent) if p < 0]
+    todo = [(i, 1) for i, p in enumerate(parent) if p < 0]
     while todo:
-        j = todo.pop()
+        j, depth = todo.pop()
+        if depth > MAX_NODE_DEPTH:  # three.js's GLTFLoader loads a node's children recursively
+            raise d.fail(
+                "nodes",
+                f"nest more than {MAX_NODE_DEPTH} levels deep (node {j}); the browser's glTF loader recurses "
+                f"through the tree and fails near {THREE_DEPTH_LIMIT}: flatten the node hierarchy",
+            )
         reached[j] = True
-        todo.extend(below[j])
+        todo.extend((c, depth + 1) for c in below[j])
     if not all(reached):
         raise d.fail("nodes", f"form a cycle (node {reached.index(False)})")
     for i, s in enumerate(d.array("scenes")):
@@ -348,6 +360,7 @@ def _check_vrm(d: _Doc) -> None:
         v = d.obj(ext, "VRMC_vrm", "extensions")
         for key in ("meta", "humanoid", "expressions"):
             d.obj(v, key, "VRMC_vrm")
+        _check_vrm1_meta(d, v)
         bones = d.obj(d.obj(v, "humanoid", "VRMC_vrm"), "humanBones", "VRMC_vrm.humanoid")
         for b, e in bones.items():
             if not isinstance(e, dict):
@@ -389,3 +402,23 @@ def _check_vrm(d: _Doc) -> None:
             for b in binds:
                 d.index(b.get("mesh"), "meshes", "VRM.blendShapeMaster.blendShapeGroups.binds.mesh", optional=False)
                 d.count(b.get("index"), "VRM.blendShapeMaster.blendShapeGroups.binds.index")
+
+
+def _check_vrm1_meta(d: _Doc, v: dict) -> None:
+    """What @pixiv/three-vrm 3.5's loader requires of a VRM 1.0 (``VRMMetaLoaderPlugin._v1Import``, with
+    the default options our pages use): the extension listed in ``extensionsUsed`` (else it ignores the
+    VRM), and a ``meta`` whose ``licenseUrl`` is exactly :data:`facecapges.avatar.vrm.meta.LICENSE_URL`
+    (its only accepted URL; anything else, or none, throws "The license url … is not accepted")."""
+    from facecapges.avatar.vrm.meta import LICENSE_URL
+
+    if "VRMC_vrm" not in d.doc.get("extensionsUsed", []):
+        raise d.fail("extensionsUsed", "does not list VRMC_vrm (three-vrm would not read the VRM)")
+    if v.get("specVersion") not in ("1.0", "1.0-beta") or v.get("meta") is None:
+        return  # refused by the reader (version), or no meta: three-vrm reads none
+    url = v["meta"].get("licenseUrl")
+    if url != LICENSE_URL:
+        raise d.fail(
+            "VRMC_vrm.meta.licenseUrl",
+            f"is {str(url)[:80]!r}; a VRM 1.0 must name {LICENSE_URL!r} (three-vrm refuses any other): "
+            "re-export it with a VRM 1.0 exporter",
+        )

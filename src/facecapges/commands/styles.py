@@ -78,22 +78,37 @@ def generate(
 
 
 def _list(json_out: bool) -> None:
+    from facecapges.errors import UserError
     from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
 
     rows = []
     for name, path in list_styles().items():
-        ckpt = load_checkpoint(path)
+        row = {"name": name, "default": name == DEFAULT_STYLE, "shipped": path.parent == styles_dir()}
+        try:
+            ckpt = load_checkpoint(path)
+        except UserError as exc:  # a broken file is marked; the others are still listed
+            rows.append(
+                {
+                    **row,
+                    "engine": None,
+                    "speaker": None,
+                    "epochs": None,
+                    "inputs": None,
+                    "path": str(path),
+                    "error": str(exc).removeprefix(f"{path}: "),
+                }
+            )
+            continue
         meta = ckpt.meta
         rows.append(
             {
-                "name": name,
+                **row,
                 "engine": ckpt.engine,
-                "default": name == DEFAULT_STYLE,
                 "speaker": meta.get("speaker"),
                 "epochs": meta.get("epochs_trained"),
                 "inputs": meta.get("inputs"),
-                "shipped": path.parent == styles_dir(),
                 "path": str(path),
+                "error": None,
             }
         )
     if json_out:
@@ -102,6 +117,9 @@ def _list(json_out: bool) -> None:
     if not rows:
         typer.echo("no styles installed")
     for r in rows:
+        if r["error"] is not None:
+            typer.echo(f"! {r['name']}  broken: {r['error']}  {r['path']}")
+            continue
         typer.echo(
             f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
             + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")

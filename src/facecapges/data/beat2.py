@@ -59,7 +59,9 @@ looks to the model like the jawOpen of a BEAT face capture or of the live camera
 from __future__ import annotations
 
 import json
+import math
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -76,6 +78,15 @@ MOTION_DIR = "smplxflame_30"  # BEAT2's folder of SMPL-X takes
 AUDIO_DIR = "wave16k"  # … and of their 16 kHz speech
 MAP_NAME = "beat2"  # data/maps/beat2.json: the fitted corrections
 MAX_FPS = 1000.0
+#: Caps on what a take may cost (docs/bring-your-own-mocap.md): each array's uncompressed size (checked on
+#: the zip member and on its npy header before it is unpacked), the take's length, and its frame count.
+MAX_MEMBER_BYTES = 96 << 20  # 72,000 frames of float64 poses: 95 MB
+MAX_TAKE_S = 20 * 60.0
+MAX_FRAMES = 72_000  # 20 min at 60 fps (BEAT2 is 30)
+#: Axis-angle magnitudes above this are refused (a fit gives at most π; BEAT2's own reach 2.45 rad).
+MAX_ANGLE = 4 * np.pi
+#: A take shorter than this is warned about (``styles build`` refuses it: its first 80 % must hold 10 s).
+MIN_USEFUL_S = 12.5
 
 SMPLX_NAMES: tuple[str, ...] = (
     ("pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2", "left_ankle")
@@ -159,11 +170,52 @@ class Beat2Take:
         return len(self.poses)
 
 
-def _member(z, key: str, path: Path) -> np.ndarray:
-    try:
-        return np.asarray(z[key])
-    except ValueError:  # an object array: it would need pickle
-        raise file_error(path, f"not a BEAT2 take: {key!r} holds Python objects (refused: no pickle)") from None
+def _npy_header(f, key: str, path: Path) -> tuple[tuple[int, ...], np.dtype]:
+    """Shape and dtype from a member's npy header (numpy's own reader; nothing of the data read yet)."""
+    from numpy.lib import format as npy
+
+    version = npy.read_magic(f)
+    if version == (1, 0):
+        shape, _, dtype = npy.read_array_header_1_0(f)
+    elif version == (2, 0):
+        shape, _, dtype = npy.read_array_header_2_0(f)
+    else:
+        raise ValueError(f"npy format version {version[0]}.{version[1]} (1.0 or 2.0 expected)")
+    if dtype.hasobject:
+        raise file_error(path, f"not a BEAT2 take: {key!r} holds Python objects (refused: no pickle)")
+    return tuple(int(d) for d in shape), dtype
+
+
+def _member(z: zipfile.ZipFile, key: str, path: Path, fps: float = 1.0) -> np.ndarray:
+    """One ``key.npy`` of the archive, its size checked before anything is unpacked (module constants):
+    the member's declared uncompressed size, then its npy header's shape and dtype."""
+    from numpy.lib import format as npy
+
+    info = z.getinfo(f"{key}.npy")
+    if info.file_size > MAX_MEMBER_BYTES:
+        raise file_error(
+            path,
+            f"{key!r} unpacks to {info.file_size / 2**20:.0f} MB, more than the {MAX_MEMBER_BYTES >> 20} MB "
+            "a BEAT2 take's array may be (docs/bring-your-own-mocap.md)",
+        )
+    with z.open(info) as f:
+        try:
+            shape, dtype = _npy_header(f, key, path)
+        except (ValueError, SyntaxError, TypeError) as exc:  # numpy's header errors
+            raise file_error(path, f"not a BEAT2 take: {key!r} has no valid npy header ({str(exc)[:120]})") from None
+        if key == "poses" and shape and shape[0] > min(MAX_FRAMES, MAX_TAKE_S * fps):
+            raise file_error(
+                path,
+                f"{shape[0]} frames at {fps:g} fps ({shape[0] / fps / 60:.1f} min): longer than a BEAT2 take may be "
+                f"({MAX_TAKE_S / 60:g} min, at most {MAX_FRAMES} frames; docs/bring-your-own-mocap.md)",
+            )
+        nbytes = dtype.itemsize * math.prod(shape)
+        if nbytes > info.file_size:
+            raise file_error(
+                path, f"damaged BEAT2 take: {key!r} declares shape {shape} ({nbytes} bytes) in {info.file_size} bytes"
+            )
+        f.seek(0)
+        return npy.read_array(f, allow_pickle=False)
 
 
 def _check_float(a: np.ndarray, key: str, shape: tuple, path: Path) -> np.ndarray:
@@ -172,7 +224,8 @@ def _check_float(a: np.ndarray, key: str, shape: tuple, path: Path) -> np.ndarra
         raise file_error(path, f"not a BEAT2 take: {key!r} has shape {a.shape}, expected {want}")
     if not (np.issubdtype(a.dtype, np.floating) or np.issubdtype(a.dtype, np.integer)):
         raise file_error(path, f"not a BEAT2 take: {key!r} has dtype {a.dtype}, expected floats")
-    a = a.astype(np.float64)
+    with np.errstate(over="ignore"):
+        a = a.astype(np.float64)
     if not np.isfinite(a).all():
         raise file_error(path, f"damaged BEAT2 take: {key!r} has NaN or infinite values")
     return a
@@ -187,31 +240,52 @@ def _frame_rate(a: np.ndarray, path: Path) -> float:
     return fps
 
 
+def _check_angles(poses: np.ndarray, path: Path) -> None:
+    """Axis-angle rotations beyond :data:`MAX_ANGLE` are not a fit's output: refused, not wrapped."""
+    with np.errstate(over="ignore", invalid="ignore"):  # 1e300 squared: inf, refused below
+        angle = np.linalg.norm(poses.reshape(len(poses), N_SMPLX, 3), axis=-1)
+    bad = np.argwhere(angle > MAX_ANGLE)
+    if len(bad):
+        t, j = (int(v) for v in bad[0])
+        raise file_error(
+            path,
+            f"damaged BEAT2 take: {len(bad)} rotation(s) beyond {MAX_ANGLE / np.pi:g}π rad, first at frame {t}, "
+            f"joint {SMPLX_NAMES[j]} ({angle[t, j]:.3g} rad)",
+        )
+
+
 def read_beat2(path: str | Path) -> Beat2Take:
-    """Read a BEAT2 SMPL-X ``.npz`` (no pickle). Anything wrong is one UserError naming the file."""
+    """Read a BEAT2 SMPL-X ``.npz`` (no pickle). Anything wrong is one UserError naming the file.
+
+    Each array's declared size (the zip member's and its npy header's) is checked before it is unpacked:
+    :data:`MAX_MEMBER_BYTES`, :data:`MAX_TAKE_S`; rotations beyond :data:`MAX_ANGLE` are refused.
+    """
     path = Path(path)
     if not path.is_file():
         raise file_error(path, "BEAT2 take not found")
+    with path.open("rb") as f:
+        if f.read(6) == b"\x93NUMPY":
+            raise file_error(path, "not a BEAT2 take (a single .npy array, not an .npz archive)")
     try:
-        z = np.load(path, allow_pickle=False)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile):  # numpy's text would suggest allow_pickle
+        z = zipfile.ZipFile(path)
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile):
         raise file_error(path, "not a BEAT2 take: not a readable .npz archive (damaged or another format)") from None
-    if not isinstance(z, np.lib.npyio.NpzFile):
-        raise file_error(path, "not a BEAT2 take (a single .npy array, not an .npz archive)")
     try:
         with z:
-            missing = [k for k in ("poses", "mocap_frame_rate") if k not in z.files]
+            files = {n[: -len(".npy")] for n in z.namelist() if n.endswith(".npy")}
+            missing = [k for k in ("poses", "mocap_frame_rate") if k not in files]
             if missing:
                 raise file_error(path, f"not a BEAT2 take: no {', '.join(repr(k) for k in missing)} array")
-            raw = {k: _member(z, k, path) for k in ("poses", "mocap_frame_rate", "trans") if k in z.files}
+            fps = _frame_rate(_member(z, "mocap_frame_rate", path), path)
+            raw = {k: _member(z, k, path, fps) for k in ("poses", "trans") if k in files}
     except UserError:
         raise
-    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, NotImplementedError) as exc:
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile, NotImplementedError, zlib.error) as exc:
         raise file_error(path, f"unreadable BEAT2 take ({exc.__class__.__name__}: {str(exc)[:120]})") from None
     poses = _check_float(raw["poses"], "poses", (None, N_SMPLX * 3), path)
     if len(poses) < 2:
         raise file_error(path, f"BEAT2 take has {len(poses)} frame(s); a take needs at least 2")
-    fps = _frame_rate(raw["mocap_frame_rate"], path)
+    _check_angles(poses, path)
     extras = {}
     if "trans" in raw:
         extras["trans"] = _check_float(raw["trans"], "trans", (len(poses), 3), path)
@@ -393,7 +467,10 @@ def convert_take(
     idx = timing.resample_indices(take.n_frames, take.fps, fps)
     sub = Beat2Take(take.path, take.poses[idx], fps)
     pose = rot.matrix_to_rot6d(convert_matrices(sub, m)).astype(np.float32)
-    return pose, face_track(jaw_open(sub, m))
+    face = face_track(jaw_open(sub, m))
+    if not (np.isfinite(pose).all() and np.isfinite(face).all()):
+        raise file_error(take.path, "BEAT2 take converts to NaN or infinite poses (damaged values)")
+    return pose, face
 
 
 def load_beat2_take(npz_path: str | Path, fps: float = timing.MODEL_FPS) -> tuple[np.ndarray, np.ndarray]:

@@ -137,6 +137,11 @@ def prepare_beat2_clip(
         files, pose, pose_head_rot6d(target, pose), target, fps, sr, take.fps, jaw_face=jaw_face
     )
     entry.update(dataset="BEAT2", origin="beat2", joint_map=beat2.MAP_NAME)
+    if len(pose) < beat2.MIN_USEFUL_S * fps:
+        warnings.append(
+            f"{files.files['npz']}: {len(pose) / fps:.1f} s, too short to use: a style (`styles build`) needs "
+            f"{beat2.MIN_USEFUL_S:g} s of a take and training only its first 80 %"
+        )
     return arrays, entry, warnings
 
 
@@ -158,6 +163,16 @@ def _clip_arrays(
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
+    mismatch = timing.length_mismatch(T, fps, len(audio_full) / sr)
+    if mismatch is not None:
+        text, refuse = mismatch
+        if refuse:
+            raise file_error(
+                wav_path,
+                f"does not match its motion {_motion_of(files)}: {text}; "
+                f"more than {timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
+            )
+        warnings.append(f"{wav_path}: {text}")
     face = np.zeros((T, N_BLENDSHAPES), np.float32)
     face_path = files.get("json")
     face_source = None

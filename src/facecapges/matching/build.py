@@ -10,7 +10,6 @@ for any of it.
 
 from __future__ import annotations
 
-import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -27,12 +26,13 @@ from facecapges.skeleton import Skeleton
 BEAT_ATTRIBUTION = "BEAT / BEAT2 (Liu et al., ECCV 2022; EMAGE, CVPR 2024), CC BY-NC 4.0"
 ZEGGS_ATTRIBUTION = "ZEGGS (Ubisoft La Forge ZeroEGGS), CC BY-NC-ND 4.0: built on this machine, never distribute"
 MIN_TRAIN_S = 10.0
+MAX_FILE_NAME_BYTES = 200  # --out's file name: NAME.safetensors.part must fit the usual 255-byte limit
 
 
 def check_name(name: str) -> str:
-    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name or ""):
-        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
-    return name
+    from facecapges.model.checkpoint import check_style_name
+
+    return check_style_name(name)
 
 
 def licence_of(take: Take) -> tuple[str, str]:
@@ -68,6 +68,8 @@ def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, s
         if target is None and not take.skeleton.missing():
             target = take.skeleton
         say(f"  {motion.name}: {take.n_frames / timing.MODEL_FPS:.1f} s, training frames [0, {take.train_until})")
+        for note in take.notes:
+            say(f"  warning: {note}")
         takes.append(take)
     skel = takes[0].skeleton
     if any(not t.skeleton.is_same_tree(skel) for t in takes):
@@ -121,9 +123,17 @@ def build_style(
     dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
     if dest.suffix != ".safetensors":
         raise file_error(dest, "a style file must end in .safetensors")
+    if len(dest.name.encode()) > MAX_FILE_NAME_BYTES:
+        raise file_error(
+            dest, f"a file name of at most {MAX_FILE_NAME_BYTES} bytes, please (a style writes NAME.part first)"
+        )
     card = dest.with_suffix(".md")
     for p in (dest, card):
-        if p.exists() and not force:
+        try:
+            there = p.exists()
+        except OSError as exc:  # a folder on the way that is a file, no permission to look …
+            raise file_error(p, f"cannot be checked ({exc.strerror or exc})") from None
+        if there and not force:
             raise file_error(p, "exists; pass --force to replace it")
     say(f"reading {len(pairs)} take(s)")
     takes = read_takes([(Path(m), Path(w)) for m, w in pairs], target, say)

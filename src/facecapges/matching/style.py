@@ -115,33 +115,165 @@ def save_matching_style(
     return path
 
 
+#: The range of each :class:`EngineConfig` setting a style file may hold, (lowest, highest), both allowed. A
+#: setting's type is its default's (bool, int or float: finite); a setting not listed here is checked for its
+#: type only. Add a row with each new setting.
+CONFIG_RANGES: dict[str, tuple[float, float]] = {
+    "search_interval": (1, 150),  # frames: at most 10 s between searches
+    "margin": (0.0, 1e6),
+    "halflife_s": (0.01, 10.0),
+    "memory_s": (0.0, 3600.0),
+    "memory_penalty": (0.0, 1e6),
+    "near_frames": (0, 1000),
+    "onset_bonus": (0.0, 1e3),
+    "onset_frames": (0, 150),
+    "intensity_tau_s": (0.0, 60.0),
+    "direction_weight": (0.0, 1e3),
+}
+
+
+def check_engine_config(d: object) -> EngineConfig:
+    """An :class:`EngineConfig` from a style's ``engine_config``, every setting's type and range checked
+    (:data:`CONFIG_RANGES`); a ValueError names the first wrong one."""
+    import math
+    from dataclasses import fields
+
+    if not isinstance(d, dict):
+        raise ValueError(f"engine_config is {type(d).__name__}, not an object")
+    defaults = EngineConfig()
+    for f in fields(EngineConfig):
+        if f.name not in d:
+            continue
+        v, default = d[f.name], getattr(defaults, f.name)
+        if isinstance(default, bool):
+            ok = isinstance(v, bool)
+        elif isinstance(default, int):
+            ok = isinstance(v, int) and not isinstance(v, bool)
+        elif isinstance(default, float):
+            ok = isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+        else:
+            ok = default is None or isinstance(v, type(default))
+        if not ok:
+            raise ValueError(f"engine_config {f.name} = {v!r} is not a {type(default).__name__}")
+        lo, hi = CONFIG_RANGES.get(f.name, (-math.inf, math.inf))
+        if not isinstance(default, bool) and isinstance(v, int | float) and not lo <= v <= hi:
+            raise ValueError(f"engine_config {f.name} = {v!r} is outside [{lo:g}, {hi:g}]")
+    return EngineConfig.from_dict(d)
+
+
+def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
+    """Every database array's length and width against ``db.pose``, its kind and values, and the database
+    metadata (weights, segments) they index: a ValueError names the first wrong one."""
+    from facecapges.matching.database import FEATURE_GROUPS, N_FEATURES, PHASES
+    from facecapges.skeleton import N_JOINTS
+
+    if not isinstance(meta, dict) or not isinstance(meta.get("segments"), list):
+        raise ValueError("database metadata is not an object with a 'segments' list")
+    w = meta.get("weights")
+    if not isinstance(w, dict) or not all(
+        k in FEATURE_GROUPS and isinstance(v, int | float) and not isinstance(v, bool) and 0 <= v < 1e6
+        for k, v in w.items()
+    ):
+        raise ValueError(f"database weights must map {', '.join(FEATURE_GROUPS)} to numbers ≥ 0")
+    seg_fields = {"name": str, "source": str, "start": int, "stop": int, "mirrored": bool, "row": int}
+    for seg in meta["segments"]:
+        if not isinstance(seg, dict) or set(seg) != set(seg_fields):
+            raise ValueError(f"a database segment is not an object of {', '.join(seg_fields)}")
+        if not all(
+            isinstance(seg[k], typ) and (typ is bool or not isinstance(seg[k], bool)) for k, typ in seg_fields.items()
+        ):
+            raise ValueError(f"database segment {seg.get('name')!r} has a field of the wrong type")
+    if "db.pose" not in t:
+        raise ValueError("no db.pose")
+    n = len(t["db.pose"]) if t["db.pose"].ndim else 0
+    shapes: dict[str, tuple[tuple[int, ...], str]] = {  # key → (shape, kinds of dtype)
+        "db.pose": ((n, N_JOINTS, 6), "f"),
+        "db.features": ((n, N_FEATURES), "f"),
+        "db.pause": ((n,), "biu"),
+        "db.phase": ((n,), "iu"),
+        "db.energy_class": ((n,), "iu"),
+        "db.lead": ((n,), "f"),
+        "db.searchable": ((n,), "biu"),
+        "db.segment": ((n,), "iu"),
+        "db.mean": ((N_FEATURES,), "f"),
+        "db.scale": ((N_FEATURES,), "f"),
+    }
+    for key, (shape, kinds) in shapes.items():
+        if key not in t:
+            raise ValueError(f"no {key}")
+        a = t[key]
+        if a.shape != shape or a.dtype.kind not in kinds:
+            raise ValueError(f"{key} is {a.dtype} {a.shape}, expected {shape} of {_kinds(kinds)} (db.pose: {n} frames)")
+    ranges = {
+        "db.pause": (0, 1),
+        "db.searchable": (0, 1),
+        "db.phase": (0, len(PHASES) - 1),
+        "db.energy_class": (0, 2),
+        "db.segment": (0, len(meta["segments"]) - 1),
+    }
+    for key, (lo, hi) in ranges.items():
+        a = t[key]
+        if n and (a.min() < lo or a.max() > hi):
+            raise ValueError(f"{key} holds values outside {lo}…{hi}")
+    if n <= 10 or not t["db.searchable"].any():
+        raise ValueError(f"the database of {n} frames has no searchable frame")
+    if not (t["db.scale"] > 0).all():
+        raise ValueError("db.scale holds values ≤ 0")
+
+
+def _kinds(kinds: str) -> str:
+    return " or ".join({"f": "floats", "i": "integers", "u": "integers", "b": "booleans"}[k] for k in kinds[:2])
+
+
 def from_file(path: Path, tensors: dict, meta: dict) -> MatchingCheckpoint:
     """A :class:`MatchingCheckpoint` from a file's tensors and meta (clear errors for incomplete files)."""
     for key in ("engine_config", "database", "skeleton", "neutral_window", "fps"):
         if key not in meta:
             raise file_error(path, f"matching style metadata has no {key!r}: not a complete style")
-    db_t = {k: v.numpy() for k, v in tensors.items() if k.startswith("db.")}
+    fps = meta["fps"]
+    if not isinstance(fps, int) or isinstance(fps, bool) or fps != timing.MODEL_FPS:
+        raise file_error(path, f"matching style at fps {fps!r}; this version runs {timing.MODEL_FPS} (a number)")
     try:
+        db_t = {k: v.numpy() for k, v in tensors.items() if k.startswith("db.")}
+    except TypeError as exc:  # a dtype numpy has not (bfloat16)
+        raise file_error(path, f"matching style database has a tensor numpy cannot read ({exc})") from None
+    try:
+        _check_database(db_t, meta["database"])
+        config = check_engine_config(meta["engine_config"])
         db = Database.from_tensors(db_t, meta["database"])
-        config = EngineConfig.from_dict(meta["engine_config"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise file_error(path, f"matching style database is incomplete ({exc})") from None
+        raise file_error(path, f"matching style is invalid ({exc})") from None
     if not all(np.isfinite(v).all() for v in db_t.values() if v.dtype.kind == "f"):
         raise file_error(path, "matching style database contains NaN or infinite values")
     predictor = None
-    if meta.get("predictor"):
-        from facecapges.matching.predictor import Predictor
-
-        p_t = {k[len("predictor.") :]: v.float() for k, v in tensors.items() if k.startswith("predictor.")}
-        try:
-            predictor = Predictor.from_state(meta["predictor"], p_t)
-        except (KeyError, RuntimeError, ValueError) as exc:
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise file_error(path, f"matching style predictor does not load ({first})") from None
+    if meta.get("predictor") is not None:
+        predictor = _predictor(path, tensors, meta["predictor"])
     director = _director(path, tensors, meta)
-    if int(meta["fps"]) != timing.MODEL_FPS:
-        raise UserError(f"{path}: matching style at {meta['fps']} fps; this version runs {timing.MODEL_FPS} fps")
     return MatchingCheckpoint(db=db, config=config, predictor=predictor, meta=meta, path=path, director=director)
+
+
+def _predictor(path: Path, tensors: dict, config: object):
+    """The style's speech predictor; its JSON config checked (sizes through the network's own ranges)."""
+    from facecapges.matching.predictor import OUTPUT_NAMES, Predictor
+    from facecapges.model.config import model_config_from_dict
+
+    p_t = {k[len("predictor.") :]: v.float() for k, v in tensors.items() if k.startswith("predictor.")}
+    try:
+        if not isinstance(config, dict):
+            raise ValueError(f"predictor is {type(config).__name__}, not an object")
+        model_config_from_dict(config["model"])  # every size in its range before anything is allocated
+        hidden = config["settings"]["hidden"]
+        if not isinstance(hidden, int) or isinstance(hidden, bool) or not 1 <= hidden <= 4096:
+            raise ValueError(f"predictor hidden size {hidden!r} is not 1…4096")
+        k = len(OUTPUT_NAMES) - 1
+        for key, n in (("target_mean", k), ("target_sd", k), ("head_reference", 6)):
+            a = np.asarray(config[key], np.float64)
+            if a.shape != (n,) or not np.isfinite(a).all():
+                raise ValueError(f"predictor {key} is not {n} finite numbers")
+        return Predictor.from_state(config, p_t)
+    except (KeyError, RuntimeError, ValueError, TypeError, AttributeError, UserError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise file_error(path, f"matching style predictor does not load ({first})") from None
 
 
 def _director(path: Path, tensors: dict, meta: dict):
@@ -153,6 +285,6 @@ def _director(path: Path, tensors: dict, meta: dict):
     d_t = {k[len("director.") :]: v for k, v in tensors.items() if k.startswith("director.")}
     try:
         return Director.from_state(meta["director"], d_t, skeleton_from_dict(meta["skeleton"]))
-    except (KeyError, RuntimeError, TypeError, ValueError, UserError) as exc:
+    except (KeyError, RuntimeError, TypeError, ValueError, AttributeError, UserError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise file_error(path, f"matching style network does not load ({first})") from None

@@ -45,6 +45,7 @@ class Take:
     mirrored: bool = False
     source: str = ""  # the motion file it came from (for the model card)
     licence: str = ""
+    notes: tuple[str, ...] = ()  # warnings about the files (e.g. speech a little longer than the motion)
 
     @property
     def n_frames(self) -> int:
@@ -93,6 +94,22 @@ def make_take(
     )
 
 
+def speech_notes(motion_path: Path, wav_path: Path, n_frames: int, audio: np.ndarray) -> tuple[str, ...]:
+    """() when the speech matches the motion's length, a warning when it is a few frames off; a UserError
+    beyond :data:`facecapges.timing.MISMATCH_REFUSE_SHARE` (:func:`facecapges.timing.length_mismatch`)."""
+    mismatch = timing.length_mismatch(n_frames, timing.MODEL_FPS, len(audio) / timing.AUDIO_SR)
+    if mismatch is None:
+        return ()
+    text, refuse = mismatch
+    if refuse:
+        raise file_error(
+            wav_path,
+            f"does not match {motion_path.name}: {text}; more than "
+            f"{timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
+        )
+    return (f"{wav_path.name}: {text}",)
+
+
 def load_bvh_take(bvh_path: str | Path, wav_path: str | Path, target: Skeleton | None = None) -> Take:
     """A BVH take + its speech; a non-BEAT skeleton is retargeted onto ``target`` (module docs)."""
     from facecapges.io.audio import load_audio
@@ -104,13 +121,17 @@ def load_bvh_take(bvh_path: str | Path, wav_path: str | Path, target: Skeleton |
     if not bvh.skeleton.missing(UPPER_BODY):
         motion = timing.resample(bvh.motion, bvh.fps, timing.MODEL_FPS)
         pose, head = motion_to_pose(bvh.skeleton, motion)
-        return make_take(bvh_path.stem, pose, audio, bvh.skeleton, head=head, source=str(bvh_path), licence="")
+        notes = speech_notes(bvh_path, wav_path, len(pose), audio)
+        return make_take(
+            bvh_path.stem, pose, audio, bvh.skeleton, head=head, source=str(bvh_path), licence="", notes=notes
+        )
     if target is None:
         raise file_error(bvh_path, "not a BEAT skeleton, and no BEAT skeleton was given to retarget it onto")
     from facecapges.data.retarget import retarget_bvh
 
     r = retarget_bvh(bvh_path, target, fps=timing.MODEL_FPS)
-    return make_take(bvh_path.stem, r.pose, audio, target, source=str(bvh_path), licence=r.licence)
+    notes = speech_notes(bvh_path, wav_path, len(r.pose), audio)
+    return make_take(bvh_path.stem, r.pose, audio, target, source=str(bvh_path), licence=r.licence, notes=notes)
 
 
 def load_take(motion_path: str | Path, wav_path: str | Path, target: Skeleton | None = None) -> Take:
@@ -141,8 +162,10 @@ def load_beat2_take(npz_path: Path, wav_path: Path, target: Skeleton | None) -> 
     if target is None:
         raise file_error(npz_path, "a BEAT2 take needs a BEAT skeleton to put its poses on")
     pose, face = beat2.load_beat2_take(npz_path, fps=timing.MODEL_FPS)
+    audio = load_audio(wav_path)
+    notes = speech_notes(npz_path, wav_path, len(pose), audio)
     return make_take(
-        npz_path.stem, pose, load_audio(wav_path), target, face=face, source=str(npz_path), licence="CC BY-NC 4.0"
+        npz_path.stem, pose, audio, target, face=face, source=str(npz_path), licence="CC BY-NC 4.0", notes=notes
     )
 
 

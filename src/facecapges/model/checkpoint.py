@@ -66,6 +66,21 @@ def list_styles() -> dict[str, Path]:
     return out
 
 
+MAX_NAME_CHARS = 64  # a style's name: its files (NAME.safetensors, NAME.log.csv, .install-NAME-…) stay short
+
+
+def check_style_name(name: str | None) -> str:
+    """``name`` if it can name a style (letters, digits, '.', '_', '-'; at most :data:`MAX_NAME_CHARS`)."""
+    import re
+
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name or ""):
+        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    assert name is not None
+    if len(name) > MAX_NAME_CHARS:
+        raise UserError(f"style name {name[:20]}…: {len(name)} characters; a style name has at most {MAX_NAME_CHARS}")
+    return name
+
+
 MAX_INSTALL_BYTES = {"checkpoint": 1 << 30, "log": 64 << 20, "card": 1 << 20, "fgd": 256 << 20}
 MAX_INSTALL_FILES = 256  # files of a model.fgd/ folder
 
@@ -85,15 +100,13 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     into a temporary folder of the styles store and moved into place only when all of it
     was copied — a refused or failed install leaves the store as it was.
     """
-    import re
     import shutil
     import tempfile
 
     src = resolve(run)
     folder = src.parent
     name = name or (folder.name if src.name == "model.safetensors" else src.stem)
-    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]*", name):
-        raise UserError(f"style name {name!r}: use letters, digits, '.', '_' and '-' only")
+    check_style_name(name)
     _no_link(src)
     load_checkpoint(src)  # refuse what would not load
     dest_dir = user_styles_dir()
@@ -114,20 +127,43 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     if not (folder / "model_card.md").exists() and (card.is_symlink() or card.exists()):
         parts.append((card, f"{name}.md", "card"))
     fgd = src.with_suffix(".fgd")
+    has_fgd = fgd.is_symlink() or fgd.exists()
+    for n, is_dir in [(n, False) for _, n, _ in parts] + ([(f"{name}.fgd", True)] if has_fgd else []):
+        _check_destination(dest_dir / n, is_dir, force)
     stage = Path(tempfile.mkdtemp(prefix=f".install-{name}-", dir=dest_dir))
     try:
         for f, n, kind in parts:
             _copy_regular(f, stage / n, MAX_INSTALL_BYTES[kind])
-        if fgd.is_symlink() or fgd.exists():
+        if has_fgd:
             _copy_tree(fgd, stage / f"{name}.fgd")
         for f in sorted(stage.iterdir(), key=lambda p: p.suffix == ".safetensors"):  # the checkpoint last
             target = dest_dir / f.name
-            if target.is_dir() and not target.is_symlink():
+            if target.is_symlink() or (target.exists() and not target.is_dir()):
+                target.unlink()  # a link itself, never what it points to (allowed by _check_destination)
+            elif target.is_dir():
                 shutil.rmtree(target)
             f.replace(target)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     return dest
+
+
+def _check_destination(target: Path, is_dir: bool, force: bool) -> None:
+    """Refuse (without ``force``) a destination in the styles store that is a symbolic link or of the other
+    kind (a file where a folder goes, or a folder where a file goes): install replaces only what it wrote."""
+    if force or not (target.is_symlink() or target.exists()):
+        return
+    if target.is_symlink():
+        raise file_error(
+            target, "is a symbolic link in the styles folder; pass --force to replace the link (not what it points to)"
+        )
+    if target.is_dir() != is_dir:
+        kind = "a folder" if target.is_dir() else "a file"
+        raise file_error(
+            target,
+            f"is {kind} in the styles folder where the style's {'folder' if is_dir else 'file'} "
+            "goes; pass --force to replace it",
+        )
 
 
 def _no_link(p: Path) -> None:

@@ -73,6 +73,14 @@ def _decode(url: str) -> bytes:
     return base64.b64decode(url.split(",", 1)[1])
 
 
+def _first_line(error: object) -> str:
+    """A page's error without its JavaScript stack: the first line of the first message, at most 300 characters."""
+    if isinstance(error, list | tuple) and error:
+        error = error[0]
+    lines = str(error).strip().splitlines()
+    return (lines[0] if lines else "")[:300]
+
+
 def _open_page(avatar: AvatarPage, width: int, height: int, inset: bool = False) -> tuple[Browser, dict]:
     b = Browser(avatar.routes, avatar.url(width, height, inset), width, height)
     b.__enter__()
@@ -80,12 +88,12 @@ def _open_page(avatar: AvatarPage, width: int, height: int, inset: bool = False)
         info = b.wait_for("window.facecapges.ready")
         errors = b.evaluate("window.facecapges.errors")
         if errors:
-            raise UserError(f"the browser could not show the avatar: {str(errors)[:300]}")
+            raise UserError(f"the browser could not show the avatar: {_first_line(errors)}")
     except PageError as exc:
         b.close()
         # the file passed avatar.gltf_check but three.js / three-vrm could not use it: still the user's file
         raise UserError(
-            f"the browser could not load the avatar ({str(exc)[:300]}); re-export it as VRM / glTF 2.0"
+            f"the browser could not load the avatar ({_first_line(exc)}); re-export it as VRM / glTF 2.0"
         ) from None
     except BaseException:
         b.close()
