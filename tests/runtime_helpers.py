@@ -177,23 +177,141 @@ def refused(p: subprocess.CompletedProcess, *words: str) -> None:
         assert w in p.stderr, p.stderr
 
 
+def viewer_url(proc: subprocess.Popen) -> str:
+    """The viewer's URL a ``live --web`` process announces."""
+    line = wait_line(proc, "viewer: ")
+    assert line, proc.stderr.read()[-2000:]
+    return line.split()[1]
+
+
 def viewer_page(proc: subprocess.Popen, done, width: int, height: int, timeout: float = 90) -> tuple[dict | None, bytes]:
     """Open the viewer a ``live --web`` process announces in headless Chromium; wait (``timeout`` s) for
     ``done(state)`` on its ``window.facecapgesViewer``; return (the last state, a PNG screenshot)."""
-    import base64
+    return open_viewer(viewer_url(proc), done, width, height, timeout)
+
+
+def _wait_state(b, done, timeout: float) -> dict | None:
     import time
+
+    state = None
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer)) : null")
+        if state and done(state):
+            break
+        time.sleep(0.5)
+    return state
+
+
+def open_viewer(url: str, done, width: int, height: int, timeout: float = 90) -> tuple[dict | None, bytes]:
+    """The viewer page at ``url`` in headless Chromium: (its state once ``done(state)``, a PNG screenshot)."""
+    import base64
 
     from facecapges.avatar.render.browser import Browser
 
-    line = wait_line(proc, "viewer: ")
-    assert line, proc.stderr.read()[-2000:]
     with Browser({}, "/", width=width, height=height, timeout=timeout) as b:
-        b.call("Page.navigate", url=line.split()[1])
-        state = None
-        deadline = time.time() + timeout
-        while time.time() < deadline:
-            state = b.evaluate("window.facecapgesViewer ? JSON.parse(JSON.stringify(window.facecapgesViewer)) : null")
-            if state and done(state):
-                break
-            time.sleep(0.5)
+        b.call("Page.navigate", url=url)
+        state = _wait_state(b, done, timeout)
         return state, base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])
+
+
+def obs_views(url: str, width: int = 640, height: int = 480, timeout: float = 90, frames: int = 5) -> dict:
+    """The viewer at ``url`` as OBS's browser source shows it: the page's own background transparent (as
+    OBS makes it), ``?bg=transparent&hud=0&frame=F`` for F in head, upper. Returns, per frame, its state,
+    the screenshot as an RGBA array and whether the HUD is displayed; under ``"orbit"`` the camera
+    (``state.camera()``) before and after a mouse drag and after a wheel turn on the upper frame, and the
+    same with ``&orbit=0``; under ``"bad"`` the errors of ``?frame=knees&bg=nope``. Each page is looked at
+    once it has drawn ``frames`` feed frames."""
+    import base64
+    import time
+
+    import cv2
+    import numpy as np
+
+    from facecapges.avatar.render.browser import Browser
+
+    def ready(s):
+        return s["ready"] and s["drawn"] >= frames
+
+    def drag(b):
+        x, y = width // 2, height // 2
+        b.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)
+        b.call("Input.dispatchMouseEvent", type="mousePressed", x=x, y=y, button="left", buttons=1, clickCount=1)
+        for k in range(1, 11):
+            b.call("Input.dispatchMouseEvent", type="mouseMoved", x=x + 12 * k, y=y, button="left", buttons=1)
+        b.call("Input.dispatchMouseEvent", type="mouseReleased", x=x + 120, y=y, button="left", buttons=0,
+               clickCount=1)
+        return b.evaluate("window.facecapgesViewer.camera()")
+
+    out: dict = {}
+    with Browser({}, "/", width=width, height=height, timeout=timeout) as b:
+        b.call("Emulation.setDefaultBackgroundColorOverride", color={"r": 0, "g": 0, "b": 0, "a": 0})
+        for frame in ("head", "upper"):
+            b.call("Page.navigate", url=f"{url}?bg=transparent&hud=0&frame={frame}")
+            time.sleep(0.5)  # (the previous page's state must not answer)
+            state = _wait_state(b, ready, timeout)
+            png = base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])
+            out[frame] = {
+                "state": state,
+                "rgba": cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED),
+                "hud": b.evaluate("getComputedStyle(document.getElementById('hud')).display"),
+                "png": png,
+            }
+        before = b.evaluate("window.facecapgesViewer.camera()")
+        dragged = drag(b)
+        b.call("Input.dispatchMouseEvent", type="mouseWheel", x=width // 2, y=height // 2, deltaX=0, deltaY=-400)
+        time.sleep(0.3)
+        zoomed = b.evaluate("window.facecapgesViewer.camera()")
+        b.call("Page.navigate", url=f"{url}?frame=upper&orbit=0")
+        time.sleep(0.5)
+        _wait_state(b, ready, timeout)
+        fixed = [b.evaluate("window.facecapgesViewer.camera()"), drag(b)]
+        out["orbit"] = {"before": before, "dragged": dragged, "zoomed": zoomed, "fixed": fixed}
+        b.call("Page.navigate", url=f"{url}?frame=knees&bg=nope")
+        time.sleep(0.5)
+        out["bad"] = _wait_state(b, ready, timeout)["errors"]
+    return out
+
+
+def check_obs_views(views: dict, name: str) -> None:
+    """Assert what :func:`obs_views` saw (screenshots kept as /tmp/facecapges-obs-NAME-FRAME.png for a look):
+    alpha 0 around the avatar and where the HUD was, no HUD, the head framed larger than in the upper-body
+    frame, the mouse orbiting and zooming (and not with orbit=0), bad values reported."""
+    from pathlib import Path
+
+    import numpy as np
+
+    widths = {}
+    for frame in ("head", "upper"):
+        v = views[frame]
+        Path(f"/tmp/facecapges-obs-{name}-{frame}.png").write_bytes(v["png"])
+        assert v["state"]["errors"] == [] and v["state"]["options"]["background"] is None, v["state"]
+        assert v["hud"] == "none"
+        img = v["rgba"]
+        assert img.ndim == 3 and img.shape[2] == 4, img.shape  # a PNG with an alpha channel
+        alpha = img[..., 3]
+        h, w = alpha.shape
+        # nothing behind the avatar: the corners, the HUD's place (top left) and most of the picture
+        for y, x in ((0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1)):
+            assert alpha[y, x] == 0, (frame, y, x, alpha[y, x])
+        assert (alpha[: h // 4, : w // 4] == 0).all(), frame
+        empty = (alpha == 0).mean()
+        assert 0.3 < empty < 0.97, (frame, empty)
+        rows = np.flatnonzero((alpha > 0).any(axis=1))
+        top = rows[0]
+        assert top < 0.2 * h, (frame, top)  # the avatar's top near the picture's top in both
+        widths[frame] = (alpha[top + int(0.06 * h)] > 0).sum()  # across the head, a little below its top
+        views[frame]["rows"] = (int(rows[0]), int(rows[-1]))
+    # head and shoulders: the head at least 1.3 times as wide as in the upper-body frame
+    assert widths["head"] > 1.3 * widths["upper"] > 0, widths
+    o = views["orbit"]
+    moved = np.linalg.norm(np.subtract(o["dragged"]["position"], o["before"]["position"]))
+    assert moved > 0.05, o  # the drag turned the camera about its target
+    np.testing.assert_allclose(o["dragged"]["target"], o["before"]["target"], atol=1e-6)
+
+    def dist(c):
+        return np.linalg.norm(np.subtract(c["position"], c["target"]))
+
+    assert dist(o["zoomed"]) < 0.95 * dist(o["dragged"]), o  # the wheel zoomed in
+    np.testing.assert_allclose(o["fixed"][1]["position"], o["fixed"][0]["position"], atol=1e-9)
+    assert any("frame=knees" in e for e in views["bad"]) and any("bg=nope" in e for e in views["bad"]), views["bad"]

@@ -10,6 +10,7 @@ import pytest
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.capture import ranges, samples
 from facecapges.capture.estimator import GEOMETRIC_MASK, N_UNITS, UNITS, ExpressionEstimator, units_to_arkit
+from facecapges.capture.metrics import METRIC_NAMES
 from facecapges.errors import UserError
 
 
@@ -68,13 +69,15 @@ def test_two_directional_nodes_on_three_groups():
 
 def test_cold_start_reads_the_first_frame_as_rest_and_output_is_bounded():
     est = ExpressionEstimator("geometric")
-    g = np.array([0.1, 1.7, 0.0, 0.7, 0.7, 0.26, 0.26, 1.1, 1.1, 0.6, 0.0, 0.0])
+    g = np.array([0.1, 1.7, 0.0, 0.7, 0.7, 0.26, 0.26, 1.1, 1.1, 0.6, 0.0, 0.0, 0.8])
     a = est.update(g, 0.95)
     np.testing.assert_allclose(a, 0.0, atol=1e-9)
     assert np.all(est.weights() == 0)
     # an open mouth on frame 2 is measured against the prior span at once
     g2 = g.copy()
-    g2[0] += UNITS[0].min_span
+    for m in ("lip_gap", "jaw_drop"):  # the lower lip down
+        u = METRIC_NAMES.index(m)
+        g2[u] += UNITS[u].min_span
     est.update(g2, 0.95)
     w = est.weights()
     assert w[ARKIT_NAMES.index("jawOpen")] > 0.3
@@ -98,7 +101,7 @@ def test_modes():
         np.testing.assert_allclose(w[other], mp[other] if mode == "hybrid" else 0)
     # units → ARKit: exaggerated values are clipped
     a = np.zeros(N_UNITS)
-    a[0] = 3.0
+    a[METRIC_NAMES.index("jaw_drop")] = 3.0
     assert units_to_arkit(a)[ARKIT_NAMES.index("jawOpen")] == 1.0
 
 
@@ -118,3 +121,41 @@ def test_synthetic_sequences_recover_known_parameters():
         mae = synthetic_mae(seq, run_geometric(seq, pe), skip_frames=30)
         assert mae["mean"] <= 0.1, mae
         assert mae["jawOpen"] <= 0.1 and mae["eyeBlinkLeft"] <= 0.1, mae
+
+
+def test_a_toothy_smile_does_not_open_the_jaw_and_smiles_symmetrically():
+    """The upper lip lifted off the teeth (a toothy smile: lip gap up, jaw shut) leaves jawOpen at 0; the lower lip
+    dropped by as much opens it. A smile's corner lift counts on both sides alike (issue 33)."""
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.metrics import MOUTH_CORNER_L, compute_metrics, eye_corner_distance
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.synthetic import LOWER_LIP
+
+    try:
+        V = load_canonical_mesh(resolve_model()).vertices
+    except UserError as exc:
+        pytest.skip(str(exc))
+    w = float(eye_corner_distance(V))
+    upper_lip = (13, 82, 312, 0, 37, 267)
+    jaw = ARKIT_NAMES.index("jawOpen")
+
+    def face(lower=0.0, upper=0.0, corner_l=0.0):
+        P = V.copy()
+        P[list(LOWER_LIP), 1] -= lower * w
+        P[list(upper_lip), 1] += upper * w
+        P[MOUTH_CORNER_L, 1] += corner_l * w
+        return compute_metrics(P)
+
+    est = ExpressionEstimator("geometric")
+    rng = np.random.default_rng(0)
+    for _ in range(120):  # talking: the jaw at rest most of the time, open now and then
+        est.update(face(lower=max(0.0, rng.normal(0.0, 0.2))), 1.0)
+    est.update(face(lower=0.3), 1.0)
+    opened = est.weights()[jaw]
+    est.update(face(upper=0.3), 1.0)
+    smile = est.weights()
+    assert opened > 0.3 and smile[jaw] < 0.05, (opened, smile[jaw])
+    est.update(face(corner_l=0.06), 1.0)
+    w2 = est.weights()
+    left, right = w2[ARKIT_NAMES.index("mouthSmileLeft")], w2[ARKIT_NAMES.index("mouthSmileRight")]
+    assert left > 0.05 and left == pytest.approx(right)

@@ -1,5 +1,6 @@
-"""``facecapges live --video FILE --realtime --web``: the viewer in headless Chromium, the WebSocket
-feed, loopback-only serving, oversized messages, Ctrl-C, and devices that cannot open."""
+"""``facecapges live --video FILE --realtime --web``: the viewer in headless Chromium (also as an OBS
+browser source: transparent, no HUD, framed from the URL), the WebSocket feed, loopback-only serving,
+oversized messages, Ctrl-C, and devices that cannot open."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import pytest
 
 from facecapges.runtime.outputs import protocol
 
-from runtime_helpers import cli, cli_popen
+from runtime_helpers import check_obs_views, cli, cli_popen, obs_views
 
 
 @pytest.fixture(scope="module")
@@ -143,6 +144,14 @@ def test_browser_viewer_shows_the_avatar(live, tmp_path):
                                            np.uint8), cv2.IMREAD_COLOR)
         Path("/tmp/facecapges-viewer-skeleton.png").write_bytes(cv2.imencode(".png", shot2)[1].tobytes())
         assert np.abs(shot2.astype(int) - img.astype(int)).sum(-1).astype(bool).mean() > 0.001
+
+
+@pytest.mark.slow
+def test_viewer_as_an_obs_browser_source(live):
+    """The viewer in OBS's browser source (README, "OBS browser source"): ``?bg=transparent&hud=0`` leaves
+    alpha 0 around the avatar and no HUD, ``frame=head`` frames the head larger than ``frame=upper``, the
+    mouse orbits and zooms (``orbit=0``: it does not), a value the viewer does not know is reported."""
+    check_obs_views(obs_views(live["url"]), "gltf")
 
 
 @pytest.mark.slow

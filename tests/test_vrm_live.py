@@ -1,7 +1,7 @@
 """A VRM in the live chain and VRM Animation from the commands that make gestures:
 
 * ``live --video F --realtime --web … --avatar SAMPLE.vrm --record DIR --vrma``: the VRM viewer
-  (three-vrm in headless Chromium) draws the feed, the hands of the VRM 0.x sample show up on
+  (three-vrm in headless Chromium) draws the feed (also as an OBS browser source), the hands of the VRM 0.x sample show up on
   screen, and Ctrl-C leaves a ``motion.vrma`` as long as ``motion.bvh``, valid against the
   VRM Animation schema;
 * ``generate --vrma`` (the installed default style) writes one with the face as presets;
@@ -21,7 +21,7 @@ import pytest
 from facecapges.avatar.vrm.glb import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import cli, cli_popen, viewer_page  # noqa: E402
+from runtime_helpers import check_obs_views, cli, cli_popen, obs_views, open_viewer, viewer_url  # noqa: E402
 from vrm_samples import build_sample  # noqa: E402
 from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
 
@@ -67,7 +67,8 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
                      "--avatar", str(avatar), "--record", str(rec), "--vrma", "--max-seconds", "120")
     try:
-        state, png = viewer_page(proc, lambda s: s["ready"] and s["drawn"] >= 10, 640, 480)
+        url = viewer_url(proc)
+        state, png = open_viewer(url, lambda s: s["ready"] and s["drawn"] >= 10, 640, 480)
         assert state and state["ready"] and state["errors"] == [] and state["drawn"] >= 10, state
         assert state["metaVersion"] == "0" and state["bones"] == 22
         shot = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_COLOR)
@@ -79,6 +80,8 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
         # the body is drawn; the red/blue hands are counted only as a note: with the default style's
         # arms hanging low they can fall below this 640-wide view's bottom edge
         assert body > 0.02, (red, blue, body)
+        # as an OBS browser source: transparent, no HUD, framed from the URL, orbit with the mouse
+        check_obs_views(obs_views(url), "vrm")
         proc.send_signal(signal.SIGINT)
         out, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err[-2000:]

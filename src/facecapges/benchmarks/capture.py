@@ -2,7 +2,7 @@
 
 * ``estimator_ms_per_face``: sample set → ranges → 52 weights, per face per frame
   (mean, median, p95; target ≤ 0.5 ms); ``metrics_ms_per_face``: head-frame points →
-  the 12 metrics; ``head_pose_ms_per_face``: landmarks → pose (two fits). The machine
+  the 13 metrics; ``head_pose_ms_per_face``: landmarks → pose (two fits). The machine
   is shared: figures move with its load, so the median is given beside the mean;
 * ``capture_ms_per_frame``: the whole :meth:`FaceCapture.process` on real video frames
   (colour conversion, MediaPipe landmarks, tracking, pose, estimator; target ≤ 25 ms),

@@ -23,10 +23,10 @@ Mapping (:data:`MAPPING`, unit activation → ARKit channel):
 =====================  ===============================================================
 ARKit channel          from
 =====================  ===============================================================
-jawOpen                lip_gap (one-dir), response γ = 2 (below)
+jawOpen                jaw_drop (one-dir), response γ = 2 (below)
 mouthPucker            mouth_width below rest, × (1 − lip_gap activation)
 mouthFunnel            mouth_width below rest, × lip_gap activation
-mouthSmileLeft/Right   0.6 · mouth_width above rest + 0.4 · mouth_corner_L/R above rest
+mouthSmileLeft/Right   0.6 · mouth_width above rest + 0.4 · mean of mouth_corner_L, _R above rest
 mouthFrownLeft/Right   mouth_corner_L/R below rest
 mouthStretchLeft/Right mouth_width above rest × (1 − mouth_corner above rest)
 jawLeft / jawRight     lip_offset above / below rest (lower lip towards the subject's left/right)
@@ -38,11 +38,21 @@ eyeWideLeft/Right      eyelid_L/R above rest
 noseSneerLeft/Right    nose_L/R below rest (nostril wing rising towards the eye)
 =====================  ===============================================================
 
-Response curves: ARKit / MediaPipe define jawOpen by the jaw, but the lip gap also
-grows when only the lips part (mouthUpperUp/LowerDown); measured against MediaPipe's
-learned jawOpen the relation is convex, near zero until the lips are a third open. A
-power curve ``w^γ`` on the clipped unit activation models that (γ = 2 for jawOpen,
-1.5 for blinks, whose lids cover the iris gradually). Every other channel is linear.
+The jaw and the smile: ARKit / MediaPipe define jawOpen by the jaw, but the lip gap also
+grows when only the lips part — a toothy smile lifts the upper lip off the teeth with the
+jaw nearly closed, and the lip gap read it as an open mouth. ``jaw_drop`` (the lower inner
+lip below the base of the nose) moves with the jaw and the lower lip only; the lip gap
+still splits pucker from funnel. The smile's corner part is the mean lift of both corners:
+one corner's height (against the lip centre) is biased on real faces (on the HDTF clip the
+left corner read a smile 0.3 lower than the right where MediaPipe reads both alike), which
+drew a symmetric smile lopsided; frowns stay per side. Chosen on the two face videos in
+``../shared/data/face``, each choice made on one video (or its first half) and checked on
+the other (docs/face-capture.md).
+
+Response curves: measured against MediaPipe's learned jawOpen the relation is convex, near
+zero until the mouth is a fraction open. A power curve ``w^γ`` on the clipped unit
+activation models that (γ = 2 for jawOpen, 1.5 for blinks, whose lids cover the iris
+gradually). Every other channel is linear.
 
 Modes: ``geometric`` — the table above, every other channel 0; ``mediapipe`` —
 MediaPipe's learned blendshapes as they are; ``hybrid`` — the table above, every other
@@ -87,6 +97,7 @@ UNITS: tuple[Unit, ...] = (
     Unit("brow_inner", True, +1, 0.08, 0.05),
     Unit("mouth_corner_L", True, +1, 0.06, 0.04),
     Unit("mouth_corner_R", True, +1, 0.06, 0.04),
+    Unit("jaw_drop", False, +1, 0.25, 0.15),
 )
 assert tuple(u.metric for u in UNITS) == METRIC_NAMES
 N_UNITS = len(UNITS)
@@ -94,6 +105,8 @@ _U = {u.metric: i for i, u in enumerate(UNITS)}
 _A = {n: i for i, n in enumerate(ARKIT_NAMES)}
 
 JAW_GAMMA = 2.0
+JAW_UNIT = "jaw_drop"
+SMILE_CORNER = 0.4
 BLINK_GAMMA = 1.5
 
 #: ARKit channels the geometric estimator writes (the rest are 0 or MediaPipe's)
@@ -126,7 +139,7 @@ GEOMETRIC_MASK[[_A[n] for n in GEOMETRIC_CHANNELS]] = True
 
 
 def units_to_arkit(a: np.ndarray) -> np.ndarray:
-    """Unit activations (..., 12) (unclipped, :data:`UNITS` order) → (..., 52) ARKit weights in [0, 1].
+    """Unit activations (..., 13) (unclipped, :data:`UNITS` order) → (..., 52) ARKit weights in [0, 1].
 
     Channels not in :data:`GEOMETRIC_CHANNELS` are 0.
     """
@@ -134,16 +147,17 @@ def units_to_arkit(a: np.ndarray) -> np.ndarray:
     pos = np.clip(a, 0.0, 1.0)
     neg = np.clip(-a, 0.0, 1.0)
     out = np.zeros(a.shape[:-1] + (N_BLENDSHAPES,))
-    jaw = pos[..., _U["lip_gap"]]
-    out[..., _A["jawOpen"]] = jaw**JAW_GAMMA
+    out[..., _A["jawOpen"]] = pos[..., _U[JAW_UNIT]] ** JAW_GAMMA
+    lips = pos[..., _U["lip_gap"]]
     narrow = neg[..., _U["mouth_width"]]
     wide = pos[..., _U["mouth_width"]]
-    out[..., _A["mouthPucker"]] = narrow * (1.0 - jaw)
-    out[..., _A["mouthFunnel"]] = narrow * jaw
+    out[..., _A["mouthPucker"]] = narrow * (1.0 - lips)
+    out[..., _A["mouthFunnel"]] = narrow * lips
+    lift = 0.5 * (pos[..., _U["mouth_corner_L"]] + pos[..., _U["mouth_corner_R"]])  # both corners' mean lift
     for side in ("Left", "Right"):
         s = side[0]
         corner_up = pos[..., _U[f"mouth_corner_{s}"]]
-        out[..., _A[f"mouthSmile{side}"]] = 0.6 * wide + 0.4 * corner_up
+        out[..., _A[f"mouthSmile{side}"]] = (1.0 - SMILE_CORNER) * wide + SMILE_CORNER * lift
         out[..., _A[f"mouthFrown{side}"]] = neg[..., _U[f"mouth_corner_{s}"]]
         out[..., _A[f"mouthStretch{side}"]] = wide * (1.0 - corner_up)
         out[..., _A[f"browOuterUp{side}"]] = pos[..., _U[f"brow_height_{s}"]]
@@ -204,7 +218,7 @@ class ExpressionEstimator:
                 self.nodes[u] = (lo, lo, max(hi, lo + span))
 
     def activation(self, g: np.ndarray) -> np.ndarray:
-        """Unclipped unit activations (12,) for metrics ``g`` (eq. 8–9)."""
+        """Unclipped unit activations (13,) for metrics ``g`` (eq. 8–9)."""
         x = self.signs * np.asarray(g, np.float64)
         g0, g1, g2 = self.nodes[:, 0], self.nodes[:, 1], self.nodes[:, 2]
         up = (x - g1) / (g2 - g1)
@@ -216,7 +230,7 @@ class ExpressionEstimator:
 
     # -------------------------------------------------------------- frames
     def update(self, g: np.ndarray, omega: float) -> np.ndarray:
-        """Add one frame's metrics ``g`` (12,) with sample weight ``omega``; return unit activations (12,)."""
+        """Add one frame's metrics ``g`` (13,) with sample weight ``omega``; return unit activations (13,)."""
         g = np.asarray(g, np.float64)
         if self.mode != "mediapipe":
             added = self.samples.add(g, omega)

@@ -26,6 +26,8 @@ nose_L / _R            y(inner eye corner) − y(nostril wing): L 362 − 294,  
 brow_inner             mean of L y(336, 285) and R y(107, 55)                     two
                        − mean y of the inner eye corners (133, 362)
 mouth_corner_L / _R    y(corner) − mean y(13, 14): L 291, R 61                    two
+jaw_drop               y(2) − mean y(14, 87, 317): the lower inner lip below      one
+                       the base of the nose (subnasale)
 =====================  =========================================================  ====
 
 The first nine rows are the paper's set (mouth: lip height gap, mouth width, lip
@@ -33,9 +35,10 @@ horizontal offset; eyes: brow-to-eye height L/R, eyelid gap L/R, inner eye-corne
 distance; nose: nostril-to-inner-eye-corner height L/R). The paper leaves
 "上下嘴唇水平距离" (upper/lower lip horizontal distance) open; it is read here as the
 sideways offset of the lower lip under the upper lip (it moves with jawLeft/Right).
-``brow_inner`` and ``mouth_corner_L/R`` are additions of this project: the paper's
-units cannot tell an inner brow raise from an outer one, nor a smile from a grin, and
-the ARKit channels browInnerUp and mouthSmile/Frown need that.
+``brow_inner``, ``mouth_corner_L/R`` and ``jaw_drop`` are additions of this project: the
+paper's units cannot tell an inner brow raise from an outer one, a smile from a grin, nor
+an open jaw from lips parted over the teeth (a toothy smile widens the lip gap with the jaw
+shut), and the ARKit channels browInnerUp, mouthSmile/Frown and jawOpen need that.
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ OUTER_EYE_R, OUTER_EYE_L = 33, 263
 LIP_PAIRS = ((13, 14), (82, 87), (312, 317))
 MOUTH_CORNER_R, MOUTH_CORNER_L = 61, 291
 UPPER_LIP_CENTER, LOWER_LIP_CENTER = 0, 17
+SUBNASALE = 2
 BROW_L = (334, 296, 282, 295)
 BROW_R = (105, 66, 52, 65)
 BROW_INNER_L = (336, 285)
@@ -70,6 +74,7 @@ METRIC_NAMES: tuple[str, ...] = (
     "brow_inner",
     "mouth_corner_L",
     "mouth_corner_R",
+    "jaw_drop",
 )
 
 
@@ -85,7 +90,7 @@ def eye_corner_distance(P: np.ndarray) -> np.ndarray:
 
 
 def compute_metrics(P: np.ndarray) -> np.ndarray:
-    """Head-frame landmarks (..., N ≥ 468, 3) → metrics (..., 12) in :data:`METRIC_NAMES` order."""
+    """Head-frame landmarks (..., N ≥ 468, 3) → metrics (..., 13) in :data:`METRIC_NAMES` order."""
     P = np.asarray(P, np.float64)
     w = np.maximum(eye_corner_distance(P), 1e-9)
     y = P[..., 1]
@@ -106,6 +111,7 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
             y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
             y[..., MOUTH_CORNER_L] - lip_mid,
             y[..., MOUTH_CORNER_R] - lip_mid,
+            y[..., SUBNASALE] - y[..., [b for _, b in LIP_PAIRS]].mean(axis=-1),
         ],
         axis=-1,
     )

@@ -25,7 +25,10 @@
 //   feedReady             true once a live feed message can be drawn
 //   copy()                another avatar of the same model in the scene (live --faces N), or null
 //   bonePosition(name)    world position of a joint (null if the model lacks it)
-//   setView(name), render(), and the renderer, camera and scene
+//   view(name)            a camera view ({target, distance, fov}): 'body' / 'face' (the scene's own), or one of
+//                         FRAMES framed on the avatar's rest proportions (`rest`, see measure())
+//   setView(name or view), target (what the camera looks at), render(), and the renderer, camera and scene
+// The constructor's `background`: a colour, or null for a transparent canvas (alpha 0 where nothing is drawn).
 import * as THREE from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import * as SkeletonUtils from 'three/addons/utils/SkeletonUtils.js';
@@ -36,17 +39,44 @@ export const VIEWS = {
   face: { target: [0, 0.752, 0.06], distance: 0.46, fov: 30 },
 };
 
+// the framings a page can ask for (the viewer's `frame=` URL parameter): head and shoulders, the upper body
+// to the hips, the whole avatar
+export const FRAMES = ['head', 'upper', 'full'];
+
+// the view of `frame` (FRAMES) for an avatar of rest proportions `r` (AvatarScene.measure) through a camera of
+// aspect `aspect`: the span from the avatar's top down to the frame's bottom, and the frame's width, fill the
+// picture (5 % margin above and below)
+export function frameView(r, frame, aspect, fov = 30) {
+  let bottom, halfWidth;
+  if (frame === 'head') {  // down to the chest: 0.6 of the top-to-shoulders height below the shoulders
+    bottom = r.shoulders - 0.6 * (r.top - r.shoulders);
+    halfWidth = 1.5 * r.halfWidth;
+  } else if (frame === 'upper') {  // down to just below the hips, wide enough for the hands in front of the body
+    bottom = r.hips - 0.1 * (r.top - r.hips);
+    halfWidth = 2.4 * r.halfWidth;
+  } else {
+    bottom = r.bottom;
+    halfWidth = 2.4 * r.halfWidth;
+  }
+  const pad = 0.05 * (r.top - bottom), hi = r.top + pad, lo = bottom - pad;
+  const t = Math.tan((fov * Math.PI) / 360);
+  const distance = Math.max((hi - lo) / 2 / t, halfWidth / (t * aspect));
+  return { target: [r.x, (hi + lo) / 2, r.z], distance, fov };
+}
+
 export class AvatarScene {
   // inset: also draw the face close-up (VIEWS.face, following the head) in the top-right corner
   constructor(canvas, { width = 640, height = 480, background = 0xeef0f3, antialias = true, inset = false } = {}) {
     this.inset = inset;
     this.faceCamera = new THREE.PerspectiveCamera(VIEWS.face.fov, 4 / 3, 0.01, 50);
-    this.renderer = new THREE.WebGLRenderer({ canvas, antialias, preserveDrawingBuffer: true });
+    const alpha = background === null;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias, alpha, preserveDrawingBuffer: true });
     this.renderer.setPixelRatio(1);
     this.renderer.setSize(width, height, false);
     this.renderer.outputColorSpace = THREE.SRGBColorSpace;
+    if (alpha) this.renderer.setClearColor(0x000000, 0);
     this.scene = new THREE.Scene();
-    this.scene.background = new THREE.Color(background);
+    this.scene.background = alpha ? null : new THREE.Color(background);
     this.camera = new THREE.PerspectiveCamera(30, width / height, 0.01, 50);
     this.scene.add(new THREE.HemisphereLight(0xffffff, 0x8a8078, 1.6));
     const key = new THREE.DirectionalLight(0xffffff, 2.2);
@@ -67,6 +97,8 @@ export class AvatarScene {
   }
 
   get label() { return 'FaceCapGes avatar (glTF)'; }
+  // the joints measure() frames by: the head, the two upper arms (the shoulders) and the hips
+  get landmarkBones() { return { head: 'Head', left: 'LeftArm', right: 'RightArm', hips: 'Hips' }; }
   get feedMessage() { return 'pose'; }
   get feedReady() { return this.helloSeen; }
   get frameSize() { return { pose: this.poseNodes.length, face: this.faceIndex.length }; }
@@ -122,7 +154,25 @@ export class AvatarScene {
       const h = this.head.getWorldPosition(new THREE.Vector3());
       this.faceOffset = new THREE.Vector3(...VIEWS.face.target).sub(h);
     }
+    this.rest = this.measure();
     return this;
+  }
+
+  // the avatar's proportions as it stands now (at rest when load() calls it), in world metres, for frameView:
+  // the top and bottom of its meshes (skinned vertices), the heights of the head joint, the shoulders and the
+  // hips, half the shoulders' width, and where the camera aims (x of the hips, z of the head); null when the
+  // avatar lacks a landmark joint or a mesh
+  measure() {
+    const names = this.landmarkBones;
+    this.root.updateMatrixWorld(true);
+    const box = new THREE.Box3().setFromObject(this.root, true);
+    const head = this.bonePosition(names.head), hips = this.bonePosition(names.hips);
+    const l = this.bonePosition(names.left), r = this.bonePosition(names.right);
+    if (box.isEmpty() || !head || !hips || !l || !r) return null;
+    return {
+      top: Math.max(box.max.y, head.y + 0.1), bottom: box.min.y, head: head.y, shoulders: (l.y + r.y) / 2,
+      hips: hips.y, halfWidth: Math.abs(l.x - r.x) / 2, x: hips.x, z: head.z,
+    };
   }
 
   // this avatar's joints and face primitives in `root` (its model or a copy of it); returns nodes by name
@@ -138,11 +188,20 @@ export class AvatarScene {
     return byName;
   }
 
+  // a view by name: 'body' or 'face' (VIEWS), a frame of FRAMES (from the rest proportions; 'body' when the
+  // avatar could not be measured); a view object as it is
+  view(name) {
+    if (typeof name !== 'string') return name;
+    if (FRAMES.includes(name)) return this.rest ? frameView(this.rest, name, this.camera.aspect) : VIEWS.body;
+    return VIEWS[name] || VIEWS.body;
+  }
+
   setView(name) {
-    const v = VIEWS[name] || name;
+    const v = this.view(name);
+    this.target = new THREE.Vector3(...v.target);
     this.camera.fov = v.fov;
     this.camera.position.set(v.target[0], v.target[1], v.target[2] + v.distance);
-    this.camera.lookAt(new THREE.Vector3(...v.target));
+    this.camera.lookAt(this.target);
     this.camera.updateProjectionMatrix();
   }
 

@@ -11,9 +11,19 @@
 // facecapges/runtime/outputs/vrm_viewer.py). Shows frame rate, compute and transport latency; checkboxes
 // toggle a skeleton overlay and the face close-up. Several faces (`live --faces N`, our avatar): the `face`
 // field of a message picks the avatar; avatar i is a copy of the first, placed left to right.
+// The mouse moves the camera (three's OrbitControls): drag to orbit, wheel to zoom, right-drag to pan.
+//
+// URL parameters, for OBS's browser source and other embeds (README, "OBS browser source"):
+//   bg=transparent | RRGGBB   no background (alpha 0 wherever the avatar is not) or a colour (default eef0f3)
+//   hud=0                     no HUD panel and no face close-up inset: the avatar alone
+//   frame=head|upper|full     the camera on the avatar's head and shoulders, its upper body to the hips, or all
+//                             of it (default: the viewer's body view)
+//   orbit=0                   the mouse does not move the camera
+// A value it does not know is reported in the HUD and in state.errors, and the default is used.
 // State for tests: window.facecapgesViewer.
 import * as THREE from 'three';
-import { VIEWS } from './avatar_scene.js';
+import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
+import { FRAMES } from './avatar_scene.js';
 import { intensitySlider } from './intensity.js';
 
 const slider = intensitySlider();
@@ -26,6 +36,36 @@ const state = {
 window.facecapgesViewer = state;
 window.addEventListener('error', (e) => state.errors.push(String(e.message || e)));
 
+// the URL's parameters (see above) -> {background: colour or null (transparent), hud, frame, orbit}
+function pageOptions(search) {
+  const q = new URLSearchParams(search), opts = { background: 0xeef0f3, hud: true, frame: 'body', orbit: true };
+  const bad = (name, allowed) => state.errors.push(`URL parameter ${name}=${q.get(name)}: expected ${allowed}`);
+  const flag = (name) => {
+    if (!q.has(name)) return true;
+    if (q.get(name) === '0' || q.get(name) === '1') return q.get(name) === '1';
+    bad(name, '0 or 1');
+    return true;
+  };
+  if (q.has('bg')) {
+    const bg = q.get('bg').replace(/^#/, '');
+    if (bg === 'transparent') opts.background = null;
+    else if (/^[0-9a-f]{6}$/i.test(bg)) opts.background = parseInt(bg, 16);
+    else bad('bg', 'transparent or a colour RRGGBB');
+  }
+  if (q.has('frame')) {
+    if (FRAMES.includes(q.get('frame'))) opts.frame = q.get('frame');
+    else bad('frame', FRAMES.join(', '));
+  }
+  opts.hud = flag('hud');
+  opts.orbit = flag('orbit');
+  return opts;
+}
+const options = pageOptions(location.search);
+state.options = options;
+if (options.background === null) for (const e of [document.documentElement, document.body]) e.style.background = 'transparent';
+else document.body.style.background = '#' + options.background.toString(16).padStart(6, '0');
+if (!options.hud) $('hud').style.display = 'none';
+
 let scene = null;
 let pending = null;  // newest unseen feed message (the first face's)
 const others = new Map();  // face index > 0 -> newest unseen feed message
@@ -34,31 +74,45 @@ const recentCompute = [];
 const arrivals = [];
 const draws = [];
 let helper = null;
+let controls = null;
+let view = options.frame;  // the view shown: options.frame, 'face' (the close-up checkbox) or a view object
 
 // the avatar's scene module: a VRM when the server holds a VRM layout
 async function openScene() {
   const res = await fetch('/vrm/layout.json');
   const layout = res.ok ? await res.json() : null;
   const { default: Scene } = await (layout ? import('./vrm_scene.js') : import('./avatar_scene.js'));
-  // (the face close-up inset in the corner: on our avatar, as ever; a VRM has the face close-up checkbox)
-  scene = new Scene($('c'), { width: innerWidth, height: innerHeight, inset: !layout });
+  // (the face close-up inset in the corner: on our avatar with the HUD, as ever; a VRM has the face close-up
+  // checkbox)
+  scene = new Scene($('c'), { width: innerWidth, height: innerHeight, inset: !layout && options.hud,
+                              background: options.background });
   const problems = await scene.open(layout);
   state.errors.push(...problems);
 }
 
+// show view `v` (a name or a view object): the camera and the mouse's orbit centre
+function look(v) {
+  view = v;
+  scene.setView(v);
+  if (controls) { controls.target.copy(scene.target); controls.update(); }
+  scene.render();
+}
+
+// (a new size frames the view again: what the mouse moved is reset)
 function resize() {
   if (!scene) return;
   scene.renderer.setSize(innerWidth, innerHeight, false);
   scene.camera.aspect = innerWidth / innerHeight;
   scene.camera.updateProjectionMatrix();
+  if (state.ready) (copies.length ? place() : look(view));
 }
 addEventListener('resize', resize);
 
 function place() {
   const n = 1 + copies.length, gap = 1.1;
   [scene.root, ...copies.map((c) => c.root)].forEach((r, i) => { r.position.x = (i - (n - 1) / 2) * gap; });
-  const v = VIEWS.body;
-  scene.setView({ ...v, distance: v.distance * Math.max(1, 0.45 + 0.55 * n) });
+  const v = scene.view(options.frame);
+  look({ ...v, distance: v.distance * Math.max(1, 0.45 + 0.55 * n) });
   state.avatars = n;
 }
 
@@ -124,6 +178,10 @@ function hud(now) {
   $('lat').textContent = state.computeMs === null ? '–' : state.computeMs.toFixed(1);
   $('net').textContent = state.transportMs === null ? '–' : state.transportMs.toFixed(0);
   $('face').textContent = state.faceFound === null ? '–' : (state.faceFound ? 'tracked' : 'lost (holding/easing)');
+  if (state.errors.length && options.hud) {
+    $('problems').hidden = false;
+    $('problems').textContent = state.errors.join('; ');
+  }
 }
 
 function loop() {
@@ -153,9 +211,10 @@ $('skel').addEventListener('change', (e) => {
   scene.render();
 });
 $('faceview').addEventListener('change', (e) => {
-  if (!scene) return;
-  scene.setView(e.target.checked ? 'face' : 'body');
-  scene.render();
+  if (!state.ready) return;
+  if (e.target.checked) look('face');
+  else if (copies.length) place();
+  else look(options.frame);
 });
 
 openScene().then(() => {
@@ -168,12 +227,16 @@ openScene().then(() => {
   if (d.metaVersion !== undefined) Object.assign(state, { bones: d.joints, metaVersion: d.metaVersion });
   $('name').textContent = scene.label;
   if (state.hello) scene.useHello(state.hello);
+  if (options.orbit) {
+    controls = new OrbitControls(scene.camera, scene.renderer.domElement);
+    controls.addEventListener('change', () => scene.render());
+  }
   resize();
-  scene.setView('body');
-  scene.render();
+  look(options.frame);
 }).catch((e) => state.errors.push(String(e)));
 
 // for tests and scripts
+state.camera = () => ({ position: scene.camera.position.toArray(), target: scene.target.toArray() });
 state.setSkeleton = (on) => { $('skel').checked = on; $('skel').dispatchEvent(new Event('change')); return on; };
 connect();
 requestAnimationFrame(loop);

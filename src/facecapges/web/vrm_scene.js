@@ -76,6 +76,7 @@ export class VrmScene extends AvatarScene {
     this.root = vrm.scene;
     this.head = vrm.humanoid.getRawBoneNode('head');
     this.faceOffset = new THREE.Vector3(0, 0.07, 0);
+    this.rest = this.measure();
     if (this.camera) this.setView('body');  // (a rig sharing another scene has no camera)
     return this;
   }
@@ -88,38 +89,28 @@ export class VrmScene extends AvatarScene {
     return n ? n.getWorldPosition(new THREE.Vector3()) : null;
   }
 
-  // the top of the avatar's own meshes at rest (skinned vertices), or null without any
-  meshTop() {
-    const box = new THREE.Box3();
-    this.vrm.scene.updateMatrixWorld(true);
-    this.vrm.scene.traverse((o) => { if (o.isMesh && o.geometry) box.expandByObject(o, true); });
-    return box.isEmpty() ? null : box.max.y;
-  }
+  get landmarkBones() { return { head: 'head', left: 'leftUpperArm', right: 'rightUpperArm', hips: 'hips' }; }
 
   // the body view frames the avatar's own top (its head and hair, however large) to below the hips, and
-  // both hands at rest; the face view the head
-  setView(name) {
-    if (!this.vrm) return;  // (AvatarScene's constructor frames before there is a model)
+  // both hands at rest; the face view the head; FRAMES as AvatarScene does
+  view(name) {
+    if (!this.vrm || (name !== 'face' && name !== 'body')) return super.view(name);
     const head = this.bonePosition('head'), hips = this.bonePosition('hips');
     const l = this.bonePosition('leftHand'), r = this.bonePosition('rightHand');
     const fov = 30;
-    this.camera.fov = fov;
-    let target, dist;
+    let target, distance;
     if (name === 'face') {
       target = head.clone().add(new THREE.Vector3(0, 0.07, 0));
-      dist = 0.55;
+      distance = 0.55;
     } else {
-      if (this._top === undefined) this._top = this.meshTop();
-      const top = this._top !== null ? Math.max(this._top + 0.05, head.y + 0.1) : head.y + 0.25;
+      const top = this.rest ? Math.max(this.rest.top + 0.05, head.y + 0.1) : head.y + 0.25;
       const bottom = hips.y - 0.2;
       target = new THREE.Vector3(0, (top + bottom) / 2, 0);
       const halfH = (top - bottom) / 2, halfW = Math.abs(l.x - r.x) / 2 + 0.1;
       const t = Math.tan((fov / 2) * Math.PI / 180);
-      dist = Math.max(halfH / t, halfW / (t * this.camera.aspect)) * 1.05;
+      distance = Math.max(halfH / t, halfW / (t * this.camera.aspect)) * 1.05;
     }
-    this.camera.position.set(target.x, target.y, target.z + dist);
-    this.camera.lookAt(target);
-    this.camera.updateProjectionMatrix();
+    return { target: target.toArray(), distance, fov };
   }
 
   // which normalised bones / expressions the flat arrays hold
