@@ -15,6 +15,12 @@ Server → client
      "blendshapes": [52 names, facecapges.arkit.ARKIT_NAMES order],
      "max_message_bytes": 65536, "intensity": 1.0}
 
+``status`` — ``serve`` only, before ``hello`` while the server is still loading its style::
+
+    {"type": "status", "state": "loading", "message": "loading style …; hello follows when it is ready"}
+
+A client reads messages until ``hello``: the ``hello`` means the server is ready for input.
+
 ``intensity`` — the gesture intensity now (0 … 1.3, :mod:`facecapges.model.intensity`); also sent as
 ``{"type": "intensity", "value": v}`` in reply to a client's ``intensity`` message.
 
@@ -92,6 +98,11 @@ def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, inten
             "intensity": intensity,
         }
     )
+
+
+def encode_status(state: str, message: str) -> str:
+    """The ``status`` message ``serve`` sends before ``hello`` while it loads (module docs)."""
+    return json.dumps({"type": "status", "state": state, "message": message})
 
 
 def encode_intensity(value: float) -> str:
