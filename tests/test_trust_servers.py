@@ -66,7 +66,8 @@ def test_trickling_clients_cannot_hold_the_study_server(study_dir):
                 served += r.status == 200
             time.sleep(0.5)
         assert served >= 4
-        assert server.refused >= 70 - server.max_per_address  # the rest of 127.0.0.2 got 503 at once
+        # 127.0.0.2 holds at most its share: each newer trickler closed its longest-waiting one
+        assert server.evicted >= 70 - server.max_per_address
         # … and the ones that got a slot are cut at the deadline although they never stopped sending
         time.sleep(1.5)
         cut = 0
@@ -85,6 +86,88 @@ def test_trickling_clients_cannot_hold_the_study_server(study_dir):
             s.close()
         server.shutdown()
         server.server_close()
+
+
+class _Tricklers:
+    """``per_address`` sockets from each of ``addresses`` (other loopback addresses), each sending a
+    request line and then one header line a second, reopened at once when the server closes or
+    refuses it (the attack of issue 34, item 2). :meth:`step` is one round; nothing runs by itself."""
+
+    def __init__(self, port: int, addresses: list[str], per_address: int):
+        self.port = port
+        self.slots: list[tuple[str, socket.socket | None]] = [(a, None) for a in addresses for _ in range(per_address)]
+        self.reopened = 0
+
+    def _open(self, address: str) -> socket.socket | None:
+        try:
+            s = socket.create_connection(("127.0.0.1", self.port), timeout=2, source_address=(address, 0))
+            s.sendall(b"GET /api/info HTTP/1.1\r\n")
+            s.setblocking(False)
+            return s
+        except OSError:
+            return None
+
+    def step(self, header: bool) -> None:
+        for i, (address, s) in enumerate(self.slots):
+            alive = s is not None
+            if alive:
+                try:
+                    s.recv(4096, socket.MSG_PEEK)
+                    alive = False  # closed (b"") or answered (a 503): reopen
+                except BlockingIOError:  # open and silent: go on trickling
+                    if header:
+                        try:
+                            s.sendall(b"X-Slow: 1\r\n")
+                        except OSError:
+                            alive = False
+                except OSError:
+                    alive = False
+            if not alive:
+                if s is not None:
+                    s.close()
+                    self.reopened += 1
+                self.slots[i] = (address, self._open(address))
+
+    def close(self) -> None:
+        for _, s in self.slots:
+            if s is not None:
+                s.close()
+
+
+@pytest.mark.serial
+def test_tricklers_from_several_addresses_cannot_fill_the_study_server(study_dir):
+    """Issue 34, item 2: two addresses trickling headers (reopened at once) took the 64 connections
+    (32 per address) and every participant got 503. Now an address holds at most 16 and, when full,
+    the connection waiting the longest for its request makes room: five trickling addresses (100
+    sockets, more than the server holds) leave a participant served."""
+    server = make_server(open_study(study_dir), "127.0.0.1", 0)  # the defaults: 64 connections, 30-s deadline
+    serve_in_thread(server)
+    port = server.server_address[1]
+    attack = _Tricklers(port, [f"127.0.0.{k}" for k in range(2, 7)], 20)
+    tries = served = 0
+    try:
+        attack.step(header=False)
+        t0 = time.monotonic()
+        last_header = t0
+        while time.monotonic() - t0 < 8.0:  # bounded: 8 s of attack
+            attack.step(header=time.monotonic() - last_header >= 1.0)
+            if time.monotonic() - last_header >= 1.0:
+                last_header = time.monotonic()
+            tries += 1
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{port}/api/info", timeout=5) as r:
+                    served += r.status == 200
+            except OSError:  # 503 or reset: not served
+                pass
+            time.sleep(0.2)
+    finally:
+        attack.close()
+        server.shutdown()
+        server.server_close()
+    print(f"participant served {served} of {tries} pages under the attack; evicted {getattr(server, 'evicted', None)}, "
+          f"refused {server.refused}, tricklers reopened {attack.reopened}")
+    assert served >= 0.9 * tries, (served, tries, server.refused)  # main: 0
+    assert server.evicted >= 100 - 64
 
 
 # ------------------------------------------------------------------ serve on loopback
