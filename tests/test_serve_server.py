@@ -267,7 +267,7 @@ def test_pose_messages_are_the_runtime_format():
 
 def test_serve_command(tmp_path, ckpt):
     path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
-    p = cli("serve", "--checkpoint", str(tmp_path / "none"), timeout=120)
+    p = cli("serve", "--checkpoint", str(tmp_path / "none"), "--port", "0", timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "none" in p.stderr
     from facecapges.errors import UserError
 

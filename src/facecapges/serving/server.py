@@ -242,7 +242,9 @@ class StreamServer(ServerThread):
 
     async def _wait_loaded(self, ws) -> bool:
         """While the style loads: tell the client and wait (module docs, "Loading"). False if the
-        connection was refused or loading failed."""
+        connection was refused, closed or loading failed."""
+        from websockets.exceptions import ConnectionClosed
+
         if self._loaded.is_set() and self.load_error is None:
             return True
         if self.waiting >= self.cfg.max_streams:
@@ -250,6 +252,8 @@ class StreamServer(ServerThread):
             await self._refuse(ws, f"server loading: {self.cfg.max_streams} clients already wait; try again later")
             return False
         self.waiting += 1
+        loaded = asyncio.ensure_future(self._loaded.wait())
+        gone = asyncio.ensure_future(ws.wait_closed())  # a client that leaves (or a server that stops) ends the wait
         try:
             if not self._loaded.is_set():
                 await ws.send(
@@ -257,9 +261,15 @@ class StreamServer(ServerThread):
                         "loading", f"loading {self.name or 'the style'}; hello follows when it is ready"
                     )
                 )
-                await self._loaded.wait()
+                await asyncio.wait({loaded, gone}, return_when=asyncio.FIRST_COMPLETED)
+        except ConnectionClosed:
+            return False
         finally:
             self.waiting -= 1
+            loaded.cancel()
+            gone.cancel()
+        if not self._loaded.is_set():
+            return False
         if self.load_error is not None:
             await self._refuse(ws, f"server failed to load: {self.load_error}"[:400], 1011)
             return False
@@ -623,27 +633,30 @@ def serve_streams(
     importing anything heavy). ``say(text, err=False)`` gets the start line, the ``ready`` line,
     the server's log (``err=True``) and the summary; ``warn`` a warning when the address is not a
     loopback one. Ctrl-C (or SIGTERM) stops it with the one summary line."""
-    from facecapges.model.checkpoint import load_checkpoint, resolve
-
     t0 = time.monotonic()
-    cfg.check()
-    path = resolve(checkpoint, style)
-    server = StreamServer(None, cfg, log=lambda m: say(m, err=True), sock=sock, name=path.name)
-    if not is_loopback(cfg.host):
-        warn(f"warning: listening on {cfg.host}: anyone who can reach it can use it (no authentication)")
-    server.start()
-    say(
-        f"serving {path.name} on {server.url} (max {cfg.max_streams} streams, "
-        f"{cfg.rate_limit:g} msg/s per stream); loading the style, clients wait for it; Ctrl-C stops"
-    )
-    summary: dict = {}
+    server = StreamServer(None, cfg, log=lambda m: say(m, err=True), sock=sock)
+    server.start()  # handshakes are answered (and told "loading") from now on, before torch is imported
     try:
         try:
+            from facecapges.model.checkpoint import load_checkpoint, resolve
+
+            cfg.check()
+            path = resolve(checkpoint, style)
+            server.name = path.name
+            if not is_loopback(cfg.host):
+                warn(f"warning: listening on {cfg.host}: anyone who can reach it can use it (no authentication)")
+            say(
+                f"serving {path.name} on {server.url} (max {cfg.max_streams} streams, "
+                f"{cfg.rate_limit:g} msg/s per stream); loading the style, clients wait for it; Ctrl-C stops"
+            )
             server.load(load_checkpoint(path))
         except Exception as exc:
-            server.fail(str(exc).splitlines()[0] if str(exc) else exc.__class__.__name__)
+            why = (str(exc).splitlines() or [exc.__class__.__name__])[0]
+            server.fail(why)
             server.close()
-            raise
+            if isinstance(exc, UserError):
+                raise
+            raise UserError(f"cannot load the style ({why})") from None
         say(f"ready: {path.name} loaded in {time.monotonic() - t0:.1f} s; serving streams")
         server.run()
     except KeyboardInterrupt:  # Ctrl-C while loading: the same quiet stop
