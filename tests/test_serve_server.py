@@ -384,3 +384,40 @@ def test_serve_listens_at_once_a_client_started_with_it_waits_and_ctrl_c_is_one_
     assert lines[0].startswith("serving") and lines[1].startswith("ready:") and lines[-1].startswith("served:"), out
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     assert len(lines) == 3 and err.strip() == "", (out, err)
+
+
+def test_a_server_that_listens_before_loading_says_loading_then_hello_or_the_error(ckpt):
+    """Issue 33, item 1: a client connected while the style loads gets ``status`` "loading", then
+    its ``hello`` once :meth:`StreamServer.load` is done, and is served; if loading fails, the
+    waiting client gets the reason as an ``error`` and close 1011."""
+    ok = StreamServer(None, ServeConfig(port=0), name="test style").start()
+    bad = StreamServer(None, ServeConfig(port=0)).start()
+    try:
+        async def wait_then(srv, finish):
+            async with connect(srv.url) as ws:
+                first = json.loads(await ws.recv())
+                await asyncio.get_running_loop().run_in_executor(None, finish)
+                second = json.loads(await asyncio.wait_for(ws.recv(), 120))
+                if second["type"] != "hello":
+                    with pytest.raises(ConnectionClosed) as exc:
+                        await ws.recv()
+                    return first, second, exc.value.rcvd.code
+                await ws.send(protocol.encode_input(0, *frames(1, 50)[0]))
+                return first, second, json.loads(await asyncio.wait_for(ws.recv(), 60))["type"]
+
+        first, hello, pose = asyncio.run(wait_then(ok, lambda: ok.load(ckpt)))
+        assert first["type"] == "status" and first["state"] == "loading" and "test style" in first["message"]
+        assert hello["type"] == "hello" and pose == "pose" and ok.ready
+        first, err, code = asyncio.run(wait_then(bad, lambda: bad.fail("the style file is damaged")))
+        assert first["type"] == "status" and err["type"] == "error" and "damaged" in err["message"] and code == 1011
+    finally:
+        ok.close()
+        bad.close()
+
+
+def test_serve_with_a_style_that_cannot_load_is_one_error_line(tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x08\x00\x00\x00\x00\x00\x00\x00{\"a\": 1}" + b"\x00" * 64)
+    p = cli("serve", "--checkpoint", str(bad), "--port", "0", timeout=120)
+    assert p.returncode == 2 and p.stderr.startswith("error:") and "Traceback" not in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
