@@ -250,11 +250,16 @@ class _Handler(PageHandler):
         self._deadline = threading.Timer(self.request_deadline, self._cut)
         self._deadline.daemon = True
         self._deadline.start()
-        self.server.waiting(self.request, True)
+        self._waiting(True)
         try:
             super().handle_one_request()
         finally:
             self._deadline.cancel()
+
+    def _waiting(self, waiting: bool) -> None:
+        """Tell the server this connection waits for a request (True) or has one to answer (False)."""
+        if isinstance(self.server, StudyServer):
+            self.server.waiting(self.request, waiting)
 
     def _cut(self) -> None:
         self.close_connection = True
@@ -267,14 +272,14 @@ class _Handler(PageHandler):
         deadline = getattr(self, "_deadline", None)
         if deadline is not None:  # the request has arrived: the reply is not under the deadline
             deadline.cancel()
-        self.server.waiting(self.request, False)
+        self._waiting(False)
         self.send_page(status, data, ctype)
 
     def _json(self, status: int, doc) -> None:
         self._send(status, json.dumps(doc).encode("utf-8"), "application/json")
 
     def do_GET(self) -> None:
-        self.server.waiting(self.request, False)  # its whole request is here
+        self._waiting(False)  # its whole request is here
         url = urlsplit(self.path)
         try:
             doc, f = self.app.get(url.path, parse_qs(url.query))
@@ -302,7 +307,7 @@ class _Handler(PageHandler):
         data = self.rfile.read(n) if n else b""
         if len(data) != n:
             raise HttpError(400, f"request body ended after {len(data)} of {n} bytes")
-        self.server.waiting(self.request, False)  # its whole request is here
+        self._waiting(False)  # its whole request is here
         try:
             body = json.loads(data or b"{}")
         except (ValueError, RecursionError):  # JSONDecodeError, bad UTF-8, nesting too deep
