@@ -30,7 +30,8 @@ exceeds ``send_buffer_bytes`` (1008), because replies are written without waitin
 for any client (each connection's kernel send buffer is capped at 64 KiB so that
 unsent output shows up in ours); one that stops sending is closed after ``idle_timeout`` seconds
 (1000); disconnects free the slot between ticks. When ``max_streams`` are connected a
-new connection gets an ``error`` and is closed with 1013 ("try again later").
+new connection gets an ``error`` and is closed with 1013 ("try again later") — unless a
+slow stream is in its way (fair admission, below).
 
 Slots are for streams, not for sockets: the handshake must end within 10 s
 (:data:`facecapges.runtime.outputs.ws.HANDSHAKE_TIMEOUT`), the first ``input`` must come within
