@@ -421,3 +421,18 @@ def test_serve_with_a_style_that_cannot_load_is_one_error_line(tmp_path):
     p = cli("serve", "--checkpoint", str(bad), "--port", "0", timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "Traceback" not in p.stderr, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+@pytest.mark.serial
+def test_serve_on_a_busy_port_says_so_before_loading_anything():
+    """Issue 33, item 1: the port is bound before torch or the style loads, so a port in use is one
+    error line within seconds (was: after the style and the model process had loaded, 20-40 s)."""
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        t0 = time.monotonic()
+        p = cli_process("serve", "--port", str(port), timeout=120)
+        took = time.monotonic() - t0
+    assert p.returncode == 2 and p.stderr.strip() == f"error: cannot listen on 127.0.0.1:{port} (Address already in use)"
+    assert took < 5.0, took  # an interpreter start and typer; measured 2.7 s at load average 17

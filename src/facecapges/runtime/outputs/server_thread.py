@@ -14,6 +14,7 @@ listens (:meth:`ServerThread._listen`) and what else runs while it serves
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 import threading
 from collections.abc import Callable, Coroutine
@@ -32,8 +33,9 @@ def listening_socket(host: str, port: int, what: str = "cannot listen") -> socke
     try:
         family = socket.AF_INET6 if ":" in host.strip("[]") else socket.AF_INET
         return socket.create_server((host.strip("[]"), port), family=family, backlog=1024)
-    except OSError as exc:
-        raise UserError(f"{what} on {host}:{port} ({exc.strerror or exc})") from None
+    except OSError as exc:  # create_server words its own strerror ("… (while attempting to bind …)")
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        raise UserError(f"{what} on {host}:{port} ({why})") from None
 
 
 class ServerThread:
