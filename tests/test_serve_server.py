@@ -267,7 +267,7 @@ def test_pose_messages_are_the_runtime_format():
 
 def test_serve_command(tmp_path, ckpt):
     path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
-    p = cli("serve", "--checkpoint", str(tmp_path / "none"), timeout=120)
+    p = cli("serve", "--checkpoint", str(tmp_path / "none"), "--port", "0", timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "none" in p.stderr
     from facecapges.errors import UserError
 
@@ -278,6 +278,7 @@ def test_serve_command(tmp_path, ckpt):
         line = proc.stdout.readline()
         assert line.startswith("serving"), line + proc.stderr.read()
         url = line.split(" on ")[1].split()[0]
+        assert proc.stdout.readline().startswith("ready:")  # it listens first, then loads: hello comes now
         msgs = asyncio.run(stream(url, frames(4, 40)))
         np.testing.assert_allclose(quats(msgs), reference(ckpt, frames(4, 40)), atol=1e-5)
     finally:
@@ -326,3 +327,112 @@ def test_model_process_sync_and_split_step(ckpt):
         assert mp.step([c], [frames(1, seed=4)[0][0]], np.zeros((1, 52)), still).shape == (1, 47, 6)
     finally:
         mp.shutdown()
+
+
+@pytest.mark.serial
+def test_serve_listens_at_once_a_client_started_with_it_waits_and_ctrl_c_is_one_line(tmp_path, ckpt):
+    """Issue 33, items 1 and 5: ``serve`` listens before it loads its style (a client connecting meanwhile
+    gets ``status`` "loading", then ``hello`` once ready; the docs' client started together with the
+    server is served, not refused), says ``ready:`` on stdout, and Ctrl-C to its process group (as a
+    terminal sends it, reaching the model process too) stops it with one line, exit 0, no traceback."""
+    import os
+    import subprocess
+    import sys
+
+    path = save_checkpoint(tmp_path / "m.safetensors", ckpt.model, {"neutral_window": ckpt.meta["neutral_window"]})
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    url = f"ws://127.0.0.1:{port}/"
+    root = Path(__file__).resolve().parents[1]
+    t0 = time.monotonic()
+    proc = cli_process("serve", "--checkpoint", str(path), "--port", str(port), background=True,
+                       start_new_session=True)
+    client = subprocess.Popen([sys.executable, str(root / "docs" / "examples" / "serve_client.py"), url,
+                               str(root / "src" / "facecapges" / "assets" / "demo" / "speech.wav"), "--seconds", "1"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        while True:  # listening: a TCP connection is accepted
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.monotonic() - t0 < 60 and proc.poll() is None, proc.stderr.read()
+                time.sleep(0.05)
+        t_listen = time.monotonic() - t0
+
+        async def first_messages():
+            async with connect(url, open_timeout=60) as ws:
+                kinds = [json.loads(await ws.recv())["type"]]
+                while kinds[-1] == "status":
+                    kinds.append(json.loads(await asyncio.wait_for(ws.recv(), 120))["type"])
+                return kinds, time.monotonic() - t0
+
+        kinds, t_ready = asyncio.run(first_messages())
+        out, err = client.communicate(timeout=120)
+        assert client.returncode == 0, err
+        assert out.splitlines()[-1] == "15 frames" and "loading" in err, (out, err)
+        print(f"serve: listening after {t_listen:.1f} s, hello after {t_ready:.1f} s")
+        assert kinds[0] == "status" and kinds[-1] == "hello", kinds  # it listened before it was ready
+    finally:
+        if client.poll() is None:
+            client.kill()
+        os.killpg(proc.pid, signal.SIGINT)  # Ctrl-C in a terminal: the whole process group
+        out, err = proc.communicate(timeout=60)
+    lines = out.splitlines()
+    assert proc.returncode == 0, err
+    assert lines[0].startswith("serving") and lines[1].startswith("ready:") and lines[-1].startswith("served:"), out
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    assert len(lines) == 3 and err.strip() == "", (out, err)
+
+
+def test_a_server_that_listens_before_loading_says_loading_then_hello_or_the_error(ckpt):
+    """Issue 33, item 1: a client connected while the style loads gets ``status`` "loading", then
+    its ``hello`` once :meth:`StreamServer.load` is done, and is served; if loading fails, the
+    waiting client gets the reason as an ``error`` and close 1011."""
+    ok = StreamServer(None, ServeConfig(port=0), name="test style").start()
+    bad = StreamServer(None, ServeConfig(port=0)).start()
+    try:
+        async def wait_then(srv, finish):
+            async with connect(srv.url) as ws:
+                first = json.loads(await ws.recv())
+                await asyncio.get_running_loop().run_in_executor(None, finish)
+                second = json.loads(await asyncio.wait_for(ws.recv(), 120))
+                if second["type"] != "hello":
+                    with pytest.raises(ConnectionClosed) as exc:
+                        await ws.recv()
+                    return first, second, exc.value.rcvd.code
+                await ws.send(protocol.encode_input(0, *frames(1, 50)[0]))
+                return first, second, json.loads(await asyncio.wait_for(ws.recv(), 60))["type"]
+
+        first, hello, pose = asyncio.run(wait_then(ok, lambda: ok.load(ckpt)))
+        assert first["type"] == "status" and first["state"] == "loading" and "test style" in first["message"]
+        assert hello["type"] == "hello" and pose == "pose" and ok.ready
+        first, err, code = asyncio.run(wait_then(bad, lambda: bad.fail("the style file is damaged")))
+        assert first["type"] == "status" and err["type"] == "error" and "damaged" in err["message"] and code == 1011
+    finally:
+        ok.close()
+        bad.close()
+
+
+def test_serve_with_a_style_that_cannot_load_is_one_error_line(tmp_path):
+    bad = tmp_path / "bad.safetensors"
+    bad.write_bytes(b"\x08\x00\x00\x00\x00\x00\x00\x00{\"a\": 1}" + b"\x00" * 64)
+    p = cli("serve", "--checkpoint", str(bad), "--port", "0", timeout=120)
+    assert p.returncode == 2 and p.stderr.startswith("error:") and "Traceback" not in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+@pytest.mark.serial
+def test_serve_on_a_busy_port_says_so_before_loading_anything():
+    """Issue 33, item 1: the port is bound before torch or the style loads, so a port in use is one
+    error line within seconds (was: after the style and the model process had loaded, 20-40 s)."""
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        t0 = time.monotonic()
+        p = cli_process("serve", "--port", str(port), timeout=120)
+        took = time.monotonic() - t0
+    assert p.returncode == 2 and p.stderr.strip() == f"error: cannot listen on 127.0.0.1:{port} (Address already in use)"
+    assert took < 5.0, took  # an interpreter start and typer; measured 2.7 s at load average 17

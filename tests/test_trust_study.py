@@ -156,13 +156,15 @@ def test_idle_and_excess_connections_are_dropped(study_dir):
         try:
             time.sleep(0.2)
             got = s.raw(b"GET /api/info HTTP/1.1\r\nHost: x\r\n\r\n")
-            assert got.startswith(b"HTTP/1.1 503")  # every slot taken: refused at once, no thread started
-            time.sleep(1.6)  # the idle ones time out and free their slots
+            # every slot taken by a connection waiting for its request: the oldest makes room
+            assert got.startswith(b"HTTP/1.1 200") or got.startswith(b"HTTP/1.0 200"), got[:80]
+            assert idle[0].recv(10) == b""  # the first idle one was closed for it
+            time.sleep(1.6)  # the other idle ones time out and free their slots
             assert s.json("/api/info")[0] == 200
         finally:
             for c in idle:
                 c.close()
-        assert s.server.refused >= 1
+        assert s.server.evicted >= 1
 
 
 def test_play_events_and_sessions_are_bounded_and_a_damaged_file_is_one_clear_error(study_dir):

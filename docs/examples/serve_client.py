@@ -2,7 +2,9 @@
 
 Streams a WAV file to the server one 15 fps frame at a time, in real time, with no face
 (zero weights) and the head facing the camera, and prints each returned pose's frame
-number, its round-trip time and the rotation of the right forearm.
+number, its round-trip time and the rotation of the right forearm. Started together with
+the server, it waits for it: it retries the connection for up to ``--wait`` seconds and
+reads the server's ``status`` messages ("loading") until the ``hello`` that says it is ready.
 
     facecapges serve --port 8780 &
     python docs/examples/serve_client.py ws://127.0.0.1:8780 speech.wav --seconds 5
@@ -16,6 +18,7 @@ import argparse
 import asyncio
 import base64
 import json
+import sys
 import time
 
 import numpy as np
@@ -25,11 +28,28 @@ from websockets.asyncio.client import connect
 IDENTITY_ROT6D = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # first two columns of the identity matrix
 
 
-async def stream(url: str, wav: str, seconds: float) -> int:
+async def connect_when_up(url: str, wait: float):
+    """Connect, retrying while the server is not listening yet (for up to ``wait`` seconds)."""
+    deadline = time.monotonic() + wait
+    while True:
+        try:
+            return await connect(url, max_size=2**16, open_timeout=max(10.0, wait))
+        except OSError:  # connection refused: not started yet
+            if time.monotonic() > deadline:
+                raise SystemExit(f"{url}: no server answered within {wait:g} s") from None
+            await asyncio.sleep(0.5)
+
+
+async def stream(url: str, wav: str, seconds: float, wait: float = 120.0) -> int:
     samples, sr = sf.read(wav, dtype="float32", always_2d=True)
     samples = samples.mean(axis=1)
-    async with connect(url, max_size=2**16) as ws:
+    async with await connect_when_up(url, wait) as ws:
         hello = json.loads(await ws.recv())
+        while hello["type"] == "status":  # the server is loading its style: hello follows when ready
+            print(f"server: {hello['message']}", file=sys.stderr)
+            hello = json.loads(await ws.recv())
+        if hello["type"] != "hello":
+            raise SystemExit(f"server said: {hello}")
         fps, spf = hello["fps"], hello["samples_per_frame"]
         if sr != hello["sr"]:
             raise SystemExit(f"{wav}: {sr} Hz, the server wants {hello['sr']} Hz mono")
@@ -59,8 +79,9 @@ def main() -> None:
     ap.add_argument("url", help="ws://HOST:PORT printed by `facecapges serve`")
     ap.add_argument("wav", help="speech, 16 kHz mono")
     ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--wait", type=float, default=120.0, help="seconds to wait for the server to start")
     args = ap.parse_args()
-    n = asyncio.run(stream(args.url, args.wav, args.seconds))
+    n = asyncio.run(stream(args.url, args.wav, args.seconds, args.wait))
     print(f"{n} frames")
 
 

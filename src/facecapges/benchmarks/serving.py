@@ -46,7 +46,7 @@ def free_port() -> int:
 def start_server(
     port: int, checkpoint: str | None = None, threads: int = 1, extra: tuple[str, ...] = ()
 ) -> subprocess.Popen:
-    """``facecapges serve`` on 127.0.0.1:port as a child process; returns once it listens."""
+    """``facecapges serve`` on 127.0.0.1:port as a child process; returns once it is ready (its style loaded)."""
     cmd = [
         sys.executable,
         "-m",
@@ -65,9 +65,10 @@ def start_server(
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stdout is not None and proc.stderr is not None  # both PIPE
     line = proc.stdout.readline()
-    if not line.startswith("serving"):
+    ready = proc.stdout.readline() if line.startswith("serving") else ""
+    if not ready.startswith("ready"):
         proc.kill()
-        raise RuntimeError(f"serve did not start: {line}{proc.stderr.read()[-2000:]}")
+        raise RuntimeError(f"serve did not start: {line}{ready}{proc.stderr.read()[-2000:]}")
     return proc
 
 
@@ -118,7 +119,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         port,
         os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None,
         threads,
-        ("--max-streams", "2048", "--idle-timeout", "0"),
+        ("--max-streams", "2048", "--max-per-address", "2048", "--idle-timeout", "0"),
     )
     url = f"ws://127.0.0.1:{port}/"
     trials: list[dict] = []

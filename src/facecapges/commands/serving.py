@@ -24,7 +24,13 @@ TICK_MS = typer.Option(
 )
 MAX_PER_ADDRESS = typer.Option(
     "--max-per-address",
-    help="Most streams one client address may hold (default 16; no limit on a loopback server).",
+    help="Most streams one client address may hold (default 16, loopback included); when full, slow streams "
+    "make room (docs/serve-protocol.md).",
+)
+TRUST_PROXY = typer.Option(
+    "--trust-proxy",
+    help="Every loopback connection comes through a local reverse proxy: count it against the last "
+    "X-Forwarded-For address (otherwise the header is ignored).",
 )
 INTENSITY = typer.Option(
     "--intensity",
@@ -45,14 +51,27 @@ def serve(
     tick_ms: Annotated[float, TICK_MS] = ServeConfig.tick_ms,
     max_per_address: Annotated[int | None, MAX_PER_ADDRESS] = ServeConfig.max_per_address,
     intensity: Annotated[float, INTENSITY] = ServeConfig.intensity,
+    trust_proxy: Annotated[bool, TRUST_PROXY] = ServeConfig.trust_proxy,
 ) -> None:
     """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
     Speaks the runtime's message format (facecapges.runtime.outputs.protocol): 'hello' on
     connect, one 'input' per frame from the client, one 'pose' back per frame.
     The frames of all streams waiting at the same moment run as one batched call.
+    It listens at once and loads the style while listening ("ready: …" when done); Ctrl-C stops
+    it with one summary line and exit status 0.
     """
-    from facecapges.serving.server import serve_streams
+    from facecapges.errors import check_port
+    from facecapges.runtime.outputs.server_thread import listening_socket
+
+    check_port(port)
+    sock = listening_socket(host, port)  # before anything heavy: a client started now waits, not refused
+    try:
+        from facecapges.serving.server import serve_streams
+    except KeyboardInterrupt:  # Ctrl-C while starting: the same one-line stop
+        sock.close()
+        typer.echo("served: nothing (stopped while starting)")
+        return
 
     cfg = ServeConfig(
         host=host,
@@ -64,8 +83,12 @@ def serve(
         tick_ms=tick_ms,
         max_per_address=max_per_address,
         intensity=intensity,
+        trust_proxy=trust_proxy,
     )
-    serve_streams(checkpoint, style, cfg, say=typer.echo)
+    try:
+        serve_streams(checkpoint, style, cfg, say=typer.echo, sock=sock)
+    finally:
+        sock.close()
 
 
 def register(app: typer.Typer) -> None:

@@ -23,9 +23,8 @@ class ServeConfig:
     min_input_rate: float = 1.0  # inputs per second a stream must keep over each rate_window (0 = none)
     rate_window: float = 10.0  # seconds
     intensity: float = 1.0  # each new stream's gesture intensity (a client changes its own: protocol docs)
-    max_per_address: int | None = (
-        None  # streams per client address; None: 16 (unlimited on loopback, 16 per forwarded address)
-    )
+    max_per_address: int | None = None  # streams per client address; None: 16 (loopback included)
+    trust_proxy: bool = False  # a loopback connection's X-Forwarded-For names its client (a local reverse proxy)
 
     def check(self) -> None:
         """UserError for a setting no server can have (each named by its command-line option)."""

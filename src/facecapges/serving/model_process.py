@@ -33,6 +33,8 @@ at a time (the server's event loop).
 
 from __future__ import annotations
 
+import signal
+import threading
 from collections.abc import Sequence
 
 import numpy as np
@@ -47,6 +49,7 @@ from facecapges.skeleton import N_JOINTS
 
 def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) -> None:
     """The child process: the style's batched generator, driven by messages on ``conn``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle (it says "quit")
     torch.set_num_threads(max(1, threads))
     try:
         gen = checkpoint.batched(capacity=64)  # either engine
@@ -54,7 +57,10 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) 
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
     a, f, h, p, q = audio.numpy(), face.numpy(), head.numpy(), pose.numpy(), quat.numpy()
-    conn.send(("ok", None))
+    try:
+        conn.send(("ok", None))
+    except OSError:  # the server is gone
+        return
     while True:
         try:
             msg = conn.recv()
@@ -120,10 +126,25 @@ class ModelProcess:
                 self._quat,
             ),
         )
-        self._proc.start()
+        # The child ignores SIGINT from its first instruction on (the disposition survives the exec of
+        # ``spawn``): a Ctrl-C in a terminal reaches the whole process group, and the server, not the
+        # child, stops on it — telling the child to quit — with no traceback from the child.
+        main = threading.current_thread() is threading.main_thread()
+        before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            self._proc.start()
+        finally:
+            if main and before is not None:
+                signal.signal(signal.SIGINT, before)
         child.close()
         self._open: set[int] = set()
-        self._call("ready")  # answered once the child has built its generator
+        try:
+            self._call("ready")  # answered once the child has built its generator
+        except BaseException:  # failed or interrupted while starting: no child left behind
+            self._proc.kill()
+            self._proc.join(timeout=10)
+            self._conn.close()
+            raise
 
     def _call(self, *msg):
         if msg != ("ready",):

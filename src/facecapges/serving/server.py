@@ -30,26 +30,41 @@ exceeds ``send_buffer_bytes`` (1008), because replies are written without waitin
 for any client (each connection's kernel send buffer is capped at 64 KiB so that
 unsent output shows up in ours); one that stops sending is closed after ``idle_timeout`` seconds
 (1000); disconnects free the slot between ticks. When ``max_streams`` are connected a
-new connection gets an ``error`` and is closed with 1013 ("try again later").
+new connection gets an ``error`` and is closed with 1013 ("try again later") — unless a
+slow stream is in its way (fair admission, below).
 
 Slots are for streams, not for sockets: the handshake must end within 10 s
 (:data:`facecapges.runtime.outputs.ws.HANDSHAKE_TIMEOUT`), the first ``input`` must come within
 ``first_input_timeout`` seconds of the ``hello``, and afterwards a stream must keep at
 least ``min_input_rate`` inputs per second over every ``rate_window`` seconds (a live
-stream sends 15) — else it is closed (1008) and its slot freed. One client address may
-hold at most ``max_per_address`` streams (1013 beyond); by default 16, and no limit
-while the server is bound to loopback (every client is this machine) — except that a
-connection from loopback with an ``X-Forwarded-For`` header (a local reverse proxy) counts
-against the forwarded address, capped at ``max_per_address`` or 16.
+stream sends 15) — else it is closed (1008) and its slot freed.
 
-Fair admission when full: while some slot-holding stream has sent no input for
-:data:`EVICT_IDLE_S` seconds, a new client is not refused but let in *on probation* (a
-hello, no slot; at most ``max_streams`` such at once, the one waiting the longest closed to
-make room for a newer one). Its first input takes the slot of
-the stream idle the longest, which is closed (1013, "evicted"); a newcomer that sends no
-input evicts nobody and is closed by ``first_input_timeout``. A live stream (15 inputs a
-second) is never evicted, so clients that reopen idle sockets as they are closed cannot
-lock real ones out, even when every client shares one address (loopback, a proxy).
+Fair admission (the policy, docs/serve-protocol.md). A slot-holder is judged by its input
+rate against the model rate: inputs over the last :data:`RATE_WINDOW_S` seconds (or since it
+got its slot, if that is shorter). Once it has held its slot for :data:`GRACE_S` seconds, a
+stream below :data:`LIVE_FRACTION` of the model rate (7.5 inputs/s at 15 fps) is *slow*. When
+the server is full, or the newcomer's address holds its share, a newcomer is not refused while
+some stream in the way is slow: it gets ``hello`` *on probation* (no slot; at most
+``max_streams`` such at once, the one waiting the longest closed to make room for a newer
+one), and its first ``input`` takes the slot of the slowest such stream, which is closed
+(1013, "evicted"). A newcomer that sends no input evicts nobody and is closed by
+``first_input_timeout``. A live stream (15 inputs a second) is never evicted, so neither
+idle sockets nor clients that send one input now and then can lock real ones out, even when
+every client shares one address (loopback, a proxy).
+
+Addresses. One client address holds at most ``max_per_address`` streams (16 by default,
+loopback included; beyond: the slowest of that address is evicted as above, else 1013).
+``X-Forwarded-For`` is ignored unless ``trust_proxy`` is set: any local program can write
+that header, so it may claim an address only when the operator says every loopback
+connection comes through a reverse proxy that sets it. With ``trust_proxy``, a loopback
+connection counts against the header's last entry (the address the proxy saw) when that is an
+IP address, else against the loopback address itself.
+
+Loading. :meth:`StreamServer.start` may listen before the style is loaded (``serve`` does:
+its socket is bound first, within a second of starting): a client that connects meanwhile
+gets ``{"type": "status", "state": "loading", …}`` and waits; :meth:`StreamServer.load`
+makes it ready, and every waiting client gets its ``hello`` then. At most ``max_streams``
+clients wait (more get 1013).
 Bad messages are answered and logged on one line per connection.
 
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
@@ -62,6 +77,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import ipaddress
 import socket
 import time
 from dataclasses import dataclass, field
@@ -87,23 +103,32 @@ from facecapges.timing import AUDIO_SR
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
 
+    from facecapges.serving.model_process import ModelProcess
+
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
-EVICT_IDLE_S = 2.0  # a stream without input this long gives its slot to a new client when the server is full
+RATE_WINDOW_S = 2.0  # a slot-holder's input rate is counted over this many seconds (module docs)
+GRACE_S = 1.0  # a stream is not judged slow before it has held its slot this long
+LIVE_FRACTION = 0.5  # below this fraction of the model rate a stream is slow (evicted first when full)
+DEFAULT_PER_ADDRESS = 16  # streams per client address unless --max-per-address says otherwise
 
 
-def client_address(ws) -> tuple[str, bool]:
-    """(the address a stream counts against, whether a local proxy forwarded it).
+def client_address(ws, trust_proxy: bool = False) -> str:
+    """The address a stream counts against (module docs, "Addresses").
 
-    A connection from loopback that carries ``X-Forwarded-For`` (a reverse proxy on this
-    machine) counts against the address the proxy saw — its last entry — so the per-address
-    cap holds behind a proxy too; from anywhere else the header is ignored (it is the client's word)."""
+    Its peer's address; with ``trust_proxy``, a loopback connection that carries
+    ``X-Forwarded-For`` (a reverse proxy on this machine) counts against the address the proxy
+    saw — the header's last entry — if that is an IP address. Without ``trust_proxy`` the
+    header is ignored: any local program could claim any address with it."""
     address = peer_host(ws)
-    if is_loopback(address):
+    if trust_proxy and is_loopback(address):
         request = getattr(ws, "request", None)
         fwd = request.headers.get("X-Forwarded-For") if request is not None else None
-        if fwd and fwd.split(",")[-1].strip():
-            return fwd.split(",")[-1].strip()[:64], True
-    return address, False
+        last = fwd.split(",")[-1].strip() if fwd else ""
+        try:
+            return str(ipaddress.ip_address(last))
+        except ValueError:
+            pass
+    return address
 
 
 @dataclass
@@ -123,7 +148,9 @@ class _Stream:
     window_t0: float | None = None  # start of the rate window (the first input)
     intensity: float = 1.0  # the stream's intensity dial (its client's `intensity` messages)
     applied: float | None = None  # the value its slot has (set between ticks)
-    probation: bool = False  # connected while full: no slot until its first input takes an idle one
+    probation: bool = False  # connected while full: no slot until its first input takes a slow one's
+    since: float = 0.0  # when it got its slot
+    times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=256))  # its inputs' arrivals
 
 
 _error = error_message
@@ -137,9 +164,7 @@ class StreamServer(ServerThread):
     start_timeout = 30.0
     join_timeout = 10.0
 
-    def __init__(self, checkpoint, config: ServeConfig | None = None, log=None):
-        from facecapges.serving.model_process import ModelProcess
-
+    def __init__(self, checkpoint=None, config: ServeConfig | None = None, log=None, sock=None, name: str = ""):
         super().__init__()
         self.cfg = config or ServeConfig()
         c = self.cfg
@@ -147,22 +172,48 @@ class StreamServer(ServerThread):
             raise UserError("--max-streams must be at least 1")
         if c.rate_limit <= 0:
             raise UserError("--rate-limit must be a positive number of frames per second")
-        self.ckpt = checkpoint
-        self.fps = checkpoint.fps  # an int, as in the viewer's hello
+        self.sock = sock  # a socket already listening (``serve`` binds before it loads), else host:port
+        self.name = name  # what is loaded, for the loading message
+        self.ckpt = None
+        self.gen: ModelProcess | None = None  # the model process, once loaded
+        self.fps = 15  # the model's rate; set by load()
         self.sr = AUDIO_SR
-        # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
-        self.gen = ModelProcess(checkpoint, c.threads, c.max_streams)
         self.loopback_only = is_loopback(c.host)
-        # streams per client address: None = no cap (loopback without a proxy: every client is this machine)
-        self.per_address = c.max_per_address if c.max_per_address is not None else (None if self.loopback_only else 16)
+        # streams per client address (module docs, "Addresses"): loopback included
+        self.per_address = c.max_per_address if c.max_per_address is not None else DEFAULT_PER_ADDRESS
         self.log = log or (lambda *_: None)
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
         self._next_id = 0
         self._wake = asyncio.Event()  # made anew in the server's loop by _listen
+        self._loaded = asyncio.Event()  # set in the server's loop once load() is done (or failed)
+        self.load_error: str | None = None
+        self.waiting = 0  # clients connected while loading
         self.stats: collections.Counter[str] = collections.Counter()
         self._closing: set[asyncio.Future] = set()  # close tasks still running
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
+        if checkpoint is not None:
+            self.load(checkpoint)
+
+    def load(self, checkpoint) -> None:
+        """Start the style's model process (``checkpoint``: a loaded style, either engine); the
+        clients waiting for it get their ``hello``. Blocks until the model process is ready."""
+        from facecapges.serving.model_process import ModelProcess
+
+        self.ckpt = checkpoint
+        self.fps = checkpoint.fps  # an int, as in the viewer's hello
+        # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
+        self.gen = ModelProcess(checkpoint, self.cfg.threads, self.cfg.max_streams)
+        self.call_soon(self._loaded.set)
+
+    def fail(self, message: str) -> None:
+        """Loading failed: the waiting clients get ``message`` as an error and are closed (1011)."""
+        self.load_error = message
+        self.call_soon(self._loaded.set)
+
+    @property
+    def ready(self) -> bool:
+        return self.gen is not None
 
     # ---------------------------------------------------------------- WebSocket
     def _process_request(self, connection, request):
@@ -181,42 +232,113 @@ class StreamServer(ServerThread):
             return True
         return False
 
+    async def _refuse(self, ws, refusal: str, code: int = 1013) -> None:
+        from websockets.exceptions import ConnectionClosed
+
+        try:
+            await ws.send(_error(refusal))
+            await ws.close(code, refusal.split(":")[0][:100])
+        except ConnectionClosed:
+            pass
+
+    async def _wait_loaded(self, ws) -> bool:
+        """While the style loads: tell the client and wait (module docs, "Loading"). False if the
+        connection was refused, closed or loading failed."""
+        from websockets.exceptions import ConnectionClosed
+
+        if self._loaded.is_set() and self.load_error is None:
+            return True
+        if self.waiting >= self.cfg.max_streams:
+            self.stats["refused_loading"] += 1
+            await self._refuse(ws, f"server loading: {self.cfg.max_streams} clients already wait; try again later")
+            return False
+        self.waiting += 1
+        loaded = asyncio.ensure_future(self._loaded.wait())
+        gone = asyncio.ensure_future(ws.wait_closed())  # a client that leaves (or a server that stops) ends the wait
+        try:
+            if not self._loaded.is_set():
+                await ws.send(
+                    protocol.encode_status(
+                        "loading", f"loading {self.name or 'the style'}; hello follows when it is ready"
+                    )
+                )
+                await asyncio.wait({loaded, gone}, return_when=asyncio.FIRST_COMPLETED)
+        except ConnectionClosed:
+            return False
+        finally:
+            self.waiting -= 1
+            loaded.cancel()
+            gone.cancel()
+        if not self._loaded.is_set():
+            return False
+        if self.load_error is not None:
+            await self._refuse(ws, f"server failed to load: {self.load_error}"[:400], 1011)
+            return False
+        return True
+
+    def _holders(self, address: str | None = None) -> list[_Stream]:
+        """Streams holding a slot (of ``address`` only, if given)."""
+        return [
+            st
+            for st in self.streams.values()
+            if not st.closed and not st.probation and (address is None or st.address == address)
+        ]
+
+    def _in_the_way(self, address: str) -> tuple[list[_Stream], str] | None:
+        """The streams a newcomer from ``address`` must displace one of, and the refusal if none
+        is slow; None when there is room for it."""
+        mine = self._holders(address)
+        if len(mine) >= self.per_address:
+            return mine, f"at most {self.per_address} streams per client address; try again later"
+        held = self._holders()
+        if len(held) >= self.cfg.max_streams:
+            return held, f"server full: {self.cfg.max_streams} streams; try again later"
+        return None
+
+    def rate(self, st: _Stream, now: float) -> float:
+        """A slot-holder's inputs per second over the last :data:`RATE_WINDOW_S` s (or since it got its slot)."""
+        span = max(1e-3, min(RATE_WINDOW_S, now - st.since))
+        return sum(t >= now - span for t in st.times) / span
+
+    def _slowest(self, streams: list[_Stream], now: float) -> _Stream | None:
+        """The slowest stream of ``streams`` below :data:`LIVE_FRACTION` of the model rate that has
+        held its slot for :data:`GRACE_S` s; None if every one streams (or is new)."""
+        slow = [
+            (self.rate(st, now), st.last_input, st)
+            for st in streams
+            if now - st.since >= GRACE_S and self.rate(st, now) < LIVE_FRACTION * self.fps
+        ]
+        return min(slow, key=lambda x: (x[0], x[1]))[2] if slow else None
+
     async def _handler(self, ws) -> None:
         from websockets.exceptions import ConnectionClosed
 
-        address, forwarded = client_address(ws)
-        per_address = (self.cfg.max_per_address or 16) if forwarded else self.per_address
-        refusal = None
+        if not await self._wait_loaded(ws):
+            return
+        address = client_address(ws, self.cfg.trust_proxy)
+        now = time.monotonic()
         probation = False
-        if per_address is not None and sum(st.address == address for st in self.streams.values()) >= per_address:
-            self.stats["refused_address"] += 1
-            refusal = f"at most {per_address} streams per client address; try again later"
-        elif sum(not st.probation for st in self.streams.values()) >= self.cfg.max_streams:
-            probation = self._idlest(time.monotonic()) is not None
+        way = self._in_the_way(address)
+        if way is not None:
+            streams, refusal = way
+            if self._slowest(streams, now) is None:
+                self.stats["refused_address" if "per client address" in refusal else "refused_full"] += 1
+                await self._refuse(ws, refusal)
+                return
+            probation = True
             waiting = [st for st in self.streams.values() if st.probation and not st.closed]
-            if probation and len(waiting) >= self.cfg.max_streams:  # the oldest waiting one makes room
+            if len(waiting) >= self.cfg.max_streams:  # the oldest waiting one makes room
                 old = min(waiting, key=lambda s: s.last_input)
                 old.closed = True
                 self.streams.pop(old.id, None)
                 self.stats["evicted_waiting"] += 1
                 self._close_later(old.ws, 1013, "evicted: no input while the server was full")
-            if not probation:
-                self.stats["refused_full"] += 1
-                refusal = f"server full: {self.cfg.max_streams} streams; try again later"
-        if refusal is not None:
-            try:
-                await ws.send(_error(refusal))
-                await ws.close(1013, refusal.split(":")[0][:100])
-            except ConnectionClosed:
-                pass
-            return
         sock = ws.transport.get_extra_info("socket") if getattr(ws, "transport", None) else None
         if sock is not None:  # a bounded kernel buffer, so a client that stops reading shows up in ours
             try:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, KERNEL_SEND_BUFFER)
             except OSError:
                 pass
-        now = time.monotonic()
         st = _Stream(
             ws=ws,
             id=self._next_id,
@@ -226,6 +348,7 @@ class StreamServer(ServerThread):
             address=address,
             intensity=self.cfg.intensity,
             probation=probation,
+            since=now,
         )
         self._next_id += 1
         self.streams[st.id] = st
@@ -256,12 +379,14 @@ class StreamServer(ServerThread):
                     st.intensity = msg["value"]
                     await ws.send(protocol.encode_intensity(st.intensity))
                     continue
-                if st.probation and not self._admit(st, now):
-                    refusal = f"server full: {self.cfg.max_streams} streams; try again later"
-                    await ws.send(_error(refusal))
-                    await ws.close(1013, "server full")
-                    break
+                if st.probation:
+                    refusal = self._admit(st, now)
+                    if refusal is not None:
+                        await ws.send(_error(refusal))
+                        await ws.close(1013, refusal.split(":")[0][:100])
+                        break
                 st.last_input = now
+                st.times.append(now)
                 st.inputs += 1
                 if st.window_t0 is None:
                     st.window_t0 = now
@@ -290,29 +415,23 @@ class StreamServer(ServerThread):
                 self.stats["oversized_closes"] += 1
             self._wake.set()  # the batching task frees the slot between ticks
 
-    def _idlest(self, now: float) -> _Stream | None:
-        """The slot-holding stream without input for the longest, if that is :data:`EVICT_IDLE_S` or more."""
-        idle = [
-            st
-            for st in self.streams.values()
-            if not st.closed and not st.probation and now - st.last_input >= EVICT_IDLE_S
-        ]
-        return min(idle, key=lambda s: s.last_input) if idle else None
-
-    def _admit(self, st: _Stream, now: float) -> bool:
+    def _admit(self, st: _Stream, now: float) -> str | None:
         """A stream on probation sent its first input: give it a slot — a free one, or that of the
-        idlest stream, which is closed (1013, "evicted"). False when every slot streams."""
-        if sum(not s.probation for s in self.streams.values()) >= self.cfg.max_streams:
-            victim = self._idlest(now)
+        slowest stream in its way, which is closed (1013, "evicted"). The refusal when every stream
+        in the way is live (or new)."""
+        way = self._in_the_way(st.address)
+        if way is not None:
+            victim = self._slowest(way[0], now)
             if victim is None:
-                self.stats["refused_full"] += 1
-                return False
+                self.stats["refused_address" if "per client address" in way[1] else "refused_full"] += 1
+                return way[1]
             victim.closed = True
             self.streams.pop(victim.id, None)  # its slot is freed at the next tick, before this one's opens
-            self.stats["evicted_idle"] += 1
-            self._close_later(victim.ws, 1013, "evicted: idle while the server was full")
+            self.stats["evicted_slow"] += 1
+            self._close_later(victim.ws, 1013, "evicted: slower than a live stream while the server was full")
         st.probation = False
-        return True
+        st.since = now
+        return None
 
     # ---------------------------------------------------------------- ticks
     async def _compute(
@@ -321,9 +440,11 @@ class StreamServer(ServerThread):
         """One batched step in the model process: poses (B, 47, 6) and quaternions (B, 47, 4). The event
         loop runs on while the model process works and resumes when its pipe is readable."""
         loop = asyncio.get_running_loop()
-        self.gen.submit(slots, audio, face, head)
+        gen = self.gen
+        assert gen is not None  # streams are admitted only once loaded
+        gen.submit(slots, audio, face, head)
         ready = loop.create_future()
-        fd = self.gen.fileno()
+        fd = gen.fileno()
 
         def wake() -> None:
             if not ready.done():
@@ -334,13 +455,16 @@ class StreamServer(ServerThread):
             await ready
         finally:
             loop.remove_reader(fd)
-        return self.gen.collect()
+        return gen.collect()
 
     def _sync_slots(self) -> None:
         """Between ticks, in one round trip: free the slots of closed streams, give new streams theirs,
         apply changed intensity dials."""
+        gen = self.gen
+        if gen is None:
+            return
         live = {st.slot for st in self.streams.values() if st.slot is not None}
-        close = sorted(self.gen.open_slots - live)
+        close = sorted(gen.open_slots - live)
         new = [st for st in self.streams.values() if st.slot is None and not st.probation]
         ref = {id(st): -1 - k for k, st in enumerate(new)}  # the k-th stream opened by this sync
         dial = [
@@ -349,7 +473,7 @@ class StreamServer(ServerThread):
         if not (close or new or dial):
             return
         dials = [(ref[id(st)] if st.slot is None else st.slot, st.intensity) for st in dial]
-        slots = self.gen.sync(close, len(new), dials)
+        slots = gen.sync(close, len(new), dials)
         for st, slot in zip(new, slots):
             st.slot = slot
         for st in dial:
@@ -466,9 +590,12 @@ class StreamServer(ServerThread):
         from websockets.asyncio.server import serve
 
         self._wake = asyncio.Event()
+        if self.gen is not None or self.load_error is not None:  # loaded before the loop ran
+            self._loaded.set()
         c = self.cfg
+        where: dict = {"sock": self.sock} if self.sock is not None else {"host": c.host, "port": c.port}
         return await serve(
-            self._handler, c.host, c.port, process_request=self._process_request, compression=None, **SERVE_OPTIONS
+            self._handler, process_request=self._process_request, compression=None, **where, **SERVE_OPTIONS
         )
 
     def _address(self) -> tuple[str, int]:
@@ -493,29 +620,48 @@ class StreamServer(ServerThread):
 
     def close(self) -> None:
         super().close()
-        self.gen.shutdown()
+        if self.gen is not None:
+            self.gen.shutdown()
 
 
-def serve_streams(checkpoint, style: str | None, cfg: ServeConfig, say=echo, warn=echo_warning) -> dict:
-    """The whole ``serve`` command: check ``cfg``, load the style, serve until interrupted; returns the summary.
+def serve_streams(
+    checkpoint, style: str | None, cfg: ServeConfig, say=echo, warn=echo_warning, sock: socket.socket | None = None
+) -> dict:
+    """The whole ``serve`` command: check ``cfg``, listen, load the style while listening (clients that
+    connect meanwhile wait: module docs, "Loading"), serve until interrupted; returns the summary.
 
-    ``say(text, err=False)`` gets the start line, the server's log (``err=True``) and the
-    summary; ``warn`` a warning when the address is not a loopback one."""
-    from facecapges.model.checkpoint import load_checkpoint
-
-    cfg.check()
-    ckpt = load_checkpoint(checkpoint, style)
-    server = StreamServer(ckpt, cfg, log=lambda m: say(m, err=True))
-    if not is_loopback(cfg.host):
-        warn(f"warning: listening on {cfg.host}: anyone who can reach it can use it (no authentication)")
-    server.start()
-    say(
-        f"serving {ckpt.path.name} on {server.url} (max {cfg.max_streams} streams, "
-        f"{cfg.rate_limit:g} msg/s per stream); Ctrl-C stops"
-    )
+    ``sock``: a socket already listening on ``cfg.host:cfg.port`` (the command binds it before
+    importing anything heavy). ``say(text, err=False)`` gets the start line, the ``ready`` line,
+    the server's log (``err=True``) and the summary; ``warn`` a warning when the address is not a
+    loopback one. Ctrl-C (or SIGTERM) stops it with the one summary line."""
+    t0 = time.monotonic()
+    server = StreamServer(None, cfg, log=lambda m: say(m, err=True), sock=sock)
+    server.start()  # handshakes are answered (and told "loading") from now on, before torch is imported
     try:
+        try:
+            from facecapges.model.checkpoint import load_checkpoint, resolve
+
+            cfg.check()
+            path = resolve(checkpoint, style)
+            server.name = path.name
+            if not is_loopback(cfg.host):
+                warn(f"warning: listening on {cfg.host}: anyone who can reach it can use it (no authentication)")
+            say(
+                f"serving {path.name} on {server.url} (max {cfg.max_streams} streams, "
+                f"{cfg.rate_limit:g} msg/s per stream); loading the style, clients wait for it; Ctrl-C stops"
+            )
+            server.load(load_checkpoint(path))
+        except Exception as exc:
+            why = (str(exc).splitlines() or [exc.__class__.__name__])[0]
+            server.fail(why)
+            server.close()
+            if isinstance(exc, UserError):
+                raise
+            raise UserError(f"cannot load the style ({why})") from None
+        say(f"ready: {path.name} loaded in {time.monotonic() - t0:.1f} s; serving streams")
         server.run()
-    finally:
-        summary = server.summary()
-        say(f"served: {summary}")
+    except KeyboardInterrupt:  # Ctrl-C while loading: the same quiet stop
+        server.close()
+    summary = server.summary()
+    say(f"served: {summary}")
     return summary

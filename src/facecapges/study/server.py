@@ -32,8 +32,12 @@ not a number ≥ 0, 413 above :data:`MAX_BODY`); a connection that sends nothing
 :data:`SOCKET_TIMEOUT` seconds is closed, and one whose request (head and body) has not
 all arrived :data:`REQUEST_DEADLINE` seconds after the server began waiting for it is cut
 (a client trickling a header line every few seconds holds no slot for long); at most
-:data:`MAX_CONNECTIONS` are served at once, :data:`MAX_PER_ADDRESS` of them from one client
-address (more are answered 503 and closed); JSON nested deeper than Python can parse
+:data:`MAX_CONNECTIONS` are open at once, :data:`MAX_PER_ADDRESS` of them from one client
+address. When a new connection would exceed either, the connection in its way (of its address,
+or of all) that has waited the longest for its request — a trickler, or an idle keep-alive — is
+closed to make room; only when every one in the way is being answered is the newcomer answered
+503 and closed. So clients that trickle headers and reopen at once, from any number of
+addresses, cannot keep a participant out. JSON nested deeper than Python can parse
 is a 400; a damaged answer file is a 500 naming the file, logged once.
 """
 
@@ -42,7 +46,9 @@ from __future__ import annotations
 import hmac
 import json
 import re
+import socket
 import threading
+import time
 from collections.abc import Callable
 from http.server import ThreadingHTTPServer
 from pathlib import Path
@@ -59,8 +65,8 @@ PAGE_DIR = Path(__file__).with_name("page")
 _MEDIA = re.compile(r"^/media/([^/]+)/(\d+)/(audio\.wav|face\.json|motion-(\d+)\.json)$")
 MAX_BODY = 64 * 1024
 SOCKET_TIMEOUT = 15.0  # seconds a connection may stay silent (headers, body, keep-alive)
-MAX_CONNECTIONS = 64  # connections served at once; more get 503
-MAX_PER_ADDRESS = 32  # of those, from one client address (half: a lab behind one NAT still gets in)
+MAX_CONNECTIONS = 64  # connections open at once (module docs: the longest-waiting makes room)
+MAX_PER_ADDRESS = 16  # of those, from one client address (a lab behind one NAT: its idle ones make room)
 REQUEST_DEADLINE = 30.0  # seconds from a request's first wait to its whole head and body (a trickle is cut)
 LANGUAGES = ("en", "zh")
 
@@ -244,14 +250,18 @@ class _Handler(PageHandler):
         self._deadline = threading.Timer(self.request_deadline, self._cut)
         self._deadline.daemon = True
         self._deadline.start()
+        self._waiting(True)
         try:
             super().handle_one_request()
         finally:
             self._deadline.cancel()
 
-    def _cut(self) -> None:
-        import socket
+    def _waiting(self, waiting: bool) -> None:
+        """Tell the server this connection waits for a request (True) or has one to answer (False)."""
+        if isinstance(self.server, StudyServer):
+            self.server.waiting(self.request, waiting)
 
+    def _cut(self) -> None:
         self.close_connection = True
         try:
             self.connection.shutdown(socket.SHUT_RDWR)
@@ -262,12 +272,14 @@ class _Handler(PageHandler):
         deadline = getattr(self, "_deadline", None)
         if deadline is not None:  # the request has arrived: the reply is not under the deadline
             deadline.cancel()
+        self._waiting(False)
         self.send_page(status, data, ctype)
 
     def _json(self, status: int, doc) -> None:
         self._send(status, json.dumps(doc).encode("utf-8"), "application/json")
 
     def do_GET(self) -> None:
+        self._waiting(False)  # its whole request is here
         url = urlsplit(self.path)
         try:
             doc, f = self.app.get(url.path, parse_qs(url.query))
@@ -295,6 +307,7 @@ class _Handler(PageHandler):
         data = self.rfile.read(n) if n else b""
         if len(data) != n:
             raise HttpError(400, f"request body ended after {len(data)} of {n} bytes")
+        self._waiting(False)  # its whole request is here
         try:
             body = json.loads(data or b"{}")
         except (ValueError, RecursionError):  # JSONDecodeError, bad UTF-8, nesting too deep
@@ -315,7 +328,8 @@ class _Handler(PageHandler):
 
 
 class StudyServer(ThreadingHTTPServer):
-    """``ThreadingHTTPServer`` serving at most :data:`MAX_CONNECTIONS` connections at once."""
+    """``ThreadingHTTPServer`` with at most :data:`MAX_CONNECTIONS` connections open at once,
+    :data:`MAX_PER_ADDRESS` per client address; the longest-waiting makes room (module docs)."""
 
     daemon_threads = True
     max_connections = MAX_CONNECTIONS
@@ -324,31 +338,49 @@ class StudyServer(ThreadingHTTPServer):
     request_queue_size = 128  # listen backlog: connections past it wait unaccepted (and unanswered)
 
     def __init__(self, *args, **kwargs):
-        self._slots = threading.BoundedSemaphore(self.max_connections)
-        self._per_address: dict[str, int] = {}
+        # open connections: socket → [client address, when it began waiting for its request (None: answering)]
+        self._open: dict[socket.socket, list] = {}
         self._lock = threading.Lock()
         self.refused = 0
+        self.evicted = 0
         super().__init__(*args, **kwargs)
 
-    def _take(self, address: str) -> bool:
+    def waiting(self, request: socket.socket, waiting: bool) -> None:
+        """The handler of ``request`` begins waiting for a request (True) or has one to answer (False)."""
         with self._lock:
-            if self._per_address.get(address, 0) >= self.max_per_address:
-                return False
-            if not self._slots.acquire(blocking=False):
-                return False
-            self._per_address[address] = self._per_address.get(address, 0) + 1
-            return True
+            conn = self._open.get(request)
+            if conn is not None:
+                conn[1] = time.monotonic() if waiting else None
 
-    def _give(self, address: str) -> None:
+    def _take(self, request: socket.socket, address: str) -> bool:
+        victim = None
         with self._lock:
-            self._per_address[address] -= 1
-            if not self._per_address[address]:
-                del self._per_address[address]
-            self._slots.release()
+            mine = [s for s, c in self._open.items() if c[0] == address]
+            way = mine if len(mine) >= self.max_per_address else None
+            if way is None and len(self._open) >= self.max_connections:
+                way = list(self._open)
+            if way is not None:
+                idle = [s for s in way if self._open[s][1] is not None]
+                if not idle:
+                    return False
+                victim = min(idle, key=lambda s: self._open[s][1])
+                del self._open[victim]  # its slot is the newcomer's now; its thread ends on the cut
+                self.evicted += 1
+            self._open[request] = [address, time.monotonic()]
+        if victim is not None:
+            try:
+                victim.shutdown(socket.SHUT_RDWR)
+            except OSError:  # already closed
+                pass
+        return True
+
+    def _give(self, request: socket.socket) -> None:
+        with self._lock:
+            self._open.pop(request, None)
 
     def process_request(self, request, client_address) -> None:
         address = str(client_address[0]) if client_address else "?"
-        if not self._take(address):
+        if not self._take(request, address):
             self.refused += 1
             try:
                 request.settimeout(1.0)
@@ -360,14 +392,14 @@ class StudyServer(ThreadingHTTPServer):
         try:
             super().process_request(request, client_address)
         except BaseException:
-            self._give(address)
+            self._give(request)
             raise
 
     def process_request_thread(self, request, client_address) -> None:
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._give(str(client_address[0]) if client_address else "?")
+            self._give(request)
 
     def handle_error(self, request, client_address) -> None:  # a dropped client is no news
         pass

@@ -15,6 +15,12 @@ Server → client
      "blendshapes": [52 names, facecapges.arkit.ARKIT_NAMES order],
      "max_message_bytes": 65536, "intensity": 1.0}
 
+``status`` — ``serve`` only, before ``hello`` while the server is still loading its style::
+
+    {"type": "status", "state": "loading", "message": "loading style …; hello follows when it is ready"}
+
+A client reads messages until ``hello``: the ``hello`` means the server is ready for input.
+
 ``intensity`` — the gesture intensity now (0 … 1.3, :mod:`facecapges.model.intensity`); also sent as
 ``{"type": "intensity", "value": v}`` in reply to a client's ``intensity`` message.
 
@@ -64,7 +70,9 @@ from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 from facecapges.errors import UserError
 from facecapges.runtime.frames import InputFrame, OutputFrame
-from facecapges.skeleton import N_JOINTS, UPPER_BODY
+
+# facecapges.skeleton (the joint names of the hello, the pose width) is imported where it is used: it
+# imports torch, and ``serve`` answers handshakes (and says "loading") before torch has loaded.
 
 PROTOCOL = 1
 MAX_MESSAGE_BYTES = 64 * 1024
@@ -86,12 +94,23 @@ def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, inten
             "fps": fps,
             "sr": sr,
             "samples_per_frame": timing.samples_per_frame(fps, sr),
-            "joints": list(UPPER_BODY),
+            "joints": list(_upper_body()),
             "blendshapes": list(ARKIT_NAMES),
             "max_message_bytes": MAX_MESSAGE_BYTES,
             "intensity": intensity,
         }
     )
+
+
+def _upper_body() -> tuple[str, ...]:
+    from facecapges.skeleton import UPPER_BODY
+
+    return tuple(UPPER_BODY)
+
+
+def encode_status(state: str, message: str) -> str:
+    """The ``status`` message ``serve`` sends before ``hello`` while it loads (module docs)."""
+    return json.dumps({"type": "status", "state": state, "message": message})
 
 
 def encode_intensity(value: float) -> str:
@@ -244,7 +263,7 @@ def decode_pose(text: str) -> dict:
     if not isinstance(msg, dict) or msg.get("type") != "pose":
         raise ProtocolError(f"not a pose message: {msg.get('type') if isinstance(msg, dict) else msg!r:.40}")
     try:
-        msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(N_JOINTS, 4)
+        msg["pose"] = np.asarray(msg["pose"], np.float64).reshape(len(_upper_body()), 4)
         msg["weights"] = np.asarray(msg["weights"], np.float64).reshape(N_BLENDSHAPES)
         msg["head"] = np.asarray(msg["head"], np.float64).reshape(6)
     except (KeyError, TypeError, ValueError):

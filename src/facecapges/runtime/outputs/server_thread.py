@@ -14,6 +14,8 @@ listens (:meth:`ServerThread._listen`) and what else runs while it serves
 from __future__ import annotations
 
 import asyncio
+import os
+import socket
 import threading
 from collections.abc import Callable, Coroutine
 from typing import TYPE_CHECKING, Any, Self
@@ -22,6 +24,18 @@ from facecapges.errors import UserError
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server
+
+
+def listening_socket(host: str, port: int, what: str = "cannot listen") -> socket.socket:
+    """A TCP socket listening on ``host:port`` now, for a server started on it later
+    (``websockets.serve(sock=…)``): connections that arrive meanwhile wait in its backlog
+    instead of being refused. A UserError "{what} on HOST:PORT (why)" when it cannot."""
+    try:
+        family = socket.AF_INET6 if ":" in host.strip("[]") else socket.AF_INET
+        return socket.create_server((host.strip("[]"), port), family=family, backlog=1024)
+    except OSError as exc:  # create_server words its own strerror ("… (while attempting to bind …)")
+        why = os.strerror(exc.errno) if exc.errno else str(exc)
+        raise UserError(f"{what} on {host}:{port} ({why})") from None
 
 
 class ServerThread:
