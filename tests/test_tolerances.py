@@ -85,3 +85,10 @@ def test_float32_budget():
         y = x.copy()
         y[7] += 1e-4
         assert_float32_close(y, x, scale=50, ulps=4, unit="cm")
+    # one scale per column: a probability next to speeds of 50 cm/s keeps its own, tighter bound
+    v = np.stack([x, np.linspace(0, 1, 101)], -1)
+    w = v.copy()
+    w[3, 1] += 1e-3  # 0.1 % of a probability: 84 float32 ulps of 50, 8400 of 1
+    assert_float32_close(w[:, 0], v[:, 0], scale=50, ulps=1500, unit="cm/s")
+    with pytest.raises(AssertionError, match=r"against 0.000179 cm/s or 1, at index \(3, 1\)"):
+        assert_float32_close(w, v, scale=np.abs(v).max(0), ulps=1500, unit="cm/s or 1")

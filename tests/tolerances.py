@@ -101,21 +101,23 @@ def assert_rotations_close(actual, desired, max_deg: float = POSE_MAX_DEG, what:
         )
 
 
-def assert_float32_close(actual, desired, scale: float, ulps: float, unit: str, what: str = "values") -> None:
+def assert_float32_close(actual, desired, scale, ulps: float, unit: str, what: str = "values") -> None:
     """Fail unless ``|actual − desired| ≤ ulps · eps32 · scale`` everywhere (a float32 rounding budget).
 
-    ``scale`` is the magnitude the values' rounding is relative to (in ``unit``), ``ulps`` the number of
-    float32 roundings the two paths may differ by at that scale; the caller says why in a comment.
+    ``scale`` is the magnitude the values' rounding is relative to (in ``unit``): a number, or an array that
+    broadcasts against the values (e.g. one per column); ``ulps`` the number of float32 roundings the two
+    paths may differ by at that scale; the caller says why in a comment.
     """
-    tol = ulps * F32_EPS * scale
     a, d = np.asarray(actual, dtype=np.float64), np.asarray(desired, dtype=np.float64)
     if a.shape != d.shape:
         raise AssertionError(f"{what}: shapes differ, {a.shape} against {d.shape}")
+    tol = np.broadcast_to(ulps * F32_EPS * np.asarray(scale, dtype=np.float64), a.shape)
     diff = np.abs(a - d)
-    if diff.size and not (diff <= tol).all():
-        worst = np.unravel_index(int(np.argmax(np.where(np.isnan(diff), np.inf, diff))), diff.shape)
+    bad = ~(diff <= tol)  # NaN is bad
+    if bad.any():
+        worst = np.unravel_index(int(np.argmax(np.where(np.isnan(diff), np.inf, diff / tol))), diff.shape)
         raise AssertionError(
-            f"{what}: {int((~(diff <= tol)).sum())} of {diff.size} differ by more than {tol:.3g} {unit} "
-            f"({ulps:g} float32 ulps of {scale:g} {unit}); the worst, {float(diff[worst]):.3g} {unit}, at "
+            f"{what}: {int(bad.sum())} of {diff.size} differ by more than their bound ({ulps:g} float32 ulps of "
+            f"their scale); the worst, {float(diff[worst]):.3g} {unit} against {float(tol[worst]):.3g} {unit}, at "
             f"index {tuple(int(i) for i in worst)}"
         )
