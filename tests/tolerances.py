@@ -35,8 +35,8 @@ F32_EPS = float(np.finfo(np.float32).eps)  # 1.19e-7: the relative rounding of o
 # add like a random walk; K·eps is the worst case), so ~30·√1000·eps ≈ 1e-4 rad if each layer passes
 # the error on at gain ~1, before the autoregressive history feeds it back. 0.01° (1.7e-4 rad,
 # ~1500 float32 ulps of a unit vector) covers that, and anything real is far above it: a wrong slot, a
-# stale LSTM state or a missed reset moves joints by degrees (issue #37 saw 0.0015° between two CPUs;
-# the suite's comparisons stay below 0.0008°, or 0.0003° per unit rot6d column length, on this one).
+# stale LSTM state or a missed reset moves joints by degrees (issue #37 saw 0.0015° on another CPU; the
+# worst here: 0.0008° between served and single-stream quaternions, 0.00023° per unit rot6d column length).
 POSE_MAX_DEG = 0.01
 # The same budget for any other network output, in float32 ulps of the output's scale (0.01° is ~1500 ulps of a
 # unit vector): speeds in cm/s, heights in cm, embeddings, each with :func:`assert_float32_close`.
