@@ -183,8 +183,10 @@ def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
     two.fit(epochs=2, progress=False)
     again = build_trainer([_clip()], tmp_path / "two", {}, {"epochs": 3}, {}, resume=True, variant=BIDIRECTIONAL)
     again.fit(progress=False)
+    # resumed against uninterrupted, one process, one thread, the state restored bit for bit: the same code path,
+    # so bit for bit on any CPU (docs/testing.md; test_model_cli checks the same of the default variant)
     for k, v in one.G.state_dict().items():
-        assert torch.allclose(again.G.state_dict()[k], v, atol=1e-6), k
+        assert torch.equal(again.G.state_dict()[k], v), k
     assert [r["epoch"] for r in again.history] == [1, 2, 3]
     from facecapges.errors import UserError
 
