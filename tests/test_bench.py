@@ -30,6 +30,8 @@ def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video)
     n = len(BENCHMARKS)
     assert f"[{n}/{n}]" in p.stderr and "done in" in p.stderr  # progress on stderr, JSON alone on stdout
     m = doc["model"]
-    assert m["max_abs_diff_naive"] < 1e-4  # the cached kernel computes what the naive loop computes
+    # the cached kernel computes what the naive loop computes: float32 rounding of the shipped network's rot6d (near-unit
+    # columns: 1e-4 on each number turns a joint by ≤ √3·1e-4 rad ≈ 0.01°, the suite's bound for two paths to one pose)
+    assert m["max_abs_diff_naive"] < 1e-4
     assert m["step_with_euler_ms_p50"] >= m["step_ms_p50"] > 0
     assert doc["serve"]["trials"] and doc["serve"]["trials"][0]["frames_returned"] > 0

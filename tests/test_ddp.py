@@ -76,7 +76,7 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
     mp.spawn(_rank_worker, args=(2, free_port(), cache, tmp_path), nprocs=2, join=True)
     r0 = torch.load(tmp_path / "rank0.pt", weights_only=False)
     r1 = torch.load(tmp_path / "rank1.pt", weights_only=False)
-    for net in ("G", "D"):  # DDP keeps the replicas identical, bit for bit
+    for net in ("G", "D"):  # DDP keeps the replicas identical, bit for bit (the same all-reduced gradients)
         for k in r0[net]:
             assert torch.equal(r0[net][k], r1[net][k]), (net, k)
     # rank 0 alone wrote the run folder
@@ -93,14 +93,21 @@ def test_two_gloo_ranks_equal_each_other_and_one_process(tmp_path, cache):
         torch.set_num_threads(threads)
     assert len(one.train_set) % GLOBAL_BATCH == 3  # the last global batch splits 2/1
     assert r0["opt_lr"] == pytest.approx(one.opt_g.param_groups[0]["lr"])  # lr from the global batch
+    # Two ranks against one process are two paths to one training run: each rank's forward pass runs another batch
+    # (7 segments, not 14: other GEMM blockings) and the gradients are summed in another order (each share, then
+    # gloo's all-reduce), so they agree to float32 rounding, ≲ 100 ulps of each gradient. Plain SGD at lr = 0.109 on
+    # gradients clipped to norm 1 moves a weight by ≤ 0.109·|g| a step: 12 steps part the weights by
+    # ≤ 12 · 0.109 · 100 · 1.2e-7 ≈ 1.6e-5 (weight units), whence 2e-5; a loss (a mean of ~1e5 terms) moves by its
+    # sums' ~20 ulps plus |∇L|·|Δw|, whence 1e-4 relative. Weighting the uneven 2/1 share wrongly would move the last
+    # step's update by ~lr·|g|/6 ≈ 1e-3, far above both.
     for h2, h1 in zip(r0["history"], one.history):  # the same loss curve (D joins at epoch 2)
         for k in ("total", "rec", "vel", "acc", "adv", "d", "held_rec", "held_vel", "held_acc"):
             if k in h1:
-                assert h2[k] == pytest.approx(h1[k], rel=1e-5), (h1["epoch"], k)
+                assert h2[k] == pytest.approx(h1[k], rel=1e-4), (h1["epoch"], k)
     assert "adv" in one.history[-1]
     for net, ref in (("G", one.G.state_dict()), ("D", one.D.state_dict())):
         for k, v in ref.items():
-            assert torch.allclose(r0[net][k], v, atol=1e-6, rtol=1e-5), (net, k)
+            assert torch.allclose(r0[net][k], v, atol=2e-5, rtol=0), (net, k, float((r0[net][k] - v).abs().max()))
 
 
 @pytest.mark.slow

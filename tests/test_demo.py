@@ -15,6 +15,7 @@ import soundfile as sf
 from facecapges.commands.demo import demo_speech
 from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
 from runtime_helpers import cli, cli_process
+from tolerances import assert_rotations_close
 
 
 def test_default_styles_are_installed_and_complete():
@@ -55,7 +56,8 @@ def test_network_style_streams_like_its_training_rollout(beat_audio, beat_take):
     for t in range(N):
         g.warmup(audio[t], face[t], head[s + t], pose[s + t])
     out = np.stack([g.step(audio[t], face[t], head[s + t]) for t in range(N, T)])
-    np.testing.assert_allclose(out.reshape(T - N, -1), ref, atol=1e-5)
+    # one frame at a time against the whole clip (other kernels): float32 rounding, 0.01° (tolerances.py)
+    assert_rotations_close(out, ref.reshape(out.shape), what="streaming against the rollout")
 
 
 @pytest.mark.slow

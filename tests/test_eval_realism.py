@@ -7,6 +7,7 @@ import pytest
 
 from facecapges import rotations as rot
 from facecapges.evaluation import realism as R
+from tolerances import assert_rotations_close
 
 FPS = 15
 
@@ -134,9 +135,10 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     got, _ = generate_poses(ckpt, inputs, progress=False, history=window)
     by_hand = StreamingGenerator(ckpt.model, window)
     want = np.stack([by_hand.step(inputs.audio[t], inputs.face[t], inputs.head[t]) for t in range(n)])
-    np.testing.assert_allclose(got, want, atol=1e-5)
+    # the same kernel, but generate_poses sets its own thread count: float32 rounding, 0.01° (tolerances.py)
+    assert_rotations_close(got, want, what="generate_poses against the generator by hand")
     cold, _ = generate_poses(ckpt, inputs, progress=False)
-    np.testing.assert_allclose(cold, generate_poses(ckpt, inputs, False, ckpt.neutral_window)[0], atol=1e-5)
+    np.testing.assert_array_equal(cold, generate_poses(ckpt, inputs, False, ckpt.neutral_window)[0])  # same path
     assert np.abs(cold - got).max() > 1e-3  # the start window is really used
     assert ckpt.display_name == "FaceCapGes (beat2-scott-demo)" and ckpt.database_poses() is None
     db, source = engine_database(ckpt, [pose[:766]])

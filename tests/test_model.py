@@ -11,6 +11,7 @@ from facecapges.model.config import ModelConfig, TrainConfig
 from facecapges.model.network import FaceCapGes
 from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
 from facecapges.errors import UserError
+from tolerances import NETWORK_ULPS, assert_float32_close, assert_rotations_close
 
 SMALL = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
              face_dim=8, lstm_hidden=16, mlp_hidden=16, disc_channels=8)
@@ -48,7 +49,8 @@ def test_embedding_depends_only_on_its_own_window(model):
         full = model.encode(a, f, h)
         t = 40
         win = model.encode(a[:, t - cfg.n_history:t + 1], f[:, t - cfg.n_history:t + 1], h[:, t - cfg.n_history:t + 1])
-    assert torch.allclose(full[0, t], win[0, -1], atol=1e-5)
+    # convolutions over 60 frames against 17 (oneDNN may pick another algorithm): float32 rounding of the embedding
+    assert_float32_close(win[0, -1], full[0, t], float(full.abs().max()), NETWORK_ULPS, "embedding units")
 
 
 def test_future_inputs_do_not_change_past_outputs(model):
@@ -92,7 +94,8 @@ def test_streaming_equals_training_rollout(model, cls):
     for t in range(N):
         g.warmup(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy(), p[0, t].numpy())
     out = np.stack([g.step(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy()) for t in range(N, T)])
-    np.testing.assert_allclose(out.reshape(T - N, -1), ref, atol=1e-5)
+    # one frame at a time against the whole clip (another batch, other kernels): float32 rounding, 0.01° (tolerances.py)
+    assert_rotations_close(out, ref.reshape(out.shape), what=f"{cls.__name__} against the rollout")
 
 
 def test_cold_start_fast_and_naive_agree(model):
@@ -102,7 +105,8 @@ def test_cold_start_fast_and_naive_agree(model):
     fast, naive = StreamingGenerator(model, neutral), NaiveStreamingGenerator(model, neutral)
     for t in range(T):
         x = (a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy())
-        np.testing.assert_allclose(fast.step(*x), naive.step(*x), atol=1e-5)
+        # the cached kernel against the naive loop: float32 rounding, 0.01° (tolerances.py)
+        assert_rotations_close(fast.step(*x), naive.step(*x), what=f"frame {t}")
 
 
 def test_rollout_batch_equals_single_clips(model):
@@ -113,7 +117,8 @@ def test_rollout_batch_equals_single_clips(model):
         together = model.rollout(model.encode(*cat[:3]), cat[3][:, :N])
         for i, b in enumerate(batches):
             alone = model.rollout(model.encode(*b[:3]), b[3][:, :N])
-            torch.testing.assert_close(together[i:i + 1], alone, atol=1e-5, rtol=1e-4)
+            # a batch of 3 against 1 (another GEMM blocking): float32 rounding, 0.01° (tolerances.py)
+            assert_rotations_close(together[i].reshape(-1, 47, 6), alone[0].reshape(-1, 47, 6), what=f"clip {i}")
 
 
 def test_streaming_rejects_bad_frames(model):
