@@ -18,7 +18,9 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
   estimator; ``landmarks`` is MediaPipe's part), ``features``, ``model`` (the engine's
   step), ``output`` (head, speech mouth, quaternions and every sink's ``write``), with
   each sink's own ``write`` under ``sink_ms`` and the upsampler's work per 30 Hz tick
-  (blend + VMC send + viewer) under ``upsampler_tick_ms``.
+  (blend + VMC send + viewer) under ``upsampler_tick_ms``; ``model_cpu``,
+  ``output_cpu`` and ``upsampler_tick_cpu_ms`` are the same in the threads' CPU time
+  (on a shared machine the wall-clock figures also hold the turns others got).
 
 ``landmarker`` is the floor: the MediaPipe face landmarker alone (the same model, VIDEO
 mode, the options :class:`~facecapges.capture.landmarks.LandmarkDetector` sets) in its
@@ -27,8 +29,10 @@ own process on the same clip's frames, decoded and converted to RGB beforehand, 
 
 Targets (issue 36): ``live``'s CPU at most 1.3× the landmarker's
 (``cpu_ratio_to_landmarker``), ``rss_mb.steady_max`` ≤ 500 MB, the engine and the
-outputs (``model`` + ``output`` stages + the upsampler's ticks per model frame) ≤ 2 ms a
-frame. The machine is shared: both runs are one after the other in the same call, the
+outputs (``engine_and_outputs_cpu_ms_per_frame``: ``model_cpu`` + ``output_cpu`` + the
+upsampler's ticks per model frame, CPU time; ``mean`` is held to the target) ≤ 2 ms a
+frame. A ratio is fair only while ``live`` captures every frame: under a load that makes it
+drop camera frames (``events.camera_frames_dropped``) it does less work than the floor. The machine is shared: both runs are one after the other in the same call, the
 load average is given beside them. Figures so far: docs/performance.md.
 """
 
@@ -265,10 +269,15 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         live = live_run(video, seconds, Path(tmp))
         floor = landmarker_run(video, seconds)
     rep = live.pop("report")
-    stages = {s: _stage(rep, s) for s in ("input", "capture", "landmarks", "features", "model", "output", "total")}
-    ticks = rep.get("output", {}).get("tick_ms", {"mean": 0.0})
+    names = ("input", "capture", "landmarks", "features", "model", "output", "total", "model_cpu", "output_cpu")
+    stages = {s: _stage(rep, s) for s in names}
+    ticks = rep.get("output", {}).get("tick_ms", {})
+    tick_cpu = rep.get("output", {}).get("tick_cpu_ms", {"p50": 0.0, "mean": 0.0})
     n_ticks = RATE_HZ / FPS
-    engine_outputs = stages["model"]["mean"] + stages["output"]["mean"] + n_ticks * ticks.get("mean", 0.0)
+    # CPU time (the threads' own clocks): on a shared machine the wall-clock stages also hold others' turns
+    engine_outputs = {
+        k: round(stages["model_cpu"][k] + stages["output_cpu"][k] + n_ticks * tick_cpu[k], 3) for k in ("p50", "mean")
+    }
     ratio = live["cpu_share_of_core"] / max(floor["cpu_share_of_core"], 1e-6)
     return {
         "input": f"HDTF clip 512x512 at {FPS:g} fps, looped; live --realtime --vmc --rate {RATE_HZ} --web (1 viewer) "
@@ -279,7 +288,8 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         "per_frame_ms": stages,
         "sink_ms": rep.get("sink_ms", {}),
         "upsampler_tick_ms": ticks,
-        "engine_and_outputs_ms_per_frame": round(engine_outputs, 3),
+        "upsampler_tick_cpu_ms": tick_cpu,
+        "engine_and_outputs_cpu_ms_per_frame": engine_outputs,
         "events": rep["events"],
         "frames": rep["frames"],
         "landmarker": floor,
@@ -288,7 +298,7 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         "meets_targets": {
             "cpu": ratio <= TARGETS["cpu_ratio_to_landmarker"],
             "rss": live["rss_mb"]["steady_max"] <= TARGETS["rss_mb"],
-            "engine_and_outputs": engine_outputs <= TARGETS["engine_and_outputs_ms"],
+            "engine_and_outputs": engine_outputs["mean"] <= TARGETS["engine_and_outputs_ms"],
         },
     }
 

@@ -314,6 +314,7 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
             "late_ticks": outs.ups[0].late,
             "resyncs": outs.ups[0].resyncs,
             "tick_ms": ms_stats(outs.ups[0].tick_ms),
+            "tick_cpu_ms": ms_stats(outs.ups[0].tick_cpu_ms),
         }
     return report
 

@@ -96,6 +96,7 @@ class Upsampler:
         self.late = 0  # ticks sent more than one output period after they were due
         self.resyncs = 0
         self.tick_ms = array("d")  # each tick's blend + send (ms, the emitting thread's work)
+        self.tick_cpu_ms = array("d")  # the same in CPU time of that thread
         self._shown: OutputFrame | None = None  # what the sinks got last
         self._target: OutputFrame | None = None  # newest model frame
         self._start: OutputFrame | None = None  # what was shown when it arrived
@@ -161,12 +162,13 @@ class Upsampler:
                     self.late += 1
                 start, target, t0 = self._start, self._target, self._t0
                 assert target is not None  # the wait above ends only with a frame
-            t_work = time.perf_counter()
+            t_work, c_work = time.perf_counter(), time.thread_time()
             fr = self._frame_at(due, start, target, t0)
             with self._cond:
                 self._shown = fr
             self._emit(fr)
             self.tick_ms.append((time.perf_counter() - t_work) * 1000.0)
+            self.tick_cpu_ms.append((time.thread_time() - c_work) * 1000.0)
             due += tick
 
     def close(self) -> None:
