@@ -7,7 +7,7 @@ receiver (which checks that ``/VMC/Ext/T`` strictly increases), ``--web`` with o
 connected over WebSocket (so the viewer feed encodes and sends every frame) and
 ``--record`` (the BVH and face-JSON recorders). ``live`` runs in its own process; after
 its start line and :data:`WARMUP_S` of warm-up this process samples it for ``seconds``
-(20 s, 5 s with ``--quick``):
+(20 s, 3 s with ``--quick``):
 
 * ``cpu_share_of_core`` — the process's CPU time (``/proc/PID/stat``: user + system, all
   threads) over the wall time: 1.0 is one core;
@@ -260,8 +260,8 @@ def _stage(rep: dict, name: str) -> dict:
 
 
 def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
-    """``live`` for ``seconds`` (20 s; 5 s quick), then the landmarker alone for as long (module docstring)."""
-    seconds = seconds or (5.0 if quick else 20.0)
+    """``live`` for ``seconds`` (20 s; 3 s quick), then the landmarker alone for as long (module docstring)."""
+    seconds = seconds or (3.0 if quick else 20.0)
     clip = shared_file(shared, CLIP)
     with tempfile.TemporaryDirectory(prefix="facecapges-bench-live-") as tmp:
         video = looped_video(clip, seconds + WARMUP_S + 15.0, Path(tmp) / "talk15.mp4", fps=FPS)
