@@ -132,7 +132,8 @@ class Upsampler:
 
     def _frame_at(self, due: float, start: OutputFrame | None, target: OutputFrame, t0: float) -> OutputFrame:
         """What tick ``due`` shows: the blend towards ``target``, its stream time on the clock."""
-        w = 1.0 if start is None else min(1.0, (due - t0) / self.period_s + 1.0 / self.n)
+        # a late tick (due before the frame came: the machine was busy) shows where it was, never behind it
+        w = 1.0 if start is None else min(1.0, max(0.0, (due - t0) / self.period_s + 1.0 / self.n))
         self._reached = target if w >= 1.0 else None
         fr = blend_frames(start, target, w) if start is not None else target
         t = target.time_s + (due - t0) - (self.n - 1) / self.n * self.period_s
@@ -162,9 +163,10 @@ class Upsampler:
                     self.late += 1
                 start, target, t0 = self._start, self._target, self._t0
                 assert target is not None  # the wait above ends only with a frame
-            t_work, c_work = time.perf_counter(), time.thread_time()
-            fr = self._frame_at(due, start, target, t0)
-            with self._cond:
+                t_work, c_work = time.perf_counter(), time.thread_time()
+                # computed and recorded as shown in one hold of the lock: a frame written meanwhile would
+                # start from what was shown before this tick, and the output would step back
+                fr = self._frame_at(due, start, target, t0)
                 self._shown = fr
             self._emit(fr)
             self.tick_ms.append((time.perf_counter() - t_work) * 1000.0)
