@@ -48,6 +48,16 @@ def test_mel_features_match_librosa_and_find_f0():
     assert noise[N_MELS + 1] == 0.0 and noise[N_MELS + 2] < 0.3  # unvoiced: no F0
 
 
+def test_stored_mel_basis_is_librosas():
+    """The Mel filter bank kept in the package's assets (so ``live`` need not import Librosa) is Librosa's, exactly."""
+    import librosa
+
+    from facecapges.model.audio_features import N_FFT, N_MELS, mel_basis, mel_basis_file
+
+    assert mel_basis_file(SR).is_file()
+    np.testing.assert_array_equal(mel_basis(SR), librosa.filters.mel(sr=SR, n_fft=N_FFT, n_mels=N_MELS))
+
+
 def test_mel_features_streaming_equal_offline_and_causal():
     """A clip's features as (T, S) frames equal the per-frame ones; changing the future changes nothing."""
     from facecapges.model.audio_features import AudioFeatures

@@ -7,10 +7,12 @@ import socket
 import struct
 import time
 
+import pytest
+
 from facecapges.runtime.live import livelink_hint
 from facecapges.runtime.inputs.sources import LiveLinkFace
 
-from runtime_helpers import cli
+from runtime_helpers import cli, cli_process
 
 HINT = "no packets yet — is the phone set to this machine's LAN address? use --host 0.0.0.0"
 
@@ -57,3 +59,64 @@ def test_hint_goes_away_with_the_first_real_packet():
     finally:
         feed.close()
     assert livelink_hint.__doc__
+
+
+def _pinned(cpu: int, nice: int = 0):
+    """``preexec_fn``: the child runs on CPU ``cpu`` only, at niceness ``nice``."""
+    import os
+
+    def setup() -> None:
+        os.sched_setaffinity(0, {cpu})
+        os.nice(nice)
+
+    return setup
+
+
+@pytest.mark.serial
+def test_live_behind_real_time_drops_camera_frames_never_audio(face_video, tmp_path):
+    """A machine too busy to capture every frame: ``live --realtime`` drops camera frames (and says so once in its
+    status line), yet every frame of the audio is computed and recorded — no audio dropped, no underrun.
+
+    The load is real: ``live`` shares one CPU with two spinning processes at a lower priority (nice 5 against
+    their 0: about 1/7 of that CPU), started once ``live`` has printed its start line."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from facecapges import timing
+    from facecapges.io.audio import load_audio
+    from facecapges.io.bvh import read_bvh
+    from facecapges.runtime.live import BEHIND_NOTE
+
+    cpu = sorted(os.sched_getaffinity(0))[0]
+    rec = tmp_path / "rec"
+    proc = cli_process("live", "--video", str(face_video), "--realtime", "--record", str(rec), "--web", "127.0.0.1:0",
+                       background=True, preexec_fn=_pinned(cpu, 5))
+    spin = []
+    try:
+        for line in proc.stdout:
+            if line.startswith("live: "):
+                break
+        code = "import time\nend = time.monotonic() + 120\nwhile time.monotonic() < end:\n    pass\n"
+        spin = [subprocess.Popen([sys.executable, "-c", code], preexec_fn=_pinned(cpu)) for _ in range(2)]
+        _, err = proc.communicate(timeout=240)
+    finally:
+        for p in (proc, *spin):
+            if p.poll() is None:
+                p.kill()
+                p.wait()
+    assert proc.returncode == 0, err[-2000:]
+    rep = json.loads((rec / "report.json").read_text())
+    ev = rep["events"]
+    assert ev["camera_frames_dropped"] >= 15, ev  # a second's worth at least: the status line says so
+    assert err.count(BEHIND_NOTE) == 1, err[-2000:]  # said once
+    assert "camera frames dropped" in err
+    # the audio: every frame it has was computed (none dropped), nothing missing
+    n_samples = len(load_audio(face_video))
+    expected = 0
+    while timing.frame_sample_bounds(expected, rep["fps"], timing.AUDIO_SR)[0] < n_samples:
+        expected += 1
+    assert rep["stopped_by"] == "end of input" and rep["frames"] == expected, (rep["frames"], expected)
+    assert ev["audio_underruns"] == 0
+    assert read_bvh(rec / "motion.bvh").motion.shape[0] == expected

@@ -34,6 +34,21 @@ def test_file_video_newest_frame_before_deadline_and_loop(face_video):
         v.close()
 
 
+def test_file_video_drop_reads_past_due_frames_across_a_loop(face_video):
+    """What the scheduler does behind the clock: every frame due is passed over (not handed out), the next
+    one still comes, on the stream clock; across the loop's end too."""
+    v = FileVideo(face_video, loop_period_s=8.0)
+    try:
+        assert v.drop(1.0) == 25  # frames 0 … 0.96
+        assert v.drop(1.0) == 0 and v.skipped == 0  # dropped is not skipped (decimation)
+        f = v.next_frame(1.05)
+        assert f.ts_s == 1.04 and v.skipped == 1  # 1.00 skipped for the newer 1.04, as before
+        assert v.drop(8.1) == 173 + 3 and v.loops == 1  # 1.08 … 7.96, then 8.00 … 8.08 of the second pass
+        assert v.next_frame(8.15).ts_s == 8.12
+    finally:
+        v.close()
+
+
 def test_rgbd_depth_frames_drive_the_head(face_video, tmp_path):
     from facecapges import rotations as rot
     from facecapges.capture.canonical_mesh import load_canonical_mesh

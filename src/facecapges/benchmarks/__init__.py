@@ -38,6 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "render": "facecapges.benchmarks.render",
     "study": "facecapges.benchmarks.study",
     "runtime": "facecapges.benchmarks.runtime",
+    "live": "facecapges.benchmarks.live",
     "serve": "facecapges.benchmarks.serving",
     "vrm": "facecapges.benchmarks.vrm",
 }

@@ -90,7 +90,8 @@ def per_frame(ckpt, video: Path, max_frames: int | None = None) -> dict:
     }
 
 
-def looped_video(src: Path, seconds: float, out: Path) -> Path:
+def looped_video(src: Path, seconds: float, out: Path, fps: float | None = None) -> Path:
+    """``src`` looped to ``seconds`` (H.264 + AAC), resampled to ``fps`` when given."""
     import imageio_ffmpeg
 
     cmd = [
@@ -104,6 +105,7 @@ def looped_video(src: Path, seconds: float, out: Path) -> Path:
         str(src),
         "-t",
         f"{seconds:g}",
+        *(["-vf", f"fps={fps:g}"] if fps else []),
         "-c:v",
         "libx264",
         "-preset",

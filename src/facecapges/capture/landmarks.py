@@ -80,6 +80,52 @@ class _NativeStderrToFile:
         self.errors = "".join(ln + "\n" for ln in text.splitlines() if ln[:1] in ("E", "F"))
 
 
+class _LazyDrawing:
+    """A ``sys.meta_path`` finder that loads MediaPipe's drawing modules lazily (:func:`_mediapipe`)."""
+
+    NAMES = ("mediapipe.tasks.python.vision.drawing_utils", "mediapipe.tasks.python.vision.drawing_styles")
+
+    def find_spec(self, name, path, target=None):
+        import importlib.machinery
+        import importlib.util
+
+        if name not in self.NAMES:
+            return None
+        spec = importlib.machinery.PathFinder.find_spec(name, path)
+        if spec is not None and spec.loader is not None:
+            spec.loader = importlib.util.LazyLoader(spec.loader)
+        return spec
+
+
+def _mediapipe(*names: str) -> list:
+    """MediaPipe's modules ``names``, its drawing modules left unexecuted until first used.
+
+    ``mediapipe.tasks.python.vision/__init__`` imports ``drawing_utils``, and with it
+    ``matplotlib.pyplot``: ~70 MB of memory and ~2 s of start-up the face landmarker never
+    uses (a known upstream issue: google-ai-edge/mediapipe pull request 5830 makes that
+    import lazy). While MediaPipe is imported here, those two modules are loaded with
+    :class:`importlib.util.LazyLoader` — real modules, run on their first attribute
+    access — so the package is whole and anything using ``drawing_utils`` later still
+    works.
+    """
+    import importlib
+
+    if all(n in sys.modules for n in names):
+        return [sys.modules[n] for n in names]
+    finder = _LazyDrawing()
+    sys.meta_path.insert(0, finder)
+    try:
+        return [importlib.import_module(n) for n in names]
+    finally:
+        sys.meta_path.remove(finder)
+
+
+def mp_image(rgb: np.ndarray):
+    """A ``mediapipe.Image`` (SRGB) of an (H, W, 3) uint8 RGB array."""
+    (img,) = _mediapipe("mediapipe.tasks.python.vision.core.image")
+    return img.Image(image_format=img.ImageFormat.SRGB, data=rgb)
+
+
 class LandmarkDetector:
     """FaceLandmarker in VIDEO mode. Use as a context manager or call :meth:`close`.
 
@@ -92,13 +138,14 @@ class LandmarkDetector:
     def __init__(self, model_path, num_faces: int = 1, min_confidence: float = 0.5):
         os.environ.setdefault("GLOG_minloglevel", "2")  # MediaPipe's C++ start-up chatter
         os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "2")
-        from mediapipe.tasks.python.core.base_options import BaseOptions
-        from mediapipe.tasks.python.vision import face_landmarker as fl
-        from mediapipe.tasks.python.vision.core.vision_task_running_mode import VisionTaskRunningMode
-
+        base, fl, mode = _mediapipe(
+            "mediapipe.tasks.python.core.base_options",
+            "mediapipe.tasks.python.vision.face_landmarker",
+            "mediapipe.tasks.python.vision.core.vision_task_running_mode",
+        )
         opts = fl.FaceLandmarkerOptions(
-            base_options=BaseOptions(model_asset_path=str(model_path)),
-            running_mode=VisionTaskRunningMode.VIDEO,
+            base_options=base.BaseOptions(model_asset_path=str(model_path)),
+            running_mode=mode.VisionTaskRunningMode.VIDEO,
             num_faces=int(num_faces),
             min_face_detection_confidence=min_confidence,
             min_face_presence_confidence=min_confidence,
@@ -131,7 +178,6 @@ class LandmarkDetector:
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
         """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
         import cv2
-        import mediapipe as mp
 
         if frame_bgr is None or frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
             raise ValueError(f"expected an (H, W, 3) BGR frame, got {None if frame_bgr is None else frame_bgr.shape}")
@@ -140,7 +186,7 @@ class LandmarkDetector:
             ts = self._last_ts + 1
         self._last_ts = ts
         rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
-        image = mp.Image(image_format=mp.ImageFormat.SRGB, data=np.ascontiguousarray(rgb))
+        image = mp_image(np.ascontiguousarray(rgb))
         t0 = time.perf_counter()
         res = self._task.detect_for_video(image, ts)
         faces = []

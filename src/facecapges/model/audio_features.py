@@ -26,7 +26,7 @@ frames) and the streaming path (one (1, S) frame per step) call the same
 ``power_to_db(top_db=80)`` is *not* used: it clips relative to the maximum of the whole
 input, which would make a frame's value depend on the future. The module is pure
 torch (``torch.fft``: one call for the frame's five windows, one for the autocorrelation)
-so it runs inside the model; its Mel matrix comes from Librosa. The streaming kernel's
+so it runs inside the model; its Mel matrix comes from Librosa (stored: :func:`mel_basis`). The streaming kernel's
 small batches take :meth:`AudioFeatures.forward_native` instead, a second schedule of
 the same computation: the same FFT calls, the work between them in compiled loops
 (:mod:`facecapges.model.native`), equal values to float rounding (tested); the naive
@@ -36,6 +36,7 @@ loop, training and the offline path run :meth:`AudioFeatures.forward`.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -51,6 +52,30 @@ FEATURE_DIM = N_MELS + 3
 AUDIO_REPRS = ("raw", "mel")
 
 
+def mel_basis_file(sr: int) -> Path:
+    """Where Librosa's Mel filter bank for ``sr`` is kept (:func:`mel_basis`)."""
+    from importlib import resources
+
+    return Path(str(resources.files("facecapges") / "assets" / f"mel_basis_{sr}_{N_FFT}_{N_MELS}.npy"))
+
+
+def mel_basis(sr: int) -> np.ndarray:
+    """``librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)``, (40, 257) float32.
+
+    For the model's rate (16 kHz) it is read from the package's assets, where Librosa wrote
+    it (``numpy.save(mel_basis_file(16000), librosa.filters.mel(sr=16000, n_fft=512,
+    n_mels=40))``; ``test_recipe`` checks the file still equals Librosa's): importing
+    Librosa's filters brings in SciPy's signal package and Numba, ~120 MB that ``live``
+    with a style would hold for one matrix. Other rates ask Librosa.
+    """
+    p = mel_basis_file(sr)
+    if p.is_file():
+        return np.load(p, allow_pickle=False)
+    import librosa
+
+    return librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)
+
+
 class AudioFeatures(nn.Module):
     """(…, S) frames of samples → (…, 43) log-Mel, energy, log-F0, voicing (module docs)."""
 
@@ -61,11 +86,9 @@ class AudioFeatures(nn.Module):
 
     def __init__(self, sr: int, samples_per_frame: int):
         super().__init__()
-        import librosa
-
         if samples_per_frame < N_FFT:
             raise ValueError(f"a frame of {samples_per_frame} samples is shorter than the {N_FFT}-sample FFT")
-        mel = librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)  # (40, 257), Slaney scale and norm
+        mel = mel_basis(sr)  # (40, 257), Slaney scale and norm
         self.register_buffer("mel_basis", torch.from_numpy(mel).float(), persistent=False)
         self.register_buffer("mel_basis_t", self.mel_basis.t().contiguous(), persistent=False)
         self.register_buffer("window", torch.hann_window(N_FFT, periodic=True), persistent=False)

@@ -99,6 +99,8 @@ class HeadDriver:
         w = self.weight * self.share
         if self._R is None or w <= 0.0:
             return pose
+        if w >= 1.0:  # the captured head in full (tracking in ``capture`` mode: most frames)
+            return set_head(pose, self._R)
         return set_head(pose, rot.rotation_power_about(self._R, avatar_head_matrix(pose), w))
 
 

@@ -40,6 +40,9 @@ class VideoSource(Protocol):
     def next_frame(self, deadline_s: float):  # -> sources.VideoFrame | None
         """The newest unread frame stamped before ``deadline_s``, or None; never blocks."""
 
+    def drop(self, deadline_s: float) -> int:
+        """Pass over every unread frame stamped before ``deadline_s`` unprocessed; how many (never blocks)."""
+
     def close(self) -> None: ...
 
 

@@ -254,13 +254,24 @@ def _start_line(o: LiveOptions, outs: _Outputs, sess) -> str:
     )
 
 
+BEHIND_NOTE = "behind real time: dropping camera frames to keep up (audio is kept)"
+
+
 def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], None]:
-    """The scheduler's ``on_frame``: a status line on stderr every :data:`STATUS_EVERY_S` seconds."""
-    feed, last = sess.face_feed, [time.monotonic()]
+    """The scheduler's ``on_frame``: a status line on stderr every :data:`STATUS_EVERY_S` seconds.
+
+    When camera frames have been dropped for a second's worth of frames (the machine cannot
+    keep up: :mod:`.scheduler`; a frame or two at start-up, while the engine warms up, is
+    not worth a word) a status line comes at once and says so (:data:`BEHIND_NOTE`),
+    once; later lines count the frames dropped."""
+    feed, last, told = sess.face_feed, [time.monotonic()], [False]
+    events, fps = sess.scheduler.events, sess.scheduler.fps
 
     def status(out) -> None:
         now = time.monotonic()
-        if now - last[0] >= STATUS_EVERY_S:
+        dropped = events["camera_frames_dropped"]
+        first_drop = dropped >= fps and not told[0]
+        if now - last[0] >= STATUS_EVERY_S or first_drop:
             last[0] = now
             lat = sess.scheduler.timings.ms["total"][-75:]
             lat = sorted(lat)[len(lat) // 2] if lat else 0.0
@@ -268,9 +279,12 @@ def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], N
             say(
                 f"frame {out.index}  compute p50 {lat:.1f} ms  face {'tracked' if out.face_found else 'lost'}"
                 + (f"  viewers {len(outs.server.clients)}" if outs.server else "")
+                + (f"  camera frames dropped {dropped}" if dropped else "")
+                + (f"  — {BEHIND_NOTE}" if first_drop else "")
                 + (f"  — {waiting}" if waiting else ""),
                 err=True,
             )
+            told[0] = told[0] or first_drop
 
     return status
 
@@ -278,6 +292,7 @@ def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], N
 def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
     """The scheduler's report + what stopped the run and each output's counters."""
     from facecapges.runtime.inputs.sources import LiveLinkFace
+    from facecapges.runtime.scheduler import ms_stats
 
     report = scheduler.report() if scheduler is not None else {}
     report["stopped_by"] = why
@@ -298,6 +313,8 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
             "frames_emitted": outs.ups[0].emitted,
             "late_ticks": outs.ups[0].late,
             "resyncs": outs.ups[0].resyncs,
+            "tick_ms": ms_stats(outs.ups[0].tick_ms),
+            "tick_cpu_ms": ms_stats(outs.ups[0].tick_cpu_ms),
         }
     return report
 

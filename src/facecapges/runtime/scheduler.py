@@ -35,9 +35,13 @@ Fallbacks (each counted in :attr:`Scheduler.events`)
 * **audio underrun** (``audio_underruns``) — samples that have not arrived are zeros
   (silence; the model's own padding convention). The end of a file is not an underrun.
 * **late frame** (``late_frames``, realtime only) — a frame that starts more than one
-  frame period after its scheduled time (the machine was busy). It is still computed
-  (the model needs every frame's audio, in order), so output continues without a
-  gap; the clock then catches up.
+  frame period after its scheduled time (the machine was busy, or the capture is slower
+  than the frame rate). It is still computed (the model needs every frame's audio, in
+  order), so output continues without a gap, but **its camera frames are dropped**
+  (``camera_frames_dropped``: read past without decoding or capture, the held face
+  reused): the expensive stage is skipped until the clock has caught up, so a machine
+  that cannot capture every frame captures as many as it can and the output stays on
+  time. Audio is never dropped. ``live`` says so in its status line.
 * ``video_frames_skipped`` counts source frames never processed because a newer one was
   due (e.g. 25 fps video at the 15 fps model rate): decimation, not an error.
 """
@@ -61,7 +65,10 @@ from facecapges.runtime.head import HeadDriver
 from facecapges.runtime.inputs.sources import FaceSample
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Generator, Sink, VideoSource
 
-STAGES = ("capture", "features", "model", "output", "total")
+STAGES = ("capture", "features", "model", "output", "total", "input", "landmarks", "model_cpu", "output_cpu")
+# ``input``: reading/decoding the video frame (not in ``total``); ``landmarks``: MediaPipe's part of ``capture``;
+# ``model_cpu``, ``output_cpu``: those stages' CPU time on the scheduler's thread (``time.thread_time``: what
+# they cost, without the time the machine gave to others meanwhile)
 
 
 class FaceHold:
@@ -102,29 +109,51 @@ class FaceHold:
         return (self.weights * k).astype(np.float32), rot.matrix_to_rot6d(R).astype(np.float32), False
 
 
+def ms_stats(values, skip: int = 0) -> dict[str, float]:
+    """p50 / p99 / mean / max of durations (ms), the first ``skip`` left out (warm-up)."""
+    a = np.array(values, np.float64)  # a copy: the array keeps growing
+    a = a[skip:] if len(a) > skip else (a if len(a) else np.zeros(1))
+    return {
+        "p50": round(float(np.percentile(a, 50)), 3),
+        "p99": round(float(np.percentile(a, 99)), 3),
+        "mean": round(float(a.mean()), 3),
+        "max": round(float(a.max()), 3),
+    }
+
+
 @dataclass
 class Timings:
     """Per-stage durations (ms) of every frame (8 bytes each: an hour is 2 MB), and their percentiles."""
 
     ms: dict[str, array] = field(default_factory=lambda: {s: array("d") for s in STAGES})
+    sinks: dict[str, array] = field(default_factory=dict)  # each sink's ``write`` (ms), by :func:`sink_label`
 
     def add(self, stage_ms: dict[str, float]) -> None:
         for s in STAGES:
             self.ms[s].append(stage_ms.get(s, 0.0))
 
+    def add_sink(self, label: str, ms: float) -> None:
+        self.sinks.setdefault(label, array("d")).append(ms)
+
     def summary(self, skip: int = 0) -> dict[str, dict[str, float]]:
         """p50 / p99 / mean / max per stage (ms), ignoring the first ``skip`` frames (warm-up)."""
-        out = {}
-        for s in STAGES:
-            a = np.array(self.ms[s], np.float64)  # a copy: the array keeps growing
-            a = a[skip:] if len(a) > skip else (a if len(a) else np.zeros(1))
-            out[s] = {
-                "p50": round(float(np.percentile(a, 50)), 3),
-                "p99": round(float(np.percentile(a, 99)), 3),
-                "mean": round(float(a.mean()), 3),
-                "max": round(float(a.max()), 3),
-            }
-        return out
+        return {s: ms_stats(self.ms[s], skip) for s in STAGES}
+
+    def sink_summary(self, skip: int = 0) -> dict[str, dict[str, float]]:
+        """The same per sink (its ``write`` in the scheduler's thread; a sink with several faces: per call)."""
+        return {k: ms_stats(v, skip) for k, v in self.sinks.items()}
+
+
+def sink_label(sink) -> str:
+    """A sink's name in the timings: its class (``ForFace`` and ``Upsampler`` name what they wrap)."""
+    inner = getattr(sink, "sink", None)
+    if inner is not None:  # ForFace
+        return sink_label(inner)
+    name = type(sink).__name__
+    wrapped = getattr(sink, "sinks", None)
+    if wrapped is not None:  # Upsampler: its write hands the frame to its own thread
+        return f"{name}[{'+'.join(sink_label(s) for s in wrapped)}]"
+    return name
 
 
 @dataclass
@@ -206,12 +235,15 @@ class Scheduler:
             "audio_underruns": 0,
             "late_frames": 0,
             "video_frames_skipped": 0,
+            "camera_frames_dropped": 0,
         }
         self.frames = 0
         self.t0: float | None = None
         self.stopped_by = ""
         self._stop = False
         self.last_video_frame = None  # the frame capture saw last (for side-by-side video)
+        self._stage: dict[str, float] = {}  # the current frame's stage times
+        self._t_input = 0.0
         for st in self.streams:
             st.gen.reset()
 
@@ -248,12 +280,19 @@ class Scheduler:
         return bool(src is not None and src.ended)
 
     # ------------------------------------------------------------------ one frame
-    def _capture(self, deadline: float) -> list[FaceSample | None]:
-        """The fresh face sample of each stream (None: nothing new before the deadline)."""
+    def _capture(self, deadline: float, behind: bool = False) -> list[FaceSample | None]:
+        """The fresh face sample of each stream (None: nothing new before the deadline, or ``behind``:
+        the frames due are dropped unprocessed)."""
         n = len(self.streams)
         if self.video is not None:
-            vf = self.video.next_frame(deadline)
+            t = time.perf_counter()
+            if behind:
+                self.events["camera_frames_dropped"] += self.video.drop(deadline)
+                vf = None
+            else:
+                vf = self.video.next_frame(deadline)
             self._t_input = time.perf_counter()
+            self._stage["input"] = (self._t_input - t) * 1000.0
             if vf is None:
                 return [None] * n
             self.last_video_frame = vf
@@ -261,6 +300,8 @@ class Scheduler:
                 res = [self.capture.process(vf.image, vf.ts_s * 1000.0, vf.depth_mm)]
             else:
                 res = self.capture.process_slots(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
+            detector = getattr(self.capture, "detector", None)
+            self._stage["landmarks"] = float(getattr(detector, "last_ms", 0.0))
             return [
                 FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found))
                 if r is not None
@@ -279,6 +320,7 @@ class Scheduler:
         k = self.frames
         deadline = (k + 1) / self.fps
         now = None
+        behind = False
         if self.realtime:
             due = deadline + self.input_slack_s
             wait = due - self._now_s()
@@ -286,12 +328,14 @@ class Scheduler:
                 time.sleep(wait)
             elif -wait > 1.0 / self.fps:
                 self.events["late_frames"] += 1
+                behind = True
             now = self._now_s()
         stage: dict[str, float] = {}
+        self._stage = stage
         t_start = time.perf_counter()
-        # 1. capture
+        # 1. capture (behind the clock: the camera's frames are dropped, the model still gets this frame's audio)
         if self.video is not None or self.face_feed is not None:
-            samples = self._capture(deadline)
+            samples = self._capture(deadline, behind)
             t_start = self._t_input  # reading/decoding the frame is input, not compute
         else:
             samples = [None] * len(self.streams)
@@ -323,11 +367,14 @@ class Scheduler:
             st.was_found = found
             inputs.append(InputFrame(k, audio, face, head, found))
         t2 = time.perf_counter()
+        c2 = time.thread_time()
         stage["features"] = (t2 - t1) * 1000.0
         # 3. model
         poses = [st.gen.step(inp.audio, inp.face, inp.head) for st, inp in zip(self.streams, inputs)]
         t3 = time.perf_counter()
+        c3 = time.thread_time()
         stage["model"] = (t3 - t2) * 1000.0
+        stage["model_cpu"] = (c3 - c2) * 1000.0
         # 4. output: the head and the face the avatar shows
         outs = []
         for st, inp, pose in zip(self.streams, inputs, poses):
@@ -342,11 +389,14 @@ class Scheduler:
         stage["total"] = (time.perf_counter() - t_start) * 1000.0  # pose + blendshapes ready (sinks see this)
         for out in outs:
             for sink in self.sinks:
+                t = time.perf_counter()
                 sink.write(out)
+                self.timings.add_sink(sink_label(sink), (time.perf_counter() - t) * 1000.0)
         for st, out in zip(self.streams, outs):
             st.last = out
         t4 = time.perf_counter()
         stage["output"] = (t4 - t3) * 1000.0
+        stage["output_cpu"] = (time.thread_time() - c3) * 1000.0
         stage["total"] = (t4 - t_start) * 1000.0
         self.timings.add(stage)
         if self.video is not None:
@@ -384,6 +434,7 @@ class Scheduler:
             "frames": self.frames,
             "fps": self.fps,
             "latency_ms": self.timings.summary(skip=warmup),
+            "sink_ms": self.timings.sink_summary(skip=warmup),
             "latency_warmup_frames_excluded": min(warmup, max(self.frames - 1, 0)),
             "events": dict(self.events),
             "stopped_by": self.stopped_by,

@@ -158,6 +158,26 @@ class FileVideo:
             return VideoFrame(self._ts(i), img, depth)
         return None
 
+    def drop(self, deadline_s: float) -> int:
+        """Read past every unread frame with time < ``deadline_s`` without decoding it; how many (the
+        scheduler, behind the clock, drops them)."""
+        n = 0
+        while not self.ended:
+            if not self._in_loop(self._i):
+                assert self.loop_period_s is not None  # out of the loop only when there is one
+                if self._offset + self.loop_period_s >= deadline_s or not self._restart():
+                    break
+                continue
+            if self._ts(self._i) >= deadline_s:
+                break
+            if not self._src.cap.grab():
+                if not self._restart():
+                    break
+                continue
+            self._i += 1
+            n += 1
+        return n
+
     def close(self) -> None:
         self._src.close()
 
@@ -229,6 +249,16 @@ class CameraVideo:
             self.skipped += seq - self._last_seq - 1 if self._last_seq else 0
             self._last_seq = seq
         return VideoFrame(ts, img)
+
+    def drop(self, deadline_s: float) -> int:
+        """Mark every frame captured before ``deadline_s`` as read, unprocessed; how many."""
+        with self._lock:
+            due = [f[0] for f in self._frames if f[1] < deadline_s and f[0] > self._last_seq]
+            if not due:
+                return 0
+            n = due[-1] - self._last_seq if self._last_seq else len(due)
+            self._last_seq = due[-1]
+        return n
 
     def close(self) -> None:
         self._stop.set()

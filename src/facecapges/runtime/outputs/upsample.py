@@ -15,7 +15,11 @@ newest model frame ``k`` arrived (``S``) and frame ``k``, with weight
 local-joint rotations and the head by quaternion slerp, face weights linearly. Frame
 ``k`` is fully shown ``(n−1)/n · P`` after it arrives, and held after that until the
 next one comes; the output never jumps (``S`` is what was on screen). The stream time
-sent (``/VMC/Ext/T``) advances with the clock and never goes back.
+sent (``/VMC/Ext/T``) advances with the clock: every tick at least one tick (``1/rate``)
+after the last one — the newest model frame's time plus the time since it arrived, minus
+the added latency, when that is later (a model frame that came late or early moves it
+less or more, never back, never repeated: receivers that order or interpolate by it need
+it strictly increasing).
 
 Added latency: **33.3 ms at 30 Hz, 50.0 ms at 60 Hz** (15 fps model), ``(n−1)/n · P``;
 at ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
@@ -31,6 +35,7 @@ from __future__ import annotations
 
 import threading
 import time
+from array import array
 from dataclasses import replace
 
 import numpy as np
@@ -90,6 +95,8 @@ class Upsampler:
         self.emitted = 0
         self.late = 0  # ticks sent more than one output period after they were due
         self.resyncs = 0
+        self.tick_ms = array("d")  # each tick's blend + send (ms, the emitting thread's work)
+        self.tick_cpu_ms = array("d")  # the same in CPU time of that thread
         self._shown: OutputFrame | None = None  # what the sinks got last
         self._target: OutputFrame | None = None  # newest model frame
         self._start: OutputFrame | None = None  # what was shown when it arrived
@@ -125,11 +132,12 @@ class Upsampler:
 
     def _frame_at(self, due: float, start: OutputFrame | None, target: OutputFrame, t0: float) -> OutputFrame:
         """What tick ``due`` shows: the blend towards ``target``, its stream time on the clock."""
-        w = 1.0 if start is None else min(1.0, (due - t0) / self.period_s + 1.0 / self.n)
+        # a late tick (due before the frame came: the machine was busy) shows where it was, never behind it
+        w = 1.0 if start is None else min(1.0, max(0.0, (due - t0) / self.period_s + 1.0 / self.n))
         self._reached = target if w >= 1.0 else None
         fr = blend_frames(start, target, w) if start is not None else target
         t = target.time_s + (due - t0) - (self.n - 1) / self.n * self.period_s
-        t = max(t, self._last_time, fr.time_s if start is None else -np.inf)
+        t = max(t, self._last_time + 1.0 / self.rate_hz, fr.time_s if start is None else -np.inf)
         self._last_time = t
         return fr if t == fr.time_s else replace(fr, time_s=t)
 
@@ -155,10 +163,14 @@ class Upsampler:
                     self.late += 1
                 start, target, t0 = self._start, self._target, self._t0
                 assert target is not None  # the wait above ends only with a frame
-            fr = self._frame_at(due, start, target, t0)
-            with self._cond:
+                t_work, c_work = time.perf_counter(), time.thread_time()
+                # computed and recorded as shown in one hold of the lock: a frame written meanwhile would
+                # start from what was shown before this tick, and the output would step back
+                fr = self._frame_at(due, start, target, t0)
                 self._shown = fr
             self._emit(fr)
+            self.tick_ms.append((time.perf_counter() - t_work) * 1000.0)
+            self.tick_cpu_ms.append((time.thread_time() - c_work) * 1000.0)
             due += tick
 
     def close(self) -> None:
@@ -172,6 +184,6 @@ class Upsampler:
             self._thread.join(timeout=2)
             target = self._target
             if target is not None and self._reached is not target:  # end on the last model frame
-                self._emit(replace(target, time_s=max(target.time_s, self._last_time)))
+                self._emit(replace(target, time_s=max(target.time_s, self._last_time + 1.0 / self.rate_hz)))
         for s in self.sinks:
             s.close()

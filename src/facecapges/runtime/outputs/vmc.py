@@ -304,17 +304,25 @@ class VmcMapping:
             rest_b.append(self.rig.bone_rest[unity])
         self._wp_inv = np.asarray(rest_p).reshape(-1, 3, 3)
         self._wb = np.asarray(rest_b).reshape(-1, 3, 3)
+        # the paths as index arrays: R = mats[first]; then, step d, R[bones with a d-th joint] @= mats[that joint]
+        self._first = np.array([path[0] for _, path, _ in self.bones], np.int64)
+        depth = max((len(path) for _, path, _ in self.bones), default=1)
+        self._steps = [
+            (
+                np.array([k for k, (_, path, _) in enumerate(self.bones) if len(path) > d], np.int64),
+                np.array([path[d] for _, path, _ in self.bones if len(path) > d], np.int64),
+            )
+            for d in range(1, depth)
+        ]
 
     def local_rotations(self, quats47: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per sent bone."""
         n = self.skeleton.n_joints
         mats = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         mats[self.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
-        R = np.empty((len(self.bones), 3, 3))
-        for k, (_, path, _) in enumerate(self.bones):
-            R[k] = mats[path[0]]
-            for j in path[1:]:
-                R[k] = R[k] @ mats[j]
+        R = mats[self._first]  # each bone's path product, one step of every path at a time
+        for ks, js in self._steps:
+            R[ks] = R[ks] @ mats[js]
         X = np.diag(_UNITY_X)
         local = self._wp_inv @ (X @ R @ X) @ self._wb  # Wp⁻¹ · Q · Wb in Unity's frame (module docstring)
         q = rot.matrix_to_quaternion(local)
