@@ -90,6 +90,7 @@ def _list(json_out: bool) -> None:
                 "engine": ckpt.engine,
                 "default": name == DEFAULT_STYLE,
                 "speaker": meta.get("speaker"),
+                "takes": ", ".join(str(t.get("source") or t.get("name")) for t in meta.get("takes") or []) or None,
                 "epochs": meta.get("epochs_trained"),
                 "inputs": meta.get("inputs"),
                 "shipped": path.parent == styles_dir(),
@@ -102,8 +103,9 @@ def _list(json_out: bool) -> None:
     if not rows:
         typer.echo("no styles installed")
     for r in rows:
+        who = f"speaker {r['speaker']}" if r["speaker"] is not None else f"from {r['takes'] or 'unnamed takes'}"
         typer.echo(
-            f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
+            f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  {who}  "
             + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")
             + f"{'shipped' if r['shipped'] else 'user'}  {r['path']}"
         )
