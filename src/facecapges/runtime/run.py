@@ -340,8 +340,11 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
     # every check before the model loads (a bad path or file type in a second, not after the load)
     size = parse_size(o.video_size)
     check_inputs(video=o.video, audio=o.audio, estimator=o.estimator, head=o.head, faces=o.faces, intensity=o.intensity)
-    if o.audio is None:
-        check_audio(o.video)  # the speech is the video's own track
+    if o.audio is None:  # the speech is the video's own track
+        try:
+            check_audio(o.video)
+        except UserError as exc:
+            raise UserError(f"{exc} — the video needs an audio track, or pass --audio FILE") from None
     check_face_layout(o.face_json)
     check_output_dir(o.out, output_names(o.faces), o.force)
     if o.max_frames is not None and o.max_frames < 1:

@@ -103,6 +103,13 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
 
         check_audio(o.audio)
     width, height = parse_render_size(o.size)
+    if o.audio is None and o.face is None:
+        from facecapges.errors import echo_warning
+
+        echo_warning(
+            "warning: no --audio and no --face: the video will be silent and the mouth still "
+            "(pass --audio SPEECH.wav: its sound, and the jaw and lips follow it; or --face FACE.json)"
+        )
     motion = read_bvh(o.bvh)
     check_skeleton(motion.skeleton, str(o.bvh))
     if o.audio is not None:
