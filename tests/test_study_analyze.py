@@ -83,13 +83,13 @@ def test_analyze_study_outputs(tmp_path):
 
 
 def test_mean_rank_plot_draws_the_chinese_criterion_names(tmp_path):
-    """The criteria's Chinese names in mean_rank.png come from the installed CJK font (scripts/setup-render.sh
+    """The criteria's Chinese names in mean_rank.png come from the installed CJK font (scripts/setup-avatar.sh
     installs fonts-wqy-microhei), not as empty boxes: matplotlib warns of no missing glyph."""
     import warnings
 
     from facecapges.io.plots import cjk_font
 
-    assert cjk_font() is not None, "no CJK font: run scripts/setup-render.sh (fonts-wqy-microhei)"
+    assert cjk_font() is not None, "no CJK font: run scripts/setup-avatar.sh (fonts-wqy-microhei)"
     systems = ["gt", "ours"]
     plan = make_plan(["c1", "c2"], systems, 2, seed=0)
     d = tmp_path / "study"

@@ -3,7 +3,7 @@
 Matplotlib's default font (DejaVu Sans) has no Chinese glyphs: without a fallback the study's Chinese
 criterion names come out as empty boxes with a "Glyph … missing from font" warning each. :func:`pyplot`
 puts the first installed CJK font (WenQuanYi Micro Hei — Debian's ``fonts-wqy-microhei``, which
-``scripts/setup-render.sh`` installs — Noto Sans CJK, Source Han Sans …), found through
+``scripts/setup-avatar.sh`` installs — Noto Sans CJK, Source Han Sans …), found through
 ``matplotlib.font_manager``, after DejaVu Sans in ``font.family``; matplotlib (≥ 3.6) then takes each
 glyph from the first font of that list that has it.
 """
