@@ -99,6 +99,13 @@ def _cases(port: int) -> list[tuple[list[str], str]]:
         (["styles", "build", "me", "--take", beat, "bad.wav"], "bad.wav"),
         (["avatar", "vrma", "--bvh", "missing.bvh", "--out", "x.vrma"], "missing.bvh"),
         (["avatar", "build", "--out", "x.vrm", "--format", "vrm", "--skeleton", "missing.bvh"], "missing.bvh"),
+        (["retarget", "missing.bvh", "--out", "o.bvh"], "missing.bvh"),
+        (["styles", "install", "missing"], "missing"),
+        (["ablate", "--cache", "missing", "--out", "abl"], "missing"),
+        (["study", "create", "--clips", "missing.yaml", "--out", "st"], "missing.yaml"),
+        (["blendshapes", "--mesh", "missing.obj", "--controls", "c.json", "--out", "bs"], "missing.obj"),
+        (["capture", cam, "--out", "f.json"], f"camera {cam}"),
+        (["live", "--livelink", "0", "--audio", "missing.wav"], "missing.wav"),
     ]
 
 
@@ -114,6 +121,8 @@ def test_bad_input_is_reported_before_anything_heavy_loads(bad_files):
                 unclear.append((args, code, err[-3:]))
             if mods & set(HEAVY):
                 heavy.append((args, sorted(mods & set(HEAVY))))
+            if dt > max(BOUND_S, 2 * base):  # a stall of this shared machine is not the command's: once more
+                dt = min(dt, _run(args, bad_files)[0])
             if dt > max(BOUND_S, 2 * base):
                 slow.append((args, round(dt, 2)))
     finally:

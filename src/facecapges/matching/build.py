@@ -181,6 +181,7 @@ def build_style(
     say("building the database (training frames and their mirror images)")
     db = build_database(takes)
     say(f"  {len(db)} frames ({len(db) / timing.MODEL_FPS:.0f} s)")
+    say(f"training the speech predictor (at most {settings.steps} steps; it stops when validation stops improving)")
     predictor = train_predictor(takes, seed=seed, progress=progress, settings=settings)
     licences = sorted({licence_of(t) for t in takes})
     meta = {

@@ -61,11 +61,6 @@ def generate_recording(
     from facecapges.skeleton import pose_to_motion
 
     # every check before the model loads: a wrong path or file type is reported in a second
-    check_audio(o.audio)
-    if o.face is not None:
-        require_file(o.face, "face JSON file")
-    if o.head is not None:
-        require_file(o.head, "head rotation file")
     check_intensity(o.intensity)
     check_output_file(o.out, o.force)  # before the work: existing, folder, unwritable
     if o.face_out is not None:
@@ -75,6 +70,11 @@ def generate_recording(
 
         check_output_file(o.vrma, o.force)
         check_face_mode(o.vrma_face)
+    check_audio(o.audio)
+    if o.face is not None:
+        require_file(o.face, "face JSON file")
+    if o.head is not None:
+        require_file(o.head, "head rotation file")
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_blocks
 

@@ -67,12 +67,17 @@ def check_options(o: TrainOptions) -> None:
     if o.epochs is not None and o.epochs < 1:
         raise UserError("--epochs must be at least 1")
     if o.config is not None:
-        require_file(o.config, "config file")
-    cache = Cache(o.cache)
-    if not o.resume:
-        cache.select(o.speaker, o.split or "train")
-        if not (o.out / "last.pt").exists():
-            check_output_dir(o.out, RUN_FILES, o.force)
+        from facecapges.model.config import load_config_file
+
+        load_config_file(require_file(o.config, "config file"))
+    if o.resume:  # the run's own state (read with torch) says the rest
+        return
+    has_run = (o.out / "last.pt").exists()
+    if not has_run:  # a folder without a run keeps its files too
+        check_output_dir(o.out, RUN_FILES, o.force)
+    elif not o.force:
+        raise UserError(f"{o.out}: holds a training run; pass --resume to continue it or --force to start over")
+    Cache(o.cache).select(o.speaker, o.split or "train")
 
 
 def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
