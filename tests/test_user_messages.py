@@ -48,3 +48,12 @@ def test_gltf_viewer_serves_every_file_its_page_asks_for():
         s.close()
     for page in ("viewer.html", "render.html"):
         assert '<link rel="icon" href="data:,">' in (web_dir() / page).read_text()
+
+
+def test_train_on_the_shared_take_says_where_its_clip_is(beat_cache, tmp_path):
+    """`train --cache … --speaker 2` as the full-BEAT docs write it, on ../shared's cache (its one take is in
+    BEAT's test split): the error says where the clip is and the options that train on it."""
+    p = cli("train", "--cache", str(beat_cache), "--speaker", "2", "--out", str(tmp_path / "runs" / "scott"))
+    assert p.returncode == 2 and p.stderr.startswith("error:"), p.stderr
+    assert "in 'test'" in p.stderr and "--split all" in p.stderr and "--holdout-from 765" in p.stderr, p.stderr
+    assert not (tmp_path / "runs").exists()
