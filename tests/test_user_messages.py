@@ -57,3 +57,17 @@ def test_train_on_the_shared_take_says_where_its_clip_is(beat_cache, tmp_path):
     assert p.returncode == 2 and p.stderr.startswith("error:"), p.stderr
     assert "in 'test'" in p.stderr and "--split all" in p.stderr and "--holdout-from 765" in p.stderr, p.stderr
     assert not (tmp_path / "runs").exists()
+
+
+def test_an_avatar_without_a_face_gets_no_empty_close_up(beat_take):
+    """`run --avatar` with a humanoid GLB that has no expressions: its description says the face is none, and
+    avatar.mp4 gets no face close-up (an empty one before); a VRM with expressions keeps it."""
+    from facecapges.avatar.vrm.read import parse_model
+    from facecapges.avatar.vrm.view import VrmDriver
+    from facecapges.runtime.run import shows_face_inset
+    from vrm_samples import build_sample
+
+    bare = VrmDriver(parse_model(build_sample("glb"), "bare.glb"), beat_take.skeleton)
+    assert not bare.faces.names and "face: none" in bare.describe() and not shows_face_inset(bare)
+    vrm = VrmDriver(parse_model(build_sample("vrm1"), "a.vrm"), beat_take.skeleton)
+    assert vrm.faces.names and shows_face_inset(vrm) and shows_face_inset(None)

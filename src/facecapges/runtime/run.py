@@ -144,6 +144,12 @@ def side_by_side(
             r.close()
 
 
+def shows_face_inset(driver) -> bool:
+    """Whether avatar.mp4 gets the face close-up: ours and any avatar with face expressions do; one without
+    (a bare humanoid GLB) would show an empty close-up, so it gets none (the report and the summary say so)."""
+    return driver is None or bool(driver.faces.names)
+
+
 def output_names(faces: int) -> tuple[str, ...]:
     """The files ``run`` writes: one motion and face file per face (``motion_1.bvh`` … for several)."""
     if faces == 1:
@@ -269,8 +275,7 @@ def run_video(
     report["head_follow"] = follow[0] if faces == 1 else follow
     report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
     report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
-    # a VRM without face expressions would show an empty close-up: no inset then, and the report says so
-    inset = driver is None or bool(driver.faces.names)
+    inset = shows_face_inset(driver)
     if videos:
         report["avatar"] = driver.describe() if driver is not None else OUR_AVATAR
         report["face_inset"] = inset
