@@ -21,6 +21,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"
 HEAVY = ("torch", "mediapipe", "numba", "matplotlib", "safetensors")
 BOUND_S = 1.0  # the target: an error within 1 s (on a machine as fast as a bare `--help`)
+RATIO = 2.5  # else within 2.5 x a bare `--help` of the same run (loaded machine); loading torch first is 10 x
 
 
 def _run(args: list[str], cwd: Path) -> tuple[float, int, list[str], set[str]]:
@@ -121,12 +122,12 @@ def test_bad_input_is_reported_before_anything_heavy_loads(bad_files):
                 unclear.append((args, code, err[-3:]))
             if mods & set(HEAVY):
                 heavy.append((args, sorted(mods & set(HEAVY))))
-            if dt > max(BOUND_S, 2 * base):  # a stall of this shared machine is not the command's: once more
+            if dt > max(BOUND_S, RATIO * base):  # a stall of this shared machine is not the command's: once more
                 dt = min(dt, _run(args, bad_files)[0])
-            if dt > max(BOUND_S, 2 * base):
+            if dt > max(BOUND_S, RATIO * base):
                 slow.append((args, round(dt, 2)))
     finally:
         sock.close()
     assert not unclear and not heavy and not slow, {
         "not one clear error line": unclear, "loaded a heavy library first": heavy,
-        f"slower than max({BOUND_S} s, 2 x --help's {base:.2f} s)": slow}
+        f"slower than max({BOUND_S} s, {RATIO} x --help's {base:.2f} s)": slow}

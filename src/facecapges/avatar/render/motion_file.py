@@ -103,20 +103,21 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
 
         check_audio(o.audio)
     width, height = parse_render_size(o.size)
-    if o.audio is None and o.face is None:
-        from facecapges.errors import echo_warning
-
-        echo_warning(
-            "warning: no --audio and no --face: the video will be silent and the mouth still "
-            "(pass --audio SPEECH.wav: its sound, and the jaw and lips follow it; or --face FACE.json)"
-        )
     motion = read_bvh(o.bvh)
     check_skeleton(motion.skeleton, str(o.bvh))
     if o.audio is not None:
         require_file(o.audio, "audio")
     if o.face is not None:
         require_file(o.face, "face JSON")
-    if o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar")):
+    vrm = o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar"))
+    if o.audio is None and o.face is None:  # after the checks: a refused command says only why
+        from facecapges.errors import echo_warning
+
+        echo_warning(
+            "warning: no --audio and no --face: the video will be silent and the mouth still "
+            "(pass --audio SPEECH.wav: its sound, and the jaw and lips follow it; or --face FACE.json)"
+        )
+    if vrm:
         from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices
 
         driver = VrmDriver.from_file(o.avatar_glb, motion.skeleton)
