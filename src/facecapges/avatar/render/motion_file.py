@@ -117,7 +117,7 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
             "warning: no --audio and no --face: the video will be silent and the mouth still "
             "(pass --audio SPEECH.wav: its sound, and the jaw and lips follow it; or --face FACE.json)"
         )
-    if vrm:
+    if vrm and o.avatar_glb is not None:
         from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices
 
         driver = VrmDriver.from_file(o.avatar_glb, motion.skeleton)
