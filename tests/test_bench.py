@@ -35,3 +35,24 @@ def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video)
     assert m["max_abs_diff_naive"] < 1e-4
     assert m["step_with_euler_ms_p50"] >= m["step_ms_p50"] > 0
     assert doc["serve"]["trials"] and doc["serve"]["trials"][0]["frames_returned"] > 0
+
+
+def test_bench_table_is_one_short_value_per_row():
+    """`bench`'s table (not --json) puts every figure on its own row with a short value: nested objects as
+    dotted names, not JSON wrapped into a 30-character column."""
+    from rich.console import Console
+
+    from facecapges.commands.bench import figure_rows, figure_table
+
+    result = {"model": {"step_ms": {"p50": 0.8412345, "p99": 1.52, "cpu": True},
+                        "naive": {"p50_ms": 4.02, "ratio": 6.08},
+                        "trials": [{"streams": 40, "p99_ms": 58.0}, {"streams": 20, "p99_ms": 40.1}],
+                        "batch_sizes": [1, 16, 64], "note": "ok"}}
+    rows = dict(figure_rows(result["model"]))
+    assert rows["step_ms.p50"] == "0.8412" and rows["trials[1].p99_ms"] == "40.1"
+    assert rows["batch_sizes"] == "[1, 16, 64]" and rows["step_ms.cpu"] == "true"
+    console = Console(width=100, record=True, color_system=None)
+    console.print(figure_table(result, ["model"]))
+    text = console.export_text()
+    assert "{" not in text and '"' not in text, text
+    assert "step_ms.p99" in text and "1.52" in text

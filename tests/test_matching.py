@@ -267,6 +267,38 @@ def test_styles_build_end_to_end_on_zeggs(tmp_path, zeggs_piece):
     refused(p, "--force")  # an installed style is not replaced without --force
 
 
+@pytest.mark.slow
+def test_styles_build_of_a_retargeted_zeggs_take_in_a_pipe(tmp_path, zeggs_piece):
+    """The README's path for other skeletons (`retarget`, then `styles build`), with the ZEGGS take beside its
+    LICENSE-ZEGGS.md, run as a real process whose output is a pipe (a log, CI): the predictor's training prints
+    progress lines on stderr (rich's bar draws nothing there), the card takes CC BY-NC-ND 4.0 from the licence
+    file (not "the user's own"), and `styles` lists it by its take, not as "speaker None"."""
+    import os
+    import shutil
+
+    from runtime_helpers import cli_process
+
+    bvh, wav = zeggs_piece
+    d = tmp_path / "zeggs"
+    d.mkdir()
+    shutil.copy(shared_file("data/zeggs/LICENSE-ZEGGS.md"), d / "LICENSE-ZEGGS.md")  # as it comes with ZEGGS
+    shutil.copy(wav, d / "piece.wav")
+    p = cli("retarget", str(bvh), "--out", str(d / "piece_beat.bvh"))
+    assert p.returncode == 0, p.stderr[-2000:]
+    env = {**os.environ, "FACECAPGES_STYLES": str(tmp_path / "styles"), "FACECAPGES_PROGRESS_SECONDS": "0"}
+    p = cli_process("styles", "build", "zeggs-beat", "--take", str(d / "piece_beat.bvh"), str(d / "piece.wav"),
+                    "--steps", "12", env=env, timeout=900)
+    assert p.returncode == 0, p.stderr[-3000:]
+    lines = [x for x in p.stderr.splitlines() if x.startswith("speech predictor: ")]
+    assert len(lines) >= 3 and "12/12 (100 %)" in lines[-1] and lines[-1].endswith(("done", ")")), p.stderr[-2000:]
+    assert "\x1b[" not in p.stderr  # plain lines, no terminal control codes
+    card = (tmp_path / "styles" / "zeggs-beat.md").read_text()
+    assert "Licence: CC BY-NC-ND 4.0" in card and "never distribute" in card and "user's own" not in card, card
+    listed = cli("styles", env=env).stdout
+    row = next(x for x in listed.splitlines() if "zeggs-beat" in x)
+    assert "None" not in row and "piece_beat.bvh" in row, row
+
+
 @pytest.mark.parametrize(
     "args, words",
     [

@@ -20,6 +20,7 @@ def run_dir(face_video, tmp_path_factory):
     out = tmp_path_factory.mktemp("run") / "out"
     r = cli("run", str(face_video), "--out", str(out), "--max-frames", str(N))
     assert r.returncode == 0, r.stderr[-2000:]
+    (out.parent / "stdout.txt").write_text(r.stdout)
     return out
 
 
@@ -45,6 +46,16 @@ def test_outputs_written(run_dir):
 
 
 @pytest.mark.slow
+def test_run_says_its_avatar_face_mode_and_files(run_dir):
+    """What `run` used and wrote is on its output, not only in report.json."""
+    said = (run_dir.parent / "stdout.txt").read_text()
+    assert "avatar: ours" in said and "face capture: hybrid estimator" in said, said
+    for name in ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json"):
+        assert f"wrote {run_dir / name}" in said, said
+    report = json.loads((run_dir / "report.json").read_text())
+    assert report["avatar"].startswith("ours") and report["face_inset"] is True
+
+
 def test_videos(run_dir):
     meta, n = probe(run_dir / "avatar.mp4")
     assert n == N and meta["fps"] == pytest.approx(15) and meta["audio_codec"]

@@ -80,3 +80,28 @@ def test_analyze_study_outputs(tmp_path):
     for name in ("mean_rank.png", "rank_shares.png"):
         img = cv2.imread(str(out / name))
         assert img.shape[0] > 300 and img.shape[1] > 600 and img.std() > 10
+
+
+def test_mean_rank_plot_draws_the_chinese_criterion_names(tmp_path):
+    """The criteria's Chinese names in mean_rank.png come from the installed CJK font (scripts/setup-avatar.sh
+    installs fonts-wqy-microhei), not as empty boxes: matplotlib warns of no missing glyph."""
+    import warnings
+
+    from facecapges.io.plots import cjk_font
+
+    assert cjk_font() is not None, "no CJK font: run scripts/setup-avatar.sh (fonts-wqy-microhei)"
+    systems = ["gt", "ours"]
+    plan = make_plan(["c1", "c2"], systems, 2, seed=0)
+    d = tmp_path / "study"
+    store = AnswerStore(d / "responses", plan)
+    for p in plan.participants:
+        p.token = new_token()
+        for i, t in enumerate(p.trials):
+            store.answer(p.id, i, {c: [t.systems.index(s) + 1 for s in t.systems] for c in CRITERION_KEYS})
+    study = Study(d, {"systems": systems, "criteria": [c.to_json() for c in CRITERIA]}, plan)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        analyze_study(study, tmp_path / "res")
+    missing = [str(w.message) for w in caught if "missing from font" in str(w.message)]
+    assert not missing, missing
+    assert (tmp_path / "res" / "mean_rank.png").stat().st_size > 10_000

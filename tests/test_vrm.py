@@ -461,3 +461,15 @@ def test_vrm_bench_runs():
     assert r["bones"] == 52 and r["vrma_900_bytes"] > 100_000
     assert all(r[k] > 0 for k in ("retarget_frame_ms", "presets_frame_ms", "retarget_900_ms", "vrma_900_s"))
     FIGURES["bench"] = r
+
+
+def test_our_vrm_files_state_one_licence(files):
+    """VRM 1.0 and 0.x say the same licence, CC BY 4.0: 0.x by name, 1.0 in its copyright field with the VRM
+    Public License's parameters set to CC BY's terms (credit required) — not "MIT" beside the VRM licence."""
+    doc1, _ = split_glb(files["ours"].read_bytes())
+    doc0, _ = split_glb(files["ours0"].read_bytes())
+    m1, m0 = doc1["extensions"]["VRMC_vrm"]["meta"], doc0["extensions"]["VRM"]["meta"]
+    assert m0["licenseName"] == "CC_BY"
+    assert "CC BY 4.0" in m1["copyrightInformation"] and "MIT" not in json.dumps(m1) + json.dumps(m0)
+    assert m1["creditNotation"] == "required" and m1["allowRedistribution"] and m1["commercialUsage"] == "corporation"
+    assert m1["modification"] == "allowModificationRedistribution"

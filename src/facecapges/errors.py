@@ -137,3 +137,32 @@ def check_port(port: int, flag: str = "--port") -> int:
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise UserError(f"{flag}: port {port} is out of range (0-65535)")
     return port
+
+
+def check_port_free(host: str, port: int, flag: str = "--port", udp: bool = False) -> None:
+    """Raise now, before any model loads, if a server could not listen on ``host:port`` (in use, or an address
+    this machine does not have). Port 0 (any free port) always passes. The probe binds as our servers do
+    (``SO_REUSEADDR``) and closes at once."""
+    import socket
+
+    check_port(port, flag)
+    if port == 0:
+        return
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM if udp else socket.SOCK_STREAM)
+    except socket.gaierror as exc:
+        raise UserError(f"{flag} {host}:{port}: unknown host ({exc.strerror})") from None
+    family, kind, proto, _, addr = infos[0]
+    with socket.socket(family, kind, proto) as s:
+        s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            s.bind(addr)
+        except OSError as exc:
+            import errno
+
+            if exc.errno == errno.EADDRINUSE:
+                why = f"port {port} is in use (another program, or another facecapges, listens there)"
+                raise UserError(f"{flag} {host}:{port}: {why}; choose another port, or 0 for any free one") from None
+            raise UserError(
+                f"{flag} {host}:{port}: cannot listen there ({(exc.strerror or str(exc)).lower()})"
+            ) from None

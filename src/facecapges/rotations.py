@@ -36,11 +36,11 @@ from __future__ import annotations
 
 import functools
 import math
+import sys
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import torch
 
 Array = Any  # numpy.ndarray or torch.Tensor
 
@@ -50,7 +50,14 @@ _CROSS_I, _CROSS_J = np.array([1, 2, 0]), np.array([2, 0, 1])  # _cross's index 
 
 # --------------------------------------------------------------------------- helpers
 def _is_torch(x: Array) -> bool:
-    return isinstance(x, torch.Tensor)
+    """A torch tensor? (torch is never imported here: a tensor means it is loaded; NumPy callers stay light.)"""
+    t = sys.modules.get("torch")
+    return t is not None and isinstance(x, t.Tensor)
+
+
+def _torch() -> Any:
+    """The torch module, for a function given a tensor (so already imported)."""
+    return sys.modules["torch"]
 
 
 def _check_last(x: Array, shape: tuple[int, ...], what: str) -> None:
@@ -59,28 +66,28 @@ def _check_last(x: Array, shape: tuple[int, ...], what: str) -> None:
 
 
 def _stack(items: list[Array], axis: int, like: Array) -> Array:
-    return torch.stack(items, dim=axis) if _is_torch(like) else np.stack(items, axis=axis)
+    return _torch().stack(items, dim=axis) if _is_torch(like) else np.stack(items, axis=axis)
 
 
 def _cross(a: Array, b: Array) -> Array:
     if _is_torch(a):
-        return torch.linalg.cross(a, b, dim=-1)
+        return _torch().linalg.cross(a, b, dim=-1)
     i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays
     return a[..., i] * b[..., j] - a[..., j] * b[..., i]
 
 
 def _norm(a: Array) -> Array:
     if _is_torch(a):
-        return torch.linalg.norm(a, dim=-1, keepdim=True)
+        return _torch().linalg.norm(a, dim=-1, keepdim=True)
     return np.linalg.norm(a, axis=-1, keepdims=True)
 
 
 def _maximum(a: Array, value: float) -> Array:
-    return torch.clamp(a, min=value) if _is_torch(a) else np.maximum(a, value)
+    return _torch().clamp(a, min=value) if _is_torch(a) else np.maximum(a, value)
 
 
 def _sqrt(a: Array) -> Array:
-    return torch.sqrt(a) if _is_torch(a) else np.sqrt(a)
+    return _torch().sqrt(a) if _is_torch(a) else np.sqrt(a)
 
 
 # ---------------------------------------------------------------- axis and Euler
@@ -89,7 +96,7 @@ def axis_angle_matrix(axis: str, angle: Array) -> Array:
 
     ``angle`` in radians, shape (...); returns (..., 3, 3).
     """
-    lib = torch if _is_torch(angle) else np
+    lib = _torch() if _is_torch(angle) else np
     c, s = lib.cos(angle), lib.sin(angle)
     one, zero = lib.ones_like(angle), lib.zeros_like(angle)
     if axis == "X":
@@ -137,7 +144,7 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
     the angles give back is still the input matrix.
     """
     _check_last(matrix, (3, 3), "matrix")
-    lib = torch if _is_torch(matrix) else np
+    lib = _torch() if _is_torch(matrix) else np
     # one order: ints and a float sign; one order per matrix: index and sign arrays (NumPy or torch)
     i: Any
     j: Any
@@ -156,8 +163,8 @@ def matrix_to_euler(matrix: Array, order: str | Sequence[str], degrees: bool = F
             raise ValueError(f"{len(rows)} Euler orders for matrices of shape {tuple(matrix.shape)}")
         if _is_torch(matrix):
             flat = matrix.reshape(tuple(matrix.shape[:-2]) + (9,))
-            rows, cols = torch.as_tensor(rows, device=matrix.device), torch.as_tensor(cols, device=matrix.device)
-            sign = torch.as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
+            rows, cols = _torch().as_tensor(rows, device=matrix.device), _torch().as_tensor(cols, device=matrix.device)
+            sign = _torch().as_tensor(sign, dtype=matrix.dtype, device=matrix.device)
             v = flat[..., rows, cols]  # (..., J, 7): the seven entries used, each joint's own
         else:  # the same entries by one np.take over each matrix set's J·9 numbers, then as below
             take, signs = _orders_take(tuple(order))
@@ -244,7 +251,7 @@ def matrix_to_rot6d(matrix: Array) -> Array:
     """Matrices (..., 3, 3) → rot6d (..., 6): first column then second column."""
     _check_last(matrix, (3, 3), "matrix")
     cols = [matrix[..., :, 0], matrix[..., :, 1]]
-    return torch.cat(cols, dim=-1) if _is_torch(matrix) else np.concatenate(cols, axis=-1)
+    return _torch().cat(cols, dim=-1) if _is_torch(matrix) else np.concatenate(cols, axis=-1)
 
 
 def rot6d_to_matrix(rot6d: Array) -> Array:
@@ -318,8 +325,8 @@ def matrix_to_quaternion(matrix: Array) -> Array:
     allq = _stack([qw, qx, qy, qz], -2, matrix)  # (..., 4 candidates, 4)
     q: Any  # a torch tensor or a NumPy array, as the input
     if _is_torch(m):
-        q = torch.gather(allq, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
-        q = torch.where(q[..., :1] < 0, -q, q)
+        q = _torch().gather(allq, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
+        q = _torch().where(q[..., :1] < 0, -q, q)
     else:
         q = np.take_along_axis(allq, best[..., None, None], axis=-2)[..., 0, :]
         q = np.where(q[..., :1] < 0, -q, q)
@@ -379,7 +386,7 @@ def quaternion_to_unity(quat: Array) -> Array:
     _check_last(quat, (4,), "quaternion")
     sign = np.array([1.0, 1.0, -1.0, -1.0], dtype=np.float64)
     if _is_torch(quat):
-        return quat * torch.as_tensor(sign, dtype=quat.dtype, device=quat.device)
+        return quat * _torch().as_tensor(sign, dtype=quat.dtype, device=quat.device)
     return quat * sign.astype(np.asarray(quat).dtype)
 
 
@@ -389,7 +396,7 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
     ``atan2(sin θ, cos θ)`` of ``R = r1ᵀ r2``, with ``2 sin θ = |vee(R − Rᵀ)|`` and ``2 cos θ = tr R − 1``:
     accurate at small angles too (the arccos of the trace alone keeps only ~1e-8 rad there).
     """
-    lib = torch if _is_torch(r1) else np
+    lib = _torch() if _is_torch(r1) else np
     rel = r1.transpose(-1, -2) @ r2 if _is_torch(r1) else np.swapaxes(r1, -1, -2) @ r2
     vee = _stack(
         [rel[..., 2, 1] - rel[..., 1, 2], rel[..., 0, 2] - rel[..., 2, 0], rel[..., 1, 0] - rel[..., 0, 1]], -1, rel

@@ -37,10 +37,9 @@ def pearson(a: np.ndarray, b: np.ndarray) -> float:
 
 def run_tracks(video: str | Path, model=None, max_frames: int | None = None, progress: bool = False) -> dict:
     """Geometric weights, MediaPipe weights, head rotations, times for every frame of ``video``."""
-    from rich.progress import Progress
-
     from facecapges.capture.pipeline import FaceCapture
     from facecapges.capture.video import open_source
+    from facecapges.progress import Progress
 
     src = open_source(str(video))
     cap = FaceCapture(estimator="geometric", fps=src.fps, model=model)
@@ -114,10 +113,9 @@ def evaluate_tracks(tr: dict, skip_s: float = 2.0) -> dict:
 
 def plot_tracks(tr: dict, path: str | Path, skip_s: float = 2.0) -> None:
     """PNG of jawOpen and eyeBlinkLeft/Right, geometric vs MediaPipe."""
-    import matplotlib
+    from facecapges.io.plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()
 
     t = tr["time_ms"] / 1000.0
     fig, axes = plt.subplots(3, 1, figsize=(10, 7), sharex=True)

@@ -114,6 +114,12 @@ def capture_video(
         from facecapges.capture.depth import check_depth_inputs
 
         depth_files, K = check_depth_inputs(depth_dir, intrinsics)
+    from facecapges.capture.video import check_camera, check_video
+
+    if str(source).isdigit():  # the source before the landmark model loads: a typo is reported at once
+        check_camera(int(source))
+    else:
+        check_video(source)
     from facecapges.capture.models import resolve_model
     from facecapges.capture.pipeline import FaceCapture
 
@@ -144,7 +150,7 @@ def capture_video(
             total = int(math.floor((src.n_frames - 1) / src.fps * fps)) + 1
             if max_frames:
                 total = min(total, max_frames)
-        from rich.progress import Progress
+        from facecapges.progress import Progress
 
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task(f"capture {Path(str(source)).name}", total=total)

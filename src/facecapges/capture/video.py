@@ -125,3 +125,37 @@ def open_source(source: str | int) -> FrameSource:
     cap.release()
     cap = cv2.VideoCapture(str(p))  # reopen rather than seek: seeking is unreliable for some codecs
     return FrameSource(cap, str(p), fps, n, w, h, False)
+
+
+def check_video(path: str | Path, what: str = "video") -> Path:
+    """Check before any model loads that ``path`` is a video OpenCV decodes (one frame is read); UserError if not."""
+    p = Path(path)
+    if not p.exists():
+        raise file_error(p, f"{what} not found")
+    if not p.is_file():
+        raise file_error(p, f"{what} is not a regular file")
+    open_source(str(p)).close()
+    return p
+
+
+CAMERA_HINT = "check the device index (--camera) and that no other program uses it"
+
+
+def check_camera(index: int) -> None:
+    """Check before any model loads that camera ``index`` opens (it is closed again; ``open_source`` opens it
+    for the session). On Linux a missing ``/dev/videoN`` is refused without starting OpenCV."""
+    import sys
+
+    if index < 0:
+        raise UserError(f"--camera {index}: a camera index is 0 or more")
+    if sys.platform.startswith("linux") and not Path(f"/dev/video{index}").exists():
+        raise UserError(f"camera {index} cannot be opened (no /dev/video{index}); {CAMERA_HINT}")
+    _quiet_opencv()
+    import cv2
+
+    cap = cv2.VideoCapture(int(index))
+    try:
+        if not cap.isOpened():
+            raise UserError(f"camera {index} cannot be opened (no such device, or it is busy); {CAMERA_HINT}")
+    finally:
+        cap.release()

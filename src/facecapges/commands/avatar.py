@@ -47,12 +47,11 @@ def blendshapes_cmd(
     import json
     import time
 
-    from rich.progress import Progress
-
     from facecapges.avatar.blendshape_table import load_table
     from facecapges.avatar.blendshapes import build_blendshapes
     from facecapges.avatar.mesh import TriMesh, check_manifold, read_obj, write_obj
     from facecapges.errors import refuse_overwrite
+    from facecapges.progress import Progress
 
     neutral = read_obj(mesh)
     check_manifold(neutral, mesh)
@@ -143,14 +142,27 @@ def avatar_vrma(
     """Convert a BVH (+ face JSON) to VRM Animation, playable on any VRM avatar."""
     from facecapges.avatar.body import check_skeleton
     from facecapges.avatar.vrm.animation import check_face_mode, write_bvh_as_vrma
-    from facecapges.errors import refuse_overwrite, require_file
+    from facecapges.errors import echo_warning, refuse_overwrite, require_file
     from facecapges.io.bvh import read_bvh
 
     refuse_overwrite(out, force)
     check_face_mode(face_mode)
-    check_skeleton(read_bvh(require_file(bvh, "BVH")).skeleton, str(bvh))
+    motion = read_bvh(require_file(bvh, "BVH"))
+    check_skeleton(motion.skeleton, str(bvh))
     if face is not None:
-        require_file(face, "face JSON")
+        from facecapges.io.face_json import read_face_json
+
+        track = read_face_json(require_file(face, "face JSON"))
+        motion_s, face_s = len(motion.motion) / motion.fps, track.n_frames / track.fps
+        if abs(motion_s - face_s) > max(0.5, 0.05 * motion_s):  # not the same recording, or cut differently
+            rest = (
+                f"the face holds its last frame for the last {motion_s - face_s:.1f} s"
+                if face_s < motion_s
+                else (f"the face's last {face_s - motion_s:.1f} s are left out")
+            )
+            echo_warning(
+                f"warning: {face} lasts {face_s:.1f} s but {bvh} {motion_s:.1f} s; {rest} (are they one recording?)"
+            )
     p = write_bvh_as_vrma(bvh, out, face, face_mode)
     typer.echo(f"{p}: VRM Animation, {p.stat().st_size} bytes")
 

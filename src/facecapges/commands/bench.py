@@ -19,6 +19,48 @@ SHARED = typer.Option(
 )
 
 
+def _value(v) -> str:
+    """One figure as table text: floats to 4 significant digits, a list of numbers on one line."""
+    if isinstance(v, bool) or v is None:
+        return str(v).lower() if isinstance(v, bool) else "—"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    if isinstance(v, list):
+        shown = ", ".join(_value(x) for x in v[:8])
+        return f"[{shown}{', …' if len(v) > 8 else ''}] ({len(v)})" if len(v) > 8 else f"[{shown}]"
+    return str(v)
+
+
+def figure_rows(figures: dict, prefix: str = "") -> list[tuple[str, str]]:
+    """(figure, value) rows of one area's result: nested objects become dotted names (``step.p50_ms``) and
+    lists of objects numbered ones (``trials[0].streams``), so every value is one short number or word."""
+    rows: list[tuple[str, str]] = []
+    for k, v in figures.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, dict):
+            rows += figure_rows(v, name + ".") if v else [(name, "{}")]
+        elif isinstance(v, list) and v and all(isinstance(x, dict) for x in v):
+            for i, x in enumerate(v):
+                rows += figure_rows(x, f"{name}[{i}].")
+        else:
+            rows.append((name, _value(v)))
+    return rows
+
+
+def figure_table(result: dict, areas: list[str]):
+    """The rich table ``bench`` prints: one row per figure, the area named on its first row."""
+    from rich.table import Table
+
+    table = Table("area", "figure", "value")
+    table.columns[1].overflow = "fold"
+    table.columns[2].overflow = "fold"
+    for area in areas:
+        rows = figure_rows(result[area])
+        for i, (name, value) in enumerate(rows):
+            table.add_row(area if i == 0 else "", name, value, end_section=i == len(rows) - 1)
+    return table
+
+
 def bench(
     json_out: Annotated[bool, JSON_OUT] = False,
     only: Annotated[str, ONLY] = "",
@@ -36,13 +78,8 @@ def bench(
         print(json.dumps(result, indent=2, allow_nan=False))
     else:
         from rich.console import Console
-        from rich.table import Table
 
-        table = Table("area", "figure", "value")
-        for area in areas:
-            for k, v in result[area].items():
-                table.add_row(area, k, json.dumps(v) if not isinstance(v, str) else v)
-        Console().print(table)
+        Console().print(figure_table(result, areas))
     if not ok:
         raise typer.Exit(1)
 

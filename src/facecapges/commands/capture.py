@@ -96,11 +96,13 @@ def capture_eval(
     from rich.console import Console
     from rich.table import Table
 
-    from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
-    from facecapges.errors import check_output_dir, require_file
+    from facecapges.capture.video import check_video
+    from facecapges.errors import check_output_dir
 
-    require_file(video, "video")
+    check_video(video)  # before MediaPipe loads
     check_output_dir(out, ("capture_eval.json", "tracks.png"), force)
+    from facecapges.capture.evaluate import evaluate_tracks, plot_tracks, run_tracks, write_report
+
     tr = run_tracks(video, model=model, max_frames=max_frames, progress=True)
     rep = evaluate_tracks(tr, skip)
     rep["video"] = str(video)

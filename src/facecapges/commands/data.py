@@ -156,13 +156,14 @@ def retarget(
     are not carried over (BEAT's pose is the upper body relative to the pelvis).
     """
     from facecapges.data.retarget import retarget_bvh
-    from facecapges.errors import refuse_overwrite
+    from facecapges.errors import refuse_overwrite, require_file
     from facecapges.io.bvh import write_bvh
     from facecapges.skeleton import UPPER_BODY, pose_to_motion
 
     refuse_overwrite(out, force)
     if fps is not None and fps <= 0:
         raise UserError(f"--fps must be positive, got {fps}")
+    require_file(src, "BVH file")  # before the default skeleton's checkpoint loads
     skel = _target_skeleton(target)
     r = retarget_bvh(src, skel, joint_map, fps=fps)
     write_bvh(out, skel, pose_to_motion(skel, r.pose), r.fps)

@@ -74,9 +74,7 @@ def fgd_train(
     quiet: Annotated[bool, QUIET_BAR] = FgdTrainOptions.quiet,
 ) -> None:
     """Train the skeleton-aware FGD autoencoder on a speaker's real motion (what `eval` measures FGD with)."""
-    from facecapges.errors import refuse_overwrite
-    from facecapges.evaluation.fgd import FGDConfig, fgd_paths, save_fgd, train_fgd
-    from facecapges.evaluation.run import load_real_clips
+    from facecapges.errors import refuse_overwrite, require_file
 
     if (cache is None) == (not bvh):
         raise UserError("give either --cache (with --speaker) or --bvh FILE, not both or neither")
@@ -86,6 +84,15 @@ def fgd_train(
         raise UserError(f"{checkpoint}: checkpoint not found")
     if epochs < 1 or batch_size < 1:
         raise UserError("--epochs and --batch-size must be at least 1")
+    if cache is not None:  # the cache and the speaker's clips before torch loads
+        from facecapges.data.cache import Cache
+
+        Cache(cache).select(speaker, split)
+    for b in bvh or []:
+        require_file(b, "BVH")
+    from facecapges.evaluation.fgd import FGDConfig, fgd_paths, save_fgd, train_fgd
+    from facecapges.evaluation.run import load_real_clips
+
     location = out if out is not None else checkpoint
     assert location is not None  # checked above
     for p in fgd_paths(location):

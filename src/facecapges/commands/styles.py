@@ -105,6 +105,7 @@ def _list(json_out: bool) -> None:
                 **row,
                 "engine": ckpt.engine,
                 "speaker": meta.get("speaker"),
+                "takes": ", ".join(str(t.get("source") or t.get("name")) for t in meta.get("takes") or []) or None,
                 "epochs": meta.get("epochs_trained"),
                 "inputs": meta.get("inputs"),
                 "path": str(path),
@@ -120,8 +121,9 @@ def _list(json_out: bool) -> None:
         if r["error"] is not None:
             typer.echo(f"! {r['name']}  broken: {r['error']}  {r['path']}")
             continue
+        who = f"speaker {r['speaker']}" if r["speaker"] is not None else f"from {r['takes'] or 'unnamed takes'}"
         typer.echo(
-            f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  speaker {r['speaker']}  "
+            f"{'*' if r['default'] else ' '} {r['name']}  {r['engine']}  {who}  "
             + (f"{r['epochs']} epochs  " if r["engine"] == "network" else "")
             + f"{'shipped' if r['shipped'] else 'user'}  {r['path']}"
         )

@@ -228,6 +228,17 @@ class Cache:
         """
         entries = self.clips(speaker=speaker, split=None if split == "all" else split)
         if not entries:
+            own = self.clips(speaker=speaker)
+            if own:  # e.g. BEAT's split puts the only take of ../shared in "test"
+                where = ", ".join(
+                    f"{sum(c['split'] == s for c in own)} in {s!r}" for s in sorted({c["split"] for c in own})
+                )
+                frame = int(0.8 * min(int(c.get("n_frames", 0)) for c in own))
+                raise UserError(
+                    f"{self.path}: no {split!r} clips of speaker {speaker}: its {len(own)} clip(s) are {where}; "
+                    f"use --split all, with --holdout-from FRAME to keep frames for evaluation (e.g. "
+                    f"--holdout-from {frame}: the last 20 % of its shortest clip)"
+                )
             have = sorted({(int(c["speaker"]), c["split"]) for c in self.clips()})
             raise UserError(
                 f"{self.path}: no {split!r} clips of speaker {speaker} (speaker/split pairs in the cache: "

@@ -485,7 +485,9 @@ def prepare(
     acc_train: dict[int, dict[str, RunningStats]] = {}
     acc_all: dict[int, dict[str, RunningStats]] = {}
     try:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+
+        from facecapges.progress import Progress
 
         columns = (
             TextColumn("[bold]prepare[/bold] {task.description:<24}"),
@@ -493,7 +495,7 @@ def prepare(
             MofNCompleteColumn(),
             TimeRemainingColumn(),
         )
-        with Progress(*columns, disable=not progress, transient=False) as bar:
+        with Progress(*columns, disable=not progress, transient=False, prefix="prepare") as bar:
             task = bar.add_task("", total=len(usable) + len(others))
 
             def add(arrays: dict, entry: dict) -> None:

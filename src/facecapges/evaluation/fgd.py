@@ -398,7 +398,9 @@ def train_fgd(
         raise ValueError(f"no clip has the {config.window} frames one FGD window needs")
     history = TrainHistory(n_windows=len(windows))
     models: dict[str, FGDAutoencoder] = {}
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, TextColumn, TimeRemainingColumn
+
+    from facecapges.progress import Progress
 
     with Progress(
         TextColumn("{task.description}"),

@@ -288,12 +288,9 @@ def write_metrics_json(result: dict, path: str | Path) -> Path:
 
 
 def _agg():
-    import matplotlib
+    from facecapges.io.plots import pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
+    return pyplot()
 
 
 def plot_beat_timeline(

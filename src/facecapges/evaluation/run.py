@@ -157,13 +157,6 @@ def run_eval(
     Every output in ``o.out`` is checked first (``o.force`` writes over them); ``warn`` gets the
     warnings, ``say`` the table and the files written."""
     from facecapges.data.cache import Cache
-    from facecapges.evaluation import baselines as bl
-    from facecapges.evaluation.fgd import fgd_paths, load_fgd
-    from facecapges.evaluation.realism import realism_section
-    from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
-    from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses
 
     cache, out, speaker, split, holdout_from = o.cache, o.out, o.speaker, o.split, o.holdout_from
     seed, samples, progress, offsets_s = o.seed, o.samples, not o.quiet, parse_offsets(o.offsets)
@@ -176,10 +169,18 @@ def run_eval(
     )
     if split not in ("train", "val", "test", "all"):
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
+    c = Cache(cache)  # a missing or malformed cache before torch and the checkpoint load
+    from facecapges.evaluation import baselines as bl
+    from facecapges.evaluation.fgd import fgd_paths, load_fgd
+    from facecapges.evaluation.realism import realism_section
+    from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
+    from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.generate import generate_poses
+
     warnings: list[str] = []
     ckpt = load_checkpoint(o.checkpoint, o.style)
     model_name = ckpt.display_name
-    c = Cache(cache)
     fps, sr = c.fps, c.sr
     if abs(fps - ckpt.fps) > 1e-6:
         raise UserError(f"{cache}: the cache is at {fps:g} fps, the checkpoint runs at {ckpt.fps} fps")

@@ -72,7 +72,7 @@ def _samples(name: str, m: Method, n_frames: int | None) -> list[np.ndarray]:
 
 
 def _progress(total: int, enabled: bool, what: str):
-    from rich.progress import Progress
+    from facecapges.progress import Progress
 
     bar = Progress(disable=not enabled, transient=True)
     return bar, bar.add_task(what, total=total)

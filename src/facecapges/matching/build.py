@@ -35,15 +35,63 @@ def check_name(name: str) -> str:
     return check_style_name(name)
 
 
+_CC_TERMS = {"Attribution": "BY", "NonCommercial": "NC", "NoDerivatives": "ND", "NoDerivs": "ND", "ShareAlike": "SA"}
+
+
+def licence_file_terms(motion: Path) -> tuple[str, Path] | None:
+    """(short licence, the file) of a Creative Commons licence text beside ``motion`` (``LICENSE*``, e.g.
+    ZEGGS's ``LICENSE-ZEGGS.md``), read from its title: "Creative Commons Attribution-NonCommercial-
+    NoDerivatives 4.0 International Public License" → "CC BY-NC-ND 4.0"; None when there is none."""
+    folder = Path(motion).resolve().parent
+    for f in sorted(folder.glob("LICEN[CS]E*")) + sorted(folder.glob("COPYING*")):
+        if not f.is_file():
+            continue
+        try:
+            head = f.read_text(encoding="utf-8", errors="replace")[:2000]
+        except OSError:
+            continue
+        m = re.search(
+            r"Creative Commons ((?:Attribution|NonCommercial|NoDerivatives|NoDerivs|ShareAlike|-)+) (\d\.\d)", head
+        )
+        if m:
+            terms = [_CC_TERMS[t] for t in m.group(1).split("-") if t in _CC_TERMS]
+            return f"CC {'-'.join(terms)} {m.group(2)}", f
+    return None
+
+
 def licence_of(take: Take) -> tuple[str, str]:
-    """(licence, attribution) of a take, from its source (BEAT/BEAT2 names, a retarget map's licence)."""
+    """(licence, attribution) of a take, from its source: BEAT/BEAT2 names, a retarget map's licence (ZEGGS's
+    skeleton), else a Creative Commons licence file beside the motion file (a ZEGGS take already retargeted
+    onto the BEAT skeleton, next to LICENSE-ZEGGS.md); only without any of them the user's own."""
     from facecapges.data.beat import parse_clip_name
 
     if "ND" in take.licence:
         return take.licence, ZEGGS_ATTRIBUTION
     if take.licence or parse_clip_name(Path(take.source).stem) is not None:
         return take.licence or "CC BY-NC 4.0", BEAT_ATTRIBUTION
+    found = licence_file_terms(Path(take.source))
+    if found is not None:
+        licence, f = found
+        if "zeggs" in f.name.lower() or "ZEGGS" in f.read_text(encoding="utf-8", errors="replace")[:2000]:
+            return licence, ZEGGS_ATTRIBUTION
+        never = ": never distribute" if "ND" in licence else ""
+        return licence, f"{Path(take.source).name}, {licence} ({f.name} beside it){never}"
     return "the user's own", "the user's own recordings"
+
+
+def check_pairs(pairs: list[tuple[Path, Path]]) -> None:
+    """Cheap checks of every ``--take MOTION WAV`` (kinds, files, the audio's header), before anything loads."""
+    from facecapges.errors import require_file
+    from facecapges.io.audio import check_audio
+
+    if not pairs:
+        raise UserError("give at least one --take MOTION WAV")
+    for motion, wav in pairs:
+        motion = Path(motion)
+        if motion.suffix.lower() not in (".bvh", ".npz"):
+            raise file_error(motion, "a --take's motion must be a .bvh or a BEAT2 .npz file")
+        require_file(motion, "motion file")
+        check_audio(wav)
 
 
 def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, say=print) -> list[Take]:
@@ -109,10 +157,13 @@ def build_style(
     """Build, write and (without ``out``) install a matching style; returns its path (module docs)."""
     from dataclasses import replace
 
+    check_name(name)
+    check_pairs(pairs)  # every file before torch loads
+    if out is not None and Path(out).suffix != ".safetensors":
+        raise file_error(Path(out), "a style file must end in .safetensors")
     from facecapges.matching.predictor import PredictorSettings, train_predictor
     from facecapges.model.checkpoint import user_styles_dir
 
-    check_name(name)
     settings = PredictorSettings()
     if predictor_steps is not None:
         if predictor_steps < 1:
@@ -140,6 +191,7 @@ def build_style(
     say("building the database (training frames and their mirror images)")
     db = build_database(takes)
     say(f"  {len(db)} frames ({len(db) / timing.MODEL_FPS:.0f} s)")
+    say(f"training the speech predictor (at most {settings.steps} steps; it stops when validation stops improving)")
     predictor = train_predictor(takes, seed=seed, progress=progress, settings=settings)
     licences = sorted({licence_of(t) for t in takes})
     meta = {

@@ -345,14 +345,16 @@ def _finite_json(x: Any) -> Any:
 
 def _fit(net: SpeechReader, parts: list[_Part], s: PredictorSettings, mean, sd, seed: int, progress: bool):
     """Adam with early stopping on the head-still validation loss → (best weights, a summary of the run)."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+
+    from facecapges.progress import Progress
 
     batches = _Batches(parts, s, mean, sd, seed)
     opt = torch.optim.AdamW(net.parameters(), lr=s.lr, weight_decay=s.weight_decay)
     best_loss, best, best_step, waited, step = math.inf, copy.deepcopy(net.state_dict()), 0, 0, 0
     columns = (TextColumn("[bold]speech predictor"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
     with Progress(*columns, TextColumn("{task.fields[info]}"), disable=not progress, transient=True) as bar:
-        task = bar.add_task("train", total=s.steps, info="")
+        task = bar.add_task("speech predictor", total=s.steps, info="")
         for step in range(1, s.steps + 1):
             net.train()
             audio, face, head, tgt, spk, mask = batches.sample()

@@ -197,7 +197,7 @@ def generate_blocks(
     torch.set_num_threads(1)  # one small step at a time: more threads only spin
     bar = None
     if progress:
-        from rich.progress import Progress
+        from facecapges.progress import Progress
 
         bar = Progress(transient=True)
         bar.start()

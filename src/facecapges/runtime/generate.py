@@ -53,14 +53,14 @@ def generate_recording(
 
     import numpy as np
 
-    from facecapges.errors import check_output_file
+    from facecapges.errors import check_output_file, require_file
+    from facecapges.io.audio import check_audio
     from facecapges.io.bvh import BvhWriter
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_blocks
     from facecapges.model.intensity import check_intensity
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
 
+    # every check before the model loads: a wrong path or file type is reported in a second
     check_intensity(o.intensity)
     check_output_file(o.out, o.force)  # before the work: existing, folder, unwritable
     if o.face_out is not None:
@@ -70,6 +70,14 @@ def generate_recording(
 
         check_output_file(o.vrma, o.force)
         check_face_mode(o.vrma_face)
+    check_audio(o.audio)
+    if o.face is not None:
+        require_file(o.face, "face JSON file")
+    if o.head is not None:
+        require_file(o.head, "head rotation file")
+    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.model.generate import generate_blocks
+
     ckpt = load_checkpoint(o.checkpoint, o.style)
     inputs = ckpt.plan_inputs(o.audio, o.face, o.head)  # at the checkpoint's rate
     for note in inputs.notes:

@@ -195,6 +195,25 @@ def _check(o: LiveOptions) -> _Outputs:
         from facecapges.avatar.vrm.read import load_model
 
         load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
+    from facecapges.errors import check_port_free
+    from facecapges.runtime.session import check_inputs
+
+    if web_addr is not None:
+        check_port_free(web_addr[0], web_addr[1], "--web")
+    check_inputs(  # files decode, the camera and microphone open, the Live Link port is free: before the model
+        video=o.video,
+        camera=o.camera,
+        livelink=o.livelink,
+        audio=o.audio,
+        mic=o.mic,
+        depth_dir=o.depth,
+        intrinsics=o.intrinsics,
+        estimator=o.estimator,
+        head=o.head,
+        faces=o.faces,
+        intensity=o.intensity,
+        host=bind,
+    )
     return _Outputs(web_addr, vmc_addr, bind, default_note)
 
 

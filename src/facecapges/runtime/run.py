@@ -37,6 +37,7 @@ from facecapges import timing
 from facecapges.errors import UserError, check_output_dir, echo, echo_warning
 from facecapges.runtime.options import DEFAULT_VIDEO_SIZE, RunOptions
 
+OUR_AVATAR = "ours (BEAT skeleton, face: 52 ARKit morph targets)"
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
 
@@ -143,6 +144,12 @@ def side_by_side(
             r.close()
 
 
+def shows_face_inset(driver) -> bool:
+    """Whether avatar.mp4 gets the face close-up: ours and any avatar with face expressions do; one without
+    (a bare humanoid GLB) would show an empty close-up, so it gets none (the report and the summary say so)."""
+    return driver is None or bool(driver.faces.names)
+
+
 def output_names(faces: int) -> tuple[str, ...]:
     """The files ``run`` writes: one motion and face file per face (``motion_1.bvh`` … for several)."""
     if faces == 1:
@@ -183,9 +190,8 @@ def run_video(
 ) -> dict:
     """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
     shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view)."""
-    from rich.progress import Progress
-
     from facecapges.io.audio import save_audio
+    from facecapges.progress import Progress
     from facecapges.runtime.head import check_head_mode, head_follow
     from facecapges.runtime.inputs.sources import FileAudio
     from facecapges.runtime.interfaces import Sink
@@ -269,6 +275,10 @@ def run_video(
     report["head_follow"] = follow[0] if faces == 1 else follow
     report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
     report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
+    inset = shows_face_inset(driver)
+    if videos:
+        report["avatar"] = driver.describe() if driver is not None else OUR_AVATAR
+        report["face_inset"] = inset
     if videos and T > 0:
         from facecapges.avatar.render.video import our_avatar, render_video
 
@@ -291,7 +301,18 @@ def run_video(
                 else:
                     page = our_avatar(glb)
                     quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
-                render_video(page, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height)
+                render_video(
+                    page,
+                    quats,
+                    weights,
+                    fps,
+                    dest,
+                    audio=wav,
+                    progress=progress,
+                    width=width,
+                    height=height,
+                    inset=inset,
+                )
                 renders.append(dest)
             if faces > 1:
                 side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)
@@ -317,15 +338,28 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
     ``say`` gets the summary (the report as JSON with ``o.json_out``), ``warn`` a
     warning when no face was found at all.
     """
-    from facecapges.errors import require_file
+    from facecapges.io.audio import check_audio
     from facecapges.io.face_json import check_face_layout
+    from facecapges.runtime.session import check_inputs
+
+    # every check before the model loads (a bad path or file type in a second, not after the load)
+    size = parse_size(o.video_size)
+    check_inputs(video=o.video, audio=o.audio, estimator=o.estimator, head=o.head, faces=o.faces, intensity=o.intensity)
+    if o.audio is None:  # the speech is the video's own track
+        try:
+            check_audio(o.video)
+        except UserError as exc:
+            raise UserError(f"{exc} — the video needs an audio track, or pass --audio FILE") from None
+    check_face_layout(o.face_json)
+    check_output_dir(o.out, output_names(o.faces), o.force)
+    if o.max_frames is not None and o.max_frames < 1:
+        raise UserError("--max-frames must be at least 1")
+    if o.avatar is not None and not o.no_video:
+        from facecapges.avatar.vrm.read import load_model
+
+        load_model(o.avatar)
     from facecapges.model.checkpoint import load_checkpoint
 
-    size = parse_size(o.video_size)
-    require_file(o.video, "video")
-    if o.audio is not None:
-        require_file(o.audio, "audio")
-    check_face_layout(o.face_json)
     ckpt = load_checkpoint(o.checkpoint, o.style)
     report = run_video(
         o.video,
@@ -352,6 +386,14 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
         f"{report['frames']} frames → {o.out}  (compute per frame p50 {lat['p50']:.1f} ms, "
         f"p99 {lat['p99']:.1f} ms; {report['seconds']['total']:.1f} s in all)"
     )
+    if "avatar" in report:
+        say(
+            f"avatar: {report['avatar']}"
+            + ("" if report.get("face_inset", True) else "; no face close-up (it has no face expressions)")
+        )
+    say(f"face capture: {o.estimator} estimator; the avatar's head: {o.head}")
+    for p in report["outputs"].values():
+        say(f"wrote {p}")
     ev = {k: v for k, v in report["events"].items() if v and k != "video_frames_skipped"}
     if ev:
         say("events: " + ", ".join(f"{k} {v}" for k, v in ev.items()))

@@ -90,6 +90,70 @@ def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
     return out
 
 
+def check_inputs(
+    *,
+    video: str | Path | None = None,
+    camera: int | None = None,
+    livelink: int | None = None,
+    audio: str | Path | None = None,
+    mic: str | None = None,
+    depth_dir=None,
+    intrinsics=None,
+    estimator: str = "hybrid",
+    head: str = "capture",
+    faces: int = 1,
+    intensity: float = 1.0,
+    host: str = "127.0.0.1",
+    devices: bool = True,
+) -> None:
+    """The checks of :func:`build_session`'s arguments, with no model loaded: a bad choice is a UserError now.
+
+    With ``devices`` (what ``run`` and ``live`` do before they load the model) the files are opened too — the
+    video decodes a frame, the audio's header (or first second) reads — the camera opens and closes, the
+    microphone is asked for 16 kHz mono and the Live Link port is bound once: a wrong path, a file of another
+    type, a missing device or a port in use is reported in a second instead of after the model's load.
+    """
+    from facecapges.capture.estimator import MODES
+    from facecapges.model.intensity import check_intensity
+    from facecapges.runtime.head import check_head_mode
+
+    chosen = [x for x in (video, camera, livelink) if x is not None]
+    if len(chosen) != 1:
+        raise UserError("choose one input: --camera INDEX, --video FILE or --livelink PORT")
+    if audio is not None and mic is not None:
+        raise UserError("choose one audio input: --mic DEVICE or --audio FILE")
+    check_head_mode(head)
+    check_intensity(intensity)
+    if estimator not in MODES:
+        raise UserError(f"--estimator must be {', '.join(MODES[:-1])} or {MODES[-1]}, got {estimator!r}")
+    if not 1 <= int(faces) <= 8:
+        raise UserError(f"--faces must be 1 to 8, got {faces}")
+    if faces > 1 and livelink is not None:
+        raise UserError("--faces N needs a camera or a video: Live Link sends one face")
+    if not devices:
+        return
+    from facecapges.capture.video import check_camera, check_video
+    from facecapges.errors import check_port_free
+    from facecapges.io.audio import check_audio
+
+    if video is not None:
+        check_video(video)
+        if depth_dir is not None or intrinsics is not None:
+            from facecapges.capture.depth import check_depth_inputs
+
+            check_depth_inputs(depth_dir, intrinsics)
+    elif camera is not None:
+        check_camera(int(camera))
+    elif livelink is not None:
+        check_port_free(host, int(livelink), "--livelink", udp=True)
+    if audio is not None:
+        check_audio(audio)
+    elif mic is not None or video is None:
+        from facecapges.runtime.inputs.sources import check_mic
+
+        check_mic(mic)
+
+
 def build_session(
     checkpoint: GestureEngine,
     *,
@@ -115,23 +179,21 @@ def build_session(
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
     how many faces of the video drive an avatar each (one generator per face).
     """
-    from facecapges.runtime.head import check_head_mode
     from facecapges.runtime.inputs import sources as S
     from facecapges.runtime.scheduler import Scheduler
 
-    chosen = [x for x in (video, camera, livelink) if x is not None]
-    if len(chosen) != 1:
-        raise UserError("choose one input: --camera INDEX, --video FILE or --livelink PORT")
-    if audio is not None and mic is not None:
-        raise UserError("choose one audio input: --mic DEVICE or --audio FILE")
-    check_head_mode(head)
-    from facecapges.model.intensity import check_intensity
-
-    check_intensity(intensity)
-    if not 1 <= int(faces) <= 8:
-        raise UserError(f"--faces must be 1 to 8, got {faces}")
-    if faces > 1 and livelink is not None:
-        raise UserError("--faces N needs a camera or a video: Live Link sends one face")
+    check_inputs(
+        video=video,
+        camera=camera,
+        livelink=livelink,
+        audio=audio,
+        mic=mic,
+        estimator=estimator,
+        head=head,
+        faces=faces,
+        intensity=intensity,
+        devices=False,
+    )
     import torch
 
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with

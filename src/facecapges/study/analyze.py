@@ -212,15 +212,14 @@ def markdown(results: dict) -> str:
 
 
 def plot(results: dict, out: Path) -> list[Path]:
-    import matplotlib
+    from facecapges.io.plots import cjk_font, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = pyplot()  # with the CJK fallback font: the criteria's Chinese names drawn, not boxes
 
     systems = results["systems"]
     k = len(systems)
     crit = list(CRITERIA)
-    colors = plt.get_cmap("tab10").colors  # type: ignore[attr-defined]  # a ListedColormap; the stub says Colormap
+    colors = plt.get_cmap("tab10").colors  # a ListedColormap
     paths = []
 
     fig, ax = plt.subplots(figsize=(2.2 + 1.9 * len(crit), 3.8), dpi=120)
@@ -234,7 +233,7 @@ def plot(results: dict, out: Path) -> list[Path]:
         ax.bar(pos, m, width * 0.92, yerr=err, capsize=3, color=colors[i % 10], label=s)
         for px, v in zip(pos, m):
             ax.text(px, 0.05, f"{v:.2f}", ha="center", va="bottom", fontsize=7, color="white", rotation=90)
-    ax.set_xticks(x, [f"{c.name}\n{c.name_zh}" if _has_cjk_font() else c.name for c in crit])
+    ax.set_xticks(x, [f"{c.name}\n{c.name_zh}" if cjk_font() else c.name for c in crit])
     ax.set_ylim(0, k + 0.3)
     ax.set_ylabel("mean rank (1 = best)")
     ax.set_title(f"Subjective ranking ({results['n_participants']} participants, {results['n_answers']} answers)")
@@ -262,14 +261,6 @@ def plot(results: dict, out: Path) -> list[Path]:
     fig.savefig(paths[-1])
     plt.close(fig)
     return paths
-
-
-def _has_cjk_font() -> bool:
-    from matplotlib import font_manager
-
-    return any(
-        "CJK" in f.name or "WenQuanYi" in f.name or "Noto Sans SC" in f.name for f in font_manager.fontManager.ttflist
-    )
 
 
 def analyze_study(study: Study, out: str | Path, participants: list[str] | None = None) -> dict:

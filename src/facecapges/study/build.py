@@ -147,13 +147,12 @@ def create_study(
 
     cs, motions, faces = load_clips(clips_yaml)
 
-    from rich.progress import Progress
-
     from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import write_glb
     from facecapges.avatar.render.video import bvh_quaternions
     from facecapges.io.audio import save_audio
+    from facecapges.progress import Progress
     from facecapges.timing import resample
 
     plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)

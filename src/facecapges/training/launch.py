@@ -56,8 +56,33 @@ def _run_folder(o: TrainOptions) -> tuple[str, dict | None]:
     return chosen, state
 
 
+def check_options(o: TrainOptions) -> None:
+    """The checks that need no torch, before it loads: the cache and the speaker's clips in the split, the
+    config file, the numbers, the run folder (a typo is reported in a second, not after the start-up)."""
+    from facecapges.data.cache import Cache
+    from facecapges.errors import UserError, check_output_dir, require_file
+
+    if o.split is not None and o.split not in SPLITS:
+        raise UserError(f"--split must be train, val, test or all, got {o.split!r}")
+    if o.epochs is not None and o.epochs < 1:
+        raise UserError("--epochs must be at least 1")
+    if o.config is not None:
+        from facecapges.model.config import load_config_file
+
+        load_config_file(require_file(o.config, "config file"))
+    if o.resume:  # the run's own state (read with torch) says the rest
+        return
+    has_run = (o.out / "last.pt").exists()
+    if not has_run:  # a folder without a run keeps its files too
+        check_output_dir(o.out, RUN_FILES, o.force)
+    elif not o.force:
+        raise UserError(f"{o.out}: holds a training run; pass --resume to continue it or --force to start over")
+    Cache(o.cache).select(o.speaker, o.split or "train")
+
+
 def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
     """The whole ``train`` command (module docstring); only rank 0 ``say``\\ s anything."""
+    check_options(o)  # before torch loads
     from facecapges.errors import UserError
     from facecapges.model.config import load_config_file
     from facecapges.timing import MODEL_FPS

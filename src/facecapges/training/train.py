@@ -548,7 +548,9 @@ class Trainer:
         return {k: v / n for k, v in sums.items()}
 
     def fit(self, epochs: int | None = None, progress: bool = True) -> list[dict]:
-        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+
+        from facecapges.progress import Progress
 
         total = epochs or self.tcfg.epochs
         main = self.dist.is_main
@@ -588,7 +590,7 @@ class Trainer:
         ):
             if main and self.history:  # a row lost to a kill between last.pt and log.csv comes back
                 write_log(log_path, self.history, fields)
-            task = bar.add_task("epochs", total=total, completed=self.epoch, info="")
+            task = bar.add_task(label, total=total, completed=self.epoch, info="")
             while self.epoch < total:
                 epoch = self.epoch + 1
                 t0 = time.perf_counter()

@@ -80,7 +80,7 @@ let view = options.frame;  // the view shown: options.frame, 'face' (the close-u
 // the avatar's scene module: a VRM when the server holds a VRM layout
 async function openScene() {
   const res = await fetch('/vrm/layout.json');
-  const layout = res.ok ? await res.json() : null;
+  const layout = res.ok ? await res.json() : null;  // null from our glTF avatar's server
   const { default: Scene } = await (layout ? import('./vrm_scene.js') : import('./avatar_scene.js'));
   // (the face close-up inset in the corner: on our avatar with the HUD, as ever; a VRM has the face close-up
   // checkbox)

@@ -109,7 +109,15 @@ def render_motion_file(o: RenderOptions, say: Callable[..., None] = echo) -> dic
         require_file(o.audio, "audio")
     if o.face is not None:
         require_file(o.face, "face JSON")
-    if o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar")):
+    vrm = o.avatar_glb is not None and is_vrm_file(require_file(o.avatar_glb, "avatar"))
+    if o.audio is None and o.face is None:  # after the checks: a refused command says only why
+        from facecapges.errors import echo_warning
+
+        echo_warning(
+            "warning: no --audio and no --face: the video will be silent and the mouth still "
+            "(pass --audio SPEECH.wav: its sound, and the jaw and lips follow it; or --face FACE.json)"
+        )
+    if vrm and o.avatar_glb is not None:
         from facecapges.avatar.vrm.view import VrmDriver, bvh_local_matrices
 
         driver = VrmDriver.from_file(o.avatar_glb, motion.skeleton)

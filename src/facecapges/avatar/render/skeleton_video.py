@@ -122,7 +122,7 @@ def render_skeleton_video(
         )
         if k:
             cv2.line(background, (k * pw, 0), (k * pw, H), (200, 200, 200), 1)
-    from rich.progress import Progress
+    from facecapges.progress import Progress
 
     try:
         with Progress(disable=not progress, transient=True) as bar:

@@ -121,9 +121,8 @@ def render_video(
     ``inset``: draw the face close-up in the top-right corner (module docstring)."""
     import time
 
-    from rich.progress import Progress
-
     from facecapges.io.mp4 import Mp4Writer
+    from facecapges.progress import Progress
 
     T = quats.shape[0]
     if weights.shape[0] != T:

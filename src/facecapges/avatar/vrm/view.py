@@ -101,6 +101,8 @@ class VrmDriver:
             f"perfect sync ({len(self.faces.names)} ARKit expressions)"
             if self.faces.perfect_sync
             else f"{len(self.faces.names)} VRM presets from ARKit"
+            if self.faces.names
+            else "none (no expressions: the face stays still)"
         )
         return (
             f"{m.title!r} ({'VRM 0.x' if m.kind == 'vrm0' else 'VRM 1.0' if m.kind == 'vrm1' else 'humanoid GLB'}"

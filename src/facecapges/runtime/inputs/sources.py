@@ -339,26 +339,42 @@ class FileAudio:
         pass
 
 
+def check_mic(device: str | int | None, sr: int = timing.AUDIO_SR) -> tuple[str, str | int | None]:
+    """(label, sounddevice device) of a microphone that can record mono ``sr`` Hz; a UserError if there is none.
+
+    Cheap (no stream is opened): ``live`` calls it before the model loads."""
+    label = "the default microphone" if device in (None, "", "default") else f"microphone {device!r}"
+    try:
+        import sounddevice as sd
+    except OSError as exc:  # PortAudio missing
+        raise UserError(f"{label} cannot be opened: {exc} (run scripts/setup-runtime.sh)") from None
+    dev = None if device in (None, "", "default") else (int(device) if str(device).isdigit() else str(device))
+    try:
+        sd.check_input_settings(device=dev, channels=1, samplerate=sr, dtype="float32")
+    except Exception as exc:  # noqa: BLE001 - PortAudio raises many types; all mean "cannot open"
+        raise UserError(
+            f"{label} cannot be opened ({str(exc).strip() or type(exc).__name__}); list devices with "
+            f"`python -m sounddevice`"
+        ) from None
+    return label, dev
+
+
 class MicAudio:
     """A microphone through sounddevice (see module docstring)."""
 
     def __init__(self, device: str | int | None, sr: int = timing.AUDIO_SR, capacity_s: float = 10.0):
         self.sr = sr
         self.device = device
-        label = "the default microphone" if device in (None, "", "default") else f"microphone {device!r}"
+        label, dev = check_mic(device, sr)
         self.name = label
-        try:
-            import sounddevice as sd
-        except OSError as exc:  # PortAudio missing
-            raise UserError(f"{label} cannot be opened: {exc} (run scripts/setup-runtime.sh)") from None
-        dev = None if device in (None, "", "default") else (int(device) if str(device).isdigit() else str(device))
+        import sounddevice as sd
+
         self._buf = np.zeros(int(capacity_s * sr), np.float32)
         self.written = 0
         self.overflows = 0
         self._lock = threading.Lock()
         self._t0: float | None = None
         try:
-            sd.check_input_settings(device=dev, channels=1, samplerate=sr, dtype="float32")
             self.stream = sd.InputStream(
                 device=dev,
                 channels=1,

@@ -96,7 +96,13 @@ class ViewerServer(ServerThread):
         self.web_dir = (web_dir or find_web()).resolve()
         self.three_dir = (three_dir or find_three()).resolve()
         self.page = "/web/viewer.html"  # served at INDEX_PATHS
-        self.routes: dict[str, bytes | Path] = {"/avatar.glb": glb, "/web/": self.web_dir, "/three/": self.three_dir}
+        # /vrm/layout.json is null here: the page asks it which scene to draw (a VRM server serves its layout)
+        self.routes: dict[str, bytes | Path] = {
+            "/avatar.glb": glb,
+            "/vrm/layout.json": b"null",
+            "/web/": self.web_dir,
+            "/three/": self.three_dir,
+        }
         self.loopback_only = is_loopback(host)
         self.clients: set = set()
         self.frames_sent = 0
