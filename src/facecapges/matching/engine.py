@@ -50,7 +50,14 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.matching import inertialize as inz
-from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
+from facecapges.matching.database import (
+    ONSET_DECAY,
+    Database,
+    group_slices,
+    idle_rows,
+    mirror_twins,
+    quaternions,
+)
 from facecapges.matching.speech import SpeechTracker
 from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.model.slots import SlotOwner, Slots
@@ -81,9 +88,14 @@ class EngineConfig:
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
     margin: float = 3.0  # a switch must beat continuing by this much cost
     halflife_s: float = 0.3  # inertialization half-life
-    memory_s: float = 20.0
+    memory_s: float = 60.0  # issue #38: ≥ 60 s, a stretch and its mirror image count as one (mirror_twins)
     memory_penalty: float = 100.0
     near_frames: int = 8
+    min_play_frames: int = 6  # a clip plays this long before a search may leave it (forced switches aside)
+    pause_halflife_s: float = 0.6  # inertialization half-life of switches while not speaking (settling, idle)
+    accel_cap_percentile: float = 99.0  # the output's whole-body acceleration stays below this of his (0: off)
+    settle_s: float = 1.0  # after speech stops the query's future moves to his rest's over this
+    intensity_smooth_s: float = 0.3  # the dial scales the deviation from idle smoothed over this (gain_of)
     onset_bonus: float = 2.0
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
@@ -149,6 +161,12 @@ class BatchedMatchingGenerator(SlotOwner):
             rows = np.flatnonzero(seg == s)
             V[rows] = inz.angular_velocity(self.Q[rows], self.fps)
         self.V = V
+        acc = np.zeros(len(db))  # whole-body angular acceleration of his real motion (rad/s², root sum of squares)
+        for s in np.unique(seg):
+            rows = np.flatnonzero(seg == s)
+            if len(rows) > 2:
+                acc[rows[1:-1]] = np.linalg.norm(np.diff(V[rows], axis=0)[:-1], axis=(1, 2)) * self.fps
+        self.acc_cap = float(np.percentile(acc, self.config.accel_cap_percentile))
         N = len(db)
         self.next_row = np.arange(1, N + 1)
         last = np.r_[seg[1:] != seg[:-1], True]
@@ -158,6 +176,11 @@ class BatchedMatchingGenerator(SlotOwner):
         if not self.idle.any():
             self.idle = db.searchable.copy()
         self.idle_mean = inz.quaternion_mean(self.Q[self.idle])  # (47, 4)
+        self.idle_mean_inv = inz.qconj(self.idle_mean)
+        self.canon = mirror_twins(db)  # a row and its mirror image share one memory entry
+        rest = self.idle & (db.phase == 0)  # his rest: idle rows in the rest phase (slow, wrists low)
+        fut = db.features[rest if rest.any() else self.idle][:, group_slices()["future"]]
+        self.rest_future = np.median(fut, axis=0).astype(np.float32)  # where a pause's query settles
         self._blocked = np.stack([~db.searchable, ~self.idle])  # rows a search may not jump to: [any, idle only]
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
         sl = group_slices()
@@ -190,6 +213,11 @@ class BatchedMatchingGenerator(SlotOwner):
         self.intensity_target = grow("intensity_target", (), 1.0, np.float64)
         self.intensity_now = grow("intensity_now", (), 1.0, np.float64)
         self.switches = grow("switches", (), 0, np.int64)
+        self.since_switch = grow("since_switch", (), 10**6, np.int64)
+        self.quiet = grow("quiet", (), 0, np.int64)
+        self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
+        self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
+        self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
         self.speech.ensure(capacity)
         self.slots.grown(capacity)
         self.capacity = capacity
@@ -233,10 +261,13 @@ class BatchedMatchingGenerator(SlotOwner):
             if self.director is not None:
                 self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
+            self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
+            self.quiet[slot] = 0
             self.was_speaking[slot] = False
             self.last_used[slot] = -(10**9)
             self.intensity_now[slot] = self.intensity_target[slot]
             self._start_at(slot, initial_pose)
+            self._restart_history(np.array([slot]))
 
     def _start_at(self, slot: int, pose: np.ndarray | None) -> None:
         """Play from the idle row nearest ``pose`` with the offset that makes the output ``pose``."""
@@ -300,7 +331,7 @@ class BatchedMatchingGenerator(SlotOwner):
                 direction = self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
             self._advance_and_search(ids, sp, pred, direction)
             q = self._blend(ids)
-            self.last_used[ids, self.row[ids]] = self.t[ids]
+            self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
 
@@ -313,8 +344,11 @@ class BatchedMatchingGenerator(SlotOwner):
         off_state = idle_only & ~self.idle_play[nxt]
         changed = sp.speaking != self.was_speaking[ids]
         self.since_search[ids] += 1
-        need = ended | off_state | changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        self.since_switch[ids] += 1
+        settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
+        need = ended | off_state | (settled & (changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)))
         self.was_speaking[ids] = sp.speaking
+        self.quiet[ids] = np.where(sp.speaking, 0, self.quiet[ids] + 1)
         self.row[ids] = nxt
         if not need.any():
             return
@@ -329,13 +363,19 @@ class BatchedMatchingGenerator(SlotOwner):
             )
             self.row[s] = b
             self.switches[s] += 1
+            self.since_switch[s] = 0
+            self.halflife[s] = np.where(idle_only[w[k]], cfg.pause_halflife_s, cfg.halflife_s)
 
-    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
-        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in."""
+    def _query(self, ids: np.ndarray, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
+        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (while not
+        speaking the future moves to his rest's over ``settle_s``)."""
         db = self.db
         raw = db.features[rows].copy()
         if pred is not None:
             raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
+        # a pause: the future moves to his rest's (slow, wrists low) over settle_s after speech stops
+        k = np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)[:, None]
+        raw[:, self.sl_future] = (1.0 - k) * raw[:, self.sl_future] + k * self.rest_future
         raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
         return (raw - db.mean) * self.w
@@ -343,7 +383,7 @@ class BatchedMatchingGenerator(SlotOwner):
     def _search(self, ids, rows, sp, w, pred, idle_only, forced, direction=None) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
-        q = self._query(rows, sp, w, pred)
+        q = self._query(ids, rows, sp, w, pred)
         # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
         # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
         dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
@@ -358,7 +398,7 @@ class BatchedMatchingGenerator(SlotOwner):
         if onset_now.any():
             cost[onset_now] -= cfg.onset_bonus * self.lead[None]
             cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
-        recent = self.last_used[ids] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # played < memory_s ago
+        recent = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # < memory_s ago
         np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=recent)  # in float64, as before
         np.copyto(cost, np.inf, where=self._blocked[idle_only.astype(np.intp)])  # rows a search may not jump to
         # rows within near_frames of the playing one, in its segment (continuing): (Bs, 2 near_frames - 1) only
@@ -377,16 +417,53 @@ class BatchedMatchingGenerator(SlotOwner):
         """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
         cfg = self.config
         dt = 1.0 / self.fps
-        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], cfg.halflife_s, dt)
+        hl = self.halflife[ids][:, None, None]
+        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
-        q = inz.qmul(inz.qexp(x), self.Q[self.row[ids]])
+        q = self._limit(ids, inz.qmul(inz.qexp(x), self.Q[self.row[ids]]))
         alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
+        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
+        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
+        dev = self._deviation(q)
+        beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
+        slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
+        self.slow_dev[ids] = slow
         g = gain_of(now)
-        if np.any(np.abs(g - 1.0) > 1e-9):
-            q = inz.qpow_about(q, self.idle_mean[None], g)
+        scale = np.abs(g - 1.0) > 1e-9
+        if scale.any():
+            k = np.flatnonzero(scale)
+            d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
+            q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
         return q
+
+    def _restart_history(self, ids: np.ndarray) -> None:
+        """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
+        q = inz.qmul(inz.qexp(self.off_x[ids]), self.Q[self.row[ids]])
+        self.prev_q[ids] = q[:, None]
+        self.slow_dev[ids] = self._deviation(q)
+
+    def _limit(self, ids: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Keep the blended pose's whole-body angular acceleration (against the last two outputs) below his
+        ``accel_cap_percentile``: a larger step is shortened and the offset takes up the difference, so the
+        played clip continues from the limited pose (a seam never pops)."""
+        p1, p2 = self.prev_q[ids, 1], self.prev_q[ids, 0]
+        if self.config.accel_cap_percentile > 0:
+            pred = inz.qmul(inz.qmul(p1, inz.qconj(p2)), p1)  # constant angular velocity
+            d = inz.qlog(inz.qabs(inz.qmul(q, inz.qconj(pred))))  # (B, 47, 3): acceleration · dt²
+            total = np.linalg.norm(d, axis=(1, 2)) * self.fps**2
+            over = total > self.acc_cap
+            if over.any():
+                k = np.flatnonzero(over)
+                q[k] = inz.qmul(inz.qexp(d[k] * (self.acc_cap / total[k])[:, None, None]), pred[k])
+                self.off_x[ids[k]] = inz.qlog(inz.qabs(inz.qmul(q[k], inz.qconj(self.Q[self.row[ids[k]]]))))
+        self.prev_q[ids, 0], self.prev_q[ids, 1] = p1, q
+        return q
+
+    def _deviation(self, q: np.ndarray) -> np.ndarray:
+        """Rotation vectors (B, 47, 3) of ``q`` (B, 47, 4) about the style's idle mean: log(m⁻¹ q)."""
+        return inz.qlog(inz.qabs(inz.qmul(self.idle_mean_inv[None], q)))
 
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame whose pose is known per stream: the cues and predictor see its inputs, and
@@ -402,6 +479,7 @@ class BatchedMatchingGenerator(SlotOwner):
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
+            self._restart_history(ids)
             self.was_speaking[ids] = sp.speaking
             self.t[ids] += 1
 
