@@ -2,6 +2,7 @@
 
     PYTHONPATH=src python scripts/conversation_report.py --checkpoint STYLE.safetensors [--shared ../shared/data] \
         [--validation] --out conversation.json
+    python scripts/conversation_report.py --table LABEL=conversation.json [LABEL=…]   # Markdown for a card
 
 * His real motion (the training frames [0, 0.8 T) of both paired takes, BEAT 2_scott_0_1_1 and BEAT2
   2_scott_0_2_2) gives the :class:`facecapges.evaluation.conversation.Reference`.
@@ -28,7 +29,61 @@ from pathlib import Path
 import numpy as np
 
 
+def _f(x, fmt: str = "{:.2f}") -> str:
+    return "–" if x is None or (isinstance(x, float) and x != x) else fmt.format(x)
+
+
+def table(reports: list[tuple[str, dict]]) -> list[str]:
+    """The model card's conversation section: one row per style and clip, then held-out stretches."""
+    out = [
+        "| style | clip | pops/min pause | pops/min speech | wrist speed pause/speech | still share (longest s) | "
+        "both hands | wrist height × his | head speed × his | torso sway × his | settle s | resume s | "
+        "VAD: pause heard as pause | speech as speech |",
+        "|---|---|" + "---|" * 12,
+        "| target | | ≤ 1 | ≤ 1 | < 1 (idle) | low, < 2 s | his ±20 % | 0.8–1.2 | ≈ his (0.83) | ≈ his (0.75) | ≤ 1 | ≤ 0.3 | "
+        "high | high |",
+    ]
+    for label, r in reports:
+        for name, c in r["clips"].items():
+            out.append(
+                f"| {label} | {name} | {_f(c['pops_pause_per_min'], '{:.1f}')} | {_f(c['pops_speech_per_min'], '{:.1f}')} | "
+                f"{_f(c['pause_over_speech_speed'])} | {_f(c['still_share'])} ({_f(c['longest_still_s'], '{:.1f}')}) | "
+                f"{_f(c['both_hands'])} | {_f(c['wrist_height_ratio'])} | {_f(c['head_speed_ratio'])} | "
+                f"{_f(c['torso_sway_ratio'])} | {_f(c['settle_s'], '{:.1f}')} | {_f(c['resume_s'], '{:.2f}')} | "
+                f"{_f(c.get('vad_pause_as_pause'))} | {_f(c.get('vad_speech_as_speech'))} |"
+            )
+    out += [
+        "",
+        "| style | held-out stretch | intensity | pops/min (his) | spread × his | jerk × his | both hands (his) | "
+        "wrist height × his | head speed × his (°/s) | torso sway × his |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for label, r in reports:
+        for take, rows in r["heldout"].items():
+            for inten, h in rows.items():
+                out.append(
+                    f"| {label} | {take} | {inten.split()[-1]} | {_f(h['pops_per_min'], '{:.1f}')} "
+                    f"({_f(h['pops_real_per_min'], '{:.1f}')}) | {_f(h['spread_ratio'])} | {_f(h['jerk_ratio'])} | "
+                    f"{_f(h['both_hands'])} ({_f(h['both_hands_real'])}) | {_f(h['wrist_height_ratio'])} | "
+                    f"{_f(h['head_speed_ratio'])} ({_f(h['head_speed_deg_s'], '{:.0f}')} vs "
+                    f"{_f(h['head_speed_real_deg_s'], '{:.0f}')}) | {_f(h['torso_sway_ratio'])} |"
+                )
+    out += ["", "| style | repetition on the unseen clips | returns in 60 s (mirrors counted / not) | longest copy s | "
+            "database used | spread at intensity 0 / 0.5 / 1 / 1.3 (cm) |", "|---|---|---|---|---|---|"]
+    for label, r in reports:
+        m, p = r["repetition"]["with_mirrors"], r["repetition"]["without_mirrors"]
+        sp = " / ".join(_f(v, "{:.1f}") for v in r["spread_by_intensity"].values())
+        out.append(f"| {label} | {_f(m['copied_share'])} of frames copied | {m['returns']} / {p['returns']} | "
+                   f"{_f(m['longest_copy_s'], '{:.1f}')} | {_f(m['database_share_used'])} | {sp} |")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    if argv and argv[0] == "--table":
+        reps = [(lab, json.loads(Path(p).read_text())) for lab, p in (a.split("=", 1) for a in argv[1:])]
+        print("\n".join(table(reps)))
+        return 0
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", type=Path, required=True)
     ap.add_argument("--shared", type=Path, default=Path("../shared/data"))
@@ -46,7 +101,7 @@ def main(argv: list[str] | None = None) -> int:
     from facecapges.matching.takes import load_take
     from facecapges.model.checkpoint import load_checkpoint
 
-    fps, sr, spf = timing.MODEL_FPS, timing.AUDIO_SR, timing.samples_per_frame()
+    fps, spf = timing.MODEL_FPS, timing.samples_per_frame()
     ck = load_checkpoint(args.checkpoint)
     beat = args.shared / "beat"
     t1 = load_take(beat / "2_scott_0_1_1.bvh", beat / "2_scott_0_1_1.wav")

@@ -8,7 +8,7 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 
 1. **Speech cues** of the frame's samples (:class:`~facecapges.matching.speech.SpeechTracker`):
    speaking, onset, frames since the last onset. A muted or silent microphone (all-zero or no
-   samples) is a pause.
+   samples), room tone, keyboard clicks, music and a far voice are pauses (issue #38).
 2. **Predictor** (if the style has one): the future wrist speed/height targets of
    :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
    face and head. Without one the query keeps the playing frame's own future (continue as is).
@@ -31,12 +31,27 @@ Per step and stream (only the current frame's inputs and the stream's own state 
    * **onset preference**: for ``onset_frames`` frames after an onset, a row's cost falls by
      ``onset_bonus · min(lead, 3)`` — a row whose wrist speed rises over the next 2–4 frames, a
      stroke that lands just after the onset;
-   * **margin**: the stream switches only if the best row beats continuing by ``margin``.
+   * **margin**: the stream switches only if the best row beats continuing by ``margin``;
+   * a clip plays ``min_play_frames`` before a search may leave it (a clip's end or an idle run's end
+     in a pause still switches);
+   * **pauses**: the query's future targets move from the predictor's to his rest's (the median future
+     of idle rest-phase rows) over ``settle_s`` after speech stops, so the search settles into his rest;
+     a switch while not speaking blends with ``pause_halflife_s`` (an idle run's end switches to another
+     idle row, blended and under the acceleration cap; ``idle_loop`` — play it back instead — was tried
+     and is off).
 
 5. **Blend** by inertialization (:mod:`~facecapges.matching.inertialize`) on all 47 joints'
-   rotations, half-life ``halflife_s``.
-6. **Intensity** (:func:`gain_of`): each joint's rotation is scaled about the style's idle mean
-   rotation (quaternion power), smoothed over ``intensity_tau_s`` so a change never pops.
+   rotations, half-life ``halflife_s``; then an **acceleration cap**: the whole-body angular
+   acceleration against the last two outputs stays below the ``accel_cap_percentile`` of the
+   database's own (his real motion); a larger step is shortened and the inertialization offset takes up
+   the difference (the clip continues from the limited pose: no seam pops).
+6. **Intensity** (:func:`gain_of`, reached over ``intensity_tau_s``): the deviation ``d`` of each joint's
+   rotation from the style's idle mean, and its exponential smoothing ``d̄`` over ``intensity_smooth_s``,
+   give ``mean · exp(d + (gain − 1) d̄)``: the slow part of the motion grows or shrinks with the dial
+   (spread rises with it), the frame-to-frame accelerations stay his (no pops at 1.3).
+
+Memory (``memory_s``, 60 s) is kept per *canonical* row (:func:`~facecapges.matching.database.mirror_twins`):
+a stretch and its mirror image are one stretch.
 """
 
 from __future__ import annotations
@@ -94,6 +109,10 @@ class EngineConfig:
     min_play_frames: int = 6  # a clip plays this long before a search may leave it (forced switches aside)
     pause_halflife_s: float = 0.6  # inertialization half-life of switches while not speaking (settling, idle)
     accel_cap_percentile: float = 99.0  # the output's whole-body acceleration stays below this of his (0: off)
+    # in a pause an idle run's end plays it back (ping-pong) instead of a forced switch. Tried (issue #38) and
+    # off: the stream then stays on the run it entered at the pause's start, often a moving one (wrists at
+    # 0.9-1.2x their speech speed in 15 s of zeros, never settled, against 0.4-0.7x and settled in 1-5 s off)
+    idle_loop: bool = False
     settle_s: float = 1.0  # after speech stops the query's future moves to his rest's over this
     intensity_smooth_s: float = 0.3  # the dial scales the deviation from idle smoothed over this (gain_of)
     onset_bonus: float = 2.0
@@ -171,6 +190,8 @@ class BatchedMatchingGenerator(SlotOwner):
         self.next_row = np.arange(1, N + 1)
         last = np.r_[seg[1:] != seg[:-1], True]
         self.next_row[last] = -1  # the clip ends here
+        self.prev_row = np.arange(-1, N - 1)
+        self.prev_row[np.r_[True, seg[1:] != seg[:-1]]] = -1  # the clip starts here
         self.idle_play = idle_rows(db)  # rows idle motion may play through
         self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
         if not self.idle.any():
@@ -215,6 +236,7 @@ class BatchedMatchingGenerator(SlotOwner):
         self.switches = grow("switches", (), 0, np.int64)
         self.since_switch = grow("since_switch", (), 10**6, np.int64)
         self.quiet = grow("quiet", (), 0, np.int64)
+        self.direction = grow("direction", (), 1, np.int64)  # +1 forwards, −1 an idle run played back
         self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
         self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
@@ -262,7 +284,7 @@ class BatchedMatchingGenerator(SlotOwner):
                 self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
-            self.quiet[slot] = 0
+            self.quiet[slot], self.direction[slot] = 0, 1
             self.was_speaking[slot] = False
             self.last_used[slot] = -(10**9)
             self.intensity_now[slot] = self.intensity_target[slot]
@@ -337,16 +359,27 @@ class BatchedMatchingGenerator(SlotOwner):
 
     def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None, direction=None) -> None:
         cfg = self.config
-        nxt = self.next_row[self.row[ids]]
-        ended = nxt < 0
-        nxt = np.where(ended, self.row[ids], nxt)
+        row = self.row[ids]
         idle_only = (~sp.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
+        fwd, bwd = self.next_row[row], self.prev_row[row]
+        back = idle_only & (self.direction[ids] < 0)  # speech always plays forwards
+        nxt = np.where(back, bwd, fwd)
+        if cfg.idle_loop:  # in a pause an idle run that ends plays back the way it came (no forced switch)
+            alt = np.where(back, fwd, bwd)
+            bounce = idle_only & ((nxt < 0) | ~self.idle_play[nxt]) & (alt >= 0) & self.idle_play[alt]
+            nxt = np.where(bounce, alt, nxt)
+            back = back ^ bounce
+        self.direction[ids] = np.where(back, -1, 1)
+        ended = nxt < 0
+        nxt = np.where(ended, row, nxt)
         off_state = idle_only & ~self.idle_play[nxt]
         changed = sp.speaking != self.was_speaking[ids]
         self.since_search[ids] += 1
         self.since_switch[ids] += 1
         settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        need = ended | off_state | (settled & (changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)))
+        started = sp.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
+        periodic = changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        need = ended | off_state | started | (settled & periodic)
         self.was_speaking[ids] = sp.speaking
         self.quiet[ids] = np.where(sp.speaking, 0, self.quiet[ids] + 1)
         self.row[ids] = nxt
@@ -362,6 +395,7 @@ class BatchedMatchingGenerator(SlotOwner):
                 self.off_x[s], self.off_v[s], self.Q[src], self.V[src], self.Q[b], self.V[b]
             )
             self.row[s] = b
+            self.direction[s] = 1
             self.switches[s] += 1
             self.since_switch[s] = 0
             self.halflife[s] = np.where(idle_only[w[k]], cfg.pause_halflife_s, cfg.halflife_s)
