@@ -113,7 +113,8 @@ class EngineConfig:
     # off: the stream then stays on the run it entered at the pause's start, often a moving one (wrists at
     # 0.9-1.2x their speech speed in 15 s of zeros, never settled, against 0.4-0.7x and settled in 1-5 s off)
     idle_loop: bool = False
-    settle_s: float = 1.0  # after speech stops the query's future moves to his rest's over this
+    settle_s: float = 1.0
+    pause_gain: float = 0.6  # the dial's gain is multiplied by this once a pause has lasted settle_s (1.0: settle 2.5-4.9 s, 0.6: 1.4-3.6 s in zeros pauses)  # after speech stops the query's future moves to his rest's over this
     intensity_smooth_s: float = 0.3  # the dial scales the deviation from idle smoothed over this (gain_of)
     onset_bonus: float = 2.0
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
@@ -465,6 +466,9 @@ class BatchedMatchingGenerator(SlotOwner):
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
         g = gain_of(now)
+        if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
+            k = np.clip(self.quiet[ids] / max(cfg.settle_s * self.fps, 1.0), 0.0, 1.0)
+            g = g * (1.0 - k * (1.0 - cfg.pause_gain))
         scale = np.abs(g - 1.0) > 1e-9
         if scale.any():
             k = np.flatnonzero(scale)
