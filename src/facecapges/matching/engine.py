@@ -113,8 +113,10 @@ class EngineConfig:
     # off: the stream then stays on the run it entered at the pause's start, often a moving one (wrists at
     # 0.9-1.2x their speech speed in 15 s of zeros, never settled, against 0.4-0.7x and settled in 1-5 s off)
     idle_loop: bool = False
-    settle_s: float = 1.0
-    pause_gain: float = 0.6  # the dial's gain is multiplied by this once a pause has lasted settle_s (1.0: settle 2.5-4.9 s, 0.6: 1.4-3.6 s in zeros pauses)  # after speech stops the query's future moves to his rest's over this
+    settle_s: float = 1.0  # after speech stops the query's future moves to his rest's over this
+    # the dial's gain is multiplied by this once a pause has lasted settle_s (zeros pauses: 1.0 settles in
+    # 2.5-4.9 s, 0.6 in 1.4-3.6 s; wrist speed pause / speech 0.40-0.57 -> 0.35-0.52)
+    pause_gain: float = 0.6
     intensity_smooth_s: float = 0.3  # the dial scales the deviation from idle smoothed over this (gain_of)
     onset_bonus: float = 2.0
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
