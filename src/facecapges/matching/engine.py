@@ -239,6 +239,7 @@ class BatchedMatchingGenerator(SlotOwner):
         self.switches = grow("switches", (), 0, np.int64)
         self.since_switch = grow("since_switch", (), 10**6, np.int64)
         self.quiet = grow("quiet", (), 0, np.int64)
+        self.run_start = grow("run_start", (), 0, np.int64)  # t of the last switch: the playing run began
         self.direction = grow("direction", (), 1, np.int64)  # +1 forwards, −1 an idle run played back
         self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
@@ -287,7 +288,7 @@ class BatchedMatchingGenerator(SlotOwner):
                 self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
-            self.quiet[slot], self.direction[slot] = 0, 1
+            self.quiet[slot], self.direction[slot], self.run_start[slot] = 0, 1, 0
             self.was_speaking[slot] = False
             self.last_used[slot] = -(10**9)
             self.intensity_now[slot] = self.intensity_target[slot]
@@ -382,14 +383,19 @@ class BatchedMatchingGenerator(SlotOwner):
         settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
         started = sp.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
         periodic = changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
-        need = ended | off_state | started | (settled & periodic)
+        # continuing into a stretch (or its mirror image) played before this run began, within the memory
+        lu = self.last_used[ids, self.canon[nxt]]
+        into_recent = (lu > self.t[ids] - cfg.memory_s * self.fps) & (lu < self.run_start[ids])
+        need = ended | off_state | started | into_recent | (settled & periodic)
         self.was_speaking[ids] = sp.speaking
         self.quiet[ids] = np.where(sp.speaking, 0, self.quiet[ids] + 1)
         self.row[ids] = nxt
         if not need.any():
             return
         w = np.flatnonzero(need)
-        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction)
+        best, switch = self._search(
+            ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction, into_recent[w]
+        )
         self.since_search[ids[w]] = 0
         if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
             k = np.flatnonzero(switch)
@@ -401,6 +407,7 @@ class BatchedMatchingGenerator(SlotOwner):
             self.direction[s] = 1
             self.switches[s] += 1
             self.since_switch[s] = 0
+            self.run_start[s] = self.t[s]
             self.halflife[s] = np.where(idle_only[w[k]], cfg.pause_halflife_s, cfg.halflife_s)
 
     def _query(self, ids: np.ndarray, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
@@ -417,7 +424,9 @@ class BatchedMatchingGenerator(SlotOwner):
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
         return (raw - db.mean) * self.w
 
-    def _search(self, ids, rows, sp, w, pred, idle_only, forced, direction=None) -> tuple[np.ndarray, np.ndarray]:
+    def _search(
+        self, ids, rows, sp, w, pred, idle_only, forced, direction=None, stale=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
         q = self._query(ids, rows, sp, w, pred)
@@ -447,6 +456,8 @@ class BatchedMatchingGenerator(SlotOwner):
         best = np.argmin(cost, axis=1)
         bc = cost[np.arange(len(rows)), best]
         cur = np.where(forced, np.inf, cur)
+        if stale is not None:  # continuing runs into a stretch played before this run: it pays the memory too
+            cur = np.where(stale, cur + cfg.memory_penalty, cur)
         switch = np.isfinite(bc) & (bc < cur - cfg.margin)
         return best, switch
 
