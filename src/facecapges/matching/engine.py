@@ -51,7 +51,8 @@ Per step and stream (only the current frame's inputs and the stream's own state 
    (spread rises with it), the frame-to-frame accelerations stay his (no pops at 1.3).
 
 Memory (``memory_s``, 60 s) is kept per *canonical* row (:func:`~facecapges.matching.database.mirror_twins`):
-a stretch and its mirror image are one stretch.
+a stretch and its mirror image are one stretch. A clip that would continue into a stretch played before its
+own run began (within the memory) searches at once, and continuing pays the memory penalty too.
 """
 
 from __future__ import annotations
