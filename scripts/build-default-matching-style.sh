@@ -5,7 +5,8 @@
 # Then its figures, into build/matching-style/ for the model card: validation (database and predictor
 # from [0, 0.64 T), scored on [0.64 T, 0.8 T)) by scripts/matching_validate.py; held-out (the style from
 # [0, 0.8 T), scored on [0.8 T, T)) and unseen speech by scripts/style_report.py, tabled by
-# scripts/card_heldout_table.py. A few minutes on an idle 2-core CPU.
+# scripts/card_heldout_table.py; issue #38's conversation figures by scripts/conversation_report.py. A few
+# minutes on an idle 2-core CPU.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 FC=.venv/bin/facecapges
@@ -33,5 +34,12 @@ if [ -z "${NO_FIGURES:-}" ]; then
     done
     $PY scripts/card_heldout_table.py "matching beat2-scott-mm=$WORK/beat2-scott-mm.report.json" \
         "network beat2-scott-demo=$WORK/beat2-scott-demo.report.json" > "$WORK/heldout-table.md"
+    # issue #38: the conversation clips (pauses of zeros, room tone, keyboard, music, a far voice; ZEGGS half
+    # silent; built from ../shared at run time) and the held-out stretches' #38 figures, both styles
+    for st in beat2-scott-mm beat2-scott-demo; do
+        $PY scripts/conversation_report.py --checkpoint "$STYLES/$st.safetensors" --out "$WORK/$st.conversation.json"
+    done
+    $PY scripts/conversation_report.py --table "matching=$WORK/beat2-scott-mm.conversation.json" \
+        "network=$WORK/beat2-scott-demo.conversation.json" > "$WORK/conversation-table.md"
     echo "figures in $WORK (the model card's tables come from validation.json and heldout-table.md)"
 fi

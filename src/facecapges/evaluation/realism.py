@@ -209,8 +209,11 @@ def repetition(
     tolerance: float | None = None,
     min_stretch_s: float = MIN_STRETCH_S,
     within_s: float = RETURN_WITHIN_S,
+    same_as: np.ndarray | None = None,
 ) -> Repetition:
-    """Copying from ``database_pose`` of generated ``pose`` (module docstring); ``tolerance`` in pose distance."""
+    """Copying from ``database_pose`` of generated ``pose`` (module docstring); ``tolerance`` in pose distance.
+    ``same_as`` (database frames,): each database frame's canonical frame — a mirrored copy's frames map to
+    the frames they mirror, so a stretch and its mirror image count as the same stretch for runs and returns."""
     from scipy.spatial import cKDTree
 
     db = as_clips(database_pose)
@@ -230,6 +233,8 @@ def repetition(
         d, idx = tree.query(_flat([c]))
         copied = d <= tolerance
         used[idx[copied]] = True
+        if same_as is not None:
+            idx = np.asarray(same_as)[idx]
         runs = _runs(idx, copied, clip_of)
         longest = max([longest] + [r[1] - r[0] for r in runs])
         returns += _returns(runs, max(int(round(min_stretch_s * fps)), 1), int(round(within_s * fps)))

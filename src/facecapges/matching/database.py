@@ -235,6 +235,20 @@ def idle_rows(db: Database, min_run: int = IDLE_MIN_RUN, bridge: int = IDLE_BRID
     return out
 
 
+def mirror_twins(db: Database) -> np.ndarray:
+    """Each row's canonical row (N,): a mirrored segment's rows map to the rows of its unmirrored twin (the
+    same take and frames: one stretch and its mirror image are the same stretch); other rows to themselves.
+    Derived from the segments the style file already holds."""
+    out = np.arange(len(db))
+    twin = {(s.name.removesuffix("~mirror"), s.start, s.stop): s for s in db.segments if not s.mirrored}
+    for s in db.segments:
+        t = twin.get((s.name.removesuffix("~mirror"), s.start, s.stop)) if s.mirrored else None
+        if t is not None:
+            k = s.stop - s.start
+            out[s.row : s.row + k] = np.arange(t.row, t.row + k)
+    return out
+
+
 def frame_features(take: Take, start: int, stop: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Raw features (n, F) and annotations of frames [start, stop) of ``take`` (module docs).
 

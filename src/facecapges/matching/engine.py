@@ -8,7 +8,7 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 
 1. **Speech cues** of the frame's samples (:class:`~facecapges.matching.speech.SpeechTracker`):
    speaking, onset, frames since the last onset. A muted or silent microphone (all-zero or no
-   samples) is a pause.
+   samples), room tone, keyboard clicks, music and a far voice are pauses (issue #38).
 2. **Predictor** (if the style has one): the future wrist speed/height targets of
    :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
    face and head. Without one the query keeps the playing frame's own future (continue as is).
@@ -31,12 +31,28 @@ Per step and stream (only the current frame's inputs and the stream's own state 
    * **onset preference**: for ``onset_frames`` frames after an onset, a row's cost falls by
      ``onset_bonus · min(lead, 3)`` — a row whose wrist speed rises over the next 2–4 frames, a
      stroke that lands just after the onset;
-   * **margin**: the stream switches only if the best row beats continuing by ``margin``.
+   * **margin**: the stream switches only if the best row beats continuing by ``margin``;
+   * a clip plays ``min_play_frames`` before a search may leave it (a clip's end or an idle run's end
+     in a pause still switches);
+   * **pauses**: the query's future targets move from the predictor's to his rest's (the median future
+     of idle rest-phase rows) over ``settle_s`` after speech stops, so the search settles into his rest;
+     a switch while not speaking blends with ``pause_halflife_s`` (an idle run's end switches to another
+     idle row, blended and under the acceleration cap; ``idle_loop`` — play it back instead — was tried
+     and is off).
 
 5. **Blend** by inertialization (:mod:`~facecapges.matching.inertialize`) on all 47 joints'
-   rotations, half-life ``halflife_s``.
-6. **Intensity** (:func:`gain_of`): each joint's rotation is scaled about the style's idle mean
-   rotation (quaternion power), smoothed over ``intensity_tau_s`` so a change never pops.
+   rotations, half-life ``halflife_s``; then an **acceleration cap**: the whole-body angular
+   acceleration against the last two outputs stays below the ``accel_cap_percentile`` of the
+   database's own (his real motion); a larger step is shortened and the inertialization offset takes up
+   the difference (the clip continues from the limited pose: no seam pops).
+6. **Intensity** (:func:`gain_of`, reached over ``intensity_tau_s``): the deviation ``d`` of each joint's
+   rotation from the style's idle mean, and its exponential smoothing ``d̄`` over ``intensity_smooth_s``,
+   give ``mean · exp(d + (gain − 1) d̄)``: the slow part of the motion grows or shrinks with the dial
+   (spread rises with it), the frame-to-frame accelerations stay his (no pops at 1.3).
+
+Memory (``memory_s``, 60 s) is kept per *canonical* row (:func:`~facecapges.matching.database.mirror_twins`):
+a stretch and its mirror image are one stretch. A clip that would continue into a stretch played before its
+own run began (within the memory) searches at once, and continuing pays the memory penalty too.
 """
 
 from __future__ import annotations
@@ -50,7 +66,14 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.matching import inertialize as inz
-from facecapges.matching.database import ONSET_DECAY, Database, group_slices, idle_rows, quaternions
+from facecapges.matching.database import (
+    ONSET_DECAY,
+    Database,
+    group_slices,
+    idle_rows,
+    mirror_twins,
+    quaternions,
+)
 from facecapges.matching.speech import SpeechTracker
 from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.model.slots import SlotOwner, Slots
@@ -81,9 +104,21 @@ class EngineConfig:
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
     margin: float = 3.0  # a switch must beat continuing by this much cost
     halflife_s: float = 0.3  # inertialization half-life
-    memory_s: float = 20.0
+    memory_s: float = 60.0  # issue #38: ≥ 60 s, a stretch and its mirror image count as one (mirror_twins)
     memory_penalty: float = 100.0
     near_frames: int = 8
+    min_play_frames: int = 6  # a clip plays this long before a search may leave it (forced switches aside)
+    pause_halflife_s: float = 0.6  # inertialization half-life of switches while not speaking (settling, idle)
+    accel_cap_percentile: float = 99.0  # the output's whole-body acceleration stays below this of his (0: off)
+    # in a pause an idle run's end plays it back (ping-pong) instead of a forced switch. Tried (issue #38) and
+    # off: the stream then stays on the run it entered at the pause's start, often a moving one (wrists at
+    # 0.9-1.2x their speech speed in 15 s of zeros, never settled, against 0.4-0.7x and settled in 1-5 s off)
+    idle_loop: bool = False
+    settle_s: float = 1.0  # after speech stops the query's future moves to his rest's over this
+    # the dial's gain is multiplied by this once a pause has lasted settle_s (zeros pauses: 1.0 settles in
+    # 2.5-4.9 s, 0.6 in 1.4-3.6 s; wrist speed pause / speech 0.40-0.57 -> 0.35-0.52)
+    pause_gain: float = 0.6
+    intensity_smooth_s: float = 0.3  # the dial scales the deviation from idle smoothed over this (gain_of)
     onset_bonus: float = 2.0
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
@@ -149,15 +184,28 @@ class BatchedMatchingGenerator(SlotOwner):
             rows = np.flatnonzero(seg == s)
             V[rows] = inz.angular_velocity(self.Q[rows], self.fps)
         self.V = V
+        acc = np.zeros(len(db))  # whole-body angular acceleration of his real motion (rad/s², root sum of squares)
+        for s in np.unique(seg):
+            rows = np.flatnonzero(seg == s)
+            if len(rows) > 2:
+                acc[rows[1:-1]] = np.linalg.norm(np.diff(V[rows], axis=0)[:-1], axis=(1, 2)) * self.fps
+        self.acc_cap = float(np.percentile(acc, self.config.accel_cap_percentile))
         N = len(db)
         self.next_row = np.arange(1, N + 1)
         last = np.r_[seg[1:] != seg[:-1], True]
         self.next_row[last] = -1  # the clip ends here
+        self.prev_row = np.arange(-1, N - 1)
+        self.prev_row[np.r_[True, seg[1:] != seg[:-1]]] = -1  # the clip starts here
         self.idle_play = idle_rows(db)  # rows idle motion may play through
         self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
         if not self.idle.any():
             self.idle = db.searchable.copy()
         self.idle_mean = inz.quaternion_mean(self.Q[self.idle])  # (47, 4)
+        self.idle_mean_inv = inz.qconj(self.idle_mean)
+        self.canon = mirror_twins(db)  # a row and its mirror image share one memory entry
+        rest = self.idle & (db.phase == 0)  # his rest: idle rows in the rest phase (slow, wrists low)
+        fut = db.features[rest if rest.any() else self.idle][:, group_slices()["future"]]
+        self.rest_future = np.median(fut, axis=0).astype(np.float32)  # where a pause's query settles
         self._blocked = np.stack([~db.searchable, ~self.idle])  # rows a search may not jump to: [any, idle only]
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
         sl = group_slices()
@@ -190,6 +238,13 @@ class BatchedMatchingGenerator(SlotOwner):
         self.intensity_target = grow("intensity_target", (), 1.0, np.float64)
         self.intensity_now = grow("intensity_now", (), 1.0, np.float64)
         self.switches = grow("switches", (), 0, np.int64)
+        self.since_switch = grow("since_switch", (), 10**6, np.int64)
+        self.quiet = grow("quiet", (), 0, np.int64)
+        self.run_start = grow("run_start", (), 0, np.int64)  # t of the last switch: the playing run began
+        self.direction = grow("direction", (), 1, np.int64)  # +1 forwards, −1 an idle run played back
+        self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
+        self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
+        self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
         self.speech.ensure(capacity)
         self.slots.grown(capacity)
         self.capacity = capacity
@@ -233,10 +288,13 @@ class BatchedMatchingGenerator(SlotOwner):
             if self.director is not None:
                 self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
+            self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
+            self.quiet[slot], self.direction[slot], self.run_start[slot] = 0, 1, 0
             self.was_speaking[slot] = False
             self.last_used[slot] = -(10**9)
             self.intensity_now[slot] = self.intensity_target[slot]
             self._start_at(slot, initial_pose)
+            self._restart_history(np.array([slot]))
 
     def _start_at(self, slot: int, pose: np.ndarray | None) -> None:
         """Play from the idle row nearest ``pose`` with the offset that makes the output ``pose``."""
@@ -300,26 +358,45 @@ class BatchedMatchingGenerator(SlotOwner):
                 direction = self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
             self._advance_and_search(ids, sp, pred, direction)
             q = self._blend(ids)
-            self.last_used[ids, self.row[ids]] = self.t[ids]
+            self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
 
     def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None, direction=None) -> None:
         cfg = self.config
-        nxt = self.next_row[self.row[ids]]
-        ended = nxt < 0
-        nxt = np.where(ended, self.row[ids], nxt)
+        row = self.row[ids]
         idle_only = (~sp.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
+        fwd, bwd = self.next_row[row], self.prev_row[row]
+        back = idle_only & (self.direction[ids] < 0)  # speech always plays forwards
+        nxt = np.where(back, bwd, fwd)
+        if cfg.idle_loop:  # in a pause an idle run that ends plays back the way it came (no forced switch)
+            alt = np.where(back, fwd, bwd)
+            bounce = idle_only & ((nxt < 0) | ~self.idle_play[nxt]) & (alt >= 0) & self.idle_play[alt]
+            nxt = np.where(bounce, alt, nxt)
+            back = back ^ bounce
+        self.direction[ids] = np.where(back, -1, 1)
+        ended = nxt < 0
+        nxt = np.where(ended, row, nxt)
         off_state = idle_only & ~self.idle_play[nxt]
         changed = sp.speaking != self.was_speaking[ids]
         self.since_search[ids] += 1
-        need = ended | off_state | changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        self.since_switch[ids] += 1
+        settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
+        started = sp.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
+        periodic = changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        # continuing into a stretch (or its mirror image) played before this run began, within the memory
+        lu = self.last_used[ids, self.canon[nxt]]
+        into_recent = (lu > self.t[ids] - cfg.memory_s * self.fps) & (lu < self.run_start[ids])
+        need = ended | off_state | started | into_recent | (settled & periodic)
         self.was_speaking[ids] = sp.speaking
+        self.quiet[ids] = np.where(sp.speaking, 0, self.quiet[ids] + 1)
         self.row[ids] = nxt
         if not need.any():
             return
         w = np.flatnonzero(need)
-        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction)
+        best, switch = self._search(
+            ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction, into_recent[w]
+        )
         self.since_search[ids[w]] = 0
         if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
             k = np.flatnonzero(switch)
@@ -328,22 +405,32 @@ class BatchedMatchingGenerator(SlotOwner):
                 self.off_x[s], self.off_v[s], self.Q[src], self.V[src], self.Q[b], self.V[b]
             )
             self.row[s] = b
+            self.direction[s] = 1
             self.switches[s] += 1
+            self.since_switch[s] = 0
+            self.run_start[s] = self.t[s]
+            self.halflife[s] = np.where(idle_only[w[k]], cfg.pause_halflife_s, cfg.halflife_s)
 
-    def _query(self, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
-        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in."""
+    def _query(self, ids: np.ndarray, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
+        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (while not
+        speaking the future moves to his rest's over ``settle_s``)."""
         db = self.db
         raw = db.features[rows].copy()
         if pred is not None:
             raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
+        # a pause: the future moves to his rest's (slow, wrists low) over settle_s after speech stops
+        k = np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)[:, None]
+        raw[:, self.sl_future] = (1.0 - k) * raw[:, self.sl_future] + k * self.rest_future
         raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
         return (raw - db.mean) * self.w
 
-    def _search(self, ids, rows, sp, w, pred, idle_only, forced, direction=None) -> tuple[np.ndarray, np.ndarray]:
+    def _search(
+        self, ids, rows, sp, w, pred, idle_only, forced, direction=None, stale=None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
-        q = self._query(rows, sp, w, pred)
+        q = self._query(ids, rows, sp, w, pred)
         # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
         # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
         dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
@@ -358,7 +445,7 @@ class BatchedMatchingGenerator(SlotOwner):
         if onset_now.any():
             cost[onset_now] -= cfg.onset_bonus * self.lead[None]
             cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
-        recent = self.last_used[ids] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # played < memory_s ago
+        recent = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # < memory_s ago
         np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=recent)  # in float64, as before
         np.copyto(cost, np.inf, where=self._blocked[idle_only.astype(np.intp)])  # rows a search may not jump to
         # rows within near_frames of the playing one, in its segment (continuing): (Bs, 2 near_frames - 1) only
@@ -370,6 +457,8 @@ class BatchedMatchingGenerator(SlotOwner):
         best = np.argmin(cost, axis=1)
         bc = cost[np.arange(len(rows)), best]
         cur = np.where(forced, np.inf, cur)
+        if stale is not None:  # continuing runs into a stretch played before this run: it pays the memory too
+            cur = np.where(stale, cur + cfg.memory_penalty, cur)
         switch = np.isfinite(bc) & (bc < cur - cfg.margin)
         return best, switch
 
@@ -377,16 +466,56 @@ class BatchedMatchingGenerator(SlotOwner):
         """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
         cfg = self.config
         dt = 1.0 / self.fps
-        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], cfg.halflife_s, dt)
+        hl = self.halflife[ids][:, None, None]
+        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
-        q = inz.qmul(inz.qexp(x), self.Q[self.row[ids]])
+        q = self._limit(ids, inz.qmul(inz.qexp(x), self.Q[self.row[ids]]))
         alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
+        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
+        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
+        dev = self._deviation(q)
+        beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
+        slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
+        self.slow_dev[ids] = slow
         g = gain_of(now)
-        if np.any(np.abs(g - 1.0) > 1e-9):
-            q = inz.qpow_about(q, self.idle_mean[None], g)
+        if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
+            k = np.clip(self.quiet[ids] / max(cfg.settle_s * self.fps, 1.0), 0.0, 1.0)
+            g = g * (1.0 - k * (1.0 - cfg.pause_gain))
+        scale = np.abs(g - 1.0) > 1e-9
+        if scale.any():
+            k = np.flatnonzero(scale)
+            d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
+            q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
         return q
+
+    def _restart_history(self, ids: np.ndarray) -> None:
+        """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
+        q = inz.qmul(inz.qexp(self.off_x[ids]), self.Q[self.row[ids]])
+        self.prev_q[ids] = q[:, None]
+        self.slow_dev[ids] = self._deviation(q)
+
+    def _limit(self, ids: np.ndarray, q: np.ndarray) -> np.ndarray:
+        """Keep the blended pose's whole-body angular acceleration (against the last two outputs) below his
+        ``accel_cap_percentile``: a larger step is shortened and the offset takes up the difference, so the
+        played clip continues from the limited pose (a seam never pops)."""
+        p1, p2 = self.prev_q[ids, 1], self.prev_q[ids, 0]
+        if self.config.accel_cap_percentile > 0:
+            pred = inz.qmul(inz.qmul(p1, inz.qconj(p2)), p1)  # constant angular velocity
+            d = inz.qlog(inz.qabs(inz.qmul(q, inz.qconj(pred))))  # (B, 47, 3): acceleration · dt²
+            total = np.linalg.norm(d, axis=(1, 2)) * self.fps**2
+            over = total > self.acc_cap
+            if over.any():
+                k = np.flatnonzero(over)
+                q[k] = inz.qmul(inz.qexp(d[k] * (self.acc_cap / total[k])[:, None, None]), pred[k])
+                self.off_x[ids[k]] = inz.qlog(inz.qabs(inz.qmul(q[k], inz.qconj(self.Q[self.row[ids[k]]]))))
+        self.prev_q[ids, 0], self.prev_q[ids, 1] = p1, q
+        return q
+
+    def _deviation(self, q: np.ndarray) -> np.ndarray:
+        """Rotation vectors (B, 47, 3) of ``q`` (B, 47, 4) about the style's idle mean: log(m⁻¹ q)."""
+        return inz.qlog(inz.qabs(inz.qmul(self.idle_mean_inv[None], q)))
 
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame whose pose is known per stream: the cues and predictor see its inputs, and
@@ -402,6 +531,7 @@ class BatchedMatchingGenerator(SlotOwner):
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
+            self._restart_history(ids)
             self.was_speaking[ids] = sp.speaking
             self.t[ids] += 1
 

@@ -39,9 +39,12 @@ def angular_velocity(q: np.ndarray, fps: float) -> np.ndarray:
     return v
 
 
-def decay_spring(x: np.ndarray, v: np.ndarray, halflife: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """One step of a critically damped spring towards 0 (exact): offsets x and velocities v."""
-    y = 2.0 * LN2 / max(halflife, 1e-5)  # half the damping 4·ln2/h
+def decay_spring(
+    x: np.ndarray, v: np.ndarray, halflife: float | np.ndarray, dt: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """One step of a critically damped spring towards 0 (exact): offsets x and velocities v (``halflife``:
+    one value, or an array broadcasting against them — one per stream)."""
+    y = 2.0 * LN2 / np.maximum(halflife, 1e-5)  # half the damping 4·ln2/h
     j1 = v + x * y
     e = np.exp(-y * dt)
     return e * (x + j1 * dt), e * (v - j1 * y * dt)

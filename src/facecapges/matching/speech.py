@@ -8,10 +8,25 @@ frame) and the live engine agree by construction.
 Per frame and stream:
 
 * ``level`` — the frame's RMS in dBFS (floor −100).
-* ``speaking`` — an energy VAD: the level above ``max(SILENCE_DB, noise floor + VAD_MARGIN_DB)``
-  opens speech at once; it stays open for ``HANGOVER`` frames after the level falls (short
-  gaps between words stay speech). The noise floor follows the quietest frames: it drops to a
-  lower level at once and rises by at most ``FLOOR_RISE_DB`` a frame.
+* ``speaking`` — a VAD that decides on speech, not on level (issue #38: a muted mic, room tone,
+  keyboard clicks, music and a far voice are pauses). A frame is *speech-like* when all hold:
+
+  - **loud over the noise floor**: the level above ``max(SILENCE_DB, floor + VAD_MARGIN_DB)``; the
+    noise floor follows the quietest frames (drops at once, rises ≤ ``FLOOR_RISE_DB`` a frame);
+  - **near the talker's level**: above the running speech level − ``NEAR_DB`` (the speech level
+    jumps up to a louder speech-like frame and sinks by ``LEVEL_DECAY_DB`` a frame: a voice 25 dB
+    below the talker's — someone across the room — is not the talker);
+  - **voice-like spectrum** (of the frame's last 1024 samples, Hann, 100 Hz – 4 kHz): periodic
+    (normalised autocorrelation peak at a lag of 2.5–14 ms — a pitch of 70–400 Hz — at least
+    ``VOICING``) or a steep spectrum (flatness below ``FLAT_MAX``); clicks and noise are flat and
+    aperiodic;
+  - **not a steady tone**: the strongest ``TONAL_BINS`` bins hold less than ``TONAL_SHARE`` of the
+    band's power on average over the last ``TONAL_FRAMES`` frames (a few partials held over notes:
+    music; speech's harmonics and formants move every frame).
+
+  Speech opens after ``OPEN_FRAMES`` speech-like frames in a row and stays open ``HANGOVER``
+  frames after the last one (short gaps between words stay speech). Measured on the conversation
+  clips (:mod:`facecapges.evaluation.conversation`) by ``scripts/conversation_report.py``.
 * ``onset`` — spectral flux: the frame's last 1024 samples (Hann) in ``N_BANDS`` log-spaced
   bands 80 Hz – 8 kHz, log power; the flux is the mean positive rise of the bands against the
   previous frame. An onset fires while speaking when the flux exceeds the mean + ``ONSET_K`` sd
@@ -32,7 +47,15 @@ from facecapges import timing
 SILENCE_DB = -50.0
 VAD_MARGIN_DB = 20.0
 FLOOR_RISE_DB = 0.05
-HANGOVER = 3
+HANGOVER = 6
+NEAR_DB = 20.0
+LEVEL_DECAY_DB = 0.02
+VOICING = 0.3
+FLAT_MAX = 0.03
+TONAL_BINS = 12
+TONAL_SHARE = 0.98
+TONAL_FRAMES = 4
+OPEN_FRAMES = 1
 N_FFT = 1024
 N_BANDS = 8
 FLUX_HISTORY = 23  # ~1.5 s
@@ -54,6 +77,9 @@ def _band_matrix(sr: int = timing.AUDIO_SR) -> np.ndarray:
 
 _BANDS = _band_matrix()
 _WINDOW = np.hanning(N_FFT).astype(np.float32)
+_FREQS = np.fft.rfftfreq(N_FFT, 1.0 / timing.AUDIO_SR)
+_VOICE_BAND = (_FREQS >= 100.0) & (_FREQS < 4000.0)
+_LAGS = slice(timing.AUDIO_SR // 400, timing.AUDIO_SR // 70 + 1)  # pitch 400 … 70 Hz
 
 
 @dataclass
@@ -90,6 +116,9 @@ class SpeechTracker:
         self.since = grow("since", (), SINCE_CAP, np.int64)
         self.energy = grow("energy", (), -100.0)
         self.count = grow("count", (), 0, np.int64)
+        self.talk_level = grow("talk_level", (), -100.0)
+        self.tonal = grow("tonal", (TONAL_FRAMES,), 0.0)
+        self.run = grow("run", (), 0, np.int64)
         self.capacity = capacity
 
     def ensure(self, capacity: int) -> None:
@@ -100,6 +129,7 @@ class SpeechTracker:
         self.floor[slot], self.hang[slot], self.since[slot] = 0.0, 0, SINCE_CAP
         self.prev_bands[slot], self.flux_hist[slot] = np.nan, np.nan
         self.energy[slot], self.count[slot] = -100.0, 0
+        self.talk_level[slot], self.tonal[slot], self.run[slot] = -100.0, 0.0, 0
 
     def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
         """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
@@ -109,9 +139,14 @@ class SpeechTracker:
         first = self.count[idx] == 0
         floor = np.where(first, level, np.minimum(level, self.floor[idx] + FLOOR_RISE_DB))
         loud = level > np.maximum(SILENCE_DB, floor + VAD_MARGIN_DB)
-        hang = np.where(loud, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
-        speaking = loud | (hang > 0)
-        bands = self._bands(a)
+        bands, voicing, flat, top = self._spectrum(a)
+        tonal = np.concatenate([self.tonal[idx][:, 1:], top[:, None]], axis=1)
+        voice_like = loud & ((voicing >= VOICING) | (flat < FLAT_MAX)) & (tonal.mean(axis=1) < TONAL_SHARE)
+        talk = np.maximum(self.talk_level[idx] - LEVEL_DECAY_DB, np.where(voice_like, level, -100.0))
+        like = voice_like & (level > talk - NEAR_DB)
+        run = np.where(like, self.run[idx] + 1, 0)
+        hang = np.where(run >= OPEN_FRAMES, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
+        speaking = (run >= OPEN_FRAMES) | (hang > 0)
         prev = self.prev_bands[idx]
         flux = np.where(np.isnan(prev[:, 0]), 0.0, np.maximum(bands - prev, 0.0).mean(axis=1))
         hist = self.flux_hist[idx]
@@ -126,18 +161,26 @@ class SpeechTracker:
         since = np.where(onset, 0, since)
         energy = np.where(first, level, self.energy[idx] + ENERGY_ALPHA * (level - self.energy[idx]))
         self.floor[idx], self.hang[idx], self.prev_bands[idx] = floor, hang, bands
+        self.talk_level[idx], self.tonal[idx], self.run[idx] = talk, tonal, run
         self.flux_hist[idx] = np.concatenate([hist[:, 1:], flux[:, None]], axis=1)
         self.since[idx], self.energy[idx], self.count[idx] = since, energy, self.count[idx] + 1
         return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32))
 
     @staticmethod
-    def _bands(a: np.ndarray) -> np.ndarray:
+    def _spectrum(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Per stream: log band powers (B, N_BANDS), voicing, flatness and top-bin share (module docs)."""
         x = np.zeros((len(a), N_FFT), np.float32)
         n = min(N_FFT, a.shape[1])
         if n:
             x[:, N_FFT - n :] = a[:, a.shape[1] - n :]
-        spec = np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2
-        return np.log(spec.astype(np.float32) @ _BANDS + 1e-10)
+        spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32)
+        bands = np.log(spec @ _BANDS + 1e-10)
+        ac = np.fft.irfft(spec, axis=1)  # the windowed frame's autocorrelation
+        voicing = ac[:, _LAGS].max(axis=1) / np.maximum(ac[:, 0], 1e-20)
+        w = spec[:, _VOICE_BAND].astype(np.float64) + 1e-12
+        flat = np.exp(np.log(w).mean(axis=1)) / w.mean(axis=1)
+        top = np.sort(w, axis=1)[:, -TONAL_BINS:].sum(axis=1) / w.sum(axis=1)
+        return bands, voicing, flat, top
 
 
 def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:
