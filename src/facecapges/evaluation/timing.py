@@ -35,7 +35,7 @@ Both statistics are computed per clip and pooled over clips (nothing crosses a c
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -204,7 +204,7 @@ def timing_row(
 
 
 def timing_section(
-    methods: dict[str, Sequence[np.ndarray]],
+    methods: Mapping[str, Sequence[np.ndarray]],
     audios: Sequence[np.ndarray],
     sr: int,
     fps: float,
