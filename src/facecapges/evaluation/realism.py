@@ -66,13 +66,18 @@ the figure (target 0.1–0.5: idle, not frozen).
   2_scott_0_1_1's training frames against 2_scott_0_2_2's) score 0.82 with this classifier — the
   figure to read a row on *unseen* speech against, beside the control.
 
-Measured (2026-12-03, BEAT speaker 2, default settings; held-out frames of both paired takes): the
-control 0.56 ± 0.09 over draws (one draw, seed 0, as before the draws were averaged: 0.60); the motion-
-matching style beat2-scott-mm on unseen speech (2_scott_0_4_4) 0.71 ± 0.07 (one draw: 0.65 — the
-figure its card quoted; draws range 0.60–0.87), on the held-out stretches 0.90; the network style
-beat2-scott-demo 0.94 ± 0.01 on the unseen speech, 0.85 on the held-out stretches. On the 25 s of
-held-out frames there are 27 windows a class, 5–6 per fold, so one figure carries ± 0.1 (see ``sd``,
-``draw_sd``, ``n_windows``). Earlier (2026-12-01) on 2_scott_0_1_1 alone: its two halves 0.76 ± 0.08,
+Measured (2026-12-03, BEAT speaker 2, default settings; held-out frames of both paired takes; old = one
+draw, seed 0, as before the draws were averaged): the control 0.60 ± 0.09 over draws (old 0.60); the
+motion-matching style beat2-scott-mm on unseen speech (2_scott_0_4_4) 0.66 ± 0.05 (old 0.65, the
+figure its card quoted; single draws range 0.60–0.87), on the held-out stretches 0.90 (one draw: the
+sides match); the network style beat2-scott-demo 0.94 ± 0.01 on the unseen speech, 0.85 on the held-out
+stretches; two different takes of his 0.82 ± 0.01. The averaging makes the figure repeatable; it did not
+move it. What a reader must not do is read an unseen-speech row against the within-take control alone:
+the arm-only features cannot see the head, spine or fingers, and this classifier puts the matching
+style's unseen-speech motion (0.66) *closer* to his held-out motion than his other take is (0.82),
+where an independent classifier on other features found 0.90 against 0.82–0.84 (issue #38). On the
+25 s of held-out frames there are 27 windows a class, 5–6 per fold, so one figure carries ± 0.1 (see
+``sd``, ``draw_sd``, ``n_windows``). Earlier (2026-12-01) on 2_scott_0_1_1 alone: its two halves 0.76 ± 0.08,
 random interleavings of its 3-s chunks ≈ 0.5, a jittered mean pose 1.0.
 """
 
