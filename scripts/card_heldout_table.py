@@ -14,10 +14,11 @@ import math
 import sys
 from pathlib import Path
 
-TARGETS = "0.8–1.25 | 0.8–1.25 | ≥ +1 | ≤ 1 | – | – | – | 0.1–0.5 | 0.5"
+TARGETS = "0.8–1.25 | 0.8–1.25 | ≥ +1 | ≤ 1 | – | – | – | 0.1–0.5 | 0.5 | real's | < chance | > 0"
 HEAD = (
     "| style | speech | wrist spread × real | wrist jerk × real | BeatAlign gap (sd; real's) | transitions / min | "
-    "longest copy (s) | database used | returns in 20 s / min | pause / speech spread | real-vs-generated (control) |"
+    "longest copy (s) | database used | returns in 20 s / min | pause / speech spread | real-vs-generated (control) | "
+    "FGD vs training (real's) | onset → wrist peak s (chance; real's) | speed rise after onsets z (real's) |"
 )
 
 
@@ -25,8 +26,9 @@ def _f(x, fmt: str = "{:.2f}") -> str:
     return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else fmt.format(x)
 
 
-def _row(label: str, where: str, gen: dict, real: dict | None, rz: dict, control: dict | None) -> str:
+def _row(label: str, where: str, gen: dict, real: dict | None, rz: dict, control: dict | None, ex: dict) -> str:
     g = rz.get("generated", {})
+    xg, xr = ex.get("generated", {}), ex.get("real")
     ctl = f" ({_f(control.get('classifier'))})" if control else ""
     ba = _f(gen.get("BA_gap_sd"), "{:+.2f}") + (f" ({_f(real.get('BA_gap_sd'), '{:+.2f}')})" if real else "")
     cells = [
@@ -39,26 +41,31 @@ def _row(label: str, where: str, gen: dict, real: dict | None, rz: dict, control
         _f(g.get("returns_per_min"), "{:.1f}"),
         _f(g.get("silence_ratio")),
         _f(g.get("classifier")) + ctl,
+        _f(xg.get("FGD")) + (f" ({_f(xr.get('FGD'))})" if xr else ""),
+        f"{_f(xg.get('onset_lag_s'))} ({_f(xg.get('onset_lag_chance_s'))}"
+        + (f"; {_f(xr.get('onset_lag_s'))})" if xr else ")"),
+        _f(xg.get("onset_rise_z"), "{:+.1f}") + (f" ({_f(xr.get('onset_rise_z'), '{:+.1f}')})" if xr else ""),
     ]
     return f"| {label} | {where} | " + " | ".join(cells) + " |"
 
 
 def table(reports: list[tuple[str, dict]], skip_unseen: set[str]) -> list[str]:
-    lines = [HEAD, "|---|---|" + "---|" * 9, "| target | | " + TARGETS + " |"]
+    lines = [HEAD, "|---|---|" + "---|" * 12, "| target | | " + TARGETS + " |"]
     for label, r in reports:
         for take, e in r["paired"].items():
             rz = e.get("realism", {})
             lines.append(_row(label, f"{take}, held-out {e['frames']} frames", e["generated_still_head"],
-                              e["real"], rz, rz.get("control")))
+                              e["real"], rz, rz.get("control"), e.get("extra", {})))
         c = r.get("paired_combined")
         if c:
             rz = c.get("realism", {})
-            lines.append(_row(label, "all held-out frames", c["generated"], c.get("real"), rz, rz.get("control")))
+            lines.append(_row(label, "all held-out frames", c["generated"], c.get("real"), rz, rz.get("control"),
+                              c.get("extra", {})))
         for name, e in r["unseen"].items():
             if name in skip_unseen:
                 continue
             rz = e.get("realism", {})
-            lines.append(_row(label, f"{name} (unseen)", e, None, rz, rz.get("control")))
+            lines.append(_row(label, f"{name} (unseen)", e, None, rz, rz.get("control"), e.get("extra", {})))
     return lines
 
 

@@ -20,6 +20,9 @@
   acceleration, repetition against the engine's database (a matching style's own, else the
   training frames), the silence ratio, and the real-vs-generated classifier against the
   held-out real windows beside its control (held-out real vs the training frames).
+* ``extra``: FGD against the training frames (the style's own autoencoder, else the package's:
+  :func:`facecapges.evaluation.fgd.find_fgd`) and the onset timing of :mod:`facecapges.evaluation.timing`,
+  for the real held-out motion and the style's (head held still; unseen speech: the style's only).
 All metric code is :mod:`facecapges.evaluation.synchrony` and
 :mod:`facecapges.evaluation.beat_align` and :mod:`facecapges.evaluation.realism` (what
 ``facecapges eval`` reports). The style runs through ``ckpt.streaming()`` (any engine).
@@ -66,6 +69,10 @@ def _realism(rows_in, skel, fps, sr, heldout, training, database, db_source, see
     return out
 
 
+def _round(v):
+    return (round(float(v), 4) if np.isfinite(v) else None) if isinstance(v, (float, np.floating)) else v
+
+
 def _takes(cache, args, fps, sr):
     """Each take of the speaker, cut as the options say, with its first held-out frame."""
     from facecapges.timing import frame_sample_bounds
@@ -100,8 +107,10 @@ def main() -> None:
     args = ap.parse_args()
 
     from facecapges.data.cache import Cache
+    from facecapges.evaluation.fgd import find_fgd, load_fgd
     from facecapges.evaluation.run import engine_database, heldout_inputs
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
+    from facecapges.evaluation.timing import timing_row
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses
     from facecapges.rotations import identity_rot6d
@@ -116,6 +125,13 @@ def main() -> None:
     takes = _takes(cache, args, fps, sr)
     training = [a["pose"][:start] for _, a, start in takes]
     database, db_source = engine_database(ck, training)
+    fgd_loc, out["fgd_autoencoder"] = find_fgd(args.checkpoint)  # the style's own, else the package's
+    fgd = load_fgd(fgd_loc) if fgd_loc is not None else None
+
+    def extra(clips, audios):  # FGD against the training frames and the onset timing (evaluation.timing)
+        f = {"FGD": round(fgd.fgd(training, clips, "with_head"), 4)} if fgd is not None else {}
+        return {**f, **{k: _round(v) for k, v in timing_row(clips, audios, sr, fps, skel).items()}}
+
     train_stats = [motion_stats(wrist_positions(skel, t), fps) for t in training]
     heldout, pooled_gen = [], ([], [])
     for name, a, start in takes:
@@ -132,6 +148,7 @@ def main() -> None:
         rows = {"real": ([real], [audio], False), "generated": ([gen], [audio], True),
                 "generated_still_head": ([gen_still], [audio], True)}
         out["paired"][name]["realism"] = _realism(rows, skel, fps, sr, [real], training, database, db_source)
+        out["paired"][name]["extra"] = {"real": extra([real], [audio]), "generated": extra([gen_still], [audio])}
         heldout.append(real)
         pooled_gen[0].append(gen)
         pooled_gen[1].append(audio)
@@ -146,6 +163,8 @@ def main() -> None:
     if heldout:  # every take's held-out frames together: one transitions/repetition/classifier figure
         rows = {"generated": (pooled_gen[0], pooled_gen[1], True)}
         out["paired_combined"]["realism"] = _realism(rows, skel, fps, sr, heldout, training, database, db_source)
+        out["paired_combined"]["extra"] = {"real": extra(heldout, pooled_gen[1]),
+                                           "generated": extra(pooled_gen[0], pooled_gen[1])}
     print("combined", json.dumps(out["paired_combined"]))
     pooled = pooled_stats(train_stats)
     for p in args.audio:
@@ -155,6 +174,7 @@ def main() -> None:
         gen, _ = generate_poses(ck, inputs, progress=False)
         wav = load_audio(p, sr)
         out["unseen"][p.name] = _row(skel, gen, wav, sr, fps, pooled)
+        out["unseen"][p.name]["extra"] = {"generated": extra([gen], [wav])}
         if heldout:  # ratios to the training frames; the classifier against the held-out real windows
             rows = {"generated": ([gen], [wav], True)}
             out["unseen"][p.name]["realism"] = _realism(rows, skel, fps, sr, heldout, training, database, db_source)

@@ -165,3 +165,15 @@ def test_realism_section_and_its_table(take, beat_audio):
     sec = R.realism_section(methods, [audio[s0:]], **kw, database_source="training", control_reference=[train])
     assert 0.0 <= sec["control"]["classifier"] <= 1.0 and sec["control"]["classifier_windows"] > 0
     assert "its control (held-out real vs" in "\n".join(realism_lines({"realism": sec}))
+
+
+def test_classifier_averages_balanced_subsamples(take):
+    """With more windows on one side, one balanced subsample is luck: the figure averages DRAWS of them."""
+    pose, skel = take
+    short, long_ = pose[:240], pose[240:]  # 16 s against 48 s: the longer side is subsampled in every block
+    one = [R.real_vs_real_control(short, long_, FPS, skel, seed=s, draws=1).accuracy for s in range(4)]
+    many = [R.real_vs_real_control(short, long_, FPS, skel, seed=s) for s in range(4)]
+    assert all(m.draws == R.DRAWS and m.draw_sd > 0 for m in many)
+    assert np.ptp([m.accuracy for m in many]) < np.ptp(one)
+    equal = R.real_vs_real_control(pose[:300], pose[300:600], FPS, skel)  # as many windows a block: one draw
+    assert equal.draws == 1 and equal.draw_sd == 0.0

@@ -57,11 +57,15 @@ def shared_file(shared: Path, rel: str) -> Path:
     return p
 
 
-def rss_mb() -> float:
-    with open("/proc/self/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
+def rss_mb(pid: int | None = None) -> float:
+    """Resident memory (MB) of this process, or of process ``pid``; NaN when it is gone."""
+    try:
+        with open(f"/proc/{pid if pid is not None else 'self'}/status") as f:
+            for line in f:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return float("nan")
 
 

@@ -41,6 +41,10 @@ FGD_SPLIT = typer.Option("--split", help="Cache clips to train on: train, val, t
 FGD_HOLDOUT = typer.Option(
     "--holdout-from", help="Use only frames before this frame of every clip (the rest is held out for evaluation)."
 )
+FGD_HOLDOUT_TAIL = typer.Option(
+    "--holdout-tail",
+    help="Use only frames before each cached clip's own hold-out (its holdout_from: the last 20 % stays unseen).",
+)
 FGD_BVH = typer.Option(
     "--bvh", help="BEAT BVH file(s) to train on instead of a cache (repeat the option for several files)."
 )
@@ -62,6 +66,7 @@ def fgd_train(
     speaker: Annotated[int, FGD_SPEAKER] = FgdTrainOptions.speaker,
     split: Annotated[str, FGD_SPLIT] = FgdTrainOptions.split,
     holdout_from: Annotated[int | None, FGD_HOLDOUT] = FgdTrainOptions.holdout_from,
+    holdout_tail: Annotated[bool, FGD_HOLDOUT_TAIL] = FgdTrainOptions.holdout_tail,
     bvh: Annotated[list[Path] | None, FGD_BVH] = None,
     out: Annotated[Path | None, FGD_OUT] = FgdTrainOptions.out,
     checkpoint: Annotated[Path | None, FGD_CHECKPOINT] = FgdTrainOptions.checkpoint,
@@ -97,7 +102,9 @@ def fgd_train(
     assert location is not None  # checked above
     for p in fgd_paths(location):
         refuse_overwrite(p, force)
-    clips, source = load_real_clips(cache=cache, speaker=speaker, split=split, bvh=bvh, before_frame=holdout_from)
+    clips, source = load_real_clips(
+        cache=cache, speaker=speaker, split=split, bvh=bvh, before_frame=holdout_from, own_holdout=holdout_tail
+    )
     cfg = FGDConfig(epochs=epochs, batch_size=batch_size, momentum=momentum, seed=seed)
     n_frames = sum(len(c) for c in clips)
     typer.echo(

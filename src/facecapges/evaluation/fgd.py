@@ -63,6 +63,13 @@ given a gesture *checkpoint file* ``X/NAME.safetensors`` they go into the folder
 ``X/NAME.fgd/`` next to it, so every checkpoint (and every installed style) carries
 its own FGD autoencoder — and a folder of checkpoints (e.g. the installed styles,
 listed by ``*.safetensors``) gains no file that looks like another checkpoint.
+
+**The packaged autoencoder** (:func:`packaged_fgd_dir`, ``facecapges/assets/fgd/beat-upper-body/``, its
+card ``README.md`` beside the weights): trained by ``fgd-train`` on BEAT speaker 2's two paired takes
+(BEAT 2_scott_0_1_1, BEAT2 2_scott_0_2_2 converted; CC BY-NC 4.0), the first 80 % of each only
+(``scripts/train-fgd-autoencoder.sh``). :func:`find_fgd` picks the autoencoder ``facecapges eval``
+uses: the one given (``--fgd``), else the checkpoint's own (``NAME.fgd/``), else the packaged one —
+so every engine, motion matching included, gets an FGD; the report says which was used.
 """
 
 from __future__ import annotations
@@ -445,6 +452,26 @@ def fgd_paths(location: str | Path) -> tuple[Path, Path]:
     return p / FGD_WEIGHTS, p / FGD_CONFIG
 
 
+PACKAGED_FGD = "beat-upper-body"
+
+
+def packaged_fgd_dir() -> Path:
+    """The FGD autoencoder that ships with the package (module docstring)."""
+    return Path(__file__).resolve().parents[1] / "assets" / "fgd" / PACKAGED_FGD
+
+
+def find_fgd(checkpoint: str | Path | None, given: str | Path | None = None) -> tuple[Path | None, str]:
+    """(location, what it is) of the autoencoder to score ``checkpoint`` with: ``given``, else the
+    checkpoint's own, else the packaged one; (None, why) when there is none."""
+    if given is not None:
+        return Path(given), "given with --fgd"
+    if checkpoint is not None and fgd_paths(checkpoint)[1].exists():
+        return Path(checkpoint), "the style's own"
+    if fgd_paths(packaged_fgd_dir())[1].exists():
+        return packaged_fgd_dir(), f"the package's {PACKAGED_FGD} (BEAT speaker 2's training frames)"
+    return None, f"none next to {checkpoint} and no packaged {PACKAGED_FGD}"
+
+
 def save_fgd(evaluator: FGDEvaluator, location: str | Path) -> tuple[Path, Path]:
     """Write the weights and the JSON document (:func:`fgd_paths`); returns both paths."""
     from safetensors.torch import save_file
@@ -502,11 +529,13 @@ __all__ = [
     "GraphConv",
     "adjacency",
     "fgd_paths",
+    "find_fgd",
     "frechet_distance",
     "frechet_distance_features",
     "gaussian_stats",
     "load_fgd",
     "make_windows",
+    "packaged_fgd_dir",
     "parents_within",
     "reconstruction_loss",
     "save_fgd",

@@ -68,6 +68,7 @@ class FgdTrainOptions:
     speaker: int = 2
     split: str = "train"
     holdout_from: int | None = None
+    holdout_tail: bool = False
     out: Path | None = None
     checkpoint: Path | None = None
     epochs: int = 400

@@ -34,6 +34,14 @@ speaker's training frames (the real pool), repetition against the engine's datab
 the real-vs-generated classifier against the held-out real windows with its control (held-out
 real vs the training frames). ``metrics.md`` shows each figure beside its target.
 
+**Timing** (:mod:`facecapges.evaluation.timing`): the ``timing`` section of ``paired`` (every method,
+ground truth = the real held-out motion) and of each unseen audio: onset → next wrist-speed-peak lag and
+the wrist-speed rise after onsets, each beside the same statistic at random times.
+
+**FGD autoencoder** (:func:`facecapges.evaluation.fgd.find_fgd`): ``--fgd``, else the checkpoint's own
+``NAME.fgd/``, else the one that ships with the package (BEAT speaker 2's upper body) — so every engine
+gets an FGD; ``fgd_autoencoder`` / ``fgd_autoencoder_source`` in ``metrics.json`` say which.
+
 **Engines.** Evaluation uses only the engine interface (:class:`facecapges.model.engine.GestureEngine`:
 its stream, ``fps``, ``meta``, ``skeleton``, ``neutral_window``, ``display_name``, ``database_poses()``):
 the thesis network and a motion-matching checkpoint run the same path.
@@ -68,9 +76,13 @@ def load_real_clips(
     bvh: Sequence[Path] | None = None,
     before_frame: int | None = None,
     fps: float = timing.MODEL_FPS,
+    own_holdout: bool = False,
 ) -> tuple[list[np.ndarray], str]:
-    """Real upper-body poses (T, 47, 6) from a cache or BVH files, cut at ``before_frame``."""
+    """Real upper-body poses (T, 47, 6) from a cache or BVH files, cut at ``before_frame`` (or, with
+    ``own_holdout``, each cached clip at its own ``holdout_from``: its first 80 %)."""
     clips: list[np.ndarray] = []
+    if bvh and own_holdout:
+        raise UserError("--holdout-tail needs a cache (BVH files carry no hold-out frame)")
     if bvh:
         from facecapges.io.bvh import read_bvh
         from facecapges.skeleton import motion_to_pose
@@ -92,6 +104,13 @@ def load_real_clips(
         entries = c.select(speaker, split)
         clips = [c.load(e["name"])["pose"] for e in entries]
         source = f"{cache} (speaker {speaker}, split {split})"
+        if own_holdout:
+            if before_frame is not None:
+                raise UserError("give --holdout-from or --holdout-tail, not both")
+            from facecapges.data.prepare import holdout_frame
+
+            clips = [x[: int(e.get("holdout_from") or holdout_frame(len(x)))] for x, e in zip(clips, entries)]
+            source += ", each clip's frames before its hold-out (its first 80 %)"
     if before_frame is not None:
         if before_frame < 1:
             raise UserError("--holdout-from must be at least 1")
@@ -171,10 +190,11 @@ def run_eval(
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     c = Cache(cache)  # a missing or malformed cache before torch and the checkpoint load
     from facecapges.evaluation import baselines as bl
-    from facecapges.evaluation.fgd import fgd_paths, load_fgd
+    from facecapges.evaluation.fgd import fgd_paths, find_fgd, load_fgd
     from facecapges.evaluation.realism import realism_section
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
+    from facecapges.evaluation.timing import timing_markdown, timing_section
     from facecapges.model.checkpoint import load_checkpoint
     from facecapges.model.generate import generate_poses
 
@@ -226,12 +246,13 @@ def run_eval(
         pool = [loaded[n]["pose"] for n in evaluated]
     # FGD autoencoder
     fgd = None
-    loc = o.fgd if o.fgd is not None else ckpt.path
-    if fgd_paths(loc)[1].exists() or o.fgd is not None:
+    loc, fgd_source = find_fgd(ckpt.path, o.fgd)
+    if loc is not None:
         fgd = load_fgd(loc)
+        say(f"FGD autoencoder: {fgd_paths(loc)[0]} ({fgd_source})")
     else:
         warnings.append(
-            f"no FGD autoencoder at {fgd_paths(loc)[0]}: FGD not computed (train one with "
+            f"no FGD autoencoder ({fgd_source}): FGD not computed (train one with "
             f"`facecapges fgd-train --checkpoint {ckpt.path}`)"
         )
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
@@ -301,6 +322,7 @@ def run_eval(
         else "the evaluated real motion (no training frames)",
     )
     result["realism"] = realism(shown_clips, heldout_audio, no_classifier=["ground truth"])
+    result["timing"] = timing_section(shown_clips, heldout_audio, sr, fps, skel, seed)
     result.update(
         checkpoint=str(ckpt.path),
         cache=str(cache),
@@ -308,7 +330,8 @@ def run_eval(
         clips=evaluated,
         first_frame=start,
         ms_per_frame=float(np.mean(ms_all)),
-        fgd_autoencoder=str(fgd_paths(loc)[0]) if fgd is not None else None,
+        fgd_autoencoder=str(fgd_paths(loc)[0]) if loc is not None else None,
+        fgd_autoencoder_source=fgd_source,
     )
     # unseen audio
     unseen = {}
@@ -337,6 +360,7 @@ def run_eval(
                 skeleton=skel,
             )
             res["realism"] = realism({model_name: [gens[0]]}, [wav])
+            res["timing"] = timing_section({model_name: [gens[0]]}, [wav], sr, fps, skel, seed)
             unseen[str(path)] = res
     out = Path(out)
     assert first is not None  # at least one clip was evaluated
@@ -363,8 +387,13 @@ def run_eval(
         result,
         f"Quantitative evaluation — {model_name}, speaker {speaker}, {len(evaluated)} clip(s) from frame {start}",
     )
+    md += "\n".join(timing_markdown(result["timing"], "held-out frames")) + "\n"
     if unseen:
         md += markdown_unseen_table(unseen)
+        for path, res in unseen.items():
+            md += "\n".join(timing_markdown(res["timing"], Path(path).name)) + "\n"
+    fgd_line = f"FGD autoencoder: {result['fgd_autoencoder']} ({fgd_source})" if loc is not None else "FGD: none"
+    md += f"\n{fgd_line}\n"
     (out / "metrics.md").write_text(md)
     if o.video:
         import soundfile as sf

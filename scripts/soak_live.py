@@ -1,0 +1,251 @@
+"""A soak of ``facecapges live`` (issue #38): minutes of speech with pauses, in real time, recorded.
+
+    PYTHONPATH=src nice -n 10 python scripts/soak_live.py --minutes 10 --out build/soak [--style NAME]
+
+1. **Audio** (:func:`soak_audio`): speech the styles never trained on — BEAT speaker 2's unseen take
+   ``2_scott_0_4_4.wav`` and the held-out last 20 % of ``2_scott_0_1_1.wav`` / ``2_scott_0_2_2.wav``
+   (``../shared/data/beat``) — cut into stretches of 4–20 s (random offsets, cycled), each followed by a
+   pause of 2–30 s (``--pause-range``): by turns digital zeros (a muted mic) and room tone (the 20
+   quietest 0.1-s stretches of those recordings, looped). Seeded; the pause intervals are kept.
+2. **Video**: the real face clip ``../shared/data/face/WDA_KatieHill_000.mp4`` looped to the audio's
+   length (``scripts/capture_memory.py``'s :func:`looped_video`, ffmpeg stream copy).
+3. **Run**: ``facecapges live --video V --audio A --realtime --record DIR`` as a child process (niced
+   like its parent); its resident memory (:func:`facecapges.benchmarks.runtime.rss_mb`) sampled every second; its status
+   lines (every 5 s: ``frame N``) time-stamped on arrival, so the drift = wall time since the first
+   frame − N / fps over the run.
+4. **Figures** (JSON on stdout and in ``OUT/soak.json``):
+
+   * pops per minute overall, in the pauses and in speech: frames of the recorded ``motion.bvh`` whose
+     whole-body joint acceleration exceeds the 99.9th percentile of his real motion — the transition
+     rule of :func:`facecapges.evaluation.realism.transitions`, reference: the first 80 % of
+     ``2_scott_0_1_1.bvh`` (TODO(lead): switch to the conversation metric's pop rule, "largest
+     arm-joint acceleration", if it lands in ``evaluation``); a pause frame is one inside an
+     inserted pause;
+   * memory: RSS at start / end, its least-squares slope over the run after the first 20 % (MB per
+     minute; flat ≈ 0);
+   * timing: ``late_frames`` and the other events of live's ``report.json``, the compute latency
+     percentiles, and the drift of the status lines (first, last, slope in ms per minute), with the
+     machine's load average (a busy machine makes every frame late: read the figures beside it).
+
+``--wall-limit S`` stops ``live`` as Ctrl-C would after S seconds of wall time (it still writes its
+recording); the figures then cover the frames made (``frames`` < ``frames_expected``).
+
+The suite's short version: ``tests/test_soak_live.py`` (30 s of speech with 2–6 s pauses, marked slow).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+SHARED = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+SR, FPS = 16000, 15.0
+
+
+def soak_audio(seconds: float, pause_range: tuple[float, float], seed: int = 0, speech_range=(4.0, 20.0)):
+    """(audio (S,), pauses [(start_s, end_s, kind)]) — module docstring, step 1."""
+    from facecapges.io.audio import load_audio
+
+    beat = SHARED / "beat"
+    unseen = [load_audio(beat / "2_scott_0_4_4.wav", SR)]
+    for name in ("2_scott_0_1_1.wav", "2_scott_0_2_2.wav"):
+        a = load_audio(beat / name, SR)
+        unseen.append(a[int(len(a) * 0.8) :])  # the held-out 20 %
+    speech = np.concatenate(unseen).astype(np.float32)
+    win = SR // 10  # room tone: the 20 quietest 0.1-s windows of the real recordings, one after another
+    frames = speech[: len(speech) // win * win].reshape(-1, win)
+    quiet = np.sort(np.argsort((frames.astype(np.float64) ** 2).mean(1))[:20])
+    tone = frames[quiet].ravel()
+    rng = np.random.default_rng(seed)
+    parts, pauses, t, kinds = [], [], 0, ("zeros", "room tone")
+    total = int(seconds * SR)
+    while t < total:
+        n = int(rng.uniform(*speech_range) * SR)
+        s0 = int(rng.integers(0, len(speech) - n)) if len(speech) > n else 0
+        chunk = speech[s0 : s0 + n][: total - t]
+        parts.append(chunk)
+        t += len(chunk)
+        if t >= total:
+            break
+        p = min(int(rng.uniform(*pause_range) * SR), total - t)
+        kind = kinds[len(pauses) % 2]
+        parts.append(np.zeros(p, np.float32) if kind == "zeros" else np.resize(tone, p))
+        pauses.append((t / SR, (t + p) / SR, kind))
+        t += p
+    return np.concatenate(parts), pauses
+
+
+def pop_figures(pose: np.ndarray, pauses, reference: np.ndarray, fps: float = FPS) -> dict:
+    """Pops a minute overall / in pauses / in speech (module docstring, step 4)."""
+    from facecapges.evaluation.realism import transitions
+
+    tr = transitions(pose, reference, fps)
+    frames = np.asarray(tr.frames, int)
+    in_pause = np.zeros(len(pose), bool)
+    for a, b, _ in pauses:
+        in_pause[int(np.ceil(a * fps)) : int(np.floor(b * fps))] = True
+    pause_min, speech_min = in_pause.sum() / fps / 60, (~in_pause).sum() / fps / 60
+    n_pause = int(in_pause[frames].sum()) if len(frames) else 0
+    return {
+        "pops": int(len(frames)),
+        "pops_per_min": len(frames) / (len(pose) / fps / 60),
+        "pops_in_pauses": n_pause,
+        "pops_per_min_in_pauses": n_pause / pause_min if pause_min else float("nan"),
+        "pops_in_speech": int(len(frames)) - n_pause,
+        "pops_per_min_in_speech": (len(frames) - n_pause) / speech_min if speech_min else float("nan"),
+        "pause_minutes": float(pause_min),
+        "speech_minutes": float(speech_min),
+        "threshold_rad_s2": tr.threshold,
+        "top_joints": tr.top_joints,
+    }
+
+
+def _slope_per_min(t_s: np.ndarray, y: np.ndarray, skip: float = 0.2) -> float:
+    ok = np.isfinite(y) & (t_s >= t_s[-1] * skip) if len(t_s) else np.zeros(0, bool)
+    if ok.sum() < 3:
+        return float("nan")
+    return float(np.polyfit(t_s[ok] / 60.0, y[ok], 1)[0])
+
+
+def run_soak(
+    minutes: float,
+    out: Path,
+    pause_range=(2.0, 30.0),
+    style: str | None = None,
+    seed: int = 0,
+    wall_limit_s: float | None = None,
+) -> dict:
+    """Build the inputs, run ``live`` on them in real time, measure (module docstring)."""
+    import soundfile as sf
+    from capture_memory import looped_video
+
+    from facecapges.benchmarks.runtime import rss_mb
+    from facecapges.io.bvh import read_bvh
+    from facecapges.skeleton import motion_to_pose
+
+    out.mkdir(parents=True, exist_ok=True)
+    audio, pauses = soak_audio(minutes * 60.0, pause_range, seed)
+    wav = out / "soak.wav"
+    sf.write(wav, audio, SR)
+    video = looped_video(SHARED / "face" / "WDA_KatieHill_000.mp4", minutes + 0.2, out / "soak.mp4")
+    rec = out / "record"
+    cmd = [
+        sys.executable,
+        "-m",
+        "facecapges",
+        "live",
+        "--video",
+        str(video),
+        "--audio",
+        str(wav),
+        "--realtime",
+        "--record",
+        str(rec),
+        "--force",
+        "--max-seconds",
+        f"{minutes * 60.0:.3f}",
+    ]
+    if style:
+        cmd += ["--style", style]
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
+    rss: list[tuple[float, float]] = []
+    status: list[tuple[float, int]] = []
+    log: list[str] = []
+
+    def read() -> None:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            log.append(line)
+            m = re.match(r"frame (\d+) ", line.strip())
+            if m:
+                status.append((time.monotonic(), int(m.group(1))))
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    stopped_early = False
+    while proc.poll() is None:
+        if wall_limit_s is not None and time.monotonic() - t0 > wall_limit_s and not stopped_early:
+            proc.send_signal(signal.SIGINT)  # live stops like Ctrl-C: it still writes motion.bvh and report.json
+            stopped_early = True
+        v = rss_mb(proc.pid)
+        if np.isfinite(v):  # NaN once the process is gone
+            rss.append((time.monotonic() - t0, v))
+        time.sleep(1.0)
+    reader.join(timeout=10)
+    (out / "live.log").write_text("".join(log))
+    if proc.returncode and not stopped_early:
+        raise SystemExit(f"live failed ({proc.returncode}):\n" + "".join(log[-30:]))
+    report = json.loads((rec / "report.json").read_text())
+    b = read_bvh(rec / "motion.bvh")
+    pose = motion_to_pose(b.skeleton, b.motion)[0]
+    pauses = [(a, min(e, len(pose) / b.fps), k) for a, e, k in pauses if a < len(pose) / b.fps]  # a cut-short run
+    ref_bvh = read_bvh(SHARED / "beat" / "2_scott_0_1_1.bvh")
+    ref = motion_to_pose(ref_bvh.skeleton, ref_bvh.motion)[0]
+    ref = ref[: int(len(ref) * 0.8)]  # his training frames
+    t_rss = np.array([t for t, _ in rss])
+    y_rss = np.array([v for _, v in rss])
+    warm = y_rss[t_rss >= t_rss[-1] * 0.2] if len(y_rss) else y_rss
+    drift = []
+    if status:
+        w0, f0 = status[0]
+        drift = [((w - w0) - (f - f0) / FPS) * 1000.0 for w, f in status]
+    lat = report.get("latency_ms", {}).get("total", {})
+    fig = {
+        "minutes": minutes,
+        "frames": int(report.get("frames", 0)),
+        "frames_expected": int(round(minutes * 60 * FPS)),
+        "pauses": len(pauses),
+        "pause_s": [round(b_ - a, 1) for a, b_, _ in pauses],
+        **pop_figures(pose, pauses, ref, b.fps),
+        "rss_mb_start": float(warm[0]) if len(warm) else float("nan"),
+        "rss_mb_end": float(y_rss[-1]) if len(y_rss) else float("nan"),
+        "rss_mb_max": float(np.nanmax(y_rss)) if len(y_rss) else float("nan"),
+        "rss_slope_mb_per_min": _slope_per_min(t_rss, y_rss),
+        "late_frames": int(report.get("events", {}).get("late_frames", 0)),
+        "events": report.get("events", {}),
+        "compute_ms_p50": lat.get("p50"),
+        "compute_ms_p99": lat.get("p99"),
+        "drift_ms_first": drift[0] if drift else None,
+        "drift_ms_last": drift[-1] if drift else None,
+        "drift_ms_max": max(drift) if drift else None,
+        "drift_slope_ms_per_min": _slope_per_min(
+            np.array([w - status[0][0] for w, _ in status]), np.array(drift), skip=0.0
+        )
+        if len(drift) >= 3
+        else None,
+        "wall_s": round(time.monotonic() - t0, 1),
+        "stopped_by": report.get("stopped_by"),
+        "cut_short_at_wall_limit": stopped_early,
+        "load_average_1min_at_end": os.getloadavg()[0],
+    }
+    (out / "soak.json").write_text(json.dumps(fig, indent=2))
+    return fig
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--out", type=Path, default=Path("build/soak"))
+    ap.add_argument("--pause-range", type=float, nargs=2, default=(2.0, 30.0))
+    ap.add_argument("--style", default=None)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--wall-limit", type=float, default=None, help="stop live (as Ctrl-C) after this many seconds")
+    a = ap.parse_args()
+    fig = run_soak(a.minutes, a.out, tuple(a.pause_range), a.style, a.seed, a.wall_limit)
+    print(json.dumps(fig))
+
+
+if __name__ == "__main__":
+    main()
