@@ -12,10 +12,11 @@ bundles under :func:`models_dir` (inside the virtualenv):
 - ``hand_landmarker.task``: ``hand_detector.tflite`` + ``hand_landmarks_detector.tflite``,
   stored uncompressed; the HandLandmarker takes them as they are.
 - ``pose_landmarker_full.task``: ``pose_detector.tflite`` + ``pose_landmarks_detector.tflite``.
-  The PoseLandmarker refuses a detector without TFLite metadata saying how its
-  input is normalised, so the detector gets that metadata (image input, RGB,
-  mean 127.5 / std 127.5, i.e. pixels to [-1, 1] as BlazePose's own graph feeds it)
-  written with mediapipe's own metadata writer.
+  The PoseLandmarker refuses models without TFLite metadata saying how their
+  input is normalised, so both get that metadata (image input, RGB; the detector
+  mean 127.5 / std 127.5, i.e. pixels to [-1, 1], the landmark model mean 0 / std
+  255, i.e. [0, 1], as BlazePose's own graphs feed them) written with mediapipe's
+  own metadata writer.
 
 Every input model and both bundles are checked against the sha256 values here, so
 a different wheel or writer fails the set-up loudly. The models are Google's,
@@ -50,7 +51,7 @@ HAND_MEMBERS = {
 POSE_TASK = "pose_landmarker_full.task"
 HAND_TASK = "hand_landmarker.task"
 BUNDLE_SHA256 = {
-    POSE_TASK: "0a4e7fe2596d792ff10187971a6c4d48b80da6fa9bc629a538d0795fdd7907b2",
+    POSE_TASK: "182855c69ea32604a6b492704bf025b0c123366eb46775b78942582e9c70673e",
     HAND_TASK: "b0235e7de18c847c1aa5bfc67083085a1c6374ef97a2c8ad04c58ce9c3faf2fe",
 }
 SETUP_HINT = "run scripts/setup-capture.sh (or make setup): it builds the pose and hand models from mediapipe==0.10.14"
@@ -88,24 +89,26 @@ def _metadata_writer() -> types.ModuleType:
             for i in range(3, len(parts)):
                 pkg = ".".join(parts[:i])
                 sys.modules.setdefault(pkg, types.ModuleType(pkg))
-            mod = types.ModuleType(name)
-            mod.GetMinimumMetadataParserVersion = lambda _buf: "1.0.0"
-            sys.modules[name] = mod
+            mod = types.SimpleNamespace(GetMinimumMetadataParserVersion=lambda _buf: "1.0.0")
+            sys.modules[name] = mod  # type: ignore[assignment]
             setattr(sys.modules[".".join(parts[:-1])], parts[-1], mod)
     from mediapipe.tasks.python.metadata.metadata_writers import metadata_writer
 
     return metadata_writer
 
 
-def _with_normalization(detector: bytes) -> bytes:
+def _with_normalization(model: bytes, name: str, mean: float, std: float) -> bytes:
+    """``model`` with TFLite metadata: an RGB image input normalised as (pixel - mean) / std."""
     mw = _metadata_writer()
-    writer = mw.MetadataWriter.create(bytearray(detector))
-    writer.add_general_info("pose_detector", "BlazePose detector (mediapipe 0.10.14), input normalised to [-1, 1]")
-    writer.add_image_input(norm_mean=[127.5], norm_std=[127.5])
-    writer.add_feature_output()  # box regressors
-    writer.add_feature_output()  # scores
-    model, _json = writer.populate()
-    return bytes(model)
+    from mediapipe.tasks.python.metadata.metadata_writers import writer_utils
+
+    writer = mw.MetadataWriter.create(bytearray(model))
+    writer.add_general_info(name, f"{name} from mediapipe {WHEEL_VERSION}, input (pixel - {mean:g}) / {std:g}")
+    writer.add_image_input(norm_mean=[mean], norm_std=[std])
+    for _ in writer_utils.get_output_tensor_names(bytearray(model)):
+        writer.add_feature_output()
+    out, _json = writer.populate()
+    return bytes(out)
 
 
 def _write_bundle(path: Path, members: dict[str, bytes]) -> None:
@@ -133,14 +136,18 @@ def build_bundles(wheel: str | Path, out_dir: str | Path | None = None) -> dict[
     with zipfile.ZipFile(wheel) as z:
         pose = {POSE_MEMBERS[m]: z.read(m) for m in POSE_MEMBERS}
         hand = {HAND_MEMBERS[m]: z.read(m) for m in HAND_MEMBERS}
-    pose["pose_detector.tflite"] = _with_normalization(pose["pose_detector.tflite"])
+    # BlazePose's own graphs feed the detector pixels in [-1, 1] and the landmark model [0, 1]
+    pose["pose_detector.tflite"] = _with_normalization(pose["pose_detector.tflite"], "pose_detector", 127.5, 127.5)
+    pose["pose_landmarks_detector.tflite"] = _with_normalization(
+        pose["pose_landmarks_detector.tflite"], "pose_landmarks_detector", 0.0, 255.0
+    )
     paths = {POSE_TASK: out / POSE_TASK, HAND_TASK: out / HAND_TASK}
     _write_bundle(paths[POSE_TASK], pose)
     _write_bundle(paths[HAND_TASK], hand)
     for name, p in paths.items():
         digest = sha256_bytes(p.read_bytes())
         want = BUNDLE_SHA256.get(name)
-        if want is not None and digest != want:
+        if want and digest != want:
             raise UserError(f"{p}: sha256 {digest}, expected {want}")
     return paths
 
@@ -151,7 +158,7 @@ def model_path(name: str) -> Path:
     if not p.is_file():
         raise UserError(f"the body-capture model {name} is not installed; {SETUP_HINT}")
     want = BUNDLE_SHA256.get(name)
-    if want is not None:
+    if want:
         digest = sha256_bytes(p.read_bytes())
         if digest != want:
             raise UserError(f"{p}: sha256 {digest}, expected {want}; {SETUP_HINT}")

@@ -125,6 +125,59 @@ def capture_eval(
     con.print(f"wrote {path} and {out / 'tracks.png'}")
 
 
+BODY_VIDEO = typer.Argument(help="A video of a person, upper body and hands in view.")
+BODY_OUT = typer.Option("--out", help="BEAT skeleton BVH to write (15 fps, the 47 upper-body joints).")
+BODY_FACE_OUT = typer.Option("--face-out", help="Also write the face capture (face JSON, 15 fps) alongside.")
+BODY_MAX_FRAMES = typer.Option("--max-frames", help="Only the first N output frames (15 fps).")
+BODY_FORCE = typer.Option("--force", help="Overwrite existing output files.")
+
+
+def capture_body(
+    video: Annotated[Path, BODY_VIDEO],
+    out: Annotated[Path, BODY_OUT],
+    face_out: Annotated[Path | None, BODY_FACE_OUT] = None,
+    max_frames: Annotated[int | None, BODY_MAX_FRAMES] = None,
+    force: Annotated[bool, BODY_FORCE] = False,
+) -> None:
+    """Body and hands from ordinary video: MediaPipe pose + hand landmarks → BEAT upper-body BVH."""
+    from rich.console import Console
+
+    from facecapges.capture.body import capture_body as run
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+    from facecapges.errors import UserError, check_output_file
+    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+
+    check_output_file(out, force)
+    if face_out is not None:
+        check_output_file(face_out, force)
+    if max_frames is not None and max_frames < 1:
+        raise UserError(f"--max-frames must be at least 1, got {max_frames}")
+    model_path(POSE_TASK), model_path(HAND_TASK)  # a missing model fails before the video is read
+    console = Console(stderr=True, soft_wrap=True)
+    skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
+
+    def progress(i: int, n: int | None) -> None:
+        if i % 15 == 0 or i == n:
+            console.print(f"capture-body: {i}/{n if n is not None else '?'} frames", end="\r")
+
+    _, s = run(video, out, skeleton, max_frames=max_frames, progress=progress)
+    console.print()
+    hands = s["hands_found"]
+    console.print(
+        f"wrote {out}: {s['frames']} frames at 15 fps; person found in {s['pose_found']:.0%}, "
+        f"right hand {hands[0]:.0%}, left hand {hands[1]:.0%}, both {s['both_hands_found']:.0%}; "
+        f"{s['ms_per_frame']:.0f} ms/frame"
+    )
+    if s["arm_confidence"] < 0.5:
+        console.print("[yellow]warning:[/yellow] the arms were out of view most of the time")
+    if face_out is not None:
+        from facecapges.capture.runner import capture_video
+
+        f = capture_video(str(video), face_out, fps=15.0, force=force, max_frames=max_frames, face_layout="full")
+        console.print(f"wrote {face_out}: face found in {f['face_found']}")
+
+
 def register(app: typer.Typer) -> None:
+    app.command("capture-body")(capture_body)
     app.command("capture")(capture)
     app.command("capture-eval")(capture_eval)
