@@ -37,11 +37,11 @@ class BodyLandmarker:
         from mediapipe.tasks.python.vision import pose_landmarker as pl
         from mediapipe.tasks.python.vision.core.vision_task_running_mode import VisionTaskRunningMode
 
-        from facecapges.capture.landmarks import _NativeStderrToFile
+        from facecapges.capture.landmarks import NativeStderrToFile
 
         pose_path, hand_path = model_path(POSE_TASK), model_path(HAND_TASK)
         mode = VisionTaskRunningMode.VIDEO
-        log = _NativeStderrToFile()
+        log = NativeStderrToFile()
         try:
             with log:
                 self._pose = pl.PoseLandmarker.create_from_options(
@@ -82,9 +82,9 @@ class BodyLandmarker:
         rgb = np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB))
         image = mp.Image(image_format=mp.ImageFormat.SRGB, data=rgb)
         if self._first:  # MediaPipe's C++ logs a projection warning on the first frame
-            from facecapges.capture.landmarks import _NativeStderrToFile
+            from facecapges.capture.landmarks import NativeStderrToFile
 
-            with _NativeStderrToFile() as log:
+            with NativeStderrToFile() as log:
                 pr = self._pose.detect_for_video(image, ts)
                 hr = self._hand.detect_for_video(image, ts)
             if log.errors:
