@@ -214,3 +214,20 @@ def capture_body(
     summary["arm_confidence"] = float(np.mean([conf[k] for k in range(3, 47) if k in (4, 5, 26, 27)]))
     summary["joint_confidence"] = conf.tolist()
     return res, summary
+
+
+MIN_USABLE = 0.2  # below this share of frames with the person found, or mean arm confidence, nothing usable was seen
+
+
+def check_usable(video: str | Path, summary: dict) -> str | None:
+    """Raise a UserError when nothing usable was seen; return a warning when the arms were mostly out of view."""
+    if summary["pose_found"] < MIN_USABLE or summary["arm_confidence"] < MIN_USABLE:
+        raise UserError(
+            f"{video}: nothing usable was seen (person found in {summary['pose_found']:.0%} of the frames, "
+            f"mean arm confidence {summary['arm_confidence']:.2f}); film the upper body and hands facing the camera"
+        )
+    if summary["arm_confidence"] < 0.5:
+        return (
+            f"{video}: the arms were out of view most of the time (mean arm confidence {summary['arm_confidence']:.2f})"
+        )
+    return None

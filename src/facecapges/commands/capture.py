@@ -168,8 +168,11 @@ def capture_body(
         f"right hand {hands[0]:.0%}, left hand {hands[1]:.0%}, both {s['both_hands_found']:.0%}; "
         f"{s['ms_per_frame']:.0f} ms/frame"
     )
-    if s["arm_confidence"] < 0.5:
-        console.print("[yellow]warning:[/yellow] the arms were out of view most of the time")
+    from facecapges.capture.body import check_usable
+
+    warning = check_usable(video, s)
+    if warning:
+        console.print(f"[yellow]warning:[/yellow] {warning}")
     if face_out is not None:
         from facecapges.capture.runner import capture_video
 
