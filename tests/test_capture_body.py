@@ -125,3 +125,20 @@ def test_capture_body_recovers_his_real_motion_from_a_rendered_video(beat_bvh, t
     # measured (docs/capture-body.md); the issue's target (median ≤ 12°, p90 ≤ 30°) is not met yet
     assert m["median_deg"] < 25 and m["p90_deg"] < 45, m
     assert 0.6 < m["wrist_spread_ratio"] < 1.4, m
+
+
+def test_styles_build_video_errors(tmp_path):
+    """--video: a missing file or a video without a soundtrack is one error before any capture."""
+    res = runner.invoke(app, ["styles", "build", "x", "--video", str(tmp_path / "none.mp4")])
+    assert res.exit_code != 0 and "not found" in str(res.exception)
+    res = runner.invoke(app, ["styles", "build", "x"])
+    assert res.exit_code != 0 and "--video VIDEO" in str(res.exception)
+
+
+def test_nothing_usable_is_refused_and_out_of_view_arms_warned():
+    from facecapges.capture.body import check_usable
+
+    with pytest.raises(UserError, match="nothing usable"):
+        check_usable("v.mp4", {"pose_found": 0.1, "arm_confidence": 0.9})
+    assert "out of view" in check_usable("v.mp4", {"pose_found": 1.0, "arm_confidence": 0.3})
+    assert check_usable("v.mp4", {"pose_found": 1.0, "arm_confidence": 0.9}) is None
