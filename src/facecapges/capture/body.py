@@ -118,7 +118,7 @@ class BodyLandmarker:
         self.close()
 
 
-def _assign_hands(det: dict) -> tuple[list[np.ndarray | None], list[float]]:
+def assign_hands(det: dict) -> tuple[list[np.ndarray | None], list[float]]:
     """Each found hand to the subject's right [0] / left [1] arm whose pose wrist is nearest in the image."""
     hands: list[np.ndarray | None] = [None, None]
     scores = [0.0, 0.0]
@@ -166,7 +166,7 @@ def collect_landmarks(
                         t0 = time.perf_counter()
                         det = lm.detect(frame, int(ts))
                         ms.append((time.perf_counter() - t0) * 1000.0)
-                        h, s = _assign_hands(det)
+                        h, s = assign_hands(det)
                     poses.append(det["pose"] if det["pose"] is not None else np.full((33, 3), np.nan))
                     vis.append(det["visibility"] if det["visibility"] is not None else np.zeros(33))
                     hands.append(np.stack([x if x is not None else np.full((21, 3), np.nan) for x in h]))
