@@ -56,6 +56,12 @@ def test_solver_recovers_arm_directions_from_perfect_landmarks(beat_take):
     # only the clavicles (kept at rest) and the spine's pivot separate the result from the truth
     assert m["median_deg"] < 6 and m["p90_deg"] < 12, m
     assert 0.85 < m["wrist_spread_ratio"] < 1.15, m
+    # the head (ears and nose facing +Z, level) comes out facing forward: Spine · Neck · Neck1 ≈ identity
+    from facecapges import rotations as rot
+    from facecapges.skeleton import pose_head_rot6d
+
+    head = rot.rot6d_to_matrix(pose_head_rot6d(skel, res.pose).astype(np.float64))
+    assert np.degrees(np.linalg.norm(rot.log_so3(head), axis=-1)).max() < 2
     # the fingers follow the hand landmarks: fingertip directions in the hand's frame match
     P_t = joint_positions(skel, motion)
     P_c = joint_positions(skel, pose_to_motion(skel, res.pose))

@@ -185,8 +185,8 @@ def _solve_frame(
     out["Spine"] = torso
     # head: ears line and ear-middle → nose, relative to the torso, split over Neck and Neck1
     ears = (pose[L_EAR] + pose[R_EAR]) / 2
-    hf = _frame(pose[NOSE] - ears, pose[L_EAR] - pose[R_EAR])  # columns fwd, left, fwd × left (= down)
-    head = np.stack([hf[:, 1], -hf[:, 2], hf[:, 0]], axis=-1)
+    hf = _frame(pose[NOSE] - ears, pose[L_EAR] - pose[R_EAR])  # columns fwd, left, fwd × left (= up)
+    head = np.stack([hf[:, 1], hf[:, 2], hf[:, 0]], axis=-1)  # columns X (left), Y (up), Z (forward)
     rel = torso.T @ head
     half = rot.exp_so3(rot.log_so3(rel) * 0.5)
     out["Neck"] = out["Neck1"] = half

@@ -160,7 +160,7 @@ def capture_body(
         if i % 15 == 0 or i == n:
             console.print(f"capture-body: {i}/{n if n is not None else '?'} frames", end="\r")
 
-    _, s = run(video, out, skeleton, max_frames=max_frames, progress=progress)
+    res, s = run(video, out, skeleton, max_frames=max_frames, progress=progress)
     console.print()
     hands = s["hands_found"]
     console.print(
@@ -178,6 +178,26 @@ def capture_body(
 
         f = capture_video(str(video), face_out, fps=15.0, force=force, max_frames=max_frames, face_layout="full")
         console.print(f"wrote {face_out}: face found in {f['face_found']}")
+        _head_from_face(out, face_out, res.pose, skeleton)
+        console.print(f"{out}: Neck and Neck1 follow the face capture's head where the face was found")
+
+
+def _head_from_face(out: Path, face_out: Path, pose, skeleton) -> None:
+    """Neck/Neck1 of the captured body from the face capture's head (as ``run --head capture`` shows it)."""
+    import json
+
+    from facecapges.io.bvh import write_bvh
+    from facecapges.runtime.head import HeadDriver
+    from facecapges.skeleton import pose_to_motion
+    from facecapges.timing import MODEL_FPS
+
+    frames = json.loads(Path(face_out).read_text())["frames"]
+    driver = HeadDriver("capture")
+    posed = pose.copy()
+    for t in range(min(len(frames), len(pose))):
+        fr = frames[t]
+        posed[t] = driver(pose[t], fr["head_rot6d"], bool(fr.get("face_found", True)), t / MODEL_FPS)
+    write_bvh(out, skeleton, pose_to_motion(skeleton, posed), float(MODEL_FPS))
 
 
 def register(app: typer.Typer) -> None:
