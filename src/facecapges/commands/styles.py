@@ -224,7 +224,8 @@ def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
     skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
     pairs = []
     for k, v in enumerate(videos):
-        bvh = tmp / f"{k}_{v.stem[:100]}.bvh"
+        (tmp / str(k)).mkdir()
+        bvh = tmp / str(k) / f"{v.name[:150]}.capture-body.bvh"  # the model card names the video
 
         def progress(i: int, n: int | None, v: Path = v) -> None:
             if i % 150 == 0 or i == n:
