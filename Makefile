@@ -32,7 +32,7 @@ test-fast: setup
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh scripts/setup-avatar.sh scripts/setup-runtime.sh
+$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh src/facecapges/capture/body_models.py scripts/setup-avatar.sh scripts/setup-runtime.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test]'

@@ -9,6 +9,9 @@
   with ``landmarks_ms_per_frame`` the MediaPipe part; video decoding is not counted;
 * quality: ``capture-eval`` on the HDTF clip (r of jawOpen / eyeBlink, head-pose
   median error; quick: first 100 frames only) and the synthetic-sequence MAE.
+* ``capture_body``: ``capture-body``'s cost at 640×480 (the clip's frames resized): both
+  landmarkers (pose + two hands) per frame, and the solve per frame; ``fps`` against the
+  target 15 (issue 32). The clip is a face close-up, so the body is mostly re-detected.
 
 Memory against video length is measured apart (it takes ~40 s per minute of video):
 ``scripts/capture_memory.py --minutes 1 10 30`` loops the HDTF clip's frames into
@@ -113,4 +116,50 @@ def run(quick: bool, shared: Path) -> dict:
         from facecapges.errors import UserError
 
         raise UserError(f"{shared_face}: the capture benchmark needs the shared talking-head clip")
+    out["capture_body"] = _capture_body(shared_face, 10 if quick else 60)
     return out
+
+
+def _capture_body(clip: Path, n: int) -> dict:
+    """Pose + hand landmarkers and the solve at 640×480 (median ms per frame)."""
+    import cv2
+
+    from facecapges.capture.body import BodyLandmarker, assign_hands
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+    from facecapges.capture.body_solve import BodyLandmarks, solve
+    from facecapges.capture.video import open_source
+    from facecapges.errors import UserError
+
+    try:
+        model_path(POSE_TASK), model_path(HAND_TASK)
+    except UserError as exc:  # models not built: say so, the other figures stand
+        return {"error": str(exc)}
+    src = open_source(str(clip))
+    frames = [cv2.resize(f, (640, 480)) for _, _, f in src.frames(n + 1)]
+    src.close()
+    times, poses = [], []
+    with BodyLandmarker() as lm:
+        lm.detect(frames[0], 0)  # warm-up
+        for i, f in enumerate(frames[1:], 1):
+            t0 = time.perf_counter()
+            det = lm.detect(f, int(i * 1000 / 15))
+            times.append(time.perf_counter() - t0)
+            assign_hands(det)
+            poses.append(det["pose"] if det["pose"] is not None else np.zeros((33, 3)))
+    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+
+    skel = load_checkpoint(style=DEFAULT_STYLE).skeleton
+    m = len(poses)
+    lms = BodyLandmarks(np.stack(poses), np.ones((m, 33)), np.full((m, 2, 21, 3), np.nan), np.zeros((m, 2)), 15.0)
+    t0 = time.perf_counter()
+    solve(skel, lms)
+    solve_ms = 1000 * (time.perf_counter() - t0) / m
+    ms = 1000 * float(np.median(times))
+    return {
+        "landmarks_ms_per_frame": round(ms, 1),
+        "solve_ms_per_frame": round(solve_ms, 2),
+        "fps": round(1000 / (ms + solve_ms), 2),
+        "target_fps": 15.0,
+        "frames": m,
+        "size": "640x480",
+    }

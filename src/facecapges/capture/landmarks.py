@@ -55,7 +55,7 @@ class FaceObservation:
         return float(x.max() - x.min())
 
 
-class _NativeStderrToFile:
+class NativeStderrToFile:
     """Send the process's fd 2 to a temporary file for a block (C++ logs bypass Python).
 
     Lines that look like errors (``E…``/``F…`` glog/absl prefixes) are kept in
@@ -153,7 +153,7 @@ class LandmarkDetector:
             output_face_blendshapes=True,
             output_facial_transformation_matrixes=True,
         )
-        log = _NativeStderrToFile()  # MediaPipe's C++ start-up lines would clutter the CLI
+        log = NativeStderrToFile()  # MediaPipe's C++ start-up lines would clutter the CLI
         try:
             with log:
                 self._task = fl.FaceLandmarker.create_from_options(opts)

@@ -127,6 +127,82 @@ def capture_eval(
     con.print(f"wrote {path} and {out / 'tracks.png'}")
 
 
+BODY_VIDEO = typer.Argument(help="A video of a person, upper body and hands in view.")
+BODY_OUT = typer.Option("--out", help="BEAT skeleton BVH to write (15 fps, the 47 upper-body joints).")
+BODY_FACE_OUT = typer.Option("--face-out", help="Also write the face capture (face JSON, 15 fps) alongside.")
+BODY_MAX_FRAMES = typer.Option("--max-frames", help="Only the first N output frames (15 fps).")
+BODY_FORCE = typer.Option("--force", help="Overwrite existing output files.")
+
+
+def capture_body(
+    video: Annotated[Path, BODY_VIDEO],
+    out: Annotated[Path, BODY_OUT],
+    face_out: Annotated[Path | None, BODY_FACE_OUT] = None,
+    max_frames: Annotated[int | None, BODY_MAX_FRAMES] = None,
+    force: Annotated[bool, BODY_FORCE] = False,
+) -> None:
+    """Body and hands from ordinary video: MediaPipe pose + hand landmarks → BEAT upper-body BVH."""
+    from rich.console import Console
+
+    from facecapges.capture.body import capture_body as run
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+    from facecapges.errors import UserError, check_output_file
+    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+
+    check_output_file(out, force)
+    if face_out is not None:
+        check_output_file(face_out, force)
+    if max_frames is not None and max_frames < 1:
+        raise UserError(f"--max-frames must be at least 1, got {max_frames}")
+    model_path(POSE_TASK), model_path(HAND_TASK)  # a missing model fails before the video is read
+    console = Console(stderr=True, soft_wrap=True)
+    skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
+
+    def progress(i: int, n: int | None) -> None:
+        if i % 15 == 0 or i == n:
+            console.print(f"capture-body: {i}/{n if n is not None else '?'} frames", end="\r")
+
+    res, s = run(video, out, skeleton, max_frames=max_frames, progress=progress)
+    console.print()
+    hands = s["hands_found"]
+    console.print(
+        f"wrote {out}: {s['frames']} frames at 15 fps; person found in {s['pose_found']:.0%}, "
+        f"right hand {hands[0]:.0%}, left hand {hands[1]:.0%}, both {s['both_hands_found']:.0%}; "
+        f"{s['ms_per_frame']:.0f} ms/frame"
+    )
+    from facecapges.capture.body import check_usable
+
+    warning = check_usable(video, s)
+    if warning:
+        console.print(f"[yellow]warning:[/yellow] {warning}")
+    if face_out is not None:
+        from facecapges.capture.runner import capture_video
+
+        f = capture_video(str(video), face_out, fps=15.0, force=force, max_frames=max_frames, face_layout="full")
+        console.print(f"wrote {face_out}: face found in {f['face_found']}")
+        _head_from_face(out, face_out, res.pose, skeleton)
+        console.print(f"{out}: Neck and Neck1 follow the face capture's head where the face was found")
+
+
+def _head_from_face(out: Path, face_out: Path, pose, skeleton) -> None:
+    """Neck/Neck1 of the captured body from the face capture's head (as ``run --head capture`` shows it)."""
+    import json
+
+    from facecapges.io.bvh import write_bvh
+    from facecapges.runtime.head import HeadDriver
+    from facecapges.skeleton import pose_to_motion
+    from facecapges.timing import MODEL_FPS
+
+    frames = json.loads(Path(face_out).read_text())["frames"]
+    driver = HeadDriver("capture")
+    posed = pose.copy()
+    for t in range(min(len(frames), len(pose))):
+        fr = frames[t]
+        posed[t] = driver(pose[t], fr["head_rot6d"], bool(fr.get("face_found", True)), t / MODEL_FPS)
+    write_bvh(out, skeleton, pose_to_motion(skeleton, posed), float(MODEL_FPS))
+
+
 def register(app: typer.Typer) -> None:
+    app.command("capture-body")(capture_body)
     app.command("capture")(capture)
     app.command("capture-eval")(capture_eval)

@@ -168,6 +168,11 @@ TAKE = typer.Option(
     metavar="MOTION WAV",
 )
 WAV = typer.Argument(hidden=True)
+VIDEO_TAKE = typer.Option(
+    "--video",
+    help="A video of you talking (upper body and hands in view): capture-body gives the motion, its "
+    "soundtrack the speech. Repeat.",
+)
 STYLES_BUILD_OUT = typer.Option("--out", help="Write the style here instead of installing it.")
 STYLES_BUILD_FORCE = typer.Option("--force", help="Replace an existing style file of that name.")
 SEED = typer.Option("--seed", help="Seed of the speech predictor's training.")
@@ -179,8 +184,9 @@ STEPS = typer.Option(
 
 def styles_build(
     name: Annotated[str, STYLES_BUILD_NAME],
-    take: Annotated[list[str], TAKE],
+    take: Annotated[list[str] | None, TAKE] = None,
     wav: Annotated[list[str] | None, WAV] = None,
+    video: Annotated[list[Path] | None, VIDEO_TAKE] = None,
     out: Annotated[Path | None, STYLES_BUILD_OUT] = None,
     force: Annotated[bool, STYLES_BUILD_FORCE] = False,
     seed: Annotated[int, SEED] = 0,
@@ -194,10 +200,49 @@ def styles_build(
     from facecapges.errors import UserError
     from facecapges.matching.build import build_style
 
-    pairs = _take_pairs(take, wav or [])
-    if not pairs:
-        raise UserError("give at least one --take MOTION WAV")
-    build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+    pairs = _take_pairs(take or [], wav or [])
+    if not pairs and not video:
+        raise UserError("give at least one --take MOTION WAV or --video VIDEO")
+    if not video:
+        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+        return
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="facecapges-video-takes-") as tmp:
+        pairs += _video_takes(video, Path(tmp))
+        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+
+
+def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
+    """capture-body of each video into ``tmp``: (its BVH, the video itself as the speech)."""
+    from facecapges.capture.body import capture_body, check_usable
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+    from facecapges.io.audio import check_audio
+    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+
+    model_path(POSE_TASK), model_path(HAND_TASK)
+    for v in videos:
+        check_audio(v)  # a video without a soundtrack fails before any capture
+    skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
+    pairs = []
+    for k, v in enumerate(videos):
+        (tmp / str(k)).mkdir()
+        bvh = tmp / str(k) / f"{v.name[:150]}.capture-body.bvh"  # the model card names the video
+
+        def progress(i: int, n: int | None, v: Path = v) -> None:
+            if i % 150 == 0 or i == n:
+                typer.echo(f"  capture-body {v.name}: {i}/{n if n is not None else '?'} frames")
+
+        _, s = capture_body(v, bvh, skeleton, progress=progress)
+        typer.echo(
+            f"  {v.name}: person found in {s['pose_found']:.0%} of {s['frames']} frames, both hands in "
+            f"{s['both_hands_found']:.0%}, mean arm confidence {s['arm_confidence']:.2f}"
+        )
+        warning = check_usable(v, s)
+        if warning:
+            typer.echo(f"  warning: {warning}")
+        pairs.append((bvh, v))
+    return pairs
 
 
 def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:

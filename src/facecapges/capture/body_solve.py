@@ -1,0 +1,383 @@
+"""BEAT upper-body joint rotations from MediaPipe pose and hand world landmarks.
+
+Input (per 15 fps frame, see :mod:`facecapges.capture.body`): the 33 pose world
+landmarks and their visibility, and for each of the subject's hands the 21 hand
+world landmarks (or nothing). MediaPipe's world axes are the camera's (x right in
+the image, y down, z away from the camera, metres); :data:`MP_TO_BVH` turns them
+into the BEAT skeleton's (X the character's left, Y up, Z forward) for a person
+facing the camera.
+
+The solve, per frame, walking the BEAT tree from the root (every rest rotation of
+the BEAT skeleton is the identity, so a joint's rest bone direction is the offset
+of its child):
+
+* **Spine** takes the whole torso frame (shoulder line, hips→shoulders up); Hips,
+  Spine1–3 and the clavicles stay at rest (the product drives Spine only).
+* **Arm**: the swing that points the bone at the elbow, turned about the bone so
+  the elbow bends in the arm's rest hinge plane (weighted by how bent the elbow is).
+* **ForeArm**: the swing to the wrist, plus the twist about the bone the hand's
+  orientation asks for. **Hand**: the rest of the hand frame (wrist→middle knuckle,
+  index→pinky knuckles) from the hand landmarks, or from the pose's coarse hand
+  points (wrist, index, pinky) when the hand landmarker found no hand.
+* **Fingers**: each phalanx swings to its landmark direction; metacarpals at rest.
+* **Neck, Neck1**: half each of the head's turn relative to the torso (ears → nose).
+
+Landmarks are smoothed with a One-Euro filter before solving. Every joint gets a
+confidence (pose visibility for the arm, hand presence for the fingers); its
+rotation is blended towards a relaxed rest pose (arms down, hands open) by that
+confidence eased over :data:`EASE_S`, so a hand that leaves the frame eases to
+rest and back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facecapges import rotations as rot
+from facecapges.skeleton import UPPER_BODY, Skeleton, rest_positions
+
+MP_TO_BVH = np.diag([1.0, -1.0, -1.0])  # camera axes (x right, y down, z away) → X left, Y up, Z forward
+EASE_S = 0.4  # seconds a joint takes to ease to rest (or back) when its confidence changes
+MIN_VISIBILITY = 0.5
+DEPTH_GAIN = 1.0
+
+# pose landmark indices (BlazePose 33)
+NOSE, L_EAR, R_EAR = 0, 7, 8
+SHOULDER = {"Left": 11, "Right": 12}
+ELBOW = {"Left": 13, "Right": 14}
+WRIST = {"Left": 15, "Right": 16}
+PINKY = {"Left": 17, "Right": 18}
+INDEX = {"Left": 19, "Right": 20}
+HIP = {"Left": 23, "Right": 24}
+
+# BEAT finger joint → (hand landmark at the joint, hand landmark at its child)
+FINGERS = {
+    "Thumb1": (1, 2),
+    "Thumb2": (2, 3),
+    "Thumb3": (3, 4),
+    "Index1": (5, 6),
+    "Index2": (6, 7),
+    "Index3": (7, 8),
+    "Middle1": (9, 10),
+    "Middle2": (10, 11),
+    "Middle3": (11, 12),
+    "Ring1": (13, 14),
+    "Ring2": (14, 15),
+    "Ring3": (15, 16),
+    "Pinky1": (17, 18),
+    "Pinky2": (18, 19),
+    "Pinky3": (19, 20),
+}
+SIDES = ("Right", "Left")
+
+
+class OneEuro:
+    """One-Euro filter (Casiez et al. 2012) over arrays, one step per frame."""
+
+    def __init__(self, fps: float, min_cutoff: float = 1.0, beta: float = 0.5, d_cutoff: float = 1.0):
+        self.dt = 1.0 / fps
+        self.min_cutoff, self.beta, self.d_cutoff = min_cutoff, beta, d_cutoff
+        self.x: np.ndarray | None = None
+        self.dx: np.ndarray | None = None
+
+    def _alpha(self, cutoff: np.ndarray | float) -> np.ndarray:
+        tau = 1.0 / (2 * np.pi * np.asarray(cutoff))
+        return 1.0 / (1.0 + tau / self.dt)
+
+    def reset(self) -> None:
+        self.x = self.dx = None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.x is None or self.dx is None:
+            self.x, self.dx = x.copy(), np.zeros_like(x)
+            return x.copy()
+        dx = (x - self.x) / self.dt
+        self.dx = self.dx + self._alpha(self.d_cutoff) * (dx - self.dx)
+        speed = np.linalg.norm(self.dx, axis=-1, keepdims=True)
+        a = self._alpha(self.min_cutoff + self.beta * speed)
+        self.x = self.x + a * (x - self.x)
+        return self.x.copy()
+
+
+@dataclass
+class BodyLandmarks:
+    """Landmarks of T frames (camera axes, metres; NaN where not seen).
+
+    pose (T, 33, 3) world landmarks; visibility (T, 33); hands (T, 2, 21, 3) world
+    landmarks of the subject's right [0] and left [1] hand; hand_score (T, 2) (0: not seen).
+    """
+
+    pose: np.ndarray
+    visibility: np.ndarray
+    hands: np.ndarray
+    hand_score: np.ndarray
+    fps: float
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.pose.shape[0])
+
+
+@dataclass
+class BodySolve:
+    """The solve's result: upper-body pose rot6d (T, 47, 6) and confidence (T, 47) in [0, 1]."""
+
+    pose: np.ndarray
+    confidence: np.ndarray
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(n, 1e-9)
+
+
+def _frame(a: np.ndarray, lateral: np.ndarray) -> np.ndarray:
+    """Orthonormal frame (3, 3), columns (a, lateral ⟂ a, a × lateral)."""
+    a = _unit(a)
+    lat = _unit(lateral - a * np.dot(lateral, a))
+    return np.stack([a, lat, np.cross(a, lat)], axis=-1)
+
+
+def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
+    return rot.exp_so3(_unit(axis) * angle)
+
+
+class _Rig:
+    """The BEAT skeleton's rest directions the solve needs."""
+
+    def __init__(self, skel: Skeleton):
+        self.skel = skel
+        self.P = rest_positions(skel)
+        self.idx = {n: skel.index(n) for n in UPPER_BODY}
+        self.slot = {n: k for k, n in enumerate(UPPER_BODY)}
+
+    def bone(self, joint: str, child: str) -> np.ndarray:
+        return _unit(self.P[self.skel.index(child)] - self.P[self.skel.index(joint)])
+
+    def hand_frame(self, side: str) -> np.ndarray:
+        h = f"{side}Hand"
+        a = self.P[self.skel.index(f"{h}Middle1")] - self.P[self.skel.index(h)]
+        lat = self.P[self.skel.index(f"{h}Index1")] - self.P[self.skel.index(f"{h}Pinky1")]
+        return _frame(a, lat)
+
+
+def _swing_local(parent_g: np.ndarray, rest_dir: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Local rotation (and new global) that points ``rest_dir`` (rest global) at ``target``."""
+    cur = parent_g @ rest_dir
+    s = rot.rotation_between(cur, _unit(target))
+    g = s @ parent_g
+    return parent_g.T @ g, g
+
+
+def _solve_frame(
+    rig: _Rig, pose: np.ndarray, hands: list[np.ndarray | None], rest: dict[str, np.ndarray]
+) -> dict[str, np.ndarray]:
+    """Local rotations of the driven joints for one frame of converted (BVH-axes) landmarks."""
+    out: dict[str, np.ndarray] = {}
+    up = (pose[SHOULDER["Left"]] + pose[SHOULDER["Right"]]) / 2 - (pose[HIP["Left"]] + pose[HIP["Right"]]) / 2
+    left = pose[SHOULDER["Left"]] - pose[SHOULDER["Right"]]
+    f = _frame(up, left)  # columns up, left, forward
+    torso = np.stack([f[:, 1], f[:, 0], -f[:, 2]], axis=-1)  # columns X (left), Y (up), Z (forward)
+    if np.linalg.det(torso) < 0:
+        torso[:, 2] *= -1
+    out["Spine"] = torso
+    # head: ears line and ear-middle → nose, relative to the torso, split over Neck and Neck1
+    ears = (pose[L_EAR] + pose[R_EAR]) / 2
+    hf = _frame(pose[NOSE] - ears, pose[L_EAR] - pose[R_EAR])  # columns fwd, left, fwd × left (= up)
+    head = np.stack([hf[:, 1], hf[:, 2], hf[:, 0]], axis=-1)  # columns X (left), Y (up), Z (forward)
+    rel = torso.T @ head
+    half = rot.exp_so3(rot.log_so3(rel) * 0.5)
+    out["Neck"] = out["Neck1"] = half
+    for s, side in enumerate(SIDES):
+        g_parent = torso  # Spine1-3 and the clavicle at rest
+        out[f"{side}Shoulder"] = np.eye(3)
+        d_up = pose[ELBOW[side]] - pose[SHOULDER[side]]
+        d_fo = pose[WRIST[side]] - pose[ELBOW[side]]
+        r_up = rig.bone(f"{side}Arm", f"{side}ForeArm")
+        local, g_arm = _swing_local(g_parent, r_up, d_up)
+        # turn the upper arm about its bone so the elbow bends in its rest hinge plane
+        n0 = _unit(np.cross(r_up, [0.0, 0.0, 1.0]))
+        n = np.cross(_unit(d_up), _unit(d_fo))
+        bend = float(np.linalg.norm(n))
+        if bend > 1e-3:
+            have = g_arm @ n0
+            axis = _unit(d_up)
+            n = n / bend
+            ang = float(np.arctan2(np.dot(np.cross(have, n), axis), np.dot(have, n)))
+            w = min(1.0, bend / 0.5)
+            g_arm = _rodrigues(axis, w * ang) @ g_arm
+            local = g_parent.T @ g_arm
+        out[f"{side}Arm"] = local
+        r_fo = rig.bone(f"{side}ForeArm", f"{side}Hand")
+        local_fo, g_fo = _swing_local(g_arm, r_fo, d_fo)
+        # the hand's frame: from the hand landmarks, else the pose's coarse hand points
+        hand = hands[s]
+        if hand is not None:
+            hand_f = _frame(hand[9] - hand[0], hand[5] - hand[17])
+        else:
+            mid = (pose[INDEX[side]] + pose[PINKY[side]]) / 2
+            hand_f = _frame(mid - pose[WRIST[side]], pose[INDEX[side]] - pose[PINKY[side]])
+        g_hand = hand_f @ rig.hand_frame(side).T
+        # forearm twist: the part of the hand's turn about the forearm bone
+        rel_h = g_fo.T @ g_hand
+        ax = r_fo
+        q = rot.matrix_to_quaternion(rel_h)
+        proj = np.dot(q[1:], ax)
+        twist = 2.0 * np.arctan2(proj, q[0])
+        twist = (twist + np.pi) % (2 * np.pi) - np.pi
+        tw = _rodrigues(ax, float(twist))
+        local_fo = local_fo @ tw
+        g_fo = g_fo @ tw
+        out[f"{side}ForeArm"] = local_fo
+        out[f"{side}Hand"] = g_fo.T @ g_hand
+        g_h = g_hand
+        for name in ("Index", "Ring", "Pinky"):
+            out[f"{side}Hand{name}"] = np.eye(3)
+        if hand is None:
+            for name in FINGERS:
+                out[f"{side}Hand{name}"] = rest[f"{side}Hand{name}"]
+            continue
+        # fingers: each phalanx swings to its landmark direction
+        globals_: dict[str, np.ndarray] = {}
+        for name, (a, b) in FINGERS.items():
+            finger, k = name[:-1], int(name[-1])
+            # first phalanges hang off the hand or a metacarpal at rest (the thumb off HandIndex): the hand's frame
+            parent = g_h if k == 1 else globals_[f"{finger}{k - 1}"]
+            child = f"{side}Hand{finger}{k + 1}" if k < 3 else f"{side}Hand{finger}4"
+            if child not in rig.skel.names:
+                break
+            rdir = rig.bone(f"{side}Hand{name}", child)
+            loc, g = _swing_local(parent, rdir, hand[b] - hand[a])
+            out[f"{side}Hand{name}"] = loc
+            globals_[name] = g
+    return out
+
+
+def _rest_pose(rig: _Rig) -> dict[str, np.ndarray]:
+    """Relaxed rest: torso upright, arms hanging slightly forward, hands and fingers at rest."""
+    out = {n: np.eye(3) for n in UPPER_BODY}
+    for side in SIDES:
+        sgn = 1.0 if side == "Left" else -1.0
+        r_up = rig.bone(f"{side}Arm", f"{side}ForeArm")
+        loc, g = _swing_local(np.eye(3), r_up, np.array([0.12 * sgn, -1.0, 0.05]))
+        out[f"{side}Arm"] = loc
+        r_fo = rig.bone(f"{side}ForeArm", f"{side}Hand")
+        out[f"{side}ForeArm"], _ = _swing_local(g, r_fo, np.array([0.05 * sgn, -0.8, 0.45]))
+    return out
+
+
+ARM_CHAINS = [(SHOULDER[s], ELBOW[s], WRIST[s]) for s in SIDES]
+
+
+def _arm_lengths(pose: np.ndarray) -> dict[tuple[int, int], float]:
+    """Each arm bone's length: the median over the clip of its 3D length in the world landmarks."""
+    out = {}
+    for a, b, c in ARM_CHAINS:
+        for i, j in ((a, b), (b, c)):
+            d = np.linalg.norm(pose[:, j] - pose[:, i], axis=-1)
+            d = d[np.isfinite(d)]
+            out[(i, j)] = float(np.median(d)) if len(d) else 0.0
+    return out
+
+
+def _complete_depth(p: np.ndarray, lengths: dict[tuple[int, int], float]) -> np.ndarray:
+    """Arm depths from bone lengths (camera axes, one frame's (33, 3)).
+
+    The landmarker's image-plane offsets (x, y) are good, its depth offsets (z) are
+    compressed. A bone of known length L whose image-plane offset is shorter than L
+    must make up the rest in depth: |dz| = sqrt(L² − dx² − dy²), with the sign the
+    landmarker gives (kept when it already says more)."""
+    p = p.copy()
+    for a, b, c in ARM_CHAINS:
+        for i, j in ((a, b), (b, c)):
+            d = p[j] - p[i]
+            L = lengths[(i, j)]
+            dz = np.sqrt(max(L * L - d[0] ** 2 - d[1] ** 2, 0.0))
+            if dz > abs(d[2]):
+                shift = np.sign(d[2]) * dz - d[2] if d[2] != 0 else 0.0
+                p[j, 2] += shift
+                if j == b:  # the wrist moves with its elbow
+                    p[c, 2] += shift
+    return p
+
+
+def _ease(target: np.ndarray, fps: float) -> np.ndarray:
+    """Confidence eased in time: moves towards ``target`` (T, K) by at most 1/(EASE_S·fps) per frame."""
+    step = 1.0 / max(EASE_S * fps, 1.0)
+    out = np.empty_like(target)
+    cur = target[0].copy()
+    for t in range(len(target)):
+        cur = cur + np.clip(target[t] - cur, -step, step)
+        out[t] = cur
+    return out
+
+
+def solve(
+    skel: Skeleton,
+    lm: BodyLandmarks,
+    smooth: bool = True,
+    depth_completion: bool = True,
+    depth_gain: float = DEPTH_GAIN,
+) -> BodySolve:
+    """BEAT upper-body pose rot6d (T, 47, 6) and per-joint confidence (T, 47) from landmarks."""
+    rig = _Rig(skel)
+    T = lm.n_frames
+    rest = _rest_pose(rig)
+    lengths = _arm_lengths(lm.pose * [1.0, 1.0, depth_gain]) if depth_completion else None
+    rest_arr = np.stack([rest[n] for n in UPPER_BODY])
+    pose_f = OneEuro(lm.fps, min_cutoff=1.0, beta=2.0)
+    hand_f = [OneEuro(lm.fps, min_cutoff=1.5, beta=2.0) for _ in SIDES]
+    mats = np.broadcast_to(rest_arr, (T, len(UPPER_BODY), 3, 3)).copy()
+    conf = np.zeros((T, len(UPPER_BODY)))
+    last = rest_arr.copy()
+    for t in range(T):
+        p = lm.pose[t]
+        if not np.isfinite(p).all():
+            mats[t] = last
+            continue
+        p = p.copy()
+        p[:, 2] *= depth_gain
+        if lengths is not None:
+            p = _complete_depth(p, lengths)
+        p = p @ MP_TO_BVH.T
+        if smooth:
+            p = pose_f(p)
+        hands: list[np.ndarray | None] = []
+        for s in range(2):
+            h = lm.hands[t, s]
+            if lm.hand_score[t, s] > 0 and np.isfinite(h).all():
+                h = h @ MP_TO_BVH.T
+                hands.append(hand_f[s](h) if smooth else h)
+            else:
+                hand_f[s].reset()
+                hands.append(None)
+        local = _solve_frame(rig, p, hands, rest)
+        mats[t] = np.stack([local[n] for n in UPPER_BODY])
+        last = mats[t]
+        vis = lm.visibility[t]
+        c = np.ones(len(UPPER_BODY))
+        for s, side in enumerate(SIDES):
+            arm = float(min(vis[SHOULDER[side]], vis[ELBOW[side]]))
+            fore = float(min(vis[ELBOW[side]], vis[WRIST[side]]))
+            for n in UPPER_BODY:
+                if not n.startswith(side):
+                    continue
+                if n in (f"{side}Shoulder", f"{side}Arm"):
+                    c[rig.slot[n]] = arm
+                elif n == f"{side}ForeArm":
+                    c[rig.slot[n]] = fore
+                elif n == f"{side}Hand":
+                    c[rig.slot[n]] = max(float(lm.hand_score[t, s]), 0.5 * fore)
+                else:
+                    c[rig.slot[n]] = float(lm.hand_score[t, s])
+        c[:3] = float(min(vis[SHOULDER["Left"]], vis[SHOULDER["Right"]]))
+        conf[t] = c
+    # a joint below MIN_VISIBILITY eases to rest, and back when it is seen again
+    weight = _ease((conf >= MIN_VISIBILITY).astype(np.float64), lm.fps)
+    q = rot.matrix_to_quaternion(mats)
+    q_rest = np.broadcast_to(rot.matrix_to_quaternion(rest_arr), q.shape)
+    q = rot.quaternion_slerp(q_rest, q, weight[..., None])
+    out = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
+    return BodySolve(pose=out, confidence=conf.astype(np.float32))
