@@ -421,3 +421,39 @@ def test_serve_with_a_style_that_cannot_load_is_one_error_line(tmp_path):
     p = cli("serve", "--checkpoint", str(bad), "--port", "0", timeout=120)
     assert p.returncode == 2 and p.stderr.startswith("error:") and "Traceback" not in p.stderr, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_resume_starts_the_stream_from_the_clients_last_pose(ckpt, server):
+    """A reconnecting client's ``resume`` (its last pose, as the pose messages carry it) starts the
+    new stream from that pose: its poses equal a single-stream generator reset to it; a resume after
+    the first input is refused with an error and changes nothing."""
+    srv = server()
+    fr = frames(12, 21)
+    last = quats(asyncio.run(stream(srv.url, frames(6, 22))))[-1]  # a pose the server gave
+    start = np.asarray(rot.matrix_to_rot6d(rot.quaternion_to_matrix(last)), np.float32)
+
+    async def resumed():
+        async with connect(srv.url, max_size=protocol.MAX_MESSAGE_BYTES) as ws:
+            assert json.loads(await ws.recv())["type"] == "hello"
+            await ws.send(json.dumps({"type": "resume", "pose": last.ravel().tolist()}))
+            assert json.loads(await ws.recv()) == {"type": "resumed"}
+            out = []
+            for k, (a, f, h) in enumerate(fr):
+                await ws.send(protocol.encode_input(k, a, f, h))
+                out.append(json.loads(await ws.recv()))
+                if k == 0:
+                    await ws.send(json.dumps({"type": "resume", "pose": last.ravel().tolist()}))
+                    err = json.loads(await ws.recv())
+                    assert err["type"] == "error" and "before the first input" in err["message"]
+            await ws.send(json.dumps({"type": "resume", "pose": [0.0] * 188}))
+            assert "zero quaternion" in json.loads(await ws.recv())["message"]
+            return out
+
+    msgs = asyncio.run(resumed())
+    g = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    g.reset(start)
+    want = rot.rot6d_to_quaternion(np.array([g.step(a, f, h) for a, f, h in fr]).astype(np.float64))
+    np.testing.assert_allclose(quats(msgs), want, atol=1e-5)
+    cold = reference(ckpt, fr)  # without the resume the stream would start elsewhere
+    assert np.abs(quats(msgs)[0] - cold[0]).max() > 1e-3
+    assert srv.summary()["resumed"] == 1

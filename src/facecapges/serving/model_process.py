@@ -83,7 +83,9 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) 
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
 
 
-def _sync(gen, close: list[int], n_open: int, intensity: list[tuple[int, float]], initial: list | None = None) -> list[int]:
+def _sync(
+    gen, close: list[int], n_open: int, intensity: list[tuple[int, float]], initial: list | None = None
+) -> list[int]:
     """Close slots, open ``n_open`` new ones (their ids are returned; the k-th starting at
     ``initial[k]``, a rot6d pose, when that is not None), then set intensities; ``intensity`` may
     name a slot opened here by ``-1 - k`` (the k-th new one)."""

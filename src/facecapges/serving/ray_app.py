@@ -23,12 +23,11 @@ layout), the send-buffer and min-rate closes. A replica refuses a stream past ``
 (1013); a bad message gets an ``error`` and the connection stays, as in ``serve``.
 """
 
-
-
 import asyncio
 import collections
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -47,7 +46,7 @@ def _require_ray():
 
 @dataclass
 class _RayStream:
-    ws: object
+    ws: Any
     slot: int | None = None
     initial: np.ndarray | None = None
     intensity: float = 1.0
@@ -76,10 +75,12 @@ def build_app(
 
     app = FastAPI()
 
+    per_node: dict[str, Any] = {"max_replicas_per_node": max_per_node} if max_per_node else {}
+
     @serve.deployment(
         num_replicas=replicas,
         max_ongoing_requests=max_streams,  # a WebSocket is one ongoing request for its whole life
-        max_replicas_per_node=max_per_node or None,
+        **per_node,
         ray_actor_options={"num_cpus": num_cpus},
         health_check_period_s=1.0,
         health_check_timeout_s=5.0,
@@ -236,7 +237,7 @@ def build_app(
                 if any(st.pending for st in self.streams.values()):
                     self._wake.set()
 
-    return StreamReplica.bind()
+    return StreamReplica.bind()  # type: ignore[attr-defined]
 
 
 def serve_on_ray(
