@@ -457,3 +457,36 @@ def test_resume_starts_the_stream_from_the_clients_last_pose(ckpt, server):
     cold = reference(ckpt, fr)  # without the resume the stream would start elsewhere
     assert np.abs(quats(msgs)[0] - cold[0]).max() > 1e-3
     assert srv.summary()["resumed"] == 1
+
+
+def test_sample_client_reconnects_and_resumes_when_its_server_dies(ckpt, tmp_path):
+    """The docs' client, its server stopped mid-stream and a new one started on the same port:
+    it reconnects, sends ``resume`` (the new server counts it) and finishes its stream."""
+    import subprocess
+    import sys
+
+    first = StreamServer(ckpt, ServeConfig(port=0)).start()
+    port = first.bound[1]
+    root = Path(__file__).resolve().parents[1]
+    client = subprocess.Popen([sys.executable, str(root / "docs" / "examples" / "serve_client.py"),
+                               f"ws://127.0.0.1:{port}/",
+                               str(root / "src" / "facecapges" / "assets" / "demo" / "speech.wav"), "--seconds", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    second = None
+    try:
+        t0 = time.monotonic()
+        while first.summary().get("frames", 0) < 10:
+            assert time.monotonic() - t0 < 60 and client.poll() is None, client.communicate()
+            time.sleep(0.05)
+        first.close()  # the node dies: the client's connection drops
+        second = StreamServer(ckpt, ServeConfig(port=port)).start()
+        out, err = client.communicate(timeout=120)
+        assert client.returncode == 0, err
+        assert "reconnecting" in err and "resuming at frame" in err, err
+        assert second.summary()["resumed"] == 1 and second.summary()["frames"] > 0
+    finally:
+        if client.poll() is None:
+            client.kill()
+        first.close()
+        if second is not None:
+            second.close()

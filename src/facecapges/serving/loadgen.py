@@ -253,8 +253,8 @@ async def run_resuming_client(
                 nonlocal dropped, last_rx
                 async for msg in ws:
                     now = time.perf_counter()
-                    last_rx = now
                     if msg.startswith('{"type":"pose"'):
+                        last_rx = now  # errors ("busy") do not count: a stream is alive while poses come
                         m = orjson.loads(msg)
                         res.got[m["frame"]] = (now, m["pose"])
                         res.last_pose = m["pose"]
