@@ -37,6 +37,7 @@ from facecapges.timing import MODEL_FPS
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 REAL_TAKE = ("data/beat/2_scott_0_1_1.bvh", "data/beat/2_scott_0_1_1.wav")
 P99_TARGET_MS = 50.0
+LOCAL_ROUTING = "RAY_SERVE_PROXY_PREFER_LOCAL_NODE_ROUTING"
 HANDOVER_FRAMES = 3  # poses either side of a hand-over looked at
 
 
@@ -118,9 +119,17 @@ class LocalCluster:
     def __init__(self, checkpoint: str | None = None, nodes: int = 2, say=print):
         self.checkpoint, self.nodes, self.say = checkpoint, nodes, say
         self.cluster = None
+        self._env: str | None = None
         self.port = _free_port()
 
     def __enter__(self):
+        try:
+            return self._start()
+        except BaseException:  # nothing left running when the start fails
+            self.__exit__(None, None, None)
+            raise
+
+    def _start(self):
         import ray
         from ray import serve
         from ray.cluster_utils import Cluster
@@ -128,6 +137,10 @@ class LocalCluster:
         from facecapges.serving.ray_app import build_app
 
         t = time.monotonic()
+        # one proxy (the head's) for every stream: it must not prefer the replicas of its own node
+        # (Ray's default, right when every node has a proxy behind a load balancer)
+        self._env = os.environ.get(LOCAL_ROUTING)
+        os.environ[LOCAL_ROUTING] = "0"
         # a dead node is noticed within ~1 s (Ray's default: up to 15 s): RAY_health_check_* on a real cluster
         fast = {"health_check_period_ms": 500, "health_check_failure_threshold": 2}
         self.cluster = Cluster(
@@ -165,6 +178,10 @@ class LocalCluster:
         ray.shutdown()
         if self.cluster is not None:
             self.cluster.shutdown()
+        if self._env is None:
+            os.environ.pop(LOCAL_ROUTING, None)
+        else:
+            os.environ[LOCAL_ROUTING] = self._env
 
 
 def failover(

@@ -267,7 +267,7 @@ def serve_on_ray(
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise UserError(f"--ray {address}: no Ray cluster there ({str(exc).splitlines()[0][:200]})") from None
     try:
-        serve.start(http_options={"host": host, "port": port}, proxy_location="HeadOnly")
+        serve.start(http_options={"host": host, "port": port})  # a proxy on every node (Ray's default)
         say(f"starting {replicas} replicas on the cluster; clients connect to ws://{host}:{port}/")
         serve.run(
             build_app(
