@@ -34,3 +34,21 @@ def test_a_node_dies_and_its_streams_resume_on_the_other(capsys):
     # behind and drops "busy" frames, so this bounds the loss rather than requiring none)
     assert r["good_clients"] == 0 or r["good_lost"] < 0.5 * r["good_sent"], r
     assert r["handover"]["measured"] == r["moved"] and r["handover"]["pops"] == 0, r["handover"]
+
+
+def test_ray_address_that_does_not_answer_is_one_error_line():
+    """``serve --ray HOST:PORT`` with nothing there: one ``error:`` line and a non-zero exit at once
+    (Ray itself would retry for minutes); a malformed address likewise."""
+    import socket
+    import subprocess
+    import sys
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]  # closed again: nothing listens there
+    for address, says in ((f"127.0.0.1:{port}", "no Ray head answers"), ("nowhere", "expected auto, local or")):
+        p = subprocess.run([sys.executable, "-m", "facecapges", "serve", "--ray", address],
+                           capture_output=True, text=True, timeout=120)
+        assert p.returncode != 0
+        lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+        assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], p.stderr

@@ -240,6 +240,22 @@ def build_app(
     return StreamReplica.bind()  # type: ignore[attr-defined]
 
 
+def _check_reachable(address: str) -> None:
+    """A ``HOST:PORT`` head that does not answer is one error line at once (Ray itself retries for
+    minutes); ``auto`` and ``ray://`` addresses are left to Ray."""
+    import socket
+
+    if address == "auto" or "://" in address:
+        return
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit():
+        raise UserError(f"--ray {address}: expected auto, local or HOST:PORT of the cluster's head")
+    try:
+        socket.create_connection((host, int(port)), timeout=5).close()
+    except OSError as exc:
+        raise UserError(f"--ray {address}: no Ray head answers there ({exc.strerror or exc})") from None
+
+
 def serve_on_ray(
     address: str,
     checkpoint=None,
@@ -262,6 +278,7 @@ def serve_on_ray(
     if address == "local":
         ray.init(include_dashboard=False)
     else:
+        _check_reachable(address)
         try:
             ray.init(address=address, include_dashboard=False)
         except (ConnectionError, ValueError, RuntimeError) as exc:
