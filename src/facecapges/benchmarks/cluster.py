@@ -148,7 +148,7 @@ class LocalCluster:
             head_node_args={"num_cpus": 1, "include_dashboard": False, "_system_config": fast},
         )
         self.workers = [self.cluster.add_node(num_cpus=1) for _ in range(self.nodes - 1)]
-        ray.init(address=self.cluster.address)
+        ray.init(address=self.cluster.address, log_to_driver=False)  # stdout is the bench's JSON
         serve.start(http_options={"host": "127.0.0.1", "port": self.port}, proxy_location="HeadOnly")
         serve.run(
             build_app(self.checkpoint, replicas=self.nodes, max_per_node=1, num_cpus=1),

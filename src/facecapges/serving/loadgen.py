@@ -251,18 +251,21 @@ async def run_resuming_client(
 
             async def reader(ws=ws):
                 nonlocal dropped, last_rx
-                async for msg in ws:
-                    now = time.perf_counter()
-                    if msg.startswith('{"type":"pose"'):
-                        last_rx = now  # errors ("busy") do not count: a stream is alive while poses come
-                        m = orjson.loads(msg)
-                        res.got[m["frame"]] = (now, m["pose"])
-                        res.last_pose = m["pose"]
-                        if dropped:
-                            res.back.append(now)
-                            dropped = False
-                    elif '"resumed"' not in msg[:30]:
-                        res.errors.append(msg[:120])
+                try:
+                    async for msg in ws:
+                        now = time.perf_counter()
+                        if msg.startswith('{"type":"pose"'):
+                            last_rx = now  # errors ("busy") do not count: a stream is alive while poses come
+                            m = orjson.loads(msg)
+                            res.got[m["frame"]] = (now, m["pose"])
+                            res.last_pose = m["pose"]
+                            if dropped:
+                                res.back.append(now)
+                                dropped = False
+                        elif '"resumed"' not in msg[:30]:
+                            res.errors.append(msg[:120])
+                except ConnectionClosed:  # the sender sees the task done and reconnects
+                    pass
 
             rtask = asyncio.ensure_future(reader())
             while k < n and not rtask.done():
