@@ -81,9 +81,9 @@ def handover_accel(res, drop_t: float) -> float:
 
 def _messages(shared: Path, n_frames: int) -> list[str]:
     from facecapges.io.audio import load_audio
-    from facecapges.serving.loadgen import _frame0, input_messages
+    from facecapges.serving.loadgen import input_messages
 
-    return _frame0(input_messages(load_audio(shared / SPEECH), n_frames))
+    return input_messages(load_audio(shared / SPEECH), n_frames)
 
 
 async def _clients(url: str, n: int, seconds: float, messages: list[str], seed: int = 0):

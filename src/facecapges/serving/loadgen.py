@@ -25,6 +25,7 @@ from facecapges import timing
 from facecapges.runtime.outputs import protocol
 
 _FRAME = re.compile(r'"frame":(\d+)')
+_FRAME_FIELD = re.compile(r'"frame":\d+,')
 
 
 def input_messages(
@@ -278,7 +279,7 @@ async def run_resuming_client(
                     await ws.close()
                     raise ConnectionClosed(None, None)
                 res.sent[k] = time.perf_counter()
-                await ws.send(messages[k % len(messages)].replace('"frame":0,', f'"frame":{k},', 1))
+                await ws.send(_FRAME_FIELD.sub(f'"frame":{k},', messages[k % len(messages)], count=1))
                 k += 1
             if k >= n:
                 try:
