@@ -120,9 +120,17 @@ class LocalCluster:
         self.checkpoint, self.nodes, self.say = checkpoint, nodes, say
         self.cluster = None
         self._env: str | None = None
+        self._stdout: int | None = None
         self.port = _free_port()
 
     def __enter__(self):
+        # Ray's processes and the driver's own threads print to stdout (a dead raylet's log tail,
+        # worker logs): while the cluster runs, file descriptor 1 is stderr (stdout is the bench's JSON)
+        import sys
+
+        sys.stdout.flush()
+        self._stdout = os.dup(1)
+        os.dup2(2, 1)
         try:
             return self._start()
         except BaseException:  # nothing left running when the start fails
@@ -182,6 +190,13 @@ class LocalCluster:
             os.environ.pop(LOCAL_ROUTING, None)
         else:
             os.environ[LOCAL_ROUTING] = self._env
+        if self._stdout is not None:
+            import sys
+
+            sys.stdout.flush()
+            os.dup2(self._stdout, 1)
+            os.close(self._stdout)
+            self._stdout = None
 
 
 def failover(
