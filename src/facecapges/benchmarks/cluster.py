@@ -38,7 +38,10 @@ SPEECH = "data/beat/2_scott_0_2_2.wav"
 REAL_TAKE = ("data/beat/2_scott_0_1_1.bvh", "data/beat/2_scott_0_1_1.wav")
 P99_TARGET_MS = 50.0
 LOCAL_ROUTING = "RAY_SERVE_PROXY_PREFER_LOCAL_NODE_ROUTING"
-HANDOVER_FRAMES = 3  # poses either side of a hand-over looked at
+HANDOVER_FRAMES = 3
+# clients arrive this far apart: Ray's router balances by the open streams it knows of, and 20
+# connections in the same instant all see the same (empty) replicas
+ARRIVAL_S = 0.05  # poses either side of a hand-over looked at
 
 
 def _free_port() -> int:
@@ -93,8 +96,10 @@ async def _clients(url: str, n: int, seconds: float, messages: list[str], seed: 
     t0 = time.perf_counter() + 0.2
     return await asyncio.gather(
         *[
-            run_resuming_client(url, messages, seconds, phase=float(rng.uniform(0, 1 / MODEL_FPS)), t0=t0)
-            for _ in range(n)
+            run_resuming_client(
+                url, messages, seconds, phase=float(rng.uniform(0, 1 / MODEL_FPS)), t0=t0, connect_after=i * ARRIVAL_S
+            )
+            for i in range(n)
         ]
     )
 

@@ -212,12 +212,14 @@ async def run_resuming_client(
     phase: float = 0.0,
     t0=None,
     stall_s: float = STALL_S,
+    connect_after: float = 0.0,
 ) -> ResumeResult:
     """A live client that survives a dropped connection, as the sample client does: it reconnects
     (every 50 ms) and sends ``resume`` with the last pose it got, then goes on with the frame its
     clock is at (the frames of the outage are lost). Frame k is due at ``t0 + phase + k / fps``.
     A connection that returns no pose for ``stall_s`` seconds while frames are sent counts as
-    dropped (a proxy may keep a client's socket open after the node behind it died)."""
+    dropped (a proxy may keep a client's socket open after the node behind it died). It first
+    connects ``connect_after`` seconds after ``t0`` (clients arriving over time, as users do)."""
     import orjson
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed, InvalidHandshake
@@ -225,7 +227,8 @@ async def run_resuming_client(
     res = ResumeResult()
     n = int(seconds * fps)
     start = (t0 if t0 is not None else time.perf_counter()) + phase
-    k = 0
+    await asyncio.sleep(max(0.0, start + connect_after - time.perf_counter()))
+    k = int(connect_after * fps)
     while k < n:
         try:
             ws = await connect(
