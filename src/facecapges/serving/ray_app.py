@@ -272,6 +272,9 @@ def serve_on_ray(
     ``ray start`` runs on this machine; ``local``: start a one-node cluster here), run the
     application with its proxy on ``host:port`` and serve until interrupted."""
     _require_ray()
+    import signal
+    import threading
+
     import ray
     from ray import serve
 
@@ -299,8 +302,12 @@ def serve_on_ray(
             route_prefix="/",
         )
         say(f"ready: serving streams on ws://{host}:{port}/ (Ray Serve, {replicas} replicas); Ctrl-C stops")
-        while True:
-            time.sleep(3600)
+        # Ctrl-C or SIGTERM: Ray's driver does not always turn SIGINT into KeyboardInterrupt here
+        stop = threading.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: stop.set())
+        while not stop.wait(1.0):
+            pass
     except KeyboardInterrupt:
         pass
     finally:
