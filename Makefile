@@ -35,7 +35,7 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh src/facecapges/capture/body_models.py scripts/setup-avatar.sh scripts/setup-runtime.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[test]'
+	$(PY) -m pip install --quiet -e '.[test,ray]'
 	PYTHON=$(PY) bash scripts/setup-capture.sh
 	PYTHON=$(PY) bash scripts/setup-avatar.sh
 	bash scripts/setup-runtime.sh

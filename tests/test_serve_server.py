@@ -443,3 +443,72 @@ def test_serve_on_a_busy_port_says_so_before_loading_anything():
         took = time.monotonic() - t0
     assert p.returncode == 2 and p.stderr.strip() == f"error: cannot listen on 127.0.0.1:{port} (Address already in use)"
     assert took < 5.0, took  # an interpreter start and typer; measured 2.7 s at load average 17
+
+
+def test_resume_starts_the_stream_from_the_clients_last_pose(ckpt, server):
+    """A reconnecting client's ``resume`` (its last pose, as the pose messages carry it) starts the
+    new stream from that pose: its poses equal a single-stream generator reset to it; a resume after
+    the first input is refused with an error and changes nothing."""
+    srv = server()
+    fr = frames(12, 21)
+    last = quats(asyncio.run(stream(srv.url, frames(6, 22))))[-1]  # a pose the server gave
+    start = np.asarray(rot.matrix_to_rot6d(rot.quaternion_to_matrix(last)), np.float32)
+
+    async def resumed():
+        async with connect(srv.url, max_size=protocol.MAX_MESSAGE_BYTES) as ws:
+            assert json.loads(await ws.recv())["type"] == "hello"
+            await ws.send(json.dumps({"type": "resume", "pose": last.ravel().tolist()}))
+            assert json.loads(await ws.recv()) == {"type": "resumed"}
+            out = []
+            for k, (a, f, h) in enumerate(fr):
+                await ws.send(protocol.encode_input(k, a, f, h))
+                out.append(json.loads(await ws.recv()))
+                if k == 0:
+                    await ws.send(json.dumps({"type": "resume", "pose": last.ravel().tolist()}))
+                    err = json.loads(await ws.recv())
+                    assert err["type"] == "error" and "before the first input" in err["message"]
+            await ws.send(json.dumps({"type": "resume", "pose": [0.0] * 188}))
+            assert "zero quaternion" in json.loads(await ws.recv())["message"]
+            return out
+
+    msgs = asyncio.run(resumed())
+    g = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    g.reset(start)
+    want = rot.rot6d_to_quaternion(np.array([g.step(a, f, h) for a, f, h in fr]).astype(np.float64))
+    assert_rotations_close(quats(msgs), want)  # 0.01°: float32, a batch against one stream
+    cold = reference(ckpt, fr)  # without the resume the stream would start elsewhere
+    assert np.abs(quats(msgs)[0] - cold[0]).max() > 1e-3
+    assert srv.summary()["resumed"] == 1
+
+
+def test_sample_client_reconnects_and_resumes_when_its_server_dies(ckpt, tmp_path):
+    """The docs' client, its server stopped mid-stream and a new one started on the same port:
+    it reconnects, sends ``resume`` (the new server counts it) and finishes its stream."""
+    import subprocess
+    import sys
+
+    first = StreamServer(ckpt, ServeConfig(port=0)).start()
+    port = first.bound[1]
+    root = Path(__file__).resolve().parents[1]
+    client = subprocess.Popen([sys.executable, str(root / "docs" / "examples" / "serve_client.py"),
+                               f"ws://127.0.0.1:{port}/",
+                               str(root / "src" / "facecapges" / "assets" / "demo" / "speech.wav"), "--seconds", "4"],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    second = None
+    try:
+        t0 = time.monotonic()
+        while first.summary().get("frames", 0) < 10:
+            assert time.monotonic() - t0 < 60 and client.poll() is None, client.communicate()
+            time.sleep(0.05)
+        first.close()  # the node dies: the client's connection drops
+        second = StreamServer(ckpt, ServeConfig(port=port)).start()
+        out, err = client.communicate(timeout=120)
+        assert client.returncode == 0, err
+        assert "reconnecting" in err and "resuming at frame" in err, err
+        assert second.summary()["resumed"] == 1 and second.summary()["frames"] > 0
+    finally:
+        if client.poll() is None:
+            client.kill()
+        first.close()
+        if second is not None:
+            second.close()

@@ -5,6 +5,9 @@ Streams a WAV file to the server one 15 fps frame at a time, in real time, with 
 number, its round-trip time and the rotation of the right forearm. Started together with
 the server, it waits for it: it retries the connection for up to ``--wait`` seconds and
 reads the server's ``status`` messages ("loading") until the ``hello`` that says it is ready.
+When the connection drops (the server or its cluster node died: `serve --ray`, docs/serve-cluster.md)
+it reconnects and sends ``resume`` with the last pose it got, so the avatar goes on from where it
+was instead of jumping back to the rest pose; the frames of the outage are skipped.
 
     facecapges serve --port 8780 &
     python docs/examples/serve_client.py ws://127.0.0.1:8780 speech.wav --seconds 5
@@ -24,6 +27,7 @@ import time
 import numpy as np
 import soundfile as sf
 from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
 
 IDENTITY_ROT6D = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # first two columns of the identity matrix
 
@@ -40,38 +44,60 @@ async def connect_when_up(url: str, wait: float):
             await asyncio.sleep(0.5)
 
 
+async def hello_of(ws) -> dict:
+    hello = json.loads(await ws.recv())
+    while hello["type"] == "status":  # the server is loading its style: hello follows when ready
+        print(f"server: {hello['message']}", file=sys.stderr)
+        hello = json.loads(await ws.recv())
+    if hello["type"] != "hello":
+        raise SystemExit(f"server said: {hello}")
+    return hello
+
+
 async def stream(url: str, wav: str, seconds: float, wait: float = 120.0) -> int:
     samples, sr = sf.read(wav, dtype="float32", always_2d=True)
     samples = samples.mean(axis=1)
-    async with await connect_when_up(url, wait) as ws:
-        hello = json.loads(await ws.recv())
-        while hello["type"] == "status":  # the server is loading its style: hello follows when ready
-            print(f"server: {hello['message']}", file=sys.stderr)
-            hello = json.loads(await ws.recv())
-        if hello["type"] != "hello":
-            raise SystemExit(f"server said: {hello}")
-        fps, spf = hello["fps"], hello["samples_per_frame"]
-        if sr != hello["sr"]:
-            raise SystemExit(f"{wav}: {sr} Hz, the server wants {hello['sr']} Hz mono")
-        forearm = hello["joints"].index("RightForeArm")
-        n_frames = min(int(seconds * fps), len(samples) * fps // sr)
-        t0 = time.monotonic()
-        for k in range(n_frames):
-            # frame k owns samples floor(k·sr/fps) … floor((k+1)·sr/fps) − 1
-            a, b = k * sr // fps, (k + 1) * sr // fps
-            chunk = samples[a:b][:spf]
-            sent = time.monotonic()
-            await ws.send(json.dumps({"type": "input", "frame": k,
-                                      "audio": base64.b64encode(chunk.astype("<f4").tobytes()).decode(),
-                                      "face": [0.0] * len(hello["blendshapes"]), "head": IDENTITY_ROT6D}))
-            msg = json.loads(await ws.recv())
-            if msg["type"] != "pose":
-                raise SystemExit(f"server said: {msg}")
-            q = msg["pose"][4 * forearm: 4 * forearm + 4]  # (w, x, y, z)
-            print(f"frame {msg['frame']:4d}  {1000 * (time.monotonic() - sent):6.1f} ms  "
-                  f"RightForeArm w={q[0]:+.3f} x={q[1]:+.3f} y={q[2]:+.3f} z={q[3]:+.3f}")
-            await asyncio.sleep(max(0.0, t0 + (k + 1) / fps - time.monotonic()))  # real time
-        return n_frames
+    last_pose = None  # the last pose received: sent as `resume` after a reconnect
+    k, n_frames, got = 0, None, 0
+    t0 = None  # the stream's clock starts at the first hello and runs on through reconnects
+    while n_frames is None or k < n_frames:
+        try:
+            async with await connect_when_up(url, wait) as ws:
+                hello = await hello_of(ws)
+                fps, spf = hello["fps"], hello["samples_per_frame"]
+                if sr != hello["sr"]:
+                    raise SystemExit(f"{wav}: {sr} Hz, the server wants {hello['sr']} Hz mono")
+                forearm = hello["joints"].index("RightForeArm")
+                if n_frames is None or t0 is None:
+                    n_frames = min(int(seconds * fps), len(samples) * fps // sr)
+                    t0 = time.monotonic()
+                if last_pose is not None:  # a new stream that starts where the old one was
+                    await ws.send(json.dumps({"type": "resume", "pose": last_pose}))
+                    print(f"reconnected: resuming at frame {k}", file=sys.stderr)
+                while k < n_frames:
+                    k = max(k, int((time.monotonic() - t0) * fps))  # frames of an outage are skipped
+                    # frame k owns samples floor(k·sr/fps) … floor((k+1)·sr/fps) − 1
+                    a, b = k * sr // fps, (k + 1) * sr // fps
+                    chunk = samples[a:b][:spf]
+                    sent = time.monotonic()
+                    await ws.send(json.dumps({"type": "input", "frame": k,
+                                              "audio": base64.b64encode(chunk.astype("<f4").tobytes()).decode(),
+                                              "face": [0.0] * len(hello["blendshapes"]), "head": IDENTITY_ROT6D}))
+                    msg = json.loads(await asyncio.wait_for(ws.recv(), timeout=1.0))  # none in 1 s: dead
+                    while msg["type"] == "resumed":
+                        msg = json.loads(await asyncio.wait_for(ws.recv(), timeout=1.0))
+                    if msg["type"] != "pose":
+                        raise SystemExit(f"server said: {msg}")
+                    last_pose, got = msg["pose"], got + 1
+                    q = msg["pose"][4 * forearm: 4 * forearm + 4]  # (w, x, y, z)
+                    print(f"frame {msg['frame']:4d}  {1000 * (time.monotonic() - sent):6.1f} ms  "
+                          f"RightForeArm w={q[0]:+.3f} x={q[1]:+.3f} y={q[2]:+.3f} z={q[3]:+.3f}")
+                    k += 1
+                    await asyncio.sleep(max(0.0, t0 + k / fps - time.monotonic()))  # real time
+        except (ConnectionClosed, TimeoutError) as exc:
+            print(f"connection lost ({exc.__class__.__name__}); reconnecting", file=sys.stderr)
+            await asyncio.sleep(0.05)
+    return got
 
 
 def main() -> None:

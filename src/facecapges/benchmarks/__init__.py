@@ -31,6 +31,7 @@ from facecapges.errors import UserError
 
 BENCHMARKS: dict[str, str] = {
     "capture": "facecapges.benchmarks.capture",
+    "cluster": "facecapges.benchmarks.cluster",
     "data": "facecapges.benchmarks.data",
     "evaluation": "facecapges.benchmarks.evaluation",
     "model": "facecapges.benchmarks.model",

@@ -37,6 +37,14 @@ INTENSITY = typer.Option(
     help="Gesture intensity of each new stream, 0 (rest / idle only) … 1 … 1.3; a client changes its own "
     "with an 'intensity' message.",
 )
+RAY = typer.Option(
+    "--ray",
+    metavar="ADDRESS",
+    help="Serve on a Ray cluster (needs the 'ray' extra): ADDRESS of its head ('auto': the cluster `ray start` "
+    "runs here; 'local': start a one-node cluster). Clients connect to Ray's proxy at --host/--port "
+    "(default port 8000); see docs/serve-cluster.md.",
+)
+REPLICAS = typer.Option("--replicas", help="With --ray: copies of the style, each batching its own streams.")
 
 
 def serve(
@@ -52,6 +60,8 @@ def serve(
     max_per_address: Annotated[int | None, MAX_PER_ADDRESS] = ServeConfig.max_per_address,
     intensity: Annotated[float, INTENSITY] = ServeConfig.intensity,
     trust_proxy: Annotated[bool, TRUST_PROXY] = ServeConfig.trust_proxy,
+    ray: Annotated[str | None, RAY] = None,
+    replicas: Annotated[int, REPLICAS] = 2,
 ) -> None:
     """Serve live streams over WebSocket: audio + face + head in, pose out, one stream per connection.
 
@@ -65,6 +75,24 @@ def serve(
     from facecapges.runtime.outputs.server_thread import listening_socket
 
     check_port(port)
+    if ray is not None:
+        from facecapges.errors import UserError
+        from facecapges.serving.ray_app import DEFAULT_PORT, serve_on_ray
+
+        if replicas < 1:
+            raise UserError("--replicas must be at least 1")
+        serve_on_ray(
+            ray,
+            checkpoint,
+            style,
+            host=host,
+            port=DEFAULT_PORT if port == ServeConfig.port else port,
+            replicas=replicas,
+            max_streams=max_streams,
+            tick_ms=tick_ms,
+            say=typer.echo,
+        )
+        return
     sock = listening_socket(host, port)  # before anything heavy: a client started now waits, not refused
     try:
         from facecapges.serving.server import serve_streams

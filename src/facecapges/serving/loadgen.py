@@ -25,6 +25,7 @@ from facecapges import timing
 from facecapges.runtime.outputs import protocol
 
 _FRAME = re.compile(r'"frame":(\d+)')
+_FRAME_FIELD = re.compile(r'"frame":\d+,')
 
 
 def input_messages(
@@ -185,3 +186,114 @@ def summarize(results: list[ClientResult], period_ms: float) -> dict:
         )
     out["ok"] = bool(lat.size and sent == received and errors == 0 and closed == 0 and out["p99_ms"] <= period_ms)
     return out
+
+
+@dataclass
+class ResumeResult:
+    """A client that reconnects and resumes (:func:`run_resuming_client`)."""
+
+    sent: dict[int, float] = field(default_factory=dict)  # frame → send time (perf_counter)
+    got: dict[int, tuple[float, list]] = field(default_factory=dict)  # frame → (arrival, pose 47 × 4 flat)
+    drops: list[float] = field(default_factory=list)  # when a connection dropped
+    back: list[float] = field(default_factory=list)  # the first pose after each drop
+    hellos: list[float] = field(default_factory=list)  # each connection's hello
+    errors: list[str] = field(default_factory=list)
+    last_pose: list | None = None
+
+
+STALL_S = 0.8  # no pose for this long while frames are due: the connection is taken as dead
+
+
+async def run_resuming_client(
+    url: str,
+    messages: list[str],
+    seconds: float,
+    fps: float = timing.MODEL_FPS,
+    phase: float = 0.0,
+    t0=None,
+    stall_s: float = STALL_S,
+    connect_after: float = 0.0,
+) -> ResumeResult:
+    """A live client that survives a dropped connection, as the sample client does: it reconnects
+    (every 50 ms) and sends ``resume`` with the last pose it got, then goes on with the frame its
+    clock is at (the frames of the outage are lost). Frame k is due at ``t0 + phase + k / fps``.
+    A connection that returns no pose for ``stall_s`` seconds while frames are sent counts as
+    dropped (a proxy may keep a client's socket open after the node behind it died). It first
+    connects ``connect_after`` seconds after ``t0`` (clients arriving over time, as users do)."""
+    import orjson
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed, InvalidHandshake
+
+    res = ResumeResult()
+    n = int(seconds * fps)
+    start = (t0 if t0 is not None else time.perf_counter()) + phase
+    await asyncio.sleep(max(0.0, start + connect_after - time.perf_counter()))
+    k = int(connect_after * fps)
+    while k < n:
+        try:
+            ws = await connect(
+                url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None, open_timeout=5
+            )
+        except (TimeoutError, OSError, InvalidHandshake):
+            await asyncio.sleep(0.05)
+            k = max(k, int((time.perf_counter() - start) * fps))
+            continue
+        try:
+            hello = await ws.recv(decode=True)
+            while '"status"' in hello[:40]:
+                hello = await ws.recv(decode=True)
+            if '"hello"' not in hello:
+                res.errors.append(f"no hello: {hello[:80]}")
+                await ws.close()
+                await asyncio.sleep(0.05)
+                continue
+            res.hellos.append(time.perf_counter())
+            if res.last_pose is not None:
+                await ws.send(orjson.dumps({"type": "resume", "pose": res.last_pose}).decode())
+            dropped = bool(res.drops)
+            last_rx = time.perf_counter()
+
+            async def reader(ws=ws):
+                nonlocal dropped, last_rx
+                try:
+                    async for msg in ws:
+                        now = time.perf_counter()
+                        if msg.startswith('{"type":"pose"'):
+                            last_rx = now  # errors ("busy") do not count: a stream is alive while poses come
+                            m = orjson.loads(msg)
+                            res.got[m["frame"]] = (now, m["pose"])
+                            res.last_pose = m["pose"]
+                            if dropped:
+                                res.back.append(now)
+                                dropped = False
+                        elif '"resumed"' not in msg[:30]:
+                            res.errors.append(msg[:120])
+                except ConnectionClosed:  # the sender sees the task done and reconnects
+                    pass
+
+            rtask = asyncio.ensure_future(reader())
+            while k < n and not rtask.done():
+                k = max(k, int((time.perf_counter() - start) * fps))  # frames missed while away are skipped
+                delay = start + k / fps - time.perf_counter()
+                if delay > 0:
+                    await asyncio.sleep(delay)
+                if time.perf_counter() - last_rx > stall_s:  # frames go out, nothing comes back
+                    rtask.cancel()
+                    await ws.close()
+                    raise ConnectionClosed(None, None)
+                res.sent[k] = time.perf_counter()
+                await ws.send(_FRAME_FIELD.sub(f'"frame":{k},', messages[k % len(messages)], count=1))
+                k += 1
+            if k >= n:
+                try:
+                    await asyncio.wait_for(asyncio.shield(rtask), timeout=2.0)
+                except TimeoutError:
+                    pass
+                rtask.cancel()
+                await ws.close()
+                break
+            await rtask  # it ended: the connection dropped
+        except ConnectionClosed:
+            pass
+        res.drops.append(time.perf_counter())
+    return res

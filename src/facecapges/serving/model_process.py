@@ -83,12 +83,16 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) 
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
 
 
-def _sync(gen, close: list[int], n_open: int, intensity: list[tuple[int, float]]) -> list[int]:
-    """Close slots, open ``n_open`` new ones (their ids are returned), then set intensities;
-    ``intensity`` may name a slot opened here by ``-1 - k`` (the k-th new one)."""
+def _sync(
+    gen, close: list[int], n_open: int, intensity: list[tuple[int, float]], initial: list | None = None
+) -> list[int]:
+    """Close slots, open ``n_open`` new ones (their ids are returned; the k-th starting at
+    ``initial[k]``, a rot6d pose, when that is not None), then set intensities; ``intensity`` may
+    name a slot opened here by ``-1 - k`` (the k-th new one)."""
     for slot in close:
         gen.close(slot)
-    new = [gen.open() for _ in range(n_open)]
+    starts = initial or [None] * n_open
+    new = [gen.open(starts[k]) if starts[k] is not None else gen.open() for k in range(n_open)]
     for slot, value in intensity:
         gen.set_intensity(new[-1 - slot] if slot < 0 else slot, value)
     return new
@@ -158,11 +162,21 @@ class ModelProcess:
     def open_slots(self) -> frozenset[int]:
         return frozenset(self._open)
 
-    def sync(self, close: Sequence[int], n_open: int, intensity: Sequence[tuple[int, float]] = ()) -> list[int]:
+    def sync(
+        self,
+        close: Sequence[int],
+        n_open: int,
+        intensity: Sequence[tuple[int, float]] = (),
+        initial: Sequence[np.ndarray | None] | None = None,
+    ) -> list[int]:
         """One round trip for the slot changes between two ticks: close ``close``, open ``n_open``
-        streams (their slots are returned, in order), then set each ``(slot, value)`` intensity —
+        streams (their slots are returned, in order; the k-th starting at ``initial[k]``, a rot6d
+        pose (47, 6), when given: a resumed stream), then set each ``(slot, value)`` intensity —
         a slot ``-1 - k`` is the k-th stream opened by this call."""
-        new = self._call("sync", [int(s) for s in close], int(n_open), [(int(s), float(v)) for s, v in intensity])
+        starts = list(initial) if initial is not None and any(p is not None for p in initial) else None
+        new = self._call(
+            "sync", [int(s) for s in close], int(n_open), [(int(s), float(v)) for s, v in intensity], starts
+        )
         self._open.difference_update(close)
         self._open.update(new)
         return new

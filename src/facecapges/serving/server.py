@@ -151,6 +151,7 @@ class _Stream:
     probation: bool = False  # connected while full: no slot until its first input takes a slow one's
     since: float = 0.0  # when it got its slot
     times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=256))  # its inputs' arrivals
+    initial: np.ndarray | None = None  # a resumed stream's first pose (rot6d (47, 6)): protocol ``resume``
 
 
 _error = error_message
@@ -379,6 +380,14 @@ class StreamServer(ServerThread):
                     st.intensity = msg["value"]
                     await ws.send(protocol.encode_intensity(st.intensity))
                     continue
+                if msg["type"] == "resume":  # before the first input: the slot opens at that pose
+                    if st.slot is not None or st.frames or st.pending:
+                        await ws.send(_error("resume must come before the first input"))
+                    else:
+                        st.initial = msg["pose"]
+                        self.stats["resumed"] += 1
+                        await ws.send(protocol.RESUMED)
+                    continue
                 if st.probation:
                     refusal = self._admit(st, now)
                     if refusal is not None:
@@ -473,7 +482,7 @@ class StreamServer(ServerThread):
         if not (close or new or dial):
             return
         dials = [(ref[id(st)] if st.slot is None else st.slot, st.intensity) for st in dial]
-        slots = gen.sync(close, len(new), dials)
+        slots = gen.sync(close, len(new), dials, [st.initial for st in new])
         for st, slot in zip(new, slots):
             st.slot = slot
         for st in dial:

@@ -44,6 +44,13 @@ Client → server
     {"type": "input", "frame": k, "audio": "<base64 float32 LE, ≤ samples_per_frame>",
      "face": [52 floats], "head": [6 floats]}
 
+``resume`` — ``{"type": "resume", "pose": [47 × (w, x, y, z)]}``: ``serve`` only, sent after ``hello``
+and before the first ``input`` by a client that lost its connection (a server or cluster node died)
+and reconnected: ``pose`` is the last ``pose`` it received (the same flat layout). The new stream
+starts from that pose and blends into its own motion (the engines' inertialized start), so the
+avatar does not jump at the hand-over. Without it a stream starts from the style's rest pose.
+The server answers ``{"type": "resumed"}``. docs/serve-cluster.md.
+
 ``ping`` — ``{"type": "ping"}``; the server answers ``{"type": "pong", "sent_ms": ..}``.
 
 ``intensity`` — ``{"type": "intensity", "value": 0.8}``: the gesture intensity dial, 0 (rest / idle
@@ -209,9 +216,24 @@ def _intensity(value) -> float:
         raise ProtocolError(str(exc)) from None
 
 
+RESUMED = '{"type":"resumed"}'  # the server's answer to a ``resume``
+
+
+def _resume_pose(obj) -> np.ndarray:
+    """A ``resume`` message's ``pose`` (47 × (w, x, y, z), flat) as rot6d (47, 6)."""
+    from facecapges import rotations as rot
+
+    n = len(_upper_body())
+    q = _floats(obj, 4 * n, "pose").astype(np.float64).reshape(n, 4)
+    norm = np.linalg.norm(q, axis=1, keepdims=True)
+    if not np.all(norm > 1e-6):
+        raise ProtocolError("'pose' of a resume message holds a zero quaternion")
+    return np.asarray(rot.matrix_to_rot6d(rot.quaternion_to_matrix(q / norm)), np.float32)
+
+
 def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> dict:
-    """Parse a client message: ``{"type": "ping"}``, ``{"type": "intensity", "value": v}`` or
-    ``{"type": "input", "input": InputFrame}``."""
+    """Parse a client message: ``{"type": "ping"}``, ``{"type": "intensity", "value": v}``,
+    ``{"type": "resume", "pose": rot6d (47, 6)}`` or ``{"type": "input", "input": InputFrame}``."""
     if isinstance(text, (bytes, bytearray)):
         raise ProtocolError("binary messages are not part of the protocol (send JSON text)")
     if len(text.encode("utf-8", "replace")) > MAX_MESSAGE_BYTES:
@@ -229,8 +251,10 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
         return {"type": "ping"}
     if kind == "intensity":
         return {"type": "intensity", "value": _intensity(msg.get("value"))}
+    if kind == "resume":
+        return {"type": "resume", "pose": _resume_pose(msg.get("pose"))}
     if kind != "input":
-        raise ProtocolError(f"unknown message type {kind!r} (expected 'input', 'intensity' or 'ping')")
+        raise ProtocolError(f"unknown message type {kind!r} (expected 'input', 'intensity', 'resume' or 'ping')")
     k = msg.get("frame")
     if not isinstance(k, int) or isinstance(k, bool) or k < 0:
         raise ProtocolError("'frame' must be a non-negative integer")

@@ -1,0 +1,315 @@
+"""Cluster benchmark (``facecapges bench --only cluster``): ``serve`` on Ray Serve, one node killed.
+
+A local Ray cluster of two nodes on this machine (``ray.cluster_utils.Cluster``: a head and one
+worker, each its own raylet and processes, 1 CPU each, all on 127.0.0.1) runs the application of
+:mod:`facecapges.serving.ray_app` with two replicas, one a node. ``streams`` simulated live
+clients (:func:`facecapges.serving.loadgen.run_resuming_client`: real speech frames at 15 fps,
+reconnect + ``resume`` on a drop) stream through Ray's proxy; after ``kill_at`` seconds the worker
+node is killed (its raylet and every process on it, no graceful stop). Reported:
+
+- ``moved``: the clients whose stream was on the dead node; ``failover_s`` (max / median): from
+  their connection dropping to the first pose of their resumed stream; ``all_back`` if every
+  client got poses again and ``within_2s`` if each did within 2 s;
+- ``good_lost``: frames lost by the clients that were not moved (sent, never returned);
+  ``good_p99_ms``: their round trip at p99, before and after the kill;
+- ``handover``: the whole-body joint acceleration (:func:`facecapges.evaluation.realism.joint_acceleration`)
+  of each moved client's pose sequence as shown (last poses before the drop, first after) at the
+  join, against the 99.9th percentile of the real motion (the BEAT take ``2_scott_0_1_1.bvh``,
+  :func:`~facecapges.evaluation.realism.transition_threshold`): ``pops`` counts hand-overs above it;
+- ``single``: the same number of clients against one ``facecapges serve`` process in the same run
+  (no kill), and ``ray_overhead_p50`` — the ratio of the median round trips (Ray / one process).
+  ``streams_per_node`` = streams / 2 if the Ray trial's p99 before the kill was ≤ 50 ms (a lower
+  bound from one trial, not a search), else 0.
+
+The clients, the cluster and ``serve`` share this machine's cores; on a loaded machine the
+figures are noisy (the load average is reported). ``--quick`` runs 10 streams for 6 s.
+"""
+
+import asyncio
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from facecapges.timing import MODEL_FPS
+
+SPEECH = "data/beat/2_scott_0_2_2.wav"
+REAL_TAKE = ("data/beat/2_scott_0_1_1.bvh", "data/beat/2_scott_0_1_1.wav")
+P99_TARGET_MS = 50.0
+LOCAL_ROUTING = "RAY_SERVE_PROXY_PREFER_LOCAL_NODE_ROUTING"
+HANDOVER_FRAMES = 3
+# clients arrive this far apart: Ray's router balances by the open streams it knows of, and 20
+# connections in the same instant all see the same (empty) replicas
+ARRIVAL_S = 0.05  # poses either side of a hand-over looked at
+
+
+def _free_port() -> int:
+    from facecapges.benchmarks.serving import free_port
+
+    return free_port()
+
+
+def pop_threshold(shared: Path) -> float:
+    """The real motion's 99.9th-percentile whole-body acceleration (rad/s²)."""
+    from facecapges.evaluation.realism import transition_threshold
+    from facecapges.matching.takes import load_take
+
+    take = load_take(shared / REAL_TAKE[0], shared / REAL_TAKE[1])
+    return transition_threshold(take.pose, MODEL_FPS)
+
+
+def _rot6d(flat_quats: list) -> np.ndarray:
+    from facecapges import rotations as rot
+
+    q = np.asarray(flat_quats, np.float64).reshape(-1, 4)
+    return np.asarray(rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)), np.float32)
+
+
+def handover_accel(res, drop_t: float) -> float:
+    """The largest whole-body acceleration at a hand-over: the poses shown before the drop at
+    ``drop_t`` and after it, laid end to end (the client holds its last pose meanwhile)."""
+    from facecapges.evaluation.realism import joint_acceleration
+
+    frames = sorted(res.got)
+    before = [k for k in frames if res.got[k][0] <= drop_t][-HANDOVER_FRAMES:]
+    after = [k for k in frames if res.got[k][0] > drop_t][:HANDOVER_FRAMES]
+    if len(before) < 2 or len(after) < 2:
+        return float("nan")
+    seq = np.stack([_rot6d(res.got[k][1]) for k in before + after])
+    acc = joint_acceleration(seq, MODEL_FPS)
+    j = len(before)  # the acceleration at the frames next to the join
+    return float(acc[j - 1 : j + 1].max())
+
+
+def _messages(shared: Path, n_frames: int) -> list[str]:
+    from facecapges.io.audio import load_audio
+    from facecapges.serving.loadgen import input_messages
+
+    return input_messages(load_audio(shared / SPEECH), n_frames)
+
+
+async def _clients(url: str, n: int, seconds: float, messages: list[str], seed: int = 0):
+    from facecapges.serving.loadgen import run_resuming_client
+
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter() + 0.2
+    return await asyncio.gather(
+        *[
+            run_resuming_client(
+                url, messages, seconds, phase=float(rng.uniform(0, 1 / MODEL_FPS)), t0=t0, connect_after=i * ARRIVAL_S
+            )
+            for i in range(n)
+        ]
+    )
+
+
+def _rtts(results, lo: float = -1e18, hi: float = 1e18) -> np.ndarray:
+    return (
+        np.asarray(
+            [r.got[k][0] - t for r in results for k, t in r.sent.items() if k in r.got and lo <= t < hi], np.float64
+        )
+        * 1e3
+    )
+
+
+def _pct(a: np.ndarray, q: float) -> float | None:
+    return round(float(np.percentile(a, q)), 2) if a.size else None
+
+
+class LocalCluster:
+    """A two-node Ray cluster on this machine with the application running (module docs); a
+    context manager that stops everything it started."""
+
+    def __init__(self, checkpoint: str | None = None, nodes: int = 2, say=print):
+        self.checkpoint, self.nodes, self.say = checkpoint, nodes, say
+        self.cluster = None
+        self._env: str | None = None
+        self._stdout: int | None = None
+        self.port = _free_port()
+
+    def __enter__(self):
+        # Ray's processes and the driver's own threads print to stdout (a dead raylet's log tail,
+        # worker logs): while the cluster runs, file descriptor 1 is stderr (stdout is the bench's JSON)
+        import sys
+
+        sys.stdout.flush()
+        self._stdout = os.dup(1)
+        os.dup2(2, 1)
+        try:
+            return self._start()
+        except BaseException:  # nothing left running when the start fails
+            self.__exit__(None, None, None)
+            raise
+
+    def _start(self):
+        import ray
+        from ray import serve
+        from ray.cluster_utils import Cluster
+
+        from facecapges.serving.ray_app import build_app
+
+        t = time.monotonic()
+        # one proxy (the head's) for every stream: it must not prefer the replicas of its own node
+        # (Ray's default, right when every node has a proxy behind a load balancer)
+        self._env = os.environ.get(LOCAL_ROUTING)
+        os.environ[LOCAL_ROUTING] = "0"
+        # a dead node is noticed within ~1 s (Ray's default: up to 15 s): RAY_health_check_* on a real cluster
+        fast = {"health_check_period_ms": 500, "health_check_failure_threshold": 2}
+        self.cluster = Cluster(
+            initialize_head=True,
+            head_node_args={"num_cpus": 1, "include_dashboard": False, "_system_config": fast},
+        )
+        self.workers = [self.cluster.add_node(num_cpus=1) for _ in range(self.nodes - 1)]
+        ray.init(address=self.cluster.address, log_to_driver=False)  # stdout is the bench's JSON
+        serve.start(http_options={"host": "127.0.0.1", "port": self.port}, proxy_location="HeadOnly")
+        serve.run(
+            build_app(self.checkpoint, replicas=self.nodes, max_per_node=1, num_cpus=1),
+            name="facecapges",
+            route_prefix="/",
+        )
+        self.start_s = time.monotonic() - t
+        self.say(f"cluster: {self.nodes} nodes, {self.nodes} replicas up in {self.start_s:.0f} s")
+        return self
+
+    @property
+    def url(self) -> str:
+        return f"ws://127.0.0.1:{self.port}/"
+
+    def kill_worker(self) -> None:
+        assert self.cluster is not None
+        self.cluster.remove_node(self.workers[0], allow_graceful=False)
+
+    def __exit__(self, *exc):
+        import ray
+        from ray import serve
+
+        try:
+            serve.shutdown()
+        except Exception:  # noqa: BLE001  the cluster may be half gone
+            pass
+        ray.shutdown()
+        if self.cluster is not None:
+            self.cluster.shutdown()
+        if self._env is None:
+            os.environ.pop(LOCAL_ROUTING, None)
+        else:
+            os.environ[LOCAL_ROUTING] = self._env
+        if self._stdout is not None:
+            import sys
+
+            sys.stdout.flush()
+            os.dup2(self._stdout, 1)
+            os.close(self._stdout)
+            self._stdout = None
+
+
+def failover(
+    shared: Path, streams: int = 20, seconds: float = 10.0, kill_at: float = 4.0, checkpoint=None, say=print
+) -> dict:
+    """Run ``streams`` resuming clients on a two-node cluster and kill the worker node after
+    ``kill_at`` s (module docs); the figures as a dict."""
+    messages = _messages(shared, int(seconds * MODEL_FPS) + 1)
+    threshold = pop_threshold(shared)
+    with LocalCluster(checkpoint, say=say) as lc:
+
+        async def main():
+            task = asyncio.ensure_future(_clients(lc.url, streams, seconds, messages))
+            await asyncio.sleep(kill_at + 0.2)
+            t_kill = time.perf_counter()
+            await asyncio.get_running_loop().run_in_executor(None, lc.kill_worker)
+            say(f"cluster: worker node killed at {kill_at:g} s")
+            return t_kill, await task
+
+        t_kill, results = asyncio.run(main())
+        start_s = lc.start_s
+    moved = [r for r in results if r.drops and r.drops[0] >= t_kill]
+    good = [r for r in results if not r.drops]
+    # the freeze a user sees: from the last pose before the kill to the first of the resumed stream
+    back = [r.back[0] - max([t for t, _ in r.got.values() if t <= r.drops[0]], default=t_kill) for r in moved if r.back]
+    acc = [handover_accel(r, r.drops[0]) for r in moved]
+    acc_ok = [a for a in acc if np.isfinite(a)]
+    good_lost = sum(len([k for k in r.sent if k not in r.got]) for r in good)
+    before, after = _rtts(good, hi=t_kill), _rtts(good, lo=t_kill)
+    out = {
+        "streams": streams,
+        "nodes": 2,
+        "cluster_start_s": round(start_s, 1),
+        "moved": len(moved),
+        "dropped_not_by_kill": sum(bool(r.drops) for r in results) - len(moved),
+        "all_back": len(back) == len(moved),
+        "failover_s_max": round(max(back), 3) if back else None,
+        "failover_s_median": round(float(np.median(back)), 3) if back else None,
+        "within_2s": bool(back) and len(back) == len(moved) and max(back) <= 2.0,
+        "detect_s_median": round(float(np.median([r.drops[0] - t_kill for r in moved])), 3) if moved else None,
+        "hello_s_median": round(float(np.median([r.hellos[1] - t_kill for r in moved if len(r.hellos) > 1])), 3)
+        if any(len(r.hellos) > 1 for r in moved)
+        else None,
+        "good_clients": len(good),
+        "good_sent": sum(len(r.sent) for r in good),
+        "good_lost": good_lost,  # busy drops included (a replica behind its streams)
+        "good_p50_ms_before": _pct(before, 50),
+        "good_p99_ms_before": _pct(before, 99),
+        "good_p99_ms_after": _pct(after, 99),
+        "rtt_ms_all_before": _pct(_rtts(results, hi=t_kill), 50),
+        "handover": {
+            "threshold_rad_s2": round(threshold, 1),
+            "accel_max": round(max(acc_ok), 1) if acc_ok else None,
+            "accel_median": round(float(np.median(acc_ok)), 1) if acc_ok else None,
+            "measured": len(acc_ok),
+            "pops": int(sum(a > threshold for a in acc_ok)),
+        },
+        "busy_drops": sum(sum('"busy' in e for e in r.errors) for r in results),
+        "errors": sum(sum('"busy' not in e for e in r.errors) for r in results),
+        "error_samples": sorted({e[:100] for r in results for e in r.errors if '"busy' not in e})[:5],
+    }
+    out["p50_all_before_ms"] = _pct(_rtts(results, hi=t_kill), 50)
+    out["p99_all_before_ms"] = _pct(_rtts(results, hi=t_kill), 99)
+    return out
+
+
+def single(shared: Path, streams: int, seconds: float, checkpoint=None) -> dict:
+    """The same clients against one ``facecapges serve`` process (no kill)."""
+    from facecapges.benchmarks.serving import start_server, stop_server
+
+    port = _free_port()
+    proc = start_server(port, checkpoint)
+    try:
+        messages = _messages(shared, int(seconds * MODEL_FPS) + 1)
+        results = asyncio.run(_clients(f"ws://127.0.0.1:{port}/", streams, seconds, messages))
+    finally:
+        stop_server(proc)
+    rtt = _rtts(results)
+    return {
+        "streams": streams,
+        "sent": sum(len(r.sent) for r in results),
+        "lost": sum(len([k for k in r.sent if k not in r.got]) for r in results),
+        "p50_ms": _pct(rtt, 50),
+        "p99_ms": _pct(rtt, 99),
+    }
+
+
+def run(quick: bool, shared: Path) -> dict:
+    import sys
+
+    def say(m: str) -> None:
+        print(m, file=sys.stderr, flush=True)
+
+    checkpoint = os.environ.get("FACECAPGES_BENCH_CHECKPOINT")
+    streams, seconds = (10, 6.0) if quick else (20, 10.0)
+    load0 = os.getloadavg()[0]
+    one = single(shared, streams, seconds, checkpoint)
+    say(f"cluster: one serve process, {streams} streams: p50 {one['p50_ms']} ms, p99 {one['p99_ms']} ms")
+    fo = failover(shared, streams, seconds, kill_at=seconds * 0.4, checkpoint=checkpoint, say=say)
+    ok_p99 = fo["p99_all_before_ms"] is not None and fo["p99_all_before_ms"] <= P99_TARGET_MS
+    return {
+        "single": one,
+        "failover": fo,
+        "streams_per_node": streams // 2 if ok_p99 else 0,
+        "ray_overhead_p50": round(fo["p50_all_before_ms"] / one["p50_ms"], 2)
+        if fo["p50_all_before_ms"] and one["p50_ms"]
+        else None,
+        "failover_s": fo["failover_s_max"],
+        "handover_pops": fo["handover"]["pops"],
+        "loadavg": [round(load0, 1), round(os.getloadavg()[0], 1)],
+    }
