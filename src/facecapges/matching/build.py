@@ -10,6 +10,7 @@ for any of it.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable
 from pathlib import Path
 

@@ -125,6 +125,12 @@ CONFIG_RANGES: dict[str, tuple[float, float]] = {
     "memory_s": (0.0, 3600.0),
     "memory_penalty": (0.0, 1e6),
     "near_frames": (0, 1000),
+    "min_play_frames": (0, 150),  # frames: at most 10 s before a search may leave a clip
+    "pause_halflife_s": (0.01, 10.0),
+    "accel_cap_percentile": (0.0, 100.0),  # 0: off
+    "settle_s": (0.0, 60.0),
+    "pause_gain": (0.0, 2.0),
+    "intensity_smooth_s": (0.0, 60.0),
     "onset_bonus": (0.0, 1e3),
     "onset_frames": (0, 150),
     "intensity_tau_s": (0.0, 60.0),
