@@ -59,6 +59,10 @@ CANNOT_RUN: dict[tuple[str, str], str] = {
     ("serve-protocol.md", "facecapges serve"):
         "a server left running; test_serve_client_example_streams_against_a_real_server runs it with the client",
     ("serve-protocol.md", "python docs/examples/serve_client.py"): "the client of the server above (same test)",
+    ("serve-cluster.md", "pip install -e"): "an install step (make setup installs the ray extra)",
+    ("serve-cluster.md", "ray start --head"): "a Ray cluster's head left running; tests/test_serve_ray.py starts one",
+    ("serve-cluster.md", "ray start --address"): "a worker machine joining that head (same test)",
+    ("serve-cluster.md", "facecapges serve --ray"): "a server on the cluster left running (same test)",
     ("train-your-own-style.md", "facecapges prepare /data/"): FULL_BEAT,
     ("train-your-own-style.md", "facecapges train --cache cache/beat"): FULL_BEAT,
     ("train-your-own-style.md", "facecapges fgd-train --cache cache/beat"): FULL_BEAT,
