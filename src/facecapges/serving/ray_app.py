@@ -214,13 +214,7 @@ def build_app(
                 t1 = time.monotonic()
 
                 def latency(i: int, t0=t0, t1=t1, items=items) -> dict:
-                    now = time.monotonic()
-                    return {
-                        "queue": (t0 - items[i][1]) * 1e3,
-                        "model": (t1 - t0) * 1e3,
-                        "output": (now - t1) * 1e3,
-                        "total": (now - items[i][1]) * 1e3,
-                    }
+                    return protocol.tick_latency(items[i][1], t0, t1)
 
                 index = [i.index for i in inputs]
                 texts = protocol.encode_poses(

@@ -179,6 +179,18 @@ def encode_poses(
         ).decode()
 
 
+def tick_latency(queued: float, t0: float, t1: float) -> dict:
+    """A pose message's ``latency_ms`` for a batched tick (``serve``, ``serve --ray``): its input waited from
+    ``queued`` to the tick's model call at ``t0``, the model ran until ``t1``, the output until now (monotonic s)."""
+    now = time.monotonic()
+    return {
+        "queue": (t0 - queued) * 1e3,
+        "model": (t1 - t0) * 1e3,
+        "output": (now - t1) * 1e3,
+        "total": (now - queued) * 1e3,
+    }
+
+
 def encode_input(frame: int, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> str:
     a = np.ascontiguousarray(np.asarray(audio, np.float32).reshape(-1)).astype("<f4")
     return json.dumps(
