@@ -50,6 +50,10 @@ CANNOT_RUN: dict[tuple[str, str], str] = {
     ("README.md", "make demo"): "the whole install and demo; tests/test_demo.py runs the demo",
     ("README.md", "make test"): "the test suite itself",
     ("README.md", "facecapges live --camera 0"): "a webcam and a microphone",
+    ("README.md", "facecapges styles build me --video me.mp4"):
+        "the reader's own video of themselves talking (tests/test_capture_body.py captures a rendered one)",
+    ("README.md", "facecapges capture-body me.mp4"): "the reader's own video (same test)",
+    ("capture-body.md", "facecapges capture-body me_talking.mp4"): "the reader's own video (same test)",
     ("ablation_beat2_scott.md", "facecapges prepare <folder"): "the record of the ablation's own runs (hours of training)",
     ("ablation_beat2_scott.md", "facecapges ablate"): "an ablation: trains every variant (hours)",
     ("ablation_beat2_scott.md", "facecapges prepare ../shared/data/beat --out build/default-style/cache"):

@@ -79,12 +79,16 @@ def test_still_motion_has_no_peaks():
 def test_speech_onsets_come_from_the_speech_tracker():
     from facecapges.matching.speech import speech_track
 
+    from conftest import shared_file
+    from facecapges.io.audio import load_audio
+
     sr, n = 16000, 60
-    rng = np.random.default_rng(0)
+    speech = load_audio(shared_file("data/beat/2_scott_0_4_4.wav"))
+    voiced = speech[5 * sr : 5 * sr + sr // 2]  # half a second of his speech (white noise is not speech to the VAD)
     audio = np.zeros(sr * 4, np.float32)
-    for s in (0.5, 1.7, 2.9):  # three bursts of noise after silence
+    for s in (0.5, 1.7, 2.9):  # three bursts of speech after silence
         i = int(s * sr)
-        audio[i : i + sr // 3] = rng.normal(0, 0.2, sr // 3)
+        audio[i : i + len(voiced)] = voiced
     on = et.speech_onsets(audio, sr, FPS, n)
     assert np.array_equal(on, np.flatnonzero(speech_track(audio, n).onset))
     assert len(on) >= 3

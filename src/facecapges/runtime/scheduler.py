@@ -48,6 +48,8 @@ Fallbacks (each counted in :attr:`Scheduler.events`)
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 from array import array
 from collections.abc import Sequence
@@ -410,8 +412,25 @@ class Scheduler:
         if self.t0 is None:
             self.start()
         why = "end of input"
+        interrupted = False
+
+        def on_sigint(signum, frame) -> None:  # Ctrl-C ends the loop between frames: every sink has the same frames
+            nonlocal interrupted
+            if interrupted:
+                raise KeyboardInterrupt  # a second Ctrl-C: at once
+            interrupted = True
+
+        previous = None
+        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) not in (
+            signal.SIG_IGN,
+            None,
+        ):
+            previous = signal.signal(signal.SIGINT, on_sigint)
         try:
             while True:
+                if interrupted:
+                    why = "interrupted"
+                    break
                 if self._stop:
                     why = "stopped"
                     break
@@ -425,6 +444,9 @@ class Scheduler:
                     on_frame(out)
         except KeyboardInterrupt:
             why = "interrupted"
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
         self.stopped_by = why
         return why
 
