@@ -265,8 +265,14 @@ def vmcp_receive(send, until_times: int, timeout: float = 10.0) -> list:
             osc.run()
             time.sleep(0.001)
         th.join(timeout)
-        for _ in range(20):
+        # drain what the sender sent before it closed: until nothing new has come for 0.3 s (a fixed number of
+        # osc.run() calls could leave the last frames' datagrams unread on a busy machine)
+        count, quiet_since = len(events), time.time()
+        while time.time() - quiet_since < 0.3 and time.time() < deadline + timeout:
             osc.run()
+            time.sleep(0.001)
+            if len(events) != count:
+                count, quiet_since = len(events), time.time()
     return events
 
 
