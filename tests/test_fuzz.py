@@ -738,3 +738,25 @@ def test_fuzz_viewer_http_paths(viewer_port, data):
     with socket.create_connection(("127.0.0.1", viewer_port), timeout=5) as s:  # and it still serves
         s.sendall(VIEWER_GET)
         assert s.recv(20).startswith(b"HTTP/1.1 200")
+
+
+# ---------------------------------------------------------------------------- capture-body's video input
+def _video_head() -> bytes:
+    from conftest import shared_file
+
+    return shared_file("data/face/Megamind.avi").read_bytes()[:120_000]  # the header and the first frames
+
+
+@settings(FUZZ, max_examples=40)
+@given(st.one_of(mutate(_video_head()), st.binary(max_size=4096)))
+def test_fuzz_capture_body_video(data):
+    """A damaged or foreign file given to ``capture-body`` is a UserError (one error line) or a few frames'
+    landmarks, never another exception (issue #34: fuzz the parsers the new work adds)."""
+    from facecapges.capture.body import collect_landmarks
+
+    CASES["capture_body_video"] += 1
+    p = _file("v.avi", data)
+    try:
+        collect_landmarks(p, 15.0, max_frames=2)
+    except UserError:
+        return
