@@ -37,14 +37,13 @@ class BodyLandmarker:
         from mediapipe.tasks.python.vision import pose_landmarker as pl
         from mediapipe.tasks.python.vision.core.vision_task_running_mode import VisionTaskRunningMode
 
-        from facecapges.capture.landmarks import NativeStderrToFile
+        from facecapges.capture.landmarks import create_task
 
         pose_path, hand_path = model_path(POSE_TASK), model_path(HAND_TASK)
         mode = VisionTaskRunningMode.VIDEO
-        log = NativeStderrToFile()
-        try:
-            with log:
-                self._pose = pl.PoseLandmarker.create_from_options(
+        self._pose, self._hand = create_task(
+            lambda: (
+                pl.PoseLandmarker.create_from_options(
                     pl.PoseLandmarkerOptions(
                         base_options=BaseOptions(model_asset_path=str(pose_path)),
                         running_mode=mode,
@@ -53,8 +52,8 @@ class BodyLandmarker:
                         min_pose_presence_confidence=min_confidence,
                         min_tracking_confidence=min_confidence,
                     )
-                )
-                self._hand = hl.HandLandmarker.create_from_options(
+                ),
+                hl.HandLandmarker.create_from_options(
                     hl.HandLandmarkerOptions(
                         base_options=BaseOptions(model_asset_path=str(hand_path)),
                         running_mode=mode,
@@ -63,12 +62,10 @@ class BodyLandmarker:
                         min_hand_presence_confidence=min_confidence,
                         min_tracking_confidence=min_confidence,
                     )
-                )
-        except (ValueError, RuntimeError) as exc:
-            raise UserError(f"MediaPipe cannot load the body-capture models: {exc}") from None
-        finally:
-            if log.errors:
-                sys.stderr.write(log.errors)
+                ),
+            ),
+            "MediaPipe cannot load the body-capture models",
+        )
         self._last_ts = -1
         self._first = True
 

@@ -80,6 +80,20 @@ class NativeStderrToFile:
         self.errors = "".join(ln + "\n" for ln in text.splitlines() if ln[:1] in ("E", "F"))
 
 
+def create_task(create, failure: str):
+    """``create()`` of a MediaPipe task with its C++ start-up lines kept off the terminal (written to stderr
+    only when there were errors among them); a model MediaPipe refuses is a UserError ``failure: why``."""
+    log = NativeStderrToFile()
+    try:
+        with log:
+            return create()
+    except (ValueError, RuntimeError) as exc:
+        raise UserError(f"{failure}: {exc}") from None
+    finally:
+        if log.errors:
+            sys.stderr.write(log.errors)
+
+
 class _LazyDrawing:
     """A ``sys.meta_path`` finder that loads MediaPipe's drawing modules lazily (:func:`_mediapipe`)."""
 
@@ -153,15 +167,10 @@ class LandmarkDetector:
             output_face_blendshapes=True,
             output_facial_transformation_matrixes=True,
         )
-        log = NativeStderrToFile()  # MediaPipe's C++ start-up lines would clutter the CLI
-        try:
-            with log:
-                self._task = fl.FaceLandmarker.create_from_options(opts)
-        except (ValueError, RuntimeError) as exc:
-            raise UserError(f"{model_path}: MediaPipe cannot load the face landmarker model: {exc}") from None
-        finally:
-            if log.errors:
-                sys.stderr.write(log.errors)
+        self._task = create_task(
+            lambda: fl.FaceLandmarker.create_from_options(opts),
+            f"{model_path}: MediaPipe cannot load the face landmarker model",
+        )
         self._last_ts = -1
         self.last_ms = 0.0
         self._bs_map: np.ndarray | None = None
