@@ -39,7 +39,7 @@ $(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh
 	PYTHON=$(PY) bash scripts/setup-capture.sh
 	PYTHON=$(PY) bash scripts/setup-avatar.sh
 	bash scripts/setup-runtime.sh
-	$(PY) -c 'from facecapges.model import native; native.warm()'  # compile the streaming kernel's native loops into Numba's on-disk cache
+	$(PY) -c 'from facecapges.network import native; native.warm()'  # compile the streaming kernel's native loops into Numba's on-disk cache
 	touch $(STAMP)
 
 clean:

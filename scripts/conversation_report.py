@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     from facecapges.matching.database import mirror_twins
     from facecapges.matching.speech import speech_track
     from facecapges.matching.takes import load_take
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     fps, spf = timing.MODEL_FPS, timing.samples_per_frame()
     ck = load_checkpoint(args.checkpoint)

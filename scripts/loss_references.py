@@ -24,7 +24,7 @@ def main() -> None:
     ap.add_argument("--holdout-fraction", type=float)
     ap.add_argument("--until-fraction", type=float, default=1.0, help="cut every clip to this fraction first")
     args = ap.parse_args()
-    from facecapges.model.config import ModelConfig, TrainConfig
+    from facecapges.network.config import ModelConfig, TrainConfig
     from facecapges.training.masking import masked_reconstruction_losses
     from facecapges.training.segments import clip_head, load_clips, segment_sets
 

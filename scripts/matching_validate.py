@@ -71,7 +71,7 @@ def run(
 def run_network(style: str, take, a: int, b: int, lead_in: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The network style's streaming poses of frames [a, b) (its camera-frame head as eval feeds it)."""
     from facecapges.capture.head_pose import skeleton_head_to_camera
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     ck = load_checkpoint(style=style)
     ref = ck.meta.get("head_reference_rot6d")

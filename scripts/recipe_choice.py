@@ -32,7 +32,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], help="section.key=value (YAML value)")
     args = ap.parse_args()
 
-    from facecapges.model.config import load_config_file
+    from facecapges.network.config import load_config_file
     from facecapges.training.segments import clip_head, load_clips
     from facecapges.training.train import build_trainer
 

@@ -111,8 +111,8 @@ def main() -> None:
     from facecapges.evaluation.run import engine_database, heldout_inputs
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
     from facecapges.evaluation.timing import timing_row
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses
+    from facecapges.styles import load_checkpoint
+    from facecapges.engine.generate import generate_poses
     from facecapges.rotations import identity_rot6d
     from facecapges.timing import AUDIO_SR
 

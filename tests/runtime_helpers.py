@@ -14,7 +14,7 @@ from functools import lru_cache
 
 @lru_cache(maxsize=1)
 def checkpoint():
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     return load_checkpoint()
 

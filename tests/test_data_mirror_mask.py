@@ -84,7 +84,7 @@ def test_masked_loss_ignores_missing_joints():
 
 
 def test_batches_carry_the_mask_and_mirrored_clips():
-    from facecapges.model.config import ModelConfig
+    from facecapges.network.config import ModelConfig
 
     T = 60
     rng = np.random.default_rng(0)

@@ -13,7 +13,7 @@ import pytest
 import soundfile as sf
 
 from facecapges.commands.demo import demo_speech
-from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
+from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
 from runtime_helpers import cli, cli_process
 from tolerances import assert_rotations_close
 

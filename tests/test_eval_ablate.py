@@ -9,9 +9,9 @@ import pytest
 import torch
 import yaml
 
-from facecapges.model.bidirectional import BidirectionalDecoder, load_bidirectional, save_bidirectional
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import FaceCapGes
+from facecapges.network.bidirectional import BidirectionalDecoder, load_bidirectional, save_bidirectional
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import FaceCapGes
 from runtime_helpers import cli
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
@@ -83,7 +83,7 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
     np.testing.assert_array_equal(m2.generate(audio, face, head, seed), out)
     assert meta["format"] == "facecapges-offline-1" and meta["model_config"]["lstm_hidden"] == 16
     from facecapges.errors import UserError
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     with pytest.raises(UserError):  # not a streaming checkpoint
         load_checkpoint(p)
@@ -121,7 +121,7 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
     dropped), so the shipped network style, fine-tuned from zeggs-speech, is not reused.
     """
     from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
-    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
 
     assert default_config_path().is_file()
     shipped = load_checkpoint(style=DEFAULT_NETWORK_STYLE).meta
@@ -167,7 +167,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     for v in ("full", "no_head", "offline", "camn"):
         info = doc["variants"][v]
         assert info["source"] == "trained" and info["epochs"] == 1 and (out / "runs" / v / "model.safetensors").is_file()
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     assert load_checkpoint(out / "runs" / "no_head" / "model.safetensors").model.cfg.head_dim == 0
     assert load_checkpoint(out / "runs" / "full" / "model.safetensors").model.cfg.head_dim == 12
@@ -198,7 +198,7 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
 def test_bench_counts_macs_of_the_streaming_step():
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
     from facecapges.benchmarks.model import speed_report
-    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
 
     ckpt = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
     cfg = ckpt.model.cfg

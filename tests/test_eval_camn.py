@@ -8,8 +8,8 @@ import torch
 
 from facecapges.errors import UserError
 from facecapges.evaluation.camn import CaMN, CaMNConfig, build_camn_trainer, camn_batch, load_camn, save_camn
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import set_input_statistics
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import set_input_statistics
 
 SMALL = CaMNConfig(hidden=32, layers=2, audio_f=16, facial_f=8, head_f=4)
 
@@ -106,8 +106,8 @@ def test_trained_by_the_one_trainer_and_round_trips(tmp_path, monkeypatch):
 
 
 def test_load_refuses_other_files(tmp_path):
-    from facecapges.model.checkpoint import save_checkpoint
-    from facecapges.model.network import FaceCapGes
+    from facecapges.network.style import save_checkpoint
+    from facecapges.network.network import FaceCapGes
 
     p = save_checkpoint(tmp_path / "fcg.safetensors", FaceCapGes(ModelConfig()), {})
     with pytest.raises(UserError, match="not a CaMN checkpoint"):

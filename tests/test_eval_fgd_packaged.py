@@ -27,7 +27,7 @@ def test_the_package_ships_a_beat_upper_body_autoencoder_with_its_card():
 
 
 def test_find_fgd_order(tmp_path):
-    from facecapges.model.checkpoint import resolve
+    from facecapges.styles import resolve
 
     mm = resolve(style="beat2-scott-mm")  # a matching style: no .fgd folder of its own
     assert not fgd_paths(mm)[1].exists()

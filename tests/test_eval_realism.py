@@ -119,9 +119,9 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     as the network's streaming generator built on that window by hand (the path it replaced)."""
     from facecapges import timing
     from facecapges.evaluation.run import engine_database, history_frames
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import FrameInputs, generate_poses
-    from facecapges.model.streaming import StreamingGenerator
+    from facecapges.styles import load_checkpoint
+    from facecapges.engine.generate import FrameInputs, generate_poses
+    from facecapges.network.streaming import StreamingGenerator
 
     pose, _ = take
     ckpt = load_checkpoint(style="beat2-scott-demo")

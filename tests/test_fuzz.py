@@ -227,7 +227,7 @@ config_docs = st.one_of(
 @FUZZ
 @given(config_docs)
 def test_fuzz_config_yaml(data):
-    from facecapges.model.config import load_config_file, model_config_from_dict, train_config_from_dict
+    from facecapges.network.config import load_config_file, model_config_from_dict, train_config_from_dict
 
     CASES["config_yaml"] += 1
     try:
@@ -472,7 +472,7 @@ def test_fuzz_styles_install_run_folder(entries):
     import os
     import shutil
 
-    from facecapges.model.checkpoint import install_style, styles_dir
+    from facecapges.styles import install_style, styles_dir
 
     CASES["styles_install"] += 1
     root = Path(tempfile.mkdtemp(dir=TMP))
@@ -548,7 +548,7 @@ def test_fuzz_wav_headers(data):
 def _ckpt_parts():
     from safetensors import safe_open
 
-    p = sorted(__import__("facecapges.model.checkpoint", fromlist=["x"]).styles_dir().glob("*.safetensors"))[0]
+    p = sorted(__import__("facecapges.styles", fromlist=["x"]).styles_dir().glob("*.safetensors"))[0]
     with safe_open(str(p), framework="pt") as f:
         return json.loads(f.metadata()["facecapges"]), {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
 
@@ -568,7 +568,7 @@ _CKPT_META, _CKPT_TENSORS = _ckpt_parts()
 def test_fuzz_checkpoint_metadata(meta):
     from safetensors.torch import save_file
 
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     CASES["checkpoint_meta"] += 1
     p = TMP / f"{threading.get_ident()}-c.safetensors"
@@ -588,7 +588,7 @@ def test_fuzz_checkpoint_metadata(meta):
 def _mm_parts():
     from safetensors import safe_open
 
-    from facecapges.model.checkpoint import styles_dir
+    from facecapges.styles import styles_dir
 
     with safe_open(str(styles_dir() / "beat2-scott-mm.safetensors"), framework="pt") as f:
         return json.loads(f.metadata()["facecapges"]), {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
@@ -633,7 +633,7 @@ def test_fuzz_matching_style(case):
     """A crafted matching style: refused by its check (UserError), or it loads and runs a few frames."""
     from safetensors.torch import save_file
 
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     meta, edit = case
     CASES["matching_style"] += 1

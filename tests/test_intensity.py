@@ -1,4 +1,4 @@
-"""The gesture intensity dial (facecapges.model.intensity) through the generators, the protocol and serve."""
+"""The gesture intensity dial (facecapges.engine.intensity) through the generators, the protocol and serve."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ import torch
 
 from facecapges import rotations as rot
 from facecapges.errors import UserError
-from facecapges.model.checkpoint import Checkpoint
-from facecapges.model.config import ModelConfig
-from facecapges.model.intensity import MAX_INTENSITY, check_intensity, rest_pose, scale_pose
-from facecapges.model.network import FaceCapGes
+from facecapges.network.style import Checkpoint
+from facecapges.network.config import ModelConfig
+from facecapges.engine.intensity import MAX_INTENSITY, check_intensity, rest_pose, scale_pose
+from facecapges.network.network import FaceCapGes
 from facecapges.runtime.outputs import protocol
 from tolerances import assert_rotations_close
 

@@ -5,11 +5,15 @@ The layers follow the data path a user's frame takes (README "Layout"):
 0. conventions — ``errors``, ``rotations``, ``skeleton``, ``timing``, ``arkit``, ``progress``
 1. ``io`` — file formats
 2. ``capture`` (camera → face), ``data`` (datasets, the cache)
-3. ``model`` — the network and its generators; ``matching`` — the motion-matching engine beside it
-4. ``training``, ``avatar``
-5. ``evaluation``, ``runtime``
-6. ``serving``, ``study``
-7. ``commands`` (the command line: ``cli`` and one module per command group, with ``__main__`` for
+3. ``engine`` — the contract both engines meet: style and stream interfaces, the batched protocol,
+   the inputs plan and the one generation loop, slots, intensity, the style file
+4. ``network`` — the thesis network and its file format
+5. ``matching`` — the motion-matching engine (its speech predictor uses the network's encoders)
+6. ``styles`` — the shelf above both engines: list, resolve, install, load any engine's style
+7. ``training``, ``avatar``
+8. ``evaluation``, ``runtime``
+9. ``serving``, ``study``
+10. ``commands`` (the command line: ``cli`` and one module per command group, with ``__main__`` for
    ``python -m facecapges``), ``benchmarks`` (the ``bench`` runner and one module per area), and the
    package's ``__init__`` (the Python API, imported lazily)
 
@@ -30,13 +34,16 @@ LAYERS: dict[str, int] = {
     "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "progress": 0,
     "io": 1,
     "capture": 2, "data": 2,
-    "model": 3, "matching": 3,
-    "training": 4, "avatar": 4,
-    "evaluation": 5, "runtime": 5,
-    "serving": 6, "study": 6,
-    "commands": 7, "benchmarks": 7, "__main__": 7, "__init__": 7,
+    "engine": 3,
+    "network": 4,
+    "matching": 5,
+    "styles": 6,
+    "training": 7, "avatar": 7,
+    "evaluation": 8, "runtime": 8,
+    "serving": 9, "study": 9,
+    "commands": 10, "benchmarks": 10, "__main__": 10, "__init__": 10,
 }
-TOP = 7
+TOP = 10
 
 
 def _modules():
@@ -108,10 +115,14 @@ def test_no_upward_or_private_imports():
 @pytest.mark.parametrize(
     "module,source",
     [
-        ("io.bvh", "from facecapges.model import network\n"),
-        ("model.network", "import facecapges.training.train\n"),
+        ("io.bvh", "from facecapges.network import network\n"),
+        ("network.network", "import facecapges.training.train\n"),
+        ("engine.contract", "from facecapges.network.style import Checkpoint\n"),
+        ("network.style", "from facecapges.matching.style import MatchingCheckpoint\n"),
+        ("matching.build", "from facecapges.styles import check_style_name\n"),
+        ("matching.engine", "import facecapges.styles\n"),
         ("capture.pipeline", "from facecapges.runtime.session import Session\n"),
-        ("data.prepare", "from facecapges.model.checkpoint import load_checkpoint\n"),
+        ("data.prepare", "from facecapges.styles import load_checkpoint\n"),
         ("serving.server", "from facecapges.commands.cli import app\n"),
         ("benchmarks.model", "from facecapges.commands.styles import register\n"),
         ("__init__", "from facecapges.commands import cli\n"),

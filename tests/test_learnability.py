@@ -66,7 +66,7 @@ def synthetic_take(seconds: float, seed: int) -> tuple[np.ndarray, np.ndarray, n
 def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
     """The eval suite's energy–wrist-speed correlation (0.5 s smoothing) and its z against shifted audio."""
     from facecapges.evaluation.synchrony import energy_speed_control, wrist_positions
-    from facecapges.model.checkpoint import load_skeleton
+    from facecapges.styles import load_skeleton
 
     c = energy_speed_control(wrist_positions(load_skeleton(), pose), audio, SR, FPS)
     return c.r, c.z
@@ -74,8 +74,8 @@ def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
 
 def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
     """Train on three synthetic takes; figures on a fourth, new one (see the module docs)."""
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import FrameInputs, generate_poses
+    from facecapges.styles import load_checkpoint
+    from facecapges.engine.generate import FrameInputs, generate_poses
     from facecapges.timing import frame_audio
     from facecapges.training.segments import ClipArrays
     from facecapges.training.train import build_trainer
@@ -116,7 +116,7 @@ def test_synthetic_target_follows_its_bursts():
     """The metric itself: the synthetic ground truth is strongly audio-locked, and a shifted copy is not."""
     pose, audio, _ = synthetic_take(60.0, seed=99)
     from facecapges.evaluation.synchrony import wrist_positions, wrist_speed
-    from facecapges.model.checkpoint import load_skeleton
+    from facecapges.styles import load_skeleton
 
     speed = wrist_speed(wrist_positions(load_skeleton(), pose), FPS)
     assert np.percentile(speed, 90) > 20.0  # the strokes move the wrists (cm/s), not only twist the arms

@@ -18,9 +18,9 @@ from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, M
 from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
-from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint
-from facecapges.model.engine import GestureEngine
-from facecapges.model.generate import FrameInputs, generate_poses
+from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
+from facecapges.engine.contract import GestureEngine
+from facecapges.engine.generate import FrameInputs, generate_poses
 from runtime_helpers import cli, refused
 from tolerances import assert_rotations_close
 

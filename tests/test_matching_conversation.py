@@ -15,7 +15,7 @@ from facecapges.io.audio import load_audio
 from facecapges.matching.database import mirror_twins
 from facecapges.matching.speech import speech_track
 from facecapges.matching.takes import load_take
-from facecapges.model.checkpoint import load_checkpoint
+from facecapges.styles import load_checkpoint
 
 SPF = timing.samples_per_frame()
 FPS = timing.MODEL_FPS

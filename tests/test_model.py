@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.model.checkpoint import load_checkpoint, save_checkpoint
-from facecapges.model.config import ModelConfig, TrainConfig
-from facecapges.model.network import FaceCapGes
-from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
+from facecapges.network.style import save_checkpoint
+from facecapges.styles import load_checkpoint
+from facecapges.network.config import ModelConfig, TrainConfig
+from facecapges.network.network import FaceCapGes
+from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
 from facecapges.errors import UserError
 from tolerances import NETWORK_ULPS, assert_float32_close, assert_rotations_close
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from facecapges import rotations as rot
-from facecapges.model.config import ModelConfig
+from facecapges.network.config import ModelConfig
 from tolerances import assert_rotations_close
 
 TINY = dict(audio_frontend_channels=(4, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
@@ -30,7 +30,7 @@ def _speech_like(seconds: float, seed: int = 0) -> np.ndarray:
 def test_mel_features_match_librosa_and_find_f0():
     import librosa
 
-    from facecapges.model.audio_features import FEATURE_DIM, N_MELS, AudioFeatures
+    from facecapges.network.audio_features import FEATURE_DIM, N_MELS, AudioFeatures
 
     feats = AudioFeatures(SR, SPF)
     rng = np.random.default_rng(0)
@@ -52,7 +52,7 @@ def test_stored_mel_basis_is_librosas():
     """The Mel filter bank kept in the package's assets (so ``live`` need not import Librosa) is Librosa's, exactly."""
     import librosa
 
-    from facecapges.model.audio_features import N_FFT, N_MELS, mel_basis, mel_basis_file
+    from facecapges.network.audio_features import N_FFT, N_MELS, mel_basis, mel_basis_file
 
     assert mel_basis_file(SR).is_file()
     np.testing.assert_array_equal(mel_basis(SR), librosa.filters.mel(sr=SR, n_fft=N_FFT, n_mels=N_MELS))
@@ -60,7 +60,7 @@ def test_stored_mel_basis_is_librosas():
 
 def test_mel_features_streaming_equal_offline_and_causal():
     """A clip's features as (T, S) frames equal the per-frame ones; changing the future changes nothing."""
-    from facecapges.model.audio_features import AudioFeatures
+    from facecapges.network.audio_features import AudioFeatures
     from facecapges.timing import frame_audio
 
     feats = AudioFeatures(SR, SPF)
@@ -80,7 +80,7 @@ def test_mel_features_streaming_equal_offline_and_causal():
 def test_mel_features_native_schedule_equals_torch():
     """The streaming kernel's small-batch schedule of the features (native loops between the same
     FFTs) gives forward's values: speech, noise, tones, silence, one frame or many."""
-    from facecapges.model.audio_features import N_MELS, AudioFeatures
+    from facecapges.network.audio_features import N_MELS, AudioFeatures
     from facecapges.timing import frame_audio
 
     feats = AudioFeatures(SR, SPF)
@@ -101,8 +101,8 @@ def test_mel_features_native_schedule_equals_torch():
 
 
 def test_mel_model_streams_like_its_training_rollout():
-    from facecapges.model.network import FaceCapGes
-    from facecapges.model.streaming import StreamingGenerator
+    from facecapges.network.network import FaceCapGes
+    from facecapges.network.streaming import StreamingGenerator
 
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig(audio_repr="mel", **TINY)).eval()
@@ -156,7 +156,7 @@ def _clip(T: int = 160, seed: int = 0, face: bool = False):
 
 @pytest.mark.slow
 def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
     from facecapges.training.train import build_trainer
 
     tr = build_trainer([_clip()], tmp_path / "run", dict(TINY), dict(epochs=1, batch_size=8, holdout_from=120,
@@ -208,7 +208,7 @@ def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
 @pytest.mark.slow
 def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
     from facecapges.errors import UserError
-    from facecapges.model.checkpoint import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
+    from facecapges.styles import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
     from facecapges.training.train import build_trainer
 
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
@@ -260,7 +260,7 @@ def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics
 
 def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
     from facecapges.errors import UserError
-    from facecapges.model.checkpoint import load_checkpoint_or_style
+    from facecapges.styles import load_checkpoint_or_style
 
     assert load_checkpoint_or_style("zeggs-speech").path.name == "zeggs-speech.safetensors"
     with pytest.raises(UserError, match="checkpoint not found"):  # a path that is not there is not a style name

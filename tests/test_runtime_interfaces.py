@@ -6,6 +6,7 @@ import inspect
 
 import pytest
 
+from facecapges.engine.contract import Stream
 from facecapges.runtime import interfaces as I
 from facecapges.runtime.inputs import sources as S
 from runtime_helpers import checkpoint
@@ -50,7 +51,7 @@ def test_generator_and_sinks(tmp_path):
     from facecapges.runtime.outputs.vmc import VmcSender
 
     ck = checkpoint()
-    assert isinstance(ck.streaming(), I.Generator)
+    assert isinstance(ck.streaming(), Stream)
     sinks = [BvhRecorder(tmp_path / "m.bvh", ck.skeleton, ck.fps), FaceJsonRecorder(tmp_path / "f.json", ck.fps),
              MemoryRecorder(), VmcSender(ck.skeleton, "127.0.0.1", 39539)]
     sinks.append(ForFace(1, sinks[2]))

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.model.batched import BatchedStreamingGenerator, pack_audio
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import FaceCapGes
-from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
+from facecapges.network.batched import BatchedStreamingGenerator, pack_audio
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import FaceCapGes
+from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
 from tolerances import assert_rotations_close
 
 

@@ -19,10 +19,10 @@ import pytest
 import torch
 
 from facecapges import rotations as rot
-from facecapges.model.checkpoint import Checkpoint, save_checkpoint
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import FaceCapGes
-from facecapges.model.streaming import StreamingGenerator
+from facecapges.network.style import Checkpoint, save_checkpoint
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import FaceCapGes
+from facecapges.network.streaming import StreamingGenerator
 from facecapges.runtime.outputs import protocol
 from facecapges.serving.server import ServeConfig, StreamServer
 

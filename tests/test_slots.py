@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from facecapges.model.slots import Slots
+from facecapges.engine.slots import Slots
 
 
 def test_lowest_free_slot_growth_and_reuse():

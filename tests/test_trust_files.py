@@ -218,10 +218,11 @@ def test_a_few_frames_off_is_a_warning(tmp_path):
     """BEAT2's 0_2_2: 60.1 s of motion, 62.0 s of speech (the end is cut): read, with a warning said."""
     from facecapges.matching.build import read_takes
     from facecapges.matching.takes import speech_notes
+    from facecapges.styles import load_skeleton
 
     said: list[str] = []
     takes = read_takes([(shared_file("data/beat2/2_scott_0_2_2.npz"), shared_file("data/beat/2_scott_0_2_2.wav"))],
-                       say=said.append)
+                       say=said.append, fallback_skeleton=load_skeleton)
     assert takes[0].n_frames == 902
     assert any("warning: 2_scott_0_2_2.wav: the speech lasts 62.0 s and the motion 60.1 s (its end is cut)" in s
                for s in said), said
@@ -239,7 +240,7 @@ def test_a_300_character_style_name_is_refused(tmp_path):
     r = cli("styles", "build", "short-name", "--take", str(shared_file(BVH_11)), str(shared_file(WAV_11)),
             "--out", str(out), timeout=120)
     _one_error_line(r, "at most 200 bytes")
-    from facecapges.model.checkpoint import install_style, styles_dir
+    from facecapges.styles import install_style, styles_dir
 
     with pytest.raises(UserError, match="at most 64"):
         install_style(styles_dir() / "beat2-scott-mm.safetensors", name="b" * 300)
@@ -247,7 +248,7 @@ def test_a_300_character_style_name_is_refused(tmp_path):
 
 @pytest.fixture()
 def run_with_fgd(tmp_path):
-    from facecapges.model.checkpoint import styles_dir
+    from facecapges.styles import styles_dir
 
     run = tmp_path / "my-run"
     (run / "model.fgd").mkdir(parents=True)
@@ -278,7 +279,7 @@ def test_install_over_a_symlinked_fgd_folder(tmp_path, run_with_fgd):
 def _style_parts():
     from safetensors import safe_open
 
-    from facecapges.model.checkpoint import styles_dir
+    from facecapges.styles import styles_dir
 
     with safe_open(str(styles_dir() / "beat2-scott-mm.safetensors"), framework="pt") as f:
         return json.loads(f.metadata()["facecapges"]), {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118
@@ -333,7 +334,7 @@ def _crafted(tmp_path, case: str):
 
 @pytest.mark.parametrize("case", sorted(CRAFTED))
 def test_a_crafted_matching_style_is_refused_by_its_check(tmp_path, case):
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     p = _crafted(tmp_path, case)
     with pytest.raises(UserError) as exc:

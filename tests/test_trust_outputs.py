@@ -104,7 +104,7 @@ def test_long_inputs_stream_in_blocks(tmp_path, beat_wav):
 
     from facecapges import timing
     from facecapges.io.audio import load_audio
-    from facecapges.model.generate import plan_inputs
+    from facecapges.engine.generate import plan_inputs
 
     plan = plan_inputs(beat_wav)
     blocks = list(plan.blocks(block_frames=97))  # odd block size: every boundary case of the framing
@@ -167,7 +167,8 @@ def test_smaller_crashes_are_clear_errors(tmp_path):
     import torch
     from safetensors.torch import save_file
 
-    from facecapges.model.checkpoint import FORMAT, load_checkpoint
+    from facecapges.network.style import FORMAT
+    from facecapges.styles import load_checkpoint
 
     ck = tmp_path / "m.safetensors"
 

@@ -9,7 +9,7 @@ import os
 import pytest
 
 from facecapges.errors import UserError
-from facecapges.model.checkpoint import install_style, list_styles, styles_dir, user_styles_dir
+from facecapges.styles import install_style, list_styles, styles_dir, user_styles_dir
 from runtime_helpers import cli
 
 

@@ -15,7 +15,7 @@ import pytest
 import torch
 
 from facecapges.errors import UserError
-from facecapges.model.config import load_config_file
+from facecapges.network.config import load_config_file
 from facecapges.training.resume_file import RunFolderLock, load_state, save_state
 
 from runtime_helpers import cli, refused

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.model.checkpoint import Checkpoint
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import FaceCapGes
+from facecapges.network.style import Checkpoint
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import FaceCapGes
 from facecapges.runtime.outputs import protocol
 from facecapges.runtime.outputs.viewer import ViewerServer
 from facecapges.serving.server import ServeConfig, StreamServer

@@ -18,12 +18,12 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 _EXPORTS: dict[str, str] = {
-    "load_checkpoint": "facecapges.model.checkpoint",
-    "list_styles": "facecapges.model.checkpoint",
-    "Checkpoint": "facecapges.model.checkpoint",
-    "DEFAULT_STYLE": "facecapges.model.checkpoint",
-    "GestureEngine": "facecapges.model.engine",
-    "StreamingGenerator": "facecapges.model.streaming",
+    "load_checkpoint": "facecapges.styles",
+    "list_styles": "facecapges.styles",
+    "Checkpoint": "facecapges.styles",
+    "DEFAULT_STYLE": "facecapges.styles",
+    "GestureEngine": "facecapges.engine.contract",
+    "StreamingGenerator": "facecapges.network.streaming",
     "load_audio": "facecapges.io.audio",
     "UserError": "facecapges.errors",
     "MODEL_FPS": "facecapges.timing",
@@ -55,12 +55,13 @@ assert set(__all__) == {"__version__", *_EXPORTS}
 
 if TYPE_CHECKING:
     from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+    from facecapges.engine.contract import GestureEngine
     from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
-    from facecapges.model.checkpoint import DEFAULT_STYLE, Checkpoint, list_styles, load_checkpoint
-    from facecapges.model.engine import GestureEngine
-    from facecapges.model.streaming import StreamingGenerator
+    from facecapges.network.streaming import StreamingGenerator
+    from facecapges.network.style import Checkpoint
     from facecapges.skeleton import N_JOINTS, UPPER_BODY
+    from facecapges.styles import DEFAULT_STYLE, list_styles, load_checkpoint
     from facecapges.timing import AUDIO_SR, MODEL_FPS
 
 

@@ -592,7 +592,7 @@ def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
     ``power`` is a float or an array broadcastable to (…, 1) (one per quaternion). Quaternions are
     (w, x, y, z), unit (to float precision); the result is unit, float64, on ``ref``'s side
     (``ref · result ≥ 0`` for powers in [0, 1]). Callers: :func:`quaternion_slerp`,
-    :func:`rot6d_slerp` (the model's intensity, :func:`facecapges.model.intensity.scale_pose`),
+    :func:`rot6d_slerp` (the model's intensity, :func:`facecapges.engine.intensity.scale_pose`),
     :func:`rotation_power_about` (matrices: the face-lost ease), the motion-matching intensity
     (:func:`facecapges.matching.inertialize.qpow_about`).
     """

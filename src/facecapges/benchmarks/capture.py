@@ -146,7 +146,7 @@ def _capture_body(clip: Path, n: int) -> dict:
             times.append(time.perf_counter() - t0)
             assign_hands(det)
             poses.append(det["pose"] if det["pose"] is not None else np.zeros((33, 3)))
-    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
 
     skel = load_checkpoint(style=DEFAULT_STYLE).skeleton
     m = len(poses)

@@ -16,7 +16,7 @@ Peer-architecture timing, under ``"peer_timing"`` (:func:`peer_timing`; random
 weights, batch 1, one thread, the same speech-like inputs for all):
 
 * ``facecapges_step_ms_p50`` — FaceCapGes (default :class:`ModelConfig`) frame by frame
-  through :class:`facecapges.model.streaming.StreamingGenerator` (the live path).
+  through :class:`facecapges.network.streaming.StreamingGenerator` (the live path).
 * ``camn_online_ms_p50`` — our CaMN (:mod:`facecapges.evaluation.camn`, CaMN's sizes)
   used online: for every output frame it is re-run over the 34-frame window ending at
   that frame (the 16 frames before it seeded with the previous outputs) and the last
@@ -136,9 +136,9 @@ def peer_timing(quick: bool = False) -> dict:
     import torch
 
     from facecapges.evaluation.camn import CaMN, CaMNConfig
-    from facecapges.model.config import ModelConfig
-    from facecapges.model.network import FaceCapGes
-    from facecapges.model.streaming import StreamingGenerator
+    from facecapges.network.config import ModelConfig
+    from facecapges.network.network import FaceCapGes
+    from facecapges.network.streaming import StreamingGenerator
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

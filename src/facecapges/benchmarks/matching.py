@@ -115,7 +115,7 @@ def run(quick: bool, shared: Path) -> dict:
 
     from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     wav = Path(shared) / AUDIO
     if not wav.is_file():

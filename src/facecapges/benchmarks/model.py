@@ -3,7 +3,7 @@
 Figures (one stream, batch 1, one thread, the default checkpoint):
 
 * ``step_ms_p50`` / ``step_ms_p99`` — :meth:`StreamingGenerator.step` (the cached
-  kernel, a one-slot :class:`~facecapges.model.batched.BatchedStreamingGenerator`);
+  kernel, a one-slot :class:`~facecapges.network.batched.BatchedStreamingGenerator`);
   ``to_bvh_euler_ms_p50`` — that frame's rot6d → BVH Euler motion row
   (:func:`facecapges.skeleton.pose_to_motion`, what every BVH / viewer output runs);
   ``step_with_euler_ms_p50`` / ``_p99`` — the two together, per frame (target
@@ -30,7 +30,7 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
   shared folder, synthetic speech-like frames, and ``inputs`` says so.
 * ``stages_ms`` — 5.8.2's compute chain split by stage, per frame (mean and p50): the
   kernel's own stage scopes (``facecapges::<stage>`` for ``torch.profiler``:
-  :data:`~facecapges.model.batched.STAGES` — input_prep, audio_frontend, audio_tcn,
+  :data:`~facecapges.network.batched.STAGES` — input_prep, audio_frontend, audio_tcn,
   face_encoder, head_encoder, decoder), each timed by a wall-clock listener during
   the real step (the torch profiler's per-op recording would cost more than the ops),
   and ``to_bvh_euler``. ``audio_features_ms`` = frontend + TCN step.
@@ -38,8 +38,8 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
   ``torch.utils.flop_counter.FlopCounterMode`` over one ``step`` and one naive step,
   per kernel stage too (a nested counter per stage scope). The counted step runs the
   kernel's torch schedules (``native_max_batch`` = 0 on the TCNs and the
-  :class:`~facecapges.model.batched.Cascade`, ``mel_native_max_batch`` = 0): the
-  one-stream native loops (:mod:`facecapges.model.native`) are the same arithmetic, which
+  :class:`~facecapges.network.batched.Cascade`, ``mel_native_max_batch`` = 0): the
+  one-stream native loops (:mod:`facecapges.network.native`) are the same arithmetic, which
   the counter cannot see. The counter counts matrix
   products and convolutions as 2 FLOPs per MAC, so MACs = FLOPs / 2; element-wise
   work (activations, gates, additions) is not counted and is small beside the
@@ -51,7 +51,7 @@ Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one t
   ``fraction_of_peak`` their ratio. Where the rest goes (per-call overhead of 70
   torch calls per frame, matrix–vector products bound by reading their weights from
   L2 — the recurrence's 3.5 MB per frame —, FFTs and element-wise work the counter
-  does not count): :mod:`facecapges.model.batched`'s docs.
+  does not count): :mod:`facecapges.network.batched`'s docs.
 """
 
 from __future__ import annotations
@@ -89,9 +89,9 @@ def _to_bvh_euler(skel):
 
 
 def run(quick: bool = False, shared: Path | None = None) -> dict:
-    from facecapges.model.checkpoint import DEFAULT_NETWORK_STYLE, load_checkpoint, network_only
-    from facecapges.model.generate import FrameInputs, generate_poses
-    from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
+    from facecapges.engine.generate import FrameInputs, generate_poses
+    from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint, network_only
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -226,7 +226,7 @@ def _flops(fn, by_stage: bool = False):
 
     from torch.utils.flop_counter import FlopCounterMode
 
-    from facecapges.model import batched
+    from facecapges.network import batched
 
     stages: dict[str, int] = {}
 
@@ -266,14 +266,14 @@ def cpu_peak_gflops(n: int = 1024, reps: int = 8) -> float:
 def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
     """ms per frame of each kernel stage over the frames, timed at the kernel's own stage scopes.
 
-    The kernel marks its stages with :func:`facecapges.model.batched.stage` (the
+    The kernel marks its stages with :func:`facecapges.network.batched.stage` (the
     ``facecapges::<stage>`` ``torch.profiler`` scopes); here a listener times each scope
     with the wall clock instead of the profiler, whose per-op recording costs more than
     the ops themselves and would distort the shares.
     """
     import contextlib
 
-    from facecapges.model import batched
+    from facecapges.network import batched
 
     times: dict[str, list] = {k: [] for k in (*batched.STAGES, "to_bvh_euler")}
 
@@ -296,8 +296,8 @@ def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
 
 def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     """Thesis 5.8 figures (module docstring); expects torch at one thread."""
-    from facecapges.model.batched import lstm_window
-    from facecapges.model.streaming import NaiveStreamingGenerator, StreamingGenerator
+    from facecapges.network.batched import lstm_window
+    from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
 
     cfg = ckpt.model.cfg
     data = shared_held_out(ckpt, shared)

@@ -70,7 +70,7 @@ def rss_mb(pid: int | None = None) -> float:
 
 
 def _checkpoint():
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     return load_checkpoint(os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None)
 

@@ -38,7 +38,7 @@ def run(quick: bool, shared: Path) -> dict:
         m = read_bvh(bvh)
         skel, L, fps = m.skeleton, bvh_local_matrices(m.skeleton, m.motion[:900]), m.fps
     else:
-        from facecapges.model.checkpoint import load_skeleton
+        from facecapges.styles import load_skeleton
 
         skel, fps = load_skeleton(), float(MODEL_FPS)
         L = np.broadcast_to(np.eye(3), (900, skel.n_joints, 3, 3)).copy()

@@ -19,7 +19,7 @@ def _skeleton(bvh: Path | None):
         from facecapges.io.bvh import read_bvh
 
         return read_bvh(bvh).skeleton, str(bvh)
-    from facecapges.model.checkpoint import load_skeleton
+    from facecapges.styles import load_skeleton
 
     try:
         return load_skeleton(), "the default checkpoint"

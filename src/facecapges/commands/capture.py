@@ -147,7 +147,7 @@ def capture_body(
     from facecapges.capture.body import capture_body as run
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.errors import UserError, check_output_file
-    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
 
     check_output_file(out, force)
     if face_out is not None:

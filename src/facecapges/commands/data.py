@@ -26,7 +26,7 @@ def _target_skeleton(path: Path | None):
     from facecapges.data.prepare import check_skeleton
 
     if path is None:
-        from facecapges.model.checkpoint import load_skeleton
+        from facecapges.styles import load_skeleton
 
         return load_skeleton()
     from facecapges.io.bvh import read_bvh

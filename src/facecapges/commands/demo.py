@@ -40,12 +40,12 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     from facecapges.avatar.render.skeleton_video import render_skeleton_video
     from facecapges.avatar.render.video import bvh_quaternions, our_avatar, render_video
     from facecapges.capture.speech_mouth import speech_mouth_track
+    from facecapges.engine.generate import generate_poses
     from facecapges.errors import check_output_file
     from facecapges.io.bvh import write_bvh
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
+    from facecapges.styles import load_checkpoint
 
     speech = audio or demo_speech()
     bvh_path, mp4_path, avatar_path = out / "demo.bvh", out / "demo.mp4", out / "demo_avatar.mp4"

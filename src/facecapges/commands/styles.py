@@ -79,7 +79,7 @@ def generate(
 
 def _list(json_out: bool) -> None:
     from facecapges.errors import UserError
-    from facecapges.model.checkpoint import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
+    from facecapges.styles import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
 
     rows = []
     for name, path in list_styles().items():
@@ -155,7 +155,7 @@ def styles_install(
     Styles go to $FACECAPGES_STYLES, else $XDG_DATA_HOME/facecapges/styles
     (default ~/.local/share/facecapges/styles).
     """
-    from facecapges.model.checkpoint import install_style
+    from facecapges.styles import install_style
 
     dest = install_style(run, name, force)
     typer.echo(f"installed style {dest.stem!r}: {dest}  (use it with --style {dest.stem})")
@@ -198,19 +198,19 @@ def styles_build(
     folder (or written to --out) with a model card NAME.md; use it with --style NAME.
     """
     from facecapges.errors import UserError
-    from facecapges.matching.build import build_style
+    from facecapges.styles import build_matching_style
 
     pairs = _take_pairs(take or [], wav or [])
     if not pairs and not video:
         raise UserError("give at least one --take MOTION WAV or --video VIDEO")
     if not video:
-        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+        build_matching_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
         return
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="facecapges-video-takes-") as tmp:
         pairs += _video_takes(video, Path(tmp))
-        build_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+        build_matching_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
 
 
 def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
@@ -218,7 +218,7 @@ def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
     from facecapges.capture.body import capture_body, check_usable
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.io.audio import check_audio
-    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
 
     model_path(POSE_TASK), model_path(HAND_TASK)
     for v in videos:

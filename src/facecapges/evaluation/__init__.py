@@ -32,7 +32,7 @@ signatures:
   cache → report); :mod:`~facecapges.commands.evaluation` — ``fgd-train``, ``eval`` and
   ``ablate``.
 * :mod:`~facecapges.evaluation.ablate` — the ablation study of 5.7 (Table 5.3): full
-  model, without head pose, offline decoding (:mod:`facecapges.model.bidirectional`) and the
+  model, without head pose, offline decoding (:mod:`facecapges.network.bidirectional`) and the
   CaMN baseline, trained with one recipe and evaluated on the held-out frames.
 * :mod:`~facecapges.benchmarks.evaluation` — speed of the evaluation tools and the
   peer-architecture timing (FaceCapGes streaming vs CaMN online/offline).

@@ -7,7 +7,7 @@ discriminator schedule, seed):
 * ``full`` — FaceCapGes as is (closed-loop trainer :mod:`facecapges.training.train`).
 * ``no_head`` — "without head pose": ``ModelConfig(head_dim=0)``, no head encoder, the
   head rotation never reaches the network; same trainer and recipe.
-* ``offline`` — "offline decoding": :class:`facecapges.model.bidirectional.BidirectionalDecoder`
+* ``offline`` — "offline decoding": :class:`facecapges.network.bidirectional.BidirectionalDecoder`
   (same encoders, bidirectional torso/limb LSTMs over a whole segment, no closed-loop
   rollout), trained by :mod:`facecapges.training.bidirectional` on the same L = 34
   segments with the first N = 16 real poses as seed and losses on the 18 frames after.
@@ -46,7 +46,7 @@ and the three variants; ``samples`` runs per variant and clip:
 * the two closed-loop variants run frame by frame through the streaming generator
   (the live path), sample 0 from their cold-start neutral window, sample k > 0 from a
   random real N-frame window of the pool as history — exactly as ``facecapges eval``, through the
-  same loop (:func:`facecapges.model.generate.generate_poses`);
+  same loop (:func:`facecapges.engine.generate.generate_poses`);
 * the offline variant decodes the whole held-out sequence of a clip in one pass
   (:meth:`BidirectionalDecoder.generate`), seeded by **the same N-frame history** the
   streaming variants start from (sample 0: its own neutral window, chosen from the
@@ -91,7 +91,7 @@ LABELS = {
 #: Variants decoded offline (one pass per sequence): their loader and trainer builder.
 SEGMENT_DECODERS = {
     "offline": (
-        "facecapges.model.bidirectional:load_bidirectional",
+        "facecapges.network.bidirectional:load_bidirectional",
         "facecapges.training.bidirectional:build_bidirectional_trainer",
     ),
     "camn": ("facecapges.evaluation.camn:load_camn", "facecapges.evaluation.camn:build_camn_trainer"),
@@ -123,7 +123,7 @@ class Recipe:
 
     def resolved(self, model_extra: dict | None = None) -> tuple[dict, dict]:
         """Full model/train config dicts (defaults filled in) for one variant."""
-        from facecapges.model.config import model_config_from_dict, to_dict, train_config_from_dict
+        from facecapges.network.config import model_config_from_dict, to_dict, train_config_from_dict
 
         m = dict(self.model_over, **(model_extra or {}))
         return to_dict(model_config_from_dict(m)), to_dict(train_config_from_dict(self.train_over))
@@ -132,7 +132,7 @@ class Recipe:
 def make_recipe(
     config: Path | None, speaker: int, split: str | None, epochs: int | None, holdout_from: int | None, fps: float
 ) -> Recipe:
-    from facecapges.model.config import load_config_file
+    from facecapges.network.config import load_config_file
 
     path = config if config is not None else default_config_path()
     if config is None and not path.is_file():
@@ -166,7 +166,7 @@ def make_recipe(
 def _same_recipe(meta: dict, recipe: Recipe, model_extra: dict | None, clip_names: list[str]) -> str | None:
     """None when a checkpoint's metadata says it was trained by this recipe, else the reason."""
     mcfg, tcfg = recipe.resolved(model_extra)
-    from facecapges.model.config import TrainConfig, to_dict
+    from facecapges.network.config import TrainConfig, to_dict
 
     # a field added to TrainConfig after the checkpoint was written counts at its default
     stored_t = dict(to_dict(TrainConfig()), **(meta.get("train_config") or {}))
@@ -219,12 +219,7 @@ def train_variants(
     """
     import json
 
-    from facecapges.model.checkpoint import (
-        DEFAULT_NETWORK_STYLE,
-        list_styles,
-        load_checkpoint,
-        load_checkpoint_or_style,
-    )
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, list_styles, load_checkpoint, load_checkpoint_or_style
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -316,7 +311,7 @@ class _Runner:
             self.model, self.meta = _resolve(SEGMENT_DECODERS[variant.name][0])(variant.path)
             self.ckpt = None
         else:
-            from facecapges.model.checkpoint import load_checkpoint, network_only
+            from facecapges.styles import load_checkpoint, network_only
 
             self.ckpt = network_only(load_checkpoint(variant.path), "ablate")
             self.model, self.meta = self.ckpt.model, self.ckpt.meta
@@ -330,7 +325,7 @@ class _Runner:
         if self.ckpt is None:
             out = self._decode(inputs, history)
         else:
-            from facecapges.model.generate import generate_poses
+            from facecapges.engine.generate import generate_poses
 
             out = generate_poses(self.ckpt, inputs, progress, history)[0]
         self.ms.append((time.perf_counter() - t0) * 1000 / max(inputs.n_frames, 1))

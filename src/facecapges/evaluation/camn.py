@@ -63,7 +63,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from facecapges.errors import UserError, file_error
-from facecapges.model.config import ModelConfig, model_config_from_dict
+from facecapges.network.config import ModelConfig, model_config_from_dict
 
 CAMN_FORMAT = "facecapges-camn-1"
 
@@ -280,14 +280,14 @@ def build_camn_trainer(clips, out: Path, model_over: dict, train_over: dict, met
 
 def save_camn(path: str | Path, model: CaMN, meta: dict) -> Path:
     """Weights + metadata (format ``facecapges-camn-1``, with the CaMN sizes) atomically."""
-    from facecapges.model.checkpoint import save_checkpoint
+    from facecapges.network.style import save_checkpoint
 
     return save_checkpoint(path, model, dict(meta, camn_config=asdict(model.camn)), fmt=CAMN_FORMAT)
 
 
 def load_camn(path: str | Path) -> tuple[CaMN, dict]:
     """A CaMN checkpoint (eval mode) and its metadata; clear errors for other files."""
-    from facecapges.model.checkpoint import read_weights
+    from facecapges.engine.files import read_weights
 
     p = Path(path)
     tensors, meta = read_weights(p, CAMN_FORMAT, "CaMN checkpoint")

@@ -375,7 +375,7 @@ def score(skel, pose: np.ndarray, clip_pause: np.ndarray, ref: Reference, fps: f
 
 def generate(engine, audio: np.ndarray, intensity: float = 1.0, face: np.ndarray | None = None) -> np.ndarray:
     """Poses (T, 47, 6) of ``engine`` for ``audio`` alone (no face track: neutral face, head at rest), cold start."""
-    from facecapges.model.generate import generate_blocks
+    from facecapges.engine.generate import generate_blocks
     from facecapges.rotations import identity_rot6d
 
     T = len(audio) // timing.samples_per_frame()

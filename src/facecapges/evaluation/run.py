@@ -7,7 +7,7 @@ evaluated whole and the pool is the speaker's train clips (falling back to the
 evaluated clips themselves, with a warning, when the cache has none).
 
 **Generation.** The checkpoint runs frame by frame through
-:func:`facecapges.model.generate.generate_poses` — the one whole-recording loop, on the streaming path
+:func:`facecapges.engine.generate.generate_poses` — the one whole-recording loop, on the streaming path
 of live use, whatever the engine —
 from a cold start at the first evaluated frame, on the clip's own audio, face
 weights and head rotation from the cache.
@@ -42,7 +42,7 @@ the wrist-speed rise after onsets, each beside the same statistic at random time
 ``NAME.fgd/``, else the one that ships with the package (BEAT speaker 2's upper body) — so every engine
 gets an FGD; ``fgd_autoencoder`` / ``fgd_autoencoder_source`` in ``metrics.json`` say which.
 
-**Engines.** Evaluation uses only the engine interface (:class:`facecapges.model.engine.GestureEngine`:
+**Engines.** Evaluation uses only the engine interface (:class:`facecapges.engine.contract.GestureEngine`:
 its stream, ``fps``, ``meta``, ``skeleton``, ``neutral_window``, ``display_name``, ``database_poses()``):
 the thesis network and a motion-matching checkpoint run the same path.
 
@@ -66,7 +66,7 @@ from facecapges.errors import UserError, check_output_dir, echo, echo_warning, f
 from facecapges.evaluation.options import EvalOptions, parse_offsets
 
 if TYPE_CHECKING:
-    from facecapges.model.engine import GestureEngine
+    from facecapges.engine.contract import GestureEngine
 
 
 def load_real_clips(
@@ -127,7 +127,7 @@ def heldout_inputs(arrays: dict, start: int, fps: float, sr: int, head_reference
     ``head_reference_rot6d``) maps the cached skeleton-frame head into the model's
     camera frame (:func:`facecapges.capture.head_pose.skeleton_head_to_camera`).
     """
-    from facecapges.model.generate import FrameInputs
+    from facecapges.engine.generate import FrameInputs
 
     real = arrays["pose"][start:].astype(np.float32)
     s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
@@ -189,14 +189,14 @@ def run_eval(
     if split not in ("train", "val", "test", "all"):
         raise UserError(f"--split must be train, val, test or all, got {split!r}")
     c = Cache(cache)  # a missing or malformed cache before torch and the checkpoint load
+    from facecapges.engine.generate import generate_poses
     from facecapges.evaluation import baselines as bl
     from facecapges.evaluation.fgd import fgd_paths, find_fgd, load_fgd
     from facecapges.evaluation.realism import realism_section
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.evaluation.timing import timing_markdown, timing_section
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_poses
+    from facecapges.styles import load_checkpoint
 
     warnings: list[str] = []
     ckpt = load_checkpoint(o.checkpoint, o.style)

@@ -30,12 +30,6 @@ MIN_TRAIN_S = 10.0
 MAX_FILE_NAME_BYTES = 200  # --out's file name: NAME.safetensors.part must fit the usual 255-byte limit
 
 
-def check_name(name: str) -> str:
-    from facecapges.model.checkpoint import check_style_name
-
-    return check_style_name(name)
-
-
 _CC_TERMS = {"Attribution": "BY", "NonCommercial": "NC", "NoDerivatives": "ND", "NoDerivs": "ND", "ShareAlike": "SA"}
 
 
@@ -95,8 +89,14 @@ def check_pairs(pairs: list[tuple[Path, Path]]) -> None:
         check_audio(wav)
 
 
-def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, say=print) -> list[Take]:
-    """Load every (motion, wav) pair; non-BEAT skeletons go onto ``target`` (default: the default style's)."""
+def read_takes(
+    pairs: list[tuple[Path, Path]],
+    target: Skeleton | None = None,
+    say=print,
+    fallback_skeleton: Callable[[], Skeleton] | None = None,
+) -> list[Take]:
+    """Load every (motion, wav) pair; non-BEAT skeletons go onto ``target`` (default: the first take's BEAT
+    skeleton, else ``fallback_skeleton()`` — the shelf gives the default style's)."""
     if not pairs:
         raise UserError("give at least one --take MOTION WAV")
     takes: list[Take] = []
@@ -105,13 +105,13 @@ def read_takes(pairs: list[tuple[Path, Path]], target: Skeleton | None = None, s
         if motion.suffix.lower() not in (".bvh", ".npz"):
             raise file_error(motion, "a --take's motion must be a .bvh or a BEAT2 .npz file")
         if target is None and motion.suffix.lower() == ".npz":
-            target = _default_skeleton(takes)
+            target = _default_skeleton(takes, fallback_skeleton)
         try:
             take = load_take(motion, wav, target)
         except UserError as exc:
             if "no BEAT skeleton was given" not in str(exc):
                 raise
-            take = load_take(motion, wav, _default_skeleton(takes))
+            take = load_take(motion, wav, _default_skeleton(takes, fallback_skeleton))
         if take.train_until / timing.MODEL_FPS < MIN_TRAIN_S:
             raise file_error(motion, f"too short: a take needs {MIN_TRAIN_S / 0.8:.1f} s at least (its 80 % trains)")
         if target is None and not take.skeleton.missing():
@@ -134,19 +134,20 @@ def _speaker(takes: list[Take]) -> int | None:
     return ids.pop() if len(ids) == 1 else None
 
 
-def _default_skeleton(takes: list[Take]) -> Skeleton:
+def _default_skeleton(takes: list[Take], fallback: Callable[[], Skeleton] | None) -> Skeleton:
     for t in takes:
         if not t.skeleton.missing():
             return t.skeleton
-    from facecapges.model.checkpoint import DEFAULT_STYLE, load_checkpoint
-
-    return load_checkpoint(style=DEFAULT_STYLE).skeleton
+    if fallback is None:
+        raise UserError("no take carries a BEAT skeleton and no fallback skeleton was given")
+    return fallback()
 
 
 def build_style(
     name: str,
     pairs: list[tuple[Path, Path]],
-    out: Path | None = None,
+    dest: Path,
+    fallback_skeleton: Callable[[], Skeleton],
     force: bool = False,
     progress: bool = True,
     seed: int = 0,
@@ -155,15 +156,14 @@ def build_style(
     say: Callable[[str], None] = print,
     predictor_steps: int | None = None,
 ) -> Path:
-    """Build, write and (without ``out``) install a matching style; returns its path (module docs)."""
+    """Build and write the matching style ``name`` to ``dest`` (the shelf chooses it:
+    :func:`facecapges.styles.build_matching_style`); returns its path (module docs)."""
     from dataclasses import replace
 
-    check_name(name)
     check_pairs(pairs)  # every file before torch loads
-    if out is not None and Path(out).suffix != ".safetensors":
-        raise file_error(Path(out), "a style file must end in .safetensors")
+    if Path(dest).suffix != ".safetensors":
+        raise file_error(Path(dest), "a style file must end in .safetensors")
     from facecapges.matching.predictor import PredictorSettings, train_predictor
-    from facecapges.model.checkpoint import user_styles_dir
 
     settings = PredictorSettings()
     if predictor_steps is not None:
@@ -172,9 +172,7 @@ def build_style(
         settings = replace(
             settings, steps=int(predictor_steps), eval_every=min(settings.eval_every, int(predictor_steps))
         )
-    dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
-    if dest.suffix != ".safetensors":
-        raise file_error(dest, "a style file must end in .safetensors")
+    dest = Path(dest)
     if len(dest.name.encode()) > MAX_FILE_NAME_BYTES:
         raise file_error(
             dest, f"a file name of at most {MAX_FILE_NAME_BYTES} bytes, please (a style writes NAME.part first)"
@@ -188,7 +186,7 @@ def build_style(
         if there and not force:
             raise file_error(p, "exists; pass --force to replace it")
     say(f"reading {len(pairs)} take(s)")
-    takes = read_takes([(Path(m), Path(w)) for m, w in pairs], target, say)
+    takes = read_takes([(Path(m), Path(w)) for m, w in pairs], target, say, fallback_skeleton)
     say("building the database (training frames and their mirror images)")
     db = build_database(takes)
     say(f"  {len(db)} frames ({len(db) / timing.MODEL_FPS:.0f} s)")

@@ -1,9 +1,9 @@
 """The thesis network beside the matcher: its generated wrist direction as a query term (issue #25).
 
-The network (:class:`~facecapges.model.network.FaceCapGes`, trained on the style's own training frames by
+The network (:class:`~facecapges.network.network.FaceCapGes`, trained on the style's own training frames by
 :func:`facecapges.training.director.train_director`) runs causally on the same per-frame inputs as the
 matcher (audio, face, camera-frame head) through the streaming kernel
-(:class:`~facecapges.model.batched.BatchedStreamingGenerator`). Its output pose is not played; what the
+(:class:`~facecapges.network.batched.BatchedStreamingGenerator`). Its output pose is not played; what the
 engine reads from it each frame is the **direction each wrist moves**:
 
 * query (:meth:`BatchedDirector.step`): per wrist, the unit vector of the network's wrist displacement
@@ -68,7 +68,7 @@ class Director:
 
     @property
     def config(self) -> dict:
-        from facecapges.model.config import to_dict
+        from facecapges.network.config import to_dict
 
         return dict(self.meta, format=FORMAT, model_config=to_dict(self.model.cfg))
 
@@ -77,8 +77,8 @@ class Director:
 
     @classmethod
     def from_state(cls, config: dict, tensors: dict[str, torch.Tensor], skeleton: Skeleton) -> Director:
-        from facecapges.model.config import model_config_from_dict
-        from facecapges.model.network import FaceCapGes, with_default_norms
+        from facecapges.network.config import model_config_from_dict
+        from facecapges.network.network import FaceCapGes, with_default_norms
 
         if config.get("format") != FORMAT:
             raise ValueError(f"not a matching style's network ({config.get('format')!r})")
@@ -94,7 +94,7 @@ class BatchedDirector:
     """Independent causal streams of the network; :meth:`step` gives each one's wrist directions (B, 6)."""
 
     def __init__(self, director: Director, capacity: int = 8):
-        from facecapges.model.batched import BatchedStreamingGenerator
+        from facecapges.network.batched import BatchedStreamingGenerator
 
         self.director = director
         self._lock = threading.RLock()

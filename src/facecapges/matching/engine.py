@@ -65,6 +65,8 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
+from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
+from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import (
     ONSET_DECAY,
@@ -75,8 +77,6 @@ from facecapges.matching.database import (
     quaternions,
 )
 from facecapges.matching.speech import SpeechTracker
-from facecapges.model.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
-from facecapges.model.slots import SlotOwner, Slots
 from facecapges.skeleton import N_JOINTS
 
 
@@ -275,7 +275,7 @@ class BatchedMatchingGenerator(SlotOwner):
                     self.director.close(ds)
 
     def set_intensity(self, slot: int, value: float) -> None:
-        """The stream's intensity (:mod:`facecapges.model.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
+        """The stream's intensity (:mod:`facecapges.engine.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
         self.intensity_target[slot] = check_intensity(value)
 
     def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:

@@ -4,11 +4,11 @@ Each frame it estimates, causally, what the database is searched by (:mod:`facec
 the mean wrist speed and wrist height over the next 0.3 s and 0.6 s (:data:`TARGET_NAMES`, in the
 targets' own units), and the probability that the speaker is speaking now.
 
-**Network** (:class:`SpeechReader`). The thesis's causal encoders from :mod:`facecapges.model.network`
-— :class:`~facecapges.model.network.AudioEncoder` (Mel or raw front end, 12-layer kernel-2 TCN),
-:class:`~facecapges.model.network.FaceEncoder` (8-layer TCN, the audio embedding joined at layer 8)
-and :class:`~facecapges.model.network.HeadEncoder` (6 → 36 → 12) — built from a
-:class:`~facecapges.model.config.ModelConfig` with the thesis's dilations (receptive field 17
+**Network** (:class:`SpeechReader`). The thesis's causal encoders from :mod:`facecapges.network.network`
+— :class:`~facecapges.network.network.AudioEncoder` (Mel or raw front end, 12-layer kernel-2 TCN),
+:class:`~facecapges.network.network.FaceEncoder` (8-layer TCN, the audio embedding joined at layer 8)
+and :class:`~facecapges.network.network.HeadEncoder` (6 → 36 → 12) — built from a
+:class:`~facecapges.network.config.ModelConfig` with the thesis's dilations (receptive field 17
 frames, 1.1 s) and the same or smaller widths (:class:`PredictorSettings`), then a small MLP
 ``[z_A; z_F; z_H] → K + 1`` (the K normalised targets and the speaking logit). Trained from
 scratch on the style's own takes: never initialised from a shipped style.
@@ -33,7 +33,7 @@ head into it, as the thesis trainer does).
 (:mod:`facecapges.matching.speech`, the one the database annotates with) over the take's own audio.
 
 **Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs the encoders through the
-generator's kernel (:class:`facecapges.model.batched.BatchedEncoders`: TCN shift registers, native
+generator's kernel (:class:`facecapges.network.batched.BatchedEncoders`: TCN shift registers, native
 small-batch loops), so a frame costs one tap per TCN layer; its outputs equal the network's
 over the whole sequence (tested).
 
@@ -67,11 +67,12 @@ from torch import nn
 
 from facecapges import rotations as rot
 from facecapges import timing
+from facecapges.engine.slots import Slots
 from facecapges.matching.takes import Take
 from facecapges.matching.targets import TARGET_NAMES, arm_positions, future_targets
-from facecapges.model.audio_features import FEATURE_DIM, AudioFeatures
-from facecapges.model.config import ModelConfig
-from facecapges.model.network import (
+from facecapges.network.audio_features import FEATURE_DIM, AudioFeatures
+from facecapges.network.config import ModelConfig
+from facecapges.network.network import (
     AudioEncoder,
     FaceEncoder,
     HeadEncoder,
@@ -79,7 +80,6 @@ from facecapges.model.network import (
     mlp,
     set_input_statistics,
 )
-from facecapges.model.slots import Slots
 
 K = len(TARGET_NAMES)
 OUTPUT_NAMES: tuple[str, ...] = (*TARGET_NAMES, "speaking")
@@ -443,7 +443,7 @@ class BatchedPredictor:
     """Independent causal streams of one predictor, stepped as one batch (slots as the generator's kernel)."""
 
     def __init__(self, predictor: Predictor, capacity: int = 8):
-        from facecapges.model.batched import BatchedEncoders, affine_chain
+        from facecapges.network.batched import BatchedEncoders, affine_chain
 
         self.predictor = predictor
         self._lock = threading.RLock()

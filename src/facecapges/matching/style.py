@@ -1,6 +1,6 @@
 """Matching styles on disk: one ``.safetensors`` of format ``facecapges-matching-1``.
 
-Like the network's styles (:mod:`facecapges.model.checkpoint`), the file holds tensors and, in
+Like the network's styles (:mod:`facecapges.styles`), the file holds tensors and, in
 the safetensors metadata under ``"facecapges"``, a JSON document:
 
 * tensors ``db.*`` — the :class:`~facecapges.matching.database.Database` arrays (poses, raw
@@ -14,9 +14,9 @@ the safetensors metadata under ``"facecapges"``, a JSON document:
   (idle frames of the style, (N, 47, 6)), ``fps``, ``speaker``, ``takes`` (name, source, frames
   used, held-out range), ``licence`` and ``attribution``.
 
-:func:`facecapges.model.checkpoint.load_checkpoint` reads this format and returns a
-:class:`MatchingCheckpoint`: a :class:`~facecapges.model.engine.GestureEngine` like the network's
-:class:`~facecapges.model.checkpoint.Checkpoint` (its ``skeleton`` and ``neutral_window`` come from the
+:func:`facecapges.styles.load_checkpoint` reads this format and returns a
+:class:`MatchingCheckpoint`: a :class:`~facecapges.engine.contract.GestureEngine` like the network's
+:class:`~facecapges.network.style.Checkpoint` (its ``skeleton`` and ``neutral_window`` come from the
 metadata the same way), with the engine's ``database_poses()``.
 """
 
@@ -30,10 +30,10 @@ from typing import ClassVar
 import numpy as np
 
 from facecapges import timing
+from facecapges.engine.contract import GestureEngine
 from facecapges.errors import UserError, file_error
 from facecapges.matching.database import Database
 from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator
-from facecapges.model.engine import GestureEngine
 from facecapges.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
 
 FORMAT = "facecapges-matching-1"
@@ -42,7 +42,7 @@ NEUTRAL_FRAMES = 8
 
 @dataclass
 class MatchingCheckpoint(GestureEngine):
-    """A loaded matching style (module docs): a :class:`~facecapges.model.engine.GestureEngine`."""
+    """A loaded matching style (module docs): a :class:`~facecapges.engine.contract.GestureEngine`."""
 
     db: Database
     config: EngineConfig
@@ -261,7 +261,7 @@ def from_file(path: Path, tensors: dict, meta: dict) -> MatchingCheckpoint:
 def _predictor(path: Path, tensors: dict, config: object):
     """The style's speech predictor; its JSON config checked (sizes through the network's own ranges)."""
     from facecapges.matching.predictor import OUTPUT_NAMES, Predictor
-    from facecapges.model.config import model_config_from_dict
+    from facecapges.network.config import model_config_from_dict
 
     p_t = {k[len("predictor.") :]: v.float() for k, v in tensors.items() if k.startswith("predictor.")}
     try:

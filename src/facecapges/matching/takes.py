@@ -154,7 +154,7 @@ def load_beat2_take(npz_path: Path, wav_path: Path, target: Skeleton | None) -> 
     """A BEAT2 SMPL-X take (:mod:`facecapges.data.beat2`: BEAT upper body + jawOpen face) on ``target``.
 
     ``target`` is the BEAT skeleton the poses belong to (BEAT2 has none of its own): a BEAT BVH's
-    or a style's (:func:`facecapges.model.checkpoint.load_skeleton`).
+    or a style's (:func:`facecapges.styles.load_skeleton`).
     """
     from facecapges.data import beat2
     from facecapges.io.audio import load_audio

@@ -1,8 +1,8 @@
 """``facecapges generate`` as a function: a recording's speech (+ face, head) → BVH, face JSON, VRM Animation.
 
 :func:`generate_recording` checks every output before the work, plans the inputs
-at the checkpoint's rate (:meth:`facecapges.model.engine.GestureEngine.plan_inputs`), generates block by
-block through the one generation loop (:func:`facecapges.model.generate.generate_blocks`; memory flat in
+at the checkpoint's rate (:meth:`facecapges.engine.contract.GestureEngine.plan_inputs`), generates block by
+block through the one generation loop (:func:`facecapges.engine.generate.generate_blocks`; memory flat in
 the recording's length) and writes:
 
 * ``out`` — the gestures on the checkpoint's BEAT skeleton at the model rate (BVH);
@@ -53,10 +53,10 @@ def generate_recording(
 
     import numpy as np
 
+    from facecapges.engine.intensity import check_intensity
     from facecapges.errors import check_output_file, require_file
     from facecapges.io.audio import check_audio
     from facecapges.io.bvh import BvhWriter
-    from facecapges.model.intensity import check_intensity
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
 
@@ -75,8 +75,8 @@ def generate_recording(
         require_file(o.face, "face JSON file")
     if o.head is not None:
         require_file(o.head, "head rotation file")
-    from facecapges.model.checkpoint import load_checkpoint
-    from facecapges.model.generate import generate_blocks
+    from facecapges.engine.generate import generate_blocks
+    from facecapges.styles import load_checkpoint
 
     ckpt = load_checkpoint(o.checkpoint, o.style)
     inputs = ckpt.plan_inputs(o.audio, o.face, o.head)  # at the checkpoint's rate

@@ -1,4 +1,5 @@
-"""The runtime's interfaces, declared once: what a source, a generator and a sink must offer.
+"""The runtime's interfaces, declared once: what a source and a sink must offer (a stream: the engines'
+:class:`~facecapges.engine.contract.Stream`).
 
 The scheduler (:mod:`.scheduler`) talks to its parts only through these protocols
 (``typing.Protocol``; ``isinstance`` works on them, which the tests use to check that
@@ -8,7 +9,7 @@ every source and sink of the project satisfies its protocol):
   :class:`~.inputs.sources.CameraVideo`);
 * :class:`FaceFeed` — faces that need no capture (:class:`~.inputs.sources.LiveLinkFace`);
 * :class:`AudioSource` — the speech (:class:`~.inputs.sources.FileAudio`, :class:`~.inputs.sources.MicAudio`);
-* :class:`Generator` — one gesture stream (:class:`~facecapges.model.streaming.StreamingGenerator`);
+* a gesture stream — the engines' :class:`~facecapges.engine.contract.Stream`;
 * :class:`Sink` — where output frames go (:mod:`.outputs.recorders`, :mod:`.outputs.vmc`, :mod:`.outputs.viewer`).
 
 Stream time is seconds since the session started (:meth:`start` gets its monotonic
@@ -75,14 +76,6 @@ class AudioSource(Protocol):
         """Samples ``[start, end)`` that exist by stream time ``now_s`` (fewer when they do not yet)."""
 
     def close(self) -> None: ...
-
-
-@runtime_checkable
-class Generator(Protocol):
-    def reset(self) -> None: ...
-
-    def step(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
-        """One frame: audio chunk, (52,) weights, (6,) head rot6d → (47, 6) pose rot6d."""
 
 
 @runtime_checkable

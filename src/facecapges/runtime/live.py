@@ -345,8 +345,8 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
     summary; ``warn(text)`` the warnings and notes. The report is also written to
     ``--record``'s ``report.json``.
     """
-    from facecapges.model.checkpoint import load_checkpoint
     from facecapges.runtime.session import build_session
+    from facecapges.styles import load_checkpoint
 
     o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
     outs = _check(o)

@@ -358,7 +358,7 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
         from facecapges.avatar.vrm.read import load_model
 
         load_model(o.avatar)
-    from facecapges.model.checkpoint import load_checkpoint
+    from facecapges.styles import load_checkpoint
 
     ckpt = load_checkpoint(o.checkpoint, o.style)
     report = run_video(

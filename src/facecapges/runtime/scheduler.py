@@ -65,7 +65,8 @@ from facecapges.capture.speech_mouth import SpeechMouth
 from facecapges.runtime.frames import InputFrame, OutputFrame
 from facecapges.runtime.head import HeadDriver
 from facecapges.runtime.inputs.sources import FaceSample
-from facecapges.runtime.interfaces import AudioSource, FaceFeed, Generator, Sink, VideoSource
+from facecapges.engine.contract import Stream
+from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
 
 STAGES = ("capture", "features", "model", "output", "total", "input", "landmarks", "model_cpu", "output_cpu")
 # ``input``: reading/decoding the video frame (not in ``total``); ``landmarks``: MediaPipe's part of ``capture``;
@@ -163,7 +164,7 @@ class Stream:
     """One face's chain: its generator, input hold, head driver, speech mouth and the last frame."""
 
     index: int
-    gen: Generator
+    gen: Stream
     hold: FaceHold
     head: HeadDriver
     mouth: SpeechMouth
@@ -175,7 +176,7 @@ class Scheduler:
     """Runs one session: sources → capture → generator(s) → sinks, once per model frame.
 
     Args:
-        generator: a :class:`~facecapges.model.streaming.StreamingGenerator` (reset here),
+        generator: a :class:`~facecapges.network.streaming.StreamingGenerator` (reset here),
             or one per face (a list) for several faces (``FaceCapture(num_faces=N)``).
         fps, sr: model rate and audio rate (the checkpoint's).
         video: a video source (:class:`FileVideo`, :class:`CameraVideo`) — needs ``capture``.

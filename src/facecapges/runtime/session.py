@@ -21,7 +21,7 @@ from facecapges.timing import AUDIO_SR
 
 if TYPE_CHECKING:
     from facecapges.capture.pipeline import FaceCapture
-    from facecapges.model.engine import GestureEngine
+    from facecapges.engine.contract import GestureEngine
     from facecapges.runtime.scheduler import Scheduler
 
 
@@ -41,8 +41,8 @@ class Session:
     generators: list = field(default_factory=list)  # one per face, in face order
 
     def set_intensity(self, value: float) -> float:
-        """Every avatar's intensity dial (:mod:`facecapges.model.intensity`), from the next frame on."""
-        from facecapges.model.intensity import check_intensity
+        """Every avatar's intensity dial (:mod:`facecapges.engine.intensity`), from the next frame on."""
+        from facecapges.engine.intensity import check_intensity
 
         v = check_intensity(value, "intensity")
         for gen in self.generators:
@@ -114,7 +114,7 @@ def check_inputs(
     type, a missing device or a port in use is reported in a second instead of after the model's load.
     """
     from facecapges.capture.estimator import MODES
-    from facecapges.model.intensity import check_intensity
+    from facecapges.engine.intensity import check_intensity
     from facecapges.runtime.head import check_head_mode
 
     chosen = [x for x in (video, camera, livelink) if x is not None]

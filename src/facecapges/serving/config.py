@@ -36,7 +36,7 @@ class ServeConfig:
             raise UserError("--tick-ms must be >= 0")
         if self.threads < 1:
             raise UserError("--threads must be at least 1")
-        from facecapges.model.intensity import check_intensity
+        from facecapges.engine.intensity import check_intensity
 
         check_intensity(self.intensity)
         if self.max_per_address is not None and self.max_per_address < 1:

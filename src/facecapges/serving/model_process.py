@@ -2,7 +2,7 @@
 
 ``serve`` runs its event loop (WebSocket I/O, JSON) in one thread. Stepped in a thread
 of the same process, the eager batched kernel
-(:class:`~facecapges.model.batched.BatchedStreamingGenerator`) gives up and takes back
+(:class:`~facecapges.network.batched.BatchedStreamingGenerator`) gives up and takes back
 the GIL at each of its few hundred tensor operations, and the busy event loop keeps
 it waiting at each one: measured on this 2-core machine, 80 clients, one run (load
 17–24): a worker thread managed 9 ticks in 6 s, the same kernel inline in the event
@@ -43,7 +43,7 @@ import torch
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
-from facecapges.model.batched import pack_audio
+from facecapges.network.batched import pack_audio
 from facecapges.skeleton import N_JOINTS
 
 

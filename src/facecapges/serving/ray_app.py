@@ -92,7 +92,7 @@ def build_app(
         def __init__(self) -> None:
             import torch
 
-            from facecapges.model.checkpoint import load_checkpoint, resolve
+            from facecapges.styles import load_checkpoint, resolve
 
             torch.set_num_threads(1)
             ckpt = load_checkpoint(resolve(checkpoint, style))

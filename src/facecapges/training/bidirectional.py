@@ -1,4 +1,4 @@
-"""The "offline decoding" ablation (:mod:`facecapges.model.bidirectional`) as a training variant.
+"""The "offline decoding" ablation (:mod:`facecapges.network.bidirectional`) as a training variant.
 
 It is trained by the one trainer (:mod:`facecapges.training.train`) — the same data,
 budget, objective, optimizers, DDP, AMP and resume as the closed-loop model; only
@@ -14,7 +14,7 @@ the :class:`~facecapges.training.train.Variant` differs:
 * Losses on the M = 18 frames after the seed only (the same frames the closed-loop
   trainer generates), with the closed-loop trainer's weights, discriminator and
   schedule. The checkpoint is ``model.safetensors`` in format ``facecapges-offline-1``
-  (:func:`facecapges.model.bidirectional.save_bidirectional`) with ``variant: "offline decoding"``
+  (:func:`facecapges.network.bidirectional.save_bidirectional`) with ``variant: "offline decoding"``
   and the cold-start ``neutral_window`` chosen exactly as for the closed-loop model,
   so both are seeded alike at evaluation.
 """
@@ -25,7 +25,7 @@ from pathlib import Path
 
 import torch
 
-from facecapges.model.bidirectional import BidirectionalDecoder, save_bidirectional
+from facecapges.network.bidirectional import BidirectionalDecoder, save_bidirectional
 from facecapges.training.segments import ClipArrays
 from facecapges.training.train import Trainer, Variant, build_trainer
 

@@ -67,7 +67,7 @@ def check_options(o: TrainOptions) -> None:
     if o.epochs is not None and o.epochs < 1:
         raise UserError("--epochs must be at least 1")
     if o.config is not None:
-        from facecapges.model.config import load_config_file
+        from facecapges.network.config import load_config_file
 
         load_config_file(require_file(o.config, "config file"))
     if o.resume:  # the run's own state (read with torch) says the rest
@@ -84,7 +84,7 @@ def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
     """The whole ``train`` command (module docstring); only rank 0 ``say``\\ s anything."""
     check_options(o)  # before torch loads
     from facecapges.errors import UserError
-    from facecapges.model.config import load_config_file
+    from facecapges.network.config import load_config_file
     from facecapges.timing import MODEL_FPS
     from facecapges.training.distributed import init_distributed, shutdown
     from facecapges.training.segments import load_clips

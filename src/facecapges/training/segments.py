@@ -21,7 +21,7 @@ import numpy as np
 import torch
 
 from facecapges.errors import UserError
-from facecapges.model.config import ModelConfig, TrainConfig
+from facecapges.network.config import ModelConfig, TrainConfig
 from facecapges.rotations import identity_rot6d
 from facecapges.timing import frame_audio, frame_sample_bounds
 from facecapges.training.masking import mirrored

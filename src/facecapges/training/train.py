@@ -59,9 +59,9 @@ import torch
 import torch.nn.functional as F
 
 from facecapges.errors import UserError
-from facecapges.model.checkpoint import save_checkpoint
-from facecapges.model.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
-from facecapges.model.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
+from facecapges.network.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
+from facecapges.network.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
+from facecapges.network.style import save_checkpoint
 from facecapges.timing import frame_audio, frame_sample_bounds
 from facecapges.training.distributed import DistContext
 from facecapges.training.masking import discriminator_view, masked_reconstruction_losses
@@ -129,7 +129,7 @@ def input_statistics(
 ) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], dict, np.ndarray | None]:
     """Normalisation of each input from the training frames (< ``holdout_from``) only.
 
-    Returns ({input: (in_mean, in_scale)} for :func:`~facecapges.model.network.set_input_statistics`,
+    Returns ({input: (in_mean, in_scale)} for :func:`~facecapges.network.network.set_input_statistics`,
     the metadata saying what the style was trained with, and the head reference
     rotation ``R_ref`` (rot6d) or None). Held-out frames never enter a statistic.
 
@@ -143,7 +143,7 @@ def input_statistics(
     * audio: raw samples by 1 / RMS; Mel features per channel (1 / max(sd, 1e-3)).
     """
     from facecapges.capture.head_pose import skeleton_head_to_camera
-    from facecapges.model.audio_features import AudioFeatures
+    from facecapges.network.audio_features import AudioFeatures
     from facecapges.rotations import mean_rotation
 
     cut = [
@@ -195,8 +195,8 @@ def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) ->
     """
     from dataclasses import asdict
 
-    from facecapges.model.checkpoint import load_checkpoint_or_style, network_only
-    from facecapges.model.network import NORM_BUFFERS
+    from facecapges.network.network import NORM_BUFFERS
+    from facecapges.styles import load_checkpoint_or_style, network_only
 
     base = network_only(load_checkpoint_or_style(source), "train.init_from")
     theirs, ours = asdict(base.model.cfg), asdict(mcfg)

@@ -21,7 +21,7 @@ Server → client
 
 A client reads messages until ``hello``: the ``hello`` means the server is ready for input.
 
-``intensity`` — the gesture intensity now (0 … 1.3, :mod:`facecapges.model.intensity`); also sent as
+``intensity`` — the gesture intensity now (0 … 1.3, :mod:`facecapges.engine.intensity`); also sent as
 ``{"type": "intensity", "value": v}`` in reply to a client's ``intensity`` message.
 
 ``pose`` — one output frame (the viewer's feed; ``serve``'s reply to an ``input``)::
@@ -218,7 +218,7 @@ def _floats(obj, n: int, what: str) -> np.ndarray:
 
 
 def _intensity(value) -> float:
-    from facecapges.model.intensity import check_intensity
+    from facecapges.engine.intensity import check_intensity
 
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
         raise ProtocolError("'value' of an intensity message must be a number")

@@ -1,7 +1,7 @@
 """The gesture engines behind one interface: what a loaded style offers, whatever makes its motion.
 
-:func:`facecapges.model.checkpoint.load_checkpoint` returns a :class:`GestureEngine`: the thesis
-network's :class:`~facecapges.model.checkpoint.Checkpoint` or a motion-matching style's
+:func:`facecapges.styles.load_checkpoint` returns a :class:`GestureEngine`: the thesis
+network's :class:`~facecapges.network.style.Checkpoint` or a motion-matching style's
 :class:`~facecapges.matching.style.MatchingCheckpoint`. The runtime, ``serve``, ``generate`` and
 evaluation use only what is defined here, so another engine slots in beside ``model/`` and
 ``matching/`` without touching them:
@@ -18,7 +18,7 @@ evaluation use only what is defined here, so another engine slots in beside ``mo
   None for an engine that generates its poses.
 
 What only a network can do (resume training from it, the ablation's variants) asks for a
-network by :func:`facecapges.model.checkpoint.network_only`.
+network by :func:`facecapges.styles.network_only`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,8 @@ from __future__ import annotations
 import abc
 import functools
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar, Protocol
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -34,13 +35,14 @@ from facecapges.errors import file_error
 from facecapges.skeleton import Skeleton, skeleton_from_dict
 
 if TYPE_CHECKING:
-    from facecapges.model.generate import FrameInputs, StreamedInputs
+    from facecapges.engine.generate import FrameInputs, StreamedInputs
 
 
+@runtime_checkable
 class Stream(Protocol):
     """One stream of an engine: a pose (47, 6) per frame of inputs, from a history it is reset to."""
 
-    intensity: float  # the dial, 0 (rest) … 1 … 1.3 (facecapges.model.intensity)
+    intensity: float  # the dial, 0 (rest) … 1 … 1.3 (facecapges.engine.intensity)
 
     @property
     def frames(self) -> int:
@@ -50,6 +52,39 @@ class Stream(Protocol):
     def reset(self, initial_pose: np.ndarray | None = None) -> None: ...
 
     def step(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray: ...
+
+
+@runtime_checkable
+class BatchedStreams(Protocol):
+    """Many streams of one style stepped as one batch (what ``serve`` runs): each open stream owns a
+    *slot* (:mod:`facecapges.engine.slots`) from :meth:`open` until :meth:`close`; one :meth:`step` takes
+    one frame of inputs for each slot it names (each at most once) and returns their poses in that order."""
+
+    @property
+    def n_open(self) -> int: ...
+
+    @property
+    def open_slots(self) -> frozenset[int]: ...
+
+    def open(self, initial_pose: np.ndarray | None = None) -> int:
+        """A new stream from its cold start (or from ``initial_pose``, (47, 6) rot6d); its slot."""
+        ...
+
+    def close(self, slot: int) -> None: ...
+
+    def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None: ...
+
+    def set_intensity(self, slot: int, value: float) -> None:
+        """The dial of one stream (:mod:`facecapges.engine.intensity`), from its next step on."""
+        ...
+
+    def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
+        """One frame for each of ``slots``: audio chunks (B, samples), faces (B, 52), heads (B, 6) → (B, 47, 6)."""
+        ...
+
+    def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
+        """Feed known frames (inputs and the poses that went with them) as history, without generating."""
+        ...
 
 
 class GestureEngine(abc.ABC):
@@ -70,7 +105,7 @@ class GestureEngine(abc.ABC):
         """A new stream from the cold start (:attr:`neutral_window`)."""
 
     @abc.abstractmethod
-    def batched(self, capacity: int = 8):
+    def batched(self, capacity: int = 8) -> BatchedStreams:
         """Many streams of this style stepped as one batch (what ``serve`` runs)."""
 
     @functools.cached_property
@@ -98,8 +133,8 @@ class GestureEngine(abc.ABC):
         self, audio: str | Path, face: str | Path | None = None, head: str | Path | None = None
     ) -> StreamedInputs:
         """A recording's inputs at this engine's rate, read block by block
-        (:func:`facecapges.model.generate.plan_inputs`)."""
-        from facecapges.model.generate import plan_inputs
+        (:func:`facecapges.engine.generate.plan_inputs`)."""
+        from facecapges.engine.generate import plan_inputs
 
         return plan_inputs(audio, face, head, fps=self.fps)
 
@@ -107,7 +142,7 @@ class GestureEngine(abc.ABC):
         self, audio: str | Path, face: str | Path | None = None, head: str | Path | None = None
     ) -> FrameInputs:
         """A recording's inputs at this engine's rate, all in memory
-        (:func:`facecapges.model.generate.prepare_inputs`)."""
-        from facecapges.model.generate import prepare_inputs
+        (:func:`facecapges.engine.generate.prepare_inputs`)."""
+        from facecapges.engine.generate import prepare_inputs
 
         return prepare_inputs(audio, face, head, fps=self.fps)

@@ -2,7 +2,7 @@
 
 :func:`prepare_inputs` turns files into per-frame model inputs at the engine's
 rate (audio framed, face JSON resampled causally, head rotation aligned; a loaded style plans
-them at its own rate: :meth:`GestureEngine.plan_inputs <facecapges.model.engine.GestureEngine.plan_inputs>`)
+them at its own rate: :meth:`GestureEngine.plan_inputs <facecapges.engine.contract.GestureEngine.plan_inputs>`)
 and :func:`generate_blocks` — the one whole-recording loop, which ``generate``, ``eval`` and
 ``ablate`` share — runs the engine's stream frame by frame from its cold start (or a given
 history). The result has ``ceil(duration·fps)`` frames.
@@ -35,7 +35,7 @@ from facecapges.rotations import identity_rot6d
 from facecapges.skeleton import N_JOINTS
 
 if TYPE_CHECKING:
-    from facecapges.model.engine import GestureEngine
+    from facecapges.engine.contract import GestureEngine
 
 BLOCK_FRAMES = 900  # frames per block when a recording is streamed (1 min at 15 fps)
 
@@ -186,7 +186,7 @@ def generate_blocks(
 
     The stream starts from the engine's cold-start window, or from ``history`` (n, 47, 6) given as the
     poses before the first frame (evaluation's other samples). ``timing_ms`` (a list) receives the
-    engine's ms per frame at the end; ``intensity``: the stream's dial (:mod:`facecapges.model.intensity`)."""
+    engine's ms per frame at the end; ``intensity``: the stream's dial (:mod:`facecapges.engine.intensity`)."""
     import torch
 
     gen = engine.streaming()

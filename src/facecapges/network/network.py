@@ -36,8 +36,8 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
-from facecapges.model.audio_features import AudioFeatures
-from facecapges.model.config import ModelConfig
+from facecapges.network.audio_features import AudioFeatures
+from facecapges.network.config import ModelConfig
 
 LSTMState = tuple[torch.Tensor, torch.Tensor]
 NORM_BUFFERS = ("in_mean", "in_scale")
@@ -98,7 +98,7 @@ class AudioFrontend(nn.Module):
 class MelFrontend(nn.Module):
     """One frame's samples (S,) → log-Mel/energy/F0 features (43) → one vector (per frame).
 
-    ``features`` is :class:`facecapges.model.audio_features.AudioFeatures`; the features
+    ``features`` is :class:`facecapges.network.audio_features.AudioFeatures`; the features
     are standardised (``proj``'s buffers) and mapped by a two-layer MLP to the TCN width.
     """
 

@@ -2,7 +2,7 @@
 
 FaceCapGes generates frame by frame in closed loop, each step seeing only the past.
 This variant keeps everything else of the full model — the same audio, face and head
-encoders (:mod:`facecapges.model.network`, same :class:`ModelConfig` sizes), the same
+encoders (:mod:`facecapges.network.network`, same :class:`ModelConfig` sizes), the same
 rot6d output, the same torso-then-limbs cascade and MLP heads — but replaces the
 closed-loop decoder by CaMN's offline paradigm: **bidirectional** LSTMs that decode a
 whole segment in one pass.
@@ -33,7 +33,7 @@ inference are those of "no input" (zero features, the causal padding of the enco
 
 Checkpoint: ``save_bidirectional`` / ``load_bidirectional`` write one ``.safetensors`` with
 metadata format ``facecapges-offline-1`` (the :class:`ModelConfig` and training
-summary); :func:`facecapges.model.checkpoint.load_checkpoint` refuses such files (not
+summary); :func:`facecapges.styles.load_checkpoint` refuses such files (not
 a streaming model).
 """
 
@@ -46,8 +46,8 @@ import torch
 import torch.nn as nn
 
 from facecapges.errors import UserError
-from facecapges.model.config import ModelConfig, model_config_from_dict
-from facecapges.model.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
+from facecapges.network.config import ModelConfig, model_config_from_dict
+from facecapges.network.network import AudioEncoder, FaceEncoder, HeadEncoder, mlp, with_default_norms
 
 BIDIRECTIONAL_FORMAT = "facecapges-offline-1"
 
@@ -78,7 +78,7 @@ class BidirectionalDecoder(nn.Module):
 
     def no_input_embedding(self) -> torch.Tensor:
         """Embedding (E,) of a frame before the sequence: the streaming kernel's (same encoders)."""
-        from facecapges.model.batched import no_input_embedding
+        from facecapges.network.batched import no_input_embedding
 
         return no_input_embedding(self)
 
@@ -131,14 +131,14 @@ class BidirectionalDecoder(nn.Module):
 
 def save_bidirectional(path: str | Path, model: BidirectionalDecoder, meta: dict) -> Path:
     """Weights + metadata (format ``facecapges-offline-1``) atomically."""
-    from facecapges.model.checkpoint import save_checkpoint
+    from facecapges.network.style import save_checkpoint
 
     return save_checkpoint(path, model, meta, fmt=BIDIRECTIONAL_FORMAT)
 
 
 def load_bidirectional(path: str | Path) -> tuple[BidirectionalDecoder, dict]:
     """An offline-decoding checkpoint (eval mode) and its metadata."""
-    from facecapges.model.checkpoint import read_weights
+    from facecapges.engine.files import read_weights
 
     p = Path(path)
     tensors, meta = read_weights(p, BIDIRECTIONAL_FORMAT, "offline-decoding checkpoint")

@@ -2,7 +2,7 @@
 
 * ``"raw"`` (thesis table 3.1): a frame's own 16 kHz samples, zero-padded to
   ``samples_per_frame`` = ceil(sr/fps) = 1067, fed to strided convolutions
-  (:class:`facecapges.model.network.AudioFrontend`).
+  (:class:`facecapges.network.network.AudioFrontend`).
 * ``"mel"`` (thesis §2.4.1, "Mel spectrum, short-time energy and F0 with Librosa"):
   :class:`AudioFeatures` turns the same 1067 samples into ``FEATURE_DIM`` = 43 numbers:
 
@@ -29,7 +29,7 @@ torch (``torch.fft``: one call for the frame's five windows, one for the autocor
 so it runs inside the model; its Mel matrix comes from Librosa (stored: :func:`mel_basis`). The streaming kernel's
 small batches take :meth:`AudioFeatures.forward_native` instead, a second schedule of
 the same computation: the same FFT calls, the work between them in compiled loops
-(:mod:`facecapges.model.native`), equal values to float rounding (tested); the naive
+(:mod:`facecapges.network.native`), equal values to float rounding (tested); the naive
 loop, training and the offline path run :meth:`AudioFeatures.forward`.
 """
 
@@ -128,9 +128,9 @@ class AudioFeatures(nn.Module):
     def forward_native(self, x: torch.Tensor) -> torch.Tensor:
         """:meth:`forward` of (B, S) frames as the streaming kernel's small-batch schedule: the
         same torch FFT calls, and everything between them in three compiled loops
-        (:mod:`facecapges.model.native`) instead of ~25 torch calls. Same values to float
+        (:mod:`facecapges.network.native`) instead of ~25 torch calls. Same values to float
         rounding (sums in another order, in float64)."""
-        from facecapges.model import native
+        from facecapges.network import native
 
         if self._native is None:
             self._native = (self.mel_basis_t.double().numpy().copy(), self.log_f0_of_lag.numpy().copy())

@@ -1,11 +1,9 @@
-"""Inference checkpoints ("styles"): one ``.safetensors`` file per speaker model.
+"""The style shelf: list, resolve, install and load the styles of every engine.
 
-The file holds the generator's weights (float32) and, in the safetensors metadata
-under ``"facecapges"``, a JSON document with everything needed to run and write
-results without the training data: the :class:`ModelConfig`, the training config and
-summary, the cold-start neutral pose window (N, 47, 6) taken from the training data,
-the speaker, and the skeleton header (the BEAT hierarchy the poses belong to, so BVH
-can be written).
+A style is one ``.safetensors`` file (:mod:`facecapges.engine.files`) of an engine: the thesis
+network's (:mod:`facecapges.network.style`) or motion matching's (:mod:`facecapges.matching.style`);
+:func:`load_checkpoint` reads the file, picks the engine from its ``format`` and returns a
+:class:`~facecapges.engine.contract.GestureEngine`, what every caller uses.
 
 Styles ship in ``facecapges/assets/styles/<name>.safetensors`` with a model card
 ``<name>.md``; ``DEFAULT_STYLE`` is the motion-matching style of the shared BEAT speaker
@@ -14,32 +12,27 @@ user trains are installed (``facecapges styles install RUN``) into the user data
 folder :func:`user_styles_dir` — ``$FACECAPGES_STYLES`` if set, else
 ``$XDG_DATA_HOME/facecapges/styles`` (``~/.local/share/facecapges/styles`` by
 default) — and found by ``--style NAME`` like the shipped ones; a user style of the
-same name as a shipped one takes precedence.
+same name as a shipped one takes precedence. Matching styles are built here too
+(:func:`build_matching_style`: the destination and the name are the shelf's, the building
+:mod:`facecapges.matching.build`'s).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar
 
-import numpy as np
-
+from facecapges.engine.contract import GestureEngine
+from facecapges.engine.files import check_meta, read_file
 from facecapges.errors import UserError, file_error
-from facecapges.model.engine import GestureEngine
-from facecapges.skeleton import Skeleton, skeleton_from_dict
-
-if TYPE_CHECKING:
-    from facecapges.model.batched import BatchedStreamingGenerator
-    from facecapges.model.network import FaceCapGes
-    from facecapges.model.streaming import StreamingGenerator
+from facecapges.network.style import Checkpoint
+from facecapges.skeleton import Skeleton
 
 DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
+
+
 DEFAULT_NETWORK_STYLE = "beat2-scott-demo"  # the thesis network of the same speaker (train / ablate / its bench)
-FORMAT = "facecapges-checkpoint-1"
-MATCHING_FORMAT = "facecapges-matching-1"  # a motion-matching style: facecapges.matching.style
 
 
 def styles_dir() -> Path:
@@ -82,6 +75,8 @@ def check_style_name(name: str | None) -> str:
 
 
 MAX_INSTALL_BYTES = {"checkpoint": 1 << 30, "log": 64 << 20, "card": 1 << 20, "fgd": 256 << 20}
+
+
 MAX_INSTALL_FILES = 256  # files of a model.fgd/ folder
 
 
@@ -240,150 +235,24 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
     return styles[name]
 
 
-@dataclass
-class Checkpoint(GestureEngine):
-    """A loaded network style (the thesis network): a :class:`~facecapges.model.engine.GestureEngine`."""
-
-    model: FaceCapGes  # eval mode
-    meta: dict
-    path: Path
-    engine: ClassVar[str] = "network"  # the motion-matching engine's styles: facecapges.matching
-    label: ClassVar[str] = "FaceCapGes"
-
-    @property
-    def fps(self) -> int:
-        return int(self.meta["model_config"]["fps"])
-
-    def streaming(self) -> StreamingGenerator:
-        from facecapges.model.streaming import StreamingGenerator
-
-        return StreamingGenerator(self.model, self.neutral_window)
-
-    def batched(self, capacity: int = 8) -> BatchedStreamingGenerator:
-        """Many streams of this style stepped as one batch (what ``serve`` runs)."""
-        from facecapges.model.batched import BatchedStreamingGenerator
-
-        return BatchedStreamingGenerator(self.model, self.neutral_window, capacity=capacity)
-
-
-def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> Path:
-    """Write weights + metadata (format ``fmt``) atomically (temporary file, then rename)."""
-    from safetensors.torch import save_file
-
-    from facecapges.model.config import to_dict
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    meta = dict(meta, format=fmt, model_config=to_dict(model.cfg))
-    tensors = {k: v.detach().float().contiguous() for k, v in model.state_dict().items()}
-    tmp = path.with_name(path.name + ".part")
-    save_file(tensors, str(tmp), metadata={"facecapges": json.dumps(meta)})
-    tmp.replace(path)
-    return path
-
-
-def _read_file(p: Path) -> tuple[dict, dict | None]:
-    """A safetensors file's tensors and its ``"facecapges"`` metadata (None when it has none); clear errors."""
-    from safetensors import SafetensorError, safe_open
-
-    try:
-        with safe_open(str(p), framework="pt") as f:
-            raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
-    except (SafetensorError, OSError, ValueError) as exc:
-        raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    if raw is None:
-        return tensors, None
-    try:
-        meta = json.loads(raw)
-    except (ValueError, RecursionError):
-        raise file_error(p, "checkpoint metadata is corrupt") from None
-    return tensors, meta
-
-
-def read_weights(path: str | Path, fmt: str, what: str) -> tuple[dict, dict]:
-    """Tensors and metadata of a weights file of format ``fmt`` (e.g. a baseline's); clear errors otherwise."""
-    p = Path(path)
-    if not p.is_file():
-        raise file_error(p, f"{what} not found")
-    tensors, meta = _read_file(p)
-    meta = meta or {}
-    if not isinstance(meta, dict) or meta.get("format") != fmt:
-        fmt_found = meta.get("format") if isinstance(meta, dict) else None
-        raise file_error(p, f"not a {what} (format {fmt_found!r})")
-    return tensors, meta
-
-
 def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> GestureEngine:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
 
     A network style gives a :class:`Checkpoint`, a motion-matching style (format
     ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`: both are
-    :class:`~facecapges.model.engine.GestureEngine` s, what every caller uses.
+    :class:`~facecapges.engine.contract.GestureEngine` s, what every caller uses.
     """
-    import torch
-
-    from facecapges.model.config import model_config_from_dict
-    from facecapges.model.network import FaceCapGes, with_default_norms
+    from facecapges.matching import style as matching_style
+    from facecapges.network import style as network_style
 
     p = resolve(path, style)
-    tensors, meta = _read_file(p)
+    tensors, meta = read_file(p)
     if meta is None:
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
-    if isinstance(meta, dict) and meta.get("format") == MATCHING_FORMAT:
-        from facecapges.matching.style import from_file
-
-        _check_meta(p, meta)
-        return from_file(p, tensors, meta)
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        fmt = meta.get("format") if isinstance(meta, dict) else None
-        raise file_error(p, f"unsupported checkpoint format {fmt!r} (expected {FORMAT})")
-    for key in ("model_config",):
-        if key not in meta:
-            raise file_error(p, f"checkpoint metadata has no {key!r}: not a complete FaceCapGes checkpoint")
-    try:
-        cfg = model_config_from_dict(meta["model_config"])
-    except UserError as exc:
-        raise file_error(p, f"checkpoint's model config is invalid ({exc})") from None
-    _check_meta(p, meta)
-    model = FaceCapGes(cfg)
-    try:
-        model.load_state_dict(with_default_norms(model, {k: v.float() for k, v in tensors.items()}), strict=True)
-    except RuntimeError as exc:
-        first = str(exc).splitlines()[0]
-        raise file_error(p, f"weights do not match the checkpoint's model config ({first})") from None
-    if not all(torch.isfinite(v).all() for v in model.state_dict().values()):
-        raise file_error(p, "checkpoint weights contain NaN or infinite values")
-    return Checkpoint(model=model.eval(), meta=meta, path=p)
-
-
-CHANNEL_NAMES = {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
-
-
-def _check_meta(p: Path, meta: dict) -> None:
-    """The metadata a Checkpoint reads later (neutral window, skeleton): types and shapes, or a UserError."""
-    try:
-        if "neutral_window" not in meta:
-            raise KeyError("no neutral_window")
-        w = np.asarray(meta["neutral_window"], dtype=np.float64)
-        if w.ndim != 3 or w.shape[0] < 1 or w.shape[1:] != (47, 6) or not (np.abs(w) < 1e3).all():
-            raise ValueError(f"neutral_window has shape {w.shape}, expected (N, 47, 6) finite numbers")
-        if "skeleton" in meta:
-            sk = meta["skeleton"]
-            names, parents, channels = sk["names"], [int(x) for x in sk["parents"]], sk["channels"]
-            J = len(names)
-            offsets = np.asarray(sk["offsets"], dtype=np.float64)
-            if not J or len(parents) != J or len(channels) != J or offsets.shape != (J, 3):
-                raise ValueError("skeleton arrays of different lengths")
-            if not all(isinstance(n, str) for n in names) or len(set(names)) != J:
-                raise ValueError("skeleton names are not unique strings")
-            if any(not -1 <= q < i for i, q in enumerate(parents)) or not np.isfinite(offsets).all():
-                raise ValueError("skeleton parents or offsets out of range")
-            if not all(isinstance(c, list) and set(c) <= CHANNEL_NAMES for c in channels):
-                raise ValueError("skeleton channels are not BVH channel names")
-            skeleton_from_dict(sk)
-    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:
-        raise file_error(p, f"checkpoint metadata is invalid ({exc.__class__.__name__}: {str(exc)[:120]})") from None
+    if isinstance(meta, dict) and meta.get("format") == matching_style.FORMAT:
+        check_meta(p, meta)
+        return matching_style.from_file(p, tensors, meta)
+    return network_style.from_file(p, tensors, meta)
 
 
 def network_only(ckpt: GestureEngine, what: str) -> Checkpoint:
@@ -404,3 +273,20 @@ def load_checkpoint_or_style(spec: str | Path) -> GestureEngine:
 def load_skeleton(checkpoint_path: str | Path | None = None) -> Skeleton:
     """The BEAT skeleton stored with a checkpoint (default: the default style's)."""
     return load_checkpoint(checkpoint_path).skeleton
+
+
+def build_matching_style(
+    name: str,
+    pairs: list[tuple[Path, Path]],
+    out: Path | None = None,
+    force: bool = False,
+    say: Callable[[str], None] = print,
+    **settings,
+) -> Path:
+    """``styles build``: a matching style from paired takes (:func:`facecapges.matching.build.build_style`),
+    written to ``out`` or installed into :func:`user_styles_dir` under ``name``; its path."""
+    from facecapges.matching.build import build_style
+
+    check_style_name(name)
+    dest = Path(out) if out is not None else user_styles_dir() / f"{name}.safetensors"
+    return build_style(name, pairs, dest, load_skeleton, force=force, say=say, **settings)

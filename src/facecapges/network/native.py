@@ -5,12 +5,12 @@ step is a small matrix–vector one and the torch schedule's cost is per-call di
 (1–3 µs a call, ~12 calls per TCN, ~8 NumPy calls per LSTM cell), not arithmetic.
 These functions run the same computations as whole loops in one call each:
 
-* :func:`tcn_taps` — :meth:`~facecapges.model.batched.TCNTaps.step` (all layers of
+* :func:`tcn_taps` — :meth:`~facecapges.network.batched.TCNTaps.step` (all layers of
   one causal TCN for one new frame, shift register included);
 * :func:`mel_energy`, :func:`power_spectrum`, :func:`pitch` — the work of
-  :meth:`~facecapges.model.audio_features.AudioFeatures.forward` between its FFTs
-  (:meth:`~facecapges.model.audio_features.AudioFeatures.forward_native`);
-* :func:`cascade` — :meth:`~facecapges.model.batched.Cascade.run` (the torso LSTM and
+  :meth:`~facecapges.network.audio_features.AudioFeatures.forward` between its FFTs
+  (:meth:`~facecapges.network.audio_features.AudioFeatures.forward_native`);
+* :func:`cascade` — :meth:`~facecapges.network.batched.Cascade.run` (the torso LSTM and
   the limb LSTM it conditions over one window, in lockstep: iteration m runs torso
   step m and limb step m − 1, whose input is the torso output the iteration starts
   from; the limb's recurrent product skips the torso columns, so no zero block).

@@ -6,7 +6,7 @@ the current frame's inputs only — ``audio`` (the frame's ≤ 1067 samples at 1
 frame; it never looks ahead.
 
 It is a one-slot use of the streaming kernel,
-:class:`~facecapges.model.batched.BatchedStreamingGenerator` (whose docs list what is
+:class:`~facecapges.network.batched.BatchedStreamingGenerator` (whose docs list what is
 cached between steps: the causal encoders' per-layer inputs, the history frames' LSTM
 input projections, both LSTM states), so one stream and a slot of a served batch run
 the same code and give the same poses.
@@ -29,8 +29,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from facecapges.model.batched import BatchedStreamingGenerator, initial_window, no_input_embedding
-from facecapges.model.network import FaceCapGes
+from facecapges.network.batched import BatchedStreamingGenerator, initial_window, no_input_embedding
+from facecapges.network.network import FaceCapGes
 
 __all__ = ["NaiveStreamingGenerator", "StreamingGenerator", "initial_window"]
 
@@ -55,7 +55,7 @@ class StreamingGenerator:
 
     @property
     def intensity(self) -> float:
-        """The intensity dial, 0 (rest) … 1 (as generated) … 1.3 (:mod:`facecapges.model.intensity`)."""
+        """The intensity dial, 0 (rest) … 1 (as generated) … 1.3 (:mod:`facecapges.engine.intensity`)."""
         return float(self.kernel.intensity[self._slot[0]])
 
     @intensity.setter

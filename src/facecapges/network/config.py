@@ -22,7 +22,7 @@ from facecapges.timing import AUDIO_SR, MODEL_FPS, samples_per_frame
 class ModelConfig:
     fps: int = MODEL_FPS
     sr: int = AUDIO_SR
-    # audio representation (facecapges.model.audio_features): "raw" = each frame's own
+    # audio representation (facecapges.network.audio_features): "raw" = each frame's own
     # 16 kHz samples (table 3.1), zero-padded to ceil(sr/fps) = 1067 and reduced by
     # strided convolutions; "mel" = the frame's log-Mel spectrum + energy + F0 (§2.4.1).
     audio_repr: str = "raw"

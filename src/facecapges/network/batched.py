@@ -3,8 +3,8 @@
 :class:`BatchedStreamingGenerator` is the one implementation of causal frame-by-frame
 inference. Each stream owns one *slot* (:meth:`open` / :meth:`close`); a :meth:`step`
 over some slots runs their current frames as one batched call.
-:class:`~facecapges.model.streaming.StreamingGenerator` is a one-slot use of it, and
-:class:`~facecapges.model.streaming.NaiveStreamingGenerator` (the training code path,
+:class:`~facecapges.network.streaming.StreamingGenerator` is a one-slot use of it, and
+:class:`~facecapges.network.streaming.NaiveStreamingGenerator` (the training code path,
 re-encoding every window) is its test oracle.
 
 Per slot it keeps (cold start as thesis 4.1.1: the neutral window as history, zero
@@ -67,7 +67,7 @@ shape and batch size on a fresh machine and ran no faster; ``torch.export``'s pr
 Python than the eager code it records. So the kernel is eager, with the per-operation cost cut
 instead (shift registers, one ``baddbmm`` for the TCNs' past taps, :func:`affine_chain`, one product
 for both LSTMs' projections), and for small batches the TCN taps, the LSTM cascade and the Mel front
-end's work between its FFTs each run as one loop compiled by Numba (:mod:`facecapges.model.native`;
+end's work between its FFTs each run as one loop compiled by Numba (:mod:`facecapges.network.native`;
 :class:`TCNTaps`, :class:`Cascade` and :data:`BatchedStreamingGenerator.MEL_NATIVE_MAX_BATCH` hold the
 measured batch-size splits; above them the torch schedules run). At one stream the step is bound by
 per-call overhead and memory, not arithmetic; batching (``serve``) turns the products into
@@ -88,10 +88,10 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.profiler import record_function
 
-from facecapges.model import native
-from facecapges.model.intensity import check_intensity, rest_pose, scale_pose
-from facecapges.model.network import FaceCapGes, MelFrontend
-from facecapges.model.slots import SlotOwner, Slots
+from facecapges.engine.intensity import check_intensity, rest_pose, scale_pose
+from facecapges.engine.slots import SlotOwner, Slots
+from facecapges.network import native
+from facecapges.network.network import FaceCapGes, MelFrontend
 
 STAGES = ("input_prep", "audio_frontend", "audio_tcn", "face_encoder", "head_encoder", "decoder")
 _NO_SCOPE = contextlib.nullcontext()
@@ -165,7 +165,7 @@ def affine_chain(module: torch.nn.Module | Sequence[torch.nn.Module]) -> Callabl
     arithmetic). A StandardizedLinear's standardisation is folded into its weights,
     ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``. Other modules are called as they are.
     """
-    from facecapges.model.network import StandardizedLinear
+    from facecapges.network.network import StandardizedLinear
 
     def affine(w_t: torch.Tensor, b_row: torch.Tensor) -> Callable[[torch.Tensor], torch.Tensor]:
         return lambda x: torch.addmm(b_row, x, w_t)
@@ -211,7 +211,7 @@ class TCNTaps:
     row d_i − 1 — a fixed gather, the same for every stream whatever its frame count.
     Two schedules of the same step, chosen by batch size:
 
-    * **native** (B ≤ :attr:`NATIVE_MAX_BATCH`): :func:`facecapges.model.native.tcn_taps`,
+    * **native** (B ≤ :attr:`NATIVE_MAX_BATCH`): :func:`facecapges.network.native.tcn_taps`,
       all layers of every stream and the register shift as one compiled loop — at one
       stream a layer is a (C × C) product of a few hundred multiply–adds, less than one
       torch call's dispatch;
@@ -294,7 +294,7 @@ class Cascade:
     ``hc`` (B, 2, 2H) = ``[[h_t | h_u], [c_t | c_u]]``; it returns the final ones. Two schedules of the same
     recurrence (same gates as ``torch.nn.LSTM``, order i, f, g, o), chosen by batch size:
 
-    * **lockstep, native** (B ≤ :attr:`NATIVE_MAX_BATCH`): :func:`facecapges.model.native.cascade`,
+    * **lockstep, native** (B ≤ :attr:`NATIVE_MAX_BATCH`): :func:`facecapges.network.native.cascade`,
       one compiled loop; iteration m runs torso step m and limb step m − 1 — the limb's
       input at step m − 1 is the torso output h_t,m−1, exactly the torso state iteration
       m starts from, so one ``h_t @ [W_hh,t | W_x]`` (H × 8H) gives the torso's recurrent
@@ -453,7 +453,7 @@ class BatchedStreamingGenerator(SlotOwner):
         if nw.shape != (N, cfg.n_joints, 6):
             raise ValueError(f"neutral window must be ({N}, {cfg.n_joints}, 6), got {nw.shape}")
         self.neutral_window = nw
-        self.rest = rest_pose(nw)  # what the intensity dial scales about (facecapges.model.intensity)
+        self.rest = rest_pose(nw)  # what the intensity dial scales about (facecapges.engine.intensity)
         self._lock = threading.RLock()
         self.encoders = BatchedEncoders(model, 1)  # audio, face, head → [z_A; z_F; z_H] (stages up to the decoder)
         dec = model.decoder
@@ -638,7 +638,7 @@ class BatchedStreamingGenerator(SlotOwner):
             return out
 
     def set_intensity(self, slot: int, value: float) -> None:
-        """The intensity dial of one stream (:mod:`facecapges.model.intensity`), from its next step on."""
+        """The intensity dial of one stream (:mod:`facecapges.engine.intensity`), from its next step on."""
         v = check_intensity(value)
         with self._lock:
             self.slots.require(slot)
