@@ -99,10 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     from facecapges.matching.database import mirror_twins
     from facecapges.matching.speech import speech_track
     from facecapges.matching.takes import load_take
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     fps, spf = timing.MODEL_FPS, timing.samples_per_frame()
-    ck = load_checkpoint(args.checkpoint)
+    ck = load_style(args.checkpoint)
     beat = args.shared / "beat"
     t1 = load_take(beat / "2_scott_0_1_1.bvh", beat / "2_scott_0_1_1.wav")
     t2 = load_take(args.shared / "beat2" / "2_scott_0_2_2.npz", beat / "2_scott_0_2_2.wav", t1.skeleton)

@@ -29,7 +29,7 @@ from facecapges.evaluation import realism as rz
 from facecapges.evaluation import synchrony as sy
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, quaternions
-from facecapges.matching.engine import EngineConfig, MatchingGenerator
+from facecapges.matching.matcher import MatchingConfig, MatchingStream
 from facecapges.matching.speech import speech_track
 from facecapges.matching.takes import load_take
 
@@ -50,7 +50,7 @@ def spread(w: np.ndarray) -> float:
 
 
 def run(
-    gen: MatchingGenerator, take, a: int, b: int, predictor=None, lead_in: int = 0
+    gen: MatchingStream, take, a: int, b: int, predictor=None, lead_in: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
     """Poses of frames [a, b) and whether each frame starts a new clip; the stream starts ``lead_in``
     frames earlier (inputs only: different lead-ins give different paths through the database)."""
@@ -71,9 +71,9 @@ def run(
 def run_network(style: str, take, a: int, b: int, lead_in: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The network style's streaming poses of frames [a, b) (its camera-frame head as eval feeds it)."""
     from facecapges.capture.head_pose import skeleton_head_to_camera
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    ck = load_checkpoint(style=style)
+    ck = load_style(style=style)
     ref = ck.meta.get("head_reference_rot6d")
     head = take.head if ref is None else skeleton_head_to_camera(take.head, ref).astype(np.float32)
     gen = ck.streaming()
@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     target = load_take(*args.skeleton_from.split(",")).skeleton if args.skeleton_from else None
     takes = [load_take(m, w, target) for m, w in args.take]
-    cfg = EngineConfig.from_dict({k: float(v) if "." in v else int(v) for k, v in (s.split("=") for s in args.set)})
+    cfg = MatchingConfig.from_dict({k: float(v) if "." in v else int(v) for k, v in (s.split("=") for s in args.set)})
     weights = {k: float(v) for k, v in (s.split("=") for s in args.weights)} or None
     if args.heldout:
         ranges = [(0, t.train_until) for t in takes]
@@ -197,7 +197,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.director and not args.network
         else None
     )
-    gen = MatchingGenerator(db, cfg, predictor, director)
+    gen = MatchingStream(db, cfg, predictor, director)
     rows = []
     for take, (a, b) in zip(takes, evals):
         for k in range(args.starts):

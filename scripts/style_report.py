@@ -111,12 +111,12 @@ def main() -> None:
     from facecapges.evaluation.run import engine_database, heldout_inputs
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
     from facecapges.evaluation.timing import timing_row
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
     from facecapges.engine.generate import generate_poses
     from facecapges.rotations import identity_rot6d
     from facecapges.timing import AUDIO_SR
 
-    ck = load_checkpoint(args.checkpoint)
+    ck = load_style(args.checkpoint)
     skel, fps = ck.skeleton, ck.fps
     sr = int(ck.meta.get("model_config", {}).get("sr", AUDIO_SR))
     cache = Cache(args.cache)

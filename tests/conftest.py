@@ -96,7 +96,7 @@ def beat_audio(beat_wav):
 
 @pytest.fixture(scope="session")
 def default_checkpoint():
-    """``load_checkpoint()`` of the installed default style, loaded once (the object ``runtime_helpers.checkpoint``
+    """``load_style()`` of the installed default style, loaded once (the object ``runtime_helpers.checkpoint``
     returns, so tests using either share it); its model stays in eval mode and must not be trained in place."""
     from runtime_helpers import checkpoint
 

@@ -1,6 +1,6 @@
 """Helpers shared by the runtime tests (not a test module).
 
-The runtime tests use the installed default style (``load_checkpoint()``); when it is
+The runtime tests use the installed default style (``load_style()``); when it is
 missing they fail (nothing is skipped).
 """
 
@@ -14,9 +14,9 @@ from functools import lru_cache
 
 @lru_cache(maxsize=1)
 def checkpoint():
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    return load_checkpoint()
+    return load_style()
 
 
 class CliResult(subprocess.CompletedProcess):

@@ -136,7 +136,7 @@ def test_torchrun_cli_then_resume_with_one_process(tmp_path, cache):
     assert state["epoch"] == 2 and state["world_size"] == 1
     lr = state["opt_g"]["param_groups"][0]["lr"]
     assert lr == pytest.approx(1.0 * 12 / 128)
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    ck = load_checkpoint(run / "model.safetensors")
+    ck = load_style(run / "model.safetensors")
     assert ck.meta["epochs_trained"] == 2 and ck.meta["global_batch"] == 12

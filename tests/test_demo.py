@@ -13,14 +13,14 @@ import pytest
 import soundfile as sf
 
 from facecapges.commands.demo import demo_speech
-from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_checkpoint
+from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, list_styles, load_style
 from runtime_helpers import cli, cli_process
 from tolerances import assert_rotations_close
 
 
 def test_default_styles_are_installed_and_complete():
     assert DEFAULT_STYLE in list_styles() and DEFAULT_NETWORK_STYLE in list_styles()
-    ck = load_checkpoint()
+    ck = load_style()
     assert ck.engine == "matching" and ck.path.stem == DEFAULT_STYLE
     assert ck.path.stat().st_size <= 20 * 1024 * 1024
     assert ck.skeleton.n_joints == 75 and not ck.skeleton.missing()
@@ -28,7 +28,7 @@ def test_default_styles_are_installed_and_complete():
     assert {t["name"] for t in takes} == {"2_scott_0_1_1", "2_scott_0_2_2"}
     card = ck.path.with_suffix(".md").read_text()
     assert "held" in card.lower() and "CC BY-NC 4.0" in card and "BEAT" in card
-    net = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
+    net = load_style(style=DEFAULT_NETWORK_STYLE)
     assert net.engine == "network" and net.neutral_window.shape == (16, 47, 6)
     assert net.meta["speaker"] == 2 and net.meta["epochs_trained"] >= 1
     assert "held" in net.path.with_suffix(".md").read_text().lower()
@@ -41,7 +41,7 @@ def test_network_style_streams_like_its_training_rollout(beat_audio, beat_take):
     from facecapges.skeleton import motion_to_pose
     from facecapges.timing import frame_audio
 
-    ck = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
+    ck = load_style(style=DEFAULT_NETWORK_STYLE)
     b = beat_take
     pose, head = motion_to_pose(b.skeleton, b.motion)
     T, N = 80, 16

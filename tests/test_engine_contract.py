@@ -13,7 +13,7 @@ from tolerances import assert_rotations_close
 
 from facecapges import timing
 from facecapges.engine.contract import BatchedStreams, GestureEngine, Stream
-from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, load_checkpoint
+from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, load_style
 
 STYLES = {"matching": DEFAULT_STYLE, "network": DEFAULT_NETWORK_STYLE}
 SPF = timing.samples_per_frame()
@@ -36,7 +36,7 @@ def _speech() -> np.ndarray:
 
 @pytest.fixture(scope="module", params=sorted(STYLES))
 def style(request) -> GestureEngine:
-    st = load_checkpoint(style=STYLES[request.param])
+    st = load_style(style=STYLES[request.param])
     assert st.engine == request.param
     return st
 

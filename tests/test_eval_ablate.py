@@ -83,10 +83,10 @@ def test_offline_generate_and_checkpoint_round_trip(tmp_path):
     np.testing.assert_array_equal(m2.generate(audio, face, head, seed), out)
     assert meta["format"] == "facecapges-offline-1" and meta["model_config"]["lstm_hidden"] == 16
     from facecapges.errors import UserError
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     with pytest.raises(UserError):  # not a streaming checkpoint
-        load_checkpoint(p)
+        load_style(p)
 
 
 @pytest.mark.slow
@@ -121,10 +121,10 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
     dropped), so the shipped network style, fine-tuned from zeggs-speech, is not reused.
     """
     from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
-    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
 
     assert default_config_path().is_file()
-    shipped = load_checkpoint(style=DEFAULT_NETWORK_STYLE).meta
+    shipped = load_style(style=DEFAULT_NETWORK_STYLE).meta
     recipe = make_recipe(None, 2, None, None, None, 15.0)
     assert recipe.split == "all" and recipe.holdout_from == 766 and "init_from" not in recipe.train_over
     assert shipped["train_config"]["init_from"]  # fine-tuned …
@@ -167,10 +167,10 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
     for v in ("full", "no_head", "offline", "camn"):
         info = doc["variants"][v]
         assert info["source"] == "trained" and info["epochs"] == 1 and (out / "runs" / v / "model.safetensors").is_file()
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    assert load_checkpoint(out / "runs" / "no_head" / "model.safetensors").model.cfg.head_dim == 0
-    assert load_checkpoint(out / "runs" / "full" / "model.safetensors").model.cfg.head_dim == 12
+    assert load_style(out / "runs" / "no_head" / "model.safetensors").model.cfg.head_dim == 0
+    assert load_style(out / "runs" / "full" / "model.safetensors").model.cfg.head_dim == 12
     md = (out / "ablation.md").read_text()
     assert "Upper body (without head)" in md and all(lb in md for lb in labels) and "Table 5.3" in md
     # a second run refuses to overwrite; with --force it reuses the finished runs instead of training
@@ -198,9 +198,9 @@ def test_ablate_trains_and_evaluates_every_variant(cache, tmp_path):
 def test_bench_counts_macs_of_the_streaming_step():
     """The 5.8 speed report counts every matrix product of a step, per kernel stage too (no timing asserted)."""
     from facecapges.benchmarks.model import speed_report
-    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
 
-    ckpt = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
+    ckpt = load_style(style=DEFAULT_NETWORK_STYLE)
     cfg = ckpt.model.cfg
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -119,12 +119,12 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     as the network's streaming generator built on that window by hand (the path it replaced)."""
     from facecapges import timing
     from facecapges.evaluation.run import engine_database, history_frames
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
     from facecapges.engine.generate import FrameInputs, generate_poses
-    from facecapges.network.streaming import StreamingGenerator
+    from facecapges.network.streaming import NetworkStream
 
     pose, _ = take
-    ckpt = load_checkpoint(style="beat2-scott-demo")
+    ckpt = load_style(style="beat2-scott-demo")
     n = 30
     audio = beat_audio[: timing.frame_sample_bounds(n, FPS)[0]]
     head = np.broadcast_to(rot.identity_rot6d(), (n, 6)).copy()
@@ -133,7 +133,7 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     )
     window = pose[200 : 200 + history_frames(ckpt)].astype(np.float32)
     got, _ = generate_poses(ckpt, inputs, progress=False, history=window)
-    by_hand = StreamingGenerator(ckpt.model, window)
+    by_hand = NetworkStream(ckpt.model, window)
     want = np.stack([by_hand.step(inputs.audio[t], inputs.face[t], inputs.head[t]) for t in range(n)])
     # the same kernel, but generate_poses sets its own thread count: float32 rounding, 0.01° (tolerances.py)
     assert_rotations_close(got, want, what="generate_poses against the generator by hand")

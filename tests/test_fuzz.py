@@ -568,13 +568,13 @@ _CKPT_META, _CKPT_TENSORS = _ckpt_parts()
 def test_fuzz_checkpoint_metadata(meta):
     from safetensors.torch import save_file
 
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     CASES["checkpoint_meta"] += 1
     p = TMP / f"{threading.get_ident()}-c.safetensors"
     save_file(_CKPT_TENSORS, str(p), metadata={"facecapges": meta})
     try:
-        ck = load_checkpoint(p)
+        ck = load_style(p)
     except UserError:
         return
     assert ck.fps >= 1 and ck.neutral_window.shape[1:] == (47, 6) and np.isfinite(ck.neutral_window).all()
@@ -633,7 +633,7 @@ def test_fuzz_matching_style(case):
     """A crafted matching style: refused by its check (UserError), or it loads and runs a few frames."""
     from safetensors.torch import save_file
 
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     meta, edit = case
     CASES["matching_style"] += 1
@@ -647,7 +647,7 @@ def test_fuzz_matching_style(case):
     p = TMP / f"{threading.get_ident()}-mm.safetensors"
     save_file(tensors, str(p), metadata={"facecapges": meta})
     try:
-        ck = load_checkpoint(p)
+        ck = load_style(p)
     except UserError:
         return
     gen = ck.streaming()

@@ -12,7 +12,7 @@ import torch
 
 from facecapges import rotations as rot
 from facecapges.errors import UserError
-from facecapges.network.style import Checkpoint
+from facecapges.network.style import NetworkStyle
 from facecapges.network.config import ModelConfig
 from facecapges.engine.intensity import MAX_INTENSITY, check_intensity, rest_pose, scale_pose
 from facecapges.network.network import FaceCapGes
@@ -21,7 +21,7 @@ from tolerances import assert_rotations_close
 
 
 @pytest.fixture(scope="module")
-def ckpt() -> Checkpoint:
+def ckpt() -> NetworkStyle:
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig()).eval()
     with torch.no_grad():
@@ -29,7 +29,7 @@ def ckpt() -> Checkpoint:
             p.mul_(2.0)  # a random model that moves
     neutral = (np.random.default_rng(1).normal(size=(16, 47, 6)) * 0.3).astype(np.float32)
     meta = {"neutral_window": neutral.tolist(), "model_config": {"fps": 15}}
-    return Checkpoint(model=model, meta=meta, path=Path("random-init"))
+    return NetworkStyle(model=model, meta=meta, path=Path("random-init"))
 
 
 def _frames(n: int, seed: int = 0):

@@ -74,7 +74,7 @@ def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
 
 def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
     """Train on three synthetic takes; figures on a fourth, new one (see the module docs)."""
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
     from facecapges.engine.generate import FrameInputs, generate_poses
     from facecapges.timing import frame_audio
     from facecapges.training.segments import ClipArrays
@@ -92,7 +92,7 @@ def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
         if cut_audio:  # the audio stops reaching the decoder
             tr.G.audio_enc.forward = lambda a: torch.zeros(a.shape[:2] + (MODEL["audio_dim"],))
         tr.fit(progress=False)
-        ck = load_checkpoint(tmp_path / "run")
+        ck = load_style(tmp_path / "run")
         if cut_audio:
             ck.model.audio_enc.load_state_dict(tr.G.audio_enc.state_dict())
             with torch.no_grad():

@@ -14,11 +14,11 @@ from facecapges import timing
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, idle_rows, quaternions
 from facecapges.matching.director import MIN_MOVE, SPAN, database_directions
-from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator, gain_of
+from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream, gain_of
 from facecapges.matching.predictor import PredictorSettings, train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
-from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint
+from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
 from facecapges.engine.contract import GestureEngine
 from facecapges.engine.generate import FrameInputs, generate_poses
 from runtime_helpers import cli, refused
@@ -81,7 +81,7 @@ def test_strictly_causal(take, db, predictor):
     other = take.audio.copy()
     rng = np.random.default_rng(0)
     other[540 * SPF :] = rng.normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
-    g = MatchingGenerator(db, EngineConfig(margin=0.0), predictor)  # switches often: the change shows soon
+    g = MatchingStream(db, MatchingConfig(margin=0.0), predictor)  # switches often: the change shows soon
     a = run(g, take, 500, 580)
     g.reset()
     b = run(g, take, 500, 580, audio=other)
@@ -96,7 +96,7 @@ def test_no_pop_over_clip_switches(take, db, predictor):
     out = {}
     for h in (0.15, 1e-4):
         cap = 99.0 if h > 0.01 else 0.0  # the raw run without the acceleration cap too
-        g = MatchingGenerator(db, EngineConfig(halflife_s=h, margin=0.0, accel_cap_percentile=cap), predictor)
+        g = MatchingStream(db, MatchingConfig(halflife_s=h, margin=0.0, accel_cap_percentile=cap), predictor)
         pose = run(g, take, 450, 765)
         out[h] = (int((accelerations(pose) > real_max).any(axis=1).sum()), int(g.kernel.switches[0]))
     (pops, switches), (raw_pops, raw_switches) = out[0.15], out[1e-4]
@@ -106,7 +106,7 @@ def test_no_pop_over_clip_switches(take, db, predictor):
 
 
 def test_intensity_zero_plays_idle_frames_only_and_moves(take, db):
-    g = MatchingGenerator(db)
+    g = MatchingStream(db)
     g.intensity = 0.0
     rows, poses = [], []
     for t in range(450, 765):
@@ -121,7 +121,7 @@ def test_intensity_zero_plays_idle_frames_only_and_moves(take, db):
 
 
 def test_silence_fades_to_idle(take, db):
-    g = MatchingGenerator(db)
+    g = MatchingStream(db)
     silent = np.zeros(SPF, np.float32)
     rows = [g.playing_row]
     for _ in range(60):
@@ -131,7 +131,7 @@ def test_silence_fades_to_idle(take, db):
 
 
 def test_intensity_change_never_pops(take, db):
-    g = MatchingGenerator(db)
+    g = MatchingStream(db)
     a = run(g, take, 450, 500)
     g.intensity = 1.3
     b = run(g, take, 500, 560)
@@ -145,9 +145,9 @@ def test_batched_equals_single_streams(take, db, predictor):
     starts = (450, 520, 600)
     singles = []
     for s in starts:
-        g = MatchingGenerator(db, EngineConfig(), predictor)
+        g = MatchingStream(db, MatchingConfig(), predictor)
         singles.append(run(g, take, s, s + 40))
-    kb = BatchedMatchingGenerator(db, EngineConfig(), predictor, capacity=2)  # grows to 3
+    kb = BatchedMatchingStreams(db, MatchingConfig(), predictor, capacity=2)  # grows to 3
     extra = kb.open()
     slots = [kb.open() for _ in starts]
     kb.close(extra)
@@ -162,15 +162,15 @@ def test_batched_equals_single_streams(take, db, predictor):
 
 
 def test_style_file_round_trip(tmp_path, take, db, predictor):
-    path = save_matching_style(tmp_path / "s.safetensors", db, EngineConfig(margin=0.7), take.skeleton, predictor)
-    ck = load_checkpoint(path)
+    path = save_matching_style(tmp_path / "s.safetensors", db, MatchingConfig(margin=0.7), take.skeleton, predictor)
+    ck = load_style(path)
     assert ck.engine == "matching" and ck.fps == FPS and ck.meta["format"] == "facecapges-matching-1"
     assert isinstance(ck, GestureEngine) and ck.display_name == "motion matching (s)"
     assert ck.config.margin == 0.7 and ck.skeleton.names == take.skeleton.names
     assert ck.database_poses().shape == (len(db), 47, 6) and ck.neutral_window.shape[1:] == (47, 6)
     for k, v in db.tensors().items():
         assert np.array_equal(ck.db.tensors()[k], v), k
-    a = run(MatchingGenerator(db, EngineConfig(margin=0.7), predictor), take, 450, 500)
+    a = run(MatchingStream(db, MatchingConfig(margin=0.7), predictor), take, 450, 500)
     b = run(ck.streaming(), take, 450, 500)
     assert np.array_equal(a, b)  # the same engine from its file (float32 kept): the same code path, bit for bit
     # the one whole-recording loop runs this engine as the network, from a history as eval's other samples
@@ -185,8 +185,8 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     assert_rotations_close(from_window, run(by_hand, take, 450, 500), what="generate_poses from a window")
     assert np.abs(from_window - b).max() > 1e-3  # the history is really used
     assert_rotations_close(generate_poses(ck, inputs, progress=False)[0], b, what="generate_poses cold")
-    assert load_checkpoint(style=None).engine == "matching"  # the default style
-    assert load_checkpoint(style=DEFAULT_NETWORK_STYLE).engine == "network"
+    assert load_style(style=None).engine == "matching"  # the default style
+    assert load_style(style=DEFAULT_NETWORK_STYLE).engine == "network"
 
 
 def test_database_directions_are_where_each_wrist_goes(take, db):
@@ -208,26 +208,26 @@ def test_database_directions_are_where_each_wrist_goes(take, db):
 def test_direction_term_is_causal_and_used(take, db, predictor, director):
     """With the network's wrist direction in the query the engine stays strictly causal, and the term changes
     which rows play (weight 0 never runs the network)."""
-    cfg = EngineConfig(margin=0.0, direction_weight=8.0)
+    cfg = MatchingConfig(margin=0.0, direction_weight=8.0)
     other = take.audio.copy()
     other[540 * SPF :] = np.random.default_rng(1).normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
-    g = MatchingGenerator(db, cfg, predictor, director)
+    g = MatchingStream(db, cfg, predictor, director)
     assert g.kernel.director is not None and g.kernel.D is not None and g.kernel.D.shape == (len(db), 6)
     a = run(g, take, 500, 580)
     g.reset()
     b = run(g, take, 500, 580, audio=other)
     assert np.array_equal(a[:40], b[:40]) and not np.allclose(a[40:], b[40:])
-    off = MatchingGenerator(db, replace(cfg, direction_weight=0.0), predictor, director)
+    off = MatchingStream(db, replace(cfg, direction_weight=0.0), predictor, director)
     assert off.kernel.director is None
     assert not np.allclose(run(off, take, 500, 580), a)
 
 
 def test_style_file_keeps_its_network(tmp_path, take, db, predictor, director):
-    cfg = EngineConfig(direction_weight=2.0)
+    cfg = MatchingConfig(direction_weight=2.0)
     path = save_matching_style(tmp_path / "d.safetensors", db, cfg, take.skeleton, predictor, director=director)
-    ck = load_checkpoint(path)
+    ck = load_style(path)
     assert ck.director is not None and ck.config.direction_weight == 2.0
-    a = run(MatchingGenerator(db, cfg, predictor, director), take, 450, 490)
+    a = run(MatchingStream(db, cfg, predictor, director), take, 450, 490)
     assert np.array_equal(a, run(ck.streaming(), take, 450, 490))
 
 

@@ -15,7 +15,7 @@ from facecapges.io.audio import load_audio
 from facecapges.matching.database import mirror_twins
 from facecapges.matching.speech import speech_track
 from facecapges.matching.takes import load_take
-from facecapges.styles import load_checkpoint
+from facecapges.styles import load_style
 
 SPF = timing.samples_per_frame()
 FPS = timing.MODEL_FPS
@@ -23,7 +23,7 @@ FPS = timing.MODEL_FPS
 
 @pytest.fixture(scope="module")
 def style():
-    return load_checkpoint(style="beat2-scott-mm")
+    return load_style(style="beat2-scott-mm")
 
 
 @pytest.fixture(scope="module")
@@ -72,11 +72,11 @@ def test_intensity_1_3_does_not_pop(style, ref, zeros_clip):
 def test_a_mirrored_stretch_is_not_replayed_within_the_memory(style, unseen):
     """Over 60 s of unseen speech, no played stretch (≥ 1 s) comes back — as itself or as its mirror
     image — while the first is within the engine's memory (main: a stretch returns mirrored)."""
-    from facecapges.matching.engine import EngineConfig, MatchingGenerator
+    from facecapges.matching.matcher import MatchingConfig, MatchingStream
     from facecapges.rotations import identity_rot6d
 
-    cfg = EngineConfig()  # the engine's defaults (a style file built before #38 stores a 20 s memory)
-    gen = MatchingGenerator(style.db, cfg, style.predictor)
+    cfg = MatchingConfig()  # the engine's defaults (a style file built before #38 stores a 20 s memory)
+    gen = MatchingStream(style.db, cfg, style.predictor)
     rows = []
     face, head = np.zeros(52, np.float32), identity_rot6d().astype(np.float32)
     for t in range(900):

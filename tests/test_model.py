@@ -7,10 +7,10 @@ import pytest
 import torch
 
 from facecapges.network.style import save_checkpoint
-from facecapges.styles import load_checkpoint
+from facecapges.styles import load_style
 from facecapges.network.config import ModelConfig, TrainConfig
 from facecapges.network.network import FaceCapGes
-from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
+from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
 from facecapges.errors import UserError
 from tolerances import NETWORK_ULPS, assert_float32_close, assert_rotations_close
 
@@ -75,7 +75,7 @@ def test_streaming_causality(model):
     a, f, h, _ = _inputs(T, cfg)
     outs = []
     for scale in (1.0, 4.0):
-        g = StreamingGenerator(model, np.zeros((cfg.n_history, 47, 6), np.float32))
+        g = NetworkStream(model, np.zeros((cfg.n_history, 47, 6), np.float32))
         seq = []
         for t in range(T):
             k = scale if t > t0 else 1.0
@@ -85,7 +85,7 @@ def test_streaming_causality(model):
     assert not np.array_equal(outs[0][t0 + 1:], outs[1][t0 + 1:])
 
 
-@pytest.mark.parametrize("cls", [StreamingGenerator, NaiveStreamingGenerator])
+@pytest.mark.parametrize("cls", [NetworkStream, NaiveNetworkStream])
 def test_streaming_equals_training_rollout(model, cls):
     cfg, N, T = model.cfg, model.cfg.n_history, 64
     a, f, h, p = _inputs(T, cfg, seed=3)
@@ -103,7 +103,7 @@ def test_cold_start_fast_and_naive_agree(model):
     cfg, T = model.cfg, 40
     a, f, h, _ = _inputs(T, cfg, seed=5)
     neutral = np.random.default_rng(0).normal(size=(cfg.n_history, 47, 6)).astype(np.float32)
-    fast, naive = StreamingGenerator(model, neutral), NaiveStreamingGenerator(model, neutral)
+    fast, naive = NetworkStream(model, neutral), NaiveNetworkStream(model, neutral)
     for t in range(T):
         x = (a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy())
         # the cached kernel against the naive loop: float32 rounding, 0.01° (tolerances.py)
@@ -123,7 +123,7 @@ def test_rollout_batch_equals_single_clips(model):
 
 
 def test_streaming_rejects_bad_frames(model):
-    g = StreamingGenerator(model, np.zeros((16, 47, 6), np.float32))
+    g = NetworkStream(model, np.zeros((16, 47, 6), np.float32))
     with pytest.raises(ValueError):
         g.step(np.zeros(5000), np.zeros(52), np.zeros(6))
     with pytest.raises(ValueError):
@@ -136,14 +136,14 @@ def test_checkpoint_round_trip_and_errors(tmp_path, model):
     meta = {"neutral_window": np.zeros((16, 47, 6)).tolist(), "speaker": 2,
             "skeleton": {"names": ["Hips"], "parents": [-1], "offsets": [[0, 0, 0]], "channels": [[]]}}
     path = save_checkpoint(tmp_path / "m.safetensors", model, meta)
-    ck = load_checkpoint(path)
+    ck = load_style(path)
     for (k, v), (k2, v2) in zip(model.state_dict().items(), ck.model.state_dict().items()):
         assert k == k2 and torch.equal(v, v2)
     assert ck.model.cfg == model.cfg
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint at all")
     with pytest.raises(UserError, match="bad.safetensors"):
-        load_checkpoint(bad)
+        load_style(bad)
     # weights from another config
     other = FaceCapGes(ModelConfig(**SMALL))
     p2 = save_checkpoint(tmp_path / "o.safetensors", other, meta)
@@ -158,7 +158,7 @@ def test_checkpoint_round_trip_and_errors(tmp_path, model):
     md["model_config"] = json.loads(json.dumps(__import__("dataclasses").asdict(ModelConfig())))
     save_file(tensors, str(tmp_path / "mixed.safetensors"), metadata={"facecapges": json.dumps(md)})
     with pytest.raises(UserError, match="do not match"):
-        load_checkpoint(tmp_path / "mixed.safetensors")
+        load_style(tmp_path / "mixed.safetensors")
 
 
 def test_train_config_learning_rates():

@@ -40,6 +40,7 @@ def test_readme_python_api_runs_as_written(tmp_path, monkeypatch):
 def test_import_is_light_and_exports_the_api():
     code = ("import sys, facecapges; assert 'torch' not in sys.modules, 'torch loaded on import'; "
             "assert set(facecapges.__all__) <= set(dir(facecapges)); "
-            "assert callable(facecapges.load_checkpoint) and facecapges.StreamingGenerator.step; "
-            "assert 'torch' in sys.modules")
+            "assert callable(facecapges.load_style) and facecapges.Stream.step and facecapges.GestureEngine; "
+            "assert 'torch' not in sys.modules, 'the contract loaded torch'; "
+            "facecapges.load_style(style='beat2-scott-demo'); assert 'torch' in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True)

@@ -102,7 +102,7 @@ def test_mel_features_native_schedule_equals_torch():
 
 def test_mel_model_streams_like_its_training_rollout():
     from facecapges.network.network import FaceCapGes
-    from facecapges.network.streaming import StreamingGenerator
+    from facecapges.network.streaming import NetworkStream
 
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig(audio_repr="mel", **TINY)).eval()
@@ -114,7 +114,7 @@ def test_mel_model_streams_like_its_training_rollout():
     p = torch.randn(1, T, cfg.pose_dim) * 0.3
     with torch.no_grad():
         ref = model.rollout(model.encode(a, f, h), p[:, :N])[0].numpy()
-    g = StreamingGenerator(model, np.zeros((N, 47, 6), np.float32))
+    g = NetworkStream(model, np.zeros((N, 47, 6), np.float32))
     for t in range(N):
         g.warmup(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy(), p[0, t].numpy())
     out = np.stack([g.step(a[0, t].numpy(), f[0, t].numpy(), h[0, t].numpy()) for t in range(N, T)])
@@ -156,13 +156,13 @@ def _clip(T: int = 160, seed: int = 0, face: bool = False):
 
 @pytest.mark.slow
 def test_a_style_records_its_inputs_and_ignores_a_face_it_never_saw(tmp_path):
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
     from facecapges.training.train import build_trainer
 
     tr = build_trainer([_clip()], tmp_path / "run", dict(TINY), dict(epochs=1, batch_size=8, holdout_from=120,
                                                                       num_threads=1), {"speaker": 2}, resume=False)
     tr.fit(progress=False)
-    ck = load_checkpoint(tmp_path / "run")
+    ck = load_style(tmp_path / "run")
     assert ck.meta["inputs"]["face"] is False and ck.meta["inputs"]["audio"] == "raw"
     ref = np.asarray(ck.meta["head_reference_rot6d"])
     assert np.degrees(np.arccos(np.clip(ref[4], -1, 1))) == pytest.approx(np.degrees(0.23), abs=1.0)
@@ -208,7 +208,7 @@ def test_offline_variant_resumes_through_the_one_trainer(tmp_path):
 @pytest.mark.slow
 def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
     from facecapges.errors import UserError
-    from facecapges.styles import install_style, list_styles, load_checkpoint, styles_dir, user_styles_dir
+    from facecapges.styles import install_style, list_styles, load_style, styles_dir, user_styles_dir
     from facecapges.training.train import build_trainer
 
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
@@ -223,7 +223,7 @@ def test_styles_install_puts_a_run_where_style_finds_it(tmp_path, monkeypatch):
     dest = install_style(run)
     assert dest == user_styles_dir() / "my-run.safetensors" and (user_styles_dir() / "my-run.log.csv").is_file()
     assert (user_styles_dir() / "my-run.fgd" / "x.json").is_file()
-    assert list_styles()["my-run"] == dest and load_checkpoint(style="my-run").meta["speaker"] == 7
+    assert list_styles()["my-run"] == dest and load_style(style="my-run").meta["speaker"] == 7
     assert sorted(p.name for p in styles_dir().iterdir()) == shipped  # the package is untouched
     with pytest.raises(UserError, match="--force"):
         install_style(run)
@@ -260,13 +260,13 @@ def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics
 
 def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
     from facecapges.errors import UserError
-    from facecapges.styles import load_checkpoint_or_style
+    from facecapges.styles import load_style_or_file
 
-    assert load_checkpoint_or_style("zeggs-speech").path.name == "zeggs-speech.safetensors"
+    assert load_style_or_file("zeggs-speech").path.name == "zeggs-speech.safetensors"
     with pytest.raises(UserError, match="checkpoint not found"):  # a path that is not there is not a style name
-        load_checkpoint_or_style(str(tmp_path / "missing.safetensors"))
+        load_style_or_file(str(tmp_path / "missing.safetensors"))
     with pytest.raises(UserError, match="unknown style 'no-such-style'"):
-        load_checkpoint_or_style("no-such-style")
+        load_style_or_file("no-such-style")
 
 
 @pytest.mark.slow

@@ -1,5 +1,5 @@
-"""BatchedStreamingGenerator: every stream's output equals the naive re-windowed loop and a
-one-slot StreamingGenerator to float32 rounding (0.01° per joint, tests/tolerances.py)."""
+"""BatchedNetworkStreams: every stream's output equals the naive re-windowed loop and a
+one-slot NetworkStream to float32 rounding (0.01° per joint, tests/tolerances.py)."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.network.batched import BatchedStreamingGenerator, pack_audio
+from facecapges.network.batched import BatchedNetworkStreams, pack_audio
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
-from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
+from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
 from tolerances import assert_rotations_close
 
 
@@ -53,7 +53,7 @@ def _neutral(cfg: ModelConfig, seed: int = 1) -> np.ndarray:
 @pytest.mark.parametrize(("layers", "audio_repr"), [(1, "raw"), (1, "mel"), (2, "raw")])
 def test_each_stream_equals_the_naive_loop(layers, audio_repr):
     """Streams join late, skip ticks, leave and are replaced; outputs match the oracle and a
-    one-slot StreamingGenerator to float32 rounding: 0.01° on every joint of every frame.
+    one-slot NetworkStream to float32 rounding: 0.01° on every joint of every frame.
 
     One-layer decoders run the cached kernel (the served path, on the default config) in
     both its schedules: native loops for small batches and torch for large ones (a second
@@ -65,9 +65,9 @@ def test_each_stream_equals_the_naive_loop(layers, audio_repr):
     neutral = _neutral(cfg)
     audio, face, head = _streams(S, T, cfg)
     init = (np.random.default_rng(5).normal(size=(cfg.n_joints, 6)) * 0.2).astype(np.float32)
-    bg = BatchedStreamingGenerator(model, neutral, capacity=2)  # grows while streams join
+    bg = BatchedNetworkStreams(model, neutral, capacity=2)  # grows while streams join
     assert bg.fast == (layers == 1)
-    bt = BatchedStreamingGenerator(model, neutral, capacity=2)  # the same, torch schedules only
+    bt = BatchedNetworkStreams(model, neutral, capacity=2)  # the same, torch schedules only
     if bt.fast:
         bt.torch_schedules_only()
     slots: dict[int, int] = {}
@@ -98,7 +98,7 @@ def test_each_stream_equals_the_naive_loop(layers, audio_repr):
             due[s].append(t)
     assert bg.capacity >= 5
     for s in range(S):
-        oracle, one = NaiveStreamingGenerator(model, neutral), StreamingGenerator(model, neutral)
+        oracle, one = NaiveNetworkStream(model, neutral), NetworkStream(model, neutral)
         oracle.reset(init if s == 2 else None)
         one.reset(init if s == 2 else None)
         ref = np.array([oracle.step(audio[s][t], face[s, t], head[s, t]) for t in due[s]])
@@ -119,9 +119,9 @@ def test_warmup_and_reset_match_single_stream():
     neutral = _neutral(cfg)
     audio, face, head = _streams(2, 30, cfg, seed=3)
     pose = (np.random.default_rng(2).normal(size=(30, cfg.n_joints, 6)) * 0.3).astype(np.float32)
-    bg = BatchedStreamingGenerator(model, neutral)
+    bg = BatchedNetworkStreams(model, neutral)
     a, b = bg.open(), bg.open()
-    ga, gb = NaiveStreamingGenerator(model, neutral), NaiveStreamingGenerator(model, neutral)
+    ga, gb = NaiveNetworkStream(model, neutral), NaiveNetworkStream(model, neutral)
     # the batched kernel against the naive loop: float32 rounding, 0.01° per joint (tolerances.py)
     for t in range(10):  # stream a warms up on known poses, b generates
         bg.warmup([a], [audio[0][t]], face[0, t:t + 1], head[0, t:t + 1], pose[t:t + 1])
@@ -142,7 +142,7 @@ def test_warmup_and_reset_match_single_stream():
 
 def test_bad_calls():
     model = _model()
-    bg = BatchedStreamingGenerator(model, _neutral(model.cfg))
+    bg = BatchedNetworkStreams(model, _neutral(model.cfg))
     s = bg.open()
     spf = model.cfg.samples_per_frame
     with pytest.raises(KeyError):
@@ -154,7 +154,7 @@ def test_bad_calls():
     with pytest.raises(ValueError, match="face"):
         bg.step([s], [np.zeros(spf)], np.zeros((1, 51)), np.zeros((1, 6)))
     with pytest.raises(ValueError, match="neutral window"):
-        BatchedStreamingGenerator(model, np.zeros((3, 47, 6)))
+        BatchedNetworkStreams(model, np.zeros((3, 47, 6)))
     # NaN inputs are cleaned as the single-stream generator does; output stays finite
     out = bg.step([s], [np.full(spf, np.nan, np.float32)], np.full((1, 52), np.nan), np.zeros((1, 6)))
     assert np.isfinite(out).all()

@@ -1,7 +1,7 @@
 """``facecapges serve``: real WebSocket clients on loopback against the real server.
 
 The model is a randomly initialised FaceCapGes of the default config (what is tested
-is the serving, not the weights): every stream's poses must equal a StreamingGenerator
+is the serving, not the weights): every stream's poses must equal a NetworkStream
 fed the same frames, whatever the other connections do.
 """
 
@@ -19,10 +19,10 @@ import pytest
 import torch
 
 from facecapges import rotations as rot
-from facecapges.network.style import Checkpoint, save_checkpoint
+from facecapges.network.style import NetworkStyle, save_checkpoint
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
-from facecapges.network.streaming import StreamingGenerator
+from facecapges.network.streaming import NetworkStream
 from facecapges.runtime.outputs import protocol
 from facecapges.serving.server import ServeConfig, StreamServer
 
@@ -44,14 +44,14 @@ def one_thread():
 
 
 @pytest.fixture(scope="module")
-def ckpt() -> Checkpoint:
+def ckpt() -> NetworkStyle:
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig()).eval()
     with torch.no_grad():
         for p in model.decoder.parameters():
             p.mul_(2.0)
     neutral = (np.random.default_rng(1).normal(size=(16, 47, 6)) * 0.3).astype(np.float32)
-    return Checkpoint(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+    return NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
                       path=Path("random-init"))
 
 
@@ -65,9 +65,9 @@ def frames(n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]
     return out
 
 
-def reference(ckpt: Checkpoint, fr) -> np.ndarray:
+def reference(ckpt: NetworkStyle, fr) -> np.ndarray:
     """Quaternions (T, 47, 4) a single-stream generator gives for these frames."""
-    g = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    g = NetworkStream(ckpt.model, ckpt.neutral_window)
     poses = np.array([g.step(a, f, h) for a, f, h in fr])
     return rot.rot6d_to_quaternion(poses.astype(np.float64))
 
@@ -472,7 +472,7 @@ def test_resume_starts_the_stream_from_the_clients_last_pose(ckpt, server):
             return out
 
     msgs = asyncio.run(resumed())
-    g = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    g = NetworkStream(ckpt.model, ckpt.neutral_window)
     g.reset(start)
     want = rot.rot6d_to_quaternion(np.array([g.step(a, f, h) for a, f, h in fr]).astype(np.float64))
     assert_rotations_close(quats(msgs), want)  # 0.01°: float32, a batch against one stream

@@ -334,11 +334,11 @@ def _crafted(tmp_path, case: str):
 
 @pytest.mark.parametrize("case", sorted(CRAFTED))
 def test_a_crafted_matching_style_is_refused_by_its_check(tmp_path, case):
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     p = _crafted(tmp_path, case)
     with pytest.raises(UserError) as exc:
-        load_checkpoint(p)
+        load_style(p)
     assert str(p) in str(exc.value) and CRAFTED[case][1] in str(exc.value), str(exc.value)
 
 

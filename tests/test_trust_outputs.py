@@ -168,13 +168,13 @@ def test_smaller_crashes_are_clear_errors(tmp_path):
     from safetensors.torch import save_file
 
     from facecapges.network.style import FORMAT
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     ck = tmp_path / "m.safetensors"
 
     save_file({"w": torch.zeros(1)}, str(ck), metadata={"facecapges": json.dumps({"format": FORMAT})})
     with pytest.raises(UserError, match="no 'model_config'"):
-        load_checkpoint(ck)
+        load_style(ck)
     # a truncated cache clip
     from facecapges.data.cache import Cache
 

@@ -177,7 +177,7 @@ TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=1
 
 @pytest.fixture(scope="module")
 def stream_server():
-    from facecapges.network.style import Checkpoint
+    from facecapges.network.style import NetworkStyle
     from facecapges.network.config import ModelConfig
     from facecapges.network.network import FaceCapGes
     from facecapges.serving.server import ServeConfig, StreamServer
@@ -186,7 +186,7 @@ def stream_server():
     model = FaceCapGes(ModelConfig(**TINY)).eval()
     neutral = np.zeros((16, 47, 6), np.float32)
     neutral[..., 0] = neutral[..., 4] = 1.0
-    ck = Checkpoint(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+    ck = NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
                     path=Path("random-init"))
     servers = []
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.network.style import Checkpoint
+from facecapges.network.style import NetworkStyle
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
 from facecapges.runtime.outputs import protocol
@@ -28,12 +28,12 @@ TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=1
 
 
 @pytest.fixture(scope="module")
-def ckpt() -> Checkpoint:
+def ckpt() -> NetworkStyle:
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig(**TINY)).eval()
     neutral = np.zeros((16, 47, 6), np.float32)
     neutral[..., 0] = neutral[..., 4] = 1.0
-    return Checkpoint(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+    return NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
                       path=Path("random-init"))
 
 

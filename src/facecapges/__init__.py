@@ -2,9 +2,9 @@
 
 The Python API (README "Python API")::
 
-    ckpt = facecapges.load_checkpoint(style="beat2-scott-demo")  # a GestureEngine (either engine)
-    gen = ckpt.streaming()                      # a StreamingGenerator: one live stream
-    pose = gen.step(audio_chunk, face, head)    # (47, 6) rot6d, frame by frame
+    style = facecapges.load_style()             # the default style; style="beat2-scott-demo" for the network
+    stream = style.streaming()                  # a Stream: one live stream (either engine)
+    pose = stream.step(audio_chunk, face, head) # (47, 6) rot6d, frame by frame
 
 The names below are imported on first use, so ``import facecapges`` stays light (no
 torch until a checkpoint is loaded).
@@ -18,12 +18,15 @@ from typing import TYPE_CHECKING, Any
 __version__ = "0.1.0"
 
 _EXPORTS: dict[str, str] = {
-    "load_checkpoint": "facecapges.styles",
+    "load_style": "facecapges.styles",
     "list_styles": "facecapges.styles",
-    "Checkpoint": "facecapges.styles",
+    "NetworkStyle": "facecapges.network.style",
+    "MatchingStyle": "facecapges.matching.style",
+    "load_style_or_file": "facecapges.styles",
     "DEFAULT_STYLE": "facecapges.styles",
     "GestureEngine": "facecapges.engine.contract",
-    "StreamingGenerator": "facecapges.network.streaming",
+    "Stream": "facecapges.engine.contract",
+    "BatchedStreams": "facecapges.engine.contract",
     "load_audio": "facecapges.io.audio",
     "UserError": "facecapges.errors",
     "MODEL_FPS": "facecapges.timing",
@@ -42,26 +45,29 @@ __all__ = [  # the API first, then the conventions
     "N_BLENDSHAPES",
     "N_JOINTS",
     "UPPER_BODY",
-    "Checkpoint",
+    "BatchedStreams",
     "GestureEngine",
-    "StreamingGenerator",
+    "MatchingStyle",
+    "NetworkStyle",
+    "Stream",
     "UserError",
     "__version__",
     "list_styles",
     "load_audio",
-    "load_checkpoint",
+    "load_style",
+    "load_style_or_file",
 ]
 assert set(__all__) == {"__version__", *_EXPORTS}
 
 if TYPE_CHECKING:
     from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
-    from facecapges.engine.contract import GestureEngine
+    from facecapges.engine.contract import BatchedStreams, GestureEngine, Stream
     from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
-    from facecapges.network.streaming import StreamingGenerator
-    from facecapges.network.style import Checkpoint
+    from facecapges.matching.style import MatchingStyle
+    from facecapges.network.style import NetworkStyle
     from facecapges.skeleton import N_JOINTS, UPPER_BODY
-    from facecapges.styles import DEFAULT_STYLE, list_styles, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, list_styles, load_style, load_style_or_file
     from facecapges.timing import AUDIO_SR, MODEL_FPS
 
 

@@ -2,7 +2,7 @@
 
 A style is one ``.safetensors`` file (:mod:`facecapges.engine.files`) of an engine: the thesis
 network's (:mod:`facecapges.network.style`) or motion matching's (:mod:`facecapges.matching.style`);
-:func:`load_checkpoint` reads the file, picks the engine from its ``format`` and returns a
+:func:`load_style` reads the file, picks the engine from its ``format`` and returns a
 :class:`~facecapges.engine.contract.GestureEngine`, what every caller uses.
 
 Styles ship in ``facecapges/assets/styles/<name>.safetensors`` with a model card
@@ -26,7 +26,7 @@ from pathlib import Path
 from facecapges.engine.contract import GestureEngine
 from facecapges.engine.files import check_meta, read_file
 from facecapges.errors import UserError, file_error
-from facecapges.network.style import Checkpoint
+from facecapges.network.style import NetworkStyle
 from facecapges.skeleton import Skeleton
 
 DEFAULT_STYLE = "beat2-scott-mm"  # motion matching: measured best on validation (its model card)
@@ -103,7 +103,7 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     name = name or (folder.name if src.name == "model.safetensors" else src.stem)
     check_style_name(name)
     _no_link(src)
-    load_checkpoint(src)  # refuse what would not load
+    load_style(src)  # refuse what would not load
     dest_dir = user_styles_dir()
     dest = dest_dir / f"{name}.safetensors"
     if dest.exists() and not force:
@@ -235,11 +235,11 @@ def resolve(checkpoint: str | Path | None = None, style: str | None = None) -> P
     return styles[name]
 
 
-def load_checkpoint(path: str | Path | None = None, style: str | None = None) -> GestureEngine:
+def load_style(path: str | Path | None = None, style: str | None = None) -> GestureEngine:
     """Load a checkpoint file or installed style; clear errors for corrupt/foreign files.
 
-    A network style gives a :class:`Checkpoint`, a motion-matching style (format
-    ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingCheckpoint`: both are
+    A network style gives a :class:`NetworkStyle`, a motion-matching style (format
+    ``facecapges-matching-1``) a :class:`facecapges.matching.style.MatchingStyle`: both are
     :class:`~facecapges.engine.contract.GestureEngine` s, what every caller uses.
     """
     from facecapges.matching import style as matching_style
@@ -255,24 +255,24 @@ def load_checkpoint(path: str | Path | None = None, style: str | None = None) ->
     return network_style.from_file(p, tensors, meta)
 
 
-def network_only(ckpt: GestureEngine, what: str) -> Checkpoint:
+def network_only(ckpt: GestureEngine, what: str) -> NetworkStyle:
     """``ckpt`` if it is a network style; a clear error for another engine's style where only a network fits."""
-    if not isinstance(ckpt, Checkpoint):
+    if not isinstance(ckpt, NetworkStyle):
         raise UserError(f"{ckpt.path}: a {ckpt.label} style; {what} needs a network style (FaceCapGes)")
     return ckpt
 
 
-def load_checkpoint_or_style(spec: str | Path) -> GestureEngine:
+def load_style_or_file(spec: str | Path) -> GestureEngine:
     """A checkpoint named by a path (an existing file or run folder, or anything that looks like a
     path: a suffix or a folder in it) or else by an installed style's name."""
     p = Path(spec)
     looks_like_path = p.exists() or bool(p.suffix) or len(p.parts) > 1
-    return load_checkpoint(p) if looks_like_path else load_checkpoint(style=str(spec))
+    return load_style(p) if looks_like_path else load_style(style=str(spec))
 
 
 def load_skeleton(checkpoint_path: str | Path | None = None) -> Skeleton:
     """The BEAT skeleton stored with a checkpoint (default: the default style's)."""
-    return load_checkpoint(checkpoint_path).skeleton
+    return load_style(checkpoint_path).skeleton
 
 
 def build_matching_style(

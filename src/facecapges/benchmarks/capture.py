@@ -146,9 +146,9 @@ def _capture_body(clip: Path, n: int) -> dict:
             times.append(time.perf_counter() - t0)
             assign_hands(det)
             poses.append(det["pose"] if det["pose"] is not None else np.zeros((33, 3)))
-    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_style
 
-    skel = load_checkpoint(style=DEFAULT_STYLE).skeleton
+    skel = load_style(style=DEFAULT_STYLE).skeleton
     m = len(poses)
     lms = BodyLandmarks(np.stack(poses), np.ones((m, 33)), np.full((m, 2, 21, 3), np.nan), np.zeros((m, 2)), 15.0)
     t0 = time.perf_counter()

@@ -16,7 +16,7 @@ Peer-architecture timing, under ``"peer_timing"`` (:func:`peer_timing`; random
 weights, batch 1, one thread, the same speech-like inputs for all):
 
 * ``facecapges_step_ms_p50`` — FaceCapGes (default :class:`ModelConfig`) frame by frame
-  through :class:`facecapges.network.streaming.StreamingGenerator` (the live path).
+  through :class:`facecapges.network.streaming.NetworkStream` (the live path).
 * ``camn_online_ms_p50`` — our CaMN (:mod:`facecapges.evaluation.camn`, CaMN's sizes)
   used online: for every output frame it is re-run over the 34-frame window ending at
   that frame (the 16 frames before it seeded with the previous outputs) and the last
@@ -138,7 +138,7 @@ def peer_timing(quick: bool = False) -> dict:
     from facecapges.evaluation.camn import CaMN, CaMNConfig
     from facecapges.network.config import ModelConfig
     from facecapges.network.network import FaceCapGes
-    from facecapges.network.streaming import StreamingGenerator
+    from facecapges.network.streaming import NetworkStream
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
@@ -146,7 +146,7 @@ def peer_timing(quick: bool = False) -> dict:
         torch.manual_seed(0)
         cfg = ModelConfig()
         N, L, spf = cfg.n_history, 34, cfg.samples_per_frame
-        ours = StreamingGenerator(FaceCapGes(cfg), np.zeros((N, cfg.n_joints, 6), np.float32))
+        ours = NetworkStream(FaceCapGes(cfg), np.zeros((N, cfg.n_joints, 6), np.float32))
         camn = CaMN(cfg).eval()
         blocks, per_block = (2, 3) if quick else (4, 5)  # CaMN online frames per block
         T = L + blocks * per_block

@@ -4,10 +4,10 @@ On the shipped matching style (:data:`BENCH_STYLE`; its database and speech pred
 thread, unseen speech of the shared folder (``data/beat/2_scott_0_4_4.wav``), no face, the head
 facing the camera:
 
-* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`MatchingGenerator.step` of one stream, every step
+* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`MatchingStream.step` of one stream, every step
   (predictor, speech cues, search every few frames and at onsets, blending); also the p50 of the
   steps that searched and of those that did not, and of the predictor alone;
-* ``batched_ms_per_stream`` — :meth:`BatchedMatchingGenerator.step` time / B at B = 1, 16, 64;
+* ``batched_ms_per_stream`` — :meth:`BatchedMatchingStreams.step` time / B at B = 1, 16, 64;
 * ``search`` — one query's nearest row over the whole database: the engine's brute force in
   NumPy against ``scipy.spatial.cKDTree`` (build and query), the measurement behind the choice
   of brute force (the kd-tree cannot apply the engine's masks and penalties either).
@@ -115,15 +115,15 @@ def run(quick: bool, shared: Path) -> dict:
 
     from facecapges.errors import UserError
     from facecapges.io.audio import load_audio
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     wav = Path(shared) / AUDIO
     if not wav.is_file():
         raise UserError(f"{wav}: the matching benchmark needs this shared clip")
-    ck = load_checkpoint(style=BENCH_STYLE)
-    from facecapges.matching.style import MatchingCheckpoint
+    ck = load_style(style=BENCH_STYLE)
+    from facecapges.matching.style import MatchingStyle
 
-    if not isinstance(ck, MatchingCheckpoint):
+    if not isinstance(ck, MatchingStyle):
         raise UserError(f"style {BENCH_STYLE!r} is not a matching style")
     audio = load_audio(wav)
     n = 150 if quick else 900

@@ -2,8 +2,8 @@
 
 Figures (one stream, batch 1, one thread, the default checkpoint):
 
-* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`StreamingGenerator.step` (the cached
-  kernel, a one-slot :class:`~facecapges.network.batched.BatchedStreamingGenerator`);
+* ``step_ms_p50`` / ``step_ms_p99`` — :meth:`NetworkStream.step` (the cached
+  kernel, a one-slot :class:`~facecapges.network.batched.BatchedNetworkStreams`);
   ``to_bvh_euler_ms_p50`` — that frame's rot6d → BVH Euler motion row
   (:func:`facecapges.skeleton.pose_to_motion`, what every BVH / viewer output runs);
   ``step_with_euler_ms_p50`` / ``_p99`` — the two together, per frame (target
@@ -23,7 +23,7 @@ Figures (one stream, batch 1, one thread, the default checkpoint):
 
 Thesis 5.8 figures (:func:`speed_report`, under ``"thesis_5_8"``; batch 1, one thread):
 
-* ``per_frame`` — 5.8.1: :meth:`StreamingGenerator.step` over **all held-out frames**
+* ``per_frame`` — 5.8.1: :meth:`NetworkStream.step` over **all held-out frames**
   of the shared clip (``data/beat/2_scott_0_1_1`` of the shared folder the command
   passes; frames ≥ the checkpoint's ``holdout_from``, its own audio and head rotation,
   face zero as in the cache) from a cold start: mean, p50, p99, total. Without the
@@ -90,19 +90,19 @@ def _to_bvh_euler(skel):
 
 def run(quick: bool = False, shared: Path | None = None) -> dict:
     from facecapges.engine.generate import FrameInputs, generate_poses
-    from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
-    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_checkpoint, network_only
+    from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style, network_only
 
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     load_before = [round(x, 2) for x in os.getloadavg()]
     try:
-        ckpt = network_only(load_checkpoint(style=DEFAULT_NETWORK_STYLE), "the model bench")
+        ckpt = network_only(load_style(style=DEFAULT_NETWORK_STYLE), "the model bench")
         cfg = ckpt.model.cfg
         n = 150 if quick else 450
         audio, face, head = _inputs(n, cfg.samples_per_frame)
-        fast = StreamingGenerator(ckpt.model, ckpt.neutral_window)
-        naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
+        fast = NetworkStream(ckpt.model, ckpt.neutral_window)
+        naive = NaiveNetworkStream(ckpt.model, ckpt.neutral_window)
         euler = _to_bvh_euler(ckpt.skeleton)
         for g in (fast, naive):  # warm the allocator and caches
             for t in range(20):
@@ -297,7 +297,7 @@ def _profile_stages(gen, audio, face, head, euler) -> dict[str, np.ndarray]:
 def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     """Thesis 5.8 figures (module docstring); expects torch at one thread."""
     from facecapges.network.batched import lstm_window
-    from facecapges.network.streaming import NaiveStreamingGenerator, StreamingGenerator
+    from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
 
     cfg = ckpt.model.cfg
     data = shared_held_out(ckpt, shared)
@@ -311,7 +311,7 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     T = len(audio)
     euler = _to_bvh_euler(ckpt.skeleton)
     # 5.8.1: per-frame inference, batching off, every held-out frame, cold start
-    gen = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    gen = NetworkStream(ckpt.model, ckpt.neutral_window)
     for t in range(min(20, T)):  # warm the allocator, then start the stream for real
         gen.step(audio[t], face[t], head[t])
     gen.reset()
@@ -324,15 +324,15 @@ def speed_report(ckpt, quick: bool = False, shared: Path | None = None) -> dict:
     total_s = time.perf_counter() - t_all
     # 5.8.2: the same frames, the step's stages from its profiler scopes
     n_prof = min(T, 30 if quick else 120)
-    gen2 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    gen2 = NetworkStream(ckpt.model, ckpt.neutral_window)
     times = _profile_stages(gen2, audio[:n_prof], face[:n_prof], head[:n_prof], euler)
     stage_ms = {k: {"mean": round(float(v.mean()), 4), "p50": round(float(np.median(v)), 4)} for k, v in times.items()}
     # counted MACs: one step (mid-stream), per stage, and one naive step
-    gen3 = StreamingGenerator(ckpt.model, ckpt.neutral_window)
+    gen3 = NetworkStream(ckpt.model, ckpt.neutral_window)
     # the torch schedules of the TCNs and the LSTM window: the counter sees only torch operations,
     # not the one-stream native ones (model.native)
     gen3.kernel.torch_schedules_only()
-    naive = NaiveStreamingGenerator(ckpt.model, ckpt.neutral_window)
+    naive = NaiveNetworkStream(ckpt.model, ckpt.neutral_window)
     k = min(T - 1, 3 * cfg.n_history)
     for t in range(k):  # a full window of real history first
         gen3.step(audio[t], face[t], head[t])

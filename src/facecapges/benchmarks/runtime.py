@@ -70,9 +70,9 @@ def rss_mb(pid: int | None = None) -> float:
 
 
 def _checkpoint():
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    return load_checkpoint(os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None)
+    return load_style(os.environ.get("FACECAPGES_BENCH_CHECKPOINT") or None)
 
 
 def per_frame(ckpt, video: Path, max_frames: int | None = None) -> dict:

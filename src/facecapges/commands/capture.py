@@ -147,7 +147,7 @@ def capture_body(
     from facecapges.capture.body import capture_body as run
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.errors import UserError, check_output_file
-    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_style
 
     check_output_file(out, force)
     if face_out is not None:
@@ -156,7 +156,7 @@ def capture_body(
         raise UserError(f"--max-frames must be at least 1, got {max_frames}")
     model_path(POSE_TASK), model_path(HAND_TASK)  # a missing model fails before the video is read
     console = Console(stderr=True, soft_wrap=True)
-    skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
+    skeleton = load_style(style=DEFAULT_STYLE).skeleton
 
     def progress(i: int, n: int | None) -> None:
         if i % 15 == 0 or i == n:

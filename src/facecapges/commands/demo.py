@@ -45,14 +45,14 @@ def make_demo(out: Path, audio: Path | None = None, force: bool = False, say=ech
     from facecapges.io.bvh import write_bvh
     from facecapges.rotations import normalize_rot6d
     from facecapges.skeleton import pose_to_motion
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     speech = audio or demo_speech()
     bvh_path, mp4_path, avatar_path = out / "demo.bvh", out / "demo.mp4", out / "demo_avatar.mp4"
     for p in (bvh_path, mp4_path, avatar_path):
         check_output_file(p, force)
     t0 = time.perf_counter()
-    ckpt = load_checkpoint()
+    ckpt = load_style()
     inputs = ckpt.prepare_inputs(speech)
     poses, ms = generate_poses(ckpt, inputs)
     poses = normalize_rot6d(poses)

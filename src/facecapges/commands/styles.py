@@ -32,7 +32,7 @@ AUDIO = typer.Option("--audio", help="Speech audio (any format soundfile/ffmpeg 
 GENERATE_OUT = typer.Option("--out", help="Output BVH file, .bvh (full BEAT skeleton, model fps).")
 FACE = typer.Option("--face", help="BEAT-format face JSON, any fps (resampled).")
 HEAD = typer.Option("--head", help="Head rotation .npy (T, 6) rot6d at the model fps.")
-CHECKPOINT = typer.Option("--checkpoint", help="Checkpoint file (default: the installed default style).")
+CHECKPOINT = typer.Option("--checkpoint", help="NetworkStyle file (default: the installed default style).")
 INTENSITY = typer.Option(
     "--intensity",
     help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",
@@ -79,13 +79,13 @@ def generate(
 
 def _list(json_out: bool) -> None:
     from facecapges.errors import UserError
-    from facecapges.styles import DEFAULT_STYLE, list_styles, load_checkpoint, styles_dir
+    from facecapges.styles import DEFAULT_STYLE, list_styles, load_style, styles_dir
 
     rows = []
     for name, path in list_styles().items():
         row = {"name": name, "default": name == DEFAULT_STYLE, "shipped": path.parent == styles_dir()}
         try:
-            ckpt = load_checkpoint(path)
+            ckpt = load_style(path)
         except UserError as exc:  # a broken file is marked; the others are still listed
             rows.append(
                 {
@@ -218,12 +218,12 @@ def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
     from facecapges.capture.body import capture_body, check_usable
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.io.audio import check_audio
-    from facecapges.styles import DEFAULT_STYLE, load_checkpoint
+    from facecapges.styles import DEFAULT_STYLE, load_style
 
     model_path(POSE_TASK), model_path(HAND_TASK)
     for v in videos:
         check_audio(v)  # a video without a soundtrack fails before any capture
-    skeleton = load_checkpoint(style=DEFAULT_STYLE).skeleton
+    skeleton = load_style(style=DEFAULT_STYLE).skeleton
     pairs = []
     for k, v in enumerate(videos):
         (tmp / str(k)).mkdir()

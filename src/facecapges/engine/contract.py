@@ -1,8 +1,8 @@
 """The gesture engines behind one interface: what a loaded style offers, whatever makes its motion.
 
-:func:`facecapges.styles.load_checkpoint` returns a :class:`GestureEngine`: the thesis
-network's :class:`~facecapges.network.style.Checkpoint` or a motion-matching style's
-:class:`~facecapges.matching.style.MatchingCheckpoint`. The runtime, ``serve``, ``generate`` and
+:func:`facecapges.styles.load_style` returns a :class:`GestureEngine`: the thesis
+network's :class:`~facecapges.network.style.NetworkStyle` or a motion-matching style's
+:class:`~facecapges.matching.style.MatchingStyle`. The runtime, ``serve``, ``generate`` and
 evaluation use only what is defined here, so another engine slots in beside ``model/`` and
 ``matching/`` without touching them:
 
@@ -25,8 +25,8 @@ from __future__ import annotations
 
 import abc
 import functools
-from pathlib import Path
 from collections.abc import Sequence
+from pathlib import Path
 from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
 
 import numpy as np

@@ -2,8 +2,8 @@
 
 ``intensity`` 0 … 1 … 1.3 (:data:`MIN_INTENSITY`, :data:`MAX_INTENSITY`): 1 plays the motion as the
 engine makes it, 0 the style's rest, above 1 larger than recorded. The thesis network's generators
-(:class:`~facecapges.network.batched.BatchedStreamingGenerator` and the one-stream
-:class:`~facecapges.network.streaming.StreamingGenerator`) scale their output poses by it about the
+(:class:`~facecapges.network.batched.BatchedNetworkStreams` and the one-stream
+:class:`~facecapges.network.streaming.NetworkStream`) scale their output poses by it about the
 style's rest pose (:func:`scale_pose`); their own pose history stays unscaled, so the dial changes
 what is shown, never what the network is fed back. The motion-matching engine plays idle motion at 0
 and scales the same way above its idle pose (see :mod:`facecapges.matching`).

@@ -1,7 +1,7 @@
 """Which rows of a batched generator belong to an open stream: :class:`Slots`.
 
-Every batched generator (the network's kernel :class:`~facecapges.network.batched.BatchedStreamingGenerator`,
-the motion-matching engine's :class:`~facecapges.matching.engine.BatchedMatchingGenerator` and its speech
+Every batched generator (the network's kernel :class:`~facecapges.network.batched.BatchedNetworkStreams`,
+the motion-matching engine's :class:`~facecapges.matching.matcher.BatchedMatchingStreams` and its speech
 predictor's streams) keeps its streams' state in stacked arrays, one row (*slot*) per stream. A stream
 takes the lowest free slot when it opens and gives it back when it closes; when none is free, the owner
 doubles its storage (keeping the rows it has) and tells :meth:`Slots.grown`. A step names its slots, each

@@ -219,7 +219,7 @@ def train_variants(
     """
     import json
 
-    from facecapges.styles import DEFAULT_NETWORK_STYLE, list_styles, load_checkpoint, load_checkpoint_or_style
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, list_styles, load_style, load_style_or_file
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -239,7 +239,7 @@ def train_variants(
             if v in SEGMENT_DECODERS:
                 path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
             else:
-                ck = load_checkpoint_or_style(ref)
+                ck = load_style_or_file(ref)
                 path, meta = ck.path, ck.meta
             why = _same_recipe(meta, recipe, extra, names)
             source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
@@ -247,7 +247,7 @@ def train_variants(
             result[v] = TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
             continue
         if v == "full" and reuse_default and not retrain and DEFAULT_NETWORK_STYLE in list_styles():
-            ck = load_checkpoint(style=DEFAULT_NETWORK_STYLE)
+            ck = load_style(style=DEFAULT_NETWORK_STYLE)
             why = _same_recipe(ck.meta, recipe, None, names)
             if why is None:
                 say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
@@ -264,9 +264,7 @@ def train_variants(
         done = run / "model.safetensors"
         if done.is_file() and not retrain:
             try:
-                meta = (
-                    _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else load_checkpoint(done).meta
-                )
+                meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else load_style(done).meta
             except UserError:
                 meta = {}
             if meta and _same_recipe(meta, recipe, extra, names) is None:
@@ -311,9 +309,9 @@ class _Runner:
             self.model, self.meta = _resolve(SEGMENT_DECODERS[variant.name][0])(variant.path)
             self.ckpt = None
         else:
-            from facecapges.styles import load_checkpoint, network_only
+            from facecapges.styles import load_style, network_only
 
-            self.ckpt = network_only(load_checkpoint(variant.path), "ablate")
+            self.ckpt = network_only(load_style(variant.path), "ablate")
             self.model, self.meta = self.ckpt.model, self.ckpt.meta
         self.cfg = self.model.cfg
         self.neutral = np.asarray(self.meta["neutral_window"], np.float32)

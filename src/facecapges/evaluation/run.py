@@ -196,10 +196,10 @@ def run_eval(
     from facecapges.evaluation.report import markdown_table, markdown_unseen_table, write_metrics_json, write_report
     from facecapges.evaluation.suite import Method, PairedClips, evaluate_unpaired
     from facecapges.evaluation.timing import timing_markdown, timing_section
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     warnings: list[str] = []
-    ckpt = load_checkpoint(o.checkpoint, o.style)
+    ckpt = load_style(o.checkpoint, o.style)
     model_name = ckpt.display_name
     fps, sr = c.fps, c.sr
     if abs(fps - ckpt.fps) > 1e-6:

@@ -19,7 +19,7 @@ import numpy as np
 from facecapges import timing
 from facecapges.errors import UserError, file_error
 from facecapges.matching.database import build_database
-from facecapges.matching.engine import EngineConfig
+from facecapges.matching.matcher import MatchingConfig
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import Take, load_take
 from facecapges.skeleton import Skeleton
@@ -151,7 +151,7 @@ def build_style(
     force: bool = False,
     progress: bool = True,
     seed: int = 0,
-    config: EngineConfig | None = None,
+    config: MatchingConfig | None = None,
     target: Skeleton | None = None,
     say: Callable[[str], None] = print,
     predictor_steps: int | None = None,
@@ -209,7 +209,7 @@ def build_style(
         "attribution": "; ".join(att for _, att in licences),
         "predictor_training": predictor.config.get("training"),
     }
-    path = save_matching_style(dest, db, config or EngineConfig(), takes[0].skeleton, predictor, meta)
+    path = save_matching_style(dest, db, config or MatchingConfig(), takes[0].skeleton, predictor, meta)
     card.write_text(model_card(name, meta, len(db), db.pause.mean()), encoding="utf-8")
     say(f"wrote {path} and {card.name}")
     return path

@@ -3,7 +3,7 @@
 The network (:class:`~facecapges.network.network.FaceCapGes`, trained on the style's own training frames by
 :func:`facecapges.training.director.train_director`) runs causally on the same per-frame inputs as the
 matcher (audio, face, camera-frame head) through the streaming kernel
-(:class:`~facecapges.network.batched.BatchedStreamingGenerator`). Its output pose is not played; what the
+(:class:`~facecapges.network.batched.BatchedNetworkStreams`). Its output pose is not played; what the
 engine reads from it each frame is the **direction each wrist moves**:
 
 * query (:meth:`BatchedDirector.step`): per wrist, the unit vector of the network's wrist displacement
@@ -19,7 +19,7 @@ while an offset from the mean is mostly where the network's mean pose sits. A di
 :data:`MIN_MOVE` (units of the skeleton: cm) has no direction and gives the zero vector, whose squared
 distance to every unit vector is 1: no preference. The engine adds
 ``direction_weight · Σ_wrists |d_query − d_row|²`` to every row's cost
-(:class:`~facecapges.matching.engine.EngineConfig`).
+(:class:`~facecapges.matching.matcher.MatchingConfig`).
 """
 
 from __future__ import annotations
@@ -94,12 +94,12 @@ class BatchedDirector:
     """Independent causal streams of the network; :meth:`step` gives each one's wrist directions (B, 6)."""
 
     def __init__(self, director: Director, capacity: int = 8):
-        from facecapges.network.batched import BatchedStreamingGenerator
+        from facecapges.network.batched import BatchedNetworkStreams
 
         self.director = director
         self._lock = threading.RLock()
         neutral = np.asarray(director.meta["neutral_window"], np.float32)
-        self.kernel = BatchedStreamingGenerator(director.model, neutral, capacity=max(1, capacity))
+        self.kernel = BatchedNetworkStreams(director.model, neutral, capacity=max(1, capacity))
         self._wrists: dict[int, list[np.ndarray]] = {}
 
     def open(self) -> int:

@@ -8,15 +8,15 @@ the safetensors metadata under ``"facecapges"``, a JSON document:
   a style without predictor, which then matches on speech cues alone); ``director.*`` — the weights
   of the style's own thesis network whose wrist direction is a query term
   (:mod:`facecapges.matching.director`; absent in styles without one);
-* meta — ``format``, ``engine: "matching"``, ``engine_config`` (:class:`EngineConfig`),
+* meta — ``format``, ``engine: "matching"``, ``engine_config`` (:class:`MatchingConfig`),
   ``database`` (feature weights, the take segments with their frame ranges), ``predictor`` (its
   JSON config, or null), ``director`` (the network's config and neutral window, or absent), ``skeleton`` (as the network's checkpoints store it), ``neutral_window``
   (idle frames of the style, (N, 47, 6)), ``fps``, ``speaker``, ``takes`` (name, source, frames
   used, held-out range), ``licence`` and ``attribution``.
 
-:func:`facecapges.styles.load_checkpoint` reads this format and returns a
-:class:`MatchingCheckpoint`: a :class:`~facecapges.engine.contract.GestureEngine` like the network's
-:class:`~facecapges.network.style.Checkpoint` (its ``skeleton`` and ``neutral_window`` come from the
+:func:`facecapges.styles.load_style` reads this format and returns a
+:class:`MatchingStyle`: a :class:`~facecapges.engine.contract.GestureEngine` like the network's
+:class:`~facecapges.network.style.NetworkStyle` (its ``skeleton`` and ``neutral_window`` come from the
 metadata the same way), with the engine's ``database_poses()``.
 """
 
@@ -33,7 +33,7 @@ from facecapges import timing
 from facecapges.engine.contract import GestureEngine
 from facecapges.errors import UserError, file_error
 from facecapges.matching.database import Database
-from facecapges.matching.engine import BatchedMatchingGenerator, EngineConfig, MatchingGenerator
+from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream
 from facecapges.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
 
 FORMAT = "facecapges-matching-1"
@@ -41,11 +41,11 @@ NEUTRAL_FRAMES = 8
 
 
 @dataclass
-class MatchingCheckpoint(GestureEngine):
+class MatchingStyle(GestureEngine):
     """A loaded matching style (module docs): a :class:`~facecapges.engine.contract.GestureEngine`."""
 
     db: Database
-    config: EngineConfig
+    config: MatchingConfig
     predictor: object | None
     meta: dict
     path: Path
@@ -57,11 +57,11 @@ class MatchingCheckpoint(GestureEngine):
     def fps(self) -> int:
         return int(self.meta["fps"])
 
-    def streaming(self) -> MatchingGenerator:
-        return MatchingGenerator(self.db, self.config, self.predictor, self.director)
+    def streaming(self) -> MatchingStream:
+        return MatchingStream(self.db, self.config, self.predictor, self.director)
 
-    def batched(self, capacity: int = 8) -> BatchedMatchingGenerator:
-        return BatchedMatchingGenerator(self.db, self.config, self.predictor, capacity=capacity, director=self.director)
+    def batched(self, capacity: int = 8) -> BatchedMatchingStreams:
+        return BatchedMatchingStreams(self.db, self.config, self.predictor, capacity=capacity, director=self.director)
 
     def database_poses(self) -> np.ndarray:
         """Every pose of the database (N, 47, 6) rot6d (the style's real frames and their mirrors)."""
@@ -70,7 +70,7 @@ class MatchingCheckpoint(GestureEngine):
 
 def neutral_window(db: Database, n: int = NEUTRAL_FRAMES) -> np.ndarray:
     """``n`` consecutive idle frames of the database (the cold-start pose of the style)."""
-    gen = MatchingGenerator(db)
+    gen = MatchingStream(db)
     start = gen.playing_row
     rows = np.minimum(np.arange(start, start + n), len(db) - 1)
     return db.pose[rows]
@@ -79,7 +79,7 @@ def neutral_window(db: Database, n: int = NEUTRAL_FRAMES) -> np.ndarray:
 def save_matching_style(
     path: str | Path,
     db: Database,
-    config: EngineConfig,
+    config: MatchingConfig,
     skeleton: Skeleton,
     predictor=None,
     extra: dict | None = None,
@@ -115,7 +115,7 @@ def save_matching_style(
     return path
 
 
-#: The range of each :class:`EngineConfig` setting a style file may hold, (lowest, highest), both allowed. A
+#: The range of each :class:`MatchingConfig` setting a style file may hold, (lowest, highest), both allowed. A
 #: setting's type is its default's (bool, int or float: finite); a setting not listed here is checked for its
 #: type only. Add a row with each new setting.
 CONFIG_RANGES: dict[str, tuple[float, float]] = {
@@ -138,16 +138,16 @@ CONFIG_RANGES: dict[str, tuple[float, float]] = {
 }
 
 
-def check_engine_config(d: object) -> EngineConfig:
-    """An :class:`EngineConfig` from a style's ``engine_config``, every setting's type and range checked
+def check_engine_config(d: object) -> MatchingConfig:
+    """An :class:`MatchingConfig` from a style's ``engine_config``, every setting's type and range checked
     (:data:`CONFIG_RANGES`); a ValueError names the first wrong one."""
     import math
     from dataclasses import fields
 
     if not isinstance(d, dict):
         raise ValueError(f"engine_config is {type(d).__name__}, not an object")
-    defaults = EngineConfig()
-    for f in fields(EngineConfig):
+    defaults = MatchingConfig()
+    for f in fields(MatchingConfig):
         if f.name not in d:
             continue
         v, default = d[f.name], getattr(defaults, f.name)
@@ -164,7 +164,7 @@ def check_engine_config(d: object) -> EngineConfig:
         lo, hi = CONFIG_RANGES.get(f.name, (-math.inf, math.inf))
         if not isinstance(default, bool) and isinstance(v, int | float) and not lo <= v <= hi:
             raise ValueError(f"engine_config {f.name} = {v!r} is outside [{lo:g}, {hi:g}]")
-    return EngineConfig.from_dict(d)
+    return MatchingConfig.from_dict(d)
 
 
 def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
@@ -231,8 +231,8 @@ def _kinds(kinds: str) -> str:
     return " or ".join({"f": "floats", "i": "integers", "u": "integers", "b": "booleans"}[k] for k in kinds[:2])
 
 
-def from_file(path: Path, tensors: dict, meta: dict) -> MatchingCheckpoint:
-    """A :class:`MatchingCheckpoint` from a file's tensors and meta (clear errors for incomplete files)."""
+def from_file(path: Path, tensors: dict, meta: dict) -> MatchingStyle:
+    """A :class:`MatchingStyle` from a file's tensors and meta (clear errors for incomplete files)."""
     for key in ("engine_config", "database", "skeleton", "neutral_window", "fps"):
         if key not in meta:
             raise file_error(path, f"matching style metadata has no {key!r}: not a complete style")
@@ -255,7 +255,7 @@ def from_file(path: Path, tensors: dict, meta: dict) -> MatchingCheckpoint:
     if meta.get("predictor") is not None:
         predictor = _predictor(path, tensors, meta["predictor"])
     director = _director(path, tensors, meta)
-    return MatchingCheckpoint(db=db, config=config, predictor=predictor, meta=meta, path=path, director=director)
+    return MatchingStyle(db=db, config=config, predictor=predictor, meta=meta, path=path, director=director)
 
 
 def _predictor(path: Path, tensors: dict, config: object):

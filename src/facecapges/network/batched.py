@@ -1,10 +1,10 @@
 """The streaming kernel: many live streams of one checkpoint, stepped together.
 
-:class:`BatchedStreamingGenerator` is the one implementation of causal frame-by-frame
+:class:`BatchedNetworkStreams` is the one implementation of causal frame-by-frame
 inference. Each stream owns one *slot* (:meth:`open` / :meth:`close`); a :meth:`step`
 over some slots runs their current frames as one batched call.
-:class:`~facecapges.network.streaming.StreamingGenerator` is a one-slot use of it, and
-:class:`~facecapges.network.streaming.NaiveStreamingGenerator` (the training code path,
+:class:`~facecapges.network.streaming.NetworkStream` is a one-slot use of it, and
+:class:`~facecapges.network.streaming.NaiveNetworkStream` (the training code path,
 re-encoding every window) is its test oracle.
 
 Per slot it keeps (cold start as thesis 4.1.1: the neutral window as history, zero
@@ -68,7 +68,7 @@ Python than the eager code it records. So the kernel is eager, with the per-oper
 instead (shift registers, one ``baddbmm`` for the TCNs' past taps, :func:`affine_chain`, one product
 for both LSTMs' projections), and for small batches the TCN taps, the LSTM cascade and the Mel front
 end's work between its FFTs each run as one loop compiled by Numba (:mod:`facecapges.network.native`;
-:class:`TCNTaps`, :class:`Cascade` and :data:`BatchedStreamingGenerator.MEL_NATIVE_MAX_BATCH` hold the
+:class:`TCNTaps`, :class:`Cascade` and :data:`BatchedNetworkStreams.MEL_NATIVE_MAX_BATCH` hold the
 measured batch-size splits; above them the torch schedules run). At one stream the step is bound by
 per-call overhead and memory, not arithmetic; batching (``serve``) turns the products into
 matrix–matrix ones and spreads the per-call overhead over the streams.
@@ -440,7 +440,7 @@ class BatchedEncoders:
         return torch.cat([z_a, z_f, z_h], -1)
 
 
-class BatchedStreamingGenerator(SlotOwner):
+class BatchedNetworkStreams(SlotOwner):
     """Independent causal streams of one model, stepped as one batch (module docs)."""
 
     MEL_NATIVE_MAX_BATCH = BatchedEncoders.MEL_NATIVE_MAX_BATCH

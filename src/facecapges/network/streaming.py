@@ -1,4 +1,4 @@
-"""Frame-by-frame inference of one stream: the :class:`StreamingGenerator`.
+"""Frame-by-frame inference of one stream: the :class:`NetworkStream`.
 
 One generator serves one stream of one speaker checkpoint. Each :meth:`step` takes
 the current frame's inputs only — ``audio`` (the frame's ≤ 1067 samples at 16 kHz),
@@ -6,7 +6,7 @@ the current frame's inputs only — ``audio`` (the frame's ≤ 1067 samples at 1
 frame; it never looks ahead.
 
 It is a one-slot use of the streaming kernel,
-:class:`~facecapges.network.batched.BatchedStreamingGenerator` (whose docs list what is
+:class:`~facecapges.network.batched.BatchedNetworkStreams` (whose docs list what is
 cached between steps: the causal encoders' per-layer inputs, the history frames' LSTM
 input projections, both LSTM states), so one stream and a slot of a served batch run
 the same code and give the same poses.
@@ -17,7 +17,7 @@ zeros; frames before the stream are "no input" (zero features, as the encoders'
 causal padding). :meth:`warmup` pushes a frame whose pose is known (the warm-up
 stage of 4.1.3), so a stream can start from real motion.
 
-:class:`NaiveStreamingGenerator` is the straightforward loop on the training code
+:class:`NaiveNetworkStream` is the straightforward loop on the training code
 path (:meth:`FaceCapGes.encode` over the window's raw inputs, :meth:`FaceCapGes.step`)
 that re-encodes the whole window every frame — same outputs, kept as the test oracle
 and as the benchmark's reference. Both equal the training-time rollout
@@ -29,17 +29,17 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from facecapges.network.batched import BatchedStreamingGenerator, initial_window, no_input_embedding
+from facecapges.network.batched import BatchedNetworkStreams, initial_window, no_input_embedding
 from facecapges.network.network import FaceCapGes
 
-__all__ = ["NaiveStreamingGenerator", "StreamingGenerator", "initial_window"]
+__all__ = ["NaiveNetworkStream", "NetworkStream", "initial_window"]
 
 
-class StreamingGenerator:
+class NetworkStream:
     """Causal per-frame pose generator of one stream (module docs)."""
 
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray):
-        self.kernel = BatchedStreamingGenerator(model, neutral_window, capacity=1)
+        self.kernel = BatchedNetworkStreams(model, neutral_window, capacity=1)
         self.model, self.cfg = self.kernel.model, self.kernel.cfg
         self.neutral_window = self.kernel.neutral_window
         self._slot = [self.kernel.open()]
@@ -87,13 +87,13 @@ def _clean(x: np.ndarray, size: int, what: str) -> torch.Tensor:
     return torch.from_numpy(np.nan_to_num(a, nan=0.0, posinf=0.0, neginf=0.0).copy())
 
 
-class NaiveStreamingGenerator:
+class NaiveNetworkStream:
     """Reference loop: keeps raw inputs and re-encodes the whole window every frame.
 
     For the window's N+1 embeddings it encodes the last 2N+1 frames of raw input with
     :meth:`FaceCapGes.encode` (each window frame needs its own N-frame past); its
     decoder is the model's own :meth:`FaceCapGes.step` (``nn.LSTM`` over the fused
-    window). No caching: same outputs as :class:`StreamingGenerator`, far more work.
+    window). No caching: same outputs as :class:`NetworkStream`, far more work.
     """
 
     def __init__(self, model: FaceCapGes, neutral_window: np.ndarray):

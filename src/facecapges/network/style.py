@@ -3,8 +3,8 @@
 The file (:mod:`facecapges.engine.files`) holds the generator's weights (float32) and, in its
 metadata, the :class:`ModelConfig`, the training config and summary, the cold-start neutral pose
 window (N, 47, 6) taken from the training data, the speaker, and the skeleton header (the BEAT
-hierarchy the poses belong to, so BVH can be written). :func:`from_file` builds a :class:`Checkpoint`
-from a file's tensors and metadata (:func:`facecapges.styles.load_checkpoint` reads the file and
+hierarchy the poses belong to, so BVH can be written). :func:`from_file` builds a :class:`NetworkStyle`
+from a file's tensors and metadata (:func:`facecapges.styles.load_style` reads the file and
 chooses the engine); :func:`save_checkpoint` writes one (a network of this package's family, in
 another ``fmt`` too: CaMN, the offline decoder).
 """
@@ -21,15 +21,15 @@ from facecapges.engine.files import check_meta
 from facecapges.errors import UserError, file_error
 
 if TYPE_CHECKING:
-    from facecapges.network.batched import BatchedStreamingGenerator
+    from facecapges.network.batched import BatchedNetworkStreams
     from facecapges.network.network import FaceCapGes
-    from facecapges.network.streaming import StreamingGenerator
+    from facecapges.network.streaming import NetworkStream
 
 FORMAT = "facecapges-checkpoint-1"
 
 
 @dataclass
-class Checkpoint(GestureEngine):
+class NetworkStyle(GestureEngine):
     """A loaded network style (the thesis network): a :class:`~facecapges.engine.contract.GestureEngine`."""
 
     model: FaceCapGes  # eval mode
@@ -42,16 +42,16 @@ class Checkpoint(GestureEngine):
     def fps(self) -> int:
         return int(self.meta["model_config"]["fps"])
 
-    def streaming(self) -> StreamingGenerator:
-        from facecapges.network.streaming import StreamingGenerator
+    def streaming(self) -> NetworkStream:
+        from facecapges.network.streaming import NetworkStream
 
-        return StreamingGenerator(self.model, self.neutral_window)
+        return NetworkStream(self.model, self.neutral_window)
 
-    def batched(self, capacity: int = 8) -> BatchedStreamingGenerator:
+    def batched(self, capacity: int = 8) -> BatchedNetworkStreams:
         """Many streams of this style stepped as one batch (what ``serve`` runs)."""
-        from facecapges.network.batched import BatchedStreamingGenerator
+        from facecapges.network.batched import BatchedNetworkStreams
 
-        return BatchedStreamingGenerator(self.model, self.neutral_window, capacity=capacity)
+        return BatchedNetworkStreams(self.model, self.neutral_window, capacity=capacity)
 
 
 def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> Path:
@@ -70,7 +70,7 @@ def save_checkpoint(path: str | Path, model, meta: dict, fmt: str = FORMAT) -> P
     return path
 
 
-def from_file(p: Path, tensors: dict, meta: dict) -> Checkpoint:
+def from_file(p: Path, tensors: dict, meta: dict) -> NetworkStyle:
     """The network style in file ``p`` (its tensors and metadata, :func:`facecapges.engine.files.read_file`)."""
     import torch
 
@@ -99,4 +99,4 @@ def from_file(p: Path, tensors: dict, meta: dict) -> Checkpoint:
         raise file_error(p, f"weights do not match the checkpoint's model config ({first})") from None
     if not all(torch.isfinite(v).all() for v in model.state_dict().values()):
         raise file_error(p, "checkpoint weights contain NaN or infinite values")
-    return Checkpoint(model=model.eval(), meta=meta, path=p)
+    return NetworkStyle(model=model.eval(), meta=meta, path=p)

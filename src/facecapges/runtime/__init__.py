@@ -6,7 +6,7 @@ The data path of one frame at the model rate, one module each:
   audio track (or a WAV), a camera + microphone, the iPhone Live Link Face app over UDP
   (:mod:`.inputs.livelink` decodes its packets), RGB-D frames from files);
 * :mod:`.scheduler` — the model-rate clock: aligns audio samples, face and head to
-  frame ``k``, runs the capture and the :class:`~facecapges.network.streaming.StreamingGenerator`
+  frame ``k``, runs the capture and the :class:`~facecapges.network.streaming.NetworkStream`
   once per frame, never waits for future input, times every stage and applies the
   documented fallbacks (face lost, audio underrun, dropped/late frames);
 * :mod:`.outputs` — where frames go: :mod:`.outputs.recorders` (BVH and BEAT face-JSON

@@ -76,9 +76,9 @@ def generate_recording(
     if o.head is not None:
         require_file(o.head, "head rotation file")
     from facecapges.engine.generate import generate_blocks
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    ckpt = load_checkpoint(o.checkpoint, o.style)
+    ckpt = load_style(o.checkpoint, o.style)
     inputs = ckpt.plan_inputs(o.audio, o.face, o.head)  # at the checkpoint's rate
     for note in inputs.notes:
         warn(f"warning: {note}")

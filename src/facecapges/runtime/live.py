@@ -346,11 +346,11 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
     ``--record``'s ``report.json``.
     """
     from facecapges.runtime.session import build_session
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
     o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
     outs = _check(o)
-    ckpt = load_checkpoint(o.checkpoint, o.style)
+    ckpt = load_style(o.checkpoint, o.style)
     _check_rate(o.rate, ckpt.fps)
     sinks, outs.senders, outs.ups = per_face_sinks(
         ckpt,

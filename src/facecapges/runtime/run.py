@@ -358,9 +358,9 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
         from facecapges.avatar.vrm.read import load_model
 
         load_model(o.avatar)
-    from facecapges.styles import load_checkpoint
+    from facecapges.styles import load_style
 
-    ckpt = load_checkpoint(o.checkpoint, o.style)
+    ckpt = load_style(o.checkpoint, o.style)
     report = run_video(
         o.video,
         o.out,

@@ -10,7 +10,7 @@ Frame ``k`` covers stream time ``[k/fps, (k+1)/fps)``; its **deadline** is ``(k+
 2. **features** — takes the audio samples frame ``k`` owns
    (``timing.frame_sample_bounds(k)``) and assembles ``(audio, face52, head rot6d)``,
    applying the fallbacks below;
-3. **model** — calls :meth:`StreamingGenerator.step` once;
+3. **model** — calls :meth:`NetworkStream.step` once;
 4. **output** — converts the pose to quaternions and hands the
    :class:`~facecapges.runtime.frames.OutputFrame` to every sink.
 
@@ -62,10 +62,10 @@ from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
 from facecapges.capture.face_lost import FaceLostPolicy
 from facecapges.capture.speech_mouth import SpeechMouth
+from facecapges.engine.contract import Stream
 from facecapges.runtime.frames import InputFrame, OutputFrame
 from facecapges.runtime.head import HeadDriver
 from facecapges.runtime.inputs.sources import FaceSample
-from facecapges.engine.contract import Stream
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
 
 STAGES = ("capture", "features", "model", "output", "total", "input", "landmarks", "model_cpu", "output_cpu")
@@ -160,7 +160,7 @@ def sink_label(sink) -> str:
 
 
 @dataclass
-class Stream:
+class FaceChain:
     """One face's chain: its generator, input hold, head driver, speech mouth and the last frame."""
 
     index: int
@@ -176,7 +176,7 @@ class Scheduler:
     """Runs one session: sources → capture → generator(s) → sinks, once per model frame.
 
     Args:
-        generator: a :class:`~facecapges.network.streaming.StreamingGenerator` (reset here),
+        generator: a :class:`~facecapges.network.streaming.NetworkStream` (reset here),
             or one per face (a list) for several faces (``FaceCapture(num_faces=N)``).
         fps, sr: model rate and audio rate (the checkpoint's).
         video: a video source (:class:`FileVideo`, :class:`CameraVideo`) — needs ``capture``.
@@ -226,7 +226,7 @@ class Scheduler:
         self.speech_mouth = speech_mouth
         policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
         self.streams = [
-            Stream(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
+            FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
             for i, g in enumerate(gens)
         ]
         self.spf = timing.samples_per_frame(self.fps, self.sr)

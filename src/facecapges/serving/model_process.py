@@ -2,7 +2,7 @@
 
 ``serve`` runs its event loop (WebSocket I/O, JSON) in one thread. Stepped in a thread
 of the same process, the eager batched kernel
-(:class:`~facecapges.network.batched.BatchedStreamingGenerator`) gives up and takes back
+(:class:`~facecapges.network.batched.BatchedNetworkStreams`) gives up and takes back
 the GIL at each of its few hundred tensor operations, and the busy event loop keeps
 it waiting at each one: measured on this 2-core machine, 80 clients, one run (load
 17–24): a worker thread managed 9 ticks in 6 s, the same kernel inline in the event
@@ -206,7 +206,7 @@ class ModelProcess:
         return self._conn.fileno()
 
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
-        """Poses (B, 47, 6) of one frame per stream, as ``BatchedStreamingGenerator.step``."""
+        """Poses (B, 47, 6) of one frame per stream, as ``BatchedNetworkStreams.step``."""
         self.submit(slots, audio, face, head)
         return self.collect()[0]
 

@@ -92,10 +92,10 @@ def build_app(
         def __init__(self) -> None:
             import torch
 
-            from facecapges.styles import load_checkpoint, resolve
+            from facecapges.styles import load_style, resolve
 
             torch.set_num_threads(1)
-            ckpt = load_checkpoint(resolve(checkpoint, style))
+            ckpt = load_style(resolve(checkpoint, style))
             self.fps = int(ckpt.fps)
             self.gen = ckpt.batched(capacity=64)
             self.streams: dict[int, _RayStream] = {}
@@ -199,17 +199,19 @@ def build_app(
                 due = [st for st in list(self.streams.values()) if st.pending and not st.closed]
                 if not due:
                     continue
+                slots: list[int] = []
                 for st in due:
                     if st.slot is None:  # its first frame: open its slot (at the resumed pose, if any)
                         st.slot = self.gen.open(st.initial) if st.initial is not None else self.gen.open()
                         if st.intensity != 1.0:
                             self.gen.set_intensity(st.slot, st.intensity)
+                    slots.append(st.slot)
                 items = [st.pending.popleft() for st in due]
                 inputs = [it[0] for it in items]
                 face = np.stack([i.face for i in inputs])
                 head = np.stack([i.head for i in inputs])
                 t0 = time.monotonic()
-                pose = self.gen.step([st.slot for st in due], [i.audio for i in inputs], face, head)
+                pose = self.gen.step(slots, [i.audio for i in inputs], face, head)
                 quats = rot.rot6d_to_quaternion(np.asarray(pose, np.float64))
                 t1 = time.monotonic()
 

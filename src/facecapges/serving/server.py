@@ -1,7 +1,7 @@
 """``facecapges serve``: many live streams over WebSocket, batched into one model call per tick.
 
 Every WebSocket connection is one live stream with its own history and LSTM state —
-a slot of a :class:`~facecapges.network.batched.BatchedStreamingGenerator`. Messages are
+a slot of a :class:`~facecapges.network.batched.BatchedNetworkStreams`. Messages are
 those of :mod:`facecapges.runtime.outputs.protocol` (the browser viewer's format): the server
 sends ``hello`` on connect; the client sends one ``input`` per frame (its audio
 samples, 52 face weights, head rot6d) and gets one ``pose`` back with the same
@@ -642,7 +642,7 @@ def serve_streams(
     server.start()  # handshakes are answered (and told "loading") from now on, before torch is imported
     try:
         try:
-            from facecapges.styles import load_checkpoint, resolve
+            from facecapges.styles import load_style, resolve
 
             cfg.check()
             path = resolve(checkpoint, style)
@@ -653,7 +653,7 @@ def serve_streams(
                 f"serving {path.name} on {server.url} (max {cfg.max_streams} streams, "
                 f"{cfg.rate_limit:g} msg/s per stream); loading the style, clients wait for it; Ctrl-C stops"
             )
-            server.load(load_checkpoint(path))
+            server.load(load_style(path))
         except Exception as exc:
             why = (str(exc).splitlines() or [exc.__class__.__name__])[0]
             server.fail(why)

@@ -196,9 +196,9 @@ def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) ->
     from dataclasses import asdict
 
     from facecapges.network.network import NORM_BUFFERS
-    from facecapges.styles import load_checkpoint_or_style, network_only
+    from facecapges.styles import load_style_or_file, network_only
 
-    base = network_only(load_checkpoint_or_style(source), "train.init_from")
+    base = network_only(load_style_or_file(source), "train.init_from")
     theirs, ours = asdict(base.model.cfg), asdict(mcfg)
     diff = [k for k in ours if ours[k] != theirs.get(k)]
     if diff:

@@ -1,8 +1,8 @@
 """The streaming motion matcher: per 15 fps frame, the speaker's real motion chosen by the speech.
 
-:class:`BatchedMatchingGenerator` runs independent causal streams over one
+:class:`BatchedMatchingStreams` runs independent causal streams over one
 :class:`~facecapges.matching.database.Database` (one stream is a one-slot use of it:
-:class:`MatchingGenerator`), so a served batch and a single stream give the same poses.
+:class:`MatchingStream`), so a served batch and a single stream give the same poses.
 
 Per step and stream (only the current frame's inputs and the stream's own state are read):
 
@@ -81,7 +81,7 @@ from facecapges.skeleton import N_JOINTS
 
 
 @dataclass
-class EngineConfig:
+class MatchingConfig:
     """The matcher's knobs. Chosen on validation (speaker 2, frames [0.64 T, 0.8 T) of both takes, database
     and predictor from [0, 0.64 T), 4 lead-ins each; scripts/matching_validate.py): search every 2 frames
     (BeatAlign gap +0.30 sd against −0.40 at 3, −0.25 at 4), onset bonus 2 (+0.47; 0: −0.58). Then, with
@@ -130,7 +130,7 @@ class EngineConfig:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, d: dict) -> EngineConfig:
+    def from_dict(cls, d: dict) -> MatchingConfig:
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
 
@@ -150,14 +150,14 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
 IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
 
 
-class BatchedMatchingGenerator(SlotOwner):
+class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
     def __init__(
-        self, db: Database, config: EngineConfig | None = None, predictor=None, capacity: int = 8, director=None
+        self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8, director=None
     ):
         self.db = db
-        self.config = config or EngineConfig()
+        self.config = config or MatchingConfig()
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
         use_dir = director is not None and self.config.direction_weight > 0
         self.director = director.batched(max(1, capacity)) if use_dir else None
@@ -536,11 +536,11 @@ class BatchedMatchingGenerator(SlotOwner):
             self.t[ids] += 1
 
 
-class MatchingGenerator:
-    """One causal matching stream: a one-slot :class:`BatchedMatchingGenerator` (same poses)."""
+class MatchingStream:
+    """One causal matching stream: a one-slot :class:`BatchedMatchingStreams` (same poses)."""
 
-    def __init__(self, db: Database, config: EngineConfig | None = None, predictor=None, director=None):
-        self.kernel = BatchedMatchingGenerator(db, config, predictor, capacity=1, director=director)
+    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, director=None):
+        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1, director=director)
         self._slot = [self.kernel.open()]
 
     @property
