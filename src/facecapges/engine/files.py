@@ -56,7 +56,7 @@ CHANNEL_NAMES = {f"{a}{k}" for a in "XYZ" for k in ("position", "rotation")}
 
 
 def check_meta(p: Path, meta: dict) -> None:
-    """The metadata a NetworkStyle reads later (neutral window, skeleton): types and shapes, or a UserError."""
+    """The metadata every style reads later (neutral window, skeleton): types and shapes, or a UserError."""
     try:
         if "neutral_window" not in meta:
             raise KeyError("no neutral_window")
