@@ -120,7 +120,8 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     from facecapges import timing
     from facecapges.evaluation.run import engine_database, history_frames
     from facecapges.styles import load_style
-    from facecapges.engine.generate import FrameInputs, generate_poses
+    from facecapges.engine.inputs import FrameInputs
+    from facecapges.engine.generate import generate_poses
     from facecapges.network.streaming import NetworkStream
 
     pose, _ = take

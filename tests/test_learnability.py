@@ -75,7 +75,8 @@ def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
 def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
     """Train on three synthetic takes; figures on a fourth, new one (see the module docs)."""
     from facecapges.styles import load_style
-    from facecapges.engine.generate import FrameInputs, generate_poses
+    from facecapges.engine.inputs import FrameInputs
+    from facecapges.engine.generate import generate_poses
     from facecapges.timing import frame_audio
     from facecapges.training.segments import ClipArrays
     from facecapges.training.train import build_trainer

@@ -20,7 +20,8 @@ from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
 from facecapges.engine.contract import GestureEngine
-from facecapges.engine.generate import FrameInputs, generate_poses
+from facecapges.engine.inputs import FrameInputs
+from facecapges.engine.generate import generate_poses
 from runtime_helpers import cli, refused
 from tolerances import assert_rotations_close
 

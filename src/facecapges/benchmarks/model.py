@@ -89,7 +89,8 @@ def _to_bvh_euler(skel):
 
 
 def run(quick: bool = False, shared: Path | None = None) -> dict:
-    from facecapges.engine.generate import FrameInputs, generate_poses
+    from facecapges.engine.generate import generate_poses
+    from facecapges.engine.inputs import FrameInputs
     from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
     from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style, network_only
 

@@ -27,15 +27,13 @@ import abc
 import functools
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, ClassVar, Protocol, runtime_checkable
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
+from facecapges.engine.inputs import FrameInputs, StreamedInputs, plan_inputs, prepare_inputs
 from facecapges.errors import file_error
 from facecapges.skeleton import Skeleton, skeleton_from_dict
-
-if TYPE_CHECKING:
-    from facecapges.engine.generate import FrameInputs, StreamedInputs
 
 
 @runtime_checkable
@@ -133,16 +131,12 @@ class GestureEngine(abc.ABC):
         self, audio: str | Path, face: str | Path | None = None, head: str | Path | None = None
     ) -> StreamedInputs:
         """A recording's inputs at this engine's rate, read block by block
-        (:func:`facecapges.engine.generate.plan_inputs`)."""
-        from facecapges.engine.generate import plan_inputs
-
+        (:func:`facecapges.engine.inputs.plan_inputs`)."""
         return plan_inputs(audio, face, head, fps=self.fps)
 
     def prepare_inputs(
         self, audio: str | Path, face: str | Path | None = None, head: str | Path | None = None
     ) -> FrameInputs:
         """A recording's inputs at this engine's rate, all in memory
-        (:func:`facecapges.engine.generate.prepare_inputs`)."""
-        from facecapges.engine.generate import prepare_inputs
-
+        (:func:`facecapges.engine.inputs.prepare_inputs`)."""
         return prepare_inputs(audio, face, head, fps=self.fps)

@@ -127,7 +127,7 @@ def heldout_inputs(arrays: dict, start: int, fps: float, sr: int, head_reference
     ``head_reference_rot6d``) maps the cached skeleton-frame head into the model's
     camera frame (:func:`facecapges.capture.head_pose.skeleton_head_to_camera`).
     """
-    from facecapges.engine.generate import FrameInputs
+    from facecapges.engine.inputs import FrameInputs
 
     real = arrays["pose"][start:].astype(np.float32)
     s0 = int(timing.frame_sample_bounds(start, fps, sr)[0])
