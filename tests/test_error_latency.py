@@ -107,6 +107,8 @@ def _cases(port: int) -> list[tuple[list[str], str]]:
         (["blendshapes", "--mesh", "missing.obj", "--controls", "c.json", "--out", "bs"], "missing.obj"),
         (["capture", cam, "--out", "f.json"], f"camera {cam}"),
         (["live", "--livelink", "0", "--audio", "missing.wav"], "missing.wav"),
+        (["serve", "--style", "nosuch", "--port", "0"], "unknown style 'nosuch'"),
+        (["serve", "--checkpoint", "missing.safetensors", "--port", "0"], "missing.safetensors"),
     ]
 
 

@@ -73,8 +73,10 @@ def serve(
     """
     from facecapges.errors import check_port
     from facecapges.runtime.outputs.server_thread import listening_socket
+    from facecapges.styles import resolve
 
     check_port(port)
+    resolve(checkpoint, style)  # a wrong style name or file is said at once, before torch loads
     if ray is not None:
         from facecapges.errors import UserError
         from facecapges.serving.ray_app import DEFAULT_PORT, serve_on_ray
