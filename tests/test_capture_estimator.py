@@ -159,3 +159,37 @@ def test_a_toothy_smile_does_not_open_the_jaw_and_smiles_symmetrically():
     w2 = est.weights()
     left, right = w2[ARKIT_NAMES.index("mouthSmileLeft")], w2[ARKIT_NAMES.index("mouthSmileRight")]
     assert left > 0.05 and left == pytest.approx(right)
+
+
+def test_the_lips_stretch_does_not_read_as_the_jaw():
+    """Widening the mouth draws the lower lip down over the teeth with the jaw where it was: ``jaw_drop`` reads the
+    lower lip's height at a given mouth width, so a widening that lowers the lip by ``JAW_STRETCH`` per unit of width
+    leaves it unchanged, while the same lip drop at the rest width reads as the jaw (issue 33)."""
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.metrics import (
+        JAW_STRETCH,
+        MOUTH_CORNER_L,
+        MOUTH_CORNER_R,
+        compute_metrics,
+        eye_corner_distance,
+    )
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.synthetic import LOWER_LIP
+
+    try:
+        V = load_canonical_mesh(resolve_model()).vertices
+    except UserError as exc:
+        pytest.skip(str(exc))
+    w = float(eye_corner_distance(V))
+    jd, mw = METRIC_NAMES.index("jaw_drop"), METRIC_NAMES.index("mouth_width")
+    rest = compute_metrics(V)
+    wide = V.copy()
+    wide[MOUTH_CORNER_L, 0] += 0.15 * w
+    wide[MOUTH_CORNER_R, 0] -= 0.15 * w
+    widened = compute_metrics(wide)[mw] - rest[mw]
+    assert widened == pytest.approx(0.3, abs=0.01)
+    wide[list(LOWER_LIP), 1] -= JAW_STRETCH * widened * w
+    assert compute_metrics(wide)[jd] == pytest.approx(rest[jd], abs=1e-6)
+    dropped = V.copy()
+    dropped[list(LOWER_LIP), 1] -= JAW_STRETCH * widened * w
+    assert compute_metrics(dropped)[jd] - rest[jd] == pytest.approx(JAW_STRETCH * widened, abs=1e-6)

@@ -23,7 +23,7 @@ Mapping (:data:`MAPPING`, unit activation → ARKit channel):
 =====================  ===============================================================
 ARKit channel          from
 =====================  ===============================================================
-jawOpen                jaw_drop (one-dir), response γ = 2 (below)
+jawOpen                jaw_drop (one-dir), response γ = 1.5 (below)
 mouthPucker            mouth_width below rest, × (1 − lip_gap activation)
 mouthFunnel            mouth_width below rest, × lip_gap activation
 mouthSmileLeft/Right   0.6 · mouth_width above rest + 0.4 · mean of mouth_corner_L, _R above rest
@@ -41,18 +41,21 @@ noseSneerLeft/Right    nose_L/R below rest (nostril wing rising towards the eye)
 The jaw and the smile: ARKit / MediaPipe define jawOpen by the jaw, but the lip gap also
 grows when only the lips part — a toothy smile lifts the upper lip off the teeth with the
 jaw nearly closed, and the lip gap read it as an open mouth. ``jaw_drop`` (the lower inner
-lip below the base of the nose) moves with the jaw and the lower lip only; the lip gap
-still splits pucker from funnel. The smile's corner part is the mean lift of both corners:
-one corner's height (against the lip centre) is biased on real faces (on the HDTF clip the
-left corner read a smile 0.3 lower than the right where MediaPipe reads both alike), which
-drew a symmetric smile lopsided; frowns stay per side. Chosen on the two face videos in
+lip below the base of the nose, less the part of it that follows the mouth's width: a
+stretched mouth draws the lower lip down over the teeth, a rounded one pushes it up,
+:mod:`metrics`) moves with the jaw; the lip gap still splits pucker from funnel. The
+smile's corner part is the mean lift of both corners: one corner's height (against the lip
+centre) is biased on real faces (on the HDTF clip the left corner read a smile 0.3 lower
+than the right where MediaPipe reads both alike), which drew a symmetric smile lopsided; frowns stay per side. Chosen on the two face videos in
 ``../shared/data/face``, each choice made on one video (or its first half) and checked on
 the other (docs/face-capture.md).
 
 Response curves: measured against MediaPipe's learned jawOpen the relation is convex, near
 zero until the mouth is a fraction open. A power curve ``w^γ`` on the clipped unit
-activation models that (γ = 2 for jawOpen, 1.5 for blinks, whose lids cover the iris
-gradually). Every other channel is linear.
+activation models that (γ = 1.5 for jawOpen, chosen from {1, 1.25, 1.5, 2} together with
+the metric's stretch term on the rule above — 2 had been chosen when jawOpen came from
+the lip gap; 1.5 for blinks, whose lids cover the iris gradually). Every other channel is
+linear.
 
 Modes: ``geometric`` — the table above, every other channel 0; ``mediapipe`` —
 MediaPipe's learned blendshapes as they are; ``hybrid`` — the table above, every other
@@ -104,7 +107,7 @@ N_UNITS = len(UNITS)
 _U = {u.metric: i for i, u in enumerate(UNITS)}
 _A = {n: i for i, n in enumerate(ARKIT_NAMES)}
 
-JAW_GAMMA = 2.0
+JAW_GAMMA = 1.5
 JAW_UNIT = "jaw_drop"
 SMILE_CORNER = 0.4
 BLINK_GAMMA = 1.5
