@@ -44,3 +44,14 @@ def test_the_other_main_channels_keep_their_agreement(hdtf_tracks):
     for name, bound in (("mouthSmileLeft", 0.8), ("mouthSmileRight", 0.83), ("eyeBlinkLeft", 0.86),
                         ("eyeBlinkRight", 0.85)):
         assert _r(whole, name) >= bound, (name, whole["channels"][name])
+
+
+def test_a_head_turn_does_not_read_as_a_sideways_jaw(hdtf_tracks):
+    """She never shifts her jaw (MediaPipe's jawLeft/Right stay ≤ 0.02) but turns her head by ±20°: the lip offset's
+    part that follows the yaw is taken out, so jawLeft + jawRight stay near 0 (mean absolute error was 0.39 over
+    2–8 s and 0.50 over 5–8 s, jawLeft 0.6–0.8 whenever she looked aside). r means nothing here: MediaPipe's own
+    near-zero jawLeft follows the yaw (r 0.73)."""
+    for skip, bound in ((2.0, 0.3), (5.0, 0.3)):
+        rep = evaluate_tracks(hdtf_tracks, skip_s=skip)
+        mae = rep["channels"]["jawLeft"]["mae"] + rep["channels"]["jawRight"]["mae"]
+        assert mae <= bound, (skip, rep["channels"]["jawLeft"], rep["channels"]["jawRight"])
