@@ -28,14 +28,16 @@ def _r(report, name):
 
 
 def test_jaw_open_meets_its_target_on_the_whole_clip_and_the_held_out_half(hdtf_tracks):
-    """jawOpen r ≥ 0.8 over capture-eval's span (2–8 s; was 0.787 with the lower lip's drop alone and γ = 2)
-    and ≥ 0.89 on the held-out 5–8 s (was 0.887)."""
+    """jawOpen r ≥ 0.8 over capture-eval's span (2–8 s; was 0.787 with the lower lip's drop alone, γ = 2 and the
+    jaw's range from a few seconds of talking) and ≥ 0.9 on the held-out 5–8 s (was 0.887); its mean absolute error
+    ≤ 0.09 (was 0.112: a talking jaw read as a full one)."""
     whole = evaluate_tracks(hdtf_tracks, skip_s=2.0)
     held_out = evaluate_tracks(hdtf_tracks, skip_s=5.0)
     assert whole["frames_evaluated"] == 150 and held_out["frames_evaluated"] == 75
     assert _r(whole, "jawOpen") >= 0.8, whole["channels"]["jawOpen"]
     assert whole["targets"]["jawOpen"]["met"]
-    assert _r(held_out, "jawOpen") >= 0.89, held_out["channels"]["jawOpen"]
+    assert _r(held_out, "jawOpen") >= 0.9, held_out["channels"]["jawOpen"]
+    assert whole["channels"]["jawOpen"]["mae"] <= 0.09, whole["channels"]["jawOpen"]
 
 
 def test_the_other_main_channels_keep_their_agreement(hdtf_tracks):

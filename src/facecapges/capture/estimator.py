@@ -17,6 +17,11 @@ values from the very first frame (cold start: one sample is both ends of the ran
 so the span is the prior and the first frame reads as rest) and keeps noise from being
 blown up while one side has not been seen yet; as real samples arrive the estimated
 span takes over. ``scale`` is the unit's typical half range (compensation samples).
+The jaw's prior is wide, 0.45 (the lower lip's drop at a full jawOpen; the synthetic
+faces of :mod:`synthetic` use the same figure): talking, a person opens the jaw a
+fraction of the way, and the top of a few seconds of speech (0.31 on the HDTF clip) read as
+a full jawOpen — 1.0 where MediaPipe reads 0.56. Chosen from {0.25, 0.35, 0.45, 0.6} with the
+jaw's other two constants (:mod:`metrics`' ``JAW_STRETCH``, γ below), on the rule below.
 
 Mapping (:data:`MAPPING`, unit activation → ARKit channel):
 
@@ -113,7 +118,7 @@ UNITS: tuple[Unit, ...] = (
     Unit("brow_inner", True, +1, 0.08, 0.05),
     Unit("mouth_corner_L", True, +1, 0.06, 0.04),
     Unit("mouth_corner_R", True, +1, 0.06, 0.04),
-    Unit("jaw_drop", False, +1, 0.25, 0.15),
+    Unit("jaw_drop", False, +1, 0.45, 0.15),
 )
 assert tuple(u.metric for u in UNITS) == METRIC_NAMES
 N_UNITS = len(UNITS)
