@@ -159,3 +159,67 @@ def test_a_toothy_smile_does_not_open_the_jaw_and_smiles_symmetrically():
     w2 = est.weights()
     left, right = w2[ARKIT_NAMES.index("mouthSmileLeft")], w2[ARKIT_NAMES.index("mouthSmileRight")]
     assert left > 0.05 and left == pytest.approx(right)
+
+
+def test_the_lips_stretch_does_not_read_as_the_jaw():
+    """Widening the mouth draws the lower lip down over the teeth with the jaw where it was: ``jaw_drop`` reads the
+    lower lip's height at a given mouth width, so a widening that lowers the lip by ``JAW_STRETCH`` per unit of width
+    leaves it unchanged, while the same lip drop at the rest width reads as the jaw (issue 33)."""
+    from facecapges.capture.canonical_mesh import load_canonical_mesh
+    from facecapges.capture.metrics import (
+        JAW_STRETCH,
+        MOUTH_CORNER_L,
+        MOUTH_CORNER_R,
+        compute_metrics,
+        eye_corner_distance,
+    )
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.synthetic import LOWER_LIP
+
+    try:
+        V = load_canonical_mesh(resolve_model()).vertices
+    except UserError as exc:
+        pytest.skip(str(exc))
+    w = float(eye_corner_distance(V))
+    jd, mw = METRIC_NAMES.index("jaw_drop"), METRIC_NAMES.index("mouth_width")
+    rest = compute_metrics(V)
+    wide = V.copy()
+    wide[MOUTH_CORNER_L, 0] += 0.15 * w
+    wide[MOUTH_CORNER_R, 0] -= 0.15 * w
+    widened = compute_metrics(wide)[mw] - rest[mw]
+    assert widened == pytest.approx(0.3, abs=0.01)
+    wide[list(LOWER_LIP), 1] -= JAW_STRETCH * widened * w
+    assert compute_metrics(wide)[jd] == pytest.approx(rest[jd], abs=1e-6)
+    dropped = V.copy()
+    dropped[list(LOWER_LIP), 1] -= JAW_STRETCH * widened * w
+    assert compute_metrics(dropped)[jd] - rest[jd] == pytest.approx(JAW_STRETCH * widened, abs=1e-6)
+
+
+def test_a_head_turn_does_not_shift_the_jaw_sideways():
+    """The lip offset that follows the head's yaw (landmark depth error on real video) is taken out once the yaw has
+    varied; a sideways jaw at a steady head still reads (issue 33: a lopsided mouth whenever she looked aside)."""
+    u = METRIC_NAMES.index("lip_offset")
+    left, right = ARKIT_NAMES.index("jawLeft"), ARKIT_NAMES.index("jawRight")
+    g0 = np.array([0.1, 1.7, 0.0, 0.7, 0.7, 0.26, 0.26, 1.1, 1.1, 0.6, 0.0, 0.0, 0.6])
+    rng = np.random.default_rng(0)
+
+    def run(with_yaw: bool) -> tuple[float, ExpressionEstimator]:
+        est = ExpressionEstimator("geometric")
+        worst = 0.0
+        for k in range(300):  # 12 s at 25 fps: the head turns ±20° every 4 s, the jaw stays put
+            yaw = math.radians(20.0) * math.sin(2 * math.pi * k / 100)
+            g = g0 + rng.normal(0.0, 0.003, g0.shape)
+            g[u] += 0.15 * math.sin(yaw)  # the leak: 0.05 eye-corner distances at 20°
+            est.update(g, 1.0, normal=np.array([math.sin(yaw), 0.0, math.cos(yaw)]) if with_yaw else None)
+            if k >= 100:
+                w = est.weights()
+                worst = max(worst, float(w[left]), float(w[right]))
+        return worst, est
+
+    leaked, _ = run(False)
+    worst, est = run(True)
+    assert leaked > 0.3 and worst < 0.1, (leaked, worst)
+    g = g0.copy()
+    g[u] += 0.08  # the lower lip shifted to the subject's left with the head straight
+    est.update(g, 1.0, normal=np.array([0.0, 0.0, 1.0]))
+    assert est.weights()[left] > 0.5

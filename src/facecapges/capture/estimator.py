@@ -17,13 +17,18 @@ values from the very first frame (cold start: one sample is both ends of the ran
 so the span is the prior and the first frame reads as rest) and keeps noise from being
 blown up while one side has not been seen yet; as real samples arrive the estimated
 span takes over. ``scale`` is the unit's typical half range (compensation samples).
+The jaw's prior is wide, 0.45 (the lower lip's drop at a full jawOpen; the synthetic
+faces of :mod:`synthetic` use the same figure): talking, a person opens the jaw a
+fraction of the way, and the top of a few seconds of speech (0.31 on the HDTF clip) read as
+a full jawOpen — 1.0 where MediaPipe reads 0.56. Chosen from {0.25, 0.35, 0.45, 0.6} with the
+jaw's other two constants (:mod:`metrics`' ``JAW_STRETCH``, γ below), on the rule below.
 
 Mapping (:data:`MAPPING`, unit activation → ARKit channel):
 
 =====================  ===============================================================
 ARKit channel          from
 =====================  ===============================================================
-jawOpen                jaw_drop (one-dir), response γ = 2 (below)
+jawOpen                jaw_drop (one-dir), response γ = 1.5 (below)
 mouthPucker            mouth_width below rest, × (1 − lip_gap activation)
 mouthFunnel            mouth_width below rest, × lip_gap activation
 mouthSmileLeft/Right   0.6 · mouth_width above rest + 0.4 · mean of mouth_corner_L, _R above rest
@@ -41,18 +46,33 @@ noseSneerLeft/Right    nose_L/R below rest (nostril wing rising towards the eye)
 The jaw and the smile: ARKit / MediaPipe define jawOpen by the jaw, but the lip gap also
 grows when only the lips part — a toothy smile lifts the upper lip off the teeth with the
 jaw nearly closed, and the lip gap read it as an open mouth. ``jaw_drop`` (the lower inner
-lip below the base of the nose) moves with the jaw and the lower lip only; the lip gap
-still splits pucker from funnel. The smile's corner part is the mean lift of both corners:
-one corner's height (against the lip centre) is biased on real faces (on the HDTF clip the
-left corner read a smile 0.3 lower than the right where MediaPipe reads both alike), which
-drew a symmetric smile lopsided; frowns stay per side. Chosen on the two face videos in
+lip below the base of the nose, less the part of it that follows the mouth's width: a
+stretched mouth draws the lower lip down over the teeth, a rounded one pushes it up,
+:mod:`metrics`) moves with the jaw; the lip gap still splits pucker from funnel. The
+smile's corner part is the mean lift of both corners: one corner's height (against the lip
+centre) is biased on real faces (on the HDTF clip the left corner read a smile 0.3 lower
+than the right where MediaPipe reads both alike), which drew a symmetric smile lopsided; frowns stay per side. Chosen on the two face videos in
 ``../shared/data/face``, each choice made on one video (or its first half) and checked on
 the other (docs/face-capture.md).
 
+The head's yaw and the lip offset: ``lip_offset`` (the lower lip's sideways offset under the
+upper lip, jawLeft/Right) follows the head's yaw on real video although a head turn does not
+shift the jaw — MediaPipe's relative depths are off, and the two lips sit at different depths,
+so turning the head moves one against the other in the head frame (r 0.85 with the yaw on the
+HDTF clip, 0.80 on Megamind; jawLeft read 0.4–0.8 whenever she looked aside, where MediaPipe
+reads 0.01: a lopsided mouth). :meth:`ExpressionEstimator.update` takes the face's normal and
+takes out of the units in :data:`YAW_DECORRELATED` the part that follows it: a causal
+weighted least-squares line of the metric on the face normal's sideways part
+(``sin(yaw)·cos(pitch)``) over every accepted frame so far (the same sample weights ω), used
+once the head has turned by more than :data:`YAW_MIN_STD_DEG` (weighted std) — the metric as
+it would read facing the camera. A jaw shifted without a head turn reads as before.
+
 Response curves: measured against MediaPipe's learned jawOpen the relation is convex, near
 zero until the mouth is a fraction open. A power curve ``w^γ`` on the clipped unit
-activation models that (γ = 2 for jawOpen, 1.5 for blinks, whose lids cover the iris
-gradually). Every other channel is linear.
+activation models that (γ = 1.5 for jawOpen, chosen from {1, 1.25, 1.5, 2} together with
+the metric's stretch term on the rule above — 2 had been chosen when jawOpen came from
+the lip gap; 1.5 for blinks, whose lids cover the iris gradually). Every other channel is
+linear.
 
 Modes: ``geometric`` — the table above, every other channel 0; ``mediapipe`` —
 MediaPipe's learned blendshapes as they are; ``hybrid`` — the table above, every other
@@ -63,6 +83,7 @@ Values beyond a range are kept unclipped in :attr:`ExpressionEstimator.activatio
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,7 +91,7 @@ import numpy as np
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
 from facecapges.capture.metrics import METRIC_NAMES
 from facecapges.capture.ranges import one_directional_range, two_directional_range
-from facecapges.capture.samples import SampleSet
+from facecapges.capture.samples import MIN_WEIGHT, SampleSet
 
 MODES = ("geometric", "mediapipe", "hybrid")
 
@@ -97,14 +118,17 @@ UNITS: tuple[Unit, ...] = (
     Unit("brow_inner", True, +1, 0.08, 0.05),
     Unit("mouth_corner_L", True, +1, 0.06, 0.04),
     Unit("mouth_corner_R", True, +1, 0.06, 0.04),
-    Unit("jaw_drop", False, +1, 0.25, 0.15),
+    Unit("jaw_drop", False, +1, 0.45, 0.15),
 )
 assert tuple(u.metric for u in UNITS) == METRIC_NAMES
 N_UNITS = len(UNITS)
 _U = {u.metric: i for i, u in enumerate(UNITS)}
 _A = {n: i for i, n in enumerate(ARKIT_NAMES)}
 
-JAW_GAMMA = 2.0
+JAW_GAMMA = 1.5
+#: units whose part that follows the head's yaw is taken out (module docstring)
+YAW_DECORRELATED: tuple[str, ...] = ("lip_offset",)
+YAW_MIN_STD_DEG = 3.0  # the yaw's weighted std before the line is used
 JAW_UNIT = "jaw_drop"
 SMILE_CORNER = 0.4
 BLINK_GAMMA = 1.5
@@ -198,6 +222,43 @@ class ExpressionEstimator:
         self.nodes = np.full((N_UNITS, 3), np.nan)
         self.activations = np.zeros(N_UNITS)
         self._frame = 0
+        self._yaw_units = [_U[m] for m in YAW_DECORRELATED]
+        # weighted sums of the line metric ~ s (s: the face normal's sideways part): Σω, Σω·s, Σω·s², per unit Σω·g, Σω·s·g
+        self._yaw_sums = [0.0, 0.0, 0.0]
+        self._yaw_g = [[0.0, 0.0] for _ in self._yaw_units]
+        self._yaw_min_var = math.sin(math.radians(YAW_MIN_STD_DEG)) ** 2
+
+    # -------------------------------------------------------------- head yaw
+    def decorrelate_yaw(self, g: np.ndarray, omega: float, side: float) -> np.ndarray:
+        """``g`` with the part of the :data:`YAW_DECORRELATED` units that follows the head's turn taken out.
+
+        ``side`` is the sideways component of the face's unit normal in the camera frame (``sin(yaw)·cos(pitch)``).
+        The frame first joins the weighted sums (when ``omega`` is a weight the sample set accepts), then the
+        line fitted so far is applied: the metric as it would read facing the camera (module docstring)."""
+        g = np.array(g, np.float64)
+        s = float(side)
+        ok = math.isfinite(s) and math.isfinite(omega) and omega >= MIN_WEIGHT
+        w = min(float(omega), 1.0) if ok else 0.0
+        sums = self._yaw_sums
+        if ok:
+            sums[0] += w
+            sums[1] += w * s
+            sums[2] += w * s * s
+        sw = sums[0]
+        if sw <= 0:
+            return g
+        mean_s = sums[1] / sw
+        var = sums[2] / sw - mean_s * mean_s
+        fit = var > self._yaw_min_var
+        for k, u in enumerate(self._yaw_units):
+            x = float(g[u])
+            if ok and math.isfinite(x):
+                self._yaw_g[k][0] += w * x
+                self._yaw_g[k][1] += w * s * x
+            if fit:
+                sg, ssg = self._yaw_g[k]
+                g[u] = x - (ssg / sw - mean_s * sg / sw) / var * s
+        return g
 
     # -------------------------------------------------------------- ranges
     def update_ranges(self, units=None) -> None:
@@ -229,10 +290,16 @@ class ExpressionEstimator:
         return np.where(self.two_dir, a, up)
 
     # -------------------------------------------------------------- frames
-    def update(self, g: np.ndarray, omega: float) -> np.ndarray:
-        """Add one frame's metrics ``g`` (13,) with sample weight ``omega``; return unit activations (13,)."""
+    def update(self, g: np.ndarray, omega: float, normal: np.ndarray | None = None) -> np.ndarray:
+        """Add one frame's metrics ``g`` (13,) with sample weight ``omega``; return unit activations (13,).
+
+        ``normal``: the face's unit normal in the camera frame (:attr:`head_pose.HeadPose.normal`, as for the
+        sample weight); when given, the :data:`YAW_DECORRELATED` units lose the part that follows the head's
+        turn (module docstring)."""
         g = np.asarray(g, np.float64)
         if self.mode != "mediapipe":
+            if normal is not None:
+                g = self.decorrelate_yaw(g, omega, float(normal[0]))
             added = self.samples.add(g, omega)
             first = np.isnan(self.nodes[0, 0])
             if first and not added:

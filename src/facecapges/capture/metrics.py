@@ -26,8 +26,9 @@ nose_L / _R            y(inner eye corner) − y(nostril wing): L 362 − 294,  
 brow_inner             mean of L y(336, 285) and R y(107, 55)                     two
                        − mean y of the inner eye corners (133, 362)
 mouth_corner_L / _R    y(corner) − mean y(13, 14): L 291, R 61                    two
-jaw_drop               y(2) − mean y(14, 87, 317): the lower inner lip below      one
-                       the base of the nose (subnasale)
+jaw_drop               y(2) − mean y(14, 87, 317) − β · mouth_width: the lower    one
+                       inner lip below the base of the nose (subnasale), less
+                       the part that follows the lips' stretch (β = 0.1, below)
 =====================  =========================================================  ====
 
 The first nine rows are the paper's set (mouth: lip height gap, mouth width, lip
@@ -39,6 +40,16 @@ sideways offset of the lower lip under the upper lip (it moves with jawLeft/Righ
 paper's units cannot tell an inner brow raise from an outer one, a smile from a grin, nor
 an open jaw from lips parted over the teeth (a toothy smile widens the lip gap with the jaw
 shut), and the ARKit channels browInnerUp, mouthSmile/Frown and jawOpen need that.
+
+The lower lip is not fixed to the jaw: stretching the lips sideways (a smile, "ee") draws
+it down over the lower teeth, rounding them ("oo", a pucker) pushes it up and forward,
+with the jaw where it was. Measured: the residual of the lower lip's height against a
+straight-line fit on MediaPipe's jawOpen follows the mouth width (r 0.59 on the HDTF clip,
+0.52 on Megamind). ``jaw_drop`` therefore subtracts ``JAW_STRETCH · mouth_width`` (both per
+eye-corner distance): the lower lip's height at a given mouth width, on both sides of the
+rest width (a correction for widening only did not help). Its one constant, β = 0.1, was
+chosen from {0, 0.05, 0.1, 0.15, 0.2} on one set of videos and checked on another
+(docs/face-capture.md; the choosing set's r peaks at 0.1 and falls off slowly either side).
 """
 
 from __future__ import annotations
@@ -52,6 +63,7 @@ LIP_PAIRS = ((13, 14), (82, 87), (312, 317))
 MOUTH_CORNER_R, MOUTH_CORNER_L = 61, 291
 UPPER_LIP_CENTER, LOWER_LIP_CENTER = 0, 17
 SUBNASALE = 2
+JAW_STRETCH = 0.1  # lower-lip drop per unit of mouth width that is the lips' stretch, not the jaw
 BROW_L = (334, 296, 282, 295)
 BROW_R = (105, 66, 52, 65)
 BROW_INNER_L = (336, 285)
@@ -97,10 +109,11 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     eyes_L = y[..., [INNER_EYE_L, OUTER_EYE_L]].mean(axis=-1)
     eyes_R = y[..., [INNER_EYE_R, OUTER_EYE_R]].mean(axis=-1)
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
+    mouth_width = np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1)
     g = np.stack(
         [
             _pairs_height(P, LIP_PAIRS),
-            np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1),
+            mouth_width,
             P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
             y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
             y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
@@ -111,7 +124,7 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
             y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
             y[..., MOUTH_CORNER_L] - lip_mid,
             y[..., MOUTH_CORNER_R] - lip_mid,
-            y[..., SUBNASALE] - y[..., [b for _, b in LIP_PAIRS]].mean(axis=-1),
+            y[..., SUBNASALE] - y[..., [b for _, b in LIP_PAIRS]].mean(axis=-1) - JAW_STRETCH * mouth_width,
         ],
         axis=-1,
     )

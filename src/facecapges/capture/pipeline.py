@@ -131,7 +131,7 @@ class FaceCapture:
         g = compute_metrics(P)
         out_pose = st.smoother(depth_pose if depth_pose is not None else pose)
         omega = sample_weight(out_pose.distance_m, out_pose.normal)
-        st.estimator.update(g, omega)
+        st.estimator.update(g, omega, normal=out_pose.normal)
         weights = st.estimator.weights(obs.blendshapes)
         return CaptureResult(
             weights,

@@ -10,8 +10,8 @@ openings of a talking face; most of the time most channels rest.
 Known parameters (ARKit names) and how they move the landmarks (head frame, cm;
 ``w`` = the subject's inner eye-corner distance):
 
-* ``jawOpen`` p: lower-lip landmarks down by ``0.45·w·p^(1/2)`` (the inverse of the
-  estimator's response γ = 2, :mod:`estimator`);
+* ``jawOpen`` p: lower-lip landmarks down by ``0.45·w·p^(1/γ)`` (the inverse of the
+  estimator's response γ = ``JAW_GAMMA``, :mod:`estimator`);
 * ``eyeBlinkLeft/Right`` p: upper-lid landmarks down by ``0.9 × rest gap × p^(1/1.5)``;
 * ``browOuterUpLeft/Right`` p / ``browDownLeft/Right`` p: brow landmarks up / down by
   ``0.15·w·p``; ``browInnerUp`` p: inner-brow landmarks up by ``0.15·w·p``.
@@ -24,11 +24,10 @@ jittered by ``noise_px`` pixels.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
+from facecapges.capture.estimator import JAW_GAMMA
 from facecapges.capture.head_pose import Intrinsics
 from facecapges.capture.landmarks import N_LANDMARKS
 from facecapges.capture.metrics import BROW_INNER_L, BROW_INNER_R, BROW_L, BROW_R
@@ -90,7 +89,7 @@ def synthetic_sequence(
     T = n_frames
     P = np.zeros((T, N_BLENDSHAPES))
     A = {n: ARKIT_NAMES.index(n) for n in CHANNELS}
-    P[:, A["jawOpen"]] = _events(T, fps, rng, 0.5) ** 2
+    P[:, A["jawOpen"]] = _events(T, fps, rng, 0.5) ** JAW_GAMMA
     blink = _events(T, fps, rng, 0.3)
     for side in ("Left", "Right"):
         P[:, A[f"eyeBlink{side}"]] = blink**1.5
@@ -107,7 +106,7 @@ def synthetic_sequence(
     Rs = np.zeros((T, 3, 3))
     for k in range(T):
         X = V.copy()
-        X[list(LOWER_LIP), 1] -= 0.45 * w * math.sqrt(P[k, A["jawOpen"]])
+        X[list(LOWER_LIP), 1] -= 0.45 * w * P[k, A["jawOpen"]] ** (1 / JAW_GAMMA)
         for side, lid in (("Left", UPPER_LID_L), ("Right", UPPER_LID_R)):
             gap = (X[386, 1] - X[374, 1]) if side == "Left" else (X[159, 1] - X[145, 1])
             X[list(lid), 1] -= 0.9 * gap * P[k, A[f"eyeBlink{side}"]] ** (1 / 1.5)
