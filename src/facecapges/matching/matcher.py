@@ -12,10 +12,6 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 2. **Predictor** (if the style has one): the future wrist speed/height targets of
    :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
    face and head. Without one the query keeps the playing frame's own future (continue as is).
-   **Network direction** (if the style has its own thesis network and ``direction_weight`` > 0,
-   :mod:`~facecapges.matching.director`): the network runs on the same inputs; the unit direction
-   of each of its wrists' motion over the last 2 frames is 6 more query columns, matched against
-   each row's real wrist direction over its next 2 frames with weight ``direction_weight``.
 3. **Advance** the playing clip by one frame.
 4. **Search** when ``search_interval`` frames have passed since the last search, at an onset,
    when speaking starts or stops, or when the clip runs out. The query is the playing frame's
@@ -90,16 +86,8 @@ class MatchingConfig:
     0.3 s give 0 a minute, jerk 1.00×, spread 0.77×, BeatAlign gap +0.56 sd (margin 2: 0, 1.01×, −0.07 sd;
     margin 2 with onset bonus 3: 0, 1.16×, +0.73 sd). The 10 s windows make every figure noisy (± 0.5 sd).
 
-    ``direction_weight`` (issue #25: the style's own thesis network's wrist direction as a query term,
-    :mod:`~facecapges.matching.director`) was tried on the same validation with a network trained on the
-    same frames [0, 0.64 T) (40 epochs, from scratch): off — spread 0.77×, jerk 1.00×, BeatAlign gap
-    +0.27 sd, 0 transitions a minute; in every search, weight 0.25 / 0.5 / 1 / 2 / 4 / 8 — gap −0.56 / +0.06 /
-    +0.36 / −1.08 / −0.17 / +0.23 sd, jerk 1.00 / 1.03 / 1.12 / 1.49 / 2.02 / 2.53×, transitions 0 / 0 / 1.5 /
-    0 / 0 / 6.3 a minute (the network's direction turns every few frames: the playing clip loses to it,
-    the engine switches 0.65 → 0.85–5.3 times a second); at onsets only (``direction_at_onsets``), weight
-    1 / 2 / 4 — gap −0.27 / +0.42 / +0.69 sd, jerk 1.06 / 1.21 / 1.39×, transitions 1.5 / 0 / 1.5. No
-    setting won on the gap beyond the ± 0.5 sd noise without giving up jerk or transitions, and the network
-    doubles the step (p50 0.90 → 1.89 ms, one thread, interleaved): off by default."""
+    The thesis network's wrist direction as a query term (issue #25, the "director") was tried and removed:
+    docs/matching.md."""
 
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
     margin: float = 3.0  # a switch must beat continuing by this much cost
@@ -123,8 +111,6 @@ class MatchingConfig:
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
     use_predictor: bool = True
-    direction_weight: float = 0.0  # the style's network's wrist direction as a query term (0: off; director.py)
-    direction_at_onsets: bool = False  # the direction term only in the searches of onset frames
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -153,15 +139,10 @@ IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
 class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
-    def __init__(
-        self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8, director=None
-    ):
+    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8):
         self.db = db
         self.config = config or MatchingConfig()
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
-        use_dir = director is not None and self.config.direction_weight > 0
-        self.director = director.batched(max(1, capacity)) if use_dir else None
-        self._dir_skeleton = director.skeleton if use_dir else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
         self._prepare_db()
@@ -169,7 +150,6 @@ class BatchedMatchingStreams(SlotOwner):
         self.capacity = 0
         self.slots = Slots()
         self._pred_slot: dict[int, int] = {}
-        self._dir_slot: dict[int, int] = {}
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ database caches
@@ -211,12 +191,6 @@ class BatchedMatchingStreams(SlotOwner):
         sl = group_slices()
         self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
         self.w = db.feature_weights()
-        self.D: np.ndarray | None = None  # (N, 6) each row's real wrist directions (director.py)
-        if self._dir_skeleton is not None:
-            from facecapges.matching.director import database_directions
-
-            self.D = database_directions(self._dir_skeleton, db.pose, db.segment)
-            self.D_sq = np.einsum("nf,nf->n", self.D, self.D)
 
     # ---------------------------------------------------------------- storage
     def _alloc(self, capacity: int) -> None:
@@ -255,8 +229,6 @@ class BatchedMatchingStreams(SlotOwner):
             slot = self.slots.take(self._alloc)
             if self.predictor is not None:
                 self._pred_slot[slot] = self.predictor.open()
-            if self.director is not None:
-                self._dir_slot[slot] = self.director.open()
             try:
                 self.reset(slot, initial_pose)
             except Exception:
@@ -270,9 +242,6 @@ class BatchedMatchingStreams(SlotOwner):
                 ps = self._pred_slot.pop(slot, None)
                 if ps is not None and self.predictor is not None:
                     self.predictor.close(ps)
-                ds = self._dir_slot.pop(slot, None)
-                if ds is not None and self.director is not None:
-                    self.director.close(ds)
 
     def set_intensity(self, slot: int, value: float) -> None:
         """The stream's intensity (:mod:`facecapges.engine.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
@@ -285,8 +254,6 @@ class BatchedMatchingStreams(SlotOwner):
             self.speech.reset(slot)
             if self.predictor is not None:
                 self.predictor.reset(self._pred_slot[slot])
-            if self.director is not None:
-                self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
             self.quiet[slot], self.direction[slot], self.run_start[slot] = 0, 1, 0
@@ -353,16 +320,13 @@ class BatchedMatchingStreams(SlotOwner):
             pred = None
             if self.predictor is not None and self.config.use_predictor:
                 pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
-            direction = None
-            if self.director is not None:
-                direction = self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
-            self._advance_and_search(ids, sp, pred, direction)
+            self._advance_and_search(ids, sp, pred)
             q = self._blend(ids)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
 
-    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None, direction=None) -> None:
+    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None) -> None:
         cfg = self.config
         row = self.row[ids]
         idle_only = (~sp.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
@@ -394,9 +358,7 @@ class BatchedMatchingStreams(SlotOwner):
         if not need.any():
             return
         w = np.flatnonzero(need)
-        best, switch = self._search(
-            ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction, into_recent[w]
-        )
+        best, switch = self._search(ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], into_recent[w])
         self.since_search[ids[w]] = 0
         if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
             k = np.flatnonzero(switch)
@@ -425,9 +387,7 @@ class BatchedMatchingStreams(SlotOwner):
         raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
         return (raw - db.mean) * self.w
 
-    def _search(
-        self, ids, rows, sp, w, pred, idle_only, forced, direction=None, stale=None
-    ) -> tuple[np.ndarray, np.ndarray]:
+    def _search(self, ids, rows, sp, w, pred, idle_only, forced, stale=None) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
         cfg = self.config
         q = self._query(ids, rows, sp, w, pred)
@@ -436,11 +396,6 @@ class BatchedMatchingStreams(SlotOwner):
         dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
         cost = self.F_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", q, q)[:, None]  # (Bs, N)
         onset_now = sp.since_onset[w] < cfg.onset_frames
-        if self.D is not None and direction is not None:  # + weight · Σ_wrists |d_network − d_row|²
-            use = onset_now if cfg.direction_at_onsets else np.ones(len(rows), bool)
-            d = direction[w[use]]
-            dd = np.stack([self.D @ di for di in d]) if len(d) else np.zeros((0, len(self.D)), np.float32)
-            cost[use] += cfg.direction_weight * (self.D_sq[None] - 2.0 * dd + (d * d).sum(1)[:, None])
         cur = cost[np.arange(len(rows)), rows].copy()
         if onset_now.any():
             cost[onset_now] -= cfg.onset_bonus * self.lead[None]
@@ -526,8 +481,6 @@ class BatchedMatchingStreams(SlotOwner):
             sp = self.speech.step(ids, a)
             if self.predictor is not None and self.config.use_predictor:
                 self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
-            if self.director is not None:
-                self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
@@ -539,8 +492,8 @@ class BatchedMatchingStreams(SlotOwner):
 class MatchingStream:
     """One causal matching stream: a one-slot :class:`BatchedMatchingStreams` (same poses)."""
 
-    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, director=None):
-        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1, director=director)
+    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None):
+        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1)
         self._slot = [self.kernel.open()]
 
     @property
