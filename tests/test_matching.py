@@ -183,7 +183,8 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
 def test_old_style_file_with_a_director_loads_and_ignores_it(tmp_path, take, db, predictor):
     """A style written while the "director" experiment (issue #25, removed: docs/matching.md) was in the
     product may carry its network's tensors, a ``director`` meta entry and its settings in the engine
-    config: it loads, they are ignored, and it plays as the same style without them."""
+    config, and every style before issue #35 a ``db.energy_class``: it loads, they are ignored, and it plays
+    as the same style without them."""
     import torch
     from safetensors import safe_open
     from safetensors.torch import load_file, save_file
@@ -192,7 +193,9 @@ def test_old_style_file_with_a_director_loads_and_ignores_it(tmp_path, take, db,
     tensors = load_file(str(path))
     with safe_open(str(path), "pt") as f:
         meta = json.loads(f.metadata()["facecapges"])
+    assert "db.energy_class" not in tensors  # no longer written (read by nothing)
     tensors["director.audio.weight"] = torch.ones(4, 3)
+    tensors["db.energy_class"] = torch.zeros(len(db), dtype=torch.int8)
     meta["director"] = {"format": "facecapges-director-1", "model_config": {}, "neutral_window": []}
     meta["engine_config"].update(direction_weight=2.0, direction_at_onsets=True)
     old = tmp_path / "old.safetensors"

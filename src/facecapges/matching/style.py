@@ -4,7 +4,8 @@ Like the network's styles (:mod:`facecapges.styles`), the file holds tensors and
 the safetensors metadata under ``"facecapges"``, a JSON document:
 
 * tensors ``db.*`` — the :class:`~facecapges.matching.database.Database` arrays (poses, raw
-  features, annotations, normalisation); ``predictor.*`` — the speech predictor's weights (absent:
+  features, annotations, normalisation; a ``db.energy_class`` of files written before issue #35 is
+  ignored); ``predictor.*`` — the speech predictor's weights (absent:
   a style without predictor, which then matches on speech cues alone). Files written before the
   "director" experiment was removed (docs/matching.md) may carry ``director.*`` tensors and a
   ``director`` meta entry: they are ignored;
@@ -191,7 +192,6 @@ def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
         "db.features": ((n, N_FEATURES), "f"),
         "db.pause": ((n,), "biu"),
         "db.phase": ((n,), "iu"),
-        "db.energy_class": ((n,), "iu"),
         "db.lead": ((n,), "f"),
         "db.searchable": ((n,), "biu"),
         "db.segment": ((n,), "iu"),
@@ -208,7 +208,6 @@ def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
         "db.pause": (0, 1),
         "db.searchable": (0, 1),
         "db.phase": (0, len(PHASES) - 1),
-        "db.energy_class": (0, 2),
         "db.segment": (0, len(meta["segments"]) - 1),
     }
     for key, (lo, hi) in ranges.items():
