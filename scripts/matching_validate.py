@@ -91,7 +91,8 @@ def cached_predictor(takes, stop: list[int], steps: int | None):
 
     from safetensors.torch import load_file, save_file
 
-    from facecapges.matching.predictor import Predictor, PredictorSettings, train_predictor
+    from facecapges.matching.predictor import Predictor, PredictorSettings
+    from facecapges.matching.predictor_training import train_predictor
 
     key = hashlib.sha1(json.dumps([[t.name for t in takes], stop, steps]).encode()).hexdigest()[:12]
     path = Path(f"/tmp/mm-predictor-{key}.safetensors")

@@ -16,7 +16,8 @@ from facecapges.engine.generate import FrameInputs, generate_poses
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, idle_rows, quaternions
 from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream, gain_of
-from facecapges.matching.predictor import PredictorSettings, train_predictor
+from facecapges.matching.predictor import PredictorSettings
+from facecapges.matching.predictor_training import train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
