@@ -27,8 +27,7 @@ from facecapges import timing
 from facecapges.evaluation import beat_align as ba
 from facecapges.evaluation import realism as rz
 from facecapges.evaluation import synchrony as sy
-from facecapges.matching import inertialize as inz
-from facecapges.matching.database import build_database, quaternions
+from facecapges.matching.database import build_database
 from facecapges.matching.matcher import MatchingConfig, MatchingStream
 from facecapges.matching.speech import speech_track
 from facecapges.matching.takes import load_take
@@ -92,7 +91,8 @@ def cached_predictor(takes, stop: list[int], steps: int | None):
 
     from safetensors.torch import load_file, save_file
 
-    from facecapges.matching.predictor import Predictor, PredictorSettings, train_predictor
+    from facecapges.matching.predictor import Predictor, PredictorSettings
+    from facecapges.matching.predictor_training import train_predictor
 
     key = hashlib.sha1(json.dumps([[t.name for t in takes], stop, steps]).encode()).hexdigest()[:12]
     path = Path(f"/tmp/mm-predictor-{key}.safetensors")
@@ -105,26 +105,6 @@ def cached_predictor(takes, stop: list[int], steps: int | None):
     save_file({k: v.contiguous() for k, v in pred.state_dict().items()}, str(path))
     path.with_suffix(".json").write_text(json.dumps(pred.config))
     return pred
-
-
-def cached_director(takes, stop: list[int], epochs: int | None):
-    """The style's thesis network trained on frames [0, stop) of each take (cached in /tmp like the predictor)."""
-    import hashlib
-
-    from safetensors.torch import load_file, save_file
-
-    from facecapges.matching.director import Director
-    from facecapges.training.director import train_director
-
-    key = hashlib.sha1(json.dumps([[t.name for t in takes], stop, epochs, "director"]).encode()).hexdigest()[:12]
-    path = Path(f"/tmp/mm-director-{key}.safetensors")
-    if path.is_file():
-        return Director.from_state(json.loads(path.with_suffix(".json").read_text()), load_file(str(path)),
-                                   takes[0].skeleton)
-    d = train_director(takes, stop, epochs=epochs, progress=False)
-    save_file(d.state_dict(), str(path))
-    path.with_suffix(".json").write_text(json.dumps(d.config))
-    return d
 
 
 def figures(take, gen_pose: np.ndarray, a: int, b: int, real_train: list, jumps: np.ndarray, speaker=None) -> dict:
@@ -171,8 +151,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--network", default=None, help="score this network style instead (same windows, same figures)")
     ap.add_argument("--starts", type=int, default=1, help="runs per window with lead-ins of 0, 1, 2 … s")
     ap.add_argument("--steps", type=int, default=None, help="predictor training steps")
-    ap.add_argument("--director", action="store_true", help="train (or reuse) the style's network on the same frames")
-    ap.add_argument("--director-epochs", type=int, default=None, help="its training epochs")
     args = ap.parse_args(argv)
     target = load_take(*args.skeleton_from.split(",")).skeleton if args.skeleton_from else None
     takes = [load_take(m, w, target) for m, w in args.take]
@@ -192,12 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     predictor = (
         cached_predictor(takes, [b for _, b in ranges], args.steps) if args.predictor and not args.network else None
     )
-    director = (
-        cached_director(takes, [b for _, b in ranges], args.director_epochs)
-        if args.director and not args.network
-        else None
-    )
-    gen = MatchingStream(db, cfg, predictor, director)
+    gen = MatchingStream(db, cfg, predictor)
     rows = []
     for take, (a, b) in zip(takes, evals):
         for k in range(args.starts):

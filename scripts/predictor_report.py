@@ -40,7 +40,8 @@ def speaker_takes(data: Path) -> dict[str, list]:
 
 
 def main() -> None:
-    from facecapges.matching.predictor import PredictorSettings, evaluate_predictor, train_predictor
+    from facecapges.matching.predictor import PredictorSettings
+    from facecapges.matching.predictor_training import evaluate_predictor, train_predictor
     from facecapges.matching.takes import mirror_take
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

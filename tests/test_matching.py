@@ -11,17 +11,17 @@ import pytest
 
 from conftest import shared_file
 from facecapges import timing
+from facecapges.engine.contract import GestureEngine
+from facecapges.engine.generate import generate_poses
+from facecapges.engine.inputs import FrameInputs
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, idle_rows, quaternions
-from facecapges.matching.director import MIN_MOVE, SPAN, database_directions
 from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream, gain_of
-from facecapges.matching.predictor import PredictorSettings, train_predictor
+from facecapges.matching.predictor import PredictorSettings
+from facecapges.matching.predictor_training import train_predictor
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
-from facecapges.engine.contract import GestureEngine
-from facecapges.engine.inputs import FrameInputs
-from facecapges.engine.generate import generate_poses
 from runtime_helpers import cli, refused
 from tolerances import assert_rotations_close
 
@@ -46,14 +46,6 @@ def db(take):
 def predictor(take):
     short = replace(take, train_until=450)  # what the database holds: nothing after it is read
     return train_predictor([short], seed=0, progress=False, settings=replace(TINY, steps=20, eval_every=10))
-
-
-@pytest.fixture(scope="session")
-def director(take):
-    """The thesis network trained on the database's frames (one epoch: a real, if rough, network)."""
-    from facecapges.training.director import train_director
-
-    return train_director([take], [450], epochs=1, progress=False)
 
 
 def run(gen, take, a: int, b: int, audio=None) -> np.ndarray:
@@ -190,46 +182,30 @@ def test_style_file_round_trip(tmp_path, take, db, predictor):
     assert load_style(style=DEFAULT_NETWORK_STYLE).engine == "network"
 
 
-def test_database_directions_are_where_each_wrist_goes(take, db):
-    """Each row's 6 direction values: per wrist the unit vector of its displacement over the next SPAN frames
-    (chest frame), zero where it moves less than MIN_MOVE."""
-    from facecapges.matching.targets import arm_positions
+def test_old_style_file_with_a_director_loads_and_ignores_it(tmp_path, take, db, predictor):
+    """A style written while the "director" experiment (issue #25, removed: docs/matching.md) was in the
+    product may carry its network's tensors, a ``director`` meta entry and its settings in the engine
+    config, and every style before issue #35 a ``db.energy_class``: it loads, they are ignored, and it plays
+    as the same style without them."""
+    import torch
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
 
-    D = database_directions(take.skeleton, db.pose, db.segment)
-    wr = arm_positions(take.skeleton, take.pose[:450])[:, :2]
-    disp = wr[SPAN:] - wr[:-SPAN]
-    d = D[: 450 - SPAN].reshape(-1, 2, 3)
-    moving = np.linalg.norm(disp, axis=-1) >= MIN_MOVE
-    assert moving.mean() > 0.5 and (~moving).any()
-    assert np.allclose(np.linalg.norm(d[moving], axis=-1), 1.0, atol=1e-5)
-    assert (np.einsum("nk,nk->n", d[moving], disp[moving]) > 0).all()
-    assert not d[~moving].any()
-
-
-def test_direction_term_is_causal_and_used(take, db, predictor, director):
-    """With the network's wrist direction in the query the engine stays strictly causal, and the term changes
-    which rows play (weight 0 never runs the network)."""
-    cfg = MatchingConfig(margin=0.0, direction_weight=8.0)
-    other = take.audio.copy()
-    other[540 * SPF :] = np.random.default_rng(1).normal(0, 0.1, len(other) - 540 * SPF).astype(np.float32)
-    g = MatchingStream(db, cfg, predictor, director)
-    assert g.kernel.director is not None and g.kernel.D is not None and g.kernel.D.shape == (len(db), 6)
-    a = run(g, take, 500, 580)
-    g.reset()
-    b = run(g, take, 500, 580, audio=other)
-    assert np.array_equal(a[:40], b[:40]) and not np.allclose(a[40:], b[40:])
-    off = MatchingStream(db, replace(cfg, direction_weight=0.0), predictor, director)
-    assert off.kernel.director is None
-    assert not np.allclose(run(off, take, 500, 580), a)
-
-
-def test_style_file_keeps_its_network(tmp_path, take, db, predictor, director):
-    cfg = MatchingConfig(direction_weight=2.0)
-    path = save_matching_style(tmp_path / "d.safetensors", db, cfg, take.skeleton, predictor, director=director)
-    ck = load_style(path)
-    assert ck.director is not None and ck.config.direction_weight == 2.0
-    a = run(MatchingStream(db, cfg, predictor, director), take, 450, 490)
-    assert np.array_equal(a, run(ck.streaming(), take, 450, 490))
+    path = save_matching_style(tmp_path / "new.safetensors", db, MatchingConfig(), take.skeleton, predictor)
+    tensors = load_file(str(path))
+    with safe_open(str(path), "pt") as f:
+        meta = json.loads(f.metadata()["facecapges"])
+    assert "db.energy_class" not in tensors  # no longer written (read by nothing)
+    tensors["director.audio.weight"] = torch.ones(4, 3)
+    tensors["db.energy_class"] = torch.zeros(len(db), dtype=torch.int8)
+    meta["director"] = {"format": "facecapges-director-1", "model_config": {}, "neutral_window": []}
+    meta["engine_config"].update(direction_weight=2.0, direction_at_onsets=True)
+    old = tmp_path / "old.safetensors"
+    save_file(tensors, str(old), metadata={"facecapges": json.dumps(meta)})
+    style = load_style(old)
+    assert not hasattr(style, "director") and not hasattr(style.config, "direction_weight")
+    a = run(load_style(path).streaming(), take, 450, 490)
+    assert np.array_equal(a, run(style.streaming(), take, 450, 490))
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The motion-matching engine's speech predictor (matching/predictor.py): causal, one kernel, trainable."""
+"""The motion-matching engine's speech predictor (matching/predictor.py, trained by predictor_training.py): causal, one kernel, trainable."""
 
 from __future__ import annotations
 
@@ -17,10 +17,8 @@ from facecapges.matching.predictor import (
     K,
     Predictor,
     PredictorSettings,
-    evaluate_predictor,
-    take_targets,
-    train_predictor,
 )
+from facecapges.matching.predictor_training import evaluate_predictor, take_targets, train_predictor
 from facecapges.matching.takes import load_take, make_take, mirror_take
 from facecapges.matching.targets import TARGET_NAMES
 from tolerances import NETWORK_ULPS, assert_float32_close

@@ -85,7 +85,7 @@ def _batched(ck, audio: np.ndarray, n: int, B: int) -> float:
 def _search(ck, reps: int) -> dict:
     from scipy.spatial import cKDTree
 
-    F = ck.streaming().kernel.F
+    F = ck.streaming().kernel.row_features
     rng = np.random.default_rng(0)
     qs = F[rng.integers(0, len(F), reps)] + rng.normal(0, 0.3, (reps, F.shape[1])).astype(np.float32)
     F_sq = np.einsum("nf,nf->n", F, F)

@@ -163,7 +163,8 @@ def build_style(
     check_pairs(pairs)  # every file before torch loads
     if Path(dest).suffix != ".safetensors":
         raise file_error(Path(dest), "a style file must end in .safetensors")
-    from facecapges.matching.predictor import PredictorSettings, train_predictor
+    from facecapges.matching.predictor import PredictorSettings
+    from facecapges.matching.predictor_training import train_predictor
 
     settings = PredictorSettings()
     if predictor_steps is not None:

@@ -11,8 +11,7 @@ Per row:
   fps, 12), ``future`` (:func:`~facecapges.matching.targets.future_targets`, 4: what the predictor
   estimates live), ``speaking`` (1: the VAD), ``onset`` (1: ``exp(−frames since onset / 3)``);
 * annotations: ``pause`` (not speaking), ``phase`` (:data:`PHASES`, from the wrist-speed
-  extremes: :func:`gesture_phases`), ``energy_class`` (0 quiet, 1 normal, 2 loud: tertiles of the
-  speech loudness; pauses 0), ``lead`` (how much the wrist speed rises over the next 2–4 frames,
+  extremes: :func:`gesture_phases`), ``lead`` (how much the wrist speed rises over the next 2–4 frames,
   in sd of the take's speed: a stroke about to land), ``searchable`` (false for the last
   :data:`END_MARGIN` frames of each range: a jump there would run off the take's end).
 
@@ -127,7 +126,6 @@ class Database:
     features: np.ndarray  # (N, F) float32, raw
     pause: np.ndarray  # (N,) bool
     phase: np.ndarray  # (N,) int8
-    energy_class: np.ndarray  # (N,) int8
     lead: np.ndarray  # (N,) float32
     searchable: np.ndarray  # (N,) bool
     segment: np.ndarray  # (N,) int32: index into segments
@@ -163,7 +161,6 @@ class Database:
             "db.features": self.features,
             "db.pause": self.pause.astype(np.uint8),
             "db.phase": self.phase,
-            "db.energy_class": self.energy_class,
             "db.lead": self.lead,
             "db.searchable": self.searchable.astype(np.uint8),
             "db.segment": self.segment,
@@ -181,7 +178,6 @@ class Database:
             features=np.asarray(t["db.features"], np.float32),
             pause=np.asarray(t["db.pause"]).astype(bool),
             phase=np.asarray(t["db.phase"], np.int8),
-            energy_class=np.asarray(t["db.energy_class"], np.int8),
             lead=np.asarray(t["db.lead"], np.float32),
             searchable=np.asarray(t["db.searchable"]).astype(bool),
             segment=np.asarray(t["db.segment"], np.int32),
@@ -270,14 +266,9 @@ def frame_features(take: Take, start: int, stop: int) -> tuple[np.ndarray, dict[
     ).astype(np.float32)
     speed = wrist_speed(arm, fps)
     height = arm[:, :2, 1].mean(axis=1)
-    energy_class = np.zeros(len(pose), np.int8)
-    if sp.speaking.any():
-        q = np.percentile(sp.energy[sp.speaking], [100 / 3, 200 / 3])
-        energy_class = np.where(sp.speaking, np.digitize(sp.energy, q), 0).astype(np.int8)
     ann = {
         "pause": ~sp.speaking,
         "phase": gesture_phases(speed, height),
-        "energy_class": energy_class,
         "lead": lead_score(speed),
     }
     return feats, ann
@@ -299,9 +290,7 @@ def build_database(
         parts.append((take, a, b))
         if mirror:
             parts.append((mirror_take(take), a, b))
-    cols: dict[str, list[np.ndarray]] = {
-        k: [] for k in ("pose", "feat", "pause", "phase", "energy", "lead", "srch", "seg")
-    }
+    cols: dict[str, list[np.ndarray]] = {k: [] for k in ("pose", "feat", "pause", "phase", "lead", "srch", "seg")}
     segments: list[Segment] = []
     row = 0
     for k, (take, a, b) in enumerate(parts):
@@ -314,7 +303,6 @@ def build_database(
             ("feat", feats),
             ("pause", ann["pause"]),
             ("phase", ann["phase"]),
-            ("energy", ann["energy_class"]),
             ("lead", ann["lead"]),
             ("srch", srch),
             ("seg", np.full(n, k, np.int32)),
@@ -327,7 +315,6 @@ def build_database(
         features=np.concatenate(cols["feat"]),
         pause=np.concatenate(cols["pause"]).astype(bool),
         phase=np.concatenate(cols["phase"]).astype(np.int8),
-        energy_class=np.concatenate(cols["energy"]).astype(np.int8),
         lead=np.concatenate(cols["lead"]).astype(np.float32),
         searchable=np.concatenate(cols["srch"]),
         segment=np.concatenate(cols["seg"]),

@@ -12,16 +12,13 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 2. **Predictor** (if the style has one): the future wrist speed/height targets of
    :mod:`~facecapges.matching.targets` and a speaking probability from the last second of audio,
    face and head. Without one the query keeps the playing frame's own future (continue as is).
-   **Network direction** (if the style has its own thesis network and ``direction_weight`` > 0,
-   :mod:`~facecapges.matching.director`): the network runs on the same inputs; the unit direction
-   of each of its wrists' motion over the last 2 frames is 6 more query columns, matched against
-   each row's real wrist direction over its next 2 frames with weight ``direction_weight``.
 3. **Advance** the playing clip by one frame.
 4. **Search** when ``search_interval`` frames have passed since the last search, at an onset,
    when speaking starts or stops, or when the clip runs out. The query is the playing frame's
    features (arm position and velocity) with the predicted future, the speaking state and the
    onset recency put in; the cost of every database row is the squared distance of the
-   normalised features (:meth:`Database.normalised`), brute force in NumPy, plus:
+   normalised features (:meth:`Database.normalised`), brute force in NumPy (:func:`search`, a pure
+   function of the queries, the database's arrays and the streams' memory and allowed rows), plus:
 
    * rows not ``searchable`` (a take end within reach) are excluded; while not speaking, or at
      ``intensity`` ≈ 0, only idle rows (pause frames and rest-phase frames) are searched;
@@ -60,6 +57,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
+from typing import NamedTuple
 
 import numpy as np
 
@@ -82,24 +80,7 @@ from facecapges.skeleton import N_JOINTS
 
 @dataclass
 class MatchingConfig:
-    """The matcher's knobs. Chosen on validation (speaker 2, frames [0.64 T, 0.8 T) of both takes, database
-    and predictor from [0, 0.64 T), 4 lead-ins each; scripts/matching_validate.py): search every 2 frames
-    (BeatAlign gap +0.30 sd against −0.40 at 3, −0.25 at 4), onset bonus 2 (+0.47; 0: −0.58). Then, with
-    transitions counted as ``facecapges eval`` counts them (evaluation.realism, 2 lead-ins): margin 1 and
-    half-life 0.15 s gave 1.5 transitions a minute and wrist jerk 1.14× the speaker's; margin 3 and half-life
-    0.3 s give 0 a minute, jerk 1.00×, spread 0.77×, BeatAlign gap +0.56 sd (margin 2: 0, 1.01×, −0.07 sd;
-    margin 2 with onset bonus 3: 0, 1.16×, +0.73 sd). The 10 s windows make every figure noisy (± 0.5 sd).
-
-    ``direction_weight`` (issue #25: the style's own thesis network's wrist direction as a query term,
-    :mod:`~facecapges.matching.director`) was tried on the same validation with a network trained on the
-    same frames [0, 0.64 T) (40 epochs, from scratch): off — spread 0.77×, jerk 1.00×, BeatAlign gap
-    +0.27 sd, 0 transitions a minute; in every search, weight 0.25 / 0.5 / 1 / 2 / 4 / 8 — gap −0.56 / +0.06 /
-    +0.36 / −1.08 / −0.17 / +0.23 sd, jerk 1.00 / 1.03 / 1.12 / 1.49 / 2.02 / 2.53×, transitions 0 / 0 / 1.5 /
-    0 / 0 / 6.3 a minute (the network's direction turns every few frames: the playing clip loses to it,
-    the engine switches 0.65 → 0.85–5.3 times a second); at onsets only (``direction_at_onsets``), weight
-    1 / 2 / 4 — gap −0.27 / +0.42 / +0.69 sd, jerk 1.06 / 1.21 / 1.39×, transitions 1.5 / 0 / 1.5. No
-    setting won on the gap beyond the ± 0.5 sd noise without giving up jerk or transitions, and the network
-    doubles the step (p50 0.90 → 1.89 ms, one thread, interleaved): off by default."""
+    """The matcher's knobs, chosen on validation frames only (how, with the figures: docs/matching.md)."""
 
     search_interval: int = 2  # frames between searches (133 ms at 15 fps)
     margin: float = 3.0  # a switch must beat continuing by this much cost
@@ -123,8 +104,6 @@ class MatchingConfig:
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
     use_predictor: bool = True
-    direction_weight: float = 0.0  # the style's network's wrist direction as a query term (0: off; director.py)
-    direction_at_onsets: bool = False  # the direction term only in the searches of onset frames
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -150,18 +129,76 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
 IDLE_ONLY_BELOW = 0.05  # intensity below this searches idle rows only
 
 
+class SearchResult(NamedTuple):
+    """What :func:`search` finds per query."""
+
+    best: np.ndarray  # (B,) int: the best row a stream may jump to
+    cost: np.ndarray  # (B,): its cost (inf: no row allowed)
+    continue_cost: np.ndarray  # (B,): the cost of continuing the playing row (inf: it must be left)
+    switch: np.ndarray  # (B,) bool: the best row beats continuing by the margin
+
+
+def search(
+    row_features: np.ndarray,
+    row_features_sq: np.ndarray,
+    queries: np.ndarray,
+    playing: np.ndarray,
+    segment: np.ndarray,
+    lead: np.ndarray,
+    *,
+    onset_now: np.ndarray,
+    played_recently: np.ndarray,
+    blocked: np.ndarray,
+    forced: np.ndarray,
+    stale: np.ndarray,
+    config: MatchingConfig,
+) -> SearchResult:
+    """The motion-matching search, a pure function of its inputs (step 4 of the module docs).
+
+    ``row_features`` (N, features) the database's normalised features and ``row_features_sq`` (N,) their
+    squared norms; ``queries`` (B, features) normalised; ``playing`` (B,) the row each stream plays next (what
+    continuing means), ``segment`` (N,) each row's take segment, ``lead`` (N,) each row's stroke lead
+    (capped). Per query: ``onset_now`` prefers rows whose stroke lands after this onset (cost − ``onset_bonus``
+    · lead), ``played_recently`` (B, N) rows within the memory cost ``memory_penalty`` more, ``blocked``
+    (B, N) rows may not be jumped to, rows within ``near_frames`` of ``playing`` in its segment are not
+    candidates; ``forced`` streams must leave their row, ``stale`` ones pay the memory penalty to continue.
+    The cost of a row is the squared distance of its features to the query plus those terms; a stream
+    switches when the best row beats continuing by ``margin``.
+    """
+    cfg = config
+    n = len(playing)
+    # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
+    # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
+    dots = np.stack([row_features @ query for query in queries.astype(np.float32)])
+    cost = row_features_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", queries, queries)[:, None]  # (B, N)
+    continue_cost = cost[np.arange(n), playing].copy()
+    if onset_now.any():
+        cost[onset_now] -= cfg.onset_bonus * lead[None]
+        continue_cost[onset_now] -= cfg.onset_bonus * lead[playing[onset_now]]
+    np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=played_recently)
+    np.copyto(cost, np.inf, where=blocked)
+    # rows within near_frames of the playing one, in its segment (continuing): (B, 2 near_frames - 1) only
+    near = playing[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
+    inside = (near >= 0) & (near < len(row_features))
+    near = np.where(inside, near, playing[:, None])
+    inside &= segment[near] == segment[playing][:, None]
+    cost[np.nonzero(inside)[0], near[inside]] = np.inf
+    best = np.argmin(cost, axis=1)
+    best_cost = cost[np.arange(n), best]
+    continue_cost = np.where(forced, np.inf, continue_cost)
+    # continuing runs into a stretch played before this run: it pays the memory too
+    continue_cost = np.where(stale, continue_cost + cfg.memory_penalty, continue_cost)
+    switch = np.isfinite(best_cost) & (best_cost < continue_cost - cfg.margin)
+    return SearchResult(best, best_cost, continue_cost, switch)
+
+
 class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
-    def __init__(
-        self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8, director=None
-    ):
+    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8):
         self.db = db
         self.config = config or MatchingConfig()
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
-        use_dir = director is not None and self.config.direction_weight > 0
-        self.director = director.batched(max(1, capacity)) if use_dir else None
-        self._dir_skeleton = director.skeleton if use_dir else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
         self._prepare_db()
@@ -169,26 +206,25 @@ class BatchedMatchingStreams(SlotOwner):
         self.capacity = 0
         self.slots = Slots()
         self._pred_slot: dict[int, int] = {}
-        self._dir_slot: dict[int, int] = {}
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ database caches
     def _prepare_db(self) -> None:
         db = self.db
-        self.F = db.normalised()  # (N, F)
-        self.F_sq = np.einsum("nf,nf->n", self.F, self.F)
-        self.Q = quaternions(db.pose)  # (N, 47, 4) float64
-        V = np.zeros(self.Q.shape[:-1] + (3,))
+        self.row_features = db.normalised()  # (N, features): what a query is compared with
+        self.row_features_sq = np.einsum("nf,nf->n", self.row_features, self.row_features)  # (N,) squared norms
+        self.row_quaternions = quaternions(db.pose)  # (N, 47, 4) float64
+        velocity = np.zeros(self.row_quaternions.shape[:-1] + (3,))  # (N, 47, 3) each row's angular velocity
         seg = db.segment
         for s in np.unique(seg):
             rows = np.flatnonzero(seg == s)
-            V[rows] = inz.angular_velocity(self.Q[rows], self.fps)
-        self.V = V
+            velocity[rows] = inz.angular_velocity(self.row_quaternions[rows], self.fps)
+        self.row_velocities = velocity
         acc = np.zeros(len(db))  # whole-body angular acceleration of his real motion (rad/s², root sum of squares)
         for s in np.unique(seg):
             rows = np.flatnonzero(seg == s)
             if len(rows) > 2:
-                acc[rows[1:-1]] = np.linalg.norm(np.diff(V[rows], axis=0)[:-1], axis=(1, 2)) * self.fps
+                acc[rows[1:-1]] = np.linalg.norm(np.diff(velocity[rows], axis=0)[:-1], axis=(1, 2)) * self.fps
         self.acc_cap = float(np.percentile(acc, self.config.accel_cap_percentile))
         N = len(db)
         self.next_row = np.arange(1, N + 1)
@@ -200,7 +236,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
         if not self.idle.any():
             self.idle = db.searchable.copy()
-        self.idle_mean = inz.quaternion_mean(self.Q[self.idle])  # (47, 4)
+        self.idle_mean = inz.quaternion_mean(self.row_quaternions[self.idle])  # (47, 4)
         self.idle_mean_inv = inz.qconj(self.idle_mean)
         self.canon = mirror_twins(db)  # a row and its mirror image share one memory entry
         rest = self.idle & (db.phase == 0)  # his rest: idle rows in the rest phase (slow, wrists low)
@@ -210,13 +246,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
         sl = group_slices()
         self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
-        self.w = db.feature_weights()
-        self.D: np.ndarray | None = None  # (N, 6) each row's real wrist directions (director.py)
-        if self._dir_skeleton is not None:
-            from facecapges.matching.director import database_directions
-
-            self.D = database_directions(self._dir_skeleton, db.pose, db.segment)
-            self.D_sq = np.einsum("nf,nf->n", self.D, self.D)
+        self.feature_weights = db.feature_weights()  # (features,) the centred features' multipliers
 
     # ---------------------------------------------------------------- storage
     def _alloc(self, capacity: int) -> None:
@@ -255,8 +285,6 @@ class BatchedMatchingStreams(SlotOwner):
             slot = self.slots.take(self._alloc)
             if self.predictor is not None:
                 self._pred_slot[slot] = self.predictor.open()
-            if self.director is not None:
-                self._dir_slot[slot] = self.director.open()
             try:
                 self.reset(slot, initial_pose)
             except Exception:
@@ -270,9 +298,6 @@ class BatchedMatchingStreams(SlotOwner):
                 ps = self._pred_slot.pop(slot, None)
                 if ps is not None and self.predictor is not None:
                     self.predictor.close(ps)
-                ds = self._dir_slot.pop(slot, None)
-                if ds is not None and self.director is not None:
-                    self.director.close(ds)
 
     def set_intensity(self, slot: int, value: float) -> None:
         """The stream's intensity (:mod:`facecapges.engine.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
@@ -285,8 +310,6 @@ class BatchedMatchingStreams(SlotOwner):
             self.speech.reset(slot)
             if self.predictor is not None:
                 self.predictor.reset(self._pred_slot[slot])
-            if self.director is not None:
-                self.director.reset(self._dir_slot[slot])
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
             self.quiet[slot], self.direction[slot], self.run_start[slot] = 0, 1, 0
@@ -301,7 +324,9 @@ class BatchedMatchingStreams(SlotOwner):
         rows = np.flatnonzero(self.idle)
         if pose is None:
             target = self.idle_mean
-            cand = rows[np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.Q[rows], target)), axis=1))]
+            cand = rows[
+                np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.row_quaternions[rows], target)), axis=1))
+            ]
             self.row[slot], self.off_x[slot], self.off_v[slot] = cand, 0.0, 0.0
             return
         p = np.asarray(pose, np.float32)
@@ -311,11 +336,13 @@ class BatchedMatchingStreams(SlotOwner):
             raise ValueError(f"initial pose must be ({N_JOINTS}, 6) or (N, {N_JOINTS}, 6), got {np.shape(pose)}")
         q = quaternions(p[-2:])
         cur = q[-1]
-        cand = int(rows[np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.Q[rows], cur)), axis=1))])
+        cand = int(
+            rows[np.argmin(np.sum(1.0 - np.abs(np.einsum("njk,jk->nj", self.row_quaternions[rows], cur)), axis=1))]
+        )
         vel = inz.angular_velocity(q, self.fps)[0] if len(q) > 1 else np.zeros((N_JOINTS, 3))
         self.row[slot] = cand
-        self.off_x[slot] = inz.qlog(inz.qabs(inz.qmul(cur, inz.qconj(self.Q[cand]))))
-        self.off_v[slot] = vel - self.V[cand] if len(q) > 1 else 0.0
+        self.off_x[slot] = inz.qlog(inz.qabs(inz.qmul(cur, inz.qconj(self.row_quaternions[cand]))))
+        self.off_v[slot] = vel - self.row_velocities[cand] if len(q) > 1 else 0.0
 
     # ------------------------------------------------------------- the step
     def _ids(self, slots: Sequence[int]) -> np.ndarray:
@@ -349,23 +376,20 @@ class BatchedMatchingStreams(SlotOwner):
             if B == 0:
                 return np.zeros((0, N_JOINTS, 6), np.float32)
             a, f, h = self._inputs(audio, face, head, B)
-            sp = self.speech.step(ids, a)
+            cues = self.speech.step(ids, a)
             pred = None
             if self.predictor is not None and self.config.use_predictor:
                 pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
-            direction = None
-            if self.director is not None:
-                direction = self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
-            self._advance_and_search(ids, sp, pred, direction)
+            self._advance_and_search(ids, cues, pred)
             q = self._blend(ids)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
 
-    def _advance_and_search(self, ids: np.ndarray, sp, pred: np.ndarray | None, direction=None) -> None:
+    def _advance_and_search(self, ids: np.ndarray, cues, pred: np.ndarray | None) -> None:
         cfg = self.config
         row = self.row[ids]
-        idle_only = (~sp.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
+        idle_only = (~cues.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
         fwd, bwd = self.next_row[row], self.prev_row[row]
         back = idle_only & (self.direction[ids] < 0)  # speech always plays forwards
         nxt = np.where(back, bwd, fwd)
@@ -378,89 +402,88 @@ class BatchedMatchingStreams(SlotOwner):
         ended = nxt < 0
         nxt = np.where(ended, row, nxt)
         off_state = idle_only & ~self.idle_play[nxt]
-        changed = sp.speaking != self.was_speaking[ids]
+        changed = cues.speaking != self.was_speaking[ids]
         self.since_search[ids] += 1
         self.since_switch[ids] += 1
         settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        started = sp.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
-        periodic = changed | sp.onset | (self.since_search[ids] >= cfg.search_interval)
+        started = cues.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
+        periodic = changed | cues.onset | (self.since_search[ids] >= cfg.search_interval)
         # continuing into a stretch (or its mirror image) played before this run began, within the memory
-        lu = self.last_used[ids, self.canon[nxt]]
-        into_recent = (lu > self.t[ids] - cfg.memory_s * self.fps) & (lu < self.run_start[ids])
+        last = self.last_used[ids, self.canon[nxt]]
+        into_recent = (last > self.t[ids] - cfg.memory_s * self.fps) & (last < self.run_start[ids])
         need = ended | off_state | started | into_recent | (settled & periodic)
-        self.was_speaking[ids] = sp.speaking
-        self.quiet[ids] = np.where(sp.speaking, 0, self.quiet[ids] + 1)
+        self.was_speaking[ids] = cues.speaking
+        self.quiet[ids] = np.where(cues.speaking, 0, self.quiet[ids] + 1)
         self.row[ids] = nxt
         if not need.any():
             return
-        w = np.flatnonzero(need)
+        searching = np.flatnonzero(need)
         best, switch = self._search(
-            ids[w], nxt[w], sp, w, pred, idle_only[w], ended[w] | off_state[w], direction, into_recent[w]
+            ids[searching],
+            nxt[searching],
+            cues,
+            searching,
+            pred,
+            idle_only[searching],
+            ended[searching] | off_state[searching],
+            into_recent[searching],
         )
-        self.since_search[ids[w]] = 0
+        self.since_search[ids[searching]] = 0
         if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
             k = np.flatnonzero(switch)
-            s, b, src = ids[w[k]], best[k], nxt[w[k]]
+            s, b, src = ids[searching[k]], best[k], nxt[searching[k]]
             self.off_x[s], self.off_v[s] = inz.transition(
-                self.off_x[s], self.off_v[s], self.Q[src], self.V[src], self.Q[b], self.V[b]
+                self.off_x[s],
+                self.off_v[s],
+                self.row_quaternions[src],
+                self.row_velocities[src],
+                self.row_quaternions[b],
+                self.row_velocities[b],
             )
             self.row[s] = b
             self.direction[s] = 1
             self.switches[s] += 1
             self.since_switch[s] = 0
             self.run_start[s] = self.t[s]
-            self.halflife[s] = np.where(idle_only[w[k]], cfg.pause_halflife_s, cfg.halflife_s)
+            self.halflife[s] = np.where(idle_only[searching[k]], cfg.pause_halflife_s, cfg.halflife_s)
 
-    def _query(self, ids: np.ndarray, rows: np.ndarray, sp, w: np.ndarray, pred: np.ndarray | None) -> np.ndarray:
+    def _query(
+        self, ids: np.ndarray, rows: np.ndarray, cues, searching: np.ndarray, pred: np.ndarray | None
+    ) -> np.ndarray:
         """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (while not
         speaking the future moves to his rest's over ``settle_s``)."""
         db = self.db
         raw = db.features[rows].copy()
         if pred is not None:
-            raw[:, self.sl_future] = pred[w, : raw[:, self.sl_future].shape[1]]
+            raw[:, self.sl_future] = pred[searching, : raw[:, self.sl_future].shape[1]]
         # a pause: the future moves to his rest's (slow, wrists low) over settle_s after speech stops
         k = np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)[:, None]
         raw[:, self.sl_future] = (1.0 - k) * raw[:, self.sl_future] + k * self.rest_future
-        raw[:, self.sl_speaking] = sp.speaking[w, None].astype(np.float32)
-        raw[:, self.sl_onset] = np.exp(-sp.since_onset[w, None] / ONSET_DECAY)
-        return (raw - db.mean) * self.w
+        raw[:, self.sl_speaking] = cues.speaking[searching, None].astype(np.float32)
+        raw[:, self.sl_onset] = np.exp(-cues.since_onset[searching, None] / ONSET_DECAY)
+        return (raw - db.mean) * self.feature_weights
 
-    def _search(
-        self, ids, rows, sp, w, pred, idle_only, forced, direction=None, stale=None
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams (module docs)."""
+    def _search(self, ids, rows, cues, searching, pred, idle_only, forced, stale) -> tuple[np.ndarray, np.ndarray]:
+        """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams: their queries, memory and
+        allowed rows, then :func:`search`."""
         cfg = self.config
-        q = self._query(ids, rows, sp, w, pred)
-        # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
-        # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
-        dots = np.stack([self.F @ qi for qi in q.astype(np.float32)])
-        cost = self.F_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", q, q)[:, None]  # (Bs, N)
-        onset_now = sp.since_onset[w] < cfg.onset_frames
-        if self.D is not None and direction is not None:  # + weight · Σ_wrists |d_network − d_row|²
-            use = onset_now if cfg.direction_at_onsets else np.ones(len(rows), bool)
-            d = direction[w[use]]
-            dd = np.stack([self.D @ di for di in d]) if len(d) else np.zeros((0, len(self.D)), np.float32)
-            cost[use] += cfg.direction_weight * (self.D_sq[None] - 2.0 * dd + (d * d).sum(1)[:, None])
-        cur = cost[np.arange(len(rows)), rows].copy()
-        if onset_now.any():
-            cost[onset_now] -= cfg.onset_bonus * self.lead[None]
-            cur[onset_now] -= cfg.onset_bonus * self.lead[rows[onset_now]]
-        recent = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]  # < memory_s ago
-        np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=recent)  # in float64, as before
-        np.copyto(cost, np.inf, where=self._blocked[idle_only.astype(np.intp)])  # rows a search may not jump to
-        # rows within near_frames of the playing one, in its segment (continuing): (Bs, 2 near_frames - 1) only
-        near = rows[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
-        inside = (near >= 0) & (near < len(self.db))
-        near = np.where(inside, near, rows[:, None])
-        inside &= self.db.segment[near] == self.db.segment[rows][:, None]
-        cost[np.nonzero(inside)[0], near[inside]] = np.inf
-        best = np.argmin(cost, axis=1)
-        bc = cost[np.arange(len(rows)), best]
-        cur = np.where(forced, np.inf, cur)
-        if stale is not None:  # continuing runs into a stretch played before this run: it pays the memory too
-            cur = np.where(stale, cur + cfg.memory_penalty, cur)
-        switch = np.isfinite(bc) & (bc < cur - cfg.margin)
-        return best, switch
+        queries = self._query(ids, rows, cues, searching, pred)
+        played_recently = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]
+        result = search(
+            self.row_features,
+            self.row_features_sq,
+            queries,
+            rows,
+            self.db.segment,
+            self.lead,
+            onset_now=cues.since_onset[searching] < cfg.onset_frames,
+            played_recently=played_recently,
+            blocked=self._blocked[idle_only.astype(np.intp)],
+            forced=forced,
+            stale=stale,
+            config=cfg,
+        )
+        return result.best, result.switch
 
     def _blend(self, ids: np.ndarray) -> np.ndarray:
         """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
@@ -469,7 +492,7 @@ class BatchedMatchingStreams(SlotOwner):
         hl = self.halflife[ids][:, None, None]
         x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
-        q = self._limit(ids, inz.qmul(inz.qexp(x), self.Q[self.row[ids]]))
+        q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
         alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
@@ -492,7 +515,7 @@ class BatchedMatchingStreams(SlotOwner):
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
-        q = inz.qmul(inz.qexp(self.off_x[ids]), self.Q[self.row[ids]])
+        q = inz.qmul(inz.qexp(self.off_x[ids]), self.row_quaternions[self.row[ids]])
         self.prev_q[ids] = q[:, None]
         self.slow_dev[ids] = self._deviation(q)
 
@@ -509,7 +532,9 @@ class BatchedMatchingStreams(SlotOwner):
             if over.any():
                 k = np.flatnonzero(over)
                 q[k] = inz.qmul(inz.qexp(d[k] * (self.acc_cap / total[k])[:, None, None]), pred[k])
-                self.off_x[ids[k]] = inz.qlog(inz.qabs(inz.qmul(q[k], inz.qconj(self.Q[self.row[ids[k]]]))))
+                self.off_x[ids[k]] = inz.qlog(
+                    inz.qabs(inz.qmul(q[k], inz.qconj(self.row_quaternions[self.row[ids[k]]])))
+                )
         self.prev_q[ids, 0], self.prev_q[ids, 1] = p1, q
         return q
 
@@ -523,24 +548,22 @@ class BatchedMatchingStreams(SlotOwner):
         with self._lock:
             ids = self._ids(slots)
             a, f, h = self._inputs(audio, face, head, len(ids))
-            sp = self.speech.step(ids, a)
+            cues = self.speech.step(ids, a)
             if self.predictor is not None and self.config.use_predictor:
                 self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
-            if self.director is not None:
-                self.director.step([self._dir_slot[int(s)] for s in ids], a, f, h)
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
             self._restart_history(ids)
-            self.was_speaking[ids] = sp.speaking
+            self.was_speaking[ids] = cues.speaking
             self.t[ids] += 1
 
 
 class MatchingStream:
     """One causal matching stream: a one-slot :class:`BatchedMatchingStreams` (same poses)."""
 
-    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, director=None):
-        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1, director=director)
+    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None):
+        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1)
         self._slot = [self.kernel.open()]
 
     @property

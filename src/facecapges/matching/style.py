@@ -4,13 +4,14 @@ Like the network's styles (:mod:`facecapges.styles`), the file holds tensors and
 the safetensors metadata under ``"facecapges"``, a JSON document:
 
 * tensors ``db.*`` — the :class:`~facecapges.matching.database.Database` arrays (poses, raw
-  features, annotations, normalisation); ``predictor.*`` — the speech predictor's weights (absent:
-  a style without predictor, which then matches on speech cues alone); ``director.*`` — the weights
-  of the style's own thesis network whose wrist direction is a query term
-  (:mod:`facecapges.matching.director`; absent in styles without one);
+  features, annotations, normalisation; a ``db.energy_class`` of files written before issue #35 is
+  ignored); ``predictor.*`` — the speech predictor's weights (absent:
+  a style without predictor, which then matches on speech cues alone). Files written before the
+  "director" experiment was removed (docs/matching.md) may carry ``director.*`` tensors and a
+  ``director`` meta entry: they are ignored;
 * meta — ``format``, ``engine: "matching"``, ``engine_config`` (:class:`MatchingConfig`),
   ``database`` (feature weights, the take segments with their frame ranges), ``predictor`` (its
-  JSON config, or null), ``director`` (the network's config and neutral window, or absent), ``skeleton`` (as the network's checkpoints store it), ``neutral_window``
+  JSON config, or null), ``skeleton`` (as the network's checkpoints store it), ``neutral_window``
   (idle frames of the style, (N, 47, 6)), ``fps``, ``speaker``, ``takes`` (name, source, frames
   used, held-out range), ``licence`` and ``attribution``.
 
@@ -34,7 +35,7 @@ from facecapges.engine.contract import GestureEngine
 from facecapges.errors import UserError, file_error
 from facecapges.matching.database import Database
 from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream
-from facecapges.skeleton import Skeleton, skeleton_from_dict, skeleton_to_dict
+from facecapges.skeleton import Skeleton, skeleton_to_dict
 
 FORMAT = "facecapges-matching-1"
 NEUTRAL_FRAMES = 8
@@ -49,7 +50,6 @@ class MatchingStyle(GestureEngine):
     predictor: object | None
     meta: dict
     path: Path
-    director: object | None = None
     engine: ClassVar[str] = "matching"
     label: ClassVar[str] = "motion matching"
 
@@ -58,10 +58,10 @@ class MatchingStyle(GestureEngine):
         return int(self.meta["fps"])
 
     def streaming(self) -> MatchingStream:
-        return MatchingStream(self.db, self.config, self.predictor, self.director)
+        return MatchingStream(self.db, self.config, self.predictor)
 
     def batched(self, capacity: int = 8) -> BatchedMatchingStreams:
-        return BatchedMatchingStreams(self.db, self.config, self.predictor, capacity=capacity, director=self.director)
+        return BatchedMatchingStreams(self.db, self.config, self.predictor, capacity=capacity)
 
     def database_poses(self) -> np.ndarray:
         """Every pose of the database (N, 47, 6) rot6d (the style's real frames and their mirrors)."""
@@ -83,7 +83,6 @@ def save_matching_style(
     skeleton: Skeleton,
     predictor=None,
     extra: dict | None = None,
-    director=None,
 ) -> Path:
     """Write a matching style atomically (temporary file, then rename); returns its path."""
     import torch
@@ -94,8 +93,6 @@ def save_matching_style(
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in db.tensors().items()}
     if predictor is not None:
         tensors.update({f"predictor.{k}": v.detach().float().contiguous() for k, v in predictor.state_dict().items()})
-    if director is not None:
-        tensors.update({f"director.{k}": v for k, v in director.state_dict().items()})
     meta = dict(extra or {})
     meta.update(
         format=FORMAT,
@@ -103,7 +100,6 @@ def save_matching_style(
         engine_config=config.as_dict(),
         database=db.meta(),
         predictor=None if predictor is None else predictor.config,
-        **({} if director is None else {"director": director.config}),
         skeleton=skeleton_to_dict(skeleton),
         neutral_window=np.round(neutral_window(db).astype(np.float64), 6).tolist(),
         fps=timing.MODEL_FPS,
@@ -134,7 +130,6 @@ CONFIG_RANGES: dict[str, tuple[float, float]] = {
     "onset_bonus": (0.0, 1e3),
     "onset_frames": (0, 150),
     "intensity_tau_s": (0.0, 60.0),
-    "direction_weight": (0.0, 1e3),
 }
 
 
@@ -197,7 +192,6 @@ def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
         "db.features": ((n, N_FEATURES), "f"),
         "db.pause": ((n,), "biu"),
         "db.phase": ((n,), "iu"),
-        "db.energy_class": ((n,), "iu"),
         "db.lead": ((n,), "f"),
         "db.searchable": ((n,), "biu"),
         "db.segment": ((n,), "iu"),
@@ -214,7 +208,6 @@ def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
         "db.pause": (0, 1),
         "db.searchable": (0, 1),
         "db.phase": (0, len(PHASES) - 1),
-        "db.energy_class": (0, 2),
         "db.segment": (0, len(meta["segments"]) - 1),
     }
     for key, (lo, hi) in ranges.items():
@@ -254,8 +247,7 @@ def from_file(path: Path, tensors: dict, meta: dict) -> MatchingStyle:
     predictor = None
     if meta.get("predictor") is not None:
         predictor = _predictor(path, tensors, meta["predictor"])
-    director = _director(path, tensors, meta)
-    return MatchingStyle(db=db, config=config, predictor=predictor, meta=meta, path=path, director=director)
+    return MatchingStyle(db=db, config=config, predictor=predictor, meta=meta, path=path)
 
 
 def _predictor(path: Path, tensors: dict, config: object):
@@ -280,17 +272,3 @@ def _predictor(path: Path, tensors: dict, config: object):
     except (KeyError, RuntimeError, ValueError, TypeError, AttributeError, UserError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise file_error(path, f"matching style predictor does not load ({first})") from None
-
-
-def _director(path: Path, tensors: dict, meta: dict):
-    """The style's network of the wrist-direction term (:mod:`facecapges.matching.director`), or None."""
-    if not meta.get("director"):
-        return None
-    from facecapges.matching.director import Director
-
-    d_t = {k[len("director.") :]: v for k, v in tensors.items() if k.startswith("director.")}
-    try:
-        return Director.from_state(meta["director"], d_t, skeleton_from_dict(meta["skeleton"]))
-    except (KeyError, RuntimeError, TypeError, ValueError, AttributeError, UserError) as exc:
-        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-        raise file_error(path, f"matching style network does not load ({first})") from None

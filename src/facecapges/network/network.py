@@ -343,6 +343,39 @@ def set_input_statistics(
             layers[name].in_scale.copy_(torch.as_tensor(scale, dtype=torch.float32))
 
 
+def input_standardisation(
+    head: np.ndarray, face: np.ndarray, audio: np.ndarray, audio_repr: str, n_face: int
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """The ``{input: (in_mean, in_scale)}`` of :func:`set_input_statistics` from training frames — the one rule
+    the thesis trainer (:func:`facecapges.training.train.input_statistics`) and the matching style's speech
+    predictor (:mod:`facecapges.matching.predictor_training`) both use.
+
+    ``head`` (T, 6) in the model's camera frame, ``face`` (T, 52), ``audio``: the raw samples (any shape) when
+    ``audio_repr`` is "raw", else the Mel features (T, 43).
+
+    * head: per channel mean and one scale, 1 / RMS deviation over the six channels (rot6d channels near ±1
+      barely move; a scale per channel would magnify them);
+    * face: per channel mean and 1 / max(sd, 0.01); when no frame has a face (all zero) the scale is 0: the
+      model never saw faces, so faces never reach it;
+    * audio: raw samples by 1 / RMS; Mel features per channel, 1 / max(sd, 1e-3).
+    """
+    head = np.asarray(head, np.float64)
+    face = np.asarray(face, np.float64)
+    h_mean = head.mean(0)
+    h_scale = 1.0 / max(float(np.sqrt(((head - h_mean) ** 2).sum(1).mean() / 6)), 1e-3)
+    stats = {"head": (h_mean, np.full(6, h_scale))}
+    if len(face) and np.abs(face).max() > 0:
+        stats["face"] = (face.mean(0), 1.0 / np.maximum(face.std(0), 0.01))
+    else:
+        stats["face"] = (np.zeros(n_face), np.zeros(n_face))
+    a = np.asarray(audio, np.float64)
+    if audio_repr == "raw":
+        stats["audio"] = (np.zeros(1), np.ones(1) / max(float(np.sqrt(np.mean(a**2))), 1e-4))
+    else:
+        stats["audio"] = (a.mean(0), 1.0 / np.maximum(a.std(0), 1e-3))
+    return stats
+
+
 def with_default_norms(model: nn.Module, tensors: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
     """``tensors`` plus identity normalisation buffers where a checkpoint predates them."""
     own = model.state_dict()

@@ -60,7 +60,7 @@ import torch.nn.functional as F
 
 from facecapges.errors import UserError
 from facecapges.network.config import ModelConfig, TrainConfig, model_config_from_dict, to_dict, train_config_from_dict
-from facecapges.network.network import FaceCapGes, SegmentDiscriminator, set_input_statistics
+from facecapges.network.network import FaceCapGes, SegmentDiscriminator, input_standardisation, set_input_statistics
 from facecapges.network.style import save_checkpoint
 from facecapges.timing import frame_audio, frame_sample_bounds
 from facecapges.training.distributed import DistContext
@@ -133,14 +133,9 @@ def input_statistics(
     the metadata saying what the style was trained with, and the head reference
     rotation ``R_ref`` (rot6d) or None). Held-out frames never enter a statistic.
 
-    * head: mapped into the model's camera frame first (``head_to_camera``; the mapping
-      and ``R_ref`` = the speaker's mean head rotation are defined in
-      :mod:`facecapges.capture.head_pose`); then per channel mean and one scale
-      1 / RMS deviation over the six channels (rot6d channels near ±1 barely move;
-      a scale per channel would magnify them).
-    * face: per channel mean and 1 / max(sd, 0.01); when no training frame has a face
-      (all zero) the scale is 0: the style never saw faces, so faces never reach it.
-    * audio: raw samples by 1 / RMS; Mel features per channel (1 / max(sd, 1e-3)).
+    The head is mapped into the model's camera frame first (``head_to_camera``; the mapping and ``R_ref`` =
+    the speaker's mean head rotation are defined in :mod:`facecapges.capture.head_pose`); the rule for each
+    input is :func:`~facecapges.network.network.input_standardisation` (shared with the speech predictor).
     """
     from facecapges.capture.head_pose import skeleton_head_to_camera
     from facecapges.network.audio_features import AudioFeatures
@@ -165,25 +160,16 @@ def input_statistics(
     }
     if not tcfg.normalize_inputs:
         return {"face": (np.zeros(mcfg.n_face), np.full(mcfg.n_face, float(face_seen)))}, meta, ref
-    h_mean = head.mean(0)
-    h_scale = 1.0 / max(float(np.sqrt(((head - h_mean) ** 2).sum(1).mean() / 6)), 1e-3)
-    stats = {"head": (h_mean, np.full(6, h_scale))}
-    if face_seen:
-        stats["face"] = (face.mean(0), 1.0 / np.maximum(face.std(0), 0.01))
-    else:
-        stats["face"] = (np.zeros(mcfg.n_face), np.zeros(mcfg.n_face))
     audio = [c.audio[: int(frame_sample_bounds(s.stop, mcfg.fps, mcfg.sr)[0])] for c, s in zip(clips, cut)]
     if mcfg.audio_repr == "raw":
-        rms = float(np.sqrt(np.mean(np.concatenate(audio).astype(np.float64) ** 2)))
-        stats["audio"] = (np.zeros(1), np.ones(1) / max(rms, 1e-4))
+        audio_input = np.concatenate(audio)
     else:
         feats = AudioFeatures(mcfg.sr, mcfg.samples_per_frame)
         with torch.no_grad():
-            f = np.concatenate(
+            audio_input = np.concatenate(
                 [feats(torch.from_numpy(frame_audio(a, s.stop, mcfg.fps, mcfg.sr))).numpy() for a, s in zip(audio, cut)]
-            ).astype(np.float64)
-        stats["audio"] = (f.mean(0), 1.0 / np.maximum(f.std(0), 1e-3))
-    return stats, meta, ref
+            )
+    return input_standardisation(head, face, audio_input, mcfg.audio_repr, mcfg.n_face), meta, ref
 
 
 def load_base_weights(model: torch.nn.Module, source: str, mcfg: ModelConfig) -> None:
