@@ -6,7 +6,11 @@ The last 20 % of every paired take is never used for a choice: each clip is cut 
 ``held_*``. Usage::
 
     python scripts/recipe_choice.py --cache build/cache-beat --speaker 2 --config configs/X.yaml \
-        --out build/choice/X [--set train.optimizer=sgd --set model.audio_repr=mel ...]
+        --out build/choice/X [--set train.optimizer=sgd --set model.audio_repr=mel ...] [--snapshots 40,60,100]
+
+``--snapshots E1,E2,...`` also keeps the model after each of those epochs (OUT/epoch-E.safetensors) in
+the one run: the recipes have no learning-rate schedule, so the model after E epochs of a longer run is
+the model of an E-epoch run. Score them with ``scripts/style_report.py --validation``.
 
 Writes OUT/log.csv (per-epoch losses) and OUT/choice.json (the validation losses of
 the last epoch and the best epoch).
@@ -16,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 from pathlib import Path
 
 import yaml
@@ -30,6 +35,7 @@ def main() -> None:
     ap.add_argument("--train-until", type=float, default=0.8, help="fraction of each clip available at all")
     ap.add_argument("--val-fraction", type=float, default=0.2, help="of that, the validation part")
     ap.add_argument("--set", action="append", default=[], help="section.key=value (YAML value)")
+    ap.add_argument("--snapshots", default="", help="comma-separated epochs whose model is kept as OUT/epoch-E")
     args = ap.parse_args()
 
     from facecapges.network.config import load_config_file
@@ -48,6 +54,9 @@ def main() -> None:
     meta = {"speaker": args.speaker, "clips": [c.name for c in clips], "split": "all",
             "skeleton": cache.index["skeleton"], "cache": str(args.cache), "choice_run": True}
     tr = build_trainer(cut_clips, args.out, model_over, train_over, meta, resume=False)
+    for epoch in sorted(int(e) for e in args.snapshots.split(",") if e):
+        tr.fit(epochs=epoch)
+        shutil.copyfile(args.out / "model.safetensors", args.out / f"epoch-{epoch}.safetensors")
     hist = tr.fit()
     best = min(hist, key=lambda r: r.get("held_rec", float("inf")))
     val = {c.name: [int(len(c.pose) * (1 - args.val_fraction)), len(c.pose)] for c in cut_clips}

@@ -118,19 +118,23 @@ def test_a_checkpoint_is_reused_as_the_full_variant_only_when_trained_by_the_sam
     """The reuse rule accepts a checkpoint of the ablation's own recipe and rejects any other.
 
     The ablation trains every variant from random weights (a config's ``init_from`` is
-    dropped), so the shipped network style, fine-tuned from zeggs-speech, is not reused.
+    dropped) on the frames before one hold-out frame (``--holdout-from`` replaces the config's
+    ``holdout_fraction``), so the shipped network style, which holds out each of its two takes'
+    last 20 %, is not reused for a one-take ablation.
     """
     from facecapges.evaluation.ablate import _same_recipe, default_config_path, make_recipe
     from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
 
     assert default_config_path().is_file()
     shipped = load_style(style=DEFAULT_NETWORK_STYLE).meta
-    recipe = make_recipe(None, 2, None, None, None, 15.0)
-    assert recipe.split == "all" and recipe.holdout_from == 766 and "init_from" not in recipe.train_over
-    assert shipped["train_config"]["init_from"]  # fine-tuned …
-    assert _same_recipe(shipped, recipe, None, ["2_scott_0_1_1"]) == "training config differs"  # … so not reused
+    assert make_recipe(None, 2, None, None, None, 15.0).train_over["holdout_fraction"] == 0.2
+    recipe = make_recipe(None, 2, None, None, 765, 15.0)
+    assert recipe.split == "all" and recipe.holdout_from == 765
+    assert "init_from" not in recipe.train_over and "holdout_fraction" not in recipe.train_over
+    assert not shipped["train_config"]["init_from"] and shipped["train_config"]["holdout_fraction"] == 0.2
+    assert _same_recipe(shipped, recipe, None, ["2_scott_0_1_1"]) == "training config differs"  # so not reused
     mcfg, tcfg = recipe.resolved()
-    meta = dict(shipped, model_config=mcfg, train_config=tcfg, epochs_trained=tcfg["epochs"])
+    meta = dict(shipped, clips=["2_scott_0_1_1"], model_config=mcfg, train_config=tcfg, epochs_trained=tcfg["epochs"])
     assert _same_recipe(meta, recipe, None, ["2_scott_0_1_1"]) is None
     assert _same_recipe(meta, make_recipe(None, 2, None, 3, None, 15.0), None, ["2_scott_0_1_1"])
     assert _same_recipe(meta, recipe, {"head_dim": 0}, ["2_scott_0_1_1"]) == "model config differs"

@@ -143,3 +143,20 @@ def test_generate_bad_audio_and_checkpoint(tmp_path, trained):
     corrupt.write_bytes((trained / "model.safetensors").read_bytes()[:5000])
     p = run("generate", "--audio", str(short), "--checkpoint", str(corrupt), "--out", str(tmp_path / "d.bvh"), ok=False)
     assert "corrupt.safetensors" in p.stderr
+
+
+@pytest.mark.slow
+def test_train_records_its_data_and_holdout_from_replaces_the_configs_fraction(tmp_path, cache):
+    """The style records each clip's dataset and licence (what tests/test_shipped_licences.py checks), and
+    ``--holdout-from`` wins over a config's ``holdout_fraction`` (the shipped recipe's), not the other way."""
+    from facecapges.styles import load_style
+
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(TINY + "  holdout_fraction: 0.2\n")
+    run("train", "--cache", str(cache), "--speaker", "2", "--out", str(tmp_path / "r"), "--config", str(cfg),
+        "--epochs", "1", "--split", "all", "--holdout-from", "700")
+    meta = load_style(tmp_path / "r" / "model.safetensors").meta
+    assert meta["train_config"]["holdout_from"] == 700 and meta["train_config"]["holdout_fraction"] is None
+    assert meta["neutral_window"] is not None and not meta["train_config"]["init_from"]
+    assert meta["data"] == {"clips": [{"name": "2_scott_0_1_1", "dataset": "BEAT"}], "licence": "CC BY-NC 4.0",
+                            "performer": "scott"}

@@ -262,7 +262,7 @@ def test_a_base_is_named_by_a_path_or_by_an_installed_style(tmp_path):
     from facecapges.errors import UserError
     from facecapges.styles import load_style_or_file
 
-    assert load_style_or_file("zeggs-speech").path.name == "zeggs-speech.safetensors"
+    assert load_style_or_file("beat2-scott-demo").path.name == "beat2-scott-demo.safetensors"
     with pytest.raises(UserError, match="checkpoint not found"):  # a path that is not there is not a style name
         load_style_or_file(str(tmp_path / "missing.safetensors"))
     with pytest.raises(UserError, match="unknown style 'no-such-style'"):

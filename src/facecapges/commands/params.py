@@ -12,7 +12,7 @@ import typer
 CACHE = typer.Option("--cache", help="A cache written by `facecapges prepare`.")
 STYLE = typer.Option("--style", help="Installed speaking style (see `facecapges styles`); default: the default style.")
 STYLE_NAME = typer.Option("--style", help="Installed style name (see `facecapges styles`).")
-CHECKPOINT = typer.Option("--checkpoint", help="Checkpoint file of a speaking style (instead of --style).")
+CHECKPOINT = typer.Option("--checkpoint", help="NetworkStyle file of a speaking style (instead of --style).")
 INTENSITY = typer.Option(
     "--intensity",
     help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded); "

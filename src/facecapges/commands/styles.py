@@ -32,7 +32,7 @@ AUDIO = typer.Option("--audio", help="Speech audio (any format soundfile/ffmpeg 
 GENERATE_OUT = typer.Option("--out", help="Output BVH file, .bvh (full BEAT skeleton, model fps).")
 FACE = typer.Option("--face", help="BEAT-format face JSON, any fps (resampled).")
 HEAD = typer.Option("--head", help="Head rotation .npy (T, 6) rot6d at the model fps.")
-CHECKPOINT = typer.Option("--checkpoint", help="Checkpoint file (default: the installed default style).")
+CHECKPOINT = typer.Option("--checkpoint", help="NetworkStyle file (default: the installed default style).")
 INTENSITY = typer.Option(
     "--intensity",
     help="Gesture intensity: 0 (rest / idle only) … 1 (as the style moves) … 1.3 (larger than recorded).",

@@ -149,6 +149,7 @@ def make_recipe(
         if holdout_from < 1:
             raise UserError("--holdout-from must be at least 1")
         train_over["holdout_from"] = holdout_from
+        train_over.pop("holdout_fraction", None)  # one frame for every clip replaces the config's fraction
     if abs(fps - model_over.get("fps", timing.MODEL_FPS)) > 1e-6:
         model_over["fps"] = int(round(fps))
     if model_over.get("head_dim", 12) == 0:

@@ -47,7 +47,7 @@ model hub); a speech model trained here on one minute of speech would not be HuB
 and DiffSHEG without it would not be DiffSHEG. Its rows in Tables 5.2/5.3 are therefore
 not reproduced.
 
-Checkpoint: one ``.safetensors``, metadata format ``facecapges-camn-1``
+NetworkStyle: one ``.safetensors``, metadata format ``facecapges-camn-1``
 (:func:`save_camn` / :func:`load_camn`), holding the :class:`ModelConfig` (for the
 shared sizes: joints, face channels, N, rates) and the :class:`CaMNConfig`.
 """

@@ -31,7 +31,7 @@ inference are those of "no input" (zero features, the causal padding of the enco
 — exactly what the streaming generator uses before a stream starts), see
 :meth:`BidirectionalDecoder.generate`.
 
-Checkpoint: ``save_bidirectional`` / ``load_bidirectional`` write one ``.safetensors`` with
+NetworkStyle: ``save_bidirectional`` / ``load_bidirectional`` write one ``.safetensors`` with
 metadata format ``facecapges-offline-1`` (the :class:`ModelConfig` and training
 summary); :func:`facecapges.styles.load_style` refuses such files (not
 a streaming model).

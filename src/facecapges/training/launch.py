@@ -12,8 +12,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from facecapges.errors import echo
+
+if TYPE_CHECKING:
+    from facecapges.data.cache import Cache
 
 SPLITS = ("train", "val", "test", "all")
 RUN_FILES = ("model.safetensors", "log.csv", "summary.json")
@@ -80,6 +84,17 @@ def check_options(o: TrainOptions) -> None:
     Cache(o.cache).select(o.speaker, o.split or "train")
 
 
+def _data_sources(cache: Cache, speaker: int, names: list[str]) -> dict:
+    """The dataset of every trained clip and the speaker's licence, as ``prepare`` recorded them."""
+    entries = {e["name"]: e for e in cache.clips(speaker=speaker)}
+    info = cache.speaker_info(speaker)
+    return {
+        "clips": [{"name": n, "dataset": entries[n].get("dataset", info.get("dataset"))} for n in names],
+        "licence": info.get("licence"),
+        "performer": info.get("performer"),
+    }
+
+
 def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
     """The whole ``train`` command (module docstring); only rank 0 ``say``\\ s anything."""
     check_options(o)  # before torch loads
@@ -100,8 +115,9 @@ def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
             if o.epochs < 1:
                 raise UserError("--epochs must be at least 1")
             train_over["epochs"] = o.epochs
-        if o.holdout_from is not None:
+        if o.holdout_from is not None:  # one frame for every clip replaces the config's fraction
             train_over["holdout_from"] = o.holdout_from
+            train_over.pop("holdout_fraction", None)
         if o.init_from is not None:
             train_over["init_from"] = o.init_from
         cache_obj, clips = load_clips(o.cache, o.speaker, chosen_split)
@@ -113,6 +129,8 @@ def train_run(o: TrainOptions, say: Callable[..., None] = echo) -> None:
             "split": chosen_split,
             "skeleton": cache_obj.index["skeleton"],
             "cache": str(o.cache),
+            # where the training data came from (prepare's index): a style's card and its licence follow it
+            "data": _data_sources(cache_obj, o.speaker, [c.name for c in clips]),
         }
         if o.amp and ctx.device.type != "cuda":
             say("note: --amp is GPU-only; training on CPU in float32", err=True)
