@@ -3,9 +3,6 @@ rendered video of the avatar driven by his real motion (truth known), and its er
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -14,7 +11,6 @@ from facecapges.capture.body_solve import MP_TO_BVH, BodyLandmarks, solve
 from facecapges.commands.cli import app
 from facecapges.errors import UserError
 from facecapges.evaluation.body_capture import compare
-from facecapges.io.bvh import read_bvh, write_bvh
 from facecapges.skeleton import joint_positions, pose_to_motion
 
 runner = CliRunner()
@@ -119,24 +115,24 @@ def test_capture_body_errors(tmp_path):
 
 @pytest.mark.slow
 def test_capture_body_recovers_his_real_motion_from_a_rendered_video(beat_bvh, tmp_path):
-    """Render the avatar with 8 s of his real motion (held-out end of the take), capture it back, compare."""
-    b = read_bvh(beat_bvh)
-    truth = b.motion[-120:]
-    bvh, video, out = tmp_path / "truth.bvh", tmp_path / "truth.mp4", tmp_path / "captured.bvh"
-    write_bvh(bvh, b.skeleton, truth, b.fps)
-    cmd = [sys.executable, "-m", "facecapges", "render", "--bvh", str(bvh), "--out", str(video)]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    res = runner.invoke(app, ["capture-body", str(video), "--out", str(out)])
-    if isinstance(res.exception, UserError) and "not installed" in str(res.exception):
-        pytest.skip(str(res.exception))
-    assert res.exit_code == 0, res.output + repr(res.exception)
-    cap = read_bvh(out)
-    assert cap.fps == 15 and cap.n_frames == len(truth)
-    m = compare(b.skeleton, truth, cap.motion)
-    # measured (docs/capture-body.md); the issue's target (median ≤ 12°, p90 ≤ 30°) is not met yet
-    assert m["median_deg"] < 25 and m["p90_deg"] < 45, m
-    assert 0.6 < m["wrist_spread_ratio"] < 1.4, m
+    """Render the avatar with the held-out last 20 % of his real motion (13 s), capture it back, compare."""
+    from facecapges.capture.body_models import POSE_TASK, model_path
+    from facecapges.evaluation.body_capture import measure
+
+    try:
+        model_path(POSE_TASK)
+    except UserError as exc:
+        pytest.skip(str(exc))
+    m = measure(beat_bvh, tmp_path)
+    assert m["frames"] == 191 and (tmp_path / "captured.bvh").is_file()
+    # measured 13.3-14.3° / 33-35° (docs/capture-body.md); the old solver (elbow → wrist from the pose alone,
+    # One-Euro lag, per-frame torso lean) gave 15.9° / 37° and forearms 27-31°. The issue's target
+    # (median ≤ 12°, p90 ≤ 30°) is not met: the torso's lean towards the camera is barely seen.
+    assert m["median_deg"] < 15.3 and m["p90_deg"] < 36.5, m
+    forearms = [v for k, v in m["per_bone_median_deg"].items() if "forearm" in k]
+    assert np.mean(forearms) < 25, m
+    assert 0.8 < m["wrist_spread_ratio"] < 1.3, m
+    assert m["camera"]["median_deg"] < 15 and m["camera"]["p90_deg"] < 26, m
 
 
 def test_styles_build_video_errors(tmp_path):
