@@ -3,9 +3,6 @@ rendered video of the avatar driven by his real motion (truth known), and its er
 
 from __future__ import annotations
 
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 from typer.testing import CliRunner
@@ -14,7 +11,6 @@ from facecapges.capture.body_solve import MP_TO_BVH, BodyLandmarks, solve
 from facecapges.commands.cli import app
 from facecapges.errors import UserError
 from facecapges.evaluation.body_capture import compare
-from facecapges.io.bvh import read_bvh, write_bvh
 from facecapges.skeleton import joint_positions, pose_to_motion
 
 runner = CliRunner()
@@ -50,7 +46,8 @@ def _synthetic_landmarks(skel, motion) -> BodyLandmarks:
 
 def test_solver_recovers_arm_directions_from_perfect_landmarks(beat_take):
     skel, motion = beat_take.skeleton, beat_take.motion[::4][:120]
-    res = solve(skel, _synthetic_landmarks(skel, motion), smooth=False, depth_completion=False)
+    lm = _synthetic_landmarks(skel, motion)
+    res = solve(skel, lm, smooth=False, depth_completion=False, hand_weight=0.0)
     assert res.pose.shape == (len(motion), 47, 6) and np.isfinite(res.pose).all()
     m = compare(skel, motion, pose_to_motion(skel, res.pose))
     # only the clavicles (kept at rest) and the spine's pivot separate the result from the truth
@@ -70,6 +67,11 @@ def test_solver_recovers_arm_directions_from_perfect_landmarks(beat_take):
         b = P_c[:, skel.index(tip)] - P_c[:, skel.index(base)]
         cos = (a * b).sum(-1) / np.linalg.norm(a, axis=-1) / np.linalg.norm(b, axis=-1)
         assert np.median(np.degrees(np.arccos(np.clip(cos, -1, 1)))) < 15
+    # the default solve (the hand's direction blended into the forearm's, smoothing) stays close on
+    # perfect landmarks: the blend costs what the wrist bends (a few degrees), nothing more (unsmoothed:
+    # these frames are 4 apart)
+    m = compare(skel, motion, pose_to_motion(skel, solve(skel, lm, smooth=False).pose))
+    assert m["median_deg"] < 9 and m["p90_deg"] < 18, m
 
 
 def test_a_lost_hand_eases_to_rest_and_back(beat_take):
@@ -113,24 +115,24 @@ def test_capture_body_errors(tmp_path):
 
 @pytest.mark.slow
 def test_capture_body_recovers_his_real_motion_from_a_rendered_video(beat_bvh, tmp_path):
-    """Render the avatar with 8 s of his real motion (held-out end of the take), capture it back, compare."""
-    b = read_bvh(beat_bvh)
-    truth = b.motion[-120:]
-    bvh, video, out = tmp_path / "truth.bvh", tmp_path / "truth.mp4", tmp_path / "captured.bvh"
-    write_bvh(bvh, b.skeleton, truth, b.fps)
-    cmd = [sys.executable, "-m", "facecapges", "render", "--bvh", str(bvh), "--out", str(video)]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    assert r.returncode == 0, r.stderr
-    res = runner.invoke(app, ["capture-body", str(video), "--out", str(out)])
-    if isinstance(res.exception, UserError) and "not installed" in str(res.exception):
-        pytest.skip(str(res.exception))
-    assert res.exit_code == 0, res.output + repr(res.exception)
-    cap = read_bvh(out)
-    assert cap.fps == 15 and cap.n_frames == len(truth)
-    m = compare(b.skeleton, truth, cap.motion)
-    # measured (docs/capture-body.md); the issue's target (median ≤ 12°, p90 ≤ 30°) is not met yet
-    assert m["median_deg"] < 25 and m["p90_deg"] < 45, m
-    assert 0.6 < m["wrist_spread_ratio"] < 1.4, m
+    """Render the avatar with the held-out last 20 % of his real motion (13 s), capture it back, compare."""
+    from facecapges.capture.body_models import POSE_TASK, model_path
+    from facecapges.evaluation.body_capture import measure
+
+    try:
+        model_path(POSE_TASK)
+    except UserError as exc:
+        pytest.skip(str(exc))
+    m = measure(beat_bvh, tmp_path)
+    assert m["frames"] == 191 and (tmp_path / "captured.bvh").is_file()
+    # measured 13.3-14.3° / 33-35° (docs/capture-body.md); the old solver (elbow → wrist from the pose alone,
+    # One-Euro lag, per-frame torso lean) gave 15.9° / 37° and forearms 27-31°. The issue's target
+    # (median ≤ 12°, p90 ≤ 30°) is not met: the torso's lean towards the camera is barely seen.
+    assert m["median_deg"] < 15.3 and m["p90_deg"] < 36.5, m
+    forearms = [v for k, v in m["per_bone_median_deg"].items() if "forearm" in k]
+    assert np.mean(forearms) < 25, m
+    assert 0.8 < m["wrist_spread_ratio"] < 1.3, m
+    assert m["camera"]["median_deg"] < 15 and m["camera"]["p90_deg"] < 26, m
 
 
 def test_styles_build_video_errors(tmp_path):
@@ -148,3 +150,26 @@ def test_nothing_usable_is_refused_and_out_of_view_arms_warned():
         check_usable("v.mp4", {"pose_found": 0.1, "arm_confidence": 0.9})
     assert "out of view" in check_usable("v.mp4", {"pose_found": 1.0, "arm_confidence": 0.3})
     assert check_usable("v.mp4", {"pose_found": 1.0, "arm_confidence": 0.9}) is None
+
+
+def test_a_video_style_card_says_where_the_motion_came_from_and_how_well_it_was_seen():
+    """styles build --video: the model card names the video, the shares of frames with the person and the hands
+    found and each driven joint's mean confidence (from capture-body's summary)."""
+    from facecapges.capture.body import CARD_JOINTS, seen_report
+    from facecapges.matching.build import model_card
+    from facecapges.skeleton import UPPER_BODY
+
+    conf = [0.9] * len(UPPER_BODY)
+    conf[UPPER_BODY.index("LeftForeArm")] = 0.31
+    summary = {"frames": 450, "pose_found": 1.0, "hands_found": [0.8, 0.55], "both_hands_found": 0.5}
+    seen = seen_report("me talking.mp4", {**summary, "joint_confidence": conf})
+    assert seen["video"] == "me talking.mp4" and seen["both_hands_found"] == 0.5
+    assert set(CARD_JOINTS) <= set(seen["joint_confidence"]) and seen["joint_confidence"]["LeftForeArm"] == 0.31
+    take = {"name": "me", "source": "me talking.mp4.capture-body.bvh", "frames_used": [0, 360], "held_out": [360, 450]}
+    meta = {"takes": [{**take, "captured_from": seen}], "licence": "the user's own", "attribution": "x"}
+    card = model_card("mine", meta, 720, 0.2)
+    row = next(line for line in card.splitlines() if line.startswith("| me | me talking.mp4 |"))
+    assert "| 450 | 100% | 80% | 55% | 50% |" in row and "| 0.31 |" in row, row
+    assert "LeftForeArm" in card and "capture-body" in card
+    # a take from motion capture gets no such section
+    assert "captured from video" not in model_card("mocap", {**meta, "takes": [take]}, 720, 0.2).lower()

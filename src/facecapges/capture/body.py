@@ -213,6 +213,33 @@ def capture_body(
     return res, summary
 
 
+CARD_JOINTS = ("Spine", "RightArm", "RightForeArm", "RightHand", "LeftArm", "LeftForeArm", "LeftHand")
+
+
+def seen_report(video: str | Path, summary: dict) -> dict:
+    """How well a video's motion was seen, for a style's model card: the video's name, its frames, the
+    shares of frames with the person / each hand / both hands found, and the mean confidence of the
+    driven joints (:data:`CARD_JOINTS`) and of each hand's fingers."""
+    from facecapges.skeleton import UPPER_BODY
+
+    conf = summary["joint_confidence"]
+    joints = {n: round(float(conf[UPPER_BODY.index(n)]), 2) for n in CARD_JOINTS}
+    for side in ("Right", "Left"):
+        fingers = [
+            c for n, c in zip(UPPER_BODY, conf, strict=True) if n.startswith(f"{side}Hand") and n != f"{side}Hand"
+        ]
+        joints[f"{side} fingers"] = round(float(np.mean(fingers)), 2)
+    return {
+        "video": Path(video).name,
+        "frames": int(summary["frames"]),
+        "person_found": round(float(summary["pose_found"]), 3),
+        "right_hand_found": round(float(summary["hands_found"][0]), 3),
+        "left_hand_found": round(float(summary["hands_found"][1]), 3),
+        "both_hands_found": round(float(summary["both_hands_found"]), 3),
+        "joint_confidence": joints,
+    }
+
+
 MIN_USABLE = 0.2  # below this share of frames with the person found, or mean arm confidence, nothing usable was seen
 
 

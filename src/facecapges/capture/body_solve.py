@@ -11,18 +11,24 @@ The solve, per frame, walking the BEAT tree from the root (every rest rotation o
 the BEAT skeleton is the identity, so a joint's rest bone direction is the offset
 of its child):
 
-* **Spine** takes the whole torso frame (shoulder line, hips→shoulders up); Hips,
-  Spine1–3 and the clavicles stay at rest (the product drives Spine only).
+* **Spine** takes the whole torso frame (shoulder line, hips→shoulders up): its roll in
+  the image plane per frame, its lean and turn (seen only in depth, noisy) smoothed over
+  ~2 s (:data:`TORSO_SIGMA`); Hips, Spine1–3 and the clavicles stay at rest (the product
+  drives Spine only).
 * **Arm**: the swing that points the bone at the elbow, turned about the bone so
   the elbow bends in the arm's rest hinge plane (weighted by how bent the elbow is).
-* **ForeArm**: the swing to the wrist, plus the twist about the bone the hand's
-  orientation asks for. **Hand**: the rest of the hand frame (wrist→middle knuckle,
+* **ForeArm**: the swing to the wrist — where the hand landmarker found the hand,
+  towards the pose's elbow→wrist with its image-plane part blended with the hand's
+  wrist→middle knuckle (:data:`HAND_WEIGHT`; the hand model's image-plane direction is
+  sharper than the pose's, its depth is not, so depth stays the pose's) — plus the
+  twist about the bone the hand's orientation asks for. **Hand**: the rest of the hand frame (wrist→middle knuckle,
   index→pinky knuckles) from the hand landmarks, or from the pose's coarse hand
   points (wrist, index, pinky) when the hand landmarker found no hand.
 * **Fingers**: each phalanx swings to its landmark direction; metacarpals at rest.
 * **Neck, Neck1**: half each of the head's turn relative to the torso (ears → nose).
 
-Landmarks are smoothed with a One-Euro filter before solving. Every joint gets a
+Landmarks are smoothed with a zero-phase Gaussian (offline capture may look ahead, so
+no filter lag) within each run of frames where they were seen. Every joint gets a
 confidence (pose visibility for the arm, hand presence for the fingers); its
 rotation is blended towards a relaxed rest pose (arms down, hands open) by that
 confidence eased over :data:`EASE_S`, so a hand that leaves the frame eases to
@@ -42,6 +48,10 @@ MP_TO_BVH = np.diag([1.0, -1.0, -1.0])  # camera axes (x right, y down, z away) 
 EASE_S = 0.4  # seconds a joint takes to ease to rest (or back) when its confidence changes
 MIN_VISIBILITY = 0.5
 DEPTH_GAIN = 1.0
+HAND_WEIGHT = 0.6  # share of the hand's wrist → middle knuckle in the forearm's image-plane direction (hand seen)
+SMOOTH_SIGMA = 1.0  # frames (15 fps) of the zero-phase Gaussian over the pose landmarks
+HAND_SIGMA = 1.0  # the same over each hand's landmarks
+TORSO_SIGMA = 30.0  # frames: the torso's lean and turn (seen only in depth, noisy) over ~2 s
 
 # pose landmark indices (BlazePose 33)
 NOSE, L_EAR, R_EAR = 0, 7, 8
@@ -71,34 +81,6 @@ FINGERS = {
     "Pinky3": (19, 20),
 }
 SIDES = ("Right", "Left")
-
-
-class OneEuro:
-    """One-Euro filter (Casiez et al. 2012) over arrays, one step per frame."""
-
-    def __init__(self, fps: float, min_cutoff: float = 1.0, beta: float = 0.5, d_cutoff: float = 1.0):
-        self.dt = 1.0 / fps
-        self.min_cutoff, self.beta, self.d_cutoff = min_cutoff, beta, d_cutoff
-        self.x: np.ndarray | None = None
-        self.dx: np.ndarray | None = None
-
-    def _alpha(self, cutoff: np.ndarray | float) -> np.ndarray:
-        tau = 1.0 / (2 * np.pi * np.asarray(cutoff))
-        return 1.0 / (1.0 + tau / self.dt)
-
-    def reset(self) -> None:
-        self.x = self.dx = None
-
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        if self.x is None or self.dx is None:
-            self.x, self.dx = x.copy(), np.zeros_like(x)
-            return x.copy()
-        dx = (x - self.x) / self.dt
-        self.dx = self.dx + self._alpha(self.d_cutoff) * (dx - self.dx)
-        speed = np.linalg.norm(self.dx, axis=-1, keepdims=True)
-        a = self._alpha(self.min_cutoff + self.beta * speed)
-        self.x = self.x + a * (x - self.x)
-        return self.x.copy()
 
 
 @dataclass
@@ -171,17 +153,44 @@ def _swing_local(parent_g: np.ndarray, rest_dir: np.ndarray, target: np.ndarray)
     return parent_g.T @ g, g
 
 
-def _solve_frame(
-    rig: _Rig, pose: np.ndarray, hands: list[np.ndarray | None], rest: dict[str, np.ndarray]
-) -> dict[str, np.ndarray]:
-    """Local rotations of the driven joints for one frame of converted (BVH-axes) landmarks."""
-    out: dict[str, np.ndarray] = {}
+def torso_frame(pose: np.ndarray) -> np.ndarray:
+    """The torso's rotation (3, 3; columns X left, Y up, Z forward) from one frame's BVH-axes landmarks."""
     up = (pose[SHOULDER["Left"]] + pose[SHOULDER["Right"]]) / 2 - (pose[HIP["Left"]] + pose[HIP["Right"]]) / 2
     left = pose[SHOULDER["Left"]] - pose[SHOULDER["Right"]]
     f = _frame(up, left)  # columns up, left, forward
     torso = np.stack([f[:, 1], f[:, 0], -f[:, 2]], axis=-1)  # columns X (left), Y (up), Z (forward)
     if np.linalg.det(torso) < 0:
         torso[:, 2] *= -1
+    return torso
+
+
+def _twist(R: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """The part of rotation ``R`` about unit ``axis`` (swing-twist decomposition)."""
+    q = rot.matrix_to_quaternion(R)
+    ang = 2.0 * np.arctan2(float(np.dot(q[1:], axis)), float(q[0]))
+    return _rodrigues(axis, ang)
+
+
+def _torso(slow: np.ndarray, fast: np.ndarray) -> np.ndarray:
+    """The torso frame: its lean and turn (depth-borne, noisy) from the slowly smoothed landmarks
+    ``slow``, its roll in the image plane (well seen) from ``fast``."""
+    g_slow, g_fast = torso_frame(slow), torso_frame(fast)
+    fwd = g_slow[:, 2]
+    return _twist(g_fast @ g_slow.T, fwd) @ g_slow
+
+
+def _solve_frame(
+    rig: _Rig,
+    pose: np.ndarray,
+    hands: list[np.ndarray | None],
+    rest: dict[str, np.ndarray],
+    torso: np.ndarray | None = None,
+    hand_weight: float = 0.0,
+) -> dict[str, np.ndarray]:
+    """Local rotations of the driven joints for one frame of converted (BVH-axes) landmarks."""
+    out: dict[str, np.ndarray] = {}
+    if torso is None:
+        torso = torso_frame(pose)
     out["Spine"] = torso
     # head: ears line and ear-middle → nose, relative to the torso, split over Neck and Neck1
     ears = (pose[L_EAR] + pose[R_EAR]) / 2
@@ -195,6 +204,13 @@ def _solve_frame(
         out[f"{side}Shoulder"] = np.eye(3)
         d_up = pose[ELBOW[side]] - pose[SHOULDER[side]]
         d_fo = pose[WRIST[side]] - pose[ELBOW[side]]
+        hand = hands[s]
+        if hand is not None and hand_weight > 0:
+            # the hand landmarker's wrist → middle knuckle as a second view of the forearm's direction in
+            # the image plane, where it is sharp; its depth is poorer than the pose's, so depth stays the pose's
+            u, h = _unit(d_fo), _unit(hand[9] - hand[0])
+            xy = (1.0 - hand_weight) * u[:2] + hand_weight * h[:2]
+            d_fo = np.array([xy[0], xy[1], u[2]])
         r_up = rig.bone(f"{side}Arm", f"{side}ForeArm")
         local, g_arm = _swing_local(g_parent, r_up, d_up)
         # turn the upper arm about its bone so the elbow bends in its rest hinge plane
@@ -213,7 +229,6 @@ def _solve_frame(
         r_fo = rig.bone(f"{side}ForeArm", f"{side}Hand")
         local_fo, g_fo = _swing_local(g_arm, r_fo, d_fo)
         # the hand's frame: from the hand landmarks, else the pose's coarse hand points
-        hand = hands[s]
         if hand is not None:
             hand_f = _frame(hand[9] - hand[0], hand[5] - hand[17])
         else:
@@ -314,12 +329,41 @@ def _ease(target: np.ndarray, fps: float) -> np.ndarray:
     return out
 
 
+def smooth_segments(x: np.ndarray, seen: np.ndarray, sigma: float) -> np.ndarray:
+    """Zero-phase Gaussian smoothing (``sigma`` frames) of ``x`` (T, ...) along time, within each run of seen frames.
+
+    Offline capture may look ahead, so a symmetric filter smooths without the lag a causal
+    filter (One-Euro) adds; runs are smoothed apart so a lost stretch does not bleed in."""
+    from scipy.ndimage import gaussian_filter1d
+
+    out = x.copy()
+    if sigma <= 0:
+        return out
+    t = 0
+    T = len(x)
+    while t < T:
+        if not seen[t]:
+            t += 1
+            continue
+        e = t
+        while e < T and seen[e]:
+            e += 1
+        if e - t > 1:
+            out[t:e] = gaussian_filter1d(x[t:e], sigma, axis=0, mode="nearest")
+        t = e
+    return out
+
+
 def solve(
     skel: Skeleton,
     lm: BodyLandmarks,
     smooth: bool = True,
     depth_completion: bool = True,
     depth_gain: float = DEPTH_GAIN,
+    sigma: float = SMOOTH_SIGMA,
+    hand_sigma: float = HAND_SIGMA,
+    torso_sigma: float = TORSO_SIGMA,
+    hand_weight: float = HAND_WEIGHT,
 ) -> BodySolve:
     """BEAT upper-body pose rot6d (T, 47, 6) and per-joint confidence (T, 47) from landmarks."""
     rig = _Rig(skel)
@@ -327,33 +371,29 @@ def solve(
     rest = _rest_pose(rig)
     lengths = _arm_lengths(lm.pose * [1.0, 1.0, depth_gain]) if depth_completion else None
     rest_arr = np.stack([rest[n] for n in UPPER_BODY])
-    pose_f = OneEuro(lm.fps, min_cutoff=1.0, beta=2.0)
-    hand_f = [OneEuro(lm.fps, min_cutoff=1.5, beta=2.0) for _ in SIDES]
+    seen = np.isfinite(lm.pose).all(axis=(1, 2))
+    P = np.where(seen[:, None, None], lm.pose, 0.0) * [1.0, 1.0, depth_gain]
+    if lengths is not None:
+        P = np.stack([_complete_depth(p, lengths) if ok else p for p, ok in zip(P, seen, strict=True)])
+    P = P @ MP_TO_BVH.T
+    torso_P = P
+    hand_seen = (lm.hand_score > 0) & np.isfinite(lm.hands).all(axis=(2, 3))
+    H = np.where(hand_seen[:, :, None, None], lm.hands, 0.0) @ MP_TO_BVH.T
+    if smooth:
+        torso_P = smooth_segments(P, seen, torso_sigma)
+        P = smooth_segments(P, seen, sigma)
+        H = np.stack([smooth_segments(H[:, s], hand_seen[:, s], hand_sigma) for s in range(2)], axis=1)
     mats = np.broadcast_to(rest_arr, (T, len(UPPER_BODY), 3, 3)).copy()
     conf = np.zeros((T, len(UPPER_BODY)))
     last = rest_arr.copy()
     for t in range(T):
-        p = lm.pose[t]
-        if not np.isfinite(p).all():
+        if not seen[t]:
             mats[t] = last
             continue
-        p = p.copy()
-        p[:, 2] *= depth_gain
-        if lengths is not None:
-            p = _complete_depth(p, lengths)
-        p = p @ MP_TO_BVH.T
-        if smooth:
-            p = pose_f(p)
-        hands: list[np.ndarray | None] = []
-        for s in range(2):
-            h = lm.hands[t, s]
-            if lm.hand_score[t, s] > 0 and np.isfinite(h).all():
-                h = h @ MP_TO_BVH.T
-                hands.append(hand_f[s](h) if smooth else h)
-            else:
-                hand_f[s].reset()
-                hands.append(None)
-        local = _solve_frame(rig, p, hands, rest)
+        p = P[t]
+        hands: list[np.ndarray | None] = [H[t, s] if hand_seen[t, s] else None for s in range(2)]
+        torso = _torso(torso_P[t], p)
+        local = _solve_frame(rig, p, hands, rest, torso, hand_weight)
         mats[t] = np.stack([local[n] for n in UPPER_BODY])
         last = mats[t]
         vis = lm.visibility[t]

@@ -12,7 +12,9 @@ from facecapges.serving.config import ServeConfig
 
 HOST = typer.Option("--host", help="Address to listen on (loopback by default; there is no authentication).")
 PORT = typer.Option("--port", help="TCP port (0 = any free port).")
-CHECKPOINT = typer.Option("--checkpoint", help="NetworkStyle file or run folder (default: the installed default style).")
+CHECKPOINT = typer.Option(
+    "--checkpoint", help="NetworkStyle file or run folder (default: the installed default style)."
+)
 MAX_STREAMS = typer.Option("--max-streams", help="Most concurrent streams; more connections are refused (1013).")
 RATE_LIMIT = typer.Option(
     "--rate-limit", help="Most messages per second per connection (FPS); more are dropped with an error."

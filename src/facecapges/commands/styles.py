@@ -209,13 +209,16 @@ def styles_build(
     import tempfile
 
     with tempfile.TemporaryDirectory(prefix="facecapges-video-takes-") as tmp:
-        pairs += _video_takes(video, Path(tmp))
-        build_matching_style(name, pairs, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps)
+        captured, seen = _video_takes(video, Path(tmp))
+        build_matching_style(
+            name, pairs + captured, out=out, force=force, seed=seed, say=typer.echo, predictor_steps=steps, seen=seen
+        )
 
 
-def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
-    """capture-body of each video into ``tmp``: (its BVH, the video itself as the speech)."""
-    from facecapges.capture.body import capture_body, check_usable
+def _video_takes(videos: list[Path], tmp: Path) -> tuple[list[tuple[Path, Path]], dict[str, dict]]:
+    """capture-body of each video into ``tmp``: (its BVH, the video itself as the speech) pairs, and per BVH
+    name how well its motion was seen (for the model card)."""
+    from facecapges.capture.body import capture_body, check_usable, seen_report
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.io.audio import check_audio
     from facecapges.styles import DEFAULT_STYLE, load_style
@@ -225,6 +228,7 @@ def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
         check_audio(v)  # a video without a soundtrack fails before any capture
     skeleton = load_style(style=DEFAULT_STYLE).skeleton
     pairs = []
+    seen = {}
     for k, v in enumerate(videos):
         (tmp / str(k)).mkdir()
         bvh = tmp / str(k) / f"{v.name[:150]}.capture-body.bvh"  # the model card names the video
@@ -242,7 +246,8 @@ def _video_takes(videos: list[Path], tmp: Path) -> list[tuple[Path, Path]]:
         if warning:
             typer.echo(f"  warning: {warning}")
         pairs.append((bvh, v))
-    return pairs
+        seen[bvh.name] = seen_report(v, s)
+    return pairs, seen
 
 
 def _take_pairs(take: list[str], rest: list[str]) -> list[tuple[Path, Path]]:

@@ -8,10 +8,19 @@ rotation of ``Spine3``), so a lean or turn of the whole body is not counted as a
 arm error. The angle between true and recovered direction is pooled over both
 arms, both bones and all frames (median, 90th percentile, degrees). The wrist
 spread ratio is :func:`facecapges.evaluation.synchrony.wrist_spread` of the
-recovered wrists (in the body frame) over the truth's.
+recovered wrists (in the body frame) over the truth's. ``frame="camera"`` compares the
+directions in the world (camera) frame instead: the torso's lean, which a frontal camera
+barely sees, is then not counted.
+
+:func:`measure` is the whole proof on a take whose truth we know: the held-out last 20 %
+of a BEAT BVH or a BEAT2 npz rendered on the avatar (``facecapges render``), ``capture-body``
+on that video, :func:`compare`. ``python -m facecapges.evaluation.body_capture TAKE …``
+prints it (docs/capture-body.md).
 """
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 
@@ -22,19 +31,21 @@ BONES = (("Arm", "ForeArm"), ("ForeArm", "Hand"))
 SIDES = ("Right", "Left")
 
 
-def _body_frame_points(skel: Skeleton, motion: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _body_frame_points(skel: Skeleton, motion: np.ndarray, frame: str = "body") -> tuple[np.ndarray, np.ndarray]:
     _, euler = motion_to_euler(skel, motion)
     G, P = global_transforms(skel, local_matrices(skel, euler))
     body = G[:, skel.index("Spine3")]  # (T, 3, 3)
+    if frame == "camera":
+        body = np.broadcast_to(np.eye(3), body.shape)
     local = np.einsum("tji,tkj->tki", body, P - P[:, skel.index("Spine3")][:, None])  # body.T @ p
     return local, body
 
 
-def arm_direction_errors(skel: Skeleton, truth: np.ndarray, captured: np.ndarray) -> np.ndarray:
+def arm_direction_errors(skel: Skeleton, truth: np.ndarray, captured: np.ndarray, frame: str = "body") -> np.ndarray:
     """Angles (degrees) between true and recovered arm bone directions, (T, 4): R upper, R fore, L upper, L fore."""
     n = min(len(truth), len(captured))
-    pt, _ = _body_frame_points(skel, truth[:n])
-    pc, _ = _body_frame_points(skel, captured[:n])
+    pt, _ = _body_frame_points(skel, truth[:n], frame)
+    pc, _ = _body_frame_points(skel, captured[:n], frame)
     out = []
     for side in SIDES:
         for a, b in BONES:
@@ -45,9 +56,9 @@ def arm_direction_errors(skel: Skeleton, truth: np.ndarray, captured: np.ndarray
     return np.stack(out, axis=1)
 
 
-def compare(skel: Skeleton, truth: np.ndarray, captured: np.ndarray) -> dict:
+def compare(skel: Skeleton, truth: np.ndarray, captured: np.ndarray, frame: str = "body") -> dict:
     """Median / p90 arm-direction angle (degrees), per bone medians and the wrist spread ratio."""
-    err = arm_direction_errors(skel, truth, captured)
+    err = arm_direction_errors(skel, truth, captured, frame)
     n = len(err)
     pt, _ = _body_frame_points(skel, truth[:n])
     pc, _ = _body_frame_points(skel, captured[:n])
@@ -61,3 +72,75 @@ def compare(skel: Skeleton, truth: np.ndarray, captured: np.ndarray) -> dict:
         "per_bone_median_deg": {k: float(np.median(err[:, i])) for i, k in enumerate(names)},
         "wrist_spread_ratio": float(spread),
     }
+
+
+HELD_OUT = 0.2  # the last 20 % of every paired take is held out of every choice
+
+
+def held_out_truth(take: str | Path, skeleton_bvh: str | Path, share: float = HELD_OUT) -> tuple[Skeleton, np.ndarray]:
+    """The last ``share`` of a BEAT BVH or a BEAT2 npz (converted onto ``skeleton_bvh``'s skeleton), 15 fps motion."""
+    from facecapges.io.bvh import read_bvh
+    from facecapges.skeleton import pose_to_motion
+    from facecapges.timing import MODEL_FPS
+
+    take = Path(take)
+    if take.suffix.lower() == ".npz":
+        from facecapges.data.beat2 import load_beat2_take
+
+        skel = read_bvh(skeleton_bvh).skeleton
+        motion = pose_to_motion(skel, load_beat2_take(take, fps=MODEL_FPS)[0])
+    else:
+        b = read_bvh(take)
+        if abs(b.fps - MODEL_FPS) > 1e-6:
+            raise ValueError(f"{take}: {b.fps} fps, expected {MODEL_FPS}")
+        skel, motion = b.skeleton, b.motion
+    return skel, motion[int(round(len(motion) * (1.0 - share))) :]
+
+
+def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None) -> dict:
+    """Render the held-out end of ``take`` on the avatar, capture-body it back, compare with the truth.
+
+    ``work``: a folder for truth.bvh, truth.mp4 and captured.bvh. Returns :func:`compare`'s figures in the
+    body frame, ``camera`` (the same in the camera frame) and the capture's summary (hands found …)."""
+    import subprocess
+    import sys
+
+    from facecapges.capture.body import capture_body
+    from facecapges.io.bvh import write_bvh
+    from facecapges.skeleton import pose_to_motion
+    from facecapges.timing import MODEL_FPS
+
+    work = Path(work)
+    work.mkdir(parents=True, exist_ok=True)
+    skel, truth = held_out_truth(take, skeleton_bvh or take)
+    bvh, video = work / "truth.bvh", work / "truth.mp4"
+    write_bvh(bvh, skel, truth, float(MODEL_FPS))
+    cmd = [sys.executable, "-m", "facecapges", "render", "--bvh", str(bvh), "--out", str(video), "--force"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"render failed: {r.stderr.strip()[-500:]}")
+    res, summary = capture_body(video, work / "captured.bvh", skel)
+    captured = pose_to_motion(skel, res.pose)
+    out = compare(skel, truth, captured)
+    out["camera"] = compare(skel, truth, captured, frame="camera")
+    out["capture"] = {k: summary[k] for k in ("pose_found", "hands_found", "both_hands_found", "ms_per_frame")}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    import argparse
+    import json
+    import tempfile
+
+    ap = argparse.ArgumentParser(description="capture-body against the truth on the held-out end of known takes")
+    ap.add_argument("takes", nargs="+", help="BEAT BVH or BEAT2 npz takes")
+    ap.add_argument("--skeleton", help="a BEAT BVH whose skeleton a BEAT2 take is put on")
+    args = ap.parse_args(argv)
+    for take in args.takes:
+        with tempfile.TemporaryDirectory() as tmp:
+            m = measure(take, tmp, args.skeleton)
+        print(json.dumps({"take": Path(take).name, **m}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -155,9 +155,13 @@ def build_style(
     target: Skeleton | None = None,
     say: Callable[[str], None] = print,
     predictor_steps: int | None = None,
+    seen: dict[str, dict] | None = None,
 ) -> Path:
     """Build and write the matching style ``name`` to ``dest`` (the shelf chooses it:
-    :func:`facecapges.styles.build_matching_style`); returns its path (module docs)."""
+    :func:`facecapges.styles.build_matching_style`); returns its path (module docs).
+
+    ``seen``: for motion captured from a video (``styles build --video``), per motion file name how
+    well it was seen (:func:`facecapges.capture.body.seen_report`); the card and meta carry it."""
     from dataclasses import replace
 
     check_pairs(pairs)  # every file before torch loads
@@ -203,6 +207,7 @@ def build_style(
                 "source": Path(t.source).name,
                 "frames_used": [0, t.train_until],
                 "held_out": [t.train_until, t.n_frames],
+                **({"captured_from": seen[Path(t.source).name]} if seen and Path(t.source).name in seen else {}),
             }
             for t in takes
         ],
@@ -214,6 +219,35 @@ def build_style(
     card.write_text(model_card(name, meta, len(db), db.pause.mean()), encoding="utf-8")
     say(f"wrote {path} and {card.name}")
     return path
+
+
+def _seen_section(takes: list[dict]) -> str:
+    """The card's account of motion captured from video: where it came from and how well it was seen."""
+    rows = [t for t in takes if t.get("captured_from")]
+    if not rows:
+        return ""
+    joints = list(rows[0]["captured_from"]["joint_confidence"])
+    lines = [
+        "",
+        "## Motion captured from video",
+        "",
+        "The motion of these takes was captured from a video by `facecapges capture-body` (MediaPipe pose and",
+        "hand landmarks → BEAT joints; see docs/capture-body.md for how close it comes to real motion capture).",
+        "Share of frames in which the person, each hand and both hands were found, and each joint's mean",
+        "confidence (0–1; below 0.5 a joint eases to a relaxed rest pose):",
+        "",
+        "| take | video | frames | person | right hand | left hand | both hands | " + " | ".join(joints) + " |",
+        "|---" * (7 + len(joints)) + "|",
+    ]
+    for t in rows:
+        c = t["captured_from"]
+        lines.append(
+            f"| {t['name']} | {c['video']} | {c['frames']} | {c['person_found']:.0%} | {c['right_hand_found']:.0%} | "
+            f"{c['left_hand_found']:.0%} | {c['both_hands_found']:.0%} | "
+            + " | ".join(f"{c['joint_confidence'][j]:.2f}" for j in joints)
+            + " |"
+        )
+    return "\n".join(lines) + "\n"
 
 
 def model_card(name: str, meta: dict, n_rows: int, pause_share: float, figures: str = "") -> str:
@@ -238,7 +272,7 @@ speech predictor's expected wrist motion, blended by inertialization.
 {rows}
 
 Licence: {meta["licence"]}. Attribution: {meta["attribution"]}.
-
+{_seen_section(meta["takes"])}
 ## Speech predictor
 
 Trained on the same training frames: {tr.get("steps", "?")} steps (best at {tr.get("best_step", "?")}),
