@@ -145,6 +145,38 @@ def prepare_beat2_clip(
     return arrays, entry, warnings
 
 
+def _check_audio_length(files: beat.ClipFiles, wav_path: Path, T: int, fps: float, audio_s: float, warnings) -> None:
+    """Refuse audio far from its motion's length; warn when it is a little off."""
+    mismatch = timing.length_mismatch(T, fps, audio_s)
+    if mismatch is not None:
+        text, refuse = mismatch
+        if refuse:
+            raise file_error(
+                wav_path,
+                f"does not match its motion {_motion_of(files)}: {text}; "
+                f"more than {timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
+            )
+        warnings.append(f"{wav_path}: {text}")
+
+
+def _clip_face(
+    files: beat.ClipFiles, T: int, fps: float, jaw_face: np.ndarray | None, warnings: list[str]
+) -> tuple[np.ndarray, str | None]:
+    """A clip's face weights (T, 52) and their source: its face JSON, else ``jaw_face``, else none (zeros)."""
+    face = np.zeros((T, N_BLENDSHAPES), np.float32)
+    face_path = files.get("json")
+    face_source = None
+    if face_path is not None:
+        track = read_face_json(face_path)
+        if track.unknown_names:
+            warnings.append(f"{face_path}: ignored unknown blendshape names {track.unknown_names}")
+        face = _fit_length(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
+        face_source = "json"
+    elif jaw_face is not None:
+        face, face_source = jaw_face.astype(np.float32), "jaw"
+    return face, face_source
+
+
 def _clip_arrays(
     files: beat.ClipFiles,
     pose: np.ndarray,
@@ -163,27 +195,8 @@ def _clip_arrays(
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
-    mismatch = timing.length_mismatch(T, fps, len(audio_full) / sr)
-    if mismatch is not None:
-        text, refuse = mismatch
-        if refuse:
-            raise file_error(
-                wav_path,
-                f"does not match its motion {_motion_of(files)}: {text}; "
-                f"more than {timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
-            )
-        warnings.append(f"{wav_path}: {text}")
-    face = np.zeros((T, N_BLENDSHAPES), np.float32)
-    face_path = files.get("json")
-    face_source = None
-    if face_path is not None:
-        track = read_face_json(face_path)
-        if track.unknown_names:
-            warnings.append(f"{face_path}: ignored unknown blendshape names {track.unknown_names}")
-        face = _fit_length(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
-        face_source = "json"
-    elif jaw_face is not None:
-        face, face_source = jaw_face.astype(np.float32), "jaw"
+    _check_audio_length(files, wav_path, T, fps, len(audio_full) / sr, warnings)
+    face, face_source = _clip_face(files, T, fps, jaw_face, warnings)
 
     sem_path, emo_path = files.get("txt"), files.get("csv")
     semantic = beat.read_semantic(sem_path, T, fps) if sem_path else np.zeros(T, np.float32)
