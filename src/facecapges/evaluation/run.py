@@ -457,6 +457,19 @@ def _write_video(out: Path, c, name: str, real0, gen0, model_name: str, audio0, 
         )
 
 
+def _check(o: EvalOptions) -> None:
+    """The checks of ``o`` before anything is read: --offsets, the outputs (``o.force``), --split."""
+    parse_offsets(o.offsets)  # a malformed --offsets before anything is read
+    check_output_dir(
+        o.out,
+        ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
+        + (["real_vs_generated.mp4"] if o.video else []),
+        o.force,
+    )
+    if o.split not in ("train", "val", "test", "all"):
+        raise UserError(f"--split must be train, val, test or all, got {o.split!r}")
+
+
 def run_eval(
     o: EvalOptions,
     say: Callable[[str], None] = echo,
@@ -469,15 +482,7 @@ def run_eval(
     paired, score unseen, write outputs."""
     from facecapges.data.cache import Cache
 
-    parse_offsets(o.offsets)  # a malformed --offsets before anything is read
-    check_output_dir(
-        o.out,
-        ["metrics.json", "metrics.md", "beat_timeline.png", "joint_speed.png"]
-        + (["real_vs_generated.mp4"] if o.video else []),
-        o.force,
-    )
-    if o.split not in ("train", "val", "test", "all"):
-        raise UserError(f"--split must be train, val, test or all, got {o.split!r}")
+    _check(o)
     c = Cache(o.cache)  # a missing or malformed cache before torch and the checkpoint load
     from facecapges.evaluation.fgd import fgd_paths
     from facecapges.evaluation.timing import timing_section

@@ -118,6 +118,22 @@ def _score_method(
     return out
 
 
+def _result_head(fps, sr, n, sigma_s, weighted: bool, ba_mode: str, offsets_s, paired: bool) -> dict[str, Any]:
+    """The settings a suite result starts with (its regions filled in by :func:`_evaluate`)."""
+    return {
+        "fps": fps,
+        "sr": sr,
+        "n_frames": n,
+        "sigma_s": sigma_s,
+        "srgr_delta": DELTA,
+        "srgr_weighted": weighted,
+        "ba_mode": ba_mode,
+        "ba_offsets_s": [float(o) for o in offsets_s],
+        "paired": paired,
+        "regions": {},
+    }
+
+
 def _evaluate(
     methods: Mapping[str, Method],
     audio: np.ndarray,
@@ -139,18 +155,7 @@ def _evaluate(
     samples = {k: _samples(k, v, n) for k, v in methods.items()}
     if n is None:
         n = len(next(iter(samples.values()))[0]) if samples else 0
-    result: dict[str, Any] = {
-        "fps": fps,
-        "sr": sr,
-        "n_frames": n,
-        "sigma_s": sigma_s,
-        "srgr_delta": DELTA,
-        "srgr_weighted": semantic_weights is not None,
-        "ba_mode": ba_mode,
-        "ba_offsets_s": [float(o) for o in offsets_s],
-        "paired": real is not None,
-        "regions": {},
-    }
+    result = _result_head(fps, sr, n, sigma_s, semantic_weights is not None, ba_mode, offsets_s, real is not None)
     cache: dict[int, ba.SpeechBeatSets] = {}
 
     def speech_sets(n_frames: int) -> ba.SpeechBeatSets:  # onsets once per audio length, shared by all rows
