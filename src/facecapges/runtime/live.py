@@ -167,9 +167,23 @@ def _check_vmc(o: LiveOptions):
     return None
 
 
+def _check_record(o: LiveOptions) -> None:
+    """``--record``'s files (and ``--vrma``'s one performer) before anything opens."""
+    from facecapges.errors import UserError, check_output_dir
+    from facecapges.runtime.run import output_names
+
+    assert o.record is not None
+    if o.vrma and o.faces > 1:
+        raise UserError("--vrma records one performer; use it with --faces 1")
+    n = max(o.faces, 1)
+    check_output_dir(
+        o.record, (*output_names(n)[: 2 * n], "report.json", *(("motion.vrma",) if o.vrma else ())), o.force
+    )
+
+
 def _check(o: LiveOptions) -> _Outputs:
     """Every check that needs no device and no model, in the order the user meets them."""
-    from facecapges.errors import UserError, check_output_dir, check_port
+    from facecapges.errors import UserError, check_port
     from facecapges.runtime.outputs.viewer import is_loopback, parse_address
 
     if o.livelink is not None:
@@ -200,14 +214,7 @@ def _check(o: LiveOptions) -> _Outputs:
     if o.vrma and o.record is None:
         raise UserError("--vrma records into --record DIR; pass --record too")
     if o.record is not None:
-        from facecapges.runtime.run import output_names
-
-        if o.vrma and o.faces > 1:
-            raise UserError("--vrma records one performer; use it with --faces 1")
-        n = max(o.faces, 1)
-        check_output_dir(
-            o.record, (*output_names(n)[: 2 * n], "report.json", *(("motion.vrma",) if o.vrma else ())), o.force
-        )
+        _check_record(o)
     if o.max_seconds is not None and o.max_seconds <= 0:
         raise UserError("--max-seconds must be positive")
     vmc_avatar = _check_vmc(o)

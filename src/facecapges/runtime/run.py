@@ -299,6 +299,13 @@ def _run_report(video: Path, audio, checkpoint, sched, head: str, faces: int, fo
     return report
 
 
+def _vrm_driver(avatar, skeleton):
+    """The VRM shown in avatar.mp4 (a file, or its model already read): a bad file fails before the run."""
+    from facecapges.avatar.vrm.view import VrmDriver
+
+    return VrmDriver.of(avatar, skeleton)
+
+
 def run_video(
     video: str | Path,
     out_dir: str | Path,
@@ -328,11 +335,7 @@ def run_video(
     check_output_dir(out_dir, output_names(faces), force)
     if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
-    driver = None
-    if avatar is not None and videos:
-        from facecapges.avatar.vrm.view import VrmDriver
-
-        driver = VrmDriver.of(avatar, checkpoint.skeleton)  # a bad file fails before the run
+    driver = _vrm_driver(avatar, checkpoint.skeleton) if avatar is not None and videos else None
     mems, sinks = _recorders(out_dir, checkpoint, faces, face_layout)
     sess = build_session(
         checkpoint,

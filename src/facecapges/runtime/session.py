@@ -77,6 +77,31 @@ class Session:
         return written
 
 
+def _open_inputs_once(video, camera, livelink, audio, mic, depth_dir, intrinsics, host: str) -> None:
+    """Open each chosen input once (:func:`check_inputs` with ``devices``): the video decodes a frame, the
+    audio's header reads, the camera opens, the microphone answers, the Live Link port binds."""
+    from facecapges.capture.video import check_camera, check_video
+    from facecapges.errors import check_port_free
+    from facecapges.io.audio import check_audio
+
+    if video is not None:
+        check_video(video)
+        if depth_dir is not None or intrinsics is not None:
+            from facecapges.capture.depth import check_depth_inputs
+
+            check_depth_inputs(depth_dir, intrinsics)
+    elif camera is not None:
+        check_camera(int(camera))
+    elif livelink is not None:
+        check_port_free(host, int(livelink), "--livelink", udp=True)
+    if audio is not None:
+        check_audio(audio)
+    elif mic is not None or video is None:
+        from facecapges.runtime.inputs.sources import check_mic
+
+        check_mic(mic)
+
+
 def check_inputs(
     *,
     video: str | Path | None = None,
@@ -119,26 +144,7 @@ def check_inputs(
         raise UserError("--faces N needs a camera or a video: Live Link sends one face")
     if not devices:
         return
-    from facecapges.capture.video import check_camera, check_video
-    from facecapges.errors import check_port_free
-    from facecapges.io.audio import check_audio
-
-    if video is not None:
-        check_video(video)
-        if depth_dir is not None or intrinsics is not None:
-            from facecapges.capture.depth import check_depth_inputs
-
-            check_depth_inputs(depth_dir, intrinsics)
-    elif camera is not None:
-        check_camera(int(camera))
-    elif livelink is not None:
-        check_port_free(host, int(livelink), "--livelink", udp=True)
-    if audio is not None:
-        check_audio(audio)
-    elif mic is not None or video is None:
-        from facecapges.runtime.inputs.sources import check_mic
-
-        check_mic(mic)
+    _open_inputs_once(video, camera, livelink, audio, mic, depth_dir, intrinsics, host)
 
 
 def _open_video(sess: Session, video, camera, livelink, depth_dir, intrinsics, host: str) -> None:
