@@ -58,7 +58,7 @@ def test_blinks_and_gaze_show_in_the_render():
     import cv2
 
     from facecapges.avatar.render.video import our_avatar, render_stills
-    from facecapges.runtime.run import avatar_glb
+    from facecapges.avatar.gltf import avatar_glb
 
     glb = avatar_glb(checkpoint().skeleton)
     ws = [_w(), _w(eyeBlinkLeft=1, eyeBlinkRight=1), _w(eyeLookOutLeft=1, eyeLookInRight=1),

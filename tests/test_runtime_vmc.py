@@ -507,3 +507,28 @@ def test_live_rejects_a_rate_that_is_not_a_multiple(face_video):
 
     r = cli("live", "--video", str(face_video), "--vmc", "127.0.0.1:39539", "--rate", "25", "--max-seconds", "1")
     assert r.returncode != 0 and "--rate 25" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_live_reads_the_vmc_avatar_once_for_every_face(skeleton, vrm_files, monkeypatch):
+    """``live --vmc-avatar`` parses the VRM once (in its check), not again in each face's VMC sender (issue 35):
+    every sender shares one rig, the one a sender reading the file itself would build."""
+    from types import SimpleNamespace
+
+    import facecapges.avatar.vrm.read as read
+    from facecapges.runtime.live import per_face_sinks
+
+    _, v0, _ = vrm_files
+    parsed = []
+    real_parse = read.parse_model
+    monkeypatch.setattr(read, "parse_model", lambda *a, **k: parsed.append(a[1:]) or real_parse(*a, **k))
+    model = read.load_model(v0)  # what live's check keeps
+    engine = SimpleNamespace(skeleton=skeleton, fps=15.0)  # per_face_sinks reads only these of the style
+    _, senders, _ = per_face_sinks(engine, 3, None, ("127.0.0.1", 9), vmc_avatar=model)
+    assert len(parsed) == 1 and len(senders) == 3
+    assert senders[0].mapping.rig is senders[1].mapping.rig is senders[2].mapping.rig
+    own = VmcSender(skeleton, "127.0.0.1", 9, avatar=v0).mapping.rig
+    assert own.source == senders[0].mapping.rig.source == f"{v0.name} (vrm0)"
+    for bone, pos in own.positions.items():
+        np.testing.assert_array_equal(senders[0].mapping.rig.positions[bone], pos)
+    for s in senders:
+        s.close()

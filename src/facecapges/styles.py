@@ -80,6 +80,24 @@ MAX_INSTALL_BYTES = {"checkpoint": 1 << 30, "log": 64 << 20, "card": 1 << 20, "f
 MAX_INSTALL_FILES = 256  # files of a model.fgd/ folder
 
 
+def _install_parts(src: Path, name: str) -> list[tuple[Path, str, str]]:
+    """What :func:`install_style` copies beside the checkpoint: (source, name in the store, kind)."""
+    folder = src.parent
+    parts = [(src, f"{name}.safetensors", "checkpoint")]
+    parts += [
+        (f, n, k)
+        for f, n, k in (
+            (folder / "log.csv", f"{name}.log.csv", "log"),
+            (folder / "model_card.md", f"{name}.md", "card"),
+        )
+        if f.is_symlink() or f.exists()
+    ]
+    card = src.with_suffix(".md")  # a style file's card beside it (`styles build --out`)
+    if not (folder / "model_card.md").exists() and (card.is_symlink() or card.exists()):
+        parts.append((card, f"{name}.md", "card"))
+    return parts
+
+
 def install_style(run: str | Path, name: str | None = None, force: bool = False) -> Path:
     """Copy a trained model (a run folder or a ``.safetensors`` file) into :func:`user_styles_dir`.
 
@@ -109,18 +127,7 @@ def install_style(run: str | Path, name: str | None = None, force: bool = False)
     if dest.exists() and not force:
         raise UserError(f"{dest}: a style named {name!r} is installed; pass --force to replace it")
     dest_dir.mkdir(parents=True, exist_ok=True)
-    parts = [(src, f"{name}.safetensors", "checkpoint")]
-    parts += [
-        (f, n, k)
-        for f, n, k in (
-            (folder / "log.csv", f"{name}.log.csv", "log"),
-            (folder / "model_card.md", f"{name}.md", "card"),
-        )
-        if f.is_symlink() or f.exists()
-    ]
-    card = src.with_suffix(".md")  # a style file's card beside it (`styles build --out`)
-    if not (folder / "model_card.md").exists() and (card.is_symlink() or card.exists()):
-        parts.append((card, f"{name}.md", "card"))
+    parts = _install_parts(src, name)
     fgd = src.with_suffix(".fgd")
     has_fgd = fgd.is_symlink() or fgd.exists()
     for n, is_dir in [(n, False) for _, n, _ in parts] + ([(f"{name}.fgd", True)] if has_fgd else []):

@@ -176,3 +176,22 @@ def write_glb(avatar: Avatar, path: str | Path) -> Path:
     p = Path(path)
     doc.save_binary(str(p))
     return p
+
+
+def avatar_glb(skeleton) -> bytes:
+    """Our default avatar for ``skeleton`` (:func:`facecapges.avatar.body.default_avatar`) as GLB bytes."""
+    from facecapges.avatar.body import default_avatar
+
+    return b"".join(avatar_to_gltf(default_avatar(skeleton)).save_to_bytes())
+
+
+def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
+    """(T, 47, 4) upper-body quaternions → (T, J, 4) for every joint of ``skeleton`` (others at rest):
+    what our avatar's page takes."""
+    from facecapges.skeleton import upper_body_indices
+
+    q = np.asarray(quats47, np.float32)
+    out = np.zeros((q.shape[0], skeleton.n_joints, 4), np.float32)
+    out[..., 0] = 1.0
+    out[:, upper_body_indices(skeleton)] = q
+    return out

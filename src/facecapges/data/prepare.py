@@ -145,6 +145,38 @@ def prepare_beat2_clip(
     return arrays, entry, warnings
 
 
+def _check_audio_length(files: beat.ClipFiles, wav_path: Path, T: int, fps: float, audio_s: float, warnings) -> None:
+    """Refuse audio far from its motion's length; warn when it is a little off."""
+    mismatch = timing.length_mismatch(T, fps, audio_s)
+    if mismatch is not None:
+        text, refuse = mismatch
+        if refuse:
+            raise file_error(
+                wav_path,
+                f"does not match its motion {_motion_of(files)}: {text}; "
+                f"more than {timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
+            )
+        warnings.append(f"{wav_path}: {text}")
+
+
+def _clip_face(
+    files: beat.ClipFiles, T: int, fps: float, jaw_face: np.ndarray | None, warnings: list[str]
+) -> tuple[np.ndarray, str | None]:
+    """A clip's face weights (T, 52) and their source: its face JSON, else ``jaw_face``, else none (zeros)."""
+    face = np.zeros((T, N_BLENDSHAPES), np.float32)
+    face_path = files.get("json")
+    face_source = None
+    if face_path is not None:
+        track = read_face_json(face_path)
+        if track.unknown_names:
+            warnings.append(f"{face_path}: ignored unknown blendshape names {track.unknown_names}")
+        face = _fit_length(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
+        face_source = "json"
+    elif jaw_face is not None:
+        face, face_source = jaw_face.astype(np.float32), "jaw"
+    return face, face_source
+
+
 def _clip_arrays(
     files: beat.ClipFiles,
     pose: np.ndarray,
@@ -163,27 +195,8 @@ def _clip_arrays(
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
-    mismatch = timing.length_mismatch(T, fps, len(audio_full) / sr)
-    if mismatch is not None:
-        text, refuse = mismatch
-        if refuse:
-            raise file_error(
-                wav_path,
-                f"does not match its motion {_motion_of(files)}: {text}; "
-                f"more than {timing.MISMATCH_REFUSE_SHARE:.0%} apart (wrong file or wrong frame rate?)",
-            )
-        warnings.append(f"{wav_path}: {text}")
-    face = np.zeros((T, N_BLENDSHAPES), np.float32)
-    face_path = files.get("json")
-    face_source = None
-    if face_path is not None:
-        track = read_face_json(face_path)
-        if track.unknown_names:
-            warnings.append(f"{face_path}: ignored unknown blendshape names {track.unknown_names}")
-        face = _fit_length(timing.resample(track.weights, track.fps, fps), T).astype(np.float32)
-        face_source = "json"
-    elif jaw_face is not None:
-        face, face_source = jaw_face.astype(np.float32), "jaw"
+    _check_audio_length(files, wav_path, T, fps, len(audio_full) / sr, warnings)
+    face, face_source = _clip_face(files, T, fps, jaw_face, warnings)
 
     sem_path, emo_path = files.get("txt"), files.get("csv")
     semantic = beat.read_semantic(sem_path, T, fps) if sem_path else np.zeros(T, np.float32)
@@ -404,6 +417,179 @@ def _new_acc() -> dict[str, RunningStats]:
     return {"pose": RunningStats(N_JOINTS * 6), "head": RunningStats(6), "face": RunningStats(N_BLENDSHAPES)}
 
 
+def _choose_beat_clips(
+    beat_root: Path, speakers: list[int] | None, warnings: list[str]
+) -> tuple[list[beat.ClipFiles], list[dict]]:
+    """The BEAT clips (of ``speakers``) with both motion and audio, and the incomplete ones skipped."""
+    found = _with_beat2_takes(beat_root, warnings)
+    if speakers:
+        chosen = [c for c in found if c.clip.speaker in set(speakers)]
+        if not chosen:
+            have = sorted({c.clip.speaker for c in found})
+            raise UserError(f"{beat_root}: no clips of speaker(s) {sorted(speakers)} (found speakers {have})")
+    else:
+        chosen = found
+    usable = [c for c in chosen if _motion_of(c) and c.get("wav")]
+    skipped: list[dict] = []
+    for c in chosen:
+        if _motion_of(c) and c.get("wav"):
+            continue
+        reason = (
+            ("audio only" if c.get("wav") else "motion only")
+            if (c.get("wav") or _motion_of(c))
+            else "no motion, no audio"
+        )
+        skipped.append(
+            {
+                "name": c.name,
+                "speaker": c.clip.speaker,
+                "reason": reason,
+                "files": sorted(p.name for p in c.files.values()),
+            }
+        )
+    return usable, skipped
+
+
+class _CacheWriter:
+    """Writes clips into the cache being built (``tmp``) and gathers its index entries, joint masks,
+    speakers and per-speaker running statistics (train clips and all clips)."""
+
+    def __init__(self, tmp: Path, bar, task) -> None:
+        self.tmp, self.bar, self.task = tmp, bar, task
+        self.entries: list[dict] = []
+        self.masks: dict[str, np.ndarray] = {}
+        self.speaker_info: dict[str, dict] = {}
+        self.acc_train: dict[int, dict[str, RunningStats]] = {}
+        self.acc_all: dict[int, dict[str, RunningStats]] = {}
+        self.reference: tuple[Skeleton, Path] | None = None
+
+    def add(self, arrays: dict, entry: dict) -> None:
+        if entry["name"] in self.masks:
+            raise UserError(f"two clips are named {entry['name']!r}; rename one of the files")
+        np.savez_compressed(self.tmp / entry["file"], **arrays)
+        self.entries.append(entry)
+        self.masks[entry["name"]] = arrays["mask"]
+        spk = int(entry["speaker"])
+        present = np.repeat(arrays["mask"], 6)
+        for acc in [self.acc_all.setdefault(spk, _new_acc())] + (
+            [self.acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else []
+        ):
+            acc["pose"].add(arrays["pose"].reshape(len(arrays["pose"]), -1), present)
+            acc["head"].add(arrays["head"])
+            if entry["has_face"]:
+                acc["face"].add(arrays["face"])
+        self.bar.advance(self.task)
+
+    def add_beat(self, usable: list[beat.ClipFiles], fps: float, sr: int, target: Skeleton | None, warnings) -> None:
+        """The BEAT clips: BVH takes first (the first one's skeleton is the cache's), then BEAT2 takes,
+        written on that skeleton or ``target``."""
+        for files in [c for c in usable if c.get("bvh")] + [c for c in usable if not c.get("bvh")]:
+            self.bar.update(self.task, description=files.name)
+            if files.get("bvh"):
+                arrays, entry, skel, warn = prepare_clip(files, fps, sr, self.reference)
+                if self.reference is None:
+                    self.reference = (skel, files.files["bvh"])
+            else:  # a BEAT2 take, written on the first BVH's skeleton or ``target``
+                if self.reference is None:
+                    self.reference = (_require_target(target, files.files["npz"]), Path("target skeleton"))
+                arrays, entry, warn = prepare_beat2_clip(files, fps, sr, self.reference[0])
+            warnings.extend(warn)
+            self.speaker_info.setdefault(
+                str(entry["speaker"]),
+                {"dataset": entry["dataset"], "licence": "CC BY-NC 4.0", "performer": files.clip.performer},
+            )
+            self.add(arrays, entry)
+
+    def add_others(self, others: list, fps: float, sr: int, target: Skeleton | None, maps, speakers) -> None:
+        """The ``--mocap`` / ``--joints9`` clips, on the BEAT skeleton (``maps`` and ``speakers``: the
+        joint map / layout and the speaker id of each kind)."""
+        if self.reference is None:
+            if target is None:
+                raise UserError(
+                    "--mocap/--joints9 need the BEAT skeleton to write poses on: give a BEAT "
+                    "folder or a target skeleton"
+                )
+            self.reference = (target, Path("target skeleton"))
+        for kind, motion_path, wav in others:
+            self.bar.update(self.task, description=motion_path.stem[:24])
+            arrays, entry, info = prepare_other_clip(
+                kind, motion_path, wav, self.reference[0], fps, sr, maps[kind], speakers[kind]
+            )
+            self.speaker_info.setdefault(str(entry["speaker"]), info)
+            self.add(arrays, entry)
+
+    def stats(self) -> tuple[dict, dict[str, RunningStats]]:
+        """The index's ``stats`` (each speaker's and all speakers') and the pooled statistics of all clips."""
+        stats: dict = {}
+        pooled_train, pooled_all = _new_acc(), _new_acc()
+        for spk in sorted(self.acc_all):
+            train = self.acc_train.get(spk, _new_acc())
+            stats[str(spk)] = _stats_block(train, self.acc_all[spk], f"speaker {spk}")
+            for k in pooled_train:
+                pooled_train[k].merge(train[k])
+                pooled_all[k].merge(self.acc_all[spk][k])
+        stats["all"] = _stats_block(pooled_train, pooled_all, "all speakers")
+        return stats, pooled_all
+
+
+def _progress_bar(progress: bool):
+    """The ``prepare`` progress bar (one step per clip)."""
+    from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+
+    from facecapges.progress import Progress
+
+    columns = (
+        TextColumn("[bold]prepare[/bold] {task.description:<24}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+    )
+    return Progress(*columns, disable=not progress, transient=False, prefix="prepare")
+
+
+def _index(
+    tmp: Path, w: _CacheWriter, fps: float, sr: int, beat_root: Path | None, skipped: list[dict], warnings: list[str]
+) -> dict:
+    """The cache's index: its clips, skeleton, speakers, statistics and the fill of masked joints
+    (written into the clips in ``tmp``)."""
+    stats, pooled_all = w.stats()
+    reference = w.reference
+    assert reference is not None  # set by the first clip or mocap source (none at all was refused above)
+    fill = _fill_masked_clips(tmp, w.entries, w.masks, pooled_all["pose"], reference[0])
+    index = {
+        "version": CACHE_VERSION,
+        "fps": fps,
+        "sr": sr,
+        "source": str(beat_root.resolve()) if beat_root is not None else None,
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
+        "skeleton": skeleton_to_dict(reference[0]),
+        "skeleton_source": reference[1].name,
+        "upper_body": list(UPPER_BODY),
+        "clips": w.entries,
+        "skipped": skipped,
+        "warnings": warnings,
+        "speakers": w.speaker_info,
+        "fill": fill.reshape(-1).tolist(),
+        "stats": stats,
+    }
+    return index
+
+
+def _other_sources(mocap, joints9, usable: list, beat_root: Path | None, skipped: list[dict]) -> list:
+    """The ``--mocap`` and ``--joints9`` clips as (kind, motion file, wav); refuses a run with nothing to prepare."""
+    others = [("mocap", m, w) for m, w in _paired(list(mocap), ".bvh", "--mocap")] + [
+        ("joints9", m, w) for m, w in _paired(list(joints9), ".npy", "--joints9")
+    ]
+    if not usable and not others:
+        if beat_root is None:
+            raise UserError("nothing to prepare: give a BEAT folder, --mocap or --joints9")
+        raise UserError(
+            f"{beat_root}: no clip has both motion (.bvh, or a BEAT2 smplxflame_30/*.npz) and a .wav ({len(skipped)} incomplete clip(s): "
+            f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})"
+        )
+    return others
+
+
 def prepare(
     beat_root: str | Path | None,
     out: str | Path,
@@ -438,151 +624,21 @@ def prepare(
     warnings: list[str] = []
     if beat_root is not None:
         beat_root = Path(beat_root)
-        found = _with_beat2_takes(beat_root, warnings)
-        if speakers:
-            chosen = [c for c in found if c.clip.speaker in set(speakers)]
-            if not chosen:
-                have = sorted({c.clip.speaker for c in found})
-                raise UserError(f"{beat_root}: no clips of speaker(s) {sorted(speakers)} (found speakers {have})")
-        else:
-            chosen = found
-        usable = [c for c in chosen if _motion_of(c) and c.get("wav")]
-        for c in chosen:
-            if _motion_of(c) and c.get("wav"):
-                continue
-            reason = (
-                ("audio only" if c.get("wav") else "motion only")
-                if (c.get("wav") or _motion_of(c))
-                else "no motion, no audio"
-            )
-            skipped.append(
-                {
-                    "name": c.name,
-                    "speaker": c.clip.speaker,
-                    "reason": reason,
-                    "files": sorted(p.name for p in c.files.values()),
-                }
-            )
-    others = [("mocap", m, w) for m, w in _paired(list(mocap), ".bvh", "--mocap")] + [
-        ("joints9", m, w) for m, w in _paired(list(joints9), ".npy", "--joints9")
-    ]
-    if not usable and not others:
-        if beat_root is None:
-            raise UserError("nothing to prepare: give a BEAT folder, --mocap or --joints9")
-        raise UserError(
-            f"{beat_root}: no clip has both motion (.bvh, or a BEAT2 smplxflame_30/*.npz) and a .wav ({len(skipped)} incomplete clip(s): "
-            f"{', '.join(s['name'] + ' ' + s['reason'] for s in skipped[:3])})"
-        )
+        usable, skipped = _choose_beat_clips(beat_root, speakers, warnings)
+    others = _other_sources(mocap, joints9, usable, beat_root, skipped)
 
     tmp = out.parent / f".{out.name}.part"
     if tmp.exists():
         shutil.rmtree(tmp)
     (tmp / CLIP_DIR).mkdir(parents=True)
-    entries: list[dict] = []
-    reference: tuple[Skeleton, Path] | None = None
-    speaker_info: dict[str, dict] = {}
-    masks: dict[str, np.ndarray] = {}
-    acc_train: dict[int, dict[str, RunningStats]] = {}
-    acc_all: dict[int, dict[str, RunningStats]] = {}
     try:
-        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
-
-        from facecapges.progress import Progress
-
-        columns = (
-            TextColumn("[bold]prepare[/bold] {task.description:<24}"),
-            BarColumn(),
-            MofNCompleteColumn(),
-            TimeRemainingColumn(),
-        )
-        with Progress(*columns, disable=not progress, transient=False, prefix="prepare") as bar:
-            task = bar.add_task("", total=len(usable) + len(others))
-
-            def add(arrays: dict, entry: dict) -> None:
-                if entry["name"] in masks:
-                    raise UserError(f"two clips are named {entry['name']!r}; rename one of the files")
-                np.savez_compressed(tmp / entry["file"], **arrays)
-                entries.append(entry)
-                masks[entry["name"]] = arrays["mask"]
-                spk = int(entry["speaker"])
-                present = np.repeat(arrays["mask"], 6)
-                for acc in [acc_all.setdefault(spk, _new_acc())] + (
-                    [acc_train.setdefault(spk, _new_acc())] if entry["split"] == "train" else []
-                ):
-                    acc["pose"].add(arrays["pose"].reshape(len(arrays["pose"]), -1), present)
-                    acc["head"].add(arrays["head"])
-                    if entry["has_face"]:
-                        acc["face"].add(arrays["face"])
-                bar.advance(task)
-
-            for files in [c for c in usable if c.get("bvh")] + [c for c in usable if not c.get("bvh")]:
-                bar.update(task, description=files.name)
-                if files.get("bvh"):
-                    arrays, entry, skel, warn = prepare_clip(files, fps, sr, reference)
-                    if reference is None:
-                        reference = (skel, files.files["bvh"])
-                else:  # a BEAT2 take, written on the first BVH's skeleton or ``target``
-                    if reference is None:
-                        reference = (_require_target(target, files.files["npz"]), Path("target skeleton"))
-                    arrays, entry, warn = prepare_beat2_clip(files, fps, sr, reference[0])
-                warnings.extend(warn)
-                speaker_info.setdefault(
-                    str(entry["speaker"]),
-                    {"dataset": entry["dataset"], "licence": "CC BY-NC 4.0", "performer": files.clip.performer},
-                )
-                add(arrays, entry)
+        with _progress_bar(progress) as bar:
+            w = _CacheWriter(tmp, bar, bar.add_task("", total=len(usable) + len(others)))
+            w.add_beat(usable, fps, sr, target, warnings)
             if others:
-                if reference is None:
-                    if target is None:
-                        raise UserError(
-                            "--mocap/--joints9 need the BEAT skeleton to write poses on: give a BEAT "
-                            "folder or a target skeleton"
-                        )
-                    reference = (target, Path("target skeleton"))
-                for kind, motion_path, wav in others:
-                    bar.update(task, description=motion_path.stem[:24])
-                    mocap_kind = kind == "mocap"
-                    arrays, entry, info = prepare_other_clip(
-                        kind,
-                        motion_path,
-                        wav,
-                        reference[0],
-                        fps,
-                        sr,
-                        joint_map if mocap_kind else layout,
-                        mocap_speaker if mocap_kind else joints9_speaker,
-                    )
-                    speaker_info.setdefault(str(entry["speaker"]), info)
-                    add(arrays, entry)
-
-        stats: dict = {}
-        pooled_train, pooled_all = _new_acc(), _new_acc()
-        for spk in sorted(acc_all):
-            train = acc_train.get(spk, _new_acc())
-            stats[str(spk)] = _stats_block(train, acc_all[spk], f"speaker {spk}")
-            for k in pooled_train:
-                pooled_train[k].merge(train[k])
-                pooled_all[k].merge(acc_all[spk][k])
-        stats["all"] = _stats_block(pooled_train, pooled_all, "all speakers")
-        assert reference is not None  # set by the first clip or mocap source (none at all was refused above)
-        fill = _fill_masked_clips(tmp, entries, masks, pooled_all["pose"], reference[0])
-
-        index = {
-            "version": CACHE_VERSION,
-            "fps": fps,
-            "sr": sr,
-            "source": str(beat_root.resolve()) if beat_root is not None else None,
-            "created": time.strftime("%Y-%m-%dT%H:%M:%S"),
-            "skeleton": skeleton_to_dict(reference[0]),
-            "skeleton_source": reference[1].name,
-            "upper_body": list(UPPER_BODY),
-            "clips": entries,
-            "skipped": skipped,
-            "warnings": warnings,
-            "speakers": speaker_info,
-            "fill": fill.reshape(-1).tolist(),
-            "stats": stats,
-        }
+                maps = {"mocap": joint_map, "joints9": layout}
+                w.add_others(others, fps, sr, target, maps, {"mocap": mocap_speaker, "joints9": joints9_speaker})
+        index = _index(tmp, w, fps, sr, beat_root, skipped, warnings)
         (tmp / INDEX_NAME).write_text(json.dumps(index, indent=1), encoding="utf-8")
         if out.exists():
             shutil.rmtree(out)

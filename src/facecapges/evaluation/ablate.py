@@ -201,6 +201,92 @@ def _load_clip_arrays(cache: Path, speaker: int, split: str):
     return load_clips(cache, speaker, split)
 
 
+def _given_variant(v: str, ref: Path, recipe: Recipe, extra, names: list[str], say) -> TrainedVariant:
+    """A variant's checkpoint given by the user, taken as it is (the table says when another recipe trained it)."""
+    from facecapges.styles import load_style_or_file
+
+    if v in SEGMENT_DECODERS:
+        path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
+    else:
+        ck = load_style_or_file(ref)
+        path, meta = ck.path, ck.meta
+    why = _same_recipe(meta, recipe, extra, names)
+    source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
+    say(f"[{v}] {path} taken as given" + ("" if why is None else f"; note: {why}"))
+    return TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
+
+
+def _shipped_variant(v: str, recipe: Recipe, names: list[str], say) -> TrainedVariant | None:
+    """The shipped network style when this recipe trained it, else None (and the reason said)."""
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
+
+    ck = load_style(style=DEFAULT_NETWORK_STYLE)
+    why = _same_recipe(ck.meta, recipe, None, names)
+    if why is None:
+        say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
+        return TrainedVariant(
+            v,
+            ck.path,
+            "shipped checkpoint",
+            0.0,
+            ck.meta.get("final_losses", {}),
+            ck.meta.get("epochs_trained"),
+        )
+    say(f"[{v}] shipped checkpoint not reused ({why}); training")
+    return None
+
+
+def _existing_run(v: str, run: Path, recipe: Recipe, extra, names: list[str], say) -> TrainedVariant | None:
+    """The model an earlier run of this recipe left in ``run``, else None."""
+    import json
+
+    from facecapges.styles import load_style
+
+    done = run / "model.safetensors"
+    if not done.is_file():
+        return None
+    try:
+        meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else load_style(done).meta
+    except UserError:
+        meta = {}
+    if not meta or _same_recipe(meta, recipe, extra, names) is not None:
+        return None
+    say(f"[{v}] {done} already holds this recipe's model: reused")
+    info = run / "ablation_variant.json"
+    secs = json.loads(info.read_text()).get("train_seconds", 0.0) if info.is_file() else 0.0
+    return TrainedVariant(v, done, "existing run", float(secs), meta.get("final_losses", {}))
+
+
+def _train_variant(v: str, run: Path, recipe: Recipe, extra, clips, meta_base: dict, progress: bool, say):
+    """Train variant ``v`` into ``run`` by ``recipe``."""
+    import json
+
+    _, tcfg = recipe.resolved(extra)
+    say(
+        f"[{v}] training {LABELS[v]}: {tcfg['epochs']} epochs, batch {tcfg['batch_size']}, "
+        f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}"
+    )
+    t0 = time.perf_counter()
+    meta = dict(meta_base, variant=LABELS[v])
+    if v in SEGMENT_DECODERS:
+        build = _resolve(SEGMENT_DECODERS[v][1])
+        tr = build(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
+        tr.fit(progress=progress)
+    else:
+        from facecapges.training.train import build_trainer
+
+        tr = build_trainer(
+            clips, run, dict(recipe.model_over, **(extra or {})), dict(recipe.train_over), meta, resume=False
+        )
+        tr.fit()
+    seconds = time.perf_counter() - t0
+    last = tr.history[-1] if tr.history else {}
+    (run / "ablation_variant.json").write_text(json.dumps({"variant": v, "train_seconds": seconds}))
+    return TrainedVariant(
+        v, run / "model.safetensors", "trained", seconds, {k: val for k, val in last.items() if k != "epoch"}
+    )
+
+
 def train_variants(
     cache: Path,
     out: Path,
@@ -216,11 +302,9 @@ def train_variants(
 
     ``given`` maps variants to checkpoints (a file, or for closed-loop variants an
     installed style name) taken as they are, whatever recipe trained them; the table
-    says so.
+    says so. Each variant: given, else the shipped style (``full``), else an existing run, else trained.
     """
-    import json
-
-    from facecapges.styles import DEFAULT_NETWORK_STYLE, list_styles, load_style, load_style_or_file
+    from facecapges.styles import DEFAULT_NETWORK_STYLE, list_styles
 
     cache_obj, clips = _load_clip_arrays(cache, recipe.speaker, recipe.split)
     names = [c.name for c in clips]
@@ -236,68 +320,18 @@ def train_variants(
         run = out / "runs" / v
         extra = {"head_dim": 0} if v == "no_head" else None
         if given and v in given:
-            ref = Path(given[v])
-            if v in SEGMENT_DECODERS:
-                path, meta = ref, _resolve(SEGMENT_DECODERS[v][0])(ref)[1]
-            else:
-                ck = load_style_or_file(ref)
-                path, meta = ck.path, ck.meta
-            why = _same_recipe(meta, recipe, extra, names)
-            source = "given checkpoint" + ("" if why is None else f" (not this recipe: {why})")
-            say(f"[{v}] {path} taken as given" + ("" if why is None else f"; note: {why}"))
-            result[v] = TrainedVariant(v, path, source, 0.0, meta.get("final_losses", {}), meta.get("epochs_trained"))
+            result[v] = _given_variant(v, Path(given[v]), recipe, extra, names, say)
             continue
         if v == "full" and reuse_default and not retrain and DEFAULT_NETWORK_STYLE in list_styles():
-            ck = load_style(style=DEFAULT_NETWORK_STYLE)
-            why = _same_recipe(ck.meta, recipe, None, names)
-            if why is None:
-                say(f"[{v}] the shipped checkpoint {ck.path.name} was trained by this recipe: reused")
-                result[v] = TrainedVariant(
-                    v,
-                    ck.path,
-                    "shipped checkpoint",
-                    0.0,
-                    ck.meta.get("final_losses", {}),
-                    ck.meta.get("epochs_trained"),
-                )
+            shipped = _shipped_variant(v, recipe, names, say)
+            if shipped is not None:
+                result[v] = shipped
                 continue
-            say(f"[{v}] shipped checkpoint not reused ({why}); training")
-        done = run / "model.safetensors"
-        if done.is_file() and not retrain:
-            try:
-                meta = _resolve(SEGMENT_DECODERS[v][0])(done)[1] if v in SEGMENT_DECODERS else load_style(done).meta
-            except UserError:
-                meta = {}
-            if meta and _same_recipe(meta, recipe, extra, names) is None:
-                say(f"[{v}] {done} already holds this recipe's model: reused")
-                info = run / "ablation_variant.json"
-                secs = json.loads(info.read_text()).get("train_seconds", 0.0) if info.is_file() else 0.0
-                result[v] = TrainedVariant(v, done, "existing run", float(secs), meta.get("final_losses", {}))
-                continue
-        _, tcfg = recipe.resolved(extra)
-        say(
-            f"[{v}] training {LABELS[v]}: {tcfg['epochs']} epochs, batch {tcfg['batch_size']}, "
-            f"{tcfg['optimizer']}, hold-out from {tcfg['holdout_from']}"
-        )
-        t0 = time.perf_counter()
-        meta = dict(meta_base, variant=LABELS[v])
-        if v in SEGMENT_DECODERS:
-            build = _resolve(SEGMENT_DECODERS[v][1])
-            tr = build(clips, run, dict(recipe.model_over), dict(recipe.train_over), meta)
-            tr.fit(progress=progress)
-        else:
-            from facecapges.training.train import build_trainer
-
-            tr = build_trainer(
-                clips, run, dict(recipe.model_over, **(extra or {})), dict(recipe.train_over), meta, resume=False
-            )
-            tr.fit()
-        seconds = time.perf_counter() - t0
-        last = tr.history[-1] if tr.history else {}
-        (run / "ablation_variant.json").write_text(json.dumps({"variant": v, "train_seconds": seconds}))
-        result[v] = TrainedVariant(
-            v, run / "model.safetensors", "trained", seconds, {k: val for k, val in last.items() if k != "epoch"}
-        )
+        reused = None if retrain else _existing_run(v, run, recipe, extra, names, say)
+        if reused is not None:
+            result[v] = reused
+            continue
+        result[v] = _train_variant(v, run, recipe, extra, clips, meta_base, progress, say)
     return result
 
 
@@ -347,26 +381,10 @@ class _Runner:
         return out
 
 
-def evaluate_variants(
-    cache: Path,
-    recipe: Recipe,
-    trained: dict[str, TrainedVariant],
-    fgd=None,
-    samples: int = 3,
-    seed: int = 0,
-    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
-    progress: bool = True,
-) -> dict:
-    """The suite over the held-out frames for the reference rows and every variant (both regions)."""
-    from facecapges.data.cache import Cache
-    from facecapges.evaluation import baselines as bl
-    from facecapges.evaluation.run import heldout_inputs
-    from facecapges.evaluation.suite import Method, PairedClips
-
-    if samples < 1:
-        raise UserError("--samples must be at least 1")
-    c = Cache(cache)
-    fps, sr, F_ = c.fps, c.sr, recipe.holdout_from
+def _variant_clips(c, cache: Path, recipe: Recipe):
+    """The clips the variants are evaluated on (the speaker's, from the hold-out frame on; else the test
+    clips whole) and the real pool of the reference rows: (loaded clips, evaluated names, first frame, pool)."""
+    F_ = recipe.holdout_from
     if F_ is not None:
         entries, start = c.clips(speaker=recipe.speaker), F_
     else:
@@ -387,6 +405,30 @@ def evaluate_variants(
                 f"{cache}: no train clips of speaker {recipe.speaker} for the reference rows; "
                 "use a hold-out frame (--holdout-from)"
             )
+    return loaded, evaluated, start, pool
+
+
+def evaluate_variants(
+    cache: Path,
+    recipe: Recipe,
+    trained: dict[str, TrainedVariant],
+    fgd=None,
+    samples: int = 3,
+    seed: int = 0,
+    offsets_s: Sequence[float] = tuple(range(2, 61, 2)),
+    progress: bool = True,
+) -> dict:
+    """The suite over the held-out frames for the reference rows and every variant (both regions)."""
+    from facecapges.data.cache import Cache
+    from facecapges.evaluation import baselines as bl
+    from facecapges.evaluation.run import heldout_inputs
+    from facecapges.evaluation.suite import Method, PairedClips
+
+    if samples < 1:
+        raise UserError("--samples must be at least 1")
+    c = Cache(cache)
+    fps, sr, F_ = c.fps, c.sr, recipe.holdout_from
+    loaded, evaluated, start, pool = _variant_clips(c, cache, recipe)
     runners = {v: _Runner(t) for v, t in trained.items()}
     n_hist = next(iter(runners.values())).cfg.n_history
     weighted = all(loaded[n]["semantic_present"] for n in evaluated)
@@ -523,6 +565,37 @@ def ablation_markdown(full: dict) -> str:
     return md + "\n".join(lines)
 
 
+def _document(result: dict, samples: int, fgd_file, command: str | None, recipe: Recipe, trained) -> dict:
+    """ablation.json: the scores, the recipe and each variant's checkpoint and training."""
+    _, tcfg = recipe.resolved()
+    doc = {
+        "result": result,
+        "samples": samples,
+        "fgd_autoencoder": fgd_file,
+        "command": command,
+        "recipe": {
+            "config_path": recipe.config_path,
+            "split": recipe.split,
+            "holdout_from": recipe.holdout_from,
+            "speaker": recipe.speaker,
+            "model_over": recipe.model_over,
+            "train": tcfg,
+        },
+        "variants": {
+            v: {
+                "label": LABELS[v],
+                "path": str(t.path),
+                "source": t.source,
+                "seconds": t.seconds,
+                "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
+                "final_losses": t.final_losses,
+            }
+            for v, t in trained.items()
+        },
+    }
+    return doc
+
+
 def run_ablation(o: AblateOptions, say=print, command: str | None = None) -> dict:
     """Train + evaluate the variants ``o`` names, write ``ablation.json`` and ``ablation.md``; returns the document.
 
@@ -559,32 +632,7 @@ def run_ablation(o: AblateOptions, say=print, command: str | None = None) -> dic
     fgd, fgd_file = _fgd_for(out, recipe, trained, cache, o.fgd, o.fgd_epochs, progress, say)
     say("evaluating the variants on the held-out frames")
     result = evaluate_variants(cache, recipe, trained, fgd, o.samples, o.seed, offsets_s, progress)
-    _, tcfg = recipe.resolved()
-    doc = {
-        "result": result,
-        "samples": o.samples,
-        "fgd_autoencoder": fgd_file,
-        "command": command,
-        "recipe": {
-            "config_path": recipe.config_path,
-            "split": recipe.split,
-            "holdout_from": recipe.holdout_from,
-            "speaker": recipe.speaker,
-            "model_over": recipe.model_over,
-            "train": tcfg,
-        },
-        "variants": {
-            v: {
-                "label": LABELS[v],
-                "path": str(t.path),
-                "source": t.source,
-                "seconds": t.seconds,
-                "epochs": tcfg["epochs"] if t.epochs is None else t.epochs,
-                "final_losses": t.final_losses,
-            }
-            for v, t in trained.items()
-        },
-    }
+    doc = _document(result, o.samples, fgd_file, command, recipe, trained)
     write_metrics_json(doc, out / "ablation.json")
     (out / "ablation.md").write_text(ablation_markdown(doc))
     say((out / "ablation.md").read_text())

@@ -409,6 +409,24 @@ def _points(clips: Clips, skeleton) -> list[np.ndarray]:
     return [_positions(a, skeleton, ARM_POINTS) for a in arrs]
 
 
+def _balanced_draw(Xr, gr, Xg, gg, folds: int, rng: np.random.Generator):
+    """One balanced subsample of real (label 1) and generated (label 0) windows: as many of each in
+    every block. Returns (windows, labels, blocks)."""
+    X, y, g = [], [], []
+    for k in range(folds):  # balanced classes in every block
+        ir, ig = np.flatnonzero(gr == k), np.flatnonzero(gg == k)
+        n = min(len(ir), len(ig))
+        for rows, src, label in (
+            (rng.choice(ir, n, replace=False), Xr, 1),
+            (rng.choice(ig, n, replace=False), Xg, 0),
+        ):
+            X.append(src[rows])
+            y += [label] * n
+            g += [k] * n
+    Xa, ya, ga = np.concatenate(X), np.array(y), np.array(g)
+    return Xa, ya, ga
+
+
 def real_vs_generated(
     real_pose: Clips,
     gen_pose: Clips,
@@ -436,18 +454,7 @@ def real_vs_generated(
     per_draw: list[list[float]] = []
     n_win = 0
     for _ in range(1 if balanced else max(int(draws), 1)):  # each draw: another balanced subsample
-        X, y, g = [], [], []
-        for k in range(folds):  # balanced classes in every block
-            ir, ig = np.flatnonzero(gr == k), np.flatnonzero(gg == k)
-            n = min(len(ir), len(ig))
-            for rows, src, label in (
-                (rng.choice(ir, n, replace=False), Xr, 1),
-                (rng.choice(ig, n, replace=False), Xg, 0),
-            ):
-                X.append(src[rows])
-                y += [label] * n
-                g += [k] * n
-        Xa, ya, ga = np.concatenate(X), np.array(y), np.array(g)
+        Xa, ya, ga = _balanced_draw(Xr, gr, Xg, gg, folds, rng)
         n_win = int(len(ya) // 2)
         acc = []
         if len(set(ga.tolist())) >= 2:

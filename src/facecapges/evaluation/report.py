@@ -36,6 +36,35 @@ def _fmt(v, digits: int = 3) -> str:
     return f"{v:.{digits}f}"
 
 
+def _definitions(result: dict) -> list[str]:
+    """The definitions under :func:`markdown_table`."""
+    offs = result.get("ba_offsets_s") or []
+    return [
+        "",
+        "Definitions:",
+        "- FGD (eq. 5.3): Fréchet distance between Gaussians fitted to the latent features of the "
+        "skeleton-aware autoencoder (one per region); lower is closer to the real distribution.",
+        f"- SRGR (eq. 5.8): share of joint-frames whose rot6d L1 error is below {result.get('srgr_delta', 0.5)}"
+        + (
+            ", weighted by the BEAT semantic score of the frame."
+            if result.get("srgr_weighted")
+            else "; no semantic file, so every frame has weight 1 (unweighted)."
+        ),
+        f"- BA (eq. 5.9–5.10): mean over speech beats of exp(−Δt²/2σ²), σ = {result.get('sigma_s', 0.3)} s; "
+        f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed "
+        "(mode 'mean': the region's mean speed curve; BEAT/CaMN's script scores one joint, EMAGE averages "
+        "per-joint scores — see the peers' table). "
+        f"Shifted: the audio rolled by {len(offs)} offsets "
+        + (f"({offs[0]:g}–{offs[-1]:g} s)" if offs else "")
+        + "; the gap, not the raw BA, shows synchrony.",
+        "- L1DIV: per-sequence deviation from the temporal mean, Σ over the region's joints × 6 rot6d "
+        "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div formula, but on rot6d: their "
+        "code runs it on Euler degrees, hundreds times larger).",
+        "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
+        f"- {result.get('n_frames')} frames at {result.get('fps')} fps.",
+    ]
+
+
 def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
     """Table 5.2 layout for both regions, the BeatAlign control and definitions."""
     srgr_h = "SRGR↑" if result.get("srgr_weighted") else "SRGR (unweighted)↑"
@@ -76,31 +105,7 @@ def markdown_table(result: dict, title: str = "Quantitative evaluation") -> str:
             for name, m in result["regions"][region]["methods"].items():
                 if m.get("L1DIV_samples") is not None:
                     lines.append(f"| {REGION_TITLES[region]} | {name} | {_fmt(m['L1DIV_samples'])} |")
-    offs = result.get("ba_offsets_s") or []
-    lines += [
-        "",
-        "Definitions:",
-        "- FGD (eq. 5.3): Fréchet distance between Gaussians fitted to the latent features of the "
-        "skeleton-aware autoencoder (one per region); lower is closer to the real distribution.",
-        f"- SRGR (eq. 5.8): share of joint-frames whose rot6d L1 error is below {result.get('srgr_delta', 0.5)}"
-        + (
-            ", weighted by the BEAT semantic score of the frame."
-            if result.get("srgr_weighted")
-            else "; no semantic file, so every frame has weight 1 (unweighted)."
-        ),
-        f"- BA (eq. 5.9–5.10): mean over speech beats of exp(−Δt²/2σ²), σ = {result.get('sigma_s', 0.3)} s; "
-        f"motion beats = local minima of the {result.get('ba_mode', 'mean')} joint angular speed "
-        "(mode 'mean': the region's mean speed curve; BEAT/CaMN's script scores one joint, EMAGE averages "
-        "per-joint scores — see the peers' table). "
-        f"Shifted: the audio rolled by {len(offs)} offsets "
-        + (f"({offs[0]:g}–{offs[-1]:g} s)" if offs else "")
-        + "; the gap, not the raw BA, shows synchrony.",
-        "- L1DIV: per-sequence deviation from the temporal mean, Σ over the region's joints × 6 rot6d "
-        "components of |r − mean_t r|, averaged over frames (BEAT/CaMN's L1div formula, but on rot6d: their "
-        "code runs it on Euler degrees, hundreds times larger).",
-        "- Regions (thesis 5.5.5): 'without head' drops Neck and Neck1 (the head-carrying joints).",
-        f"- {result.get('n_frames')} frames at {result.get('fps')} fps.",
-    ]
+    lines += _definitions(result)
     return "\n".join(lines) + "\n"
 
 

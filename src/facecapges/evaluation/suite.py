@@ -118,6 +118,22 @@ def _score_method(
     return out
 
 
+def _result_head(fps, sr, n, sigma_s, weighted: bool, ba_mode: str, offsets_s, paired: bool) -> dict[str, Any]:
+    """The settings a suite result starts with (its regions filled in by :func:`_evaluate`)."""
+    return {
+        "fps": fps,
+        "sr": sr,
+        "n_frames": n,
+        "sigma_s": sigma_s,
+        "srgr_delta": DELTA,
+        "srgr_weighted": weighted,
+        "ba_mode": ba_mode,
+        "ba_offsets_s": [float(o) for o in offsets_s],
+        "paired": paired,
+        "regions": {},
+    }
+
+
 def _evaluate(
     methods: Mapping[str, Method],
     audio: np.ndarray,
@@ -139,18 +155,7 @@ def _evaluate(
     samples = {k: _samples(k, v, n) for k, v in methods.items()}
     if n is None:
         n = len(next(iter(samples.values()))[0]) if samples else 0
-    result: dict[str, Any] = {
-        "fps": fps,
-        "sr": sr,
-        "n_frames": n,
-        "sigma_s": sigma_s,
-        "srgr_delta": DELTA,
-        "srgr_weighted": semantic_weights is not None,
-        "ba_mode": ba_mode,
-        "ba_offsets_s": [float(o) for o in offsets_s],
-        "paired": real is not None,
-        "regions": {},
-    }
+    result = _result_head(fps, sr, n, sigma_s, semantic_weights is not None, ba_mode, offsets_s, real is not None)
     cache: dict[int, ba.SpeechBeatSets] = {}
 
     def speech_sets(n_frames: int) -> ba.SpeechBeatSets:  # onsets once per audio length, shared by all rows
@@ -337,6 +342,53 @@ def _weighted(vals, n) -> float | None:
     return float(sum(v * w for v, w in ok) / sum(w for _, w in ok)) if ok else None
 
 
+def _combine_row(results, region: str, name: str, n: np.ndarray, fgd, fgd_reference, method_clips) -> dict:
+    """One method's row of one region over clips (:func:`combine_clips`)."""
+    per = [r["regions"][region]["methods"][name] for r in results]
+    row = {"n_samples": per[0]["n_samples"]}
+    for k in _AVERAGED:
+        row[k] = _weighted([p.get(k) for p in per], n)
+    row["BA_gap"] = row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) else None
+    if fgd is not None and region in fgd.models and fgd_reference and method_clips and name in method_clips:
+        row["FGD"] = fgd.fgd(list(fgd_reference), list(method_clips[name]), region)
+    else:
+        fg = [p["FGD"] for p in per]
+        row["FGD"] = fg[0] if len(per) == 1 else None
+    keys = ("FGD", "SRGR", "BA", "BA_shifted_mean", "BA_shifted_sd", "BA_gap", "BA_gap_sd", "L1DIV", "L1DIV_samples")
+    return {k: row[k] for k in (*keys, "n_samples")}
+
+
+def _combine_peers(results, n: np.ndarray) -> dict:
+    """The peers section over clips: frame-weighted means, speech beats summed."""
+    methods = {}
+    for name, first in results[0]["peers"]["methods"].items():
+        methods[name] = {k: _weighted([r["peers"]["methods"][name][k] for r in results], n) for k in first}
+    return {
+        "methods": methods,
+        "n_speech_beats": {
+            k: int(sum(r["peers"]["n_speech_beats"][k] for r in results)) for k in results[0]["peers"]["n_speech_beats"]
+        },
+    }
+
+
+def _combine_synchrony(results, n: np.ndarray) -> dict:
+    """The synchrony section over clips: each figure's frame-weighted mean."""
+    methods = {}
+    for name in results[0]["synchrony"]["methods"]:
+        per = [r["synchrony"]["methods"][name] for r in results]
+        methods[name] = {k: _weighted([p[k] for p in per], n) for k in _SYNC_AVERAGED}
+        methods[name]["n_frames"] = int(n.sum())
+    refs = [r["synchrony"]["reference"] for r in results]
+    return {
+        "methods": methods,
+        "reference": {
+            "jerk": _weighted([x["jerk"] for x in refs], n),
+            "spread": _weighted([x["spread"] for x in refs], n),
+            "source": refs[0]["source"],
+        },
+    }
+
+
 def combine_clips(
     results: Sequence[dict],
     fgd: FGDEvaluator | None = None,
@@ -359,62 +411,14 @@ def combine_clips(
     out["n_clips"] = len(results)
     out["regions"] = {}
     for region, reg in results[0]["regions"].items():
-        rows = {}
-        for name in reg["methods"]:
-            per = [r["regions"][region]["methods"][name] for r in results]
-            row = {"n_samples": per[0]["n_samples"]}
-            for k in _AVERAGED:
-                row[k] = _weighted([p.get(k) for p in per], n)
-            row["BA_gap"] = (
-                row["BA"] - row["BA_shifted_mean"] if None not in (row["BA"], row["BA_shifted_mean"]) else None
-            )
-            if fgd is not None and region in fgd.models and fgd_reference and method_clips and name in method_clips:
-                row["FGD"] = fgd.fgd(list(fgd_reference), list(method_clips[name]), region)
-            else:
-                fg = [p["FGD"] for p in per]
-                row["FGD"] = fg[0] if len(per) == 1 else None
-            rows[name] = {
-                k: row[k]
-                for k in (
-                    "FGD",
-                    "SRGR",
-                    "BA",
-                    "BA_shifted_mean",
-                    "BA_shifted_sd",
-                    "BA_gap",
-                    "BA_gap_sd",
-                    "L1DIV",
-                    "L1DIV_samples",
-                    "n_samples",
-                )
-            }
+        rows = {
+            name: _combine_row(results, region, name, n, fgd, fgd_reference, method_clips) for name in reg["methods"]
+        }
         out["regions"][region] = {"joints": reg["joints"], "methods": rows}
     if all("peers" in r for r in results):
-        methods = {}
-        for name, first in results[0]["peers"]["methods"].items():
-            methods[name] = {k: _weighted([r["peers"]["methods"][name][k] for r in results], n) for k in first}
-        out["peers"] = {
-            "methods": methods,
-            "n_speech_beats": {
-                k: int(sum(r["peers"]["n_speech_beats"][k] for r in results))
-                for k in results[0]["peers"]["n_speech_beats"]
-            },
-        }
+        out["peers"] = _combine_peers(results, n)
     if all("synchrony" in r for r in results):
-        methods = {}
-        for name in results[0]["synchrony"]["methods"]:
-            per = [r["synchrony"]["methods"][name] for r in results]
-            methods[name] = {k: _weighted([p[k] for p in per], n) for k in _SYNC_AVERAGED}
-            methods[name]["n_frames"] = int(n.sum())
-        refs = [r["synchrony"]["reference"] for r in results]
-        out["synchrony"] = {
-            "methods": methods,
-            "reference": {
-                "jerk": _weighted([x["jerk"] for x in refs], n),
-                "spread": _weighted([x["spread"] for x in refs], n),
-                "source": refs[0]["source"],
-            },
-        }
+        out["synchrony"] = _combine_synchrony(results, n)
     return out
 
 

@@ -42,25 +42,12 @@ class GenerateOptions:
     force: bool = False
 
 
-def generate_recording(
-    o: GenerateOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning
-) -> dict:
-    """The whole ``generate`` command (module docstring); returns its summary.
-
-    ``say(text, err=False)`` gets the result line (the summary as JSON with ``o.json_out``),
-    ``warn`` the input planner's warnings."""
-    import json
-
-    import numpy as np
-
+def _check(o: GenerateOptions) -> None:
+    """Every check of ``o`` that needs no model: intensity, outputs (existing, folder, unwritable), inputs."""
     from facecapges.engine.intensity import check_intensity
     from facecapges.errors import check_output_file, require_file
     from facecapges.io.audio import check_audio
-    from facecapges.io.bvh import BvhWriter
-    from facecapges.rotations import normalize_rot6d
-    from facecapges.skeleton import pose_to_motion
 
-    # every check before the model loads: a wrong path or file type is reported in a second
     check_intensity(o.intensity)
     check_output_file(o.out, o.force)  # before the work: existing, folder, unwritable
     if o.face_out is not None:
@@ -75,6 +62,46 @@ def generate_recording(
         require_file(o.face, "face JSON file")
     if o.head is not None:
         require_file(o.head, "head rotation file")
+
+
+def _summary(o: GenerateOptions, ckpt, inputs, ms: float, say: Callable[..., None]) -> dict:
+    """The summary of a ``generate`` run, said as a line (or as JSON with ``o.json_out``)."""
+    import json
+
+    n = inputs.n_frames
+    summary = {
+        "out": str(o.out),
+        "frames": int(n),
+        "fps": ckpt.fps,
+        "duration_s": round(n / ckpt.fps, 3),
+        "ms_per_frame": round(ms, 3),
+        "checkpoint": str(ckpt.path),
+        "warnings": inputs.notes,
+    }
+    if o.json_out:
+        say(json.dumps(summary))
+    else:
+        say(
+            f"wrote {o.out}: {summary['frames']} frames at {ckpt.fps} fps "
+            f"({summary['duration_s']} s), {ms:.2f} ms/frame"
+        )
+    return summary
+
+
+def generate_recording(
+    o: GenerateOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning
+) -> dict:
+    """The whole ``generate`` command (module docstring); returns its summary.
+
+    ``say(text, err=False)`` gets the result line (the summary as JSON with ``o.json_out``),
+    ``warn`` the input planner's warnings."""
+    import numpy as np
+
+    from facecapges.io.bvh import BvhWriter
+    from facecapges.rotations import normalize_rot6d
+    from facecapges.skeleton import pose_to_motion
+
+    _check(o)  # every check before the model loads: a wrong path or file type is reported in a second
     from facecapges.engine.generate import generate_blocks
     from facecapges.styles import load_style
 
@@ -113,21 +140,5 @@ def generate_recording(
 
         write_pose_vrma(o.vrma, skel, np.concatenate(kept), ckpt.fps, shown, o.vrma_face)
         say(f"wrote {o.vrma} (VRM Animation)", err=o.json_out)
-    ms, n = timing_ms[0], inputs.n_frames
-    summary = {
-        "out": str(o.out),
-        "frames": int(n),
-        "fps": ckpt.fps,
-        "duration_s": round(n / ckpt.fps, 3),
-        "ms_per_frame": round(ms, 3),
-        "checkpoint": str(ckpt.path),
-        "warnings": inputs.notes,
-    }
-    if o.json_out:
-        say(json.dumps(summary))
-    else:
-        say(
-            f"wrote {o.out}: {summary['frames']} frames at {ckpt.fps} fps "
-            f"({summary['duration_s']} s), {ms:.2f} ms/frame"
-        )
+    summary = _summary(o, ckpt, inputs, timing_ms[0], say)
     return summary

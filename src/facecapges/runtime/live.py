@@ -42,6 +42,8 @@ class _Outputs:
     vmc_addr: tuple[str, int] | None
     bind: str
     default_note: str | None
+    avatar: Any = None  # --avatar, parsed once (a VrmModel)
+    vmc_avatar: Any = None  # --vmc-avatar, parsed once (a VrmModel)
     senders: list = field(default_factory=list)
     ups: list = field(default_factory=list)
     server: Any = None
@@ -113,6 +115,10 @@ def per_face_sinks(
     sinks: list[Sink] = []
     senders: list[VmcSender] = []
     ups: list[Upsampler] = []
+    if vmc_addr is not None and vmc_avatar is not None:
+        from facecapges.runtime.outputs.vmc import vrm_rig
+
+        vmc_avatar = vrm_rig(vmc_avatar)  # the receiver's rig, read once for every sender
     for i in range(faces):
         sfx = "" if faces == 1 else f"_{i + 1}"
         per: list[Sink] = []
@@ -137,10 +143,47 @@ def per_face_sinks(
     return sinks, senders, ups
 
 
+def _check_vmc(o: LiveOptions):
+    """The VMC options (and the face JSON layout, in the order the user meets them); returns
+    ``--vmc-avatar`` parsed (a VrmModel), or None."""
+    from facecapges.errors import UserError
+    from facecapges.io.face_json import check_face_layout
+
+    if o.vmc_avatar is not None and o.vmc is None:
+        raise UserError("--vmc-avatar needs --vmc HOST:PORT")
+    check_face_layout(o.face_json)
+    from facecapges.runtime.outputs.vmc import BLEND_MODES, PARTS
+
+    if o.vmc_blend not in BLEND_MODES:
+        raise UserError(f"--vmc-blend {o.vmc_blend}: choose {', '.join(BLEND_MODES[:-1])} or {BLEND_MODES[-1]}")
+    if o.vmc_parts not in PARTS:
+        raise UserError(f"--vmc-parts {o.vmc_parts}: choose {', '.join(PARTS[:-1])} or {PARTS[-1]}")
+    if o.vmc_parts != "all" and o.vmc is None:
+        raise UserError("--vmc-parts needs --vmc HOST:PORT")
+    if o.vmc_avatar is not None:
+        from facecapges.avatar.vrm.read import load_model
+
+        return load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
+    return None
+
+
+def _check_record(o: LiveOptions) -> None:
+    """``--record``'s files (and ``--vrma``'s one performer) before anything opens."""
+    from facecapges.errors import UserError, check_output_dir
+    from facecapges.runtime.run import output_names
+
+    assert o.record is not None
+    if o.vrma and o.faces > 1:
+        raise UserError("--vrma records one performer; use it with --faces 1")
+    n = max(o.faces, 1)
+    check_output_dir(
+        o.record, (*output_names(n)[: 2 * n], "report.json", *(("motion.vrma",) if o.vrma else ())), o.force
+    )
+
+
 def _check(o: LiveOptions) -> _Outputs:
     """Every check that needs no device and no model, in the order the user meets them."""
-    from facecapges.errors import UserError, check_output_dir, check_port
-    from facecapges.io.face_json import check_face_layout
+    from facecapges.errors import UserError, check_port
     from facecapges.runtime.outputs.viewer import is_loopback, parse_address
 
     if o.livelink is not None:
@@ -159,6 +202,7 @@ def _check(o: LiveOptions) -> _Outputs:
         if not is_loopback(web_addr[0]) and o.host is None:
             raise UserError(f"--web {o.web}: refusing to serve on a non-loopback address without --host {web_addr[0]}")
     vmc_addr = parse_address(o.vmc, LOOPBACK, "--vmc") if o.vmc is not None else None
+    avatar = None
     if o.avatar is not None:
         from facecapges.avatar.vrm.read import load_model
 
@@ -166,35 +210,14 @@ def _check(o: LiveOptions) -> _Outputs:
             raise UserError(
                 "--avatar is the avatar of the browser viewer; pass --web too (VMC receivers show their own avatar)"
             )
-        load_model(o.avatar)  # a bad file fails here, before any device opens
+        avatar = load_model(o.avatar)  # a bad file fails here, before any device opens
     if o.vrma and o.record is None:
         raise UserError("--vrma records into --record DIR; pass --record too")
     if o.record is not None:
-        from facecapges.runtime.run import output_names
-
-        if o.vrma and o.faces > 1:
-            raise UserError("--vrma records one performer; use it with --faces 1")
-        n = max(o.faces, 1)
-        check_output_dir(
-            o.record, (*output_names(n)[: 2 * n], "report.json", *(("motion.vrma",) if o.vrma else ())), o.force
-        )
+        _check_record(o)
     if o.max_seconds is not None and o.max_seconds <= 0:
         raise UserError("--max-seconds must be positive")
-    if o.vmc_avatar is not None and o.vmc is None:
-        raise UserError("--vmc-avatar needs --vmc HOST:PORT")
-    check_face_layout(o.face_json)
-    from facecapges.runtime.outputs.vmc import BLEND_MODES, PARTS
-
-    if o.vmc_blend not in BLEND_MODES:
-        raise UserError(f"--vmc-blend {o.vmc_blend}: choose {', '.join(BLEND_MODES[:-1])} or {BLEND_MODES[-1]}")
-    if o.vmc_parts not in PARTS:
-        raise UserError(f"--vmc-parts {o.vmc_parts}: choose {', '.join(PARTS[:-1])} or {PARTS[-1]}")
-    if o.vmc_parts != "all" and o.vmc is None:
-        raise UserError("--vmc-parts needs --vmc HOST:PORT")
-    if o.vmc_avatar is not None:
-        from facecapges.avatar.vrm.read import load_model
-
-        load_model(o.vmc_avatar)  # a bad file fails here, before any device opens
+    vmc_avatar = _check_vmc(o)
     from facecapges.errors import check_port_free
     from facecapges.runtime.session import check_inputs
 
@@ -214,7 +237,7 @@ def _check(o: LiveOptions) -> _Outputs:
         intensity=o.intensity,
         host=bind,
     )
-    return _Outputs(web_addr, vmc_addr, bind, default_note)
+    return _Outputs(web_addr, vmc_addr, bind, default_note, avatar, vmc_avatar)
 
 
 def _check_rate(rate: float | None, fps: float) -> None:
@@ -230,15 +253,15 @@ def _check_rate(rate: float | None, fps: float) -> None:
 
 def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
     """The browser viewer on ``outs.web_addr`` (ours, or the --avatar VRM), added to the session's sinks."""
+    from facecapges.avatar.gltf import avatar_glb
     from facecapges.runtime.outputs.viewer import ViewerServer, WebFeed
-    from facecapges.runtime.run import avatar_glb
 
     ckpt = sess.checkpoint
     assert outs.web_addr is not None
     if o.avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/outputs/vrm_viewer.py)
         from facecapges.runtime.outputs.vrm_viewer import open_vrm_viewer
 
-        server, feed_sink = open_vrm_viewer(o.avatar, ckpt, outs.web_addr)
+        server, feed_sink = open_vrm_viewer(outs.avatar, ckpt, outs.web_addr)
         if o.faces > 1:  # the VRM viewer shows one avatar: the first face
             from facecapges.runtime.outputs.recorders import ForFace
 
@@ -338,27 +361,17 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
     return report
 
 
-def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
-    """The whole ``live`` command: check ``o``, open inputs and outputs, run until stopped; returns the report.
-
-    ``say(text, err=False)`` gets the start line, the status lines (``err=True``) and the
-    summary; ``warn(text)`` the warnings and notes. The report is also written to
-    ``--record``'s ``report.json``.
-    """
+def _open_session(o: LiveOptions, outs: _Outputs, ckpt):
+    """The session with its recorders and VMC senders (one set per face) and the ``--vrma`` recorder."""
     from facecapges.runtime.session import build_session
-    from facecapges.styles import load_style
 
-    o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
-    outs = _check(o)
-    ckpt = load_style(o.checkpoint, o.style)
-    _check_rate(o.rate, ckpt.fps)
     sinks, outs.senders, outs.ups = per_face_sinks(
         ckpt,
         o.faces,
         o.record,
         outs.vmc_addr,
         vmc_blend=o.vmc_blend,
-        vmc_avatar=o.vmc_avatar,
+        vmc_avatar=outs.vmc_avatar,
         vmc_parts=o.vmc_parts,
         rate=o.rate,
         face_layout=o.face_json,
@@ -386,30 +399,30 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         faces=o.faces,
         intensity=o.intensity,
     )
-    feed = sess.face_feed  # close() forgets it; the report asks it for its stats
-    try:
-        for note in sess.notes:
-            warn(f"warning: {note}")
-        if outs.web_addr is not None:
-            _open_viewer(o, outs, sess)
-            say(f"viewer: {outs.server.url}")
-        if outs.default_note:
-            say(outs.default_note)
-        if outs.senders:
-            from facecapges.runtime.outputs.vmc import vmc_note
+    return sess
 
-            warn(f"note: {vmc_note(o.vmc_avatar, o.vmc_parts)}")
-        hint = livelink_hint(sess.face_feed, outs.bind) if sess.face_feed is not None else None
-        if hint:
-            warn(f"note: {hint}")
-        say(_start_line(o, outs, sess))
-        max_frames = int(round(o.max_seconds * ckpt.fps)) if o.max_seconds else None
-        why = sess.scheduler.run(max_frames=max_frames, on_frame=_status(sess, outs, say))
-    except KeyboardInterrupt:
-        why = "interrupted"
-    finally:
-        written = sess.close()
-    report = _report(o, outs, sess.scheduler, feed, why)
+
+def _announce(o: LiveOptions, outs: _Outputs, sess, say: Callable[..., None], warn: Callable[[str], None]) -> None:
+    """The session's notes, the viewer (opened here), the VMC and Live Link notes and the start line."""
+    for note in sess.notes:
+        warn(f"warning: {note}")
+    if outs.web_addr is not None:
+        _open_viewer(o, outs, sess)
+        say(f"viewer: {outs.server.url}")
+    if outs.default_note:
+        say(outs.default_note)
+    if outs.senders:
+        from facecapges.runtime.outputs.vmc import vmc_note
+
+        warn(f"note: {vmc_note(o.vmc_avatar, o.vmc_parts)}")
+    hint = livelink_hint(sess.face_feed, outs.bind) if sess.face_feed is not None else None
+    if hint:
+        warn(f"note: {hint}")
+    say(_start_line(o, outs, sess))
+
+
+def _finish(o: LiveOptions, report: dict, written: list, why: str, say: Callable[..., None]) -> None:
+    """report.json into ``--record``, the closing line and the files written."""
     if o.record is not None:
         o.record.mkdir(parents=True, exist_ok=True)
         (o.record / "report.json").write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
@@ -421,4 +434,31 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
     )
     for p in written:
         say(f"wrote {p}")
+
+
+def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
+    """The whole ``live`` command: check ``o``, open inputs and outputs, run until stopped; returns the report.
+
+    ``say(text, err=False)`` gets the start line, the status lines (``err=True``) and the
+    summary; ``warn(text)`` the warnings and notes. The report is also written to
+    ``--record``'s ``report.json``.
+    """
+    from facecapges.styles import load_style
+
+    o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
+    outs = _check(o)
+    ckpt = load_style(o.checkpoint, o.style)
+    _check_rate(o.rate, ckpt.fps)
+    sess = _open_session(o, outs, ckpt)
+    feed = sess.face_feed  # close() forgets it; the report asks it for its stats
+    try:
+        _announce(o, outs, sess, say, warn)
+        max_frames = int(round(o.max_seconds * ckpt.fps)) if o.max_seconds else None
+        why = sess.scheduler.run(max_frames=max_frames, on_frame=_status(sess, outs, say))
+    except KeyboardInterrupt:
+        why = "interrupted"
+    finally:
+        written = sess.close()
+    report = _report(o, outs, sess.scheduler, feed, why)
+    _finish(o, report, written, why, say)
     return report

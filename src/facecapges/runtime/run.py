@@ -41,13 +41,6 @@ OUR_AVATAR = "ours (BEAT skeleton, face: 52 ARKit morph targets)"
 OUTPUTS = ("motion.bvh", "face.json", "avatar.mp4", "side_by_side.mp4", "report.json")
 
 
-def avatar_glb(skeleton) -> bytes:
-    from facecapges.avatar.body import default_avatar
-    from facecapges.avatar.gltf import avatar_to_gltf
-
-    return b"".join(avatar_to_gltf(default_avatar(skeleton)).save_to_bytes())
-
-
 def _label(img: np.ndarray, text: str, x: int, dark: bool = False) -> None:
     import cv2
 
@@ -70,6 +63,36 @@ def _frames(mp4: Path):
             yield cv2.cvtColor(np.frombuffer(raw, np.uint8).reshape(h, w, 3), cv2.COLOR_RGB2BGR)
     finally:
         reader.close()
+
+
+def _panels(frame, avs: list[np.ndarray], height: int, with_input: bool) -> np.ndarray:
+    """One frame of :func:`side_by_side`: the input frame (black before the first) and the avatars,
+    each scaled to ``height`` and labelled."""
+    import cv2
+
+    panels = []
+    if with_input:
+        src = frame if frame is not None else np.zeros((height, height, 3), np.uint8)
+        panels.append(
+            cv2.resize(
+                src,
+                (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
+                interpolation=cv2.INTER_AREA,
+            )
+        )
+    for av in avs:
+        if av.shape[0] != height:
+            av = cv2.resize(av, (int(round(av.shape[1] * height / av.shape[0])), height), interpolation=cv2.INTER_AREA)
+        panels.append(av)
+    img = np.hstack(panels)
+    x = 0
+    if with_input:
+        _label(img, "input", 10)
+        x = panels[0].shape[1]
+    for i, p in enumerate(panels[int(with_input) :]):
+        _label(img, "avatar" if len(avs) == 1 else f"avatar {i + 1}", x + 10, dark=True)
+        x += p.shape[1]
+    return img
 
 
 def side_by_side(
@@ -107,30 +130,7 @@ def side_by_side(
                 avs = [next(r) for r in readers]
             except StopIteration:
                 break
-            panels = []
-            if with_input:
-                src = frame if frame is not None else np.zeros((height, height, 3), np.uint8)
-                panels.append(
-                    cv2.resize(
-                        src,
-                        (int(round(src.shape[1] * height / src.shape[0])) // 2 * 2, height),
-                        interpolation=cv2.INTER_AREA,
-                    )
-                )
-            for av in avs:
-                if av.shape[0] != height:
-                    av = cv2.resize(
-                        av, (int(round(av.shape[1] * height / av.shape[0])), height), interpolation=cv2.INTER_AREA
-                    )
-                panels.append(av)
-            img = np.hstack(panels)
-            x = 0
-            if with_input:
-                _label(img, "input", 10)
-                x = panels[0].shape[1]
-            for i, p in enumerate(panels[int(with_input) :]):
-                _label(img, "avatar" if len(avs) == 1 else f"avatar {i + 1}", x + 10, dark=True)
-                x += p.shape[1]
+            img = _panels(frame, avs, height, with_input)
             writer.write(img)
         if not writer.frames:
             raise UserError(f"{avatar_mp4s[0]}: no frames to put side by side")
@@ -171,46 +171,12 @@ def parse_size(text: str | None, default: tuple[int, int] = DEFAULT_VIDEO_SIZE) 
     return w // 2 * 2, h // 2 * 2
 
 
-def run_video(
-    video: str | Path,
-    out_dir: str | Path,
-    checkpoint,
-    audio: str | Path | None = None,
-    max_frames: int | None = None,
-    force: bool = False,
-    progress: bool = True,
-    videos: bool = True,
-    estimator: str = "hybrid",
-    head: str = "capture",
-    faces: int = 1,
-    video_size: tuple[int, int] = DEFAULT_VIDEO_SIZE,
-    avatar: str | Path | None = None,
-    face_layout: str = "beat",
-    intensity: float = 1.0,
-) -> dict:
-    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
-    shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view)."""
-    from facecapges.io.audio import save_audio
-    from facecapges.progress import Progress
-    from facecapges.runtime.head import check_head_mode, head_follow
-    from facecapges.runtime.inputs.sources import FileAudio
+def _recorders(out_dir: Path, checkpoint, faces: int, face_layout: str):
+    """Each face's recorders: its motion BVH, its face JSON and a memory of its frames (for the videos).
+    Returns (the memories, the sinks)."""
     from facecapges.runtime.interfaces import Sink
     from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
-    from facecapges.runtime.session import build_session, full_quaternions
 
-    t_start = time.perf_counter()
-    video = Path(video)
-    out_dir = Path(out_dir)
-    check_head_mode(head)
-    check_output_dir(out_dir, output_names(faces), force)
-    if max_frames is not None and max_frames < 1:
-        raise UserError("--max-frames must be at least 1")
-    fps = checkpoint.fps
-    driver = None
-    if avatar is not None and videos:
-        from facecapges.avatar.vrm.view import VrmDriver
-
-        driver = VrmDriver.from_file(avatar, checkpoint.skeleton)  # a bad file fails before the run
     mems: list[MemoryRecorder] = []
     sinks: list[Sink] = []
     for i in range(faces):
@@ -218,27 +184,25 @@ def run_video(
         mem = MemoryRecorder()
         mems.append(mem)
         per: list[Sink] = [
-            BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, fps),
-            FaceJsonRecorder(out_dir / f"face{sfx}.json", fps, face_layout),
+            BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, checkpoint.fps),
+            FaceJsonRecorder(out_dir / f"face{sfx}.json", checkpoint.fps, face_layout),
             mem,
         ]
         sinks += per if faces == 1 else [ForFace(i, x) for x in per]
-    sess = build_session(
-        checkpoint,
-        video=video,
-        audio=audio,
-        realtime=False,
-        estimator=estimator,
-        sinks=sinks,
-        head=head,
-        faces=faces,
-        intensity=intensity,
-    )
+    return mems, sinks
+
+
+def _run_frames(sess, video: Path, out_dir: Path, max_frames: int | None, progress: bool):
+    """Run the session over the whole audio (or ``max_frames``); closes it. Returns (why it stopped, frames
+    with a face found, the loop's seconds, the input audio)."""
+    from facecapges.progress import Progress
+    from facecapges.runtime.inputs.sources import FileAudio
+
     sched = sess.scheduler
     audio_src = sess.audio
     assert isinstance(audio_src, FileAudio)  # run reads its speech from a file
     try:
-        total = timing.n_frames_for(audio_src.duration_s, fps)
+        total = timing.n_frames_for(audio_src.duration_s, sess.checkpoint.fps)
         if max_frames is not None:
             total = min(total, max_frames)
         out_dir.mkdir(parents=True, exist_ok=True)
@@ -256,71 +220,51 @@ def run_video(
         input_audio = audio_src.samples
     finally:
         sess.close()
-    if why == "interrupted":
-        raise KeyboardInterrupt
-    report = {
-        "video": str(video),
-        "audio": str(audio or video),
-        "checkpoint": str(checkpoint.path),
-        **sched.report(),
-        "head": head,
-        "faces": faces,
-        "face_found_frames": found[0],
-        "outputs": {},
-    }
-    T = sched.frames
-    follow = [
-        head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0} for m in mems
-    ]
-    report["head_follow"] = follow[0] if faces == 1 else follow
-    report["seconds"] = {"pipeline": round(t_loop_end - t_loop, 3)}
-    report["ms_per_frame_wall"] = round((t_loop_end - t_loop) * 1000 / max(T, 1), 3)
-    inset = shows_face_inset(driver)
-    if videos:
-        report["avatar"] = driver.describe() if driver is not None else OUR_AVATAR
-        report["face_inset"] = inset
-    if videos and T > 0:
-        from facecapges.avatar.render.video import our_avatar, render_video
+    return why, found[0], t_loop_end - t_loop, input_audio
 
-        t0 = time.perf_counter()
-        glb = avatar_glb(checkpoint.skeleton)
-        width, height = video_size
-        with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
-            wav = Path(tmp) / "audio.wav"
-            n = int(timing.frame_sample_bounds(T, fps)[0])  # the samples frames 0 … T−1 own
-            save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
-            renders = []
-            for i, m in enumerate(mems):
-                weights = np.clip(np.stack(m.weights), 0.0, 1.0)
-                dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
-                if driver is not None:  # the VRM's frames: its normalised bones and expressions
-                    from facecapges.avatar.retarget import upper_body_locals
 
-                    page = driver.page()
-                    quats, weights = driver.frames(upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights)
-                else:
-                    page = our_avatar(glb)
-                    quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
-                render_video(
-                    page,
-                    quats,
-                    weights,
-                    fps,
-                    dest,
-                    audio=wav,
-                    progress=progress,
-                    width=width,
-                    height=height,
-                    inset=inset,
-                )
-                renders.append(dest)
-            if faces > 1:
-                side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)
-            t1 = time.perf_counter()
-            side_by_side(video, renders, out_dir / "side_by_side.mp4", fps, T, wav, height=height)
-            t2 = time.perf_counter()
-        report["seconds"].update({"avatar_video": round(t1 - t0, 3), "side_by_side_video": round(t2 - t1, 3)})
-    report["seconds"]["total"] = round(time.perf_counter() - t_start, 3)
+def _render_videos(
+    video: Path, out_dir: Path, checkpoint, mems, driver, input_audio, T: int, video_size, progress: bool, inset: bool
+) -> dict[str, float]:
+    """avatar.mp4 (each face's avatar, side by side for several) and side_by_side.mp4; returns their seconds."""
+    from facecapges.avatar.gltf import avatar_glb, full_quaternions
+    from facecapges.avatar.render.video import our_avatar, render_video
+    from facecapges.io.audio import save_audio
+
+    fps, faces = checkpoint.fps, len(mems)
+    t0 = time.perf_counter()
+    glb = avatar_glb(checkpoint.skeleton)
+    width, height = video_size
+    with tempfile.TemporaryDirectory(prefix="facecapges-run-") as tmp:
+        wav = Path(tmp) / "audio.wav"
+        n = int(timing.frame_sample_bounds(T, fps)[0])  # the samples frames 0 … T−1 own
+        save_audio(wav, np.pad(input_audio[:n], (0, max(0, n - len(input_audio[:n])))))
+        renders = []
+        for i, m in enumerate(mems):
+            weights = np.clip(np.stack(m.weights), 0.0, 1.0)
+            dest = out_dir / "avatar.mp4" if faces == 1 else Path(tmp) / f"avatar_{i + 1}.mp4"
+            if driver is not None:  # the VRM's frames: its normalised bones and expressions
+                from facecapges.avatar.retarget import upper_body_locals
+
+                page = driver.page()
+                quats, weights = driver.frames(upper_body_locals(checkpoint.skeleton, np.stack(m.quats)), weights)
+            else:
+                page = our_avatar(glb)
+                quats = full_quaternions(checkpoint.skeleton, np.stack(m.quats))
+            render_video(
+                page, quats, weights, fps, dest, audio=wav, progress=progress, width=width, height=height, inset=inset
+            )
+            renders.append(dest)
+        if faces > 1:
+            side_by_side(video, renders, out_dir / "avatar.mp4", fps, T, wav, height=height, with_input=False)
+        t1 = time.perf_counter()
+        side_by_side(video, renders, out_dir / "side_by_side.mp4", fps, T, wav, height=height)
+        t2 = time.perf_counter()
+    return {"avatar_video": round(t1 - t0, 3), "side_by_side_video": round(t2 - t1, 3)}
+
+
+def _write_report(out_dir: Path, report: dict, faces: int) -> None:
+    """The outputs written into the report, and report.json (written whole or not at all)."""
     for name in output_names(faces)[:-1]:
         p = out_dir / name
         if p.exists():
@@ -329,58 +273,102 @@ def run_video(
     tmp = out_dir / "report.json.part"
     tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     tmp.replace(out_dir / "report.json")
+
+
+def _run_report(video: Path, audio, checkpoint, sched, head: str, faces: int, found: int, mems, loop_s: float) -> dict:
+    """The report of a ``run``: inputs, the scheduler's figures, how the head followed, the loop's time."""
+    from facecapges.runtime.head import head_follow
+
+    report = {
+        "video": str(video),
+        "audio": str(audio or video),
+        "checkpoint": str(checkpoint.path),
+        **sched.report(),
+        "head": head,
+        "faces": faces,
+        "face_found_frames": found,
+        "outputs": {},
+    }
+    T = sched.frames
+    follow = [
+        head_follow(np.stack(m.poses), np.stack(m.heads), np.array(m.found)) if m.poses else {"frames": 0} for m in mems
+    ]
+    report["head_follow"] = follow[0] if faces == 1 else follow
+    report["seconds"] = {"pipeline": round(loop_s, 3)}
+    report["ms_per_frame_wall"] = round(loop_s * 1000 / max(T, 1), 3)
     return report
 
 
-def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
-    """The whole ``run`` command: check ``o``, :func:`run_video`, tell the user; returns the report.
+def _vrm_driver(avatar, skeleton):
+    """The VRM shown in avatar.mp4 (a file, or its model already read): a bad file fails before the run."""
+    from facecapges.avatar.vrm.view import VrmDriver
 
-    ``say`` gets the summary (the report as JSON with ``o.json_out``), ``warn`` a
-    warning when no face was found at all.
-    """
-    from facecapges.io.audio import check_audio
-    from facecapges.io.face_json import check_face_layout
-    from facecapges.runtime.session import check_inputs
+    return VrmDriver.of(avatar, skeleton)
 
-    # every check before the model loads (a bad path or file type in a second, not after the load)
-    size = parse_size(o.video_size)
-    check_inputs(video=o.video, audio=o.audio, estimator=o.estimator, head=o.head, faces=o.faces, intensity=o.intensity)
-    if o.audio is None:  # the speech is the video's own track
-        try:
-            check_audio(o.video)
-        except UserError as exc:
-            raise UserError(f"{exc} — the video needs an audio track, or pass --audio FILE") from None
-    check_face_layout(o.face_json)
-    check_output_dir(o.out, output_names(o.faces), o.force)
-    if o.max_frames is not None and o.max_frames < 1:
+
+def run_video(
+    video: str | Path,
+    out_dir: str | Path,
+    checkpoint,
+    audio: str | Path | None = None,
+    max_frames: int | None = None,
+    force: bool = False,
+    progress: bool = True,
+    videos: bool = True,
+    estimator: str = "hybrid",
+    head: str = "capture",
+    faces: int = 1,
+    video_size: tuple[int, int] = DEFAULT_VIDEO_SIZE,
+    avatar=None,
+    face_layout: str = "beat",
+    intensity: float = 1.0,
+) -> dict:
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
+    (a file, or its VrmModel already read) shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view)."""
+    from facecapges.runtime.head import check_head_mode
+    from facecapges.runtime.session import build_session
+
+    t_start = time.perf_counter()
+    video = Path(video)
+    out_dir = Path(out_dir)
+    check_head_mode(head)
+    check_output_dir(out_dir, output_names(faces), force)
+    if max_frames is not None and max_frames < 1:
         raise UserError("--max-frames must be at least 1")
-    if o.avatar is not None and not o.no_video:
-        from facecapges.avatar.vrm.read import load_model
-
-        load_model(o.avatar)
-    from facecapges.styles import load_style
-
-    ckpt = load_style(o.checkpoint, o.style)
-    report = run_video(
-        o.video,
-        o.out,
-        ckpt,
-        audio=o.audio,
-        max_frames=o.max_frames,
-        force=o.force,
-        progress=not o.json_out,
-        videos=not o.no_video,
-        estimator=o.estimator,
-        head=o.head,
-        faces=o.faces,
-        video_size=size,
-        avatar=o.avatar,
-        face_layout=o.face_json,
-        intensity=o.intensity,
+    driver = _vrm_driver(avatar, checkpoint.skeleton) if avatar is not None and videos else None
+    mems, sinks = _recorders(out_dir, checkpoint, faces, face_layout)
+    sess = build_session(
+        checkpoint,
+        video=video,
+        audio=audio,
+        realtime=False,
+        estimator=estimator,
+        sinks=sinks,
+        head=head,
+        faces=faces,
+        intensity=intensity,
     )
-    if o.json_out:
-        say(json.dumps(report, indent=2))
-        return report
+    sched = sess.scheduler
+    why, found, loop_s, input_audio = _run_frames(sess, video, out_dir, max_frames, progress)
+    if why == "interrupted":
+        raise KeyboardInterrupt
+    report = _run_report(video, audio, checkpoint, sched, head, faces, found, mems, loop_s)
+    T = sched.frames
+    inset = shows_face_inset(driver)
+    if videos:
+        report["avatar"] = driver.describe() if driver is not None else OUR_AVATAR
+        report["face_inset"] = inset
+    if videos and T > 0:
+        report["seconds"].update(
+            _render_videos(video, out_dir, checkpoint, mems, driver, input_audio, T, video_size, progress, inset)
+        )
+    report["seconds"]["total"] = round(time.perf_counter() - t_start, 3)
+    _write_report(out_dir, report, faces)
+    return report
+
+
+def _say_summary(o: RunOptions, report: dict, say: Callable[..., None], warn: Callable[[str], None]) -> None:
+    """The summary of a ``run``: frames and timing, the avatar, the files written, events and notes."""
     lat = report["latency_ms"]["total"]
     say(
         f"{report['frames']} frames → {o.out}  (compute per frame p50 {lat['p50']:.1f} ms, "
@@ -407,4 +395,57 @@ def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[
             "warning: no face was found in any frame of the video; the avatar's face stayed neutral "
             "and its head at rest"
         )
+
+
+def run_offline(o: RunOptions, say: Callable[..., None] = echo, warn: Callable[[str], None] = echo_warning) -> dict:
+    """The whole ``run`` command: check ``o``, :func:`run_video`, tell the user; returns the report.
+
+    ``say`` gets the summary (the report as JSON with ``o.json_out``), ``warn`` a
+    warning when no face was found at all.
+    """
+    from facecapges.io.audio import check_audio
+    from facecapges.io.face_json import check_face_layout
+    from facecapges.runtime.session import check_inputs
+
+    # every check before the model loads (a bad path or file type in a second, not after the load)
+    size = parse_size(o.video_size)
+    check_inputs(video=o.video, audio=o.audio, estimator=o.estimator, head=o.head, faces=o.faces, intensity=o.intensity)
+    if o.audio is None:  # the speech is the video's own track
+        try:
+            check_audio(o.video)
+        except UserError as exc:
+            raise UserError(f"{exc} — the video needs an audio track, or pass --audio FILE") from None
+    check_face_layout(o.face_json)
+    check_output_dir(o.out, output_names(o.faces), o.force)
+    if o.max_frames is not None and o.max_frames < 1:
+        raise UserError("--max-frames must be at least 1")
+    avatar = None
+    if o.avatar is not None and not o.no_video:
+        from facecapges.avatar.vrm.read import load_model
+
+        avatar = load_model(o.avatar)  # a bad file fails here, before the model loads; parsed once
+    from facecapges.styles import load_style
+
+    ckpt = load_style(o.checkpoint, o.style)
+    report = run_video(
+        o.video,
+        o.out,
+        ckpt,
+        audio=o.audio,
+        max_frames=o.max_frames,
+        force=o.force,
+        progress=not o.json_out,
+        videos=not o.no_video,
+        estimator=o.estimator,
+        head=o.head,
+        faces=o.faces,
+        video_size=size,
+        avatar=avatar,
+        face_layout=o.face_json,
+        intensity=o.intensity,
+    )
+    if o.json_out:
+        say(json.dumps(report, indent=2))
+        return report
+    _say_summary(o, report, say, warn)
     return report

@@ -318,33 +318,23 @@ class Scheduler:
         self._t_input = time.perf_counter()
         return [sample]
 
-    def step(self) -> OutputFrame:
-        """Produce frame ``self.frames`` from what exists before its deadline (returns the first face's)."""
-        k = self.frames
-        deadline = (k + 1) / self.fps
-        now = None
+    def _wait(self, deadline: float) -> tuple[float | None, bool]:
+        """In real time, wait for ``deadline`` (+ the input slack): (the clock then, whether the frame is late
+        by more than a frame); off line (None, False)."""
+        if not self.realtime:
+            return None, False
         behind = False
-        if self.realtime:
-            due = deadline + self.input_slack_s
-            wait = due - self._now_s()
-            if wait > 0:
-                time.sleep(wait)
-            elif -wait > 1.0 / self.fps:
-                self.events["late_frames"] += 1
-                behind = True
-            now = self._now_s()
-        stage: dict[str, float] = {}
-        self._stage = stage
-        t_start = time.perf_counter()
-        # 1. capture (behind the clock: the camera's frames are dropped, the model still gets this frame's audio)
-        if self.video is not None or self.face_feed is not None:
-            samples = self._capture(deadline, behind)
-            t_start = self._t_input  # reading/decoding the frame is input, not compute
-        else:
-            samples = [None] * len(self.streams)
-        t1 = time.perf_counter()
-        stage["capture"] = (t1 - t_start) * 1000.0
-        # 2. features: this frame's audio, face and head, with fallbacks
+        due = deadline + self.input_slack_s
+        wait = due - self._now_s()
+        if wait > 0:
+            time.sleep(wait)
+        elif -wait > 1.0 / self.fps:
+            self.events["late_frames"] += 1
+            behind = True
+        return self._now_s(), behind
+
+    def _frame_audio(self, k: int, now: float | None) -> np.ndarray:
+        """Frame ``k``'s audio samples (zeros where the input has none yet: an underrun, counted)."""
         s, e = timing.frame_sample_bounds(k, self.fps, self.sr)
         s, e = int(s), int(e)
         if self.audio is not None:
@@ -355,6 +345,10 @@ class Scheduler:
             a = np.zeros(0, np.float32)
         audio = np.zeros(e - s, np.float32)
         audio[: len(a)] = a[: e - s]
+        return audio
+
+    def _inputs(self, k: int, audio: np.ndarray, samples: list, deadline: float) -> list[InputFrame]:
+        """Each face's input frame: its fresh capture, else its held face and head (fallbacks counted)."""
         inputs = []
         for st, sample in zip(self.streams, samples):
             if sample is not None:
@@ -369,16 +363,10 @@ class Scheduler:
                     self.events["face_lost_events"] += 1
             st.was_found = found
             inputs.append(InputFrame(k, audio, face, head, found))
-        t2 = time.perf_counter()
-        c2 = time.thread_time()
-        stage["features"] = (t2 - t1) * 1000.0
-        # 3. model
-        poses = [st.gen.step(inp.audio, inp.face, inp.head) for st, inp in zip(self.streams, inputs)]
-        t3 = time.perf_counter()
-        c3 = time.thread_time()
-        stage["model"] = (t3 - t2) * 1000.0
-        stage["model_cpu"] = (c3 - c2) * 1000.0
-        # 4. output: the head and the face the avatar shows
+        return inputs
+
+    def _outputs(self, k: int, inputs: list[InputFrame], poses: list, stage: dict[str, float]) -> list[OutputFrame]:
+        """Each face's output frame: the head and the face the avatar shows."""
         outs = []
         for st, inp, pose in zip(self.streams, inputs, poses):
             pose = st.head(pose, inp.head, inp.face_found, k / self.fps)
@@ -389,6 +377,37 @@ class Scheduler:
                 shown = np.clip(inp.face + (1.0 - st.hold.remaining) * mouth, 0.0, 1.0).astype(np.float32)
             quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
             outs.append(OutputFrame(k, k / self.fps, pose, quats, shown, inp.head, inp.face_found, stage, st.index))
+        return outs
+
+    def step(self) -> OutputFrame:
+        """Produce frame ``self.frames`` from what exists before its deadline (returns the first face's)."""
+        k = self.frames
+        deadline = (k + 1) / self.fps
+        now, behind = self._wait(deadline)
+        stage: dict[str, float] = {}
+        self._stage = stage
+        t_start = time.perf_counter()
+        # 1. capture (behind the clock: the camera's frames are dropped, the model still gets this frame's audio)
+        if self.video is not None or self.face_feed is not None:
+            samples = self._capture(deadline, behind)
+            t_start = self._t_input  # reading/decoding the frame is input, not compute
+        else:
+            samples = [None] * len(self.streams)
+        t1 = time.perf_counter()
+        stage["capture"] = (t1 - t_start) * 1000.0
+        # 2. features: this frame's audio, face and head, with fallbacks
+        inputs = self._inputs(k, self._frame_audio(k, now), samples, deadline)
+        t2 = time.perf_counter()
+        c2 = time.thread_time()
+        stage["features"] = (t2 - t1) * 1000.0
+        # 3. model
+        poses = [st.gen.step(inp.audio, inp.face, inp.head) for st, inp in zip(self.streams, inputs)]
+        t3 = time.perf_counter()
+        c3 = time.thread_time()
+        stage["model"] = (t3 - t2) * 1000.0
+        stage["model_cpu"] = (c3 - c2) * 1000.0
+        # 4. output: the head and the face the avatar shows
+        outs = self._outputs(k, inputs, poses, stage)
         stage["total"] = (time.perf_counter() - t_start) * 1000.0  # pose + blendshapes ready (sinks see this)
         for out in outs:
             for sink in self.sinks:

@@ -13,8 +13,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from facecapges.errors import UserError
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
 from facecapges.timing import AUDIO_SR
@@ -79,15 +77,29 @@ class Session:
         return written
 
 
-def full_quaternions(skeleton, quats47: np.ndarray) -> np.ndarray:
-    """(T, 47, 4) upper-body quaternions → (T, J, 4) for every joint of ``skeleton`` (others at rest)."""
-    from facecapges.skeleton import upper_body_indices
+def _open_inputs_once(video, camera, livelink, audio, mic, depth_dir, intrinsics, host: str) -> None:
+    """Open each chosen input once (:func:`check_inputs` with ``devices``): the video decodes a frame, the
+    audio's header reads, the camera opens, the microphone answers, the Live Link port binds."""
+    from facecapges.capture.video import check_camera, check_video
+    from facecapges.errors import check_port_free
+    from facecapges.io.audio import check_audio
 
-    q = np.asarray(quats47, np.float32)
-    out = np.zeros((q.shape[0], skeleton.n_joints, 4), np.float32)
-    out[..., 0] = 1.0
-    out[:, upper_body_indices(skeleton)] = q
-    return out
+    if video is not None:
+        check_video(video)
+        if depth_dir is not None or intrinsics is not None:
+            from facecapges.capture.depth import check_depth_inputs
+
+            check_depth_inputs(depth_dir, intrinsics)
+    elif camera is not None:
+        check_camera(int(camera))
+    elif livelink is not None:
+        check_port_free(host, int(livelink), "--livelink", udp=True)
+    if audio is not None:
+        check_audio(audio)
+    elif mic is not None or video is None:
+        from facecapges.runtime.inputs.sources import check_mic
+
+        check_mic(mic)
 
 
 def check_inputs(
@@ -132,26 +144,86 @@ def check_inputs(
         raise UserError("--faces N needs a camera or a video: Live Link sends one face")
     if not devices:
         return
-    from facecapges.capture.video import check_camera, check_video
-    from facecapges.errors import check_port_free
-    from facecapges.io.audio import check_audio
+    _open_inputs_once(video, camera, livelink, audio, mic, depth_dir, intrinsics, host)
+
+
+def _open_video(sess: Session, video, camera, livelink, depth_dir, intrinsics, host: str) -> None:
+    """The visual source, first: a camera that cannot open is reported before anything else."""
+    from facecapges.runtime.inputs import sources as S
 
     if video is not None:
-        check_video(video)
-        if depth_dir is not None or intrinsics is not None:
-            from facecapges.capture.depth import check_depth_inputs
-
-            check_depth_inputs(depth_dir, intrinsics)
+        sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics)
     elif camera is not None:
-        check_camera(int(camera))
-    elif livelink is not None:
-        check_port_free(host, int(livelink), "--livelink", udp=True)
-    if audio is not None:
-        check_audio(audio)
-    elif mic is not None or video is None:
-        from facecapges.runtime.inputs.sources import check_mic
+        sess.video = S.CameraVideo(camera)
+    elif livelink is not None:  # one input was chosen by check_inputs
+        sess.face_feed = S.LiveLinkFace(livelink, host)
 
-        check_mic(mic)
+
+def _open_audio(sess: Session, video, audio, mic, realtime: bool, loop: bool, silent_ok: bool) -> None:
+    """The speech: a file, the microphone, or the video's own track (silence, with a note, when it has
+    none and ``silent_ok``); with ``loop`` the video loops with the audio's period."""
+    from facecapges.runtime.inputs import sources as S
+
+    sr = AUDIO_SR
+    if audio is not None:
+        sess.audio = S.FileAudio(audio, sr, realtime=realtime, loop=loop)
+    elif mic is not None or video is None:
+        sess.audio = S.MicAudio(mic, sr)
+    else:
+        try:
+            sess.audio = S.FileAudio(video, sr, realtime=realtime, loop=loop)
+        except UserError:
+            if not silent_ok:
+                raise
+            sess.notes.append(f"{video}: no readable audio track; the speech input is silence")
+    if loop and isinstance(sess.video, S.FileVideo):  # video and audio loop with one period
+        v = sess.video
+        v.loop_period_s = sess.audio.duration_s if isinstance(sess.audio, S.FileAudio) else (v.n_frames or 1) / v.fps
+
+
+def _open_capture(sess: Session, estimator: str, faces: int) -> None:
+    """The face capture of the video (with its depth head tracker when the file video has depth)."""
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.pipeline import FaceCapture
+    from facecapges.runtime.inputs import sources as S
+
+    assert sess.video is not None
+    resolve_model(None)
+    file_video = sess.video if isinstance(sess.video, S.FileVideo) else None
+    K = file_video.intrinsics if file_video is not None else None
+    sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
+    if file_video is not None and file_video.depth_files is not None and K is not None:
+        from facecapges.capture.depth import DepthHeadTracker
+
+        sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
+
+
+def _build_scheduler(sess: Session, sinks, faces: int, intensity: float, realtime: bool, head: str) -> None:
+    """One stream per face and the scheduler over the session's sources and ``sinks``."""
+    from facecapges.runtime.inputs import sources as S
+    from facecapges.runtime.scheduler import Scheduler
+
+    checkpoint = sess.checkpoint
+    fps, sr = checkpoint.fps, AUDIO_SR
+    slack = 0.0
+    if isinstance(sess.audio, S.MicAudio):
+        slack = sess.audio.latency_s + 0.02  # one 20 ms block
+    sess.sinks = list(sinks)
+    gens = sess.generators = [checkpoint.streaming() for _ in range(int(faces))]
+    sess.set_intensity(intensity)
+    sess.scheduler = Scheduler(
+        gens if faces > 1 else gens[0],
+        fps=fps,
+        sr=sr,
+        video=sess.video,
+        face_feed=sess.face_feed,
+        audio=sess.audio,
+        capture=sess.capture,
+        sinks=sess.sinks,
+        realtime=realtime,
+        input_slack_s=slack,
+        head=head,
+    )
 
 
 def build_session(
@@ -179,8 +251,6 @@ def build_session(
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
     how many faces of the video drive an avatar each (one generator per face).
     """
-    from facecapges.runtime.inputs import sources as S
-    from facecapges.runtime.scheduler import Scheduler
 
     check_inputs(
         video=video,
@@ -200,62 +270,12 @@ def build_session(
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
     sess = Session(checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
     torch.set_num_threads(1)
-    fps, sr = checkpoint.fps, AUDIO_SR
     try:
-        # the visual source first: a camera that cannot open is reported before anything else
-        if video is not None:
-            sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics)
-        elif camera is not None:
-            sess.video = S.CameraVideo(camera)
-        elif livelink is not None:  # one input was chosen above
-            sess.face_feed = S.LiveLinkFace(livelink, host)
-        if audio is not None:
-            sess.audio = S.FileAudio(audio, sr, realtime=realtime, loop=loop)
-        elif mic is not None or video is None:
-            sess.audio = S.MicAudio(mic, sr)
-        else:
-            try:
-                sess.audio = S.FileAudio(video, sr, realtime=realtime, loop=loop)
-            except UserError:
-                if not silent_ok:
-                    raise
-                sess.notes.append(f"{video}: no readable audio track; the speech input is silence")
-        if loop and isinstance(sess.video, S.FileVideo):  # video and audio loop with one period
-            v = sess.video
-            v.loop_period_s = (
-                sess.audio.duration_s if isinstance(sess.audio, S.FileAudio) else (v.n_frames or 1) / v.fps
-            )
+        _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host)
+        _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
         if sess.video is not None:
-            from facecapges.capture.models import resolve_model
-            from facecapges.capture.pipeline import FaceCapture
-
-            resolve_model(None)
-            file_video = sess.video if isinstance(sess.video, S.FileVideo) else None
-            K = file_video.intrinsics if file_video is not None else None
-            sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
-            if file_video is not None and file_video.depth_files is not None and K is not None:
-                from facecapges.capture.depth import DepthHeadTracker
-
-                sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
-        slack = 0.0
-        if isinstance(sess.audio, S.MicAudio):
-            slack = sess.audio.latency_s + 0.02  # one 20 ms block
-        sess.sinks = list(sinks)
-        gens = sess.generators = [checkpoint.streaming() for _ in range(int(faces))]
-        sess.set_intensity(intensity)
-        sess.scheduler = Scheduler(
-            gens if faces > 1 else gens[0],
-            fps=fps,
-            sr=sr,
-            video=sess.video,
-            face_feed=sess.face_feed,
-            audio=sess.audio,
-            capture=sess.capture,
-            sinks=sess.sinks,
-            realtime=realtime,
-            input_slack_s=slack,
-            head=head,
-        )
+            _open_capture(sess, estimator, faces)
+        _build_scheduler(sess, sinks, faces, intensity, realtime, head)
     except BaseException:
         sess.close()
         raise

@@ -214,6 +214,26 @@ def make_optimizer(module: torch.nn.Module, cfg: TrainConfig, lr: float) -> torc
 M = TypeVar("M", bound=torch.nn.Module)  # the variant's model class
 
 
+# the columns of a run's log.csv
+LOG_FIELDS = (
+    "epoch",
+    "total",
+    "rec",
+    "vel",
+    "acc",
+    "amp",
+    "adv",
+    "d",
+    "held_rec",
+    "held_vel",
+    "held_acc",
+    "held_amp",
+    "seconds",
+    "processes",
+    "global_batch",
+)
+
+
 @dataclass(frozen=True)
 class Variant(Generic[M]):
     """What one kind of generator needs from the trainer (module docs, "Model variants").
@@ -541,23 +561,7 @@ class Trainer:
         total = epochs or self.tcfg.epochs
         main = self.dist.is_main
         log_path = self.out / "log.csv"
-        fields = [
-            "epoch",
-            "total",
-            "rec",
-            "vel",
-            "acc",
-            "amp",
-            "adv",
-            "d",
-            "held_rec",
-            "held_vel",
-            "held_acc",
-            "held_amp",
-            "seconds",
-            "processes",
-            "global_batch",
-        ]
+        fields = list(LOG_FIELDS)
         if main:
             self.out.mkdir(parents=True, exist_ok=True)
         label = "train" if self.variant is CLOSED_LOOP else f"train {self.variant.name}"

@@ -65,11 +65,9 @@ def _our_avatar(o: RenderOptions, skeleton) -> tuple[bytes, list[str]]:
     from facecapges.errors import file_error, require_file
 
     if o.avatar_glb is None:
-        from facecapges.avatar.body import default_avatar
-        from facecapges.avatar.gltf import avatar_to_gltf
+        from facecapges.avatar.gltf import avatar_glb
 
-        doc = avatar_to_gltf(default_avatar(skeleton))
-        return b"".join(doc.save_to_bytes()), list(skeleton.names)
+        return avatar_glb(skeleton), list(skeleton.names)
     from facecapges.avatar.gltf_check import read_avatar_file
     from facecapges.avatar.vrm.glb import split_glb
 

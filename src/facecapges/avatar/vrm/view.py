@@ -65,6 +65,13 @@ class VrmDriver:
 
         return cls(load_model(path), skeleton)
 
+    @classmethod
+    def of(cls, avatar, skeleton) -> VrmDriver:
+        """The driver of ``avatar``: a file, or its :class:`~facecapges.avatar.vrm.read.VrmModel` already read."""
+        from facecapges.avatar.vrm.read import VrmModel
+
+        return cls(avatar, skeleton) if isinstance(avatar, VrmModel) else cls.from_file(avatar, skeleton)
+
     @property
     def layout(self) -> dict:
         return {

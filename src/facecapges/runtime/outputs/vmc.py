@@ -128,6 +128,7 @@ import socket
 import struct
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -135,6 +136,9 @@ from facecapges import rotations as rot
 from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_weights
 from facecapges.runtime.frames import OutputFrame
 from facecapges.skeleton import UPPER_BODY, Skeleton
+
+if TYPE_CHECKING:
+    from facecapges.avatar.vrm.read import VrmModel
 
 DEFAULT_HOST = "127.0.0.1"
 DEFAULT_PORT = 39539
@@ -224,19 +228,20 @@ def our_rig(skeleton: Skeleton) -> VmcRig:
     return VmcRig("our avatar (avatar build --format vrm / vrm0)", pos, eye, dict(eye))
 
 
-def vrm_rig(path: str | Path) -> VmcRig:
+def vrm_rig(avatar: str | Path | VrmModel) -> VmcRig:
     """A VRM 0.x / 1.0 (or humanoid GLB) file's rig, as UniVRM loads it (module docstring).
 
-    The file is read by :func:`facecapges.avatar.vrm.read.load_model` (UserError if it is no avatar).
+    A file is read by :func:`facecapges.avatar.vrm.read.load_model` (UserError if it is no avatar);
+    a model already read is used as it is.
     A bone's position is its node's rest translation relative to its parent node — the
     ``Transform.localPosition`` a VMC receiver sets. VRM 0.x faces −Z in glTF and UniVRM
     imports it with z negated; VRM 1.0 (and GLB) faces +Z and is imported with x negated.
     """
     from facecapges.avatar.vrm.glb import node_world_matrices, split_glb
-    from facecapges.avatar.vrm.read import load_model
+    from facecapges.avatar.vrm.read import VrmModel, load_model
 
-    model = load_model(path)
-    doc, _ = split_glb(model.data, str(path))
+    model = avatar if isinstance(avatar, VrmModel) else load_model(avatar)
+    doc, _ = split_glb(model.data, model.name)
     nodes = doc.get("nodes") or []
     world = node_world_matrices(doc)
     parent = np.full(len(nodes), -1)
@@ -245,7 +250,7 @@ def vrm_rig(path: str | Path) -> VmcRig:
             if isinstance(c, int) and 0 <= c < len(nodes):
                 parent[c] = i
     M = np.diag([1.0, 1.0, -1.0]) if model.kind == "vrm0" else np.diag(_UNITY_X)
-    rig = VmcRig(f"{Path(path).name} ({model.kind})", {}, {}, {})
+    rig = VmcRig(f"{Path(model.name).name} ({model.kind})", {}, {}, {})
     for bone, node in model.bones.items():
         p = int(parent[node])
         wp = world[p] if p >= 0 else np.eye(4)
@@ -423,8 +428,8 @@ class VmcSender:
         skeleton: the checkpoint's BEAT skeleton.
         host, port: the receiver.
         blend: which face clips to send, one of :data:`BLEND_MODES`.
-        avatar: the receiver's VRM file: its rest positions and bone frames are used (module
-            docstring); default: our own avatar's.
+        avatar: the receiver's VRM file (or that file read: its model or its :func:`vrm_rig`): its rest
+            positions and bone frames are used (module docstring); default: our own avatar's.
         parts: which bones (and whether the root and the face) are sent, one of :data:`PARTS`.
         max_datagram: the largest datagram, bytes.
     """
@@ -435,13 +440,14 @@ class VmcSender:
         host: str = DEFAULT_HOST,
         port: int = DEFAULT_PORT,
         blend: str = "vrm",
-        avatar: str | Path | None = None,
+        avatar: str | Path | VrmModel | VmcRig | None = None,
         parts: str = "all",
         max_datagram: int = MAX_DATAGRAM_BYTES,
     ):
         if blend not in BLEND_MODES:
             raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
-        self.mapping = VmcMapping(skeleton, vrm_rig(avatar) if avatar is not None else None, parts)
+        rig = avatar if isinstance(avatar, VmcRig) or avatar is None else vrm_rig(avatar)
+        self.mapping = VmcMapping(skeleton, rig, parts)
         self.blend = blend
         self.parts = parts
         self.host, self.port = host, port

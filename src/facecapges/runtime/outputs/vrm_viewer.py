@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -71,10 +70,14 @@ class VrmWebFeed:
         pass
 
 
-def open_vrm_viewer(avatar: str | Path, ckpt, address: tuple[str, int]):
-    """Start the VRM viewer for ``avatar`` on ``address``; returns (server, sink)."""
+def open_vrm_viewer(avatar, ckpt, address: tuple[str, int]):
+    """Start the VRM viewer for ``avatar`` (a file, or its :class:`~facecapges.avatar.vrm.read.VrmModel`
+    already read) on ``address``; returns (server, sink)."""
+    from facecapges.avatar.vrm.read import VrmModel
     from facecapges.avatar.vrm.view import VrmDriver
 
-    driver = VrmDriver.from_file(avatar, ckpt.skeleton)
+    driver = (
+        VrmDriver(avatar, ckpt.skeleton) if isinstance(avatar, VrmModel) else VrmDriver.from_file(avatar, ckpt.skeleton)
+    )
     server = VrmViewerServer(driver, address[0], address[1], fps=ckpt.fps).start()
     return server, VrmWebFeed(server, ckpt.skeleton)
