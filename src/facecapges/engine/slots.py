@@ -11,6 +11,9 @@ at most once, all open (:meth:`Slots.check`). Not thread-safe by itself: the own
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
 
 
 class Slots:
@@ -68,9 +71,38 @@ class Slots:
 
 
 class SlotOwner:
-    """What a batched generator with :class:`Slots` in ``self.slots`` tells about its streams."""
+    """A batched engine's streams' lifecycle, once for every engine: :meth:`open` takes the lowest free
+    slot (growing the owner's storage through its ``_alloc(capacity)``), lets the owner set the slot's own
+    state (:meth:`_opened`) and resets it to its cold start or ``initial_pose`` — a failed reset gives the
+    slot back; the owner's ``close`` releases it. The owner holds ``self.slots`` and a re-entrant
+    ``self._lock`` and defines ``_alloc``, ``reset`` and ``close``."""
 
     slots: Slots
+    _lock: Any
+
+    def _alloc(self, capacity: int) -> None:
+        raise NotImplementedError
+
+    def _opened(self, slot: int) -> None:
+        """The owner's per-slot state of a new stream, before its reset (nothing by default)."""
+
+    def reset(self, slot: int, initial_pose: np.ndarray | None = None) -> None:
+        raise NotImplementedError
+
+    def close(self, slot: int) -> None:
+        raise NotImplementedError
+
+    def open(self, initial_pose: np.ndarray | None = None) -> int:
+        """A new stream from its cold start (or ``initial_pose``, (47, 6) rot6d); returns its slot id."""
+        with self._lock:
+            slot = self.slots.take(self._alloc)
+            self._opened(slot)
+            try:
+                self.reset(slot, initial_pose)
+            except Exception:
+                self.close(slot)
+                raise
+            return slot
 
     @property
     def n_open(self) -> int:

@@ -279,18 +279,9 @@ class BatchedMatchingStreams(SlotOwner):
         self.slots.grown(capacity)
         self.capacity = capacity
 
-    def open(self, initial_pose: np.ndarray | None = None) -> int:
-        """A new stream (:meth:`reset`); returns its slot id."""
-        with self._lock:
-            slot = self.slots.take(self._alloc)
-            if self.predictor is not None:
-                self._pred_slot[slot] = self.predictor.open()
-            try:
-                self.reset(slot, initial_pose)
-            except Exception:
-                self.close(slot)
-                raise
-            return slot
+    def _opened(self, slot: int) -> None:
+        if self.predictor is not None:
+            self._pred_slot[slot] = self.predictor.open()
 
     def close(self, slot: int) -> None:
         with self._lock:

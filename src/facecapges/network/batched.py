@@ -506,17 +506,8 @@ class BatchedNetworkStreams(SlotOwner):
         self.capacity = capacity
 
     # ---------------------------------------------------------------- slots
-    def open(self, initial_pose: np.ndarray | None = None) -> int:
-        """A new stream in cold-start state (:meth:`reset`); returns its slot id."""
-        with self._lock:
-            slot = self.slots.take(self._alloc)
-            self.intensity[slot] = 1.0
-            try:
-                self.reset(slot, initial_pose)
-            except Exception:
-                self.close(slot)
-                raise
-            return slot
+    def _opened(self, slot: int) -> None:
+        self.intensity[slot] = 1.0
 
     def close(self, slot: int) -> None:
         with self._lock:
