@@ -136,23 +136,33 @@ class LocalCluster:
         sys.stdout.flush()
         self._stdout = os.dup(1)
         os.dup2(2, 1)
-        try:
-            return self._start()
-        except BaseException:  # nothing left running when the start fails
-            self.__exit__(None, None, None)
-            raise
+        self._env = os.environ.get(LOCAL_ROUTING)
+        for attempt in (1, 2):
+            try:
+                return self._start()
+            except Exception as exc:  # nothing left running when the start fails
+                self._stop()
+                # on a loaded machine a raylet may miss Ray's fixed 30 s to register: once more
+                if attempt == 2 or "timed out during startup" not in str(exc):
+                    self._restore()
+                    raise
+                self.say("cluster: a node timed out during startup (a loaded machine); starting again")
+            except BaseException:
+                self.__exit__(None, None, None)
+                raise
+        raise AssertionError("unreachable")
 
     def _start(self):
         import ray
         from ray import serve
         from ray.cluster_utils import Cluster
 
-        from facecapges.serving.ray_app import build_app
+        from facecapges.serving.config import ServeConfig
+        from facecapges.serving.ray_app import build_app, wait_ready
 
         t = time.monotonic()
         # one proxy (the head's) for every stream: it must not prefer the replicas of its own node
         # (Ray's default, right when every node has a proxy behind a load balancer)
-        self._env = os.environ.get(LOCAL_ROUTING)
         os.environ[LOCAL_ROUTING] = "0"
         # a dead node is noticed within ~1 s (Ray's default: up to 15 s): RAY_health_check_* on a real cluster
         fast = {"health_check_period_ms": 500, "health_check_failure_threshold": 2}
@@ -164,10 +174,12 @@ class LocalCluster:
         ray.init(address=self.cluster.address, log_to_driver=False)  # stdout is the bench's JSON
         serve.start(http_options={"host": "127.0.0.1", "port": self.port}, proxy_location="HeadOnly")
         serve.run(
-            build_app(self.checkpoint, replicas=self.nodes, max_per_node=1, num_cpus=1),
+            # every client of the benchmark is on loopback: the per-address limit must not apply
+            build_app(self.checkpoint, replicas=self.nodes, max_per_node=1, config=ServeConfig(max_per_address=256)),
             name="facecapges",
             route_prefix="/",
         )
+        wait_ready(f"http://127.0.0.1:{self.port}", self.nodes)  # the replicas load the style after they start
         self.start_s = time.monotonic() - t
         self.say(f"cluster: {self.nodes} nodes, {self.nodes} replicas up in {self.start_s:.0f} s")
         return self
@@ -180,7 +192,7 @@ class LocalCluster:
         assert self.cluster is not None
         self.cluster.remove_node(self.workers[0], allow_graceful=False)
 
-    def __exit__(self, *exc):
+    def _stop(self) -> None:
         import ray
         from ray import serve
 
@@ -191,6 +203,13 @@ class LocalCluster:
         ray.shutdown()
         if self.cluster is not None:
             self.cluster.shutdown()
+            self.cluster = None
+
+    def __exit__(self, *exc):
+        self._stop()
+        self._restore()
+
+    def _restore(self) -> None:
         if self._env is None:
             os.environ.pop(LOCAL_ROUTING, None)
         else:
@@ -205,13 +224,22 @@ class LocalCluster:
 
 
 def failover(
-    shared: Path, streams: int = 20, seconds: float = 10.0, kill_at: float = 4.0, checkpoint=None, say=print
+    shared: Path,
+    streams: int = 20,
+    seconds: float = 10.0,
+    kill_at: float = 4.0,
+    checkpoint=None,
+    say=print,
+    cluster: "LocalCluster | None" = None,
 ) -> dict:
     """Run ``streams`` resuming clients on a two-node cluster and kill the worker node after
-    ``kill_at`` s (module docs); the figures as a dict."""
+    ``kill_at`` s (module docs); the figures as a dict. ``cluster``: one already running (it is
+    left running, without its worker), else one is started and stopped here."""
+    import contextlib
+
     messages = _messages(shared, int(seconds * MODEL_FPS) + 1)
     threshold = pop_threshold(shared)
-    with LocalCluster(checkpoint, say=say) as lc:
+    with contextlib.nullcontext(cluster) if cluster is not None else LocalCluster(checkpoint, say=say) as lc:
 
         async def main():
             task = asyncio.ensure_future(_clients(lc.url, streams, seconds, messages))
