@@ -1,29 +1,145 @@
 """``serve`` on Ray Serve: a two-node local Ray cluster (the head and one worker, both on
-127.0.0.1), 20 live clients through Ray's proxy, the worker node killed mid-run.
+127.0.0.1), shared by the tests of this file (it starts once: ~30–80 s).
 
-Every stream must be served again within 2 s of the freeze its user sees, and no hand-over may pop (whole-body acceleration above the
-real motion's 99.9th percentile); the loss of the clients whose replica lived is measured. Without ``resume`` (the old protocol) the moved streams would
-restart from the rest pose; without the Ray application there is nothing to connect to.
-The cluster, its processes and the clients are stopped by the test (benchmarks/cluster.py).
+Admission: a second application on the same cluster (one replica, at most 2 streams per
+address) shows ``serve``'s per-address cap and the eviction of a slow holder on the Ray path —
+the same policy code (serving/admission.py), messages and close codes. Before, a replica had no
+per-address limit: the third stream of an address got its ``hello``.
+
+Failover (runs last: it kills the worker node): 20 live clients through Ray's proxy, the worker
+node killed mid-run. Every stream must be served again within 2 s of the freeze its user sees,
+and no hand-over may pop (whole-body acceleration above the real motion's 99.9th percentile);
+the loss of the clients whose replica lived is measured. Without ``resume`` (the old protocol)
+the moved streams would restart from the rest pose; without the Ray application there is nothing
+to connect to. The cluster, its processes and the clients are stopped by the fixture
+(benchmarks/cluster.py).
 """
 
 from __future__ import annotations
 
+import asyncio
 import json
 
 import pytest
 
 from conftest import shared_file
 
+PER_ADDRESS = 2
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from ray import serve
+
+    from facecapges.benchmarks.cluster import LocalCluster
+    from facecapges.serving.config import ServeConfig
+    from facecapges.serving.ray_app import build_app, wait_ready
+
+    shared_file("data/beat/2_scott_0_1_1.bvh")
+    with LocalCluster(say=print) as lc:
+        # the admission test's own application: one replica, no CPU of its own (both are the failover's)
+        cfg = ServeConfig(max_per_address=PER_ADDRESS)
+        serve.run(build_app(replicas=1, config=cfg, num_cpus=0), name="admission", route_prefix="/admission")
+        wait_ready(f"http://127.0.0.1:{lc.port}/admission", 1)
+        yield lc
+
+
+async def _admission(url: str, messages: list[str]) -> dict:
+    from websockets.asyncio.client import connect
+    from websockets.exceptions import ConnectionClosed
+
+    async def open_stream():
+        ws = await connect(url, open_timeout=30)
+        first = json.loads(await ws.recv())
+        while first["type"] == "status":  # the replica still loads: hello follows
+            first = json.loads(await ws.recv())
+        return ws, first
+
+    async def closed(ws) -> tuple[list[str], int | None, str]:
+        """What a connection got until it was closed: its messages' types / errors, code, reason."""
+        got = []
+        try:
+            while True:
+                m = json.loads(await asyncio.wait_for(ws.recv(), 10))
+                got.append(m.get("message", m["type"]))
+        except ConnectionClosed:
+            pass
+        return got, ws.close_code, ws.close_reason
+
+    async def live(ws, stop: asyncio.Event) -> int:
+        """15 inputs a second until ``stop``; the poses it got."""
+        poses = 0
+
+        async def read():
+            nonlocal poses
+            async for m in ws:
+                poses += '"pose"' in m[:20]
+
+        reader = asyncio.ensure_future(read())
+        k = 0
+        while not stop.is_set():
+            await ws.send(messages[k % len(messages)])
+            k += 1
+            await asyncio.sleep(1 / 15)
+        reader.cancel()
+        return poses
+
+    out: dict = {}
+    a, _ = await open_stream()  # sends one input, then nothing: slow once its grace is over
+    await a.send(messages[0])
+    out["a_first"] = json.loads(await a.recv())["type"]
+    b, _ = await open_stream()  # a live stream
+    stop = asyncio.Event()
+    b_task = asyncio.ensure_future(live(b, stop))
+    await asyncio.sleep(0.3)
+    c, c_first = await open_stream()  # a third of the address while both are new: refused
+    out["c"] = (c_first.get("message"), *(await closed(c))[1:])
+    await asyncio.sleep(1.5)  # past the grace: a is slow (one input in 1.8 s), b live
+    d, d_first = await open_stream()
+    out["d_first"] = d_first["type"]  # hello on probation
+    await d.send(messages[1])
+    out["a"] = await closed(a)  # d's first input takes a's slot
+    out["d_pose"] = json.loads(await asyncio.wait_for(d.recv(), 10))["type"]
+    e, e_first = await open_stream()  # b live and d new: nobody to make room
+    out["e"] = (e_first.get("message"), *(await closed(e))[1:])
+    stop.set()
+    out["b_poses"] = await b_task
+    out["b_open"] = b.close_code is None
+    for ws in (b, d):
+        await ws.close()
+    return out
+
 
 @pytest.mark.slow
 @pytest.mark.serial
-def test_a_node_dies_and_its_streams_resume_on_the_other(capsys):
+def test_ray_replica_caps_an_address_and_evicts_its_slow_holder(cluster, capsys):
+    from facecapges.benchmarks.cluster import _messages
+
+    shared = shared_file("data/beat/2_scott_0_2_2.wav").parents[2]
+    from ray import serve
+
+    try:
+        r = asyncio.run(_admission(f"ws://127.0.0.1:{cluster.port}/admission/", _messages(shared, 60)))
+    finally:  # gone before the failover: Ray would restart it (load a style) while the streams move
+        serve.delete("admission")
+    with capsys.disabled():
+        print("\nray admission:", json.dumps(r))
+    cap = f"at most {PER_ADDRESS} streams per client address; try again later"
+    assert r["a_first"] == "pose" and r["d_first"] == "hello"
+    assert r["c"] == (cap, 1013, cap), r["c"]
+    assert r["a"][1:] == (1013, "evicted: slower than a live stream while the server was full"), r["a"]
+    assert r["d_pose"] == "pose"
+    assert r["e"] == (cap, 1013, cap), r["e"]
+    assert r["b_open"] and r["b_poses"] >= 15, r  # the live stream kept its slot and its poses
+
+
+@pytest.mark.slow
+@pytest.mark.serial
+def test_a_node_dies_and_its_streams_resume_on_the_other(cluster, capsys):
     from facecapges.benchmarks.cluster import failover
 
     shared = shared_file("data/beat/2_scott_0_2_2.wav").parents[2]
-    shared_file("data/beat/2_scott_0_1_1.bvh")
-    r = failover(shared, streams=20, seconds=8.0, kill_at=3.5)
+    r = failover(shared, streams=20, seconds=8.0, kill_at=3.5, cluster=cluster)
     with capsys.disabled():
         print("\ncluster failover:", json.dumps(r))
     assert r["errors"] == 0, r["error_samples"]

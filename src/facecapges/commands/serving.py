@@ -89,11 +89,18 @@ def serve(
             ray,
             checkpoint,
             style,
-            host=host,
-            port=DEFAULT_PORT if port == ServeConfig.port else port,
+            ServeConfig(
+                host=host,
+                port=DEFAULT_PORT if port == ServeConfig.port else port,
+                max_streams=max_streams,
+                rate_limit=rate_limit,
+                idle_timeout=idle_timeout,
+                tick_ms=tick_ms,
+                max_per_address=max_per_address,
+                intensity=intensity,
+                trust_proxy=trust_proxy,
+            ),
             replicas=replicas,
-            max_streams=max_streams,
-            tick_ms=tick_ms,
             say=typer.echo,
         )
         return

@@ -16,15 +16,21 @@ The protocol is ``serve``'s (:mod:`facecapges.runtime.outputs.protocol`): ``hell
 a client reconnects (through the proxy, to a replica that lives) and sends ``resume`` with the
 last pose it got: the new stream starts from that pose (docs/serve-cluster.md).
 
-What ``serve`` has and this does not (yet): the per-address limit and fair admission, the
-``loading`` status (the proxy answers only once the application is up), the shared-memory model
-process (the batched step runs in the replica's own event loop — one replica per core is the
-layout), the send-buffer and min-rate closes. A replica refuses a stream past ``max_streams``
-(1013); a bad message gets an ``error`` and the connection stays, as in ``serve``.
+Admission and limits are ``serve``'s, from the same code (:mod:`facecapges.serving.admission`):
+``--max-streams``, ``--max-per-address`` (with fair admission: a newcomer on probation evicts the
+slowest stream in its way, 1013), ``--trust-proxy``, ``--rate-limit``, ``--idle-timeout``, the
+first-input and least-rate closes, with the same messages and close codes — but counted per
+replica: a replica knows only its own streams, so an address may hold ``max_per_address`` streams
+on each replica. A replica listens before its style is loaded: a client that reaches it meanwhile
+gets the ``loading`` status, then ``hello`` (docs/serve-protocol.md, "Loading"). Not here: the
+model in a process of its own (the batched step runs in the replica's event loop — one replica per
+core is the layout) and the close of a client that stops reading (Ray's proxy holds the socket;
+a replica's backlog is bounded by ``max_pending`` "busy" drops).
 """
 
 import asyncio
 import collections
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -32,8 +38,19 @@ from typing import Any
 import numpy as np
 
 from facecapges.errors import UserError
+from facecapges.serving.admission import (
+    EVICTED_SLOW,
+    EVICTED_WAITING,
+    FULL_CODE,
+    Admission,
+    Holder,
+    close_reason,
+    forwarded_address,
+)
+from facecapges.serving.config import ServeConfig
 
 DEFAULT_PORT = 8000  # Ray Serve's HTTP port
+LOAD_POLL_S = 0.1  # a client that connected while the style loads looks this often
 
 
 def _require_ray():
@@ -45,13 +62,13 @@ def _require_ray():
 
 
 @dataclass
-class _RayStream:
+class _RayStream(Holder):
     ws: Any
+    id: int
     slot: int | None = None
     initial: np.ndarray | None = None
     intensity: float = 1.0
     pending: collections.deque = field(default_factory=collections.deque)
-    closed: bool = False
     frames: int = 0
 
 
@@ -60,26 +77,32 @@ def build_app(
     style: str | None = None,
     replicas: int = 2,
     max_per_node: int = 0,
-    max_streams: int = 256,
-    tick_ms: float = 15.0,
-    max_pending: int = 4,
-    rate_limit: float = 30.0,
+    config: ServeConfig | None = None,
     num_cpus: float = 1.0,
 ):
     """The Ray Serve application (``serve.run(build_app(...))``): ``replicas`` copies of the style,
-    at most ``max_per_node`` on one node (0: no limit). ``checkpoint``/``style`` name the style as
-    ``serve`` does; every node must have it (the same install and shared data)."""
+    at most ``max_per_node`` on one node (0: no limit); ``config``: ``serve``'s settings (its
+    limits and admission apply per replica; host, port and threads are not used here).
+    ``checkpoint``/``style`` name the style as ``serve`` does; every node must have it (the same
+    install and shared data)."""
     _require_ray()
     from fastapi import FastAPI, WebSocket, WebSocketDisconnect
     from ray import serve
 
+    cfg = config or ServeConfig()
+    if cfg.max_streams < 1:
+        raise UserError("--max-streams must be at least 1")
+    if cfg.rate_limit <= 0:
+        raise UserError("--rate-limit must be a positive number of frames per second")
     app = FastAPI()
 
     per_node: dict[str, Any] = {"max_replicas_per_node": max_per_node} if max_per_node else {}
 
     @serve.deployment(
         num_replicas=replicas,
-        max_ongoing_requests=max_streams,  # a WebSocket is one ongoing request for its whole life
+        # a WebSocket is one ongoing request for its whole life: the holders, and as many newcomers
+        # on probation (or waiting for the style); the replica's admission refuses the rest (1013)
+        max_ongoing_requests=2 * cfg.max_streams,
         **per_node,
         ray_actor_options={"num_cpus": num_cpus},
         health_check_period_s=1.0,
@@ -90,31 +113,107 @@ def build_app(
         """One replica: the style's batched generator and the streams pinned to it (module docs)."""
 
         def __init__(self) -> None:
-            import torch
-
-            from facecapges.styles import load_style, resolve
-
-            torch.set_num_threads(1)
-            ckpt = load_style(resolve(checkpoint, style))
-            self.fps = int(ckpt.fps)
-            self.gen = ckpt.batched(capacity=64)
+            self.fps = 15
+            self.gen: Any = None  # the style's batched generator, once loaded
+            self.load_error: str | None = None
+            self.policy = Admission(cfg)
             self.streams: dict[int, _RayStream] = {}
             self._next = 0
+            self.waiting = 0  # clients connected while loading
             self._wake: asyncio.Event | None = None
-            self._task: asyncio.Task | None = None
+            self._tasks: list[asyncio.Task] = []
+            self._closing: set[asyncio.Future] = set()
             self.stats: collections.Counter[str] = collections.Counter()
+            # the replica answers at once; the style loads meanwhile (clients get "loading")
+            threading.Thread(target=self._load, name="load-style", daemon=True).start()
+
+        def _load(self) -> None:
+            try:
+                import torch
+
+                from facecapges.styles import load_style, resolve
+
+                torch.set_num_threads(1)
+                ckpt = load_style(resolve(checkpoint, style))
+                self.fps = int(ckpt.fps)
+                self.policy.fps = self.fps
+                self.gen = ckpt.batched(capacity=64)
+            except Exception as exc:  # noqa: BLE001  said to the waiting clients and by the health check
+                self.load_error = (str(exc).splitlines() or [exc.__class__.__name__])[0][:300]
+
+        def check_health(self) -> None:
+            """Ray's health check: a replica whose style failed to load is restarted."""
+            if self.load_error is not None:
+                raise RuntimeError(f"the style failed to load: {self.load_error}")
 
         def _start(self) -> None:
-            if self._task is None:
+            if not self._tasks:
                 self._wake = asyncio.Event()
-                self._task = asyncio.get_running_loop().create_task(self._batch_loop())
+                loop = asyncio.get_running_loop()
+                self._tasks = [loop.create_task(self._batch_loop()), loop.create_task(self._idle_loop())]
 
         @app.get("/-/streams")
         def count(self) -> dict:
-            """This replica's open streams and counters (a health and load probe)."""
+            """This replica's open streams and counters (a health, load and readiness probe)."""
             import ray
 
-            return dict(self.stats, streams=len(self.streams), node=ray.get_runtime_context().get_node_id())
+            ctx = ray.get_runtime_context()
+            return dict(
+                self.stats,
+                streams=len(self.streams),
+                loaded=self.gen is not None,
+                load_error=self.load_error,
+                node=ctx.get_node_id(),
+                replica=ctx.get_actor_id(),
+            )
+
+        async def _refuse(self, ws: WebSocket, refusal: str, code: int = FULL_CODE) -> None:
+            from facecapges.runtime.outputs.ws import error_message
+
+            try:
+                await ws.send_text(error_message(refusal))
+                await ws.close(code, close_reason(refusal))
+            except (WebSocketDisconnect, RuntimeError):
+                pass
+
+        def _close_later(self, st: _RayStream, code: int, reason: str) -> None:
+            """Close a stream's connection without waiting (its handler then ends)."""
+            st.closed = True
+            self.streams.pop(st.id, None)
+            task = asyncio.ensure_future(st.ws.close(code, reason))
+            self._closing.add(task)
+            task.add_done_callback(self._closed)
+
+        def _closed(self, task: asyncio.Future) -> None:
+            self._closing.discard(task)
+            if not task.cancelled():
+                task.exception()  # a client already gone: nothing to report
+
+        async def _wait_loaded(self, ws: WebSocket) -> bool:
+            """While the style loads: tell the client and wait (``serve``'s "Loading"). False if the
+            client was refused or loading failed."""
+            from facecapges.runtime.outputs import protocol
+
+            if self.gen is not None:
+                return True
+            if self.load_error is None:
+                if self.waiting >= cfg.max_streams:
+                    self.stats["refused_loading"] += 1
+                    await self._refuse(ws, f"server loading: {cfg.max_streams} clients already wait; try again later")
+                    return False
+                self.waiting += 1
+                try:
+                    await ws.send_text(
+                        protocol.encode_status("loading", "loading the style; hello follows when it is ready")
+                    )
+                    while self.gen is None and self.load_error is None:
+                        await asyncio.sleep(LOAD_POLL_S)
+                finally:
+                    self.waiting -= 1
+            if self.load_error is not None:
+                await self._refuse(ws, f"server failed to load: {self.load_error}"[:400], 1011)
+                return False
+            return True
 
         @app.websocket("/")
         async def stream(self, ws: WebSocket) -> None:
@@ -123,29 +222,39 @@ def build_app(
 
             await ws.accept()
             self._start()
-            if len(self.streams) >= max_streams:
-                await ws.send_text(error_message(f"server full: {max_streams} streams; try again later"))
-                await ws.close(1013)
-                return
-            st = _RayStream(ws)
-            sid, self._next = self._next, self._next + 1
-            self.streams[sid] = st
-            self.stats["connections"] += 1
-            tokens, t_tokens, last_err = rate_limit, time.monotonic(), -1e9
             try:
-                await ws.send_text(protocol.encode_hello(self.fps))
-                while True:
+                if not await self._wait_loaded(ws):
+                    return
+            except (WebSocketDisconnect, RuntimeError):
+                return
+            peer = ws.client.host if ws.client is not None else "?"
+            address = forwarded_address(peer, ws.headers.get("x-forwarded-for"), cfg.trust_proxy)
+            now = time.monotonic()
+            arrival = self.policy.arrive(self.streams.values(), address, now)
+            if arrival.refusal is not None:
+                self.stats[arrival.stat] += 1
+                await self._refuse(ws, arrival.refusal)
+                return
+            if arrival.make_room is not None:  # the newcomer on probation waiting the longest makes room
+                assert isinstance(arrival.make_room, _RayStream)
+                self.stats["evicted_waiting"] += 1
+                self._close_later(arrival.make_room, FULL_CODE, EVICTED_WAITING)
+            st = _RayStream(ws=ws, id=self._next, intensity=cfg.intensity)
+            self.policy.new(st, address, now, arrival.probation)
+            self._next += 1
+            self.streams[st.id] = st
+            self.stats["connections"] += 1
+            try:
+                await ws.send_text(protocol.encode_hello(self.fps, intensity=st.intensity))
+                while not st.closed:
                     text = await ws.receive_text()
                     now = time.monotonic()
-                    tokens = min(rate_limit, tokens + (now - t_tokens) * rate_limit)
-                    t_tokens = now
-                    if tokens < 1.0:
+                    allowed, limit_error = self.policy.allow(st, now)
+                    if not allowed:
                         self.stats["rate_limited"] += 1
-                        if now - last_err >= 1.0:
-                            last_err = now
-                            await ws.send_text(error_message(f"rate limit: at most {rate_limit:g} messages per second"))
+                        if limit_error is not None:
+                            await ws.send_text(error_message(limit_error))
                         continue
-                    tokens -= 1.0
                     try:
                         msg = protocol.decode_client(text, self.fps)
                     except protocol.ProtocolError as exc:
@@ -155,33 +264,64 @@ def build_app(
                     kind = msg["type"]
                     if kind == "ping":
                         await ws.send_text(pong_message())
-                    elif kind == "intensity":
+                        continue
+                    if kind == "intensity":
                         st.intensity = msg["value"]
                         if st.slot is not None:
                             self.gen.set_intensity(st.slot, st.intensity)
                         await ws.send_text(protocol.encode_intensity(st.intensity))
-                    elif kind == "resume":
-                        if st.slot is not None or st.pending:
+                        continue
+                    if kind == "resume":
+                        if st.slot is not None or st.pending or st.frames:
                             await ws.send_text(error_message("resume must come before the first input"))
                         else:
                             st.initial = msg["pose"]
                             self.stats["resumed"] += 1
                             await ws.send_text(protocol.RESUMED)
-                    elif len(st.pending) >= max_pending:
+                        continue
+                    if st.probation:  # its first input: a slot, taken from the slowest in its way
+                        refusal, stat, victim = self.policy.admit(self.streams.values(), st, now)
+                        if refusal is not None:
+                            self.stats[stat] += 1
+                            await self._refuse(ws, refusal)
+                            break
+                        if victim is not None:
+                            assert isinstance(victim, _RayStream)
+                            self.stats["evicted_slow"] += 1
+                            self._close_later(victim, FULL_CODE, EVICTED_SLOW)
+                    self.policy.record_input(st, now)
+                    if len(st.pending) >= cfg.max_pending:
                         self.stats["dropped_busy"] += 1
-                        await ws.send_text(error_message(f"busy: frame {msg['input'].index} dropped"))
-                    else:
-                        st.pending.append((msg["input"], now))
-                        assert self._wake is not None
-                        self._wake.set()
-            except WebSocketDisconnect:
+                        await ws.send_text(
+                            error_message(
+                                f"busy: frame {msg['input'].index} dropped "
+                                f"({cfg.max_pending} frames of this stream are waiting)"
+                            )
+                        )
+                        continue
+                    st.pending.append((msg["input"], now))
+                    assert self._wake is not None
+                    self._wake.set()
+            except (WebSocketDisconnect, RuntimeError):  # gone, or closed by this replica meanwhile
                 pass
             finally:
                 st.closed = True
-                self.streams.pop(sid, None)
+                self.streams.pop(st.id, None)
                 if st.slot is not None:  # between ticks: the step runs in this same event loop
                     self.gen.close(st.slot)
                     st.slot = None
+
+        async def _idle_loop(self) -> None:
+            """``serve``'s closes of idle, silent and too slow streams (admission.Admission.overdue)."""
+            period = self.policy.check_period()
+            while period is not None:
+                await asyncio.sleep(period)
+                now = time.monotonic()
+                for st in list(self.streams.values()):
+                    why = None if st.closed else self.policy.overdue(st, now)
+                    if why is not None:
+                        self.stats[why[0]] += 1
+                        self._close_later(st, why[1], why[2])
 
         async def _batch_loop(self) -> None:
             from facecapges import rotations as rot
@@ -191,7 +331,7 @@ def build_app(
             last = -1e9
             while True:
                 await self._wake.wait()
-                wait = last + tick_ms / 1000.0 - time.monotonic()
+                wait = last + cfg.tick_ms / 1000.0 - time.monotonic()
                 if wait > 0:
                     await asyncio.sleep(wait)
                 self._wake.clear()
@@ -252,28 +392,53 @@ def _check_reachable(address: str) -> None:
         raise UserError(f"--ray {address}: no Ray head answers there ({exc.strerror or exc})") from None
 
 
+def wait_ready(url: str, replicas: int, timeout: float = 600.0, say=None) -> float:
+    """Wait until ``replicas`` replicas behind Ray's proxy at ``url`` (``http://host:port``) have
+    loaded the style (their ``/-/streams`` probe); the seconds it took. UserError if a replica
+    says its style failed to load, or on ``timeout``."""
+    import json
+    import urllib.error
+    import urllib.request
+
+    t0 = time.monotonic()
+    seen: set[str] = set()
+    while time.monotonic() - t0 < timeout:
+        try:
+            with urllib.request.urlopen(f"{url}/-/streams", timeout=5) as r:
+                probe = json.loads(r.read())
+        except (OSError, ValueError):
+            probe = {}
+        if probe.get("load_error"):
+            raise UserError(f"cannot load the style on the cluster ({probe['load_error']})")
+        if probe.get("loaded"):
+            seen.add(str(probe.get("replica")))
+            if len(seen) >= replicas:
+                return time.monotonic() - t0
+        time.sleep(0.2)
+    raise UserError(f"the cluster's replicas did not load the style within {timeout:g} s")
+
+
 def serve_on_ray(
     address: str,
     checkpoint=None,
     style: str | None = None,
-    host: str = "127.0.0.1",
-    port: int = DEFAULT_PORT,
+    config: ServeConfig | None = None,
     replicas: int = 2,
     max_per_node: int = 0,
-    max_streams: int = 256,
-    tick_ms: float = 15.0,
     say=print,
 ) -> None:
     """``facecapges serve --ray ADDRESS``: connect to the cluster at ``ADDRESS`` (``auto``: the one
     ``ray start`` runs on this machine; ``local``: start a one-node cluster here), run the
-    application with its proxy on ``host:port`` and serve until interrupted."""
+    application with its proxy on ``config.host:config.port`` and serve until interrupted."""
     _require_ray()
     import signal
-    import threading
 
     import ray
     from ray import serve
 
+    cfg = config or ServeConfig(port=DEFAULT_PORT)
+    cfg.check()
+    host, port = cfg.host, cfg.port
     if address == "local":
         ray.init(include_dashboard=False)
     else:
@@ -284,20 +449,25 @@ def serve_on_ray(
             raise UserError(f"--ray {address}: no Ray cluster there ({str(exc).splitlines()[0][:200]})") from None
     try:
         serve.start(http_options={"host": host, "port": port})  # a proxy on every node (Ray's default)
-        say(f"starting {replicas} replicas on the cluster; clients connect to ws://{host}:{port}/")
+        say(
+            f"starting {replicas} replicas on the cluster; clients connect to ws://{host}:{port}/ (they wait while it loads)"
+        )
         serve.run(
             build_app(
                 str(checkpoint) if checkpoint else None,
                 style,
                 replicas=replicas,
                 max_per_node=max_per_node,
-                max_streams=max_streams,
-                tick_ms=tick_ms,
+                config=cfg,
             ),
             name="facecapges",
             route_prefix="/",
         )
-        say(f"ready: serving streams on ws://{host}:{port}/ (Ray Serve, {replicas} replicas); Ctrl-C stops")
+        probe_host = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
+        took = wait_ready(f"http://{probe_host if ':' not in probe_host else f'[{probe_host}]'}:{port}", replicas)
+        say(
+            f"ready: serving streams on ws://{host}:{port}/ (Ray Serve, {replicas} replicas, loaded in {took:.1f} s); Ctrl-C stops"
+        )
         # Ctrl-C or SIGTERM: Ray's driver does not always turn SIGINT into KeyboardInterrupt here
         stop = threading.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):

@@ -39,26 +39,12 @@ Slots are for streams, not for sockets: the handshake must end within 10 s
 least ``min_input_rate`` inputs per second over every ``rate_window`` seconds (a live
 stream sends 15) — else it is closed (1008) and its slot freed.
 
-Fair admission (the policy, docs/serve-protocol.md). A slot-holder is judged by its input
-rate against the model rate: inputs over the last :data:`RATE_WINDOW_S` seconds (or since it
-got its slot, if that is shorter). Once it has held its slot for :data:`GRACE_S` seconds, a
-stream below :data:`LIVE_FRACTION` of the model rate (7.5 inputs/s at 15 fps) is *slow*. When
-the server is full, or the newcomer's address holds its share, a newcomer is not refused while
-some stream in the way is slow: it gets ``hello`` *on probation* (no slot; at most
-``max_streams`` such at once, the one waiting the longest closed to make room for a newer
-one), and its first ``input`` takes the slot of the slowest such stream, which is closed
-(1013, "evicted"). A newcomer that sends no input evicts nobody and is closed by
-``first_input_timeout``. A live stream (15 inputs a second) is never evicted, so neither
-idle sockets nor clients that send one input now and then can lock real ones out, even when
-every client shares one address (loopback, a proxy).
-
-Addresses. One client address holds at most ``max_per_address`` streams (16 by default,
-loopback included; beyond: the slowest of that address is evicted as above, else 1013).
-``X-Forwarded-For`` is ignored unless ``trust_proxy`` is set: any local program can write
-that header, so it may claim an address only when the operator says every loopback
-connection comes through a reverse proxy that sets it. With ``trust_proxy``, a loopback
-connection counts against the header's last entry (the address the proxy saw) when that is an
-IP address, else against the loopback address itself.
+Fair admission and addresses: the policy of :mod:`facecapges.serving.admission` (one
+implementation, shared with the Ray replicas; docs/serve-protocol.md). When the server is full, or
+the newcomer's address holds its ``max_per_address`` share (16 by default, loopback included), a
+newcomer is not refused while some stream in its way is *slow* (below half the model rate): it gets
+``hello`` on probation, and its first ``input`` takes the slot of the slowest such stream, which is
+closed (1013, "evicted"). ``X-Forwarded-For`` counts only with ``trust_proxy``.
 
 Loading. :meth:`StreamServer.start` may listen before the style is loaded (``serve`` does:
 its socket is bound first, within a second of starting): a client that connects meanwhile
@@ -77,7 +63,6 @@ from __future__ import annotations
 
 import asyncio
 import collections
-import ipaddress
 import socket
 import time
 from dataclasses import dataclass, field
@@ -97,6 +82,15 @@ from facecapges.runtime.outputs.ws import (
     pong_message,
     refuse_foreign_host,
 )
+from facecapges.serving.admission import (
+    EVICTED_SLOW,
+    EVICTED_WAITING,
+    FULL_CODE,
+    Admission,
+    Holder,
+    close_reason,
+    forwarded_address,
+)
 from facecapges.serving.config import ServeConfig
 from facecapges.timing import AUDIO_SR
 
@@ -106,10 +100,6 @@ if TYPE_CHECKING:
     from facecapges.serving.model_process import ModelProcess
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
-RATE_WINDOW_S = 2.0  # a slot-holder's input rate is counted over this many seconds (module docs)
-GRACE_S = 1.0  # a stream is not judged slow before it has held its slot this long
-LIVE_FRACTION = 0.5  # below this fraction of the model rate a stream is slow (evicted first when full)
-DEFAULT_PER_ADDRESS = 16  # streams per client address unless --max-per-address says otherwise
 
 
 def client_address(ws, trust_proxy: bool = False) -> str:
@@ -119,38 +109,20 @@ def client_address(ws, trust_proxy: bool = False) -> str:
     ``X-Forwarded-For`` (a reverse proxy on this machine) counts against the address the proxy
     saw — the header's last entry — if that is an IP address. Without ``trust_proxy`` the
     header is ignored: any local program could claim any address with it."""
-    address = peer_host(ws)
-    if trust_proxy and is_loopback(address):
-        request = getattr(ws, "request", None)
-        fwd = request.headers.get("X-Forwarded-For") if request is not None else None
-        last = fwd.split(",")[-1].strip() if fwd else ""
-        try:
-            return str(ipaddress.ip_address(last))
-        except ValueError:
-            pass
-    return address
+    request = getattr(ws, "request", None)
+    fwd = request.headers.get("X-Forwarded-For") if request is not None else None
+    return forwarded_address(peer_host(ws), fwd, trust_proxy)
 
 
 @dataclass
-class _Stream:
+class _Stream(Holder):
     ws: ServerConnection
     id: int
     slot: int | None = None
     pending: collections.deque = field(default_factory=collections.deque)
-    tokens: float = 0.0
-    t_tokens: float = 0.0
-    last_input: float = 0.0
-    last_limit_error: float = -1e9
-    closed: bool = False
     frames: int = 0
-    address: str = "?"
-    inputs: int = 0  # inputs received in the current rate window
-    window_t0: float | None = None  # start of the rate window (the first input)
     intensity: float = 1.0  # the stream's intensity dial (its client's `intensity` messages)
     applied: float | None = None  # the value its slot has (set between ticks)
-    probation: bool = False  # connected while full: no slot until its first input takes a slow one's
-    since: float = 0.0  # when it got its slot
-    times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=256))  # its inputs' arrivals
     initial: np.ndarray | None = None  # a resumed stream's first pose (rot6d (47, 6)): protocol ``resume``
 
 
@@ -180,8 +152,7 @@ class StreamServer(ServerThread):
         self.fps = 15  # the model's rate; set by load()
         self.sr = AUDIO_SR
         self.loopback_only = is_loopback(c.host)
-        # streams per client address (module docs, "Addresses"): loopback included
-        self.per_address = c.max_per_address if c.max_per_address is not None else DEFAULT_PER_ADDRESS
+        self.policy = Admission(c)  # fair admission, limits (module docs); its fps is set by load()
         self.log = log or (lambda *_: None)
         self.conn_log = ConnectionLog(self.log, "serve")
         self.streams: dict[int, _Stream] = {}
@@ -203,6 +174,7 @@ class StreamServer(ServerThread):
 
         self.ckpt = checkpoint
         self.fps = checkpoint.fps  # an int, as in the viewer's hello
+        self.policy.fps = self.fps
         # the batched kernel in a process of its own: the event loop never holds it up (model_process docs)
         self.gen = ModelProcess(checkpoint, self.cfg.threads, self.cfg.max_streams)
         self.call_soon(self._loaded.set)
@@ -223,22 +195,12 @@ class StreamServer(ServerThread):
             self.stats["rejected_hosts"] += 1
         return refused
 
-    def _allow(self, st: _Stream, now: float) -> bool:
-        """Token bucket: ``rate_limit`` messages per second, one second of burst."""
-        rate = self.cfg.rate_limit
-        st.tokens = min(rate, st.tokens + (now - st.t_tokens) * rate)
-        st.t_tokens = now
-        if st.tokens >= 1.0:
-            st.tokens -= 1.0
-            return True
-        return False
-
     async def _refuse(self, ws, refusal: str, code: int = 1013) -> None:
         from websockets.exceptions import ConnectionClosed
 
         try:
             await ws.send(_error(refusal))
-            await ws.close(code, refusal.split(":")[0][:100])
+            await ws.close(code, close_reason(refusal))
         except ConnectionClosed:
             pass
 
@@ -277,40 +239,6 @@ class StreamServer(ServerThread):
             return False
         return True
 
-    def _holders(self, address: str | None = None) -> list[_Stream]:
-        """Streams holding a slot (of ``address`` only, if given)."""
-        return [
-            st
-            for st in self.streams.values()
-            if not st.closed and not st.probation and (address is None or st.address == address)
-        ]
-
-    def _in_the_way(self, address: str) -> tuple[list[_Stream], str] | None:
-        """The streams a newcomer from ``address`` must displace one of, and the refusal if none
-        is slow; None when there is room for it."""
-        mine = self._holders(address)
-        if len(mine) >= self.per_address:
-            return mine, f"at most {self.per_address} streams per client address; try again later"
-        held = self._holders()
-        if len(held) >= self.cfg.max_streams:
-            return held, f"server full: {self.cfg.max_streams} streams; try again later"
-        return None
-
-    def rate(self, st: _Stream, now: float) -> float:
-        """A slot-holder's inputs per second over the last :data:`RATE_WINDOW_S` s (or since it got its slot)."""
-        span = max(1e-3, min(RATE_WINDOW_S, now - st.since))
-        return sum(t >= now - span for t in st.times) / span
-
-    def _slowest(self, streams: list[_Stream], now: float) -> _Stream | None:
-        """The slowest stream of ``streams`` below :data:`LIVE_FRACTION` of the model rate that has
-        held its slot for :data:`GRACE_S` s; None if every one streams (or is new)."""
-        slow = [
-            (self.rate(st, now), st.last_input, st)
-            for st in streams
-            if now - st.since >= GRACE_S and self.rate(st, now) < LIVE_FRACTION * self.fps
-        ]
-        return min(slow, key=lambda x: (x[0], x[1]))[2] if slow else None
-
     async def _handler(self, ws) -> None:
         from websockets.exceptions import ConnectionClosed
 
@@ -318,39 +246,26 @@ class StreamServer(ServerThread):
             return
         address = client_address(ws, self.cfg.trust_proxy)
         now = time.monotonic()
-        probation = False
-        way = self._in_the_way(address)
-        if way is not None:
-            streams, refusal = way
-            if self._slowest(streams, now) is None:
-                self.stats["refused_address" if "per client address" in refusal else "refused_full"] += 1
-                await self._refuse(ws, refusal)
-                return
-            probation = True
-            waiting = [st for st in self.streams.values() if st.probation and not st.closed]
-            if len(waiting) >= self.cfg.max_streams:  # the oldest waiting one makes room
-                old = min(waiting, key=lambda s: s.last_input)
-                old.closed = True
-                self.streams.pop(old.id, None)
-                self.stats["evicted_waiting"] += 1
-                self._close_later(old.ws, 1013, "evicted: no input while the server was full")
+        arrival = self.policy.arrive(self.streams.values(), address, now)
+        if arrival.refusal is not None:
+            self.stats[arrival.stat] += 1
+            await self._refuse(ws, arrival.refusal, FULL_CODE)
+            return
+        if arrival.make_room is not None:  # the newcomer on probation waiting the longest makes room
+            old = arrival.make_room
+            assert isinstance(old, _Stream)
+            old.closed = True
+            self.streams.pop(old.id, None)
+            self.stats["evicted_waiting"] += 1
+            self._close_later(old.ws, FULL_CODE, EVICTED_WAITING)
         sock = ws.transport.get_extra_info("socket") if getattr(ws, "transport", None) else None
         if sock is not None:  # a bounded kernel buffer, so a client that stops reading shows up in ours
             try:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, KERNEL_SEND_BUFFER)
             except OSError:
                 pass
-        st = _Stream(
-            ws=ws,
-            id=self._next_id,
-            tokens=self.cfg.rate_limit,
-            t_tokens=now,
-            last_input=now,
-            address=address,
-            intensity=self.cfg.intensity,
-            probation=probation,
-            since=now,
-        )
+        st = _Stream(ws=ws, id=self._next_id, intensity=self.cfg.intensity)
+        self.policy.new(st, address, now, arrival.probation)
         self._next_id += 1
         self.streams[st.id] = st
         self.stats["connections"] += 1
@@ -358,13 +273,11 @@ class StreamServer(ServerThread):
             await ws.send(protocol.encode_hello(self.fps, self.sr, intensity=st.intensity))
             async for message in ws:
                 now = time.monotonic()
-                if not self._allow(st, now):
+                allowed, limit_error = self.policy.allow(st, now)
+                if not allowed:
                     self.stats["rate_limited"] += 1
-                    if now - st.last_limit_error >= 1.0:
-                        st.last_limit_error = now
-                        await ws.send(
-                            _error(f"rate limit: at most {self.cfg.rate_limit:g} messages per second; messages dropped")
-                        )
+                    if limit_error is not None:
+                        await ws.send(_error(limit_error))
                     continue
                 try:
                     msg = protocol.decode_client(message, self.fps, self.sr)
@@ -392,13 +305,9 @@ class StreamServer(ServerThread):
                     refusal = self._admit(st, now)
                     if refusal is not None:
                         await ws.send(_error(refusal))
-                        await ws.close(1013, refusal.split(":")[0][:100])
+                        await ws.close(FULL_CODE, close_reason(refusal))
                         break
-                st.last_input = now
-                st.times.append(now)
-                st.inputs += 1
-                if st.window_t0 is None:
-                    st.window_t0 = now
+                self.policy.record_input(st, now)
                 if len(st.pending) >= self.cfg.max_pending:
                     self.stats["dropped_busy"] += 1
                     await ws.send(
@@ -428,18 +337,15 @@ class StreamServer(ServerThread):
         """A stream on probation sent its first input: give it a slot — a free one, or that of the
         slowest stream in its way, which is closed (1013, "evicted"). The refusal when every stream
         in the way is live (or new)."""
-        way = self._in_the_way(st.address)
-        if way is not None:
-            victim = self._slowest(way[0], now)
-            if victim is None:
-                self.stats["refused_address" if "per client address" in way[1] else "refused_full"] += 1
-                return way[1]
-            victim.closed = True
+        refusal, stat, victim = self.policy.admit(self.streams.values(), st, now)
+        if refusal is not None:
+            self.stats[stat] += 1
+            return refusal
+        if victim is not None:
+            assert isinstance(victim, _Stream)
             self.streams.pop(victim.id, None)  # its slot is freed at the next tick, before this one's opens
             self.stats["evicted_slow"] += 1
-            self._close_later(victim.ws, 1013, "evicted: slower than a live stream while the server was full")
-        st.probation = False
-        st.since = now
+            self._close_later(victim.ws, FULL_CODE, EVICTED_SLOW)
         return None
 
     # ---------------------------------------------------------------- ticks
@@ -560,29 +466,13 @@ class StreamServer(ServerThread):
             if any(st.pending for st in self.streams.values()):
                 self._wake.set()
 
-    def _overdue(self, st: _Stream, now: float) -> tuple[str, int, str] | None:
-        """Why a stream loses its slot now: (stats key, close code, reason), or None."""
-        c = self.cfg
-        if c.idle_timeout > 0 and now - st.last_input > c.idle_timeout:
-            return "idle_closes", 1000, f"idle for {c.idle_timeout:g} s"
-        if st.window_t0 is None:
-            if c.first_input_timeout > 0 and now - st.last_input > c.first_input_timeout:
-                return "no_input_closes", 1008, f"no input within {c.first_input_timeout:g} s"
-        elif c.min_input_rate > 0 and now - st.window_t0 >= c.rate_window:
-            rate = st.inputs / (now - st.window_t0)
-            st.inputs, st.window_t0 = 0, now
-            if rate < c.min_input_rate:
-                return "slow_input_closes", 1008, f"input slower than {c.min_input_rate:g} frames/s"
-        return None
-
     async def _idle_loop(self) -> None:
-        c = self.cfg
-        periods = [p for p in (c.idle_timeout, c.first_input_timeout, c.rate_window) if p > 0]
-        while periods:
-            await asyncio.sleep(min(1.0, min(periods) / 4))
+        period = self.policy.check_period()
+        while period is not None:
+            await asyncio.sleep(period)
             now = time.monotonic()
             for st in list(self.streams.values()):
-                why = None if st.closed else self._overdue(st, now)
+                why = None if st.closed else self.policy.overdue(st, now)
                 if why is not None:
                     self.stats[why[0]] += 1
                     st.closed = True
