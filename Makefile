@@ -13,13 +13,15 @@ demo: setup
 
 # Both run the suite in two passes (docs/testing.md): on two pytest-xdist workers, then the tests
 # marked `serial` (they assert a rate or a wall-clock bound) alone, collected from their files only.
+# `--dist worksteal`: a worker that runs out takes half of the other's queue (tests/conftest.py puts the
+# files with long tests first), so the pass does not end on one worker finishing a long test alone.
 SERIAL_FILES = $(shell grep -l 'mark\.serial' tests/test_*.py)
 test: setup
 	bash scripts/setup-test.sh
 	$(VENV)/bin/ruff check src
 	$(VENV)/bin/ruff format --check src
 	$(VENV)/bin/mypy
-	$(PY) -m pytest -q -n 2 -m "not serial" --durations=15
+	$(PY) -m pytest -q -n 2 --dist worksteal -m "not serial" --durations=15
 	$(PY) -m pytest -q -m serial --durations=5 $(SERIAL_FILES)
 
 # The inner loop (docs/testing.md): lint and every test not marked `slow` (Chromium, Blender,
@@ -27,7 +29,7 @@ test: setup
 test-fast: setup
 	$(VENV)/bin/ruff check src
 	$(VENV)/bin/ruff format --check src
-	$(PY) -m pytest -q -n 2 -m "not slow and not serial" --durations=10
+	$(PY) -m pytest -q -n 2 --dist worksteal -m "not slow and not serial" --durations=10
 	$(PY) -m pytest -q -m "serial and not slow" $(SERIAL_FILES)
 
 setup: $(STAMP)

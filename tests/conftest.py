@@ -154,6 +154,17 @@ def beat_take_cache(tmp_path_factory, beat_bvh, beat_wav):
     return out
 
 
+def pytest_collection_modifyitems(config, items):
+    """Under pytest-xdist, the files holding a ``slow`` test run first, each file's tests kept together and in
+    order: the workers start on the minute-long tests (the bench, the demo, the docs' commands, trainings) and end
+    on short ones, which ``--dist worksteal`` (Makefile) shares out, so no worker is left alone with a long test
+    at the end (docs/testing.md, "How long it takes"). A run without workers keeps the files' order."""
+    if not hasattr(config, "workerinput"):
+        return
+    heavy = {item.path for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.path not in heavy)  # stable: the order within each group is kept
+
+
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_makereport(item, call):
     """In CI nothing may be skipped: a skip there means a missing install or file."""
