@@ -98,26 +98,9 @@ def capture_video(
 ) -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON; one per face, module docstring);
     returns a summary dict."""
-    from facecapges.capture.video import open_source
-
     out = Path(out)
     outs, depth_files, K = _check_inputs(source, out, fps, faces, overlay, depth_dir, intrinsics, force)
-    from facecapges.capture.models import resolve_model
-    from facecapges.capture.pipeline import FaceCapture
-
-    model = resolve_model(model)  # a missing model fails before any video is opened
-    src = open_source(source)
-
-    try:
-        # one face: MediaPipe looks for two so that a second face in view can be reported
-        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
-    except BaseException:
-        src.close()
-        raise
-    if depth_files is not None and K is not None:
-        from facecapges.capture.depth import DepthHeadTracker
-
-        cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
+    src, cap = _open_capture(source, estimator, model, K, faces, depth_files is not None)
     writer = None
     records = [Records() for _ in outs]
     n_found = [0] * len(outs)
@@ -149,6 +132,28 @@ def capture_video(
     if faces == 1:
         return {**common, "face_found": n_found[0], "out": str(out)}
     return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}
+
+
+def _open_capture(source: str, estimator: str, model, K, faces: int, depth: bool):
+    """The landmark model (a missing one fails before any video is opened), the source and the capture."""
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.pipeline import FaceCapture
+    from facecapges.capture.video import open_source
+
+    model = resolve_model(model)  # a missing model fails before any video is opened
+    src = open_source(source)
+
+    try:
+        # one face: MediaPipe looks for two so that a second face in view can be reported
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
+    except BaseException:
+        src.close()
+        raise
+    if depth and K is not None:
+        from facecapges.capture.depth import DepthHeadTracker
+
+        cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
+    return src, cap
 
 
 def _check_inputs(

@@ -159,18 +159,7 @@ def create_study(
         bar.advance(task)
         for clip in cs.clips:
             clips_meta.append(_write_clip(out, clip, cs, motions, faces, driver, joint_names, bar, task))
-    doc = {
-        "format": FORMAT,
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-        "source": str(Path(clips_yaml)),
-        "fps": cs.fps,
-        "systems": cs.systems,
-        "avatar": AVATAR_FILE if driver is None else VRM_FILE,
-        "clips": clips_meta,
-        "criteria": [c.to_json() for c in CRITERIA],
-        "balance": balance_report(plan),
-        "plan": plan.to_json(),
-    }
+    doc = _study_doc(clips_yaml, cs, driver is None, clips_meta, plan)
     (out / "responses").mkdir(exist_ok=True)
     write_private(out / STUDY_FILE, json.dumps(doc, indent=1) + "\n")
     write_invitations(out, plan)
@@ -181,6 +170,23 @@ def create_study(
         "fps": cs.fps,
         "balance": doc["balance"],
     }
+
+
+def _study_doc(clips_yaml: str | Path, cs, our_avatar: bool, clips_meta: list[dict], plan: StudyPlan) -> dict:
+    """The study file's content: source, rate, systems, avatar, clips, criteria, the plan and its balance."""
+    doc = {
+        "format": FORMAT,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "source": str(Path(clips_yaml)),
+        "fps": cs.fps,
+        "systems": cs.systems,
+        "avatar": AVATAR_FILE if our_avatar else VRM_FILE,
+        "clips": clips_meta,
+        "criteria": [c.to_json() for c in CRITERIA],
+        "balance": balance_report(plan),
+        "plan": plan.to_json(),
+    }
+    return doc
 
 
 def _check_study_out(out: Path, force: bool, n_participants: int | None) -> None:
