@@ -18,7 +18,7 @@ STRICT = ("evaluation", "runtime", "data")  # no function over 80 lines here
 MAX_LINES = 80
 LONG = 60
 AIM_OVER_60 = 25  # issue 35's aim for the whole package
-OVER_60_CEILING = 37  # where it stands: lower it as functions are split (down to AIM_OVER_60); never raise it
+OVER_60_CEILING = 21  # where it stands (below the aim since the avatar/capture/study/training splits): never raise it
 
 
 def function_lengths(root: Path = PACKAGE) -> list[tuple[int, str, str]]:
@@ -42,9 +42,8 @@ def test_no_function_over_80_lines_in_evaluation_runtime_data():
 
 def test_few_functions_over_60_lines():
     over = [f"{p}:{name} ({n})" for n, p, name in function_lengths() if n > LONG]
-    assert len(over) <= max(OVER_60_CEILING, AIM_OVER_60), f"{len(over)} functions over {LONG} lines: " + ", ".join(
-        over
-    )
+    assert OVER_60_CEILING <= AIM_OVER_60  # the aim is met: the ceiling only goes down from here
+    assert len(over) <= OVER_60_CEILING, f"{len(over)} functions over {LONG} lines: " + ", ".join(over)
 
 
 def test_the_measure_counts_a_long_function(tmp_path):

@@ -195,89 +195,121 @@ def _controls() -> list[int]:
     return out
 
 
-def author_arkit_table(V: np.ndarray) -> dict:
-    """The 52 ARKit targets as control displacements on the canonical face ``V`` (468, 3) cm."""
-    controls = _controls()
-    t: dict[str, dict[int, np.ndarray]] = {n: {} for n in ARKIT_NAMES}
-    lips = LIP_OUTER_UPPER + LIP_OUTER_LOWER + LIP_INNER_UPPER + LIP_INNER_LOWER
-    upper_lip = LIP_OUTER_UPPER[1:-1] + LIP_INNER_UPPER[1:-1]
-    lower_lip = LIP_OUTER_LOWER + LIP_INNER_LOWER
-    corners = {"R": [61, 78], "L": [291, 308]}
-    corner_x = float(V[291, 0])
-    sgn = {"L": 1.0, "R": -1.0}
-    side_name = {"L": "Left", "R": "Right"}
+class _Authoring:
+    """The targets being authored on the canonical face ``V`` (468, 3) cm, and the regions the rules use."""
 
-    def add(name: str, idx: list[int], d, weight=None) -> None:
+    def __init__(self, V: np.ndarray) -> None:
+        self.V = V
+        self.sgn = {"L": 1.0, "R": -1.0}
+        self.t: dict[str, dict[int, np.ndarray]] = {n: {} for n in ARKIT_NAMES}
+        self.lips = LIP_OUTER_UPPER + LIP_OUTER_LOWER + LIP_INNER_UPPER + LIP_INNER_LOWER
+        self.upper_lip = LIP_OUTER_UPPER[1:-1] + LIP_INNER_UPPER[1:-1]
+        self.lower_lip = LIP_OUTER_LOWER + LIP_INNER_LOWER
+        self.corners = {"R": [61, 78], "L": [291, 308]}
+        self.corner_x = float(V[291, 0])
+        self.jaw_pts = CHIN + self.lower_lip + [i for i in FACE_OVAL if V[i, 1] < -3.0 and i not in CHIN]
+        self.jaw_w = [
+            float(np.clip((-2.5 - V[i, 1]) / 3.0, 0.0, 1.0)) if i in FACE_OVAL and i not in CHIN else 1.0
+            for i in self.jaw_pts
+        ]
+        self.half = self.corners["R"] + self.corners["L"]
+
+    def add(self, name: str, idx: list[int], d, weight=None) -> None:
+        """Add the displacement ``d`` (one, or one per index) to ``idx`` in target ``name``, times ``weight``."""
+        t = self.t
         d = np.asarray(d, np.float64)
         for k, i in enumerate(idx):
             w = 1.0 if weight is None else float(weight[k])
             vec = d[k] if d.ndim == 2 else d
             t[name][i] = t[name].get(i, np.zeros(3)) + w * vec
 
-    def lateral(idx: list[int], side: str) -> np.ndarray:
+    def lateral(self, idx: list[int], side: str) -> np.ndarray:
         """1 at the ``side`` mouth corner, ½ in the middle, 0 at the other corner."""
-        x = V[idx, 0] * sgn[side]
-        return np.clip(0.5 + 0.5 * x / corner_x, 0.0, 1.0)
+        x = self.V[idx, 0] * self.sgn[side]
+        return np.clip(0.5 + 0.5 * x / self.corner_x, 0.0, 1.0)
 
-    def jaw_rotation(idx: list[int], degrees: float, weight=None) -> np.ndarray:
+    def jaw_rotation(self, idx: list[int], degrees: float, weight=None) -> np.ndarray:
         """Displacements turning points about the jaw hinge (x axis through y=0.5, z=-1.5)."""
         a = np.radians(degrees)
-        p = V[idx] - np.array([0.0, 0.5, -1.5])
+        p = self.V[idx] - np.array([0.0, 0.5, -1.5])
         d = p @ rotations.axis_angle_matrix("X", a).T - p
         return d if weight is None else d * np.asarray(weight)[:, None]
 
-    jaw_pts = CHIN + lower_lip + [i for i in FACE_OVAL if V[i, 1] < -3.0 and i not in CHIN]
-    jaw_w = [
-        float(np.clip((-2.5 - V[i, 1]) / 3.0, 0.0, 1.0)) if i in FACE_OVAL and i not in CHIN else 1.0 for i in jaw_pts
-    ]
-    half = corners["R"] + corners["L"]
 
+def author_arkit_table(V: np.ndarray) -> dict:
+    """The 52 ARKit targets as control displacements on the canonical face ``V`` (468, 3) cm."""
+    controls = _controls()
+    a = _Authoring(V)
     for s in ("L", "R"):
-        S, sx = side_name[s], sgn[s]
-        # brows
-        add(f"browDown{S}", BROW[s], [-0.12 * sx, -0.45, 0.05])
-        add(f"browDown{S}", BROW_INNER[s], [-0.1 * sx, -0.1, 0.05])
-        add(f"browOuterUp{S}", BROW_OUTER[s], [0.0, 0.6, 0.0])
-        add(f"browOuterUp{S}", BROW_MID[s], [0.0, 0.3, 0.0])
-        # cheeks
-        add(f"cheekSquint{S}", CHEEK[s] + UNDER_EYE[s], [0.0, 0.35, 0.1])
-        add(f"cheekSquint{S}", EYE_LOWER[s], [0.0, 0.08, 0.0])
-        # lids: blink closes the upper lid onto the lower one (97 % of the gap)
-        gap = V[EYE_LOWER[s]] - V[EYE_UPPER[s]]
-        add(f"eyeBlink{S}", EYE_UPPER[s], 0.8 * 0.97 * gap)
-        add(f"eyeBlink{S}", EYE_LOWER[s], -0.2 * 0.97 * gap)
-        add(f"eyeSquint{S}", EYE_LOWER[s], -0.35 * gap)
-        add(f"eyeSquint{S}", EYE_UPPER[s], 0.12 * gap)
-        add(f"eyeSquint{S}", UNDER_EYE[s], [0.0, 0.12, 0.0])
-        add(f"eyeWide{S}", EYE_UPPER[s], [0.0, 0.28, 0.05], weight=[0.5, 0.8, 1, 1, 1, 0.8, 0.5])
-        add(f"eyeWide{S}", EYE_LOWER[s], [0.0, -0.05, 0.0])
-        add(f"eyeLookDown{S}", EYE_UPPER[s], [0.0, -0.18, 0.0])
-        add(f"eyeLookDown{S}", EYE_LOWER[s], [0.0, -0.08, 0.0])
-        add(f"eyeLookUp{S}", EYE_UPPER[s], [0.0, 0.16, 0.0])
-        add(f"eyeLookUp{S}", EYE_LOWER[s], [0.0, 0.06, 0.0])
-        # in = towards the nose (−sx), out = away from it
-        add(f"eyeLookIn{S}", EYE_UPPER[s] + EYE_LOWER[s], [-0.1 * sx, 0.0, 0.0])
-        add(f"eyeLookOut{S}", EYE_UPPER[s] + EYE_LOWER[s], [0.1 * sx, 0.0, 0.0])
-        # mouth, one side
-        add(f"mouthDimple{S}", corners[s], [0.2 * sx, 0.0, -0.35])
-        add(f"mouthFrown{S}", corners[s], [0.05 * sx, -0.55, -0.05])
-        add(f"mouthFrown{S}", LIP_OUTER_LOWER, [0.0, -0.2, 0.0], weight=lateral(LIP_OUTER_LOWER, s) ** 3)
-        add(f"mouthLowerDown{S}", lower_lip, [0.0, -0.5, 0.05], weight=lateral(lower_lip, s) ** 1.5)
-        add(f"mouthPress{S}", LIP_INNER_UPPER, [0.0, -0.15, -0.05], weight=lateral(LIP_INNER_UPPER, s))
-        add(f"mouthPress{S}", LIP_INNER_LOWER, [0.0, 0.2, -0.05], weight=lateral(LIP_INNER_LOWER, s))
-        add(f"mouthPress{S}", LIP_OUTER_LOWER, [0.0, 0.12, -0.1], weight=lateral(LIP_OUTER_LOWER, s))
-        add(f"mouthSmile{S}", corners[s], [0.45 * sx, 0.7, -0.4])
-        add(f"mouthSmile{S}", CHEEK[s], [0.05 * sx, 0.2, 0.1])
-        add(f"mouthStretch{S}", corners[s], [0.55 * sx, -0.2, -0.1])
-        add(f"mouthUpperUp{S}", upper_lip, [0.0, 0.45, 0.05], weight=lateral(upper_lip, s) ** 1.5)
-        add(f"noseSneer{S}", NOSE_WING[s], [0.05 * sx, 0.35, 0.0])
-        add(f"noseSneer{S}", BROW_INNER[s], [0.0, -0.12, 0.0])
-        add(f"noseSneer{S}", upper_lip, [0.0, 0.1, 0.0], weight=lateral(upper_lip, s) ** 3)
-        # jaw sideways: towards the subject's own side
-        add(f"jaw{S}", jaw_pts, [0.6 * sx, 0.0, 0.0], weight=jaw_w)
-        # whole mouth sideways
-        add(f"mouth{S}", lips, [0.6 * sx, 0.0, 0.0])
+        _one_side(a, s)
+    _symmetric(a)
+    t = a.t
+    targets = {n: {str(i): [round(float(x), 5) for x in d] for i, d in sorted(t[n].items())} for n in ARKIT_NAMES}
+    return {
+        "format": FORMAT,
+        "description": "ARKit blendshapes as control-point displacements on MediaPipe's canonical face mesh "
+        "(written by facecapges.avatar.blendshape_table.author_arkit_table).",
+        "n_vertices": int(V.shape[0]),
+        "units": "centimetres (canonical face: +X subject's left, Y up, +Z out of the face)",
+        "controls": controls,
+        "targets": targets,
+    }
 
+
+def _one_side(a: _Authoring, s: str) -> None:
+    """The targets of one side ``s`` (``L`` / ``R``): brows, cheeks, lids, gaze, mouth, jaw."""
+    V, add, lateral, corners = a.V, a.add, a.lateral, a.corners
+    upper_lip, lower_lip, lips, jaw_pts, jaw_w = a.upper_lip, a.lower_lip, a.lips, a.jaw_pts, a.jaw_w
+    S, sx = {"L": "Left", "R": "Right"}[s], a.sgn[s]
+    # brows
+    add(f"browDown{S}", BROW[s], [-0.12 * sx, -0.45, 0.05])
+    add(f"browDown{S}", BROW_INNER[s], [-0.1 * sx, -0.1, 0.05])
+    add(f"browOuterUp{S}", BROW_OUTER[s], [0.0, 0.6, 0.0])
+    add(f"browOuterUp{S}", BROW_MID[s], [0.0, 0.3, 0.0])
+    # cheeks
+    add(f"cheekSquint{S}", CHEEK[s] + UNDER_EYE[s], [0.0, 0.35, 0.1])
+    add(f"cheekSquint{S}", EYE_LOWER[s], [0.0, 0.08, 0.0])
+    # lids: blink closes the upper lid onto the lower one (97 % of the gap)
+    gap = V[EYE_LOWER[s]] - V[EYE_UPPER[s]]
+    add(f"eyeBlink{S}", EYE_UPPER[s], 0.8 * 0.97 * gap)
+    add(f"eyeBlink{S}", EYE_LOWER[s], -0.2 * 0.97 * gap)
+    add(f"eyeSquint{S}", EYE_LOWER[s], -0.35 * gap)
+    add(f"eyeSquint{S}", EYE_UPPER[s], 0.12 * gap)
+    add(f"eyeSquint{S}", UNDER_EYE[s], [0.0, 0.12, 0.0])
+    add(f"eyeWide{S}", EYE_UPPER[s], [0.0, 0.28, 0.05], weight=[0.5, 0.8, 1, 1, 1, 0.8, 0.5])
+    add(f"eyeWide{S}", EYE_LOWER[s], [0.0, -0.05, 0.0])
+    add(f"eyeLookDown{S}", EYE_UPPER[s], [0.0, -0.18, 0.0])
+    add(f"eyeLookDown{S}", EYE_LOWER[s], [0.0, -0.08, 0.0])
+    add(f"eyeLookUp{S}", EYE_UPPER[s], [0.0, 0.16, 0.0])
+    add(f"eyeLookUp{S}", EYE_LOWER[s], [0.0, 0.06, 0.0])
+    # in = towards the nose (−sx), out = away from it
+    add(f"eyeLookIn{S}", EYE_UPPER[s] + EYE_LOWER[s], [-0.1 * sx, 0.0, 0.0])
+    add(f"eyeLookOut{S}", EYE_UPPER[s] + EYE_LOWER[s], [0.1 * sx, 0.0, 0.0])
+    # mouth, one side
+    add(f"mouthDimple{S}", corners[s], [0.2 * sx, 0.0, -0.35])
+    add(f"mouthFrown{S}", corners[s], [0.05 * sx, -0.55, -0.05])
+    add(f"mouthFrown{S}", LIP_OUTER_LOWER, [0.0, -0.2, 0.0], weight=lateral(LIP_OUTER_LOWER, s) ** 3)
+    add(f"mouthLowerDown{S}", lower_lip, [0.0, -0.5, 0.05], weight=lateral(lower_lip, s) ** 1.5)
+    add(f"mouthPress{S}", LIP_INNER_UPPER, [0.0, -0.15, -0.05], weight=lateral(LIP_INNER_UPPER, s))
+    add(f"mouthPress{S}", LIP_INNER_LOWER, [0.0, 0.2, -0.05], weight=lateral(LIP_INNER_LOWER, s))
+    add(f"mouthPress{S}", LIP_OUTER_LOWER, [0.0, 0.12, -0.1], weight=lateral(LIP_OUTER_LOWER, s))
+    add(f"mouthSmile{S}", corners[s], [0.45 * sx, 0.7, -0.4])
+    add(f"mouthSmile{S}", CHEEK[s], [0.05 * sx, 0.2, 0.1])
+    add(f"mouthStretch{S}", corners[s], [0.55 * sx, -0.2, -0.1])
+    add(f"mouthUpperUp{S}", upper_lip, [0.0, 0.45, 0.05], weight=lateral(upper_lip, s) ** 1.5)
+    add(f"noseSneer{S}", NOSE_WING[s], [0.05 * sx, 0.35, 0.0])
+    add(f"noseSneer{S}", BROW_INNER[s], [0.0, -0.12, 0.0])
+    add(f"noseSneer{S}", upper_lip, [0.0, 0.1, 0.0], weight=lateral(upper_lip, s) ** 3)
+    # jaw sideways: towards the subject's own side
+    add(f"jaw{S}", jaw_pts, [0.6 * sx, 0.0, 0.0], weight=jaw_w)
+    # whole mouth sideways
+    add(f"mouth{S}", lips, [0.6 * sx, 0.0, 0.0])
+
+
+def _symmetric(a: _Authoring) -> None:
+    """The targets with no side: inner brows, cheek puff, jaw forward / open, the whole mouth's shapes."""
+    V, add, jaw_rotation, corners, corner_x = a.V, a.add, a.jaw_rotation, a.corners, a.corner_x
+    upper_lip, lower_lip, lips, jaw_pts, jaw_w, half = a.upper_lip, a.lower_lip, a.lips, a.jaw_pts, a.jaw_w, a.half
     add("browInnerUp", BROW_INNER["R"] + BROW_INNER["L"], [0.0, 0.6, 0.0])
     add("browInnerUp", BROW_MID["R"] + BROW_MID["L"], [0.0, 0.25, 0.0])
     add("cheekPuff", CHEEK["R"], [-0.5, 0.0, 0.35])
@@ -311,17 +343,6 @@ def author_arkit_table(V: np.ndarray) -> dict:
     add("mouthShrugUpper", upper_lip, [0.0, 0.25, 0.15])
     add("tongueOut", jaw_pts, jaw_rotation(jaw_pts, 6.0, jaw_w))
     add("tongueOut", lower_lip, [0.0, -0.3, 0.35])
-
-    targets = {n: {str(i): [round(float(x), 5) for x in d] for i, d in sorted(t[n].items())} for n in ARKIT_NAMES}
-    return {
-        "format": FORMAT,
-        "description": "ARKit blendshapes as control-point displacements on MediaPipe's canonical face mesh "
-        "(written by facecapges.avatar.blendshape_table.author_arkit_table).",
-        "n_vertices": int(V.shape[0]),
-        "units": "centimetres (canonical face: +X subject's left, Y up, +Z out of the face)",
-        "controls": controls,
-        "targets": targets,
-    }
 
 
 def main() -> None:

@@ -81,33 +81,70 @@ def build_blendshapes(
             "aoi_vertices": int((res.factors > 0.01).sum()) if aoi else mesh.n_vertices,
         }
         if compare:
-            moved = table.controls[np.linalg.norm(disp, axis=1) > 1e-9]
-            far = far_vertices(mesh, moved, far_radius * size)
-            other = deformer.deform(disp, aoi=not aoi, **deform_kw).vertices
-            with_aoi, without = (res.vertices, other) if aoi else (other, res.vertices)
-            plain = deformer.plain(disp)
-            if far.size:
-                motion = [
-                    float(np.linalg.norm(x[far] - mesh.vertices[far], axis=1).mean() / size)
-                    for x in (with_aoi, without, plain)
-                ]
-                far_aoi.append(motion[0])
-                far_free.append(motion[1])
-                far_plain.append(motion[2])
-                entry.update(
-                    far_vertices=int(far.size),
-                    far_motion_aoi=motion[0],
-                    far_motion_no_aoi=motion[1],
-                    far_motion_plain=motion[2],
-                )
+            motion = _far_motion(deformer, mesh, table.controls, disp, res.vertices, aoi, far_radius, deform_kw)
+            if motion is not None:
+                far_aoi.append(motion["far_motion_aoi"])
+                far_free.append(motion["far_motion_no_aoi"])
+                far_plain.append(motion["far_motion_plain"])
+                entry.update(motion)
         per_target[name] = entry
         if progress is not None:
             progress(k)
+    report = _report(mesh, table, aoi, far_radius, errors, iters, far_aoi, far_free, far_plain)
+    report["targets"] = per_target
+    return Blendshapes(mesh, list(table.targets), out, report)
+
+
+def _far_motion(
+    deformer: LaplacianDeformer,
+    mesh: TriMesh,
+    controls: np.ndarray,
+    disp: np.ndarray,
+    vertices: np.ndarray,
+    aoi: bool,
+    far_radius: float,
+    deform_kw: dict,
+) -> dict[str, Any] | None:
+    """How far vertices (beyond ``far_radius`` of the face size from the moved controls) move with AOI,
+    without, and by the plain edit (mean, fraction of face size); None when no vertex is that far.
+
+    ``vertices``: the target as deformed with ``aoi``; the other variant is run here."""
+    size = mesh.size
+    moved = controls[np.linalg.norm(disp, axis=1) > 1e-9]
+    far = far_vertices(mesh, moved, far_radius * size)
+    other = deformer.deform(disp, aoi=not aoi, **deform_kw).vertices
+    with_aoi, without = (vertices, other) if aoi else (other, vertices)
+    plain = deformer.plain(disp)
+    if not far.size:
+        return None
+    motion = [
+        float(np.linalg.norm(x[far] - mesh.vertices[far], axis=1).mean() / size) for x in (with_aoi, without, plain)
+    ]
+    return {
+        "far_vertices": int(far.size),
+        "far_motion_aoi": motion[0],
+        "far_motion_no_aoi": motion[1],
+        "far_motion_plain": motion[2],
+    }
+
+
+def _report(
+    mesh: TriMesh,
+    table: ControlTable,
+    aoi: bool,
+    far_radius: float,
+    errors: list[float],
+    iters: list,
+    far_aoi: list[float],
+    far_free: list[float],
+    far_plain: list[float],
+) -> dict[str, Any]:
+    """The run's summary (control error, iterations, far-vertex motion with / without AOI)."""
     report: dict[str, Any] = {
         "n_vertices": mesh.n_vertices,
         "n_controls": int(table.controls.size),
         "n_targets": len(table.targets),
-        "face_size": size,
+        "face_size": mesh.size,
         "aoi": aoi,
         "far_radius": far_radius,
         "max_control_error": max(errors),
@@ -121,8 +158,7 @@ def build_blendshapes(
             targets_where_aoi_moves_far_less=int(np.sum(np.asarray(far_aoi) < np.asarray(far_free))),
             targets_compared=len(far_aoi),
         )
-    report["targets"] = per_target
-    return Blendshapes(mesh, list(table.targets), out, report)
+    return report
 
 
 def arkit_blendshapes(aoi: bool = True, compare: bool = False, progress=None) -> Blendshapes:

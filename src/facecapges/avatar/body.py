@@ -377,13 +377,28 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     knuckles = np.array([P[J(f"{f}1")] for f in ("Index", "Middle", "Ring", "Pinky")])
     wrist = P[hand]
     fwd = knuckles.mean(0) - wrist
-    length = np.linalg.norm(fwd)
+    length = float(np.linalg.norm(fwd))
     fwd /= length
     across = knuckles[0] - knuckles[3]
-    width = np.linalg.norm(across)
+    width = float(np.linalg.norm(across))
     across /= width
     up = np.cross(across, fwd) if side == "Left" else np.cross(fwd, across)
     up /= np.linalg.norm(up)  # the back of the hand
+    V, F = _palm_mesh(wrist, knuckles, fwd, length, across, width, up)
+    b.add(V, _palm_weights(skel, V, side, wrist, knuckles, fwd, length, across, width), F, SKIN)
+    _fingers(b, skel, P, side, up)
+
+
+def _palm_mesh(
+    wrist: np.ndarray,
+    knuckles: np.ndarray,
+    fwd: np.ndarray,
+    length: float,
+    across: np.ndarray,
+    width: float,
+    up: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The palm: rounded-square rings along the hand, capped at both ends, faces outward."""
     center_line = np.array(
         [wrist + t * length * fwd + (knuckles.mean(0) - wrist - length * fwd) * t for t in (-0.05, 0.3, 0.7, 1.02)]
     )
@@ -416,6 +431,23 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     nrm = np.cross(V[F[0, 1]] - V[F[0, 0]], V[F[0, 2]] - V[F[0, 0]])
     if np.dot(nrm, V[F[0, 0]] - center_line[0]) < 0:
         F = F[:, ::-1]
+    return V, F
+
+
+def _palm_weights(
+    skel: Skeleton,
+    V: np.ndarray,
+    side: str,
+    wrist: np.ndarray,
+    knuckles: np.ndarray,
+    fwd: np.ndarray,
+    length: float,
+    across: np.ndarray,
+    width: float,
+) -> list[dict[int, float]]:
+    """Skin weights of the palm's vertices: hand, a little forearm at the wrist, metacarpals at the far half."""
+    J = lambda n: skel.index(f"{side}Hand{n}")  # noqa: E731
+    hand = skel.index(f"{side}Hand")
     fore = skel.index(f"{side}ForeArm")
     # the far half of the palm follows the metacarpal joint of its finger (BEAT has
     # Index, Ring and Pinky metacarpals; the middle finger's column stays on the hand)
@@ -430,8 +462,12 @@ def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
         if m > 0 and meta is not None:
             wd = {hand: 1.0 - m, J(meta): m}
         w.append(wd)
-    b.add(V, w, F, SKIN)
-    # fingers: one tube along each finger's joints to its end site
+    return w
+
+
+def _fingers(b: _Builder, skel: Skeleton, P: np.ndarray, side: str, up: np.ndarray) -> None:
+    """One tube along each finger's joints to its end site."""
+    J = lambda n: skel.index(f"{side}Hand{n}")  # noqa: E731
     radius = {"Thumb": 1.05, "Index": 0.9, "Middle": 0.92, "Ring": 0.86, "Pinky": 0.76}
     for f in FINGERS:
         chain = [J(f"{f}{k}") for k in (1, 2, 3, 4)]
@@ -578,7 +614,20 @@ def _eye(
     ctr = rim.mean(0)
     width = float(np.ptp(rim[:, 0]))
     fwd = np.array([0.0, 0.0, 1.0])
-    # socket: two rings swept into the head and a back pole, each following its rim vertex
+    sock_v, sock_d, sock_f = _eye_socket(loop, rim, ctr, fwd, deltas, base)
+    # eyeball: its front just behind the lids at the opening's middle
+    r = EYEBALL_RADIUS * width
+    mid = np.argsort(np.abs(rim[:, 0] - ctr[0]))[:4]
+    center = np.array([ctr[0], ctr[1], rim[mid, 2].mean() - 0.12 - r])
+    ball, ball_f = _eyeball_mesh(center, r, fwd, base + len(sock_v))
+    ball_d = _gaze_deltas(ball, center, names, side, len(deltas))
+    return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1), {EYE: sock_f, **ball_f})
+
+
+def _eye_socket(
+    loop: np.ndarray, rim: np.ndarray, ctr: np.ndarray, fwd: np.ndarray, deltas: np.ndarray, base: int
+) -> tuple[np.ndarray, np.ndarray, list]:
+    """The socket: two rings swept into the head and a back pole, each following its rim vertex."""
     m = len(loop)
     sock_v, sock_src, sock_k = [], [], []
     for shrink, depth in ((0.9, 0.6), (0.55, 1.6)):
@@ -597,10 +646,11 @@ def _eye(
         sock_f += list(np.stack([a, b2, b], 1)) + list(np.stack([a, a2, b2], 1))
     pole = base + 2 * m
     sock_f += list(np.stack([idx[-1], np.roll(idx[-1], -1), np.full(m, pole)], 1))
-    # eyeball: its front just behind the lids at the opening's middle
-    r = EYEBALL_RADIUS * width
-    mid = np.argsort(np.abs(rim[:, 0] - ctr[0]))[:4]
-    center = np.array([ctr[0], ctr[1], rim[mid, 2].mean() - 0.12 - r])
+    return sock_v, sock_d, sock_f
+
+
+def _eyeball_mesh(center: np.ndarray, r: float, fwd: np.ndarray, b0: int) -> tuple[np.ndarray, dict[str, list]]:
+    """The eyeball's vertices (poles and rings of latitude) and its triangles per material, indices from ``b0``."""
     thetas = np.array([0.1, PUPIL_RAD, 0.36, IRIS_RAD, 0.72, 0.95, 1.25, 1.6, 2.0, 2.5, 2.95])
     n = 24
     phi = np.linspace(0, 2 * np.pi, n, endpoint=False)
@@ -611,7 +661,6 @@ def _eye(
         )
     ball.append(center - r * fwd)
     ball = np.asarray(ball)
-    b0 = base + len(sock_v)
     ball_f: dict[str, list] = {PUPIL: [], IRIS: [], SCLERA: []}
 
     def mat(th: float) -> str:
@@ -625,8 +674,12 @@ def _eye(
             ball_f[mat(thetas[k + 1])].append(t)
     last = ring(len(thetas) - 1)
     ball_f[SCLERA] += list(np.stack([last, np.full(n, b0 + len(ball) - 1), np.roll(last, -1)], 1))
-    # gaze: eyeLook{Up,Down,In,Out}{side} turn this eyeball about its centre
-    ball_d = np.zeros((len(deltas), len(ball), 3))
+    return ball, ball_f
+
+
+def _gaze_deltas(ball: np.ndarray, center: np.ndarray, names: list[str], side: str, T: int) -> np.ndarray:
+    """eyeLook{Up,Down,In,Out}{side} turn this eyeball about its centre: (T, len(ball), 3) deltas."""
+    ball_d = np.zeros((T, len(ball), 3))
     inward = -1.0 if side == "Left" else 1.0  # towards the nose, in X
     for direction, deg in GAZE_DEG.items():
         name = f"eyeLook{direction}{side}"
@@ -637,7 +690,7 @@ def _eye(
         else:
             R = rot.axis_angle_matrix("Y", np.radians(deg * (inward if direction == "In" else -inward)))  # +Z to +X
         ball_d[names.index(name)] = (ball - center) @ R.T + center - ball
-    return (np.concatenate([sock_v, ball]), np.concatenate([sock_d, ball_d], axis=1), {EYE: sock_f, **ball_f})
+    return ball_d
 
 
 def build_face(
@@ -659,42 +712,11 @@ def build_face(
     cap_v, cap_f, cap_src, cap_ring = back_of_head(neutral)
     V = np.concatenate([neutral.vertices, cap_v])
     n_face = neutral.n_vertices
-    faces: dict[str, list] = {SKIN: [], EYE: [], MOUTH: [], HAIR: []}
-    ring_sets = [(set(r), EYE) for r in eye_rings] + [(set(mouth_ring), MOUTH)] + [(set(r), HAIR) for r in brow_rings]
-    for tri in neutral.faces:
-        mat = SKIN
-        for rs, m in ring_sets:
-            if all(int(v) in rs for v in tri):
-                mat = m
-        faces[mat].append(tri)
-    ymin, ymax = neutral.vertices[:, 1].min(), neutral.vertices[:, 1].max()
-    zmax = neutral.vertices[:, 2].max()
-    for tri in cap_f:
-        c = V[tri].mean(0)
-        # hair over the top and back of the skull; skin at the temples, jaw and under the chin
-        hair = c[1] > ymin + 0.62 * (ymax - ymin) - 0.35 * max(0.0, (zmax - 8.0) - c[2]) and c[1] > ymin + 0.25 * (
-            ymax - ymin
-        )
-        faces[HAIR if hair else SKIN].append(tri)
+    faces, ymax = _face_materials(neutral, V, cap_f, eye_rings, mouth_ring, brow_rings)
     T = len(names)
     n_head = len(V)
     deltas_face = targets - neutral.vertices[None]
-    # the eyes: the opening triangles give way to a socket and an eyeball
-    eye_tris = faces.pop(EYE, [])
-    extra_v: list[np.ndarray] = []
-    extra_d: list[np.ndarray] = []
-    for ring in eye_rings:
-        rs = set(ring)
-        tris = np.asarray([t for t in eye_tris if all(int(v) in rs for v in t)], np.int64).reshape(-1, 3)
-        if not len(tris):
-            continue
-        side = "Left" if neutral.vertices[ring, 0].mean() > 0 else "Right"  # head frame: +X = subject's left
-        base = n_head + sum(len(v) for v in extra_v)
-        ev, ed, ef = _eye(neutral.vertices, deltas_face, tris, names, side, base)
-        extra_v.append(ev)
-        extra_d.append(ed)
-        for m, f in ef.items():
-            faces.setdefault(m, []).extend(f)
+    extra_v, extra_d = _face_eyes(neutral, deltas_face, faces, eye_rings, names, n_head)
     if extra_v:
         V = np.concatenate([V] + extra_v)
     by_material = {m: np.asarray(f, np.int64).reshape(-1, 3) for m, f in faces.items() if len(f)}  # per material
@@ -715,6 +737,64 @@ def build_face(
         ndel[t] = TriMesh(Vt, allf).vertex_normals() - normals
     offset = np.array([0.0, head_to_hairline - ymax, 3.0])
     return FaceMesh(V, normals, by_material, list(names), deltas, ndel, offset)
+
+
+def _face_materials(
+    neutral: TriMesh,
+    V: np.ndarray,
+    cap_f: np.ndarray,
+    eye_rings: list[list[int]],
+    mouth_ring: list[int],
+    brow_rings: Sequence[list[int]],
+) -> tuple[dict[str, list], float]:
+    """The face's and back of head's triangles per material, and the face's top (max Y)."""
+    faces: dict[str, list] = {SKIN: [], EYE: [], MOUTH: [], HAIR: []}
+    ring_sets = [(set(r), EYE) for r in eye_rings] + [(set(mouth_ring), MOUTH)] + [(set(r), HAIR) for r in brow_rings]
+    for tri in neutral.faces:
+        mat = SKIN
+        for rs, m in ring_sets:
+            if all(int(v) in rs for v in tri):
+                mat = m
+        faces[mat].append(tri)
+    ymin, ymax = neutral.vertices[:, 1].min(), neutral.vertices[:, 1].max()
+    zmax = neutral.vertices[:, 2].max()
+    for tri in cap_f:
+        c = V[tri].mean(0)
+        # hair over the top and back of the skull; skin at the temples, jaw and under the chin
+        hair = c[1] > ymin + 0.62 * (ymax - ymin) - 0.35 * max(0.0, (zmax - 8.0) - c[2]) and c[1] > ymin + 0.25 * (
+            ymax - ymin
+        )
+        faces[HAIR if hair else SKIN].append(tri)
+    return faces, ymax
+
+
+def _face_eyes(
+    neutral: TriMesh,
+    deltas_face: np.ndarray,
+    faces: dict[str, list],
+    eye_rings: list[list[int]],
+    names: list[str],
+    n_head: int,
+) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """The eyes: the opening triangles (taken out of ``faces``) give way to a socket and an eyeball each.
+
+    Returns the eyes' vertices and deltas; their triangles go into ``faces``."""
+    eye_tris = faces.pop(EYE, [])
+    extra_v: list[np.ndarray] = []
+    extra_d: list[np.ndarray] = []
+    for ring in eye_rings:
+        rs = set(ring)
+        tris = np.asarray([t for t in eye_tris if all(int(v) in rs for v in t)], np.int64).reshape(-1, 3)
+        if not len(tris):
+            continue
+        side = "Left" if neutral.vertices[ring, 0].mean() > 0 else "Right"  # head frame: +X = subject's left
+        base = n_head + sum(len(v) for v in extra_v)
+        ev, ed, ef = _eye(neutral.vertices, deltas_face, tris, names, side, base)
+        extra_v.append(ev)
+        extra_d.append(ed)
+        for m, f in ef.items():
+            faces.setdefault(m, []).extend(f)
+    return extra_v, extra_d
 
 
 def build_avatar(

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib as g
 
-from facecapges.avatar.body import COLORS, Avatar
+from facecapges.avatar.body import COLORS, Avatar, FaceMesh
 
 CM_TO_M = 0.01
 
@@ -63,7 +63,6 @@ class _Buffer:
 def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
     """Build the glTF document of ``avatar`` (see the module docstring for its layout)."""
     skel = avatar.skeleton
-    J = skel.n_joints
     buf = _Buffer()
     kids = skel.children()
     nodes = [
@@ -71,75 +70,13 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
         for j, n in enumerate(skel.names)
     ]
 
-    materials: list[g.Material] = []
-    mat_index: dict[str, int] = {}
-    for name, rgba in COLORS.items():
-        mat_index[name] = len(materials)
-        materials.append(
-            g.Material(
-                name=name,
-                pbrMetallicRoughness=g.PbrMetallicRoughness(
-                    baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8 if name != "eye" else 0.3
-                ),
-                doubleSided=name in ("eye", "mouth"),
-            )
-        )
-
-    def index_accessor(faces: np.ndarray, n_vertices: int) -> int:
-        dt = np.uint16 if n_vertices < 65535 else np.uint32
-        return buf.add(faces.astype(dt).reshape(-1), g.SCALAR, g.ELEMENT_ARRAY_BUFFER)
-
-    # body: skinned
-    body = avatar.body
-    pos = buf.add((body.vertices * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
-    nrm = buf.add(body.normals.astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
-    jnt = buf.add(body.joints.astype(np.uint8 if J < 256 else np.uint16), g.VEC4, g.ARRAY_BUFFER)
-    wgt = buf.add(body.weights.astype(np.float32), g.VEC4, g.ARRAY_BUFFER)
-    prims = [
-        g.Primitive(
-            attributes=g.Attributes(POSITION=pos, NORMAL=nrm, JOINTS_0=jnt, WEIGHTS_0=wgt),
-            indices=index_accessor(f, len(body.vertices)),
-            material=mat_index[m],
-            mode=g.TRIANGLES,
-        )
-        for m, f in body.faces.items()
-    ]
-    meshes = [g.Mesh(name="Body", primitives=prims)]
-    ibm = np.zeros((J, 4, 4), np.float32)
-    for j in range(J):
-        m = np.eye(4)
-        m[:3, 3] = -avatar.rest[j] * CM_TO_M
-        ibm[j] = m.T  # glTF matrices are column-major
-    ibm_acc = buf.add(ibm.reshape(J, 16), g.MAT4, None)
-    skin = g.Skin(name="BEAT", joints=list(range(J)), inverseBindMatrices=ibm_acc, skeleton=0)
-
-    # face: morph targets, parented to the Head joint
-    face = avatar.face
-    fpos = buf.add((face.vertices * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
-    fnrm = buf.add(face.normals.astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
-    targets = []
-    for t in range(len(face.names)):
-        dp = buf.add((face.deltas[t] * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
-        dn = buf.add(face.normal_deltas[t].astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
-        targets.append({"POSITION": dp, "NORMAL": dn})
-    fprims = [
-        g.Primitive(
-            attributes=g.Attributes(POSITION=fpos, NORMAL=fnrm),
-            targets=targets,
-            indices=index_accessor(f, len(face.vertices)),
-            material=mat_index[m],
-            mode=g.TRIANGLES,
-        )
-        for m, f in face.faces.items()
-    ]
-    meshes.append(
-        g.Mesh(
-            name="Face", primitives=fprims, weights=[0.0] * len(face.names), extras={"targetNames": list(face.names)}
-        )
-    )
+    materials, mat_index = _materials()
+    meshes, skin = _body_mesh(buf, avatar, mat_index)
+    meshes.append(_face_mesh(buf, avatar.face, mat_index))
 
     body_node = len(nodes)
     nodes.append(g.Node(name="Body", mesh=0, skin=0))
+    face = avatar.face
     face_node = len(nodes)
     nodes.append(g.Node(name="Face", mesh=1, translation=[float(x) * CM_TO_M for x in face.offset]))
     head = skel.index("Head")
@@ -168,6 +105,83 @@ def avatar_to_gltf(avatar: Avatar) -> g.GLTF2:
     )
     doc.set_binary_blob(bytes(buf.data))
     return doc
+
+
+def _materials() -> tuple[list[g.Material], dict[str, int]]:
+    """One material per :data:`COLORS` entry, and each one's index by name."""
+    materials: list[g.Material] = []
+    mat_index: dict[str, int] = {}
+    for name, rgba in COLORS.items():
+        mat_index[name] = len(materials)
+        materials.append(
+            g.Material(
+                name=name,
+                pbrMetallicRoughness=g.PbrMetallicRoughness(
+                    baseColorFactor=list(rgba), metallicFactor=0.0, roughnessFactor=0.8 if name != "eye" else 0.3
+                ),
+                doubleSided=name in ("eye", "mouth"),
+            )
+        )
+    return materials, mat_index
+
+
+def _index_accessor(buf: _Buffer, faces: np.ndarray, n_vertices: int) -> int:
+    """The accessor of a triangle list: 16-bit indices when they fit."""
+    dt = np.uint16 if n_vertices < 65535 else np.uint32
+    return buf.add(faces.astype(dt).reshape(-1), g.SCALAR, g.ELEMENT_ARRAY_BUFFER)
+
+
+def _body_mesh(buf: _Buffer, avatar: Avatar, mat_index: dict[str, int]) -> tuple[list[g.Mesh], g.Skin]:
+    """The skinned body mesh (in a list, the document's meshes) and its skin of the BEAT joints."""
+    skel = avatar.skeleton
+    J = skel.n_joints
+    body = avatar.body
+    pos = buf.add((body.vertices * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
+    nrm = buf.add(body.normals.astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
+    jnt = buf.add(body.joints.astype(np.uint8 if J < 256 else np.uint16), g.VEC4, g.ARRAY_BUFFER)
+    wgt = buf.add(body.weights.astype(np.float32), g.VEC4, g.ARRAY_BUFFER)
+    prims = [
+        g.Primitive(
+            attributes=g.Attributes(POSITION=pos, NORMAL=nrm, JOINTS_0=jnt, WEIGHTS_0=wgt),
+            indices=_index_accessor(buf, f, len(body.vertices)),
+            material=mat_index[m],
+            mode=g.TRIANGLES,
+        )
+        for m, f in body.faces.items()
+    ]
+    meshes = [g.Mesh(name="Body", primitives=prims)]
+    ibm = np.zeros((J, 4, 4), np.float32)
+    for j in range(J):
+        m = np.eye(4)
+        m[:3, 3] = -avatar.rest[j] * CM_TO_M
+        ibm[j] = m.T  # glTF matrices are column-major
+    ibm_acc = buf.add(ibm.reshape(J, 16), g.MAT4, None)
+    skin = g.Skin(name="BEAT", joints=list(range(J)), inverseBindMatrices=ibm_acc, skeleton=0)
+    return meshes, skin
+
+
+def _face_mesh(buf: _Buffer, face: FaceMesh, mat_index: dict[str, int]) -> g.Mesh:
+    """The face mesh with its morph targets (its node is parented to the Head joint)."""
+    fpos = buf.add((face.vertices * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
+    fnrm = buf.add(face.normals.astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
+    targets = []
+    for t in range(len(face.names)):
+        dp = buf.add((face.deltas[t] * CM_TO_M).astype(np.float32), g.VEC3, g.ARRAY_BUFFER, minmax=True)
+        dn = buf.add(face.normal_deltas[t].astype(np.float32), g.VEC3, g.ARRAY_BUFFER)
+        targets.append({"POSITION": dp, "NORMAL": dn})
+    fprims = [
+        g.Primitive(
+            attributes=g.Attributes(POSITION=fpos, NORMAL=fnrm),
+            targets=targets,
+            indices=_index_accessor(buf, f, len(face.vertices)),
+            material=mat_index[m],
+            mode=g.TRIANGLES,
+        )
+        for m, f in face.faces.items()
+    ]
+    return g.Mesh(
+        name="Face", primitives=fprims, weights=[0.0] * len(face.names), extras={"targetNames": list(face.names)}
+    )
 
 
 def write_glb(avatar: Avatar, path: str | Path) -> Path:

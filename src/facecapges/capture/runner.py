@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -97,13 +98,80 @@ def capture_video(
 ) -> dict:
     """Run the capture over ``source`` and write ``out`` (face JSON; one per face, module docstring);
     returns a summary dict."""
+    out = Path(out)
+    outs, depth_files, K = _check_inputs(source, out, fps, faces, overlay, depth_dir, intrinsics, force)
+    src, cap = _open_capture(source, estimator, model, K, faces, depth_files is not None)
+    writer = None
+    records = [Records() for _ in outs]
+    n_found = [0] * len(outs)
+    try:
+        if overlay is not None:
+            from facecapges.capture.overlay import OverlayWriter
+
+            writer = OverlayWriter(overlay, src.width, src.height, fps)
+        n_several = _run_frames(
+            src, cap, writer, records, n_found, source, fps, faces, max_frames, depth_files, progress
+        )
+    finally:
+        cap.close()
+        src.close()
+        if writer is not None:
+            writer.close()
+    if not len(records[0]):
+        raise UserError(f"{source}: no frames could be read")
+    for p, rec in zip(outs, records):
+        rec.write(p, fps, face_layout)
+    warnings = _warnings(src, n_found, n_several)
+    common = {
+        "frames": len(records[0]),
+        "fps": fps,
+        "warnings": warnings,
+        "bad_frames": src.bad_frames,
+        "missing_frames": src.missing_tail,
+    }
+    if faces == 1:
+        return {**common, "face_found": n_found[0], "out": str(out)}
+    return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}
+
+
+def _open_capture(source: str, estimator: str, model, K, faces: int, depth: bool):
+    """The landmark model (a missing one fails before any video is opened), the source and the capture."""
+    from facecapges.capture.models import resolve_model
+    from facecapges.capture.pipeline import FaceCapture
     from facecapges.capture.video import open_source
 
+    model = resolve_model(model)  # a missing model fails before any video is opened
+    src = open_source(source)
+
+    try:
+        # one face: MediaPipe looks for two so that a second face in view can be reported
+        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
+    except BaseException:
+        src.close()
+        raise
+    if depth and K is not None:
+        from facecapges.capture.depth import DepthHeadTracker
+
+        cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
+    return src, cap
+
+
+def _check_inputs(
+    source: str,
+    out: Path,
+    fps: float,
+    faces: int,
+    overlay: str | Path | None,
+    depth_dir,
+    intrinsics,
+    force: bool,
+) -> tuple[list[Path], list | None, Any]:
+    """The checks before any model loads: options, outputs (one per face), depth inputs, the source;
+    returns the output paths, the depth files and the intrinsics."""
     if not (0 < fps <= 120):
         raise UserError(f"--fps must be in (0, 120], got {fps}")
     if not 1 <= int(faces) <= 8:
         raise UserError(f"--faces must be 1 to 8, got {faces}")
-    out = Path(out)
     outs = [out] if faces == 1 else [out.with_name(f"{out.stem}_{i + 1}{out.suffix}") for i in range(faces)]
     for p in outs:
         check_output_file(p, force)
@@ -120,78 +188,68 @@ def capture_video(
         check_camera(int(source))
     else:
         check_video(source)
-    from facecapges.capture.models import resolve_model
-    from facecapges.capture.pipeline import FaceCapture
+    return outs, depth_files, K
 
-    model = resolve_model(model)  # a missing model fails before any video is opened
-    src = open_source(source)
 
-    try:
-        # one face: MediaPipe looks for two so that a second face in view can be reported
-        cap = FaceCapture(estimator=estimator, fps=src.fps, model=model, intrinsics=K, num_faces=max(faces, 2))
-    except BaseException:
-        src.close()
-        raise
-    if depth_files is not None and K is not None:
-        from facecapges.capture.depth import DepthHeadTracker
-
-        cap.depth_tracker = DepthHeadTracker(cap.mesh.vertices / 100.0, K)
-    writer = None
-    records = [Records() for _ in outs]
-    n_found = [0] * len(outs)
+def _run_frames(
+    src,
+    cap,
+    writer,
+    records: list[Records],
+    n_found: list[int],
+    source: str,
+    fps: float,
+    faces: int,
+    max_frames: int | None,
+    depth_files: list | None,
+    progress: bool,
+) -> int:
+    """Capture the frames of ``src`` at ``fps`` into ``records`` (one per face; ``n_found`` counts the frames
+    with a face), drawing the overlay; returns how many input frames had more than one face in view."""
     n_several = 0  # input frames with more than one face in view (one-face capture)
-    try:
-        if overlay is not None:
-            from facecapges.capture.overlay import OverlayWriter
+    total = None
+    if src.n_frames:
+        total = int(math.floor((src.n_frames - 1) / src.fps * fps)) + 1
+        if max_frames:
+            total = min(total, max_frames)
+    from facecapges.progress import Progress
 
-            writer = OverlayWriter(overlay, src.width, src.height, fps)
-        total = None
-        if src.n_frames:
-            total = int(math.floor((src.n_frames - 1) / src.fps * fps)) + 1
-            if max_frames:
-                total = min(total, max_frames)
-        from facecapges.progress import Progress
+    with Progress(disable=not progress, transient=True) as bar:
+        task = bar.add_task(f"capture {Path(str(source)).name}", total=total)
+        k = 0
+        for i, ts, frame in src.frames():
+            if max_frames is not None and k >= max_frames:
+                break
+            depth = None
+            if depth_files is not None:
+                from facecapges.capture.depth import read_depth
 
-        with Progress(disable=not progress, transient=True) as bar:
-            task = bar.add_task(f"capture {Path(str(source)).name}", total=total)
-            k = 0
-            for i, ts, frame in src.frames():
-                if max_frames is not None and k >= max_frames:
-                    break
-                depth = None
-                if depth_files is not None:
-                    from facecapges.capture.depth import read_depth
+                if i < len(depth_files):
+                    depth = read_depth(depth_files[i])
+            if faces == 1:
+                results = [cap.process(frame, ts, depth)]
+                n_several += getattr(cap, "faces_in_view", 1) > 1
+            else:
+                results = [r if r is not None else cap.neutral(ts) for r in cap.process_slots(frame, ts, depth)]
+            # a slow source (fps below --fps) repeats the frame on the skipped ticks
+            while (k * 1000.0 / fps) <= ts + 1e-6 and (max_frames is None or k < max_frames):
+                for i, res in enumerate(results):
+                    n_found[i] += bool(res.face_found)
+                    records[i].append(res)
+                if writer is not None:
+                    from facecapges.capture.overlay import draw_overlay
 
-                    if i < len(depth_files):
-                        depth = read_depth(depth_files[i])
-                if faces == 1:
-                    results = [cap.process(frame, ts, depth)]
-                    n_several += getattr(cap, "faces_in_view", 1) > 1
-                else:
-                    results = [r if r is not None else cap.neutral(ts) for r in cap.process_slots(frame, ts, depth)]
-                # a slow source (fps below --fps) repeats the frame on the skipped ticks
-                while (k * 1000.0 / fps) <= ts + 1e-6 and (max_frames is None or k < max_frames):
-                    for i, res in enumerate(results):
-                        n_found[i] += bool(res.face_found)
-                        records[i].append(res)
-                    if writer is not None:
-                        from facecapges.capture.overlay import draw_overlay
+                    img = frame
+                    for res in results:
+                        img = draw_overlay(img, res)
+                    writer.write(img)
+                k += 1
+                bar.advance(task)
+    return n_several
 
-                        img = frame
-                        for res in results:
-                            img = draw_overlay(img, res)
-                        writer.write(img)
-                    k += 1
-                    bar.advance(task)
-    finally:
-        cap.close()
-        src.close()
-        if writer is not None:
-            writer.close()
-    if not len(records[0]):
-        raise UserError(f"{source}: no frames could be read")
-    for p, rec in zip(outs, records):
-        rec.write(p, fps, face_layout)
+
+def _warnings(src, n_found: list[int], n_several: int) -> list[str]:
+    """What the user should know about the capture: damaged frames, a cut-short file, no face, several faces."""
     warnings = []
     if src.bad_frames:
         warnings.append(
@@ -210,13 +268,4 @@ def capture_video(
             f"more than one face was in view in {n_several} frame(s); the largest face was tracked "
             "(--faces N captures several)"
         )
-    common = {
-        "frames": len(records[0]),
-        "fps": fps,
-        "warnings": warnings,
-        "bad_frames": src.bad_frames,
-        "missing_frames": src.missing_tail,
-    }
-    if faces == 1:
-        return {**common, "face_found": n_found[0], "out": str(out)}
-    return {**common, "face_found": n_found, "out": ", ".join(map(str, outs)), "outs": [str(p) for p in outs]}
+    return warnings

@@ -71,6 +71,19 @@ def _smooth_walk(T: int, rng, amp: float, fps: float) -> np.ndarray:
     return amp * x / max(np.abs(x).max(), 1e-9)
 
 
+def _expressed(V: np.ndarray, w: float, p: np.ndarray, A: dict[str, int]) -> np.ndarray:
+    """The face ``V`` (468, 3) with one frame's weights ``p`` (52,) applied: jaw, lids, brows (``w``: eye width)."""
+    X = V.copy()
+    X[list(LOWER_LIP), 1] -= 0.45 * w * p[A["jawOpen"]] ** (1 / JAW_GAMMA)
+    for side, lid in (("Left", UPPER_LID_L), ("Right", UPPER_LID_R)):
+        gap = (X[386, 1] - X[374, 1]) if side == "Left" else (X[159, 1] - X[145, 1])
+        X[list(lid), 1] -= 0.9 * gap * p[A[f"eyeBlink{side}"]] ** (1 / 1.5)
+    for side, idx in (("Left", BROW_L), ("Right", BROW_R)):
+        X[list(idx), 1] += 0.15 * w * (p[A[f"browOuterUp{side}"]] - p[A[f"browDown{side}"]])
+    X[list(BROW_INNER_L + BROW_INNER_R), 1] += 0.15 * w * p[A["browInnerUp"]]
+    return X
+
+
 def synthetic_sequence(
     canonical: np.ndarray,
     n_frames: int = 300,
@@ -83,7 +96,7 @@ def synthetic_sequence(
     """Landmarks (T, 478, 3) normalised, true params (T, 52), true R (T, 3, 3), image size."""
     rng = np.random.default_rng(seed)
     V = np.asarray(canonical, np.float64)[:468] * rng.uniform(0.9, 1.1, 3)
-    w = np.linalg.norm(V[133] - V[362])
+    w = float(np.linalg.norm(V[133] - V[362]))
     V[[133, 362], 0] *= rng.uniform(0.95, 1.05)
     V[list(UPPER_LID_L + UPPER_LID_R), 1] += rng.uniform(0.0, 0.1) * w  # rest eyelid gap varies
     T = n_frames
@@ -105,14 +118,7 @@ def synthetic_sequence(
     L = np.zeros((T, N_LANDMARKS, 3))
     Rs = np.zeros((T, 3, 3))
     for k in range(T):
-        X = V.copy()
-        X[list(LOWER_LIP), 1] -= 0.45 * w * P[k, A["jawOpen"]] ** (1 / JAW_GAMMA)
-        for side, lid in (("Left", UPPER_LID_L), ("Right", UPPER_LID_R)):
-            gap = (X[386, 1] - X[374, 1]) if side == "Left" else (X[159, 1] - X[145, 1])
-            X[list(lid), 1] -= 0.9 * gap * P[k, A[f"eyeBlink{side}"]] ** (1 / 1.5)
-        for side, idx in (("Left", BROW_L), ("Right", BROW_R)):
-            X[list(idx), 1] += 0.15 * w * (P[k, A[f"browOuterUp{side}"]] - P[k, A[f"browDown{side}"]])
-        X[list(BROW_INNER_L + BROW_INNER_R), 1] += 0.15 * w * P[k, A["browInnerUp"]]
+        X = _expressed(V, w, P[k], A)
         R = angles_to_matrix(yaw[k], pitch[k], roll[k])
         Rs[k] = R
         C = X @ R.T + np.array([0.0, 0.0, -dist[k]])  # camera frame, cm

@@ -37,81 +37,95 @@ class BVH:
         return int(self.motion.shape[0])
 
 
+class _Hierarchy:
+    """The joints of a BVH ``HIERARCHY`` as its lines are read, one token list at a time."""
+
+    def __init__(self) -> None:
+        self.names: list[str] = []
+        self.parents: list[int] = []
+        self.offsets: list[list[float]] = []
+        self.channels: list[list[str]] = []
+        self.end_sites: dict[int, np.ndarray] = {}
+        self.stack: list[int] = []
+        self.pending_end = False
+
+    def token(self, tok: list[str]) -> bool:
+        """Read one line's tokens; True at ``MOTION``. ValueError / IndexError on a malformed line."""
+        key = tok[0]
+        if key in ("ROOT", "JOINT"):
+            if len(tok) < 2:
+                raise ValueError(f"{key} without a name")
+            if key == "ROOT" and self.names:
+                raise ValueError("more than one ROOT")
+            self.names.append(tok[1])
+            self.parents.append(self.stack[-1] if self.stack else -1)
+            self.offsets.append([0.0, 0.0, 0.0])
+            self.channels.append([])
+        elif key == "End":
+            self.pending_end = True
+        elif key == "{":
+            if self.pending_end:
+                self.stack.append(-2)  # marker: inside an End Site
+            else:
+                self.stack.append(len(self.names) - 1)
+        elif key == "}":
+            if not self.stack:
+                raise ValueError("unbalanced '}'")
+            self.stack.pop()
+            self.pending_end = False
+        elif key == "OFFSET":
+            vals = [float(v) for v in tok[1:4]]
+            if len(vals) != 3:
+                raise ValueError("OFFSET needs 3 numbers")
+            if self.stack and self.stack[-1] == -2:
+                owner = [s for s in self.stack if s >= 0][-1]
+                self.end_sites[owner] = np.array(vals)
+            else:
+                self.offsets[-1] = vals
+        elif key == "CHANNELS":
+            n = int(tok[1])
+            ch = tok[2 : 2 + n]
+            if len(ch) != n or not set(ch) <= _VALID_CHANNELS:
+                raise ValueError(f"bad CHANNELS line {' '.join(tok)!r}")
+            self.channels[-1] = ch
+        elif key == "MOTION":
+            if self.stack:
+                raise ValueError("hierarchy not closed before MOTION")
+            return True
+        else:
+            raise ValueError(f"unexpected token {key!r}")
+        return False
+
+    def skeleton(self) -> Skeleton:
+        return Skeleton(
+            names=self.names,
+            parents=np.array(self.parents),
+            offsets=np.array(self.offsets, dtype=np.float64),
+            channels=self.channels,
+            end_sites=self.end_sites,
+        )
+
+
 def _parse_hierarchy(lines: list[str], path: Path) -> tuple[Skeleton, int]:
-    names: list[str] = []
-    parents: list[int] = []
-    offsets: list[list[float]] = []
-    channels: list[list[str]] = []
-    end_sites: dict[int, np.ndarray] = {}
-    stack: list[int] = []
-    i = 0
     if not lines or lines[0].strip() != "HIERARCHY":
         raise file_error(path, "not a BVH file (first line is not 'HIERARCHY')")
+    h = _Hierarchy()
     i = 1
-    pending_end = False
     while i < len(lines):
         tok = lines[i].split()
         i += 1
         if not tok:
             continue
-        key = tok[0]
         try:
-            if key in ("ROOT", "JOINT"):
-                if len(tok) < 2:
-                    raise ValueError(f"{key} without a name")
-                if key == "ROOT" and names:
-                    raise ValueError("more than one ROOT")
-                names.append(tok[1])
-                parents.append(stack[-1] if stack else -1)
-                offsets.append([0.0, 0.0, 0.0])
-                channels.append([])
-            elif key == "End":
-                pending_end = True
-            elif key == "{":
-                if pending_end:
-                    stack.append(-2)  # marker: inside an End Site
-                else:
-                    stack.append(len(names) - 1)
-            elif key == "}":
-                if not stack:
-                    raise ValueError("unbalanced '}'")
-                stack.pop()
-                pending_end = False
-            elif key == "OFFSET":
-                vals = [float(v) for v in tok[1:4]]
-                if len(vals) != 3:
-                    raise ValueError("OFFSET needs 3 numbers")
-                if stack and stack[-1] == -2:
-                    owner = [s for s in stack if s >= 0][-1]
-                    end_sites[owner] = np.array(vals)
-                else:
-                    offsets[-1] = vals
-            elif key == "CHANNELS":
-                n = int(tok[1])
-                ch = tok[2 : 2 + n]
-                if len(ch) != n or not set(ch) <= _VALID_CHANNELS:
-                    raise ValueError(f"bad CHANNELS line {' '.join(tok)!r}")
-                channels[-1] = ch
-            elif key == "MOTION":
-                if stack:
-                    raise ValueError("hierarchy not closed before MOTION")
+            if h.token(tok):
                 break
-            else:
-                raise ValueError(f"unexpected token {key!r}")
         except (ValueError, IndexError) as exc:
             raise file_error(path, f"malformed BVH hierarchy at line {i}: {exc}") from None
     else:
         raise file_error(path, "truncated BVH: no MOTION section")
-    if not names:
+    if not h.names:
         raise file_error(path, "BVH hierarchy has no joints")
-    skel = Skeleton(
-        names=names,
-        parents=np.array(parents),
-        offsets=np.array(offsets, dtype=np.float64),
-        channels=channels,
-        end_sites=end_sites,
-    )
-    return skel, i
+    return h.skeleton(), i
 
 
 MIN_FRAME_TIME = 0.001  # 1000 fps: the fastest motion rate read (header values outside are refused)

@@ -128,32 +128,13 @@ def create_study(
     from facecapges.study.clips import load_clips
 
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise file_error(out, "exists and is not a folder")
-    if (out / STUDY_FILE).exists():
-        answered = sorted((out / "responses").glob("*.json")) if (out / "responses").is_dir() else []
-        if answered:
-            raise file_error(
-                out,
-                f"holds the answers of {len(answered)} participant(s) in responses/; move them "
-                "away before re-creating this study",
-            )
-        if not force:
-            raise file_error(out / STUDY_FILE, "already exists; pass --force to overwrite the study")
-    elif out.exists() and any(out.iterdir()) and not force:
-        raise file_error(out, "is a non-empty folder; pass --force to write the study into it")
-    if n_participants is not None and n_participants < 1:
-        raise UserError(f"--participants must be at least 1, got {n_participants}")
+    _check_study_out(out, force, n_participants)
 
     cs, motions, faces = load_clips(clips_yaml)
 
-    from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import write_glb
-    from facecapges.avatar.render.video import bvh_quaternions
-    from facecapges.io.audio import save_audio
     from facecapges.progress import Progress
-    from facecapges.timing import resample
 
     plan = make_plan(cs.clip_ids, cs.systems, n_participants, seed)
     for p in plan.participants:
@@ -177,56 +158,8 @@ def create_study(
             (out / VRM_FILE).write_bytes(driver.model.data)
         bar.advance(task)
         for clip in cs.clips:
-            n = int(round(clip.duration * cs.fps))
-            d = media_dir(out, clip.id)
-            d.mkdir(parents=True, exist_ok=True)
-            save_audio(d / "audio.wav", clip.audio)
-            tr = faces[clip.id]
-            w = np.zeros((n, len(ARKIT_NAMES)), np.float32)
-            if tr is not None:
-                w = _fit(resample(tr.weights, tr.fps, cs.fps), n)
-            names = list(ARKIT_NAMES)
-            if driver is not None:
-                w, names = driver.faces(w), list(driver.faces.names)
-            (d / "face.json").write_text(
-                json.dumps({"fps": cs.fps, "frames": n, "names": names, "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}),
-                "utf-8",
-            )
-            bar.advance(task)
-            for s in cs.systems:
-                b = motions[clip.id][s]
-                q = bvh_quaternions(joint_names, b.skeleton, b.motion, f"clip {clip.id!r}, system {s!r}")
-                q = _fit(resample(q, b.fps, cs.fps), n)
-                doc = {"fps": cs.fps, "frames": n, "joint_names": joint_names}
-                if driver is not None:
-                    from facecapges.rotations import quaternion_to_matrix
-
-                    q = driver.retarget(quaternion_to_matrix(q))
-                    doc = {"fps": cs.fps, "frames": n, "bone_names": list(driver.retarget.bones)}
-                motion_file(out, clip.id, s).write_text(json.dumps({**doc, "quats": _numbers(q)}), "utf-8")
-                bar.advance(task)
-            clips_meta.append(
-                {
-                    "id": clip.id,
-                    "frames": n,
-                    "duration": clip.duration,
-                    "audio_source": str(clip.audio_path),
-                    "face_source": str(clip.face_path) if clip.face_path else None,
-                    "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()},
-                }
-            )
-    doc = {
-        "format": FORMAT,
-        "created": datetime.now(UTC).isoformat(timespec="seconds"),
-        "source": str(Path(clips_yaml)),
-        "fps": cs.fps,
-        "systems": cs.systems,
-        "avatar": AVATAR_FILE if driver is None else VRM_FILE,
-        "clips": clips_meta,
-        "criteria": [c.to_json() for c in CRITERIA],
-        "balance": balance_report(plan),
-        "plan": plan.to_json(),
-    }
+            clips_meta.append(_write_clip(out, clip, cs, motions, faces, driver, joint_names, bar, task))
+    doc = _study_doc(clips_yaml, cs, driver is None, clips_meta, plan)
     (out / "responses").mkdir(exist_ok=True)
     write_private(out / STUDY_FILE, json.dumps(doc, indent=1) + "\n")
     write_invitations(out, plan)
@@ -237,6 +170,94 @@ def create_study(
         "fps": cs.fps,
         "balance": doc["balance"],
     }
+
+
+def _study_doc(clips_yaml: str | Path, cs, our_avatar: bool, clips_meta: list[dict], plan: StudyPlan) -> dict:
+    """The study file's content: source, rate, systems, avatar, clips, criteria, the plan and its balance."""
+    doc = {
+        "format": FORMAT,
+        "created": datetime.now(UTC).isoformat(timespec="seconds"),
+        "source": str(Path(clips_yaml)),
+        "fps": cs.fps,
+        "systems": cs.systems,
+        "avatar": AVATAR_FILE if our_avatar else VRM_FILE,
+        "clips": clips_meta,
+        "criteria": [c.to_json() for c in CRITERIA],
+        "balance": balance_report(plan),
+        "plan": plan.to_json(),
+    }
+    return doc
+
+
+def _check_study_out(out: Path, force: bool, n_participants: int | None) -> None:
+    """Refuse an output that is a file, holds answers, or (without ``force``) a study or other files."""
+    if out.exists() and not out.is_dir():
+        raise file_error(out, "exists and is not a folder")
+    if (out / STUDY_FILE).exists():
+        answered = sorted((out / "responses").glob("*.json")) if (out / "responses").is_dir() else []
+        if answered:
+            raise file_error(
+                out,
+                f"holds the answers of {len(answered)} participant(s) in responses/; move them "
+                "away before re-creating this study",
+            )
+        if not force:
+            raise file_error(out / STUDY_FILE, "already exists; pass --force to overwrite the study")
+    elif out.exists() and any(out.iterdir()) and not force:
+        raise file_error(out, "is a non-empty folder; pass --force to write the study into it")
+    if n_participants is not None and n_participants < 1:
+        raise UserError(f"--participants must be at least 1, got {n_participants}")
+
+
+def _write_clip(out: Path, clip, cs, motions: dict, faces: dict, driver, joint_names: list[str], bar, task) -> dict:
+    """Write one clip's media (audio, face, one motion per system) at the study's rate; its entry in the study."""
+    from facecapges.avatar.render.video import bvh_quaternions
+    from facecapges.io.audio import save_audio
+    from facecapges.timing import resample
+
+    n = int(round(clip.duration * cs.fps))
+    d = media_dir(out, clip.id)
+    d.mkdir(parents=True, exist_ok=True)
+    save_audio(d / "audio.wav", clip.audio)
+    _write_face(d, faces[clip.id], cs.fps, n, driver)
+    bar.advance(task)
+    for s in cs.systems:
+        b = motions[clip.id][s]
+        q = bvh_quaternions(joint_names, b.skeleton, b.motion, f"clip {clip.id!r}, system {s!r}")
+        q = _fit(resample(q, b.fps, cs.fps), n)
+        doc = {"fps": cs.fps, "frames": n, "joint_names": joint_names}
+        if driver is not None:
+            from facecapges.rotations import quaternion_to_matrix
+
+            q = driver.retarget(quaternion_to_matrix(q))
+            doc = {"fps": cs.fps, "frames": n, "bone_names": list(driver.retarget.bones)}
+        motion_file(out, clip.id, s).write_text(json.dumps({**doc, "quats": _numbers(q)}), "utf-8")
+        bar.advance(task)
+    return {
+        "id": clip.id,
+        "frames": n,
+        "duration": clip.duration,
+        "audio_source": str(clip.audio_path),
+        "face_source": str(clip.face_path) if clip.face_path else None,
+        "bvh_sources": {s: str(p) for s, p in clip.bvh_paths.items()},
+    }
+
+
+def _write_face(d: Path, tr, fps: float, n: int, driver) -> None:
+    """A clip's face track (ARKit, or the VRM's expressions with ``driver``) resampled to ``n`` frames at ``fps``."""
+    from facecapges.arkit import ARKIT_NAMES
+    from facecapges.timing import resample
+
+    w = np.zeros((n, len(ARKIT_NAMES)), np.float32)
+    if tr is not None:
+        w = _fit(resample(tr.weights, tr.fps, fps), n)
+    names = list(ARKIT_NAMES)
+    if driver is not None:
+        w, names = driver.faces(w), list(driver.faces.names)
+    (d / "face.json").write_text(
+        json.dumps({"fps": fps, "frames": n, "names": names, "weights": _numbers(np.clip(w, 0.0, 1.0), 3)}),
+        "utf-8",
+    )
 
 
 @dataclass

@@ -460,7 +460,7 @@ class Trainer:
 
     def train_epoch(self, epoch: int, progress=None) -> dict:
         """One epoch (1-based ``epoch``); returns mean losses over the global batches."""
-        t, dist, prec = self.tcfg, self.dist, self.precision
+        t, dist = self.tcfg, self.dist
         self.G.train()
         self.D.train()
         rng = np.random.default_rng(t.seed * 100_003 + epoch)  # the same order on every rank
@@ -479,44 +479,7 @@ class Trainer:
             if n_local == 0:  # more ranks than segments left: join the all-reduce with weight 0
                 idx = chunk[:1]
             batch = self._gather(self.train_set, idx)
-            if t.head_dropout > 0:
-                hold_head_still(batch["head"], t.head_dropout)
-            with prec.autocast():
-                gen, gt = self.G_fwd(batch)
-            gen = gen.float()
-            mask = batch["mask"][:, self.mcfg.n_history :]  # (B, M, 47): masked joints add no loss
-            logs: dict[str, torch.Tensor] = {}
-            if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
-                with prec.autocast():
-                    d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
-                d_real, d_fake = d_out[: len(gt)], d_out[len(gt) :]
-                loss_d = F.binary_cross_entropy_with_logits(
-                    d_real, torch.ones_like(d_real)
-                ) + F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
-                self.opt_d.zero_grad(set_to_none=True)
-                prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
-                prec.step("d", self.opt_d)
-                logs["d"] = loss_d.detach()
-            rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
-            loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
-            if t.w_amp > 0:
-                loss = loss + t.w_amp * rec["amp"]
-            if adv_on:
-                # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
-                self.D.requires_grad_(False)
-                with prec.autocast():
-                    d_gen = self.D(discriminator_view(gen, gt, mask)).float()
-                self.D.requires_grad_(True)
-                adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
-                loss = loss + t.w_adv * adv
-                logs["adv"] = adv.detach()
-            self.opt_g.zero_grad(set_to_none=True)
-            prec.backward("g", loss if weight == 1.0 else loss * weight)
-            if t.grad_clip > 0:
-                prec.unscale("g", self.opt_g)
-                torch.nn.utils.clip_grad_norm_(self.G.parameters(), t.grad_clip)
-            prec.step("g", self.opt_g)
-            logs.update({k: v.detach() for k, v in rec.items()}, total=loss.detach())
+            logs = self._train_step(batch, weight, adv_on)
             keys = list(logs)
             if dist.enabled:  # global-batch means: Σ_ranks n_local·mean_local / n_global
                 vals = dist.all_sum([logs[k].item() * n_local for k in keys])
@@ -530,6 +493,49 @@ class Trainer:
             if progress is not None:
                 progress(b + 1, n_batches, values)
         return {k: v / n_batches for k, v in sums.items()}
+
+    def _train_step(self, batch: dict, weight: float, adv_on: bool) -> dict[str, torch.Tensor]:
+        """One D step (when ``adv_on``) and one G step on ``batch``, losses scaled by ``weight``; the losses."""
+        t, prec = self.tcfg, self.precision
+        if t.head_dropout > 0:
+            hold_head_still(batch["head"], t.head_dropout)
+        with prec.autocast():
+            gen, gt = self.G_fwd(batch)
+        gen = gen.float()
+        mask = batch["mask"][:, self.mcfg.n_history :]  # (B, M, 47): masked joints add no loss
+        logs: dict[str, torch.Tensor] = {}
+        if adv_on:  # D step on the generated frames only (4.3.1), one forward for real + fake
+            with prec.autocast():
+                d_out = self.D_fwd(torch.cat([gt, discriminator_view(gen.detach(), gt, mask)])).float()
+            d_real, d_fake = d_out[: len(gt)], d_out[len(gt) :]
+            loss_d = F.binary_cross_entropy_with_logits(
+                d_real, torch.ones_like(d_real)
+            ) + F.binary_cross_entropy_with_logits(d_fake, torch.zeros_like(d_fake))  # eq. 4.22
+            self.opt_d.zero_grad(set_to_none=True)
+            prec.backward("d", loss_d if weight == 1.0 else loss_d * weight)
+            prec.step("d", self.opt_d)
+            logs["d"] = loss_d.detach()
+        rec = masked_reconstruction_losses(gen, gt, t.huber_beta, mask)
+        loss = t.w_rec * rec["rec"] + t.w_vel * rec["vel"] + t.w_acc * rec["acc"]  # eq. 4.14
+        if t.w_amp > 0:
+            loss = loss + t.w_amp * rec["amp"]
+        if adv_on:
+            # the plain D (not its DDP wrapper, frozen): the G step never reduces or keeps D gradients
+            self.D.requires_grad_(False)
+            with prec.autocast():
+                d_gen = self.D(discriminator_view(gen, gt, mask)).float()
+            self.D.requires_grad_(True)
+            adv = F.binary_cross_entropy_with_logits(d_gen, torch.ones_like(d_gen))  # eq. 4.23
+            loss = loss + t.w_adv * adv
+            logs["adv"] = adv.detach()
+        self.opt_g.zero_grad(set_to_none=True)
+        prec.backward("g", loss if weight == 1.0 else loss * weight)
+        if t.grad_clip > 0:
+            prec.unscale("g", self.opt_g)
+            torch.nn.utils.clip_grad_norm_(self.G.parameters(), t.grad_clip)
+        prec.step("g", self.opt_g)
+        logs.update({k: v.detach() for k, v in rec.items()}, total=loss.detach())
+        return logs
 
     @torch.no_grad()
     def evaluate(self, seg_set: SegmentSet, batch_size: int = 256) -> dict:

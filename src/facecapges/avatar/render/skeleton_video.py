@@ -92,7 +92,6 @@ def render_skeleton_video(
     ``poses``: list of (T_i, 47, 6) rot6d; ``titles``: one per panel; ``wav``: optional
     audio muxed in (AAC). ``panel_size`` (width, height) in pixels, rounded to even.
     """
-    import cv2
 
     if len(poses) == 0 or len(poses) != len(titles):
         raise ValueError(f"need one title per pose sequence, got {len(poses)} poses and {len(titles)} titles")
@@ -115,39 +114,14 @@ def render_skeleton_video(
     from facecapges.io.mp4 import Mp4Writer
 
     writer = Mp4Writer(out, fps, audio=wav, crf=crf)
-    background = np.full((H, W, 3), 250, np.uint8)
-    for k, title in enumerate(titles):
-        cv2.putText(
-            background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2, cv2.LINE_AA
-        )
-        if k:
-            cv2.line(background, (k * pw, 0), (k * pw, H), (200, 200, 200), 1)
+    background = _titled_background(titles, pw, W, H)
     from facecapges.progress import Progress
 
     try:
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task("rendering skeleton video", total=T)
             for t in range(T):
-                frame = background.copy()
-                for k, px in enumerate(pix):
-                    f = px[min(t, len(px) - 1)]
-                    off = np.array([k * pw * 4, 0], np.int32)
-                    for a, b, colour in bones:
-                        cv2.line(frame, tuple(f[a] + off), tuple(f[b] + off), colour, 3, cv2.LINE_AA, shift=2)
-                    if head is not None and head_end is not None:
-                        c = (f[head] + f[head_end]) // 2 + off
-                        r = max(int(np.linalg.norm(f[head_end] - f[head]) * 0.6), 8)
-                        cv2.circle(frame, tuple(c), r, _TORSO, 3, cv2.LINE_AA, shift=2)
-                cv2.putText(
-                    frame,
-                    f"{t / fps:5.1f} s",
-                    (W - 110, H - 14),
-                    cv2.FONT_HERSHEY_SIMPLEX,
-                    0.6,
-                    (80, 80, 80),
-                    1,
-                    cv2.LINE_AA,
-                )
+                frame = _frame(background, pix, bones, head, head_end, pw, t, t / fps)
                 writer.write(frame)
                 bar.advance(task)
         writer.close()
@@ -155,3 +129,54 @@ def render_skeleton_video(
         writer.abort()
         raise
     return out
+
+
+def _titled_background(titles: Sequence[str], pw: int, W: int, H: int) -> np.ndarray:
+    """The frame's background: light grey, each panel's title, a line between panels."""
+    import cv2
+
+    background = np.full((H, W, 3), 250, np.uint8)
+    for k, title in enumerate(titles):
+        cv2.putText(
+            background, str(title), (k * pw + 12, 28), cv2.FONT_HERSHEY_SIMPLEX, 0.8, (30, 30, 30), 2, cv2.LINE_AA
+        )
+        if k:
+            cv2.line(background, (k * pw, 0), (k * pw, H), (200, 200, 200), 1)
+    return background
+
+
+def _frame(
+    background: np.ndarray,
+    pix: list[np.ndarray],
+    bones: list,
+    head: int | None,
+    head_end: int | None,
+    pw: int,
+    t: int,
+    seconds: float,
+) -> np.ndarray:
+    """Frame ``t``: each panel's skeleton (bones, head circle) over ``background``, and the time."""
+    import cv2
+
+    H, W = background.shape[:2]
+    frame = background.copy()
+    for k, px in enumerate(pix):
+        f = px[min(t, len(px) - 1)]
+        off = np.array([k * pw * 4, 0], np.int32)
+        for a, b, colour in bones:
+            cv2.line(frame, tuple(f[a] + off), tuple(f[b] + off), colour, 3, cv2.LINE_AA, shift=2)
+        if head is not None and head_end is not None:
+            c = (f[head] + f[head_end]) // 2 + off
+            r = max(int(np.linalg.norm(f[head_end] - f[head]) * 0.6), 8)
+            cv2.circle(frame, tuple(c), r, _TORSO, 3, cv2.LINE_AA, shift=2)
+    cv2.putText(
+        frame,
+        f"{seconds:5.1f} s",
+        (W - 110, H - 14),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.6,
+        (80, 80, 80),
+        1,
+        cv2.LINE_AA,
+    )
+    return frame

@@ -131,14 +131,7 @@ def render_video(
     b, info = _open_page(avatar, width, height, inset)
     writer = Mp4Writer(out, fps, audio=audio, crf=crf, jpeg=True)
     try:
-        if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
-            raise ValueError(
-                f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
-                f"{info['joints']} / {info['blendshapes']}"
-            )
-        b.routes["/motion/quats.bin"] = np.ascontiguousarray(quats, np.float32).tobytes()
-        b.routes["/motion/weights.bin"] = np.ascontiguousarray(weights, np.float32).tobytes()
-        b.evaluate(f"window.facecapges.loadMotion({T})")
+        _load_motion(b, info, quats, weights)
         t_ready = time.perf_counter()
         with Progress(disable=not progress, transient=True) as bar:
             task = bar.add_task("rendering avatar video", total=T)
@@ -163,6 +156,19 @@ def render_video(
         "total_s": t1 - t0,
         "frames_per_s": T / max(t1 - t_ready, 1e-9),
     }
+
+
+def _load_motion(b: Browser, info: dict, quats: np.ndarray, weights: np.ndarray) -> None:
+    """Serve the (T, J, 4) poses and (T, K) weights to the open page and load them (its sizes checked)."""
+    T = quats.shape[0]
+    if quats.shape[1] != info["joints"] or weights.shape[1] != info["blendshapes"]:
+        raise ValueError(
+            f"motion has {quats.shape[1]} joints / {weights.shape[1]} weights, avatar "
+            f"{info['joints']} / {info['blendshapes']}"
+        )
+    b.routes["/motion/quats.bin"] = np.ascontiguousarray(quats, np.float32).tobytes()
+    b.routes["/motion/weights.bin"] = np.ascontiguousarray(weights, np.float32).tobytes()
+    b.evaluate(f"window.facecapges.loadMotion({T})")
 
 
 def render_stills(

@@ -64,7 +64,6 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     import pygltflib as g
 
     from facecapges.avatar.retarget import Retargeter
-    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
     from facecapges.rotations import continuous_quaternions, matrix_to_quaternion
 
     check_face_mode(face)
@@ -77,21 +76,70 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
     q = continuous_quaternions(matrix_to_quaternion(L))  # LINEAR (slerp) keys take the short way
     lift = sole_lift(skel)
 
-    blob = bytearray()
-    views, accs = [], []
+    buf = _Blob()
+    nodes, index = _bone_nodes(rt, model, lift)
+    times = buf.add((np.arange(T) / fps)[:, None], g.SCALAR, minmax=True)
+    samplers, channels = [], []
+    for i, b in enumerate(rt.bones):
+        out = buf.add(q[:, i][:, [1, 2, 3, 0]], g.VEC4)
+        samplers.append(g.AnimationSampler(input=times, output=out, interpolation="LINEAR"))
+        channels.append(
+            g.AnimationChannel(
+                sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=index[b], path="rotation")
+            )
+        )
+    expressions: dict = {}
+    scene_nodes = [0]
+    if arkit is not None:
+        group, tracks = _face_tracks(arkit, T, face)
+        expressions[group] = _expression_channels(buf, nodes, samplers, channels, scene_nodes, times, tracks, T)
+    ext = {"specVersion": SPEC_VERSION, "humanoid": {"humanBones": {b: {"node": index[b]} for b in rt.bones}}}
+    if expressions:
+        ext["expressions"] = expressions
+    doc = g.GLTF2(
+        asset=g.Asset(version="2.0", generator="facecapges (VRM Animation)"),
+        scene=0,
+        scenes=[g.Scene(nodes=scene_nodes)],
+        nodes=nodes,
+        animations=[g.Animation(name="gestures", samplers=samplers, channels=channels)],
+        accessors=buf.accs,
+        bufferViews=buf.views,
+        buffers=[g.Buffer(byteLength=len(buf.blob))],
+        extensionsUsed=["VRMC_vrm_animation"],
+        extensions={"VRMC_vrm_animation": ext},
+    )
+    doc.set_binary_blob(bytes(buf.blob))
+    return doc
 
-    def add(arr: np.ndarray, typ: str, minmax: bool = False) -> int:
+
+class _Blob:
+    """The binary chunk of a ``.vrma`` and its buffer views and float accessors (4-byte aligned)."""
+
+    def __init__(self) -> None:
+        self.blob = bytearray()
+        self.views: list = []
+        self.accs: list = []
+
+    def add(self, arr: np.ndarray, typ: str, minmax: bool = False) -> int:
+        """Append ``arr`` as float32; returns its accessor's index."""
+        import pygltflib as g
+
         arr = np.ascontiguousarray(arr, np.float32)
-        while len(blob) % 4:
-            blob.append(0)
-        views.append(g.BufferView(buffer=0, byteOffset=len(blob), byteLength=arr.nbytes))
-        blob.extend(arr.tobytes())
-        acc = g.Accessor(bufferView=len(views) - 1, componentType=g.FLOAT, count=int(arr.shape[0]), type=typ)
+        while len(self.blob) % 4:
+            self.blob.append(0)
+        self.views.append(g.BufferView(buffer=0, byteOffset=len(self.blob), byteLength=arr.nbytes))
+        self.blob.extend(arr.tobytes())
+        acc = g.Accessor(bufferView=len(self.views) - 1, componentType=g.FLOAT, count=int(arr.shape[0]), type=typ)
         if minmax:
             acc.min = [float(x) for x in arr.reshape(arr.shape[0], -1).min(0)]
             acc.max = [float(x) for x in arr.reshape(arr.shape[0], -1).max(0)]
-        accs.append(acc)
-        return len(accs) - 1
+        self.accs.append(acc)
+        return len(self.accs) - 1
+
+
+def _bone_nodes(rt, model: VrmModel, lift: float) -> tuple[list, dict]:
+    """The ``Root`` node and the humanoid bones' tree at their rest offsets; each bone's node index."""
+    import pygltflib as g
 
     nodes = [g.Node(name="Root", translation=[0.0, lift, 0.0], children=[])]
     index = {}
@@ -102,60 +150,45 @@ def motion_to_vrma(skel, local_mats: np.ndarray, fps: float, arkit: np.ndarray |
         nodes.append(g.Node(name=BEAT_BONES[b], translation=[float(x) for x in offset]))
         parent_node = index[rt.bones[p]] if p >= 0 else 0
         nodes[parent_node].children = list(nodes[parent_node].children or []) + [index[b]]
-    times = add((np.arange(T) / fps)[:, None], g.SCALAR, minmax=True)
-    samplers, channels = [], []
-    for i, b in enumerate(rt.bones):
-        out = add(q[:, i][:, [1, 2, 3, 0]], g.VEC4)
-        samplers.append(g.AnimationSampler(input=times, output=out, interpolation="LINEAR"))
+    return nodes, index
+
+
+def _face_tracks(arkit: np.ndarray, T: int, face: str) -> tuple[str, dict[str, np.ndarray]]:
+    """The expression group (``preset`` / ``custom``) and each expression's (T,) weights from (T, 52) ARKit."""
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_NAMES, vrm0_weights
+
+    arkit = np.clip(np.asarray(arkit, np.float64), 0.0, 1.0)
+    if arkit.shape != (T, len(ARKIT_NAMES)):
+        raise ValueError(f"face weights must be ({T}, {len(ARKIT_NAMES)}), got {arkit.shape}")
+    if face == "presets":
+        w = vrm0_weights(arkit)
+        tracks = {VRM1_NAMES[n]: w[:, k] for k, n in enumerate(VRM0_PRESETS) if not n.startswith("Look")}
+        group = "preset"
+    else:
+        tracks = {n: arkit[:, k] for k, n in enumerate(PERFECT_SYNC_NAMES)}
+        group = "custom"
+    return group, tracks
+
+
+def _expression_channels(
+    buf: _Blob, nodes: list, samplers: list, channels: list, scene_nodes: list, times: int, tracks: dict, T: int
+) -> dict:
+    """One node per expression, its weight animated as translation X (appended to the lists); name → node."""
+    import pygltflib as g
+
+    group: dict = {}
+    for name, track in tracks.items():
+        n = len(nodes)
+        nodes.append(g.Node(name=f"Expression_{name}", translation=[0.0, 0.0, 0.0]))
+        scene_nodes.append(n)
+        xyz = np.zeros((T, 3), np.float32)
+        xyz[:, 0] = track
+        samplers.append(g.AnimationSampler(input=times, output=buf.add(xyz, g.VEC3), interpolation="LINEAR"))
         channels.append(
-            g.AnimationChannel(
-                sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=index[b], path="rotation")
-            )
+            g.AnimationChannel(sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=n, path="translation"))
         )
-    expressions: dict = {}
-    scene_nodes = [0]
-    if arkit is not None:
-        arkit = np.clip(np.asarray(arkit, np.float64), 0.0, 1.0)
-        if arkit.shape != (T, len(ARKIT_NAMES)):
-            raise ValueError(f"face weights must be ({T}, {len(ARKIT_NAMES)}), got {arkit.shape}")
-        if face == "presets":
-            w = vrm0_weights(arkit)
-            tracks = {VRM1_NAMES[n]: w[:, k] for k, n in enumerate(VRM0_PRESETS) if not n.startswith("Look")}
-            group = "preset"
-        else:
-            tracks = {n: arkit[:, k] for k, n in enumerate(PERFECT_SYNC_NAMES)}
-            group = "custom"
-        expressions[group] = {}
-        for name, track in tracks.items():
-            n = len(nodes)
-            nodes.append(g.Node(name=f"Expression_{name}", translation=[0.0, 0.0, 0.0]))
-            scene_nodes.append(n)
-            xyz = np.zeros((T, 3), np.float32)
-            xyz[:, 0] = track
-            samplers.append(g.AnimationSampler(input=times, output=add(xyz, g.VEC3), interpolation="LINEAR"))
-            channels.append(
-                g.AnimationChannel(
-                    sampler=len(samplers) - 1, target=g.AnimationChannelTarget(node=n, path="translation")
-                )
-            )
-            expressions[group][name] = {"node": n}
-    ext = {"specVersion": SPEC_VERSION, "humanoid": {"humanBones": {b: {"node": index[b]} for b in rt.bones}}}
-    if expressions:
-        ext["expressions"] = expressions
-    doc = g.GLTF2(
-        asset=g.Asset(version="2.0", generator="facecapges (VRM Animation)"),
-        scene=0,
-        scenes=[g.Scene(nodes=scene_nodes)],
-        nodes=nodes,
-        animations=[g.Animation(name="gestures", samplers=samplers, channels=channels)],
-        accessors=accs,
-        bufferViews=views,
-        buffers=[g.Buffer(byteLength=len(blob))],
-        extensionsUsed=["VRMC_vrm_animation"],
-        extensions={"VRMC_vrm_animation": ext},
-    )
-    doc.set_binary_blob(bytes(blob))
-    return doc
+        group[name] = {"node": n}
+    return group
 
 
 def write_vrma(

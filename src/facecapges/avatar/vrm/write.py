@@ -64,27 +64,7 @@ def avatar_to_vrm(avatar):
     scene.nodes = [root if n == hips else n for n in scene.nodes]
     face_node = names.index("Face")
     face = avatar.face
-    morph = {n: k for k, n in enumerate(face.names)}
-
-    def expr(binds: dict[str, float]) -> dict:
-        return {
-            "morphTargetBinds": [
-                {"node": face_node, "index": morph[a], "weight": float(w)} for a, w in binds.items() if a in morph
-            ],
-            "isBinary": False,
-            "overrideBlink": "none",
-            "overrideLookAt": "none",
-            "overrideMouth": "none",
-        }
-
-    # a preset with nothing to bind (neutral) is left out: the schema wants at least one bind
-    preset = {p: expr(b) for p, b in PRESET_BINDS.items() if b}
-    for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
-        preset[p]["overrideBlink"] = preset[p]["overrideMouth"] = "blend"
-    from facecapges.arkit import arkit_index
-    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
-
-    custom = {PERFECT_SYNC_NAMES[arkit_index(a)]: expr({a: 1.0}) for a in face.names if arkit_index(a) is not None}
+    preset, custom = _vrm_expressions(face, face_node)
     eye_v = np.unique(face.faces[EYE].reshape(-1)) if EYE in face.faces else np.arange(len(face.vertices))
     eyes = (face.vertices[eye_v].mean(0) + face.offset) * CM_TO_M  # in the Head joint's frame
     rng = {"inputMaxValue": EYE_RANGE_DEG, "outputScale": 1.0}
@@ -113,6 +93,32 @@ def avatar_to_vrm(avatar):
     doc.asset.generator = "facecapges avatar (VRM 1.0)"
     doc.extras["facecapges"]["format"] = "vrm"
     return doc
+
+
+def _vrm_expressions(face, face_node: int) -> tuple[dict, dict]:
+    """VRM 1.0's preset expressions (bound to ARKit shapes) and the 52 perfect-sync custom ones."""
+    morph = {n: k for k, n in enumerate(face.names)}
+
+    def expr(binds: dict[str, float]) -> dict:
+        return {
+            "morphTargetBinds": [
+                {"node": face_node, "index": morph[a], "weight": float(w)} for a, w in binds.items() if a in morph
+            ],
+            "isBinary": False,
+            "overrideBlink": "none",
+            "overrideLookAt": "none",
+            "overrideMouth": "none",
+        }
+
+    # a preset with nothing to bind (neutral) is left out: the schema wants at least one bind
+    preset = {p: expr(b) for p, b in PRESET_BINDS.items() if b}
+    for p in ("happy", "angry", "sad", "relaxed", "surprised"):  # emotions damp the procedural ones
+        preset[p]["overrideBlink"] = preset[p]["overrideMouth"] = "blend"
+    from facecapges.arkit import arkit_index
+    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
+
+    custom = {PERFECT_SYNC_NAMES[k]: expr({a: 1.0}) for a in face.names if (k := arkit_index(a)) is not None}
+    return preset, custom
 
 
 def _turned(avatar):
@@ -146,13 +152,43 @@ def avatar_to_vrm0(avatar):
     named in perfect-sync spelling (``EyeBlinkLeft`` …, :data:`facecapges.avatar.vrm.expressions.PERFECT_SYNC_NAMES`)
     — weights in 0–100, glTF materials (``VRM_USE_GLTFSHADER``), licence ``CC_BY`` (editing allowed).
     """
-    from facecapges.avatar.vrm.expressions import VRM1_NAMES
-
     doc = avatar_to_vrm(_turned(avatar))
     v1 = doc.extensions["VRMC_vrm"]
-    to_v0 = {v: k for k, v in VRM0_RENAME.items()}
     face_node = doc.nodes.index(next(n for n in doc.nodes if n.name == "Face"))
     face_mesh = doc.nodes[face_node].mesh
+    groups = _vrm0_groups(v1, face_mesh)
+    doc.extensionsUsed = ["VRM"]
+    doc.extensions = {
+        "VRM": {
+            "exporterVersion": "facecapges-0.1.0",
+            "specVersion": "0.0",
+            "meta": vrm0_meta(v1["meta"]),
+            "humanoid": _vrm0_humanoid(v1),
+            "firstPerson": _vrm0_first_person(v1, face_mesh),
+            "blendShapeMaster": {"blendShapeGroups": groups},
+            "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
+            "materialProperties": [
+                {
+                    "name": m.name,
+                    "shader": "VRM_USE_GLTFSHADER",
+                    "renderQueue": 2000,
+                    "floatProperties": {},
+                    "vectorProperties": {},
+                    "textureProperties": {},
+                    "keywordMap": {},
+                    "tagMap": {},
+                }
+                for m in doc.materials
+            ],
+        }
+    }
+    doc.asset.generator = "facecapges avatar (VRM 0.x)"
+    return doc
+
+
+def _vrm0_groups(v1: dict, face_mesh: int) -> list[dict]:
+    """UniVRM's blend shape groups from the VRM 1.0 expressions: Neutral, the presets, the perfect-sync shapes."""
+    from facecapges.avatar.vrm.expressions import VRM1_NAMES
 
     def group(name: str, preset: str, expr: dict) -> dict:
         return {
@@ -173,59 +209,44 @@ def avatar_to_vrm0(avatar):
         groups.append(group(clip, clip.lower() if clip != "Surprised" else "unknown", expr))
     for ps, expr in v1["expressions"]["custom"].items():
         groups.append(group(ps, "unknown", expr))
+    return groups
+
+
+def _vrm0_humanoid(v1: dict) -> dict:
+    """VRM 0.x's humanoid: the VRM 1.0 bones renamed, UniVRM's default muscle settings."""
+    to_v0 = {v: k for k, v in VRM0_RENAME.items()}
+    return {
+        "humanBones": [
+            {"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
+            for b, d in v1["humanoid"]["humanBones"].items()
+        ],
+        "armStretch": 0.05,
+        "legStretch": 0.05,
+        "upperArmTwist": 0.5,
+        "lowerArmTwist": 0.5,
+        "upperLegTwist": 0.5,
+        "lowerLegTwist": 0.5,
+        "feetSpacing": 0.0,
+        "hasTranslationDoF": False,
+    }
+
+
+def _vrm0_first_person(v1: dict, face_mesh: int) -> dict:
+    """VRM 0.x's firstPerson: the head bone and offset, BlendShape lookAt."""
     # BlendShape lookAt: xRange = the gaze angle (degrees) that gives yRange = weight 1; linear curve
     look = {"curve": [0, 0, 0, 1, 1, 1, 1, 0], "xRange": EYE_RANGE_DEG, "yRange": 1.0}
     head = v1["humanoid"]["humanBones"]["head"]["node"]
     off = v1["lookAt"]["offsetFromHeadBone"]
-    doc.extensionsUsed = ["VRM"]
-    doc.extensions = {
-        "VRM": {
-            "exporterVersion": "facecapges-0.1.0",
-            "specVersion": "0.0",
-            "meta": vrm0_meta(v1["meta"]),
-            "humanoid": {
-                "humanBones": [
-                    {"bone": to_v0.get(b, b), "node": d["node"], "useDefaultValues": True}
-                    for b, d in v1["humanoid"]["humanBones"].items()
-                ],
-                "armStretch": 0.05,
-                "legStretch": 0.05,
-                "upperArmTwist": 0.5,
-                "lowerArmTwist": 0.5,
-                "upperLegTwist": 0.5,
-                "lowerLegTwist": 0.5,
-                "feetSpacing": 0.0,
-                "hasTranslationDoF": False,
-            },
-            "firstPerson": {
-                "firstPersonBone": head,
-                "firstPersonBoneOffset": dict(zip("xyz", off)),
-                "meshAnnotations": [{"mesh": face_mesh, "firstPersonFlag": "ThirdPersonOnly"}],
-                "lookAtTypeName": "BlendShape",
-                "lookAtHorizontalInner": dict(look),
-                "lookAtHorizontalOuter": dict(look),
-                "lookAtVerticalDown": dict(look),
-                "lookAtVerticalUp": dict(look),
-            },
-            "blendShapeMaster": {"blendShapeGroups": groups},
-            "secondaryAnimation": {"boneGroups": [], "colliderGroups": []},
-            "materialProperties": [
-                {
-                    "name": m.name,
-                    "shader": "VRM_USE_GLTFSHADER",
-                    "renderQueue": 2000,
-                    "floatProperties": {},
-                    "vectorProperties": {},
-                    "textureProperties": {},
-                    "keywordMap": {},
-                    "tagMap": {},
-                }
-                for m in doc.materials
-            ],
-        }
+    return {
+        "firstPersonBone": head,
+        "firstPersonBoneOffset": dict(zip("xyz", off)),
+        "meshAnnotations": [{"mesh": face_mesh, "firstPersonFlag": "ThirdPersonOnly"}],
+        "lookAtTypeName": "BlendShape",
+        "lookAtHorizontalInner": dict(look),
+        "lookAtHorizontalOuter": dict(look),
+        "lookAtVerticalDown": dict(look),
+        "lookAtVerticalUp": dict(look),
     }
-    doc.asset.generator = "facecapges avatar (VRM 0.x)"
-    return doc
 
 
 def write_vrm(avatar, path: str | Path, version: str = "1.0") -> Path:
