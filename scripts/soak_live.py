@@ -15,12 +15,12 @@
    frame − N / fps over the run.
 4. **Figures** (JSON on stdout and in ``OUT/soak.json``):
 
-   * pops per minute overall, in the pauses and in speech: frames of the recorded ``motion.bvh`` whose
-     whole-body joint acceleration exceeds the 99.9th percentile of his real motion — the transition
-     rule of :func:`facecapges.evaluation.realism.transitions`, reference: the first 80 % of
-     ``2_scott_0_1_1.bvh`` (TODO(lead): switch to the conversation metric's pop rule, "largest
-     arm-joint acceleration", if it lands in ``evaluation``); a pause frame is one inside an
-     inserted pause;
+   * pops per minute overall, in the pauses and in speech, by the conversation metric's rule
+     (:func:`facecapges.evaluation.conversation.score`): frames of the recorded ``motion.bvh`` whose
+     whole-body joint acceleration (:func:`facecapges.evaluation.realism.transitions`) exceeds the
+     99.9th percentile of his real motion — the training frames [0, 0.8 T) of both paired takes
+     (:func:`his_reference`, as ``scripts/conversation_report.py``); a pause frame is one inside an
+     inserted pause. With them, the metric's pause/speech wrist speed, still share, settle and resume;
    * memory: RSS at start / end, its least-squares slope over the run after the first 20 % (MB per
      minute; flat ≈ 0);
    * timing: ``late_frames`` and the other events of live's ``report.json``, the compute latency
@@ -85,28 +85,52 @@ def soak_audio(seconds: float, pause_range: tuple[float, float], seed: int = 0, 
     return np.concatenate(parts), pauses
 
 
-def pop_figures(pose: np.ndarray, pauses, reference: np.ndarray, fps: float = FPS) -> dict:
-    """Pops a minute overall / in pauses / in speech (module docstring, step 4)."""
-    from facecapges.evaluation.realism import transitions
+def his_reference(shared: Path = SHARED):
+    """(skeleton, :class:`facecapges.evaluation.conversation.Reference`) of his real motion: the training
+    frames [0, 0.8 T) of both paired takes, as ``scripts/conversation_report.py`` builds it."""
+    from facecapges import timing
+    from facecapges.evaluation import conversation as cv
+    from facecapges.matching.takes import load_take
 
-    tr = transitions(pose, reference, fps)
-    frames = np.asarray(tr.frames, int)
+    beat = shared / "beat"
+    t1 = load_take(beat / "2_scott_0_1_1.bvh", beat / "2_scott_0_1_1.wav")
+    t2 = load_take(shared / "beat2" / "2_scott_0_2_2.npz", beat / "2_scott_0_2_2.wav", t1.skeleton)
+    spf = timing.samples_per_frame()
+    takes = (t1, t2)
+    ref = cv.reference(
+        t1.skeleton, [t.pose[: t.train_until] for t in takes], [t.audio[: t.train_until * spf] for t in takes]
+    )
+    return t1.skeleton, ref
+
+
+def pop_figures(skel, pose: np.ndarray, pauses, ref, fps: float = FPS) -> dict:
+    """Pops a minute overall / in pauses / in speech (module docstring, step 4): the conversation metric's
+    :func:`facecapges.evaluation.conversation.score` with the inserted pauses as its pause frames."""
+    from facecapges.evaluation import conversation as cv
+
     in_pause = np.zeros(len(pose), bool)
     for a, b, _ in pauses:
         in_pause[int(np.ceil(a * fps)) : int(np.floor(b * fps))] = True
+    sc = cv.score(skel, pose, in_pause, ref, fps)
+    frames = np.asarray(sc.pops, int)
     pause_min, speech_min = in_pause.sum() / fps / 60, (~in_pause).sum() / fps / 60
     n_pause = int(in_pause[frames].sum()) if len(frames) else 0
     return {
         "pops": int(len(frames)),
         "pops_per_min": len(frames) / (len(pose) / fps / 60),
         "pops_in_pauses": n_pause,
-        "pops_per_min_in_pauses": n_pause / pause_min if pause_min else float("nan"),
+        "pops_per_min_in_pauses": sc.pops_pause_per_min,
         "pops_in_speech": int(len(frames)) - n_pause,
-        "pops_per_min_in_speech": (len(frames) - n_pause) / speech_min if speech_min else float("nan"),
+        "pops_per_min_in_speech": sc.pops_speech_per_min,
+        "pop_frames": frames.tolist(),
         "pause_minutes": float(pause_min),
         "speech_minutes": float(speech_min),
-        "threshold_rad_s2": tr.threshold,
-        "top_joints": tr.top_joints,
+        "threshold_rad_s2": ref.threshold,
+        "pause_over_speech_wrist_speed": sc.pause_over_speech_speed,
+        "still_share": sc.still_share,
+        "longest_still_s": sc.longest_still_s,
+        "settle_s": sc.settle_s,
+        "resume_s": sc.resume_s,
     }
 
 
@@ -191,9 +215,7 @@ def run_soak(
     b = read_bvh(rec / "motion.bvh")
     pose = motion_to_pose(b.skeleton, b.motion)[0]
     pauses = [(a, min(e, len(pose) / b.fps), k) for a, e, k in pauses if a < len(pose) / b.fps]  # a cut-short run
-    ref_bvh = read_bvh(SHARED / "beat" / "2_scott_0_1_1.bvh")
-    ref = motion_to_pose(ref_bvh.skeleton, ref_bvh.motion)[0]
-    ref = ref[: int(len(ref) * 0.8)]  # his training frames
+    skel, ref = his_reference()
     t_rss = np.array([t for t, _ in rss])
     y_rss = np.array([v for _, v in rss])
     warm = y_rss[t_rss >= t_rss[-1] * 0.2] if len(y_rss) else y_rss
@@ -208,7 +230,7 @@ def run_soak(
         "frames_expected": int(round(minutes * 60 * FPS)),
         "pauses": len(pauses),
         "pause_s": [round(b_ - a, 1) for a, b_, _ in pauses],
-        **pop_figures(pose, pauses, ref, b.fps),
+        **pop_figures(skel, pose, pauses, ref, b.fps),
         "rss_mb_start": float(warm[0]) if len(warm) else float("nan"),
         "rss_mb_end": float(y_rss[-1]) if len(y_rss) else float("nan"),
         "rss_mb_max": float(np.nanmax(y_rss)) if len(y_rss) else float("nan"),
