@@ -64,9 +64,9 @@ from facecapges.data.cache import (
     CACHE_VERSION,
     CLIP_DIR,
     FIRST_OTHER_SPEAKER,
-    HOLDOUT_FRACTION,
     INDEX_NAME,
     RunningStats,
+    holdout_frame,
 )
 from facecapges.errors import UserError, file_error, refuse_overwrite
 from facecapges.io.audio import load_audio
@@ -281,11 +281,6 @@ def _require_target(target: Skeleton | None, path: Path) -> Skeleton:
     if target is None:
         raise file_error(path, "a BEAT2 take needs the BEAT skeleton to write its pose on: give --target BVH")
     return target
-
-
-def holdout_frame(T: int) -> int:
-    """First frame of a take's last 20 % (HOLDOUT_FRACTION)."""
-    return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
 
 
 # ------------------------------------------------------------ other sources
