@@ -49,7 +49,6 @@ cache (has ``index.json``) or an empty folder.
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import time
 from pathlib import Path
@@ -191,7 +190,7 @@ def _clip_arrays(
     T = len(pose)
     wav_path = files.files["wav"]
     audio_full = load_audio(wav_path, sr)
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
@@ -310,7 +309,7 @@ def _other_arrays(
 ) -> tuple[dict[str, np.ndarray], float]:
     T = len(pose)
     audio_full = load_audio(wav, sr)
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     arrays = {
         "pose": pose.astype(np.float32),
         "head": pose_head_rot6d(target, pose),

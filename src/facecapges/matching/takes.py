@@ -17,7 +17,6 @@ Loaders:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -45,7 +44,7 @@ class Take(FrameArrays):
 
 def fit_audio(audio: np.ndarray, T: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:
     """Audio cut or zero-padded to the samples of ``T`` frames."""
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     out = np.zeros(S, np.float32)
     n = min(S, len(audio))
     out[:n] = audio[:n]
