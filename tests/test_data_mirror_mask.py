@@ -98,3 +98,29 @@ def test_batches_carry_the_mask_and_mirrored_clips():
     first, last = b["mask"][0, 0].bool().numpy(), b["mask"][-1, 0].bool().numpy()
     assert np.array_equal(first, mask) and np.array_equal(last, mirror_mask(mask))
     assert last[UPPER_BODY.index("LeftArm")] and not last[UPPER_BODY.index("RightArm")]
+
+
+def test_a_take_and_a_training_clip_share_one_statement_of_their_arrays():
+    """The matching engine's Take and the trainer's ClipArrays are both FrameArrays: one shape check (a face of
+    the wrong length is a clear UserError naming the take, for either) and one mirror image."""
+    from facecapges.data.cache import FrameArrays
+    from facecapges.errors import UserError
+    from facecapges.matching.takes import Take, make_take, mirror_take
+    from facecapges.skeleton import Skeleton
+
+    assert issubclass(Take, FrameArrays) and issubclass(ClipArrays, FrameArrays)
+    T, rng = 40, np.random.default_rng(1)
+    pose = rot.identity_rot6d((T, 47)).astype(np.float32) + rng.normal(0, 0.05, (T, 47, 6)).astype(np.float32)
+    head, face = np.zeros((T, 6), np.float32), rng.uniform(size=(T, 52)).astype(np.float32)
+    with pytest.raises(UserError, match=r"short: face has shape \(39, 52\)"):
+        ClipArrays("short", pose, head, face[:-1], np.zeros(T * 1067, np.float32))
+    skel = read_bvh(shared_file("data/beat/2_scott_0_1_1.bvh")).skeleton
+    assert isinstance(skel, Skeleton)
+    take = make_take("t", pose, np.zeros(T * 1067, np.float32), skel, face=face, head=head)
+    with pytest.raises(UserError, match="t: head has shape"):
+        Take(**{**vars(take), "head": head[:, :3]})
+    clip = ClipArrays("t", take.pose, take.head, take.face, take.audio)
+    a, b = mirror_take(take), mirrored(clip)
+    assert a.name == b.name == "t~mirror" and a.mirrored and a.n_frames == b.n_frames == T
+    for key in ("pose", "head", "face", "audio"):
+        assert np.array_equal(getattr(a, key), getattr(b, key)) and getattr(a, key).dtype == np.float32

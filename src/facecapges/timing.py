@@ -35,6 +35,11 @@ def frame_sample_bounds(i: int | np.ndarray, fps: float = MODEL_FPS, sr: int = A
     return start, end
 
 
+def audio_samples(n_frames: int, fps: float = MODEL_FPS, sr: int = AUDIO_SR) -> int:
+    """Samples ``n_frames`` frames own (:func:`frame_sample_bounds`): floor(T·sr/fps), tolerant to float noise."""
+    return int(math.floor(n_frames * sr / fps + 1e-6))
+
+
 def n_frames_for(duration_s: float, fps: float = MODEL_FPS) -> int:
     """Frames covering ``duration_s`` seconds: ceil(duration·fps), tolerant to float noise."""
     return int(math.ceil(duration_s * fps - 1e-6))

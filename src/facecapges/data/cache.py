@@ -6,7 +6,9 @@ Layout of a cache folder::
     CACHE/clips/<name>.npz    # one compressed array file per clip
 
 Per-clip arrays (``numpy.savez_compressed``; :meth:`Cache.load` returns them as a
-dict). T is the number of motion frames at the cache's ``fps`` (15 by default):
+dict). T is the number of motion frames at the cache's ``fps`` (15 by default).
+:class:`FrameArrays` holds one take's per-frame arrays (``pose``, ``head``, ``face``, ``audio``)
+with their shape checks; the trainer's clips and the matching engine's takes build on it:
 
 =================== ============== ======= ==============================================
 key                 shape          dtype   meaning
@@ -74,11 +76,14 @@ data at all get mean 0, std 1.
 from __future__ import annotations
 
 import json
+import math
 import zipfile
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from facecapges.arkit import N_BLENDSHAPES
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import N_JOINTS, Skeleton, skeleton_from_dict
 
@@ -89,6 +94,53 @@ CLIP_DIR = "clips"
 STD_FLOOR = 1e-3
 PRESENCE_KEYS = ("face_present", "semantic_present", "emotion_present")
 HOLDOUT_FRACTION = 0.2  # the last 20 % of every take is held out
+
+
+def holdout_frame(T: int) -> int:
+    """First frame of a take's last 20 % (:data:`HOLDOUT_FRACTION`): floor(0.8 · T)."""
+    return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
+
+
+@dataclass
+class FrameArrays:
+    """One take's per-frame arrays at the model rate (the clip keys of the module table).
+
+    Shapes are checked on construction (T from ``pose``); a mismatch is a :class:`UserError`
+    naming the take. The subclasses add what their users need: the trainer's
+    :class:`facecapges.training.segments.ClipArrays` a joint mask, the matching engine's
+    :class:`facecapges.matching.takes.Take` the skeleton and its held-out frames.
+    """
+
+    name: str
+    pose: np.ndarray  # (T, 47, 6) local rot6d of the UPPER_BODY joints
+    head: np.ndarray  # (T, 6) global head rot6d
+    face: np.ndarray  # (T, 52) ARKit weights (zeros where unknown)
+    audio: np.ndarray  # (S,) 16 kHz mono
+
+    def __post_init__(self) -> None:
+        T = self.n_frames
+        for key, want in (("pose", (T, N_JOINTS, 6)), ("head", (T, 6)), ("face", (T, N_BLENDSHAPES))):
+            got = tuple(np.shape(getattr(self, key)))
+            if got != want:
+                raise UserError(f"{self.name}: {key} has shape {got}, expected {want} (T = the pose's frames)")
+        if np.ndim(self.audio) != 1:
+            raise UserError(f"{self.name}: audio has shape {np.shape(self.audio)}, expected (S,) samples")
+
+    @property
+    def n_frames(self) -> int:
+        return int(len(self.pose))
+
+    def mirror_arrays(self) -> dict:
+        """The left/right mirror image's name (suffixed ``~mirror``), pose, head and face (the same audio);
+        ``dataclasses.replace(arrays, **arrays.mirror_arrays())`` makes the mirrored copy."""
+        from facecapges.data.mirror import mirror_face, mirror_head, mirror_pose
+
+        return {
+            "name": f"{self.name}~mirror",
+            "pose": mirror_pose(self.pose),
+            "head": mirror_head(self.head),
+            "face": mirror_face(self.face),
+        }
 
 
 # -------------------------------------------------------------------- statistics

@@ -49,7 +49,6 @@ cache (has ``index.json``) or an empty folder.
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import time
 from pathlib import Path
@@ -64,9 +63,9 @@ from facecapges.data.cache import (
     CACHE_VERSION,
     CLIP_DIR,
     FIRST_OTHER_SPEAKER,
-    HOLDOUT_FRACTION,
     INDEX_NAME,
     RunningStats,
+    holdout_frame,
 )
 from facecapges.errors import UserError, file_error, refuse_overwrite
 from facecapges.io.audio import load_audio
@@ -191,7 +190,7 @@ def _clip_arrays(
     T = len(pose)
     wav_path = files.files["wav"]
     audio_full = load_audio(wav_path, sr)
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     audio = _fit_length(audio_full, S, pad="zero")
 
     warnings: list[str] = []
@@ -283,11 +282,6 @@ def _require_target(target: Skeleton | None, path: Path) -> Skeleton:
     return target
 
 
-def holdout_frame(T: int) -> int:
-    """First frame of a take's last 20 % (HOLDOUT_FRACTION)."""
-    return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
-
-
 # ------------------------------------------------------------ other sources
 def _paired(paths: list[Path], suffix: str, what: str) -> list[tuple[Path, Path]]:
     """(motion file, wav) pairs from files or folders (searched recursively); a missing .wav is an error."""
@@ -315,7 +309,7 @@ def _other_arrays(
 ) -> tuple[dict[str, np.ndarray], float]:
     T = len(pose)
     audio_full = load_audio(wav, sr)
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     arrays = {
         "pose": pose.astype(np.float32),
         "head": pose_head_rot6d(target, pose),

@@ -17,7 +17,6 @@ Loaders:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -25,21 +24,16 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
+from facecapges.data.cache import FrameArrays, holdout_frame
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import UPPER_BODY, Skeleton, motion_to_pose, pose_head_rot6d
 
-HOLDOUT_FRACTION = 0.2
-
 
 @dataclass
-class Take:
-    """One paired take at the model rate (module docs)."""
+class Take(FrameArrays):
+    """One paired take at the model rate (module docs): :class:`FrameArrays` (name; pose, head, face
+    float32; audio float32 of S = floor(T · 16000 / 15) samples) and what the engine needs besides."""
 
-    name: str
-    pose: np.ndarray  # (T, 47, 6) float32 rot6d, 15 fps
-    audio: np.ndarray  # (S,) float32, 16 kHz; S = floor(T · 16000 / 15)
-    face: np.ndarray  # (T, 52) float32 ARKit weights (zeros where unknown)
-    head: np.ndarray  # (T, 6) float32 global head rotation, rot6d
     skeleton: Skeleton
     train_until: int  # frames >= this are the held-out 20 %: never used
     mirrored: bool = False
@@ -47,19 +41,10 @@ class Take:
     licence: str = ""
     notes: tuple[str, ...] = ()  # warnings about the files (e.g. speech a little longer than the motion)
 
-    @property
-    def n_frames(self) -> int:
-        return int(len(self.pose))
-
-
-def train_until_of(T: int) -> int:
-    """First held-out frame of a take of ``T`` frames: floor(0.8 · T)."""
-    return int(math.floor(T * (1.0 - HOLDOUT_FRACTION)))
-
 
 def fit_audio(audio: np.ndarray, T: int, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> np.ndarray:
     """Audio cut or zero-padded to the samples of ``T`` frames."""
-    S = int(math.floor(T * sr / fps + 1e-6))
+    S = timing.audio_samples(T, fps, sr)
     out = np.zeros(S, np.float32)
     n = min(S, len(audio))
     out[:n] = audio[:n]
@@ -89,7 +74,7 @@ def make_take(
         face=face,
         head=head.astype(np.float32),
         skeleton=skeleton,
-        train_until=train_until_of(T),
+        train_until=holdout_frame(T),
         **extra,
     )
 
@@ -171,13 +156,4 @@ def load_beat2_take(npz_path: Path, wav_path: Path, target: Skeleton | None) -> 
 
 def mirror_take(take: Take) -> Take:
     """The take's left/right mirror image (pose, head and face; the same audio)."""
-    from facecapges.data.mirror import mirror_face, mirror_head, mirror_pose
-
-    return replace(
-        take,
-        name=take.name + "~mirror",
-        pose=mirror_pose(take.pose).astype(np.float32),
-        head=mirror_head(take.head).astype(np.float32),
-        face=mirror_face(take.face).astype(np.float32),
-        mirrored=not take.mirrored,
-    )
+    return replace(take, **take.mirror_arrays(), mirrored=not take.mirrored)

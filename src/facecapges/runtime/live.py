@@ -24,10 +24,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from facecapges.errors import echo, echo_warning
 from facecapges.runtime.options import LiveOptions
+
+if TYPE_CHECKING:
+    from facecapges.runtime.outputs.vmc import VmcSender
 
 DEFAULT_VIEWER_PORT = 8765
 LOOPBACK = "127.0.0.1"
@@ -109,24 +112,20 @@ def per_face_sinks(
     the senders sit behind (recorders always get the model's own frames).
     """
     from facecapges.runtime.interfaces import Sink
-    from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace
+    from facecapges.runtime.outputs.recorders import file_recorders, per_face
     from facecapges.runtime.outputs.upsample import Upsampler
 
-    sinks: list[Sink] = []
     senders: list[VmcSender] = []
     ups: list[Upsampler] = []
     if vmc_addr is not None and vmc_avatar is not None:
         from facecapges.runtime.outputs.vmc import vrm_rig
 
         vmc_avatar = vrm_rig(vmc_avatar)  # the receiver's rig, read once for every sender
-    for i in range(faces):
-        sfx = "" if faces == 1 else f"_{i + 1}"
+
+    def sinks_of(i: int) -> list[Sink]:
         per: list[Sink] = []
         if record is not None:
-            per += [
-                BvhRecorder(record / f"motion{sfx}.bvh", ckpt.skeleton, ckpt.fps),
-                FaceJsonRecorder(record / f"face{sfx}.json", ckpt.fps, face_layout),
-            ]
+            per += file_recorders(record, ckpt.skeleton, ckpt.fps, face_layout, i, faces)
         if vmc_addr is not None:
             from facecapges.runtime.outputs.vmc import VmcSender
 
@@ -139,7 +138,9 @@ def per_face_sinks(
                 per.append(ups[-1])
             else:
                 per.append(sender)
-        sinks += per if faces == 1 else [ForFace(i, x) for x in per]
+        return per
+
+    sinks = per_face(faces, sinks_of)
     return sinks, senders, ups
 
 

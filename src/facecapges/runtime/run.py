@@ -174,21 +174,13 @@ def parse_size(text: str | None, default: tuple[int, int] = DEFAULT_VIDEO_SIZE) 
 def _recorders(out_dir: Path, checkpoint, faces: int, face_layout: str):
     """Each face's recorders: its motion BVH, its face JSON and a memory of its frames (for the videos).
     Returns (the memories, the sinks)."""
-    from facecapges.runtime.interfaces import Sink
-    from facecapges.runtime.outputs.recorders import BvhRecorder, FaceJsonRecorder, ForFace, MemoryRecorder
+    from facecapges.runtime.outputs.recorders import MemoryRecorder, file_recorders, per_face
 
-    mems: list[MemoryRecorder] = []
-    sinks: list[Sink] = []
-    for i in range(faces):
-        sfx = "" if faces == 1 else f"_{i + 1}"
-        mem = MemoryRecorder()
-        mems.append(mem)
-        per: list[Sink] = [
-            BvhRecorder(out_dir / f"motion{sfx}.bvh", checkpoint.skeleton, checkpoint.fps),
-            FaceJsonRecorder(out_dir / f"face{sfx}.json", checkpoint.fps, face_layout),
-            mem,
-        ]
-        sinks += per if faces == 1 else [ForFace(i, x) for x in per]
+    mems = [MemoryRecorder() for _ in range(faces)]
+    sinks = per_face(
+        faces,
+        lambda i: [*file_recorders(out_dir, checkpoint.skeleton, checkpoint.fps, face_layout, i, faces), mems[i]],
+    )
     return mems, sinks
 
 

@@ -24,7 +24,7 @@ import dataclasses
 import torch
 import torch.nn.functional as F
 
-from facecapges.data.mirror import mirror_face, mirror_head, mirror_mask, mirror_pose
+from facecapges.data.mirror import mirror_mask
 
 AMP_SMOOTH = 5  # frames of amplitude_loss's moving average (1/3 s at 15 fps)
 
@@ -98,9 +98,6 @@ def mirrored(clip):
     """A left/right mirrored copy of a ``ClipArrays`` (name suffixed ``~mirror``)."""
     return dataclasses.replace(
         clip,
-        name=f"{clip.name}~mirror",
-        pose=mirror_pose(clip.pose),
-        head=mirror_head(clip.head),
-        face=mirror_face(clip.face),
+        **clip.mirror_arrays(),
         mask=None if getattr(clip, "mask", None) is None else mirror_mask(clip.mask),
     )

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from facecapges.data.cache import FrameArrays
 from facecapges.errors import UserError
 from facecapges.network.config import ModelConfig, TrainConfig
 from facecapges.rotations import identity_rot6d
@@ -28,14 +29,10 @@ from facecapges.training.masking import mirrored
 
 
 @dataclass
-class ClipArrays:
-    """One recording's model inputs and targets at the model rate."""
+class ClipArrays(FrameArrays):
+    """One recording's model inputs and targets at the model rate (:class:`FrameArrays`: name, pose,
+    head, face, audio) and which joints have real motion."""
 
-    name: str
-    pose: np.ndarray  # (T, 47, 6)
-    head: np.ndarray  # (T, 6)
-    face: np.ndarray  # (T, 52)
-    audio: np.ndarray  # (S,) 16 kHz
     mask: np.ndarray | None = None  # (47,) or (T, 47) bool: joints with real motion (None: all)
 
 

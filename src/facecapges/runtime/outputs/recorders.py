@@ -17,12 +17,16 @@ SIGTERM/SIGHUP (the command line turns both into an interrupt). Other sinks: :mo
 * :class:`MemoryRecorder` — keeps quaternions and weights in memory for rendering the
   avatar video after ``run``.
 * :class:`ForFace` — passes on one face's frames only (a recorder per face for ``--faces N``).
+* :func:`file_recorders` / :func:`per_face` — the one rule of ``run`` and ``live`` for several
+  faces: face ``i`` of N > 1 writes ``motion_{i+1}.bvh`` / ``face_{i+1}.json`` and each of its sinks
+  sees only its own frames (one face: ``motion.bvh`` / ``face.json``, no filter).
 
 Every sink satisfies :class:`facecapges.runtime.interfaces.Sink`.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -32,6 +36,7 @@ from facecapges.runtime.frames import OutputFrame
 
 if TYPE_CHECKING:
     from facecapges.io.bvh import BvhWriter
+    from facecapges.runtime.interfaces import Sink
 
 
 class BvhRecorder:
@@ -125,3 +130,21 @@ class ForFace:
 
     def close(self):
         return self.sink.close()
+
+
+def file_recorders(folder: Path, skeleton, fps: float, face_layout: str, index: int, faces: int) -> list[Sink]:
+    """Face ``index``'s motion BVH and face JSON in ``folder`` (``_{index+1}`` suffixed when ``faces`` > 1)."""
+    sfx = "" if faces == 1 else f"_{index + 1}"
+    return [
+        BvhRecorder(folder / f"motion{sfx}.bvh", skeleton, fps),
+        FaceJsonRecorder(folder / f"face{sfx}.json", fps, face_layout),
+    ]
+
+
+def per_face(faces: int, sinks_of: Callable[[int], list[Sink]]) -> list[Sink]:
+    """Every face's sinks (``sinks_of(i)``, face by face), each behind :class:`ForFace` when ``faces`` > 1."""
+    sinks: list[Sink] = []
+    for i in range(faces):
+        per = sinks_of(i)
+        sinks += per if faces == 1 else [ForFace(i, x) for x in per]
+    return sinks
