@@ -155,7 +155,7 @@ def test_viewer_as_an_obs_browser_source(live):
 
 
 @pytest.mark.slow
-@pytest.mark.serial  # compares two 24-frame windows of the --realtime stream: failed once in three -n 2 runs
+@pytest.mark.serial  # the --realtime stream: 5-s windows (1.6-s ones failed once in three -n 2 runs and once in the serial pass)
 def test_viewer_slider_sets_the_intensity(live):
     """The viewer's intensity slider reaches the generator: at 0 the avatar only idles."""
     from websockets.sync.client import connect
@@ -186,15 +186,17 @@ def test_viewer_slider_sets_the_intensity(live):
                 assert msg["value"] == 0.0
                 break
 
-        def swing(p):  # the arms' largest turn away from the first of these frames (the head is the person's)
-            return np.abs(1 - np.abs((p[:, 3:] * p[:1, 3:]).sum(-1))).max()
+        def motion(p):  # the arms' mean turn from frame to frame (the head is the person's)
+            return (1 - np.abs((p[1:, 3:] * p[:-1, 3:]).sum(-1))).mean()
 
-        calm = swing(poses(ws, 24)[3:])  # a frame or two may have been on their way
+        # 5 s each: the video has no soundtrack, so both windows are idle motion, which switches between idle
+        # runs; 1.6 s windows of it (24 frames) compared the runs that happened to play, not the dial
+        calm = motion(poses(ws, 78)[3:])  # a frame or two may have been on their way
         assert b.evaluate("document.getElementById('intensity-value').textContent") == "0.00"
         ws.send(json.dumps({"type": "intensity", "value": 1.0}))  # back, as the other tests expect
         while json.loads(ws.recv(timeout=10)).get("type") != "intensity":
             pass
-        full = swing(poses(ws, 24)[3:])
+        full = motion(poses(ws, 78)[3:])
         # at 0 the default (motion-matching) style plays idle motion at half its swing: calm, never frozen
         assert 0 < calm < full, (calm, full)
         assert b.evaluate("document.getElementById('intensity-value').textContent") == "1.00"
