@@ -440,12 +440,13 @@ class Scheduler:
                 raise KeyboardInterrupt  # a second Ctrl-C: at once
             interrupted = True
 
-        previous = None
-        if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) not in (
-            signal.SIG_IGN,
-            None,
-        ):
-            previous = signal.signal(signal.SIGINT, on_sigint)
+        # SIGTERM and SIGHUP too (the command line turns them into an interrupt): raised inside a library call
+        # (MediaPipe building an image) the interrupt left a half-made object whose __del__ printed a traceback
+        previous: dict = {}
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)):
+                if sig is not None and signal.getsignal(sig) not in (signal.SIG_IGN, None):
+                    previous[sig] = signal.signal(sig, on_sigint)
         try:
             while True:
                 if interrupted:
@@ -465,8 +466,8 @@ class Scheduler:
         except KeyboardInterrupt:
             why = "interrupted"
         finally:
-            if previous is not None:
-                signal.signal(signal.SIGINT, previous)
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
         self.stopped_by = why
         return why
 
