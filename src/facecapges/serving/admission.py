@@ -24,10 +24,13 @@ inputs a second over every ``rate_window`` seconds (1008).
 
 from __future__ import annotations
 
+import asyncio
 import collections
 import ipaddress
-from collections.abc import Iterable
+import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from facecapges.runtime.outputs.ws import is_loopback
 from facecapges.serving.config import ServeConfig
@@ -40,6 +43,9 @@ DEFAULT_PER_ADDRESS = 16  # streams per client address unless --max-per-address 
 FULL_CODE = 1013  # "try again later": refused, or evicted to make room
 EVICTED_SLOW = "evicted: slower than a live stream while the server was full"
 EVICTED_WAITING = "evicted: no input while the server was full"
+
+
+H = TypeVar("H", bound="Holder")  # a server's own stream record
 
 
 def forwarded_address(peer: str, forwarded_for: str | None, trust_proxy: bool) -> str:
@@ -211,3 +217,18 @@ class Admission:
         c = self.cfg
         periods = [p for p in (c.idle_timeout, c.first_input_timeout, c.rate_window) if p > 0]
         return min(1.0, min(periods) / 4) if periods else None
+
+    async def close_overdue(
+        self, holders: Callable[[], Iterable[H]], stats: dict, close: Callable[[H, int, str], None]
+    ) -> None:
+        """Every :meth:`check_period`, ``close(holder, code, reason)`` each open holder that is :meth:`overdue`
+        (counted in ``stats``); returns at once when nothing can be overdue. Both servers' idle loop."""
+        period = self.check_period()
+        while period is not None:
+            await asyncio.sleep(period)
+            now = time.monotonic()
+            for st in list(holders()):
+                why = None if st.closed else self.overdue(st, now)
+                if why is not None:
+                    stats[why[0]] += 1
+                    close(st, why[1], why[2])

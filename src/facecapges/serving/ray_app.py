@@ -312,16 +312,8 @@ def build_app(
                     st.slot = None
 
         async def _idle_loop(self) -> None:
-            """``serve``'s closes of idle, silent and too slow streams (admission.Admission.overdue)."""
-            period = self.policy.check_period()
-            while period is not None:
-                await asyncio.sleep(period)
-                now = time.monotonic()
-                for st in list(self.streams.values()):
-                    why = None if st.closed else self.policy.overdue(st, now)
-                    if why is not None:
-                        self.stats[why[0]] += 1
-                        self._close_later(st, why[1], why[2])
+            """``serve``'s closes of idle, silent and too slow streams (admission.Admission.close_overdue)."""
+            await self.policy.close_overdue(self.streams.values, self.stats, self._close_later)
 
         async def _batch_loop(self) -> None:
             from facecapges import rotations as rot

@@ -467,16 +467,11 @@ class StreamServer(ServerThread):
                 self._wake.set()
 
     async def _idle_loop(self) -> None:
-        period = self.policy.check_period()
-        while period is not None:
-            await asyncio.sleep(period)
-            now = time.monotonic()
-            for st in list(self.streams.values()):
-                why = None if st.closed else self.policy.overdue(st, now)
-                if why is not None:
-                    self.stats[why[0]] += 1
-                    st.closed = True
-                    self._close_later(st.ws, why[1], why[2])
+        await self.policy.close_overdue(self.streams.values, self.stats, self._close_overdue)
+
+    def _close_overdue(self, st, code: int, reason: str) -> None:
+        st.closed = True
+        self._close_later(st.ws, code, reason)
 
     # ---------------------------------------------------------------- lifecycle (ServerThread)
     async def _listen(self) -> Server:
