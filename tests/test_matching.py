@@ -16,9 +16,11 @@ from facecapges.engine.generate import generate_poses
 from facecapges.engine.inputs import FrameInputs
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import build_database, idle_rows, quaternions
+from facecapges.matching.features import GROUP_NAMES, N_FEATURES, LiveFrames, group_slices, live_query
 from facecapges.matching.matcher import BatchedMatchingStreams, MatchingConfig, MatchingStream, gain_of
 from facecapges.matching.predictor import PredictorSettings
 from facecapges.matching.predictor_training import train_predictor
+from facecapges.matching.speech import SpeechTracker
 from facecapges.matching.style import save_matching_style
 from facecapges.matching.takes import load_take
 from facecapges.styles import DEFAULT_NETWORK_STYLE, load_style
@@ -67,6 +69,29 @@ def test_database_keeps_to_the_training_range_and_annotates(take, db):
     assert db.pause.any() and (~db.pause).any()
     idle = idle_rows(db)
     assert 0.2 <= idle.mean() < 0.9
+
+
+def test_each_feature_group_fills_the_query_as_it_fills_the_database(take, db):
+    """Given a database frame's own live inputs (the streaming speech cues of its audio, a predictor that
+    estimates its own future, no pause), every group's query part is the database row: one definition each."""
+    rows = np.arange(450)  # the unmirrored range [0, 450)
+    tracker, own = SpeechTracker(1), np.zeros(1, np.int64)
+    cues = [tracker.step(own, take.audio[t * SPF : (t + 1) * SPF][None]) for t in range(450)]
+    future = db.features[rows][:, group_slices()["future"]]
+    live = LiveFrames(
+        speaking=np.concatenate([c.speaking for c in cues]),
+        since_onset=np.concatenate([c.since_onset for c in cues]),
+        predicted=np.concatenate([future, np.full((450, 1), 0.5, np.float32)], axis=1),  # + a speaking probability
+        settled=np.zeros((450, 1)),
+        rest_future=np.full(future.shape[1], 7.0, np.float32),
+    )
+    assert tuple(db.weights) == GROUP_NAMES and db.features.shape[1] == N_FEATURES
+    assert live.speaking.any() and (~live.speaking).any() and (live.since_onset == 0).any()
+    assert np.array_equal(live_query(live, db.features[rows]), db.features[rows])
+    # a settled pause: only the future moves, to his rest's
+    settled = live_query(replace(live, settled=np.ones((450, 1))), db.features[rows])
+    changed = np.flatnonzero((settled != db.features[rows]).any(axis=0))
+    assert set(changed) == set(range(N_FEATURES)[group_slices()["future"]]) and np.all(settled[:, changed] == 7.0)
 
 
 def test_strictly_causal(take, db, predictor):

@@ -5,18 +5,17 @@ Rows are frames at the model rate (15 fps) of each take's range (default: its tr
 Per row:
 
 * ``pose`` (47, 6) rot6d — what plays;
-* the search features (:data:`FEATURE_GROUPS`), from :func:`facecapges.matching.targets.arm_positions`
-  of the range's own poses and :func:`~facecapges.matching.speech.speech_track` of its own audio:
-  ``position`` (wrists + elbows in the chest frame, 12), ``velocity`` (their backward difference ×
-  fps, 12), ``future`` (:func:`~facecapges.matching.targets.future_targets`, 4: what the predictor
-  estimates live), ``speaking`` (1: the VAD), ``onset`` (1: ``exp(−frames since onset / 3)``);
+* the search features: the groups of :mod:`facecapges.matching.features` (``position``, ``velocity``,
+  ``future``, ``speaking``, ``onset``; each defined there once, for these rows and the live query),
+  from :func:`facecapges.matching.targets.arm_positions` of the range's own poses and
+  :func:`~facecapges.matching.speech.speech_track` of its own audio;
 * annotations: ``pause`` (not speaking), ``phase`` (:data:`PHASES`, from the wrist-speed
   extremes: :func:`gesture_phases`), ``lead`` (how much the wrist speed rises over the next 2–4 frames,
   in sd of the take's speed: a stroke about to land), ``searchable`` (false for the last
   :data:`END_MARGIN` frames of each range: a jump there would run off the take's end).
 
 Normalisation (one place: :meth:`Database.normalised`): each feature is centred on its mean;
-each group but the [0, 1] ones (:data:`UNIT_GROUPS`) is divided by the mean of its features' sd
+each group but the [0, 1] ones (``unit``) is divided by the mean of its features' sd
 (so the group's inner proportions stay)
 and multiplied by ``sqrt(weight)`` of its group, so a squared Euclidean distance of normalised
 rows is the weighted sum of the groups' squared distances.
@@ -30,36 +29,23 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
+from facecapges.matching.features import (
+    DEFAULT_WEIGHTS,
+    FEATURE_GROUPS,
+    N_FEATURES,
+    TakeFrames,
+    group_slices,
+    take_rows,
+)
 from facecapges.matching.speech import speech_track
 from facecapges.matching.takes import Take, mirror_take
-from facecapges.matching.targets import TARGET_NAMES, arm_positions, future_targets
+from facecapges.matching.targets import arm_positions
 
-FEATURE_GROUPS: dict[str, int] = {
-    "position": 12,
-    "velocity": 12,
-    "future": len(TARGET_NAMES),
-    "speaking": 1,
-    "onset": 1,
-}
-DEFAULT_WEIGHTS: dict[str, float] = {"position": 1.0, "velocity": 1.0, "future": 1.0, "speaking": 4.0, "onset": 0.25}
 PHASES: tuple[str, ...] = ("rest", "preparation", "stroke", "hold", "retraction")
 END_MARGIN = 10  # frames: 0.6 s of future targets + one, so every searchable row's future is real
-ONSET_DECAY = 3.0
-UNIT_GROUPS = ("speaking", "onset")  # already in [0, 1]: not rescaled by their sd
 IDLE_MIN_RUN = 10
 IDLE_BRIDGE = 4
 IDLE_MIN_SHARE = 0.2
-
-
-def group_slices() -> dict[str, slice]:
-    out, at = {}, 0
-    for g, n in FEATURE_GROUPS.items():
-        out[g] = slice(at, at + n)
-        at += n
-    return out
-
-
-N_FEATURES = sum(FEATURE_GROUPS.values())
 
 
 def wrist_speed(arm: np.ndarray, fps: float) -> np.ndarray:
@@ -149,10 +135,12 @@ class Database:
             w[sl] = np.sqrt(max(float(self.weights.get(g, 0.0)), 0.0))
         return (self.scale * w).astype(np.float32)
 
-    def normalised(self, raw: np.ndarray | None = None) -> np.ndarray:
-        """Centred, scaled and weighted features of ``raw`` (…, F) (default: the database's own)."""
+    def normalised(self, raw: np.ndarray | None = None, feature_weights: np.ndarray | None = None) -> np.ndarray:
+        """Centred, scaled and weighted features of ``raw`` (…, F) (default: the database's own);
+        ``feature_weights``: :meth:`feature_weights` if the caller keeps them (the matcher, per search)."""
         raw = self.features if raw is None else raw
-        return ((raw - self.mean) * self.feature_weights()).astype(np.float32)
+        weights = self.feature_weights() if feature_weights is None else feature_weights
+        return ((raw - self.mean) * weights).astype(np.float32)
 
     def tensors(self) -> dict[str, np.ndarray]:
         assert self.mean is not None and self.scale is not None
@@ -193,8 +181,8 @@ def normalisation(features: np.ndarray, pause: np.ndarray) -> tuple[np.ndarray, 
     mean = features.mean(axis=0).astype(np.float32)
     sd = features.std(axis=0)
     scale = np.empty(N_FEATURES, np.float32)
-    for g, sl in group_slices().items():
-        scale[sl] = 1.0 if g in UNIT_GROUPS else 1.0 / max(float(sd[sl].mean()), 1e-3)
+    for g, sl in zip(FEATURE_GROUPS, group_slices().values(), strict=True):
+        scale[sl] = 1.0 if g.unit else 1.0 / max(float(sd[sl].mean()), 1e-3)
     return mean, scale
 
 
@@ -246,7 +234,8 @@ def mirror_twins(db: Database) -> np.ndarray:
 
 
 def frame_features(take: Take, start: int, stop: int) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Raw features (n, F) and annotations of frames [start, stop) of ``take`` (module docs).
+    """Raw features (n, F) (:func:`~facecapges.matching.features.take_rows`) and annotations of frames
+    [start, stop) of ``take`` (module docs).
 
     Only the range's own poses and audio are read, so nothing outside it leaks in.
     """
@@ -255,15 +244,8 @@ def frame_features(take: Take, start: int, stop: int) -> tuple[np.ndarray, dict[
     spf = timing.samples_per_frame()
     audio = take.audio[start * spf : stop * spf]
     arm = arm_positions(take.skeleton, pose).astype(np.float32)
-    vel = np.zeros_like(arm)
-    vel[1:] = np.diff(arm, axis=0) * fps
-    vel[0] = vel[1] if len(arm) > 1 else 0.0
-    fut = future_targets(arm, fps)
     sp = speech_track(audio, len(pose))
-    onset = np.exp(-sp.since_onset / ONSET_DECAY).astype(np.float32)
-    feats = np.concatenate(
-        [arm.reshape(len(arm), -1), vel.reshape(len(arm), -1), fut, sp.speaking[:, None], onset[:, None]], axis=1
-    ).astype(np.float32)
+    feats = take_rows(TakeFrames(arm, sp, fps))
     speed = wrist_speed(arm, fps)
     height = arm[:, :2, 1].mean(axis=1)
     ann = {

@@ -16,9 +16,10 @@ Per step and stream (only the current frame's inputs and the stream's own state 
 4. **Search** when ``search_interval`` frames have passed since the last search, at an onset,
    when speaking starts or stops, or when the clip runs out. The query is the playing frame's
    features (arm position and velocity) with the predicted future, the speaking state and the
-   onset recency put in; the cost of every database row is the squared distance of the
-   normalised features (:meth:`Database.normalised`), brute force in NumPy (:func:`search`, a pure
-   function of the queries, the database's arrays and the streams' memory and allowed rows), plus:
+   onset recency put in (each feature group's live part: :mod:`~facecapges.matching.features`); the
+   cost of every database row is the squared distance of the normalised features
+   (:meth:`Database.normalised`), brute force in NumPy (:func:`search`, a pure function of the
+   queries, the database's arrays and the streams' memory and allowed rows), plus:
 
    * rows not ``searchable`` (a take end within reach) are excluded; while not speaking, or at
      ``intensity`` ≈ 0, only idle rows (pause frames and rest-phase frames) are searched;
@@ -66,14 +67,8 @@ from facecapges import timing
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
-from facecapges.matching.database import (
-    ONSET_DECAY,
-    Database,
-    group_slices,
-    idle_rows,
-    mirror_twins,
-    quaternions,
-)
+from facecapges.matching.database import Database, idle_rows, mirror_twins, quaternions
+from facecapges.matching.features import LiveFrames, group_slices, live_query
 from facecapges.matching.speech import SpeechTracker
 from facecapges.skeleton import N_JOINTS
 
@@ -244,8 +239,6 @@ class BatchedMatchingStreams(SlotOwner):
         self.rest_future = np.median(fut, axis=0).astype(np.float32)  # where a pause's query settles
         self._blocked = np.stack([~db.searchable, ~self.idle])  # rows a search may not jump to: [any, idle only]
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
-        sl = group_slices()
-        self.sl_future, self.sl_speaking, self.sl_onset = sl["future"], sl["speaking"], sl["onset"]
         self.feature_weights = db.feature_weights()  # (features,) the centred features' multipliers
 
     # ---------------------------------------------------------------- storage
@@ -441,18 +434,20 @@ class BatchedMatchingStreams(SlotOwner):
     def _query(
         self, ids: np.ndarray, rows: np.ndarray, cues, searching: np.ndarray, pred: np.ndarray | None
     ) -> np.ndarray:
-        """Normalised queries (Bs, F): the playing rows' features with the speech terms put in (while not
-        speaking the future moves to his rest's over ``settle_s``)."""
-        db = self.db
-        raw = db.features[rows].copy()
-        if pred is not None:
-            raw[:, self.sl_future] = pred[searching, : raw[:, self.sl_future].shape[1]]
-        # a pause: the future moves to his rest's (slow, wrists low) over settle_s after speech stops
-        k = np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)[:, None]
-        raw[:, self.sl_future] = (1.0 - k) * raw[:, self.sl_future] + k * self.rest_future
-        raw[:, self.sl_speaking] = cues.speaking[searching, None].astype(np.float32)
-        raw[:, self.sl_onset] = np.exp(-cues.since_onset[searching, None] / ONSET_DECAY)
-        return (raw - db.mean) * self.feature_weights
+        """Normalised queries (Bs, F): each feature group's live part (:mod:`~facecapges.matching.features`)
+        from the playing rows, the speech cues, the predictor and how far a pause has settled."""
+        live = LiveFrames(
+            speaking=cues.speaking[searching],
+            since_onset=cues.since_onset[searching],
+            predicted=None if pred is None else pred[searching],
+            settled=self._settled(ids)[:, None],
+            rest_future=self.rest_future,
+        )
+        return self.db.normalised(live_query(live, self.db.features[rows]), self.feature_weights)
+
+    def _settled(self, ids: np.ndarray) -> np.ndarray:
+        """How far each stream's pause has settled (B,): 0 while speaking, 1 once it has lasted ``settle_s``."""
+        return np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)
 
     def _search(self, ids, rows, cues, searching, pred, idle_only, forced, stale) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams: their queries, memory and
@@ -495,8 +490,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.slow_dev[ids] = slow
         g = gain_of(now)
         if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
-            k = np.clip(self.quiet[ids] / max(cfg.settle_s * self.fps, 1.0), 0.0, 1.0)
-            g = g * (1.0 - k * (1.0 - cfg.pause_gain))
+            g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
         scale = np.abs(g - 1.0) > 1e-9
         if scale.any():
             k = np.flatnonzero(scale)

@@ -165,17 +165,18 @@ def check_engine_config(d: object) -> MatchingConfig:
 def _check_database(t: dict[str, np.ndarray], meta: object) -> None:
     """Every database array's length and width against ``db.pose``, its kind and values, and the database
     metadata (weights, segments) they index: a ValueError names the first wrong one."""
-    from facecapges.matching.database import FEATURE_GROUPS, N_FEATURES, PHASES
+    from facecapges.matching.database import PHASES
+    from facecapges.matching.features import GROUP_NAMES, N_FEATURES
     from facecapges.skeleton import N_JOINTS
 
     if not isinstance(meta, dict) or not isinstance(meta.get("segments"), list):
         raise ValueError("database metadata is not an object with a 'segments' list")
     w = meta.get("weights")
     if not isinstance(w, dict) or not all(
-        k in FEATURE_GROUPS and isinstance(v, int | float) and not isinstance(v, bool) and 0 <= v < 1e6
+        k in GROUP_NAMES and isinstance(v, int | float) and not isinstance(v, bool) and 0 <= v < 1e6
         for k, v in w.items()
     ):
-        raise ValueError(f"database weights must map {', '.join(FEATURE_GROUPS)} to numbers ≥ 0")
+        raise ValueError(f"database weights must map {', '.join(GROUP_NAMES)} to numbers ≥ 0")
     seg_fields = {"name": str, "source": str, "start": int, "stop": int, "mirrored": bool, "row": int}
     for seg in meta["segments"]:
         if not isinstance(seg, dict) or set(seg) != set(seg_fields):
