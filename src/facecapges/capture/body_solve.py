@@ -37,6 +37,7 @@ rest and back.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -270,6 +271,28 @@ def _solve_frame(
     return out
 
 
+def _confidence(rig: _Rig, vis: np.ndarray, hand_score: np.ndarray) -> np.ndarray:
+    """Per-joint confidence (47,) of one frame: the pose's visibility for the torso and arms, the hand's
+    presence for the fingers (the hand itself: at least half the forearm's)."""
+    c = np.ones(len(UPPER_BODY))
+    for s, side in enumerate(SIDES):
+        arm = float(min(vis[SHOULDER[side]], vis[ELBOW[side]]))
+        fore = float(min(vis[ELBOW[side]], vis[WRIST[side]]))
+        for n in UPPER_BODY:
+            if not n.startswith(side):
+                continue
+            if n in (f"{side}Shoulder", f"{side}Arm"):
+                c[rig.slot[n]] = arm
+            elif n == f"{side}ForeArm":
+                c[rig.slot[n]] = fore
+            elif n == f"{side}Hand":
+                c[rig.slot[n]] = max(float(hand_score[s]), 0.5 * fore)
+            else:
+                c[rig.slot[n]] = float(hand_score[s])
+    c[:3] = float(min(vis[SHOULDER["Left"]], vis[SHOULDER["Right"]]))
+    return c
+
+
 def _rest_pose(rig: _Rig) -> dict[str, np.ndarray]:
     """Relaxed rest: torso upright, arms hanging slightly forward, hands and fingers at rest."""
     out = {n: np.eye(3) for n in UPPER_BODY}
@@ -318,13 +341,18 @@ def _complete_depth(p: np.ndarray, lengths: dict[tuple[int, int], float]) -> np.
     return p
 
 
+def _ease_step(cur: np.ndarray, target: np.ndarray, fps: float) -> np.ndarray:
+    """One frame of the easing: ``cur`` moves towards ``target`` by at most 1/(EASE_S·fps)."""
+    step = 1.0 / max(EASE_S * fps, 1.0)
+    return cur + np.clip(target - cur, -step, step)
+
+
 def _ease(target: np.ndarray, fps: float) -> np.ndarray:
     """Confidence eased in time: moves towards ``target`` (T, K) by at most 1/(EASE_S·fps) per frame."""
-    step = 1.0 / max(EASE_S * fps, 1.0)
     out = np.empty_like(target)
     cur = target[0].copy()
     for t in range(len(target)):
-        cur = cur + np.clip(target[t] - cur, -step, step)
+        cur = _ease_step(cur, target[t], fps)
         out[t] = cur
     return out
 
@@ -396,24 +424,7 @@ def solve(
         local = _solve_frame(rig, p, hands, rest, torso, hand_weight)
         mats[t] = np.stack([local[n] for n in UPPER_BODY])
         last = mats[t]
-        vis = lm.visibility[t]
-        c = np.ones(len(UPPER_BODY))
-        for s, side in enumerate(SIDES):
-            arm = float(min(vis[SHOULDER[side]], vis[ELBOW[side]]))
-            fore = float(min(vis[ELBOW[side]], vis[WRIST[side]]))
-            for n in UPPER_BODY:
-                if not n.startswith(side):
-                    continue
-                if n in (f"{side}Shoulder", f"{side}Arm"):
-                    c[rig.slot[n]] = arm
-                elif n == f"{side}ForeArm":
-                    c[rig.slot[n]] = fore
-                elif n == f"{side}Hand":
-                    c[rig.slot[n]] = max(float(lm.hand_score[t, s]), 0.5 * fore)
-                else:
-                    c[rig.slot[n]] = float(lm.hand_score[t, s])
-        c[:3] = float(min(vis[SHOULDER["Left"]], vis[SHOULDER["Right"]]))
-        conf[t] = c
+        conf[t] = _confidence(rig, lm.visibility[t], lm.hand_score[t])
     # a joint below MIN_VISIBILITY eases to rest, and back when it is seen again
     weight = _ease((conf >= MIN_VISIBILITY).astype(np.float64), lm.fps)
     q = rot.matrix_to_quaternion(mats)
@@ -421,3 +432,102 @@ def solve(
     q = rot.quaternion_slerp(q_rest, q, weight[..., None])
     out = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
     return BodySolve(pose=out, confidence=conf.astype(np.float32))
+
+
+# ------------------------------------------------------------------ causal, frame by frame (live --body)
+LIVE_POSE_FILTER = (1.0, 2.0)  # One-Euro (min cut-off Hz, beta per m/s) of the pose landmarks, live
+LIVE_HAND_FILTER = (1.5, 2.0)  # the same for each hand's landmarks
+LENGTH_WINDOW = 150  # frames (10 s) of seen arm-bone lengths whose median the live depth completion uses
+
+
+class OneEuro:
+    """The One-Euro filter (Casiez et al. 2012), causal, over arrays of points (..., 3); each point's
+    cut-off rises with its own speed (the norm of its filtered velocity). PyPI's ``OneEuroFilter``
+    filters one float at a time (225 filter objects a frame here, each coordinate's speed apart)."""
+
+    def __init__(self, fps: float, min_cutoff: float, beta: float, d_cutoff: float = 1.0):
+        self.dt = 1.0 / fps
+        self.min_cutoff, self.beta, self.d_cutoff = min_cutoff, beta, d_cutoff
+        self.x: np.ndarray | None = None
+        self.dx: np.ndarray | None = None
+
+    def _alpha(self, cutoff: np.ndarray | float) -> np.ndarray:
+        tau = 1.0 / (2.0 * np.pi * np.asarray(cutoff))
+        return 1.0 / (1.0 + tau / self.dt)
+
+    def reset(self) -> None:
+        self.x = self.dx = None
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        if self.x is None or self.dx is None:
+            self.x, self.dx = x.copy(), np.zeros_like(x)
+            return x.copy()
+        self.dx = self.dx + self._alpha(self.d_cutoff) * ((x - self.x) / self.dt - self.dx)
+        speed = np.linalg.norm(self.dx, axis=-1, keepdims=True)
+        self.x = self.x + self._alpha(self.min_cutoff + self.beta * speed) * (x - self.x)
+        return self.x.copy()
+
+
+class StreamSolver:
+    """:func:`solve` one frame at a time, causally (``live --body``): nothing from later frames is used.
+
+    The same per-frame solve (:func:`_solve_frame`), confidence and easing to rest; what :func:`solve`
+    takes from the whole clip is taken from the past here: the landmarks are filtered by a One-Euro
+    filter (:data:`LIVE_POSE_FILTER`, :data:`LIVE_HAND_FILTER`; reset where they are lost) instead of
+    the zero-phase Gaussian, the torso's slow lean and turn by an exponential average over
+    :data:`TORSO_SIGMA` frames instead of the Gaussian of that σ, and the depth completion's bone
+    lengths are the median of the last :data:`LENGTH_WINDOW` frames' instead of the clip's.
+    """
+
+    def __init__(self, skel: Skeleton, fps: float, hand_weight: float = HAND_WEIGHT):
+        self.rig = _Rig(skel)
+        self.fps = float(fps)
+        self.hand_weight = hand_weight
+        self.rest = _rest_pose(self.rig)
+        self.q_rest = rot.matrix_to_quaternion(np.stack([self.rest[n] for n in UPPER_BODY]))
+        self.pose_f = OneEuro(fps, *LIVE_POSE_FILTER)
+        self.hand_f = [OneEuro(fps, *LIVE_HAND_FILTER) for _ in SIDES]
+        self.torso_slow: np.ndarray | None = None
+        self.lengths: deque[np.ndarray] = deque(maxlen=LENGTH_WINDOW)
+        self.q_last = self.q_rest.copy()
+        self.weight: np.ndarray | None = None
+
+    def _depth(self, pose: np.ndarray) -> np.ndarray:
+        """Depth completion with the recent frames' median bone lengths (this frame's included)."""
+        bones = [(i, j) for a, b, c in ARM_CHAINS for i, j in ((a, b), (b, c))]
+        self.lengths.append(np.array([np.linalg.norm(pose[j] - pose[i]) for i, j in bones]))
+        med = np.median(np.stack(self.lengths), axis=0)
+        return _complete_depth(pose, {bone: float(m) for bone, m in zip(bones, med, strict=True)})
+
+    def step(
+        self, pose: np.ndarray | None, visibility: np.ndarray, hands: list[np.ndarray | None], hand_score: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """One frame: pose world landmarks (33, 3) or None (no person), their visibility (33,), each hand's
+        world landmarks (21, 3) or None, the hands' scores (2,) → local quaternions (47, 4) and the
+        per-joint confidence (47,). With no person the last pose is held (confidence 0, easing to rest)."""
+        if pose is None or not np.isfinite(pose).all():
+            self.pose_f.reset()
+            for f in self.hand_f:
+                f.reset()
+            conf = np.zeros(len(UPPER_BODY))
+            q = self.q_last
+        else:
+            P = self.pose_f(self._depth(np.asarray(pose, np.float64)) @ MP_TO_BVH.T)
+            a = 1.0 / TORSO_SIGMA
+            self.torso_slow = P.copy() if self.torso_slow is None else self.torso_slow + a * (P - self.torso_slow)
+            hs: list[np.ndarray | None] = []
+            for s in range(len(SIDES)):
+                h = hands[s]
+                if h is not None and hand_score[s] > 0 and np.isfinite(h).all():
+                    hs.append(self.hand_f[s](np.asarray(h, np.float64) @ MP_TO_BVH.T))
+                else:
+                    self.hand_f[s].reset()
+                    hs.append(None)
+            torso = _torso(self.torso_slow, P)
+            local = _solve_frame(self.rig, P, hs, self.rest, torso, self.hand_weight)
+            q = rot.matrix_to_quaternion(np.stack([local[n] for n in UPPER_BODY]))
+            self.q_last = q
+            conf = _confidence(self.rig, visibility, hand_score)
+        target = (conf >= MIN_VISIBILITY).astype(np.float64)
+        self.weight = target if self.weight is None else _ease_step(self.weight, target, self.fps)
+        return rot.quaternion_slerp(self.q_rest, q, self.weight[:, None]), conf
