@@ -32,7 +32,7 @@ from facecapges.timing import MODEL_FPS
 
 # (start s, end s, how): "left" shifts the picture left (the subject's right arm leaves), "down" shifts it down
 LEAVE_SPANS: tuple[tuple[float, float, str], ...] = ((3.0, 6.0, "left"), (8.0, 11.0, "down"))
-SHIFT = {"left": (-0.42, 0.0), "down": (0.0, 0.5)}  # share of the width / height
+SHIFT = {"left": (-0.3, 0.0), "down": (0.0, 0.5)}  # share of the width / height
 NEAR_HANDOVER = (-1, 8)  # frames around a hand-over whose acceleration is checked (the blend's first 0.5 s)
 
 
@@ -120,11 +120,16 @@ def figures(skel: Skeleton, truth: np.ndarray, pose: np.ndarray, mask: np.ndarra
 
 
 def on_body_mask(n: int, events: list, side: str) -> np.ndarray:
-    """Frames (n,) on which ``side``'s arm followed the body (from the report's hand-over list)."""
+    """Frames (n,) on which ``side``'s arm followed the body (from the report's hand-over list), the
+    blend settled: the first three half-lives after a hand-over to the body are left out."""
+    from facecapges.runtime.body import HALFLIFE_S
+
+    settle = int(round(3 * HALFLIFE_S * MODEL_FPS))
     m = np.zeros(n, bool)
     for frame, s, to in events:
         if s == side:
             m[frame:] = to == "body"
+            m[frame : frame + settle] = False
     return m
 
 
