@@ -28,6 +28,7 @@ person's torso, so the arm's pose relative to the chest is the person's.
 from __future__ import annotations
 
 import time
+from array import array
 
 import numpy as np
 
@@ -124,6 +125,7 @@ class LiveBody:
         self.person_frames = 0  # … with a person found
         self.hand_frames = [0, 0]  # … with each hand found
         self.last_ms = 0.0  # the last observe's landmarkers + solve (ms)
+        self.observe_ms = array("d")  # every observe's (8 bytes a camera frame)
         self._fresh: np.ndarray | None = None
         self._seen = [False, False]
         self._last_ts: float | None = None
@@ -147,6 +149,7 @@ class LiveBody:
         for s in range(2):
             self.hand_frames[s] += scores[s] > 0
         self.last_ms = (time.perf_counter() - t) * 1000.0
+        self.observe_ms.append(self.last_ms)
 
     def apply(self, pose: np.ndarray, now_s: float) -> np.ndarray:
         """The model's pose (47, 6) with each seen arm the person's (rot6d, float32)."""
@@ -164,8 +167,12 @@ class LiveBody:
     def report(self) -> dict:
         """Counters for live's report: frames, person and hands found, frames each arm followed the body,
         hand-overs per arm."""
+        from facecapges.runtime.scheduler import ms_stats
+
         n = max(self.frames_seen, 1)
         return {
+            "observe_ms": ms_stats(self.observe_ms, skip=5),  # per camera frame seen (the scheduler's
+            # stage ``body`` is 0 on frames whose camera frame was dropped)
             "camera_frames": self.frames_seen,
             "person_found": round(self.person_frames / n, 3),
             "hands_found": [round(h / n, 3) for h in self.hand_frames],
