@@ -54,6 +54,9 @@ CANNOT_RUN: dict[tuple[str, str], str] = {
         "the reader's own video of themselves talking (tests/test_capture_body.py captures a rendered one)",
     ("README.md", "facecapges capture-body me.mp4"): "the reader's own video (same test)",
     ("capture-body.md", "facecapges capture-body me_talking.mp4"): "the reader's own video (same test)",
+    ("capture-body.md", "facecapges live --camera 0"): "a webcam and a microphone",
+    ("capture-body.md", "facecapges live --video me.mp4"):
+        "the reader's own video and speech (tests/test_live_body.py runs live --body on a rendered one)",
     ("capture-body.md", "python -m facecapges.evaluation.body_capture"):
         "renders and captures the held-out end of two takes (minutes); tests/test_capture_body.py runs its measure on 1_1",
     ("ablation_beat2_scott.md", "facecapges prepare <folder"): "the record of the ablation's own runs (hours of training)",

@@ -34,6 +34,16 @@ upsampler's ticks per model frame, CPU time; ``mean`` is held to the target) ≤
 frame. A ratio is fair only while ``live`` captures every frame: under a load that makes it
 drop camera frames (``events.camera_frames_dropped``) it does less work than the floor. The machine is shared: both runs are one after the other in the same call, the
 load average is given beside them. Figures so far: docs/performance.md.
+
+``body`` (issue 32): ``live --body`` beside face-only ``live`` on a video with a body — the avatar
+rendered with his real motion and speech (:func:`body_run`) — with the same outputs: both processes'
+CPU share of a core and RSS, the stages per frame with ``body`` (the pose and hand landmarkers and
+the causal solve, part of ``capture``) and ``body_mix`` (the arms' hand-over, part of ``output``),
+``cpu_ratio_body_to_face_only``. Under a load that makes ``live --body`` drop camera frames (its
+stages are 0 on a dropped frame) the shares compare unequal work: ``cpu_ms_per_captured_frame``, its
+``cpu_per_captured_frame_ratio`` and ``body_observe_ms`` (landmarkers + solve per camera frame seen)
+are the fair figures; ``latency_every_frame_captured_ms`` is each stage's compute time (p50, p99) of both
+on the rendered clip played as fast as it goes (not paced, so every camera frame is captured).
 """
 
 from __future__ import annotations
@@ -132,8 +142,9 @@ def _viewer_client(url: str, stop: threading.Event, got: list[int]) -> None:
             got[0] += 1
 
 
-def live_run(video: Path, seconds: float, workdir: Path) -> dict:
-    """``live`` on ``video`` with every output (module docstring); its CPU, RSS and report."""
+def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] = ()) -> dict:
+    """``live`` on ``video`` with every output (module docstring) and ``extra`` options; its CPU, RSS and report."""
+    workdir.mkdir(parents=True, exist_ok=True)
     rx = _VmcReceiver()
     rec = workdir / "rec"
     err = (workdir / "live.stderr").open("w")
@@ -156,6 +167,7 @@ def live_run(video: Path, seconds: float, workdir: Path) -> dict:
         "127.0.0.1:0",
         "--record",
         str(rec),
+        *extra,
     ]
     p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True)
     stop, got = threading.Event(), [0]
@@ -259,6 +271,69 @@ def _stage(rep: dict, name: str) -> dict:
     return {k: st.get(k) for k in ("p50", "mean", "p99")}
 
 
+BODY_STAGES = ("input", "capture", "landmarks", "body", "features", "model", "output", "body_mix", "total")
+
+
+def _body_summary(live: dict) -> dict:
+    rep = live.pop("report")
+    captured = rep["frames"] - rep["events"]["camera_frames_dropped"]
+    per_model_frame = live["cpu_share_of_core"] * 1000.0 / FPS
+    return {
+        **live,
+        "camera_frames_captured": captured,
+        "cpu_ms_per_model_frame": round(per_model_frame, 1),
+        # the CPU a captured camera frame costs (the drops assumed even over the run): fair under a load that
+        # makes live drop camera frames, where the share of a core is not
+        "cpu_ms_per_captured_frame": round(per_model_frame * rep["frames"] / max(captured, 1), 1),
+        "per_frame_ms": {s: _stage(rep, s) for s in BODY_STAGES},
+        "events": rep["events"],
+        "frames": rep["frames"],
+        **({"body": {k: v for k, v in rep["body"].items() if k != "handover_frames"}} if "body" in rep else {}),
+    }
+
+
+def _latency_run(video: Path, rec: Path, extra: tuple[str, ...] = ()) -> dict:
+    """``live --video VIDEO --record REC`` as fast as it goes (every camera frame captured): per-stage p50 / p99 ms."""
+    cmd = [sys.executable, "-m", "facecapges", "live", "--video", str(video), "--record", str(rec), "--force", *extra]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise RuntimeError(f"live failed: {p.stderr[-2000:]}")
+    rep = json.loads((rec / "report.json").read_text())
+    return {s: {k: rep["latency_ms"][s][k] for k in ("p50", "p99")} for s in ("capture", "body", "body_mix", "total")}
+
+
+def body_run(shared: Path, seconds: float, tmp: Path) -> dict:
+    """``live --body`` beside face-only ``live`` on one video with a body: the avatar rendered with his real
+    motion and speech (the held-out end of 2_scott_0_1_1, :func:`~facecapges.evaluation.body_capture.render_truth`,
+    640×480 at 15 fps, looped), every output on, one run after the other."""
+    from facecapges.evaluation.body_capture import render_truth
+
+    take = shared_file(shared, "data/beat/2_scott_0_1_1.bvh")
+    _, _, rendered, _ = render_truth(take, tmp / "render", wav=shared_file(shared, "data/beat/2_scott_0_1_1.wav"))
+    video = looped_video(rendered, seconds + WARMUP_S + 15.0, tmp / "body15.mp4", fps=FPS)
+    load_before = os.getloadavg()[0]
+    face = _body_summary(live_run(video, seconds, tmp / "face_only"))
+    body = _body_summary(live_run(video, seconds, tmp / "body", ("--body",)))
+    # latency with every camera frame captured (not paced): the rendered clip as fast as it goes
+    latency = {
+        "face_only": _latency_run(rendered, tmp / "lat_face"),
+        "with_body": _latency_run(rendered, tmp / "lat_body", ("--body",)),
+    }
+    return {
+        "input": "the avatar rendered with his real motion and speech (640x480, 15 fps, looped); live --realtime "
+        f"--vmc --rate {RATE_HZ} --web (1 viewer) --record, without and with --body",
+        "load_average_before": round(load_before, 2),
+        "face_only": face,
+        "with_body": body,
+        "cpu_ratio_body_to_face_only": round(body["cpu_share_of_core"] / max(face["cpu_share_of_core"], 1e-6), 2),
+        "cpu_per_captured_frame_ratio": round(
+            body["cpu_ms_per_captured_frame"] / max(face["cpu_ms_per_captured_frame"], 1e-6), 2
+        ),
+        "body_observe_ms": body.get("body", {}).get("observe_ms"),
+        "latency_every_frame_captured_ms": latency,
+    }
+
+
 def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
     """``live`` for ``seconds`` (20 s; 3 s quick), then the landmarker alone for as long (module docstring)."""
     seconds = seconds or (3.0 if quick else 20.0)
@@ -268,6 +343,7 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         load_before = os.getloadavg()[0]
         live = live_run(video, seconds, Path(tmp))
         floor = landmarker_run(video, seconds)
+        body = _body_or_error(shared, seconds, Path(tmp) / "body")
     rep = live.pop("report")
     names = ("input", "capture", "landmarks", "features", "model", "output", "total", "model_cpu", "output_cpu")
     stages = {s: _stage(rep, s) for s in names}
@@ -294,6 +370,7 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         "frames": rep["frames"],
         "landmarker": floor,
         "cpu_ratio_to_landmarker": round(ratio, 2),
+        "body": body,
         "targets": TARGETS,
         "meets_targets": {
             "cpu": ratio <= TARGETS["cpu_ratio_to_landmarker"],
@@ -301,6 +378,18 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
             "engine_and_outputs": engine_outputs["mean"] <= TARGETS["engine_and_outputs_ms"],
         },
     }
+
+
+def _body_or_error(shared: Path, seconds: float, tmp: Path) -> dict:
+    """:func:`body_run`, or why it could not run (the body models not built): the other figures stand."""
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+    from facecapges.errors import UserError
+
+    try:
+        model_path(POSE_TASK), model_path(HAND_TASK)
+    except UserError as exc:
+        return {"error": str(exc)}
+    return body_run(shared, seconds, tmp)
 
 
 if __name__ == "__main__":  # the landmarker's own process: VIDEO SECONDS WARMUP_S

@@ -255,3 +255,13 @@ def check_usable(video: str | Path, summary: dict) -> str | None:
             f"{video}: the arms were out of view most of the time (mean arm confidence {summary['arm_confidence']:.2f})"
         )
     return None
+
+
+def in_frame_visibility(det: dict) -> np.ndarray:
+    """The pose landmarks' visibility (33,) with every landmark outside the image set to 0 (the landmarker
+    still places a wrist that left the frame, guessed, sometimes with a high visibility); zeros with no person."""
+    if det["visibility"] is None or det["pose_image"] is None:
+        return np.zeros(33)
+    xy = det["pose_image"][:, :2]
+    inside = ((xy >= 0.0) & (xy <= 1.0)).all(axis=1)
+    return np.where(inside, det["visibility"], 0.0)

@@ -99,6 +99,14 @@ DEPTH = typer.Option("--depth", help="RGB-D: directory of depth frames for --vid
 INTRINSICS = typer.Option("--intrinsics", help="RGB-D: camera intrinsics K.json.")
 MAX_SECONDS = typer.Option("--max-seconds", help="Stop after this much stream time.")
 LIVE_FACES = typer.Option("--faces", help=FACES_HELP + " VMC: face i on PORT+i-1.")
+BODY = typer.Option(
+    "--body",
+    help="Your arms and hands on the avatar where the camera sees them (MediaPipe pose + hands, as "
+    "capture-body); where they leave the frame the engine's gestures take over, blended (docs/capture-body.md).",
+)
+GESTURES = typer.Option(
+    "--gestures", help="With --body: the engine's gestures on the arms even where yours are seen (body still captured)."
+)
 LIVE_FORCE = typer.Option("--force", help="Overwrite files in --record.")
 
 
@@ -130,6 +138,8 @@ def live_cmd(
     max_seconds: Annotated[float | None, MAX_SECONDS] = LiveOptions.max_seconds,
     head: Annotated[str, HEAD] = LiveOptions.head,
     faces: Annotated[int, LIVE_FACES] = LiveOptions.faces,
+    body: Annotated[bool, BODY] = LiveOptions.body,
+    gestures: Annotated[bool, GESTURES] = LiveOptions.gestures,
     force: Annotated[bool, LIVE_FORCE] = LiveOptions.force,
 ) -> None:
     """Real-time avatar: camera/video/Live Link + microphone/audio → VMC, browser viewer, recording."""

@@ -97,17 +97,16 @@ def held_out_truth(take: str | Path, skeleton_bvh: str | Path, share: float = HE
     return skel, motion[int(round(len(motion) * (1.0 - share))) :]
 
 
-def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None) -> dict:
-    """Render the held-out end of ``take`` on the avatar, capture-body it back, compare with the truth.
-
-    ``work``: a folder for truth.bvh, truth.mp4 and captured.bvh. Returns :func:`compare`'s figures in the
-    body frame, ``camera`` (the same in the camera frame) and the capture's summary (hands found …)."""
+def render_truth(
+    take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None, wav: str | Path | None = None
+) -> tuple[Skeleton, np.ndarray, Path, Path | None]:
+    """The held-out end of ``take`` rendered on the avatar (``facecapges render``) into ``work``: the skeleton,
+    the truth motion (15 fps), truth.mp4 and, with the take's speech ``wav``, its held-out part (truth.wav,
+    muxed into the video too)."""
     import subprocess
     import sys
 
-    from facecapges.capture.body import capture_body
     from facecapges.io.bvh import write_bvh
-    from facecapges.skeleton import pose_to_motion
     from facecapges.timing import MODEL_FPS
 
     work = Path(work)
@@ -116,9 +115,33 @@ def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None 
     bvh, video = work / "truth.bvh", work / "truth.mp4"
     write_bvh(bvh, skel, truth, float(MODEL_FPS))
     cmd = [sys.executable, "-m", "facecapges", "render", "--bvh", str(bvh), "--out", str(video), "--force"]
+    speech = None
+    if wav is not None:
+        from facecapges.io.audio import load_audio, save_audio
+        from facecapges.timing import AUDIO_SR
+
+        n_full = len(held_out_truth(take, skeleton_bvh or take, share=1.0)[1])
+        first = n_full - len(truth)  # the held-out end's first frame
+        a = load_audio(wav)
+        start = int(round(first / MODEL_FPS * AUDIO_SR))
+        speech = save_audio(work / "truth.wav", a[start : start + int(round(len(truth) / MODEL_FPS * AUDIO_SR))])
+        cmd += ["--audio", str(speech)]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"render failed: {r.stderr.strip()[-500:]}")
+    return skel, truth, video, speech
+
+
+def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None) -> dict:
+    """Render the held-out end of ``take`` on the avatar, capture-body it back, compare with the truth.
+
+    ``work``: a folder for truth.bvh, truth.mp4 and captured.bvh. Returns :func:`compare`'s figures in the
+    body frame, ``camera`` (the same in the camera frame) and the capture's summary (hands found …)."""
+    from facecapges.capture.body import capture_body
+    from facecapges.skeleton import pose_to_motion
+
+    work = Path(work)
+    skel, truth, video, _ = render_truth(take, work, skeleton_bvh)
     res, summary = capture_body(video, work / "captured.bvh", skel)
     captured = pose_to_motion(skel, res.pose)
     out = compare(skel, truth, captured)

@@ -218,6 +218,8 @@ def _check(o: LiveOptions) -> _Outputs:
         _check_record(o)
     if o.max_seconds is not None and o.max_seconds <= 0:
         raise UserError("--max-seconds must be positive")
+    if o.gestures and not o.body:
+        raise UserError("--gestures gives the arms back to the engine under --body; without --body they are already")
     vmc_avatar = _check_vmc(o)
     from facecapges.errors import check_port_free
     from facecapges.runtime.session import check_inputs
@@ -237,6 +239,7 @@ def _check(o: LiveOptions) -> _Outputs:
         faces=o.faces,
         intensity=o.intensity,
         host=bind,
+        body=o.body,
     )
     return _Outputs(web_addr, vmc_addr, bind, default_note, avatar, vmc_avatar)
 
@@ -297,6 +300,29 @@ def _start_line(o: LiveOptions, outs: _Outputs, sess) -> str:
     )
 
 
+def body_status(body) -> str:
+    """``--body``'s part of the status line: where each arm comes from, or that no one is seen."""
+    if body.frames_seen and not body.person_frames:
+        return "body: no person seen yet (the engine's gestures drive the arms; film the upper body)"
+    src = ["yours" if on else "gestures" for on in body.arms_on_body]
+    return f"arms R {src[0]} L {src[1]}"
+
+
+def body_warning(body) -> str | None:
+    """The closing warning of ``--body`` when the body was never or hardly seen."""
+    if body.frames_seen == 0:
+        return None
+    if body.person_frames == 0:
+        return (
+            f"--body: no person's body was seen in any of the {body.frames_seen} camera frames; the engine's "
+            "gestures drove the arms throughout (film the upper body and hands facing the camera)"
+        )
+    on = body.handover.body_frames
+    if not any(on) and not body.gestures:
+        return "--body: a person was seen but never their arms (shoulder, elbow and wrist in view); the engine's gestures drove the arms"
+    return None
+
+
 BEHIND_NOTE = "behind real time: dropping camera frames to keep up (audio is kept)"
 
 
@@ -321,6 +347,7 @@ def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], N
             waiting = livelink_hint(feed, outs.bind, waiting=True) if feed is not None else None
             say(
                 f"frame {out.index}  compute p50 {lat:.1f} ms  face {'tracked' if out.face_found else 'lost'}"
+                + (f"  {body_status(sess.body)}" if sess.body is not None else "")
                 + (f"  viewers {len(outs.server.clients)}" if outs.server else "")
                 + (f"  camera frames dropped {dropped}" if dropped else "")
                 + (f"  — {BEHIND_NOTE}" if first_drop else "")
@@ -332,7 +359,7 @@ def _status(sess, outs: _Outputs, say: Callable[..., None]) -> Callable[[Any], N
     return status
 
 
-def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
+def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str, body=None) -> dict:
     """The scheduler's report + what stopped the run and each output's counters."""
     from facecapges.runtime.inputs.sources import LiveLinkFace
     from facecapges.runtime.scheduler import ms_stats
@@ -349,6 +376,8 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str) -> dict:
         }
     if outs.senders:
         report["vmc"] = outs.senders[0].stats() if o.faces == 1 else [x.stats() for x in outs.senders]
+    if body is not None:
+        report["body"] = body.report()
     if outs.ups:
         report["output"] = {
             "rate_hz": outs.ups[0].rate_hz,
@@ -399,6 +428,8 @@ def _open_session(o: LiveOptions, outs: _Outputs, ckpt):
         head=o.head,
         faces=o.faces,
         intensity=o.intensity,
+        body=o.body,
+        gestures=o.gestures,
     )
     return sess
 
@@ -451,7 +482,7 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
     ckpt = load_style(o.checkpoint, o.style)
     _check_rate(o.rate, ckpt.fps)
     sess = _open_session(o, outs, ckpt)
-    feed = sess.face_feed  # close() forgets it; the report asks it for its stats
+    feed, body = sess.face_feed, sess.body  # close() forgets them; the report asks them for their stats
     try:
         _announce(o, outs, sess, say, warn)
         max_frames = int(round(o.max_seconds * ckpt.fps)) if o.max_seconds else None
@@ -460,6 +491,8 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
         why = "interrupted"
     finally:
         written = sess.close()
-    report = _report(o, outs, sess.scheduler, feed, why)
+    report = _report(o, outs, sess.scheduler, feed, why, body)
+    if body is not None and (w := body_warning(body)):
+        warn(f"warning: {w}")
     _finish(o, report, written, why, say)
     return report

@@ -41,6 +41,8 @@ class LiveOptions:
     max_seconds: float | None = None
     head: str = "capture"
     faces: int = 1
+    body: bool = False
+    gestures: bool = False
     force: bool = False
 
 

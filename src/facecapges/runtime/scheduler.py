@@ -68,10 +68,23 @@ from facecapges.runtime.head import HeadDriver
 from facecapges.runtime.inputs.sources import FaceSample
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
 
-STAGES = ("capture", "features", "model", "output", "total", "input", "landmarks", "model_cpu", "output_cpu")
+STAGES = (
+    "capture",
+    "features",
+    "model",
+    "output",
+    "total",
+    "input",
+    "landmarks",
+    "model_cpu",
+    "output_cpu",
+    "body",
+    "body_mix",
+)
 # ``input``: reading/decoding the video frame (not in ``total``); ``landmarks``: MediaPipe's part of ``capture``;
 # ``model_cpu``, ``output_cpu``: those stages' CPU time on the scheduler's thread (``time.thread_time``: what
-# they cost, without the time the machine gave to others meanwhile)
+# they cost, without the time the machine gave to others meanwhile); ``body`` (``live --body``): the body
+# landmarkers and solve, part of ``capture``; ``body_mix``: the arms' hand-over, part of ``output``
 
 
 class FaceHold:
@@ -192,6 +205,8 @@ class Scheduler:
             (:mod:`facecapges.runtime.head`).
         speech_mouth: drive the shown jaw and lips from the speech while there is no face
             (:mod:`facecapges.capture.speech_mouth`); the model's input is not changed.
+        body: a :class:`~facecapges.runtime.body.LiveBody` (``live --body``, one face): it sees every
+            captured video frame, and the person's arms replace the model's where they are seen.
 
     Several faces: the capture runs once per frame (:meth:`FaceCapture.process_slots`),
     then face ``i`` goes through generator ``i``; all of them share the audio.
@@ -213,6 +228,7 @@ class Scheduler:
         ease_ms: float = 1000.0,
         head: str = "capture",
         speech_mouth: bool = True,
+        body=None,
     ):
         if video is not None and capture is None:
             raise ValueError("a video source needs a FaceCapture")
@@ -224,6 +240,9 @@ class Scheduler:
         self.sinks = list(sinks)
         self.realtime, self.input_slack_s = realtime, input_slack_s
         self.speech_mouth = speech_mouth
+        if body is not None and (video is None or len(gens) > 1):
+            raise ValueError("the body capture needs a video source and one face")
+        self.body = body
         policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
         self.streams = [
             FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
@@ -305,6 +324,9 @@ class Scheduler:
                 res = self.capture.process_slots(vf.image, vf.ts_s * 1000.0, vf.depth_mm)
             detector = getattr(self.capture, "detector", None)
             self._stage["landmarks"] = float(getattr(detector, "last_ms", 0.0))
+            if self.body is not None:
+                self.body.observe(vf.image, vf.ts_s)
+                self._stage["body"] = self.body.last_ms
             return [
                 FaceSample(vf.ts_s, r.weights52, r.head_rot6d, bool(r.face_found))
                 if r is not None
@@ -406,6 +428,9 @@ class Scheduler:
         c3 = time.thread_time()
         stage["model"] = (t3 - t2) * 1000.0
         stage["model_cpu"] = (c3 - c2) * 1000.0
+        if self.body is not None:  # the person's arms where they are seen (one face)
+            poses[0] = self.body.apply(poses[0], deadline)
+            stage["body_mix"] = (time.perf_counter() - t3) * 1000.0
         # 4. output: the head and the face the avatar shows
         outs = self._outputs(k, inputs, poses, stage)
         stage["total"] = (time.perf_counter() - t_start) * 1000.0  # pose + blendshapes ready (sinks see this)

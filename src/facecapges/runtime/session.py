@@ -20,6 +20,7 @@ from facecapges.timing import AUDIO_SR
 if TYPE_CHECKING:
     from facecapges.capture.pipeline import FaceCapture
     from facecapges.engine.contract import GestureEngine
+    from facecapges.runtime.body import LiveBody
     from facecapges.runtime.scheduler import Scheduler
 
 
@@ -37,6 +38,7 @@ class Session:
     faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
     torch_threads: int | None = None  # torch's thread count before the session; restored by close()
     generators: list = field(default_factory=list)  # one per face, in face order
+    body: LiveBody | None = None  # live --body: the body capture and the arms' hand-over
 
     def set_intensity(self, value: float) -> float:
         """Every avatar's intensity dial (:mod:`facecapges.engine.intensity`), from the next frame on."""
@@ -56,7 +58,8 @@ class Session:
         """Close sinks first (files are written), then servers, capture and sources."""
         written = []
         errors = []
-        for obj in [*self.sinks, *reversed(self.closers), self.capture, self.video, self.face_feed, self.audio]:
+        objs = [*self.sinks, *reversed(self.closers), self.body, self.capture, self.video, self.face_feed, self.audio]
+        for obj in objs:
             if obj is None:
                 continue
             try:
@@ -66,7 +69,7 @@ class Session:
             except Exception as exc:  # noqa: BLE001 - close everything, then report the first failure
                 errors.append(exc)
         self.sinks, self.closers = [], []
-        self.capture = self.video = self.face_feed = self.audio = None
+        self.capture = self.video = self.face_feed = self.audio = self.body = None
         if self.torch_threads is not None:  # the process's setting, as it was before the session
             import torch
 
@@ -116,6 +119,7 @@ def check_inputs(
     faces: int = 1,
     intensity: float = 1.0,
     host: str = "127.0.0.1",
+    body: bool = False,
     devices: bool = True,
 ) -> None:
     """The checks of :func:`build_session`'s arguments, with no model loaded: a bad choice is a UserError now.
@@ -142,9 +146,22 @@ def check_inputs(
         raise UserError(f"--faces must be 1 to 8, got {faces}")
     if faces > 1 and livelink is not None:
         raise UserError("--faces N needs a camera or a video: Live Link sends one face")
+    if body:
+        _check_body(livelink, faces)
     if not devices:
         return
     _open_inputs_once(video, camera, livelink, audio, mic, depth_dir, intrinsics, host)
+
+
+def _check_body(livelink, faces: int) -> None:
+    """``--body``: a camera or a video (Live Link sends no image), one person, the models built."""
+    if livelink is not None:
+        raise UserError("--body needs a camera or a video: Live Link sends no image")
+    if int(faces) > 1:
+        raise UserError("--body follows one person's arms; use it with --faces 1")
+    from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
+
+    model_path(POSE_TASK), model_path(HAND_TASK)  # not built (make setup): one error line now
 
 
 def _open_video(sess: Session, video, camera, livelink, depth_dir, intrinsics, host: str) -> None:
@@ -223,7 +240,15 @@ def _build_scheduler(sess: Session, sinks, faces: int, intensity: float, realtim
         realtime=realtime,
         input_slack_s=slack,
         head=head,
+        body=sess.body,
     )
+
+
+def _open_body(sess: Session, gestures: bool) -> None:
+    """``live --body``: the body landmarkers on the video, the arms' hand-over (:mod:`facecapges.runtime.body`)."""
+    from facecapges.runtime.body import LiveBody
+
+    sess.body = LiveBody(sess.checkpoint.skeleton, sess.checkpoint.fps, gestures=gestures)
 
 
 def build_session(
@@ -245,11 +270,14 @@ def build_session(
     head: str = "capture",
     faces: int = 1,
     intensity: float = 1.0,
+    body: bool = False,
+    gestures: bool = False,
 ) -> Session:
     """Open the sources and build the scheduler (sinks are added by the caller).
 
     ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
-    how many faces of the video drive an avatar each (one generator per face).
+    how many faces of the video drive an avatar each (one generator per face); ``body``: the person's arms
+    where the camera sees them (``gestures``: the engine's, the body still captured).
     """
 
     check_inputs(
@@ -262,6 +290,7 @@ def build_session(
         head=head,
         faces=faces,
         intensity=intensity,
+        body=body,
         devices=False,
     )
     import torch
@@ -275,6 +304,8 @@ def build_session(
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
         if sess.video is not None:
             _open_capture(sess, estimator, faces)
+        if body:
+            _open_body(sess, gestures)
         _build_scheduler(sess, sinks, faces, intensity, realtime, head)
     except BaseException:
         sess.close()
