@@ -88,6 +88,8 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.profiler import record_function
 
+from facecapges.engine.inputs import finite as _finite
+from facecapges.engine.inputs import pack_audio
 from facecapges.engine.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.network import native
@@ -120,22 +122,6 @@ def initial_window(initial_pose: np.ndarray | None, neutral_window: np.ndarray) 
     if window.shape != (N, J, 6):
         raise ValueError(f"initial pose must be ({J}, 6) or ({N}, {J}, 6), got {p.shape}")
     return window
-
-
-def _finite(a: np.ndarray) -> np.ndarray:
-    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small arrays)."""
-    return np.where(np.isfinite(a), a, a.dtype.type(0))
-
-
-def pack_audio(frames: Sequence[np.ndarray], samples_per_frame: int) -> np.ndarray:
-    """Per-stream frame audio (each ≤ S samples) → (B, S) float32, zero padded, NaN → 0."""
-    out = np.zeros((len(frames), samples_per_frame), np.float32)
-    for i, a in enumerate(frames):
-        a = np.asarray(a, dtype=np.float32).reshape(-1)
-        if a.shape[0] > samples_per_frame:
-            raise ValueError(f"a frame owns at most {samples_per_frame} audio samples, got {a.shape[0]}")
-        out[i, : a.shape[0]] = a
-    return _finite(out)
 
 
 def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:

@@ -264,12 +264,17 @@ def build_session(
         intensity=intensity,
         devices=False,
     )
-    import torch
+    import sys
 
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with
-    # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1)
-    sess = Session(checkpoint=checkpoint, torch_threads=torch.get_num_threads(), faces=int(faces))
-    torch.set_num_threads(1)
+    # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1). Only when a
+    # network style has loaded torch: a matching style's session runs without it (issue 36: memory)
+    torch = sys.modules.get("torch")
+    sess = Session(
+        checkpoint=checkpoint, torch_threads=torch.get_num_threads() if torch is not None else None, faces=int(faces)
+    )
+    if torch is not None:
+        torch.set_num_threads(1)
     try:
         _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
