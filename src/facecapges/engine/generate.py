@@ -45,6 +45,9 @@ def generate_blocks(
     threads = torch.get_num_threads() if torch is not None else 0
     if torch is not None:
         torch.set_num_threads(1)  # one small step at a time: more threads only spin
+    from facecapges.engine.threads import limit_blas_threads
+
+    blas = limit_blas_threads(1)  # NumPy's products alike
     bar = None
     if progress:
         from facecapges.progress import Progress
@@ -68,6 +71,7 @@ def generate_blocks(
     finally:
         if torch is not None:
             torch.set_num_threads(threads)
+        blas.restore_original_limits()
         if bar is not None:
             bar.stop()
     if timing_ms is not None:

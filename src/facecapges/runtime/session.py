@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from facecapges.errors import UserError
 from facecapges.runtime.interfaces import AudioSource, FaceFeed, Sink, VideoSource
@@ -36,6 +36,7 @@ class Session:
     notes: list[str] = field(default_factory=list)
     faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
     torch_threads: int | None = None  # torch's thread count before the session; restored by close()
+    blas_limit: Any = None  # NumPy's BLAS threads limited for the session (engine/threads.py); restored by close()
     generators: list = field(default_factory=list)  # one per face, in face order
 
     def set_intensity(self, value: float) -> float:
@@ -72,6 +73,9 @@ class Session:
 
             torch.set_num_threads(self.torch_threads)
             self.torch_threads = None
+        if self.blas_limit is not None:
+            self.blas_limit.restore_original_limits()
+            self.blas_limit = None
         if errors:
             raise errors[0]
         return written
@@ -275,6 +279,9 @@ def build_session(
     )
     if torch is not None:
         torch.set_num_threads(1)
+    from facecapges.engine.threads import limit_blas_threads
+
+    sess.blas_limit = limit_blas_threads(1)  # NumPy's products alike (engine/threads.py)
     try:
         _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
