@@ -111,12 +111,18 @@ class Upsampler:
             self._thread = threading.Thread(target=self._run, name="upsample", daemon=True)
             self._thread.start()
 
+    def add_sink(self, sink) -> None:
+        """One more sink fed from the same clock and the same blended frames (``live``'s viewer beside its
+        VMC sender: one blend per tick for both)."""
+        with self._cond:
+            self.sinks.append(sink)
+
     @property
     def added_latency_ms(self) -> float:
         return added_latency_s(self.rate_hz, self.fps) * 1000.0
 
     def _emit(self, fr: OutputFrame) -> None:
-        for s in self.sinks:
+        for s in list(self.sinks):
             s.write(fr)
         self.emitted += 1
 
