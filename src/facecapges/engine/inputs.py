@@ -33,7 +33,10 @@ BLOCK_FRAMES = 900  # frames per block when a recording is streamed (1 min at 15
 
 
 def finite(a: np.ndarray) -> np.ndarray:
-    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small arrays)."""
+    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small
+    arrays); ``a`` itself when it is all finite (callers read it, never write it)."""
+    if np.isfinite(a).all():  # the usual case: no copy
+        return a
     return np.where(np.isfinite(a), a, a.dtype.type(0))
 
 

@@ -91,7 +91,7 @@ class MelFeatures:
         self.log_f0_of_lag = np.log2(np.float32(self.sr) / lags / np.float32(100.0)).astype(np.float32)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        x = np.asarray(x, np.float32)
+        x = np.ascontiguousarray(x, np.float32)
         B, n = x.shape[0], x.shape[-1]
         if n != self.n:
             raise ValueError(f"frames of {n} samples, expected {self.n}")
@@ -100,12 +100,17 @@ class MelFeatures:
             import scipy.fft as fft
         else:
             fft = np.fft
-        spec = fft.rfft(x[:, self.windows] * self.window)  # (B, 5, 257) complex64
-        power = np.add.reduce(spec.real * spec.real + spec.imag * spec.imag, 1) * np.float32(1.0 / spec.shape[1])
+        frames = np.lib.stride_tricks.as_strided(  # torch's unfold(-1, N_FFT, HOP): a view, no copy
+            x, (B, len(self.windows), N_FFT), (x.strides[0], HOP * x.strides[1], x.strides[1]), writeable=False
+        )
+        spec = fft.rfft(frames * self.window)  # (B, 5, 257) complex64
+        re_im = spec.view(np.float32).reshape(B, spec.shape[1], spec.shape[2], 2)
+        power = np.einsum("bwfc,bwfc->bf", re_im, re_im) * np.float32(1.0 / spec.shape[1])  # |X|² over the windows
         out[:, :N_MELS] = 10.0 * np.log10(np.maximum(np.dot(power, self.mel_t), np.float32(1e-10)))
         out[:, N_MELS] = 10.0 * np.log10(np.einsum("bs,bs->b", x, x, dtype=np.float64) / n + 1e-10)
         f = fft.rfft(x - (np.add.reduce(x, 1, dtype=np.float64) / n).astype(np.float32)[:, None], n=self.n_ac)
-        ac = fft.irfft(f.real * f.real + f.imag * f.imag, n=self.n_ac)[:, : self.lag_max + 1]
+        f2 = f.view(np.float32).reshape(B, f.shape[1], 2)
+        ac = fft.irfft(np.einsum("bfc,bfc->bf", f2, f2), n=self.n_ac)[:, : self.lag_max + 1]
         norm = ac[:, self.lag_min :] / np.maximum(ac[:, :1], np.float32(1e-8))
         idx = norm.argmax(-1)
         voicing = np.minimum(np.maximum(norm[np.arange(B), idx], 0.0), 1.0)
