@@ -88,8 +88,7 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.profiler import record_function
 
-from facecapges.engine.inputs import finite as _finite
-from facecapges.engine.inputs import pack_audio
+from facecapges.engine.inputs import finite, pack_audio
 from facecapges.engine.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.network import native
@@ -122,6 +121,12 @@ def initial_window(initial_pose: np.ndarray | None, neutral_window: np.ndarray) 
     if window.shape != (N, J, 6):
         raise ValueError(f"initial pose must be ({J}, 6) or ({N}, {J}, 6), got {p.shape}")
     return window
+
+
+def _finite(a: np.ndarray) -> np.ndarray:
+    """:func:`facecapges.engine.inputs.finite` as a new C-contiguous array (torch shares its memory)."""
+    out = finite(a)
+    return np.array(out, copy=True, order="C") if out is a else out
 
 
 def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:
