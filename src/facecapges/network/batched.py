@@ -9,8 +9,8 @@ re-encoding every window) is its test oracle.
 
 Per slot it keeps (cold start as thesis 4.1.1: the neutral window as history, zero
 LSTM states, "no input" — zero features — before the stream; the encoders' registers
-in its :class:`BatchedEncoders`, the encoder stage alone, which the motion-matching
-engine's speech reader runs too):
+in its :class:`BatchedEncoders`, the encoder stage alone; the motion-matching engine's speech
+reader runs the same encoders in NumPy instead, :mod:`facecapges.matching.predictor`):
 
 ==================  =====================  ===========================================
 tensor              shape                  meaning
@@ -344,8 +344,8 @@ class BatchedEncoders:
     ``audio_frontend`` … ``head_encoder``).
 
     ``model``: anything with the FaceCapGes encoders (``cfg``, ``audio_enc``, ``face_enc``,
-    ``head_enc``) — the generator's network, or the motion-matching engine's speech reader
-    (:mod:`facecapges.matching.predictor`). Keeps the TCNs' shift registers ``x_audio``,
+    ``head_enc``) — the generator's network (the motion-matching engine's speech reader runs the same encoders
+    in NumPy: :class:`facecapges.matching.predictor.SpeechKernel`). Keeps the TCNs' shift registers ``x_audio``,
     ``x_face`` per slot; slot bookkeeping and locking are the caller's.
     """
 
