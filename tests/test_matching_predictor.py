@@ -144,7 +144,7 @@ def test_batched_equals_one_stream_per_slot(quick):
 
 
 def test_state_round_trip_through_json(quick, tmp_path):
-    from safetensors.torch import load_file, save_file
+    from safetensors.numpy import load_file, save_file
 
     config = json.loads(json.dumps(quick.config))
     save_file(quick.state_dict(), tmp_path / "p.safetensors")
@@ -156,6 +156,63 @@ def test_state_round_trip_through_json(quick, tmp_path):
         np.testing.assert_array_equal(s1.step(audio[i], face[i], head[i]), s2.step(audio[i], face[i], head[i]))
     with pytest.raises(ValueError):
         Predictor.from_state({**config, "format": "something else"}, quick.state_dict())
+
+
+def test_numpy_kernel_equals_the_torch_network_for_both_front_ends(beat_take):
+    """The run-time kernel (NumPy) against the training side's torch forward over the whole sequence, with
+    random weights of both audio representations (Mel and raw samples) and a face and head that move."""
+    from facecapges.matching.predictor_training import SpeechReader, audio_frames
+
+    T = 40
+    _, face, head = _inputs(T, 4)
+    audio = beat_take.audio[100 * SPF : 100 * SPF + int(timing.frame_sample_bounds(T)[0])]
+    for repr_ in ("mel", "raw"):
+        settings = replace(TINY, audio_repr=repr_)
+        cfg = settings.model_config()
+        torch.manual_seed(0)
+        net = SpeechReader(cfg, settings.hidden).eval()
+        with torch.no_grad():  # non-trivial standardisation, as a trained reader has
+            for mod in net.modules():
+                if hasattr(mod, "in_scale"):
+                    mod.in_mean.uniform_(-0.2, 0.2)
+                    mod.in_scale.uniform_(0.5, 2.0)
+            a = torch.from_numpy(audio_frames(audio, T, cfg))[None]
+            want = net(a, torch.from_numpy(face)[None], torch.from_numpy(head)[None])[0].numpy()
+        config = {"format": "facecapges-speech-predictor", "version": 1, "settings": {"hidden": settings.hidden},
+                  "model": {k: list(v) if isinstance(v, tuple) else v for k, v in cfg.__dict__.items()},
+                  "target_mean": [0.0] * K, "target_sd": [1.0] * K, "head_reference": [1, 0, 0, 0, 1, 0]}
+        pred = Predictor.from_state(config, {k: v.numpy() for k, v in net.state_dict().items()})
+        s = pred.stream()
+        got = np.stack([s.step(audio[a0:a1], face[i], head[i])
+                        for i, (a0, a1) in enumerate(zip(*timing.frame_sample_bounds(np.arange(T))))])
+        want = pred.outputs(want)
+        assert_float32_close(got, want, _scale(want), NETWORK_ULPS, "cm, cm/s or 1", f"{repr_}: NumPy against torch")
+        with pytest.raises(AssertionError, match="differ by more than"):  # a frame late would be seen
+            assert_float32_close(got[1:], want[:-1], _scale(want), NETWORK_ULPS, "cm, cm/s or 1")
+    with pytest.raises(ValueError, match="expected"):  # weights of another size: a clear error, not a crash later
+        Predictor.from_state(config, {**pred.state_dict(), "out.4.bias": np.zeros(3, np.float32)})
+
+
+def test_a_matching_style_runs_without_torch_or_numba():
+    """``live`` / ``serve`` with a matching style: loading it and stepping a stream (predictor included) imports
+    neither torch nor Numba (issue 36: ~155 MB of libraries a matching style does not need)."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, numpy as np\n"
+        "from facecapges.styles import load_style\n"
+        "st = load_style(style='beat2-scott-mm')\n"
+        "assert st.predictor is not None\n"
+        "g = st.streaming()\n"
+        "for i in range(20):\n"
+        "    g.step(np.random.default_rng(i).normal(0, 0.1, 1067).astype(np.float32), np.zeros(52, np.float32),"
+        " np.array([1, 0, 0, 0, 1, 0], np.float32))\n"
+        "print(sorted(m for m in ('torch', 'numba', 'llvmlite') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]", out.stdout
 
 
 def test_training_reads_no_held_out_frame(beat_take):
@@ -178,7 +235,7 @@ def test_training_reads_no_held_out_frame(beat_take):
     a = train_predictor([take], seed=0, progress=False, settings=settings)
     b = train_predictor([other], seed=0, progress=False, settings=settings)
     for k, v in a.state_dict().items():
-        torch.testing.assert_close(v, b.state_dict()[k], rtol=0, atol=0)
+        np.testing.assert_array_equal(v, b.state_dict()[k])  # the same training run: the same bits
     assert a.config["target_mean"] == b.config["target_mean"]
     # and the validation targets come from the motion before train_until only
     np.testing.assert_array_equal(take_targets(take, cut), take_targets(other, cut))

@@ -253,7 +253,7 @@ def load_style(path: str | Path | None = None, style: str | None = None) -> Gest
     from facecapges.network import style as network_style
 
     p = resolve(path, style)
-    tensors, meta = read_file(p)
+    tensors, meta = read_file(p, numpy_formats=(matching_style.FORMAT,))  # matching: NumPy, no torch
     if meta is None:
         raise file_error(p, "not a FaceCapGes checkpoint (no 'facecapges' metadata)")
     if isinstance(meta, dict) and meta.get("format") == matching_style.FORMAT:

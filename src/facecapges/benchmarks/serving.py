@@ -3,7 +3,8 @@
 The largest number of simulated concurrent clients (:mod:`.loadgen`: real speech
 frames, one ``input`` per frame at 15 fps each, random phases) on loopback
 (127.0.0.1 only) for which every frame comes back and the round trip of the frames
-at p99 is within one frame period (1000/15 = 66.7 ms), against ``facecapges serve``
+at p99 is within :data:`P99_LIMIT_MS` (50 ms, issue 36's bound, as ``bench --only cluster``'s; until
+2026-12-03 it was one frame period, 66.7 ms: older figures count against that), against ``facecapges serve``
 run as its own process with the default style (or ``FACECAPGES_BENCH_CHECKPOINT``).
 
 Search: trials of N clients for ``seconds`` (5 s) each (the first second of every
@@ -33,7 +34,8 @@ from pathlib import Path
 
 from facecapges.timing import MODEL_FPS
 
-TARGET = 150  # concurrent real-time streams with p99 under one frame period
+TARGET = 300  # concurrent real-time streams with p99 ≤ P99_LIMIT_MS (issue 36 part 2, on the quiet machine)
+P99_LIMIT_MS = 50.0
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 
 
@@ -128,7 +130,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         srv0, cli0 = proc_cpu_s(proc.pid), time.process_time()
         res = asyncio.run(loadgen.run_clients(url, n, seconds, messages, warmup_s=1.0, seed=n))
         srv_cpu, cli_cpu = proc_cpu_s(proc.pid) - srv0, time.process_time() - cli0
-        s = loadgen.summarize(res, period_ms)
+        s = loadgen.summarize(res, P99_LIMIT_MS)
         s["load_average"] = round(os.getloadavg()[0], 2)
         frames = max(1, s["frames_returned"])
         s["server_cpu_ms_per_frame"] = round(1e3 * srv_cpu / frames, 3)
@@ -171,6 +173,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         "target": TARGET,
         "meets_target": best >= TARGET,
         "period_ms": round(period_ms, 2),
+        "p99_limit_ms": P99_LIMIT_MS,
         "p99_ms_at_best": at_best.get("p99_ms"),
         "p50_ms_at_best": at_best.get("p50_ms"),
         "seconds_per_trial": seconds,

@@ -20,22 +20,33 @@ from facecapges.errors import file_error
 from facecapges.skeleton import skeleton_from_dict
 
 
-def read_file(p: Path) -> tuple[dict, dict | None]:
-    """A safetensors file's tensors and its ``"facecapges"`` metadata (None when it has none); clear errors."""
+def read_file(p: Path, numpy_formats: tuple[str, ...] = ()) -> tuple[dict, dict | None]:
+    """A safetensors file's tensors and its ``"facecapges"`` metadata (None when it has none); clear errors.
+
+    The tensors are torch tensors, or NumPy arrays when the metadata's ``format`` is one of ``numpy_formats``
+    (an engine that runs without torch: a matching style's ``live`` never imports it)."""
     from safetensors import SafetensorError, safe_open
 
     try:
-        with safe_open(str(p), framework="pt") as f:
+        with safe_open(str(p), framework="numpy") as f:
             raw = (f.metadata() or {}).get("facecapges")
-            tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118  safe_open: keys(), no iterator
+            keys = list(f.keys())
     except (SafetensorError, OSError, ValueError) as exc:
         raise file_error(p, f"not a readable checkpoint ({exc})") from None
-    if raw is None:
-        return tensors, None
+    meta = None
+    if raw is not None:
+        try:
+            meta = json.loads(raw)
+        except (ValueError, RecursionError):
+            raise file_error(p, "checkpoint metadata is corrupt") from None
+    framework = "numpy" if isinstance(meta, dict) and meta.get("format") in numpy_formats else "pt"
     try:
-        meta = json.loads(raw)
-    except (ValueError, RecursionError):
-        raise file_error(p, "checkpoint metadata is corrupt") from None
+        with safe_open(str(p), framework=framework) as f:
+            tensors = {k: f.get_tensor(k) for k in keys}
+    except (SafetensorError, OSError, ValueError) as exc:
+        raise file_error(p, f"not a readable checkpoint ({exc})") from None
+    except TypeError as exc:  # a dtype NumPy has not (bfloat16)
+        raise file_error(p, f"checkpoint has a tensor NumPy cannot read ({exc})") from None
     return tensors, meta
 
 

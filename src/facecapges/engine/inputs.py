@@ -32,6 +32,25 @@ from facecapges.rotations import identity_rot6d
 BLOCK_FRAMES = 900  # frames per block when a recording is streamed (1 min at 15 fps)
 
 
+def finite(a: np.ndarray) -> np.ndarray:
+    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small
+    arrays); ``a`` itself when it is all finite (callers read it, never write it)."""
+    if np.isfinite(a).all():  # the usual case: no copy
+        return a
+    return np.where(np.isfinite(a), a, a.dtype.type(0))
+
+
+def pack_audio(frames, samples_per_frame: int) -> np.ndarray:
+    """Per-stream frame audio (a sequence of arrays of ≤ S samples each) → (B, S) float32, zero padded, NaN → 0."""
+    out = np.zeros((len(frames), samples_per_frame), np.float32)
+    for i, a in enumerate(frames):
+        a = np.asarray(a, dtype=np.float32).reshape(-1)
+        if a.shape[0] > samples_per_frame:
+            raise ValueError(f"a frame owns at most {samples_per_frame} audio samples, got {a.shape[0]}")
+        out[i, : a.shape[0]] = a
+    return finite(out)
+
+
 @dataclass
 class FrameInputs:
     """Per-frame inputs at the model rate: audio chunks, face weights, head rot6d."""

@@ -230,7 +230,9 @@ class BvhWriter:
         if not self.growing and self.written + len(motion) > self.n_frames:
             raise ValueError(f"more than the {self.n_frames} frames declared")
         if len(motion):
-            self._f.write("\n".join(" ".join(f"{v:.6f}" for v in row) for row in motion) + "\n")
+            # one %-format per row (the text of f"{v:.6f}" for each value, ~3x faster: live's recorder, issue 36)
+            fmt = " ".join(["%.6f"] * motion.shape[1])
+            self._f.write("\n".join(fmt % tuple(row) for row in motion.tolist()) + "\n")
         self.written += len(motion)
 
     def close(self) -> Path:

@@ -23,10 +23,14 @@ head into it, as the thesis trainer does).
 **Speaking labels** (:func:`speaking_frames`): the engine's energy VAD with hangover
 (:mod:`facecapges.matching.speech`, the one the database annotates with) over the take's own audio.
 
-**Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs the encoders through the
-generator's kernel (:class:`facecapges.network.batched.BatchedEncoders`: TCN shift registers, native
-small-batch loops), so a frame costs one tap per TCN layer; its outputs equal the network's
-over the whole sequence (tested).
+**Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs in NumPy (:class:`SpeechKernel`:
+the weights read from the style file, the TCNs as shift registers, so a frame costs one tap per TCN layer;
+the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` and ``serve`` load neither
+torch nor Numba (~155 MB of libraries, docs/performance.md). Its outputs equal the torch network's over the
+whole sequence to float32 rounding (``test_matching_predictor``). The network itself (a torch module,
+:class:`~facecapges.matching.predictor_training.SpeechReader`) lives with its training in
+:mod:`facecapges.matching.predictor_training`; :meth:`Predictor.predict` (whole recordings: the figures)
+runs it.
 
 How the sizes were chosen, and the validation and held-out figures: docs/matching.md.
 """
@@ -39,22 +43,11 @@ from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
-import torch
-import torch.nn.functional as F
-from torch import nn
 
-from facecapges import timing
+from facecapges.engine.inputs import finite, pack_audio
 from facecapges.engine.slots import Slots
 from facecapges.matching.targets import TARGET_NAMES
-from facecapges.network.audio_features import FEATURE_DIM, AudioFeatures
 from facecapges.network.config import ModelConfig
-from facecapges.network.network import (
-    AudioEncoder,
-    FaceEncoder,
-    HeadEncoder,
-    MelFrontend,
-    mlp,
-)
 
 K = len(TARGET_NAMES)
 OUTPUT_NAMES: tuple[str, ...] = (*TARGET_NAMES, "speaking")
@@ -72,7 +65,7 @@ def speaking_frames(audio: np.ndarray, n_frames: int) -> np.ndarray:
     return np.asarray(speech_track(audio, n_frames).speaking, bool)
 
 
-# --------------------------------------------------------------------------- the network
+# --------------------------------------------------------------------------- the network's sizes
 @dataclass(frozen=True)
 class PredictorSettings:
     """Sizes and training settings (ours; the widths the thesis's ModelConfig or smaller)."""
@@ -107,30 +100,168 @@ class PredictorSettings:
         ).validate()
 
 
-class SpeechReader(nn.Module):
-    """The thesis's causal encoders + an MLP: per frame (audio, face, head) → K + 1 outputs (module docs)."""
+def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
+    """Every tensor of the speech reader's state (``SpeechReader.state_dict()``) and its shape."""
+    ca, cf, e = cfg.audio_tcn_channels, cfg.face_tcn_channels, cfg.audio_dim + cfg.face_dim + cfg.head_dim
+    out: dict[str, tuple[int, ...]] = {}
 
-    def __init__(self, cfg: ModelConfig, hidden: int, dropout: float = 0.0):
-        super().__init__()
-        self.cfg = cfg.validate()
-        self.dropout = float(dropout)
-        self.audio_enc = AudioEncoder(cfg)
-        self.face_enc = FaceEncoder(cfg)
-        self.head_enc = HeadEncoder(cfg)
-        self.out = mlp([cfg.audio_dim + cfg.face_dim + cfg.head_dim, hidden, hidden, K + 1])
+    def linear(name: str, n_in: int, n_out: int, bias: bool = True, standardized: bool = False) -> None:
+        out[f"{name}.weight"] = (n_out, n_in)
+        if bias:
+            out[f"{name}.bias"] = (n_out,)
+        if standardized:
+            out[f"{name}.in_mean"] = out[f"{name}.in_scale"] = (n_in,)
 
-    def audio_input(self, audio: torch.Tensor) -> torch.Tensor:
-        """(B, T, S) samples, or (B, T, 43) precomputed Mel features → (B, T, C) the audio TCN's input."""
-        front = self.audio_enc.frontend
-        if isinstance(front, MelFrontend) and audio.shape[-1] == FEATURE_DIM:
-            return front.out(F.leaky_relu(front.proj(audio), 0.2))  # MelFrontend.forward past its features
-        return front(audio)
+    if cfg.audio_repr == "raw":
+        c1, c2, c3 = cfg.audio_frontend_channels
+        out["audio_enc.frontend.in_mean"] = out["audio_enc.frontend.in_scale"] = (1,)
+        length = cfg.samples_per_frame
+        for i, (cin, cout, k, st) in enumerate(((1, c1, 15, 5), (c1, c2, 9, 4), (c2, c3, 9, 4))):
+            out[f"audio_enc.frontend.convs.{i}.weight"], out[f"audio_enc.frontend.convs.{i}.bias"] = (
+                (cout, cin, k),
+                (cout,),
+            )
+            length = (length - k) // st + 1
+        out["audio_enc.frontend.collapse.weight"], out["audio_enc.frontend.collapse.bias"] = (ca, c3, length), (ca,)
+    else:
+        from facecapges.network.mel import FEATURE_DIM
 
-    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
-        """Whole sequences, causally: audio (B, T, S | 43), face (B, T, 52), head (B, T, 6) → (B, T, K + 1)."""
-        z_a = self.audio_enc.from_features(self.audio_input(audio))
-        z = torch.cat([z_a, self.face_enc(face, z_a), self.head_enc(head)], -1)
-        return self.out(F.dropout(z, self.dropout, self.training))
+        c = cfg.audio_frontend_channels[-1]
+        linear("audio_enc.frontend.proj", FEATURE_DIM, c, standardized=True)
+        linear("audio_enc.frontend.out", c, ca)
+    for i in range(len(cfg.audio_tcn_dilations)):
+        linear(f"audio_enc.tcn.layers.{i}", 2 * ca, ca)
+    linear("audio_enc.mlp.0", ca, cfg.audio_dim)
+    linear("audio_enc.mlp.2", cfg.audio_dim, cfg.audio_dim)
+    linear("face_enc.inp", cfg.n_face, cf, standardized=True)
+    for i in range(len(cfg.face_tcn_dilations)):
+        linear(f"face_enc.tcn.layers.{i}", 2 * cf, cf)
+    linear("face_enc.tcn.extra", cfg.audio_dim, cf, bias=False)
+    linear("face_enc.mlp.0", cf, 2 * cfg.face_dim)
+    linear("face_enc.mlp.2", 2 * cfg.face_dim, cfg.face_dim)
+    if cfg.head_dim:
+        linear("head_enc.fc1", 6, cfg.head_hidden, standardized=True)
+        linear("head_enc.fc2", cfg.head_hidden, cfg.head_dim)
+    linear("out.0", e, hidden)
+    linear("out.2", hidden, hidden)
+    linear("out.4", hidden, K + 1)
+    return out
+
+
+# --------------------------------------------------------------------------- the NumPy kernel
+def _leaky(y: np.ndarray) -> np.ndarray:
+    """``leaky_relu(y, 0.2)``: the same bits (y > 0: y; else 0.2·y, which is then the larger)."""
+    return np.maximum(y, np.float32(0.2) * y)
+
+
+class _Affine:
+    """A Linear (optionally over a standardised input, folded in as ``affine_chain`` does:
+    ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``) as one product on weights transposed once."""
+
+    def __init__(self, w: dict[str, np.ndarray], name: str):
+        W, b = w[f"{name}.weight"], w.get(f"{name}.bias")
+        b = np.zeros(W.shape[0], np.float32) if b is None else b
+        if f"{name}.in_mean" in w:
+            m, s = w[f"{name}.in_mean"], w[f"{name}.in_scale"]
+            b = b - W @ (m * s)
+            W = W * s
+        self.w_t = np.ascontiguousarray(W.T, np.float32)
+        self.b = np.ascontiguousarray(b, np.float32)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        y = np.dot(x, self.w_t)
+        y += self.b
+        return y
+
+
+class _Taps:
+    """A CausalTCN one new frame at a time (the torch schedule of ``network.batched.TCNTaps``): layer i
+    reads its input d_i frames ago from a shift register ``reg`` (S, R, L, C), newest first."""
+
+    def __init__(self, w: dict[str, np.ndarray], name: str, dilations: Sequence[int]):
+        L = len(dilations)
+        W = np.stack([w[f"{name}.layers.{i}.weight"] for i in range(L)])  # (L, C, 2C) = [past | now]
+        C = W.shape[1]
+        self.R, self.L, self.C = max(dilations), L, C
+        self.w_past = np.ascontiguousarray(W[:, :, :C].transpose(0, 2, 1))  # (L, C, C), acting on the right
+        self.w_now = [np.ascontiguousarray(W[i, :, C:].T) for i in range(L)]
+        self.b = np.stack([w[f"{name}.layers.{i}.bias"] for i in range(L)])[:, None]  # (L, 1, C)
+        self.rows = np.array([d - 1 for d in dilations], np.intp)
+        self.layers = np.arange(L)
+
+    def register(self, capacity: int) -> np.ndarray:
+        return np.zeros((capacity, self.R, self.L, self.C), np.float32)
+
+    def step(self, reg: np.ndarray, idx: np.ndarray, x: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
+        """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
+        held = reg[idx]  # (B, R, L, C)
+        pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
+        pre += self.b
+        held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
+        now = held[:, 0]
+        x0, x = x, x.copy()
+        last = self.L - 1
+        for i, w_now in enumerate(self.w_now):
+            now[:, i] = x
+            y = np.dot(x, w_now)
+            y += pre[i]
+            if extra is not None and i == last:
+                y += extra
+            x += np.maximum(y, np.float32(0.2) * y)  # residual (leaky_relu 0.2); x − x0: the layers' skip sum
+        reg[idx] = held
+        return x - x0
+
+
+class SpeechKernel:
+    """The speech reader's inference in NumPy (module docs): per frame of B streams, audio (B, S), face (B, 52),
+    camera-frame head (B, 6) → the network's raw outputs (B, K + 1); the TCN registers are the caller's."""
+
+    def __init__(self, cfg: ModelConfig, hidden: int, w: dict[str, np.ndarray]):
+        self.cfg = cfg
+        if cfg.audio_repr == "raw":
+            self.mel = None
+            p = "audio_enc.frontend"
+            self.raw_gain = (w[f"{p}.in_mean"].astype(np.float32), w[f"{p}.in_scale"].astype(np.float32))
+            self.convs = [(w[f"{p}.convs.{i}.weight"], w[f"{p}.convs.{i}.bias"], s) for i, s in enumerate((5, 4, 4))]
+            self.collapse = (w[f"{p}.collapse.weight"], w[f"{p}.collapse.bias"], 1)
+        else:
+            from facecapges.network.mel import MelFeatures
+
+            self.mel = MelFeatures(cfg.sr, cfg.samples_per_frame)
+            self.proj, self.front_out = _Affine(w, "audio_enc.frontend.proj"), _Affine(w, "audio_enc.frontend.out")
+        self.audio_tcn = _Taps(w, "audio_enc.tcn", cfg.audio_tcn_dilations)
+        self.face_tcn = _Taps(w, "face_enc.tcn", cfg.face_tcn_dilations)
+        self.audio_mlp = (_Affine(w, "audio_enc.mlp.0"), _Affine(w, "audio_enc.mlp.2"))
+        self.face_inp = _Affine(w, "face_enc.inp")
+        self.face_extra = _Affine(w, "face_enc.tcn.extra")
+        self.face_mlp = (_Affine(w, "face_enc.mlp.0"), _Affine(w, "face_enc.mlp.2"))
+        self.head = (_Affine(w, "head_enc.fc1"), _Affine(w, "head_enc.fc2")) if cfg.head_dim else None
+        self.out = (_Affine(w, "out.0"), _Affine(w, "out.2"), _Affine(w, "out.4"))
+
+    def _raw_frontend(self, a: np.ndarray) -> np.ndarray:
+        """``AudioFrontend``: strided convolutions over each frame's samples (B, S) → (B, C)."""
+        x = ((a - self.raw_gain[0]) * self.raw_gain[1])[:, None]  # (B, 1, S)
+        for i, (W, b, stride) in enumerate((*self.convs, self.collapse)):
+            win = np.lib.stride_tricks.sliding_window_view(x, W.shape[2], axis=2)[:, :, ::stride]  # (B, Cin, L, k)
+            x = np.einsum("bclk,ock->bol", win, W, optimize=True) + b[:, None]
+            if i < len(self.convs):
+                x = _leaky(x)
+        return np.ascontiguousarray(x[:, :, 0], np.float32)
+
+    def step(self, regs: tuple[np.ndarray, np.ndarray], idx: np.ndarray, a: np.ndarray, f: np.ndarray, h: np.ndarray):
+        """One frame of the streams in slots ``idx`` (registers ``regs`` = audio, face) → raw outputs (B, K + 1)."""
+        if self.mel is not None:
+            feat = self.front_out(_leaky(self.proj(self.mel(a))))
+        else:
+            feat = self._raw_frontend(a)
+        z_a = self.audio_mlp[1](_leaky(self.audio_mlp[0](self.audio_tcn.step(regs[0], idx, feat))))
+        skip = self.face_tcn.step(regs[1], idx, self.face_inp(f), self.face_extra(z_a))
+        z_f = self.face_mlp[1](_leaky(self.face_mlp[0](skip)))
+        parts = [z_a, z_f]
+        if self.head is not None:
+            parts.append(self.head[1](np.maximum(self.head[0](h), np.float32(0.0))))
+        z = np.concatenate(parts, -1)
+        return self.out[2](_leaky(self.out[1](_leaky(self.out[0](z)))))
 
 
 # --------------------------------------------------------------------------- data
@@ -141,39 +272,55 @@ def camera_head(head: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return skeleton_head_to_camera(head, reference)
 
 
-def audio_frames(audio: np.ndarray, n_frames: int, cfg: ModelConfig) -> np.ndarray:
-    """The network's audio input of ``n_frames`` frames: samples (T, 1067), or Mel features (T, 43)."""
-    frames = timing.frame_audio(audio, n_frames, cfg.fps, cfg.sr)
-    if cfg.audio_repr == "raw":
-        return frames
-    with torch.no_grad():
-        return AudioFeatures(cfg.sr, cfg.samples_per_frame)(torch.from_numpy(frames)).numpy()
-
-
 # --------------------------------------------------------------------------- the trained predictor
 class Predictor:
-    """A trained speech reader: its network, and ``config`` (JSON: sizes, target normalisation, head reference)."""
+    """A trained speech reader: its weights (NumPy, float32: the style file's ``predictor.*`` tensors) and
+    ``config`` (JSON: sizes, target normalisation, head reference)."""
 
-    def __init__(self, net: SpeechReader, config: dict[str, Any]):
-        self.net = net.eval()
-        self.config = config
-        self.mean = np.asarray(config["target_mean"], np.float32)
-        self.sd = np.asarray(config["target_sd"], np.float32)
-
-    def state_dict(self) -> dict[str, torch.Tensor]:
-        return {k: v.detach().clone() for k, v in self.net.state_dict().items()}
-
-    @classmethod
-    def from_state(cls, config: dict[str, Any], tensors: dict[str, torch.Tensor]) -> Predictor:
-        if config.get("format") != FORMAT or int(config.get("version", 0)) > VERSION:
-            raise ValueError(f"not a speech predictor of version ≤ {VERSION}: {config.get('format')!r}")
+    def __init__(self, weights: dict[str, Any], config: dict[str, Any], net: Any = None):
         known = {f.name for f in fields(ModelConfig)}
         mc: dict[str, Any] = {
             k: tuple(v) if isinstance(v, list) else v for k, v in config["model"].items() if k in known
         }
-        net = SpeechReader(ModelConfig(**mc), int(config["settings"]["hidden"]))
-        net.load_state_dict(tensors)
-        return cls(net, config)
+        self.cfg = ModelConfig(**mc).validate()
+        self.hidden = int(config["settings"]["hidden"])
+        w = {k: np.ascontiguousarray(np.asarray(v, np.float32)) for k, v in weights.items()}
+        shapes = weight_shapes(self.cfg, self.hidden)
+        missing, unexpected = sorted(set(shapes) - set(w)), sorted(set(w) - set(shapes))
+        if missing or unexpected:
+            raise ValueError(f"speech predictor weights: missing {missing[:3]}, unexpected {unexpected[:3]}")
+        for k, shape in shapes.items():
+            if w[k].shape != shape:
+                raise ValueError(f"speech predictor weight {k} is {w[k].shape}, expected {shape}")
+        self.weights = w
+        self.config = config
+        self.mean = np.asarray(config["target_mean"], np.float32)
+        self.sd = np.asarray(config["target_sd"], np.float32)
+        self.kernel = SpeechKernel(self.cfg, self.hidden, w)
+        self._net = net
+
+    def state_dict(self) -> dict[str, np.ndarray]:
+        return {k: v.copy() for k, v in self.weights.items()}
+
+    @classmethod
+    def from_state(cls, config: dict[str, Any], tensors: dict[str, Any]) -> Predictor:
+        """From a style file's ``predictor.*`` tensors (NumPy arrays or torch tensors) and its JSON config."""
+        if config.get("format") != FORMAT or int(config.get("version", 0)) > VERSION:
+            raise ValueError(f"not a speech predictor of version ≤ {VERSION}: {config.get('format')!r}")
+        return cls(tensors, config)
+
+    @property
+    def net(self):
+        """The torch network with these weights (built on first use: the training side's figures)."""
+        if self._net is None:
+            import torch
+
+            from facecapges.matching.predictor_training import SpeechReader
+
+            net = SpeechReader(self.cfg, self.hidden)
+            net.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights.items()})
+            self._net = net.eval()
+        return self._net
 
     @property
     def output_names(self) -> tuple[str, ...]:
@@ -190,17 +337,22 @@ class Predictor:
         out[..., K] = 1.0 / (1.0 + np.exp(-np.clip(raw[..., K], -60.0, 60.0)))
         return out
 
-    @torch.no_grad()
     def predict(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
         """A whole recording at once: audio (S,), face (T, 52), camera-frame head (T, 6) → (T, K + 1).
 
-        The network over the sequence (causal padding): the same values as stepping a stream.
+        The torch network over the sequence (causal padding; the training side's figures): the same values
+        as stepping a stream, to float32 rounding.
         """
-        cfg, T = self.net.cfg, len(face)
-        a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
-        f = torch.from_numpy(np.asarray(face, np.float32))[None]
-        h = torch.from_numpy(np.array(head, np.float32))[None]
-        return self.outputs(self.net(a, f, h)[0].numpy())
+        import torch
+
+        from facecapges.matching.predictor_training import audio_frames
+
+        cfg, T = self.cfg, len(face)
+        with torch.no_grad():
+            a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
+            f = torch.from_numpy(np.asarray(face, np.float32))[None]
+            h = torch.from_numpy(np.array(head, np.float32))[None]
+            return self.outputs(self.net(a, f, h)[0].numpy())
 
     def stream(self) -> PredictorStream:
         return PredictorStream(self)
@@ -213,49 +365,73 @@ class BatchedPredictor:
     """Independent causal streams of one predictor, stepped as one batch (slots as the generator's kernel)."""
 
     def __init__(self, predictor: Predictor, capacity: int = 8):
-        from facecapges.network.batched import BatchedEncoders, affine_chain
-
         self.predictor = predictor
+        self._kernel = predictor.kernel
         self._lock = threading.RLock()
-        self._enc = BatchedEncoders(predictor.net, max(1, capacity))
-        self._out = affine_chain(predictor.net.out)
+        self._regs = (self._kernel.audio_tcn.register(0), self._kernel.face_tcn.register(0))
+        self._spf = predictor.cfg.samples_per_frame
+        self._n_face = predictor.cfg.n_face
         self.slots = Slots()
-        self.slots.grown(self._enc.capacity)
+        self._grow(max(1, capacity))
 
     @property
     def capacity(self) -> int:
-        return self._enc.capacity
+        return len(self._regs[0])
 
     def _grow(self, capacity: int) -> None:
-        self._enc.alloc(capacity)
+        """(Re)allocate the TCN registers for ``capacity`` slots, keeping existing rows."""
+        old = self.capacity
+        k = self._kernel
+        regs = (k.audio_tcn.register(capacity), k.face_tcn.register(capacity))
+        for new, cur in zip(regs, self._regs, strict=True):
+            new[:old] = cur
+        self._regs = regs
         self.slots.grown(capacity)
 
     def open(self) -> int:
         """A new stream (before its first frame: the encoders' causal zeros); returns its slot."""
         with self._lock:
             slot = self.slots.take(self._grow)
-            self._enc.reset(slot)
+            self._reset(slot)
             return slot
 
     def close(self, slot: int) -> None:
         with self._lock:
             self.slots.release(slot)
 
+    def _reset(self, slot: int) -> None:
+        for r in self._regs:
+            r[slot] = 0.0
+
     def reset(self, slot: int) -> None:
         with self._lock:
             self.slots.require(slot)
-            self._enc.reset(slot)
+            self._reset(slot)
 
-    @torch.inference_mode()
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame per stream: audio (B, ≤ 1067), face (B, 52), camera-frame head (B, 6) → (B, K + 1)."""
         with self._lock:
             ids = self.slots.check(slots)
             if not ids:
                 return np.zeros((0, K + 1), np.float32)
-            a, f, h = self._enc.clean_inputs(audio, face, head, len(ids))
-            e = self._enc.encode(torch.tensor(ids, dtype=torch.long), a, f, h)
-            return self.predictor.outputs(self._out(e).numpy())
+            B = len(ids)
+            if isinstance(audio, np.ndarray) and audio.ndim == 2 and audio.shape[1] == self._spf:
+                a = finite(audio.astype(np.float32, copy=False))
+            else:
+                a = pack_audio(audio, self._spf)
+            if a.shape[0] != B:
+                raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
+            f = _rows(face, self._n_face, "face", B)
+            h = _rows(head, 6, "head rot6d", B)
+            raw = self._kernel.step(self._regs, np.asarray(ids, np.intp), a, f, h)
+            return self.predictor.outputs(raw)
+
+
+def _rows(x, n: int, what: str, batch: int) -> np.ndarray:
+    a = np.asarray(x, dtype=np.float32).reshape(batch, -1)
+    if a.shape[1] != n:
+        raise ValueError(f"{what} must have {n} values per stream, got {a.shape[1]}")
+    return finite(a)
 
 
 class PredictorStream:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from torch import nn
 
 from facecapges import rotations as rot
 from facecapges import timing
@@ -38,17 +39,61 @@ from facecapges.matching.predictor import (
     K,
     Predictor,
     PredictorSettings,
-    SpeechReader,
-    audio_frames,
     camera_head,
     speaking_frames,
 )
 from facecapges.matching.takes import Take
 from facecapges.matching.targets import TARGET_NAMES, arm_positions, future_targets
+from facecapges.network.audio_features import FEATURE_DIM, AudioFeatures
 from facecapges.network.config import ModelConfig
-from facecapges.network.network import input_standardisation, set_input_statistics
+from facecapges.network.network import (
+    AudioEncoder,
+    FaceEncoder,
+    HeadEncoder,
+    MelFrontend,
+    input_standardisation,
+    mlp,
+    set_input_statistics,
+)
 
 VALIDATION_FRACTION = 0.2  # the last 20 % of each take's training frames
+
+
+# --------------------------------------------------------------------------- the network
+class SpeechReader(nn.Module):
+    """The thesis's causal encoders + an MLP: per frame (audio, face, head) → K + 1 outputs
+    (:mod:`facecapges.matching.predictor`'s docs; its NumPy kernel runs the same weights at run time)."""
+
+    def __init__(self, cfg: ModelConfig, hidden: int, dropout: float = 0.0):
+        super().__init__()
+        self.cfg = cfg.validate()
+        self.dropout = float(dropout)
+        self.audio_enc = AudioEncoder(cfg)
+        self.face_enc = FaceEncoder(cfg)
+        self.head_enc = HeadEncoder(cfg)
+        self.out = mlp([cfg.audio_dim + cfg.face_dim + cfg.head_dim, hidden, hidden, K + 1])
+
+    def audio_input(self, audio: torch.Tensor) -> torch.Tensor:
+        """(B, T, S) samples, or (B, T, 43) precomputed Mel features → (B, T, C) the audio TCN's input."""
+        front = self.audio_enc.frontend
+        if isinstance(front, MelFrontend) and audio.shape[-1] == FEATURE_DIM:
+            return front.out(F.leaky_relu(front.proj(audio), 0.2))  # MelFrontend.forward past its features
+        return front(audio)
+
+    def forward(self, audio: torch.Tensor, face: torch.Tensor, head: torch.Tensor) -> torch.Tensor:
+        """Whole sequences, causally: audio (B, T, S | 43), face (B, T, 52), head (B, T, 6) → (B, T, K + 1)."""
+        z_a = self.audio_enc.from_features(self.audio_input(audio))
+        z = torch.cat([z_a, self.face_enc(face, z_a), self.head_enc(head)], -1)
+        return self.out(F.dropout(z, self.dropout, self.training))
+
+
+def audio_frames(audio: np.ndarray, n_frames: int, cfg: ModelConfig) -> np.ndarray:
+    """The network's audio input of ``n_frames`` frames: samples (T, 1067), or Mel features (T, 43)."""
+    frames = timing.frame_audio(audio, n_frames, cfg.fps, cfg.sr)
+    if cfg.audio_repr == "raw":
+        return frames
+    with torch.no_grad():
+        return AudioFeatures(cfg.sr, cfg.samples_per_frame)(torch.from_numpy(frames)).numpy()
 
 
 # --------------------------------------------------------------------------- data
@@ -194,7 +239,7 @@ def train_predictor(
         "seed": int(seed),
         "training": history,
     }
-    pred = Predictor(net.eval(), config)
+    pred = Predictor({k: v.detach().numpy() for k, v in net.state_dict().items()}, config, net=net.eval())
     own = [t for t in takes if not t.mirrored] or takes  # a mirror has the same audio and targets
     config["validation"] = _finite_json(evaluate_predictor(pred, own, "validation"))
     return pred

@@ -92,7 +92,12 @@ def save_matching_style(
     path.parent.mkdir(parents=True, exist_ok=True)
     tensors = {k: torch.from_numpy(np.ascontiguousarray(v)) for k, v in db.tensors().items()}
     if predictor is not None:
-        tensors.update({f"predictor.{k}": v.detach().float().contiguous() for k, v in predictor.state_dict().items()})
+        tensors.update(
+            {
+                f"predictor.{k}": torch.from_numpy(np.ascontiguousarray(v, np.float32))
+                for k, v in predictor.state_dict().items()
+            }
+        )
     meta = dict(extra or {})
     meta.update(
         format=FORMAT,
@@ -233,10 +238,7 @@ def from_file(path: Path, tensors: dict, meta: dict) -> MatchingStyle:
     fps = meta["fps"]
     if not isinstance(fps, int) or isinstance(fps, bool) or fps != timing.MODEL_FPS:
         raise file_error(path, f"matching style at fps {fps!r}; this version runs {timing.MODEL_FPS} (a number)")
-    try:
-        db_t = {k: v.numpy() for k, v in tensors.items() if k.startswith("db.")}
-    except TypeError as exc:  # a dtype numpy has not (bfloat16)
-        raise file_error(path, f"matching style database has a tensor numpy cannot read ({exc})") from None
+    db_t = {k: np.asarray(v) for k, v in tensors.items() if k.startswith("db.")}
     try:
         _check_database(db_t, meta["database"])
         config = check_engine_config(meta["engine_config"])
@@ -256,7 +258,7 @@ def _predictor(path: Path, tensors: dict, config: object):
     from facecapges.matching.predictor import OUTPUT_NAMES, Predictor
     from facecapges.network.config import model_config_from_dict
 
-    p_t = {k[len("predictor.") :]: v.float() for k, v in tensors.items() if k.startswith("predictor.")}
+    p_t = {k[len("predictor.") :]: v for k, v in tensors.items() if k.startswith("predictor.")}
     try:
         if not isinstance(config, dict):
             raise ValueError(f"predictor is {type(config).__name__}, not an object")

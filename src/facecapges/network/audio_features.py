@@ -35,45 +35,24 @@ loop, training and the offline path run :meth:`AudioFeatures.forward`.
 
 from __future__ import annotations
 
-import math
-from pathlib import Path
-
 import numpy as np
 import torch
 import torch.nn as nn
 
-N_FFT = 512
-HOP = 128
-N_MELS = 40
-F0_MIN_HZ = 60.0
-F0_MAX_HZ = 400.0
-VOICED_MIN = 0.3
-FEATURE_DIM = N_MELS + 3
-AUDIO_REPRS = ("raw", "mel")
-
-
-def mel_basis_file(sr: int) -> Path:
-    """Where Librosa's Mel filter bank for ``sr`` is kept (:func:`mel_basis`)."""
-    from importlib import resources
-
-    return Path(str(resources.files("facecapges") / "assets" / f"mel_basis_{sr}_{N_FFT}_{N_MELS}.npy"))
-
-
-def mel_basis(sr: int) -> np.ndarray:
-    """``librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)``, (40, 257) float32.
-
-    For the model's rate (16 kHz) it is read from the package's assets, where Librosa wrote
-    it (``numpy.save(mel_basis_file(16000), librosa.filters.mel(sr=16000, n_fft=512,
-    n_mels=40))``; ``test_recipe`` checks the file still equals Librosa's): importing
-    Librosa's filters brings in SciPy's signal package and Numba, ~120 MB that ``live``
-    with a style would hold for one matrix. Other rates ask Librosa.
-    """
-    p = mel_basis_file(sr)
-    if p.is_file():
-        return np.load(p, allow_pickle=False)
-    import librosa
-
-    return librosa.filters.mel(sr=sr, n_fft=N_FFT, n_mels=N_MELS)
+from facecapges.network.mel import (  # noqa: F401  (re-exported: the features' constants and filter bank)
+    AUDIO_REPRS,
+    F0_MAX_HZ,
+    F0_MIN_HZ,
+    FEATURE_DIM,
+    HOP,
+    N_FFT,
+    N_MELS,
+    VOICED_MIN,
+    autocorrelation_length,
+    lag_range,
+    mel_basis,
+    mel_basis_file,
+)
 
 
 class AudioFeatures(nn.Module):
@@ -93,14 +72,8 @@ class AudioFeatures(nn.Module):
         self.register_buffer("mel_basis_t", self.mel_basis.t().contiguous(), persistent=False)
         self.register_buffer("window", torch.hann_window(N_FFT, periodic=True), persistent=False)
         self.sr = float(sr)
-        self.lag_min = int(math.floor(sr / F0_MAX_HZ))
-        self.lag_max = int(math.ceil(sr / F0_MIN_HZ))
-        # FFT length of the autocorrelation: any n ≥ S + lag_max leaves lags ≤ lag_max free of
-        # wrap-around; the smallest 2^k or 3·2^k above it is a fast length (1536 for 1067 samples)
-        need = samples_per_frame + self.lag_max
-        self.n_ac = 1 << (need - 1).bit_length()
-        if 3 * self.n_ac // 4 >= need:
-            self.n_ac = 3 * self.n_ac // 4
+        self.lag_min, self.lag_max = lag_range(self.sr)
+        self.n_ac = autocorrelation_length(samples_per_frame, self.lag_max)
         lags = torch.arange(self.lag_min, self.lag_max + 1, dtype=torch.float32)
         self.register_buffer("log_f0_of_lag", torch.log2(self.sr / lags / 100.0), persistent=False)
         self.dim = FEATURE_DIM

@@ -9,8 +9,8 @@ re-encoding every window) is its test oracle.
 
 Per slot it keeps (cold start as thesis 4.1.1: the neutral window as history, zero
 LSTM states, "no input" — zero features — before the stream; the encoders' registers
-in its :class:`BatchedEncoders`, the encoder stage alone, which the motion-matching
-engine's speech reader runs too):
+in its :class:`BatchedEncoders`, the encoder stage alone; the motion-matching engine's speech
+reader runs the same encoders in NumPy instead, :mod:`facecapges.matching.predictor`):
 
 ==================  =====================  ===========================================
 tensor              shape                  meaning
@@ -88,6 +88,7 @@ import torch
 import torch.nn.functional as F
 from torch.autograd.profiler import record_function
 
+from facecapges.engine.inputs import finite, pack_audio
 from facecapges.engine.intensity import check_intensity, rest_pose, scale_pose
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.network import native
@@ -123,19 +124,9 @@ def initial_window(initial_pose: np.ndarray | None, neutral_window: np.ndarray) 
 
 
 def _finite(a: np.ndarray) -> np.ndarray:
-    """``a`` with NaN and ±inf set to 0 (as ``np.nan_to_num(..., nan=0, posinf=0, neginf=0)``, cheaper on small arrays)."""
-    return np.where(np.isfinite(a), a, a.dtype.type(0))
-
-
-def pack_audio(frames: Sequence[np.ndarray], samples_per_frame: int) -> np.ndarray:
-    """Per-stream frame audio (each ≤ S samples) → (B, S) float32, zero padded, NaN → 0."""
-    out = np.zeros((len(frames), samples_per_frame), np.float32)
-    for i, a in enumerate(frames):
-        a = np.asarray(a, dtype=np.float32).reshape(-1)
-        if a.shape[0] > samples_per_frame:
-            raise ValueError(f"a frame owns at most {samples_per_frame} audio samples, got {a.shape[0]}")
-        out[i, : a.shape[0]] = a
-    return _finite(out)
+    """:func:`facecapges.engine.inputs.finite` as a new C-contiguous array (torch shares its memory)."""
+    out = finite(a)
+    return np.array(out, copy=True, order="C") if out is a else out
 
 
 def _rows(x, n: int, what: str, batch: int) -> torch.Tensor:
@@ -353,8 +344,8 @@ class BatchedEncoders:
     ``audio_frontend`` … ``head_encoder``).
 
     ``model``: anything with the FaceCapGes encoders (``cfg``, ``audio_enc``, ``face_enc``,
-    ``head_enc``) — the generator's network, or the motion-matching engine's speech reader
-    (:mod:`facecapges.matching.predictor`). Keeps the TCNs' shift registers ``x_audio``,
+    ``head_enc``) — the generator's network (the motion-matching engine's speech reader runs the same encoders
+    in NumPy: :class:`facecapges.matching.predictor.SpeechKernel`). Keeps the TCNs' shift registers ``x_audio``,
     ``x_face`` per slot; slot bookkeeping and locking are the caller's.
     """
 

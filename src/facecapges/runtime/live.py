@@ -278,6 +278,9 @@ def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
     sess.closers.append(server)
     outs.server = server
     if o.rate is not None and o.rate != ckpt.fps and o.faces == 1:
+        if outs.ups:  # the VMC sender's interpolator: one clock and one blend per tick for both (issue 36: CPU)
+            outs.ups[0].add_sink(feed_sink)
+            return
         from facecapges.runtime.outputs.upsample import Upsampler
 
         outs.ups.append(Upsampler([feed_sink], ckpt.fps, o.rate))  # the viewer at --rate too

@@ -51,6 +51,9 @@ def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) 
     """The child process: the style's batched generator, driven by messages on ``conn``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle (it says "quit")
     torch.set_num_threads(max(1, threads))
+    from facecapges.engine.threads import limit_blas_threads
+
+    limit_blas_threads(threads)  # NumPy's products (the matching engine, the speech predictor) alike
     try:
         gen = checkpoint.batched(capacity=64)  # either engine
     except Exception as exc:  # noqa: BLE001  reported to the server, which says it

@@ -322,6 +322,11 @@ class VmcMapping:
 
     def local_rotations(self, quats47: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per sent bone."""
+        q = self.local_quaternions(quats47)
+        return [(unity, pos, q[k]) for k, (unity, _, pos) in enumerate(self.bones)]
+
+    def local_quaternions(self, quats47: np.ndarray) -> np.ndarray:
+        """The Unity quaternions (w, x, y, z) of the sent bones, (bones, 4) in :attr:`bones` order."""
         n = self.skeleton.n_joints
         mats = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
         mats[self.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
@@ -330,8 +335,7 @@ class VmcMapping:
             R[ks] = R[ks] @ mats[js]
         X = np.diag(_UNITY_X)
         local = self._wp_inv @ (X @ R @ X) @ self._wb  # Wp⁻¹ · Q · Wb in Unity's frame (module docstring)
-        q = rot.matrix_to_quaternion(local)
-        return [(unity, pos, q[k]) for k, (unity, _, pos) in enumerate(self.bones)]
+        return rot.matrix_to_quaternion(local)
 
 
 def vmc_note(avatar: str | Path | None, parts: str = "all") -> str:
@@ -351,15 +355,27 @@ def vmc_note(avatar: str | Path | None, parts: str = "all") -> str:
 
 def blend_values(face52: np.ndarray, blend: str = "vrm") -> list[tuple[str, float]]:
     """(clip name, weight) pairs to send for one frame's ARKit weights (module docstring)."""
+    return list(zip(blend_names(blend), blend_weights(face52, blend).tolist()))
+
+
+def blend_names(blend: str = "vrm") -> tuple[str, ...]:
+    """The clip names :func:`blend_values` sends with ``blend``, in order."""
+    if blend not in BLEND_MODES:
+        raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
+    return (VRM0_PRESETS if blend != "perfect-sync" else ()) + (PERFECT_SYNC_NAMES if blend != "vrm" else ())
+
+
+def blend_weights(face52: np.ndarray, blend: str = "vrm") -> np.ndarray:
+    """The weights (float64) :func:`blend_values` sends with ``blend``, in :func:`blend_names` order."""
     if blend not in BLEND_MODES:
         raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
     w = np.clip(np.asarray(face52, np.float64).reshape(-1), 0.0, 1.0)
-    out: list[tuple[str, float]] = []
+    parts = []
     if blend in ("vrm", "both"):
-        out += list(zip(VRM0_PRESETS, vrm0_weights(w).tolist()))
+        parts.append(vrm0_weights(w))
     if blend in ("perfect-sync", "both"):
-        out += list(zip(PERFECT_SYNC_NAMES, w.tolist()))
-    return out
+        parts.append(w)
+    return np.concatenate(parts) if len(parts) > 1 else parts[0]
 
 
 def _osc_string(x: str) -> bytes:
@@ -394,7 +410,6 @@ def _prefix(address: str, tags: str, name: str) -> bytes:
     return _osc_string(address) + _osc_string(tags) + _osc_string(name)
 
 
-_F7, _F1 = struct.Struct(">7f"), struct.Struct(">f")
 _ROOT = _msg("/VMC/Ext/Root/Pos", "root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 _APPLY, _OK = _msg("/VMC/Ext/Blend/Apply"), _msg("/VMC/Ext/OK", 1)
 _BUNDLE_HEAD = b"#bundle\0" + struct.pack(">Q", 1)  # OSC bundle, time tag "immediately"
@@ -456,6 +471,12 @@ class VmcSender:
         family, _, _, _, self.address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
         blend_values(np.zeros(len(PERFECT_SYNC_NAMES)), blend)  # its first call loads SciPy: not on the first frame
+        # what is the same every frame, built once: each bone's and each clip's message up to its numbers, and
+        # the bones' positions (issue 36: a 30 Hz tick built ~70 messages one struct.pack at a time)
+        bones = self.mapping.bones
+        self._bone_prefix = [_prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) for name, _, _ in bones]
+        self._bone_pos = np.array([pos for _, _, pos in bones], np.float64).reshape(-1, 3)
+        self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
         self.sent = 0  # frames
         self.datagrams = 0
         self.largest_datagram = 0
@@ -464,14 +485,17 @@ class VmcSender:
     def messages(self, out: OutputFrame) -> list[bytes]:
         """The frame's OSC messages, in sending order (module docstring)."""
         msgs = [_ROOT] if self.parts == "all" else []
-        for name, p, q in self.mapping.local_rotations(out.quats):
-            msgs.append(
-                _prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) + _F7.pack(p[0], p[1], p[2], q[1], q[2], q[3], q[0])
-            )
+        q = self.mapping.local_quaternions(out.quats)
+        nb = len(self._bone_prefix)
+        vals = np.empty((nb, 7), np.float64)  # px py pz qx qy qz qw per bone, as float32 big-endian below
+        vals[:, :3] = self._bone_pos
+        vals[:, 3:6] = q[:, 1:4]
+        vals[:, 6] = q[:, 0]
+        raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
+        msgs += [pre + raw[28 * k : 28 * k + 28] for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
-            msgs += [
-                _prefix("/VMC/Ext/Blend/Val", ",sf", n) + _F1.pack(w) for n, w in blend_values(out.face, self.blend)
-            ]
+            raw = blend_weights(out.face, self.blend).astype(">f4").tobytes()
+            msgs += [pre + raw[4 * k : 4 * k + 4] for k, pre in enumerate(self._blend_prefix)]
             msgs.append(_APPLY)
         msgs += [_OK, _msg("/VMC/Ext/T", float(out.time_s))]
         return msgs

@@ -1,0 +1,20 @@
+"""One BLAS thread for a stream's small products (``live``, ``generate``, ``serve``'s model process).
+
+NumPy's BLAS (OpenBLAS) starts a thread per core and splits a product over them from a few thousand
+multiply–adds on: the matching engine's and the speech predictor's products are that small, so on a
+2-core machine beside MediaPipe the second thread mostly spins and waits (measured: the predictor's
+batched step at 256 streams took 67–99 ms of CPU with OpenBLAS's default threads, 29 ms with one; a
+one-stream step the same time either way). torch's own thread count is set beside it where torch is
+loaded (a network style); this is the same rule for NumPy.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+
+def limit_blas_threads(n: int = 1) -> Any:
+    """Limit NumPy's BLAS to ``n`` threads in this process; returns the limiter (``restore_original_limits()``)."""
+    from threadpoolctl import threadpool_limits
+
+    return threadpool_limits(limits=max(1, int(n)), user_api="blas")
