@@ -371,38 +371,48 @@ def _arm(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
     b.add(V, w, F, SHIRT)
 
 
+@dataclass(frozen=True)
+class _PalmFrame:
+    """A hand's palm in the rest pose: where it starts and ends, and its three directions (unit)."""
+
+    wrist: np.ndarray  # (3,) the Hand joint
+    knuckles: np.ndarray  # (4, 3) the Index, Middle, Ring and Pinky first joints
+    fwd: np.ndarray  # wrist → the knuckles' mean
+    length: float  # the wrist's distance to the knuckles' mean
+    across: np.ndarray  # pinky knuckle → index knuckle
+    width: float  # the distance between those two knuckles
+    up: np.ndarray  # out of the back of the hand
+
+    @classmethod
+    def of(cls, skel: Skeleton, P: np.ndarray, side: str) -> _PalmFrame:
+        J = lambda n: skel.index(f"{side}Hand{n}")  # noqa: E731
+        knuckles = np.array([P[J(f"{f}1")] for f in ("Index", "Middle", "Ring", "Pinky")])
+        wrist = P[skel.index(f"{side}Hand")]
+        fwd = knuckles.mean(0) - wrist
+        length = float(np.linalg.norm(fwd))
+        fwd /= length
+        across = knuckles[0] - knuckles[3]
+        width = float(np.linalg.norm(across))
+        across /= width
+        up = np.cross(across, fwd) if side == "Left" else np.cross(fwd, across)
+        up /= np.linalg.norm(up)
+        return cls(wrist, knuckles, fwd, length, across, width, up)
+
+
 def _hand(b: _Builder, skel: Skeleton, P: np.ndarray, side: str) -> None:
-    J = lambda n: skel.index(f"{side}Hand{n}")  # noqa: E731
-    hand = skel.index(f"{side}Hand")
-    knuckles = np.array([P[J(f"{f}1")] for f in ("Index", "Middle", "Ring", "Pinky")])
-    wrist = P[hand]
-    fwd = knuckles.mean(0) - wrist
-    length = float(np.linalg.norm(fwd))
-    fwd /= length
-    across = knuckles[0] - knuckles[3]
-    width = float(np.linalg.norm(across))
-    across /= width
-    up = np.cross(across, fwd) if side == "Left" else np.cross(fwd, across)
-    up /= np.linalg.norm(up)  # the back of the hand
-    V, F = _palm_mesh(wrist, knuckles, fwd, length, across, width, up)
-    b.add(V, _palm_weights(skel, V, side, wrist, knuckles, fwd, length, across, width), F, SKIN)
-    _fingers(b, skel, P, side, up)
+    palm = _PalmFrame.of(skel, P, side)
+    V, F = _palm_mesh(palm)
+    b.add(V, _palm_weights(skel, V, side, palm), F, SKIN)
+    _fingers(b, skel, P, side, palm.up)
 
 
-def _palm_mesh(
-    wrist: np.ndarray,
-    knuckles: np.ndarray,
-    fwd: np.ndarray,
-    length: float,
-    across: np.ndarray,
-    width: float,
-    up: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray]:
+def _palm_mesh(palm: _PalmFrame) -> tuple[np.ndarray, np.ndarray]:
     """The palm: rounded-square rings along the hand, capped at both ends, faces outward."""
+    wrist, knuckles, fwd, length = palm.wrist, palm.knuckles, palm.fwd, palm.length
     center_line = np.array(
         [wrist + t * length * fwd + (knuckles.mean(0) - wrist - length * fwd) * t for t in (-0.05, 0.3, 0.7, 1.02)]
     )
-    half_w = np.array([0.36, 0.5, 0.56, 0.55]) * width + 0.6
+    half_w = np.array([0.36, 0.5, 0.56, 0.55]) * palm.width + 0.6
     half_t = np.array([0.9, 1.1, 1.05, 0.9])
     n = 16
     ang = np.linspace(0, 2 * np.pi, n, endpoint=False)
@@ -412,8 +422,8 @@ def _palm_mesh(
         e = 2 / 3.0
         rings.append(
             c
-            + hw * (np.sign(cc) * np.abs(cc) ** e)[:, None] * across
-            + ht * (np.sign(ss) * np.abs(ss) ** e)[:, None] * up
+            + hw * (np.sign(cc) * np.abs(cc) ** e)[:, None] * palm.across
+            + ht * (np.sign(ss) * np.abs(ss) ** e)[:, None] * palm.up
         )
     V = np.concatenate(rings + [center_line[:1] - 0.5 * fwd, center_line[-1:] + 0.3 * fwd])
     faces = []
@@ -434,28 +444,18 @@ def _palm_mesh(
     return V, F
 
 
-def _palm_weights(
-    skel: Skeleton,
-    V: np.ndarray,
-    side: str,
-    wrist: np.ndarray,
-    knuckles: np.ndarray,
-    fwd: np.ndarray,
-    length: float,
-    across: np.ndarray,
-    width: float,
-) -> list[dict[int, float]]:
+def _palm_weights(skel: Skeleton, V: np.ndarray, side: str, palm: _PalmFrame) -> list[dict[int, float]]:
     """Skin weights of the palm's vertices: hand, a little forearm at the wrist, metacarpals at the far half."""
     J = lambda n: skel.index(f"{side}Hand{n}")  # noqa: E731
     hand = skel.index(f"{side}Hand")
     fore = skel.index(f"{side}ForeArm")
     # the far half of the palm follows the metacarpal joint of its finger (BEAT has
     # Index, Ring and Pinky metacarpals; the middle finger's column stays on the hand)
-    mid = (knuckles[0] + knuckles[3]) / 2
+    mid = (palm.knuckles[0] + palm.knuckles[3]) / 2
     w = []
     for v in V:
-        t = np.dot(v - wrist, fwd) / length
-        a = np.dot(v - mid, across) / (width / 2)  # +1 index side, −1 pinky side
+        t = np.dot(v - palm.wrist, palm.fwd) / palm.length
+        a = np.dot(v - mid, palm.across) / (palm.width / 2)  # +1 index side, −1 pinky side
         wd = {hand: 1.0} if t > 0.08 else {hand: 0.75, fore: 0.25}
         m = 0.6 * float(np.clip((t - 0.35) / 0.6, 0.0, 1.0))
         meta = "Index" if a > 0.35 else "Pinky" if a < -0.65 else "Ring" if a < -0.15 else None

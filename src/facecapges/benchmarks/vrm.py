@@ -45,8 +45,8 @@ def run(quick: bool, shared: Path) -> dict:
     model = beat_model(skel)
     rt = Retargeter(skel, model)
     face = synthetic_face(len(L), fps)
-    presets = ExpressionMap(type(model)(**{**model.__dict__, "expressions": list(PRESET_BINDS)}))
-    sync = ExpressionMap(type(model)(**{**model.__dict__, "expressions": list(ARKIT_NAMES)}))
+    presets = ExpressionMap(list(PRESET_BINDS))
+    sync = ExpressionMap(ARKIT_NAMES)
     n = 50 if quick else 300
     q47 = np.tile(np.array([1.0, 0, 0, 0]), (N_JOINTS, 1))
 

@@ -23,7 +23,7 @@ def parse_speakers(text: str) -> list[int] | None:
 
 def _target_skeleton(path: Path | None):
     """The BEAT skeleton to write retargeted poses on: a BVH's, or the default style's."""
-    from facecapges.data.prepare import check_skeleton
+    from facecapges.data.beat import check_skeleton
 
     if path is None:
         from facecapges.styles import load_skeleton

@@ -1,4 +1,4 @@
-"""The BEAT dataset on disk: clip names, the train/val/test split, and the side files.
+"""The BEAT dataset on disk: clip names, the train/val/test split, the side files, and the skeleton check.
 
 Clip names
 ----------
@@ -53,6 +53,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.errors import UserError, file_error, require_file
+from facecapges.skeleton import N_JOINTS, UPPER_BODY, Skeleton
 
 SPEECH, CONVERSATION = "speech", "conversation"
 
@@ -264,6 +265,20 @@ def _is_number(cell: str) -> bool:
     except ValueError:
         return False
     return True
+
+
+def check_skeleton(skel: Skeleton, path: Path, reference: tuple[Skeleton, Path] | None) -> None:
+    """Raise a UserError naming ``path`` if ``skel`` is not a usable BEAT skeleton."""
+    missing = skel.missing(UPPER_BODY)
+    if missing:
+        shown = ", ".join(missing[:6]) + (", …" if len(missing) > 6 else "")
+        raise file_error(
+            path, f"wrong skeleton: missing {len(missing)} of the {N_JOINTS} BEAT upper-body joints ({shown})"
+        )
+    if reference is not None:
+        ref, ref_path = reference
+        if not ref.is_same_tree(skel) or ref.channels != skel.channels:
+            raise file_error(path, f"wrong skeleton: joint tree or channel layout differs from {ref_path.name}")
 
 
 def require_beat_clips(root: str | Path) -> list[ClipFiles]:

@@ -71,6 +71,7 @@ import numpy as np
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES, arkit_index
+from facecapges.data.beat import check_skeleton
 from facecapges.errors import UserError, file_error
 from facecapges.skeleton import N_JOINTS, UPPER_BODY
 
@@ -613,7 +614,6 @@ BEAT_JAWOPEN_STD = 0.094629
 
 def bvh_locals(bvh_path: str | Path) -> tuple[np.ndarray, float]:
     """Local rotations (T, 47, 3, 3) of a BEAT BVH's upper body, and its frame rate."""
-    from facecapges.data.prepare import check_skeleton
     from facecapges.io.bvh import read_bvh
     from facecapges.skeleton import local_matrices, motion_to_euler, upper_body_indices
 

@@ -93,27 +93,13 @@ def _fit_length(x: np.ndarray, n: int, pad: str = "edge") -> np.ndarray:
     return np.concatenate([x, tail], axis=0)
 
 
-def check_skeleton(skel: Skeleton, path: Path, reference: tuple[Skeleton, Path] | None) -> None:
-    """Raise a UserError naming ``path`` if ``skel`` is not a usable BEAT skeleton."""
-    missing = skel.missing(UPPER_BODY)
-    if missing:
-        shown = ", ".join(missing[:6]) + (", …" if len(missing) > 6 else "")
-        raise file_error(
-            path, f"wrong skeleton: missing {len(missing)} of the {N_JOINTS} BEAT upper-body joints ({shown})"
-        )
-    if reference is not None:
-        ref, ref_path = reference
-        if not ref.is_same_tree(skel) or ref.channels != skel.channels:
-            raise file_error(path, f"wrong skeleton: joint tree or channel layout differs from {ref_path.name}")
-
-
 def prepare_clip(
     files: beat.ClipFiles, fps: float, sr: int, reference: tuple[Skeleton, Path] | None
 ) -> tuple[dict[str, np.ndarray], dict, Skeleton, list[str]]:
     """Arrays, index entry, skeleton and warnings of one clip that has .bvh and .wav."""
     bvh_path = files.files["bvh"]  # callers pass only clips with .bvh and .wav
     bvh = read_bvh(bvh_path)
-    check_skeleton(bvh.skeleton, bvh_path, reference)
+    beat.check_skeleton(bvh.skeleton, bvh_path, reference)
     motion = timing.resample(bvh.motion, bvh.fps, fps)
     pose, head = motion_to_pose(bvh.skeleton, motion)
     arrays, entry, warnings = _clip_arrays(files, pose, head, bvh.skeleton, fps, sr, bvh.fps)

@@ -5,10 +5,10 @@
 // avatar /avatar.glb with AvatarScene (avatar_scene.js). Both implement the avatar-scene interface
 // (avatar_scene.js), so the rest of this page is one: connects to ws://<this host>/ws and draws the newest
 // feed message of the avatar's kind on every animation frame — for our avatar a `pose` message
-// (facecapges/runtime/outputs/protocol.py: local joint quaternions (w, x, y, z) of the 47 upper-body BEAT
+// (facecapges.runtime.outputs.protocol: local joint quaternions (w, x, y, z) of the 47 upper-body BEAT
 // joints and 52 ARKit weights, in the names of the `hello` message; joints the feed does not name stay at
 // rest), for a VRM a `vrm_pose` message (already retargeted by the server:
-// facecapges/runtime/outputs/vrm_viewer.py). Shows frame rate, compute and transport latency; checkboxes
+// facecapges.runtime.outputs.vrm_viewer). Shows frame rate, compute and transport latency; checkboxes
 // toggle a skeleton overlay and the face close-up. Several faces (`live --faces N`, our avatar): the `face`
 // field of a message picks the avatar; avatar i is a copy of the first, placed left to right.
 // The mouse moves the camera (three's OrbitControls): drag to orbit, wheel to zoom, right-drag to pan.

@@ -78,21 +78,18 @@ The other way and on a model
 ----------------------------
 * :data:`PRESET_BINDS` — the presets of the avatar we write, as combinations of its ARKit
   morph targets (the inverse of the mapping above).
-* :class:`ExpressionMap` — a model read by :mod:`facecapges.avatar.vrm.read`: a model with
-  perfect-sync expressions gets the ARKit weights as they are; any other gets its VRM
-  presets from :func:`vrm0_weights`.
+* :class:`ExpressionMap` — the expressions a model offers (``VrmModel.expressions`` of
+  :mod:`facecapges.avatar.vrm.read`): a model with perfect-sync expressions gets the ARKit
+  weights as they are; any other gets its VRM presets from :func:`vrm0_weights`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from collections.abc import Sequence
 
 import numpy as np
 
-from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
-
-if TYPE_CHECKING:
-    from facecapges.avatar.vrm.read import VrmModel
+from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES, arkit_index
 
 VRM0_PRESETS: tuple[str, ...] = (
     "Blink",
@@ -286,18 +283,17 @@ PERFECT_SYNC_MIN = 26  # a model with at least this many ARKit-named expressions
 
 
 class ExpressionMap:
-    """ARKit weights (T, 52) → the model's expression weights (T, E), E = ``names``.
+    """ARKit weights (T, 52) → a model's expression weights (T, E), E = ``names``.
 
+    Built from the expression names the model offers (``VrmModel.expressions``).
     Perfect-sync models (≥ :data:`PERFECT_SYNC_MIN` expressions named as ARKit shapes, any
     case) get the ARKit weights as they are; the others their VRM presets, derived by
     :func:`vrm0_weights` (the project's one ARKit → preset mapping).
     """
 
-    def __init__(self, model: VrmModel):
-        from facecapges.arkit import arkit_index
-
+    def __init__(self, expressions: Sequence[str]):
         direct: dict[int, str] = {}
-        for n in model.expressions:
+        for n in expressions:
             a = arkit_index(n)
             if a is not None:
                 direct.setdefault(a, n)
@@ -306,7 +302,7 @@ class ExpressionMap:
             self._index = sorted(direct)
             self.names = [direct[a] for a in self._index]
         else:
-            self._index = [k for k, n in enumerate(VRM1_EXPRESSIONS) if n in model.expressions]
+            self._index = [k for k, n in enumerate(VRM1_EXPRESSIONS) if n in expressions]
             self.names = [VRM1_EXPRESSIONS[k] for k in self._index]
 
     def __call__(self, arkit: np.ndarray) -> np.ndarray:

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.avatar.vrm.expressions import PRESET_BINDS
+from facecapges.arkit import arkit_index
+from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, PRESET_BINDS, VRM1_NAMES
 from facecapges.avatar.vrm.glb import join_glb, node_world_matrices, split_glb
 from facecapges.avatar.vrm.humanoid import BONE_PARENT, REQUIRED_BONES, VRM0_RENAME, humanoid_from_names
 from facecapges.avatar.vrm.meta import LICENSE_URL, SPEC_VERSION
@@ -59,8 +60,6 @@ SUPPORTED_EXTENSIONS = frozenset(
 
 # VRM 0.x preset names → 1.0
 def _vrm0_presets() -> dict[str, str]:
-    from facecapges.avatar.vrm.expressions import VRM1_NAMES
-
     return {**{k.lower(): v for k, v in VRM1_NAMES.items()}, "neutral": "neutral"}
 
 
@@ -106,9 +105,6 @@ def _morph_names(doc: dict) -> list[str]:
 
 def _synthesize_vrm1(doc: dict, bones: dict[str, int], name: str) -> None:
     """Give a plain humanoid GLB a minimal VRMC_vrm extension (in memory): bones + ARKit customs."""
-    from facecapges.arkit import arkit_index
-    from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES
-
     custom: dict[str, dict] = {}
     for ni, node in enumerate(doc.get("nodes") or []):
         if "mesh" not in node:

@@ -57,7 +57,7 @@ class VrmDriver:
 
         self.model = model
         self.retarget = Retargeter(skeleton, model)
-        self.faces = ExpressionMap(model)
+        self.faces = ExpressionMap(model.expressions)
 
     @classmethod
     def from_file(cls, path: str | Path, skeleton) -> VrmDriver:
