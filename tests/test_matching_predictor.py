@@ -18,7 +18,7 @@ from facecapges.matching.predictor import (
     Predictor,
     PredictorSettings,
 )
-from facecapges.matching.predictor_training import evaluate_predictor, take_targets, train_predictor
+from facecapges.matching.predictor_training import evaluate_predictor, predict, take_targets, train_predictor
 from facecapges.matching.takes import load_take, make_take, mirror_take
 from facecapges.matching.targets import TARGET_NAMES
 from tolerances import NETWORK_ULPS, assert_float32_close
@@ -94,7 +94,7 @@ def test_stream_is_strictly_causal_and_equals_the_network(quick, beat_take):
     np.testing.assert_array_equal(runs[0][:cut], runs[1][:cut])  # the future changed nothing before it
     assert np.abs(runs[0][cut:] - runs[1][cut:]).max() > 1e-4  # … and is read from then on
     samples = np.concatenate([a[: e - s] for a, s, e in zip(audio, *timing.frame_sample_bounds(np.arange(T)))])
-    offline = quick.predict(samples, face, head)  # the network over the whole sequence
+    offline = predict(quick, samples, face, head)  # the network over the whole sequence
     # frame by frame against the whole sequence (other kernels): float32 rounding of the network's outputs
     # (cm/s, cm, speaking probability), NETWORK_ULPS of each column's scale (tolerances.py)
     assert_float32_close(runs[0], offline, _scale(offline), NETWORK_ULPS, "cm, cm/s or 1", "stream against offline")

@@ -29,8 +29,8 @@ the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` 
 torch nor Numba (~155 MB of libraries, docs/performance.md). Its outputs equal the torch network's over the
 whole sequence to float32 rounding (``test_matching_predictor``). The network itself (a torch module,
 :class:`~facecapges.matching.predictor_training.SpeechReader`) lives with its training in
-:mod:`facecapges.matching.predictor_training`; :meth:`Predictor.predict` (whole recordings: the figures)
-runs it.
+:mod:`facecapges.matching.predictor_training`, with :func:`~facecapges.matching.predictor_training.predict`
+(whole recordings: the figures), so this module never imports it.
 
 How the sizes were chosen, and the validation and held-out figures: docs/matching.md.
 """
@@ -277,7 +277,7 @@ class Predictor:
     """A trained speech reader: its weights (NumPy, float32: the style file's ``predictor.*`` tensors) and
     ``config`` (JSON: sizes, target normalisation, head reference)."""
 
-    def __init__(self, weights: dict[str, Any], config: dict[str, Any], net: Any = None):
+    def __init__(self, weights: dict[str, Any], config: dict[str, Any]):
         known = {f.name for f in fields(ModelConfig)}
         mc: dict[str, Any] = {
             k: tuple(v) if isinstance(v, list) else v for k, v in config["model"].items() if k in known
@@ -297,7 +297,6 @@ class Predictor:
         self.mean = np.asarray(config["target_mean"], np.float32)
         self.sd = np.asarray(config["target_sd"], np.float32)
         self.kernel = SpeechKernel(self.cfg, self.hidden, w)
-        self._net = net
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {k: v.copy() for k, v in self.weights.items()}
@@ -308,19 +307,6 @@ class Predictor:
         if config.get("format") != FORMAT or int(config.get("version", 0)) > VERSION:
             raise ValueError(f"not a speech predictor of version ≤ {VERSION}: {config.get('format')!r}")
         return cls(tensors, config)
-
-    @property
-    def net(self):
-        """The torch network with these weights (built on first use: the training side's figures)."""
-        if self._net is None:
-            import torch
-
-            from facecapges.matching.predictor_training import SpeechReader
-
-            net = SpeechReader(self.cfg, self.hidden)
-            net.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in self.weights.items()})
-            self._net = net.eval()
-        return self._net
 
     @property
     def output_names(self) -> tuple[str, ...]:
@@ -336,23 +322,6 @@ class Predictor:
         out[..., :K] = raw[..., :K] * self.sd + self.mean
         out[..., K] = 1.0 / (1.0 + np.exp(-np.clip(raw[..., K], -60.0, 60.0)))
         return out
-
-    def predict(self, audio: np.ndarray, face: np.ndarray, head: np.ndarray) -> np.ndarray:
-        """A whole recording at once: audio (S,), face (T, 52), camera-frame head (T, 6) → (T, K + 1).
-
-        The torch network over the sequence (causal padding; the training side's figures): the same values
-        as stepping a stream, to float32 rounding.
-        """
-        import torch
-
-        from facecapges.matching.predictor_training import audio_frames
-
-        cfg, T = self.cfg, len(face)
-        with torch.no_grad():
-            a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
-            f = torch.from_numpy(np.asarray(face, np.float32))[None]
-            h = torch.from_numpy(np.array(head, np.float32))[None]
-            return self.outputs(self.net(a, f, h)[0].numpy())
 
     def stream(self) -> PredictorStream:
         return PredictorStream(self)

@@ -97,6 +97,31 @@ def audio_frames(audio: np.ndarray, n_frames: int, cfg: ModelConfig) -> np.ndarr
 
 
 # --------------------------------------------------------------------------- data
+def network(predictor: Predictor) -> SpeechReader:
+    """The torch network with ``predictor``'s weights, in eval mode (the figures run it over whole recordings)."""
+    net = SpeechReader(predictor.cfg, predictor.hidden)
+    net.load_state_dict({k: torch.from_numpy(v.copy()) for k, v in predictor.weights.items()})
+    return net.eval()
+
+
+def predict(
+    predictor: Predictor, audio: np.ndarray, face: np.ndarray, head: np.ndarray, net: SpeechReader | None = None
+) -> np.ndarray:
+    """A whole recording at once: audio (S,), face (T, 52), camera-frame head (T, 6) → (T, K + 1).
+
+    The torch network over the sequence (causal padding; the training side's figures): the same values as
+    stepping a :class:`~facecapges.matching.predictor.PredictorStream`, to float32 rounding. ``net``: a
+    :func:`network` of ``predictor`` already built.
+    """
+    net = network(predictor) if net is None else net
+    cfg, T = predictor.cfg, len(face)
+    with torch.no_grad():
+        a = torch.from_numpy(audio_frames(np.asarray(audio, np.float32), T, cfg))[None]
+        f = torch.from_numpy(np.asarray(face, np.float32))[None]
+        h = torch.from_numpy(np.array(head, np.float32))[None]
+        return predictor.outputs(net(a, f, h)[0].numpy())
+
+
 def take_targets(take: Take, stop: int) -> np.ndarray:
     """:func:`future_targets` (stop, K) of the take's motion before frame ``stop`` only."""
     pose = take.pose[:stop]
@@ -239,7 +264,7 @@ def train_predictor(
         "seed": int(seed),
         "training": history,
     }
-    pred = Predictor({k: v.detach().numpy() for k, v in net.state_dict().items()}, config, net=net.eval())
+    pred = Predictor({k: v.detach().numpy() for k, v in net.state_dict().items()}, config)
     own = [t for t in takes if not t.mirrored] or takes  # a mirror has the same audio and targets
     config["validation"] = _finite_json(evaluate_predictor(pred, own, "validation"))
     return pred
@@ -313,6 +338,7 @@ def evaluate_predictor(predictor: Predictor, takes: list[Take], part: str = "val
     from sklearn.metrics import roc_auc_score
 
     rows: dict[str, list[np.ndarray]] = {"real": [], "head": [], "still": [], "speaking": []}
+    net = network(predictor)
     for t in takes:
         first, stop, real = evaluation_frames(t, part)
         if stop <= first:
@@ -321,8 +347,8 @@ def evaluate_predictor(predictor: Predictor, takes: list[Take], part: str = "val
         head = predictor.camera_head(t.head[:stop])
         still = np.broadcast_to(rot.identity_rot6d().astype(np.float32), head.shape)
         rows["real"].append(real)
-        rows["head"].append(predictor.predict(t.audio[:samples], t.face[:stop], head)[first:])
-        rows["still"].append(predictor.predict(t.audio[:samples], t.face[:stop], still)[first:])
+        rows["head"].append(predict(predictor, t.audio[:samples], t.face[:stop], head, net)[first:])
+        rows["still"].append(predict(predictor, t.audio[:samples], t.face[:stop], still, net)[first:])
         rows["speaking"].append(speaking_frames(t.audio[:samples], stop)[first:])  # the VAD from the take's start
     real, spk = np.concatenate(rows["real"]), np.concatenate(rows["speaking"])
     out: dict[str, Any] = {"part": part, "frames": len(real), "takes": [t.name for t in takes]}
