@@ -113,6 +113,18 @@ def test_capture_body_errors(tmp_path):
     assert res.exit_code != 0 and out.read_text() == "keep"
 
 
+def test_a_video_with_nothing_usable_is_refused_before_anything_is_written(tmp_path):
+    """A face close-up (HDTF: no arm in any frame) is refused with the reason, and no BVH is left behind."""
+    from conftest import shared_file
+
+    video = shared_file("data/face/WDA_KatieHill_000.mp4")
+    out = tmp_path / "x.bvh"
+    res = runner.invoke(app, ["capture-body", str(video), "--out", str(out), "--max-frames", "20"])
+    assert res.exit_code != 0 and isinstance(res.exception, UserError)
+    assert "nothing usable" in str(res.exception)
+    assert not out.exists()
+
+
 @pytest.mark.slow
 def test_capture_body_recovers_his_real_motion_from_a_rendered_video(beat_bvh, tmp_path):
     """Render the avatar with the held-out last 20 % of his real motion (13 s), capture it back, compare."""

@@ -198,7 +198,9 @@ def capture_body(
     max_frames: int | None = None,
     progress: Callable[[int, int | None], None] | None = None,
 ) -> tuple[BodySolve, dict]:
-    """Video → BEAT BVH at 15 fps on ``skeleton``. Returns the solve and a summary."""
+    """Video → BEAT BVH at 15 fps on ``skeleton``. Returns the solve and a summary (its ``warning``: the
+    :func:`check_usable` warning or None). A video in which nothing usable was seen is refused (a
+    :class:`~facecapges.errors.UserError`) before ``out`` is written."""
     from facecapges.io.bvh import write_bvh
     from facecapges.skeleton import pose_to_motion
 
@@ -206,10 +208,11 @@ def capture_body(
     if summary["pose_found"] == 0.0:
         raise UserError(f"{video}: no person found in any frame (the pose landmarker saw no body)")
     res = solve(skeleton, lms)
-    write_bvh(out, skeleton, pose_to_motion(skeleton, res.pose), float(MODEL_FPS))
     conf = res.confidence.mean(axis=0)
     summary["arm_confidence"] = float(np.mean([conf[k] for k in range(3, 47) if k in (4, 5, 26, 27)]))
     summary["joint_confidence"] = conf.tolist()
+    summary["warning"] = check_usable(video, summary)  # refused before anything is written
+    write_bvh(out, skeleton, pose_to_motion(skeleton, res.pose), float(MODEL_FPS))
     return res, summary
 
 

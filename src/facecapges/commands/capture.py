@@ -170,9 +170,7 @@ def capture_body(
         f"right hand {hands[0]:.0%}, left hand {hands[1]:.0%}, both {s['both_hands_found']:.0%}; "
         f"{s['ms_per_frame']:.0f} ms/frame"
     )
-    from facecapges.capture.body import check_usable
-
-    warning = check_usable(video, s)
+    warning = s["warning"]
     if warning:
         console.print(f"[yellow]warning:[/yellow] {warning}")
     if face_out is not None:

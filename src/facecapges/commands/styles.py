@@ -218,7 +218,7 @@ def styles_build(
 def _video_takes(videos: list[Path], tmp: Path) -> tuple[list[tuple[Path, Path]], dict[str, dict]]:
     """capture-body of each video into ``tmp``: (its BVH, the video itself as the speech) pairs, and per BVH
     name how well its motion was seen (for the model card)."""
-    from facecapges.capture.body import capture_body, check_usable, seen_report
+    from facecapges.capture.body import capture_body, seen_report
     from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
     from facecapges.io.audio import check_audio
     from facecapges.styles import DEFAULT_STYLE, load_style
@@ -242,7 +242,7 @@ def _video_takes(videos: list[Path], tmp: Path) -> tuple[list[tuple[Path, Path]]
             f"  {v.name}: person found in {s['pose_found']:.0%} of {s['frames']} frames, both hands in "
             f"{s['both_hands_found']:.0%}, mean arm confidence {s['arm_confidence']:.2f}"
         )
-        warning = check_usable(v, s)
+        warning = s["warning"]
         if warning:
             typer.echo(f"  warning: {warning}")
         pairs.append((bvh, v))
