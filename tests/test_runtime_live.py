@@ -72,8 +72,23 @@ def _pinned(cpu: int, nice: int = 0):
     return setup
 
 
+@pytest.fixture(scope="module")
+def face_video_3s(face_video, tmp_path_factory):
+    """The first 3 s of the face clip (8 s), picture and speech, copied (no re-encode). The whole clip took 40 s
+    in the serial pass; 3 s of it takes 27 s and still drops 73 camera frames against the bound of 15
+    (2026-12-03, load 5-6: docs/testing.md) — ``live`` falls behind from its first second."""
+    import subprocess
+
+    import imageio_ffmpeg
+
+    out = tmp_path_factory.mktemp("live_behind") / "face_3s.mp4"
+    subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-loglevel", "error", "-i", str(face_video), "-t", "3",
+                    "-c", "copy", str(out)], check=True)
+    return out
+
+
 @pytest.mark.serial
-def test_live_behind_real_time_drops_camera_frames_never_audio(face_video, tmp_path):
+def test_live_behind_real_time_drops_camera_frames_never_audio(face_video_3s, tmp_path):
     """A machine too busy to capture every frame: ``live --realtime`` drops camera frames (and says so once in its
     status line), yet every frame of the audio is computed and recorded — no audio dropped, no underrun.
 
@@ -91,6 +106,7 @@ def test_live_behind_real_time_drops_camera_frames_never_audio(face_video, tmp_p
 
     cpu = sorted(os.sched_getaffinity(0))[0]
     rec = tmp_path / "rec"
+    face_video = face_video_3s
     proc = cli_process("live", "--video", str(face_video), "--realtime", "--record", str(rec), "--web", "127.0.0.1:0",
                        background=True, preexec_fn=_pinned(cpu, 5))
     spin = []
