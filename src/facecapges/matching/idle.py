@@ -49,6 +49,7 @@ IDLE_JOINTS: tuple[str, ...] = TORSO + tuple(
 MIN_RUN = 6  # rest rows in a row (0.4 s) for a run to measure the idle's amplitude about its mean
 FREQ_SPLIT = (0.75, float(np.sqrt(2.0 - 0.75**2)))  # two sines at f·0.75, f·1.2: RMS frequency f, sd = amplitude
 PHASE_SEED = 38
+SPENT = 1e-6  # rad, rad/s: an offset this small is spent (the stream shows the matched pose unchanged)
 LOW_PERCENTILE = 40.0  # a rest pose's wrists are both below this percentile of their height (gesture_phases' "low")
 
 
@@ -191,32 +192,44 @@ class IdleLayer:
             dist = np.sum(1.0 - np.abs(np.einsum("bjk,rjk->brj", self.prev_out[ids[k], 1], m.rest)), axis=2)
             self.target[ids[k]] = np.argmin(dist, axis=1)
         tgt = self.target[ids]
-        idle_now = m.pose(tgt, t, self.fps, scale)
-        idle_now[:, self.keep] = q[:, self.keep]
-        matched_v = self._velocity(q, self.prev_in[ids])
+        out = np.array(q, np.float64)  # a stream the layer has let go of shows the matched pose as it is
+        use = np.flatnonzero(was | want)  # streams whose rest pose is shown or switched from / to
+        idle_now = out.copy()
+        if len(use):
+            idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
+            idle_now[:, self.keep] = q[:, self.keep]
         switch = enter | leave
         if switch.any():
             k = np.flatnonzero(switch)
+            matched_v = self._velocity(q[k], self.prev_in[ids[k]])
             idle_prev = m.pose(tgt[k], t[k] - 1, self.fps, scale[k])
             idle_v = self._velocity(idle_now[k], idle_prev)
-            idle_v[:, self.keep] = matched_v[k][:, self.keep]
+            idle_v[:, self.keep] = matched_v[:, self.keep]
             e = enter[k][:, None, None]
             src_q, dst_q = np.where(e, q[k], idle_now[k]), np.where(e, idle_now[k], q[k])
-            src_v, dst_v = np.where(e, matched_v[k], idle_v), np.where(e, idle_v, matched_v[k])
+            src_v, dst_v = np.where(e, matched_v, idle_v), np.where(e, idle_v, matched_v)
             s = ids[k]
             self.x[s], self.v[s] = inz.transition(self.x[s], self.v[s], src_q, src_v, dst_q, dst_v)
             self.hl[s] = np.where(enter[k], self.enter_hl, self.release_hl)
             self.idle[s] = enter[k]
-        x, v = inz.decay_spring(self.x[ids], self.v[ids], self.hl[ids][:, None, None], 1.0 / self.fps)
-        self.x[ids], self.v[ids] = x, v
-        base = np.where(self.idle[ids][:, None, None], idle_now, q)
-        out = inz.qmul(inz.qexp(x), base)
+        # the offset still carries something: decay it and show it (else it is spent: zero, and q is shown)
+        xs, vs = self.x[ids], self.v[ids]
+        live = self.idle[ids] | (np.abs(xs).max(axis=(1, 2)) > SPENT) | (np.abs(vs).max(axis=(1, 2)) > SPENT)
+        k = np.flatnonzero(live)
+        self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
         p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]
-        if self.acc_cap > 0:  # the matcher's acceleration cap, on what is shown: the offset takes up the rest
-            out, over = inz.limit_acceleration(out, p1, p2, self.acc_cap, self.fps)
-            if over.any():
-                k = np.flatnonzero(over)
-                self.x[ids[k]] = inz.qlog(inz.qabs(inz.qmul(out[k], inz.qconj(base[k]))))
+        if len(k):
+            s = ids[k]
+            x, v = inz.decay_spring(xs[k], vs[k], self.hl[s][:, None, None], 1.0 / self.fps)
+            self.x[s], self.v[s] = x, v
+            base = np.where(self.idle[s][:, None, None], idle_now[k], q[k])
+            shown = inz.qmul(inz.qexp(x), base)
+            if self.acc_cap > 0:  # the matcher's acceleration cap, on what is shown: the offset takes up the rest
+                shown, over = inz.limit_acceleration(shown, p1[k], p2[k], self.acc_cap, self.fps)
+                if over.any():
+                    o = np.flatnonzero(over)
+                    self.x[s[o]] = inz.qlog(inz.qabs(inz.qmul(shown[o], inz.qconj(base[o]))))
+            out[k] = shown
         out = inz.qabs(out)
         self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, p1, out
         return out
