@@ -47,11 +47,12 @@ Per step and stream (only the current frame's inputs and the stream's own state 
    give ``mean · exp(d + (gain − 1) d̄)``: the slow part of the motion grows or shrinks with the dial
    (spread rises with it), the frame-to-frame accelerations stay his (no pops at 1.3).
 7. **A pause** (:mod:`~facecapges.matching.idle`, ``idle_layer``): once ``idle_after_s`` have passed since the
-   last speech-like frame of the VAD (``since_voice``), what is shown eases (inertialization, half-life ``idle_enter_halflife_s``) from the matched
-   motion into his rest pose (the database's rest row nearest the pose shown) with a procedural idle at his
-   rest rows' amplitude and speed on the spine, neck and arms; at the next speech-like frame it eases back (half-life
-   ``idle_release_halflife_s``), under the same acceleration cap. The search above runs on underneath, so
-   speech resumes from a matched clip at once.
+   last speech-like frame of the VAD (``since_voice``), what is shown eases (inertialization, half-life
+   ``idle_enter_halflife_s``) from the matched motion into his rest pose (the database's rest row with both
+   wrists low nearest the pose shown) with a procedural idle at his rest rows' amplitude and speed on the
+   spine, shoulders and arms (``idle_torso``: the neck keeps the matched motion); at the next speech-like frame
+   it eases back (half-life ``idle_release_halflife_s``), under the same acceleration cap. The search above runs
+   on underneath, so speech resumes from a matched clip at once.
 
 Memory (``memory_s``, 60 s) is kept per *canonical* row (:func:`~facecapges.matching.database.mirror_twins`):
 a stretch and its mirror image are one stretch. A clip that would continue into a stretch played before its
@@ -121,9 +122,9 @@ class MatchingConfig:
     idle_release_halflife_s: float = 0.1
     idle_amplitude: float = 1.0
     idle_rest: str = "low"
-    # False: the spine and neck (the head without a face track) keep his matched motion in a pause, only the
-    # shoulders and arms idle (True: the procedural idle on them too: head speed 0.40-0.44x his in a pause, against
-    # 0.65-0.72x off and False; docs/matching.md)
+    # which of the torso's joints idle procedurally in a pause: "neck" (the spine does, Neck and Neck1 keep his
+    # matched motion: the head moves as his in a pause without a face track), "matched" (none), "procedural" (all
+    # three: the head turned at 0.40-0.44x his speed in a pause, against 0.64-0.72x; docs/matching.md)
     idle_torso: str = "neck"
 
     def as_dict(self) -> dict:
