@@ -47,6 +47,13 @@ Per step and stream (only the current frame's inputs and the stream's own state 
    rotation from the style's idle mean, and its exponential smoothing ``d̄`` over ``intensity_smooth_s``,
    give ``mean · exp(d + (gain − 1) d̄)``: the slow part of the motion grows or shrinks with the dial
    (spread rises with it), the frame-to-frame accelerations stay his (no pops at 1.3).
+7. **A pause** (:mod:`~facecapges.matching.idle`, ``idle_layer``): once ``idle_after_s`` have passed since the
+   last speech-like frame of the VAD (``since_voice``), what is shown eases (inertialization, half-life
+   ``idle_enter_halflife_s``) from the matched motion into his rest pose (the database's rest row with both
+   wrists low nearest the pose shown) with a procedural idle at his rest rows' amplitude and speed on the
+   spine, shoulders and arms (``idle_torso``: the neck keeps the matched motion); at the next speech-like frame
+   it eases back (half-life ``idle_release_halflife_s``), under the same acceleration cap. The search above runs
+   on underneath, so speech resumes from a matched clip at once.
 
 Memory (``memory_s``, 60 s) is kept per *canonical* row (:func:`~facecapges.matching.database.mirror_twins`):
 a stretch and its mirror image are one stretch. A clip that would continue into a stretch played before its
@@ -69,8 +76,9 @@ from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
 from facecapges.matching.database import Database, idle_rows, mirror_twins, quaternions
 from facecapges.matching.features import LiveFrames, group_slices, live_query
+from facecapges.matching.idle import IdleLayer, IdleMotion
 from facecapges.matching.speech import SpeechTracker
-from facecapges.skeleton import N_JOINTS
+from facecapges.skeleton import N_JOINTS, TORSO
 
 
 @dataclass
@@ -99,6 +107,20 @@ class MatchingConfig:
     onset_frames: int = 1  # frames after an onset (the onset frame is 0) that prefer strokes
     intensity_tau_s: float = 0.3
     use_predictor: bool = True
+    # a pause eases into his rest pose with a procedural idle at his amplitude (matching/idle.py, issue #38):
+    # idle_after_s after the last speech-like frame (the VAD's pause begins at 0.4 s), inertialized in
+    # (half-life idle_enter_halflife_s) and out at the next speech-like frame (idle_release_halflife_s);
+    # idle_rest "low" (his rest row with both wrists low nearest the pose), "nearest" (any rest row) or "mean"
+    idle_layer: bool = True
+    idle_after_s: float = 0.53  # 8 frames: 2 frames after the VAD's hangover ends (his in-speech breaths stay gestures)
+    idle_enter_halflife_s: float = 0.2
+    idle_release_halflife_s: float = 0.1
+    idle_amplitude: float = 1.0
+    idle_rest: str = "low"
+    # which of the torso's joints idle procedurally in a pause: "neck" (the spine does, Neck and Neck1 keep his
+    # matched motion: the head moves as his in a pause without a face track), "matched" (none), "procedural" (all
+    # three: the head turned at 0.40-0.44x his speed in a pause, against 0.64-0.72x; docs/matching.md)
+    idle_torso: str = "neck"
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -240,6 +262,28 @@ class BatchedMatchingStreams(SlotOwner):
         self._blocked = np.stack([~db.searchable, ~self.idle])  # rows a search may not jump to: [any, idle only]
         self.lead = np.minimum(db.lead, 3.0).astype(np.float32)
         self.feature_weights = db.feature_weights()  # (features,) the centred features' multipliers
+        cfg = self.config
+        self.idle_layer = (
+            IdleLayer(
+                IdleMotion.measure(
+                    self.row_quaternions,
+                    seg,
+                    rest,
+                    self.fps,
+                    cfg.idle_rest,
+                    wrist_height=db.features[:, group_slices()["position"]].reshape(len(db), 4, 3)[:, :2, 1],
+                ),
+                self.fps,
+                after_frames=int(round(cfg.idle_after_s * self.fps)),
+                enter_halflife_s=cfg.idle_enter_halflife_s,
+                release_halflife_s=cfg.idle_release_halflife_s,
+                amplitude=cfg.idle_amplitude,
+                acc_cap=self.acc_cap if cfg.accel_cap_percentile > 0 else 0.0,
+                keep={"procedural": (), "neck": TORSO[1:], "matched": TORSO}[cfg.idle_torso],
+            )
+            if cfg.idle_layer
+            else None
+        )
 
     # ---------------------------------------------------------------- storage
     def _alloc(self, capacity: int) -> None:
@@ -269,6 +313,8 @@ class BatchedMatchingStreams(SlotOwner):
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
         self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
         self.speech.ensure(capacity)
+        if self.idle_layer is not None:
+            self.idle_layer.grow(capacity)
         self.slots.grown(capacity)
         self.capacity = capacity
 
@@ -366,6 +412,8 @@ class BatchedMatchingStreams(SlotOwner):
                 pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
             self._advance_and_search(ids, cues, pred)
             q = self._blend(ids)
+            if self.idle_layer is not None:  # a pause: his rest pose and idle (matching/idle.py)
+                q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain_of(self.intensity_now[ids]))
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
@@ -503,6 +551,8 @@ class BatchedMatchingStreams(SlotOwner):
         q = inz.qmul(inz.qexp(self.off_x[ids]), self.row_quaternions[self.row[ids]])
         self.prev_q[ids] = q[:, None]
         self.slow_dev[ids] = self._deviation(q)
+        if self.idle_layer is not None:
+            self.idle_layer.restart(ids, q)
 
     def _limit(self, ids: np.ndarray, q: np.ndarray) -> np.ndarray:
         """Keep the blended pose's whole-body angular acceleration (against the last two outputs) below his
@@ -510,13 +560,9 @@ class BatchedMatchingStreams(SlotOwner):
         played clip continues from the limited pose (a seam never pops)."""
         p1, p2 = self.prev_q[ids, 1], self.prev_q[ids, 0]
         if self.config.accel_cap_percentile > 0:
-            pred = inz.qmul(inz.qmul(p1, inz.qconj(p2)), p1)  # constant angular velocity
-            d = inz.qlog(inz.qabs(inz.qmul(q, inz.qconj(pred))))  # (B, 47, 3): acceleration · dt²
-            total = np.linalg.norm(d, axis=(1, 2)) * self.fps**2
-            over = total > self.acc_cap
+            q, over = inz.limit_acceleration(q, p1, p2, self.acc_cap, self.fps)
             if over.any():
                 k = np.flatnonzero(over)
-                q[k] = inz.qmul(inz.qexp(d[k] * (self.acc_cap / total[k])[:, None, None]), pred[k])
                 self.off_x[ids[k]] = inz.qlog(
                     inz.qabs(inz.qmul(q[k], inz.qconj(self.row_quaternions[self.row[ids[k]]])))
                 )

@@ -27,6 +27,9 @@ Per frame and stream:
   Speech opens after ``OPEN_FRAMES`` speech-like frames in a row and stays open ``HANGOVER``
   frames after the last one (short gaps between words stay speech). Measured on the conversation
   clips (:mod:`facecapges.evaluation.conversation`) by ``scripts/conversation_report.py``.
+* ``since_voice`` — frames since the last speech-like frame (0 on one; capped at ``SINCE_VOICE_CAP``): how
+  long the voice has been gone, before the hangover decides it is a pause (the idle layer,
+  :mod:`facecapges.matching.idle`).
 * ``onset`` — spectral flux: the frame's last 1024 samples (Hann) in ``N_BANDS`` log-spaced
   bands 80 Hz – 8 kHz, log power; the flux is the mean positive rise of the bands against the
   previous frame. An onset fires while speaking when the flux exceeds the mean + ``ONSET_K`` sd
@@ -63,6 +66,7 @@ ONSET_K = 1.0
 MIN_FLUX = 0.5
 REFRACTORY = 3
 SINCE_CAP = 30
+SINCE_VOICE_CAP = 10**6
 ENERGY_ALPHA = 0.2
 
 
@@ -91,6 +95,7 @@ class SpeechFrame:
     onset: np.ndarray  # (B,) bool
     since_onset: np.ndarray  # (B,) int
     energy: np.ndarray  # (B,) smoothed dBFS
+    since_voice: np.ndarray  # (B,) int: frames since the last speech-like frame
 
 
 class SpeechTracker:
@@ -119,6 +124,7 @@ class SpeechTracker:
         self.talk_level = grow("talk_level", (), -100.0)
         self.tonal = grow("tonal", (TONAL_FRAMES,), 0.0)
         self.run = grow("run", (), 0, np.int64)
+        self.since_voice = grow("since_voice", (), SINCE_VOICE_CAP, np.int64)
         self.capacity = capacity
 
     def ensure(self, capacity: int) -> None:
@@ -130,6 +136,7 @@ class SpeechTracker:
         self.prev_bands[slot], self.flux_hist[slot] = np.nan, np.nan
         self.energy[slot], self.count[slot] = -100.0, 0
         self.talk_level[slot], self.tonal[slot], self.run[slot] = -100.0, 0.0, 0
+        self.since_voice[slot] = SINCE_VOICE_CAP
 
     def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
         """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
@@ -164,7 +171,9 @@ class SpeechTracker:
         self.talk_level[idx], self.tonal[idx], self.run[idx] = talk, tonal, run
         self.flux_hist[idx] = np.concatenate([hist[:, 1:], flux[:, None]], axis=1)
         self.since[idx], self.energy[idx], self.count[idx] = since, energy, self.count[idx] + 1
-        return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32))
+        voice = np.where(like, 0, np.minimum(self.since_voice[idx] + 1, SINCE_VOICE_CAP))
+        self.since_voice[idx] = voice
+        return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32), voice)
 
     @staticmethod
     def _spectrum(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -135,6 +135,15 @@ CONFIG_RANGES: dict[str, tuple[float, float]] = {
     "onset_bonus": (0.0, 1e3),
     "onset_frames": (0, 150),
     "intensity_tau_s": (0.0, 60.0),
+    "idle_after_s": (0.0, 60.0),
+    "idle_enter_halflife_s": (0.01, 10.0),
+    "idle_release_halflife_s": (0.01, 10.0),
+    "idle_amplitude": (0.0, 10.0),
+}
+#: The values a text setting may take.
+CONFIG_CHOICES: dict[str, tuple[str, ...]] = {
+    "idle_rest": ("low", "nearest", "mean"),
+    "idle_torso": ("matched", "neck", "procedural"),
 }
 
 
@@ -161,6 +170,8 @@ def check_engine_config(d: object) -> MatchingConfig:
             ok = default is None or isinstance(v, type(default))
         if not ok:
             raise ValueError(f"engine_config {f.name} = {v!r} is not a {type(default).__name__}")
+        if f.name in CONFIG_CHOICES and v not in CONFIG_CHOICES[f.name]:
+            raise ValueError(f"engine_config {f.name} = {v!r} is not one of {', '.join(CONFIG_CHOICES[f.name])}")
         lo, hi = CONFIG_RANGES.get(f.name, (-math.inf, math.inf))
         if not isinstance(default, bool) and isinstance(v, int | float) and not lo <= v <= hi:
             raise ValueError(f"engine_config {f.name} = {v!r} is outside [{lo:g}, {hi:g}]")

@@ -1,0 +1,235 @@
+"""A pause like a person's (issue #38): ease into his rest pose and a small procedural idle while not speaking.
+
+His monologue holds almost no long rest (docs/matching.md, "A pause like a person's"): the database's idle
+rows are breaths mid-gesture or a stroke's run-up, so the search alone settles a pause late (2–4 s). This
+layer sits on the matcher's output (step 7 of :mod:`facecapges.matching.matcher`); the matcher keeps
+searching underneath, so speech picks up the matched motion at once.
+
+Per stream and frame, from the matcher's pose ``q`` (after the dial) and the causal VAD's frames since the last
+speech-like frame (``since_voice`` of :class:`facecapges.matching.speech.SpeechFrame`):
+
+* **the target**: while the voice is on, ``q`` itself; once it has been gone ``after`` frames (the VAD's
+  pause begins after ``HANGOVER`` = 6), his rest pose
+  with the procedural idle on top. The rest pose is the database's *rest* row (an idle row in the rest
+  phase: wrists low and slow, :func:`facecapges.matching.database.gesture_phases`) nearest the pose shown
+  when the pause begins — among the rest rows with both wrists low (``rest="low"``: a real frame of his, the
+  shortest way there, and pauses that differ — hands clasped, both hanging, one at the belly) or among all
+  rest rows (``rest="nearest"``: their mean wrist height is low, so one forearm may stay raised through the
+  pause), or the quaternion mean of all rest rows (``rest="mean"``: one pose for every pause);
+* **the switch** between the two is an inertialization (:mod:`facecapges.matching.inertialize`, as the
+  matcher's clip switches): the offset that keeps the shown rotation and angular velocity across the switch
+  decays with a critically damped spring, half-life ``enter_halflife_s`` into the pause and
+  ``release_halflife_s`` back to the matched motion — no pose jumps, no velocity jumps, no stroke;
+* **the procedural idle** (:class:`IdleMotion`): on each arm's Shoulder, Arm, ForeArm and Hand (not the
+  fingers: the BEAT2 rows' thumbs jitter) and, with ``torso=True``, on Spine, Neck and Neck1: per joint and
+  axis a sum of two sines of fixed phases whose spread (sd) of angle and of angular velocity are **his**,
+  measured in his rest rows (runs of ≥ :data:`MIN_RUN` rest rows, about each run's mean rotation; robust sd,
+  :func:`robust_sd`), so the shoulders' small lift and the arms' drift come at his rest amplitude and speed,
+  scaled by the dial's gain and ``amplitude``. By default (``torso=False``, the matcher's ``idle_torso``) the
+  spine and neck keep the matched motion (his idle rows underneath): the head — the Spine → Neck → Neck1
+  chain — moves in a pause as his does without a face track (with one, the runtime puts the captured head on
+  it, :mod:`facecapges.runtime.head`); the procedural torso turned the head at 0.4× his speed (docs/matching.md).
+
+Everything is a function of the stream's own state and frame count (no random state), so one stream and a
+slot of a batch give the same poses.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from facecapges.matching import inertialize as inz
+from facecapges.skeleton import N_JOINTS, TORSO, UPPER_BODY
+
+IDLE_JOINTS: tuple[str, ...] = TORSO + tuple(
+    f"{side}{j}" for side in ("Right", "Left") for j in ("Shoulder", "Arm", "ForeArm", "Hand")
+)
+MIN_RUN = 6  # rest rows in a row (0.4 s) for a run to measure the idle's amplitude about its mean
+FREQ_SPLIT = (0.75, float(np.sqrt(2.0 - 0.75**2)))  # two sines at f·0.75, f·1.2: RMS frequency f, sd = amplitude
+PHASE_SEED = 38
+SPENT = 1e-6  # rad, rad/s: an offset this small is spent (the stream shows the matched pose unchanged)
+LOW_PERCENTILE = 40.0  # a rest pose's wrists are both below this percentile of their height (gesture_phases' "low")
+
+
+def robust_sd(x: np.ndarray) -> np.ndarray:
+    """Per column of ``x`` (n, …): 1.4826 · the median absolute deviation from the median (the sd of a
+    normal sample, unmoved by the few fast frames at a rest run's edge, where a gesture starts or ends)."""
+    return 1.4826 * np.median(np.abs(x - np.median(x, axis=0)), axis=0)
+
+
+@dataclass(frozen=True)
+class IdleMotion:
+    """His idle, measured from a database's rest rows (module docs)."""
+
+    joints: np.ndarray  # (J,) indices into the 47 joints
+    amplitude: np.ndarray  # (J, 3) sd of the angle about the run's mean, rad (per local axis)
+    frequency: np.ndarray  # (J, 3) Hz: sd of the angular velocity / (2π · sd of the angle)
+    rest: np.ndarray  # (R, 47, 4) the rest poses a pause may settle into
+    phase: np.ndarray  # (2, J, 3) fixed phases of the two sines
+
+    @classmethod
+    def measure(
+        cls,
+        row_quaternions: np.ndarray,
+        segment: np.ndarray,
+        rest_rows: np.ndarray,
+        fps: float,
+        rest: str = "low",
+        wrist_height: np.ndarray | None = None,
+    ) -> IdleMotion:
+        """From the database's rotations (N, 47, 4), segments (N,), rest rows (N,) bool and, for ``rest="low"``,
+        the wrists' heights (N, 2) (the rest poses a pause settles into: rest rows with *both* wrists below the
+        :data:`LOW_PERCENTILE` th percentile of that wrist's height — not one forearm raised)."""
+        joints = np.array([UPPER_BODY.index(j) for j in IDLE_JOINTS])
+        dev, vel = [], []
+        for s in np.unique(segment):
+            rows = np.flatnonzero(segment == s)
+            m = rest_rows[rows]
+            d = np.diff(np.r_[0, m.astype(np.int8), 0])
+            for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
+                if b - a < MIN_RUN:
+                    continue
+                q = row_quaternions[rows[a:b]][:, joints]
+                mean = inz.quaternion_mean(q)
+                dev.append(inz.qlog(inz.qabs(inz.qmul(inz.qconj(mean)[None], q))))
+                vel.append(inz.angular_velocity(q, fps)[:-1])
+        if not dev:  # no run long enough: no procedural idle (the rest pose alone)
+            amp = np.zeros((len(joints), 3))
+            freq = np.zeros((len(joints), 3))
+        else:
+            amp, speed = robust_sd(np.concatenate(dev)), robust_sd(np.concatenate(vel))
+            freq = np.where(amp > 1e-6, speed / (2.0 * np.pi * np.maximum(amp, 1e-6)), 0.0)
+        pick = rest_rows
+        if rest == "low" and wrist_height is not None:
+            low = (wrist_height <= np.percentile(wrist_height, LOW_PERCENTILE, axis=0)).all(axis=1)
+            pick = rest_rows & low if (rest_rows & low).any() else rest_rows
+        cand = row_quaternions[pick] if pick.any() else row_quaternions
+        poses = inz.quaternion_mean(cand)[None] if rest == "mean" else cand
+        phase = np.random.default_rng(PHASE_SEED).uniform(0.0, 2.0 * np.pi, (2, len(joints), 3))
+        return cls(joints, amp, freq, np.ascontiguousarray(poses), phase)
+
+    def offsets(self, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
+        """Rotation vectors (B, J, 3) of the procedural idle at frames ``t`` (B,), amplitude × ``scale`` (B,)."""
+        secs = np.asarray(t, np.float64)[:, None, None] / fps
+        w = 2.0 * np.pi * self.frequency[None]
+        x = sum(np.sin(w * k * secs + self.phase[i][None]) for i, k in enumerate(FREQ_SPLIT))
+        return self.amplitude[None] * x * np.asarray(scale, np.float64)[:, None, None]
+
+    def pose(self, target: np.ndarray, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
+        """Quaternions (B, 47, 4): rest poses ``target`` (B,) with the idle of frames ``t`` on top."""
+        q = self.rest[target].copy()
+        q[:, self.joints] = inz.qmul(q[:, self.joints], inz.qexp(self.offsets(t, fps, scale)))
+        return q
+
+
+class IdleLayer:
+    """Per stream: the matcher's pose in, the pose shown out (module docs)."""
+
+    def __init__(
+        self,
+        motion: IdleMotion,
+        fps: float,
+        *,
+        after_frames: int,
+        enter_halflife_s: float,
+        release_halflife_s: float,
+        amplitude: float = 1.0,
+        acc_cap: float = 0.0,
+        keep: tuple[str, ...] = (),
+    ):
+        self.motion, self.fps, self.acc_cap = motion, fps, acc_cap
+        self.keep = np.zeros(N_JOINTS, bool)  # joints that always show the matched motion
+        self.keep[[UPPER_BODY.index(j) for j in keep]] = True
+        self.after = max(int(after_frames), 1)
+        self.enter_hl, self.release_hl, self.amplitude = enter_halflife_s, release_halflife_s, amplitude
+        self.capacity = 0
+        self.grow(1)
+
+    def grow(self, capacity: int) -> None:
+        old = self.capacity
+        if capacity <= old:
+            return
+
+        def g(name: str, shape: tuple, fill, dtype) -> np.ndarray:
+            new = np.full((capacity, *shape), fill, dtype)
+            if old:
+                new[:old] = getattr(self, name)
+            return new
+
+        self.idle = g("idle", (), False, bool)  # the stream shows the rest + idle target
+        self.target = g("target", (), 0, np.int64)  # its rest pose (index into motion.rest)
+        self.x = g("x", (N_JOINTS, 3), 0.0, np.float64)  # the switch's offset and its velocity
+        self.v = g("v", (N_JOINTS, 3), 0.0, np.float64)
+        self.hl = g("hl", (), self.release_hl, np.float64)
+        self.prev_in = g("prev_in", (N_JOINTS, 4), 0.0, np.float64)  # the matcher's last pose (its velocity)
+        self.prev_out = g("prev_out", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two poses shown (last: [1])
+        self.capacity = capacity
+
+    def restart(self, ids: np.ndarray, q: np.ndarray) -> None:
+        """Streams ``ids`` start (again) at pose ``q`` (B, 47, 4), showing the matched motion."""
+        self.idle[ids], self.target[ids], self.x[ids], self.v[ids] = False, 0, 0.0, 0.0
+        self.hl[ids] = self.release_hl
+        self.prev_in[ids], self.prev_out[ids] = q, q[:, None]
+
+    def _velocity(self, q: np.ndarray, prev: np.ndarray) -> np.ndarray:
+        return inz.qlog(inz.qabs(inz.qmul(q, inz.qconj(prev)))) * self.fps
+
+    def apply(
+        self, ids: np.ndarray, q: np.ndarray, since_voice: np.ndarray, t: np.ndarray, gain: np.ndarray
+    ) -> np.ndarray:
+        """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
+        their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
+        frame counts ``t`` (B,) and the dial's gains (B,)."""
+        m = self.motion
+        scale = self.amplitude * np.asarray(gain, np.float64)
+        want = np.asarray(since_voice) >= self.after
+        was = self.idle[ids]
+        enter, leave = want & ~was, ~want & was
+        if enter.any():  # the rest pose nearest the pose shown now
+            k = np.flatnonzero(enter)
+            dist = np.sum(1.0 - np.abs(np.einsum("bjk,rjk->brj", self.prev_out[ids[k], 1], m.rest)), axis=2)
+            self.target[ids[k]] = np.argmin(dist, axis=1)
+        tgt = self.target[ids]
+        out = np.array(q, np.float64)  # a stream the layer has let go of shows the matched pose as it is
+        use = np.flatnonzero(was | want)  # streams whose rest pose is shown or switched from / to
+        idle_now = out.copy()
+        if len(use):
+            idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
+            idle_now[:, self.keep] = q[:, self.keep]
+        switch = enter | leave
+        if switch.any():
+            k = np.flatnonzero(switch)
+            matched_v = self._velocity(q[k], self.prev_in[ids[k]])
+            idle_prev = m.pose(tgt[k], t[k] - 1, self.fps, scale[k])
+            idle_v = self._velocity(idle_now[k], idle_prev)
+            idle_v[:, self.keep] = matched_v[:, self.keep]
+            e = enter[k][:, None, None]
+            src_q, dst_q = np.where(e, q[k], idle_now[k]), np.where(e, idle_now[k], q[k])
+            src_v, dst_v = np.where(e, matched_v, idle_v), np.where(e, idle_v, matched_v)
+            s = ids[k]
+            self.x[s], self.v[s] = inz.transition(self.x[s], self.v[s], src_q, src_v, dst_q, dst_v)
+            self.hl[s] = np.where(enter[k], self.enter_hl, self.release_hl)
+            self.idle[s] = enter[k]
+        # the offset still carries something: decay it and show it (else it is spent: zero, and q is shown)
+        xs, vs = self.x[ids], self.v[ids]
+        live = self.idle[ids] | (np.abs(xs).max(axis=(1, 2)) > SPENT) | (np.abs(vs).max(axis=(1, 2)) > SPENT)
+        k = np.flatnonzero(live)
+        self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
+        p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]
+        if len(k):
+            s = ids[k]
+            x, v = inz.decay_spring(xs[k], vs[k], self.hl[s][:, None, None], 1.0 / self.fps)
+            self.x[s], self.v[s] = x, v
+            base = np.where(self.idle[s][:, None, None], idle_now[k], q[k])
+            shown = inz.qmul(inz.qexp(x), base)
+            if self.acc_cap > 0:  # the matcher's acceleration cap, on what is shown: the offset takes up the rest
+                shown, over = inz.limit_acceleration(shown, p1[k], p2[k], self.acc_cap, self.fps)
+                if over.any():
+                    o = np.flatnonzero(over)
+                    self.x[s[o]] = inz.qlog(inz.qabs(inz.qmul(shown[o], inz.qconj(base[o]))))
+            out[k] = shown
+        out = inz.qabs(out)
+        self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, p1, out
+        return out

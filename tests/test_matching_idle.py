@@ -1,0 +1,126 @@
+"""A pause like a person's (issue #38; ``facecapges.matching.idle``): on the shipped matching style a muted-mic
+pause settles into his rest and a procedural idle at his amplitude and stays there, without a pop at the pause's
+start or end, never frozen, and speech takes the gestures back within 0.3 s; one stream and a batch slot agree."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import shared_file
+from facecapges import timing
+from facecapges.evaluation import conversation as cv
+from facecapges.io.audio import load_audio
+from facecapges.matching.takes import load_take
+from facecapges.rotations import identity_rot6d
+from facecapges.styles import load_style
+from tolerances import assert_rotations_close
+
+SPF, FPS = timing.samples_per_frame(), timing.MODEL_FPS
+
+
+@pytest.fixture(scope="module")
+def style():
+    return load_style(style="beat2-scott-mm")
+
+
+@pytest.fixture(scope="module")
+def ref(style):
+    """His real motion: the training frames of both paired takes (as the card's conversation table)."""
+    beat = "data/beat/"
+    t1 = load_take(shared_file(beat + "2_scott_0_1_1.bvh"), shared_file(beat + "2_scott_0_1_1.wav"))
+    t2 = load_take(shared_file("data/beat2/2_scott_0_2_2.npz"), shared_file(beat + "2_scott_0_2_2.wav"), t1.skeleton)
+    takes = (t1, t2)
+    return cv.reference(
+        style.skeleton, [t.pose[: t.train_until] for t in takes], [t.audio[: t.train_until * SPF] for t in takes]
+    )
+
+
+@pytest.fixture(scope="module")
+def zeros_clip():
+    """10 s of his unseen speech, 15 s of digital zeros (a muted mic), 10 s more (the conversation set's way)."""
+    u = load_audio(shared_file("data/beat/2_scott_0_4_4.wav"), timing.AUDIO_SR)
+    S, P = int(10 * timing.AUDIO_SR), int(15 * timing.AUDIO_SR)
+    return cv._insert(u[:S], u[S : 2 * S], np.zeros(P, np.float32), "zeros", "zeros")
+
+
+def _pops_near_edges(sc: cv.ClipScore, pause: np.ndarray, within_s: float = 1.0) -> list[int]:
+    """Pop frames (the conversation metric's rule) within ``within_s`` of a pause's start or end."""
+    edges = [e for a, b in cv._runs(pause) for e in (a, b)]
+    w = int(within_s * FPS)
+    return [p for p in sc.pops if any(abs(p - e) <= w for e in edges)]
+
+
+def _settled_after(pose, skel, pause: np.ndarray, from_s: float) -> float:
+    """The largest 1-s mean wrist speed (cm/s) from ``from_s`` into the pause to its end (the settle rule's speed)."""
+    from facecapges.evaluation.synchrony import wrist_positions
+
+    sm = cv._smooth(cv.wrist_speed(wrist_positions(skel, pose)), int(cv.SETTLE_WINDOW_S * FPS))
+    a, b = cv._runs(pause)[0]
+    return float(sm[a + int(from_s * FPS) : b].max())
+
+
+def test_a_zeros_pause_settles_and_stays_settled(style, ref, zeros_clip):
+    """With the idle layer a 15-s zeros pause settles (1-s wrist speed at his idle level) within 2 s (1.5 s here;
+    issue #38 asks ~1 s: not reached, see docs/matching.md) and stays settled to its end — no stroke in the pause
+    (the engine before: settles after 3.1 s and its 1-s wrist speed climbs back to 25 cm/s, over his idle level of
+    18); no pop in the pause or within 1 s of its start and end, never still for 2 s, and speech brings the
+    gestures back within 0.3 s."""
+    pose = cv.generate(style, zeros_clip.audio)
+    sc = cv.score(style.skeleton, pose, zeros_clip.pause, ref)
+    assert sc.settle_s <= 2.0, sc
+    assert _settled_after(pose, style.skeleton, zeros_clip.pause, 2.0) <= ref.idle_speed
+    assert sc.pops_pause_per_min == 0 and not _pops_near_edges(sc, zeros_clip.pause), sc
+    assert sc.resume_s <= 0.3, sc
+    assert sc.longest_still_s < 2.0, sc  # an idle, not a statue
+    assert sc.pause_over_speech_speed < 0.4, sc
+
+
+def test_without_the_layer_the_same_pause_settles_late_and_moves_again(style, ref, zeros_clip):
+    """The checks above fail on the engine without the layer (``idle_layer=False``: the behaviour before it)."""
+    old = replace(style, config=replace(style.config, idle_layer=False))
+    pose = cv.generate(old, zeros_clip.audio)
+    sc = cv.score(style.skeleton, pose, zeros_clip.pause, ref)
+    assert sc.settle_s > 2.0, sc
+    assert _settled_after(pose, style.skeleton, zeros_clip.pause, 2.0) > ref.idle_speed
+
+
+def test_the_idle_moves_at_his_rest_amplitude(style):
+    """The procedural idle's amplitude per joint and axis is measured from his rest rows (a few degrees at most on
+    the arms, under a degree or two on the spine and neck), and its frequency is finite."""
+    layer = style.batched(1).idle_layer
+    assert layer is not None
+    amp = np.degrees(layer.motion.amplitude)
+    assert amp.shape == (11, 3) and (amp >= 0).all() and amp.max() < 5.0 and amp.max() > 0.1, amp
+    assert np.isfinite(layer.motion.frequency).all() and layer.motion.frequency.max() < 5.0
+    assert len(layer.motion.rest) > 10  # rest rows to settle into
+
+
+def test_one_stream_and_a_batch_slot_agree_through_a_pause(style, zeros_clip):
+    """A slot of a batch whose other slot speaks gives the single stream's poses through the pause's start."""
+    n = 60
+    a0 = 140 * SPF  # 10 frames before the zeros begin
+    audio = zeros_clip.audio[a0 : a0 + n * SPF].reshape(n, SPF)
+    other = zeros_clip.audio[: n * SPF].reshape(n, SPF)
+    face, head = np.zeros(52, np.float32), identity_rot6d().astype(np.float32)
+    one = style.streaming()
+    single = np.stack([one.step(audio[k], face, head) for k in range(n)])
+    batch = style.batched(2)
+    s0, s1 = batch.open(), batch.open()
+    got = np.stack([
+        batch.step([s0, s1], np.stack([other[k], audio[k]]), np.stack([face, face]), np.stack([head, head]))[1]
+        for k in range(n)
+    ])
+    assert_rotations_close(got, single)
+
+
+def test_a_style_file_s_idle_settings_are_checked():
+    """A style's ``engine_config`` may set the layer's knobs; a wrong value is one clear ValueError."""
+    from facecapges.matching.style import check_engine_config
+
+    assert check_engine_config({"idle_rest": "mean", "idle_torso": "procedural"}).idle_rest == "mean"
+    for bad in ({"idle_rest": "sideways"}, {"idle_torso": 3}, {"idle_enter_halflife_s": 0.0}, {"idle_layer": 1}):
+        with pytest.raises(ValueError, match="engine_config idle_"):
+            check_engine_config(bad)
