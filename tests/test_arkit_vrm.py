@@ -97,6 +97,20 @@ def test_batched_equals_per_frame_and_vrm1():
         vrm0_weights(w[:, :51])
 
 
+def test_one_frame_path_is_the_array_path_to_the_bit():
+    """A VMC tick's single frame takes a Python-float path (issue 36): the same bytes as the (…, 52) array
+    path, on random frames and on frames made of the ramps' bounds, 0, −0, 1 and out-of-range values."""
+    rng = np.random.default_rng(3)
+    edges = np.array([0.0, -0.0, 1.0, 0.3, 0.7, 0.15, 0.5, 0.2, 1e-4, -0.2, 1.3])
+    frames = [rng.uniform(0, 1, 52), np.zeros(52), np.full(52, -0.0), (rng.random(52) ** 3).astype(np.float32)]
+    frames += [np.where(rng.random(52) < 0.5, rng.choice(edges, 52), rng.random(52)) for _ in range(3000)]
+    for f in frames:
+        assert vrm0_weights(f).tobytes() == vrm0_weights(f[None])[0].tobytes()
+    nan = np.full(52, 0.5)
+    nan[0] = np.nan  # not finite: the array path
+    assert vrm0_weights(nan).tobytes() == vrm0_weights(nan[None])[0].tobytes()
+
+
 def test_real_iphone_face_blinks_are_exact():
     """On a real ARKit face (the Live Link recording), the blink split reproduces each eyelid in every frame."""
     import gzip

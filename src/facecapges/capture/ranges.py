@@ -85,13 +85,20 @@ def merge_to_three(values: np.ndarray, weights: np.ndarray) -> tuple[float, floa
     w = [float(x) for x in weights]
     if not v:
         raise ValueError("empty sample set")
+    # the gaps are kept between merges: a merge changes only the two gaps beside the merged pair
+    # (each recomputed as ``v[i + 1] − v[i]``, as from scratch), and ``gaps.index(min(gaps))`` is the
+    # first smallest gap, so the merges and the result are those of re-scanning every gap each time
+    gaps = [v[i + 1] - v[i] for i in range(len(v) - 1)]
     while len(v) > 3:
-        gaps = [v[i + 1] - v[i] for i in range(len(v) - 1)]
-        i = min(range(len(gaps)), key=gaps.__getitem__)
+        i = gaps.index(min(gaps))
         ws = w[i] + w[i + 1]
         v[i] = (v[i] * w[i] + v[i + 1] * w[i + 1]) / ws
         w[i] = ws
-        del v[i + 1], w[i + 1]
+        del v[i + 1], w[i + 1], gaps[i]
+        if i > 0:
+            gaps[i - 1] = v[i] - v[i - 1]
+        if i < len(gaps):
+            gaps[i] = v[i + 1] - v[i]
     while len(v) < 3:  # cold start: fewer than three samples
         v.insert(len(v) // 2, v[len(v) // 2])
     return v[0], v[1], v[2]

@@ -477,6 +477,7 @@ class VmcSender:
         self._bone_prefix = [_prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) for name, _, _ in bones]
         self._bone_pos = np.array([pos for _, _, pos in bones], np.float64).reshape(-1, 3)
         self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
+        self._face_cache = (b"", b"")  # the last frame's face weights and their clips' packed values
         self.sent = 0  # frames
         self.datagrams = 0
         self.largest_datagram = 0
@@ -494,7 +495,12 @@ class VmcSender:
         raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
         msgs += [pre + raw[28 * k : 28 * k + 28] for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
-            raw = blend_weights(out.face, self.blend).astype(">f4").tobytes()
+            face = np.asarray(out.face)
+            key = face.dtype.str.encode() + face.tobytes()
+            last_key, raw = self._face_cache  # one tuple: read and replaced whole (writers on two threads)
+            if key != last_key:  # else a held frame (no newer model frame yet): the same clips again
+                raw = blend_weights(face, self.blend).astype(">f4").tobytes()
+                self._face_cache = (key, raw)
             msgs += [pre + raw[4 * k : 4 * k + 4] for k, pre in enumerate(self._blend_prefix)]
             msgs.append(_APPLY)
         msgs += [_OK, _msg("/VMC/Ext/T", float(out.time_s))]
