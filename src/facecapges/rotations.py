@@ -382,6 +382,25 @@ def quaternion_to_matrix(quat: Array) -> Array:
     return _stack(rows, -1, quat).reshape(tuple(quat.shape[:-1]) + (3, 3))
 
 
+def quaternion_to_rot6d(quat: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) as (w, x, y, z) → rot6d (..., 6); numpy only. Normalises first.
+
+    ``matrix_to_rot6d(quaternion_to_matrix(quat))`` to the bit (the same expressions for the six entries
+    rot6d keeps), without the third column and the intermediate matrices: the matching engine's last step.
+    """
+    _check_last(quat, (4,), "quaternion")
+    q = quat / np.maximum(_vector_norm(quat, keepdims=True), _EPS)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    out = np.empty(q.shape[:-1] + (6,), q.dtype)
+    out[..., 0] = 1 - 2 * (y * y + z * z)
+    out[..., 1] = 2 * (x * y + z * w)
+    out[..., 2] = 2 * (x * z - y * w)
+    out[..., 3] = 2 * (x * y - z * w)
+    out[..., 4] = 1 - 2 * (x * x + z * z)
+    out[..., 5] = 2 * (y * z + x * w)
+    return out
+
+
 def rot6d_to_quaternion(rot6d: Array) -> Array:
     """rot6d (..., 6) → quaternion (..., 4), (w, x, y, z)."""
     return matrix_to_quaternion(rot6d_to_matrix(rot6d))
