@@ -363,16 +363,21 @@ def test_quaternion_fast_paths_keep_the_bits():
         assert a.dtype == b.dtype and np.ascontiguousarray(a).tobytes() == b.tobytes()
         m = rng.normal(size=(47, 4)).astype(dtype)
         m[0, :2] = -0.0
-        got = rot.quaternion_multiply(m, q)
-        aw, ax, ay, az = (m[..., i] for i in range(4))
-        bw, bx, by, bz = (q[..., i] for i in range(4))
-        want = np.stack(
-            [
-                aw * bw - ax * bx - ay * by - az * bz,
-                aw * bx + ax * bw + ay * bz - az * by,
-                aw * by - ax * bz + ay * bw + az * bx,
-                aw * bz + ax * by - ay * bx + az * bw,
-            ],
-            -1,
-        )
-        assert got.dtype == want.dtype and got.tobytes() == want.tobytes()
+        for other in (q, rng.normal(size=(16, 47, 4)).astype(dtype)):  # one-call form and per component
+            _check_hamilton(m, other)
+
+
+def _check_hamilton(m: np.ndarray, q: np.ndarray) -> None:
+    got = rot.quaternion_multiply(m, q)
+    aw, ax, ay, az = (m[..., i] for i in range(4))
+    bw, bx, by, bz = (q[..., i] for i in range(4))
+    want = np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        -1,
+    )
+    assert got.dtype == want.dtype and got.tobytes() == want.tobytes()

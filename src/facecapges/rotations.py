@@ -437,6 +437,7 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
 # the Hamilton product's terms: component k's m-th term is a_i b_j at [k, m] = 4 i + j, with its sign
 _QMUL_TERMS = np.array([[0, 5, 10, 15], [1, 4, 11, 14], [2, 7, 8, 13], [3, 6, 9, 12]])
 _QMUL_SIGNS = np.array([[1, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]], np.float64)
+_QMUL_SMALL = 4 * 47 * 4  # up to this many numbers the one-call form is the faster (4 poses: 26 against 34 µs)
 
 
 def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -444,11 +445,19 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
     The rotation of ``a · b`` is ``quaternion_to_matrix(a) @ quaternion_to_matrix(b)`` (``b`` first).
     """
-    # w = aw bw − ax bx − ay by − az bz, x = aw bx + ax bw + ay bz − az by, y = aw by − ax bz + ay bw + az bx,
-    # z = aw bz + ax by − ay bx + az bw, summed left to right: all 16 products in one call, each term's sign
-    # applied exactly (x − y is x + (−y) in IEEE arithmetic), three additions (the same bits as 28 calls on
-    # the components: a step of the matching engine does ~7 of these on (1, 47, 4))
     a, b = np.asarray(a), np.asarray(b)
+    shape = np.broadcast_shapes(a.shape, b.shape)
+    if math.prod(shape) > _QMUL_SMALL:  # many quaternions: per component (the gather below costs more there)
+        aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+        bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+        out = np.empty(shape, np.result_type(a, b))  # fewer calls than moveaxis + stack
+        out[..., 0] = aw * bw - ax * bx - ay * by - az * bz
+        out[..., 1] = aw * bx + ax * bw + ay * bz - az * by
+        out[..., 2] = aw * by - ax * bz + ay * bw + az * bx
+        out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
+        return out
+    # few (one stream's 47 joints): all 16 products in one call, each term's sign applied exactly (x − y is
+    # x + (−y) in IEEE arithmetic), three additions left to right: the same bits in 11 calls instead of ~36
     p = a[..., :, None] * b[..., None, :]  # (…, 4, 4): a_i b_j
     terms = p.reshape(p.shape[:-2] + (16,))[..., _QMUL_TERMS]  # (…, 4 components, 4 terms)
     terms *= _QMUL_SIGNS.astype(terms.dtype, copy=False)
