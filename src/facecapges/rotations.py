@@ -88,7 +88,8 @@ def _vector_norm(a: np.ndarray, keepdims: bool = False) -> np.ndarray:
     a = np.asarray(a)
     if not issubclass(a.dtype.type, np.inexact):
         a = a.astype(float)
-    return np.sqrt(np.add.reduce(a * a, axis=-1, keepdims=keepdims))
+    n = np.sqrt(np.add.reduce(a * a, axis=-1))
+    return n[..., None] if keepdims else n
 
 
 def _maximum(a: Array, value: float) -> Array:
