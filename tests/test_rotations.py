@@ -84,18 +84,18 @@ def test_numpy_and_torch_agree(e, order):
     m_np, m_t = rot.euler_to_matrix(e, order, degrees=True), rot.euler_to_matrix(t, order, degrees=True)
     assert isinstance(m_t, torch.Tensor)
     np.testing.assert_allclose(m_t.numpy(), m_np, atol=1e-12)
-    np.testing.assert_allclose(rot.matrix_to_euler(m_t, order).numpy(), rot.matrix_to_euler(m_np, order), atol=1e-9)
+    np.testing.assert_allclose(rot.matrix_to_euler(m_t, order).numpy(), rot.matrix_to_euler(m_np, order),
+                               atol=1e-9)
     r6 = rot.matrix_to_rot6d(m_np)
     np.testing.assert_allclose(rot.matrix_to_rot6d(m_t).numpy(), r6, atol=1e-12)
-    np.testing.assert_allclose(rot.rot6d_to_matrix(torch.from_numpy(r6)).numpy(), rot.rot6d_to_matrix(r6), atol=1e-12)
+    np.testing.assert_allclose(rot.rot6d_to_matrix(torch.from_numpy(r6)).numpy(), rot.rot6d_to_matrix(r6),
+                               atol=1e-12)
     np.testing.assert_allclose(rot.matrix_to_quaternion(m_t).numpy(), rot.matrix_to_quaternion(m_np), atol=1e-9)
     q = rot.matrix_to_quaternion(m_np)
-    np.testing.assert_allclose(
-        rot.quaternion_to_matrix(torch.from_numpy(q)).numpy(), rot.quaternion_to_matrix(q), atol=1e-12
-    )
-    np.testing.assert_allclose(
-        rot.geodesic_angle(m_t, m_t.flip(0)).numpy(), rot.geodesic_angle(m_np, m_np[::-1]), atol=1e-6
-    )
+    np.testing.assert_allclose(rot.quaternion_to_matrix(torch.from_numpy(q)).numpy(), rot.quaternion_to_matrix(q),
+                               atol=1e-12)
+    np.testing.assert_allclose(rot.geodesic_angle(m_t, m_t.flip(0)).numpy(), rot.geodesic_angle(m_np, m_np[::-1]),
+                               atol=1e-6)
 
 
 def test_torch_gradients_flow_through_rot6d_to_matrix():
@@ -142,9 +142,8 @@ def test_geodesic_angle_is_accurate_at_small_angles_and_in_torch():
         turned = R @ rot.axis_angle_matrix("Z", np.full(5, theta))
         np.testing.assert_allclose(rot.geodesic_angle(R, turned), theta, rtol=1e-5)
     A, B = random_matrices(20, seed=15), random_matrices(20, seed=16)
-    np.testing.assert_allclose(
-        rot.geodesic_angle(torch.from_numpy(A), torch.from_numpy(B)).numpy(), rot.geodesic_angle(A, B), atol=1e-12
-    )
+    np.testing.assert_allclose(rot.geodesic_angle(torch.from_numpy(A), torch.from_numpy(B)).numpy(),
+                               rot.geodesic_angle(A, B), atol=1e-12)
 
 
 def test_quaternion_to_unity_mirrors_x():
@@ -196,11 +195,8 @@ def test_rotation_between_is_the_shortest_arc():
     rng = np.random.default_rng(4)
     a, b = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
     R = rot.rotation_between(a, b)
-    assert np.allclose(
-        np.einsum("nij,nj->ni", R, a / np.linalg.norm(a, axis=1, keepdims=True)),
-        b / np.linalg.norm(b, axis=1, keepdims=True),
-        atol=1e-9,
-    )
+    assert np.allclose(np.einsum("nij,nj->ni", R, a / np.linalg.norm(a, axis=1, keepdims=True)),
+                       b / np.linalg.norm(b, axis=1, keepdims=True), atol=1e-9)
     assert np.allclose(R @ np.swapaxes(R, -1, -2), np.eye(3), atol=1e-9)
     # no twist: the angle turned is the angle between the vectors
     cos = (a * b).sum(1) / np.linalg.norm(a, axis=1) / np.linalg.norm(b, axis=1)
@@ -218,10 +214,8 @@ def _old_slerp(q0, q1, t):
     s = np.sin(theta)
     small = s < 1e-6
     safe = np.where(small, 1.0, s)
-    out = (
-        np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe) * q0
-        + np.where(small, t, np.sin(t * theta) / safe) * q1
-    )
+    out = np.where(small, 1.0 - t, np.sin((1.0 - t) * theta) / safe) * q0 + np.where(
+        small, t, np.sin(t * theta) / safe) * q1
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
 
@@ -258,18 +252,15 @@ def test_power_about_is_the_one_slerp_and_scaling_rule():
     want = np.stack([a @ rot.exp_so3(k * rot.log_so3(a.T @ b)) for a, b, k in zip(A, B, t[:, 0], strict=True)])
     np.testing.assert_allclose(got, want, atol=1e-6)
     np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_power_about(qb, qa, t)), want, atol=1e-6)
-    np.testing.assert_allclose(
-        rot.rot6d_to_matrix(rot.rot6d_slerp(rot.matrix_to_rot6d(A), rot.matrix_to_rot6d(B), t)), want, atol=1e-6
-    )
+    np.testing.assert_allclose(rot.rot6d_to_matrix(rot.rot6d_slerp(rot.matrix_to_rot6d(A), rot.matrix_to_rot6d(B), t)),
+                               want, atol=1e-6)
     # about the identity: R^k is exp(k · log R)
-    np.testing.assert_allclose(
-        rot.rotation_power_about(B, None, 0.4), np.stack([rot.exp_so3(0.4 * rot.log_so3(b)) for b in B]), atol=1e-6
-    )
+    np.testing.assert_allclose(rot.rotation_power_about(B, None, 0.4),
+                               np.stack([rot.exp_so3(0.4 * rot.log_so3(b)) for b in B]), atol=1e-6)
     # the log/exp form the motion-matching intensity had: mean · exp(g · log(mean⁻¹ q))
     rel = rot.quaternion_log(rot.standardize_quaternion(rot.quaternion_multiply(rot.quaternion_invert(qa), qb)))
-    np.testing.assert_allclose(
-        rot.quaternion_power_about(qb, qa, t), rot.quaternion_multiply(qa, rot.quaternion_exp(rel * t)), atol=1e-9
-    )
+    np.testing.assert_allclose(rot.quaternion_power_about(qb, qa, t),
+                               rot.quaternion_multiply(qa, rot.quaternion_exp(rel * t)), atol=1e-9)
     np.testing.assert_allclose(rot.rotation_power_about(B, A, 0.0), A, atol=1e-12)
     np.testing.assert_allclose(rot.rotation_power_about(B, A, 1.0), B, atol=1e-12)
 
