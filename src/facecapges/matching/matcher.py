@@ -416,7 +416,7 @@ class BatchedMatchingStreams(SlotOwner):
                 q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain_of(self.intensity_now[ids]))
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
-            return rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
+            return rot.quaternion_to_rot6d(q).astype(np.float32)
 
     def _advance_and_search(self, ids: np.ndarray, cues, pred: np.ndarray | None) -> None:
         cfg = self.config
