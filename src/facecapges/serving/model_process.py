@@ -17,9 +17,9 @@ itself be killed, multiprocessing's resource tracker unlinks them.
 
 Neither side imports torch for a matching style: the child sets torch's threads only
 when the style's own loading imported it (a network style;
-:func:`facecapges.engine.threads.limit_threads`, as ``live`` does). Measured
+:func:`facecapges.engine.threads.limit_threads`: the rule ``live`` follows). Measured
 (2026-12-03, load 8–10, ``facecapges serve`` start to ``ready:``, three runs each,
-alternating): 9.7 s median with torch's shared tensors, 2.1 s without; the model
+alternating): 9.7 s median with torch's shared tensors, 2.1 s without (at load 1: 5.6 and 1.1 s); the model
 process's memory (RSS) 320 → 73 MB, the server's 303 → 59 MB (docs/performance.md).
 
 The server's event loop neither blocks on nor hands off to a thread for a tick: it
