@@ -512,3 +512,78 @@ def test_sample_client_reconnects_and_resumes_when_its_server_dies(ckpt, tmp_pat
         first.close()
         if second is not None:
             second.close()
+
+
+def _shared_blocks(pid: int) -> set[str]:
+    """The /dev/shm segments process ``pid`` has mapped (the model process's shared blocks)."""
+    return {line.split()[-1] for line in Path(f"/proc/{pid}/maps").read_text().splitlines()
+            if line.split()[-1].startswith("/dev/shm/")}
+
+
+def test_a_matching_style_serves_without_torch_or_numba():
+    """``serve`` with a matching style (issue 36): neither the server nor its model process imports torch or
+    Numba (the server's modules; the model process's mapped libraries), the step works, and stopping leaves
+    no shared-memory block behind."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, sys, numpy as np\n"
+        "from facecapges.styles import load_style\n"
+        "from facecapges.serving.model_process import ModelProcess\n"
+        "m = ModelProcess(load_style(style='beat2-scott-mm'), 1, 4)\n"
+        "slots = m.sync([], 2, [])\n"
+        "for i in range(5):\n"
+        "    rng = np.random.default_rng(i)\n"
+        "    p, q = (m.submit(slots, rng.normal(0, 0.1, (2, 1067)).astype(np.float32), np.zeros((2, 52)),"
+        " np.tile([1.0, 0, 0, 0, 1, 0], (2, 1))), m.collect())[1]\n"
+        "    assert p.shape == (2, 47, 6) and q.shape == (2, 47, 4) and np.isfinite(q).all()\n"
+        "maps = open(f'/proc/{m._proc.pid}/maps').read()\n"
+        "shm = sorted({l.split()[-1] for l in maps.splitlines() if '/dev/shm/' in l})\n"
+        "print(sorted(x for x in ('torch', 'numba', 'llvmlite') if x in sys.modules))\n"
+        "print(sorted(x for x in ('libtorch', 'numba', 'llvmlite') if x in maps))\n"
+        "m.shutdown()\n"
+        "print(len(shm), [s for s in shm if os.path.exists(s)])\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    server, model, blocks = out.stdout.strip().splitlines()[-3:]
+    assert server == "[]", f"the server imported {server}"
+    assert model == "[]", f"the model process loaded {model}"
+    assert blocks == "5 []", f"shared blocks (how many, left after shutdown): {blocks}"
+
+
+def test_no_shared_block_outlives_a_crashed_model_process_or_a_terminated_server(ckpt):
+    """The tick's shared-memory blocks are unlinked when the model process dies (the server shuts down after
+    it) and when ``serve`` is stopped by SIGTERM."""
+    import os
+
+    from facecapges.serving.model_process import ModelProcess
+
+    mp = ModelProcess(ckpt, max_rows=4)
+    try:
+        shm = _shared_blocks(mp._proc.pid)
+        assert len(shm) == 5 and all(os.path.exists(s) for s in shm), shm
+        os.kill(mp._proc.pid, signal.SIGKILL)  # the child crashes
+        mp._proc.join(timeout=30)
+        (a,) = frames(1, seed=5)
+        with pytest.raises((EOFError, OSError, RuntimeError)):
+            mp.step([0], [a[0]], a[1][None], a[2][None])
+    finally:
+        mp.shutdown()
+    assert not [s for s in shm if os.path.exists(s)]
+
+    proc = cli_process("serve", "--port", "0", background=True)  # the default (matching) style
+    try:
+        assert proc.stdout.readline().startswith("serving")
+        assert proc.stdout.readline().startswith("ready:"), proc.stderr.read()
+        kids = [int(p) for p in Path(f"/proc/{proc.pid}/task/{proc.pid}/children").read_text().split()]
+        shm = set().union(*(_shared_blocks(k) for k in kids))
+        assert len(shm) == 5, shm
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0 and "served:" in out, err
+    assert not [s for s in shm if os.path.exists(s)]

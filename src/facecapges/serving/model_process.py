@@ -9,8 +9,18 @@ it waiting at each one: measured on this 2-core machine, 80 clients, one run (lo
 loop 44, and the kernel in this separate process never waits for the loop at all. So
 the kernel runs here, in a child process (``spawn``), and the server talks to it over
 a pipe; the inputs and outputs of a tick (poses as rot6d and as the quaternions the
-``pose`` messages carry, converted here, beside the kernel) travel through shared-memory
-tensors, so a tick costs one small message each way.
+``pose`` messages carry, converted here, beside the kernel) travel through blocks of
+shared memory (the standard library's ``multiprocessing.shared_memory``, seen as NumPy
+arrays on both sides), so a tick costs one small message each way. The server makes the
+blocks and unlinks them when it stops, also after the child crashed; should the server
+itself be killed, multiprocessing's resource tracker unlinks them.
+
+Neither side imports torch for a matching style: the child sets torch's threads only
+when the style's own loading imported it (a network style;
+:func:`facecapges.engine.threads.limit_threads`: the rule ``live`` follows). Measured
+(2026-12-03, load 8–10, ``facecapges serve`` start to ``ready:``, three runs each,
+alternating): 9.7 s median with torch's shared tensors, 2.1 s without (at load 1: 5.6 and 1.1 s); the model
+process's memory (RSS) 320 → 73 MB, the server's 303 → 59 MB (docs/performance.md).
 
 The server's event loop neither blocks on nor hands off to a thread for a tick: it
 submits the inputs (:meth:`~ModelProcess.submit`), waits for the pipe to become readable
@@ -33,33 +43,62 @@ at a time (the server's event loop).
 
 from __future__ import annotations
 
+import multiprocessing
 import signal
 import threading
 from collections.abc import Sequence
+from multiprocessing import shared_memory
 
 import numpy as np
-import torch
 
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import N_BLENDSHAPES
-from facecapges.network.batched import pack_audio
+from facecapges.engine.inputs import pack_audio
 from facecapges.skeleton import N_JOINTS
 
+_BLOCKS = ("audio", "face", "head", "pose", "quat")  # the order of the shared blocks, both sides
 
-def _serve_model(conn, checkpoint, threads: int, audio, face, head, pose, quat) -> None:
-    """The child process: the style's batched generator, driven by messages on ``conn``."""
+
+def _layouts(max_rows: int, samples_per_frame: int) -> list[tuple[tuple[int, ...], type]]:
+    """Shape and dtype of each shared block (:data:`_BLOCKS`): a tick's inputs and outputs."""
+    return [
+        ((max_rows, samples_per_frame), np.float32),
+        ((max_rows, N_BLENDSHAPES), np.float32),
+        ((max_rows, 6), np.float32),
+        ((max_rows, N_JOINTS, 6), np.float32),
+        ((max_rows, N_JOINTS, 4), np.float64),
+    ]
+
+
+def _view(block: shared_memory.SharedMemory, shape: tuple[int, ...], dtype: type) -> np.ndarray:
+    return np.ndarray(shape, dtype, buffer=block.buf)
+
+
+def _serve_model(conn, checkpoint, threads: int, names: list[str], layouts) -> None:
+    """The child process: the style's batched generator, driven by messages on ``conn``; the tick's
+    arrays are the server's shared blocks ``names`` (shapes and dtypes ``layouts``)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the server's to handle (it says "quit")
-    torch.set_num_threads(max(1, threads))
-    from facecapges.engine.threads import limit_blas_threads
+    from facecapges.engine.threads import limit_threads
 
-    limit_blas_threads(threads)  # NumPy's products (the matching engine, the speech predictor) alike
+    # torch's threads (a network style: the checkpoint's tensors imported torch) and NumPy's BLAS
+    # (the matching engine, the speech predictor) alike; a matching style never imports torch
+    limit_threads(threads)
+    blocks = [shared_memory.SharedMemory(name=n) for n in names]
+    try:
+        _run(conn, checkpoint, [_view(b, *lay) for b, lay in zip(blocks, layouts)])
+    finally:
+        for b in blocks:  # the views are gone with _run; the server unlinks the blocks
+            b.close()
+
+
+def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
     try:
         gen = checkpoint.batched(capacity=64)  # either engine
     except Exception as exc:  # noqa: BLE001  reported to the server, which says it
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
-    a, f, h, p, q = audio.numpy(), face.numpy(), head.numpy(), pose.numpy(), quat.numpy()
+    a, f, h, p, q = arrays
     try:
         conn.send(("ok", None))
     except OSError:  # the server is gone
@@ -109,29 +148,30 @@ class ModelProcess:
     """
 
     def __init__(self, checkpoint, threads: int = 1, max_rows: int = 256):
-        ctx = torch.multiprocessing.get_context("spawn")
+        ctx = multiprocessing.get_context("spawn")
         self.samples_per_frame = timing.samples_per_frame(timing.MODEL_FPS, timing.AUDIO_SR)
-        self._audio = torch.zeros(max_rows, self.samples_per_frame).share_memory_()
-        self._face = torch.zeros(max_rows, N_BLENDSHAPES).share_memory_()
-        self._head = torch.zeros(max_rows, 6).share_memory_()
-        self._pose = torch.zeros(max_rows, N_JOINTS, 6).share_memory_()
-        self._quat = torch.zeros(max_rows, N_JOINTS, 4, dtype=torch.float64).share_memory_()
+        layouts = _layouts(max_rows, self.samples_per_frame)
+        # the tick's arrays: blocks of shared memory (zero-filled when made), unlinked by shutdown();
+        # should the server die without it, multiprocessing's resource tracker unlinks them
+        self._blocks: list[shared_memory.SharedMemory] = []
+        try:
+            for shape, dtype in layouts:
+                self._blocks.append(
+                    shared_memory.SharedMemory(create=True, size=int(np.prod(shape)) * np.dtype(dtype).itemsize)
+                )
+        except BaseException:
+            self._release()
+            raise
+        self._audio, self._face, self._head, self._pose, self._quat = (
+            _view(b, *lay) for b, lay in zip(self._blocks, layouts)
+        )
         self._rows = 0  # streams of the step submitted and not yet collected
         self._conn, child = ctx.Pipe()
         self._proc = ctx.Process(
             target=_serve_model,
             name="facecapges-serve-model",
             daemon=True,
-            args=(
-                child,
-                checkpoint,
-                threads,
-                self._audio,
-                self._face,
-                self._head,
-                self._pose,
-                self._quat,
-            ),
+            args=(child, checkpoint, threads, [b.name for b in self._blocks], layouts),
         )
         # The child ignores SIGINT from its first instruction on (the disposition survives the exec of
         # ``spawn``): a Ctrl-C in a terminal reaches the whole process group, and the server, not the
@@ -140,6 +180,11 @@ class ModelProcess:
         before = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
         try:
             self._proc.start()
+        except BaseException:
+            self._conn.close()
+            child.close()
+            self._release()
+            raise
         finally:
             if main and before is not None:
                 signal.signal(signal.SIGINT, before)
@@ -147,11 +192,26 @@ class ModelProcess:
         self._open: set[int] = set()
         try:
             self._call("ready")  # answered once the child has built its generator
-        except BaseException:  # failed or interrupted while starting: no child left behind
+        except BaseException:  # failed or interrupted while starting: no child (nor shared block) left behind
             self._proc.kill()
             self._proc.join(timeout=10)
             self._conn.close()
+            self._release()
             raise
+
+    def _release(self) -> None:
+        """Close and unlink the shared blocks (the views first: a block with views cannot close)."""
+        for name in ("_audio", "_face", "_head", "_pose", "_quat"):
+            self.__dict__.pop(name, None)
+        for b in self._blocks:
+            try:
+                b.close()
+            finally:
+                try:
+                    b.unlink()
+                except FileNotFoundError:  # already gone
+                    pass
+        self._blocks = []
 
     def _call(self, *msg):
         if msg != ("ready",):
@@ -190,9 +250,9 @@ class ModelProcess:
         B = len(slots)
         if len(self._audio) < B:
             raise ValueError(f"{B} streams in one step; this model process takes at most {len(self._audio)}")
-        self._audio.numpy()[:B] = pack_audio(audio, self.samples_per_frame)
-        self._face.numpy()[:B] = np.asarray(face, np.float32).reshape(B, -1)
-        self._head.numpy()[:B] = np.asarray(head, np.float32).reshape(B, -1)
+        self._audio[:B] = pack_audio(audio, self.samples_per_frame)
+        self._face[:B] = np.asarray(face, np.float32).reshape(B, -1)
+        self._head[:B] = np.asarray(head, np.float32).reshape(B, -1)
         self._conn.send(("step", [int(s) for s in slots]))
         self._rows = B
 
@@ -202,7 +262,7 @@ class ModelProcess:
         kind, value = self._conn.recv()
         if kind == "error":
             raise RuntimeError(f"model process: {value}")
-        return self._pose.numpy()[:B].copy(), self._quat.numpy()[:B].copy()
+        return self._pose[:B].copy(), self._quat[:B].copy()
 
     def fileno(self) -> int:
         """The pipe's descriptor: readable once a submitted step is done."""
@@ -224,4 +284,6 @@ class ModelProcess:
             self._proc.join(timeout=10)
             if self._proc.is_alive():
                 self._proc.kill()
+                self._proc.join(timeout=10)
         self._conn.close()
+        self._release()

@@ -129,12 +129,11 @@ def build_app(
 
         def _load(self) -> None:
             try:
-                import torch
-
+                from facecapges.engine.threads import limit_threads
                 from facecapges.styles import load_style, resolve
 
-                torch.set_num_threads(1)
                 ckpt = load_style(resolve(checkpoint, style))
+                limit_threads(1)  # torch's only if the style loaded it (a network style); NumPy's BLAS alike
                 self.fps = int(ckpt.fps)
                 self.policy.fps = self.fps
                 self.gen = ckpt.batched(capacity=64)
