@@ -121,7 +121,7 @@ def test_repetition_counts_mirrors_as_the_same_stretch():
 
 
 def test_resume_counts_from_the_first_word_not_the_pause_end(style, ref, unseen):
-    """A stretch after a pause that starts with 1 s of noise 20–30 dB under his words (−42 dBFS: what the soak's
+    """A stretch after a pause that starts with 1 s of noise 20–40 dB under his words (−42 dBFS: what the soak's
     random stretches and ZEGGS's blocks start with — a breath, his room) before its first word: resume counts
     from the first word, so that second is not charged to the engine. The old rule (from the pause's end, kept
     when no ``words`` are given) charges it: ≥ 1 s here, where the wrists rise within 0.3 s of the first word.

@@ -41,7 +41,7 @@ motion (his training frames), per clip:
   exceeds his median speed in speech (capped at the clip's end). Without ``words`` it counts from the pause's
   end, which charges the engine with whatever a cut leaves before the first word: on ZEGGS's half-silent clip
   one block's speech starts 1.5 s after the block; in the soak's random stretches a breath or his room's noise
-  (−40 to −50 dBFS, 20–30 dB under his words, which the energy truth :func:`facecapges.evaluation.realism.speech_frames`
+  (−40 to −50 dBFS, 20–40 dB under his words, which the energy truth :func:`facecapges.evaluation.realism.speech_frames`
   still calls speech) runs up to 0.9 s before the first word (issue #38, docs/matching.md "When resume is late").
 
 Repetition with mirrored copies counted as the same stretch is
@@ -340,7 +340,7 @@ class ClipScore:
 def word_frames(audio: np.ndarray, n_frames: int, pause: np.ndarray | None = None, fps: float = FPS) -> np.ndarray:
     """Frames (n_frames,) of words: outside ``pause`` (n_frames,) and with a level (RMS, dB) within :data:`WORD_DB`
     of the :data:`WORD_PERCENTILE` th percentile of the level over the frames outside ``pause`` (non-causal; a
-    breath or room noise 20–30 dB under his words is not one). A frame's level is that of the samples the engine
+    breath or room noise 20–40 dB under his words is not one). A frame's level is that of the samples the engine
     reads at that frame (``[t·spf, (t+1)·spf)``, as :class:`facecapges.matching.speech.SpeechTracker`), so a word
     and the VAD's decision on it fall on the same frame."""
     spf = timing.samples_per_frame(fps)
