@@ -164,7 +164,7 @@ def main(argv: list[str] | None = None) -> int:
     for c in clips:
         gen = cv.generate(ck, c.audio, 1.0)
         gens[c.name] = gen
-        sc = cv.score(skel, gen, c.pause, ref).as_dict()
+        sc = cv.score(skel, gen, c.pause, ref, words=cv.word_frames(c.audio, len(gen), c.pause)).as_dict()
         sc.pop("pops")
         sc.pop("name")
         vad = speech_track(c.audio, c.n_frames).speaking
@@ -173,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         out["clips"][c.name] = sc
         print(c.name, json.dumps(sc), flush=True)
     z = next(c for c in clips if c.name == "unseen-zeros")
-    sc13 = cv.score(skel, cv.generate(ck, z.audio, 1.3), z.pause, ref).as_dict()
+    z13 = cv.generate(ck, z.audio, 1.3)
+    sc13 = cv.score(skel, z13, z.pause, ref, words=cv.word_frames(z.audio, len(z13), z.pause)).as_dict()
     sc13.pop("pops")
     out["clips"]["unseen-zeros @1.3"] = sc13
     print("unseen-zeros @1.3", json.dumps(sc13), flush=True)

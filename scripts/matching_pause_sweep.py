@@ -60,7 +60,7 @@ def head_in(skel, pose: np.ndarray, mask: np.ndarray) -> float:
 
 def clip_figures(skel, gen, clip, ref) -> dict:
     pose = run(gen, clip.audio)
-    sc = cv.score(skel, pose, clip.pause, ref)
+    sc = cv.score(skel, pose, clip.pause, ref, words=cv.word_frames(clip.audio, len(pose), clip.pause))
     return dict(
         settle=round(sc.settle_s, 2),
         resume=round(sc.resume_s, 2),

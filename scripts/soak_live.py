@@ -103,15 +103,18 @@ def his_reference(shared: Path = SHARED):
     return t1.skeleton, ref
 
 
-def pop_figures(skel, pose: np.ndarray, pauses, ref, fps: float = FPS) -> dict:
+def pop_figures(skel, pose: np.ndarray, pauses, ref, fps: float = FPS, audio: np.ndarray | None = None) -> dict:
     """Pops a minute overall / in pauses / in speech (module docstring, step 4): the conversation metric's
-    :func:`facecapges.evaluation.conversation.score` with the inserted pauses as its pause frames."""
+    :func:`facecapges.evaluation.conversation.score` with the inserted pauses as its pause frames; with the
+    ``audio``, resume counts from the first word after a pause (``conversation.word_frames``: a stretch may start
+    with a breath or a silence)."""
     from facecapges.evaluation import conversation as cv
 
     in_pause = np.zeros(len(pose), bool)
     for a, b, _ in pauses:
         in_pause[int(np.ceil(a * fps)) : int(np.floor(b * fps))] = True
-    sc = cv.score(skel, pose, in_pause, ref, fps)
+    words = None if audio is None else cv.word_frames(audio, len(pose), in_pause, fps)
+    sc = cv.score(skel, pose, in_pause, ref, fps, words=words)
     frames = np.asarray(sc.pops, int)
     pause_min, speech_min = in_pause.sum() / fps / 60, (~in_pause).sum() / fps / 60
     n_pause = int(in_pause[frames].sum()) if len(frames) else 0
@@ -230,7 +233,7 @@ def run_soak(
         "frames_expected": int(round(minutes * 60 * FPS)),
         "pauses": len(pauses),
         "pause_s": [round(b_ - a, 1) for a, b_, _ in pauses],
-        **pop_figures(skel, pose, pauses, ref, b.fps),
+        **pop_figures(skel, pose, pauses, ref, b.fps, audio),
         "rss_mb_start": float(warm[0]) if len(warm) else float("nan"),
         "rss_mb_end": float(y_rss[-1]) if len(y_rss) else float("nan"),
         "rss_mb_max": float(np.nanmax(y_rss)) if len(y_rss) else float("nan"),

@@ -118,3 +118,23 @@ def test_repetition_counts_mirrors_as_the_same_stretch():
     plain = rz.repetition(pose, db, FPS)
     mirrored = rz.repetition(pose, db, FPS, same_as=twin)
     assert plain.returns == 0 and mirrored.returns == 1
+
+
+def test_resume_counts_from_the_first_word_not_the_pause_end(style, ref, unseen):
+    """A stretch after a pause that starts with 1 s of noise 20–40 dB under his words (−42 dBFS: what the soak's
+    random stretches and ZEGGS's blocks start with — a breath, his room) before its first word: resume counts
+    from the first word, so that second is not charged to the engine. The old rule (from the pause's end, kept
+    when no ``words`` are given) charges it: ≥ 1 s here, where the wrists rise within 0.3 s of the first word.
+    """
+    S, P, gap = int(5 * timing.AUDIO_SR), int(6 * timing.AUDIO_SR), int(1 * timing.AUDIO_SR)
+    noise = cv.room_tone(gap, np.random.default_rng(0), db=-42.0)
+    clip = cv._insert(unseen[:S], np.concatenate([noise, unseen[S : 2 * S]]), np.zeros(P, np.float32), "gap", "zeros")
+    b = int(np.flatnonzero(clip.pause)[-1]) + 1
+    pose = cv.generate(style, clip.audio)
+    words = cv.word_frames(clip.audio, len(pose), clip.pause)
+    assert not words[b : b + int(FPS)].any()  # the noise holds no word
+    old = cv.score(style.skeleton, pose, clip.pause, ref)
+    new = cv.score(style.skeleton, pose, clip.pause, ref, words=words)
+    assert old.resume_s >= 1.0, old
+    assert new.resume_s <= 0.3, new
+    assert abs(old.resume_s - new.resume_s - np.flatnonzero(words[b:])[0] / FPS) < 1e-9

@@ -35,8 +35,14 @@ motion (his training frames), per clip:
   angle of the spine's rotation from its mean, °) in speech, as ratios to his;
 * **settle**: seconds from a pause's start until the wrist speed (averaged over the last 1 s) first
   falls to his idle level (:attr:`Reference.idle_speed`: half his median wrist speed in speech — his own
-  pauses inside a monologue are breaths mid-gesture, faster than that, so they cannot set it); **resume**: seconds from the pause's end until the wrist speed first exceeds his median
-  speed in speech (capped at the clip's end).
+  pauses inside a monologue are breaths mid-gesture, faster than that, so they cannot set it); **resume**: seconds from
+  the first word after a pause — the first frame after it that :func:`word_frames` marks (``words``: within
+  :data:`WORD_DB` of the clip's speech level, non-causal, on the clean audio) — until the wrist speed first
+  exceeds his median speed in speech (capped at the clip's end). Without ``words`` it counts from the pause's
+  end, which charges the engine with whatever a cut leaves before the first word: on ZEGGS's half-silent clip
+  one block's speech starts 1.5 s after the block; in the soak's random stretches a breath or his room's noise
+  (−40 to −50 dBFS, 20–40 dB under his words, which the energy truth :func:`facecapges.evaluation.realism.speech_frames`
+  still calls speech) runs up to 0.9 s before the first word (issue #38, docs/matching.md "When resume is late").
 
 Repetition with mirrored copies counted as the same stretch is
 :func:`facecapges.evaluation.realism.repetition` with ``same_as``
@@ -68,6 +74,8 @@ STILL_CM_S = 1.0
 RAISE_CM = 10.0
 REST_PERCENTILE = 5.0
 SETTLE_WINDOW_S = 1.0
+WORD_DB = 20.0  # a word: a frame's level within this of the clip's speech level (its 95th percentile)
+WORD_PERCENTILE = 95.0
 SR = timing.AUDIO_SR
 FPS = timing.MODEL_FPS
 
@@ -329,10 +337,31 @@ class ClipScore:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
 
 
-def score(skel, pose: np.ndarray, clip_pause: np.ndarray, ref: Reference, fps: float = FPS) -> ClipScore:
-    """Figures of generated ``pose`` (T, 47, 6) of a clip whose frames ``clip_pause`` (T,) are inserted pauses."""
+def word_frames(audio: np.ndarray, n_frames: int, pause: np.ndarray | None = None, fps: float = FPS) -> np.ndarray:
+    """Frames (n_frames,) of words: outside ``pause`` (n_frames,) and with a level (RMS, dB) within :data:`WORD_DB`
+    of the :data:`WORD_PERCENTILE` th percentile of the level over the frames outside ``pause`` (non-causal; a
+    breath or room noise 20–40 dB under his words is not one). A frame's level is that of the samples the engine
+    reads at that frame (``[t·spf, (t+1)·spf)``, as :class:`facecapges.matching.speech.SpeechTracker`), so a word
+    and the VAD's decision on it fall on the same frame."""
+    spf = timing.samples_per_frame(fps)
+    a = np.zeros(n_frames * spf, np.float64)
+    m = min(len(audio), len(a))
+    a[:m] = np.asarray(audio, np.float64)[:m]
+    level = 10.0 * np.log10(np.mean(a.reshape(n_frames, spf) ** 2, axis=1) + 1e-20)
+    out = np.ones(n_frames, bool) if pause is None else ~np.asarray(pause, bool)[:n_frames]
+    if not out.any():
+        return out
+    return out & (level > np.percentile(level[out], WORD_PERCENTILE) - WORD_DB)
+
+
+def score(
+    skel, pose: np.ndarray, clip_pause: np.ndarray, ref: Reference, fps: float = FPS, words: np.ndarray | None = None
+) -> ClipScore:
+    """Figures of generated ``pose`` (T, 47, 6) of a clip whose frames ``clip_pause`` (T,) are inserted pauses;
+    ``words`` (T,, :func:`word_frames`) sets where resume counts from (module docs)."""
     pose = np.asarray(pose)
     pause = np.asarray(clip_pause, bool)[: len(pose)]
+    talk = None if words is None else np.asarray(words, bool)[: len(pose)]
     pops = np.zeros(len(pose), bool)
     pops[rz.transitions(pose, [pose[:3]], fps, threshold=ref.threshold).frames] = True
     w = sy.wrist_positions(skel, pose)
@@ -350,6 +379,12 @@ def score(skel, pose: np.ndarray, clip_pause: np.ndarray, ref: Reference, fps: f
         below = np.flatnonzero(sm[a:b] <= ref.idle_speed)
         settle.append((below[0] if len(below) else b - a) / fps)
         if b < len(pose):
+            if talk is not None:  # the first word before the next pause (none: no onset to resume on)
+                nxt = np.flatnonzero(pause[b:])
+                said = np.flatnonzero(talk[b : b + (nxt[0] if len(nxt) else len(pose) - b)])
+                if not len(said):
+                    continue
+                b += int(said[0])
             up = np.flatnonzero(s[b:] > ref.speech_speed)
             resume.append((up[0] if len(up) else len(pose) - b) / fps)
     speech_poses = [pose[a:b] for a, b in _runs(sp) if b - a > 2]
