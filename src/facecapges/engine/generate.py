@@ -9,7 +9,6 @@ memory stays flat in the input's length.
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Iterable, Iterator
 
@@ -36,18 +35,13 @@ def generate_blocks(
     The stream starts from the engine's cold-start window, or from ``history`` (n, 47, 6) given as the
     poses before the first frame (evaluation's other samples). ``timing_ms`` (a list) receives the
     engine's ms per frame at the end; ``intensity``: the stream's dial (:mod:`facecapges.engine.intensity`)."""
-    torch = sys.modules.get("torch")  # loaded by a network style; a matching style runs without it
-
     gen = engine.streaming()
     if history is not None:
         gen.reset(initial_pose=history)
     gen.intensity = intensity
-    threads = torch.get_num_threads() if torch is not None else 0
-    if torch is not None:
-        torch.set_num_threads(1)  # one small step at a time: more threads only spin
-    from facecapges.engine.threads import limit_blas_threads
+    from facecapges.engine.threads import limit_threads
 
-    blas = limit_blas_threads(1)  # NumPy's products alike
+    limits = limit_threads(1)  # one small step at a time: more threads only spin (torch's if loaded, BLAS's)
     bar = None
     if progress:
         from facecapges.progress import Progress
@@ -69,9 +63,7 @@ def generate_blocks(
                 bar.advance(task, len(audio))
             yield out
     finally:
-        if torch is not None:
-            torch.set_num_threads(threads)
-        blas.restore_original_limits()
+        limits.restore_original_limits()
         if bar is not None:
             bar.stop()
     if timing_ms is not None:

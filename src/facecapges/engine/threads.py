@@ -27,14 +27,16 @@ def limit_threads(n: int = 1) -> Any:
     process; never imports torch. Returns a restorer (``restore_original_limits()``) of both."""
     torch = sys.modules.get("torch")
     before = torch.get_num_threads() if torch is not None else None
+    blas = limit_blas_threads(n)
     if torch is not None:
         torch.set_num_threads(max(1, int(n)))
-    blas = limit_blas_threads(n)
 
     class _Restore:
         def restore_original_limits(self) -> None:
+            # BLAS first: restoring an OpenMP-built BLAS's threads also resets the process's OpenMP threads,
+            # which are torch's (measured: torch left at 1 when torch was restored first)
+            blas.restore_original_limits()
             if torch is not None and before is not None:
                 torch.set_num_threads(before)
-            blas.restore_original_limits()
 
     return _Restore()

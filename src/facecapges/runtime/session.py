@@ -36,8 +36,9 @@ class Session:
     closers: list = field(default_factory=list)  # extra objects with close() (servers)
     notes: list[str] = field(default_factory=list)
     faces: int = 1  # faces (avatars) driven: generator i ↔ capture slot i
-    torch_threads: int | None = None  # torch's thread count before the session; restored by close()
-    blas_limit: Any = None  # NumPy's BLAS threads limited for the session (engine/threads.py); restored by close()
+    thread_limit: Any = (
+        None  # one BLAS (and torch, if loaded) thread for the session (engine/threads.py); close() restores
+    )
     generators: list = field(default_factory=list)  # one per face, in face order
     body: LiveBody | None = None  # live --body: the body capture and the arms' hand-over
 
@@ -71,14 +72,9 @@ class Session:
                 errors.append(exc)
         self.sinks, self.closers = [], []
         self.capture = self.video = self.face_feed = self.audio = self.body = None
-        if self.torch_threads is not None:  # the process's setting, as it was before the session
-            import torch
-
-            torch.set_num_threads(self.torch_threads)
-            self.torch_threads = None
-        if self.blas_limit is not None:
-            self.blas_limit.restore_original_limits()
-            self.blas_limit = None
+        if self.thread_limit is not None:  # the process's settings, as they were before the session
+            self.thread_limit.restore_original_limits()
+            self.thread_limit = None
         if errors:
             raise errors[0]
         return written
@@ -297,20 +293,13 @@ def build_session(
         body=body,
         devices=False,
     )
-    import sys
-
     # one thread: a frame's tensors are tiny, and a second torch thread only contends with
     # MediaPipe's (measured here: model step p50 28 ms with 2 threads, 1.7 ms with 1). Only when a
     # network style has loaded torch: a matching style's session runs without it (issue 36: memory)
-    torch = sys.modules.get("torch")
-    sess = Session(
-        checkpoint=checkpoint, torch_threads=torch.get_num_threads() if torch is not None else None, faces=int(faces)
-    )
-    if torch is not None:
-        torch.set_num_threads(1)
-    from facecapges.engine.threads import limit_blas_threads
+    from facecapges.engine.threads import limit_threads
 
-    sess.blas_limit = limit_blas_threads(1)  # NumPy's products alike (engine/threads.py)
+    sess = Session(checkpoint=checkpoint, faces=int(faces))
+    sess.thread_limit = limit_threads(1)  # NumPy's products alike (engine/threads.py)
     try:
         _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
