@@ -203,7 +203,19 @@ def test_viewer_slider_sets_the_intensity(live):
 
 
 def test_ctrl_c_stops_cleanly_and_closes_files(live):
+    from websockets.exceptions import ConnectionClosed
+    from websockets.sync.client import connect
+
     proc = live["proc"]
+    # what the report must count, done here: pytest-xdist may run this module's other tests on another worker
+    # (with their own `live`), so this test cannot rely on them
+    with connect(live["url"].replace("http://", "ws://") + "ws", max_size=None) as ws:
+        ws.recv(timeout=10)  # hello
+        ws.send("x" * (protocol.MAX_MESSAGE_BYTES + 1))
+        with pytest.raises(ConnectionClosed):
+            for _ in range(200):
+                ws.recv(timeout=10)
+    assert get(live["url"], host="attacker.example:80")[0] == 403
     # > 30 frames recorded (15 fps) even when the slow browser tests before this one are left out
     time.sleep(max(1.0, live["started"] + 5.0 - time.monotonic()))
     proc.send_signal(signal.SIGINT)
