@@ -409,3 +409,48 @@ def test_one_loopback_address_is_capped_and_its_slow_streams_make_room(stream_se
     assert held <= 16, (held, s)
     assert same >= 20, (same, s)  # admitted and served (a loaded machine may drop a few frames as busy)
     assert s.get("refused_address", 0) + s.get("evicted_slow", 0) >= 8, s
+
+
+def test_a_live_newcomer_waits_out_young_slow_holders_instead_of_being_refused():
+    """The policy behind the loopback test above, without a server or timing: 16 slow holders of one
+    address that reopen at once and evict each other keep every slot young (each inside its grace
+    second). A live newcomer
+    from that address used to be refused outright (the flaky loss of the test above, refused_address
+    59); it now waits on probation, its inputs dropped, and takes the first slot that ripens slow.
+    Once every stream in its way has proven live, it is refused as before."""
+    from facecapges.serving.admission import GRACE_S, Admission, Holder
+    from facecapges.serving.config import ServeConfig
+
+    pol = Admission(ServeConfig(max_streams=40))
+    t0 = 100.0
+    holders = []
+    for k in range(16):  # admitted over the last 0.8 s, one input each
+        h = Holder()
+        pol.new(h, "127.0.0.1", t0 - 0.8 + 0.05 * k, probation=False)
+        pol.record_input(h, h.since)
+        h.taker = True  # each took its slot by evicting another (what admit() records)
+        holders.append(h)
+    arrival = pol.arrive(holders, "127.0.0.1", t0)
+    assert arrival.refusal is None and arrival.probation, arrival
+    me = Holder()
+    pol.new(me, "127.0.0.1", t0, probation=True)
+    assert pol.admit(holders + [me], me, t0 + 0.05) == (None, "waiting", None)
+    assert me.probation
+    refusal, _stat, victim = pol.admit(holders + [me], me, t0 - 0.8 + GRACE_S + 0.01)  # the oldest ripens
+    assert refusal is None and victim is holders[0] and not me.probation and me.taker
+
+    fresh = []  # young streams that got free slots (a server that just filled up): refused at once
+    for _k in range(16):
+        h = Holder()
+        pol.new(h, "127.0.0.1", t0 - 0.2, probation=False)
+        fresh.append(h)
+    assert pol.arrive(fresh, "127.0.0.1", t0).refusal is not None
+
+    live = []  # every stream in the way has proven live (15 inputs a second for 2 s): refused
+    for _k in range(16):
+        h = Holder()
+        pol.new(h, "127.0.0.1", t0 - 2.0, probation=False)
+        for i in range(30):
+            pol.record_input(h, t0 - 2.0 + i / 15)
+        live.append(h)
+    assert pol.arrive(live, "127.0.0.1", t0).refusal is not None

@@ -13,6 +13,14 @@ a newcomer is not refused while some stream in the way is slow: it gets ``hello`
 a newer one), and its first ``input`` takes the slot of the slowest such stream, which is closed
 (1013, "evicted"). A live stream (15 inputs a second) is never evicted.
 
+Churn. A stream that took its slot by evicting another is not judged in its grace second either, so
+slow holders that reopen at once could keep every slot of an address young and a live client of
+that address refused. A newcomer whose way holds such a young *taker* therefore waits on probation
+instead of being refused: its inputs are dropped, each one looks again, and, sending 15 a second,
+it is first to take a slot that ripens slow (within about the grace second). Once no taker in its
+way is young and none is slow, it is refused as before. A server that simply filled up with new
+connections refuses at once, as before.
+
 Addresses. One client address holds at most ``max_per_address`` streams (16 by default, loopback
 included). ``X-Forwarded-For`` is ignored unless ``trust_proxy`` is set (:func:`forwarded_address`).
 
@@ -74,6 +82,7 @@ class Holder:
     probation: bool = False  # connected while full: no slot until its first input takes a slow one's
     closed: bool = False
     since: float = 0.0  # when it got its slot
+    taker: bool = False  # it got its slot by evicting a slow stream (module docs, "Churn")
     last_input: float = 0.0  # (or when it connected)
     times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=256))  # inputs' arrivals
     tokens: float = 0.0
@@ -155,6 +164,12 @@ class Admission:
         span = max(1e-3, min(RATE_WINDOW_S, now - st.since))
         return sum(t >= now - span for t in st.times) / span
 
+    @staticmethod
+    def unproven(streams: Iterable[Holder], now: float) -> bool:
+        """Whether some of ``streams`` took its slot by eviction less than :data:`GRACE_S` s ago (module
+        docs, "Churn"): not judged yet, so a newcomer waits for it rather than being refused."""
+        return any(st.taker and now - st.since < GRACE_S for st in streams)
+
     def slowest(self, streams: Iterable[Holder], now: float) -> Holder | None:
         """The slowest of ``streams`` below :data:`LIVE_FRACTION` of the model rate that has held its
         slot for :data:`GRACE_S` s; None if every one streams (or is new)."""
@@ -175,24 +190,29 @@ class Admission:
         way = self.in_the_way(streams, address)
         if way is None:
             return Arrival()
-        if self.slowest(way[0], now) is None:
+        if self.slowest(way[0], now) is None and not self.unproven(way[0], now):
             return Arrival(refusal=way[1], stat=self._stat(way[1]))
         waiting = [st for st in streams if st.probation and not st.closed]
         old = min(waiting, key=lambda s: s.last_input) if len(waiting) >= self.cfg.max_streams else None
         return Arrival(probation=True, make_room=old)
 
     def admit(self, streams: Iterable[Holder], st: Holder, now: float) -> tuple[str | None, str, Holder | None]:
-        """A stream on probation sent its first input: (refusal, its counter, None) when every stream
-        in its way is live (or new); else it holds a slot now — (None, "", the slowest stream in its
-        way, to be closed 1013 :data:`EVICTED_SLOW`, or None if a slot was free)."""
+        """A stream on probation sent an input: (refusal, its counter, None) when no stream in its way
+        is slow or a young taker; (None, "waiting", None) — it stays on probation, the input is
+        dropped — while none is slow but one is a young taker (module docs, "Churn"); else it holds a slot now — (None, "",
+        the slowest stream in its way, to be closed 1013 :data:`EVICTED_SLOW`, or None if a slot
+        was free)."""
         way = self.in_the_way(streams, st.address)
         victim = None
         if way is not None:
             victim = self.slowest(way[0], now)
             if victim is None:
+                if self.unproven(way[0], now):
+                    return None, "waiting", None
                 return way[1], self._stat(way[1]), None
             victim.closed = True
         st.probation = False
+        st.taker = victim is not None
         st.since = now
         return None, "", victim
 

@@ -284,6 +284,9 @@ def build_app(
                             self.stats[stat] += 1
                             await self._refuse(ws, refusal)
                             break
+                        if st.probation:  # waiting for a stream in its way to be judged: input dropped
+                            self.stats["dropped_waiting"] += 1
+                            continue
                         if victim is not None:
                             assert isinstance(victim, _RayStream)
                             self.stats["evicted_slow"] += 1

@@ -307,6 +307,9 @@ class StreamServer(ServerThread):
                         await ws.send(_error(refusal))
                         await ws.close(FULL_CODE, close_reason(refusal))
                         break
+                    if st.probation:  # waiting for a stream in its way to be judged: this input is dropped
+                        self.stats["dropped_waiting"] += 1
+                        continue
                 self.policy.record_input(st, now)
                 if len(st.pending) >= self.cfg.max_pending:
                     self.stats["dropped_busy"] += 1
