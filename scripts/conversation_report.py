@@ -135,22 +135,14 @@ def main(argv: list[str] | None = None) -> int:
         row = {}
         for inten in (1.0, 1.3):
             gen = cv.generate(ck, audio, inten, face=t.face[a:b])
-            wg, wr = sy.wrist_positions(skel, gen), sy.wrist_positions(skel, real)
-            real_ref = cv.reference(skel, [real], [audio])
             sc = cv.score(skel, gen, np.zeros(len(gen), bool), ref)
+            fig = cv.stretch_figures(skel, gen, real, ref, fps)  # his figures by the same rule as the engine's
             key = f"intensity {inten:g}"
             row[key] = rnd({
                 "pops_per_min": sc.pops_speech_per_min,
-                "spread_ratio": sy.ratio(sy.wrist_spread(wg), sy.wrist_spread(wr)),
-                "jerk_ratio": sy.ratio(sy.wrist_jerk(wg, fps), sy.wrist_jerk(wr, fps)),
-                "both_hands": sc.both_hands,
-                "both_hands_real": real_ref.both_hands,
-                "wrist_height_ratio": float(np.mean((wg[:, :, 1] - ref.rest_height).mean(1)) /
-                                            np.mean((wr[:, :, 1] - ref.rest_height).mean(1))),
-                "head_speed_ratio": cv.head_speed_deg_s(skel, gen) / cv.head_speed_deg_s(skel, real),
-                "head_speed_deg_s": cv.head_speed_deg_s(skel, gen),
-                "head_speed_real_deg_s": cv.head_speed_deg_s(skel, real),
-                "torso_sway_ratio": cv.torso_sway_deg(skel, gen) / cv.torso_sway_deg(skel, real),
+                **{k: fig[k] for k in ("spread_ratio", "jerk_ratio", "both_hands", "both_hands_real",
+                                       "wrist_height_ratio", "head_speed_ratio", "head_speed_deg_s",
+                                       "head_speed_real_deg_s", "torso_sway_ratio")},
                 "still_share": sc.still_share,
                 "pops_real_per_min": rz.transitions(real, train, fps, threshold=ref.threshold).per_minute,
             })

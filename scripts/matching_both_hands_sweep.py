@@ -24,7 +24,6 @@ from matching_validate import cached_predictor
 
 from facecapges import timing
 from facecapges.evaluation import conversation as cv
-from facecapges.evaluation import synchrony as sy
 from facecapges.matching.database import build_database
 from facecapges.matching.matcher import MatchingConfig, MatchingStream
 from facecapges.matching.takes import load_take
@@ -58,23 +57,16 @@ for name, v in variants.items():
         h = identity_rot6d().astype(np.float32)
         pose = np.stack([gen.step(t.audio[k * SPF : (k + 1) * SPF], t.face[k], h) for k in range(a, b)])
         real = t.pose[a:b]
-        audio = t.audio[a * SPF : b * SPF]
-        wg, wr = sy.wrist_positions(skel, pose), sy.wrist_positions(skel, real)
-        rr = cv.reference(skel, [real], [audio])
         sc = cv.score(skel, pose, np.zeros(len(pose), bool), ref)
+        f = cv.stretch_figures(skel, pose, real, ref, FPS)  # his share by the engine's rule (his training rest)
         out[t.name[-3:]] = dict(
-            both=round(sc.both_hands, 2),
-            both_real=round(rr.both_hands, 2),
-            height=round(
-                float(
-                    np.mean((wg[:, :, 1] - ref.rest_height).mean(1)) / np.mean((wr[:, :, 1] - ref.rest_height).mean(1))
-                ),
-                2,
-            ),
-            spread=round(sy.ratio(sy.wrist_spread(wg), sy.wrist_spread(wr)), 2),
-            jerk=round(sy.ratio(sy.wrist_jerk(wg, FPS), sy.wrist_jerk(wr, FPS)), 2),
+            both=round(f["both_hands"], 2),
+            both_real=round(f["both_hands_real"], 2),
+            height=round(f["wrist_height_ratio"], 2),
+            spread=round(f["spread_ratio"], 2),
+            jerk=round(f["jerk_ratio"], 2),
             pops=round(sc.pops_speech_per_min, 1),
-            head=round(cv.head_speed_deg_s(skel, pose) / cv.head_speed_deg_s(skel, real), 2),
-            sway=round(cv.torso_sway_deg(skel, pose) / cv.torso_sway_deg(skel, real), 2),
+            head=round(f["head_speed_ratio"], 2),
+            sway=round(f["torso_sway_ratio"], 2),
         )
     print(name, json.dumps(out), flush=True)

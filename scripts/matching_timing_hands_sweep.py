@@ -433,21 +433,17 @@ def main() -> int:
                 pose = play(gen, t.audio, t.face, a, b, min(a, lead))
                 clips.append(pose)
                 real = t.pose[a:b]
-                audio = t.audio[a * SPF : b * SPF]
-                wg, wr = sy.wrist_positions(skel, pose), sy.wrist_positions(skel, real)
-                rr = cv.reference(skel, [real], [audio])
                 sc = cv.score(skel, pose, np.zeros(len(pose), bool), ref)
-                hg = np.mean((wg[:, :, 1] - ref.rest_height).mean(1))
-                hr = np.mean((wr[:, :, 1] - ref.rest_height).mean(1))
+                f = cv.stretch_figures(skel, pose, real, ref, FPS)  # his share by the engine's rule
                 out[t.name[-3:]] = dict(
-                    both=r2(sc.both_hands),
-                    both_his=r2(rr.both_hands),
-                    height=r2(hg / hr),
-                    spread=r2(sy.ratio(sy.wrist_spread(wg), sy.wrist_spread(wr))),
-                    jerk=r2(sy.ratio(sy.wrist_jerk(wg, FPS), sy.wrist_jerk(wr, FPS))),
+                    both=r2(f["both_hands"]),
+                    both_his=r2(f["both_hands_real"]),
+                    height=r2(f["wrist_height_ratio"]),
+                    spread=r2(f["spread_ratio"]),
+                    jerk=r2(f["jerk_ratio"]),
                     pops=r2(sc.pops_speech_per_min),
-                    head=r2(cv.head_speed_deg_s(skel, pose) / cv.head_speed_deg_s(skel, real)),
-                    sway=r2(cv.torso_sway_deg(skel, pose) / cv.torso_sway_deg(skel, real)),
+                    head=r2(f["head_speed_ratio"]),
+                    sway=r2(f["torso_sway_ratio"]),
                 )
             tr = tm.timing_row(clips, audios, timing.AUDIO_SR, FPS, skel)
             out["timing"] = {

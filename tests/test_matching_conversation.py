@@ -138,3 +138,26 @@ def test_resume_counts_from_the_first_word_not_the_pause_end(style, ref, unseen)
     assert old.resume_s >= 1.0, old
     assert new.resume_s <= 0.3, new
     assert abs(old.resume_s - new.resume_s - np.flatnonzero(words[b:])[0] / FPS) < 1e-9
+
+
+def test_his_both_hands_share_of_a_stretch_is_scored_by_the_engines_rule():
+    """His share of two-handed frames on a stretch is measured as the engine's is, against his training rest
+    height: on 2_scott_0_2_2's validation stretch [0.64 T, 0.8 T) he holds both hands up (0.97 by that rule);
+    the reports measured it against the stretch's own 5th percentile (11–14 cm higher) and printed 0.18 beside
+    an engine scored by the other rule — his own motion, scored as the engine is, came out 5× "his"."""
+    t1 = load_take(shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav"))
+    t2 = load_take(shared_file("data/beat2/2_scott_0_2_2.npz"), shared_file("data/beat/2_scott_0_2_2.wav"), t1.skeleton)
+    skel, cuts = t1.skeleton, [int(0.64 * t.n_frames) for t in (t1, t2)]
+    ref = cv.reference(
+        skel, [t.pose[:c] for t, c in zip((t1, t2), cuts)], [t.audio[: c * SPF] for t, c in zip((t1, t2), cuts)]
+    )
+    a, b = cuts[1], t2.train_until
+    real = t2.pose[a:b]
+    fig = cv.stretch_figures(skel, real, real, ref)
+    scored = cv.score(skel, real, np.zeros(len(real), bool), ref).both_hands
+    assert fig["both_hands_real"] == fig["both_hands"] == scored == cv.both_hands_share(skel, real, ref)
+    assert fig["both_hands_real"] > 0.9, fig
+    assert fig["wrist_height_ratio"] == pytest.approx(1.0) and fig["spread_ratio"] == pytest.approx(1.0)
+    # the old rule (the stretch's own rest height) on the same frames: far from his share by the engine's rule
+    own = cv.reference(skel, [real], [t2.audio[a * SPF : b * SPF]]).both_hands
+    assert own < 0.5 * fig["both_hands_real"], own

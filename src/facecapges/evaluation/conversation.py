@@ -29,7 +29,10 @@ motion (his training frames), per clip:
 * **still share**: frames whose faster wrist moves below :data:`STILL_CM_S`; the longest still stretch;
 * **both-hands share**: frames with both wrists raised — a wrist is *raised* when its height is
   more than :data:`RAISE_CM` above his rest height (the :data:`REST_PERCENTILE` th percentile of
-  that wrist's height over his training frames: his arms hanging);
+  that wrist's height over his training frames: his arms hanging). :func:`both_hands_share` is the one
+  rule, for generated motion and for his real motion of the same stretch alike (:func:`stretch_figures`):
+  a stretch's own 5th percentile is not his rest — where he holds both hands up for 10 s it sits 11–14 cm
+  above it, and his share of that stretch came out 0.18 instead of 0.98 (issue #38, docs/matching.md);
 * **wrist height** above his rest height, in speech, as a ratio to his (training frames' speech);
 * **head speed** (°/s, the global rotation of the head: Neck1's chain) and **torso sway** (RMS
   angle of the spine's rotation from its mean, °) in speech, as ratios to his;
@@ -289,8 +292,7 @@ def reference(skel, poses: Sequence[np.ndarray], audios: Sequence[np.ndarray]) -
         idle_all.append(sm[~v])
         pause_sp.append(s[~v])
         sp_all.append(s[v])
-        raised = w[:, :, 1] > rest + RAISE_CM
-        both_all.append(raised.all(1)[v])
+        both_all.append(_both_raised(w, rest)[v])
         h_all.append((w[:, :, 1] - rest).mean(1)[v])
         head_all.append(head_speed_deg_s(skel, p))
         sway_all.append(torso_sway_deg(skel, p))
@@ -307,6 +309,45 @@ def reference(skel, poses: Sequence[np.ndarray], audios: Sequence[np.ndarray]) -
         torso_sway=float(np.mean(sway_all)),
         pause_over_speech_speed=float(np.concatenate(pause_sp).mean() / sp.mean()),
     )
+
+
+def _both_raised(w: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """Frames (T,) whose two wrists (w: (T, 2, 3) cm) are both more than :data:`RAISE_CM` above ``rest`` (2,)."""
+    return np.asarray((w[:, :, 1] > np.asarray(rest) + RAISE_CM).all(axis=1))
+
+
+def both_hands_share(skel, pose: np.ndarray, ref: Reference, frames: np.ndarray | None = None) -> float:
+    """Share of ``frames`` (T,) bool (default: all) of ``pose`` (T, 47, 6) with both wrists raised above **his**
+    rest height (``ref.rest_height``, his training frames) — the rule for generated and real motion alike."""
+    both = _both_raised(sy.wrist_positions(skel, np.asarray(pose)), ref.rest_height)
+    if frames is not None:
+        both = both[np.asarray(frames, bool)[: len(both)]]
+    return float(both.mean()) if len(both) else float("nan")
+
+
+def stretch_figures(skel, gen: np.ndarray, real: np.ndarray, ref: Reference, fps: float = FPS) -> dict[str, float]:
+    """Generated motion ``gen`` of a stretch against his real motion ``real`` of the same frames (both (T, 47, 6),
+    cut to the shorter), each measured by the same rule against his training reference ``ref``: both-hands share
+    (``both_hands``, his ``both_hands_real``: :func:`both_hands_share`), wrist height above his rest as a ratio,
+    wrist spread and jerk ratios (:mod:`facecapges.evaluation.synchrony`), head speed (also in °/s) and torso sway
+    ratios."""
+    n = min(len(gen), len(real))
+    gen, real = np.asarray(gen)[:n], np.asarray(real)[:n]
+    wg, wr = sy.wrist_positions(skel, gen), sy.wrist_positions(skel, real)
+    head_g, head_r = head_speed_deg_s(skel, gen, fps), head_speed_deg_s(skel, real, fps)
+    return {
+        "both_hands": float(_both_raised(wg, ref.rest_height).mean()),
+        "both_hands_real": float(_both_raised(wr, ref.rest_height).mean()),
+        "wrist_height_ratio": float(
+            np.mean((wg[:, :, 1] - ref.rest_height).mean(1)) / np.mean((wr[:, :, 1] - ref.rest_height).mean(1))
+        ),
+        "spread_ratio": float(sy.ratio(sy.wrist_spread(wg), sy.wrist_spread(wr))),
+        "jerk_ratio": float(sy.ratio(sy.wrist_jerk(wg, fps), sy.wrist_jerk(wr, fps))),
+        "head_speed_ratio": head_g / head_r,
+        "head_speed_deg_s": head_g,
+        "head_speed_real_deg_s": head_r,
+        "torso_sway_ratio": torso_sway_deg(skel, gen) / torso_sway_deg(skel, real),
+    }
 
 
 # ------------------------------------------------------------------------------------ scoring
@@ -370,7 +411,7 @@ def score(
     still = np.linalg.norm(np.diff(w, axis=0, prepend=w[:1]), axis=-1).max(1) * fps < STILL_CM_S
     still[0] = still[1] if len(still) > 1 else still[0]
     longest = max((b - a for a, b in _runs(still)), default=0) / fps
-    raised = w[:, :, 1] > ref.rest_height + RAISE_CM
+    both = _both_raised(w, ref.rest_height)
     sp = ~pause
     height = (w[:, :, 1] - ref.rest_height).mean(1)
     sm = _smooth(s, int(SETTLE_WINDOW_S * fps))
@@ -398,7 +439,7 @@ def score(
         pause_over_speech_speed=float(s[pause].mean() / max(s[sp].mean(), 1e-9)) if pause.any() else nan,
         still_share=float(still.mean()),
         longest_still_s=float(longest),
-        both_hands=float(np.asarray(raised.all(axis=1))[sp].mean()),
+        both_hands=float(both[sp].mean()),
         wrist_height_ratio=float(height[sp].mean() / ref.wrist_height),
         head_speed_ratio=float(head / ref.head_speed),
         torso_sway_ratio=float(sway / ref.torso_sway),
