@@ -31,8 +31,9 @@ def test_stream_solver_is_causal_and_close_to_the_offline_solve(beat_take):
     pose = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
     live = compare(skel, motion, pose_to_motion(skel, pose))
     offline = compare(skel, motion, pose_to_motion(skel, solve(skel, lm).pose))
-    # the One-Euro filter lags a little where the zero-phase Gaussian does not: a degree or two more
-    assert live["median_deg"] < offline["median_deg"] + 3 and live["median_deg"] < 10, (live, offline)
+    # the One-Euro filter lags a little where the zero-phase Gaussian does not: a few degrees more (with the
+    # torso's lean prior: live 7.2°, offline 3.7°; before it 8.8° and 6.9°, so the absolute bound is tightened)
+    assert live["median_deg"] < offline["median_deg"] + 3.5 and live["median_deg"] < 8, (live, offline)
     # causal: what comes after frame 60 does not change frames 0..59
     lm2 = _synthetic_landmarks(skel, motion)
     lm2.pose[60:] = lm2.pose[60:][::-1]
