@@ -101,6 +101,62 @@ def test_the_torso_lean_is_blended_with_beats_population_prior(beat_take):
     assert np.abs(blended[:, 1:] - seen[:, 1:]).max() < 0.1  # turn and roll as seen
 
 
+def test_arm_bones_take_their_image_plane_direction_from_the_image_landmarks(beat_take):
+    """capture-body turns each arm bone's image-plane part to the image landmarks' direction (the world
+    landmarks flatten the picture's perspective unevenly), keeping its length and depth."""
+    from facecapges.capture.body_solve import ELBOW, SHOULDER, WRIST, image_directions
+
+    skel, motion = beat_take.skeleton, beat_take.motion[:40]
+    lm = _synthetic_landmarks(skel, motion)
+    size = (640, 480)
+    image = np.concatenate([lm.pose[..., :2] / size + 0.5, lm.pose[..., 2:]], axis=-1)  # an orthographic picture
+    assert np.allclose(image_directions(lm.pose, image, size), lm.pose)
+    bent = lm.pose.copy()  # the world landmarks' wrists off in the image plane, the picture right
+    for side in ("Right", "Left"):
+        bent[:, WRIST[side], :2] += np.array([0.06, -0.04])
+    fixed = image_directions(bent, image, size)
+    for side in ("Right", "Left"):
+        for i, j in ((SHOULDER[side], ELBOW[side]), (ELBOW[side], WRIST[side])):
+            d_true, d_fix, d_bent = (x[:, j] - x[:, i] for x in (lm.pose, fixed, bent))
+            assert np.allclose(np.linalg.norm(d_fix, axis=-1), np.linalg.norm(d_bent, axis=-1))  # length kept
+            assert np.allclose(d_fix[:, 2], d_bent[:, 2])  # depth kept
+            u = d_true[:, :2] / np.linalg.norm(d_true[:, :2], axis=-1, keepdims=True)
+            v = d_fix[:, :2] / np.linalg.norm(d_fix[:, :2], axis=-1, keepdims=True)
+            assert (u * v).sum(-1).min() > 0.9999  # the picture's direction
+    m_bent = compare(
+        skel,
+        motion,
+        pose_to_motion(
+            skel,
+            solve(
+                skel,
+                BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0),
+                smooth=False,
+                depth_completion=False,
+                hand_weight=0.0,
+            ).pose,
+        ),
+    )
+    m_fix = compare(
+        skel,
+        motion,
+        pose_to_motion(
+            skel,
+            solve(
+                skel,
+                BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0, image, size),
+                smooth=False,
+                depth_completion=False,
+                hand_weight=0.0,
+            ).pose,
+        ),
+    )
+    assert m_fix["per_bone_median_deg"]["Right forearm"] < m_bent["per_bone_median_deg"]["Right forearm"] - 3, (
+        m_fix,
+        m_bent,
+    )
+
+
 def test_a_lost_hand_eases_to_rest_and_back(beat_take):
     skel, motion = beat_take.skeleton, beat_take.motion[:90]
     lm = _synthetic_landmarks(skel, motion)
