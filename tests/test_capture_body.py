@@ -220,7 +220,7 @@ def test_capture_body_recovers_his_real_motion_from_a_rendered_video(beat_bvh, t
         pytest.skip(str(exc))
     m = measure(beat_bvh, tmp_path)
     assert m["frames"] == 191 and (tmp_path / "captured.bvh").is_file()
-    # measured 10.8° / 23.5° (docs/capture-body.md): the target (median ≤ 12°, p90 ≤ 30°). The solver
+    # measured 10.8° / 22.6° (docs/capture-body.md): the target (median ≤ 12°, p90 ≤ 30°). The solver
     # before the torso's lean prior and the landmarker's own upper-arm depth gave 14.0° / 33.3°, forearms
     # 21.3° / 22.1°, camera frame 13.1° / 24.2° (and before that 15.9° / 37°).
     assert m["median_deg"] < 12 and m["p90_deg"] < 30, m
