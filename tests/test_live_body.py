@@ -31,8 +31,9 @@ def test_stream_solver_is_causal_and_close_to_the_offline_solve(beat_take):
     pose = rot.matrix_to_rot6d(rot.quaternion_to_matrix(q)).astype(np.float32)
     live = compare(skel, motion, pose_to_motion(skel, pose))
     offline = compare(skel, motion, pose_to_motion(skel, solve(skel, lm).pose))
-    # the One-Euro filter lags a little where the zero-phase Gaussian does not: a degree or two more
-    assert live["median_deg"] < offline["median_deg"] + 3 and live["median_deg"] < 10, (live, offline)
+    # the One-Euro filter lags a little where the zero-phase Gaussian does not: a few degrees more (with the
+    # torso's lean prior: live 7.2°, offline 3.7°; before it 8.8° and 6.9°, so the absolute bound is tightened)
+    assert live["median_deg"] < offline["median_deg"] + 3.5 and live["median_deg"] < 8, (live, offline)
     # causal: what comes after frame 60 does not change frames 0..59
     lm2 = _synthetic_landmarks(skel, motion)
     lm2.pose[60:] = lm2.pose[60:][::-1]
@@ -144,8 +145,9 @@ def test_live_body_follows_his_real_motion_and_hands_over_when_the_hands_leave(b
     _models_or_skip()
     m = measure_live(beat_bvh, beat_wav, tmp_path)
     plain, leave = m["plain"], m["leave"]
-    # capture-body (offline, zero-phase) on this video: 14.0° / 33.3°; live (causal) measured 14.2° / 34.4°
-    assert plain["all_frames"]["median_deg"] < 17 and plain["all_frames"]["p90_deg"] < 40, plain
+    # capture-body (offline, zero-phase) on this video: 10.8° / 23.5°; live (causal) measured 11.7° / 27.2° (before
+    # the torso's lean prior and the landmarker's own upper-arm depth: 14.2° / 34.4°, which fails here)
+    assert plain["all_frames"]["median_deg"] < 13.5 and plain["all_frames"]["p90_deg"] < 31, plain
     assert plain["on_body_share"] > 0.8, plain  # settled on the body after the start-up hand-over's 1.5 s
     assert 0.7 < plain["all_frames"]["wrist_spread_ratio"] < 1.3, plain
     # the hands leave: the right arm goes to the gestures and back, then both; no pop at any hand-over
@@ -153,4 +155,4 @@ def test_live_body_follows_his_real_motion_and_hands_over_when_the_hands_leave(b
     assert {("Right", "gestures"), ("Right", "body"), ("Left", "gestures"), ("Left", "body")} <= sides_to, leave
     assert leave["handover"]["pops_at_handovers"] == 0, leave["handover"]
     assert plain["handover"]["pops_at_handovers"] == 0, plain["handover"]
-    assert leave["both_arms_on_body"]["median_deg"] < 18, leave
+    assert leave["both_arms_on_body"]["median_deg"] < 15, leave  # measured 8.8° (before: 11.2°)

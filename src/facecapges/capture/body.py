@@ -148,7 +148,7 @@ def collect_landmarks(
     n_out = None if src.n_frames is None else max(1, int(np.floor(src.n_frames / src.fps * fps + 1e-6)))
     if max_frames is not None:
         n_out = max_frames if n_out is None else min(n_out, max_frames)
-    poses, vis, hands, scores = [], [], [], []
+    poses, vis, hands, scores, images = [], [], [], [], []
     ms = []
     next_t = 0  # next output frame index
     try:
@@ -165,6 +165,7 @@ def collect_landmarks(
                         ms.append((time.perf_counter() - t0) * 1000.0)
                         h, s = assign_hands(det)
                     poses.append(det["pose"] if det["pose"] is not None else np.full((33, 3), np.nan))
+                    images.append(det["pose_image"] if det["pose_image"] is not None else np.full((33, 3), np.nan))
                     vis.append(det["visibility"] if det["visibility"] is not None else np.zeros(33))
                     hands.append(np.stack([x if x is not None else np.full((21, 3), np.nan) for x in h]))
                     scores.append(s)
@@ -176,7 +177,13 @@ def collect_landmarks(
     if not poses:
         raise UserError(f"{video}: no frame could be read from the video")
     lms = BodyLandmarks(
-        pose=np.stack(poses), visibility=np.stack(vis), hands=np.stack(hands), hand_score=np.array(scores), fps=fps
+        pose=np.stack(poses),
+        visibility=np.stack(vis),
+        hands=np.stack(hands),
+        hand_score=np.array(scores),
+        fps=fps,
+        pose_image=np.stack(images),
+        image_size=(int(src.width), int(src.height)),
     )
     seen = np.isfinite(lms.pose).all(axis=(1, 2))
     summary = {

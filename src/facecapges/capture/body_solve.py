@@ -13,8 +13,9 @@ of its child):
 
 * **Spine** takes the whole torso frame (shoulder line, hips→shoulders up): its roll in
   the image plane per frame, its lean and turn (seen only in depth, noisy) smoothed over
-  ~2 s (:data:`TORSO_SIGMA`); Hips, Spine1–3 and the clavicles stay at rest (the product
-  drives Spine only).
+  ~2 s (:data:`TORSO_SIGMA`), the lean then blended with BEAT's population mean
+  (:data:`LEAN_PRIOR_DEG`; the landmarker's share :data:`LEAN_WEIGHT`); Hips, Spine1–3 and the
+  clavicles stay at rest (the product drives Spine only).
 * **Arm**: the swing that points the bone at the elbow, turned about the bone so
   the elbow bends in the arm's rest hinge plane (weighted by how bent the elbow is).
 * **ForeArm**: the swing to the wrist — where the hand landmarker found the hand,
@@ -53,6 +54,16 @@ HAND_WEIGHT = 0.6  # share of the hand's wrist → middle knuckle in the forearm
 SMOOTH_SIGMA = 1.0  # frames (15 fps) of the zero-phase Gaussian over the pose landmarks
 HAND_SIGMA = 1.0  # the same over each hand's landmarks
 TORSO_SIGMA = 30.0  # frames: the torso's lean and turn (seen only in depth, noisy) over ~2 s
+# The torso's lean towards the camera (the BEAT Spine's X rotation): a frontal camera barely sees it, so the
+# landmarker's (smoothed) lean is blended with a population prior by their reliabilities.
+# Prior: the mean (and std over frames) of the Spine's X rotation over the BEAT 4-speaker training set
+# (speakers 2, 4, 6, 8; CaMN's ``bvh_mean.npy`` / ``bvh_std.npy`` in ../shared/data/beat/stats; speaker 2 is
+# one of the four). The landmarker's lean: its rms error against the truth on the development stretch
+# (first 80 % of 2_scott_0_1_1 rendered; it reads 4.1° ± 1.4° where he leans 13.1°, r = -0.3 frame by frame).
+LEAN_PRIOR_DEG = 15.9
+LEAN_PRIOR_SD_DEG = 4.98
+LEAN_LANDMARK_RMS_DEG = 9.5
+LEAN_WEIGHT = LEAN_PRIOR_SD_DEG**2 / (LEAN_PRIOR_SD_DEG**2 + LEAN_LANDMARK_RMS_DEG**2)  # the landmarker's share: 0.22
 
 # pose landmark indices (BlazePose 33)
 NOSE, L_EAR, R_EAR = 0, 7, 8
@@ -89,7 +100,10 @@ class BodyLandmarks:
     """Landmarks of T frames (camera axes, metres; NaN where not seen).
 
     pose (T, 33, 3) world landmarks; visibility (T, 33); hands (T, 2, 21, 3) world
-    landmarks of the subject's right [0] and left [1] hand; hand_score (T, 2) (0: not seen).
+    landmarks of the subject's right [0] and left [1] hand; hand_score (T, 2) (0: not seen);
+    optionally pose_image (T, 33, 3), the pose's image landmarks (x, y normalised by the picture's
+    ``image_size`` (width, height)), which give the arm bones' image-plane directions
+    (:func:`image_directions`).
     """
 
     pose: np.ndarray
@@ -97,6 +111,8 @@ class BodyLandmarks:
     hands: np.ndarray
     hand_score: np.ndarray
     fps: float
+    pose_image: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
 
     @property
     def n_frames(self) -> int:
@@ -172,12 +188,19 @@ def _twist(R: np.ndarray, axis: np.ndarray) -> np.ndarray:
     return _rodrigues(axis, ang)
 
 
-def _torso(slow: np.ndarray, fast: np.ndarray) -> np.ndarray:
+def _torso(slow: np.ndarray, fast: np.ndarray, lean_weight: float = LEAN_WEIGHT) -> np.ndarray:
     """The torso frame: its lean and turn (depth-borne, noisy) from the slowly smoothed landmarks
-    ``slow``, its roll in the image plane (well seen) from ``fast``."""
+    ``slow``, its roll in the image plane (well seen) from ``fast``; the lean (the pitch of the
+    intrinsic X·Y·Z angles, the BEAT Spine's channel order) then blended with :data:`LEAN_PRIOR_DEG`,
+    the landmarker's share ``lean_weight`` (1: the landmarker's lean as it is)."""
     g_slow, g_fast = torso_frame(slow), torso_frame(fast)
     fwd = g_slow[:, 2]
-    return _twist(g_fast @ g_slow.T, fwd) @ g_slow
+    g = _twist(g_fast @ g_slow.T, fwd) @ g_slow
+    if lean_weight >= 1.0:
+        return g
+    e = rot.matrix_to_euler(g, "XYZ")
+    e[0] = lean_weight * e[0] + (1.0 - lean_weight) * np.radians(LEAN_PRIOR_DEG)
+    return rot.euler_to_matrix(e, "XYZ")
 
 
 def _solve_frame(
@@ -321,23 +344,55 @@ def _arm_lengths(pose: np.ndarray) -> dict[tuple[int, int], float]:
 
 
 def _complete_depth(p: np.ndarray, lengths: dict[tuple[int, int], float]) -> np.ndarray:
-    """Arm depths from bone lengths (camera axes, one frame's (33, 3)).
+    """Forearm depths from bone lengths (camera axes, one frame's (33, 3)).
 
     The landmarker's image-plane offsets (x, y) are good, its depth offsets (z) are
-    compressed. A bone of known length L whose image-plane offset is shorter than L
+    compressed. A forearm of known length L whose image-plane offset is shorter than L
     must make up the rest in depth: |dz| = sqrt(L² − dx² − dy²), with the sign the
-    landmarker gives (kept when it already says more)."""
+    landmarker gives (kept when it already says more). The upper arm keeps the landmarker's
+    depth: it hangs nearly in the image plane (his median 10° out of it), where a 2D length a few
+    per cent short of L already asks for 15–20° of depth, often with the wrong sign (on the
+    development stretch its completion made the elevation error 8–10° → 10–11° and flipped the
+    elbow behind the shoulder in most of the worst frames)."""
     p = p.copy()
-    for a, b, c in ARM_CHAINS:
-        for i, j in ((a, b), (b, c)):
-            d = p[j] - p[i]
-            L = lengths[(i, j)]
-            dz = np.sqrt(max(L * L - d[0] ** 2 - d[1] ** 2, 0.0))
-            if dz > abs(d[2]):
-                shift = np.sign(d[2]) * dz - d[2] if d[2] != 0 else 0.0
-                p[j, 2] += shift
-                if j == b:  # the wrist moves with its elbow
-                    p[c, 2] += shift
+    for _, i, j in ARM_CHAINS:
+        d = p[j] - p[i]
+        L = lengths[(i, j)]
+        dz = np.sqrt(max(L * L - d[0] ** 2 - d[1] ** 2, 0.0))
+        if dz > abs(d[2]):
+            p[j, 2] += np.sign(d[2]) * dz - d[2] if d[2] != 0 else 0.0
+    return p
+
+
+def image_directions(pose: np.ndarray, pose_image: np.ndarray | None, size: tuple[int, int] | None) -> np.ndarray:
+    """World landmarks (..., 33, 3; camera axes) with each arm bone's image-plane direction taken from the
+    image landmarks (..., 33, 3; x, y normalised by ``size`` = (width, height)) — its image-plane length and
+    its depth stay the world landmarks'; the elbow, the wrist and the hand points move with their bone.
+
+    On the development stretch the image landmarks' bone directions were 2.2–2.8° (median) from the truth
+    seen through the render's camera, the world landmarks' x, y 3.3–7.6°: the world landmarks flatten the
+    picture's perspective unevenly. Nothing is assumed about the camera (no field of view): the direction
+    is the picture's as it is."""
+    if pose_image is None or size is None:
+        return pose
+    img = pose_image[..., :2] * np.asarray(size, np.float64)  # pixels (x right, y down, as the camera axes)
+    p = pose.copy()
+    for side in SIDES:
+        s, e, w = SHOULDER[side], ELBOW[side], WRIST[side]
+        start = p[..., s, :]
+        moved = []
+        for i, j in ((s, e), (e, w)):
+            d = pose[..., j, :] - pose[..., i, :]
+            u = img[..., j, :] - img[..., i, :]
+            n = np.linalg.norm(u, axis=-1, keepdims=True)
+            ok = np.isfinite(n) & (n > 1e-6)
+            xy = np.where(ok, u / np.where(ok, n, 1.0) * np.linalg.norm(d[..., :2], axis=-1, keepdims=True), d[..., :2])
+            start = start + np.concatenate([xy, d[..., 2:]], axis=-1)
+            moved.append(start)
+        shift = moved[1] - p[..., w, :]
+        for k in (INDEX[side], PINKY[side]):
+            p[..., k, :] = p[..., k, :] + shift
+        p[..., e, :], p[..., w, :] = moved
     return p
 
 
@@ -392,6 +447,8 @@ def solve(
     hand_sigma: float = HAND_SIGMA,
     torso_sigma: float = TORSO_SIGMA,
     hand_weight: float = HAND_WEIGHT,
+    lean_weight: float = LEAN_WEIGHT,
+    image_dirs: bool = True,
 ) -> BodySolve:
     """BEAT upper-body pose rot6d (T, 47, 6) and per-joint confidence (T, 47) from landmarks."""
     rig = _Rig(skel)
@@ -400,7 +457,9 @@ def solve(
     lengths = _arm_lengths(lm.pose * [1.0, 1.0, depth_gain]) if depth_completion else None
     rest_arr = np.stack([rest[n] for n in UPPER_BODY])
     seen = np.isfinite(lm.pose).all(axis=(1, 2))
-    P = np.where(seen[:, None, None], lm.pose, 0.0) * [1.0, 1.0, depth_gain]
+    pose = image_directions(lm.pose, lm.pose_image, lm.image_size) if image_dirs else lm.pose
+    seen &= np.isfinite(pose).all(axis=(1, 2))
+    P = np.where(seen[:, None, None], pose, 0.0) * [1.0, 1.0, depth_gain]
     if lengths is not None:
         P = np.stack([_complete_depth(p, lengths) if ok else p for p, ok in zip(P, seen, strict=True)])
     P = P @ MP_TO_BVH.T
@@ -420,7 +479,7 @@ def solve(
             continue
         p = P[t]
         hands: list[np.ndarray | None] = [H[t, s] if hand_seen[t, s] else None for s in range(2)]
-        torso = _torso(torso_P[t], p)
+        torso = _torso(torso_P[t], p, lean_weight)
         local = _solve_frame(rig, p, hands, rest, torso, hand_weight)
         mats[t] = np.stack([local[n] for n in UPPER_BODY])
         last = mats[t]
@@ -517,10 +576,19 @@ class StreamSolver:
       unfiltered and 15.3° / 28.6° offline.
     """
 
-    def __init__(self, skel: Skeleton, fps: float, hand_weight: float = HAND_WEIGHT):
+    def __init__(
+        self,
+        skel: Skeleton,
+        fps: float,
+        hand_weight: float = HAND_WEIGHT,
+        lean_weight: float = LEAN_WEIGHT,
+        image_dirs: bool = False,
+    ):
         self.rig = _Rig(skel)
         self.fps = float(fps)
         self.hand_weight = hand_weight
+        self.lean_weight = lean_weight
+        self.image_dirs = image_dirs
         self.rest = _rest_pose(self.rig)
         self.q_rest = rot.matrix_to_quaternion(np.stack([self.rest[n] for n in UPPER_BODY]))
         self.pose_f = OneEuro(fps, *LIVE_POSE_FILTER)
@@ -600,11 +668,20 @@ class StreamSolver:
         return out
 
     def step(
-        self, pose: np.ndarray | None, visibility: np.ndarray, hands: list[np.ndarray | None], hand_score: np.ndarray
+        self,
+        pose: np.ndarray | None,
+        visibility: np.ndarray,
+        hands: list[np.ndarray | None],
+        hand_score: np.ndarray,
+        pose_image: np.ndarray | None = None,
+        image_size: tuple[int, int] | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """One frame: pose world landmarks (33, 3) or None (no person), their visibility (33,), each hand's
-        world landmarks (21, 3) or None, the hands' scores (2,) → local quaternions (47, 4) and the
+        world landmarks (21, 3) or None, the hands' scores (2,), optionally the pose's image landmarks (33, 3)
+        in a picture of ``image_size`` (:func:`image_directions`) → local quaternions (47, 4) and the
         per-joint confidence (47,). With no person the last pose is held (confidence 0, easing to rest)."""
+        if pose is not None and self.image_dirs:
+            pose = image_directions(np.asarray(pose, np.float64), pose_image, image_size)
         if pose is None or not np.isfinite(pose).all():
             self.pose_f.reset()
             self._hands([None] * len(SIDES), np.zeros(len(SIDES)))
@@ -615,7 +692,7 @@ class StreamSolver:
             a = 1.0 / TORSO_SIGMA
             self.torso_slow = P.copy() if self.torso_slow is None else self.torso_slow + a * (P - self.torso_slow)
             self._hands(hands, hand_score)
-            q = self.rot_f(self._filter_twist(self._solve(P, _torso(self.torso_slow, P))))
+            q = self.rot_f(self._filter_twist(self._solve(P, _torso(self.torso_slow, P, self.lean_weight))))
             q[self.fingers] = self.finger_f(q[self.fingers])
             self.q_last = q
             conf = _confidence(self.rig, visibility, hand_score)
