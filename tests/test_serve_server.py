@@ -19,10 +19,10 @@ import pytest
 import torch
 
 from facecapges import rotations as rot
-from facecapges.network.style import NetworkStyle, save_checkpoint
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
 from facecapges.network.streaming import NetworkStream
+from facecapges.network.style import NetworkStyle, save_checkpoint
 from facecapges.runtime.outputs import protocol
 from facecapges.serving.server import ServeConfig, StreamServer
 
@@ -209,7 +209,7 @@ def test_max_streams_and_rate_limit(ckpt, server):
         try:
             while True:
                 got.append(json.loads(await asyncio.wait_for(a.recv(), timeout=3.0)))
-        except asyncio.TimeoutError:
+        except TimeoutError:
             pass
         poses = [m for m in got if m["type"] == "pose"]
         errors = [m for m in got if m["type"] == "error"]
@@ -502,7 +502,7 @@ def test_sample_client_reconnects_and_resumes_when_its_server_dies(ckpt, tmp_pat
             time.sleep(0.05)
         first.close()  # the node dies: the client's connection drops
         second = StreamServer(ckpt, ServeConfig(port=port)).start()
-        out, err = client.communicate(timeout=120)
+        _out, err = client.communicate(timeout=120)
         assert client.returncode == 0, err
         assert "reconnecting" in err and "resuming at frame" in err, err
         assert second.summary()["resumed"] == 1 and second.summary()["frames"] > 0
