@@ -18,7 +18,7 @@ demo: setup
 SERIAL_FILES = $(shell grep -l 'mark\.serial' tests/test_*.py)
 test: setup
 	bash scripts/setup-test.sh
-	$(VENV)/bin/ruff check src
+	$(VENV)/bin/ruff check src tests
 	$(VENV)/bin/ruff format --check src
 	$(VENV)/bin/mypy
 	$(PY) -m pytest -q -n 2 --dist worksteal -m "not serial" --durations=15
@@ -27,7 +27,7 @@ test: setup
 # The inner loop (docs/testing.md): lint and every test not marked `slow` (Chromium, Blender,
 # torchrun, training runs, the bench). `make test` and CI still run everything.
 test-fast: setup
-	$(VENV)/bin/ruff check src
+	$(VENV)/bin/ruff check src tests
 	$(VENV)/bin/ruff format --check src
 	$(PY) -m pytest -q -n 2 --dist worksteal -m "not slow and not serial" --durations=10
 	$(PY) -m pytest -q -m "serial and not slow" $(SERIAL_FILES)

@@ -82,7 +82,7 @@ def import_glb(path):
         keys = obj.data.shape_keys.key_blocks
         out["shape_keys"][obj.name] = [k.name for k in keys]
         if "jawOpen" in keys:
-            def world_vertices():
+            def world_vertices(obj=obj):  # called in this iteration only
                 bpy.context.view_layer.update()
                 ev = obj.evaluated_get(bpy.context.evaluated_depsgraph_get())
                 mesh = ev.to_mesh()

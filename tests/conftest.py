@@ -19,9 +19,9 @@ from pathlib import Path
 # only spin against each other (and against subprocesses the tests start).
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import signal  # noqa: E402
+import signal
 
-import pytest  # noqa: E402
+import pytest
 
 # Four tests stop a `serve` / `live` subprocess with Ctrl-C (SIGINT) and check it exits
 # cleanly. A suite started in the background of a script (`make test &`, nohup) inherits

@@ -9,6 +9,8 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from functools import lru_cache
 
 
@@ -167,6 +169,39 @@ def wait_line(proc: subprocess.Popen, prefix: str, timeout: float = 120.0) -> st
         if line.startswith(prefix):
             return line
     return None
+
+
+@contextmanager
+def vmc_frames(on_frame: Callable[[bytes, float], None]) -> Iterator[tuple[str, int]]:
+    """A loopback UDP receiver for a VMC sender, yielding its ``(host, port)``: a thread calls
+    ``on_frame(datagram, time.monotonic())`` for every datagram holding ``/VMC/Ext/T`` (a frame's last, so one
+    call per frame), stamped as it arrives. The thread is stopped and the socket closed on leaving."""
+    import socket
+    import threading
+    import time
+
+    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    rx.bind(("127.0.0.1", 0))
+    rx.settimeout(0.2)
+    stop = threading.Event()
+
+    def receive() -> None:
+        while not stop.is_set():
+            try:
+                d = rx.recv(65535)
+            except OSError:
+                continue
+            if b"/VMC/Ext/T" in d:
+                on_frame(d, time.monotonic())
+
+    th = threading.Thread(target=receive, daemon=True)
+    th.start()
+    try:
+        yield rx.getsockname()
+    finally:
+        stop.set()
+        th.join(2)
+        rx.close()
 
 
 def refused(p: subprocess.CompletedProcess, *words: str) -> None:

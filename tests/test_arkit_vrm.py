@@ -6,8 +6,14 @@ import numpy as np
 import pytest
 
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.avatar.vrm.expressions import (PERFECT_SYNC_NAMES, VRM0_PRESETS, VRM1_EXPRESSIONS, vrm0_presets,
-                                                vrm0_weights, vrm1_expressions)
+from facecapges.avatar.vrm.expressions import (
+    PERFECT_SYNC_NAMES,
+    VRM0_PRESETS,
+    VRM1_EXPRESSIONS,
+    vrm0_presets,
+    vrm0_weights,
+    vrm1_expressions,
+)
 
 
 def face(**weights) -> np.ndarray:
@@ -117,7 +123,6 @@ def test_real_iphone_face_blinks_are_exact():
     import struct
 
     from conftest import shared_file
-
     from facecapges.runtime.inputs.livelink import decode_packet
 
     raw = gzip.decompress(shared_file("data/livelink/dao.gesichter").read_bytes())

@@ -9,7 +9,6 @@ import pytest
 
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.avatar.body import PUPIL, SCLERA, back_of_head
-
 from runtime_helpers import checkpoint
 
 
@@ -57,8 +56,8 @@ def test_eyeballs_turn_with_eyelook_targets(avatar):
 def test_blinks_and_gaze_show_in_the_render():
     import cv2
 
-    from facecapges.avatar.render.video import our_avatar, render_stills
     from facecapges.avatar.gltf import avatar_glb
+    from facecapges.avatar.render.video import our_avatar, render_stills
 
     glb = avatar_glb(checkpoint().skeleton)
     ws = [_w(), _w(eyeBlinkLeft=1, eyeBlinkRight=1), _w(eyeLookOutLeft=1, eyeLookInRight=1),

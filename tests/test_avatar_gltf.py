@@ -44,7 +44,7 @@ def read_accessor(doc: pygltflib.GLTF2, i: int) -> np.ndarray:
 
 
 def test_structure_is_valid_gltf2(built):
-    _, av, doc, glb = built
+    _, _av, doc, glb = built
     assert glb[:4] == b"glTF" and int.from_bytes(glb[4:8], "little") == 2
     assert doc.asset.version == "2.0"
     assert doc.buffers[0].byteLength == len(doc.binary_blob())
@@ -67,7 +67,7 @@ def test_structure_is_valid_gltf2(built):
 
 
 def test_skin_uses_the_beat_joints_with_correct_inverse_bind_matrices(built):
-    bvh, av, doc, _ = built
+    bvh, _av, doc, _ = built
     skin = doc.skins[0]
     names = [doc.nodes[j].name for j in skin.joints]
     assert names == list(bvh.skeleton.names) and len(names) == 75
@@ -86,7 +86,7 @@ def test_skin_uses_the_beat_joints_with_correct_inverse_bind_matrices(built):
 
 
 def test_skin_weights_cover_every_driven_joint(built):
-    bvh, av, doc, _ = built
+    bvh, _av, doc, _ = built
     prim = doc.meshes[0].primitives[0]
     J = read_accessor(doc, prim.attributes.JOINTS_0)
     W = read_accessor(doc, prim.attributes.WEIGHTS_0)
@@ -101,7 +101,7 @@ def test_skin_weights_cover_every_driven_joint(built):
 
 
 def test_face_morph_targets_are_the_52_arkit_shapes_on_the_head(built):
-    bvh, av, doc, _ = built
+    _bvh, _av, doc, _ = built
     face_mesh = doc.meshes[1]
     assert face_mesh.extras["targetNames"] == list(ARKIT_NAMES)
     assert len(face_mesh.weights) == 52 and not any(face_mesh.weights)
@@ -117,7 +117,7 @@ def test_face_morph_targets_are_the_52_arkit_shapes_on_the_head(built):
 
 
 def test_linear_blend_skinning_of_the_rest_pose_is_identity_and_bends_the_elbow(built):
-    bvh, av, doc, _ = built
+    bvh, av, _doc, _ = built
     from facecapges import rotations as rot
 
     skel = bvh.skeleton

@@ -29,7 +29,6 @@ def blender(tmp_path_factory):
     if shutil.which("blender") is None:
         pytest.skip("Debian's blender is not installed (scripts/setup-test.sh installs it)")
     from conftest import shared_file
-
     from facecapges.avatar.body import default_avatar
     from facecapges.avatar.gltf import avatar_to_gltf
 

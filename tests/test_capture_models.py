@@ -34,7 +34,7 @@ def test_missing_user_model_is_a_user_error(tmp_path):
 def test_non_zip_and_incomplete_bundles_are_refused(tmp_path):
     bad = tmp_path / "bad.task"
     bad.write_bytes(b"not a zip")
-    with pytest.raises(UserError, match="not a MediaPipe .task bundle"):
+    with pytest.raises(UserError, match=r"not a MediaPipe \.task bundle"):
         models.resolve_model(bad)
     part = tmp_path / "part.task"
     with zipfile.ZipFile(part, "w") as z:

@@ -8,7 +8,6 @@ from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.capture.speech_mouth import MOUTH_NAMES, SpeechMouth, speech_frames, speech_mouth_track
 from facecapges.io.audio import load_audio
-
 from runtime_helpers import cli
 
 JAW = ARKIT_NAMES.index("jawOpen")

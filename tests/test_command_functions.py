@@ -36,7 +36,7 @@ def test_run_checks_the_video_size_and_the_inputs_first(tmp_path):
 
     with pytest.raises(UserError, match="--video-size must look like 640x480"):
         run_offline(RunOptions(tmp_path / "missing.mp4", tmp_path / "out", video_size="big"))
-    with pytest.raises(UserError, match="missing.mp4"):
+    with pytest.raises(UserError, match=r"missing\.mp4"):
         run_offline(RunOptions(tmp_path / "missing.mp4", tmp_path / "out"))
 
 

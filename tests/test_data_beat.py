@@ -93,7 +93,7 @@ def test_semantic_max_of_overlapping_segments(tmp_path):
 def test_semantic_errors(tmp_path):
     p = tmp_path / "bad.txt"
     p.write_text("a\t0.0\t1.0\t1.0\t0.5\tok\nb\tzero\t1\t1\t0.5\tk\n")
-    with pytest.raises(UserError, match="bad.txt.*line 2"):
+    with pytest.raises(UserError, match=r"bad\.txt.*line 2"):
         beat.read_semantic(p, 10, 15)
     p.write_text("a\t2.0\t1.0\t-1\t0.5\tk\n")
     with pytest.raises(UserError, match="bad segment"):

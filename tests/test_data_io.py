@@ -63,24 +63,24 @@ def test_save_load_round_trip_and_silence(tmp_path):
 def test_audio_errors_name_the_file(tmp_path, beat_wav):
     data = beat_wav.read_bytes()
     (tmp_path / "cut.wav").write_bytes(data[: len(data) // 3])
-    with pytest.raises(UserError, match="cut.wav.*truncated"):
+    with pytest.raises(UserError, match=r"cut\.wav.*truncated"):
         load_audio(tmp_path / "cut.wav")
     (tmp_path / "head.wav").write_bytes(data[:30])
-    with pytest.raises(UserError, match="head.wav.*truncated"):
+    with pytest.raises(UserError, match=r"head\.wav.*truncated"):
         load_audio(tmp_path / "head.wav")
     (tmp_path / "empty.wav").write_bytes(b"")
-    with pytest.raises(UserError, match="empty.wav.*empty"):
+    with pytest.raises(UserError, match=r"empty\.wav.*empty"):
         load_audio(tmp_path / "empty.wav")
     (tmp_path / "junk.wav").write_bytes(b"this is not audio at all" * 10)
-    with pytest.raises(UserError, match="junk.wav.*not a readable audio"):
+    with pytest.raises(UserError, match=r"junk\.wav.*not a readable audio"):
         load_audio(tmp_path / "junk.wav")
     sf.write(tmp_path / "zero.wav", np.zeros(0, np.float32), 16000)
-    with pytest.raises(UserError, match="zero.wav.*no samples"):
+    with pytest.raises(UserError, match=r"zero\.wav.*no samples"):
         load_audio(tmp_path / "zero.wav")
-    with pytest.raises(UserError, match="nothing.wav.*not found"):
+    with pytest.raises(UserError, match=r"nothing\.wav.*not found"):
         load_audio(tmp_path / "nothing.wav")
     (tmp_path / "fake.mp4").write_bytes(b"\x00" * 100)
-    with pytest.raises(UserError, match="fake.mp4"):
+    with pytest.raises(UserError, match=r"fake\.mp4"):
         load_audio(tmp_path / "fake.mp4")
 
 
@@ -123,8 +123,9 @@ def test_fps_falls_back_to_60_without_times(tmp_path):
 def test_write_read_round_trip_with_head(tmp_path):
     rng = np.random.default_rng(1)
     w = rng.uniform(0, 1, (12, 52)).astype(np.float32)
-    from facecapges.rotations import matrix_to_rot6d
     from scipy.spatial.transform import Rotation
+
+    from facecapges.rotations import matrix_to_rot6d
 
     head = matrix_to_rot6d(Rotation.random(12, random_state=0).as_matrix()).astype(np.float32)
     write_face_json(tmp_path / "o.json", w, 15.0, head_rot6d=head, layout="full")

@@ -11,8 +11,14 @@ from facecapges import timing
 from facecapges.data.joints9 import load_array, load_layout, read_joints9, source_world
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh
-from facecapges.skeleton import UPPER_BODY, global_transforms, local_matrices, motion_to_euler, pose_to_motion
-from facecapges.skeleton import joint_positions
+from facecapges.skeleton import (
+    UPPER_BODY,
+    global_transforms,
+    joint_positions,
+    local_matrices,
+    motion_to_euler,
+    pose_to_motion,
+)
 
 TAKES = ("001_Neutral_0_x_1_0", "003_Neutral_2_x_1_0")
 PRESENT = {"Spine"} | {f"{s}{j}" for s in ("Right", "Left") for j in ("Shoulder", "Arm", "ForeArm", "Hand")}

@@ -28,7 +28,7 @@ def test_rot6d_mirror_is_the_matrix_conjugation():
 
 
 def test_mirror_twice_is_identity(beat):
-    pose, head = motion_to_pose(beat.skeleton, beat.motion)
+    pose, _head = motion_to_pose(beat.skeleton, beat.motion)
     assert np.array_equal(mirror_pose(mirror_pose(pose)), pose)
     face = np.random.default_rng(1).random((5, 52)).astype(np.float32)
     assert np.array_equal(mirror_face(mirror_face(face)), face)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-
 from pathlib import Path
 
 import numpy as np
@@ -191,7 +190,7 @@ def test_prepare_errors(tmp_path, beat_bvh, beat_wav, sample_bvh):
     write_bvh(bad, skel, sample_bvh.motion[:30], 15)
     bad.write_text(bad.read_text().replace("JOINT RightHand\n", "JOINT RightPaw\n"))
     link_clip(root, "4_lawrence_0_10_10", wav=beat_wav)
-    with pytest.raises(UserError, match="4_lawrence_0_10_10.bvh: wrong skeleton: missing 1 .*RightHand"):
+    with pytest.raises(UserError, match=r"4_lawrence_0_10_10\.bvh: wrong skeleton: missing 1 .*RightHand"):
         prepare(root, tmp_path / "c2", progress=False)
     assert not (tmp_path / "c2").exists() and not list(tmp_path.glob(".c2.part"))
 

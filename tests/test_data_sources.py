@@ -94,7 +94,7 @@ def exported(cache, tmp_path_factory):
 
 
 def test_export_moves_arms_and_fingers(exported):
-    out, bvh, P = exported
+    _out, bvh, P = exported
     src = read_bvh(shared_file("data/zeggs/067_Speech_2_x_1_0.bvh"))
     assert bvh.fps == 15 and bvh.n_frames == 1033 and bvh.skeleton.n_joints == 75
     assert np.ptp(P[:, bvh.skeleton.index("RightHandIndex3")], axis=0).max() > 10  # the fingers travel (cm)
@@ -142,7 +142,7 @@ def test_export_plays_in_threejs(exported):
                          text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     got = json.loads(res.stdout)
-    for f, (t, bones) in zip(frames, got.items()):
+    for f, bones in zip(frames, got.values()):
         for b, xyz in bones.items():
             assert np.allclose(xyz, P[f, bvh.skeleton.index(b)], atol=0.05), (f, b)
 
@@ -166,6 +166,6 @@ def test_speaker_ids_of_other_sources(tmp_path):
     (clip,) = index["clips"]
     assert (clip["name"], clip["speaker"], clip["joint_map"], clip["n_masked"]) == ("beat_take1", 101, "beat", 0)
     (mine / "take2.bvh").symlink_to(beat_bvh)  # no take2.wav
-    with pytest.raises(UserError, match="take2.wav"):
+    with pytest.raises(UserError, match=r"take2\.wav"):
         prepare(None, tmp_path / "c2", mocap=[mine], mocap_speaker=101, target=read_bvh(beat_bvh).skeleton,
                 progress=False)

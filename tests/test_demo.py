@@ -93,7 +93,6 @@ def _hands_leave_rest_like_the_speaker(bvh):
     spread within 0.8–1.25× his; the share of frames with a wrist raised 10 cm above his hanging height
     within 0.8–1.25× his share), against his training frames (2_scott_0_1_1 before its held-out 20 %)."""
     from conftest import shared_file
-
     from facecapges.evaluation.synchrony import wrist_positions, wrist_spread
     from facecapges.io.bvh import read_bvh
     from facecapges.matching.targets import arm_positions

@@ -8,12 +8,12 @@ import functools
 
 import numpy as np
 import pytest
-from conftest import shared_file
-from tolerances import assert_rotations_close
 
+from conftest import shared_file
 from facecapges import timing
 from facecapges.engine.contract import BatchedStreams, GestureEngine, Stream
 from facecapges.styles import DEFAULT_NETWORK_STYLE, DEFAULT_STYLE, load_style
+from tolerances import assert_rotations_close
 
 STYLES = {"matching": DEFAULT_STYLE, "network": DEFAULT_NETWORK_STYLE}
 SPF = timing.samples_per_frame()

@@ -107,7 +107,7 @@ def test_offline_trainer_learns_the_segments(tmp_path):
                                     holdout_from=150, num_threads=1), {"speaker": 2, "clips": ["synthetic"]})
     hist = tr.fit(progress=False)
     assert hist[-1]["rec"] < hist[0]["rec"] and "adv" in hist[-1] and "held_rec" in hist[-1]
-    m, meta = load_bidirectional(tmp_path / "run" / "model.safetensors")
+    _m, meta = load_bidirectional(tmp_path / "run" / "model.safetensors")
     assert meta["epochs_trained"] == 8 and meta["train_config"]["holdout_from"] == 150
     assert np.asarray(meta["neutral_window"]).shape == (16, 47, 6)
     lines = (tmp_path / "run" / "log.csv").read_text().splitlines()

@@ -106,8 +106,8 @@ def test_trained_by_the_one_trainer_and_round_trips(tmp_path, monkeypatch):
 
 
 def test_load_refuses_other_files(tmp_path):
-    from facecapges.network.style import save_checkpoint
     from facecapges.network.network import FaceCapGes
+    from facecapges.network.style import save_checkpoint
 
     p = save_checkpoint(tmp_path / "fcg.safetensors", FaceCapGes(ModelConfig()), {})
     with pytest.raises(UserError, match="not a CaMN checkpoint"):

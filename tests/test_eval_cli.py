@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from facecapges.data.cache import Cache
-from facecapges.network.style import save_checkpoint
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
+from facecapges.network.style import save_checkpoint
 from runtime_helpers import cli
 
 

@@ -133,7 +133,7 @@ def test_velocity_term_of_the_loss():
 
 @pytest.mark.slow
 def test_training_on_the_real_clip_lowers_the_loss_and_scores_gt_as_zero(real_pose, tmp_path):
-    skel, pose = real_pose
+    _skel, pose = real_pose
     cfg = F.FGDConfig(epochs=4)
     ev = F.train_fgd([pose[:766]], cfg, regions=("with_head",), progress=False)
     loss = ev.history.loss["with_head"]

@@ -118,11 +118,11 @@ def test_eval_generation_runs_through_the_checkpoints_own_stream(take, beat_audi
     """``generate_poses`` from a history uses ``ckpt.streaming()`` + ``reset(initial_pose)``: the same poses
     as the network's streaming generator built on that window by hand (the path it replaced)."""
     from facecapges import timing
-    from facecapges.evaluation.run import engine_database, history_frames
-    from facecapges.styles import load_style
-    from facecapges.engine.inputs import FrameInputs
     from facecapges.engine.generate import generate_poses
+    from facecapges.engine.inputs import FrameInputs
+    from facecapges.evaluation.run import engine_database, history_frames
     from facecapges.network.streaming import NetworkStream
+    from facecapges.styles import load_style
 
     pose, _ = take
     ckpt = load_style(style="beat2-scott-demo")

@@ -61,7 +61,7 @@ def test_paired_evaluation_and_report(clip, tmp_path):
 
 
 def test_samples_and_unpaired_unseen_audio(clip, unseen_wav):
-    pose, _, sr, fps = clip
+    pose, _, _sr, fps = clip
     audio, sr2 = sf.read(unseen_wav, dtype="float32")
     n = 300
     # two "samples" for the same audio: two different real stretches of the speaker

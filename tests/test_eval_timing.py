@@ -77,10 +77,9 @@ def test_still_motion_has_no_peaks():
 
 
 def test_speech_onsets_come_from_the_speech_tracker():
-    from facecapges.matching.speech import speech_track
-
     from conftest import shared_file
     from facecapges.io.audio import load_audio
+    from facecapges.matching.speech import speech_track
 
     sr, n = 16000, 60
     speech = load_audio(shared_file("data/beat/2_scott_0_4_4.wav"))

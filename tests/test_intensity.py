@@ -11,11 +11,11 @@ import pytest
 import torch
 
 from facecapges import rotations as rot
-from facecapges.errors import UserError
-from facecapges.network.style import NetworkStyle
-from facecapges.network.config import ModelConfig
 from facecapges.engine.intensity import MAX_INTENSITY, check_intensity, rest_pose, scale_pose
+from facecapges.errors import UserError
+from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
+from facecapges.network.style import NetworkStyle
 from facecapges.runtime.outputs import protocol
 from tolerances import assert_rotations_close
 

@@ -79,9 +79,9 @@ def energy_speed_z(audio: np.ndarray, pose: np.ndarray) -> tuple[float, float]:
 
 def train_and_measure(tmp_path, cut_audio: bool = False) -> dict:
     """Train on three synthetic takes; figures on a fourth, new one (see the module docs)."""
-    from facecapges.styles import load_style
-    from facecapges.engine.inputs import FrameInputs
     from facecapges.engine.generate import generate_poses
+    from facecapges.engine.inputs import FrameInputs
+    from facecapges.styles import load_style
     from facecapges.timing import frame_audio
     from facecapges.training.segments import ClipArrays
     from facecapges.training.train import build_trainer
@@ -128,7 +128,7 @@ def test_synthetic_target_follows_its_bursts():
     assert np.percentile(speed, 90) > 20.0  # the strokes move the wrists (cm/s), not only twist the arms
     r, z = energy_speed_z(audio, pose)
     assert r > 0.4 and z > 4
-    r_shift, z_shift = energy_speed_z(np.roll(audio, 7 * SR), pose)
+    _r_shift, z_shift = energy_speed_z(np.roll(audio, 7 * SR), pose)
     assert z_shift < 3
 
 

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 import torch
 
-from facecapges.network.style import save_checkpoint
-from facecapges.styles import load_style
+from facecapges.errors import UserError
 from facecapges.network.config import ModelConfig, TrainConfig
 from facecapges.network.network import FaceCapGes
 from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
-from facecapges.errors import UserError
+from facecapges.network.style import save_checkpoint
+from facecapges.styles import load_style
 from tolerances import NETWORK_ULPS, assert_float32_close, assert_rotations_close
 
 SMALL = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
@@ -142,7 +142,7 @@ def test_checkpoint_round_trip_and_errors(tmp_path, model):
     assert ck.model.cfg == model.cfg
     bad = tmp_path / "bad.safetensors"
     bad.write_bytes(b"not a checkpoint at all")
-    with pytest.raises(UserError, match="bad.safetensors"):
+    with pytest.raises(UserError, match=r"bad\.safetensors"):
         load_style(bad)
     # weights from another config
     other = FaceCapGes(ModelConfig(**SMALL))
@@ -154,7 +154,7 @@ def test_checkpoint_round_trip_and_errors(tmp_path, model):
 
     with safe_open(str(p2), "pt") as f:
         md = json.loads(f.metadata()["facecapges"])
-        tensors = {k: f.get_tensor(k) for k in f.keys()}
+        tensors = {k: f.get_tensor(k) for k in f.keys()}  # noqa: SIM118 — a safetensors handle, not a dict
     md["model_config"] = json.loads(json.dumps(__import__("dataclasses").asdict(ModelConfig())))
     save_file(tensors, str(tmp_path / "mixed.safetensors"), metadata={"facecapges": json.dumps(md)})
     with pytest.raises(UserError, match="do not match"):

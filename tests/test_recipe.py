@@ -253,7 +253,7 @@ def test_fine_tuning_starts_from_the_base_styles_weights_with_its_own_statistics
     c = _clip(face=True)  # … and the fine-tuned speaker's own statistics (the base had no face)
     np.testing.assert_allclose(ft.G.face_enc.inp.in_mean.numpy(), c.face[:120].mean(0), atol=1e-5)
     assert float(base.G.face_enc.inp.in_scale.abs().max()) == 0.0
-    with pytest.raises(UserError, match="model.lstm_hidden is 16, this run's is 24"):
+    with pytest.raises(UserError, match=r"model\.lstm_hidden is 16, this run's is 24"):
         build_trainer([_clip()], tmp_path / "bad", dict(TINY, lstm_hidden=24),
                       dict(over, init_from=str(tmp_path / "base")), {}, resume=False)
 
@@ -301,7 +301,10 @@ def test_amplitude_loss_asks_for_the_swing_not_its_timing(tmp_path):
     from facecapges.training.train import build_trainer
 
     t = torch.arange(22, dtype=torch.float32)  # 22 frames: two 9-frame strokes in the 18 smoothed ones
-    stroke = lambda shift: torch.sin(2 * np.pi * (t - shift) / 9)[None, :, None].repeat(2, 1, 12) * 0.2
+
+    def stroke(shift: float) -> torch.Tensor:
+        return torch.sin(2 * np.pi * (t - shift) / 9)[None, :, None].repeat(2, 1, 12) * 0.2
+
     real, late, still = stroke(0.0), stroke(2.0), torch.zeros(2, 22, 12)
     late_losses, still_losses = (masked_reconstruction_losses(g, real, 0.1) for g in (late, still))
     assert late_losses["rec"] > 0.5 * still_losses["rec"]  # the pose loss: a late stroke ~ no stroke

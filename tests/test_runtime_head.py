@@ -14,7 +14,6 @@ from facecapges.capture.face_lost import FaceLostPolicy
 from facecapges.io.face_json import read_face_json
 from facecapges.rotations import angles_to_matrix, head_angles
 from facecapges.runtime.head import HeadDriver, avatar_head_matrix, head_follow, set_head
-
 from runtime_helpers import checkpoint, cli
 
 MEGAMIND_FRAMES = 168  # the clip's 11.3 s at 15 fps (it has no audio: a BEAT clip is the speech)

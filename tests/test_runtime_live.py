@@ -9,9 +9,8 @@ import time
 
 import pytest
 
-from facecapges.runtime.live import livelink_hint
 from facecapges.runtime.inputs.sources import LiveLinkFace
-
+from facecapges.runtime.live import livelink_hint
 from runtime_helpers import cli, cli_process
 
 HINT = "no packets yet — is the phone set to this machine's LAN address? use --host 0.0.0.0"

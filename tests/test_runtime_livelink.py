@@ -14,8 +14,13 @@ from hypothesis import strategies as st
 
 from facecapges import rotations as rot
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.runtime.inputs.livelink import (LIVELINK_NAMES, LiveLinkReceiver, PacketError, decode_packet,
-                                         encode_packet)
+from facecapges.runtime.inputs.livelink import (
+    LIVELINK_NAMES,
+    LiveLinkReceiver,
+    PacketError,
+    decode_packet,
+    encode_packet,
+)
 
 DEVICE = "1F2E3D4C-5B6A-7980-A1B2-C3D4E5F60718"
 
@@ -170,7 +175,6 @@ def test_live_command_with_livelink(beat_wav, tmp_path):
     import json
 
     from facecapges.io.face_json import read_face_json
-
     from runtime_helpers import cli_popen, wait_line
 
     rec = tmp_path / "rec"
@@ -190,7 +194,7 @@ def test_live_command_with_livelink(beat_wav, tmp_path):
             k += 1
             time.sleep(1 / 60)
         tx.close()
-        out, err = proc.communicate(timeout=60)
+        _out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()

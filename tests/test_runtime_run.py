@@ -9,7 +9,6 @@ import pytest
 
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
-
 from runtime_helpers import cli
 
 N = 30  # 2 s of the 8 s clip keeps the test short; the full clip is run by the benchmark

@@ -10,9 +10,8 @@ import pytest
 from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES
-from facecapges.runtime.scheduler import FaceHold, Scheduler
 from facecapges.runtime.inputs.sources import FaceSample, FileAudio
-
+from facecapges.runtime.scheduler import FaceHold, Scheduler
 from runtime_helpers import checkpoint
 
 FPS, SR = 15, 16000
@@ -176,7 +175,7 @@ def test_feed_stops_hold_then_ease_without_jumps():
 def test_audio_underrun_is_zero_filled_and_counted():
     N = 20
     audio = ScriptedAudio(speech(N, 3), live=True, starve={10, 11, 12})
-    s, gen, outs = run(ScriptedFeed(face_track(N, 3)), audio, n=N)
+    s, gen, _outs = run(ScriptedFeed(face_track(N, 3)), audio, n=N)
     assert s.events["audio_underruns"] == 3
     for k in range(N):
         a = gen.inputs[k][0]
@@ -191,7 +190,7 @@ def test_audio_underrun_is_zero_filled_and_counted():
 
 
 def test_no_face_source_gives_neutral_face_and_silence_gives_zeros():
-    s, gen, outs = run(None, None, n=5)
+    s, gen, _outs = run(None, None, n=5)
     for audio, face, head in gen.inputs:
         assert not audio.any() and not face.any()
         np.testing.assert_array_equal(head, rot.identity_rot6d())
@@ -216,7 +215,7 @@ def test_realtime_file_audio_is_paced(tmp_path):
     assert len(fa.read(0, 16000, now_s=0.25)) == 4000  # only what "exists" by then
     assert len(FileAudio(wav).read(0, 16000, now_s=0.25)) == 16000  # offline: all of it at once
     t0 = time.monotonic()
-    s, gen, outs = run(ScriptedFeed(face_track(8, 5)), fa, n=8, realtime=True)
+    s, _gen, outs = run(ScriptedFeed(face_track(8, 5)), fa, n=8, realtime=True)
     assert len(outs) == 8 and s.events["audio_underruns"] == 0
     assert time.monotonic() - t0 >= 8 / FPS - 0.02  # frame k waits for its deadline
 
@@ -226,7 +225,7 @@ def test_face_hold_unit():
     w = np.full(52, 0.8, np.float32)
     R = rot.axis_angle_matrix("Y", np.array(0.6))
     h.fresh(FaceSample(1.0, w, rot.matrix_to_rot6d(R).astype(np.float32)))
-    wf, hf, found = h.stale(1.4)  # within the 500 ms hold
+    wf, _hf, found = h.stale(1.4)  # within the 500 ms hold
     np.testing.assert_array_equal(wf, w)
     assert found
     wm, hm, found = h.stale(2.0)  # half-way through the ease: smoothstep(0.5) = 0.5

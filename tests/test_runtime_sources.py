@@ -8,7 +8,6 @@ import math
 import numpy as np
 
 from facecapges.runtime.inputs.sources import FileVideo
-
 from runtime_helpers import checkpoint
 
 

@@ -150,50 +150,34 @@ def test_viewer_and_vmc_share_one_interpolator(face_video):
     """``live --web … --vmc … --rate 30``: the viewer rides the VMC sender's interpolator (issue 36: one clock
     and one blend per tick for both), so both get the same 30 Hz frames: every ``pose`` the viewer gets has the
     stream time of a ``/VMC/Ext/T`` the receiver got (two interpolators had two clocks: their times differed)."""
-    import socket
-    import threading
-
     from pythonosc.osc_bundle import OscBundle
     from websockets.sync.client import connect
 
     from facecapges.runtime.outputs import protocol
-    from runtime_helpers import cli_popen, wait_line
+    from runtime_helpers import cli_popen, vmc_frames, wait_line
 
-    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    rx.bind(("127.0.0.1", 0))
-    rx.settimeout(0.2)
-    vmc_times, stop = [], threading.Event()
+    vmc_times = []
 
-    def receive():
-        while not stop.is_set():
-            try:
-                d = rx.recv(65535)
-            except OSError:
-                continue
-            if b"/VMC/Ext/T" in d:
-                vmc_times.extend(float(m.params[0]) for m in OscBundle(d) if m.address == "/VMC/Ext/T")
+    def got(d: bytes, _: float) -> None:
+        vmc_times.extend(float(m.params[0]) for m in OscBundle(d) if m.address == "/VMC/Ext/T")
 
-    th = threading.Thread(target=receive, daemon=True)
-    th.start()
-    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
-                     "--vmc", f"127.0.0.1:{rx.getsockname()[1]}", "--rate", "30", "--max-seconds", "60")
-    try:
-        line = wait_line(proc, "viewer: ")
-        assert line, proc.stderr.read()[-2000:]
-        with connect(line.split()[1].replace("http://", "ws://") + "ws", max_size=None) as ws:
-            assert json.loads(ws.recv(timeout=30))["type"] == "hello"
-            times = []
-            while len(times) < 40:
-                msg = ws.recv(timeout=30)
-                if json.loads(msg)["type"] == "pose":
-                    times.append(protocol.decode_pose(msg)["time"])
-        time.sleep(0.3)
-    finally:
-        proc.kill()
-        proc.wait()
-        stop.set()
-        th.join(2)
-        rx.close()
+    with vmc_frames(got) as (host, port):
+        proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
+                         "--vmc", f"{host}:{port}", "--rate", "30", "--max-seconds", "60")
+        try:
+            line = wait_line(proc, "viewer: ")
+            assert line, proc.stderr.read()[-2000:]
+            with connect(line.split()[1].replace("http://", "ws://") + "ws", max_size=None) as ws:
+                assert json.loads(ws.recv(timeout=30))["type"] == "hello"
+                times = []
+                while len(times) < 40:
+                    msg = ws.recv(timeout=30)
+                    if json.loads(msg)["type"] == "pose":
+                        times.append(protocol.decode_pose(msg)["time"])
+            time.sleep(0.3)
+        finally:
+            proc.kill()
+            proc.wait()
     steps = np.diff(times) * 30
     assert np.all(steps > 0) and np.median(steps) == pytest.approx(1.0, abs=0.05)  # 30 Hz, times increasing
     vmc = np.array(vmc_times)

@@ -13,8 +13,14 @@ from facecapges.arkit import ARKIT_NAMES
 from facecapges.avatar.vrm.expressions import PERFECT_SYNC_NAMES, VRM0_PRESETS, vrm0_presets
 from facecapges.io.bvh import read_bvh
 from facecapges.runtime.frames import OutputFrame
-from facecapges.runtime.outputs.vmc import (BEAT_TO_UNITY, MAX_DATAGRAM_BYTES, VmcMapping, VmcSender, hip_height_cm,
-                                    vrm_rest_positions)
+from facecapges.runtime.outputs.vmc import (
+    BEAT_TO_UNITY,
+    MAX_DATAGRAM_BYTES,
+    VmcMapping,
+    VmcSender,
+    hip_height_cm,
+    vrm_rest_positions,
+)
 from facecapges.skeleton import UPPER_BODY
 
 UNITY_BONES = {  # HumanBodyBones names the mapping may use
@@ -241,8 +247,14 @@ def vmcp_receive(send, until_times: int, timeout: float = 10.0) -> list:
     """Run ``send(host, port)`` and collect the ``vmcp`` events of a loopback receiver."""
     import socket
 
-    from vmcp.events import (BlendShapeApplyEvent, BlendShapeEvent, BoneTransformEvent, RelativeTimeEvent,
-                             RootTransformEvent, StateEvent)
+    from vmcp.events import (
+        BlendShapeApplyEvent,
+        BlendShapeEvent,
+        BoneTransformEvent,
+        RelativeTimeEvent,
+        RootTransformEvent,
+        StateEvent,
+    )
     from vmcp.facades import on_receive
     from vmcp.osc import OSC
     from vmcp.osc.backend.osc4py3 import as_eventloop as backend
@@ -387,42 +399,24 @@ def test_steady_rate_under_load(skeleton, rate):
     the median over 0.5 s windows of 4 s. The feeding thread also holds the GIL 10 ms a frame, as the
     model's thread does.
     """
-    import socket
-
-    rx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    rx.bind(("127.0.0.1", 0))
-    rx.settimeout(0.2)
-    stamps, stop = [], threading.Event()
-
-    def receive():
-        while not stop.is_set():
-            try:
-                d = rx.recv(65535)
-            except OSError:
-                continue
-            if b"/VMC/Ext/T" in d:
-                stamps.append(time.monotonic())
-
     from facecapges.runtime.outputs.upsample import Upsampler
+    from runtime_helpers import vmc_frames
 
+    stamps = []
     spin = _spin(30)
-    th = threading.Thread(target=receive, daemon=True)
-    th.start()
-    up = Upsampler([VmcSender(skeleton, *rx.getsockname())], 15, rate)
-    rng = np.random.default_rng(1)
     try:
-        t0 = time.monotonic()
-        for k in range(int(4.5 * 15)):
-            time.sleep(max(0.0, t0 + k / 15 + rng.uniform(-0.025, 0.025) - time.monotonic()))
-            busy_until = time.monotonic() + 0.010
-            while time.monotonic() < busy_until:  # the model's compute, holding the GIL
-                pass
-            up.write(frame_with({"RightArm": axis_quat("Z", 40 * np.sin(k / 5))}, index=k))
-        up.close()
+        with vmc_frames(lambda _, t: stamps.append(t)) as address:
+            up = Upsampler([VmcSender(skeleton, *address)], 15, rate)
+            rng = np.random.default_rng(1)
+            t0 = time.monotonic()
+            for k in range(int(4.5 * 15)):
+                time.sleep(max(0.0, t0 + k / 15 + rng.uniform(-0.025, 0.025) - time.monotonic()))
+                busy_until = time.monotonic() + 0.010
+                while time.monotonic() < busy_until:  # the model's compute, holding the GIL
+                    pass
+                up.write(frame_with({"RightArm": axis_quat("Z", 40 * np.sin(k / 5))}, index=k))
+            up.close()
     finally:
-        stop.set()
-        th.join(2)
-        rx.close()
         spin.kill()
         spin.wait()
     t = np.asarray(stamps)
@@ -453,7 +447,7 @@ def test_live_command_streams_vmc_at_30hz(face_video, beat_wav, tmp_path):
     rec = tmp_path / "rec"
     try:
         r = cli("live", "--video", str(face_video), "--audio", str(beat_wav), "--realtime", "--max-seconds", "2",
-                "--vmc", "127.0.0.1:%d" % server.server_address[1], "--vmc-blend", "both", "--rate", "30",
+                "--vmc", f"127.0.0.1:{server.server_address[1]}", "--vmc-blend", "both", "--rate", "30",
                 "--record", str(rec))
     finally:
         server.shutdown()
@@ -488,7 +482,7 @@ def test_live_arms_only(face_video, beat_wav):
     th.start()
     try:
         r = cli("live", "--video", str(face_video), "--audio", str(beat_wav), "--max-seconds", "1",
-                "--vmc", "127.0.0.1:%d" % server.server_address[1], "--vmc-parts", "arms")
+                "--vmc", f"127.0.0.1:{server.server_address[1]}", "--vmc-parts", "arms")
     finally:
         server.shutdown()
         server.server_close()

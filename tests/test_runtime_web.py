@@ -17,7 +17,6 @@ import numpy as np
 import pytest
 
 from facecapges.runtime.outputs import protocol
-
 from runtime_helpers import check_obs_views, cli, cli_popen, obs_views
 
 

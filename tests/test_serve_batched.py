@@ -13,7 +13,6 @@ from facecapges.network.network import FaceCapGes
 from facecapges.network.streaming import NaiveNetworkStream, NetworkStream
 from tolerances import assert_rotations_close
 
-
 SMALL = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,
              face_dim=8, lstm_hidden=16, mlp_hidden=16)
 

@@ -9,8 +9,17 @@ from scipy.spatial.transform import Rotation
 from facecapges import rotations as rot
 from facecapges.errors import UserError
 from facecapges.io.bvh import read_bvh, write_bvh
-from facecapges.skeleton import (N_JOINTS, UPPER_BODY, global_transforms, joint_positions, local_matrices,
-                                 motion_to_euler, motion_to_pose, pose_to_motion, rest_positions)
+from facecapges.skeleton import (
+    N_JOINTS,
+    UPPER_BODY,
+    global_transforms,
+    joint_positions,
+    local_matrices,
+    motion_to_euler,
+    motion_to_pose,
+    pose_to_motion,
+    rest_positions,
+)
 
 
 @pytest.fixture(scope="module")
@@ -115,15 +124,15 @@ def test_bvh_errors_name_the_file(sample, tmp_path, beat_bvh):
     text = beat_bvh.read_text()
     cut = tmp_path / "cut.bvh"
     cut.write_text(text[: len(text) // 2])
-    with pytest.raises(UserError, match="cut.bvh.*truncated"):
+    with pytest.raises(UserError, match=r"cut\.bvh.*truncated"):
         read_bvh(cut)
     head = tmp_path / "head.bvh"
     head.write_text(text[: text.index("MOTION") - 200])
-    with pytest.raises(UserError, match="head.bvh.*truncated"):
+    with pytest.raises(UserError, match=r"head\.bvh.*truncated"):
         read_bvh(head)
     with pytest.raises(UserError, match="not found"):
         read_bvh(tmp_path / "missing.bvh")
     junk = tmp_path / "junk.bvh"
     junk.write_text("hello\n")
-    with pytest.raises(UserError, match="junk.bvh.*not a BVH"):
+    with pytest.raises(UserError, match=r"junk\.bvh.*not a BVH"):
         read_bvh(junk)

@@ -3,13 +3,19 @@
 from __future__ import annotations
 
 from collections import Counter
+from itertools import pairwise
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from facecapges.study.design import (
-    StudyPlan, balance_report, default_participants, make_plan, participant_ids, williams_square,
+    StudyPlan,
+    balance_report,
+    default_participants,
+    make_plan,
+    participant_ids,
+    williams_square,
 )
 
 
@@ -22,7 +28,7 @@ def test_williams_square_is_a_balanced_latin_square(n):
     for pos in range(n):  # every treatment equally often in every serial position
         counts = Counter(row[pos] for row in rows)
         assert set(counts) == set(range(n)) and len(set(counts.values())) == 1
-    pairs = Counter((a, b) for row in rows for a, b in zip(row, row[1:]))
+    pairs = Counter((a, b) for row in rows for a, b in pairwise(row))
     want = 1 if n % 2 == 0 else 2  # first-order carry-over: every ordered pair equally often
     assert all(pairs[(a, b)] == want for a in range(n) for b in range(n) if a != b) or n == 1
     assert not any(a == b for a, b in pairs)

@@ -11,7 +11,6 @@ import pytest
 
 from facecapges.io.bvh import read_bvh
 from facecapges.io.face_json import read_face_json
-
 from runtime_helpers import cli_popen
 
 
@@ -29,7 +28,7 @@ def test_a_signal_leaves_whole_recordings(face_video, tmp_path, sig):
                 grown = read_bvh(rec / "motion.bvh").motion.shape[0]
         assert grown >= 30, proc.stderr.read()[-2000:] if proc.poll() is not None else "no frames recorded"
         proc.send_signal(sig)
-        out, err = proc.communicate(timeout=60)
+        _out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()

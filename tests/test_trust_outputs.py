@@ -103,8 +103,8 @@ def test_long_inputs_stream_in_blocks(tmp_path, beat_wav):
     import soundfile as sf
 
     from facecapges import timing
-    from facecapges.io.audio import load_audio
     from facecapges.engine.inputs import plan_inputs
+    from facecapges.io.audio import load_audio
 
     plan = plan_inputs(beat_wav)
     blocks = list(plan.blocks(block_frames=97))  # odd block size: every boundary case of the framing

@@ -177,9 +177,9 @@ TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=1
 
 @pytest.fixture(scope="module")
 def stream_server():
-    from facecapges.network.style import NetworkStyle
     from facecapges.network.config import ModelConfig
     from facecapges.network.network import FaceCapGes
+    from facecapges.network.style import NetworkStyle
     from facecapges.serving.server import ServeConfig, StreamServer
 
     torch.manual_seed(0)

@@ -65,7 +65,7 @@ class Served:
             try:
                 while chunk := s.recv(65536):
                     got += chunk
-            except (socket.timeout, ConnectionResetError):
+            except (TimeoutError, ConnectionResetError):
                 pass
             return got
 

@@ -17,7 +17,6 @@ import torch
 from facecapges.errors import UserError
 from facecapges.network.config import load_config_file
 from facecapges.training.resume_file import RunFolderLock, load_state, save_state
-
 from runtime_helpers import cli, refused
 
 TINY_MODEL = dict(audio_frontend_channels=[8, 8, 8], audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8,

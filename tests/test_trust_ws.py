@@ -12,16 +12,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed
 
-from facecapges.network.style import NetworkStyle
 from facecapges.network.config import ModelConfig
 from facecapges.network.network import FaceCapGes
+from facecapges.network.style import NetworkStyle
 from facecapges.runtime.outputs import protocol
 from facecapges.runtime.outputs.viewer import ViewerServer
 from facecapges.serving.server import ServeConfig, StreamServer
-
-from websockets.asyncio.client import connect  # noqa: E402
-from websockets.exceptions import ConnectionClosed  # noqa: E402
 
 TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
             lstm_hidden=16, mlp_hidden=16, disc_channels=8)

@@ -28,9 +28,9 @@ import pytest
 from facecapges.avatar.vrm.glb import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import cli  # noqa: E402
-from vrm_samples import build_sample  # noqa: E402
-from vrm_schemas import VRM0, VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
+from runtime_helpers import cli
+from vrm_samples import build_sample
+from vrm_schemas import VRM0, VRMC_VRM, VRMC_VRM_ANIMATION, semantic_errors
 
 FRAMES = (120, 480, 840)  # of the BEAT take: arms in three different places
 FIGURES: dict = {}
@@ -257,7 +257,7 @@ def test_arms_point_where_beat_fk_says_and_the_vrma_plays(name, files, beat):
         L = beat["L"][list(FRAMES)]
         quats, _ = driver.frames(L, np.zeros((len(FRAMES), 52)))
         errs, shots, fingers = [], [], []
-        for i, k in enumerate(FRAMES):
+        for i in range(len(FRAMES)):
             pos = b.evaluate(f"window.facecapges.posedBones({json.dumps(quats[i].ravel().tolist())}, "
                              f"{json.dumps(BONES)})")
             errs += list(_arm_errors(beat, i, pos).values())

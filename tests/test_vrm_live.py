@@ -21,9 +21,9 @@ import pytest
 from facecapges.avatar.vrm.glb import split_glb
 
 sys.path.insert(0, str(Path(__file__).parent))
-from runtime_helpers import check_obs_views, cli, cli_popen, obs_views, open_viewer, viewer_url  # noqa: E402
-from vrm_samples import build_sample  # noqa: E402
-from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors  # noqa: E402
+from runtime_helpers import check_obs_views, cli, cli_popen, obs_views, open_viewer, viewer_url
+from vrm_samples import build_sample
+from vrm_schemas import VRMC_VRM_ANIMATION, semantic_errors
 
 
 def _vrma_ok(path: Path) -> dict:
@@ -39,7 +39,6 @@ def _vrma_ok(path: Path) -> dict:
 def _play_vrma(vrma: Path, variant: str = "vrm1") -> dict:
     """Load ``vrma`` with @pixiv/three-vrm-animation onto a sample VRM in headless Chromium."""
     from conftest import shared_file
-
     from facecapges.avatar.render.browser import Browser
     from facecapges.avatar.vrm.read import parse_model
     from facecapges.avatar.vrm.view import VrmDriver
@@ -83,7 +82,7 @@ def test_live_web_shows_a_vrm_and_records_vrma(face_video, tmp_path):
         # as an OBS browser source: transparent, no HUD, framed from the URL, orbit with the mouse
         check_obs_views(obs_views(url), "vrm")
         proc.send_signal(signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
+        _out, err = proc.communicate(timeout=60)
         assert proc.returncode == 0, err[-2000:]
     finally:
         if proc.poll() is None:
@@ -187,10 +186,9 @@ def test_study_with_a_vrm_avatar(tmp_path, beat_bvh, beat_wav):
     import cv2
 
     from _study_media import make_clips
-    from test_study_browser import Page
-
     from facecapges.study.build import open_study
     from facecapges.study.server import make_server, serve_in_thread
+    from test_study_browser import Page
 
     avatar = tmp_path / "sample.vrm"
     avatar.write_bytes(build_sample("vrm0"))
