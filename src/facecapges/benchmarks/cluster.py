@@ -20,7 +20,7 @@ node is killed (its raylet and every process on it, no graceful stop). Reported:
   cluster, interleaved (one process, Ray, one process, Ray …; both running throughout), and
   ``ray_overhead_p50`` — the median over the pairs of the ratio of median round trips (Ray / one
   process): one pair alone swings with the machine's load;
-- ``ladder``: 4, 8, 16 … streams on the cluster until a trial's p99 exceeds 50 ms or loses a frame;
+- ``ladder``: 2, 4, 8, 16 … streams on the cluster until a trial's p99 exceeds 50 ms or loses a frame;
   ``streams_per_node`` = half the most streams held so (``--quick``: the failover's streams, if
   its p99 before the kill was ≤ 50 ms; else 0).
 
@@ -323,6 +323,7 @@ def run(quick: bool, shared: Path) -> dict:
     import sys
 
     from facecapges.benchmarks.serving import start_server, stop_server
+    from facecapges.serving.ray_app import THROUGHPUT_ENV
 
     def say(m: str) -> None:
         print(m, file=sys.stderr, flush=True)
@@ -330,7 +331,7 @@ def run(quick: bool, shared: Path) -> dict:
     checkpoint = os.environ.get("FACECAPGES_BENCH_CHECKPOINT")
     streams, seconds = (20, 8.0) if quick else (20, 10.0)
     pairs, trial_s = (1, 3.0) if quick else (3, 4.0)
-    ladder = () if quick else (4, 8, 16, 24, 32)  # streams on the cluster (two nodes)
+    ladder = () if quick else (2, 4, 8, 16, 24, 32)  # streams on the cluster (two nodes)
     load0 = os.getloadavg()[0]
     messages = _messages(shared, int(max(seconds, trial_s) * MODEL_FPS) + 1)
     port = _free_port()
@@ -372,4 +373,6 @@ def run(quick: bool, shared: Path) -> dict:
         "failover_s": fo["failover_s_max"],
         "handover_pops": fo["handover"]["pops"],
         "loadavg": [round(load0, 1), round(os.getloadavg()[0], 1)],
+        # Ray Serve's opt-in throughput settings, if this run's environment set them (the nodes inherit it)
+        "ray_serve_env": {k: os.environ[k] for k in THROUGHPUT_ENV if k in os.environ},
     }

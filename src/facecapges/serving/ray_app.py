@@ -30,6 +30,7 @@ a replica's backlog is bounded by ``max_pending`` "busy" drops).
 
 import asyncio
 import collections
+import gc
 import threading
 import time
 from dataclasses import dataclass, field
@@ -51,6 +52,16 @@ from facecapges.serving.config import ServeConfig
 
 DEFAULT_PORT = 8000  # Ray Serve's HTTP port
 LOAD_POLL_S = 0.1  # a client that connected while the style loads looks this often
+# Ray Serve's documented throughput mode without its direct ingress (which drops Ray's proxies for
+# HAProxy), and gRPC from the proxy to the replicas (the proxy reads RAY_SERVE_USE_GRPC_BY_DEFAULT before
+# the mode sets it). Opt-in, not applied here: set on `ray start` of every node it cuts Ray's CPU per
+# frame by a fifth to a third but slowed the reconnection after a node died (docs/serve-cluster.md,
+# "Where a frame's time goes").
+THROUGHPUT_ENV = {
+    "RAY_SERVE_THROUGHPUT_OPTIMIZED": "1",
+    "RAY_SERVE_ENABLE_DIRECT_INGRESS": "0",
+    "RAY_SERVE_USE_GRPC_BY_DEFAULT": "1",
+}
 
 
 def _require_ray():
@@ -137,6 +148,10 @@ def build_app(
                 self.fps = int(ckpt.fps)
                 self.policy.fps = self.fps
                 self.gen = ckpt.batched(capacity=64)
+                # the style lives as long as the replica: out of the collector's scans (Ray freezes
+                # what __init__ made; the style loads after it, in this thread)
+                gc.collect()
+                gc.freeze()
             except Exception as exc:  # noqa: BLE001  said to the waiting clients and by the health check
                 self.load_error = (str(exc).splitlines() or [exc.__class__.__name__])[0][:300]
 
