@@ -37,7 +37,7 @@ motion (his training frames), per clip:
   falls to his idle level (:attr:`Reference.idle_speed`: half his median wrist speed in speech — his own
   pauses inside a monologue are breaths mid-gesture, faster than that, so they cannot set it). The trailing
   mean remembers the speech before the pause: arms that stopped dead on the pause's first frame after a
-  second of gesturing at 2× his idle speed score 0.5 s. **settle ahead** is what a viewer calls settled: the
+  second of gesturing at 2× his idle speed score 0.47 s. **settle ahead** is what a viewer calls settled: the
   first frame of the pause from which the wrist speed averaged over the *next* 1 s (within the pause) is at
   his idle level (0 for arms that stop dead at the pause's start; both are reported, docs/matching.md);
   **resume**: seconds from
