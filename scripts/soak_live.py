@@ -134,6 +134,7 @@ def pop_figures(skel, pose: np.ndarray, pauses, ref, fps: float = FPS, audio: np
         "still_share": sc.still_share,
         "longest_still_s": sc.longest_still_s,
         "settle_s": sc.settle_s,
+        "settle_ahead_s": sc.settle_ahead_s,
         "resume_s": sc.resume_s,
     }
 
