@@ -35,11 +35,17 @@ def _f(x, fmt: str = "{:.2f}") -> str:
     return "–" if x is None or (isinstance(x, float) and x != x) else fmt.format(x)
 
 
+def _settle(c: dict) -> str:
+    """Settle by the trailing 1-s rule, and by the rule that looks ahead (``settle_ahead_s``) where reported."""
+    ahead = c.get("settle_ahead_s")
+    return _f(c["settle_s"], "{:.1f}") + ("" if ahead is None else f" ({_f(ahead, '{:.1f}')})")
+
+
 def table(reports: list[tuple[str, dict]]) -> list[str]:
     """The model card's conversation section: one row per style and clip, then held-out stretches."""
     out = [
         "| style | clip | pops/min pause | pops/min speech | wrist speed pause/speech | still share (longest s) | "
-        "both hands | wrist height × his | head speed × his | torso sway × his | settle s | resume s | "
+        "both hands | wrist height × his | head speed × his | torso sway × his | settle s (ahead) | resume s | "
         "VAD: pause heard as pause | speech as speech |",
         "|---|---|" + "---|" * 12,
         "| target | | ≤ 1 | ≤ 1 | < 1 (idle) | low, < 2 s | his ±20 % | 0.8–1.2 | ≈ his (0.83) | ≈ his (0.75) | ≤ 1 | ≤ 0.3 | "
@@ -51,7 +57,7 @@ def table(reports: list[tuple[str, dict]]) -> list[str]:
                 f"| {label} | {name} | {_f(c['pops_pause_per_min'], '{:.1f}')} | {_f(c['pops_speech_per_min'], '{:.1f}')} | "
                 f"{_f(c['pause_over_speech_speed'])} | {_f(c['still_share'])} ({_f(c['longest_still_s'], '{:.1f}')}) | "
                 f"{_f(c['both_hands'])} | {_f(c['wrist_height_ratio'])} | {_f(c['head_speed_ratio'])} | "
-                f"{_f(c['torso_sway_ratio'])} | {_f(c['settle_s'], '{:.1f}')} | {_f(c['resume_s'], '{:.2f}')} | "
+                f"{_f(c['torso_sway_ratio'])} | {_settle(c)} | {_f(c['resume_s'], '{:.2f}')} | "
                 f"{_f(c.get('vad_pause_as_pause'))} | {_f(c.get('vad_speech_as_speech'))} |"
             )
     out += [

@@ -63,6 +63,7 @@ def clip_figures(skel, gen, clip, ref) -> dict:
     sc = cv.score(skel, pose, clip.pause, ref, words=cv.word_frames(clip.audio, len(pose), clip.pause))
     return dict(
         settle=round(sc.settle_s, 2),
+        ahead=round(sc.settle_ahead_s, 2),
         resume=round(sc.resume_s, 2),
         pops_pause=round(sc.pops_pause_per_min, 1),
         pops_speech=round(sc.pops_speech_per_min, 1),

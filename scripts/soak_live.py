@@ -22,7 +22,8 @@
      (:func:`his_reference`, as ``scripts/conversation_report.py``); a pause frame is one inside an
      inserted pause. With them, the metric's pause/speech wrist speed, still share, settle and resume;
    * memory: RSS at start / end, its least-squares slope over the run after the first 20 % (MB per
-     minute; flat ≈ 0);
+     minute; flat ≈ 0) — while frames are made (up to the last status line): ``close`` writing the recording
+     afterwards takes 13–15 MB for a few seconds (``rss_mb_max_closing``), which is not a slope;
    * timing: ``late_frames`` and the other events of live's ``report.json``, the compute latency
      percentiles, and the drift of the status lines (first, last, slope in ms per minute), with the
      machine's load average (a busy machine makes every frame late: read the figures beside it).
@@ -133,6 +134,7 @@ def pop_figures(skel, pose: np.ndarray, pauses, ref, fps: float = FPS, audio: np
         "still_share": sc.still_share,
         "longest_still_s": sc.longest_still_s,
         "settle_s": sc.settle_s,
+        "settle_ahead_s": sc.settle_ahead_s,
         "resume_s": sc.resume_s,
     }
 
@@ -219,8 +221,14 @@ def run_soak(
     pose = motion_to_pose(b.skeleton, b.motion)[0]
     pauses = [(a, min(e, len(pose) / b.fps), k) for a, e, k in pauses if a < len(pose) / b.fps]  # a cut-short run
     skel, ref = his_reference()
-    t_rss = np.array([t for t, _ in rss])
-    y_rss = np.array([v for _, v in rss])
+    t_all = np.array([t for t, _ in rss])
+    y_all = np.array([v for _, v in rss])
+    # the session's memory while it makes frames: samples up to the last status line (after it, ``close`` builds the
+    # face JSON and ends the BVH — 13-15 MB for a few seconds that a slope over the whole run would count)
+    making = t_all <= (status[-1][0] - t0) if status else np.ones(len(t_all), bool)
+    if not making.any():
+        making[:] = True
+    t_rss, y_rss = t_all[making], y_all[making]
     warm = y_rss[t_rss >= t_rss[-1] * 0.2] if len(y_rss) else y_rss
     drift = []
     if status:
@@ -237,6 +245,7 @@ def run_soak(
         "rss_mb_start": float(warm[0]) if len(warm) else float("nan"),
         "rss_mb_end": float(y_rss[-1]) if len(y_rss) else float("nan"),
         "rss_mb_max": float(np.nanmax(y_rss)) if len(y_rss) else float("nan"),
+        "rss_mb_max_closing": float(np.nanmax(y_all[~making])) if (~making).any() else float("nan"),
         "rss_slope_mb_per_min": _slope_per_min(t_rss, y_rss),
         "late_frames": int(report.get("events", {}).get("late_frames", 0)),
         "events": report.get("events", {}),

@@ -124,3 +124,52 @@ def test_a_style_file_s_idle_settings_are_checked():
     for bad in ({"idle_rest": "sideways"}, {"idle_torso": 3}, {"idle_enter_halflife_s": 0.0}, {"idle_layer": 1}):
         with pytest.raises(ValueError, match="engine_config idle_"):
             check_engine_config(bad)
+
+
+@pytest.fixture(scope="module")
+def heldout_zeros_clip():
+    """The card's ``heldout-zeros 2_scott_0_1_1`` clip: the take's held-out 20 % cut in half around 15 s of zeros
+    (its speech ends mid-stroke, the hardest pause to settle)."""
+    t1 = load_take(shared_file("data/beat/2_scott_0_1_1.bvh"), shared_file("data/beat/2_scott_0_1_1.wav"))
+    a = t1.audio[t1.train_until * SPF : t1.n_frames * SPF]
+    half = len(a) // 2
+    return cv._insert(a[:half], a[half:], np.zeros(int(cv.PAUSE_S * timing.AUDIO_SR), np.float32), "h", "zeros")
+
+
+def test_a_pause_after_a_stroke_settles_sooner(style, ref, zeros_clip, heldout_zeros_clip):
+    """Speech that ends mid-stroke (held-out 1_1): the layer takes the pause one frame sooner (0.47 s after the last
+    speech-like frame) and carries none of the stroke's speed into it (``idle_enter_velocity`` 0, the acceleration
+    cap spreading the brake), so the arms are settled — the next second's wrist speed at his idle level — 0.60 s
+    into the pause (0.73 before; 1.53 s by the trailing 1-s rule, 1.67 before), without a pop at its start and with
+    the unseen clip's figures no worse (docs/matching.md "Settling sooner")."""
+    pose = cv.generate(style, heldout_zeros_clip.audio)
+    sc = cv.score(style.skeleton, pose, heldout_zeros_clip.pause, ref)
+    assert sc.settle_ahead_s <= 0.65 and sc.settle_s <= 1.6, sc
+    assert sc.pops_pause_per_min == 0 and not _pops_near_edges(sc, heldout_zeros_clip.pause), sc
+    assert sc.resume_s <= 0.3, sc
+    u = cv.score(style.skeleton, cv.generate(style, zeros_clip.audio), zeros_clip.pause, ref)
+    assert u.settle_ahead_s <= 0.65 and u.settle_s <= 1.6, u
+
+
+def test_before_the_brake_the_stroke_runs_on_into_the_pause(style, ref, heldout_zeros_clip):
+    """The check above fails on the layer as it was (entering 0.53 s after the voice, carrying the stroke's speed)."""
+    old = replace(style, config=replace(style.config, idle_after_s=0.53, idle_enter_velocity=1.0))
+    sc = cv.score(style.skeleton, cv.generate(old, heldout_zeros_clip.audio), heldout_zeros_clip.pause, ref)
+    assert sc.settle_ahead_s > 0.65 and sc.settle_s > 1.6, sc
+
+
+def test_the_settle_rules_read_a_dead_stop(ref):
+    """Arms that stop dead on a pause's first frame after a second at twice his idle speed: settled at once by the
+    rule that looks ahead, after half a second by the trailing 1-s mean (its memory of the speech before)."""
+    T, a = 60, 30
+    pause = np.zeros(T, bool)
+    pause[a:] = True
+    w = np.zeros((T, 2, 3))
+    step = 2.0 * ref.idle_speed / FPS  # cm a frame
+    w[:a, :, 0] = np.arange(a)[:, None] * step
+    w[a:, :, 0] = w[a - 1, :, 0]
+    s = cv.wrist_speed(w)
+    assert np.isclose(s[a - 1], 2.0 * ref.idle_speed)
+    calm = np.flatnonzero(cv._ahead(s[a:], int(cv.SETTLE_WINDOW_S * FPS)) <= ref.idle_speed)[0] / FPS
+    trail = np.flatnonzero(cv._smooth(s, int(cv.SETTLE_WINDOW_S * FPS))[a:] <= ref.idle_speed)[0] / FPS
+    assert calm == 0.0 and 0.4 <= trail <= 0.55, (calm, trail)

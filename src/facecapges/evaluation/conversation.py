@@ -38,7 +38,12 @@ motion (his training frames), per clip:
   angle of the spine's rotation from its mean, °) in speech, as ratios to his;
 * **settle**: seconds from a pause's start until the wrist speed (averaged over the last 1 s) first
   falls to his idle level (:attr:`Reference.idle_speed`: half his median wrist speed in speech — his own
-  pauses inside a monologue are breaths mid-gesture, faster than that, so they cannot set it); **resume**: seconds from
+  pauses inside a monologue are breaths mid-gesture, faster than that, so they cannot set it). The trailing
+  mean remembers the speech before the pause: arms that stopped dead on the pause's first frame after a
+  second of gesturing at 2× his idle speed score 0.47 s. **settle ahead** is what a viewer calls settled: the
+  first frame of the pause from which the wrist speed averaged over the *next* 1 s (within the pause) is at
+  his idle level (0 for arms that stop dead at the pause's start; both are reported, docs/matching.md);
+  **resume**: seconds from
   the first word after a pause — the first frame after it that :func:`word_frames` marks (``words``: within
   :data:`WORD_DB` of the clip's speech level, non-causal, on the clean audio) — until the wrist speed first
   exceeds his median speed in speech (capped at the clip's end). Without ``words`` it counts from the pause's
@@ -251,6 +256,14 @@ def wrist_speed(w: np.ndarray, fps: float = FPS) -> np.ndarray:
     return s
 
 
+def _ahead(x: np.ndarray, n: int) -> np.ndarray:
+    """Leading mean over ``n`` frames: frame t averages ``x[t : t + n]`` (fewer at the end)."""
+    c = np.cumsum(np.r_[0.0, x])
+    i = np.arange(len(x))
+    j = np.minimum(i + n, len(x))
+    return (c[j] - c[i]) / np.maximum(j - i, 1)
+
+
 def _smooth(x: np.ndarray, n: int) -> np.ndarray:
     """Trailing mean over ``n`` frames (causal)."""
     c = np.cumsum(np.r_[0.0, x])
@@ -373,6 +386,7 @@ class ClipScore:
     settle_s: float
     resume_s: float
     pops: list[int] = field(default_factory=list)
+    settle_ahead_s: float = float("nan")
 
     def as_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
@@ -415,10 +429,12 @@ def score(
     sp = ~pause
     height = (w[:, :, 1] - ref.rest_height).mean(1)
     sm = _smooth(s, int(SETTLE_WINDOW_S * fps))
-    settle, resume = [], []
+    settle, ahead, resume = [], [], []
     for a, b in _runs(pause):
         below = np.flatnonzero(sm[a:b] <= ref.idle_speed)
         settle.append((below[0] if len(below) else b - a) / fps)
+        calm = np.flatnonzero(_ahead(s[a:b], int(SETTLE_WINDOW_S * fps)) <= ref.idle_speed)
+        ahead.append((calm[0] if len(calm) else b - a) / fps)
         if b < len(pose):
             if talk is not None:  # the first word before the next pause (none: no onset to resume on)
                 nxt = np.flatnonzero(pause[b:])
@@ -446,6 +462,7 @@ def score(
         settle_s=float(np.mean(settle)) if settle else nan,
         resume_s=float(np.mean(resume)) if resume else nan,
         pops=np.flatnonzero(pops).tolist(),
+        settle_ahead_s=float(np.mean(ahead)) if ahead else nan,
     )
 
 

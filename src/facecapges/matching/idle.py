@@ -9,7 +9,7 @@ Per stream and frame, from the matcher's pose ``q`` (after the dial) and the cau
 speech-like frame (``since_voice`` of :class:`facecapges.matching.speech.SpeechFrame`):
 
 * **the target**: while the voice is on, ``q`` itself; once it has been gone ``after`` frames (the VAD's
-  pause begins after ``HANGOVER`` = 6), his rest pose
+  pause begins after ``HANGOVER`` = 6; the matcher's default 7), his rest pose
   with the procedural idle on top. The rest pose is the database's *rest* row (an idle row in the rest
   phase: wrists low and slow, :func:`facecapges.matching.database.gesture_phases`) nearest the pose shown
   when the pause begins — among the rest rows with both wrists low (``rest="low"``: a real frame of his, the
@@ -19,7 +19,11 @@ speech-like frame (``since_voice`` of :class:`facecapges.matching.speech.SpeechF
 * **the switch** between the two is an inertialization (:mod:`facecapges.matching.inertialize`, as the
   matcher's clip switches): the offset that keeps the shown rotation and angular velocity across the switch
   decays with a critically damped spring, half-life ``enter_halflife_s`` into the pause and
-  ``release_halflife_s`` back to the matched motion — no pose jumps, no velocity jumps, no stroke;
+  ``release_halflife_s`` back to the matched motion — no pose jumps, no stroke. Into a pause only
+  ``enter_velocity`` of the matched motion's angular velocity is carried (the matcher's default 0: a stroke the
+  voice stopped in does not run on into the pause); the step that removes the rest is an acceleration, and the
+  acceleration cap (``acc_cap``: his 99th percentile) spreads it over frames, so the arms brake as fast as he
+  ever does and no faster (docs/matching.md "Settling sooner");
 * **the procedural idle** (:class:`IdleMotion`): on each arm's Shoulder, Arm, ForeArm and Hand (not the
   fingers: the BEAT2 rows' thumbs jitter) and, with ``torso=True``, on Spine, Neck and Neck1: per joint and
   axis a sum of two sines of fixed phases whose spread (sd) of angle and of angular velocity are **his**,
@@ -138,8 +142,10 @@ class IdleLayer:
         amplitude: float = 1.0,
         acc_cap: float = 0.0,
         keep: tuple[str, ...] = (),
+        enter_velocity: float = 1.0,
     ):
         self.motion, self.fps, self.acc_cap = motion, fps, acc_cap
+        self.enter_velocity = enter_velocity  # the share of the matched motion's angular velocity carried into a pause
         self.keep = np.zeros(N_JOINTS, bool)  # joints that always show the matched motion
         self.keep[[UPPER_BODY.index(j) for j in keep]] = True
         self.after = max(int(after_frames), 1)
@@ -207,7 +213,10 @@ class IdleLayer:
             idle_v[:, self.keep] = matched_v[:, self.keep]
             e = enter[k][:, None, None]
             src_q, dst_q = np.where(e, q[k], idle_now[k]), np.where(e, idle_now[k], q[k])
-            src_v, dst_v = np.where(e, matched_v, idle_v), np.where(e, idle_v, matched_v)
+            # into a pause the matched motion's velocity is carried at ``enter_velocity`` (0: none — the step is
+            # then an acceleration that the cap below spreads over frames); the kept joints keep theirs
+            carried = np.where(self.keep[None, :, None], matched_v, matched_v * self.enter_velocity)
+            src_v, dst_v = np.where(e, carried, idle_v), np.where(e, idle_v, matched_v)
             s = ids[k]
             self.x[s], self.v[s] = inz.transition(self.x[s], self.v[s], src_q, src_v, dst_q, dst_v)
             self.hl[s] = np.where(enter[k], self.enter_hl, self.release_hl)

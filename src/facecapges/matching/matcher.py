@@ -112,8 +112,11 @@ class MatchingConfig:
     # (half-life idle_enter_halflife_s) and out at the next speech-like frame (idle_release_halflife_s);
     # idle_rest "low" (his rest row with both wrists low nearest the pose), "nearest" (any rest row) or "mean"
     idle_layer: bool = True
-    idle_after_s: float = 0.53  # 8 frames: 2 frames after the VAD's hangover ends (his in-speech breaths stay gestures)
+    idle_after_s: float = 0.47  # 7 frames: 1 frame after the VAD's hangover ends (his in-speech breaths stay gestures)
     idle_enter_halflife_s: float = 0.2
+    # the share of the matched motion's angular velocity carried into a pause (1: all, as a clip switch); 0 brakes
+    # the arms at once, within the acceleration cap (docs/matching.md "Settling sooner")
+    idle_enter_velocity: float = 0.0
     idle_release_halflife_s: float = 0.1
     idle_amplitude: float = 1.0
     idle_rest: str = "low"
@@ -280,6 +283,7 @@ class BatchedMatchingStreams(SlotOwner):
                 amplitude=cfg.idle_amplitude,
                 acc_cap=self.acc_cap if cfg.accel_cap_percentile > 0 else 0.0,
                 keep={"procedural": (), "neck": TORSO[1:], "matched": TORSO}[cfg.idle_torso],
+                enter_velocity=cfg.idle_enter_velocity,
             )
             if cfg.idle_layer
             else None

@@ -139,6 +139,7 @@ CONFIG_RANGES: dict[str, tuple[float, float]] = {
     "idle_enter_halflife_s": (0.01, 10.0),
     "idle_release_halflife_s": (0.01, 10.0),
     "idle_amplitude": (0.0, 10.0),
+    "idle_enter_velocity": (0.0, 1.0),
 }
 #: The values a text setting may take.
 CONFIG_CHOICES: dict[str, tuple[str, ...]] = {

@@ -4,7 +4,8 @@ A sink has ``write(OutputFrame)`` (called once per frame by the scheduler, cheap
 only appends) and ``close()`` (safe to call twice). The BVH is written as it happens
 (a growing :class:`facecapges.io.bvh.BvhWriter`, valid after every second of frames,
 so a long ``live --record`` keeps no motion in memory and a cut-off one still opens);
-the face JSON is written atomically by ``close`` through
+the face JSON is written atomically by ``close`` (its frames wait in a temporary file, a
+second at a time, so it keeps no face in memory either) through
 :func:`facecapges.io.face_json.write_face_json`. ``close`` runs on Ctrl-C and on
 SIGTERM/SIGHUP (the command line turns both into an interrupt). Other sinks: :mod:`.vmc` (VMC over OSC/UDP) and the WebSocket feed in
 :mod:`.viewer`.
@@ -28,7 +29,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING
 
 import numpy as np
 
@@ -75,25 +76,55 @@ class BvhRecorder:
 
 
 class FaceJsonRecorder:
+    """The face JSON is one document written at ``close``; until then each second of frames (52 weights and a
+    6-value head, float32) goes to an anonymous temporary file (``tempfile.TemporaryFile``: removed when closed,
+    also if the process dies), so a long ``live --record`` keeps one second of face in memory, not all of it
+    (issue #38's soak: the lists of every frame's arrays grew 0.43 MB a minute)."""
+
+    WIDTH = 52 + 6
+
     def __init__(self, path: str | Path, fps: float, layout: str = "beat"):
         self.path, self.fps, self.layout = Path(path), fps, layout
-        self.weights: list[np.ndarray] = []
-        self.heads: list[np.ndarray] = []
+        self.rows: list[np.ndarray] = []  # the frames of the current second, not yet spooled
+        self.block = max(1, int(round(fps)))
+        self.spool: IO[bytes] | None = None  # the temporary file of the earlier seconds (float32 rows of WIDTH)
+        self.frames = 0
         self.closed = False
 
     def write(self, out: OutputFrame) -> None:
-        self.weights.append(np.asarray(out.face, np.float32))
-        self.heads.append(np.asarray(out.head, np.float32))
+        row = np.empty(self.WIDTH, np.float32)
+        row[:52], row[52:] = np.asarray(out.face, np.float32).reshape(52), np.asarray(out.head, np.float32).reshape(6)
+        self.rows.append(row)
+        self.frames += 1
+        if len(self.rows) >= self.block:
+            self._spool()
+
+    def _spool(self) -> None:
+        import tempfile
+
+        if not self.rows:
+            return
+        if self.spool is None:
+            self.spool = tempfile.TemporaryFile(prefix="facecapges-face-")  # noqa: SIM115 (open until close())
+        self.spool.write(np.stack(self.rows).tobytes())
+        self.rows = []
 
     def close(self) -> Path | None:
         if self.closed:
             return None
         self.closed = True
-        if not self.weights:
+        self._spool()
+        if self.spool is None:
             return None
         from facecapges.io.face_json import write_face_json
 
-        return write_face_json(self.path, np.stack(self.weights), self.fps, np.stack(self.heads), layout=self.layout)
+        try:
+            self.spool.seek(0)
+            data = np.frombuffer(self.spool.read(), np.float32).reshape(-1, self.WIDTH)
+        finally:
+            self.spool.close()
+            self.spool = None
+        return write_face_json(self.path, data[:, :52], self.fps, data[:, 52:], layout=self.layout)
 
 
 class MemoryRecorder:
