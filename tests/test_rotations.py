@@ -358,6 +358,52 @@ def test_quaternion_fast_paths_keep_the_bits():
             _check_hamilton(m, other)
 
 
+def _matrix_to_quaternion_reference(m: np.ndarray) -> np.ndarray:
+    """The component-wise formula of ``matrix_to_quaternion`` (its torch branch's, in NumPy)."""
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    w2, x2, y2, z2 = 1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22
+    r21, r12, r02, r20, r10, r01 = m[..., 2, 1], m[..., 1, 2], m[..., 0, 2], m[..., 2, 0], m[..., 1, 0], m[..., 0, 1]
+    cands = np.stack([w2, x2, y2, z2], -1)
+    best = np.argmax(cands, axis=-1)
+    allq = np.stack(
+        [
+            np.stack([w2, r21 - r12, r02 - r20, r10 - r01], -1),
+            np.stack([r21 - r12, x2, r01 + r10, r02 + r20], -1),
+            np.stack([r02 - r20, r01 + r10, y2, r12 + r21], -1),
+            np.stack([r10 - r01, r02 + r20, r12 + r21, z2], -1),
+        ],
+        -2,
+    )
+    s2 = np.take_along_axis(cands, best[..., None], axis=-1)
+    q = np.take_along_axis(allq, best[..., None, None], axis=-2)[..., 0, :] / (np.sqrt(np.maximum(s2, 1e-8)) * 2.0)
+    q = np.where(q[..., :1] < 0, -q, q)
+    return q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), 1e-8)
+
+
+def test_matrix_to_quaternion_keeps_the_bits():
+    """NumPy's ``matrix_to_quaternion`` (candidates and picks in a few calls) gives the bits of the component-wise
+    formula: float32 and float64, one matrix or a batch, exact zeros (rotations about one axis, the identity, a
+    half turn), ties between candidates, noise off the rotation group, a NaN."""
+    rng = np.random.default_rng(11)
+    for k in range(300):
+        n = (1, 2, 47, 55)[k % 4]
+        q = rng.normal(size=(n, 4))
+        q[: n // 2, rng.integers(0, 4)] = 0.0
+        if k % 5 == 0:
+            q[0] = (1.0, 0.0, 0.0, 0.0) if k % 2 else (0.0, 0.0, -1.0, 0.0)
+        m = rot.quaternion_to_matrix(q)
+        if k % 7 == 0:
+            m = m + rng.normal(size=m.shape) * 1e-3
+        if k % 11 == 0:
+            m[-1, 1, 1] = np.nan
+        for dtype in (np.float64, np.float32):
+            x = m.astype(dtype)
+            got, want = rot.matrix_to_quaternion(x), _matrix_to_quaternion_reference(x)
+            assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes()
+        one = m[0]  # no leading axes
+        assert rot.matrix_to_quaternion(one).tobytes() == _matrix_to_quaternion_reference(one).tobytes()
+
+
 def _check_hamilton(m: np.ndarray, q: np.ndarray) -> None:
     got = rot.quaternion_multiply(m, q)
     aw, ax, ay, az = (m[..., i] for i in range(4))

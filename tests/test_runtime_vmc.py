@@ -142,6 +142,32 @@ def test_blend_modes_send_only_their_names(skeleton, blend, names):
         assert blends["EyeBlinkLeft"] == pytest.approx(1.0)
 
 
+@pytest.mark.parametrize("max_datagram", [MAX_DATAGRAM_BYTES, 300, 9000])
+def test_datagrams_are_the_packed_messages(skeleton, max_datagram):
+    """A frame's datagrams (its numbers scattered into the once-packed layout) are ``pack_bundles`` of its messages,
+    byte for byte: every blend and parts mode, random poses and faces (signed zeros, held frames), any datagram size."""
+    from facecapges.runtime.outputs.vmc import BLEND_MODES, PARTS, pack_bundles
+
+    rng = np.random.default_rng(5)
+    frames = []
+    for k in range(12):
+        q = rng.normal(size=(47, 4))
+        q[: k % 5] = (1.0, -0.0, 0.0, -0.0)
+        face = rng.uniform(-0.1, 1.1, 52).astype(np.float32)
+        face[k % 52] = -0.0
+        fr = OutputFrame(k, k / 15 + 1e-3 * k, np.zeros((47, 6), np.float32), q.astype(np.float32), face,
+                         rot.identity_rot6d(), True, {})
+        frames += [fr, fr] if k % 3 == 0 else [fr]  # a held frame: the same numbers again
+    for blend in BLEND_MODES:
+        for parts in PARTS:
+            s = VmcSender(skeleton, "127.0.0.1", 9, blend=blend, parts=parts, max_datagram=max_datagram)
+            for fr in frames:
+                got = s.datagrams_for(fr)
+                assert got == pack_bundles(s.messages(fr), max_datagram), (blend, parts)
+                assert all(len(d) <= max_datagram for d in got)
+            s.close()
+
+
 def test_every_datagram_under_the_mtu_and_apply_last(skeleton):
     """Raw UDP: each datagram is one OSC bundle ≤ 1200 B; /VMC/Ext/Blend/Apply is in the frame's last one."""
     import socket

@@ -343,25 +343,33 @@ def matrix_to_quaternion(matrix: Array) -> Array:
     return q / _maximum(_norm(q), _EPS)
 
 
+# _matrix_to_quaternion_np's constants: the signs of the diagonal in w², x², y², z²; the off-diagonal pairs
+# (flat indices) whose differences / sums a b c / d e f are; each candidate row's four of [w² x² y² z² a b c d e f]
+_DIAG_SIGNS = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [-1.0, -1.0, 1.0]])
+_OFF_I, _OFF_J = np.array([7, 2, 3, 1, 2, 5]), np.array([5, 6, 1, 3, 6, 7])
+_OFF_SIGNS = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
+_CAND_ROWS = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
+
+
 def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
     """:func:`matrix_to_quaternion` for NumPy in fewer calls (one frame of a stream is a few dozen
-    small matrices, where the calls are the cost): the chosen candidate's four numbers picked
-    first, then scaled — the same operations on the same numbers, so the same result."""
-    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
-    w2 = 1 + m00 + m11 + m22
-    x2 = 1 + m00 - m11 - m22
-    y2 = 1 - m00 + m11 - m22
-    z2 = 1 - m00 - m11 + m22
-    a, b, c = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
-    d, e, f = m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1]
-    rows = np.stack([w2, a, b, c, a, x2, d, e, b, d, y2, f, c, e, f, z2], -1).reshape(m.shape[:-2] + (4, 4))
-    cands = rows[..., [0, 1, 2, 3], [0, 1, 2, 3]]
+    small matrices, where the calls are the cost): the four candidates' squares ``1 ± m00 ± m11 ± m22``
+    (left to right; ``x − y`` is ``x + (−y)``) and the off-diagonal sums and differences each in one call,
+    the chosen candidate's four numbers picked by one index, then scaled — the same operations on the same
+    numbers, so the same result (``test_rotations``: the bits of the component-wise formula)."""
+    lead = m.shape[:-2]
+    flat = m.reshape(-1, 9)
+    t = flat[:, None, [0, 4, 8]] * _DIAG_SIGNS.astype(m.dtype, copy=False)  # ±m00 ±m11 ±m22 (exact, m's dtype)
+    cands = 1 + t[..., 0] + t[..., 1] + t[..., 2]  # (n, 4): w² x² y² z²
+    off = flat[:, _OFF_I] + flat[:, _OFF_J] * _OFF_SIGNS.astype(m.dtype, copy=False)  # a b c d e f
+    values = np.concatenate([cands, off], axis=1)
     best = np.argmax(cands, axis=-1)
-    q = np.take_along_axis(rows, best[..., None, None], axis=-2)[..., 0, :]
-    s2 = np.take_along_axis(cands, best[..., None], axis=-1)
-    q = q / (np.sqrt(np.maximum(s2, _EPS)) * 2.0)
+    rows = np.arange(len(flat))
+    q = values[rows[:, None], _CAND_ROWS[best]]
+    q = q / (np.sqrt(np.maximum(cands[rows, best][:, None], _EPS)) * 2.0)
     q = np.where(q[..., :1] < 0, -q, q)
-    return q / np.maximum(np.linalg.norm(q, axis=-1, keepdims=True), _EPS)
+    q = q / np.maximum(_vector_norm(q, keepdims=True), _EPS)
+    return q.reshape(lead + (4,))
 
 
 def quaternion_to_matrix(quat: Array) -> Array:

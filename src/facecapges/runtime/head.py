@@ -39,6 +39,7 @@ from facecapges.capture.face_lost import FaceLostPolicy
 HEAD_MODES = ("capture", "model", "blend")
 _SPINE, _NECK, _NECK1 = 0, 1, 2  # indices in facecapges.skeleton.UPPER_BODY
 _BLEND = {"capture": 1.0, "blend": 0.5, "model": 0.0}
+_IDENTITY_Q = np.array([1.0, 0.0, 0.0, 0.0])
 
 
 def check_head_mode(mode: str) -> str:
@@ -59,7 +60,9 @@ def set_head(pose: np.ndarray, R_head: np.ndarray) -> np.ndarray:
     """A copy of ``pose`` (47, 6) whose global head rotation is ``R_head`` (module docstring)."""
     M = rot.rot6d_to_matrix(np.asarray(pose[:3], np.float64))
     L = M[_SPINE].T @ np.asarray(R_head, np.float64)
-    half = rot.matrix_to_rot6d(rot.rotation_power_about(L, None, 0.5))
+    # rotation_power_about(L, None, 0.5) as rot6d: its quaternion path, rot6d taken straight from the quaternion
+    # (quaternion_to_rot6d: matrix_to_rot6d(quaternion_to_matrix(·)) to the bit, in fewer calls: issue 36)
+    half = rot.quaternion_to_rot6d(rot.quaternion_power_about(rot.matrix_to_quaternion(L), _IDENTITY_Q, 0.5))
     out = np.array(pose, copy=True)
     out[_NECK] = half
     out[_NECK1] = half

@@ -33,6 +33,7 @@ calls the wrapped sinks' ``write`` (VMC sender, viewer feed: both thread-safe);
 
 from __future__ import annotations
 
+import functools
 import threading
 import time
 from array import array
@@ -58,6 +59,21 @@ def added_latency_s(rate_hz: float, fps: float) -> float:
     return (n - 1) / n / fps
 
 
+def _key(head: np.ndarray) -> tuple[str, bytes]:
+    h = np.asarray(head)
+    return h.dtype.str, h.tobytes()
+
+
+@functools.lru_cache(maxsize=8)
+def _head_quaternion(dtype: str, head: bytes) -> np.ndarray:
+    """A frame's head rot6d (its dtype and bytes) as a (1, 4) quaternion: a frame is the end of one blend and the
+    start of the next, so each head is converted once (row by row the same numbers as both in one call)."""
+    h = np.frombuffer(head, dtype).reshape(1, 6).astype(np.float64)
+    q = rot.matrix_to_quaternion(rot.rot6d_to_matrix(h))
+    q.flags.writeable = False
+    return q
+
+
 def blend_frames(a: OutputFrame, b: OutputFrame, t: float) -> OutputFrame:
     """Frame between ``a`` (t = 0) and ``b`` (t = 1): slerp rotations, lerp weights and time."""
     if t >= 1.0:
@@ -65,11 +81,10 @@ def blend_frames(a: OutputFrame, b: OutputFrame, t: float) -> OutputFrame:
     # the joints and the head as one (J + 1)-row batch: the same row-wise arithmetic in half the calls (a tick
     # is mostly call overhead on 48 small rows: issue 36)
     J = len(a.quats)
-    hq = rot.matrix_to_quaternion(rot.rot6d_to_matrix(np.stack([a.head, b.head]).astype(np.float64)))
-    q0 = np.concatenate([np.asarray(a.quats, np.float64), hq[:1]])
-    q1 = np.concatenate([np.asarray(b.quats, np.float64), hq[1:]])
+    q0 = np.concatenate([np.asarray(a.quats, np.float64), _head_quaternion(*_key(a.head))])
+    q1 = np.concatenate([np.asarray(b.quats, np.float64), _head_quaternion(*_key(b.head))])
     qs = rot.quaternion_slerp(q0, q1, t)
-    rows = rot.matrix_to_rot6d(rot.quaternion_to_matrix(qs))
+    rows = rot.quaternion_to_rot6d(qs)  # matrix_to_rot6d(quaternion_to_matrix(qs)) to the bit, in fewer calls
     q, pose, head = qs[:J], rows[:J], rows[J]
     face = (1.0 - t) * np.asarray(a.face, np.float64) + t * np.asarray(b.face, np.float64)
     return OutputFrame(

@@ -412,6 +412,7 @@ def _prefix(address: str, tags: str, name: str) -> bytes:
 
 _ROOT = _msg("/VMC/Ext/Root/Pos", "root", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 _APPLY, _OK = _msg("/VMC/Ext/Blend/Apply"), _msg("/VMC/Ext/OK", 1)
+_T_PREFIX = _osc_string("/VMC/Ext/T") + _osc_string(",f")  # the stream time's message before its float
 _BUNDLE_HEAD = b"#bundle\0" + struct.pack(">Q", 1)  # OSC bundle, time tag "immediately"
 
 
@@ -478,36 +479,87 @@ class VmcSender:
         self._bone_pos = np.array([pos for _, _, pos in bones], np.float64).reshape(-1, 3)
         self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
         self._face_cache = (b"", b"")  # the last frame's face weights and their clips' packed values
+        self._bone_cache = (b"", b"")  # the last frame's rotations and its bones' packed numbers (a held frame)
+        self._template, self._slots, self._spans = self._layout()
         self.sent = 0  # frames
         self.datagrams = 0
         self.largest_datagram = 0
         self.errors = 0
 
+    def _layout(self) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
+        """The frame's datagrams with their numbers blank, where the numbers go and each datagram's span.
+
+        Every message but its numbers is the same each frame and so is its length, hence the way
+        :func:`pack_bundles` packs them: packed once here (zeros for the numbers), a frame is then one scatter
+        of its packed numbers into a copy (:meth:`datagrams_for`; the same bytes as packing its messages)."""
+        pieces = [(_ROOT, 0)] if self.parts == "all" else []
+        pieces += [(pre, 28) for pre in self._bone_prefix]
+        if self.parts != "arms":
+            pieces += [(pre, 4) for pre in self._blend_prefix] + [(_APPLY, 0)]
+        pieces += [(_OK, 0), (_T_PREFIX, 4)]
+        msgs = [pre + bytes(n) for pre, n in pieces]
+        grams = pack_bundles(msgs, self.max_datagram)
+        slots: list[int] = []
+        spans: list[tuple[int, int]] = []
+        pos = k = 0
+        for g in grams:  # walk the packed bytes: bundle head, then (length, message) until the datagram's end
+            end = pos + len(g)
+            spans.append((pos, end))
+            pos += len(_BUNDLE_HEAD)
+            while pos < end:
+                pre, n = pieces[k]
+                start = pos + 4 + len(pre)
+                slots += range(start, start + n)
+                pos += 4 + len(msgs[k])
+                k += 1
+        assert k == len(pieces) and pos == sum(len(g) for g in grams)
+        return np.frombuffer(b"".join(grams), np.uint8), np.array(slots, np.intp), spans
+
+    def _bone_numbers(self, out: OutputFrame) -> bytes:
+        """px py pz qx qy qz qw per sent bone, float32 big-endian (a held frame's packed once)."""
+        quats = np.asarray(out.quats)
+        key = quats.dtype.str.encode() + quats.tobytes()
+        last_key, raw = self._bone_cache  # one tuple: read and replaced whole (writers on two threads)
+        if key != last_key:
+            q = self.mapping.local_quaternions(quats)
+            vals = np.empty((len(self._bone_prefix), 7), np.float64)
+            vals[:, :3] = self._bone_pos
+            vals[:, 3:6] = q[:, 1:4]
+            vals[:, 6] = q[:, 0]
+            raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
+            self._bone_cache = (key, raw)
+        return raw
+
+    def _face_numbers(self, out: OutputFrame) -> bytes:
+        """The face clips' weights, float32 big-endian (a held frame's packed once)."""
+        face = np.asarray(out.face)
+        key = face.dtype.str.encode() + face.tobytes()
+        last_key, raw = self._face_cache  # one tuple: read and replaced whole (writers on two threads)
+        if key != last_key:  # else a held frame (no newer model frame yet): the same clips again
+            raw = blend_weights(face, self.blend).astype(">f4").tobytes()
+            self._face_cache = (key, raw)
+        return raw
+
     def messages(self, out: OutputFrame) -> list[bytes]:
         """The frame's OSC messages, in sending order (module docstring)."""
         msgs = [_ROOT] if self.parts == "all" else []
-        q = self.mapping.local_quaternions(out.quats)
-        nb = len(self._bone_prefix)
-        vals = np.empty((nb, 7), np.float64)  # px py pz qx qy qz qw per bone, as float32 big-endian below
-        vals[:, :3] = self._bone_pos
-        vals[:, 3:6] = q[:, 1:4]
-        vals[:, 6] = q[:, 0]
-        raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
+        raw = self._bone_numbers(out)
         msgs += [pre + raw[28 * k : 28 * k + 28] for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
-            face = np.asarray(out.face)
-            key = face.dtype.str.encode() + face.tobytes()
-            last_key, raw = self._face_cache  # one tuple: read and replaced whole (writers on two threads)
-            if key != last_key:  # else a held frame (no newer model frame yet): the same clips again
-                raw = blend_weights(face, self.blend).astype(">f4").tobytes()
-                self._face_cache = (key, raw)
+            raw = self._face_numbers(out)
             msgs += [pre + raw[4 * k : 4 * k + 4] for k, pre in enumerate(self._blend_prefix)]
             msgs.append(_APPLY)
         msgs += [_OK, _msg("/VMC/Ext/T", float(out.time_s))]
         return msgs
 
     def datagrams_for(self, out: OutputFrame) -> list[bytes]:
-        return pack_bundles(self.messages(out), self.max_datagram)
+        """The frame's datagrams: :func:`pack_bundles` of :meth:`messages`, from the layout (:meth:`_layout`)."""
+        face = self._face_numbers(out) if self.parts != "arms" else b""
+        numbers = self._bone_numbers(out) + face + struct.pack(">f", float(out.time_s))
+        buf = self._template.copy()
+        buf[self._slots] = np.frombuffer(numbers, np.uint8)
+        data = buf.tobytes()
+        return [data[a:b] for a, b in self._spans]
 
     def write(self, out: OutputFrame) -> None:
         try:
