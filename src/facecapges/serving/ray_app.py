@@ -65,11 +65,15 @@ THROUGHPUT_ENV = {
 
 
 def _require_ray():
+    """UserError unless Ray Serve is installed — found, not imported (importing Ray takes seconds)."""
+    import importlib.util
+
     try:
-        import ray  # noqa: F401
-        from ray import serve  # noqa: F401
-    except ImportError:
-        raise UserError("--ray needs Ray Serve: pip install 'facecapges[ray]'") from None
+        found = importlib.util.find_spec("ray") is not None and importlib.util.find_spec("ray.serve") is not None
+    except (ImportError, ValueError):
+        found = False
+    if not found:
+        raise UserError("--ray needs Ray Serve: pip install 'facecapges[ray]'")
 
 
 @dataclass
@@ -440,18 +444,19 @@ def serve_on_ray(
     ``ray start`` runs on this machine; ``local``: start a one-node cluster here), run the
     application with its proxy on ``config.host:config.port`` and serve until interrupted."""
     _require_ray()
+    cfg = config or ServeConfig(port=DEFAULT_PORT)
+    cfg.check()
+    if address != "local":
+        _check_reachable(address)  # before importing Ray: a wrong address is one error line at once
     import signal
 
     import ray
     from ray import serve
 
-    cfg = config or ServeConfig(port=DEFAULT_PORT)
-    cfg.check()
     host, port = cfg.host, cfg.port
     if address == "local":
         ray.init(include_dashboard=False)
     else:
-        _check_reachable(address)
         try:
             ray.init(address=address, include_dashboard=False)
         except (ConnectionError, ValueError, RuntimeError) as exc:
