@@ -268,3 +268,57 @@ def test_a_video_style_card_says_where_the_motion_came_from_and_how_well_it_was_
     assert "LeftForeArm" in card and "capture-body" in card
     # a take from motion capture gets no such section
     assert "captured from video" not in model_card("mocap", {**meta, "takes": [take]}, 720, 0.2).lower()
+
+
+def test_a_video_styles_motion_is_smoothed_of_capture_jitter_and_keeps_the_arms(beat_take):
+    """styles build --video puts the captured motion in a style's database as it is replayed: landmark jitter
+    (noise on a perfect landmarker's points) pops by the pop rule (his 99.9th-percentile acceleration) in the
+    plain solve; smooth_for_style brings every joint under its acceleration limit, the pops to his rate, and
+    costs the arm directions nothing."""
+    from facecapges import rotations as rot
+    from facecapges.capture.body_solve import ACCEL_LIMIT, smooth_for_style
+    from facecapges.evaluation import realism as rz
+    from facecapges.skeleton import motion_to_pose
+
+    skel, motion = beat_take.skeleton, beat_take.motion[:450]
+    real = motion_to_pose(skel, motion)[0]
+    lm = _synthetic_landmarks(skel, motion)
+    rng = np.random.default_rng(0)
+    lm.pose[:] += rng.normal(0.0, 0.01, lm.pose.shape)  # 1 cm of landmark jitter, 4 mm on the hands
+    lm.hands[:] += rng.normal(0.0, 0.004, lm.hands.shape)
+    raw = solve(skel, lm).pose
+    smooth = smooth_for_style(raw, 15.0)
+    assert smooth.shape == raw.shape and np.isfinite(smooth).all()
+    pops = [rz.transitions(p, [real], 15.0).per_minute for p in (raw, smooth, real)]
+    assert pops[0] > 50 and pops[1] <= max(2.0, pops[2]), pops
+    assert rot.angular_acceleration(smooth, 15.0).max() <= ACCEL_LIMIT * 1.05
+    m_raw, m = (compare(skel, motion, pose_to_motion(skel, p)) for p in (raw, smooth))
+    assert m["median_deg"] <= m_raw["median_deg"] + 0.5 and m["p90_deg"] <= m_raw["p90_deg"] + 0.5, (m_raw, m)
+
+
+def test_styles_build_video_puts_the_smoothed_capture_in_the_take(beat_take, tmp_path, monkeypatch):
+    """The --video path of styles build captures with for_style: the BVH its database is built from is under
+    the acceleration limit (the landmarker fed a jittery perfect landmarker's points instead of a video's)."""
+    import facecapges.capture.body as body
+    import facecapges.io.audio as audio
+    from facecapges import rotations as rot
+    from facecapges.capture.body_solve import ACCEL_LIMIT
+    from facecapges.commands.styles import _video_takes
+    from facecapges.io.bvh import read_bvh
+    from facecapges.skeleton import motion_to_pose
+
+    skel, motion = beat_take.skeleton, beat_take.motion[:150]
+    lm = _synthetic_landmarks(skel, motion)
+    rng = np.random.default_rng(1)
+    lm.pose[:] += rng.normal(0.0, 0.01, lm.pose.shape)
+    lm.hands[:] += rng.normal(0.0, 0.004, lm.hands.shape)
+    summary = {"frames": len(motion), "pose_found": 1.0, "hands_found": [1.0, 1.0], "both_hands_found": 1.0}
+    monkeypatch.setattr(body, "collect_landmarks", lambda *a, **k: (lm, dict(summary)))
+    monkeypatch.setattr(audio, "check_audio", lambda v: None)
+    (tmp_path / "w").mkdir()
+    pairs, _ = _video_takes([tmp_path / "me.mp4"], tmp_path / "w")
+    b = read_bvh(pairs[0][0])
+    captured = motion_to_pose(b.skeleton, b.motion)[0]
+    assert rot.angular_acceleration(captured, 15.0).max() <= ACCEL_LIMIT * 1.05
+    plain = rot.angular_acceleration(solve(skel, lm).pose, 15.0).max()
+    assert plain > 1.5 * ACCEL_LIMIT  # the jitter is there before the smoothing (seeded: 201 rad/s²)

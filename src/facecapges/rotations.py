@@ -289,6 +289,20 @@ def normalize_rot6d(rot6d: Array) -> Array:
     return matrix_to_rot6d(rot6d_to_matrix(rot6d))
 
 
+def angular_acceleration(rot6d: np.ndarray, fps: float) -> np.ndarray:
+    """Angular acceleration of each rotation of a sequence rot6d (T, ..., 6) along time: (T, ...).
+
+    ``‖R_{t+1} − 2R_t + R_{t−1}‖_F · fps² / √2`` (rad/s² for small steps); the first and last frame
+    (no second difference) are 0. The one formula behind the pop rule (``evaluation.realism``) and
+    the captured-motion limiter (``capture.body_solve.smooth_for_style``)."""
+    R = rot6d_to_matrix(np.asarray(rot6d, dtype=np.float64))
+    acc = np.zeros(R.shape[:-2])
+    if len(R) >= 3:
+        d2 = R[2:] - 2.0 * R[1:-1] + R[:-2]
+        acc[1:-1] = np.sqrt((d2**2).sum((-1, -2))) * fps**2 / np.sqrt(2.0)
+    return acc
+
+
 def euler_to_rot6d(euler: Array, order: str, degrees: bool = False) -> Array:
     """Euler angles (..., 3) → rot6d (..., 6)."""
     return matrix_to_rot6d(euler_to_matrix(euler, order, degrees))

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from facecapges.capture.body_models import HAND_TASK, POSE_TASK, model_path
-from facecapges.capture.body_solve import WRIST, BodyLandmarks, BodySolve, solve
+from facecapges.capture.body_solve import WRIST, BodyLandmarks, BodySolve, smooth_for_style, solve
 from facecapges.errors import UserError
 from facecapges.skeleton import Skeleton
 from facecapges.timing import MODEL_FPS
@@ -204,10 +204,12 @@ def capture_body(
     skeleton: Skeleton,
     max_frames: int | None = None,
     progress: Callable[[int, int | None], None] | None = None,
+    for_style: bool = False,
 ) -> tuple[BodySolve, dict]:
     """Video → BEAT BVH at 15 fps on ``skeleton``. Returns the solve and a summary (its ``warning``: the
     :func:`check_usable` warning or None). A video in which nothing usable was seen is refused (a
-    :class:`~facecapges.errors.UserError`) before ``out`` is written."""
+    :class:`~facecapges.errors.UserError`) before ``out`` is written. ``for_style`` (``styles build
+    --video``): the motion is smoothed further for a style's database (:func:`smooth_for_style`)."""
     from facecapges.io.bvh import write_bvh
     from facecapges.skeleton import pose_to_motion
 
@@ -215,6 +217,8 @@ def capture_body(
     if summary["pose_found"] == 0.0:
         raise UserError(f"{video}: no person found in any frame (the pose landmarker saw no body)")
     res = solve(skeleton, lms)
+    if for_style:
+        res = BodySolve(pose=smooth_for_style(res.pose, float(MODEL_FPS)), confidence=res.confidence)
     conf = res.confidence.mean(axis=0)
     summary["arm_confidence"] = float(np.mean([conf[k] for k in range(3, 47) if k in (4, 5, 26, 27)]))
     summary["joint_confidence"] = conf.tolist()

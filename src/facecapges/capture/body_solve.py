@@ -437,6 +437,53 @@ def smooth_segments(x: np.ndarray, seen: np.ndarray, sigma: float) -> np.ndarray
     return out
 
 
+# A style's database replays the captured motion as it is, so the motion ``styles build --video`` puts
+# there is smoothed further (chosen on the development stretch, docs/capture-body.md "A smoother capture
+# for a style"): every joint's rotation over time with a Gaussian of STYLE_SIGMA frames (the fingers
+# FINGER_SIGMA), then the frames where a joint still accelerates faster than ACCEL_LIMIT are smoothed
+# again, locally, until none does.
+STYLE_SIGMA = 1.0  # frames (15 fps): the rotations of every joint but the fingers
+FINGER_SIGMA = 2.0  # frames: the finger joints' (the hand landmarker's fingers jitter most)
+ACCEL_LIMIT = 124.0  # rad/s² per joint: half his whole-body 99.9th percentile (the pop rule's threshold)
+LIMIT_SIGMA = 2.0  # frames: the Gaussian each pass of the limiter blends in around a frame over the limit
+LIMIT_PASSES = 30
+
+
+def _finger_joints() -> list[int]:
+    return [j for j, n in enumerate(UPPER_BODY) if any(k in n for k in ("Thumb", "Index", "Middle", "Ring", "Pinky"))]
+
+
+def smooth_for_style(
+    pose: np.ndarray,
+    fps: float,
+    sigma: float = STYLE_SIGMA,
+    finger_sigma: float = FINGER_SIGMA,
+    limit: float = ACCEL_LIMIT,
+) -> np.ndarray:
+    """Captured rot6d poses (T, 47, 6) smoothed for a style's database: a zero-phase Gaussian over time
+    (:func:`smooth_segments`, ``sigma`` frames, ``finger_sigma`` for the fingers), then an offline
+    acceleration limiter: wherever a joint's angular acceleration (:func:`rotations.angular_acceleration`)
+    exceeds ``limit`` rad/s², that joint's frames within ±2 of it take a Gaussian of :data:`LIMIT_SIGMA`,
+    pass after pass (at most :data:`LIMIT_PASSES`). Rotations are re-orthonormalised after each step."""
+    from scipy.ndimage import binary_dilation
+
+    x = np.asarray(pose, dtype=np.float64)
+    every = np.ones(len(x), dtype=bool)
+    fingers = _finger_joints()
+    rest = [j for j in range(x.shape[1]) if j not in fingers]
+    out = x.copy()
+    out[:, rest] = smooth_segments(x[:, rest], every, sigma)
+    out[:, fingers] = smooth_segments(x[:, fingers], every, finger_sigma)
+    out = rot.normalize_rot6d(out)
+    for _ in range(LIMIT_PASSES):
+        over = rot.angular_acceleration(out, fps) > limit  # (T, 47)
+        if not over.any():
+            break
+        near = binary_dilation(over, structure=np.ones((3, 1), dtype=bool), iterations=2)
+        out = rot.normalize_rot6d(np.where(near[..., None], smooth_segments(out, every, LIMIT_SIGMA), out))
+    return out.astype(np.float32)
+
+
 def solve(
     skel: Skeleton,
     lm: BodyLandmarks,

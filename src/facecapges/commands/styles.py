@@ -237,7 +237,7 @@ def _video_takes(videos: list[Path], tmp: Path) -> tuple[list[tuple[Path, Path]]
             if i % 150 == 0 or i == n:
                 typer.echo(f"  capture-body {v.name}: {i}/{n if n is not None else '?'} frames")
 
-        _, s = capture_body(v, bvh, skeleton, progress=progress)
+        _, s = capture_body(v, bvh, skeleton, progress=progress, for_style=True)  # smoothed for a database
         typer.echo(
             f"  {v.name}: person found in {s['pose_found']:.0%} of {s['frames']} frames, both hands in "
             f"{s['both_hands_found']:.0%}, mean arm confidence {s['arm_confidence']:.2f}"

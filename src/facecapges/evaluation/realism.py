@@ -126,12 +126,7 @@ def joint_acceleration(pose: np.ndarray, fps: float, per_joint: bool = False) ->
     ``‖R_{t+1} − 2R_t + R_{t−1}‖_F · fps² / √2`` per joint (module docstring); all joints: the root
     of the sum of squares over joints. The first and last frame (no second difference) are 0.
     """
-    p = as_clips(pose)[0]
-    acc = np.zeros((len(p), p.shape[1]))
-    if len(p) >= 3:
-        R = rot.rot6d_to_matrix(p)
-        d2 = R[2:] - 2.0 * R[1:-1] + R[:-2]
-        acc[1:-1] = np.sqrt((d2**2).sum((-1, -2))) * fps**2 / np.sqrt(2.0)
+    acc = rot.angular_acceleration(as_clips(pose)[0], fps)
     return acc if per_joint else np.sqrt((acc**2).sum(-1))
 
 

@@ -226,13 +226,17 @@ def _seen_section(takes: list[dict]) -> str:
     rows = [t for t in takes if t.get("captured_from")]
     if not rows:
         return ""
+    from facecapges.capture.body_solve import ACCEL_LIMIT, FINGER_SIGMA, STYLE_SIGMA
+
     joints = list(rows[0]["captured_from"]["joint_confidence"])
     lines = [
         "",
         "## Motion captured from video",
         "",
         "The motion of these takes was captured from a video by `facecapges capture-body` (MediaPipe pose and",
-        "hand landmarks → BEAT joints; see docs/capture-body.md for how close it comes to real motion capture).",
+        "hand landmarks → BEAT joints; see docs/capture-body.md for how close it comes to real motion capture),",
+        f"smoothed over time for the database (rotations σ {STYLE_SIGMA:g} frame, fingers {FINGER_SIGMA:g}, each joint's",
+        f'acceleration limited to {ACCEL_LIMIT:g} rad/s²: docs/capture-body.md, "A smoother capture for a style").',
         "Share of frames in which the person, each hand and both hands were found, and each joint's mean",
         "confidence (0–1; below 0.5 a joint eases to a relaxed rest pose):",
         "",
