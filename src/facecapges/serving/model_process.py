@@ -35,6 +35,10 @@ alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round t
 against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
 model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
+Before it answers ``ready`` the child runs a tick of 1 and one of 32 streams on slots it closes again
+(:func:`_warm`): the engines import some modules at their first tick of a size (scipy's FFT from 16 streams
+on, ~190 modules with it), which took seconds on a busy machine while the first streams' frames were dropped.
+
 It offers what the server uses: :attr:`open_slots`, :meth:`sync` (opening, closing and
 dialling streams), the split :meth:`submit` / :meth:`collect`, and :meth:`step` (the two
 together, the generator's own signature and result). Not thread-safe: one caller
