@@ -202,6 +202,39 @@ def test_garbage_stalls_and_disconnects_do_not_affect_others(ckpt, server):
     assert s["bad_messages"] >= 6 and s["idle_closes"] >= 1 and s["streams"] == 0
 
 
+def test_messages_are_handled_as_parsed_in_order_fragmented_and_utf8_checked(ckpt, server):
+    """``serve`` handles each message as websockets' parser finds it (serving/connection.py): a message sent
+    before ``hello`` is answered after it, in order; a fragmented message is joined; an input, a ping and
+    another input in one burst are answered in that order; a text frame that is not UTF-8 closes with 1007."""
+    srv = server()
+    fr = frames(2, 21)
+
+    async def main():
+        async with connect(srv.url) as ws:
+            await ws.send('{"type":"ping"}')  # before reading hello: waits, then is answered after it
+            first = json.loads(await ws.recv())
+            second = json.loads(await ws.recv())
+            await ws.send(['{"type":', '"ping"}'])  # one message in two frames
+            joined = json.loads(await ws.recv())
+            a, f, h = fr[0]
+            await ws.send(protocol.encode_input(0, a, f, h))
+            await ws.send('{"type":"intensity","value":0.5}')
+            replies = [json.loads(await ws.recv()) for _ in range(2)]
+        async with connect(srv.url) as ws:
+            await ws.recv()
+            await ws.send(b'{"type":"ping","x":"\xff"}', text=True)  # a text frame that is not UTF-8
+            with pytest.raises(ConnectionClosed) as exc:
+                await asyncio.wait_for(ws.recv(), timeout=10)
+        return first, second, joined, replies, exc.value.rcvd.code
+
+    first, second, joined, replies, code = asyncio.run(main())
+    assert first["type"] == "hello" and second["type"] == "pong" and joined["type"] == "pong"
+    # the intensity reply is written at once, the pose at its tick: both come, the pose for frame 0
+    assert sorted(r["type"] for r in replies) == ["intensity", "pose"], replies
+    assert next(r for r in replies if r["type"] == "pose")["frame"] == 0
+    assert code == 1007
+
+
 @pytest.mark.serial
 def test_max_streams_and_rate_limit(ckpt, server):
     srv = server(max_streams=2, rate_limit=5.0, max_pending=16)

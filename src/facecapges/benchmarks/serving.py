@@ -24,7 +24,6 @@ scheduling, shown beside the measured figure, never instead of it.
 
 from __future__ import annotations
 
-import asyncio
 import os
 import socket
 import subprocess
@@ -128,7 +127,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
 
     def trial(n: int) -> bool:
         srv0, cli0 = proc_cpu_s(proc.pid), time.process_time()
-        res = asyncio.run(loadgen.run_clients(url, n, seconds, messages, warmup_s=1.0, seed=n))
+        res = loadgen.run(loadgen.run_clients(url, n, seconds, messages, warmup_s=1.0, seed=n))
         srv_cpu, cli_cpu = proc_cpu_s(proc.pid) - srv0, time.process_time() - cli0
         s = loadgen.summarize(res, P99_LIMIT_MS)
         s["load_average"] = round(os.getloadavg()[0], 2)
@@ -146,10 +145,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         return s["ok"]
 
     try:
-        # a short uncounted warm-up: `ready:` comes before the model process's first ticks have run, and a first
-        # trial of 40 streams connecting at once then lost a few frames to busy drops (1 run of 2, 2026-12-03)
-        asyncio.run(loadgen.run_clients(url, 4, 1.0, messages, warmup_s=0.5, seed=0))
-        time.sleep(0.5)
+        # no uncounted warm-up: the model process runs one tick before ``ready:`` (model_process._warm)
         best, fail, n = 0, None, 20 if quick else 40
         while n <= 1024:
             if trial(n):

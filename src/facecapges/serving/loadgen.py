@@ -7,8 +7,11 @@ the streams are not aligned), and records for every frame the time from just bef
 its ``send`` to the arrival of the ``pose`` with the same ``frame`` number (the round
 trip, loopback included). Inputs are real: consecutive frames of a speech recording
 (each frame its own samples), a slowly varying face and a head turning a little.
-Messages are encoded once before the run, so the clients spend their CPU on the
-sockets, not on JSON.
+Messages are encoded once before the run (to UTF-8 bytes too: a frame's number is put in with
+a bytes replace and the bytes go out as a text frame), replies are matched as bytes without
+decoding them, and :func:`run` drives the clients on uvloop's event loop where it is installed,
+so the clients spend their CPU on the sockets, not on JSON — they share the machine with the
+server they measure (``bench --only serve`` reports their CPU per frame beside the server's).
 """
 
 from __future__ import annotations
@@ -17,6 +20,7 @@ import asyncio
 import math
 import re
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -25,6 +29,7 @@ from facecapges import timing
 from facecapges.runtime.outputs import protocol
 
 _FRAME = re.compile(r'"frame":(\d+)')
+_FRAME_B = re.compile(rb'"frame":(\d+)')
 _FRAME_FIELD = re.compile(r'"frame":\d+,')
 
 
@@ -60,7 +65,7 @@ class ClientResult:
 
 async def run_client(
     url: str,
-    messages: list[str],
+    messages: Sequence[str | bytes],
     seconds: float,
     warmup_s: float = 1.0,
     fps: float = timing.MODEL_FPS,
@@ -73,6 +78,7 @@ async def run_client(
     from websockets.exceptions import ConnectionClosed
 
     res = ClientResult()
+    encoded = [m.encode() if isinstance(m, str) else m for m in messages]
     period = 1.0 / fps
     n = int(seconds * fps)
     sent_at: dict[int, float] = {}
@@ -91,10 +97,11 @@ async def run_client(
 
             async def reader():
                 try:
-                    async for msg in ws:
+                    while True:
+                        msg = await ws.recv(decode=False)  # the reply's bytes: nothing here needs it as text
                         now = time.perf_counter()
-                        m = _FRAME.search(msg, 0, 40)
-                        if msg.startswith('{"type":"pose"') and m:
+                        m = _FRAME_B.search(msg, 0, 40)
+                        if msg.startswith(b'{"type":"pose"') and m:
                             k = int(m.group(1))
                             res.received += 1
                             if k in measured:
@@ -102,7 +109,7 @@ async def run_client(
                             if res.received >= n:
                                 break
                         else:
-                            res.errors.append(msg[:120])
+                            res.errors.append(bytes(msg[:120]).decode("utf-8", "replace"))
                 except ConnectionClosed as exc:
                     res.closed = f"{exc.rcvd.code if exc.rcvd else '?'} {exc.rcvd.reason if exc.rcvd else ''}"
                 finally:
@@ -120,9 +127,8 @@ async def run_client(
                 sent_at[k] = now
                 if k * period >= warmup_s:
                     measured.add(k)
-                await ws.send(
-                    messages[k % len(messages)].replace('"frame":0,', f'"frame":{k},', 1) if k else messages[0]
-                )
+                m0 = encoded[k % len(encoded)]
+                await ws.send(m0.replace(b'"frame":0,', b'"frame":%d,' % k, 1) if k else m0, text=True)
                 res.sent += 1
             try:
                 await asyncio.wait_for(done.wait(), timeout=drain_s)
@@ -132,6 +138,15 @@ async def run_client(
     except (TimeoutError, OSError, ConnectionClosed) as exc:
         res.errors.append(f"connection: {exc.__class__.__name__}: {exc}")
     return res
+
+
+def run(coro):
+    """Run the clients' coroutine to its end on a new event loop (uvloop's where it is installed:
+    :func:`facecapges.runtime.outputs.server_thread.new_event_loop`), as ``asyncio.run`` does."""
+    from facecapges.runtime.outputs.server_thread import new_event_loop
+
+    with asyncio.Runner(loop_factory=new_event_loop) as runner:
+        return runner.run(coro)
 
 
 def _frame0(messages: list[str]) -> list[str]:
@@ -151,7 +166,7 @@ async def run_clients(
 ) -> list[ClientResult]:
     """``n_clients`` concurrent clients, random phases within one frame period."""
     rng = np.random.default_rng(seed)
-    msgs = _frame0(messages)
+    msgs = [m.encode() for m in _frame0(messages)]  # once for all clients
     return list(
         await asyncio.gather(
             *[

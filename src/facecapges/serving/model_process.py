@@ -35,6 +35,10 @@ alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round t
 against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
 model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
+Before it answers ``ready`` the child runs a tick of 1 and one of 32 streams on slots it closes again
+(:func:`_warm`): the engines import some modules at their first tick of a size (scipy's FFT from 16 streams
+on, ~190 modules with it), which took seconds on a busy machine while the first streams' frames were dropped.
+
 It offers what the server uses: :attr:`open_slots`, :meth:`sync` (opening, closing and
 dialling streams), the split :meth:`submit` / :meth:`collect`, and :meth:`step` (the two
 together, the generator's own signature and result). Not thread-safe: one caller
@@ -100,6 +104,11 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
         return
     a, f, h, p, q = arrays
     try:
+        _warm(gen, a.shape[1])
+    except Exception as exc:  # noqa: BLE001  as a failed load
+        conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
+        return
+    try:
         conn.send(("ok", None))
     except OSError:  # the server is gone
         return
@@ -123,6 +132,23 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
             conn.send(("ok", res))
         except Exception as exc:  # noqa: BLE001  a bad call: report it, keep serving
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
+
+
+def _warm(gen, samples_per_frame: int, sizes: tuple[int, ...] = (1, 32)) -> None:
+    """A tick of 1 and one of 32 streams (a quiet tone, a neutral face, the head straight) on slots closed
+    again, before the server says ``ready:``, so that the first real ticks run warm: the engine's lazy imports
+    happen here (scipy's FFT, taken from 16 streams a tick on, and the ~190 modules it pulls in: seconds on a
+    busy machine, during which the first streams' frames piled up and were dropped as "busy"). Streams share
+    no state (each slot is reset when it opens), so no output changes."""
+    for n in sizes:
+        slots = [gen.open() for _ in range(n)]
+        t = np.arange(samples_per_frame, dtype=np.float32) / timing.AUDIO_SR
+        audio = np.tile(0.1 * np.sin(2 * np.pi * 220.0 * t), (n, 1)).astype(np.float32)
+        head = np.tile(np.array([1.0, 0.0, 0.0, 0.0, 1.0, 0.0], np.float32), (n, 1))
+        pose = gen.step(slots, audio, np.zeros((n, N_BLENDSHAPES), np.float32), head)
+        rot.rot6d_to_quaternion(np.asarray(pose, np.float64))
+        for slot in slots:
+            gen.close(slot)
 
 
 def _sync(

@@ -53,6 +53,11 @@ makes it ready, and every waiting client gets its ``hello`` then. At most ``max_
 clients wait (more get 1013).
 Bad messages are answered and logged on one line per connection.
 
+Cost per stream-frame (issue 36: "server CPU per stream-frame is the figure to push"). The event loop is
+uvloop's where it is installed (:func:`facecapges.runtime.outputs.server_thread.new_event_loop`); each message
+is handled as the WebSocket parser finds it (:mod:`facecapges.serving.connection`: no future, task switch or
+queue per message) and every reply is written without waiting (:meth:`StreamServer._send`).
+
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
 answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.outputs.ws`,
 as the viewer server does). There is no authentication: bind other addresses only on
@@ -63,6 +68,7 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import os
 import socket
 import time
 from dataclasses import dataclass, field
@@ -97,6 +103,7 @@ from facecapges.timing import AUDIO_SR
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server, ServerConnection
 
+    from facecapges.serving.connection import MessageConnection
     from facecapges.serving.model_process import ModelProcess
 
 KERNEL_SEND_BUFFER = 64 * 1024  # SO_SNDBUF per connection (~2 s of poses at 15 fps)
@@ -116,7 +123,7 @@ def client_address(ws, trust_proxy: bool = False) -> str:
 
 @dataclass
 class _Stream(Holder):
-    ws: ServerConnection
+    ws: MessageConnection
     id: int
     slot: int | None = None
     pending: collections.deque = field(default_factory=collections.deque)
@@ -129,11 +136,16 @@ class _Stream(Holder):
 _error = error_message
 
 
+def _ignore(_message) -> None:
+    """The message callback of a stream that is over."""
+
+
 class StreamServer(ServerThread):
     """The multi-stream WebSocket server (module docs). :meth:`start` runs it in a thread,
     :meth:`run` blocks until interrupted (:class:`~facecapges.runtime.outputs.server_thread.ServerThread`)."""
 
     thread_name = "serve"
+    fast_loop = True  # uvloop (ServerThread.new_loop)
     start_timeout = 30.0
     join_timeout = 10.0
 
@@ -271,70 +283,91 @@ class StreamServer(ServerThread):
         self.stats["connections"] += 1
         try:
             await ws.send(protocol.encode_hello(self.fps, self.sr, intensity=st.intensity))
-            async for message in ws:
-                now = time.monotonic()
-                allowed, limit_error = self.policy.allow(st, now)
-                if not allowed:
-                    self.stats["rate_limited"] += 1
-                    if limit_error is not None:
-                        await ws.send(_error(limit_error))
-                    continue
-                try:
-                    msg = protocol.decode_client(message, self.fps, self.sr)
-                except protocol.ProtocolError as exc:
-                    self.stats["bad_messages"] += 1
-                    self.conn_log.bad_message(ws, exc)
-                    await ws.send(_error(str(exc)))
-                    continue
-                if msg["type"] == "ping":
-                    await ws.send(pong_message())
-                    continue
-                if msg["type"] == "intensity":  # applied to the stream's slot between ticks
-                    st.intensity = msg["value"]
-                    await ws.send(protocol.encode_intensity(st.intensity))
-                    continue
-                if msg["type"] == "resume":  # before the first input: the slot opens at that pose
-                    if st.slot is not None or st.frames or st.pending:
-                        await ws.send(_error("resume must come before the first input"))
-                    else:
-                        st.initial = msg["pose"]
-                        self.stats["resumed"] += 1
-                        await ws.send(protocol.RESUMED)
-                    continue
-                if st.probation:
-                    refusal = self._admit(st, now)
-                    if refusal is not None:
-                        await ws.send(_error(refusal))
-                        await ws.close(FULL_CODE, close_reason(refusal))
-                        break
-                    if st.probation:  # waiting for a stream in its way to be judged: this input is dropped
-                        self.stats["dropped_waiting"] += 1
-                        continue
-                self.policy.record_input(st, now)
-                if len(st.pending) >= self.cfg.max_pending:
-                    self.stats["dropped_busy"] += 1
-                    await ws.send(
-                        _error(
-                            f"busy: frame {msg['input'].index} dropped "
-                            f"({self.cfg.max_pending} frames of this stream are waiting)"
-                        )
-                    )
-                    continue
-                st.pending.append((msg["input"], now))
-                self._wake.set()
+            # every message from now on is handled as the parser finds it (serving.connection)
+            ws.deliver(lambda message: self._on_message(st, address, message))
+            await ws.wait_closed()
         except ConnectionClosed:
             pass
+        finally:
+            self._gone(st)
+            self.conn_log.closed(ws)
+            if ws.close_code == 1009:
+                self.stats["oversized_closes"] += 1
+
+    def _gone(self, st: _Stream) -> None:
+        """The stream is over (closed by either side): its slot is freed between ticks."""
+        st.closed = True
+        st.ws.on_message = _ignore
+        self.streams.pop(st.id, None)
+        self._wake.set()
+
+    def _on_message(self, st: _Stream, address: str, message: str | bytes) -> None:
+        """One message of a stream, handled at once (replies are written without waiting: :meth:`_send`)."""
+        if st.closed:
+            return
+        try:
+            self._handle(st, message)
         except Exception as exc:  # noqa: BLE001  never expected: one line, this connection only
             self.stats["handler_errors"] += 1
             self.log(f"serve: stream {st.id} ({address}) closed after an internal error: {exc!r:.200}")
-            await ws.close(1011, "internal error")
-        finally:
-            st.closed = True
-            self.conn_log.closed(ws)
-            self.streams.pop(st.id, None)
-            if ws.close_code == 1009:
-                self.stats["oversized_closes"] += 1
-            self._wake.set()  # the batching task frees the slot between ticks
+            self._gone(st)
+            self._close_later(st.ws, 1011, "internal error")
+
+    def _handle(self, st: _Stream, message: str | bytes) -> None:
+        ws = st.ws
+        now = time.monotonic()
+        allowed, limit_error = self.policy.allow(st, now)
+        if not allowed:
+            self.stats["rate_limited"] += 1
+            if limit_error is not None:
+                self._send(st, _error(limit_error))
+            return
+        try:
+            msg = protocol.decode_client(message, self.fps, self.sr)
+        except protocol.ProtocolError as exc:
+            self.stats["bad_messages"] += 1
+            self.conn_log.bad_message(ws, exc)
+            self._send(st, _error(str(exc)))
+            return
+        kind = msg["type"]
+        if kind == "ping":
+            self._send(st, pong_message())
+            return
+        if kind == "intensity":  # applied to the stream's slot between ticks
+            st.intensity = msg["value"]
+            self._send(st, protocol.encode_intensity(st.intensity))
+            return
+        if kind == "resume":  # before the first input: the slot opens at that pose
+            if st.slot is not None or st.frames or st.pending:
+                self._send(st, _error("resume must come before the first input"))
+            else:
+                st.initial = msg["pose"]
+                self.stats["resumed"] += 1
+                self._send(st, protocol.RESUMED)
+            return
+        if st.probation:
+            refusal = self._admit(st, now)
+            if refusal is not None:
+                self._send(st, _error(refusal))
+                self._gone(st)
+                self._close_later(ws, FULL_CODE, close_reason(refusal))
+                return
+            if st.probation:  # waiting for a stream in its way to be judged: this input is dropped
+                self.stats["dropped_waiting"] += 1
+                return
+        self.policy.record_input(st, now)
+        if len(st.pending) >= self.cfg.max_pending:
+            self.stats["dropped_busy"] += 1
+            self._send(
+                st,
+                _error(
+                    f"busy: frame {msg['input'].index} dropped "
+                    f"({self.cfg.max_pending} frames of this stream are waiting)"
+                ),
+            )
+            return
+        st.pending.append((msg["input"], now))
+        self._wake.set()
 
     def _admit(self, st: _Stream, now: float) -> str | None:
         """A stream on probation sent its first input: give it a slot — a free one, or that of the
@@ -373,6 +406,9 @@ class StreamServer(ServerThread):
             await ready
         finally:
             loop.remove_reader(fd)
+            # uvloop's add_reader makes the descriptor non-blocking (asyncio's leaves it): the model process's
+            # blocking calls (collect, sync) need it blocking again, else a sync fails with EAGAIN
+            os.set_blocking(fd, True)
         return gen.collect()
 
     def _sync_slots(self) -> None:
@@ -485,8 +521,15 @@ class StreamServer(ServerThread):
             self._loaded.set()
         c = self.cfg
         where: dict = {"sock": self.sock} if self.sock is not None else {"host": c.host, "port": c.port}
+        from facecapges.serving.connection import MessageConnection
+
         return await serve(
-            self._handler, process_request=self._process_request, compression=None, **where, **SERVE_OPTIONS
+            self._handler,
+            process_request=self._process_request,
+            compression=None,
+            create_connection=MessageConnection,
+            **where,
+            **SERVE_OPTIONS,
         )
 
     def _address(self) -> tuple[str, int]:

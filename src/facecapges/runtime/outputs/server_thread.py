@@ -38,6 +38,20 @@ def listening_socket(host: str, port: int, what: str = "cannot listen") -> socke
         raise UserError(f"{what} on {host}:{port} ({why})") from None
 
 
+def new_event_loop(fast: bool = True) -> asyncio.AbstractEventLoop:
+    """A new event loop: uvloop's (its transports and selector in C: ``serve`` spends about half of its
+    CPU per stream-frame in the event loop and the WebSocket layer, docs/performance.md) when ``fast`` and
+    uvloop is installed (a core dependency on Linux and macOS; there is none for Windows), else asyncio's."""
+    if fast:
+        try:
+            import uvloop
+        except ImportError:
+            pass
+        else:
+            return uvloop.new_event_loop()
+    return asyncio.new_event_loop()
+
+
 class ServerThread:
     """A server on its own event loop in a daemon thread (module docstring)."""
 
@@ -45,6 +59,7 @@ class ServerThread:
     cannot_listen = "cannot listen"  # the start of the error when it cannot: "{cannot_listen} on HOST:PORT (why)"
     start_timeout = 20.0  # seconds start() waits for the server to listen
     join_timeout = 5.0  # seconds close() waits for the thread to end
+    fast_loop = False  # run on uvloop's event loop (libuv, in C) where it is installed: ``serve`` does (new_loop)
 
     def __init__(self) -> None:
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -89,8 +104,12 @@ class ServerThread:
             await asyncio.gather(*tasks, return_exceptions=True)
             await self._server.wait_closed()
 
+    def new_loop(self) -> asyncio.AbstractEventLoop:
+        """The server's event loop: uvloop's when :attr:`fast_loop` and it is installed, else asyncio's own."""
+        return new_event_loop(self.fast_loop)
+
     def _run_loop(self) -> None:
-        self._loop = asyncio.new_event_loop()
+        self._loop = self.new_loop()
         try:
             self._loop.run_until_complete(self._main())
         except BaseException as exc:

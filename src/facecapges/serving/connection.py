@@ -1,0 +1,90 @@
+"""``serve``'s WebSocket connection: each message handed to a callback as it is parsed.
+
+``websockets``' own connection queues every received message for a coroutine that awaits it
+(``async for message in ws``): per message a future, a task switch and the queue's bookkeeping.
+``serve`` handles a message in a few dozen microseconds and never awaits while it does (its
+replies are written without waiting: :meth:`StreamServer._send`), so :class:`MessageConnection`
+calls :attr:`~MessageConnection.on_message` with each complete message straight from the
+protocol parser instead — the same parser, limits and close codes (a message above ``max_size``
+closes with 1009, a text message that is not UTF-8 with 1007, as ``recv`` does). Messages that
+arrive before a callback is set (while the style loads and before ``hello``) wait, in order,
+and reading pauses while 16 of them wait (``websockets``' own high-water mark); :meth:`deliver`
+hands them over. Measured (2026-12-04, load 13–19, 50 connections, 6.6 KB messages, server CPU
+per message, two runs): 64–90 µs against 86–102 µs for ``async for`` on uvloop.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from websockets.asyncio.server import ServerConnection
+from websockets.frames import CloseCode, Frame, Opcode
+
+HIGH_WATER = 16  # messages waiting for a callback before reading pauses
+MAX_FRAGMENTS = 1024  # frames of one fragmented message (its bytes are bounded by max_size)
+
+
+class MessageConnection(ServerConnection):
+    """A server connection that calls :attr:`on_message` (text as ``str``, binary as ``bytes``) for
+    each complete message (module docs). Not for ``recv``: nothing reaches its queue."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.on_message: Callable[[str | bytes], None] | None = None
+        self._inbox: list[str | bytes] = []  # messages before a callback was set
+        self._parts: list[Frame] = []  # the frames of a fragmented message so far
+        self._paused = False
+
+    def deliver(self, callback: Callable[[str | bytes], None]) -> None:
+        """From now on, hand every message to ``callback``; the ones waiting first, in order."""
+        self.on_message = callback
+        inbox, self._inbox = self._inbox, []
+        for message in inbox:
+            if self.on_message is not callback:  # the callback replaced itself (a stream closed)
+                break
+            callback(message)
+        if self._paused:
+            self._paused = False
+            self.transport.resume_reading()
+
+    def process_event(self, event) -> None:
+        if self.request is None or not isinstance(event, Frame) or event.opcode not in _DATA:
+            super().process_event(event)  # the handshake, pings, pongs and close: websockets' own handling
+            return
+        if event.opcode is not Opcode.CONT:
+            self._parts.clear()
+        self._parts.append(event)
+        if not event.fin:
+            if len(self._parts) > MAX_FRAGMENTS:
+                self._fail(CloseCode.MESSAGE_TOO_BIG, "too many fragments")
+            return
+        parts, self._parts = self._parts, []
+        data = parts[0].data if len(parts) == 1 else b"".join(p.data for p in parts)
+        message: str | bytes
+        if parts[0].opcode is Opcode.TEXT:
+            try:
+                message = bytes(data).decode()
+            except UnicodeDecodeError as exc:
+                self._fail(CloseCode.INVALID_DATA, f"{exc.reason} at position {exc.start}")
+                return
+        else:
+            message = bytes(data)
+        callback = self.on_message
+        if callback is not None:
+            callback(message)
+            return
+        self._inbox.append(message)
+        if len(self._inbox) >= HIGH_WATER and not self._paused:
+            self._paused = True
+            self.transport.pause_reading()
+
+    def _fail(self, code: CloseCode, reason: str) -> None:
+        self._parts = []
+        self.protocol.fail(code, reason)
+        try:
+            self.send_data()
+        except Exception as exc:  # noqa: BLE001  as websockets' own data_received: the connection is lost
+            self.set_connection_exc(exc)
+
+
+_DATA = (Opcode.TEXT, Opcode.BINARY, Opcode.CONT)
