@@ -416,7 +416,8 @@ def test_a_live_newcomer_waits_out_young_slow_holders_instead_of_being_refused()
     address that reopen at once and evict each other keep every slot young (each inside its grace
     second). A live newcomer
     from that address used to be refused outright (the flaky loss of the test above, refused_address
-    59); it now waits on probation, its inputs dropped, and takes the first slot that ripens slow.
+    59); it now waits on probation, its inputs dropped, and takes the first slot that ripens slow,
+    before a reconnecting holder that asks first.
     Once every stream in its way has proven live, it is refused as before."""
     from facecapges.serving.admission import GRACE_S, Admission, Holder
     from facecapges.serving.config import ServeConfig
@@ -436,7 +437,13 @@ def test_a_live_newcomer_waits_out_young_slow_holders_instead_of_being_refused()
     pol.new(me, "127.0.0.1", t0, probation=True)
     assert pol.admit(holders + [me], me, t0 + 0.05) == (None, "waiting", None)
     assert me.probation
-    refusal, _stat, victim = pol.admit(holders + [me], me, t0 - 0.8 + GRACE_S + 0.01)  # the oldest ripens
+    for i in (2, 3):  # it waits, sending 15 a second (the oldest holder ripens at t0 + 0.2)
+        assert pol.admit(holders + [me], me, t0 + i / 15 - 0.01)[1] == "waiting"
+    ripe = t0 - 0.8 + GRACE_S + 0.01  # the oldest holder ripens slow
+    churner = Holder()  # a holder that reconnected just now asks first: the livelier waiter gets the slot
+    pol.new(churner, "127.0.0.1", ripe - 0.01, probation=True)
+    assert pol.admit(holders + [me, churner], churner, ripe) == (None, "waiting", None)
+    refusal, _stat, victim = pol.admit(holders + [me, churner], me, ripe + 0.01)
     assert refusal is None and victim is holders[0] and not me.probation and me.taker
 
     fresh = []  # young streams that got free slots (a server that just filled up): refused at once

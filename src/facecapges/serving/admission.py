@@ -16,8 +16,9 @@ a newer one), and its first ``input`` takes the slot of the slowest such stream,
 Churn. A stream that took its slot by evicting another is not judged in its grace second either, so
 slow holders that reopen at once could keep every slot of an address young and a live client of
 that address refused. A newcomer whose way holds such a young *taker* therefore waits on probation
-instead of being refused: its inputs are dropped, each one looks again, and, sending 15 a second,
-it is first to take a slot that ripens slow (within about the grace second). Once no taker in its
+instead of being refused: its inputs are dropped, each one looks again, and a slot that ripens
+slow goes to the waiter with the highest input rate since it connected (a live client, sending 15 a
+second, before holders that reconnect and send one input now and then). Once no taker in its
 way is young and none is slow, it is refused as before. A server that simply filled up with new
 connections refuses at once, as before.
 
@@ -83,6 +84,8 @@ class Holder:
     closed: bool = False
     since: float = 0.0  # when it got its slot
     taker: bool = False  # it got its slot by evicting a slow stream (module docs, "Churn")
+    connected: float = 0.0  # when it connected
+    waited: int = 0  # inputs dropped while it waited on probation
     last_input: float = 0.0  # (or when it connected)
     times: collections.deque = field(default_factory=lambda: collections.deque(maxlen=256))  # inputs' arrivals
     tokens: float = 0.0
@@ -114,7 +117,7 @@ class Admission:
 
     def new(self, st: Holder, address: str, now: float, probation: bool) -> None:
         """Set up a newcomer's record: a full token bucket, its clocks."""
-        st.address, st.probation, st.since, st.last_input = address, probation, now, now
+        st.address, st.probation, st.since, st.last_input, st.connected = address, probation, now, now, now
         st.tokens, st.t_tokens = self.cfg.rate_limit, now
 
     # ------------------------------------------------------------ messages
@@ -196,18 +199,31 @@ class Admission:
         old = min(waiting, key=lambda s: s.last_input) if len(waiting) >= self.cfg.max_streams else None
         return Arrival(probation=True, make_room=old)
 
+    @staticmethod
+    def waiting_rate(st: Holder, now: float) -> float:
+        """A probationer's inputs per second since it connected (this one counted; at least 0.2 s)."""
+        return (st.waited + 1) / max(0.2, now - st.connected)
+
     def admit(self, streams: Iterable[Holder], st: Holder, now: float) -> tuple[str | None, str, Holder | None]:
         """A stream on probation sent an input: (refusal, its counter, None) when no stream in its way
         is slow or a young taker; (None, "waiting", None) — it stays on probation, the input is
-        dropped — while none is slow but one is a young taker (module docs, "Churn"); else it holds a slot now — (None, "",
+        dropped — while none is slow but one is a young taker, or while another waiter sends faster
+        (module docs, "Churn"); else it holds a slot now — (None, "",
         the slowest stream in its way, to be closed 1013 :data:`EVICTED_SLOW`, or None if a slot
         was free)."""
+        streams = list(streams)
         way = self.in_the_way(streams, st.address)
         victim = None
         if way is not None:
             victim = self.slowest(way[0], now)
-            if victim is None:
-                if self.unproven(way[0], now):
+            mine = self.waiting_rate(st, now)
+            faster = any(  # a slot that ripens goes to the livest waiter, not to whoever asks first
+                o is not st and o.probation and not o.closed and o.waited and self.waiting_rate(o, now) > mine
+                for o in streams
+            )
+            if victim is None or faster:
+                if victim is not None or self.unproven(way[0], now):
+                    st.waited += 1
                     return None, "waiting", None
                 return way[1], self._stat(way[1]), None
             victim.closed = True
