@@ -327,8 +327,9 @@ def _last_frames(video: Path, frames: int, out: Path) -> Path:
     """The last ``frames`` of ``video`` (FPS) and the sound under them, re-encoded as :func:`looped_video` does."""
     import imageio_ffmpeg
 
-    seconds = f"{frames / FPS:g}"
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-sseof", f"-{seconds}", "-i", str(video)]
+    n, _ = imageio_ffmpeg.count_frames_and_secs(str(video))
+    start = f"{max(n - frames, 0) / FPS:.6f}"  # an output -ss: decoded up to that frame exactly
+    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-i", str(video), "-ss", start]
     subprocess.run([*cmd, "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "aac", str(out)], check=True)
     return out
 
