@@ -128,7 +128,11 @@ def render_truth(
         first = n_full - len(truth)  # the held-out end's first frame
         a = load_audio(wav)
         start = int(round(first / MODEL_FPS * AUDIO_SR))
-        speech = save_audio(work / "truth.wav", a[start : start + int(round(len(truth) / MODEL_FPS * AUDIO_SR))])
+        # one frame longer than the motion (silence where the take's speech ends): the render's -shortest ends the
+        # video with the audio's last AAC frame, which dropped the motion's last frame (190 of 191)
+        n = int(round((len(truth) + 1) / MODEL_FPS * AUDIO_SR))
+        part = a[start : start + n]
+        speech = save_audio(work / "truth.wav", np.pad(part, (0, n - len(part))))
         cmd += ["--audio", str(speech)]
     cache = os.environ.get(RENDER_CACHE_ENV)
     key = _render_key([bvh] + ([speech] if speech else []), cmd[3:]) if cache else ""
