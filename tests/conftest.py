@@ -47,6 +47,21 @@ def shared_file(rel: str) -> Path:
     return p
 
 
+@pytest.fixture(scope="session", autouse=True)
+def render_cache(tmp_path_factory) -> Path:
+    """One folder per pytest session for ``render_truth``'s videos ($FACECAPGES_RENDER_CACHE, keyed by what
+    decides the pixels): the truth video of 2_scott_0_1_1 is rendered once, not by test_capture_body.py,
+    test_live_body.py and the bench's subprocess each. Under xdist the workers' basetemps share a parent
+    (the session's), and a file lock makes the others wait for the first render (docs/testing.md)."""
+    root = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent  # <session basetemp>/popen-gwN
+    d = root / "render-cache"
+    d.mkdir(exist_ok=True)
+    os.environ["FACECAPGES_RENDER_CACHE"] = str(d)  # the tests' subprocesses inherit it
+    return d
+
+
 @pytest.fixture(scope="session")
 def beat_bvh() -> Path:
     return shared_file("data/beat/2_scott_0_1_1.bvh")

@@ -20,6 +20,10 @@ prints it (docs/capture-body.md).
 
 from __future__ import annotations
 
+import contextlib
+import os
+import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -124,16 +128,69 @@ def render_truth(
         first = n_full - len(truth)  # the held-out end's first frame
         a = load_audio(wav)
         start = int(round(first / MODEL_FPS * AUDIO_SR))
-        speech = save_audio(work / "truth.wav", a[start : start + int(round(len(truth) / MODEL_FPS * AUDIO_SR))])
+        # one frame longer than the motion (silence where the take's speech ends): the render's -shortest ends the
+        # video with the audio's last AAC frame, which dropped the motion's last frame (190 of 191)
+        n = int(round((len(truth) + 1) / MODEL_FPS * AUDIO_SR))
+        part = a[start : start + n]
+        speech = save_audio(work / "truth.wav", np.pad(part, (0, n - len(part))))
         cmd += ["--audio", str(speech)]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"render failed: {r.stderr.strip()[-500:]}")
+    cache = os.environ.get(RENDER_CACHE_ENV)
+    key = _render_key([bvh] + ([speech] if speech else []), cmd[3:]) if cache else ""
+    with _cache_lock(cache, key):
+        if cache and (Path(cache) / f"{key}.mp4").is_file():
+            shutil.copyfile(Path(cache) / f"{key}.mp4", video)
+            return skel, truth, video, speech
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"render failed: {r.stderr.strip()[-500:]}")
+        if cache:  # copied under another name, then renamed: a reader never sees half a file
+            shutil.copyfile(video, Path(cache) / f"{key}.part")
+            os.replace(Path(cache) / f"{key}.part", Path(cache) / f"{key}.mp4")
     return skel, truth, video, speech
 
 
-def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None) -> dict:
-    """Render the held-out end of ``take`` on the avatar, capture-body it back, compare with the truth.
+RENDER_CACHE_ENV = "FACECAPGES_RENDER_CACHE"  # set by the test suite only (tests/conftest.py, docs/testing.md)
+
+
+def _render_key(inputs: list[Path], args: list[str]) -> str:
+    """What decides :func:`render_truth`'s pixels and sound: the input files' bytes (the truth BVH — its motion,
+    frame range and fps — and the speech), the render options but the paths, and the renderer: every file of
+    the installed package (code, web page, avatar assets) and three.js's version."""
+    import hashlib
+
+    from facecapges.avatar.render.browser import three_dir
+
+    h = hashlib.sha256()
+    for f in inputs:
+        h.update(f.read_bytes())
+    h.update(repr([a for a in args if not a.endswith((".bvh", ".mp4", ".wav"))]).encode())
+    package = Path(__file__).resolve().parents[1]
+    for f in sorted(package.rglob("*")):
+        if f.is_file() and "__pycache__" not in f.parts:
+            h.update(str(f.relative_to(package)).encode() + f.read_bytes())
+    h.update((three_dir() / "package.json").read_bytes())
+    return h.hexdigest()[:32]
+
+
+@contextlib.contextmanager
+def _cache_lock(cache: str | None, key: str) -> Iterator[None]:
+    """Held while one process renders ``key`` into ``cache``: the others (xdist workers, the bench's
+    subprocess) wait, then copy its file."""
+    if not cache:
+        yield
+        return
+    from filelock import FileLock
+
+    Path(cache).mkdir(parents=True, exist_ok=True)
+    with FileLock(str(Path(cache) / f"{key}.lock")):
+        yield
+
+
+def measure(
+    take: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None, wav: str | Path | None = None
+) -> dict:
+    """Render the held-out end of ``take`` on the avatar (with its speech ``wav``: the mouth moves, as in
+    :func:`~facecapges.evaluation.live_body.measure_live`'s video), capture-body it back, compare with the truth.
 
     ``work``: a folder for truth.bvh, truth.mp4 and captured.bvh. Returns :func:`compare`'s figures in the
     body frame, ``camera`` (the same in the camera frame) and the capture's summary (hands found …)."""
@@ -141,7 +198,7 @@ def measure(take: str | Path, work: str | Path, skeleton_bvh: str | Path | None 
     from facecapges.skeleton import pose_to_motion
 
     work = Path(work)
-    skel, truth, video, _ = render_truth(take, work, skeleton_bvh)
+    skel, truth, video, _ = render_truth(take, work, skeleton_bvh, wav)
     res, summary = capture_body(video, work / "captured.bvh", skel)
     captured = pose_to_motion(skel, res.pose)
     out = compare(skel, truth, captured)
