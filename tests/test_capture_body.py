@@ -123,33 +123,19 @@ def test_arm_bones_take_their_image_plane_direction_from_the_image_landmarks(bea
             u = d_true[:, :2] / np.linalg.norm(d_true[:, :2], axis=-1, keepdims=True)
             v = d_fix[:, :2] / np.linalg.norm(d_fix[:, :2], axis=-1, keepdims=True)
             assert (u * v).sum(-1).min() > 0.9999  # the picture's direction
-    m_bent = compare(
-        skel,
-        motion,
-        pose_to_motion(
+    m_bent, m_fix = (
+        compare(
             skel,
-            solve(
+            motion,
+            pose_to_motion(
                 skel,
-                BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0),
-                smooth=False,
-                depth_completion=False,
-                hand_weight=0.0,
-            ).pose,
-        ),
-    )
-    m_fix = compare(
-        skel,
-        motion,
-        pose_to_motion(
-            skel,
-            solve(
-                skel,
-                BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0, image, size),
-                smooth=False,
-                depth_completion=False,
-                hand_weight=0.0,
-            ).pose,
-        ),
+                solve(skel, marks, smooth=False, depth_completion=False, hand_weight=0.0).pose,
+            ),
+        )
+        for marks in (
+            BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0),
+            BodyLandmarks(bent, lm.visibility, lm.hands, lm.hand_score, 15.0, image, size),
+        )
     )
     assert m_fix["per_bone_median_deg"]["Right forearm"] < m_bent["per_bone_median_deg"]["Right forearm"] - 3, (
         m_fix,

@@ -115,12 +115,26 @@ def test_an_idle_model_still_gets_the_rate():
     assert 25 <= len(sink.frames) <= 33 and all(f.face[24] == pytest.approx(0.2) for _, f in sink.frames)
 
 
-@pytest.mark.serial
-def test_viewer_gets_30_frames_a_second(face_video):
-    """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
+def _viewer_pose_times(url: str, n: int) -> list[float]:
+    """The clock field of the first ``n`` poses the viewer at ``url`` (``http://…/``) sends over its WebSocket."""
     from websockets.sync.client import connect
 
     from facecapges.runtime.outputs import protocol
+
+    with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
+        assert json.loads(ws.recv(timeout=30))["type"] == "hello"
+        times: list[float] = []
+        while len(times) < n:
+            msg = ws.recv(timeout=30)
+            if json.loads(msg)["type"] == "pose":
+                times.append(protocol.decode_pose(msg)["time"])
+    return times
+
+
+@pytest.mark.serial
+def test_viewer_gets_30_frames_a_second(face_video):
+    """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
+
     from runtime_helpers import cli_popen, wait_line
 
     proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
@@ -128,14 +142,7 @@ def test_viewer_gets_30_frames_a_second(face_video):
     try:
         line = wait_line(proc, "viewer: ")
         assert line, proc.stderr.read()[-2000:]
-        url = line.split()[1]
-        with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
-            assert json.loads(ws.recv(timeout=30))["type"] == "hello"
-            times = []
-            while len(times) < 40:
-                msg = ws.recv(timeout=30)
-                if json.loads(msg)["type"] == "pose":
-                    times.append(protocol.decode_pose(msg)["time"])
+        times = _viewer_pose_times(line.split()[1], 40)
     finally:
         proc.kill()
         proc.wait()
@@ -151,9 +158,7 @@ def test_viewer_and_vmc_share_one_interpolator(face_video):
     and one blend per tick for both), so both get the same 30 Hz frames: every ``pose`` the viewer gets has the
     stream time of a ``/VMC/Ext/T`` the receiver got (two interpolators had two clocks: their times differed)."""
     from pythonosc.osc_bundle import OscBundle
-    from websockets.sync.client import connect
 
-    from facecapges.runtime.outputs import protocol
     from runtime_helpers import cli_popen, vmc_frames, wait_line
 
     vmc_times = []
@@ -167,13 +172,7 @@ def test_viewer_and_vmc_share_one_interpolator(face_video):
         try:
             line = wait_line(proc, "viewer: ")
             assert line, proc.stderr.read()[-2000:]
-            with connect(line.split()[1].replace("http://", "ws://") + "ws", max_size=None) as ws:
-                assert json.loads(ws.recv(timeout=30))["type"] == "hello"
-                times = []
-                while len(times) < 40:
-                    msg = ws.recv(timeout=30)
-                    if json.loads(msg)["type"] == "pose":
-                        times.append(protocol.decode_pose(msg)["time"])
+            times = _viewer_pose_times(line.split()[1], 40)
             time.sleep(0.3)
         finally:
             proc.kill()
