@@ -59,6 +59,12 @@ CANNOT_RUN: dict[tuple[str, str], str] = {
         "the reader's own video and speech (tests/test_live_body.py runs live --body on a rendered one)",
     ("capture-body.md", "python -m facecapges.evaluation.body_capture"):
         "renders and captures the held-out end of two takes (minutes); tests/test_capture_body.py runs its measure on 1_1",
+    ("capture-body.md", "facecapges styles build vid11 --video train11.mp4"):
+        "the record of one measurement: a style built (minutes) from a render of 1_1's training 80 % made for it",
+    ("capture-body.md", "PYTHONPATH=src nice -n 10 .venv/bin/python scripts/conversation_report.py"):
+        "the conversation report of that style and the default (minutes each); "
+        "tests/test_matching_conversation.py covers its figures",
+    ("capture-body.md", "python scripts/conversation_report.py --table"): "the table of the two reports above",
     ("ablation_beat2_scott.md", "facecapges prepare <folder"): "the record of the ablation's own runs (hours of training)",
     ("ablation_beat2_scott.md", "facecapges ablate"): "an ablation: trains every variant (hours)",
     ("ablation_beat2_scott.md", "facecapges prepare ../shared/data/beat --out build/default-style/cache"):
