@@ -148,8 +148,8 @@ class IdleMotion:
         apart, and the sines move every joint independently. In his motion capture that stays under his rest
         runs' wrist speed (beat2-scott-mm: the idle 12.8 cm/s against his rest runs' 14.8: the bound does not
         bind, its poses are unchanged). In a capture from video (``styles build --video``) the rest runs' arm
-        rotations carry the solve's noise (the forearm's sd in a rest run 9–20°, his real motion at the same frames
-        1–6°) that barely shows at the wrist (the rest runs' wrists 12.1 cm/s, no faster than his): the elbow's
+        rotations carry the solve's noise (the forearm's sd in a rest run up to 20°, median 9.7°; his real motion
+        at the same frames up to 6°, median 3.6°) that barely shows at the wrist (the rest runs' wrists 12.1 cm/s, no faster than his): the elbow's
         swivel and the split of the bend between upper arm and forearm, which a camera hardly sees in depth.
         Replayed as independent sines it does move the wrists: 22.5 cm/s, 1.85× the style's own rest runs, and
         its pauses never settled (docs/capture-body.md, "Pauses that settle"). So every amplitude is scaled by one
