@@ -173,3 +173,67 @@ def test_the_settle_rules_read_a_dead_stop(ref):
     calm = np.flatnonzero(cv._ahead(s[a:], int(cv.SETTLE_WINDOW_S * FPS)) <= ref.idle_speed)[0] / FPS
     trail = np.flatnonzero(cv._smooth(s, int(cv.SETTLE_WINDOW_S * FPS))[a:] <= ref.idle_speed)[0] / FPS
     assert calm == 0.0 and 0.4 <= trail <= 0.55, (calm, trail)
+
+
+def _measure(style, q: np.ndarray, skeleton):
+    from facecapges.matching.features import group_slices
+    from facecapges.matching.idle import IdleMotion
+
+    m, db = style.batched(1), style.db
+    rest = m.idle & (db.phase == 0)
+    height = db.features[:, group_slices()["position"]].reshape(len(db), 4, 3)[:, :2, 1]
+    return IdleMotion.measure(q, db.segment, rest, FPS, "low", wrist_height=height, skeleton=skeleton), rest
+
+
+def test_the_idle_moves_the_wrists_no_faster_than_the_rest_runs(style):
+    """The wrist bound (``IdleMotion.wrist_speed``): a capture's noise that cancels at the wrist — here the elbow
+    swinging about the shoulder→wrist axis, the swivel a camera cannot see in depth, 10° sd on every rest row —
+    inflates the per-joint amplitudes; replayed independently it moved the wrists faster than the rest rows do. With
+    the skeleton the idle's mean wrist speed is bounded by the rest runs'; on his motion capture nothing changes."""
+    from facecapges.matching import inertialize as inz
+    from facecapges.matching.idle import _wrist_speed
+    from facecapges.rotations import quaternion_to_rot6d
+    from facecapges.skeleton import UPPER_BODY, upper_body_transforms
+
+    skel = style.skeleton
+    q0 = style.batched(1).row_quaternions
+    plain, rest = _measure(style, q0, None)
+    bounded, _ = _measure(style, q0, skel)
+    np.testing.assert_array_equal(bounded.amplitude, plain.amplitude)  # his capture: the bound does not bind
+
+    q = q0.copy()
+    rows = np.flatnonzero(rest)
+    g, p = upper_body_transforms(skel, quaternion_to_rot6d(q0[rows]))
+    rng = np.random.default_rng(0)
+    for side in ("Right", "Left"):
+        arm = skel.index(f"{side}Arm")
+        axis = p[:, skel.index(f"{side}Hand")] - p[:, arm]
+        axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+        parent = g[:, skel.parents[arm]]  # the swivel, in the upper arm's parent frame
+        local = np.einsum("tji,tj->ti", parent, axis)
+        turn = inz.qexp(local * np.radians(10.0) * rng.standard_normal((len(rows), 1)))
+        j = UPPER_BODY.index(f"{side}Arm")
+        q[rows, j] = inz.qmul(turn, q0[rows, j])
+    _, p1 = upper_body_transforms(skel, quaternion_to_rot6d(q[rows]))
+    wr = [skel.index("RightHand"), skel.index("LeftHand")]
+    np.testing.assert_allclose(p1[:, wr], p[:, wr], atol=1e-3)  # the wrists have not moved
+
+    noisy, _ = _measure(style, q, None)
+    fixed, _ = _measure(style, q, skel)
+    runs = np.concatenate([_wrist_speed(skel, q[r], FPS) for r in _rest_runs(style, rest)])
+    assert noisy.wrist_speed(skel, FPS) > 1.3 * runs.mean()  # unbounded: faster than the rest rows
+    assert fixed.wrist_speed(skel, FPS) <= runs.mean() * 1.005  # a few passes: within 0.5 %
+    assert (fixed.amplitude <= noisy.amplitude + 1e-12).all() and fixed.amplitude.max() > 0
+
+
+def _rest_runs(style, rest: np.ndarray) -> list[np.ndarray]:
+    from facecapges.matching.idle import MIN_RUN
+
+    out = []
+    for s in np.unique(style.db.segment):
+        rows = np.flatnonzero(style.db.segment == s)
+        d = np.diff(np.r_[0, rest[rows].astype(np.int8), 0])
+        out += [
+            rows[a:b] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True) if b - a >= MIN_RUN
+        ]
+    return out

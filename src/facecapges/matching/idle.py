@@ -29,7 +29,9 @@ speech-like frame (``since_voice`` of :class:`facecapges.matching.speech.SpeechF
   axis a sum of two sines of fixed phases whose spread (sd) of angle and of angular velocity are **his**,
   measured in his rest rows (runs of ≥ :data:`MIN_RUN` rest rows, about each run's mean rotation; robust sd,
   :func:`robust_sd`), so the shoulders' small lift and the arms' drift come at his rest amplitude and speed,
-  scaled by the dial's gain and ``amplitude``. By default (``torso=False``, the matcher's ``idle_torso``) the
+  scaled by the dial's gain and ``amplitude``; with the style's skeleton, bounded so the idle moves the wrists
+  no faster than the rest runs do (:meth:`IdleMotion.wrist_speed`: a capture's noise inflates the per-joint
+  amplitudes, not the wrists' motion). By default (``torso=False``, the matcher's ``idle_torso``) the
   spine and neck keep the matched motion (his idle rows underneath): the head — the Spine → Neck → Neck1
   chain — moves in a pause as his does without a face track (with one, the runtime puts the captured head on
   it, :mod:`facecapges.runtime.head`); the procedural torso turned the head at 0.4× his speed (docs/matching.md).
@@ -45,7 +47,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from facecapges.matching import inertialize as inz
-from facecapges.skeleton import N_JOINTS, TORSO, UPPER_BODY
+from facecapges.rotations import quaternion_to_rot6d
+from facecapges.skeleton import N_JOINTS, TORSO, UPPER_BODY, Skeleton, upper_body_transforms
 
 IDLE_JOINTS: tuple[str, ...] = TORSO + tuple(
     f"{side}{j}" for side in ("Right", "Left") for j in ("Shoulder", "Arm", "ForeArm", "Hand")
@@ -55,6 +58,16 @@ FREQ_SPLIT = (0.75, float(np.sqrt(2.0 - 0.75**2)))  # two sines at f·0.75, f·1
 PHASE_SEED = 38
 SPENT = 1e-6  # rad, rad/s: an offset this small is spent (the stream shows the matched pose unchanged)
 LOW_PERCENTILE = 40.0  # a rest pose's wrists are both below this percentile of their height (gesture_phases' "low")
+WRISTS = ("RightHand", "LeftHand")  # the joints whose speed bounds the idle (IdleMotion.wrist_speed)
+BOUND_POSES, BOUND_FRAMES = 16, 150  # the idle's wrist speed is measured on ≤ 16 rest poses over 10 s each
+BOUND_PASSES = 4  # at most this many rescalings to bring the idle's wrist speed down to the rest runs'
+
+
+def _wrist_speed(skel: Skeleton, q: np.ndarray, fps: float) -> np.ndarray:
+    """Per frame step (T−1,) the mean speed of the two wrists for quaternion poses (T, 47, 4) on ``skel``."""
+    _, p = upper_body_transforms(skel, quaternion_to_rot6d(q))
+    w = p[:, [skel.index(n) for n in WRISTS]]
+    return np.linalg.norm(np.diff(w, axis=0), axis=-1).mean(1) * fps
 
 
 def robust_sd(x: np.ndarray) -> np.ndarray:
@@ -82,12 +95,15 @@ class IdleMotion:
         fps: float,
         rest: str = "low",
         wrist_height: np.ndarray | None = None,
+        skeleton: Skeleton | None = None,
     ) -> IdleMotion:
         """From the database's rotations (N, 47, 4), segments (N,), rest rows (N,) bool and, for ``rest="low"``,
         the wrists' heights (N, 2) (the rest poses a pause settles into: rest rows with *both* wrists below the
-        :data:`LOW_PERCENTILE` th percentile of that wrist's height — not one forearm raised)."""
+        :data:`LOW_PERCENTILE` th percentile of that wrist's height — not one forearm raised). With the style's
+        ``skeleton`` the amplitudes are bounded so the idle moves the wrists no faster than the rest runs do
+        (:meth:`wrist_speed`)."""
         joints = np.array([UPPER_BODY.index(j) for j in IDLE_JOINTS])
-        dev, vel = [], []
+        dev, vel, runs = [], [], []
         for s in np.unique(segment):
             rows = np.flatnonzero(segment == s)
             m = rest_rows[rows]
@@ -95,6 +111,7 @@ class IdleMotion:
             for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
                 if b - a < MIN_RUN:
                     continue
+                runs.append(rows[a:b])
                 q = row_quaternions[rows[a:b]][:, joints]
                 mean = inz.quaternion_mean(q)
                 dev.append(inz.qlog(inz.qabs(inz.qmul(inz.qconj(mean)[None], q))))
@@ -112,7 +129,38 @@ class IdleMotion:
         cand = row_quaternions[pick] if pick.any() else row_quaternions
         poses = inz.quaternion_mean(cand)[None] if rest == "mean" else cand
         phase = np.random.default_rng(PHASE_SEED).uniform(0.0, 2.0 * np.pi, (2, len(joints), 3))
-        return cls(joints, amp, freq, np.ascontiguousarray(poses), phase)
+        motion = cls(joints, amp, freq, np.ascontiguousarray(poses), phase)
+        if skeleton is None or not runs:
+            return motion
+        rows_speed = float(np.mean(np.concatenate([_wrist_speed(skeleton, row_quaternions[r], fps) for r in runs])))
+        for _ in range(BOUND_PASSES):  # the speed is nearly linear in the amplitude: a pass or two
+            ratio = motion.wrist_speed(skeleton, fps) / max(rows_speed, 1e-9)
+            if ratio <= 1.0:
+                break
+            motion = cls(joints, motion.amplitude / ratio, freq, motion.rest, phase)
+        return motion
+
+    def wrist_speed(self, skel: Skeleton, fps: float) -> float:
+        """The mean wrist speed (cm/s for BEAT) of this idle at amplitude 1 on ≤ :data:`BOUND_POSES` of its rest
+        poses, :data:`BOUND_FRAMES` frames each.
+
+        **The wrist bound** (:meth:`measure` with a skeleton): the amplitudes are per joint and axis, measured
+        apart, and the sines move every joint independently. In his motion capture that stays under his rest
+        runs' wrist speed (beat2-scott-mm: the idle 12.8 cm/s against his rest runs' 14.8: the bound does not
+        bind, its poses are unchanged). In a capture from video (``styles build --video``) the rest runs' arm
+        rotations carry the solve's noise (the forearm's sd in a rest run up to 20°, median 9.7°; his real motion
+        at the same frames up to 6°, median 3.6°) that barely shows at the wrist (the rest runs' wrists 12.1 cm/s, no faster than his): the elbow's
+        swivel and the split of the bend between upper arm and forearm, which a camera hardly sees in depth.
+        Replayed as independent sines it does move the wrists: 22.5 cm/s, 1.85× the style's own rest runs, and
+        its pauses never settled (docs/capture-body.md, "Pauses that settle"). So every amplitude is scaled by one
+        factor until the idle's mean wrist speed is at most the rest runs' (never up; the speed is nearly linear in
+        the amplitude, so a few passes)."""
+        k = np.linspace(0, len(self.rest) - 1, min(len(self.rest), BOUND_POSES)).round().astype(np.int64)
+        t = np.arange(BOUND_FRAMES)
+        one = np.ones(BOUND_FRAMES)
+        return float(
+            np.mean([np.mean(_wrist_speed(skel, self.pose(np.full(BOUND_FRAMES, i), t, fps, one), fps)) for i in k])
+        )
 
     def offsets(self, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
         """Rotation vectors (B, J, 3) of the procedural idle at frames ``t`` (B,), amplitude × ``scale`` (B,)."""

@@ -78,7 +78,7 @@ from facecapges.matching.database import Database, idle_rows, mirror_twins, quat
 from facecapges.matching.features import LiveFrames, group_slices, live_query
 from facecapges.matching.idle import IdleLayer, IdleMotion
 from facecapges.matching.speech import SpeechTracker
-from facecapges.skeleton import N_JOINTS, TORSO
+from facecapges.skeleton import N_JOINTS, TORSO, Skeleton
 
 
 @dataclass
@@ -215,8 +215,16 @@ def search(
 class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
-    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None, capacity: int = 8):
+    def __init__(
+        self,
+        db: Database,
+        config: MatchingConfig | None = None,
+        predictor=None,
+        capacity: int = 8,
+        skeleton: Skeleton | None = None,
+    ):
         self.db = db
+        self.skeleton = skeleton  # the style's: bounds the idle layer's wrist speed (matching/idle.py, wrist_bound)
         self.config = config or MatchingConfig()
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
         self.fps = timing.MODEL_FPS
@@ -275,6 +283,7 @@ class BatchedMatchingStreams(SlotOwner):
                     self.fps,
                     cfg.idle_rest,
                     wrist_height=db.features[:, group_slices()["position"]].reshape(len(db), 4, 3)[:, :2, 1],
+                    skeleton=self.skeleton,
                 ),
                 self.fps,
                 after_frames=int(round(cfg.idle_after_s * self.fps)),
@@ -597,8 +606,10 @@ class BatchedMatchingStreams(SlotOwner):
 class MatchingStream:
     """One causal matching stream: a one-slot :class:`BatchedMatchingStreams` (same poses)."""
 
-    def __init__(self, db: Database, config: MatchingConfig | None = None, predictor=None):
-        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1)
+    def __init__(
+        self, db: Database, config: MatchingConfig | None = None, predictor=None, skeleton: Skeleton | None = None
+    ):
+        self.kernel = BatchedMatchingStreams(db, config, predictor, capacity=1, skeleton=skeleton)
         self._slot = [self.kernel.open()]
 
     @property

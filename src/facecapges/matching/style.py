@@ -58,10 +58,10 @@ class MatchingStyle(GestureEngine):
         return int(self.meta["fps"])
 
     def streaming(self) -> MatchingStream:
-        return MatchingStream(self.db, self.config, self.predictor)
+        return MatchingStream(self.db, self.config, self.predictor, skeleton=self.skeleton)
 
     def batched(self, capacity: int = 8) -> BatchedMatchingStreams:
-        return BatchedMatchingStreams(self.db, self.config, self.predictor, capacity=capacity)
+        return BatchedMatchingStreams(self.db, self.config, self.predictor, capacity=capacity, skeleton=self.skeleton)
 
     def database_poses(self) -> np.ndarray:
         """Every pose of the database (N, 47, 6) rot6d (the style's real frames and their mirrors)."""
