@@ -24,7 +24,7 @@ from facecapges import timing
 from facecapges.evaluation import conversation as cv
 from facecapges.evaluation import synchrony as sy
 from facecapges.io.audio import load_audio
-from facecapges.matching.idle import IDLE_JOINTS, MIN_RUN, _wrist_speed
+from facecapges.matching.idle import IDLE_JOINTS, _wrist_speed, rest_runs
 from facecapges.matching.matcher import BatchedMatchingStreams
 from facecapges.matching.takes import load_take
 from facecapges.styles import load_style
@@ -59,13 +59,7 @@ def main() -> None:
         k = IDLE_JOINTS.index(j)
         print(f"  {j:14s} amplitude ° {np.round(np.degrees(mo.amplitude[k]), 2)}  Hz {np.round(mo.frequency[k], 2)}")
     rest = plain.idle & (ck.db.phase == 0)
-    runs = []
-    for s in np.unique(ck.db.segment):
-        rows = np.flatnonzero(ck.db.segment == s)
-        d = np.diff(np.r_[0, rest[rows].astype(np.int8), 0])
-        runs += [
-            rows[a:b] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True) if b - a >= MIN_RUN
-        ]
+    runs = rest_runs(ck.db.segment, rest)
     rows_speed = np.mean(np.concatenate([_wrist_speed(skel, plain.row_quaternions[r], FPS) for r in runs]))
     print(
         f"  wrist speed (cm/s): rest runs {rows_speed:.2f}; the idle at amplitude 1 "

@@ -191,7 +191,7 @@ def test_the_idle_moves_the_wrists_no_faster_than_the_rest_runs(style):
     inflates the per-joint amplitudes; replayed independently it moved the wrists faster than the rest rows do. With
     the skeleton the idle's mean wrist speed is bounded by the rest runs'; on his motion capture nothing changes."""
     from facecapges.matching import inertialize as inz
-    from facecapges.matching.idle import _wrist_speed
+    from facecapges.matching.idle import _wrist_speed, rest_runs
     from facecapges.rotations import quaternion_to_rot6d
     from facecapges.skeleton import UPPER_BODY, upper_body_transforms
 
@@ -220,20 +220,7 @@ def test_the_idle_moves_the_wrists_no_faster_than_the_rest_runs(style):
 
     noisy, _ = _measure(style, q, None)
     fixed, _ = _measure(style, q, skel)
-    runs = np.concatenate([_wrist_speed(skel, q[r], FPS) for r in _rest_runs(style, rest)])
+    runs = np.concatenate([_wrist_speed(skel, q[r], FPS) for r in rest_runs(style.db.segment, rest)])
     assert noisy.wrist_speed(skel, FPS) > 1.3 * runs.mean()  # unbounded: faster than the rest rows
     assert fixed.wrist_speed(skel, FPS) <= runs.mean() * 1.005  # a few passes: within 0.5 %
     assert (fixed.amplitude <= noisy.amplitude + 1e-12).all() and fixed.amplitude.max() > 0
-
-
-def _rest_runs(style, rest: np.ndarray) -> list[np.ndarray]:
-    from facecapges.matching.idle import MIN_RUN
-
-    out = []
-    for s in np.unique(style.db.segment):
-        rows = np.flatnonzero(style.db.segment == s)
-        d = np.diff(np.r_[0, rest[rows].astype(np.int8), 0])
-        out += [
-            rows[a:b] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True) if b - a >= MIN_RUN
-        ]
-    return out

@@ -70,6 +70,18 @@ def _wrist_speed(skel: Skeleton, q: np.ndarray, fps: float) -> np.ndarray:
     return np.linalg.norm(np.diff(w, axis=0), axis=-1).mean(1) * fps
 
 
+def rest_runs(segment: np.ndarray, rest_rows: np.ndarray) -> list[np.ndarray]:
+    """The database's rows (indices) of each run of ≥ :data:`MIN_RUN` consecutive rest rows within one segment."""
+    out = []
+    for s in np.unique(segment):
+        rows = np.flatnonzero(segment == s)
+        d = np.diff(np.r_[0, rest_rows[rows].astype(np.int8), 0])
+        out += [
+            rows[a:b] for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True) if b - a >= MIN_RUN
+        ]
+    return out
+
+
 def robust_sd(x: np.ndarray) -> np.ndarray:
     """Per column of ``x`` (n, …): 1.4826 · the median absolute deviation from the median (the sd of a
     normal sample, unmoved by the few fast frames at a rest run's edge, where a gesture starts or ends)."""
@@ -103,19 +115,13 @@ class IdleMotion:
         ``skeleton`` the amplitudes are bounded so the idle moves the wrists no faster than the rest runs do
         (:meth:`wrist_speed`)."""
         joints = np.array([UPPER_BODY.index(j) for j in IDLE_JOINTS])
-        dev, vel, runs = [], [], []
-        for s in np.unique(segment):
-            rows = np.flatnonzero(segment == s)
-            m = rest_rows[rows]
-            d = np.diff(np.r_[0, m.astype(np.int8), 0])
-            for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1), strict=True):
-                if b - a < MIN_RUN:
-                    continue
-                runs.append(rows[a:b])
-                q = row_quaternions[rows[a:b]][:, joints]
-                mean = inz.quaternion_mean(q)
-                dev.append(inz.qlog(inz.qabs(inz.qmul(inz.qconj(mean)[None], q))))
-                vel.append(inz.angular_velocity(q, fps)[:-1])
+        dev, vel = [], []
+        runs = rest_runs(segment, rest_rows)
+        for r in runs:
+            q = row_quaternions[r][:, joints]
+            mean = inz.quaternion_mean(q)
+            dev.append(inz.qlog(inz.qabs(inz.qmul(inz.qconj(mean)[None], q))))
+            vel.append(inz.angular_velocity(q, fps)[:-1])
         if not dev:  # no run long enough: no procedural idle (the rest pose alone)
             amp = np.zeros((len(joints), 3))
             freq = np.zeros((len(joints), 3))
