@@ -34,14 +34,14 @@ test-fast: setup
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh src/facecapges/capture/body_models.py scripts/setup-avatar.sh scripts/setup-runtime.sh
+$(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh src/facecapges/capture/body_models.py scripts/setup-avatar.sh scripts/setup-runtime.sh scripts/warm-numba-caches.py
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,ray]'
 	PYTHON=$(PY) bash scripts/setup-capture.sh
 	PYTHON=$(PY) bash scripts/setup-avatar.sh
 	bash scripts/setup-runtime.sh
-	$(PY) -c 'from facecapges.network import native; native.warm()'  # compile the streaming kernel's native loops into Numba's on-disk cache
+	$(PY) scripts/warm-numba-caches.py  # fill Numba's on-disk caches in one process (ours and librosa's; see the script)
 	touch $(STAMP)
 
 clean:

@@ -1,0 +1,38 @@
+"""Fill the on-disk machine-code caches of every Numba function the project runs, in one process.
+
+Run once by ``make setup``, after the install. Two reasons:
+
+* our streaming kernel (:func:`facecapges.network.native.warm`): compiled here, not by a stream's first frame;
+* librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
+  librosa is imported, the others on their first call, and each writes its cache into librosa's own
+  ``__pycache__``. Two processes doing that at the same time (the suite's two pytest-xdist workers on a fresh
+  venv, or two helpers' jobs) can leave an index that points at another variant's code: every later
+  ``librosa.onset.onset_detect`` then dies with a segmentation fault in ``util.peak_pick`` (seen on
+  2026-12-04 with numba 0.68.1, librosa 0.11.0: the crash went away when the cache was deleted and rebuilt by
+  one process). Filling the caches here, once, leaves the later processes only reading them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def main() -> None:
+    from facecapges.network import native
+
+    native.warm()
+    import librosa  # compiles the eager-signature (g)ufuncs into the cache
+
+    rng = np.random.default_rng(0)
+    for dtype in (np.float32, np.float64):
+        y = rng.standard_normal(16000 * 3).astype(dtype)
+        env = librosa.onset.onset_strength(y=y, sr=16000)
+        peaks = librosa.onset.onset_detect(onset_envelope=env, sr=16000)
+        librosa.onset.onset_detect(y=y, sr=16000, units="time")
+        librosa.onset.onset_backtrack(peaks, env)
+        librosa.feature.rms(y=y)
+        librosa.feature.melspectrogram(y=y, sr=16000)
+
+
+if __name__ == "__main__":
+    main()
