@@ -88,7 +88,15 @@ def _vector_norm(a: np.ndarray, keepdims: bool = False) -> np.ndarray:
     a = np.asarray(a)
     if not issubclass(a.dtype.type, np.inexact):
         a = a.astype(float)
-    n = np.sqrt(np.add.reduce(a * a, axis=-1))
+    sq = a * a
+    k = sq.shape[-1] if sq.ndim else 0
+    if 2 <= k < 8:  # add.reduce sums fewer than 8 numbers left to right: the same sums, 5x faster on (300, 47, 3)
+        s = sq[..., 0] + sq[..., 1]
+        for i in range(2, k):
+            s += sq[..., i]
+    else:
+        s = np.add.reduce(sq, axis=-1)
+    n = np.sqrt(s)
     return n[..., None] if keepdims else n
 
 
@@ -469,8 +477,9 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     The rotation of ``a · b`` is ``quaternion_to_matrix(a) @ quaternion_to_matrix(b)`` (``b`` first).
     """
     a, b = np.asarray(a), np.asarray(b)
-    shape = np.broadcast_shapes(a.shape, b.shape)
-    if math.prod(shape) > _QMUL_SMALL:  # many quaternions: per component (the gather below costs more there)
+    # both paths give the same bits: the size picks the faster (the larger operand's, without broadcast_shapes)
+    if max(a.size, b.size) > _QMUL_SMALL:  # many quaternions: per component (the gather below costs more there)
+        shape = np.broadcast_shapes(a.shape, b.shape)
         aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
         bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
         out = np.empty(shape, np.result_type(a, b))  # fewer calls than moveaxis + stack

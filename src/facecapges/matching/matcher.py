@@ -189,8 +189,18 @@ def search(
     n = len(playing)
     # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
     # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
-    dots = np.stack([row_features @ query for query in queries.astype(np.float32)])
-    cost = row_features_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", queries, queries)[:, None]  # (B, N)
+    q32, q_sq = queries.astype(np.float32, copy=False), np.einsum("bf,bf->b", queries, queries)
+    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == np.float32:
+        # the engine's float32 arrays, in place in one buffer: the same operations in the same order as below
+        cost = np.empty((n, len(row_features)), np.float32)
+        for i, query in enumerate(q32):
+            np.matmul(row_features, query, out=cost[i])
+        np.multiply(cost, 2.0, out=cost)
+        np.subtract(row_features_sq[None], cost, out=cost)
+        cost += q_sq[:, None]  # (B, N)
+    else:
+        dots = np.stack([row_features @ query for query in q32])
+        cost = row_features_sq[None] - 2.0 * dots + q_sq[:, None]  # (B, N)
     continue_cost = cost[np.arange(n), playing].copy()
     if onset_now.any():
         cost[onset_now] -= cfg.onset_bonus * lead[None]
@@ -515,7 +525,8 @@ class BatchedMatchingStreams(SlotOwner):
         allowed rows, then :func:`search`."""
         cfg = self.config
         queries = self._query(ids, rows, cues, searching, pred)
-        played_recently = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]
+        # compared per canonical row, then spread to the rows (bytes, not int64, are gathered)
+        played_recently = (self.last_used[ids] > (self.t[ids] - cfg.memory_s * self.fps)[:, None])[:, self.canon]
         result = search(
             self.row_features,
             self.row_features_sq,
