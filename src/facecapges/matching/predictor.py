@@ -198,18 +198,23 @@ class _Taps:
         pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
         pre += self.b
         held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
-        now = held[:, 0]
-        x0, x = x, x.copy()
-        last = self.L - 1
+        now = held[:, 0]  # (B, L, C): layer i's input is written there, and read back as the next product's
+        now[:, 0] = x
+        last, x_out = self.L - 1, x
         for i, w_now in enumerate(self.w_now):
-            now[:, i] = x
-            y = np.dot(x, w_now)
+            xi = now[:, i]
+            y = np.dot(xi, w_now)
             y += pre[i]
             if extra is not None and i == last:
                 y += extra
-            x += np.maximum(y, np.float32(0.2) * y)  # residual (leaky_relu 0.2); x − x0: the layers' skip sum
+            # residual (leaky_relu 0.2) into the next layer's input; the last: x_L − x0 is the layers' skip sum
+            act = np.maximum(y, np.float32(0.2) * y)
+            if i < last:
+                np.add(xi, act, out=now[:, i + 1])
+            else:
+                x_out = xi + act
         reg[idx] = held
-        return x - x0
+        return x_out - x
 
 
 class SpeechKernel:
