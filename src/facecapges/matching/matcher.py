@@ -71,6 +71,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
+from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
@@ -335,6 +336,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
         self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
+        self._pred_slots = grow("_pred_slots", (), 0, np.intp)  # each slot's predictor slot (_pred_slot's array)
         self.speech.ensure(capacity)
         if self.idle_layer is not None:
             self.idle_layer.grow(capacity)
@@ -344,6 +346,7 @@ class BatchedMatchingStreams(SlotOwner):
     def _opened(self, slot: int) -> None:
         if self.predictor is not None:
             self._pred_slot[slot] = self.predictor.open()
+            self._pred_slots[slot] = self._pred_slot[slot]
 
     def close(self, slot: int) -> None:
         with self._lock:
@@ -418,8 +421,7 @@ class BatchedMatchingStreams(SlotOwner):
         h = np.asarray(head, np.float32).reshape(B, -1)
         if f.shape[1] != 52 or h.shape[1] != 6:
             raise ValueError(f"face must be (B, 52) and head (B, 6), got {f.shape} and {h.shape}")
-        clean = [np.where(np.isfinite(x), x, np.float32(0)) for x in (a, f, h)]
-        return clean[0], clean[1], clean[2]
+        return finite(a), finite(f), finite(h)  # NaN and ±inf → 0 (the arrays are only read)
 
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame per stream: audio (B, ≤1067), face (B, 52), head (B, 6) → poses (B, 47, 6) rot6d."""
@@ -432,11 +434,14 @@ class BatchedMatchingStreams(SlotOwner):
             cues = self.speech.step(ids, a)
             pred = None
             if self.predictor is not None and self.config.use_predictor:
-                pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+                if a.shape[1] == self.predictor.samples_per_frame:  # checked above: the predictor's checks would change nothing
+                    pred = self.predictor.step_checked(self._pred_slots[ids], a, f, h)
+                else:
+                    pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
             self._advance_and_search(ids, cues, pred)
-            q = self._blend(ids)
+            q, gain = self._blend(ids)
             if self.idle_layer is not None:  # a pause: his rest pose and idle (matching/idle.py)
-                q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain_of(self.intensity_now[ids]))
+                q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.quaternion_to_rot6d(q).astype(np.float32)
@@ -543,8 +548,9 @@ class BatchedMatchingStreams(SlotOwner):
         )
         return result.best, result.switch
 
-    def _blend(self, ids: np.ndarray) -> np.ndarray:
-        """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
+    def _blend(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4), and the dial's
+        gain now (B,) (:func:`gain_of` of the intensity reached)."""
         cfg = self.config
         dt = 1.0 / self.fps
         hl = self.halflife[ids][:, None, None]
@@ -560,7 +566,7 @@ class BatchedMatchingStreams(SlotOwner):
         beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
-        g = gain_of(now)
+        g = gain = gain_of(now)
         if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
             g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
         scale = np.abs(g - 1.0) > 1e-9
@@ -568,7 +574,7 @@ class BatchedMatchingStreams(SlotOwner):
             k = np.flatnonzero(scale)
             d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
             q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
-        return q
+        return q, gain
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""

@@ -352,6 +352,10 @@ class BatchedPredictor:
     def capacity(self) -> int:
         return len(self._regs[0])
 
+    @property
+    def samples_per_frame(self) -> int:
+        return self._spf
+
     def _grow(self, capacity: int) -> None:
         """(Re)allocate the TCN registers for ``capacity`` slots, keeping existing rows."""
         old = self.capacity
@@ -397,8 +401,13 @@ class BatchedPredictor:
                 raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
             f = _rows(face, self._n_face, "face", B)
             h = _rows(head, 6, "head rot6d", B)
-            raw = self._kernel.step(self._regs, np.asarray(ids, np.intp), a, f, h)
-            return self.predictor.outputs(raw)
+            return self.step_checked(np.asarray(ids, np.intp), a, f, h)
+
+    def step_checked(self, idx: np.ndarray, a: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """:meth:`step` for a caller that owns the slots ``idx`` (B,) intp and has checked its inputs: audio
+        (B, samples per frame), face (B, 52), head (B, 6), all float32 and finite (the matcher's own)."""
+        with self._lock:
+            return self.predictor.outputs(self._kernel.step(self._regs, idx, a, f, h))
 
 
 def _rows(x, n: int, what: str, batch: int) -> np.ndarray:
