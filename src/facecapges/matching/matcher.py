@@ -206,7 +206,12 @@ def search(
     if onset_now.any():
         cost[onset_now] -= cfg.onset_bonus * lead[None]
         continue_cost[onset_now] -= cfg.onset_bonus * lead[playing[onset_now]]
-    np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=played_recently)
+    # in float32 when the penalty is a float32 number: the float64 sum rounded to float32 is the float32 sum
+    # (53 ≥ 2·24 + 2 bits: rounding twice gives the correctly rounded result), without two casts of every cost
+    pen = np.float64(cfg.memory_penalty)
+    if cost.dtype == np.float32 and float(np.float32(pen)) == float(pen):
+        pen = np.float32(pen)
+    np.add(cost, pen, out=cost, where=played_recently)
     np.copyto(cost, np.inf, where=blocked)
     # rows within near_frames of the playing one, in its segment (continuing): (B, 2 near_frames - 1) only
     near = playing[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)

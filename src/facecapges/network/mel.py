@@ -90,6 +90,14 @@ class MelFeatures:
         lags = np.arange(self.lag_min, self.lag_max + 1, dtype=np.float32)
         self.log_f0_of_lag = np.log2(np.float32(self.sr) / lags / np.float32(100.0)).astype(np.float32)
 
+    _scipy_fft = None
+
+    def _load_scipy_fft(self):
+        import scipy.fft
+
+        MelFeatures._scipy_fft = scipy.fft
+        return scipy.fft
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, np.float32)
         B, n = x.shape[0], x.shape[-1]
@@ -97,10 +105,9 @@ class MelFeatures:
             raise ValueError(f"frames of {n} samples, expected {self.n}")
         out = np.empty((B, FEATURE_DIM), np.float32)
         batch = B >= self.SCIPY_MIN_BATCH
-        if batch:
-            import scipy.fft as fft
-        else:
-            fft = np.fft
+        fft = np.fft
+        if batch:  # imported once (a function-level import of a lazily loaded package costs ~5 µs a call)
+            fft = self._scipy_fft if self._scipy_fft is not None else self._load_scipy_fft()
         W = len(self.windows)
         # torch's unfold(-1, N_FFT, HOP): a view, no copy (an ndarray over x's buffer: as_strided's result
         # without its Python-level cost)
