@@ -439,7 +439,8 @@ class BatchedMatchingStreams(SlotOwner):
             cues = self.speech.step(ids, a)
             pred = None
             if self.predictor is not None and self.config.use_predictor:
-                if a.shape[1] == self.predictor.samples_per_frame:  # checked above: the predictor's checks would change nothing
+                # the inputs are checked above: the predictor's own checks would change nothing
+                if a.shape[1] == self.predictor.samples_per_frame:
                     pred = self.predictor.step_checked(self._pred_slots[ids], a, f, h)
                 else:
                     pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
