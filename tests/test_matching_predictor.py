@@ -251,3 +251,19 @@ def test_trained_predictor_beats_the_mean_on_zeggs_validation(zeggs_take):
         assert f["r"] > 0.35, (name, f)
         assert f["r2_vs_training_mean"] > 0.1, (name, f)
     assert figures["speaking_auc"] > 0.9
+
+
+def test_mel_batch_sums_are_einsums_order():
+    """``MelFeatures`` above ``SCIPY_MIN_BATCH`` streams writes out the power's sums (re² + im² per window, the
+    windows left to right) instead of ``einsum``: the same bits as the einsum of one stream's path."""
+    rng = np.random.default_rng(3)
+    for B in (1, 16, 300):
+        re_im = (rng.normal(size=(B, 5, 257, 2)) * 10.0 ** rng.uniform(-3, 3, size=(B, 5, 257, 2))).astype(np.float32)
+        sq = re_im * re_im
+        per_window = sq[..., 0] + sq[..., 1]
+        power = per_window[:, 0] + per_window[:, 1]
+        for w in range(2, 5):
+            power += per_window[:, w]
+        assert power.tobytes() == np.einsum("bwfc,bwfc->bf", re_im, re_im).tobytes()
+        f2 = re_im[:, 0]
+        assert (f2[..., 0] ** 2 + f2[..., 1] ** 2).tobytes() == np.einsum("bfc,bfc->bf", f2, f2).tobytes()

@@ -86,3 +86,23 @@ def test_blocked_recent_onset_and_margin():
     assert run(q_here, playing, stale=np.array([True])).switch[0]
     big = MatchingConfig(onset_bonus=2.0, memory_penalty=100.0, near_frames=3, margin=1e6)
     assert not run(q, playing, cfg=big).switch[0]
+
+
+def test_float32_costs_are_the_plain_formulas_bits():
+    """The engine's float32 costs are computed in place (one buffer; the memory penalty added in float32 when
+    it is a float32 number): the best rows and their costs are the bits of the plain formula, ``sq − 2·dots +
+    |q|²`` with the penalty added in float64 — for a float32 penalty (100) and one that is not (100.1)."""
+    feats, sq, _, _ = arrays(3)
+    rng = np.random.default_rng(3)
+    queries = rng.normal(size=(7, FEAT)).astype(np.float32)
+    recent = rng.random((7, N)) < 0.4
+    for penalty in (100.0, 100.1):
+        cfg = MatchingConfig(memory_penalty=penalty, near_frames=1, onset_bonus=0.0)
+        got = run(queries, np.zeros(7, np.int64), recent=recent, cfg=cfg, seed=3)
+        dots = np.stack([feats @ q for q in queries])
+        cost = sq[None] - 2.0 * dots + np.einsum("bf,bf->b", queries, queries)[:, None]
+        np.add(cost, np.float64(penalty), out=cost, where=recent)
+        cost[:, 0] = np.inf  # the playing row (near_frames 1: itself) is continuing, not a candidate
+        best = np.argmin(cost, axis=1)
+        assert np.array_equal(got.best, best)
+        assert got.cost.tobytes() == cost[np.arange(7), best].tobytes()

@@ -88,7 +88,15 @@ def _vector_norm(a: np.ndarray, keepdims: bool = False) -> np.ndarray:
     a = np.asarray(a)
     if not issubclass(a.dtype.type, np.inexact):
         a = a.astype(float)
-    n = np.sqrt(np.add.reduce(a * a, axis=-1))
+    sq = a * a
+    k = sq.shape[-1] if sq.ndim else 0
+    if 2 <= k < 8:  # add.reduce sums fewer than 8 numbers left to right: the same sums, 5x faster on (300, 47, 3)
+        s = sq[..., 0] + sq[..., 1]
+        for i in range(2, k):
+            s += sq[..., i]
+    else:
+        s = np.add.reduce(sq, axis=-1)
+    n = np.sqrt(s)
     return n[..., None] if keepdims else n
 
 
@@ -460,6 +468,8 @@ def geodesic_angle(r1: Array, r2: Array) -> Array:
 # the Hamilton product's terms: component k's m-th term is a_i b_j at [k, m] = 4 i + j, with its sign
 _QMUL_TERMS = np.array([[0, 5, 10, 15], [1, 4, 11, 14], [2, 7, 8, 13], [3, 6, 9, 12]])
 _QMUL_SIGNS = np.array([[1, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]], np.float64)
+_QMUL_A, _QMUL_B = _QMUL_TERMS // 4, _QMUL_TERMS % 4  # the a and b component of each term
+_QMUL_SIGNS_OF = {np.dtype(t).char: _QMUL_SIGNS.astype(t) for t in (np.float64, np.float32)}
 _QMUL_SMALL = 4 * 47 * 4  # up to this many numbers the one-call form is the faster (4 poses: 26 against 34 µs)
 
 
@@ -469,8 +479,9 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     The rotation of ``a · b`` is ``quaternion_to_matrix(a) @ quaternion_to_matrix(b)`` (``b`` first).
     """
     a, b = np.asarray(a), np.asarray(b)
-    shape = np.broadcast_shapes(a.shape, b.shape)
-    if math.prod(shape) > _QMUL_SMALL:  # many quaternions: per component (the gather below costs more there)
+    # both paths give the same bits: the size picks the faster (the larger operand's, without broadcast_shapes)
+    if max(a.size, b.size) > _QMUL_SMALL:  # many quaternions: per component (the gather below costs more there)
+        shape = np.broadcast_shapes(a.shape, b.shape)
         aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
         bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
         out = np.empty(shape, np.result_type(a, b))  # fewer calls than moveaxis + stack
@@ -480,14 +491,12 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         out[..., 3] = aw * bz + ax * by - ay * bx + az * bw
         return out
     # few (one stream's 47 joints): all 16 products in one call, each term's sign applied exactly (x − y is
-    # x + (−y) in IEEE arithmetic), three additions left to right: the same bits in 11 calls instead of ~36
-    p = a[..., :, None] * b[..., None, :]  # (…, 4, 4): a_i b_j
-    terms = p.reshape(p.shape[:-2] + (16,))[..., _QMUL_TERMS]  # (…, 4 components, 4 terms)
-    terms *= _QMUL_SIGNS.astype(terms.dtype, copy=False)
-    out = terms[..., 0] + terms[..., 1]
-    out += terms[..., 2]
-    out += terms[..., 3]
-    return out
+    # x + (−y) in IEEE arithmetic), three additions left to right: the same bits in a few calls instead of ~36
+    # (each factor gathered into place, then add.reduce, which sums 4 numbers left to right: 5 calls)
+    terms = a[..., _QMUL_A] * b[..., _QMUL_B]  # (…, 4 components, 4 terms): a_i b_j
+    sign = _QMUL_SIGNS_OF.get(terms.dtype.char)
+    terms *= _QMUL_SIGNS.astype(terms.dtype) if sign is None else sign
+    return np.add.reduce(terms, axis=-1)
 
 
 def quaternion_invert(q: np.ndarray) -> np.ndarray:

@@ -7,12 +7,17 @@ facing the camera:
 * ``step_ms_p50`` / ``step_ms_p99`` — :meth:`MatchingStream.step` of one stream, every step
   (predictor, speech cues, search every few frames and at onsets, blending); also the p50 of the
   steps that searched and of those that did not, and of the predictor alone;
-* ``batched_ms_per_stream`` — :meth:`BatchedMatchingStreams.step` time / B at B = 1, 16, 64;
+* ``step_cpu_ms_p50`` / ``step_cpu_ms_mean`` — the same steps' CPU time (``time.thread_time``: what the
+  step costs, without the waits of a busy machine that the wall-clock figures above include);
+* ``batched_ms_per_stream`` — :meth:`BatchedMatchingStreams.step` time / B at B = 1, 16, 64 and 300 (what
+  ``serve`` steps per tick at its target); ``batched_cpu_ms_per_stream`` the same in CPU time, and
+  ``batched_tick_cpu_ms`` one tick's CPU time (the median step of all B streams);
 * ``search`` — one query's nearest row over the whole database: the engine's brute force in
   NumPy against ``scipy.spatial.cKDTree`` (build and query), the measurement behind the choice
   of brute force (the kd-tree cannot apply the engine's masks and penalties either).
 
-``quick`` runs 150 frames (B = 1 and 16) instead of 900 (B = 1, 16, 64).
+``quick`` runs 150 frames (B = 1, 16 and 300; 40 ticks at 300) instead of 900 (B = 1, 16, 64, 300; 150 ticks
+each).
 """
 
 from __future__ import annotations
@@ -38,17 +43,20 @@ def _single(ck, audio: np.ndarray, n: int) -> dict:
     spf = timing.samples_per_frame()
     gen = ck.streaming()
     face, head = np.zeros(52, np.float32), rot.identity_rot6d().astype(np.float32)
-    times, searched = [], []
+    times, cpu, searched = [], [], []
     for t in range(n):
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time(), time.perf_counter()
         gen.step(audio[t * spf : (t + 1) * spf], face, head)
         times.append(time.perf_counter() - t0)
+        cpu.append(time.thread_time() - c0)
         searched.append(int(gen.kernel.since_search[0]) == 0)  # reset by a search in this step
     s = np.array(searched)
     out = {
         "frames": n,
         "step_ms_p50": _pct(times, 50),
         "step_ms_p99": _pct(times, 99),
+        "step_cpu_ms_p50": _pct(cpu, 50),
+        "step_cpu_ms_mean": round(float(np.mean(cpu)) * 1e3, 4),
         "search_step_ms_p50": _pct([x for x, k in zip(times, s, strict=True) if k], 50) if s.any() else None,
         "plain_step_ms_p50": _pct([x for x, k in zip(times, s, strict=True) if not k], 50) if (~s).any() else None,
         "searches_per_s": round(float(s.mean()) * timing.MODEL_FPS, 2),
@@ -64,7 +72,8 @@ def _single(ck, audio: np.ndarray, n: int) -> dict:
     return out
 
 
-def _batched(ck, audio: np.ndarray, n: int, B: int) -> float:
+def _batched(ck, audio: np.ndarray, n: int, B: int) -> tuple[float, float, float]:
+    """Per stream, the median step's wall-clock and CPU ms at B streams, and the tick's CPU ms (all B)."""
     from facecapges import rotations as rot
 
     spf = timing.samples_per_frame()
@@ -73,13 +82,15 @@ def _batched(ck, audio: np.ndarray, n: int, B: int) -> float:
     offs = (np.arange(B) * 37) % max(1, len(audio) // spf - n)
     face = np.zeros((B, 52), np.float32)
     head = np.broadcast_to(rot.identity_rot6d().astype(np.float32), (B, 6))
-    times = []
+    times, cpu = [], []
     for t in range(n):
         a = np.stack([audio[(o + t) * spf : (o + t + 1) * spf] for o in offs])
-        t0 = time.perf_counter()
+        c0, t0 = time.thread_time(), time.perf_counter()
         kb.step(slots, a, face, head)
         times.append(time.perf_counter() - t0)
-    return round(float(np.median(times)) * 1e3 / B, 4)
+        cpu.append(time.thread_time() - c0)
+    tick = float(np.median(cpu)) * 1e3
+    return round(float(np.median(times)) * 1e3 / B, 4), round(tick / B, 4), round(tick, 3)
 
 
 def _search(ck, reps: int) -> dict:
@@ -132,8 +143,11 @@ def run(quick: bool, shared: Path) -> dict:
     try:
         out = {"style": BENCH_STYLE, "database_rows": len(ck.db), "threads": 1}
         out.update(_single(ck, audio, n))
-        sizes = (1, 16) if quick else (1, 16, 64)
-        out["batched_ms_per_stream"] = {str(B): _batched(ck, audio, min(n, 150), B) for B in sizes}
+        sizes = (1, 16, 300) if quick else (1, 16, 64, 300)
+        batched = {B: _batched(ck, audio, 40 if (quick and B >= 300) else min(n, 150), B) for B in sizes}
+        out["batched_ms_per_stream"] = {str(B): v[0] for B, v in batched.items()}
+        out["batched_cpu_ms_per_stream"] = {str(B): v[1] for B, v in batched.items()}
+        out["batched_tick_cpu_ms"] = {str(B): v[2] for B, v in batched.items()}
         out["search"] = _search(ck, 50 if quick else 300)
     finally:
         torch.set_num_threads(threads)

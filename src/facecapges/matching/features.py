@@ -165,6 +165,14 @@ def take_rows(take: TakeFrames) -> np.ndarray:
 def live_query(live: LiveFrames, playing: np.ndarray) -> np.ndarray:
     """The raw live queries (Bs, :data:`N_FEATURES`) float32, given the raw features of the playing rows."""
     raw = np.array(playing, np.float32)
-    for g, sl in zip(FEATURE_GROUPS, group_slices().values(), strict=True):
+    for g, sl in _LIVE_GROUPS:
         raw[:, sl] = g.query(live, raw[:, sl])
     return raw
+
+
+# the groups whose live part is not the playing row's own (the others' columns stay as copied)
+_LIVE_GROUPS = tuple(
+    (g, sl)
+    for g, sl in zip(FEATURE_GROUPS, group_slices().values(), strict=True)
+    if type(g).query is not FeatureGroup.query
+)

@@ -254,8 +254,9 @@ class IdleLayer:
         tgt = self.target[ids]
         out = np.array(q, np.float64)  # a stream the layer has let go of shows the matched pose as it is
         use = np.flatnonzero(was | want)  # streams whose rest pose is shown or switched from / to
-        idle_now = out.copy()
+        idle_now = out  # (read only, below, where no stream's rest pose is used: no copy needed then)
         if len(use):
+            idle_now = out.copy()
             idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
             idle_now[:, self.keep] = q[:, self.keep]
         switch = enter | leave
@@ -277,7 +278,8 @@ class IdleLayer:
             self.idle[s] = enter[k]
         # the offset still carries something: decay it and show it (else it is spent: zero, and q is shown)
         xs, vs = self.x[ids], self.v[ids]
-        live = self.idle[ids] | (np.abs(xs).max(axis=(1, 2)) > SPENT) | (np.abs(vs).max(axis=(1, 2)) > SPENT)
+        big = np.maximum.reduce  # ndarray.max's own reduction
+        live = self.idle[ids] | (big(np.abs(xs), axis=(1, 2)) > SPENT) | (big(np.abs(vs), axis=(1, 2)) > SPENT)
         k = np.flatnonzero(live)
         self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
         p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]

@@ -71,6 +71,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges import timing
+from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
@@ -189,13 +190,28 @@ def search(
     n = len(playing)
     # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
     # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
-    dots = np.stack([row_features @ query for query in queries.astype(np.float32)])
-    cost = row_features_sq[None] - 2.0 * dots + np.einsum("bf,bf->b", queries, queries)[:, None]  # (B, N)
+    q32, q_sq = queries.astype(np.float32, copy=False), np.einsum("bf,bf->b", queries, queries)
+    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == np.float32:
+        # the engine's float32 arrays, in place in one buffer: the same operations in the same order as below
+        cost = np.empty((n, len(row_features)), np.float32)
+        for i, query in enumerate(q32):
+            np.matmul(row_features, query, out=cost[i])
+        np.multiply(cost, 2.0, out=cost)
+        np.subtract(row_features_sq[None], cost, out=cost)
+        cost += q_sq[:, None]  # (B, N)
+    else:
+        dots = np.stack([row_features @ query for query in q32])
+        cost = row_features_sq[None] - 2.0 * dots + q_sq[:, None]  # (B, N)
     continue_cost = cost[np.arange(n), playing].copy()
     if onset_now.any():
         cost[onset_now] -= cfg.onset_bonus * lead[None]
         continue_cost[onset_now] -= cfg.onset_bonus * lead[playing[onset_now]]
-    np.add(cost, np.float64(cfg.memory_penalty), out=cost, where=played_recently)
+    # in float32 when the penalty is a float32 number: the float64 sum rounded to float32 is the float32 sum
+    # (53 ≥ 2·24 + 2 bits: rounding twice gives the correctly rounded result), without two casts of every cost
+    pen = np.float64(cfg.memory_penalty)
+    if cost.dtype == np.float32 and float(np.float32(pen)) == float(pen):
+        pen = np.float32(pen)
+    np.add(cost, pen, out=cost, where=played_recently)
     np.copyto(cost, np.inf, where=blocked)
     # rows within near_frames of the playing one, in its segment (continuing): (B, 2 near_frames - 1) only
     near = playing[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
@@ -325,6 +341,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
         self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
+        self._pred_slots = grow("_pred_slots", (), 0, np.intp)  # each slot's predictor slot (_pred_slot's array)
         self.speech.ensure(capacity)
         if self.idle_layer is not None:
             self.idle_layer.grow(capacity)
@@ -334,6 +351,7 @@ class BatchedMatchingStreams(SlotOwner):
     def _opened(self, slot: int) -> None:
         if self.predictor is not None:
             self._pred_slot[slot] = self.predictor.open()
+            self._pred_slots[slot] = self._pred_slot[slot]
 
     def close(self, slot: int) -> None:
         with self._lock:
@@ -408,8 +426,7 @@ class BatchedMatchingStreams(SlotOwner):
         h = np.asarray(head, np.float32).reshape(B, -1)
         if f.shape[1] != 52 or h.shape[1] != 6:
             raise ValueError(f"face must be (B, 52) and head (B, 6), got {f.shape} and {h.shape}")
-        clean = [np.where(np.isfinite(x), x, np.float32(0)) for x in (a, f, h)]
-        return clean[0], clean[1], clean[2]
+        return finite(a), finite(f), finite(h)  # NaN and ±inf → 0 (the arrays are only read)
 
     def step(self, slots: Sequence[int], audio, face, head) -> np.ndarray:
         """One frame per stream: audio (B, ≤1067), face (B, 52), head (B, 6) → poses (B, 47, 6) rot6d."""
@@ -422,11 +439,15 @@ class BatchedMatchingStreams(SlotOwner):
             cues = self.speech.step(ids, a)
             pred = None
             if self.predictor is not None and self.config.use_predictor:
-                pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+                # the inputs are checked above: the predictor's own checks would change nothing
+                if a.shape[1] == self.predictor.samples_per_frame:
+                    pred = self.predictor.step_checked(self._pred_slots[ids], a, f, h)
+                else:
+                    pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
             self._advance_and_search(ids, cues, pred)
-            q = self._blend(ids)
+            q, gain = self._blend(ids)
             if self.idle_layer is not None:  # a pause: his rest pose and idle (matching/idle.py)
-                q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain_of(self.intensity_now[ids]))
+                q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
             return rot.quaternion_to_rot6d(q).astype(np.float32)
@@ -515,7 +536,8 @@ class BatchedMatchingStreams(SlotOwner):
         allowed rows, then :func:`search`."""
         cfg = self.config
         queries = self._query(ids, rows, cues, searching, pred)
-        played_recently = self.last_used[ids][:, self.canon] > (self.t[ids] - cfg.memory_s * self.fps)[:, None]
+        # compared per canonical row, then spread to the rows (bytes, not int64, are gathered)
+        played_recently = (self.last_used[ids] > (self.t[ids] - cfg.memory_s * self.fps)[:, None])[:, self.canon]
         result = search(
             self.row_features,
             self.row_features_sq,
@@ -532,8 +554,9 @@ class BatchedMatchingStreams(SlotOwner):
         )
         return result.best, result.switch
 
-    def _blend(self, ids: np.ndarray) -> np.ndarray:
-        """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4)."""
+    def _blend(self, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Decay the offsets one frame and apply them and the intensity: quaternions (B, 47, 4), and the dial's
+        gain now (B,) (:func:`gain_of` of the intensity reached)."""
         cfg = self.config
         dt = 1.0 / self.fps
         hl = self.halflife[ids][:, None, None]
@@ -549,7 +572,7 @@ class BatchedMatchingStreams(SlotOwner):
         beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
-        g = gain_of(now)
+        g = gain = gain_of(now)
         if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
             g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
         scale = np.abs(g - 1.0) > 1e-9
@@ -557,7 +580,7 @@ class BatchedMatchingStreams(SlotOwner):
             k = np.flatnonzero(scale)
             d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
             q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
-        return q
+        return q, gain
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""

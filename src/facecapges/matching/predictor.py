@@ -198,18 +198,23 @@ class _Taps:
         pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
         pre += self.b
         held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
-        now = held[:, 0]
-        x0, x = x, x.copy()
-        last = self.L - 1
+        now = held[:, 0]  # (B, L, C): layer i's input is written there, and read back as the next product's
+        now[:, 0] = x
+        last, x_out = self.L - 1, x
         for i, w_now in enumerate(self.w_now):
-            now[:, i] = x
-            y = np.dot(x, w_now)
+            xi = now[:, i]
+            y = np.dot(xi, w_now)
             y += pre[i]
             if extra is not None and i == last:
                 y += extra
-            x += np.maximum(y, np.float32(0.2) * y)  # residual (leaky_relu 0.2); x − x0: the layers' skip sum
+            # residual (leaky_relu 0.2) into the next layer's input; the last: x_L − x0 is the layers' skip sum
+            act = np.maximum(y, np.float32(0.2) * y)
+            if i < last:
+                np.add(xi, act, out=now[:, i + 1])
+            else:
+                x_out = xi + act
         reg[idx] = held
-        return x - x0
+        return x_out - x
 
 
 class SpeechKernel:
@@ -347,6 +352,10 @@ class BatchedPredictor:
     def capacity(self) -> int:
         return len(self._regs[0])
 
+    @property
+    def samples_per_frame(self) -> int:
+        return self._spf
+
     def _grow(self, capacity: int) -> None:
         """(Re)allocate the TCN registers for ``capacity`` slots, keeping existing rows."""
         old = self.capacity
@@ -392,8 +401,13 @@ class BatchedPredictor:
                 raise ValueError(f"audio has {a.shape[0]} rows for {B} streams")
             f = _rows(face, self._n_face, "face", B)
             h = _rows(head, 6, "head rot6d", B)
-            raw = self._kernel.step(self._regs, np.asarray(ids, np.intp), a, f, h)
-            return self.predictor.outputs(raw)
+            return self.step_checked(np.asarray(ids, np.intp), a, f, h)
+
+    def step_checked(self, idx: np.ndarray, a: np.ndarray, f: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """:meth:`step` for a caller that owns the slots ``idx`` (B,) intp and has checked its inputs: audio
+        (B, samples per frame), face (B, 52), head (B, 6), all float32 and finite (the matcher's own)."""
+        with self._lock:
+            return self.predictor.outputs(self._kernel.step(self._regs, idx, a, f, h))
 
 
 def _rows(x, n: int, what: str, batch: int) -> np.ndarray:

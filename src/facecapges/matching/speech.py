@@ -83,6 +83,7 @@ _BANDS = _band_matrix()
 _WINDOW = np.hanning(N_FFT).astype(np.float32)
 _FREQS = np.fft.rfftfreq(N_FFT, 1.0 / timing.AUDIO_SR)
 _VOICE_BAND = (_FREQS >= 100.0) & (_FREQS < 4000.0)
+_VOICE_BINS = slice(int(np.argmax(_VOICE_BAND)), len(_VOICE_BAND) - int(np.argmax(_VOICE_BAND[::-1])))  # as a slice
 _LAGS = slice(timing.AUDIO_SR // 400, timing.AUDIO_SR // 70 + 1)  # pitch 400 … 70 Hz
 
 
@@ -140,29 +141,36 @@ class SpeechTracker:
 
     def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
         """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
+        # (means are written as ``add.reduce / count``: what ``ndarray.mean`` and ``np.nansum`` compute, the
+        # same bits without their Python-level cost — most of a one-stream step's)
         a = np.asarray(audio, np.float32).reshape(len(idx), -1)
-        rms = np.sqrt(np.mean(np.square(a, dtype=np.float64), axis=1) + 1e-20) if a.shape[1] else np.zeros(len(idx))
+        if a.shape[1]:
+            rms = np.sqrt(np.add.reduce(np.square(a, dtype=np.float64), axis=1) / a.shape[1] + 1e-20)
+        else:
+            rms = np.zeros(len(idx))
         level = np.maximum(20.0 * np.log10(rms + 1e-12), -100.0).astype(np.float32)
         first = self.count[idx] == 0
         floor = np.where(first, level, np.minimum(level, self.floor[idx] + FLOOR_RISE_DB))
         loud = level > np.maximum(SILENCE_DB, floor + VAD_MARGIN_DB)
         bands, voicing, flat, top = self._spectrum(a)
         tonal = np.concatenate([self.tonal[idx][:, 1:], top[:, None]], axis=1)
-        voice_like = loud & ((voicing >= VOICING) | (flat < FLAT_MAX)) & (tonal.mean(axis=1) < TONAL_SHARE)
+        voice_like = loud & ((voicing >= VOICING) | (flat < FLAT_MAX))
+        voice_like &= np.add.reduce(tonal, axis=1) / TONAL_FRAMES < TONAL_SHARE
         talk = np.maximum(self.talk_level[idx] - LEVEL_DECAY_DB, np.where(voice_like, level, -100.0))
         like = voice_like & (level > talk - NEAR_DB)
         run = np.where(like, self.run[idx] + 1, 0)
         hang = np.where(run >= OPEN_FRAMES, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
         speaking = (run >= OPEN_FRAMES) | (hang > 0)
         prev = self.prev_bands[idx]
-        flux = np.where(np.isnan(prev[:, 0]), 0.0, np.maximum(bands - prev, 0.0).mean(axis=1))
+        rise = np.maximum(bands - prev, 0.0)
+        flux = np.where(np.isnan(prev[:, 0]), 0.0, np.add.reduce(rise, axis=1) / rise.shape[1])
         hist = self.flux_hist[idx]
         valid = ~np.isnan(hist)
-        n = valid.sum(axis=1)
-        mean = np.where(n > 0, np.nansum(hist, axis=1) / np.maximum(n, 1), 0.0)
-        var = np.where(
-            n > 0, np.nansum(np.where(valid, (hist - mean[:, None]) ** 2, 0.0), axis=1) / np.maximum(n, 1), 0.0
-        )
+        n = np.add.reduce(valid, axis=1, dtype=np.int64)  # valid.sum(axis=1)
+        some, count = n > 0, np.maximum(n, 1)
+        mean = np.where(some, np.add.reduce(np.where(valid, hist, 0.0), axis=1) / count, 0.0)
+        dev = np.where(valid, (hist - mean[:, None]) ** 2, 0.0)
+        var = np.where(some, np.add.reduce(np.where(np.isnan(dev), 0.0, dev), axis=1) / count, 0.0)
         since = np.minimum(self.since[idx] + 1, SINCE_CAP)
         onset = speaking & (flux > np.maximum(mean + ONSET_K * np.sqrt(var), MIN_FLUX)) & (since >= REFRACTORY)
         since = np.where(onset, 0, since)
@@ -178,18 +186,22 @@ class SpeechTracker:
     @staticmethod
     def _spectrum(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Per stream: log band powers (B, N_BANDS), voicing, flatness and top-bin share (module docs)."""
-        x = np.zeros((len(a), N_FFT), np.float32)
-        n = min(N_FFT, a.shape[1])
-        if n:
-            x[:, N_FFT - n :] = a[:, a.shape[1] - n :]
-        spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32)
+        if a.shape[1] >= N_FFT:  # the frame's last N_FFT samples
+            x = a[:, a.shape[1] - N_FFT :]
+        else:  # zeros before a short frame's samples
+            x = np.zeros((len(a), N_FFT), np.float32)
+            if a.shape[1]:
+                x[:, N_FFT - a.shape[1] :] = a
+        spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32, copy=False)
         bands = np.log(spec @ _BANDS + 1e-10)
         ac = np.fft.irfft(spec, axis=1)  # the windowed frame's autocorrelation
         voicing = ac[:, _LAGS].max(axis=1) / np.maximum(ac[:, 0], 1e-20)
-        w = spec[:, _VOICE_BAND].astype(np.float64) + 1e-12
-        flat = np.exp(np.log(w).mean(axis=1)) / w.mean(axis=1)
-        top = np.sort(w, axis=1)[:, -TONAL_BINS:].sum(axis=1) / w.sum(axis=1)
-        return bands, voicing, flat, top
+        w = spec[:, _VOICE_BINS].astype(np.float64) + 1e-12
+        total = np.add.reduce(w, axis=1)  # (w.mean is total / count, w.sum is total)
+        flat = np.exp(np.add.reduce(np.log(w), axis=1) / w.shape[1]) / (total / w.shape[1])
+        # the top bins in ascending order (as a full sort leaves them: the same sum), without sorting the rest
+        top = np.sort(np.partition(w, -TONAL_BINS, axis=1)[:, -TONAL_BINS:], axis=1)
+        return bands, voicing, flat, np.add.reduce(top, axis=1) / total
 
 
 def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:

@@ -90,27 +90,50 @@ class MelFeatures:
         lags = np.arange(self.lag_min, self.lag_max + 1, dtype=np.float32)
         self.log_f0_of_lag = np.log2(np.float32(self.sr) / lags / np.float32(100.0)).astype(np.float32)
 
+    _scipy_fft = None
+
+    def _load_scipy_fft(self):
+        import scipy.fft
+
+        MelFeatures._scipy_fft = scipy.fft
+        return scipy.fft
+
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, np.float32)
         B, n = x.shape[0], x.shape[-1]
         if n != self.n:
             raise ValueError(f"frames of {n} samples, expected {self.n}")
         out = np.empty((B, FEATURE_DIM), np.float32)
-        if B >= self.SCIPY_MIN_BATCH:
-            import scipy.fft as fft
-        else:
-            fft = np.fft
-        frames = np.lib.stride_tricks.as_strided(  # torch's unfold(-1, N_FFT, HOP): a view, no copy
-            x, (B, len(self.windows), N_FFT), (x.strides[0], HOP * x.strides[1], x.strides[1]), writeable=False
-        )
+        batch = B >= self.SCIPY_MIN_BATCH
+        fft = np.fft
+        if batch:  # imported once (a function-level import of a lazily loaded package costs ~5 µs a call)
+            fft = self._scipy_fft if self._scipy_fft is not None else self._load_scipy_fft()
+        W = len(self.windows)
+        # torch's unfold(-1, N_FFT, HOP): a view, no copy (an ndarray over x's buffer: as_strided's result
+        # without its Python-level cost)
+        frames = np.ndarray((B, W, N_FFT), np.float32, buffer=x, strides=(4 * n, 4 * HOP, 4))
         spec = fft.rfft(frames * self.window)  # (B, 5, 257) complex64
-        re_im = spec.view(np.float32).reshape(B, spec.shape[1], spec.shape[2], 2)
-        power = np.einsum("bwfc,bwfc->bf", re_im, re_im) * np.float32(1.0 / spec.shape[1])  # |X|² over the windows
-        out[:, :N_MELS] = 10.0 * np.log10(np.maximum(np.dot(power, self.mel_t), np.float32(1e-10)))
+        re_im = spec.view(np.float32).reshape(B, W, spec.shape[2], 2)
+        if batch:  # einsum's sums below written out (the same order: re² + im² per window, windows left to right)
+            sq = re_im * re_im
+            per_window = sq[..., 0] + sq[..., 1]
+            power = per_window[:, 0] + per_window[:, 1]
+            for w in range(2, W):
+                power += per_window[:, w]
+        else:  # one call: fewer for one stream
+            power = np.einsum("bwfc,bwfc->bf", re_im, re_im)
+        power *= np.float32(1.0 / W)  # |X|² over the windows
+        np.log10(np.maximum(np.dot(power, self.mel_t), np.float32(1e-10)), out=out[:, :N_MELS])
+        out[:, :N_MELS] *= 10.0
         out[:, N_MELS] = 10.0 * np.log10(np.einsum("bs,bs->b", x, x, dtype=np.float64) / n + 1e-10)
         f = fft.rfft(x - (np.add.reduce(x, 1, dtype=np.float64) / n).astype(np.float32)[:, None], n=self.n_ac)
         f2 = f.view(np.float32).reshape(B, f.shape[1], 2)
-        ac = fft.irfft(np.einsum("bfc,bfc->bf", f2, f2), n=self.n_ac)[:, : self.lag_max + 1]
+        if batch:
+            sq2 = f2 * f2
+            ac_power = sq2[..., 0] + sq2[..., 1]
+        else:
+            ac_power = np.einsum("bfc,bfc->bf", f2, f2)
+        ac = fft.irfft(ac_power, n=self.n_ac)[:, : self.lag_max + 1]
         norm = ac[:, self.lag_min :] / np.maximum(ac[:, :1], np.float32(1e-8))
         idx = norm.argmax(-1)
         voicing = np.minimum(np.maximum(norm[np.arange(B), idx], 0.0), 1.0)
