@@ -454,7 +454,7 @@ class StreamServer(ServerThread):
         if st.closed:
             return
         ws = st.ws
-        ws.send_text_now(message.encode() if type(message) is str else message)
+        ws.send_text_now(message.encode() if isinstance(message, str) else message)
         transport = ws.transport
         if transport is not None and transport.get_write_buffer_size() > self.cfg.send_buffer_bytes:
             self.stats["slow_closes"] += 1
