@@ -320,6 +320,25 @@ def test_pose_messages_are_the_runtime_format():
     assert protocol.decode_pose(ours[1])["face_found"] is False
 
 
+def test_pose_numbers_written_from_float32_read_back_as_the_same_float64():
+    """``encode_poses`` writes rounded rows within [-1, 1] from float32 (half the cost): every number of 6
+    decimals there reads back as the float64 it was; only ±1e-6 … ±9e-6 change text ('0.000005' for '5e-6')."""
+    import orjson
+
+    v = np.round(np.arange(-10**6, 10**6 + 1) / 1e6, 6)
+    opt = orjson.OPT_SERIALIZE_NUMPY
+    t64, t32 = orjson.dumps(v, option=opt), orjson.dumps(v.astype(np.float32), option=opt)
+    back = np.array(orjson.loads(t32))
+    assert np.array_equal(back, v) and np.array_equal(np.signbit(back), np.signbit(v))
+    changed = {a for a, b in zip(t64[1:-1].split(b","), t32[1:-1].split(b",")) if a != b}
+    assert changed == {b"%de-6" % k for k in range(-9, 10) if k}
+    # a row beyond [-1, 1] (a head, weights out of range) is written from float64 as before
+    q = np.zeros((1, 47, 4))
+    q[0, :, 0] = 1.0
+    msg = next(protocol.encode_poses([0], [0.0], q, np.full((1, 52), 1.5), np.full((1, 6), 2e-6), [True], [{}]))
+    assert '"weights":[1.5,' in msg and '"head":[2e-6,' in msg and '"pose":[1.0,0.0,' in msg
+
+
 def test_input_decoding_checks_face_and_head_at_once_names_each_fault_and_refuses_loose_base64():
     """``decode_client`` checks an input's face and head as one array and its audio by one product: what it
     accepts and the fault it names are those of the field-by-field checks (near their bounds these decide);
