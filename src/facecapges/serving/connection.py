@@ -16,6 +16,9 @@ Replies go out the same way: :meth:`~MessageConnection.send_text_now` writes a m
 UTF-8 bytes as one text frame straight to the transport — what ``websockets``' ``broadcast`` does for one
 connection (an open connection only, never inside a fragmented message), without encoding the text again,
 building a ``Frame`` and queueing its bytes first.
+
+:class:`ClientMessageConnection` is the same delivery at the client end, for :mod:`.loadgen`'s simulated
+clients (messages as the bytes of their frames, not decoded).
 """
 
 from __future__ import annotations

@@ -56,7 +56,9 @@ Bad messages are answered and logged on one line per connection.
 Cost per stream-frame (issue 36: "server CPU per stream-frame is the figure to push"). The event loop is
 uvloop's where it is installed (:func:`facecapges.runtime.outputs.server_thread.new_event_loop`); each message
 is handled as the WebSocket parser finds it (:mod:`facecapges.serving.connection`: no future, task switch or
-queue per message) and every reply is written without waiting (:meth:`StreamServer._send`).
+queue per message) and every reply is written without waiting, as UTF-8 bytes straight into one WebSocket frame
+(:meth:`StreamServer._send`, :func:`~facecapges.runtime.outputs.protocol.encode_poses_utf8`); the model pipe is
+watched for the whole run, not registered again each tick (:meth:`StreamServer._compute`).
 
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
 answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.outputs.ws`,

@@ -142,19 +142,10 @@ def encode_pose(out: OutputFrame) -> str:
     )
 
 
-def encode_poses(
-    frames: Sequence[int],
-    times_s: Sequence[float],
-    quats: np.ndarray,
-    faces: np.ndarray,
-    heads: np.ndarray,
-    face_found: Sequence[bool],
-    latency_ms,
-    face_index: Sequence[int] | None = None,
-) -> Iterator[str]:
+def encode_poses(*args, **kwargs) -> Iterator[str]:
     """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
-    one-frame use), as text: :func:`encode_poses_utf8`'s messages decoded."""
-    for data in encode_poses_utf8(frames, times_s, quats, faces, heads, face_found, latency_ms, face_index):
+    one-frame use), as text: :func:`encode_poses_utf8`'s messages (the same arguments) decoded."""
+    for data in encode_poses_utf8(*args, **kwargs):
         yield data.decode()
 
 
@@ -184,7 +175,7 @@ def encode_poses_utf8(
     # within [-1, 1] a number of 6 decimals written from float32 (half the cost of float64's shortest text) reads
     # back as the same float64 — checked for every one of them (test_serve_server.py); the text differs only for
     # ±1e-6 … ±9e-6, written '0.000005' instead of '5e-6'. The head (a client's own numbers) stays float64.
-    q, w = (a.astype(np.float32) if a.size and -1.0 <= a.min() and a.max() <= 1.0 else a for a in (q, w))
+    q, w = (a.astype(np.float32) if a.size and a.min() >= -1.0 and a.max() <= 1.0 else a for a in (q, w))
     lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
     for i in range(B):  # orjson: the same compact JSON as json.dumps, ~8x faster (it is serve's cost per frame)
         yield orjson.dumps(
