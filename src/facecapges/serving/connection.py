@@ -23,14 +23,15 @@ clients (messages as the bytes of their frames, not decoded).
 
 from __future__ import annotations
 
+import secrets
 import struct
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from websockets.asyncio.client import ClientConnection
 from websockets.asyncio.server import ServerConnection
-from websockets.frames import CloseCode, Frame, Opcode
-from websockets.protocol import State
+from websockets.frames import CloseCode, Frame, Opcode, apply_mask
+from websockets.protocol import Side, State
 
 HIGH_WATER = 16  # messages waiting for a callback before reading pauses
 MAX_FRAGMENTS = 1024  # frames of one fragmented message (its bytes are bounded by max_size)
@@ -64,6 +65,29 @@ class _Delivering(_Connection):
         if self._paused:
             self._paused = False
             self.transport.resume_reading()
+
+    def send_text_now(self, data: bytes) -> bool:
+        """Write ``data`` (UTF-8 text) as one text frame now, without waiting (module docs); False (nothing
+        written) when the connection is not open or the transport refuses it, as ``broadcast`` skips it."""
+        protocol = self.protocol
+        if protocol.state is not State.OPEN or self.send_in_progress is not None:
+            return False
+        try:
+            if protocol.extensions:  # none on serve's connections (no compression): websockets' own framing
+                protocol.send_text(data)
+                self.send_data()
+                return True
+            n = len(data)  # FIN + text, the length in 7, 7+16 or 7+64 bits; a client's frame masked (RFC 6455)
+            if protocol.side is Side.CLIENT:
+                mask = secrets.token_bytes(4)  # as websockets draws it
+                head = _header(n, 0x80) + mask
+                data = apply_mask(data, mask)
+            else:
+                head = _HEAD[n] if n < 126 else _header(n, 0)
+            self.transport.write(head + data)
+        except Exception:  # noqa: BLE001  as broadcast: a connection that cannot take it is skipped
+            return False
+        return True
 
     def process_event(self, event) -> None:
         if not isinstance(event, Frame) or event.opcode not in _DATA:
@@ -113,24 +137,6 @@ class MessageConnection(_Delivering, ServerConnection):
         super().__init__(*args, **kwargs)
         self._start_delivery()
 
-    def send_text_now(self, data: bytes) -> bool:
-        """Write ``data`` (UTF-8 text) as one text frame now, without waiting (module docs); False (nothing
-        written) when the connection is not open or the transport refuses it, as ``broadcast`` skips it."""
-        protocol = self.protocol
-        if protocol.state is not State.OPEN or self.send_in_progress is not None:
-            return False
-        try:
-            if protocol.extensions:  # none on serve's connections (no compression): websockets' own framing
-                protocol.send_text(data)
-                self.send_data()
-                return True
-            n = len(data)  # a server's frame: FIN + text, no mask, the length in 7, 7+16 or 7+64 bits
-            head = _HEAD[n] if n < 126 else _HEAD16.pack(0x81, 126, n) if n < 65536 else _HEAD64.pack(0x81, 127, n)
-            self.transport.write(head + data)
-        except Exception:  # noqa: BLE001  as broadcast: a connection that cannot take it is skipped
-            return False
-        return True
-
 
 class ClientMessageConnection(_Delivering, ClientConnection):
     """The client end (:mod:`.loadgen`'s simulated clients): every message, text or binary, handed to
@@ -144,6 +150,13 @@ class ClientMessageConnection(_Delivering, ClientConnection):
 
 
 _DATA = (Opcode.TEXT, Opcode.BINARY, Opcode.CONT)
-_HEAD = [bytes((0x81, n)) for n in range(126)]  # a short text frame's header, by length
+_HEAD = [bytes((0x81, n)) for n in range(126)]  # a short unmasked text frame's header, by length
 _HEAD16 = struct.Struct("!BBH")
 _HEAD64 = struct.Struct("!BBQ")
+
+
+def _header(n: int, masked: int) -> bytes:
+    """A text frame's header for ``n`` bytes (``masked``: 0x80 when a mask follows)."""
+    if n < 126:
+        return bytes((0x81, masked | n))
+    return _HEAD16.pack(0x81, masked | 126, n) if n < 65536 else _HEAD64.pack(0x81, masked | 127, n)

@@ -119,11 +119,8 @@ class _Client:
         if k * self.period >= self.warmup_s:
             self.measured.add(k)
         m0 = self.encoded[k % len(self.encoded)]
-        try:  # what ws.send does for a whole message, without awaiting
-            self.ws.protocol.send_text(m0.replace(b'"frame":0,', b'"frame":%d,' % k, 1) if k else m0)
-            self.ws.send_data()
-        except Exception:  # noqa: BLE001  closed meanwhile: the connection's end says why
-            self._set(self.sent_all)
+        if not self.ws.send_text_now(m0.replace(b'"frame":0,', b'"frame":%d,' % k, 1) if k else m0):
+            self._set(self.sent_all)  # closed meanwhile: the connection's end says why
             return
         self.res.sent += 1
         self.k = k = k + 1
