@@ -8,6 +8,7 @@ fed the same frames, whatever the other connections do.
 from __future__ import annotations
 
 import asyncio
+import base64
 import json
 import signal
 import socket
@@ -317,6 +318,69 @@ def test_pose_messages_are_the_runtime_format():
         np.testing.assert_allclose(a[k], b[k], atol=2e-6)
     assert (a["frame"], a["time"], a["face_found"], a["latency_ms"]) == (b["frame"], b["time"], True, {"model": 1.25})
     assert protocol.decode_pose(ours[1])["face_found"] is False
+
+
+def test_pose_numbers_written_from_float32_read_back_as_the_same_float64():
+    """``encode_poses`` writes rounded rows within [-1, 1] from float32 (half the cost): every number of 6
+    decimals there reads back as the float64 it was; only ±1e-6 … ±9e-6 change text ('0.000005' for '5e-6')."""
+    import orjson
+
+    v = np.round(np.arange(-10**6, 10**6 + 1) / 1e6, 6)
+    opt = orjson.OPT_SERIALIZE_NUMPY
+    t64, t32 = orjson.dumps(v, option=opt), orjson.dumps(v.astype(np.float32), option=opt)
+    back = np.array(orjson.loads(t32))
+    assert np.array_equal(back, v) and np.array_equal(np.signbit(back), np.signbit(v))
+    changed = {a for a, b in zip(t64[1:-1].split(b","), t32[1:-1].split(b",")) if a != b}
+    assert changed == {b"%de-6" % k for k in range(-9, 10) if k}
+    # a row beyond [-1, 1] (a head, weights out of range) is written from float64 as before
+    q = np.zeros((1, 47, 4))
+    q[0, :, 0] = 1.0
+    msg = next(protocol.encode_poses([0], [0.0], q, np.full((1, 52), 1.5), np.full((1, 6), 2e-6), [True], [{}]))
+    assert '"weights":[1.5,' in msg and '"head":[2e-6,' in msg and '"pose":[1.0,0.0,' in msg
+
+
+def test_input_decoding_checks_face_and_head_at_once_names_each_fault_and_refuses_loose_base64():
+    """``decode_client`` checks an input's face and head as one array and its audio by one product: what it
+    accepts and the fault it names are those of the field-by-field checks (near their bounds these decide);
+    the base64 is strict (pybase64: alphabet and padding), so a '=' after unpadded data is refused."""
+    eye = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]
+
+    def msg(face=None, head=None, audio=None, raw_b64=None) -> str:
+        a = np.asarray(np.linspace(-0.5, 0.5, 1067) if audio is None else audio, "<f4")
+        return json.dumps({"type": "input", "frame": 3, "face": [0.5] * 52 if face is None else face,
+                           "head": eye if head is None else head,
+                           "audio": raw_b64 if raw_b64 is not None else base64.b64encode(a.tobytes()).decode()})
+
+    def fault(text: str) -> str:
+        with pytest.raises(protocol.ProtocolError) as exc:
+            protocol.decode_client(text)
+        return str(exc.value)
+
+    face = [-0.5, 2.0, 0.25] + [0.125] * 49
+    frame = protocol.decode_client(msg(face=face, head=[0.6, 0, -0.8, 0, 1, 0]))["input"]
+    assert frame.index == 3 and frame.audio.dtype == frame.face.dtype == frame.head.dtype == np.float32
+    np.testing.assert_array_equal(frame.face, np.clip(np.float32(face), 0, 1))
+    np.testing.assert_array_equal(frame.head, np.float32([0.6, 0, -0.8, 0, 1, 0]))
+    np.testing.assert_array_equal(frame.audio, np.float32(np.linspace(-0.5, 0.5, 1067)))
+    for head in ([1e-5, 0, 0, 0, 1, 0], [1e17, 0, 0, 0, 1, 0], [1, 0, 0, 0, 0, 3e-6], [1, 2, 3, 4, 5, 6]):
+        assert protocol.decode_client(msg(head=head))["type"] == "input", head  # close to a bound, still valid
+    assert fault(msg(face=[0.5] * 51)) == "'face' must be a list of 52 numbers"
+    assert fault(msg(face=[0.5] * 51 + ["x"])) == "'face' must hold numbers only"
+    assert fault(msg(face=[0.5] * 51 + [[1]])) == "'face' must hold numbers only"
+    assert fault(msg(face={"a": 1}, head=[0])) == "'face' must be a list of 52 numbers"  # face named first
+    assert fault(msg(head=[1, 0, 0, 0, 1])) == "'head' must be a list of 6 numbers"
+    assert fault(msg(head=[1, 0, 0, 0, 1, None])) == "'head' must hold 6 finite numbers"  # None: NaN
+    with np.errstate(over="ignore"):  # 1e39 is float32's infinity
+        for head in ([0, 0, 0, 0, 1, 0], [1, 0, 0, 1e-7, 0, 0], [1e39, 0, 0, 0, 1, 0]):  # zero, tiny, too large
+            assert fault(msg(head=head)) == "'head' is not a rotation (a rot6d column is zero)", head
+    for bad in (np.nan, np.inf, -np.inf):
+        audio = np.zeros(1067, np.float32)
+        audio[500] = bad
+        assert fault(msg(audio=audio)) == "'audio' holds NaN or infinite samples"
+    twelve = base64.b64encode(bytes(12)).decode()  # 16 characters, no padding needed
+    assert protocol.decode_client(msg(raw_b64=twelve))["input"].audio.shape == (3,)
+    for b64 in (twelve + "=", twelve[:-1] + "=A", twelve[:8] + " " + twelve[8:], twelve[:-1]):
+        assert fault(msg(raw_b64=b64)) == "'audio' is not valid base64", b64
 
 
 def test_serve_command(tmp_path, ckpt):

@@ -9,9 +9,11 @@ trip, loopback included). Inputs are real: consecutive frames of a speech record
 (each frame its own samples), a slowly varying face and a head turning a little.
 Messages are encoded once before the run (to UTF-8 bytes too: a frame's number is put in with
 a bytes replace and the bytes go out as a text frame), replies are matched as bytes without
-decoding them, and :func:`run` drives the clients on uvloop's event loop where it is installed,
-so the clients spend their CPU on the sockets, not on JSON — they share the machine with the
-server they measure (``bench --only serve`` reports their CPU per frame beside the server's).
+decoding them, each client is driven by callbacks (its replies through the connection's
+callback, its frames by timers: no coroutine, future or queue per frame) and :func:`run` drives
+the clients on uvloop's event loop where it is installed, so the clients spend their CPU on the
+sockets, not on JSON or asyncio — they share the machine with the server they measure (``bench
+--only serve`` reports their CPU per frame beside the server's).
 """
 
 from __future__ import annotations
@@ -63,6 +65,80 @@ class ClientResult:
     closed: str | None = None  # why the server closed us early, if it did
 
 
+class _Client:
+    """One simulated stream driven by callbacks, not a coroutine: its messages arrive through
+    :class:`~facecapges.serving.connection.ClientMessageConnection`'s callback and each frame is sent by
+    a timer callback, so a frame costs the client no task switch, future or queue (the clients share the
+    machine's cores with the server they measure)."""
+
+    def __init__(self, ws, res: ClientResult, encoded: list[bytes], n: int, period: float, warmup_s: float, phase):
+        self.ws, self.res, self.encoded, self.n = ws, res, encoded, n
+        self.period, self.warmup_s, self.phase = period, warmup_s, phase
+        self.loop = asyncio.get_running_loop()
+        self.sent_all = self.loop.create_future()  # every frame sent (or sending stopped)
+        self.done = self.loop.create_future()  # every pose back, or the connection over
+        self.sent_at: dict[int, float] = {}
+        self.measured: set[int] = set()
+        self.k = 0
+        self.start = 0.0
+        self.hello = False
+
+    def on_message(self, msg) -> None:
+        now = time.perf_counter()
+        res = self.res
+        if not self.hello:
+            if b'"status"' in msg[:40]:  # the server is still loading its style: hello follows
+                return
+            if b'"hello"' not in msg:
+                res.errors.append(f"no hello: {bytes(msg[:80]).decode('utf-8', 'replace')}")
+                self.finish()
+                return
+            self.hello = True
+            self.start = time.perf_counter() + self.phase
+            self.loop.call_later(self.phase, self.send)
+            return
+        m = _FRAME_B.search(msg, 0, 40)
+        if msg.startswith(b'{"type":"pose"') and m:
+            k = int(m.group(1))
+            res.received += 1
+            if k in self.measured:
+                res.latencies_ms.append((now - self.sent_at[k]) * 1e3)
+            if res.received >= self.n:
+                self.finish()
+        else:
+            res.errors.append(bytes(msg[:120]).decode("utf-8", "replace"))
+
+    def send(self) -> None:
+        """Frame k, then the timer for frame k + 1 (at start + (k + 1) / fps)."""
+        if self.done.done():
+            self._set(self.sent_all)
+            return
+        k = self.k
+        now = time.perf_counter()
+        self.sent_at[k] = now
+        if k * self.period >= self.warmup_s:
+            self.measured.add(k)
+        m0 = self.encoded[k % len(self.encoded)]
+        if not self.ws.send_text_now(m0.replace(b'"frame":0,', b'"frame":%d,' % k, 1) if k else m0):
+            self._set(self.sent_all)  # closed meanwhile: the connection's end says why
+            return
+        self.res.sent += 1
+        self.k = k = k + 1
+        if k >= self.n:
+            self._set(self.sent_all)
+            return
+        self.loop.call_later(max(0.0, self.start + k * self.period - time.perf_counter()), self.send)
+
+    def finish(self) -> None:
+        self._set(self.done)
+        self._set(self.sent_all)
+
+    @staticmethod
+    def _set(fut: asyncio.Future) -> None:
+        if not fut.done():
+            fut.set_result(None)
+
+
 async def run_client(
     url: str,
     messages: Sequence[str | bytes],
@@ -77,64 +153,35 @@ async def run_client(
     from websockets.asyncio.client import connect
     from websockets.exceptions import ConnectionClosed
 
+    from facecapges.serving.connection import ClientMessageConnection
+
     res = ClientResult()
     encoded = [m.encode() if isinstance(m, str) else m for m in messages]
-    period = 1.0 / fps
-    n = int(seconds * fps)
-    sent_at: dict[int, float] = {}
-    measured: set[int] = set()
     try:
         async with connect(
-            url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None, open_timeout=30
+            url,
+            max_size=protocol.MAX_MESSAGE_BYTES,
+            ping_interval=None,
+            compression=None,
+            open_timeout=30,
+            create_connection=ClientMessageConnection,
         ) as ws:
-            hello = await ws.recv(decode=True)
-            while '"status"' in hello[:40]:  # the server is still loading its style: hello follows
-                hello = await ws.recv(decode=True)
-            if '"hello"' not in hello:
-                res.errors.append(f"no hello: {hello[:80]}")
-                return res
-            done = asyncio.Event()
-
-            async def reader():
-                try:
-                    while True:
-                        msg = await ws.recv(decode=False)  # the reply's bytes: nothing here needs it as text
-                        now = time.perf_counter()
-                        m = _FRAME_B.search(msg, 0, 40)
-                        if msg.startswith(b'{"type":"pose"') and m:
-                            k = int(m.group(1))
-                            res.received += 1
-                            if k in measured:
-                                res.latencies_ms.append((now - sent_at[k]) * 1e3)
-                            if res.received >= n:
-                                break
-                        else:
-                            res.errors.append(bytes(msg[:120]).decode("utf-8", "replace"))
-                except ConnectionClosed as exc:
-                    res.closed = f"{exc.rcvd.code if exc.rcvd else '?'} {exc.rcvd.reason if exc.rcvd else ''}"
-                finally:
-                    done.set()
-
-            rtask = asyncio.ensure_future(reader())
-            start = time.perf_counter() + phase
-            for k in range(n):
-                delay = start + k * period - time.perf_counter()
-                if delay > 0:
-                    await asyncio.sleep(delay)
-                if done.is_set():
-                    break
-                now = time.perf_counter()
-                sent_at[k] = now
-                if k * period >= warmup_s:
-                    measured.add(k)
-                m0 = encoded[k % len(encoded)]
-                await ws.send(m0.replace(b'"frame":0,', b'"frame":%d,' % k, 1) if k else m0, text=True)
-                res.sent += 1
+            assert isinstance(ws, ClientMessageConnection)
+            client = _Client(ws, res, encoded, int(seconds * fps), 1.0 / fps, warmup_s, phase)
+            closed = asyncio.ensure_future(ws.wait_closed())
+            closed.add_done_callback(lambda _: client.finish())
+            ws.deliver(client.on_message)
+            await client.sent_all
             try:
-                await asyncio.wait_for(done.wait(), timeout=drain_s)
+                await asyncio.wait_for(asyncio.shield(client.done), timeout=drain_s)
             except TimeoutError:
                 pass
-            rtask.cancel()
+            if closed.done() and res.received < client.n and client.hello:
+                rcvd = ws.protocol.close_rcvd
+                res.closed = f"{rcvd.code if rcvd else '?'} {rcvd.reason if rcvd else ''}"
+            elif closed.done() and not client.hello and not res.errors:
+                res.errors.append("no hello: the connection closed")
+            closed.cancel()
     except (TimeoutError, OSError, ConnectionClosed) as exc:
         res.errors.append(f"connection: {exc.__class__.__name__}: {exc}")
     return res

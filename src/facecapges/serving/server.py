@@ -56,7 +56,9 @@ Bad messages are answered and logged on one line per connection.
 Cost per stream-frame (issue 36: "server CPU per stream-frame is the figure to push"). The event loop is
 uvloop's where it is installed (:func:`facecapges.runtime.outputs.server_thread.new_event_loop`); each message
 is handled as the WebSocket parser finds it (:mod:`facecapges.serving.connection`: no future, task switch or
-queue per message) and every reply is written without waiting (:meth:`StreamServer._send`).
+queue per message) and every reply is written without waiting, as UTF-8 bytes straight into one WebSocket frame
+(:meth:`StreamServer._send`, :func:`~facecapges.runtime.outputs.protocol.encode_poses_utf8`); the model pipe is
+watched for the whole run, not registered again each tick (:meth:`StreamServer._compute`).
 
 Security: it binds 127.0.0.1 unless told otherwise; while bound to loopback it only
 answers handshakes whose ``Host`` names a loopback host (:mod:`facecapges.runtime.outputs.ws`,
@@ -175,6 +177,8 @@ class StreamServer(ServerThread):
         self.waiting = 0  # clients connected while loading
         self.stats: collections.Counter[str] = collections.Counter()
         self._closing: set[asyncio.Future] = set()  # close tasks still running
+        self._answer: asyncio.Future | None = None  # the tick waiting for the model process
+        self._reading: tuple[asyncio.AbstractEventLoop, int] | None = None  # the model pipe watched, by loop
         self.batch_sizes: collections.deque = collections.deque(maxlen=10_000)
         if checkpoint is not None:
             self.load(checkpoint)
@@ -390,26 +394,39 @@ class StreamServer(ServerThread):
     ) -> tuple[np.ndarray, np.ndarray]:
         """One batched step in the model process: poses (B, 47, 6) and quaternions (B, 47, 4). The event
         loop runs on while the model process works and resumes when its pipe is readable."""
-        loop = asyncio.get_running_loop()
         gen = self.gen
         assert gen is not None  # streams are admitted only once loaded
+        loop = asyncio.get_running_loop()
         gen.submit(slots, audio, face, head)
-        ready = loop.create_future()
-        fd = gen.fileno()
-
-        def wake() -> None:
-            if not ready.done():
-                ready.set_result(None)
-
-        loop.add_reader(fd, wake)
+        self._answer = ready = loop.create_future()
+        if self._reading is None:
+            self._watch_pipe(loop, gen.fileno())
         try:
             await ready
         finally:
-            loop.remove_reader(fd)
-            # uvloop's add_reader makes the descriptor non-blocking (asyncio's leaves it): the model process's
-            # blocking calls (collect, sync) need it blocking again, else a sync fails with EAGAIN
-            os.set_blocking(fd, True)
+            self._answer = None
         return gen.collect()
+
+    def _watch_pipe(self, loop: asyncio.AbstractEventLoop, fd: int) -> None:
+        """Watch the model pipe for the ticks to come (not one registration a tick): :meth:`_pipe_readable`."""
+        loop.add_reader(fd, self._pipe_readable)
+        self._reading = (loop, fd)
+        # uvloop's add_reader makes the descriptor non-blocking (asyncio's leaves it): the model process's
+        # blocking calls (collect, sync) need it blocking (a sync failed with EAGAIN); readiness is the same
+        os.set_blocking(fd, True)
+
+    def _pipe_readable(self) -> None:
+        """The model process answered: the waiting tick goes on. Readable with no tick waiting (the model
+        process died between ticks: end of file), the pipe is no longer watched until the next tick (else
+        the loop would be woken at once, again and again); that tick's ``collect`` says what happened."""
+        ready = self._answer
+        if ready is not None:
+            if not ready.done():
+                ready.set_result(None)
+        elif self._reading is not None:
+            loop, fd = self._reading
+            self._reading = None
+            loop.remove_reader(fd)
 
     def _sync_slots(self) -> None:
         """Between ticks, in one round trip: free the slots of closed streams, give new streams theirs,
@@ -433,19 +450,19 @@ class StreamServer(ServerThread):
         for st in dial:
             st.applied = st.intensity
 
-    def _send(self, st: _Stream, text: str) -> None:
-        """Write without waiting for the client; close a client that stopped reading."""
-        from websockets.asyncio.server import broadcast
-
+    def _send(self, st: _Stream, message: str | bytes) -> None:
+        """Write without waiting for the client (as UTF-8 bytes: :meth:`MessageConnection.send_text_now`);
+        close a client that stopped reading."""
         if st.closed:
             return
-        broadcast([st.ws], text)
-        transport = getattr(st.ws, "transport", None)
+        ws = st.ws
+        ws.send_text_now(message.encode() if isinstance(message, str) else message)
+        transport = ws.transport
         if transport is not None and transport.get_write_buffer_size() > self.cfg.send_buffer_bytes:
             self.stats["slow_closes"] += 1
             st.closed = True
             st.pending.clear()
-            self._close_later(st.ws, 1008, "not reading its output")
+            self._close_later(ws, 1008, "not reading its output")
 
     def _close_later(self, ws: ServerConnection, code: int, reason: str) -> None:
         """Close ``ws`` without waiting; the task is kept until it ends (asyncio holds tasks weakly)."""
@@ -487,7 +504,7 @@ class StreamServer(ServerThread):
                 return protocol.tick_latency(items[i][1], t0, t1)
 
             index = [i.index for i in inputs]
-            texts = protocol.encode_poses(
+            texts = protocol.encode_poses_utf8(
                 index,
                 [k / self.fps for k in index],
                 quats,

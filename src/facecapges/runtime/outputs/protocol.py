@@ -72,6 +72,7 @@ from collections.abc import Iterator, Sequence
 
 import numpy as np
 import orjson
+import pybase64
 
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES, N_BLENDSHAPES
@@ -141,7 +142,14 @@ def encode_pose(out: OutputFrame) -> str:
     )
 
 
-def encode_poses(
+def encode_poses(*args, **kwargs) -> Iterator[str]:
+    """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
+    one-frame use), as text: :func:`encode_poses_utf8`'s messages (the same arguments) decoded."""
+    for data in encode_poses_utf8(*args, **kwargs):
+        yield data.decode()
+
+
+def encode_poses_utf8(
     frames: Sequence[int],
     times_s: Sequence[float],
     quats: np.ndarray,
@@ -150,19 +158,24 @@ def encode_poses(
     face_found: Sequence[bool],
     latency_ms,
     face_index: Sequence[int] | None = None,
-) -> Iterator[str]:
-    """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
-    one-frame use). ``quats`` (B, 47, 4), ``faces`` (B, 52), ``heads`` (B, 6) are rounded at once
-    (6, 5 and 6 decimals). ``latency_ms``: B dicts, or a function of the row called just before
-    that row is encoded (so a caller that sends each message as it comes reports its true latency).
-    ``face_index``: which face / avatar each row is (``live --faces N``); 0 for all by default.
+) -> Iterator[bytes]:
+    """The ``pose`` messages of B output frames as UTF-8 bytes, what a WebSocket text frame carries
+    (``serve`` writes them as they are: no decoding and encoding again). ``quats`` (B, 47, 4), ``faces``
+    (B, 52), ``heads`` (B, 6) are rounded at once (6, 5 and 6 decimals). ``latency_ms``: B dicts, or a
+    function of the row called just before that row is encoded (so a caller that sends each message as
+    it comes reports its true latency). ``face_index``: which face / avatar each row is (``live --faces
+    N``); 0 for all by default.
     """
     B = len(frames)
-    # rows of C-contiguous float64 arrays, written by orjson itself (OPT_SERIALIZE_NUMPY: the same text as the
-    # rows' Python floats, without making ~250 float objects a frame: issue 36, serve's cost per stream-frame)
+    # rows of C-contiguous arrays, written by orjson itself (OPT_SERIALIZE_NUMPY: the same text as the rows'
+    # Python floats, without making ~250 float objects a frame: issue 36, serve's cost per stream-frame)
     q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6)
     w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5)
     h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6)
+    # within [-1, 1] a number of 6 decimals written from float32 (half the cost of float64's shortest text) reads
+    # back as the same float64 — checked for every one of them (test_serve_server.py); the text differs only for
+    # ±1e-6 … ±9e-6, written '0.000005' instead of '5e-6'. The head (a client's own numbers) stays float64.
+    q, w = (a.astype(np.float32) if a.size and a.min() >= -1.0 and a.max() <= 1.0 else a for a in (q, w))
     lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
     for i in range(B):  # orjson: the same compact JSON as json.dumps, ~8x faster (it is serve's cost per frame)
         yield orjson.dumps(
@@ -179,7 +192,7 @@ def encode_poses(
                 "sent_ms": _r(time.time() * 1000.0, 1),
             },
             option=orjson.OPT_SERIALIZE_NUMPY,
-        ).decode()
+        )
 
 
 def tick_latency(queued: float, t0: float, t1: float) -> dict:
@@ -246,6 +259,9 @@ def _resume_pose(obj) -> np.ndarray:
     return np.asarray(rot.matrix_to_rot6d(rot.quaternion_to_matrix(q / norm)), np.float32)
 
 
+_all = np.logical_and.reduce  # ndarray.all without its Python wrapper (a third of the time on 1067 samples)
+
+
 def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR) -> dict:
     """Parse a client message: ``{"type": "ping"}``, ``{"type": "intensity", "value": v}``,
     ``{"type": "resume", "pose": rot6d (47, 6)}`` or ``{"type": "input", "input": InputFrame}``."""
@@ -277,22 +293,45 @@ def decode_client(text: str | bytes, fps: float = timing.MODEL_FPS, sr: int = ti
     audio_b64 = msg.get("audio")
     if not isinstance(audio_b64, str):
         raise ProtocolError("'audio' must be a base64 string of float32 little-endian samples")
-    try:  # = base64.b64decode(audio_b64, validate=True) (the alphabet and the padding checked), in C, not a regex
-        raw = binascii.a2b_base64(audio_b64, strict_mode=True)
+    try:  # the alphabet and the padding checked, as base64.b64decode(validate=True), in SIMD C (pybase64)
+        raw = pybase64.b64decode(audio_b64, validate=True)
     except (binascii.Error, ValueError):
         raise ProtocolError("'audio' is not valid base64") from None
     spf = timing.samples_per_frame(fps, sr)
     if len(raw) % 4 or len(raw) // 4 > spf:
         raise ProtocolError(f"'audio' must hold at most {spf} float32 samples, got {len(raw) / 4:g}")
     audio = np.frombuffer(raw, dtype="<f4").astype(np.float32)
-    if not np.isfinite(audio).all():
+    if not _all(np.isfinite(audio)):
         raise ProtocolError("'audio' holds NaN or infinite samples")
-    face = _floats(msg.get("face"), N_BLENDSHAPES, "face")
-    head = _floats(msg.get("head"), 6, "head")
+    face, head = _face_head(msg.get("face"), msg.get("head"))
+    return {"type": "input", "input": InputFrame(k, audio, face.clip(0.0, 1.0), head)}
+
+
+def _face_head(face, head) -> tuple[np.ndarray, np.ndarray]:
+    """An input's ``face`` (52) and ``head`` (6, a rotation) as float32, checked in one step (one array of
+    the 58 numbers: ``serve``'s cost per stream-frame); anything else goes the field-by-field way of
+    :func:`_floats` and :func:`_rotation`, which find and name the fault as before."""
+    if type(face) is list and type(head) is list and len(face) == N_BLENDSHAPES and len(head) == 6:
+        try:
+            both = np.array(face + head, dtype=np.float64)
+        except (TypeError, ValueError):
+            both = None
+        if both is not None and both.shape == (N_BLENDSHAPES + 6,) and _all(np.isfinite(both)):
+            both = both.astype(np.float32)
+            x0, x1, x2, y0, y1, y2 = both[N_BLENDSHAPES:].tolist()
+            # columns' squared lengths far from 1e-12 (the check's bound) and from float32's overflow: a
+            # rotation, whatever float32's rounding; closer to either, the check itself decides
+            if 1e-10 < x0 * x0 + x1 * x1 + x2 * x2 < 1e30 and 1e-10 < y0 * y0 + y1 * y1 + y2 * y2 < 1e30:
+                return both[:N_BLENDSHAPES], both[N_BLENDSHAPES:]
+    return _floats(face, N_BLENDSHAPES, "face"), _rotation(_floats(head, 6, "head"))
+
+
+def _rotation(head: np.ndarray) -> np.ndarray:
+    """``head`` if it is a rot6d (both columns nonzero), else the ProtocolError."""
     a, b = head[:3], head[3:]  # np.linalg.norm's own steps (sqrt of the dot), without its checks
     if np.sqrt(a.dot(a)) < 1e-6 or np.sqrt(b.dot(b)) < 1e-6 or not math.isfinite(float(head.sum())):
         raise ProtocolError("'head' is not a rotation (a rot6d column is zero)")
-    return {"type": "input", "input": InputFrame(k, audio, np.clip(face, 0.0, 1.0), head)}
+    return head
 
 
 def decode_pose(text: str) -> dict:
