@@ -8,7 +8,7 @@ per-address limit: the third stream of an address got its ``hello``.
 
 Failover (runs first, before the fixture's cluster starts: the bench's ``cluster`` area as users run
 it, ``bench --quick --only cluster``, which test_bench.py's ``bench --quick`` leaves to this file): 20
-live clients through Ray's proxy, the worker node killed mid-run. Every stream must be served again within 2 s of the freeze its user sees,
+live clients through Ray Serve's HAProxy, the worker node killed mid-run. Every stream must be served again within 2 s of the freeze its user sees,
 and no hand-over may pop (whole-body acceleration above the real motion's 99.9th percentile);
 the loss of the clients whose replica lived is measured. Without ``resume`` (the old protocol)
 the moved streams would restart from the rest pose; without the Ray application there is nothing
@@ -44,7 +44,9 @@ def cluster():
     with LocalCluster(say=print) as lc:
         # the admission test's own application: one replica, no CPU of its own (both are the failover's)
         cfg = ServeConfig(max_per_address=PER_ADDRESS)
-        serve.run(build_app(replicas=1, config=cfg, num_cpus=0), name="admission", route_prefix="/admission")
+        # its replica in the cluster's environment: served through the same HAProxy
+        app = build_app(replicas=1, config=cfg, num_cpus=0, env=lc.env)
+        serve.run(app, name="admission", route_prefix="/admission")
         wait_ready(f"http://127.0.0.1:{lc.port}/admission", 1)
         yield lc
 
