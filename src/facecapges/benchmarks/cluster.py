@@ -21,7 +21,8 @@ node is killed (its raylet and every process on it, no graceful stop). Reported:
   cluster, interleaved (one process, Ray, one process, Ray …; both running throughout), and
   ``ray_overhead_p50`` — the median over the pairs of the ratio of median round trips (Ray / one
   process): one pair alone swings with the machine's load;
-- ``ladder``: 2, 4, 8, 16 … streams on the cluster until a trial's p99 exceeds 50 ms or loses a frame;
+- ``ladder``: 2, 4, 8, 16 … 64 streams on the cluster until a step's p99 exceeds 50 ms or loses a frame
+  twice in a row (a step that fails is tried once more: one stall of a shared machine);
   ``streams_per_node`` = half the most streams held so (``--quick``: the failover's streams, if
   its p99 before the kill was ≤ 50 ms; else 0).
 
@@ -343,6 +344,11 @@ def _trial(url: str, streams: int, seconds: float, messages: list[str]) -> dict:
     }
 
 
+def _held(trial: dict) -> bool:
+    """A trial within the bound: p99 ≤ 50 ms and no frame lost."""
+    return trial["p99_ms"] is not None and trial["p99_ms"] <= P99_TARGET_MS and not trial["lost"]
+
+
 def run(quick: bool, shared: Path) -> dict:
     """One ``serve`` process and the two-node cluster side by side: ``pairs`` interleaved short
     trials of the same clients (one process, then Ray) for the overhead ratio (their median); on a
@@ -376,15 +382,18 @@ def run(quick: bool, shared: Path) -> dict:
                 )
             steps = []
             for n in ladder:
-                r = _trial(lc.url, n, trial_s, messages)
-                steps.append(r)
-                say(f"cluster: {n} streams on 2 nodes: p99 {r['p99_ms']} ms, lost {r['lost']} of {r['sent']}")
-                if r["p99_ms"] is None or r["p99_ms"] > P99_TARGET_MS or r["lost"]:
+                for _ in range(2):  # a step that fails is tried once more: one stall of a shared machine
+                    r = _trial(lc.url, n, trial_s, messages)
+                    steps.append(r)
+                    say(f"cluster: {n} streams on 2 nodes: p99 {r['p99_ms']} ms, lost {r['lost']} of {r['sent']}")
+                    if _held(r):
+                        break
+                if not _held(r):
                     break
             fo = failover(shared, streams, seconds, kill_at=seconds * 0.4, checkpoint=checkpoint, say=say, cluster=lc)
     finally:
         stop_server(proc)
-    held = [r["streams"] for r in steps if r["p99_ms"] is not None and r["p99_ms"] <= P99_TARGET_MS and not r["lost"]]
+    held = [r["streams"] for r in steps if _held(r)]
     if not ladder:  # quick: the failover's trial before the kill
         ok = fo["p99_all_before_ms"] is not None and fo["p99_all_before_ms"] <= P99_TARGET_MS
         held = [streams] if ok else []

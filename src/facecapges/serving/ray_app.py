@@ -72,6 +72,9 @@ INGRESS_ENV = {
     # a dead replica's port is reused after this (Ray's default: the hard stop + 30 s); only plain HTTP
     # keep-alive connections of an old HAProxy could still reach it, and those close after each response
     "RAY_SERVE_PORT_QUARANTINE_S": "180",
+    # the replicas' HTTP server (uvicorn) would take a loopback peer's X-Forwarded-For as the client's
+    # address, and HAProxy on the same node is such a peer: the header counts only with --trust-proxy
+    "FORWARDED_ALLOW_IPS": "",
 }
 
 
