@@ -203,3 +203,20 @@ def test_ray_address_that_does_not_answer_is_one_error_line():
         assert p.returncode != 0
         lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], p.stderr
+
+
+def test_behind_haproxy_a_stream_counts_against_the_forwarded_address_only_with_trust_proxy():
+    """Every peer of a replica is the cluster's HAProxy (on the head node: loopback or the node's address):
+    with ``--trust-proxy`` the last ``X-Forwarded-For`` entry counts, from any such peer; without it the
+    header is ignored (a client could claim any address), and a malformed header counts as the peer."""
+    from facecapges.serving.ray_app import INGRESS_ENV, STREAM_LIFE_S, _client_address
+
+    for peer in ("127.0.0.1", "10.0.0.5"):
+        assert _client_address(peer, "203.0.113.9", False) == peer
+        assert _client_address(peer, "198.51.100.1, 203.0.113.9", True) == "203.0.113.9"
+        assert _client_address(peer, "not an address", True) == peer
+        assert _client_address(peer, None, True) == peer
+    # an HAProxy reload (a replica gone or added) must not close the streams of the old HAProxy process
+    # after Ray's default 120 s: they are stopped only after a stream's life
+    assert int(INGRESS_ENV["RAY_SERVE_HAPROXY_HARD_STOP_AFTER_S"]) >= STREAM_LIFE_S >= 3600
+    assert INGRESS_ENV["FORWARDED_ALLOW_IPS"] == ""  # uvicorn must not trust HAProxy's X-Forwarded-For itself
