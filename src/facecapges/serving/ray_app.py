@@ -72,6 +72,11 @@ INGRESS_ENV = {
     # a dead replica's port is reused after this (Ray's default: the hard stop + 30 s); only plain HTTP
     # keep-alive connections of an old HAProxy could still reach it, and those close after each response
     "RAY_SERVE_PORT_QUARANTINE_S": "180",
+    # a replica on a machine that died answers nothing (no reset): a reconnecting client's connection
+    # goes to another replica after 1 s (Ray's default 5 s), and HAProxy's health checks mark it down
+    # within ~4 s (default ~10 s) if Ray has not removed it by then
+    "RAY_SERVE_HAPROXY_TIMEOUT_CONNECT_S": "1",
+    "RAY_SERVE_HAPROXY_HEALTH_CHECK_INTER": "2s",
     # the replicas' HTTP server (uvicorn) would take a loopback peer's X-Forwarded-For as the client's
     # address, and HAProxy on the same node is such a peer: the header counts only with --trust-proxy
     "FORWARDED_ALLOW_IPS": "",
