@@ -44,6 +44,7 @@ import numpy as np
 
 from facecapges.errors import UserError
 from facecapges.serving.admission import (
+    DEFAULT_PER_ADDRESS,
     EVICTED_SLOW,
     EVICTED_WAITING,
     FULL_CODE,
@@ -496,7 +497,7 @@ def serve_on_ray(
     if cfg.max_per_address is None and not cfg.trust_proxy:
         cfg = dataclasses.replace(cfg, max_per_address=cfg.max_streams)
     else:
-        per_address = f"at most {cfg.max_per_address or 'the default'} streams per address on each replica"
+        per_address = f"at most {cfg.max_per_address or DEFAULT_PER_ADDRESS} streams per address on each replica"
         if not cfg.trust_proxy:
             per_address += " (all streams come from HAProxy: --trust-proxy for a load balancer's X-Forwarded-For)"
     if address == "local":
