@@ -8,7 +8,7 @@ per-address limit: the third stream of an address got its ``hello``.
 
 Failover (runs first, before the fixture's cluster starts: the bench's ``cluster`` area as users run
 it, ``bench --quick --only cluster``, which test_bench.py's ``bench --quick`` leaves to this file): 20
-live clients through Ray's proxy, the worker node killed mid-run. Every stream must be served again within 2 s of the freeze its user sees,
+live clients through Ray Serve's HAProxy, the worker node killed mid-run. Every stream must be served again within 2 s of the freeze its user sees,
 and no hand-over may pop (whole-body acceleration above the real motion's 99.9th percentile);
 the loss of the clients whose replica lived is measured. Without ``resume`` (the old protocol)
 the moved streams would restart from the rest pose; without the Ray application there is nothing
@@ -44,7 +44,9 @@ def cluster():
     with LocalCluster(say=print) as lc:
         # the admission test's own application: one replica, no CPU of its own (both are the failover's)
         cfg = ServeConfig(max_per_address=PER_ADDRESS)
-        serve.run(build_app(replicas=1, config=cfg, num_cpus=0), name="admission", route_prefix="/admission")
+        # its replica in the cluster's environment: served through the same HAProxy
+        app = build_app(replicas=1, config=cfg, num_cpus=0, env=lc.env)
+        serve.run(app, name="admission", route_prefix="/admission")
         wait_ready(f"http://127.0.0.1:{lc.port}/admission", 1)
         yield lc
 
@@ -201,3 +203,20 @@ def test_ray_address_that_does_not_answer_is_one_error_line():
         assert p.returncode != 0
         lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
         assert len(lines) == 1 and lines[0].startswith("error:") and says in lines[0], p.stderr
+
+
+def test_behind_haproxy_a_stream_counts_against_the_forwarded_address_only_with_trust_proxy():
+    """Every peer of a replica is the cluster's HAProxy (on the head node: loopback or the node's address):
+    with ``--trust-proxy`` the last ``X-Forwarded-For`` entry counts, from any such peer; without it the
+    header is ignored (a client could claim any address), and a malformed header counts as the peer."""
+    from facecapges.serving.ray_app import INGRESS_ENV, STREAM_LIFE_S, _client_address
+
+    for peer in ("127.0.0.1", "10.0.0.5"):
+        assert _client_address(peer, "203.0.113.9", False) == peer
+        assert _client_address(peer, "198.51.100.1, 203.0.113.9", True) == "203.0.113.9"
+        assert _client_address(peer, "not an address", True) == peer
+        assert _client_address(peer, None, True) == peer
+    # an HAProxy reload (a replica gone or added) must not close the streams of the old HAProxy process
+    # after Ray's default 120 s: they are stopped only after a stream's life
+    assert int(INGRESS_ENV["RAY_SERVE_HAPROXY_HARD_STOP_AFTER_S"]) >= STREAM_LIFE_S >= 3600
+    assert INGRESS_ENV["FORWARDED_ALLOW_IPS"] == ""  # uvicorn must not trust HAProxy's X-Forwarded-For itself

@@ -4,7 +4,8 @@ A local Ray cluster of two nodes on this machine (``ray.cluster_utils.Cluster``:
 worker, each its own raylet and processes, 1 CPU each, all on 127.0.0.1) runs the application of
 :mod:`facecapges.serving.ray_app` with two replicas, one a node. ``streams`` simulated live
 clients (:func:`facecapges.serving.loadgen.run_resuming_client`: real speech frames at 15 fps,
-reconnect + ``resume`` on a drop) stream through Ray's proxy; after ``kill_at`` seconds the worker
+reconnect + ``resume`` on a drop) stream through Ray Serve's HAProxy on the head node, straight to
+the replicas (``serve --ray``'s ingress, with ports and files of its own); after ``kill_at`` seconds the worker
 node is killed (its raylet and every process on it, no graceful stop). Reported:
 
 - ``moved``: the clients whose stream was on the dead node; ``failover_s`` (max / median): from
@@ -20,7 +21,8 @@ node is killed (its raylet and every process on it, no graceful stop). Reported:
   cluster, interleaved (one process, Ray, one process, Ray …; both running throughout), and
   ``ray_overhead_p50`` — the median over the pairs of the ratio of median round trips (Ray / one
   process): one pair alone swings with the machine's load;
-- ``ladder``: 2, 4, 8, 16 … streams on the cluster until a trial's p99 exceeds 50 ms or loses a frame;
+- ``ladder``: 2, 4, 8, 16 … 64 streams on the cluster until a step's p99 exceeds 50 ms or loses a frame
+  twice in a row (a step that fails is tried once more: one stall of a shared machine);
   ``streams_per_node`` = half the most streams held so (``--quick``: the failover's streams, if
   its p99 before the kill was ≤ 50 ms; else 0).
 
@@ -44,7 +46,6 @@ from facecapges.timing import MODEL_FPS
 SPEECH = "data/beat/2_scott_0_2_2.wav"
 REAL_TAKE = ("data/beat/2_scott_0_1_1.bvh", "data/beat/2_scott_0_1_1.wav")
 P99_TARGET_MS = 50.0
-LOCAL_ROUTING = "RAY_SERVE_PROXY_PREFER_LOCAL_NODE_ROUTING"
 HANDOVER_FRAMES = 3
 # clients arrive this far apart: Ray's router balances by the open streams it knows of, and 20
 # connections in the same instant all see the same (empty) replicas
@@ -128,12 +129,15 @@ class LocalCluster:
     """A two-node Ray cluster on this machine with the application running (module docs); a
     context manager that stops everything it started."""
 
-    def __init__(self, checkpoint: str | None = None, nodes: int = 2, say=print):
+    def __init__(self, checkpoint: str | None = None, nodes: int = 2, say=print, env: dict | None = None):
+        """``env``: the Serve controller's and the replicas' environment (default: ``serve --ray``'s
+        HAProxy ingress, its ports and files this cluster's own; ``{}``: Ray's Python proxy)."""
         self.checkpoint, self.nodes, self.say = checkpoint, nodes, say
         self.cluster = None
-        self._env: str | None = None
         self._stdout: int | None = None
         self.port = _free_port()
+        self.env = env
+        self._files: str | None = None  # HAProxy's configuration, sockets and state
 
     def __enter__(self):
         # Ray's processes and the driver's own threads print to stdout (a dead raylet's log tail,
@@ -143,7 +147,6 @@ class LocalCluster:
         sys.stdout.flush()
         self._stdout = os.dup(1)
         os.dup2(2, 1)
-        self._env = os.environ.get(LOCAL_ROUTING)
         for attempt in (1, 2):
             try:
                 return self._start()
@@ -168,9 +171,23 @@ class LocalCluster:
         from facecapges.serving.ray_app import build_app, wait_ready
 
         t = time.monotonic()
-        # one proxy (the head's) for every stream: it must not prefer the replicas of its own node
-        # (Ray's default, right when every node has a proxy behind a load balancer)
-        os.environ[LOCAL_ROUTING] = "0"
+        if self.env is None:  # serve --ray's ingress, nothing of it shared with another cluster on this machine
+            import tempfile
+
+            from facecapges.serving.ray_app import INGRESS_ENV
+
+            # short: HAProxy takes socket paths of at most 97 characters, and Ray puts the node's id in them
+            self._files = d = tempfile.mkdtemp(prefix="fcg-", dir="/tmp")
+            self.env = {
+                **INGRESS_ENV,
+                "RAY_SERVE_HAPROXY_STATS_PORT": str(_free_port()),
+                "RAY_SERVE_HAPROXY_METRICS_PORT": str(_free_port()),
+                "RAY_SERVE_HAPROXY_CONFIG_FILE_LOC": f"{d}/haproxy.cfg",
+                "RAY_SERVE_HAPROXY_SOCKET_PATH": f"{d}/admin.sock",
+                "RAY_SERVE_HAPROXY_SERVER_STATE_BASE": d,
+                "RAY_SERVE_HAPROXY_SERVER_STATE_FILE": f"{d}/server-state",
+                "RAY_SERVE_HAPROXY_METRICS_SOCKET_PATH": f"{d}/metrics.sock",
+            }
         # a dead node is noticed within ~1 s (Ray's default: up to 15 s): RAY_health_check_* on a real cluster
         fast = {"health_check_period_ms": 500, "health_check_failure_threshold": 2}
         self.cluster = Cluster(
@@ -179,10 +196,20 @@ class LocalCluster:
         )
         self.workers = [self.cluster.add_node(num_cpus=1) for _ in range(self.nodes - 1)]
         ray.init(address=self.cluster.address, log_to_driver=False)  # stdout is the bench's JSON
-        serve.start(http_options={"host": "127.0.0.1", "port": self.port}, proxy_location="HeadOnly")
+        serve.start(
+            http_options={"host": "127.0.0.1", "port": self.port},
+            proxy_location="HeadOnly",  # one HAProxy (the head's): every node's would want the same port here
+            **({"controller_options": {"runtime_env": {"env_vars": dict(self.env)}}} if self.env else {}),
+        )
         serve.run(
-            # every client of the benchmark is on loopback: the per-address limit must not apply
-            build_app(self.checkpoint, replicas=self.nodes, max_per_node=1, config=ServeConfig(max_per_address=256)),
+            # every stream comes from HAProxy (and every client is on loopback): no per-address limit
+            build_app(
+                self.checkpoint,
+                replicas=self.nodes,
+                max_per_node=1,
+                config=ServeConfig(max_per_address=256),
+                env=self.env,
+            ),
             name="facecapges",
             route_prefix="/",
         )
@@ -217,10 +244,11 @@ class LocalCluster:
         self._restore()
 
     def _restore(self) -> None:
-        if self._env is None:
-            os.environ.pop(LOCAL_ROUTING, None)
-        else:
-            os.environ[LOCAL_ROUTING] = self._env
+        if self._files is not None:
+            import shutil
+
+            shutil.rmtree(self._files, ignore_errors=True)
+            self._files = None
         if self._stdout is not None:
             import sys
 
@@ -316,6 +344,11 @@ def _trial(url: str, streams: int, seconds: float, messages: list[str]) -> dict:
     }
 
 
+def _held(trial: dict) -> bool:
+    """A trial within the bound: p99 ≤ 50 ms and no frame lost."""
+    return trial["p99_ms"] is not None and trial["p99_ms"] <= P99_TARGET_MS and not trial["lost"]
+
+
 def run(quick: bool, shared: Path) -> dict:
     """One ``serve`` process and the two-node cluster side by side: ``pairs`` interleaved short
     trials of the same clients (one process, then Ray) for the overhead ratio (their median); on a
@@ -323,7 +356,6 @@ def run(quick: bool, shared: Path) -> dict:
     import sys
 
     from facecapges.benchmarks.serving import start_server, stop_server
-    from facecapges.serving.ray_app import THROUGHPUT_ENV
 
     def say(m: str) -> None:
         print(m, file=sys.stderr, flush=True)
@@ -331,7 +363,7 @@ def run(quick: bool, shared: Path) -> dict:
     checkpoint = os.environ.get("FACECAPGES_BENCH_CHECKPOINT")
     streams, seconds = (20, 8.0) if quick else (20, 10.0)
     pairs, trial_s = (1, 3.0) if quick else (3, 4.0)
-    ladder = () if quick else (2, 4, 8, 16, 24, 32)  # streams on the cluster (two nodes)
+    ladder = () if quick else (2, 4, 8, 16, 24, 32, 48, 64)  # streams on the cluster (two nodes)
     load0 = os.getloadavg()[0]
     messages = _messages(shared, int(max(seconds, trial_s) * MODEL_FPS) + 1)
     port = _free_port()
@@ -350,15 +382,18 @@ def run(quick: bool, shared: Path) -> dict:
                 )
             steps = []
             for n in ladder:
-                r = _trial(lc.url, n, trial_s, messages)
-                steps.append(r)
-                say(f"cluster: {n} streams on 2 nodes: p99 {r['p99_ms']} ms, lost {r['lost']} of {r['sent']}")
-                if r["p99_ms"] is None or r["p99_ms"] > P99_TARGET_MS or r["lost"]:
+                for _ in range(2):  # a step that fails is tried once more: one stall of a shared machine
+                    r = _trial(lc.url, n, trial_s, messages)
+                    steps.append(r)
+                    say(f"cluster: {n} streams on 2 nodes: p99 {r['p99_ms']} ms, lost {r['lost']} of {r['sent']}")
+                    if _held(r):
+                        break
+                if not _held(r):
                     break
             fo = failover(shared, streams, seconds, kill_at=seconds * 0.4, checkpoint=checkpoint, say=say, cluster=lc)
     finally:
         stop_server(proc)
-    held = [r["streams"] for r in steps if r["p99_ms"] is not None and r["p99_ms"] <= P99_TARGET_MS and not r["lost"]]
+    held = [r["streams"] for r in steps if _held(r)]
     if not ladder:  # quick: the failover's trial before the kill
         ok = fo["p99_all_before_ms"] is not None and fo["p99_all_before_ms"] <= P99_TARGET_MS
         held = [streams] if ok else []
@@ -373,6 +408,5 @@ def run(quick: bool, shared: Path) -> dict:
         "failover_s": fo["failover_s_max"],
         "handover_pops": fo["handover"]["pops"],
         "loadavg": [round(load0, 1), round(os.getloadavg()[0], 1)],
-        # Ray Serve's opt-in throughput settings, if this run's environment set them (the nodes inherit it)
-        "ray_serve_env": {k: os.environ[k] for k in THROUGHPUT_ENV if k in os.environ},
+        "ingress": "haproxy",  # serve --ray's (serving/ray_app.py, INGRESS_ENV)
     }

