@@ -76,6 +76,52 @@ def _cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+# what each thread of ``live`` does, by its OS name (:mod:`facecapges.runtime.os_threads`; MediaPipe and FFmpeg
+# name theirs); the process's first thread is the scheduler's
+THREAD_ROLES = {
+    "main": "scheduler: capture (frame to RGB, MediaPipe's call and results, head pose, estimator), engine, outputs",
+    "drishti": "MediaPipe's graph (the landmarker's inference)",
+    "av:": "FFmpeg's video decoding threads",
+    "upsample": "the 30 Hz output ticks (blend, VMC send, viewer message)",
+    "viewer-server": "the viewer's WebSocket server (sends the feed)",
+    "python": "unnamed threads (OpenCV's or BLAS's pools; the base's own threads before they were named)",
+}
+
+
+def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Each thread of process ``pid``: (its name, ``main`` for the first; its user + system CPU seconds)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            comm = (task / "comm").read_text().strip()
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        tid = int(task.name)
+        out[tid] = ("main" if tid == pid else comm, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"))
+    return out
+
+
+def _cpu_by_thread(before: dict, after: dict, wall_s: float) -> dict:
+    """CPU per thread name over ``wall_s`` (threads of one name summed; the FFmpeg ones as ``av:…``):
+    share of a core and ms per model frame."""
+    by: dict[str, list[float]] = {}
+    for tid, (name, cpu) in after.items():
+        key = "av:" if name.startswith("av:") else name
+        slot = by.setdefault(key, [0.0, 0])
+        slot[0] += cpu - before.get(tid, (name, 0.0))[1]
+        slot[1] += 1
+    rows = sorted(by.items(), key=lambda kv: -kv[1][0])
+    return {
+        k: {
+            "threads": int(n),
+            "share_of_core": round(c / wall_s, 3),
+            "ms_per_frame": round(c * 1000.0 / wall_s / FPS, 2),
+        }
+        for k, (c, n) in rows
+    }
+
+
 def _status_mb(pid: int, key: str) -> float:
     with open(f"/proc/{pid}/status") as f:
         for line in f:
@@ -188,11 +234,11 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
             raise RuntimeError(f"live ended before starting: {(workdir / 'live.stderr').read_text()[-2000:]}")
         start_s = time.monotonic() - t_launch
         time.sleep(WARMUP_S)
-        c0, t0 = _cpu_s(p.pid), time.monotonic()
+        th0, c0, t0 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         while time.monotonic() < t0 + seconds:
             time.sleep(0.5)
             rss.append(_status_mb(p.pid, "VmRSS"))
-        c1, t1 = _cpu_s(p.pid), time.monotonic()
+        th1, c1, t1 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         peak = _status_mb(p.pid, "VmHWM")
         p.stdout.read()
         p.wait(timeout=60)
@@ -211,6 +257,7 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
     return {
         "start_s": round(start_s, 1),
         "cpu_share_of_core": round((c1 - c0) / (t1 - t0), 3),
+        "cpu_by_thread": _cpu_by_thread(th0, th1, t1 - t0),
         "rss_mb": {"steady_max": round(max(rss), 1), "last": round(rss[-1], 1), "peak": round(peak, 1)},
         "report": rep,
         "vmc_received": vmc,
