@@ -11,12 +11,17 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
 
 * ``cpu_share_of_core`` — the process's CPU time (``/proc/PID/stat``: user + system, all
   threads) over the wall time: 1.0 is one core;
+* ``cpu_by_thread`` — the same CPU per thread of ``live``, by the threads' OS names (our threads name
+  themselves, :mod:`facecapges.runtime.os_threads`; MediaPipe's ``drishti`` and FFmpeg's ``av:…`` threads
+  name theirs; ``main`` is the scheduler's), threads of one name summed: ``share_of_core`` and
+  ``ms_per_frame`` (per 15 fps model frame); what each one does: :data:`THREAD_ROLES` (``thread_roles``);
 * ``rss_mb`` — its resident set sampled every 0.5 s (``steady_max``, ``last``) and its
   peak (``VmHWM``: start-up included);
 * ``per_frame_ms`` — the scheduler's stages (``report.json``): ``input`` (reading and
   decoding the video frame), ``capture`` (MediaPipe + our head pose and expression
   estimator; ``landmarks`` is MediaPipe's part), ``features``, ``model`` (the engine's
-  step), ``output`` (head, speech mouth, quaternions and every sink's ``write``), with
+  step), ``output`` (head, speech mouth, quaternions and every sink's ``write``; ``input_cpu``,
+  ``capture_cpu``, ``model_cpu``, ``output_cpu``: the scheduler thread's CPU time in each), with
   each sink's own ``write`` under ``sink_ms`` and the upsampler's work per 30 Hz tick
   (blend + VMC send + viewer) under ``upsampler_tick_ms``; ``model_cpu``,
   ``output_cpu`` and ``upsampler_tick_cpu_ms`` are the same in the threads' CPU time
@@ -84,7 +89,8 @@ THREAD_ROLES = {
     "av:": "FFmpeg's video decoding threads",
     "upsample": "the 30 Hz output ticks (blend, VMC send, viewer message)",
     "viewer-server": "the viewer's WebSocket server (sends the feed)",
-    "python": "unnamed threads (OpenCV's or BLAS's pools; the base's own threads before they were named)",
+    "libuv-worker": "uvloop's worker pool (the viewer server's loop; idle while it serves)",
+    "python": "unnamed threads (MediaPipe's helpers, the BLAS pool; before 2026-12-04 also our own threads)",
 }
 
 
@@ -432,7 +438,8 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         floor = landmarker_run(video, seconds)
         body = _body_or_error(shared, seconds, Path(tmp) / "body", quick)
     rep = live.pop("report")
-    names = ("input", "capture", "landmarks", "features", "model", "output", "total", "model_cpu", "output_cpu")
+    names = ("input", "capture", "landmarks", "features", "model", "output", "total")
+    names += ("input_cpu", "capture_cpu", "model_cpu", "output_cpu")
     stages = {s: _stage(rep, s) for s in names}
     ticks = rep.get("output", {}).get("tick_ms", {})
     tick_cpu = rep.get("output", {}).get("tick_cpu_ms", {"p50": 0.0, "mean": 0.0})
@@ -453,6 +460,7 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         "upsampler_tick_ms": ticks,
         "upsampler_tick_cpu_ms": tick_cpu,
         "engine_and_outputs_cpu_ms_per_frame": engine_outputs,
+        "thread_roles": THREAD_ROLES,
         "events": rep["events"],
         "frames": rep["frames"],
         "landmarker": floor,
