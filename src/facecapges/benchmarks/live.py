@@ -30,7 +30,9 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
 ``landmarker`` is the floor: the MediaPipe face landmarker alone (the same model, VIDEO
 mode, the options :class:`~facecapges.capture.landmarks.LandmarkDetector` sets) in its
 own process on the same clip's frames, decoded and converted to RGB beforehand, paced at
-15 fps for the same time: no code of ours can use less CPU than that on this machine.
+15 fps for the same time, through MediaPipe's Python API (``detect_for_video``): the model's own cost on this
+machine. (``live`` reads the task's C results without that API's Python objects, so its capture pays a
+little less than the floor's Python side: ``capture.landmarks._raw_results``.)
 
 Targets (issue 36): ``live``'s CPU at most 1.3× the landmarker's
 (``cpu_ratio_to_landmarker``), ``rss_mb.steady_max`` ≤ 500 MB, the engine and the

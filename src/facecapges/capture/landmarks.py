@@ -167,7 +167,7 @@ def _c_array(ptr, n: int, dtype: np.dtype) -> np.ndarray:
 
 
 def _has_raw_results(task) -> bool:
-    """Whether this MediaPipe's face landmarker is the ctypes one :func:`_raw_results` reads (0.10.30 on)."""
+    """Whether this MediaPipe's face landmarker is the ctypes one :func:`_raw_results` reads (the pinned 1.2.2 is)."""
     (fl,) = _mediapipe("mediapipe.tasks.python.vision.face_landmarker")
     return all(hasattr(task, a) for a in ("_lib", "_handle")) and hasattr(fl, "MpFaceLandmarkerResultC")
 
