@@ -39,6 +39,21 @@ def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video)
     assert m["max_abs_diff_naive"] < 1e-4
     assert m["step_with_euler_ms_p50"] >= m["step_ms_p50"] > 0
     assert doc["serve"]["trials"] and doc["serve"]["trials"][0]["frames_returned"] > 0
+    assert {"main", "viewer-server", "upsample"} <= set(doc["live"]["cpu_by_thread"])  # live's threads, by name
+
+
+def test_bench_live_sums_cpu_per_thread_name():
+    """``bench --only live``'s ``cpu_by_thread``: each thread's CPU over the window, threads of one name summed
+    (FFmpeg's ``av:…`` as one), the process's first thread as ``main``, a thread born meanwhile counted from 0."""
+    from facecapges.benchmarks.live import FPS, _cpu_by_thread
+
+    before = {10: ("main", 1.0), 11: ("drishti", 2.0), 12: ("drishti", 0.5), 13: ("av:h264:df0", 0.1)}
+    after = {10: ("main", 1.6), 11: ("drishti", 2.5), 12: ("drishti", 1.0), 13: ("av:h264:df0", 0.2),
+             14: ("av:h264:df1", 0.1)}
+    got = _cpu_by_thread(before, after, 2.0)
+    assert list(got) == ["drishti", "main", "av:"]  # most CPU first
+    assert got["drishti"] == {"threads": 2, "share_of_core": 0.5, "ms_per_frame": round(1000.0 / 2.0 / FPS, 2)}
+    assert got["main"]["share_of_core"] == 0.3 and got["av:"]["threads"] == 2 and got["av:"]["share_of_core"] == 0.1
 
 
 def test_bench_table_is_one_short_value_per_row():

@@ -42,6 +42,36 @@ def test_procrustes_recovers_a_similarity(a, b, c, s):
     np.testing.assert_allclose(t2, t, atol=1e-8)
 
 
+def _procrustes_reference(src, dst, weights, with_scale):
+    """:func:`procrustes` as written before :class:`SourceFit` (both sides computed every call)."""
+    w = np.ones(len(src)) if weights is None else np.asarray(weights, np.float64)
+    w = w / w.sum()
+    mu_s, mu_d = w @ src, w @ dst
+    a, b = src - mu_s, dst - mu_d
+    u, sig, vt = np.linalg.svd((b * w[:, None]).T @ a)
+    d = np.sign(np.linalg.det(u @ vt)) or 1.0
+    D = np.array([1.0, 1.0, d])
+    R = (u * D) @ vt
+    s = float((sig * D).sum() / max(float(w @ (a * a).sum(axis=1)), 1e-12)) if with_scale else 1.0
+    return s, R, mu_d - s * R @ mu_s
+
+
+@pytest.mark.parametrize("with_scale", [True, False])
+@pytest.mark.parametrize("weighted", [True, False])
+def test_procrustes_with_a_source_fit_keeps_the_bits(with_scale, weighted):
+    """A :class:`SourceFit` made once (the head pose's canonical basis) gives the same bits as the fit computed
+    whole each call, with or without it, with or without weights and scale."""
+    rng = np.random.default_rng(3)
+    src = rng.normal(size=(40, 3))
+    w = rng.uniform(0.2, 1.0, 40) if weighted else None
+    fit = hp.SourceFit.of(src, w, with_scale)
+    for _ in range(20):
+        dst = rng.uniform(0.5, 2.0) * src @ angles_to_matrix(*rng.uniform(-1, 1, 3)).T + rng.normal(size=(40, 3))
+        ref = _procrustes_reference(src, dst, w, with_scale)
+        for got in (hp.procrustes(src, dst, w, with_scale), hp.procrustes(None, dst, with_scale=with_scale, fit=fit)):
+            assert got[0] == ref[0] and got[1].tobytes() == ref[1].tobytes() and got[2].tobytes() == ref[2].tobytes()
+
+
 def test_head_angles_round_trip_and_signs():
     R = angles_to_matrix(0.3, -0.2, 0.1)
     np.testing.assert_allclose(head_angles(R), [0.3, -0.2, 0.1], atol=1e-12)

@@ -123,3 +123,28 @@ def test_primary_face_follows_a_face_that_jumped(face_video):
             elif not r.face_found:  # MediaPipe may need a frame or two to re-detect
                 assert r.face_id == 0 and k < 6
         assert r.face_found and r.face_id == 1 and 0 in cap.states  # old identity still held
+
+
+def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_video):
+    """The detector reads MediaPipe's C result structs (no Python object per landmark: issue 36): the same
+    landmarks, blendshapes and transforms, to the bit, as MediaPipe's own ``detect_for_video`` gives."""
+    from facecapges.capture.landmarks import LandmarkDetector
+    from facecapges.capture.models import resolve_model
+
+    src = open_source(str(face_video))
+    frames = [f for _, _, f in src.frames(max_frames=20)]
+    src.close()
+    got = []
+    for raw in (False, True):
+        with LandmarkDetector(resolve_model()) as det:
+            if raw:
+                assert det.raw_results  # this MediaPipe has them (the pinned one does)
+            det.raw_results = raw
+            got.append([det.detect(f, int(i * 40)) for i, f in enumerate(frames)])
+    assert sum(len(faces) for faces in got[0]) == 20
+    for public, raw in zip(*got):
+        assert len(public) == len(raw)
+        for a, b in zip(public, raw):
+            assert a.landmarks.dtype == b.landmarks.dtype and a.landmarks.shape == b.landmarks.shape
+            assert a.landmarks.tobytes() == b.landmarks.tobytes() and a.blendshapes.tobytes() == b.blendshapes.tobytes()
+            assert a.transform.tobytes() == b.transform.tobytes()

@@ -33,6 +33,37 @@ def test_file_video_newest_frame_before_deadline_and_loop(face_video):
         v.close()
 
 
+def test_file_video_one_decoding_thread_gives_the_same_frames(face_video):
+    """``decode_threads=1`` (``live --realtime`` on a file): FFmpeg decodes with one thread, the frames are the
+    same bytes as with its own choice of threads, after a loop's reopening too."""
+    import cv2
+
+    a, b = FileVideo(face_video, loop_period_s=1.0), FileVideo(face_video, loop_period_s=1.0, decode_threads=1)
+    try:
+        assert b._src.cap.get(cv2.CAP_PROP_N_THREADS) == 1
+        for k in range(1, 25):  # 1.6 s at 15 fps: across the loop's end
+            fa, fb = a.next_frame(k / 15), b.next_frame(k / 15)
+            assert fa.ts_s == fb.ts_s and np.array_equal(fa.image, fb.image)
+        assert a.loops == b.loops == 1 and b._src.cap.get(cv2.CAP_PROP_N_THREADS) == 1
+    finally:
+        a.close()
+        b.close()
+
+
+def test_session_runs_opencv_on_one_thread_and_restores_it(face_video):
+    import cv2
+
+    from facecapges.runtime.session import build_session
+
+    before = cv2.getNumThreads()
+    sess = build_session(checkpoint(), video=face_video, silent_ok=True)
+    try:
+        assert cv2.getNumThreads() == 1
+    finally:
+        sess.close()
+    assert cv2.getNumThreads() == before
+
+
 def test_file_video_drop_reads_past_due_frames_across_a_loop(face_video):
     """What the scheduler does behind the clock: every frame due is passed over (not handed out), the next
     one still comes, on the stream clock; across the loop's end too."""

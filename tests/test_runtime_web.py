@@ -79,7 +79,8 @@ def test_websocket_feed_and_oversized_message(live):
     from websockets.sync.client import connect
 
     ws_url = live["url"].replace("http://", "ws://") + "ws"
-    with connect(ws_url, max_size=None) as ws:
+    with connect(ws_url, max_size=None) as ws:  # the client offers permessage-deflate; the feed declines it
+        assert ws.response.headers.get("Sec-WebSocket-Extensions") is None
         hello = json.loads(ws.recv(timeout=10))
         assert hello["type"] == "hello" and hello["protocol"] == protocol.PROTOCOL
         assert len(hello["joints"]) == 47 and len(hello["blendshapes"]) == 52
@@ -107,6 +108,16 @@ def test_websocket_feed_and_oversized_message(live):
             for _ in range(200):
                 ws.recv(timeout=10)
         assert ws.protocol.close_rcvd.code == 1009  # message too big
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="thread names are read from Linux's /proc")
+def test_live_threads_are_named_and_a_realtime_file_has_one_decoder(live):
+    """The threads of ``live`` tell what they do (``bench --only live`` reads their CPU by name), and a file
+    played in real time is decoded in the scheduler's thread: no FFmpeg decoding threads (``av:…``)."""
+    pid = live["proc"].pid
+    names = {(t / "comm").read_text().strip() for t in Path(f"/proc/{pid}/task").iterdir()}
+    assert "viewer-server" in names
+    assert not any(n.startswith("av:") for n in names), names
 
 
 @pytest.mark.slow

@@ -11,12 +11,17 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
 
 * ``cpu_share_of_core`` — the process's CPU time (``/proc/PID/stat``: user + system, all
   threads) over the wall time: 1.0 is one core;
+* ``cpu_by_thread`` — the same CPU per thread of ``live``, by the threads' OS names (our threads name
+  themselves, :mod:`facecapges.runtime.os_threads`; MediaPipe's ``drishti`` and FFmpeg's ``av:…`` threads
+  name theirs; ``main`` is the scheduler's), threads of one name summed: ``share_of_core`` and
+  ``ms_per_frame`` (per 15 fps model frame); what each one does: :data:`THREAD_ROLES` (``thread_roles``);
 * ``rss_mb`` — its resident set sampled every 0.5 s (``steady_max``, ``last``) and its
   peak (``VmHWM``: start-up included);
 * ``per_frame_ms`` — the scheduler's stages (``report.json``): ``input`` (reading and
   decoding the video frame), ``capture`` (MediaPipe + our head pose and expression
   estimator; ``landmarks`` is MediaPipe's part), ``features``, ``model`` (the engine's
-  step), ``output`` (head, speech mouth, quaternions and every sink's ``write``), with
+  step), ``output`` (head, speech mouth, quaternions and every sink's ``write``; ``input_cpu``,
+  ``capture_cpu``, ``model_cpu``, ``output_cpu``: the scheduler thread's CPU time in each), with
   each sink's own ``write`` under ``sink_ms`` and the upsampler's work per 30 Hz tick
   (blend + VMC send + viewer) under ``upsampler_tick_ms``; ``model_cpu``,
   ``output_cpu`` and ``upsampler_tick_cpu_ms`` are the same in the threads' CPU time
@@ -25,7 +30,9 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
 ``landmarker`` is the floor: the MediaPipe face landmarker alone (the same model, VIDEO
 mode, the options :class:`~facecapges.capture.landmarks.LandmarkDetector` sets) in its
 own process on the same clip's frames, decoded and converted to RGB beforehand, paced at
-15 fps for the same time: no code of ours can use less CPU than that on this machine.
+15 fps for the same time, through MediaPipe's Python API (``detect_for_video``): the model's own cost on this
+machine. (``live`` reads the task's C results without that API's Python objects, so its capture pays a
+little less than the floor's Python side: ``capture.landmarks._raw_results``.)
 
 Targets (issue 36): ``live``'s CPU at most 1.3× the landmarker's
 (``cpu_ratio_to_landmarker``), ``rss_mb.steady_max`` ≤ 500 MB, the engine and the
@@ -74,6 +81,53 @@ def _cpu_s(pid: int) -> float:
     with open(f"/proc/{pid}/stat") as f:
         fields = f.read().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+# what each thread of ``live`` does, by its OS name (:mod:`facecapges.runtime.os_threads`; MediaPipe and FFmpeg
+# name theirs); the process's first thread is the scheduler's
+THREAD_ROLES = {
+    "main": "scheduler: capture (frame to RGB, MediaPipe's call and results, head pose, estimator), engine, outputs",
+    "drishti": "MediaPipe's graph (the landmarker's inference)",
+    "av:": "FFmpeg's video decoding threads",
+    "upsample": "the 30 Hz output ticks (blend, VMC send, viewer message)",
+    "viewer-server": "the viewer's WebSocket server (sends the feed)",
+    "libuv-worker": "uvloop's worker pool (the viewer server's loop; idle while it serves)",
+    "python": "unnamed threads (MediaPipe's helpers, the BLAS pool; before 2026-12-04 also our own threads)",
+}
+
+
+def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
+    """Each thread of process ``pid``: (its name, ``main`` for the first; its user + system CPU seconds)."""
+    out = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            comm = (task / "comm").read_text().strip()
+            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+        except OSError:  # ended meanwhile
+            continue
+        tid = int(task.name)
+        out[tid] = ("main" if tid == pid else comm, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"))
+    return out
+
+
+def _cpu_by_thread(before: dict, after: dict, wall_s: float) -> dict:
+    """CPU per thread name over ``wall_s`` (threads of one name summed; the FFmpeg ones as ``av:…``):
+    share of a core and ms per model frame."""
+    by: dict[str, list[float]] = {}
+    for tid, (name, cpu) in after.items():
+        key = "av:" if name.startswith("av:") else name
+        slot = by.setdefault(key, [0.0, 0])
+        slot[0] += cpu - before.get(tid, (name, 0.0))[1]
+        slot[1] += 1
+    rows = sorted(by.items(), key=lambda kv: -kv[1][0])
+    return {
+        k: {
+            "threads": int(n),
+            "share_of_core": round(c / wall_s, 3),
+            "ms_per_frame": round(c * 1000.0 / wall_s / FPS, 2),
+        }
+        for k, (c, n) in rows
+    }
 
 
 def _status_mb(pid: int, key: str) -> float:
@@ -188,11 +242,11 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
             raise RuntimeError(f"live ended before starting: {(workdir / 'live.stderr').read_text()[-2000:]}")
         start_s = time.monotonic() - t_launch
         time.sleep(WARMUP_S)
-        c0, t0 = _cpu_s(p.pid), time.monotonic()
+        th0, c0, t0 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         while time.monotonic() < t0 + seconds:
             time.sleep(0.5)
             rss.append(_status_mb(p.pid, "VmRSS"))
-        c1, t1 = _cpu_s(p.pid), time.monotonic()
+        th1, c1, t1 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         peak = _status_mb(p.pid, "VmHWM")
         p.stdout.read()
         p.wait(timeout=60)
@@ -211,6 +265,7 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
     return {
         "start_s": round(start_s, 1),
         "cpu_share_of_core": round((c1 - c0) / (t1 - t0), 3),
+        "cpu_by_thread": _cpu_by_thread(th0, th1, t1 - t0),
         "rss_mb": {"steady_max": round(max(rss), 1), "last": round(rss[-1], 1), "peak": round(peak, 1)},
         "report": rep,
         "vmc_received": vmc,
@@ -385,7 +440,8 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         floor = landmarker_run(video, seconds)
         body = _body_or_error(shared, seconds, Path(tmp) / "body", quick)
     rep = live.pop("report")
-    names = ("input", "capture", "landmarks", "features", "model", "output", "total", "model_cpu", "output_cpu")
+    names = ("input", "capture", "landmarks", "features", "model", "output", "total")
+    names += ("input_cpu", "capture_cpu", "model_cpu", "output_cpu")
     stages = {s: _stage(rep, s) for s in names}
     ticks = rep.get("output", {}).get("tick_ms", {})
     tick_cpu = rep.get("output", {}).get("tick_cpu_ms", {"p50": 0.0, "mean": 0.0})
@@ -406,6 +462,7 @@ def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
         "upsampler_tick_ms": ticks,
         "upsampler_tick_cpu_ms": tick_cpu,
         "engine_and_outputs_cpu_ms_per_frame": engine_outputs,
+        "thread_roles": THREAD_ROLES,
         "events": rep["events"],
         "frames": rep["frames"],
         "landmarker": floor,

@@ -60,8 +60,34 @@ from facecapges import rotations as rot
 DEFAULT_VFOV_DEG = 63.0  # MediaPipe's geometry pipeline default
 
 
+@dataclass(frozen=True)
+class SourceFit:
+    """The source side of :func:`procrustes`, worked out once for a source that does not change between fits (the
+    canonical mesh's Procrustes basis, fitted twice a frame): the points, the normalised weights, their weighted
+    mean, the centred points and (``with_scale``) their weighted variance. A fit given it computes only the
+    destination's side, with the same bits as computing both each time."""
+
+    src: np.ndarray  # (N, 3)
+    w: np.ndarray  # (N,) weights / their sum
+    mu: np.ndarray  # (3,) w @ src
+    a: np.ndarray  # (N, 3) src - mu
+    var: float | None  # w @ |a|², when the fit has a scale
+
+    @classmethod
+    def of(cls, src: np.ndarray, weights: np.ndarray | None = None, with_scale: bool = True) -> SourceFit:
+        w = np.ones(len(src)) if weights is None else np.asarray(weights, np.float64)
+        w = w / w.sum()
+        mu = w @ src
+        a = src - mu
+        return cls(src, w, mu, a, float(w @ (a * a).sum(axis=1)) if with_scale else None)
+
+
 def procrustes(
-    src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None, with_scale: bool = True
+    src: np.ndarray | None,
+    dst: np.ndarray,
+    weights: np.ndarray | None = None,
+    with_scale: bool = True,
+    fit: SourceFit | None = None,
 ) -> tuple[float, np.ndarray, np.ndarray]:
     """Weighted similarity alignment ``dst ≈ s · R @ src + t`` (Umeyama 1991).
 
@@ -69,16 +95,18 @@ def procrustes(
         src, dst: (N, 3) corresponding points.
         weights: (N,) non-negative, or None for equal weights.
         with_scale: fit ``s``; else ``s = 1`` (rigid Kabsch).
+        fit: ``SourceFit.of(src, weights, with_scale)`` made beforehand (``src`` and ``weights`` are then
+            not used): the same result, without redoing the source's side.
     Returns:
         ``(s, R (3, 3), t (3,))`` with ``det R = +1``.
     """
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, np.float64)
-    w = w / w.sum()
-    mu_s = w @ src
+    if fit is None:
+        assert src is not None
+        fit = SourceFit.of(src, weights, with_scale)
+    w = fit.w
     mu_d = w @ dst
-    a = src - mu_s
     b = dst - mu_d
-    cov = (b * w[:, None]).T @ a  # (3, 3) = Σ w b aᵀ
+    cov = (b * w[:, None]).T @ fit.a  # (3, 3) = Σ w b aᵀ
     u, sig, vt = np.linalg.svd(cov)
     d = np.sign(np.linalg.det(u @ vt))
     if d == 0:
@@ -86,11 +114,11 @@ def procrustes(
     D = np.array([1.0, 1.0, d])
     R = (u * D) @ vt
     if with_scale:
-        var_s = float(w @ (a * a).sum(axis=1))
+        var_s = fit.var if fit.var is not None else float(w @ (fit.a * fit.a).sum(axis=1))
         s = float((sig * D).sum() / max(var_s, 1e-12))
     else:
         s = 1.0
-    t = mu_d - s * R @ mu_s
+    t = mu_d - s * R @ fit.mu
     return s, R, t
 
 
@@ -122,10 +150,12 @@ def landmarks_to_camera(
     weights: np.ndarray,
     ids: np.ndarray,
     K: Intrinsics | None = None,
+    fit: SourceFit | None = None,
 ) -> np.ndarray:
     """Normalised MediaPipe landmarks (N ≥ 468, 3) → camera-frame points (468, 3) in cm.
 
-    See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis.
+    See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis; ``fit``:
+    ``SourceFit.of(canonical[ids], weights)``, made once (:class:`HeadPoseEstimator` does).
     """
     K = K or Intrinsics.default(width, height)
     lm = np.asarray(landmarks[:468], np.float64)
@@ -133,7 +163,7 @@ def landmarks_to_camera(
     py = lm[:, 1] * height
     # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera)
     ortho = np.stack([px, -py, -lm[:, 2] * width], axis=1)
-    s, _, t = procrustes(canonical[ids], ortho[ids], weights)
+    s, _, t = procrustes(None, ortho[ids], fit=fit or SourceFit.of(canonical[ids], weights))
     depth = K.fx / s  # cm from the camera to the fitted head origin
     rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
     z = depth - rel / s  # cm, distance along the optical axis
@@ -182,13 +212,14 @@ class HeadPoseEstimator:
         self.canonical = np.asarray(canonical_vertices, np.float64)
         self.ids = np.asarray(basis_ids)
         self.weights = np.asarray(basis_weights, np.float64)
+        self.fit = SourceFit.of(self.canonical[self.ids], self.weights)  # both fits' source: the same every frame
 
     def estimate(
         self, landmarks: np.ndarray, width: int, height: int, K: Intrinsics | None = None
     ) -> tuple[HeadPose, np.ndarray]:
         """Pose and the camera-frame points (468, 3) cm of one face."""
-        pts = landmarks_to_camera(landmarks, width, height, self.canonical, self.weights, self.ids, K)
-        s, R, t = procrustes(self.canonical[self.ids], pts[self.ids], self.weights)
+        pts = landmarks_to_camera(landmarks, width, height, self.canonical, self.weights, self.ids, K, self.fit)
+        s, R, t = procrustes(None, pts[self.ids], fit=self.fit)
         return HeadPose(R, t, s), pts
 
     def to_head_frame(self, pts: np.ndarray, pose: HeadPose) -> np.ndarray:

@@ -20,11 +20,14 @@ Conventions
 
 from __future__ import annotations
 
+import ctypes
 import os
 import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
+from itertools import chain
+from operator import attrgetter
 
 import numpy as np
 
@@ -32,6 +35,7 @@ from facecapges.arkit import ARKIT_NAMES, arkit_index
 from facecapges.errors import UserError
 
 N_LANDMARKS = 478
+_XYZ = attrgetter("x", "y", "z")
 
 
 @dataclass
@@ -140,6 +144,67 @@ def mp_image(rgb: np.ndarray):
     return img.Image(image_format=img.ImageFormat.SRGB, data=rgb)
 
 
+def _c_fields(struct, names: tuple[str, ...]) -> np.dtype:
+    """A NumPy dtype reading the float32 fields ``names`` of the ctypes ``struct`` in place (its other fields,
+    pointers among them, skipped by the offsets)."""
+    return np.dtype(
+        {
+            "names": list(names),
+            "formats": [np.float32] * len(names),
+            "offsets": [getattr(struct, n).offset for n in names],
+            "itemsize": ctypes.sizeof(struct),
+        }
+    )
+
+
+def _c_array(ptr, n: int, dtype: np.dtype) -> np.ndarray:
+    """The ``dtype`` fields of ``n`` structs at ``ptr`` as an (n, fields) float32 copy."""
+    if n == 0:
+        return np.zeros((0, len(dtype.names or ())), np.float32)
+    raw = np.ctypeslib.as_array(ctypes.cast(ptr, ctypes.POINTER(ctypes.c_uint8)), shape=(n * dtype.itemsize,))
+    rows = raw.view(dtype)
+    return np.stack([rows[f] for f in dtype.names or ()], axis=1)
+
+
+def _has_raw_results(task) -> bool:
+    """Whether this MediaPipe's face landmarker is the ctypes one :func:`_raw_results` reads (the pinned 1.2.2 is)."""
+    (fl,) = _mediapipe("mediapipe.tasks.python.vision.face_landmarker")
+    return all(hasattr(task, a) for a in ("_lib", "_handle")) and hasattr(fl, "MpFaceLandmarkerResultC")
+
+
+def _raw_results(task, image, ts: int, want_names: bool = False) -> list:
+    """``task.detect_for_video(image, ts)``'s faces read from MediaPipe's C result structs: what
+    :meth:`LandmarkDetector._results` makes of the Python result, the same numbers (the structs' float32 are
+    what MediaPipe's Python objects hold as floats), without one Python object per landmark and blendshape
+    (478 + 52 a face: ~1 ms a frame, issue 36). The same C calls as MediaPipe's own ``detect_for_video``."""
+    (fl,) = _mediapipe("mediapipe.tasks.python.vision.face_landmarker")
+    from mediapipe.tasks.python.components.containers import category_c, landmark_c
+
+    result_c = fl.MpFaceLandmarkerResultC()
+    task._lib.MpFaceLandmarkerDetectForVideo(task._handle, image._image_ptr, None, ts, ctypes.byref(result_c))
+    try:
+        xyz = _c_fields(landmark_c.MpNormalizedLandmarkC, ("x", "y", "z"))
+        score = _c_fields(category_c.MpCategoryC, ("score",))
+        out = []
+        for k in range(result_c.face_landmarks_count):
+            lc = result_c.face_landmarks[k]
+            pts = _c_array(lc.landmarks, lc.landmarks_count, xyz)
+            scores, names = None, None
+            if k < result_c.face_blendshapes_count:
+                cc = result_c.face_blendshapes[k]
+                scores = _c_array(cc.categories, cc.categories_count, score)[:, 0].copy()
+                if want_names:  # read while the result is open (the C strings are freed with it)
+                    cats = (cc.categories[j].category_name for j in range(cc.categories_count))
+                    names = [c.decode("utf-8") if c else None for c in cats]
+            m = None
+            if k < result_c.facial_transformation_matrixes_count:
+                m = result_c.facial_transformation_matrixes[k].to_numpy()
+            out.append((pts, scores, names, m))
+        return out
+    finally:
+        task._lib.MpFaceLandmarkerCloseResult(ctypes.byref(result_c))
+
+
 class LandmarkDetector:
     """FaceLandmarker in VIDEO mode. Use as a context manager or call :meth:`close`.
 
@@ -174,15 +239,35 @@ class LandmarkDetector:
         self._last_ts = -1
         self.last_ms = 0.0
         self._bs_map: np.ndarray | None = None
+        # read the results from MediaPipe's C structs (:func:`_raw_results`) where this MediaPipe has them
+        self.raw_results = _has_raw_results(self._task)
 
-    def _blendshape_map(self, categories) -> np.ndarray:
+    def _blendshape_map(self, names) -> np.ndarray:
         # index into MediaPipe's category list for every ARKit name (-1: absent)
         m = np.full(len(ARKIT_NAMES), -1, np.int64)
-        for k, c in enumerate(categories):
-            i = arkit_index(c.category_name or "")
+        for k, name in enumerate(names):
+            i = arkit_index(name or "")
             if i is not None:
                 m[i] = k
         return m
+
+    def _results(self, image, ts: int) -> list[tuple[np.ndarray, np.ndarray | None, list | None, np.ndarray | None]]:
+        """Per face: landmarks (n, 3) float32, blendshape scores (float32) or None, their names (until the
+        blendshape map is made, else None), the transformation matrix or None."""
+        want_names = self._bs_map is None
+        if self.raw_results:
+            return _raw_results(self._task, image, ts, want_names)
+        res = self._task.detect_for_video(image, ts)
+        out = []
+        for k, lms in enumerate(res.face_landmarks):
+            # x, y, z of each landmark straight into float32 (the same rounding as np.array of (x, y, z) tuples)
+            pts = np.fromiter(chain.from_iterable(map(_XYZ, lms)), np.float32, 3 * len(lms)).reshape(-1, 3)
+            cats = res.face_blendshapes[k] if k < len(res.face_blendshapes) else None
+            scores = np.array([c.score for c in cats], np.float32) if cats is not None else None
+            names = [c.category_name for c in cats] if cats is not None and want_names else None
+            mats = res.facial_transformation_matrixes
+            out.append((pts, scores, names, mats[k] if k < len(mats) else None))
+        return out
 
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
         """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
@@ -197,21 +282,15 @@ class LandmarkDetector:
         rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
         image = mp_image(np.ascontiguousarray(rgb))
         t0 = time.perf_counter()
-        res = self._task.detect_for_video(image, ts)
         faces = []
-        for k, lms in enumerate(res.face_landmarks):
-            pts = np.array([(p.x, p.y, p.z) for p in lms], np.float32)
+        for pts, scores, names, matrix in self._results(image, ts):
             bs = np.zeros(len(ARKIT_NAMES), np.float32)
-            if k < len(res.face_blendshapes):
-                cats = res.face_blendshapes[k]
+            if scores is not None:
                 if self._bs_map is None:
-                    self._bs_map = self._blendshape_map(cats)
-                scores = np.array([c.score for c in cats], np.float32)
+                    self._bs_map = self._blendshape_map(names or [])
                 ok = self._bs_map >= 0
                 bs[ok] = scores[self._bs_map[ok]]
-            tf = None
-            if k < len(res.facial_transformation_matrixes):
-                tf = np.asarray(res.facial_transformation_matrixes[k], np.float64).reshape(4, 4)
+            tf = None if matrix is None else np.asarray(matrix, np.float64).reshape(4, 4)
             faces.append(FaceObservation(pts, bs, tf))
         self.last_ms = (time.perf_counter() - t0) * 1000.0  # model + result conversion
         return faces

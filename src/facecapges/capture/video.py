@@ -88,8 +88,22 @@ def _quiet_opencv() -> None:
         pass
 
 
-def open_source(source: str | int) -> FrameSource:
-    """Open a video file or a camera index (see the module docstring)."""
+def open_file(path: str | Path, decode_threads: int | None = None) -> cv2.VideoCapture:
+    """OpenCV's reader of the video file ``path``; ``decode_threads``: how many threads FFmpeg decodes it with
+    (None: FFmpeg's choice, a thread per core and more). A file played at its frame rate (``live --realtime``)
+    needs one: at 15 fps of 512² the extra threads only add their hand-overs (docs/performance.md)."""
+    import cv2
+
+    if decode_threads is not None:
+        cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG, [cv2.CAP_PROP_N_THREADS, int(decode_threads)])
+        if cap.isOpened():
+            return cap
+        cap.release()  # no FFmpeg backend: whichever OpenCV has, with its own threads
+    return cv2.VideoCapture(str(path))
+
+
+def open_source(source: str | int, decode_threads: int | None = None) -> FrameSource:
+    """Open a video file or a camera index (see the module docstring); ``decode_threads``: :func:`open_file`."""
     _quiet_opencv()
     import cv2
 
@@ -110,7 +124,7 @@ def open_source(source: str | int) -> FrameSource:
     p = Path(s)
     if not p.is_file():
         raise file_error(p, "video not found")
-    cap = cv2.VideoCapture(str(p))
+    cap = open_file(p, decode_threads)
     if not cap.isOpened():
         raise file_error(p, "cannot be read as a video")
     ok, frame = cap.read()
@@ -123,7 +137,7 @@ def open_source(source: str | int) -> FrameSource:
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0) or None
     h, w = frame.shape[:2]
     cap.release()
-    cap = cv2.VideoCapture(str(p))  # reopen rather than seek: seeking is unreliable for some codecs
+    cap = open_file(p, decode_threads)  # reopen rather than seek: seeking is unreliable for some codecs
     return FrameSource(cap, str(p), fps, n, w, h, False)
 
 

@@ -80,11 +80,15 @@ STAGES = (
     "output_cpu",
     "body",
     "body_mix",
+    "input_cpu",
+    "capture_cpu",
 )
 # ``input``: reading/decoding the video frame (not in ``total``); ``landmarks``: MediaPipe's part of ``capture``;
-# ``model_cpu``, ``output_cpu``: those stages' CPU time on the scheduler's thread (``time.thread_time``: what
-# they cost, without the time the machine gave to others meanwhile); ``body`` (``live --body``): the body
-# landmarkers and solve, part of ``capture``; ``body_mix``: the arms' hand-over, part of ``output``
+# ``model_cpu``, ``output_cpu``, ``input_cpu``, ``capture_cpu``: those stages' CPU time on the scheduler's thread
+# (``time.thread_time``: what they cost, without the time the machine gave to others meanwhile; MediaPipe's graph
+# runs in threads of its own, so ``capture_cpu`` is the frame's conversion, MediaPipe's Python side and ours);
+# ``body`` (``live --body``): the body landmarkers and solve, part of ``capture``; ``body_mix``: the arms'
+# hand-over, part of ``output``
 
 
 class FaceHold:
@@ -266,6 +270,7 @@ class Scheduler:
         self.last_video_frame = None  # the frame capture saw last (for side-by-side video)
         self._stage: dict[str, float] = {}  # the current frame's stage times
         self._t_input = 0.0
+        self._c_input = 0.0  # the scheduler thread's CPU clock then
         for st in self.streams:
             st.gen.reset()
 
@@ -307,14 +312,15 @@ class Scheduler:
         the frames due are dropped unprocessed)."""
         n = len(self.streams)
         if self.video is not None:
-            t = time.perf_counter()
+            t, c = time.perf_counter(), time.thread_time()
             if behind:
                 self.events["camera_frames_dropped"] += self.video.drop(deadline)
                 vf = None
             else:
                 vf = self.video.next_frame(deadline)
-            self._t_input = time.perf_counter()
+            self._t_input, self._c_input = time.perf_counter(), time.thread_time()
             self._stage["input"] = (self._t_input - t) * 1000.0
+            self._stage["input_cpu"] = (self._c_input - c) * 1000.0
             if vf is None:
                 return [None] * n
             self.last_video_frame = vf
@@ -408,15 +414,17 @@ class Scheduler:
         now, behind = self._wait(deadline)
         stage: dict[str, float] = {}
         self._stage = stage
-        t_start = time.perf_counter()
+        t_start, c_start = time.perf_counter(), time.thread_time()
         # 1. capture (behind the clock: the camera's frames are dropped, the model still gets this frame's audio)
         if self.video is not None or self.face_feed is not None:
+            self._c_input = c_start
             samples = self._capture(deadline, behind)
-            t_start = self._t_input  # reading/decoding the frame is input, not compute
+            t_start, c_start = self._t_input, self._c_input  # reading/decoding the frame is input, not compute
         else:
             samples = [None] * len(self.streams)
         t1 = time.perf_counter()
         stage["capture"] = (t1 - t_start) * 1000.0
+        stage["capture_cpu"] = (time.thread_time() - c_start) * 1000.0
         # 2. features: this frame's audio, face and head, with fallbacks
         inputs = self._inputs(k, self._frame_audio(k, now), samples, deadline)
         t2 = time.perf_counter()

@@ -39,6 +39,7 @@ class Session:
     thread_limit: Any = (
         None  # one BLAS (and torch, if loaded) thread for the session (engine/threads.py); close() restores
     )
+    opencv_threads: int | None = None  # OpenCV's thread count before the session set it to one; close() restores
     generators: list = field(default_factory=list)  # one per face, in face order
     body: LiveBody | None = None  # live --body: the body capture and the arms' hand-over
 
@@ -75,6 +76,11 @@ class Session:
         if self.thread_limit is not None:  # the process's settings, as they were before the session
             self.thread_limit.restore_original_limits()
             self.thread_limit = None
+        if self.opencv_threads is not None:
+            import cv2
+
+            cv2.setNumThreads(self.opencv_threads)
+            self.opencv_threads = None
         if errors:
             raise errors[0]
         return written
@@ -164,12 +170,15 @@ def _check_body(livelink, faces: int) -> None:
     model_path(POSE_TASK), model_path(HAND_TASK)  # not built (make setup): one error line now
 
 
-def _open_video(sess: Session, video, camera, livelink, depth_dir, intrinsics, host: str) -> None:
-    """The visual source, first: a camera that cannot open is reported before anything else."""
+def _open_video(sess: Session, video, camera, livelink, depth_dir, intrinsics, host: str, realtime: bool) -> None:
+    """The visual source, first: a camera that cannot open is reported before anything else. A file played in
+    real time is decoded by one thread (FFmpeg's default, a thread per core and more, only adds hand-overs at a
+    camera's rate: issue 36, docs/performance.md); offline (``run``) FFmpeg chooses."""
     from facecapges.runtime.inputs import sources as S
 
     if video is not None:
-        sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics)
+        threads = 1 if realtime else None
+        sess.video = S.FileVideo(video, depth_dir=depth_dir, intrinsics=intrinsics, decode_threads=threads)
     elif camera is not None:
         sess.video = S.CameraVideo(camera)
     elif livelink is not None:  # one input was chosen by check_inputs
@@ -206,6 +215,12 @@ def _open_capture(sess: Session, estimator: str, faces: int) -> None:
 
     assert sess.video is not None
     resolve_model(None)
+    import cv2
+
+    # one OpenCV thread: a frame's colour conversion is a fraction of a millisecond, and handing it to a pool
+    # thread and back cost more CPU than it saved (issue 36); restored by Session.close
+    sess.opencv_threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
     file_video = sess.video if isinstance(sess.video, S.FileVideo) else None
     K = file_video.intrinsics if file_video is not None else None
     sess.capture = FaceCapture(estimator=estimator, fps=sess.video.fps, intrinsics=K, num_faces=int(faces))
@@ -301,7 +316,7 @@ def build_session(
     sess = Session(checkpoint=checkpoint, faces=int(faces))
     sess.thread_limit = limit_threads(1)  # NumPy's products alike (engine/threads.py)
     try:
-        _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host)
+        _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host, realtime)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
         if sess.video is not None:
             _open_capture(sess, estimator, faces)

@@ -81,6 +81,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges.arkit import N_BLENDSHAPES, arkit_index
+from facecapges.runtime.os_threads import name_os_thread
 
 DEFAULT_PORT = 11111
 VERSION = 6
@@ -301,6 +302,7 @@ class LiveLinkReceiver:
         self._thread.start()
 
     def _run(self) -> None:
+        name_os_thread("livelink-rx")
         while not self._stop.is_set():
             try:
                 data, _ = self.sock.recvfrom(65535)

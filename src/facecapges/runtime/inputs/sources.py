@@ -11,7 +11,8 @@ Visual sources (one per session)
 --------------------------------
 * :class:`FileVideo` — a video file read with OpenCV (frame ``i`` at ``i / video_fps``),
   optionally with RGB-D depth frames from a directory (frame ``i`` ↔ the ``i``-th depth
-  file, millimetres, read by :mod:`facecapges.capture.depth`) and optionally looped.
+  file, millimetres, read by :mod:`facecapges.capture.depth`) and optionally looped;
+  ``decode_threads`` sets FFmpeg's decoding threads (one for a file played in real time).
   :meth:`~FileVideo.next_frame` returns the newest unread frame before the deadline
   and *skips* older ones without decoding them (``grab``): a live system processes the
   freshest frame, and MediaPipe's tracker copes with the gap. Skips are counted.
@@ -48,6 +49,7 @@ import numpy as np
 
 from facecapges import timing
 from facecapges.errors import UserError, file_error
+from facecapges.runtime.os_threads import name_os_thread
 
 
 @dataclass
@@ -71,14 +73,22 @@ class FileVideo:
 
     is_live = False
 
-    def __init__(self, path: str | Path, loop_period_s: float | None = None, depth_dir=None, intrinsics=None):
+    def __init__(
+        self,
+        path: str | Path,
+        loop_period_s: float | None = None,
+        depth_dir=None,
+        intrinsics=None,
+        decode_threads: int | None = None,
+    ):
         from facecapges.capture.video import open_source
 
         p = Path(path)
         if not p.is_file():
             raise file_error(p, "video not found")
         self.path = p
-        self._src = open_source(str(p))
+        self.decode_threads = decode_threads  # FFmpeg's threads (capture.video.open_file); None: its own choice
+        self._src = open_source(str(p), decode_threads)
         self.fps = self._src.fps
         self.width, self.height = self._src.width, self._src.height
         self.n_frames = self._src.n_frames
@@ -109,9 +119,9 @@ class FileVideo:
             self.ended = True
             return False
         self._src.cap.release()
-        import cv2
+        from facecapges.capture.video import open_file
 
-        self._src.cap = cv2.VideoCapture(str(self.path))
+        self._src.cap = open_file(self.path, self.decode_threads)
         self._offset += self.loop_period_s
         self._i = 0
         self.loops += 1
@@ -223,6 +233,7 @@ class CameraVideo:
         self._thread.start()
 
     def _run(self) -> None:
+        name_os_thread("camera")
         fails = 0
         while not self._stop.is_set():
             ok, img = self._src.cap.read()

@@ -21,6 +21,7 @@ from collections.abc import Callable, Coroutine
 from typing import TYPE_CHECKING, Any, Self
 
 from facecapges.errors import UserError
+from facecapges.runtime.os_threads import name_os_thread
 
 if TYPE_CHECKING:
     from websockets.asyncio.server import Server
@@ -109,6 +110,7 @@ class ServerThread:
         return new_event_loop(self.fast_loop)
 
     def _run_loop(self) -> None:
+        name_os_thread(self.thread_name)
         self._loop = self.new_loop()
         try:
             self._loop.run_until_complete(self._main())

@@ -43,6 +43,7 @@ import numpy as np
 
 from facecapges import rotations as rot
 from facecapges.runtime.frames import OutputFrame
+from facecapges.runtime.os_threads import name_os_thread
 
 
 def substeps(rate_hz: float, fps: float) -> int:
@@ -167,6 +168,7 @@ class Upsampler:
         return fr if t == fr.time_s else replace(fr, time_s=t)
 
     def _run(self) -> None:
+        name_os_thread("upsample")
         tick = 1.0 / self.rate_hz
         due: float | None = None
         while True:

@@ -56,6 +56,9 @@ _TEXT = content_type("reply.txt")
 _CLOSE = ("Connection", "close")
 
 INDEX_PATHS = ("/", "/index.html", "/viewer.html")  # the page, by any of its names
+# no permessage-deflate: a pose message (~2 KB of numbers) compresses poorly, and deflating each one for each viewer
+# cost more CPU than the bytes it saved on loopback or a LAN (issue 36; ``serve`` sends uncompressed too)
+VIEWER_OPTIONS = {**SERVE_OPTIONS, "compression": None}
 
 
 def parse_address(text: str, default_host: str = "127.0.0.1", what: str = "--web") -> tuple[str, int]:
@@ -76,6 +79,8 @@ class ViewerServer(ServerThread):
 
     thread_name = "viewer-server"
     cannot_listen = "viewer server cannot listen"
+    # the feed's server loop on uvloop (in C), as ``serve``'s: with one viewer it is most of the feed's CPU (issue 36)
+    fast_loop = True
 
     def __init__(
         self,
@@ -173,7 +178,7 @@ class ViewerServer(ServerThread):
         from websockets.asyncio.server import serve
 
         server = await serve(
-            self._handler, self.host, self.port, process_request=self._process_request, **SERVE_OPTIONS
+            self._handler, self.host, self.port, process_request=self._process_request, **VIEWER_OPTIONS
         )
         self.port = next(iter(server.sockets)).getsockname()[1]
         return server
