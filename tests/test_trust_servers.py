@@ -16,11 +16,9 @@ import json
 import socket
 import time
 import urllib.request
-from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from _study_media import make_clips
 from facecapges.study.build import create_study, open_study
@@ -171,23 +169,14 @@ def test_tricklers_from_several_addresses_cannot_fill_the_study_server(study_dir
 
 
 # ------------------------------------------------------------------ serve on loopback
-TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
-            lstm_hidden=16, mlp_hidden=16, disc_channels=8)
-
-
 @pytest.fixture(scope="module")
-def stream_server():
-    from facecapges.network.config import ModelConfig
-    from facecapges.network.network import FaceCapGes
-    from facecapges.network.style import NetworkStyle
+def stream_server(default_checkpoint):
+    """``make(**ServeConfig options)`` → a started server of the installed matching style. What these tests assert
+    is the admission of connections, not the poses: a matching style's model process starts without torch
+    (about 1.5 s against 5-6 s for a random network's at load 6, and 0.2 s against 1.5-2.3 s to stop)."""
     from facecapges.serving.server import ServeConfig, StreamServer
 
-    torch.manual_seed(0)
-    model = FaceCapGes(ModelConfig(**TINY)).eval()
-    neutral = np.zeros((16, 47, 6), np.float32)
-    neutral[..., 0] = neutral[..., 4] = 1.0
-    ck = NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
-                    path=Path("random-init"))
+    ck = default_checkpoint
     servers = []
 
     def make(**over):
