@@ -240,7 +240,7 @@ def test_messages_are_handled_as_parsed_in_order_fragmented_and_utf8_checked(ser
 
 @pytest.mark.serial
 def test_max_streams_and_rate_limit(server):
-    srv = server(matching=True, max_streams=2, rate_limit=5.0, max_pending=16)
+    srv = server(max_streams=2, rate_limit=5.0, max_pending=16)  # the network: it counts the poses of a burst
 
     async def main():
         a = await connect(srv.url)
