@@ -137,6 +137,25 @@ def test_every_doc_command_is_run_or_has_a_reason():
     assert not unused, unused
 
 
+def _short_shared(dest: Path, unseen: str = "data/beat/2_scott_0_4_4.wav", seconds: int = 10) -> None:
+    """``dest`` laid out as ../shared: links to the real one's files, but the unseen speech the docs generate and
+    evaluate on (``unseen``, 67 s) is its first ``seconds`` s (the folders on its path are folders of links)."""
+    import os
+
+    from conftest import SHARED, shared_file
+    from facecapges.io.audio import load_audio, save_audio
+
+    speech = load_audio(shared_file(unseen))[: seconds * 16000]  # first: a missing file fails in CI, else skips
+    cut = Path(unseen)
+    folders = [Path(), *reversed(cut.parents[:-1])]  # "", "data", "data/beat"
+    for rel in folders:
+        (dest / rel).mkdir(parents=True, exist_ok=True)
+        for entry in (SHARED / rel).iterdir():
+            if rel / entry.name not in (*folders, cut):
+                os.symlink(entry, dest / rel / entry.name)
+    save_audio(dest / cut, speech)
+
+
 def _sandbox(tmp: Path) -> Path:
     """A folder laid out as the repository's root for the docs' relative paths: ../shared beside it, configs/,
     and the inputs the docs name as the reader's (a speech clip, a ZEGGS take as "your" mocap), all short."""
@@ -150,10 +169,10 @@ def _sandbox(tmp: Path) -> Path:
 
     repo = tmp / "repo"
     (repo / "src" / "facecapges" / "assets" / "demo").mkdir(parents=True)
-    os.symlink(ROOT.parent / "shared", tmp / "shared")
+    _short_shared(tmp / "shared")
     os.symlink(ROOT / "configs", repo / "configs")
     seconds = 16
-    speech = load_audio(DEMO_WAV)[: 6 * timing.AUDIO_SR]
+    speech = load_audio(DEMO_WAV)[: 3 * timing.AUDIO_SR]  # the README renders its demo.bvh: 3 s, 45 frames
     for name in ("src/facecapges/assets/demo/speech.wav", "talk.wav", "talk1.wav"):
         save_audio(repo / name, speech)
     z = read_bvh(shared_file("data/zeggs/067_Speech_2_x_1_0.bvh"))

@@ -23,8 +23,13 @@ def test_live_without_outputs_opens_the_viewer(face_video):
     assert any(line.startswith("viewer: http://127.0.0.1:") for line in r.stdout.splitlines()), r.stdout
 
 
-def test_livelink_on_loopback_says_a_phone_cannot_reach_it(beat_wav, tmp_path):
-    r = cli("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(tmp_path), "--max-seconds", "6")
+def test_livelink_on_loopback_says_a_phone_cannot_reach_it(beat_wav, tmp_path, monkeypatch):
+    import facecapges.runtime.live as live
+
+    # a status line every 0.5 s instead of 5 s: the hint shows in 2 s of live instead of 6 (the command runs in
+    # this process, so it reads the patched period)
+    monkeypatch.setattr(live, "STATUS_EVERY_S", 0.5)
+    r = cli("live", "--livelink", "0", "--audio", str(beat_wav), "--record", str(tmp_path), "--max-seconds", "2")
     assert r.returncode == 0, r.stderr
     assert "which a phone cannot reach: add --host 0.0.0.0" in r.stderr, r.stderr
     assert HINT in r.stderr  # the status line while nothing arrives

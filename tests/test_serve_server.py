@@ -74,12 +74,15 @@ def reference(ckpt: NetworkStyle, fr) -> np.ndarray:
 
 
 @pytest.fixture()
-def server(ckpt):
+def server(ckpt, default_checkpoint):
+    """``make(**ServeConfig options)`` → a started server of the random network; ``make(matching=True, ...)`` → of
+    the installed matching style, for the tests that assert what the server does with connections and messages,
+    not the poses: its model process starts without torch (about 1.5 s against 5-7 s at load 6)."""
     servers = []
 
-    def make(**over) -> StreamServer:
+    def make(matching: bool = False, **over) -> StreamServer:
         cfg = ServeConfig(port=0, **over)
-        s = StreamServer(ckpt, cfg).start()
+        s = StreamServer(default_checkpoint if matching else ckpt, cfg).start()
         servers.append(s)
         return s
 
@@ -203,11 +206,11 @@ def test_garbage_stalls_and_disconnects_do_not_affect_others(ckpt, server):
     assert s["bad_messages"] >= 6 and s["idle_closes"] >= 1 and s["streams"] == 0
 
 
-def test_messages_are_handled_as_parsed_in_order_fragmented_and_utf8_checked(ckpt, server):
+def test_messages_are_handled_as_parsed_in_order_fragmented_and_utf8_checked(server):
     """``serve`` handles each message as websockets' parser finds it (serving/connection.py): a message sent
     before ``hello`` is answered after it, in order; a fragmented message is joined; an input, a ping and
     another input in one burst are answered in that order; a text frame that is not UTF-8 closes with 1007."""
-    srv = server()
+    srv = server(matching=True)
     fr = frames(2, 21)
 
     async def main():
@@ -237,8 +240,8 @@ def test_messages_are_handled_as_parsed_in_order_fragmented_and_utf8_checked(ckp
 
 
 @pytest.mark.serial
-def test_max_streams_and_rate_limit(ckpt, server):
-    srv = server(max_streams=2, rate_limit=5.0, max_pending=16)
+def test_max_streams_and_rate_limit(server):
+    srv = server(max_streams=2, rate_limit=5.0, max_pending=16)  # the network: it counts the poses of a burst
 
     async def main():
         a = await connect(srv.url)
@@ -274,8 +277,8 @@ def test_max_streams_and_rate_limit(ckpt, server):
     assert srv.summary()["refused_full"] == 1 and srv.summary()["rate_limited"] >= 5
 
 
-def test_client_that_stops_reading_is_closed(ckpt, server):
-    srv = server(send_buffer_bytes=16_000, rate_limit=1000.0)
+def test_client_that_stops_reading_is_closed(server):
+    srv = server(matching=True, send_buffer_bytes=16_000, rate_limit=1000.0)
     fr = frames(400, 30)
 
     async def main():
@@ -594,9 +597,11 @@ def test_resume_starts_the_stream_from_the_clients_last_pose(ckpt, shared_server
     assert added(srv, before, "resumed") == 1
 
 
-def test_sample_client_reconnects_and_resumes_when_its_server_dies(ckpt, tmp_path):
+def test_sample_client_reconnects_and_resumes_when_its_server_dies(default_checkpoint, tmp_path):
     """The docs' client, its server stopped mid-stream and a new one started on the same port:
-    it reconnects, sends ``resume`` (the new server counts it) and finishes its stream."""
+    it reconnects, sends ``resume`` (the new server counts it) and finishes its stream. The servers serve the
+    installed matching style, as ``serve`` does by default (two model processes started without torch)."""
+    ckpt = default_checkpoint
     import subprocess
     import sys
 

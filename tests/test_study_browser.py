@@ -79,7 +79,8 @@ class Page:
 @pytest.fixture(scope="module")
 def served(tmp_path_factory, beat_bvh, beat_wav):
     tmp = tmp_path_factory.mktemp("browser")
-    clips = make_clips(tmp / "src", beat_bvh, beat_wav, n_clips=3, seconds=2.0)
+    # 1-s clips: the page plays each clip in real time (seven plays here), so a clip's length is the test's wait
+    clips = make_clips(tmp / "src", beat_bvh, beat_wav, n_clips=3, seconds=1.0)
     create_study(clips, tmp / "study", 2, seed=3, progress=False)
     st = open_study(tmp / "study")
     TOKENS.update({p.id: p.token for p in st.plan.participants})
@@ -111,7 +112,7 @@ def do_trial(page: Page, st, pid: str, i: int, replay: bool = False, shot=None, 
     page.click("play")
     page.wait("window.study.playing")
     page.wait("window.study.watched", timeout=30)
-    assert page.js("window.study.frame") == 29  # played through all 30 frames
+    assert page.js("window.study.frame") == 14  # played through all 15 frames (1-s clips at 15 fps)
     if replay:
         page.click("play")
         page.wait("window.study.plays === 2 && !window.study.playing", timeout=30)

@@ -20,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from _study_media import make_clips
 from facecapges.study.build import create_study, open_study
@@ -175,23 +174,34 @@ TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=1
             lstm_hidden=16, mlp_hidden=16, disc_channels=8)
 
 
-@pytest.fixture(scope="module")
-def stream_server():
+def _tiny_network():
+    import torch
+
     from facecapges.network.config import ModelConfig
     from facecapges.network.network import FaceCapGes
     from facecapges.network.style import NetworkStyle
-    from facecapges.serving.server import ServeConfig, StreamServer
 
     torch.manual_seed(0)
     model = FaceCapGes(ModelConfig(**TINY)).eval()
     neutral = np.zeros((16, 47, 6), np.float32)
     neutral[..., 0] = neutral[..., 4] = 1.0
-    ck = NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
-                    path=Path("random-init"))
+    return NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
+                        path=Path("random-init"))
+
+
+@pytest.fixture(scope="module")
+def stream_server(default_checkpoint):
+    """``make(**ServeConfig options)`` → a started server of the installed matching style, for the tests that assert
+    the admission of connections: its model process starts without torch (about 1.5 s against 5-6 s for a random
+    network's at load 6, and 0.2 s against 1.5-2.3 s to stop). ``make(network=True, ...)`` → of a tiny random
+    network, for the serial tests that count a live client's poses (with the matching style the loopback test's
+    client got 19 of its 30 frames, against the bound 20, in two of seven runs at load 1-3)."""
+    from facecapges.serving.server import ServeConfig, StreamServer
+
     servers = []
 
-    def make(**over):
-        s = StreamServer(ck, ServeConfig(port=0, **over)).start()
+    def make(network: bool = False, **over):
+        s = StreamServer(_tiny_network() if network else default_checkpoint, ServeConfig(port=0, **over)).start()
         servers.append(s)
         return s
 
@@ -248,6 +258,7 @@ def test_reopened_idle_sockets_do_not_lock_out_a_real_client(stream_server):
             await asyncio.sleep(0.3)
         stop.set()
         att.cancel()
+        await asyncio.gather(att, return_exceptions=True)
         return results
 
     results = asyncio.run(asyncio.wait_for(main(), 90))
@@ -365,7 +376,7 @@ def test_slow_rate_holders_do_not_lock_out_a_live_client(stream_server):
     """Issue 34, item 1: 16 sockets each sending one valid input every 0.9 s (and reopening at once)
     on ``max_streams=16`` held every slot: a live client got 0 of 600 frames. Slot-holders are now
     judged by their input rate against the model rate and the slowest is evicted for a newcomer."""
-    srv = stream_server(max_streams=16)
+    srv = stream_server(network=True, max_streams=16)
 
     async def main():
         stop = asyncio.Event()
@@ -392,7 +403,7 @@ def test_one_loopback_address_is_capped_and_its_slow_streams_make_room(stream_se
     """The per-address cap holds on loopback too (16 by default): 24 slow holders from 127.0.0.1 get
     at most 16 slots of 40; a live client from the same address still gets in (it evicts the slowest
     of its address) and one from another loopback address finds a free slot."""
-    srv = stream_server(max_streams=40)
+    srv = stream_server(network=True, max_streams=40)
 
     async def main():
         stop = asyncio.Event()

@@ -7,37 +7,23 @@ import asyncio
 import json
 import urllib.error
 import urllib.request
-from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
-from facecapges.network.config import ModelConfig
-from facecapges.network.network import FaceCapGes
-from facecapges.network.style import NetworkStyle
 from facecapges.runtime.outputs import protocol
 from facecapges.runtime.outputs.viewer import ViewerServer
 from facecapges.serving.server import ServeConfig, StreamServer
 
-TINY = dict(audio_frontend_channels=(8, 8, 8), audio_tcn_channels=8, audio_dim=16, face_tcn_channels=8, face_dim=8,
-            lstm_hidden=16, mlp_hidden=16, disc_channels=8)
-
-
-@pytest.fixture(scope="module")
-def ckpt() -> NetworkStyle:
-    torch.manual_seed(0)
-    model = FaceCapGes(ModelConfig(**TINY)).eval()
-    neutral = np.zeros((16, 47, 6), np.float32)
-    neutral[..., 0] = neutral[..., 4] = 1.0
-    return NetworkStyle(model=model, meta={"neutral_window": neutral.tolist(), "model_config": {"fps": 15}},
-                      path=Path("random-init"))
-
 
 @pytest.fixture()
-def serve(ckpt):
+def serve(default_checkpoint):
+    """``make(**ServeConfig options)`` → a started server of the installed matching style: these tests attack the
+    server's connections, not the poses, and its model process starts without torch (about 1.5 s against 5-6 s
+    for a random network's at load 6)."""
+    ckpt = default_checkpoint
     servers = []
     logs: list[str] = []
 
