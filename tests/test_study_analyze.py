@@ -105,3 +105,19 @@ def test_mean_rank_plot_draws_the_chinese_criterion_names(tmp_path):
     missing = [str(w.message) for w in caught if "missing from font" in str(w.message)]
     assert not missing, missing
     assert (tmp_path / "res" / "mean_rank.png").stat().st_size > 10_000
+
+
+def test_a_cjk_font_installed_after_matplotlibs_font_cache_is_found(monkeypatch):
+    """matplotlib caches its font list on first use; setup-avatar.sh's font installed after that (a fresh clone's
+    setup imported matplotlib first) must still be found, not reported missing."""
+    from matplotlib import font_manager
+
+    from facecapges.io import plots
+
+    keep = [f for f in font_manager.fontManager.ttflist if not any(k in f.fname.lower() for k in plots.CJK_FILE_KEYS)]
+    monkeypatch.setattr(font_manager.fontManager, "ttflist", keep)  # the list as cached before the font came
+    plots.cjk_font.cache_clear()
+    try:
+        assert plots.cjk_font() == "WenQuanYi Micro Hei", "no CJK font: run scripts/setup-avatar.sh"
+    finally:
+        plots.cjk_font.cache_clear()

@@ -13,6 +13,7 @@ from __future__ import annotations
 import functools
 from typing import Any
 
+CJK_FILE_KEYS = ("wqy", "notosanscjk", "notosanssc", "sourcehansans")  # their files' names, lower case
 CJK_FONTS = ("WenQuanYi Micro Hei", "Noto Sans CJK SC", "Noto Sans SC", "Source Han Sans SC", "Noto Sans CJK JP")
 
 
@@ -21,7 +22,18 @@ def cjk_font() -> str | None:
     """The family name of an installed CJK font matplotlib can use (None when there is none)."""
     from matplotlib import font_manager
 
-    names = {f.name for f in font_manager.fontManager.ttflist}
+    found = _cjk_in(font_manager.fontManager)
+    if found is None:  # matplotlib's font list is cached on disk from its first use: a font installed after that
+        # (setup-avatar.sh's, once something imported matplotlib first) is not in it until it is added
+        for path in font_manager.findSystemFonts():
+            if any(key in path.lower() for key in CJK_FILE_KEYS):
+                font_manager.fontManager.addfont(path)
+        found = _cjk_in(font_manager.fontManager)
+    return found
+
+
+def _cjk_in(manager: Any) -> str | None:
+    names = {f.name for f in manager.ttflist}
     for name in CJK_FONTS:
         if name in names:
             return name
