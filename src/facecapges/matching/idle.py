@@ -236,6 +236,24 @@ class IdleLayer:
     def _velocity(self, q: np.ndarray, prev: np.ndarray) -> np.ndarray:
         return inz.qlog(inz.qabs(inz.qmul(q, inz.qconj(prev)))) * self.fps
 
+    def _switch(self, ids, k, enter, q, idle_now, tgt, t, scale) -> None:
+        """Streams ``ids[k]`` enter (``enter[k]``) or leave their rest pose this frame: the offset takes over the
+        jump between the matched pose ``q`` and ``idle_now``, with each side's velocity (inertialization)."""
+        matched_v = self._velocity(q[k], self.prev_in[ids[k]])
+        idle_prev = self.motion.pose(tgt[k], t[k] - 1, self.fps, scale[k])
+        idle_v = self._velocity(idle_now[k], idle_prev)
+        idle_v[:, self.keep] = matched_v[:, self.keep]
+        e = enter[k][:, None, None]
+        src_q, dst_q = np.where(e, q[k], idle_now[k]), np.where(e, idle_now[k], q[k])
+        # into a pause the matched motion's velocity is carried at ``enter_velocity`` (0: none — the step is
+        # then an acceleration that the cap in apply spreads over frames); the kept joints keep theirs
+        carried = np.where(self.keep[None, :, None], matched_v, matched_v * self.enter_velocity)
+        src_v, dst_v = np.where(e, carried, idle_v), np.where(e, idle_v, matched_v)
+        s = ids[k]
+        self.x[s], self.v[s] = inz.transition(self.x[s], self.v[s], src_q, src_v, dst_q, dst_v)
+        self.hl[s] = np.where(enter[k], self.enter_hl, self.release_hl)
+        self.idle[s] = enter[k]
+
     def apply(
         self, ids: np.ndarray, q: np.ndarray, since_voice: np.ndarray, t: np.ndarray, gain: np.ndarray
     ) -> np.ndarray:
@@ -261,21 +279,7 @@ class IdleLayer:
             idle_now[:, self.keep] = q[:, self.keep]
         switch = enter | leave
         if switch.any():
-            k = np.flatnonzero(switch)
-            matched_v = self._velocity(q[k], self.prev_in[ids[k]])
-            idle_prev = m.pose(tgt[k], t[k] - 1, self.fps, scale[k])
-            idle_v = self._velocity(idle_now[k], idle_prev)
-            idle_v[:, self.keep] = matched_v[:, self.keep]
-            e = enter[k][:, None, None]
-            src_q, dst_q = np.where(e, q[k], idle_now[k]), np.where(e, idle_now[k], q[k])
-            # into a pause the matched motion's velocity is carried at ``enter_velocity`` (0: none — the step is
-            # then an acceleration that the cap below spreads over frames); the kept joints keep theirs
-            carried = np.where(self.keep[None, :, None], matched_v, matched_v * self.enter_velocity)
-            src_v, dst_v = np.where(e, carried, idle_v), np.where(e, idle_v, matched_v)
-            s = ids[k]
-            self.x[s], self.v[s] = inz.transition(self.x[s], self.v[s], src_q, src_v, dst_q, dst_v)
-            self.hl[s] = np.where(enter[k], self.enter_hl, self.release_hl)
-            self.idle[s] = enter[k]
+            self._switch(ids, np.flatnonzero(switch), enter, q, idle_now, tgt, t, scale)
         # the offset still carries something: decay it and show it (else it is spent: zero, and q is shown)
         xs, vs = self.x[ids], self.v[ids]
         big = np.maximum.reduce  # ndarray.max's own reduction
