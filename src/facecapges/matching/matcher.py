@@ -249,7 +249,6 @@ class BatchedMatchingStreams(SlotOwner):
         self.speech = SpeechTracker(1)
         self.capacity = 0
         self.slots = Slots()
-        self._pred_slot: dict[int, int] = {}
         self._alloc(max(1, capacity))
 
     # ------------------------------------------------------------ database caches
@@ -341,7 +340,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.halflife = grow("halflife", (), self.config.halflife_s, np.float64)
         self.slow_dev = grow("slow_dev", (N_JOINTS, 3), 0.0, np.float64)
         self.prev_q = grow("prev_q", (2, N_JOINTS, 4), 0.0, np.float64)  # the last two blended outputs
-        self._pred_slots = grow("_pred_slots", (), 0, np.intp)  # each slot's predictor slot (_pred_slot's array)
+        self._pred_slots = grow("_pred_slots", (), 0, np.intp)  # each open slot's predictor slot
         self.speech.ensure(capacity)
         if self.idle_layer is not None:
             self.idle_layer.grow(capacity)
@@ -350,15 +349,12 @@ class BatchedMatchingStreams(SlotOwner):
 
     def _opened(self, slot: int) -> None:
         if self.predictor is not None:
-            self._pred_slot[slot] = self.predictor.open()
-            self._pred_slots[slot] = self._pred_slot[slot]
+            self._pred_slots[slot] = self.predictor.open()
 
     def close(self, slot: int) -> None:
         with self._lock:
-            if self.slots.release(slot):
-                ps = self._pred_slot.pop(slot, None)
-                if ps is not None and self.predictor is not None:
-                    self.predictor.close(ps)
+            if self.slots.release(slot) and self.predictor is not None:  # an open slot has a predictor slot
+                self.predictor.close(int(self._pred_slots[slot]))
 
     def set_intensity(self, slot: int, value: float) -> None:
         """The stream's intensity (:mod:`facecapges.engine.intensity`: 0 … 1 … 1.3); reached smoothly (module docs)."""
@@ -370,7 +366,7 @@ class BatchedMatchingStreams(SlotOwner):
             self.slots.require(slot)
             self.speech.reset(slot)
             if self.predictor is not None:
-                self.predictor.reset(self._pred_slot[slot])
+                self.predictor.reset(int(self._pred_slots[slot]))
             self.t[slot], self.since_search[slot], self.switches[slot] = 0, 0, 0
             self.since_switch[slot], self.halflife[slot] = 10**6, self.config.halflife_s
             self.quiet[slot], self.direction[slot], self.run_start[slot] = 0, 1, 0
@@ -443,7 +439,7 @@ class BatchedMatchingStreams(SlotOwner):
                 if a.shape[1] == self.predictor.samples_per_frame:
                     pred = self.predictor.step_checked(self._pred_slots[ids], a, f, h)
                 else:
-                    pred = self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+                    pred = self.predictor.step(self._pred_slots[ids], a, f, h)
             self._advance_and_search(ids, cues, pred)
             q, gain = self._blend(ids)
             if self.idle_layer is not None:  # a pause: his rest pose and idle (matching/idle.py)
@@ -617,7 +613,7 @@ class BatchedMatchingStreams(SlotOwner):
             a, f, h = self._inputs(audio, face, head, len(ids))
             cues = self.speech.step(ids, a)
             if self.predictor is not None and self.config.use_predictor:
-                self.predictor.step([self._pred_slot[int(s)] for s in ids], a, f, h)
+                self.predictor.step(self._pred_slots[ids], a, f, h)
             p = np.asarray(pose, np.float32).reshape(len(ids), N_JOINTS, 6)
             for k, s in enumerate(ids):
                 self._start_at(int(s), p[k])
