@@ -11,6 +11,7 @@ module's to float32 rounding (``test_matching_predictor``).
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -63,6 +64,15 @@ def autocorrelation_length(samples_per_frame: int, lag_max: int) -> int:
     return 3 * n // 4 if 3 * n // 4 >= need else n
 
 
+@functools.cache
+def _scipy_fft():
+    """``scipy.fft``, imported on the first batch that needs it and kept (a function-level import of a lazily
+    loaded package costs ~5 µs a call)."""
+    import scipy.fft
+
+    return scipy.fft
+
+
 class MelFeatures:
     """(B, S) frames of samples → (B, 43) log-Mel, energy, log-F0, voicing, in NumPy (module docs).
 
@@ -90,14 +100,6 @@ class MelFeatures:
         lags = np.arange(self.lag_min, self.lag_max + 1, dtype=np.float32)
         self.log_f0_of_lag = np.log2(np.float32(self.sr) / lags / np.float32(100.0)).astype(np.float32)
 
-    _scipy_fft = None
-
-    def _load_scipy_fft(self):
-        import scipy.fft
-
-        MelFeatures._scipy_fft = scipy.fft
-        return scipy.fft
-
     def __call__(self, x: np.ndarray) -> np.ndarray:
         x = np.ascontiguousarray(x, np.float32)
         B, n = x.shape[0], x.shape[-1]
@@ -106,8 +108,8 @@ class MelFeatures:
         out = np.empty((B, FEATURE_DIM), np.float32)
         batch = B >= self.SCIPY_MIN_BATCH
         fft = np.fft
-        if batch:  # imported once (a function-level import of a lazily loaded package costs ~5 µs a call)
-            fft = self._scipy_fft if self._scipy_fft is not None else self._load_scipy_fft()
+        if batch:
+            fft = _scipy_fft()
         W = len(self.windows)
         # torch's unfold(-1, N_FFT, HOP): a view, no copy (an ndarray over x's buffer: as_strided's result
         # without its Python-level cost)
