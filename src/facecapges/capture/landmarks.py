@@ -21,6 +21,7 @@ Conventions
 from __future__ import annotations
 
 import ctypes
+import functools
 import os
 import sys
 import tempfile
@@ -144,6 +145,7 @@ def mp_image(rgb: np.ndarray):
     return img.Image(image_format=img.ImageFormat.SRGB, data=rgb)
 
 
+@functools.cache  # per struct and fields, built once (every frame reads the same two)
 def _c_fields(struct, names: tuple[str, ...]) -> np.dtype:
     """A NumPy dtype reading the float32 fields ``names`` of the ctypes ``struct`` in place (its other fields,
     pointers among them, skipped by the offsets)."""
