@@ -291,6 +291,7 @@ def obs_views(url: str, width: int = 640, height: int = 480, timeout: float = 90
                 "rgba": cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED),
                 "hud": b.evaluate("getComputedStyle(document.getElementById('hud')).display"),
                 "png": png,
+                "camera": b.evaluate("window.facecapgesViewer.camera()"),
             }
         before = b.evaluate("window.facecapgesViewer.camera()")
         dragged = drag(b)
@@ -306,6 +307,21 @@ def obs_views(url: str, width: int = 640, height: int = 480, timeout: float = 90
         time.sleep(0.5)
         out["bad"] = _wait_state(b, ready, timeout)["errors"]
     return out
+
+
+def _head_width(alpha, top: int) -> int:
+    """The widest opaque row of the head in an RGBA screenshot's ``alpha``: from the avatar's ``top`` row down to
+    the chin (the first row narrower than 0.8 of the widest above it: the head narrows to the neck, which is 0.3
+    of the sample VRM's cube head and 0.64 of our avatar's)."""
+    import numpy as np
+
+    widest = 0
+    for row in alpha[top:]:
+        n = int(np.count_nonzero(row))
+        if n < 0.8 * widest:
+            break
+        widest = max(widest, n)
+    return widest
 
 
 def check_obs_views(views: dict, name: str) -> None:
@@ -338,10 +354,18 @@ def check_obs_views(views: dict, name: str) -> None:
         rows = np.flatnonzero((alpha > 0).any(axis=1))
         top = rows[0]
         assert top < 0.2 * h, (frame, top)  # the avatar's top near the picture's top in both
-        widths[frame] = (alpha[top + int(0.06 * h)] > 0).sum()  # across the head, a little below its top
+        widths[frame] = _head_width(alpha, top)
         views[frame]["rows"] = (int(rows[0]), int(rows[-1]))
-    # head and shoulders: the head at least 1.3 times as wide as in the upper-body frame
-    assert widths["head"] > 1.3 * widths["upper"] > 0, widths
+
+    def scale(c):  # pixels per metre at the camera's target: 1 / (distance * tan(fov / 2))
+        return 1 / (np.linalg.norm(np.subtract(c["position"], c["target"])) * np.tan(np.radians(c["fov"]) / 2))
+
+    # head and shoulders: the head framed at least 1.3 times as large as in the upper-body frame. Exactly on the
+    # cameras; in the pictures on the head's widest row, with room for the head's turn between the two moments
+    # (a cube head turned 30 degrees is 1.37 times as wide as face-on)
+    zoom = scale(views["head"]["camera"]) / scale(views["upper"]["camera"])
+    assert zoom >= 1.3, (zoom, views["head"]["camera"], views["upper"]["camera"])
+    assert widths["head"] > zoom / 1.37 * widths["upper"] > 0, (widths, zoom)
     o = views["orbit"]
     moved = np.linalg.norm(np.subtract(o["dragged"]["position"], o["before"]["position"]))
     assert moved > 0.05, o  # the drag turned the camera about its target

@@ -236,7 +236,9 @@ openScene().then(() => {
 }).catch((e) => state.errors.push(String(e)));
 
 // for tests and scripts
-state.camera = () => ({ position: scene.camera.position.toArray(), target: scene.target.toArray() });
+state.camera = () => ({
+  position: scene.camera.position.toArray(), target: scene.target.toArray(), fov: scene.camera.fov,
+});
 state.setSkeleton = (on) => { $('skel').checked = on; $('skel').dispatchEvent(new Event('change')); return on; };
 connect();
 requestAnimationFrame(loop);
