@@ -201,9 +201,11 @@ class Upsampler:
             self._blends = self._sent
             for f in self._feeds:
                 f.start, f.target = f.shown, None
+            first = self._target is None
             self._target = out
             self._t0 = time.monotonic()
-            self._cond.notify()
+            if first:  # the clock starts; later frames wait for their tick (a wake-up now would only wait again)
+                self._cond.notify()
 
     def _tick(self, due: float) -> None:
         """Tick ``due``: each sink's blend towards the newest model frame and the stream time (module docstring),
