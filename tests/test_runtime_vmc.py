@@ -483,7 +483,7 @@ def test_between_model_frames_the_sender_blends_what_it_sends(skeleton, blend):
     for i, j in itertools.pairwise(reached):
         lo = np.minimum(got[i][1], got[j][1]) - 1e-6
         hi = np.maximum(got[i][1], got[j][1]) + 1e-6
-        for q, w, _ in got[i + 1 : j]:
+        for _, w, _ in got[i + 1 : j]:
             assert ((w >= lo) & (w <= hi)).all()  # the clips' weights between the two frames'
     times = np.array([t for _, _, t in got])
     assert np.all(np.diff(times) > 0)
