@@ -141,19 +141,12 @@ function draw(target, msg) {
 }
 
 // `w` of the way from frame `a` to frame `b` ({pose: flat (w, x, y, z) quaternions, weights}): each quaternion
-// by slerp the short way round (facecapges.rotations.quaternion_slerp's formula), the weights linearly
+// by three's slerp the short way round (its formula is the same in any order of the four components; a lerp,
+// normalised, under 3.6°: the same to ~1e-5 rad), the
+// weights linearly
 function between(a, b, w) {
   const p = new Float64Array(b.pose.length), f = new Float64Array(b.weights.length);
-  for (let i = 0; i < p.length; i += 4) {
-    let dot = 0;
-    for (let k = 0; k < 4; k++) dot += a.pose[i + k] * b.pose[i + k];
-    const sign = dot < 0 ? -1 : 1, theta = Math.acos(Math.min(1, Math.abs(dot))), s = Math.sin(theta);
-    const ka = s < 1e-6 ? 1 - w : Math.sin((1 - w) * theta) / s, kb = sign * (s < 1e-6 ? w : Math.sin(w * theta) / s);
-    let n = 0;
-    for (let k = 0; k < 4; k++) { p[i + k] = ka * a.pose[i + k] + kb * b.pose[i + k]; n += p[i + k] * p[i + k]; }
-    n = Math.sqrt(n);
-    for (let k = 0; k < 4; k++) p[i + k] /= n;
-  }
+  for (let i = 0; i < p.length; i += 4) THREE.Quaternion.slerpFlat(p, i, a.pose, i, b.pose, i, w);
   for (let i = 0; i < f.length; i++) f[i] = (1 - w) * a.weights[i] + w * b.weights[i];
   return { pose: p, weights: f };
 }
