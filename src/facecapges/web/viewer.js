@@ -141,9 +141,8 @@ function draw(target, msg) {
 }
 
 // `w` of the way from frame `a` to frame `b` ({pose: flat (w, x, y, z) quaternions, weights}): each quaternion
-// by three's slerp the short way round (its formula is the same in any order of the four components; a lerp,
-// normalised, under 3.6°: the same to ~1e-5 rad), the
-// weights linearly
+// by three's slerp the short way round (its formula is the same in any order of the four components; under
+// 3.6° a lerp, normalised: the same to ~1e-5 rad), the weights linearly
 function between(a, b, w) {
   const p = new Float64Array(b.pose.length), f = new Float64Array(b.weights.length);
   for (let i = 0; i < p.length; i += 4) THREE.Quaternion.slerpFlat(p, i, a.pose, i, b.pose, i, w);
