@@ -42,8 +42,8 @@ quaternions and lerps its clips' weights and packs them, where converting a blen
 :class:`OutputFrame` cost three times as much (issue 36). Any other sink (``write(out)``) gets
 :func:`blend_frames` of the frames (:class:`FrameBlend`). Slerp commutes with the fixed rest
 frames on both sides (``Wp⁻¹ · Q · Wb``), so a bone that carries one BEAT joint moves the same
-in either form; a bone that carries several (folded joints: UpperChest, Head, the fingers'
-proximal bones) and the VRM preset clips (non-linear in the ARKit weights) take a slightly
+in either form; a bone that carries several (folded joints: Head ← Neck1, a proximal finger
+bone ← its metacarpal) and the VRM preset clips (non-linear in the ARKit weights) take a slightly
 different path between the same two model frames: 0.06° at most on the BEAT take (15 fps,
 ticks at 30 Hz), clip weights up to 0.06 apart mid-way — never outside the two frames' values.
 The browser viewer interpolates itself (:mod:`.viewer`): it is not behind the upsampler.

@@ -499,9 +499,9 @@ class VmcSender:
         :func:`pack_bundles` packs them: packed once here (the bones' positions, which never change, in place;
         zeros for the rest), a frame is then one scatter of its packed rotations, weights and time into a copy
         (:meth:`send`; the same bytes as packing its messages)."""
-        pos = self._bone_pos.astype(">f4").tobytes()
+        xyz = self._bone_pos.astype(">f4").tobytes()
         pieces = [(_ROOT, 0)] if self.parts == "all" else []
-        pieces += [(pre + pos[12 * k : 12 * k + 12], 16) for k, pre in enumerate(self._bone_prefix)]
+        pieces += [(pre + xyz[12 * k : 12 * k + 12], 16) for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
             pieces += [(pre, 4) for pre in self._blend_prefix] + [(_APPLY, 0)]
         pieces += [(_OK, 0), (_T_PREFIX, 4)]
@@ -509,18 +509,18 @@ class VmcSender:
         grams = pack_bundles(msgs, self.max_datagram)
         slots: list[int] = []
         spans: list[tuple[int, int]] = []
-        pos_ = k = 0
+        pos = k = 0
         for g in grams:  # walk the packed bytes: bundle head, then (length, message) until the datagram's end
-            end = pos_ + len(g)
-            spans.append((pos_, end))
-            pos_ += len(_BUNDLE_HEAD)
-            while pos_ < end:
+            end = pos + len(g)
+            spans.append((pos, end))
+            pos += len(_BUNDLE_HEAD)
+            while pos < end:
                 pre, n = pieces[k]
-                start = pos_ + 4 + len(pre)
+                start = pos + 4 + len(pre)
                 slots += range(start, start + n)
-                pos_ += 4 + len(msgs[k])
+                pos += 4 + len(msgs[k])
                 k += 1
-        assert k == len(pieces) and pos_ == sum(len(g) for g in grams)
+        assert k == len(pieces) and pos == sum(len(g) for g in grams)
         return np.frombuffer(b"".join(grams), np.uint8), np.array(slots, np.intp), spans
 
     # ------------------------------------------------------------------ the upsampler's interpolating sink
