@@ -168,7 +168,12 @@ function rate(list, now) {
 
 function onMessage(msg) {
   if (msg.type === 'hello') { state.hello = msg; if (state.ready) scene.useHello(msg); return; }
-  if (msg.type === 'rate') { state.rate = msg.rate; steps = Math.max(1, Math.round(msg.rate / msg.fps)); periodMs = 1000 / msg.fps; return; }
+  if (msg.type === 'rate') {
+    state.rate = msg.rate;
+    steps = Math.max(1, Math.round(msg.rate / msg.fps));
+    periodMs = 1000 / msg.fps;
+    return;
+  }
   if (!scene || msg.type !== scene.feedMessage) return;
   if (msg.face) { others.set(msg.face, msg); return; }
   const now = performance.now();
