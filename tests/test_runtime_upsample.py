@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -115,48 +116,31 @@ def test_an_idle_model_still_gets_the_rate():
     assert 25 <= len(sink.frames) <= 33 and all(f.face[24] == pytest.approx(0.2) for _, f in sink.frames)
 
 
-def _viewer_pose_times(url: str, n: int) -> list[float]:
-    """The clock field of the first ``n`` poses the viewer at ``url`` (``http://…/``) sends over its WebSocket."""
+def _viewer_feed(url: str, n: int) -> tuple[dict | None, list[float]]:
+    """The viewer at ``url`` (``http://…/``) over its WebSocket: its ``rate`` message (None if it sends none before
+    the first pose) and the stream times of its first ``n`` poses."""
     from websockets.sync.client import connect
 
     from facecapges.runtime.outputs import protocol
 
     with connect(url.replace("http://", "ws://") + "ws", max_size=None) as ws:
         assert json.loads(ws.recv(timeout=30))["type"] == "hello"
-        times: list[float] = []
+        rate, times = None, []
         while len(times) < n:
             msg = ws.recv(timeout=30)
-            if json.loads(msg)["type"] == "pose":
+            kind = json.loads(msg)["type"]
+            if kind == "rate" and not times:
+                rate = json.loads(msg)
+            elif kind == "pose":
                 times.append(protocol.decode_pose(msg)["time"])
-    return times
+    return rate, times
 
 
 @pytest.mark.serial
-def test_viewer_gets_30_frames_a_second(face_video):
-    """``live --web … --rate 30``: the WebSocket feed carries interpolated frames at 30 Hz."""
-
-    from runtime_helpers import cli_popen, wait_line
-
-    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
-                     "--rate", "30", "--max-seconds", "60")
-    try:
-        line = wait_line(proc, "viewer: ")
-        assert line, proc.stderr.read()[-2000:]
-        times = _viewer_pose_times(line.split()[1], 40)
-    finally:
-        proc.kill()
-        proc.wait()
-    steps = np.diff(times) * 30
-    assert np.all(steps >= 0) and np.median(steps) == pytest.approx(1.0, abs=0.05)  # 1/30 s apart
-    off_grid = np.abs(np.array(times) * 15 - np.round(np.array(times) * 15)) > 0.1
-    assert off_grid.sum() >= 10  # frames between model frames
-
-
-@pytest.mark.serial
-def test_viewer_and_vmc_share_one_interpolator(face_video):
-    """``live --web … --vmc … --rate 30``: the viewer rides the VMC sender's interpolator (issue 36: one clock
-    and one blend per tick for both), so both get the same 30 Hz frames: every ``pose`` the viewer gets has the
-    stream time of a ``/VMC/Ext/T`` the receiver got (two interpolators had two clocks: their times differed)."""
+def test_viewer_gets_the_model_frames_and_vmc_30_a_second(face_video):
+    """``live --web … --vmc … --rate 30``: VMC gets 30 Hz with its stream time strictly increasing; the viewer's
+    feed the model's frames (15 a second on their own times: one encode and send a frame, issue 36) after a
+    ``rate`` message telling the page to blend between them itself (viewer.py)."""
     from pythonosc.osc_bundle import OscBundle
 
     from runtime_helpers import cli_popen, vmc_frames, wait_line
@@ -172,14 +156,55 @@ def test_viewer_and_vmc_share_one_interpolator(face_video):
         try:
             line = wait_line(proc, "viewer: ")
             assert line, proc.stderr.read()[-2000:]
-            times = _viewer_pose_times(line.split()[1], 40)
-            time.sleep(0.3)
+            rate, times = _viewer_feed(line.split()[1], 30)
         finally:
             proc.kill()
             proc.wait()
-    steps = np.diff(times) * 30
-    assert np.all(steps > 0) and np.median(steps) == pytest.approx(1.0, abs=0.05)  # 30 Hz, times increasing
-    vmc = np.array(vmc_times)
-    # the viewer's time has 6 decimals, the OSC one is float32 (~1e-6 s at a minute): the same tick within 1e-4 s
-    nearest = np.abs(vmc[None, :] - np.array(times)[:, None]).min(1)
-    assert (nearest < 1e-4).all(), nearest.max()
+    assert rate == {"type": "rate", "fps": 15.0, "rate": 30.0}
+    steps = np.diff(times) * 15
+    assert np.all(steps > 0) and np.median(steps) == pytest.approx(1.0, abs=0.05)  # the model's frames …
+    assert np.abs(np.array(times) * 15 - np.round(np.array(times) * 15)).max() < 1e-3  # … on their own times
+    vmc = np.diff(vmc_times) * 30
+    assert len(vmc) > 30 and np.all(vmc > 0) and np.median(vmc) == pytest.approx(1.0, abs=0.05)
+
+
+@pytest.mark.serial
+@pytest.mark.slow
+def test_viewer_page_blends_between_model_frames(face_video):
+    """``live --web --rate 30`` in headless Chromium: the page draws blends between the feed's frames (on the
+    display's clock; headless Chromium draws only a few frames a second), and its blend is the slerp the short
+    way round and the weights' lerp."""
+    from runtime_helpers import cli_popen, wait_line
+
+    proc = cli_popen("live", "--video", str(face_video), "--realtime", "--loop", "--web", "127.0.0.1:0",
+                     "--rate", "30", "--max-seconds", "120")
+    try:
+        line = wait_line(proc, "viewer: ")
+        assert line, proc.stderr.read()[-2000:]
+        state, png, half = _page_blends(line.split()[1])
+        Path("/tmp/facecapges-viewer-blends.png").write_bytes(png)  # for a human look
+    finally:
+        proc.kill()
+        proc.wait()
+    assert state and state["errors"] == [] and state["rate"] == 30, state
+    assert state["blends"] >= 5, state  # in-betweens drawn
+    # a quarter of a 90° turn about Z is 22.5°, the shorter way round (−q is the same rotation); weights linearly
+    assert half["pose"] == pytest.approx([np.cos(np.pi / 16), 0, 0, np.sin(np.pi / 16)], abs=1e-9)
+    assert half["weights"] == pytest.approx([0.25, 0.75])
+
+
+def _page_blends(url: str) -> tuple[dict | None, bytes, dict]:
+    """The viewer page at ``url``: its state once it drew 30 frames, a screenshot, and its own blend of two frames."""
+    import base64
+
+    from facecapges.avatar.render.browser import Browser
+    from runtime_helpers import _wait_state
+
+    with Browser({}, "/", width=640, height=480, timeout=90) as b:
+        b.call("Page.navigate", url=url)
+        state = _wait_state(b, lambda s: s["ready"] and s["drawn"] >= 30, 90)
+        png = base64.b64decode(b.call("Page.captureScreenshot", format="png")["data"])
+        half = b.evaluate("(() => { const c = Math.SQRT1_2, r = window.facecapgesViewer.between("
+                          "{pose: [1, 0, 0, 0], weights: [0, 1]}, {pose: [-c, 0, 0, -c], weights: [1, 0]}, 0.25);"
+                          " return {pose: Array.from(r.pose), weights: Array.from(r.weights)}; })()")
+    return state, png, half

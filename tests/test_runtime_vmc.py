@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import threading
 import time
 
@@ -22,6 +23,7 @@ from facecapges.runtime.outputs.vmc import (
     vrm_rest_positions,
 )
 from facecapges.skeleton import UPPER_BODY
+from vmc_receiver import osc_messages
 
 UNITY_BONES = {  # HumanBodyBones names the mapping may use
     "Hips", "Spine", "Chest", "UpperChest", "Neck", "Head",
@@ -405,6 +407,86 @@ def test_stream_time_strictly_increases_when_model_frames_come_late_and_early(sk
     assert len(times) >= 40
     steps = np.diff(times)
     assert np.all(steps >= 1 / 30 - 1e-4), steps.round(4)  # never repeated, never back: at least one tick
+
+
+class _Datagrams:
+    """A socket stand-in: every datagram sent, each frame's (``/VMC/Ext/T`` ends a frame) in one list."""
+
+    def __init__(self):
+        self.frames: list[list[bytes]] = [[]]
+
+    def sendto(self, d: bytes, _address) -> None:
+        self.frames[-1].append(d)
+        if b"/VMC/Ext/T" in d:
+            self.frames.append([])
+
+    def close(self) -> None:
+        pass
+
+
+@pytest.mark.serial
+@pytest.mark.parametrize("blend", ["vrm", "both"])
+def test_between_model_frames_the_sender_blends_what_it_sends(skeleton, blend):
+    """Behind the upsampler the sender slerps its own bone quaternions and lerps its clip weights (vmc.py,
+    upsample.py "Between model frames"): each model frame goes out as the same datagrams as the frame sent
+    alone (but for its stream time), the in-betweens never step further than the model frames do (folded joints
+    too: Neck1 → Head, a metacarpal → its proximal bone) and their clip weights lie between
+    the two frames' own, and the stream time strictly increases."""
+    from facecapges.runtime.outputs.upsample import Upsampler
+
+    def model(k: int) -> OutputFrame:
+        a = 30 * np.sin(k / 3)
+        return frame_with({"RightArm": axis_quat("Z", a), "Spine": axis_quat("Y", a / 2), "Neck1": axis_quat("X", a),
+                           "Neck": axis_quat("Y", a / 3), "LeftHandRing": axis_quat("Z", a / 2),
+                           "LeftHandRing1": axis_quat("X", -a)}, index=k, jawOpen=0.5 + 0.4 * np.sin(k / 2),
+                          mouthSmileLeft=0.5 + 0.5 * np.sin(k / 4), mouthSmileRight=0.6)
+
+    frames = [model(k) for k in range(10)]
+    sender = VmcSender(skeleton, blend=blend)
+    sender.sock.close()
+    sender.sock = rx = _Datagrams()  # type: ignore[assignment]
+    own = [sender.datagrams_for(f) for f in frames]
+    up = Upsampler([sender], fps=15, rate_hz=60)
+    held = [k % 3 != 1 for k in range(len(frames))]  # frame k % 3 == 1 is cut short: the next starts from a blend
+    for k, fr in enumerate(frames):
+        n = up.emitted
+        up.write(fr)
+        deadline = time.monotonic() + 10
+        while up.emitted < n + (6 if held[k] else 1) and time.monotonic() < deadline:
+            time.sleep(0.002)
+    up.close()
+    sent = rx.frames[:-1]
+    assert len(sent) >= 30
+
+    def untimed(grams: list[bytes]) -> list[bytes]:
+        return [*grams[:-1], grams[-1][:-4]]  # the stream time: the last datagram's last 4 bytes
+
+    found = [next((i for i, g in enumerate(sent) if untimed(g) == untimed(o)), None) for o, h in zip(own, held)]
+    reached = [i for i, h in zip(found, held) if h]
+    assert None not in reached, found  # every model frame given its time sent exactly as itself
+    assert reached == sorted(reached) and untimed(sent[-1]) == untimed(own[-1])  # in order, ending on the last
+
+    def numbers(grams):
+        msgs = osc_messages(grams)
+        q = np.array([a[4:8] for addr, a in msgs if addr == "/VMC/Ext/Bone/Pos"])
+        w = np.array([a[1] for addr, a in msgs if addr == "/VMC/Ext/Blend/Val"])
+        return q, w, next(a[0] for addr, a in msgs if addr == "/VMC/Ext/T")
+
+    def angle(qa, qb):
+        return np.degrees(2 * np.arccos(np.clip(np.abs((qa * qb).sum(-1)), 0, 1)))
+
+    got = [numbers(g) for g in sent]
+    steps = np.array([angle(a[0], b[0]) for a, b in itertools.pairwise(got)])  # (ticks − 1, bones)
+    model_steps = np.array([angle(numbers(a)[0], numbers(b)[0]) for a, b in itertools.pairwise(own)])
+    assert (steps.max(0) <= model_steps.max(0) + 1e-3).all()  # no jumps, bone by bone
+    assert steps.max() > 1.0  # (the folded bones do move)
+    for i, j in itertools.pairwise(reached):
+        lo = np.minimum(got[i][1], got[j][1]) - 1e-6
+        hi = np.maximum(got[i][1], got[j][1]) + 1e-6
+        for _, w, _ in got[i + 1 : j]:
+            assert ((w >= lo) & (w <= hi)).all()  # the clips' weights between the two frames'
+    times = np.array([t for _, _, t in got])
+    assert np.all(np.diff(times) > 0)
 
 
 def _spin(seconds: float):

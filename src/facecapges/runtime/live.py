@@ -262,29 +262,26 @@ def _open_viewer(o: LiveOptions, outs: _Outputs, sess) -> None:
 
     ckpt = sess.checkpoint
     assert outs.web_addr is not None
+    # --rate: the page blends between the model's frames itself (runtime/outputs/viewer.py), as one avatar's
+    # upsampler would; the feed carries the model's frames (issue 36: no blend, encode and send per tick)
+    rate = o.rate if o.rate is not None and o.faces == 1 else None
     if o.avatar is not None:  # a VRM: retargeted in Python, drawn by three-vrm (runtime/outputs/vrm_viewer.py)
         from facecapges.runtime.outputs.vrm_viewer import open_vrm_viewer
 
-        server, feed_sink = open_vrm_viewer(outs.avatar, ckpt, outs.web_addr)
+        server, feed_sink = open_vrm_viewer(outs.avatar, ckpt, outs.web_addr, rate)
         if o.faces > 1:  # the VRM viewer shows one avatar: the first face
             from facecapges.runtime.outputs.recorders import ForFace
 
             feed_sink = ForFace(0, feed_sink)
     else:
-        server = ViewerServer(avatar_glb(ckpt.skeleton), outs.web_addr[0], outs.web_addr[1], fps=ckpt.fps).start()
+        server = ViewerServer(
+            avatar_glb(ckpt.skeleton), outs.web_addr[0], outs.web_addr[1], fps=ckpt.fps, rate=rate
+        ).start()
         feed_sink = WebFeed(server)
     server.on_intensity = sess.set_intensity  # the viewer's slider
     server.intensity = o.intensity
     sess.closers.append(server)
     outs.server = server
-    if o.rate is not None and o.rate != ckpt.fps and o.faces == 1:
-        if outs.ups:  # the VMC sender's interpolator: one clock and one blend per tick for both (issue 36: CPU)
-            outs.ups[0].add_sink(feed_sink)
-            return
-        from facecapges.runtime.outputs.upsample import Upsampler
-
-        outs.ups.append(Upsampler([feed_sink], ckpt.fps, o.rate))  # the viewer at --rate too
-        feed_sink = outs.ups[-1]
     sess.add_sink(feed_sink)
 
 
@@ -376,6 +373,7 @@ def _report(o: LiveOptions, outs: _Outputs, scheduler, feed, why: str, body=None
             "frames_sent": outs.server.frames_sent,
             "rejected_requests": outs.server.rejected_requests,
             "oversized_closes": outs.server.oversized_closes,
+            "page_blends_at_rate_hz": outs.server.rate if outs.server.rate > outs.server.fps else None,
         }
     if outs.senders:
         report["vmc"] = outs.senders[0].stats() if o.faces == 1 else [x.stats() for x in outs.senders]

@@ -11,6 +11,11 @@
 // facecapges.runtime.outputs.vrm_viewer). Shows frame rate, compute and transport latency; checkboxes
 // toggle a skeleton overlay and the face close-up. Several faces (`live --faces N`, our avatar): the `face`
 // field of a message picks the avatar; avatar i is a copy of the first, placed left to right.
+// Between the model's frames (`live --rate R`): the server then says so once (`{"type": "rate", "fps": 15,
+// "rate": 30}`, facecapges.runtime.outputs.viewer) and sends the model's frames only; the page blends
+// towards each one as the upsampler of the VMC stream does (facecapges.runtime.outputs.upsample: from what
+// is on screen when it comes, weight min(1, elapsed/period + fps/rate), quaternions by slerp, weights
+// linearly): the same added latency, drawn at the display's rate instead of R.
 // The mouse moves the camera (three's OrbitControls): drag to orbit, wheel to zoom, right-drag to pan.
 //
 // URL parameters, for OBS's browser source and other embeds (README, "OBS browser source"):
@@ -31,7 +36,7 @@ const slider = intensitySlider();
 const $ = (id) => document.getElementById(id);
 const state = {
   ready: false, connected: false, hello: null, frames: 0, drawn: 0, lastFrame: -1, faceFound: null, avatars: 1,
-  fpsIn: 0, fpsDrawn: 0, computeMs: null, transportMs: null, errors: [],
+  fpsIn: 0, fpsDrawn: 0, computeMs: null, transportMs: null, errors: [], rate: null, blends: 0,
 };
 window.facecapgesViewer = state;
 window.addEventListener('error', (e) => state.errors.push(String(e.message || e)));
@@ -76,6 +81,10 @@ const draws = [];
 let helper = null;
 let controls = null;
 let view = options.frame;  // the view shown: options.frame, 'face' (the close-up checkbox) or a view object
+let steps = 1;       // rate / fps of the server's `rate` message: 1 = each frame drawn as it comes
+let periodMs = 0;    // the model's frame period (1000 / fps)
+let shown = null;    // {pose, weights} on screen (the first face)
+let blend = null;    // {from, to: a feed message, t0: its arrival (ms)}: the blend on screen (see the top)
 
 // the avatar's scene module: a VRM when the server holds a VRM layout
 async function openScene() {
@@ -131,6 +140,27 @@ function draw(target, msg) {
   target.setFace(msg.weights);
 }
 
+// `w` of the way from frame `a` to frame `b` ({pose: flat (w, x, y, z) quaternions, weights}): each quaternion
+// by three's slerp the short way round (its formula is the same in any order of the four components; under
+// 3.6° a lerp, normalised: the same to ~1e-5 rad), the weights linearly
+function between(a, b, w) {
+  const p = new Float64Array(b.pose.length), f = new Float64Array(b.weights.length);
+  for (let i = 0; i < p.length; i += 4) THREE.Quaternion.slerpFlat(p, i, a.pose, i, b.pose, i, w);
+  for (let i = 0; i < f.length; i++) f[i] = (1 - w) * a.weights[i] + w * b.weights[i];
+  return { pose: p, weights: f };
+}
+
+// what to draw now (null: nothing new): the newest frame, or with `steps` > 1 the blend towards it
+function frameNow(now) {
+  if (!blend) return null;
+  const w = blend.from ? Math.min(1, (now - blend.t0) / periodMs + 1 / steps) : 1;
+  const fr = w >= 1 ? blend.to : between(blend.from, blend.to, w);
+  if (w >= 1) blend = null;  // reached: held until the next frame comes
+  else state.blends += 1;  // (draws of an in-between, for tests)
+  shown = fr;
+  return fr;
+}
+
 function rate(list, now) {
   while (list.length && now - list[0] > 1000) list.shift();
   return list.length;
@@ -138,6 +168,12 @@ function rate(list, now) {
 
 function onMessage(msg) {
   if (msg.type === 'hello') { state.hello = msg; if (state.ready) scene.useHello(msg); return; }
+  if (msg.type === 'rate') {
+    state.rate = msg.rate;
+    steps = Math.max(1, Math.round(msg.rate / msg.fps));
+    periodMs = 1000 / msg.fps;
+    return;
+  }
   if (!scene || msg.type !== scene.feedMessage) return;
   if (msg.face) { others.set(msg.face, msg); return; }
   const now = performance.now();
@@ -149,6 +185,8 @@ function onMessage(msg) {
     if (recentCompute.length > 30) recentCompute.shift();
   }
   pending = msg;
+  const same = shown && shown.pose.length === msg.pose.length && shown.weights.length === msg.weights.length;
+  blend = { from: steps > 1 && same ? shown : null, to: msg, t0: now };
 }
 
 function connect() {
@@ -192,11 +230,14 @@ function loop() {
     others.clear();
     if (!pending) scene.render();
   }
+  const fr = live ? frameNow(now) : null;
   if (pending && live) {
-    draw(scene, pending);
     state.lastFrame = pending.frame;
     state.faceFound = pending.face_found;
     pending = null;
+  }
+  if (fr) {
+    draw(scene, fr);
     scene.render();
     state.drawn += 1;
     draws.push(now);
@@ -239,6 +280,7 @@ openScene().then(() => {
 state.camera = () => ({
   position: scene.camera.position.toArray(), target: scene.target.toArray(), fov: scene.camera.fov,
 });
+state.between = between;
 state.setSkeleton = (on) => { $('skel').checked = on; $('skel').dispatchEvent(new Event('change')); return on; };
 connect();
 requestAnimationFrame(loop);

@@ -26,9 +26,27 @@ at ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
 
 A tick that comes late (the machine busy) is sent at once and the schedule kept, so the
 delivered rate stays the asked one; only a lag above :data:`MAX_LAG_S` (a stall) drops
-the missed ticks and restarts the schedule (counted in ``resyncs``). The emitting thread
-calls the wrapped sinks' ``write`` (VMC sender, viewer feed: both thread-safe);
-:meth:`Upsampler.close` shows the last frame, stops the thread and closes them.
+the missed ticks and restarts the schedule (counted in ``resyncs``).
+:meth:`Upsampler.close` shows the last frame, stops the thread and closes the sinks.
+
+Between model frames, in each sink's own form
+---------------------------------------------
+A sink may interpolate in its own form of a frame (what it sends) instead of in the
+:class:`OutputFrame`'s: it has ``model_frame(out)`` (a model frame in its form, computed once,
+at the first tick after the frame came), ``between(a, b, w)`` (``w`` of the way from ``a``
+to ``b``) and ``send(frame, time_s)``. The upsampler keeps, per sink, what it showed and the
+start and end of its blend, and calls those from its thread; a model frame is sent as
+``model_frame`` gives it (the same bytes as the sink's ``write`` of that frame). The VMC sender
+(:class:`~facecapges.runtime.outputs.vmc.VmcSender`) is one: a tick slerps its bones' Unity
+quaternions and lerps its clips' weights and packs them, where converting a blended
+:class:`OutputFrame` cost three times as much (issue 36). Any other sink (``write(out)``) gets
+:func:`blend_frames` of the frames (:class:`FrameBlend`). Slerp commutes with the fixed rest
+frames on both sides (``Wp⁻¹ · Q · Wb``), so a bone that carries one BEAT joint moves the same
+in either form; a bone that carries several (folded joints: Head ← Neck1, a proximal finger
+bone ← its metacarpal) and the VRM preset clips (non-linear in the ARKit weights) take a slightly
+different path between the same two model frames: 0.06° at most on the BEAT take (15 fps,
+ticks at 30 Hz), clip weights up to 0.06 apart mid-way — never outside the two frames' values.
+The browser viewer interpolates itself (:mod:`.viewer`): it is not behind the upsampler.
 """
 
 from __future__ import annotations
@@ -103,11 +121,40 @@ def blend_frames(a: OutputFrame, b: OutputFrame, t: float) -> OutputFrame:
 MAX_LAG_S = 0.25  # a tick this late (a stall) restarts the schedule instead of catching up
 
 
+class FrameBlend:
+    """A sink that takes :class:`OutputFrame` s (``write``), as the upsampler drives it: its own form of a
+    model frame is the frame itself, the ticks between are :func:`blend_frames` (module docstring)."""
+
+    def __init__(self, sink):
+        self.sink = sink
+
+    def model_frame(self, out: OutputFrame) -> OutputFrame:
+        return out
+
+    def between(self, a: OutputFrame, b: OutputFrame, w: float) -> OutputFrame:
+        return blend_frames(a, b, w)
+
+    def send(self, fr: OutputFrame, time_s: float) -> None:
+        self.sink.write(fr if fr.time_s == time_s else replace(fr, time_s=time_s))
+
+
+class _Feed:
+    """One sink's side of the clock, in its own form (module docstring): what it showed last, where the
+    blend to the newest model frame starts, that frame (converted at the first tick after it came)."""
+
+    __slots__ = ("own", "shown", "start", "target")
+
+    def __init__(self, sink):
+        self.own = sink if hasattr(sink, "between") else FrameBlend(sink)
+        self.shown = self.start = self.target = None
+
+
 class Upsampler:
     """Sink wrapper: sends the latest model frame to ``sinks`` at ``rate_hz`` on its own clock (module docstring)."""
 
     def __init__(self, sinks, fps: float, rate_hz: float):
         self.sinks = list(sinks)
+        self._feeds = [_Feed(s) for s in self.sinks]
         self.fps = float(fps)
         self.n = substeps(rate_hz, fps)
         self.rate_hz = float(rate_hz)
@@ -117,10 +164,10 @@ class Upsampler:
         self.resyncs = 0
         self.tick_ms = array("d")  # each tick's blend + send (ms, the emitting thread's work)
         self.tick_cpu_ms = array("d")  # the same in CPU time of that thread
-        self._shown: OutputFrame | None = None  # what the sinks got last
         self._target: OutputFrame | None = None  # newest model frame
-        self._start: OutputFrame | None = None  # what was shown when it arrived
         self._t0 = 0.0  # its arrival time
+        self._sent = False  # a tick was sent
+        self._blends = False  # the newest model frame came after a tick: its blend starts from what was shown
         self._last_time = -np.inf  # the stream time sent last
         self._reached: OutputFrame | None = None  # the model frame shown in full last
         self._cond = threading.Condition()
@@ -132,10 +179,10 @@ class Upsampler:
             self._thread.start()
 
     def add_sink(self, sink) -> None:
-        """One more sink fed from the same clock and the same blended frames (``live``'s viewer beside its
-        VMC sender: one blend per tick for both)."""
+        """One more sink fed from the same clock (it starts on the newest model frame)."""
         with self._cond:
             self.sinks.append(sink)
+            self._feeds.append(_Feed(sink))
 
     @property
     def added_latency_ms(self) -> float:
@@ -151,21 +198,38 @@ class Upsampler:
             self._emit(out)
             return
         with self._cond:
-            self._start = self._shown
+            self._blends = self._sent
+            for f in self._feeds:
+                f.start, f.target = f.shown, None
+            first = self._target is None
             self._target = out
             self._t0 = time.monotonic()
-            self._cond.notify()
+            if first:  # the clock starts; later frames wait for their tick (a wake-up now would only wait again)
+                self._cond.notify()
 
-    def _frame_at(self, due: float, start: OutputFrame | None, target: OutputFrame, t0: float) -> OutputFrame:
-        """What tick ``due`` shows: the blend towards ``target``, its stream time on the clock."""
-        # a late tick (due before the frame came: the machine was busy) shows where it was, never behind it
-        w = 1.0 if start is None else min(1.0, max(0.0, (due - t0) / self.period_s + 1.0 / self.n))
-        self._reached = target if w >= 1.0 else None
-        fr = blend_frames(start, target, w) if start is not None else target
-        t = target.time_s + (due - t0) - (self.n - 1) / self.n * self.period_s
-        t = max(t, self._last_time + 1.0 / self.rate_hz, fr.time_s if start is None else -np.inf)
-        self._last_time = t
-        return fr if t == fr.time_s else replace(fr, time_s=t)
+    def _tick(self, due: float) -> None:
+        """Tick ``due``: each sink's blend towards the newest model frame and the stream time (module docstring),
+        computed and recorded as shown in one hold of the lock (a frame written meanwhile would start from what
+        was shown before this tick, and the output would step back), then sent."""
+        with self._cond:
+            target, t0 = self._target, self._t0
+            assert target is not None  # ticks start with the first frame
+            # a late tick (due before the frame came: the machine was busy) shows where it was, never behind it
+            w = min(1.0, max(0.0, (due - t0) / self.period_s + 1.0 / self.n)) if self._blends else 1.0
+            self._reached = target if w >= 1.0 else None
+            t = target.time_s + (due - t0) - (self.n - 1) / self.n * self.period_s
+            t = max(t, self._last_time + 1.0 / self.rate_hz, -np.inf if self._blends else target.time_s)
+            self._last_time = t
+            self._sent = True
+            sends = []
+            for f in self._feeds:
+                if f.target is None:  # each sink's own form of a model frame, once
+                    f.target = f.own.model_frame(target)
+                f.shown = f.target if w >= 1.0 or f.start is None else f.own.between(f.start, f.target, w)
+                sends.append((f.own, f.shown))
+        for own, shown in sends:
+            own.send(shown, t)
+        self.emitted += 1
 
     def _run(self) -> None:
         name_os_thread("upsample")
@@ -188,14 +252,8 @@ class Upsampler:
                     due = now
                 elif now - due > tick:
                     self.late += 1
-                start, target, t0 = self._start, self._target, self._t0
-                assert target is not None  # the wait above ends only with a frame
-                t_work, c_work = time.perf_counter(), time.thread_time()
-                # computed and recorded as shown in one hold of the lock: a frame written meanwhile would
-                # start from what was shown before this tick, and the output would step back
-                fr = self._frame_at(due, start, target, t0)
-                self._shown = fr
-            self._emit(fr)
+            t_work, c_work = time.perf_counter(), time.thread_time()
+            self._tick(due)
             self.tick_ms.append((time.perf_counter() - t_work) * 1000.0)
             self.tick_cpu_ms.append((time.thread_time() - c_work) * 1000.0)
             due += tick
@@ -211,6 +269,9 @@ class Upsampler:
             self._thread.join(timeout=2)
             target = self._target
             if target is not None and self._reached is not target:  # end on the last model frame
-                self._emit(replace(target, time_s=max(target.time_s, self._last_time + 1.0 / self.rate_hz)))
+                t = max(target.time_s, self._last_time + 1.0 / self.rate_hz)
+                for f in self._feeds:
+                    f.own.send(f.target if f.target is not None else f.own.model_frame(target), t)
+                self.emitted += 1
         for s in self.sinks:
             s.close()

@@ -10,6 +10,16 @@ One ``websockets`` server on one port serves both (plain HTTP GETs are answered 
 * ``/ws`` — the WebSocket feed in the format of :mod:`.protocol`: a ``hello``, then
   one ``pose`` message per frame.
 
+Between the model's frames (``live --rate R`` above the model's rate): the feed still carries the
+model's frames only (15 a second), and right after ``hello`` one more message tells the page to blend
+towards each one itself, as the upsampler of the VMC stream does (:mod:`.upsample`)::
+
+    {"type": "rate", "fps": 15, "rate": 30}
+
+The page (``web/viewer.js``) draws that blend at the display's rate: the same added latency as at
+``R`` Hz (33.3 ms at 30 Hz), smoother, and the server encodes and sends a frame once, not ``R/fps``
+times (issue 36: the output ticks' CPU).
+
 Security: it binds 127.0.0.1 unless the user passes another address (``--host``);
 the Host check, message size limit and handshake timeout are those of every
 WebSocket server of the project (:mod:`.ws`); a bad client message gets an ``error``
@@ -27,6 +37,7 @@ ones.
 
 from __future__ import annotations
 
+import json
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -91,6 +102,7 @@ class ViewerServer(ServerThread):
         web_dir: Path | None = None,
         three_dir: Path | None = None,
         log=None,
+        rate: float | None = None,
     ):
         from facecapges.avatar.render.browser import three_dir as find_three
         from facecapges.avatar.render.browser import web_dir as find_web
@@ -98,6 +110,7 @@ class ViewerServer(ServerThread):
         super().__init__()
         self.glb = glb
         self.host, self.port, self.fps = host, port, fps
+        self.rate = fps if rate is None else float(rate)  # the page blends between frames above fps (module docs)
         self.web_dir = (web_dir or find_web()).resolve()
         self.three_dir = (three_dir or find_three()).resolve()
         self.page = "/web/viewer.html"  # served at INDEX_PATHS
@@ -147,6 +160,8 @@ class ViewerServer(ServerThread):
         self.clients.add(ws)
         try:
             await ws.send(protocol.encode_hello(self.fps, intensity=self.intensity))
+            if self.rate > self.fps:
+                await ws.send(json.dumps({"type": "rate", "fps": self.fps, "rate": self.rate}))
             async for message in ws:
                 try:
                     msg = protocol.decode_client(message, self.fps)

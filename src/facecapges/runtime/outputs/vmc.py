@@ -17,6 +17,14 @@ when one fragment is). In order::
 frame; a receiver applies the frame's face at once. :func:`pack_bundles` packs the
 messages greedily in this order.
 
+Behind the upsampler (``live --rate``, :mod:`.upsample`) the sender interpolates in what it
+sends: a model frame's bone quaternions and clip weights are computed once
+(:meth:`VmcSender.model_frame`: the same datagrams as sending the frame alone), and a tick
+between two model frames slerps those quaternions and lerps those weights
+(:meth:`VmcSender.between`): for the bones carrying folded BEAT joints and the VRM preset clips
+a slightly different path between the same two frames than converting a blended pose would
+take (:mod:`.upsample`, "Between model frames").
+
 Face clips (``blend``, ``live --vmc-blend``)
 --------------------------------------------
 VMC receivers look the name up in the avatar's clips; some **case-sensitively** (EVMC4U
@@ -478,8 +486,6 @@ class VmcSender:
         self._bone_prefix = [_prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) for name, _, _ in bones]
         self._bone_pos = np.array([pos for _, _, pos in bones], np.float64).reshape(-1, 3)
         self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
-        self._face_cache = (b"", b"")  # the last frame's face weights and their clips' packed values
-        self._bone_cache = (b"", b"")  # the last frame's rotations and its bones' packed numbers (a held frame)
         self._template, self._slots, self._spans = self._layout()
         self.sent = 0  # frames
         self.datagrams = 0
@@ -487,13 +493,15 @@ class VmcSender:
         self.errors = 0
 
     def _layout(self) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
-        """The frame's datagrams with their numbers blank, where the numbers go and each datagram's span.
+        """The frame's datagrams with their changing numbers blank, where those go and each datagram's span.
 
         Every message but its numbers is the same each frame and so is its length, hence the way
-        :func:`pack_bundles` packs them: packed once here (zeros for the numbers), a frame is then one scatter
-        of its packed numbers into a copy (:meth:`datagrams_for`; the same bytes as packing its messages)."""
+        :func:`pack_bundles` packs them: packed once here (the bones' positions, which never change, in place;
+        zeros for the rest), a frame is then one scatter of its packed rotations, weights and time into a copy
+        (:meth:`send`; the same bytes as packing its messages)."""
+        xyz = self._bone_pos.astype(">f4").tobytes()
         pieces = [(_ROOT, 0)] if self.parts == "all" else []
-        pieces += [(pre, 28) for pre in self._bone_prefix]
+        pieces += [(pre + xyz[12 * k : 12 * k + 12], 16) for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
             pieces += [(pre, 4) for pre in self._blend_prefix] + [(_APPLY, 0)]
         pieces += [(_OK, 0), (_T_PREFIX, 4)]
@@ -515,38 +523,50 @@ class VmcSender:
         assert k == len(pieces) and pos == sum(len(g) for g in grams)
         return np.frombuffer(b"".join(grams), np.uint8), np.array(slots, np.intp), spans
 
-    def _bone_numbers(self, out: OutputFrame) -> bytes:
-        """px py pz qx qy qz qw per sent bone, float32 big-endian (a held frame's packed once)."""
-        quats = np.asarray(out.quats)
-        key = quats.dtype.str.encode() + quats.tobytes()
-        last_key, raw = self._bone_cache  # one tuple: read and replaced whole (writers on two threads)
-        if key != last_key:
-            q = self.mapping.local_quaternions(quats)
-            vals = np.empty((len(self._bone_prefix), 7), np.float64)
-            vals[:, :3] = self._bone_pos
-            vals[:, 3:6] = q[:, 1:4]
-            vals[:, 6] = q[:, 0]
-            raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
-            self._bone_cache = (key, raw)
-        return raw
+    # ------------------------------------------------------------------ the upsampler's interpolating sink
+    def model_frame(self, out: OutputFrame) -> tuple[np.ndarray, np.ndarray]:
+        """The sender's own form of a model frame (:mod:`.upsample`, module docstring "Between model frames"):
+        its bones' Unity quaternions as sent, (bones, 4) (x, y, z, w), and its clips' weights, float64."""
+        q = self.mapping.local_quaternions(np.asarray(out.quats))[:, [1, 2, 3, 0]]
+        face = blend_weights(out.face, self.blend) if self.parts != "arms" else np.empty(0)
+        return q, face
 
-    def _face_numbers(self, out: OutputFrame) -> bytes:
-        """The face clips' weights, float32 big-endian (a held frame's packed once)."""
-        face = np.asarray(out.face)
-        key = face.dtype.str.encode() + face.tobytes()
-        last_key, raw = self._face_cache  # one tuple: read and replaced whole (writers on two threads)
-        if key != last_key:  # else a held frame (no newer model frame yet): the same clips again
-            raw = blend_weights(face, self.blend).astype(">f4").tobytes()
-            self._face_cache = (key, raw)
-        return raw
+    def between(self, a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], w: float):
+        """``w`` of the way from ``a`` to ``b`` (:meth:`model_frame` forms): the bones' slerp (the same arc in any
+        order of the components), the clips' weights linearly."""
+        return rot.quaternion_slerp(a[0], b[0], w), (1.0 - w) * a[1] + w * b[1]
 
+    def send(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> None:
+        """Send a frame in the sender's own form (:meth:`model_frame`, :meth:`between`) at stream time ``time_s``."""
+        try:
+            for d in self._datagrams(frame, time_s):
+                self.sock.sendto(d, self.address)
+                self.datagrams += 1
+                self.largest_datagram = max(self.largest_datagram, len(d))
+            self.sent += 1
+        except OSError:  # receiver not there (ICMP port unreachable): UDP is fire-and-forget
+            self.errors += 1
+
+    def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> list[bytes]:
+        q, face = frame
+        numbers = np.concatenate([q.reshape(-1), face, (time_s,)]).astype(">f4")  # struct.pack(">f")'s rounding
+        buf = self._template.copy()
+        buf[self._slots] = numbers.view(np.uint8)
+        data = buf.tobytes()
+        return [data[a:b] for a, b in self._spans]
+
+    # ------------------------------------------------------------------ a frame as it is
     def messages(self, out: OutputFrame) -> list[bytes]:
         """The frame's OSC messages, in sending order (module docstring)."""
+        q, face = self.model_frame(out)
+        vals = np.empty((len(self._bone_prefix), 7), np.float64)
+        vals[:, :3] = self._bone_pos
+        vals[:, 3:] = q
+        raw = vals.astype(">f4").tobytes()  # the rounding struct.pack(">f", x) does (nearest, ties even)
         msgs = [_ROOT] if self.parts == "all" else []
-        raw = self._bone_numbers(out)
         msgs += [pre + raw[28 * k : 28 * k + 28] for k, pre in enumerate(self._bone_prefix)]
         if self.parts != "arms":
-            raw = self._face_numbers(out)
+            raw = face.astype(">f4").tobytes()
             msgs += [pre + raw[4 * k : 4 * k + 4] for k, pre in enumerate(self._blend_prefix)]
             msgs.append(_APPLY)
         msgs += [_OK, _msg("/VMC/Ext/T", float(out.time_s))]
@@ -554,22 +574,10 @@ class VmcSender:
 
     def datagrams_for(self, out: OutputFrame) -> list[bytes]:
         """The frame's datagrams: :func:`pack_bundles` of :meth:`messages`, from the layout (:meth:`_layout`)."""
-        face = self._face_numbers(out) if self.parts != "arms" else b""
-        numbers = self._bone_numbers(out) + face + struct.pack(">f", float(out.time_s))
-        buf = self._template.copy()
-        buf[self._slots] = np.frombuffer(numbers, np.uint8)
-        data = buf.tobytes()
-        return [data[a:b] for a, b in self._spans]
+        return self._datagrams(self.model_frame(out), out.time_s)
 
     def write(self, out: OutputFrame) -> None:
-        try:
-            for d in self.datagrams_for(out):
-                self.sock.sendto(d, self.address)
-                self.datagrams += 1
-                self.largest_datagram = max(self.largest_datagram, len(d))
-            self.sent += 1
-        except OSError:  # receiver not there (ICMP port unreachable): UDP is fire-and-forget
-            self.errors += 1
+        self.send(self.model_frame(out), out.time_s)
 
     def stats(self) -> dict:
         return {

@@ -28,8 +28,15 @@ from facecapges.timing import MODEL_FPS
 
 
 class VrmViewerServer(ViewerServer):
-    def __init__(self, driver, host: str = "127.0.0.1", port: int = 8765, fps: float = float(MODEL_FPS)):
-        super().__init__(b"", host, port, fps)
+    def __init__(
+        self,
+        driver,
+        host: str = "127.0.0.1",
+        port: int = 8765,
+        fps: float = float(MODEL_FPS),
+        rate: float | None = None,
+    ):
+        super().__init__(b"", host, port, fps, rate=rate)
         self.driver = driver
         self.routes = driver.routes()  # the one viewer page asks for /vrm/layout.json: the VRM scene
 
@@ -70,14 +77,15 @@ class VrmWebFeed:
         pass
 
 
-def open_vrm_viewer(avatar, ckpt, address: tuple[str, int]):
+def open_vrm_viewer(avatar, ckpt, address: tuple[str, int], rate: float | None = None):
     """Start the VRM viewer for ``avatar`` (a file, or its :class:`~facecapges.avatar.vrm.read.VrmModel`
-    already read) on ``address``; returns (server, sink)."""
+    already read) on ``address`` (the page blending between frames at ``rate``: :mod:`.viewer`); returns
+    (server, sink)."""
     from facecapges.avatar.vrm.read import VrmModel
     from facecapges.avatar.vrm.view import VrmDriver
 
     driver = (
         VrmDriver(avatar, ckpt.skeleton) if isinstance(avatar, VrmModel) else VrmDriver.from_file(avatar, ckpt.skeleton)
     )
-    server = VrmViewerServer(driver, address[0], address[1], fps=ckpt.fps).start()
+    server = VrmViewerServer(driver, address[0], address[1], fps=ckpt.fps, rate=rate).start()
     return server, VrmWebFeed(server, ckpt.skeleton)
