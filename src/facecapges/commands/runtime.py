@@ -78,8 +78,8 @@ VMC_PARTS = typer.Option(
 )
 RATE = typer.Option(
     "--rate",
-    help="VMC and viewer output rate in Hz, a multiple of the model's 15 fps: 30 or 60 interpolate between "
-    "model frames (+33 / +50 ms latency).",
+    help="VMC output rate in Hz, a multiple of the model's 15 fps: 30 or 60 interpolate between model frames "
+    "(+33 / +50 ms latency); the viewer gets the model frames and blends between them the same way in the page.",
 )
 WEB = typer.Option(
     "--web", help="Serve the browser viewer on [HOST:]PORT, e.g. 127.0.0.1:8765 (port 0: any free port)."
