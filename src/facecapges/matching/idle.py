@@ -260,10 +260,16 @@ class IdleLayer:
         """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
         their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
         frame counts ``t`` (B,) and the dial's gains (B,)."""
-        m = self.motion
-        scale = self.amplitude * np.asarray(gain, np.float64)
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]
+        if not (want.any() or was.any() or self.x[ids].any() or self.v[ids].any()):
+            # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what
+            # the steps below give then, in a few calls: most frames of speech)
+            out = inz.qabs(np.asarray(q, np.float64))
+            self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, self.prev_out[ids, 1], out
+            return out
+        m = self.motion
+        scale = self.amplitude * np.asarray(gain, np.float64)
         enter, leave = want & ~was, ~want & was
         if enter.any():  # the rest pose nearest the pose shown now
             k = np.flatnonzero(enter)
