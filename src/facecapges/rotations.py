@@ -282,8 +282,12 @@ def rot6d_to_matrix(rot6d: Array) -> Array:
     if not _is_torch(rot6d):  # the same steps in fewer NumPy calls (one frame of a stream: 47 small rows)
         u1 = a / np.maximum(np.sqrt(np.einsum("...i,...i->...", a, a))[..., None], _EPS)
         v2 = b - np.einsum("...i,...i->...", u1, b)[..., None] * u1
-        u2 = v2 / np.maximum(np.sqrt(np.einsum("...i,...i->...", v2, v2))[..., None], _EPS)
-        return np.stack([u1, u2, _cross(u1, u2)], -1)
+        m = np.empty(u1.shape + (3,), u1.dtype)  # the columns written in place (np.stack's work, fewer calls)
+        np.divide(v2, np.maximum(np.sqrt(np.einsum("...i,...i->...", v2, v2))[..., None], _EPS), out=m[..., 1])
+        m[..., 0] = u1
+        u2, i, j = m[..., 1], _CROSS_I, _CROSS_J
+        np.subtract(u1[..., i] * u2[..., j], u1[..., j] * u2[..., i], out=m[..., 2])  # _cross(u1, u2)
+        return m
     u1 = a / _maximum(_norm(a), _EPS)
     dot = (u1 * b).sum(-1, keepdims=True) if not _is_torch(b) else (u1 * b).sum(-1, keepdim=True)
     v2 = b - dot * u1
@@ -423,11 +427,12 @@ def quaternion_to_rot6d(quat: np.ndarray) -> np.ndarray:
     q = quat / np.maximum(_vector_norm(quat, keepdims=True), _EPS)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (6,), q.dtype)
-    out[..., 0] = 1 - 2 * (y * y + z * z)
-    out[..., 1] = 2 * (x * y + z * w)
+    zz, xy, zw = z * z, x * y, z * w  # each used twice
+    out[..., 0] = 1 - 2 * (y * y + zz)
+    out[..., 1] = 2 * (xy + zw)
     out[..., 2] = 2 * (x * z - y * w)
-    out[..., 3] = 2 * (x * y - z * w)
-    out[..., 4] = 1 - 2 * (x * x + z * z)
+    out[..., 3] = 2 * (xy - zw)
+    out[..., 4] = 1 - 2 * (x * x + zz)
     out[..., 5] = 2 * (y * z + x * w)
     return out
 
@@ -519,7 +524,10 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
     v = q[..., 1:]
     s = _vector_norm(v)
     angle = 2.0 * np.arctan2(s, w)
-    k = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
+    k = angle / np.maximum(s, 1e-12)
+    big = s > 1e-9
+    if not big.all():  # (else every angle is far from 0: the limit below is not needed, the same numbers)
+        k = np.where(big, k, 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
     return v * k[..., None]
 
 
@@ -528,10 +536,17 @@ def quaternion_exp(r: np.ndarray) -> np.ndarray:
 
     The inverse of :func:`quaternion_log`; the quaternion form of :func:`exp_so3`, batched.
     """
+    r = np.asarray(r)
     angle = _vector_norm(r)
     half = 0.5 * angle
-    k = np.where(angle > 1e-9, np.sin(half) / np.maximum(angle, 1e-12), 0.5 - angle**2 / 48.0)
-    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+    k = np.sin(half) / np.maximum(angle, 1e-12)
+    big = angle > 1e-9
+    if not big.all():  # (else the small-angle series below is not needed: the same numbers)
+        k = np.where(big, k, 0.5 - angle**2 / 48.0)
+    out = np.empty(angle.shape + (4,), np.result_type(half, r))
+    np.cos(half, out=out[..., 0])
+    np.multiply(r, k[..., None], out=out[..., 1:])
+    return out
 
 
 def continuous_quaternions(q: np.ndarray) -> np.ndarray:
@@ -677,18 +692,20 @@ def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
     _check_last(ref, (4,), "quaternion")
     # the geodesic through ref and q, in the closed form of the slerp (valid for any power):
     # (sin((1 − p)θ) · ref + sin(pθ) · q) / sin θ, θ the angle between ref and ±q (the nearer one)
-    dot = np.sum(ref * q, axis=-1, keepdims=True)
+    dot = np.add.reduce(ref * q, axis=-1, keepdims=True)  # np.sum's own reduction
     q = np.where(dot < 0.0, -q, q)
-    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    theta = np.arccos(np.minimum(np.abs(dot), 1.0))  # np.clip(·, 0, 1) of a number ≥ 0
     s = np.sin(theta)
     small = s < 1e-6  # nearly equal rotations: the linear blend, normalised
-    safe = np.where(small, 1.0, s)
     p = np.asarray(power, np.float64)
-    out = (
-        np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe) * ref
-        + np.where(small, p, np.sin(p * theta) / safe) * q
-    )
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    if small.any():
+        safe = np.where(small, 1.0, s)
+        a = np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe)
+        b = np.where(small, p, np.sin(p * theta) / safe)
+    else:  # the same numbers without the linear blend's branch
+        a, b = np.sin((1.0 - p) * theta) / s, np.sin(p * theta) / s
+    out = a * ref + b * q
+    return out / _vector_norm(out, keepdims=True)  # np.linalg.norm's own arithmetic
 
 
 def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.ndarray:
