@@ -375,6 +375,8 @@ _DIAG_SIGNS = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [
 _OFF_I, _OFF_J = np.array([7, 2, 3, 1, 2, 5]), np.array([5, 6, 1, 3, 6, 7])
 _OFF_SIGNS = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 _CAND_ROWS = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
+_DIAG = np.array([0, 4, 8])  # the diagonal's flat indices
+_SIGNS_OF = {np.dtype(t).char: (_DIAG_SIGNS.astype(t), _OFF_SIGNS.astype(t)) for t in (np.float64, np.float32)}
 
 
 def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
@@ -385,10 +387,12 @@ def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
     numbers, so the same result (``test_rotations``: the bits of the component-wise formula)."""
     lead = m.shape[:-2]
     flat = m.reshape(-1, 9)
-    t = flat[:, None, [0, 4, 8]] * _DIAG_SIGNS.astype(m.dtype, copy=False)  # ±m00 ±m11 ±m22 (exact, m's dtype)
-    cands = 1 + t[..., 0] + t[..., 1] + t[..., 2]  # (n, 4): w² x² y² z²
-    off = flat[:, _OFF_I] + flat[:, _OFF_J] * _OFF_SIGNS.astype(m.dtype, copy=False)  # a b c d e f
-    values = np.concatenate([cands, off], axis=1)
+    signs = _SIGNS_OF.get(m.dtype.char) or (_DIAG_SIGNS.astype(m.dtype), _OFF_SIGNS.astype(m.dtype))
+    t = flat[:, None, _DIAG] * signs[0]  # ±m00 ±m11 ±m22 (exact, m's dtype)
+    values = np.empty((len(flat), 10), np.result_type(1, t))  # [w² x² y² z² a b c d e f], written in place
+    cands = values[:, :4]  # (n, 4): w² x² y² z²
+    np.add(1 + t[..., 0] + t[..., 1], t[..., 2], out=cands)
+    np.add(flat[:, _OFF_I], flat[:, _OFF_J] * signs[1], out=values[:, 4:])  # a b c d e f
     best = np.argmax(cands, axis=-1)
     rows = np.arange(len(flat))
     q = values[rows[:, None], _CAND_ROWS[best]]

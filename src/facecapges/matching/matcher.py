@@ -245,6 +245,8 @@ class BatchedMatchingStreams(SlotOwner):
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
+        self._rates_key: tuple | None = None  # what _rates computed its two rates for
+        self._rates_of = (0.0, 0.0)
         self._prepare_db()
         self.speech = SpeechTracker(1)
         self.capacity = 0
@@ -559,13 +561,12 @@ class BatchedMatchingStreams(SlotOwner):
         x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
         q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
-        alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
+        alpha, beta = self._rates(dt)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
         # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
         # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
         dev = self._deviation(q)
-        beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
         g = gain = gain_of(now)
@@ -577,6 +578,19 @@ class BatchedMatchingStreams(SlotOwner):
             d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
             q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
         return q, gain
+
+    def _rates(self, dt: float) -> tuple[float, float]:
+        """The dial's smoothing per frame: the intensity's (``intensity_tau_s``) and the deviation's
+        (``intensity_smooth_s``), computed once per frame length and time constants (not on every step)."""
+        cfg = self.config
+        key = (dt, cfg.intensity_tau_s, cfg.intensity_smooth_s)
+        if self._rates_key != key:
+            self._rates_key = key
+            self._rates_of = (
+                1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3)),
+                1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3)),
+            )
+        return self._rates_of
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""

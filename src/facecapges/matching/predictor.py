@@ -194,7 +194,9 @@ class _Taps:
 
     def step(self, reg: np.ndarray, idx: np.ndarray, x: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
         """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
-        held = reg[idx]  # (B, R, L, C)
+        # (B, R, L, C); one stream: its rows of the register themselves (a view, shifted in place), not a copy
+        one = len(idx) == 1
+        held = reg[int(idx[0]) : int(idx[0]) + 1] if one else reg[idx]
         pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
         pre += self.b
         held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
@@ -213,7 +215,8 @@ class _Taps:
                 np.add(xi, act, out=now[:, i + 1])
             else:
                 x_out = xi + act
-        reg[idx] = held
+        if not one:
+            reg[idx] = held
         return x_out - x
 
 
