@@ -149,9 +149,12 @@ def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
 
 
 # --------------------------------------------------------------------------- the NumPy kernel
+_LEAK = np.float32(0.2)
+
+
 def _leaky(y: np.ndarray) -> np.ndarray:
     """``leaky_relu(y, 0.2)``: the same bits (y > 0: y; else 0.2·y, which is then the larger)."""
-    return np.maximum(y, np.float32(0.2) * y)
+    return np.maximum(y, _LEAK * y)
 
 
 class _Affine:
@@ -203,14 +206,15 @@ class _Taps:
         now = held[:, 0]  # (B, L, C): layer i's input is written there, and read back as the next product's
         now[:, 0] = x
         last, x_out = self.L - 1, x
+        y, act = np.empty((2, len(held), self.C), np.float32)  # every layer's product and activation, in place
         for i, w_now in enumerate(self.w_now):
             xi = now[:, i]
-            y = np.dot(xi, w_now)
+            np.dot(xi, w_now, out=y)
             y += pre[i]
             if extra is not None and i == last:
                 y += extra
-            # residual (leaky_relu 0.2) into the next layer's input; the last: x_L − x0 is the layers' skip sum
-            act = np.maximum(y, np.float32(0.2) * y)
+            # residual (leaky_relu 0.2: _leaky) into the next layer's input; the last: x_L − x0 is the skip sum
+            np.maximum(y, np.multiply(y, _LEAK, out=act), out=act)
             if i < last:
                 np.add(xi, act, out=now[:, i + 1])
             else:
