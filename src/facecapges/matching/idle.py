@@ -42,6 +42,7 @@ slot of a batch give the same poses.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,9 +172,14 @@ class IdleMotion:
     def offsets(self, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
         """Rotation vectors (B, J, 3) of the procedural idle at frames ``t`` (B,), amplitude × ``scale`` (B,)."""
         secs = np.asarray(t, np.float64)[:, None, None] / fps
-        w = 2.0 * np.pi * self.frequency[None]
-        x = sum(np.sin(w * k * secs + self.phase[i][None]) for i, k in enumerate(FREQ_SPLIT))
+        x = sum(np.sin(wk * secs + self.phase[i][None]) for i, wk in enumerate(self._angular))
         return self.amplitude[None] * x * np.asarray(scale, np.float64)[:, None, None]
+
+    @functools.cached_property
+    def _angular(self) -> tuple[np.ndarray, ...]:
+        """The two sines' angular frequencies (1, J, 3) rad/s, ``2π · frequency · k`` (k of FREQ_SPLIT), made once."""
+        w = 2.0 * np.pi * self.frequency[None]
+        return tuple(w * k for k in FREQ_SPLIT)
 
     def pose(self, target: np.ndarray, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
         """Quaternions (B, 47, 4): rest poses ``target`` (B,) with the idle of frames ``t`` on top."""

@@ -466,12 +466,13 @@ class BatchedMatchingStreams(SlotOwner):
         ended = nxt < 0
         nxt = np.where(ended, row, nxt)
         off_state = idle_only & ~self.idle_play[nxt]
-        changed = cues.speaking != self.was_speaking[ids]
-        self.since_search[ids] += 1
-        self.since_switch[ids] += 1
-        settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        started = cues.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
-        periodic = changed | cues.onset | (self.since_search[ids] >= cfg.search_interval)
+        was = self.was_speaking[ids]
+        changed = cues.speaking != was
+        since_search, since_switch = self.since_search[ids] + 1, self.since_switch[ids] + 1
+        self.since_search[ids], self.since_switch[ids] = since_search, since_switch
+        settled = since_switch >= cfg.min_play_frames  # a clip plays a while before a search leaves it
+        started = cues.speaking & ~was  # speech resumes: search now (resume within 0.3 s)
+        periodic = changed | cues.onset | (since_search >= cfg.search_interval)
         # continuing into a stretch (or its mirror image) played before this run began, within the memory
         last = self.last_used[ids, self.canon[nxt]]
         into_recent = (last > self.t[ids] - cfg.memory_s * self.fps) & (last < self.run_start[ids])
