@@ -286,8 +286,11 @@ class IdleLayer:
         use = np.flatnonzero(was | want)  # streams whose rest pose is shown or switched from / to
         idle_now = out  # (read only, below, where no stream's rest pose is used: no copy needed then)
         if len(use):
-            idle_now = out.copy()
-            idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
+            if len(use) == len(ids):  # every stream (use is then 0 … B − 1): the idle poses themselves
+                idle_now = m.pose(tgt, t, self.fps, scale)
+            else:
+                idle_now = out.copy()
+                idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
             idle_now[:, self.keep] = q[:, self.keep]
         switch = enter | leave
         if switch.any():
@@ -297,7 +300,8 @@ class IdleLayer:
         big = np.maximum.reduce  # ndarray.max's own reduction
         live = self.idle[ids] | (big(np.abs(xs), axis=(1, 2)) > SPENT) | (big(np.abs(vs), axis=(1, 2)) > SPENT)
         k = np.flatnonzero(live)
-        self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
+        if len(k) < len(ids):
+            self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
         p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]
         if len(k):
             s = ids[k]
