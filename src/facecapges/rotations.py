@@ -510,7 +510,11 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def quaternion_invert(q: np.ndarray) -> np.ndarray:
     """The inverse rotations of unit quaternions (…, 4): the conjugates (w, −x, −y, −z); numpy only."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+    conj = _CONJ_OF.get(q.dtype.char) if isinstance(q, np.ndarray) else None
+    return q * (np.array([1.0, -1.0, -1.0, -1.0], q.dtype) if conj is None else conj)
+
+
+_CONJ_OF = {np.dtype(t).char: np.array([1.0, -1.0, -1.0, -1.0], t) for t in (np.float64, np.float32)}
 
 
 def standardize_quaternion(q: np.ndarray) -> np.ndarray:

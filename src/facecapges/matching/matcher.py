@@ -143,7 +143,9 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
     below it the swing shrinks (at 0, where only idle rows play, to half the idle motion: still
     moving, never frozen).
     """
-    i = np.clip(np.asarray(intensity, np.float64), MIN_INTENSITY, MAX_INTENSITY)
+    # np.clip's bounds as two ufunc calls (without its Python layers): the same gains (a signed zero or a NaN's
+    # sign bit, where the two may differ, gives 0.5 and NaN either way)
+    i = np.minimum(np.maximum(np.asarray(intensity, np.float64), MIN_INTENSITY), MAX_INTENSITY)
     return np.where(i < 1.0, 0.5 + 0.5 * i, i)
 
 
@@ -528,7 +530,7 @@ class BatchedMatchingStreams(SlotOwner):
 
     def _settled(self, ids: np.ndarray) -> np.ndarray:
         """How far each stream's pause has settled (B,): 0 while speaking, 1 once it has lasted ``settle_s``."""
-        return np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)
+        return np.minimum(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 1.0)  # quiet ≥ 0: np.clip's
 
     def _search(self, ids, rows, cues, searching, pred, idle_only, forced, stale) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams: their queries, memory and
