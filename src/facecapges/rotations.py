@@ -72,8 +72,8 @@ def _stack(items: list[Array], axis: int, like: Array) -> Array:
 def _cross(a: Array, b: Array) -> Array:
     if _is_torch(a):
         return _torch().linalg.cross(a, b, dim=-1)
-    i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays
-    return a[..., i] * b[..., j] - a[..., j] * b[..., i]
+    i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays (take: a[..., i] without fancy indexing's setup)
+    return a.take(i, axis=-1) * b.take(j, axis=-1) - a.take(j, axis=-1) * b.take(i, axis=-1)
 
 
 def _norm(a: Array) -> Array:
@@ -286,7 +286,7 @@ def rot6d_to_matrix(rot6d: Array) -> Array:
         np.divide(v2, np.maximum(np.sqrt(np.einsum("...i,...i->...", v2, v2))[..., None], _EPS), out=m[..., 1])
         m[..., 0] = u1
         u2, i, j = m[..., 1], _CROSS_I, _CROSS_J
-        np.subtract(u1[..., i] * u2[..., j], u1[..., j] * u2[..., i], out=m[..., 2])  # _cross(u1, u2)
+        np.subtract(u1.take(i, -1) * u2.take(j, -1), u1.take(j, -1) * u2.take(i, -1), out=m[..., 2])  # _cross
         return m
     u1 = a / _maximum(_norm(a), _EPS)
     dot = (u1 * b).sum(-1, keepdims=True) if not _is_torch(b) else (u1 * b).sum(-1, keepdim=True)
@@ -388,11 +388,11 @@ def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
     lead = m.shape[:-2]
     flat = m.reshape(-1, 9)
     signs = _SIGNS_OF.get(m.dtype.char) or (_DIAG_SIGNS.astype(m.dtype), _OFF_SIGNS.astype(m.dtype))
-    t = flat[:, None, _DIAG] * signs[0]  # ±m00 ±m11 ±m22 (exact, m's dtype)
+    t = flat.take(_DIAG, axis=1)[:, None] * signs[0]  # ±m00 ±m11 ±m22 (exact, m's dtype)
     values = np.empty((len(flat), 10), np.result_type(1, t))  # [w² x² y² z² a b c d e f], written in place
     cands = values[:, :4]  # (n, 4): w² x² y² z²
     np.add(1 + t[..., 0] + t[..., 1], t[..., 2], out=cands)
-    np.add(flat[:, _OFF_I], flat[:, _OFF_J] * signs[1], out=values[:, 4:])  # a b c d e f
+    np.add(flat.take(_OFF_I, axis=1), flat.take(_OFF_J, axis=1) * signs[1], out=values[:, 4:])  # a b c d e f
     best = np.argmax(cands, axis=-1)
     rows = np.arange(len(flat))
     q = values[rows[:, None], _CAND_ROWS[best]]
