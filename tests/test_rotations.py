@@ -431,3 +431,20 @@ def test_vector_norm_keeps_numpys_bits():
             ref = np.linalg.norm(a, axis=-1)
             got = rot._vector_norm(a)
             assert got.dtype == ref.dtype and np.asarray(got).tobytes() == np.asarray(ref).tobytes(), (dtype, shape)
+
+
+def test_quaternion_log_exp_and_power_of_one_rotation_do_not_depend_on_the_others():
+    """The small-angle (and near-equal) branches are taken only when some entry needs them: each entry's bits are
+    the same alone and among others that do or do not need them."""
+    rng = np.random.default_rng(7)
+    v = rng.normal(size=(64, 3))
+    v[::3] *= 1e-11  # some angles below the branch's threshold
+    q = rot.quaternion_exp(v)
+    ref = rot.quaternion_exp(rng.normal(size=(64, 3)))
+    near = ref.copy()
+    near[::4] = ref[::4] + 1e-12  # some pairs nearly equal
+    together = (rot.quaternion_exp(v), rot.quaternion_log(q), rot.quaternion_power_about(near, ref, 0.3))
+    for i in range(len(v)):
+        alone = (rot.quaternion_exp(v[i]), rot.quaternion_log(q[i]), rot.quaternion_power_about(near[i], ref[i], 0.3))
+        for a, b in zip(alone, together, strict=True):
+            assert np.array_equal(a, b[i])

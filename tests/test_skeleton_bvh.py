@@ -64,6 +64,17 @@ def test_write_read_round_trip(sample, tmp_path):
     assert not list(tmp_path.glob("*.part"))  # written atomically
 
 
+def test_motion_text_is_each_values_own_format(sample, tmp_path):
+    """Columns at rest (+0.0 in every row) are written as a literal: the text stays f"{v:.6f}" of every value,
+    also for −0.0, NaN, ±inf and a column that is zero in some rows only."""
+    m = np.array(sample.motion[:6], np.float64)
+    m[:, 1], m[:, 2], m[:3, 3], m[:, 4] = 0.0, -0.0, 0.0, np.nan
+    m[0, 5], m[1, 6] = np.inf, -np.inf
+    path = write_bvh(tmp_path / "text.bvh", sample.skeleton, m, sample.fps)
+    rows = path.read_text(encoding="utf-8").splitlines()[-len(m) :]
+    assert rows == [" ".join(f"{v:.6f}" for v in row) for row in m.tolist()]
+
+
 def test_fk_rest_pose_and_rigid_bones(sample):
     skel = sample.skeleton
     # rest pose: positions are the summed offsets along each chain

@@ -72,8 +72,8 @@ def _stack(items: list[Array], axis: int, like: Array) -> Array:
 def _cross(a: Array, b: Array) -> Array:
     if _is_torch(a):
         return _torch().linalg.cross(a, b, dim=-1)
-    i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays
-    return a[..., i] * b[..., j] - a[..., j] * b[..., i]
+    i, j = _CROSS_I, _CROSS_J  # np.cross is slow on small arrays (take: a[..., i] without fancy indexing's setup)
+    return a.take(i, axis=-1) * b.take(j, axis=-1) - a.take(j, axis=-1) * b.take(i, axis=-1)
 
 
 def _norm(a: Array) -> Array:
@@ -282,8 +282,12 @@ def rot6d_to_matrix(rot6d: Array) -> Array:
     if not _is_torch(rot6d):  # the same steps in fewer NumPy calls (one frame of a stream: 47 small rows)
         u1 = a / np.maximum(np.sqrt(np.einsum("...i,...i->...", a, a))[..., None], _EPS)
         v2 = b - np.einsum("...i,...i->...", u1, b)[..., None] * u1
-        u2 = v2 / np.maximum(np.sqrt(np.einsum("...i,...i->...", v2, v2))[..., None], _EPS)
-        return np.stack([u1, u2, _cross(u1, u2)], -1)
+        m = np.empty(u1.shape + (3,), u1.dtype)  # the columns written in place (np.stack's work, fewer calls)
+        np.divide(v2, np.maximum(np.sqrt(np.einsum("...i,...i->...", v2, v2))[..., None], _EPS), out=m[..., 1])
+        m[..., 0] = u1
+        u2, i, j = m[..., 1], _CROSS_I, _CROSS_J
+        np.subtract(u1.take(i, -1) * u2.take(j, -1), u1.take(j, -1) * u2.take(i, -1), out=m[..., 2])  # _cross
+        return m
     u1 = a / _maximum(_norm(a), _EPS)
     dot = (u1 * b).sum(-1, keepdims=True) if not _is_torch(b) else (u1 * b).sum(-1, keepdim=True)
     v2 = b - dot * u1
@@ -371,6 +375,8 @@ _DIAG_SIGNS = np.array([[1.0, 1.0, 1.0], [1.0, -1.0, -1.0], [-1.0, 1.0, -1.0], [
 _OFF_I, _OFF_J = np.array([7, 2, 3, 1, 2, 5]), np.array([5, 6, 1, 3, 6, 7])
 _OFF_SIGNS = np.array([-1.0, -1.0, -1.0, 1.0, 1.0, 1.0])
 _CAND_ROWS = np.array([[0, 4, 5, 6], [4, 1, 7, 8], [5, 7, 2, 9], [6, 8, 9, 3]])
+_DIAG = np.array([0, 4, 8])  # the diagonal's flat indices
+_SIGNS_OF = {np.dtype(t).char: (_DIAG_SIGNS.astype(t), _OFF_SIGNS.astype(t)) for t in (np.float64, np.float32)}
 
 
 def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
@@ -381,10 +387,12 @@ def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
     numbers, so the same result (``test_rotations``: the bits of the component-wise formula)."""
     lead = m.shape[:-2]
     flat = m.reshape(-1, 9)
-    t = flat[:, None, [0, 4, 8]] * _DIAG_SIGNS.astype(m.dtype, copy=False)  # ±m00 ±m11 ±m22 (exact, m's dtype)
-    cands = 1 + t[..., 0] + t[..., 1] + t[..., 2]  # (n, 4): w² x² y² z²
-    off = flat[:, _OFF_I] + flat[:, _OFF_J] * _OFF_SIGNS.astype(m.dtype, copy=False)  # a b c d e f
-    values = np.concatenate([cands, off], axis=1)
+    signs = _SIGNS_OF.get(m.dtype.char) or (_DIAG_SIGNS.astype(m.dtype), _OFF_SIGNS.astype(m.dtype))
+    t = flat.take(_DIAG, axis=1)[:, None] * signs[0]  # ±m00 ±m11 ±m22 (exact, m's dtype)
+    values = np.empty((len(flat), 10), np.result_type(1, t))  # [w² x² y² z² a b c d e f], written in place
+    cands = values[:, :4]  # (n, 4): w² x² y² z²
+    np.add(1 + t[..., 0] + t[..., 1], t[..., 2], out=cands)
+    np.add(flat.take(_OFF_I, axis=1), flat.take(_OFF_J, axis=1) * signs[1], out=values[:, 4:])  # a b c d e f
     best = np.argmax(cands, axis=-1)
     rows = np.arange(len(flat))
     q = values[rows[:, None], _CAND_ROWS[best]]
@@ -423,11 +431,12 @@ def quaternion_to_rot6d(quat: np.ndarray) -> np.ndarray:
     q = quat / np.maximum(_vector_norm(quat, keepdims=True), _EPS)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (6,), q.dtype)
-    out[..., 0] = 1 - 2 * (y * y + z * z)
-    out[..., 1] = 2 * (x * y + z * w)
+    zz, xy, zw = z * z, x * y, z * w  # each used twice
+    out[..., 0] = 1 - 2 * (y * y + zz)
+    out[..., 1] = 2 * (xy + zw)
     out[..., 2] = 2 * (x * z - y * w)
-    out[..., 3] = 2 * (x * y - z * w)
-    out[..., 4] = 1 - 2 * (x * x + z * z)
+    out[..., 3] = 2 * (xy - zw)
+    out[..., 4] = 1 - 2 * (x * x + zz)
     out[..., 5] = 2 * (y * z + x * w)
     return out
 
@@ -501,7 +510,11 @@ def quaternion_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def quaternion_invert(q: np.ndarray) -> np.ndarray:
     """The inverse rotations of unit quaternions (…, 4): the conjugates (w, −x, −y, −z); numpy only."""
-    return q * np.array([1.0, -1.0, -1.0, -1.0], q.dtype)
+    conj = _CONJ_OF.get(q.dtype.char) if isinstance(q, np.ndarray) else None
+    return q * (np.array([1.0, -1.0, -1.0, -1.0], q.dtype) if conj is None else conj)
+
+
+_CONJ_OF = {np.dtype(t).char: np.array([1.0, -1.0, -1.0, -1.0], t) for t in (np.float64, np.float32)}
 
 
 def standardize_quaternion(q: np.ndarray) -> np.ndarray:
@@ -519,7 +532,10 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
     v = q[..., 1:]
     s = _vector_norm(v)
     angle = 2.0 * np.arctan2(s, w)
-    k = np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
+    k = angle / np.maximum(s, 1e-12)
+    big = s > 1e-9
+    if not big.all():  # (else every angle is far from 0: the limit below is not needed, the same numbers)
+        k = np.where(big, k, 2.0 / np.where(np.abs(w) > 1e-12, w, 1.0))
     return v * k[..., None]
 
 
@@ -528,10 +544,17 @@ def quaternion_exp(r: np.ndarray) -> np.ndarray:
 
     The inverse of :func:`quaternion_log`; the quaternion form of :func:`exp_so3`, batched.
     """
+    r = np.asarray(r)
     angle = _vector_norm(r)
     half = 0.5 * angle
-    k = np.where(angle > 1e-9, np.sin(half) / np.maximum(angle, 1e-12), 0.5 - angle**2 / 48.0)
-    return np.concatenate([np.cos(half)[..., None], r * k[..., None]], axis=-1)
+    k = np.sin(half) / np.maximum(angle, 1e-12)
+    big = angle > 1e-9
+    if not big.all():  # (else the small-angle series below is not needed: the same numbers)
+        k = np.where(big, k, 0.5 - angle**2 / 48.0)
+    out = np.empty(angle.shape + (4,), np.result_type(half, r))
+    np.cos(half, out=out[..., 0])
+    np.multiply(r, k[..., None], out=out[..., 1:])
+    return out
 
 
 def continuous_quaternions(q: np.ndarray) -> np.ndarray:
@@ -677,18 +700,20 @@ def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
     _check_last(ref, (4,), "quaternion")
     # the geodesic through ref and q, in the closed form of the slerp (valid for any power):
     # (sin((1 − p)θ) · ref + sin(pθ) · q) / sin θ, θ the angle between ref and ±q (the nearer one)
-    dot = np.sum(ref * q, axis=-1, keepdims=True)
+    dot = np.add.reduce(ref * q, axis=-1, keepdims=True)  # np.sum's own reduction
     q = np.where(dot < 0.0, -q, q)
-    theta = np.arccos(np.clip(np.abs(dot), 0.0, 1.0))
+    theta = np.arccos(np.minimum(np.abs(dot), 1.0))  # np.clip(·, 0, 1) of a number ≥ 0
     s = np.sin(theta)
     small = s < 1e-6  # nearly equal rotations: the linear blend, normalised
-    safe = np.where(small, 1.0, s)
     p = np.asarray(power, np.float64)
-    out = (
-        np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe) * ref
-        + np.where(small, p, np.sin(p * theta) / safe) * q
-    )
-    return out / np.linalg.norm(out, axis=-1, keepdims=True)
+    if small.any():
+        safe = np.where(small, 1.0, s)
+        a = np.where(small, 1.0 - p, np.sin((1.0 - p) * theta) / safe)
+        b = np.where(small, p, np.sin(p * theta) / safe)
+    else:  # the same numbers without the linear blend's branch
+        a, b = np.sin((1.0 - p) * theta) / s, np.sin(p * theta) / s
+    out = a * ref + b * q
+    return out / _vector_norm(out, keepdims=True)  # np.linalg.norm's own arithmetic
 
 
 def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.ndarray:

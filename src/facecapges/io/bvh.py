@@ -230,9 +230,13 @@ class BvhWriter:
         if not self.growing and self.written + len(motion) > self.n_frames:
             raise ValueError(f"more than the {self.n_frames} frames declared")
         if len(motion):
-            # one %-format per row (the text of f"{v:.6f}" for each value, ~3x faster: live's recorder, issue 36)
-            fmt = " ".join(["%.6f"] * motion.shape[1])
-            self._f.write("\n".join(fmt % tuple(row) for row in motion.tolist()) + "\n")
+            # one %-format per row (the text of f"{v:.6f}" for each value, ~3x faster: live's recorder, issue 36);
+            # a column that is +0.0 in every row of the block (the joints at rest: 87 of BEAT's 228) is the
+            # literal "0.000000" in the format, so only the others are converted (the same text, issue 36)
+            zero = ~(motion.any(axis=0) | np.signbit(motion).any(axis=0))
+            fmt = " ".join(["0.000000" if z else "%.6f" for z in zero.tolist()])
+            rows = (motion[:, ~zero] if zero.any() else motion).tolist()
+            self._f.write("\n".join(fmt % tuple(row) for row in rows) + "\n")
         self.written += len(motion)
 
     def close(self) -> Path:

@@ -42,6 +42,7 @@ slot of a batch give the same poses.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -171,9 +172,14 @@ class IdleMotion:
     def offsets(self, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
         """Rotation vectors (B, J, 3) of the procedural idle at frames ``t`` (B,), amplitude × ``scale`` (B,)."""
         secs = np.asarray(t, np.float64)[:, None, None] / fps
-        w = 2.0 * np.pi * self.frequency[None]
-        x = sum(np.sin(w * k * secs + self.phase[i][None]) for i, k in enumerate(FREQ_SPLIT))
+        x = sum(np.sin(wk * secs + self.phase[i][None]) for i, wk in enumerate(self._angular))
         return self.amplitude[None] * x * np.asarray(scale, np.float64)[:, None, None]
+
+    @functools.cached_property
+    def _angular(self) -> tuple[np.ndarray, ...]:
+        """The two sines' angular frequencies (1, J, 3) rad/s, ``2π · frequency · k`` (k of FREQ_SPLIT), made once."""
+        w = 2.0 * np.pi * self.frequency[None]
+        return tuple(w * k for k in FREQ_SPLIT)
 
     def pose(self, target: np.ndarray, t: np.ndarray, fps: float, scale: np.ndarray) -> np.ndarray:
         """Quaternions (B, 47, 4): rest poses ``target`` (B,) with the idle of frames ``t`` on top."""
@@ -260,10 +266,16 @@ class IdleLayer:
         """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
         their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
         frame counts ``t`` (B,) and the dial's gains (B,)."""
-        m = self.motion
-        scale = self.amplitude * np.asarray(gain, np.float64)
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]
+        if not (want.any() or was.any() or self.x[ids].any() or self.v[ids].any()):
+            # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what
+            # the steps below give then, in a few calls: most frames of speech)
+            out = inz.qabs(np.asarray(q, np.float64))
+            self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, self.prev_out[ids, 1], out
+            return out
+        m = self.motion
+        scale = self.amplitude * np.asarray(gain, np.float64)
         enter, leave = want & ~was, ~want & was
         if enter.any():  # the rest pose nearest the pose shown now
             k = np.flatnonzero(enter)
@@ -274,8 +286,11 @@ class IdleLayer:
         use = np.flatnonzero(was | want)  # streams whose rest pose is shown or switched from / to
         idle_now = out  # (read only, below, where no stream's rest pose is used: no copy needed then)
         if len(use):
-            idle_now = out.copy()
-            idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
+            if len(use) == len(ids):  # every stream (use is then 0 … B − 1): the idle poses themselves
+                idle_now = m.pose(tgt, t, self.fps, scale)
+            else:
+                idle_now = out.copy()
+                idle_now[use] = m.pose(tgt[use], t[use], self.fps, scale[use])
             idle_now[:, self.keep] = q[:, self.keep]
         switch = enter | leave
         if switch.any():
@@ -285,7 +300,8 @@ class IdleLayer:
         big = np.maximum.reduce  # ndarray.max's own reduction
         live = self.idle[ids] | (big(np.abs(xs), axis=(1, 2)) > SPENT) | (big(np.abs(vs), axis=(1, 2)) > SPENT)
         k = np.flatnonzero(live)
-        self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
+        if len(k) < len(ids):
+            self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
         p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]
         if len(k):
             s = ids[k]

@@ -143,7 +143,9 @@ def gain_of(intensity: float | np.ndarray) -> np.ndarray:
     below it the swing shrinks (at 0, where only idle rows play, to half the idle motion: still
     moving, never frozen).
     """
-    i = np.clip(np.asarray(intensity, np.float64), MIN_INTENSITY, MAX_INTENSITY)
+    # np.clip's bounds as two ufunc calls (without its Python layers): the same gains (a signed zero or a NaN's
+    # sign bit, where the two may differ, gives 0.5 and NaN either way)
+    i = np.minimum(np.maximum(np.asarray(intensity, np.float64), MIN_INTENSITY), MAX_INTENSITY)
     return np.where(i < 1.0, 0.5 + 0.5 * i, i)
 
 
@@ -245,6 +247,8 @@ class BatchedMatchingStreams(SlotOwner):
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
+        self._rates_key: tuple | None = None  # what _rates computed its two rates for
+        self._rates_of = (0.0, 0.0)
         self._prepare_db()
         self.speech = SpeechTracker(1)
         self.capacity = 0
@@ -464,12 +468,13 @@ class BatchedMatchingStreams(SlotOwner):
         ended = nxt < 0
         nxt = np.where(ended, row, nxt)
         off_state = idle_only & ~self.idle_play[nxt]
-        changed = cues.speaking != self.was_speaking[ids]
-        self.since_search[ids] += 1
-        self.since_switch[ids] += 1
-        settled = self.since_switch[ids] >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        started = cues.speaking & ~self.was_speaking[ids]  # speech resumes: search now (resume within 0.3 s)
-        periodic = changed | cues.onset | (self.since_search[ids] >= cfg.search_interval)
+        was = self.was_speaking[ids]
+        changed = cues.speaking != was
+        since_search, since_switch = self.since_search[ids] + 1, self.since_switch[ids] + 1
+        self.since_search[ids], self.since_switch[ids] = since_search, since_switch
+        settled = since_switch >= cfg.min_play_frames  # a clip plays a while before a search leaves it
+        started = cues.speaking & ~was  # speech resumes: search now (resume within 0.3 s)
+        periodic = changed | cues.onset | (since_search >= cfg.search_interval)
         # continuing into a stretch (or its mirror image) played before this run began, within the memory
         last = self.last_used[ids, self.canon[nxt]]
         into_recent = (last > self.t[ids] - cfg.memory_s * self.fps) & (last < self.run_start[ids])
@@ -525,7 +530,7 @@ class BatchedMatchingStreams(SlotOwner):
 
     def _settled(self, ids: np.ndarray) -> np.ndarray:
         """How far each stream's pause has settled (B,): 0 while speaking, 1 once it has lasted ``settle_s``."""
-        return np.clip(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 0.0, 1.0)
+        return np.minimum(self.quiet[ids] / max(self.config.settle_s * self.fps, 1.0), 1.0)  # quiet ≥ 0: np.clip's
 
     def _search(self, ids, rows, cues, searching, pred, idle_only, forced, stale) -> tuple[np.ndarray, np.ndarray]:
         """Best row (Bs,) and whether to switch to it (Bs,) for the searching streams: their queries, memory and
@@ -559,13 +564,12 @@ class BatchedMatchingStreams(SlotOwner):
         x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
         q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
-        alpha = 1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3))
+        alpha, beta = self._rates(dt)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
         # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
         # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
         dev = self._deviation(q)
-        beta = 1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3))
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
         g = gain = gain_of(now)
@@ -577,6 +581,19 @@ class BatchedMatchingStreams(SlotOwner):
             d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
             q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
         return q, gain
+
+    def _rates(self, dt: float) -> tuple[float, float]:
+        """The dial's smoothing per frame: the intensity's (``intensity_tau_s``) and the deviation's
+        (``intensity_smooth_s``), computed once per frame length and time constants (not on every step)."""
+        cfg = self.config
+        key = (dt, cfg.intensity_tau_s, cfg.intensity_smooth_s)
+        if self._rates_key != key:
+            self._rates_key = key
+            self._rates_of = (
+                1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3)),
+                1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3)),
+            )
+        return self._rates_of
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""

@@ -149,9 +149,12 @@ def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
 
 
 # --------------------------------------------------------------------------- the NumPy kernel
+_LEAK = np.float32(0.2)
+
+
 def _leaky(y: np.ndarray) -> np.ndarray:
     """``leaky_relu(y, 0.2)``: the same bits (y > 0: y; else 0.2·y, which is then the larger)."""
-    return np.maximum(y, np.float32(0.2) * y)
+    return np.maximum(y, _LEAK * y)
 
 
 class _Affine:
@@ -194,26 +197,30 @@ class _Taps:
 
     def step(self, reg: np.ndarray, idx: np.ndarray, x: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
         """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
-        held = reg[idx]  # (B, R, L, C)
+        # (B, R, L, C); one stream: its rows of the register themselves (a view, shifted in place), not a copy
+        one = len(idx) == 1
+        held = reg[int(idx[0]) : int(idx[0]) + 1] if one else reg[idx]
         pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
         pre += self.b
         held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
         now = held[:, 0]  # (B, L, C): layer i's input is written there, and read back as the next product's
         now[:, 0] = x
         last, x_out = self.L - 1, x
+        y, act = np.empty((2, len(held), self.C), np.float32)  # every layer's product and activation, in place
         for i, w_now in enumerate(self.w_now):
             xi = now[:, i]
-            y = np.dot(xi, w_now)
+            np.dot(xi, w_now, out=y)
             y += pre[i]
             if extra is not None and i == last:
                 y += extra
-            # residual (leaky_relu 0.2) into the next layer's input; the last: x_L − x0 is the layers' skip sum
-            act = np.maximum(y, np.float32(0.2) * y)
+            # residual (leaky_relu 0.2: _leaky) into the next layer's input; the last: x_L − x0 is the skip sum
+            np.maximum(y, np.multiply(y, _LEAK, out=act), out=act)
             if i < last:
                 np.add(xi, act, out=now[:, i + 1])
             else:
                 x_out = xi + act
-        reg[idx] = held
+        if not one:
+            reg[idx] = held
         return x_out - x
 
 

@@ -168,9 +168,16 @@ class SpeechTracker:
         valid = ~np.isnan(hist)
         n = np.add.reduce(valid, axis=1, dtype=np.int64)  # valid.sum(axis=1)
         some, count = n > 0, np.maximum(n, 1)
-        mean = np.where(some, np.add.reduce(np.where(valid, hist, 0.0), axis=1) / count, 0.0)
-        dev = np.where(valid, (hist - mean[:, None]) ** 2, 0.0)
-        var = np.where(some, np.add.reduce(np.where(np.isnan(dev), 0.0, dev), axis=1) / count, 0.0)
+        if valid.all():  # a full history (every stream past its first FLUX_HISTORY frames): no NaN to leave out
+            mean = np.add.reduce(hist, axis=1) / count
+            dev = (hist - mean[:, None]) ** 2
+            var = np.add.reduce(dev, axis=1) / count if not np.isnan(dev).any() else None
+        else:
+            mean = np.where(some, np.add.reduce(np.where(valid, hist, 0.0), axis=1) / count, 0.0)
+            dev = np.where(valid, (hist - mean[:, None]) ** 2, 0.0)
+            var = None
+        if var is None:
+            var = np.where(some, np.add.reduce(np.where(np.isnan(dev), 0.0, dev), axis=1) / count, 0.0)
         since = np.minimum(self.since[idx] + 1, SINCE_CAP)
         onset = speaking & (flux > np.maximum(mean + ONSET_K * np.sqrt(var), MIN_FLUX)) & (since >= REFRACTORY)
         since = np.where(onset, 0, since)
@@ -195,7 +202,7 @@ class SpeechTracker:
         spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32, copy=False)
         bands = np.log(spec @ _BANDS + 1e-10)
         ac = np.fft.irfft(spec, axis=1)  # the windowed frame's autocorrelation
-        voicing = ac[:, _LAGS].max(axis=1) / np.maximum(ac[:, 0], 1e-20)
+        voicing = np.maximum.reduce(ac[:, _LAGS], axis=1) / np.maximum(ac[:, 0], 1e-20)  # (ndarray.max's reduction)
         w = spec[:, _VOICE_BINS].astype(np.float64) + 1e-12
         total = np.add.reduce(w, axis=1)  # (w.mean is total / count, w.sum is total)
         flat = np.exp(np.add.reduce(np.log(w), axis=1) / w.shape[1]) / (total / w.shape[1])
