@@ -90,9 +90,21 @@ METRIC_NAMES: tuple[str, ...] = (
 )
 
 
+def _pairs_index(pairs) -> tuple[np.ndarray, np.ndarray]:
+    """The upper and lower landmarks of ``pairs`` as index arrays (made once, not on every frame)."""
+    return np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
+
+
+_PAIRS = {pairs: _pairs_index(pairs) for pairs in (LIP_PAIRS, EYELID_PAIRS_L, EYELID_PAIRS_R)}
+_EYES_L = np.array([INNER_EYE_L, OUTER_EYE_L])
+_EYES_R = np.array([INNER_EYE_R, OUTER_EYE_R])
+_BROW_L, _BROW_R = np.array(BROW_L), np.array(BROW_R)
+_BROW_INNER = np.array(BROW_INNER_L + BROW_INNER_R)
+_LOWER_LIP = np.array([b for _, b in LIP_PAIRS])
+
+
 def _pairs_height(P: np.ndarray, pairs) -> np.ndarray:
-    up = np.array([a for a, _ in pairs])
-    lo = np.array([b for _, b in pairs])
+    up, lo = _PAIRS.get(pairs) or _pairs_index(pairs)
     return (P[..., up, 1] - P[..., lo, 1]).mean(axis=-1)
 
 
@@ -106,8 +118,8 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     P = np.asarray(P, np.float64)
     w = np.maximum(eye_corner_distance(P), 1e-9)
     y = P[..., 1]
-    eyes_L = y[..., [INNER_EYE_L, OUTER_EYE_L]].mean(axis=-1)
-    eyes_R = y[..., [INNER_EYE_R, OUTER_EYE_R]].mean(axis=-1)
+    eyes_L = y[..., _EYES_L].mean(axis=-1)
+    eyes_R = y[..., _EYES_R].mean(axis=-1)
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
     mouth_width = np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1)
     g = np.stack(
@@ -115,16 +127,16 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
             _pairs_height(P, LIP_PAIRS),
             mouth_width,
             P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
-            y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
-            y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
+            y[..., _BROW_L].mean(axis=-1) - eyes_L,
+            y[..., _BROW_R].mean(axis=-1) - eyes_R,
             _pairs_height(P, EYELID_PAIRS_L),
             _pairs_height(P, EYELID_PAIRS_R),
             y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
             y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
-            y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
+            y[..., _BROW_INNER].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
             y[..., MOUTH_CORNER_L] - lip_mid,
             y[..., MOUTH_CORNER_R] - lip_mid,
-            y[..., SUBNASALE] - y[..., [b for _, b in LIP_PAIRS]].mean(axis=-1) - JAW_STRETCH * mouth_width,
+            y[..., SUBNASALE] - y[..., _LOWER_LIP].mean(axis=-1) - JAW_STRETCH * mouth_width,
         ],
         axis=-1,
     )
