@@ -194,7 +194,7 @@ class _FrameImage:
 
     @classmethod
     def of(cls, h: int, w: int) -> _FrameImage | None:
-        img, lib = _image_c()
+        _, lib = _image_c()
         if lib is None:
             return None
         image = mp_image(np.zeros((h, w, 3), np.uint8))
