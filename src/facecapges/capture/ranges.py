@@ -35,6 +35,8 @@ always a pair of sorted neighbours.
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 L_PCT, K_PCT, M_PCT = 10.0, 5.0, 20.0
@@ -88,7 +90,7 @@ def merge_to_three(values: np.ndarray, weights: np.ndarray) -> tuple[float, floa
     # the gaps are kept between merges: a merge changes only the two gaps beside the merged pair
     # (each recomputed as ``v[i + 1] − v[i]``, as from scratch), and ``gaps.index(min(gaps))`` is the
     # first smallest gap, so the merges and the result are those of re-scanning every gap each time
-    gaps = [b - a for a, b in zip(v, v[1:])]
+    gaps = [b - a for a, b in pairwise(v)]
     n = len(v)
     while n > 3:
         i = gaps.index(min(gaps))
