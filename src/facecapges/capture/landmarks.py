@@ -208,7 +208,7 @@ class _FrameImage:
         addr = ctypes.cast(data, ctypes.c_void_p).value
         if not addr:
             return None
-        pixels = np.frombuffer((ctypes.c_uint8 * (h * w * 3)).from_address(addr), np.uint8).reshape(h, w, 3)
+        pixels = np.frombuffer(memoryview((ctypes.c_uint8 * (h * w * 3)).from_address(addr)), np.uint8).reshape(h, w, 3)
         return cls(image, pixels)
 
     def fill(self, frame_bgr: np.ndarray):
@@ -254,7 +254,7 @@ def _c_array(ptr, n: int, dtype: np.dtype) -> np.ndarray:
     names = dtype.names or ()
     if n == 0:
         return np.zeros((0, len(names)), np.float32)
-    buf = (ctypes.c_char * (n * dtype.itemsize)).from_address(ctypes.cast(ptr, ctypes.c_void_p).value or 0)
+    buf = memoryview((ctypes.c_char * (n * dtype.itemsize)).from_address(ctypes.cast(ptr, ctypes.c_void_p).value or 0))
     offsets = [dtype.fields[f][1] for f in names] if dtype.fields else []
     if offsets == list(range(offsets[0], offsets[0] + 4 * len(names), 4)):
         return np.ndarray((n, len(names)), np.float32, buf, offsets[0], (dtype.itemsize, 4)).copy()
