@@ -172,3 +172,14 @@ def test_c_struct_fields_read_in_one_copy_or_field_by_field():
     assert got.dtype == np.float32 and got.flags.c_contiguous and got.tobytes() == want.tobytes()
     assert _c_array(ptr, 5, _c_fields(S, ("a", "c"))).tobytes() == want[:, [0, 2]].copy().tobytes()
     assert _c_array(ptr, 0, _c_fields(S, ("a", "b"))).shape == (0, 2)
+
+
+def test_mediapipe_loads_in_a_fresh_interpreter():
+    """``landmarks._mediapipe`` in a process that has not imported ``importlib.util`` yet (its lazy-drawing finder
+    once asked itself for that module without end: a RecursionError): an image is made."""
+    import subprocess
+    import sys
+
+    code = "import numpy as np\nfrom facecapges.capture.landmarks import mp_image\nmp_image(np.zeros((2, 2, 3), np.uint8))\n"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]

@@ -128,6 +128,8 @@ def _mediapipe(*names: str) -> list:
     works.
     """
     import importlib
+    import importlib.machinery  # imported before the finder is in place: its find_spec uses them, and importing
+    import importlib.util  # them with the finder installed would ask the finder again, without end
 
     if all(n in sys.modules for n in names):
         return [sys.modules[n] for n in names]
