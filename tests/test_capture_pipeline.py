@@ -126,8 +126,10 @@ def test_primary_face_follows_a_face_that_jumped(face_video):
 
 
 def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_video):
-    """The detector reads MediaPipe's C result structs (no Python object per landmark: issue 36): the same
-    landmarks, blendshapes and transforms, to the bit, as MediaPipe's own ``detect_for_video`` gives."""
+    """The detector reads MediaPipe's C result structs (no Python object per landmark: issue 36), calls its C
+    functions on this thread (not through MediaPipe's dispatcher thread) and converts every frame into one image
+    of its own: the same landmarks, blendshapes and transforms, to the bit, as MediaPipe's own
+    ``detect_for_video`` gives on a new image a frame."""
     from facecapges.capture.landmarks import LandmarkDetector
     from facecapges.capture.models import resolve_model
 
@@ -138,9 +140,12 @@ def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_vi
     for raw in (False, True):
         with LandmarkDetector(resolve_model()) as det:
             if raw:
-                assert det.raw_results  # this MediaPipe has them (the pinned one does)
+                assert det.raw_results and det.direct is not None  # this MediaPipe has them (the pinned one does)
+            else:
+                det.direct = None  # MediaPipe's dispatcher, and a new image a frame
             det.raw_results = raw
             got.append([det.detect(f, int(i * 40)) for i, f in enumerate(frames)])
+            assert (det._frame_image is not None) == raw  # the frames went through the detector's own image
     assert sum(len(faces) for faces in got[0]) == 20
     for public, raw in zip(*got):
         assert len(public) == len(raw)
@@ -148,3 +153,33 @@ def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_vi
             assert a.landmarks.dtype == b.landmarks.dtype and a.landmarks.shape == b.landmarks.shape
             assert a.landmarks.tobytes() == b.landmarks.tobytes() and a.blendshapes.tobytes() == b.blendshapes.tobytes()
             assert a.transform.tobytes() == b.transform.tobytes()
+
+
+def test_c_struct_fields_read_in_one_copy_or_field_by_field():
+    """``_c_array``: consecutive float32 fields (a landmark's x, y, z) in one strided copy, others field by field:
+    the values of the structs either way."""
+    import ctypes
+
+    from facecapges.capture.landmarks import _c_array, _c_fields
+
+    class S(ctypes.Structure):
+        _fields_ = [("a", ctypes.c_float), ("b", ctypes.c_float), ("c", ctypes.c_float), ("n", ctypes.c_void_p)]
+
+    rows = (S * 5)(*[S(i + 0.5, -i / 3, i * 1e-3, None) for i in range(5)])
+    want = np.array([[r.a, r.b, r.c] for r in rows], np.float32)
+    ptr = ctypes.cast(rows, ctypes.POINTER(S))
+    got = _c_array(ptr, 5, _c_fields(S, ("a", "b", "c")))
+    assert got.dtype == np.float32 and got.flags.c_contiguous and got.tobytes() == want.tobytes()
+    assert _c_array(ptr, 5, _c_fields(S, ("a", "c"))).tobytes() == want[:, [0, 2]].copy().tobytes()
+    assert _c_array(ptr, 0, _c_fields(S, ("a", "b"))).shape == (0, 2)
+
+
+def test_mediapipe_loads_in_a_fresh_interpreter():
+    """``landmarks._mediapipe`` in a process that has not imported ``importlib.util`` yet (its lazy-drawing finder
+    once asked itself for that module without end: a RecursionError): an image is made."""
+    import subprocess
+    import sys
+
+    code = "import numpy as np\nfrom facecapges.capture.landmarks import mp_image\nmp_image(np.zeros((2, 2, 3), np.uint8))\n"
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr[-2000:]

@@ -48,9 +48,9 @@ class FaceObservation:
     transform: np.ndarray | None  # (4, 4) float64
     face_id: int = -1
 
-    @property
+    @functools.cached_property
     def center(self) -> np.ndarray:
-        """Mean of the landmarks' x, y (normalised image coordinates)."""
+        """Mean of the landmarks' x, y (normalised image coordinates); worked out once (the tracker reads it twice)."""
         return self.landmarks[:, :2].mean(axis=0)
 
     @property
@@ -128,6 +128,8 @@ def _mediapipe(*names: str) -> list:
     works.
     """
     import importlib
+    import importlib.machinery  # imported before the finder is in place: its find_spec uses them, and importing
+    import importlib.util  # them with the finder installed would ask the finder again, without end
 
     if all(n in sys.modules for n in names):
         return [sys.modules[n] for n in names]
@@ -139,10 +141,99 @@ def _mediapipe(*names: str) -> list:
         sys.meta_path.remove(finder)
 
 
-def mp_image(rgb: np.ndarray):
-    """A ``mediapipe.Image`` (SRGB) of an (H, W, 3) uint8 RGB array."""
+_U8_P = ctypes.POINTER(ctypes.c_uint8)
+
+
+@functools.cache
+def _image_c():
+    """(MediaPipe's ``Image`` module, its C library with the image functions' signatures registered — None where
+    this MediaPipe's ``Image`` is not the ctypes one)."""
     (img,) = _mediapipe("mediapipe.tasks.python.vision.core.image")
-    return img.Image(image_format=img.ImageFormat.SRGB, data=rgb)
+    try:
+        from mediapipe.tasks.python.core import mediapipe_c_bindings
+
+        lib = mediapipe_c_bindings.load_raw_library(img._CTYPES_SIGNATURES)
+        lib.MpImageCreateFromUint8Data  # noqa: B018 - the function this MediaPipe must have
+    except (ImportError, AttributeError):
+        lib = None
+    return img, lib
+
+
+def mp_image(rgb: np.ndarray):
+    """A ``mediapipe.Image`` (SRGB) of an (H, W, 3) uint8 RGB array, C-contiguous.
+
+    MediaPipe's ``Image(image_format=…, data=…)`` registers every image function's ctypes signature again on each
+    call (a fifth of the image's cost, issue 36); this makes the same C call (the pixels copied into MediaPipe's
+    own image, freed by the ``Image``) with the signatures registered once."""
+    img, lib = _image_c()
+    if lib is None or not rgb.flags.c_contiguous:
+        return img.Image(image_format=img.ImageFormat.SRGB, data=rgb)
+    h, w = rgb.shape[:2]
+    ptr, err = ctypes.c_void_p(), ctypes.c_char_p()
+    status = lib.MpImageCreateFromUint8Data(
+        img.ImageFormat.SRGB, w, h, rgb.ctypes.data_as(_U8_P), rgb.size, ctypes.byref(ptr), ctypes.byref(err)
+    )
+    _check_status(lib, status, err)
+    image = img.Image.__new__(img.Image)
+    image._lib, image._image_ptr = lib, ptr
+    return image
+
+
+class _FrameImage:
+    """One MediaPipe image (SRGB, ``h`` × ``w``) that every frame of a detector is converted into.
+
+    A frame costs MediaPipe a copy of its pixels into an image of its own, made for that frame; the BGR → RGB
+    conversion before it makes another array. Here the conversion writes straight into this image's pixels
+    (``cv2.cvtColor(…, dst=)``, the same conversion), kept from frame to frame: one pass over the frame fewer and
+    no image made and freed a frame (~0.25 ms of the main thread's CPU at 15 fps, issue 36). Safe only where
+    MediaPipe is done with the image when the call returns, as in VIDEO mode: its ``TaskRunner::Process`` waits
+    until the graph is idle before it returns the results. :meth:`of` gives None where this MediaPipe's image is
+    not the ctypes one, or its rows are not contiguous."""
+
+    def __init__(self, image, pixels: np.ndarray):
+        self.image = image
+        self.pixels = pixels  # (h, w, 3) uint8, writable, over the image's own buffer
+
+    @classmethod
+    def of(cls, h: int, w: int) -> _FrameImage | None:
+        _, lib = _image_c()
+        if lib is None:
+            return None
+        image = mp_image(np.zeros((h, w, 3), np.uint8))
+        if not isinstance(getattr(image, "_image_ptr", None), ctypes.c_void_p):
+            return None
+        ptr = image._image_ptr
+        if not lib.MpImageIsContiguous(ptr) or lib.MpImageGetWidthStep(ptr) != 3 * w:
+            return None
+        data, err = _U8_P(), ctypes.c_char_p()
+        _check_status(lib, lib.MpImageDataUint8(ptr, ctypes.byref(data), ctypes.byref(err)), err)
+        addr = ctypes.cast(data, ctypes.c_void_p).value
+        if not addr:
+            return None
+        pixels = np.frombuffer(memoryview((ctypes.c_uint8 * (h * w * 3)).from_address(addr)), np.uint8).reshape(h, w, 3)
+        return cls(image, pixels)
+
+    def fill(self, frame_bgr: np.ndarray):
+        """The image, holding ``frame_bgr`` (h, w, 3 uint8) converted to RGB."""
+        import cv2
+
+        out = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB, dst=self.pixels)
+        if out is not self.pixels:  # OpenCV made an array of its own (not expected): an image of it
+            return mp_image(np.ascontiguousarray(out))
+        return self.image
+
+
+def _check_status(lib, status: int, err: ctypes.c_char_p) -> None:
+    """MediaPipe's own error for a C call's status (its message freed), as its Python API raises it."""
+    if status == 0 and err.value is None:
+        return
+    from mediapipe.tasks.python.core import mediapipe_c_utils
+
+    try:
+        mediapipe_c_utils.handle_status(status, err)
+    finally:
+        if err.value is not None:
+            lib.MpErrorFree(err)
 
 
 @functools.cache  # per struct and fields, built once (every frame reads the same two)
@@ -160,12 +251,17 @@ def _c_fields(struct, names: tuple[str, ...]) -> np.dtype:
 
 
 def _c_array(ptr, n: int, dtype: np.dtype) -> np.ndarray:
-    """The ``dtype`` fields of ``n`` structs at ``ptr`` as an (n, fields) float32 copy."""
+    """The ``dtype`` fields of ``n`` structs at ``ptr`` as an (n, fields) float32 copy: one strided copy when the
+    fields follow each other in the struct (x, y, z of a landmark; a blendshape's score), else field by field."""
+    names = dtype.names or ()
     if n == 0:
-        return np.zeros((0, len(dtype.names or ())), np.float32)
-    raw = np.ctypeslib.as_array(ctypes.cast(ptr, ctypes.POINTER(ctypes.c_uint8)), shape=(n * dtype.itemsize,))
-    rows = raw.view(dtype)
-    return np.stack([rows[f] for f in dtype.names or ()], axis=1)
+        return np.zeros((0, len(names)), np.float32)
+    buf = memoryview((ctypes.c_char * (n * dtype.itemsize)).from_address(ctypes.cast(ptr, ctypes.c_void_p).value or 0))
+    offsets = [dtype.fields[f][1] for f in names] if dtype.fields else []
+    if offsets == list(range(offsets[0], offsets[0] + 4 * len(names), 4)):
+        return np.ndarray((n, len(names)), np.float32, buf, offsets[0], (dtype.itemsize, 4)).copy()
+    rows = np.frombuffer(buf, dtype)
+    return np.stack([rows[f] for f in names], axis=1)
 
 
 def _has_raw_results(task) -> bool:
@@ -174,16 +270,52 @@ def _has_raw_results(task) -> bool:
     return all(hasattr(task, a) for a in ("_lib", "_handle")) and hasattr(fl, "MpFaceLandmarkerResultC")
 
 
-def _raw_results(task, image, ts: int, want_names: bool = False) -> list:
+class _DirectCalls:
+    """The face landmarker's detect and close-result C functions, called on the caller's thread.
+
+    MediaPipe's Python API sends every C call of a task through its ``SerialDispatcher``: a one-worker thread pool
+    (``ThreadPoolExecutor-N_0``, one per task) that runs the call while the caller waits on a future — two thread
+    hand-overs a frame (detect, close the result), ~0.3 ms of CPU on the two threads together (issue 36). The
+    dispatcher serialises calls from many threads; the detector is called from one thread at a time, so the same C
+    functions (the raw library under the dispatcher, their signatures as MediaPipe registered them) are called
+    directly. None of the numbers change: the same C calls with the same arguments."""
+
+    def __init__(self, task):
+        raw = task._lib._lib  # the SerialDispatcher's ctypes.CDLL
+        self.lib = raw
+        self.detect = raw.MpFaceLandmarkerDetectForVideo
+        self.close_result = raw.MpFaceLandmarkerCloseResult
+        n = len(self.detect.argtypes or ())
+        if n != 6 or not self.close_result.argtypes:  # not the signatures this was written for
+            raise AttributeError("MpFaceLandmarkerDetectForVideo")
+
+    @classmethod
+    def of(cls, task) -> _DirectCalls | None:
+        try:
+            return cls(task)
+        except (AttributeError, TypeError):
+            return None
+
+    def detect_for_video(self, handle, image_ptr, ts: int, result_c) -> None:
+        err = ctypes.c_char_p()
+        status = self.detect(handle, image_ptr, None, ts, ctypes.byref(result_c), ctypes.byref(err))
+        _check_status(self.lib, status, err)
+
+
+def _raw_results(task, image, ts: int, want_names: bool = False, direct: _DirectCalls | None = None) -> list:
     """``task.detect_for_video(image, ts)``'s faces read from MediaPipe's C result structs: what
     :meth:`LandmarkDetector._results` makes of the Python result, the same numbers (the structs' float32 are
     what MediaPipe's Python objects hold as floats), without one Python object per landmark and blendshape
-    (478 + 52 a face: ~1 ms a frame, issue 36). The same C calls as MediaPipe's own ``detect_for_video``."""
+    (478 + 52 a face: ~1 ms a frame, issue 36). The same C calls as MediaPipe's own ``detect_for_video``; with
+    ``direct``, on this thread (:class:`_DirectCalls`)."""
     (fl,) = _mediapipe("mediapipe.tasks.python.vision.face_landmarker")
     from mediapipe.tasks.python.components.containers import category_c, landmark_c
 
     result_c = fl.MpFaceLandmarkerResultC()
-    task._lib.MpFaceLandmarkerDetectForVideo(task._handle, image._image_ptr, None, ts, ctypes.byref(result_c))
+    if direct is not None:
+        direct.detect_for_video(task._handle, image._image_ptr, ts, result_c)
+    else:
+        task._lib.MpFaceLandmarkerDetectForVideo(task._handle, image._image_ptr, None, ts, ctypes.byref(result_c))
     try:
         xyz = _c_fields(landmark_c.MpNormalizedLandmarkC, ("x", "y", "z"))
         score = _c_fields(category_c.MpCategoryC, ("score",))
@@ -204,7 +336,7 @@ def _raw_results(task, image, ts: int, want_names: bool = False) -> list:
             out.append((pts, scores, names, m))
         return out
     finally:
-        task._lib.MpFaceLandmarkerCloseResult(ctypes.byref(result_c))
+        (direct.close_result if direct is not None else task._lib.MpFaceLandmarkerCloseResult)(ctypes.byref(result_c))
 
 
 class LandmarkDetector:
@@ -243,6 +375,9 @@ class LandmarkDetector:
         self._bs_map: np.ndarray | None = None
         # read the results from MediaPipe's C structs (:func:`_raw_results`) where this MediaPipe has them
         self.raw_results = _has_raw_results(self._task)
+        # ...and call its C functions on this thread, not through MediaPipe's dispatcher thread (_DirectCalls)
+        self.direct = _DirectCalls.of(self._task) if self.raw_results else None
+        self._frame_image: _FrameImage | None = None  # made for the first frame's size (direct calls only)
 
     def _blendshape_map(self, names) -> np.ndarray:
         # index into MediaPipe's category list for every ARKit name (-1: absent)
@@ -258,7 +393,7 @@ class LandmarkDetector:
         blendshape map is made, else None), the transformation matrix or None."""
         want_names = self._bs_map is None
         if self.raw_results:
-            return _raw_results(self._task, image, ts, want_names)
+            return _raw_results(self._task, image, ts, want_names, self.direct)
         res = self._task.detect_for_video(image, ts)
         out = []
         for k, lms in enumerate(res.face_landmarks):
@@ -273,16 +408,13 @@ class LandmarkDetector:
 
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
         """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
-        import cv2
-
         if frame_bgr is None or frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
             raise ValueError(f"expected an (H, W, 3) BGR frame, got {None if frame_bgr is None else frame_bgr.shape}")
         ts = int(timestamp_ms)
         if ts <= self._last_ts:
             ts = self._last_ts + 1
         self._last_ts = ts
-        rgb = cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)
-        image = mp_image(np.ascontiguousarray(rgb))
+        image = self._image(frame_bgr)
         t0 = time.perf_counter()
         faces = []
         for pts, scores, names, matrix in self._results(image, ts):
@@ -297,7 +429,22 @@ class LandmarkDetector:
         self.last_ms = (time.perf_counter() - t0) * 1000.0  # model + result conversion
         return faces
 
+    def _image(self, frame_bgr: np.ndarray):
+        """The MediaPipe image (RGB) of a BGR frame: written into the detector's own image when it calls MediaPipe
+        directly in VIDEO mode (:class:`_FrameImage`), else a new one."""
+        h, w = frame_bgr.shape[:2]
+        if self.direct is not None and frame_bgr.dtype == np.uint8:
+            fi = self._frame_image
+            if fi is None or fi.pixels.shape[:2] != (h, w):
+                fi = self._frame_image = _FrameImage.of(h, w)
+            if fi is not None:
+                return fi.fill(frame_bgr)
+        import cv2
+
+        return mp_image(np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)))
+
     def close(self) -> None:
+        self._frame_image = None
         if self._task is not None:
             self._task.close()
             self._task = None
@@ -333,8 +480,6 @@ class FaceTracker:
 
     def update(self, faces: list[FaceObservation], timestamp_ms: float) -> list[FaceObservation]:
         """Set ``face_id`` on every face (in place) and return the faces."""
-        from scipy.optimize import linear_sum_assignment
-
         for tid in [t for t, tr in self.tracks.items() if timestamp_ms - tr.last_seen_ms > self.forget_ms]:
             del self.tracks[tid]
         ids = list(self.tracks)
@@ -345,7 +490,12 @@ class FaceTracker:
                 for b, tid in enumerate(ids):
                     tr = self.tracks[tid]
                     cost[a, b] = np.linalg.norm(f.center - tr.center) / max(tr.size, 1e-6)
-            rows, cols = linear_sum_assignment(cost)
+            if cost.shape == (1, 1) and np.isfinite(cost[0, 0]):  # one face, one track: the only assignment
+                rows, cols = (0,), (0,)
+            else:
+                from scipy.optimize import linear_sum_assignment
+
+                rows, cols = linear_sum_assignment(cost)
             for a, b in zip(rows, cols):
                 if cost[a, b] <= self.max_jump:
                     assigned[a] = ids[b]

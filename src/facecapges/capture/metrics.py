@@ -56,6 +56,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from facecapges.rotations import _vector_norm
+
 INNER_EYE_R, INNER_EYE_L = 133, 362
 OUTER_EYE_R, OUTER_EYE_L = 33, 263
 
@@ -90,15 +92,33 @@ METRIC_NAMES: tuple[str, ...] = (
 )
 
 
+def _pairs_index(pairs) -> tuple[np.ndarray, np.ndarray]:
+    """The upper and lower landmarks of ``pairs`` as index arrays (made once, not on every frame)."""
+    return np.array([a for a, _ in pairs]), np.array([b for _, b in pairs])
+
+
+_PAIRS = {pairs: _pairs_index(pairs) for pairs in (LIP_PAIRS, EYELID_PAIRS_L, EYELID_PAIRS_R)}
+_EYES_L = np.array([INNER_EYE_L, OUTER_EYE_L])
+_EYES_R = np.array([INNER_EYE_R, OUTER_EYE_R])
+_BROW_L, _BROW_R = np.array(BROW_L), np.array(BROW_R)
+_BROW_INNER = np.array(BROW_INNER_L + BROW_INNER_R)
+_LOWER_LIP = np.array([b for _, b in LIP_PAIRS])
+
+
+def _mean(x: np.ndarray) -> np.ndarray:
+    """``x.mean(axis=-1)`` of float64 ``x``: its own arithmetic (the sum by ``add.reduce``, divided by the count),
+    the same bits, without its Python layers (a dozen means a frame, issue 36)."""
+    return np.add.reduce(x, axis=-1) / x.shape[-1]
+
+
 def _pairs_height(P: np.ndarray, pairs) -> np.ndarray:
-    up = np.array([a for a, _ in pairs])
-    lo = np.array([b for _, b in pairs])
-    return (P[..., up, 1] - P[..., lo, 1]).mean(axis=-1)
+    up, lo = _PAIRS.get(pairs) or _pairs_index(pairs)
+    return _mean(P[..., up, 1] - P[..., lo, 1])
 
 
 def eye_corner_distance(P: np.ndarray) -> np.ndarray:
     """Inner eye-corner distance ``w`` of head-frame points (..., N, 3)."""
-    return np.linalg.norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :], axis=-1)
+    return _vector_norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :])
 
 
 def compute_metrics(P: np.ndarray) -> np.ndarray:
@@ -106,25 +126,25 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     P = np.asarray(P, np.float64)
     w = np.maximum(eye_corner_distance(P), 1e-9)
     y = P[..., 1]
-    eyes_L = y[..., [INNER_EYE_L, OUTER_EYE_L]].mean(axis=-1)
-    eyes_R = y[..., [INNER_EYE_R, OUTER_EYE_R]].mean(axis=-1)
+    eyes_L = _mean(y[..., _EYES_L])
+    eyes_R = _mean(y[..., _EYES_R])
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
-    mouth_width = np.linalg.norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :], axis=-1)
+    mouth_width = _vector_norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :])
     g = np.stack(
         [
             _pairs_height(P, LIP_PAIRS),
             mouth_width,
             P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
-            y[..., list(BROW_L)].mean(axis=-1) - eyes_L,
-            y[..., list(BROW_R)].mean(axis=-1) - eyes_R,
+            _mean(y[..., _BROW_L]) - eyes_L,
+            _mean(y[..., _BROW_R]) - eyes_R,
             _pairs_height(P, EYELID_PAIRS_L),
             _pairs_height(P, EYELID_PAIRS_R),
             y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
             y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
-            y[..., list(BROW_INNER_L + BROW_INNER_R)].mean(axis=-1) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
+            _mean(y[..., _BROW_INNER]) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
             y[..., MOUTH_CORNER_L] - lip_mid,
             y[..., MOUTH_CORNER_R] - lip_mid,
-            y[..., SUBNASALE] - y[..., [b for _, b in LIP_PAIRS]].mean(axis=-1) - JAW_STRETCH * mouth_width,
+            y[..., SUBNASALE] - _mean(y[..., _LOWER_LIP]) - JAW_STRETCH * mouth_width,
         ],
         axis=-1,
     )

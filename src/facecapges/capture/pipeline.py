@@ -130,13 +130,14 @@ class FaceCapture:
         P = self.pose_estimator.to_head_frame(pts, pose)
         g = compute_metrics(P)
         out_pose = st.smoother(depth_pose if depth_pose is not None else pose)
-        omega = sample_weight(out_pose.distance_m, out_pose.normal)
-        st.estimator.update(g, omega, normal=out_pose.normal)
+        distance, normal = out_pose.distance_m, out_pose.normal  # each worked out once a frame
+        omega = sample_weight(distance, normal)
+        st.estimator.update(g, omega, normal=normal)
         weights = st.estimator.weights(obs.blendshapes)
         return CaptureResult(
             weights,
             out_pose.R,
-            out_pose.distance_m,
+            distance,
             True,
             obs.landmarks,
             obs.face_id,

@@ -35,6 +35,8 @@ always a pair of sorted neighbours.
 
 from __future__ import annotations
 
+from itertools import pairwise
+
 import numpy as np
 
 L_PCT, K_PCT, M_PCT = 10.0, 5.0, 20.0
@@ -81,24 +83,29 @@ def one_directional_range(values: np.ndarray, weights: np.ndarray, **kw) -> tupl
 
 def merge_to_three(values: np.ndarray, weights: np.ndarray) -> tuple[float, float, float]:
     """(g_min, g_rest, g_max): merge nearest sorted neighbours until three samples remain."""
-    v = [float(x) for x in values]
-    w = [float(x) for x in weights]
+    v = np.asarray(values, np.float64).tolist()  # Python floats: the same numbers as float(x) of each
+    w = np.asarray(weights, np.float64).tolist()
     if not v:
         raise ValueError("empty sample set")
     # the gaps are kept between merges: a merge changes only the two gaps beside the merged pair
     # (each recomputed as ``v[i + 1] − v[i]``, as from scratch), and ``gaps.index(min(gaps))`` is the
     # first smallest gap, so the merges and the result are those of re-scanning every gap each time
-    gaps = [v[i + 1] - v[i] for i in range(len(v) - 1)]
-    while len(v) > 3:
+    gaps = [b - a for a, b in pairwise(v)]
+    n = len(v)
+    while n > 3:
         i = gaps.index(min(gaps))
-        ws = w[i] + w[i + 1]
-        v[i] = (v[i] * w[i] + v[i + 1] * w[i + 1]) / ws
+        j = i + 1
+        wi, wj = w[i], w[j]
+        ws = wi + wj
+        vi = (v[i] * wi + v[j] * wj) / ws
+        v[i] = vi
         w[i] = ws
-        del v[i + 1], w[i + 1], gaps[i]
+        del v[j], w[j], gaps[i]
+        n -= 1
         if i > 0:
-            gaps[i - 1] = v[i] - v[i - 1]
-        if i < len(gaps):
-            gaps[i] = v[i + 1] - v[i]
+            gaps[i - 1] = vi - v[i - 1]
+        if j < n:
+            gaps[i] = v[j] - vi
     while len(v) < 3:  # cold start: fewer than three samples
         v.insert(len(v) // 2, v[len(v) // 2])
     return v[0], v[1], v[2]
