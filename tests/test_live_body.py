@@ -143,7 +143,11 @@ def test_live_body_follows_his_real_motion_and_hands_over_when_the_hands_leave(b
     from facecapges.evaluation.live_body import measure_live
 
     _models_or_skip()
-    m = measure_live(beat_bvh, beat_wav, tmp_path)
+    def in_process(*args):  # `live` in this process (cli): what the subprocess ran, without its start-up
+        r = cli(*args)
+        return r.returncode, r.stderr
+
+    m = measure_live(beat_bvh, beat_wav, tmp_path, runner=in_process)
     plain, leave = m["plain"], m["leave"]
     # capture-body (offline, zero-phase) on this video: 10.8° / 23.5°; live (causal) measured 11.7° / 27.2° (before
     # the torso's lean prior and the landmarker's own upper-arm depth: 14.2° / 34.4°, which fails here)

@@ -7,7 +7,7 @@ receiver (which checks that ``/VMC/Ext/T`` strictly increases), ``--web`` with o
 connected over WebSocket (so the viewer feed encodes and sends every frame) and
 ``--record`` (the BVH and face-JSON recorders). ``live`` runs in its own process; after
 its start line and :data:`WARMUP_S` of warm-up this process samples it for ``seconds``
-(20 s, 3 s with ``--quick``):
+(20 s; 1.5 s with ``--quick``, the suite's smoke run, after a shorter warm-up: :data:`QUICK`):
 
 * ``cpu_share_of_core`` — the process's CPU time (``/proc/PID/stat``: user + system, all
   threads) over the wall time: 1.0 is one core;
@@ -52,7 +52,8 @@ stages are 0 on a dropped frame) the shares compare unequal work: ``cpu_ms_per_c
 are the fair figures; ``latency_every_frame_captured_ms`` is each stage's compute time (p50, p99) of both
 on the rendered clip played as fast as it goes (not paced, so every camera frame is captured).
 With ``--quick`` (the suite's smoke run) the rendered clip is the take's last 3 s, not its whole held-out end
-(12.7 s): the render and the two unpaced runs are a quarter as long; the paced runs measure ``seconds`` either way.
+(12.7 s): the render and the two unpaced runs are a quarter as long; the paced runs measure 1.5 s after 1 s of warm-up
+(:data:`QUICK`) — a smoke run of every part, whose figures are not the measure.
 """
 
 from __future__ import annotations
@@ -66,6 +67,7 @@ import sys
 import tempfile
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 from facecapges.benchmarks.runtime import CLIP, looped_video, shared_file
@@ -73,6 +75,25 @@ from facecapges.benchmarks.runtime import CLIP, looped_video, shared_file
 FPS = 15.0
 RATE_HZ = 30
 WARMUP_S = 2.0
+
+
+@dataclass(frozen=True)
+class Pace:
+    """How long a paced run waits around its sampled window: ``warmup_s`` before it, ``tail_s`` of ``live`` after it
+    (so the process is still there when sampling ends); its looped video lasts ``slack_s`` past the window."""
+
+    warmup_s: float = WARMUP_S
+    tail_s: float = 2.0
+    slack_s: float = 15.0
+
+    def video_s(self, seconds: float) -> float:
+        return seconds + self.warmup_s + self.slack_s
+
+
+FULL = Pace()
+# --quick, the suite's smoke run (every part runs; its figures are not the measure): a shorter window (QUICK_S) and
+# shorter waits around it
+QUICK, QUICK_S = Pace(warmup_s=1.0, tail_s=1.0, slack_s=5.0), 1.5
 TARGETS = {"cpu_ratio_to_landmarker": 1.3, "rss_mb": 500.0, "engine_and_outputs_ms": 2.0}
 
 
@@ -198,8 +219,9 @@ def _viewer_client(url: str, stop: threading.Event, got: list[int]) -> None:
             got[0] += 1
 
 
-def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] = ()) -> dict:
-    """``live`` on ``video`` with every output (module docstring) and ``extra`` options; its CPU, RSS and report."""
+def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] = (), pace: Pace = FULL) -> dict:
+    """``live`` on ``video`` with every output (module docstring) and ``extra`` options; its CPU, RSS and report.
+    Sampled for ``seconds`` after ``pace.warmup_s``."""
     workdir.mkdir(parents=True, exist_ok=True)
     rx = _VmcReceiver()
     rec = workdir / "rec"
@@ -214,7 +236,7 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
         str(video),
         "--realtime",
         "--max-seconds",
-        f"{seconds + WARMUP_S + 2.0:g}",
+        f"{seconds + pace.warmup_s + pace.tail_s:g}",
         "--vmc",
         f"127.0.0.1:{rx.port}",
         "--rate",
@@ -241,7 +263,7 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
         else:
             raise RuntimeError(f"live ended before starting: {(workdir / 'live.stderr').read_text()[-2000:]}")
         start_s = time.monotonic() - t_launch
-        time.sleep(WARMUP_S)
+        time.sleep(pace.warmup_s)
         th0, c0, t0 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         while time.monotonic() < t0 + seconds:
             time.sleep(0.5)
@@ -315,8 +337,8 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
     }
 
 
-def landmarker_run(video: Path, seconds: float) -> dict:
-    cmd = [sys.executable, "-m", "facecapges.benchmarks.live", str(video), f"{seconds:g}", f"{WARMUP_S:g}"]
+def landmarker_run(video: Path, seconds: float, pace: Pace = FULL) -> dict:
+    cmd = [sys.executable, "-m", "facecapges.benchmarks.live", str(video), f"{seconds:g}", f"{pace.warmup_s:g}"]
     p = subprocess.run(cmd, capture_output=True, text=True, timeout=seconds + 120)
     if p.returncode != 0:
         raise RuntimeError(f"landmarker run failed: {p.stderr[-2000:]}")
@@ -405,10 +427,11 @@ def body_run(shared: Path, seconds: float, tmp: Path, quick: bool = False) -> di
         if quick:
             take, wav = _take_tail(take, wav, QUICK_BODY_FRAMES, tmp / "tail")
         _, _, rendered, _ = render_truth(take, tmp / "render", wav=wav)
-    video = looped_video(rendered, seconds + WARMUP_S + 15.0, tmp / "body15.mp4", fps=FPS)
+    pace = QUICK if quick else FULL
+    video = looped_video(rendered, pace.video_s(seconds), tmp / "body15.mp4", fps=FPS)
     load_before = os.getloadavg()[0]
-    face = _body_summary(live_run(video, seconds, tmp / "face_only"))
-    body = _body_summary(live_run(video, seconds, tmp / "body", ("--body",)))
+    face = _body_summary(live_run(video, seconds, tmp / "face_only", pace=pace))
+    body = _body_summary(live_run(video, seconds, tmp / "body", ("--body",), pace))
     # latency with every camera frame captured (not paced): the rendered clip as fast as it goes
     latency = {
         "face_only": _latency_run(rendered, tmp / "lat_face"),
@@ -430,14 +453,16 @@ def body_run(shared: Path, seconds: float, tmp: Path, quick: bool = False) -> di
 
 
 def run(quick: bool, shared: Path, seconds: float | None = None) -> dict:
-    """``live`` for ``seconds`` (20 s; 3 s quick), then the landmarker alone for as long (module docstring)."""
-    seconds = seconds or (3.0 if quick else 20.0)
+    """``live`` for ``seconds`` (20 s; :data:`QUICK_S` quick), then the landmarker alone for as long (module
+    docstring)."""
+    pace = QUICK if quick else FULL
+    seconds = seconds or (QUICK_S if quick else 20.0)
     clip = shared_file(shared, CLIP)
     with tempfile.TemporaryDirectory(prefix="facecapges-bench-live-") as tmp:
-        video = looped_video(clip, seconds + WARMUP_S + 15.0, Path(tmp) / "talk15.mp4", fps=FPS)
+        video = looped_video(clip, pace.video_s(seconds), Path(tmp) / "talk15.mp4", fps=FPS)
         load_before = os.getloadavg()[0]
-        live = live_run(video, seconds, Path(tmp))
-        floor = landmarker_run(video, seconds)
+        live = live_run(video, seconds, Path(tmp), pace=pace)
+        floor = landmarker_run(video, seconds, pace)
         body = _body_or_error(shared, seconds, Path(tmp) / "body", quick)
     rep = live.pop("report")
     names = ("input", "capture", "landmarks", "features", "model", "output", "total")

@@ -62,15 +62,23 @@ def leave_frame(video: str | Path, out: str | Path, spans=LEAVE_SPANS) -> Path:
     return Path(out)
 
 
-def run_live(video: Path, wav: Path, rec: Path, extra: tuple[str, ...] = ()) -> dict:
-    """``facecapges live --video VIDEO --audio WAV --body --record REC`` (as fast as it goes); its report."""
-    cmd = [sys.executable, "-m", "facecapges", "live", "--video", str(video), "--audio", str(wav), "--body"]
-    cmd += ["--record", str(rec), "--force", *extra]
-    r = subprocess.run(cmd, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"live --body failed: {r.stderr.strip()[-1500:]}")
+def _subprocess(*args: str) -> tuple[int, str]:
+    """``facecapges ARGS`` in a process of its own: (exit status, stderr)."""
+    r = subprocess.run([sys.executable, "-m", "facecapges", *args], capture_output=True, text=True)
+    return r.returncode, r.stderr
+
+
+def run_live(video: Path, wav: Path, rec: Path, extra: tuple[str, ...] = (), runner=_subprocess) -> dict:
+    """``facecapges live --video VIDEO --audio WAV --body --record REC`` (as fast as it goes); its report.
+    ``runner(*args)`` runs the command and returns (exit status, stderr): a subprocess unless given (the test
+    suite runs it in its own process, as it runs other commands: tests/runtime_helpers.cli)."""
+    code, stderr = runner(
+        "live", "--video", str(video), "--audio", str(wav), "--body", "--record", str(rec), "--force", *extra
+    )
+    if code != 0:
+        raise RuntimeError(f"live --body failed: {stderr.strip()[-1500:]}")
     rep = json.loads((rec / "report.json").read_text())
-    rep["stderr"] = r.stderr
+    rep["stderr"] = stderr
     return rep
 
 
@@ -133,9 +141,12 @@ def on_body_mask(n: int, events: list, side: str) -> np.ndarray:
     return m
 
 
-def measure_live(take: str | Path, wav: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None) -> dict:
+def measure_live(
+    take: str | Path, wav: str | Path, work: str | Path, skeleton_bvh: str | Path | None = None, runner=_subprocess
+) -> dict:
     """The whole proof (module docstring): ``plain`` (the rendered video as it is) and ``leave`` (the
-    hands leaving the frame), each with the truth comparison, the hand-overs and live's body report."""
+    hands leaving the frame), each with the truth comparison, the hand-overs and live's body report
+    (``runner``: :func:`run_live`'s)."""
     work = Path(work)
     skel, truth, video, speech = render_truth(take, work, skeleton_bvh, wav)
     assert speech is not None
@@ -144,7 +155,7 @@ def measure_live(take: str | Path, wav: str | Path, work: str | Path, skeleton_b
     left = leave_frame(video, work / "leave.mp4")
     for name, v in (("plain", video), ("leave", left)):
         rec = work / f"live_{name}"
-        rep = run_live(v, speech, rec)
+        rep = run_live(v, speech, rec, runner=runner)
         pose = recorded_pose(rec)
         events = rep["body"]["handover_frames"]
         both = on_body_mask(len(pose), events, "Right") & on_body_mask(len(pose), events, "Left")
