@@ -23,16 +23,18 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
   step), ``output`` (head, speech mouth, quaternions and every sink's ``write``; ``input_cpu``,
   ``capture_cpu``, ``model_cpu``, ``output_cpu``: the scheduler thread's CPU time in each), with
   each sink's own ``write`` under ``sink_ms`` and the upsampler's work per 30 Hz tick
-  (blend + VMC send + viewer) under ``upsampler_tick_ms``; ``model_cpu``,
+  (interpolation + VMC send; the viewer blends in the page) under ``upsampler_tick_ms``; ``model_cpu``,
   ``output_cpu`` and ``upsampler_tick_cpu_ms`` are the same in the threads' CPU time
   (on a shared machine the wall-clock figures also hold the turns others got).
 
 ``landmarker`` is the floor: the MediaPipe face landmarker alone (the same model, VIDEO
 mode, the options :class:`~facecapges.capture.landmarks.LandmarkDetector` sets) in its
 own process on the same clip's frames, decoded and converted to RGB beforehand, paced at
-15 fps for the same time, through MediaPipe's Python API (``detect_for_video``): the model's own cost on this
-machine. (``live`` reads the task's C results without that API's Python objects, so its capture pays a
-little less than the floor's Python side: ``capture.landmarks._raw_results``.)
+15 fps for the same time, called the cheapest way ``live`` calls it: its C function on the calling thread and its
+results read from the C structs (``capture.landmarks._raw_results`` with ``_DirectCalls``; where this MediaPipe
+lacks them, its Python API's ``detect_for_video``): the model's own cost on this machine. (Before 2026-12-04 17:40
+the floor went through the Python API — a dispatcher thread and one Python object per landmark, ~1.3 ms a frame
+that ``live`` no longer pays — so earlier ratios in docs/performance.md are against a floor that high.)
 
 Targets (issue 36): ``live``'s CPU at most 1.3× the landmarker's
 (``cpu_ratio_to_landmarker``), ``rss_mb.steady_max`` ≤ 500 MB, the engine and the
@@ -110,10 +112,11 @@ THREAD_ROLES = {
     "main": "scheduler: capture (frame to RGB, MediaPipe's call and results, head pose, estimator), engine, outputs",
     "drishti": "MediaPipe's graph (the landmarker's inference)",
     "av:": "FFmpeg's video decoding threads",
-    "upsample": "the 30 Hz output ticks (blend, VMC send, viewer message)",
+    "upsample": "the 30 Hz output ticks (VMC: interpolation and send; the viewer blends in the page)",
     "viewer-server": "the viewer's WebSocket server (sends the feed)",
     "libuv-worker": "uvloop's worker pool (the viewer server's loop; idle while it serves)",
-    "python": "unnamed threads (MediaPipe's helpers, the BLAS pool; before 2026-12-04 also our own threads)",
+    "python": "unnamed threads, none ours: MediaPipe's dispatcher (idle per frame since its C calls are made on "
+    "the caller's thread), logging and watcher threads, the OpenBLAS pools of NumPy, SciPy and OpenCV",
 }
 
 
@@ -300,7 +303,7 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
     import cv2
     import numpy as np
 
-    from facecapges.capture.landmarks import LandmarkDetector, mp_image
+    from facecapges.capture.landmarks import LandmarkDetector, _raw_results, mp_image
     from facecapges.capture.models import resolve_model
 
     cap = cv2.VideoCapture(video)
@@ -322,11 +325,14 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
         if c0 is None and k >= warmup_s * FPS:
             c0, t0 = time.process_time(), time.monotonic()
         t = time.perf_counter()
-        res = task.detect_for_video(frames[k % len(frames)], int(k * 1000 / FPS))
+        image, ts = frames[k % len(frames)], int(k * 1000 / FPS)
+        if det.raw_results:
+            found = len(_raw_results(task, image, ts, direct=det.direct))
+        else:
+            found = len(task.detect_for_video(image, ts).face_landmarks)
         ms.append((time.perf_counter() - t) * 1000.0)
     time.sleep(max(0.0, t_start + n / FPS - time.monotonic()))  # the last frame's period
     c1, t1 = time.process_time(), time.monotonic()
-    found = len(res.face_landmarks)
     det.close()
     assert c0 is not None and t0 is not None
     return {
@@ -334,6 +340,7 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
         "ms_per_frame_p50": round(float(np.median(ms[int(warmup_s * FPS) :])), 2),
         "rss_mb": round(_status_mb(os.getpid(), "VmRSS"), 1),
         "face_found_last_frame": bool(found),
+        "calls": "C, caller's thread" if det.direct is not None else "Python API",
     }
 
 
