@@ -61,7 +61,7 @@ from facecapges.serving.config import ServeConfig
 DEFAULT_PORT = 8000  # HAProxy's port on each proxy node: clients connect there
 LOAD_POLL_S = 0.1  # a client that connected while the style loads looks this often
 LOOPBACK = "127.0.0.1"
-RAYLET_POLL_S = 0.05  # a replica looks this often whether its node's raylet lives (watch_raylet)
+RAYLET_POLL_S = 0.05  # without process descriptors, a replica looks this often whether its raylet lives
 STREAM_LIFE_S = 24 * 3600  # the longest a stream is expected to last (HAProxy's hard stop below)
 # Ray Serve's throughput mode with its HAProxy ingress (module docs), for the Serve controller (and
 # through it the HAProxy manager it starts on each proxy node) and for every replica; passed as their
@@ -139,15 +139,25 @@ def watch_raylet(poll_s: float = RAYLET_POLL_S, on_death=_drop_connections_and_e
     """Fate-share with this node's raylet, in a replica's thread for its life: when the raylet dies (the
     node's Ray killed), ``on_death`` — by default the connections shut down, then the process ends
     (:func:`_drop_connections_and_exit`). Ray's own check of it ends the process and leaves the sockets to
-    the kernel (every 1 s by default; 10 s for the replicas, :data:`REPLICA_ENV`). Looks every ``poll_s``
-    whether this process's parent (the raylet that started it) changed or ``RAY_RAYLET_PID`` is gone."""
+    the kernel (every 1 s by default; 10 s for the replicas, :data:`REPLICA_ENV`). The raylet is
+    ``RAY_RAYLET_PID``, else this process's parent (the raylet started it); its process descriptor becomes
+    readable when it ends, and the thread waits on it in a system call: no wake-up, no GIL taken meanwhile.
+    Without descriptors (Linux < 5.3) it looks every ``poll_s`` whether the parent changed or the raylet is
+    gone."""
+    import select
+
     parent = os.getppid()
-    raylet = int(os.environ.get("RAY_RAYLET_PID") or 0)
-    while True:
-        time.sleep(poll_s)
-        if os.getppid() != parent or (raylet and not _pid_alive(raylet)):
-            on_death()
-            return
+    raylet = int(os.environ.get("RAY_RAYLET_PID") or 0) or parent
+    try:
+        fd = os.pidfd_open(raylet)
+    except (AttributeError, OSError):
+        fd = -1
+    if fd >= 0:
+        select.select([fd], [], [])
+    else:
+        while os.getppid() == parent and _pid_alive(raylet):
+            time.sleep(poll_s)
+    on_death()
 
 
 def _pid_alive(pid: int) -> bool:
