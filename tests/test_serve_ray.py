@@ -155,6 +155,10 @@ def test_a_node_dies_and_its_streams_resume_on_the_other(capsys):
     assert r["errors"] == 0, r["error_samples"]
     assert r["moved"] >= 1 and r["dropped_not_by_kill"] == 0  # the kill moved some, and only the kill
     assert r["all_back"] and r["within_2s"], r
+    # the dead node's replica closed its clients' connections (ray_app.watch_raylet): not all of them had to
+    # wait for their own no-pose rule (Ray alone ends the replica within 10 s; a stalled replica's clients
+    # may still notice by the rule first on a loaded machine)
+    assert r["detect_by_rule"] < r["moved"], r
     assert r["good_clients"] + r["moved"] == 20
     # streams on the live node keep streaming (measured; on a loaded 2-core machine a replica falls
     # behind and drops "busy" frames, so this bounds the loss rather than requiring none)
@@ -220,3 +224,56 @@ def test_behind_haproxy_a_stream_counts_against_the_forwarded_address_only_with_
     # after Ray's default 120 s: they are stopped only after a stream's life
     assert int(INGRESS_ENV["RAY_SERVE_HAPROXY_HARD_STOP_AFTER_S"]) >= STREAM_LIFE_S >= 3600
     assert INGRESS_ENV["FORWARDED_ALLOW_IPS"] == ""  # uvicorn must not trust HAProxy's X-Forwarded-For itself
+
+
+RAYLET = """
+import subprocess, sys, time
+subprocess.Popen([sys.executable, "-c", sys.argv[1]])  # its stdout is ours
+time.sleep(600)
+"""
+REPLICA = """
+import os, socket, threading, time
+from facecapges.serving.ray_app import shutdown_tcp, watch_raylet
+def died():
+    print("dropped", shutdown_tcp(), flush=True)
+threading.Thread(target=watch_raylet, args=(0.02, died), daemon=True).start()  # as a replica starts it
+srv = socket.create_server(("127.0.0.1", 0))
+print(os.getpid(), srv.getsockname()[1], flush=True)
+conn, _ = srv.accept()
+print("accepted", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_replica_closes_its_connections_when_its_raylet_dies():
+    """``watch_raylet`` in a process standing for a replica, its parent for the node's raylet: the parent is
+    killed and the replica shuts its TCP sockets down itself while it still lives — its client (HAProxy) sees
+    the end at once; the kernel would close a killed process's sockets only after tearing down its memory
+    (0.1–1 s for a replica on a loaded machine, docs/serve-cluster.md)."""
+    import os
+    import signal
+    import socket
+    import subprocess
+    import sys
+
+    env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+    env.pop("RAY_RAYLET_PID", None)
+    raylet = subprocess.Popen([sys.executable, "-c", RAYLET, REPLICA], stdout=subprocess.PIPE, text=True, env=env)
+    pid = None
+    try:
+        pid, port = map(int, raylet.stdout.readline().split())
+        with socket.create_connection(("127.0.0.1", port), timeout=30) as conn:
+            assert raylet.stdout.readline() == "accepted\n"
+            raylet.kill()
+            raylet.wait()
+            assert conn.recv(16) == b""  # the replica's FIN (within the 30 s timeout)
+            os.kill(pid, 0)  # the replica still lives: the end came from its shutdown, not from its exit
+        dropped = raylet.stdout.readline().split()
+        assert dropped[:2] == ["dropped", "2"], dropped  # the listening socket and the connection
+    finally:
+        raylet.kill()
+        if pid is not None:
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass

@@ -27,7 +27,7 @@ import time
 import numpy as np
 import soundfile as sf
 from websockets.asyncio.client import connect
-from websockets.exceptions import ConnectionClosed
+from websockets.exceptions import ConnectionClosed, InvalidStatus
 
 IDENTITY_ROT6D = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # first two columns of the identity matrix
 
@@ -37,11 +37,15 @@ async def connect_when_up(url: str, wait: float):
     deadline = time.monotonic() + wait
     while True:
         try:
-            return await connect(url, max_size=2**16, open_timeout=max(10.0, wait))
-        except OSError:  # connection refused: not started yet
+            # close_timeout: a connection given up (no pose for 1 s) is not waited on for the server's
+            # close frame, which a dead server behind a proxy never sends
+            return await connect(url, max_size=2**16, open_timeout=max(10.0, wait), close_timeout=0.2)
+        except (OSError, InvalidStatus) as exc:  # refused: not started yet; or a proxy's 5xx: try again
+            if isinstance(exc, InvalidStatus) and exc.response.status_code < 500:
+                raise SystemExit(f"{url}: {exc}") from None
             if time.monotonic() > deadline:
                 raise SystemExit(f"{url}: no server answered within {wait:g} s") from None
-            await asyncio.sleep(0.5)
+            await asyncio.sleep(0.1)
 
 
 async def hello_of(ws) -> dict:

@@ -9,8 +9,10 @@ the replicas (``serve --ray``'s ingress, with ports and files of its own); after
 node is killed (its raylet and every process on it, no graceful stop). Reported:
 
 - ``moved``: the clients whose stream was on the dead node; ``failover_s`` (max / median): from
-  their connection dropping to the first pose of their resumed stream; ``all_back`` if every
-  client got poses again and ``within_2s`` if each did within 2 s;
+  the last pose they got before the kill to the first pose of their resumed stream (the freeze a user
+  sees); ``all_back`` if every client got poses again and ``within_2s`` if each did within 2 s;
+  ``detect_s`` (median / max): from the kill to their connection dropping, and ``detect_by_rule``: how
+  many noticed it only by their own rule (no pose for ``loadgen.STALL_S``) rather than by its close;
 - ``good_lost``: frames lost by the clients that were not moved (sent, never returned);
   ``good_p99_ms``: their round trip at p99, before and after the kill;
 - ``handover``: the whole-body joint acceleration (:func:`facecapges.evaluation.realism.joint_acceleration`)
@@ -163,6 +165,8 @@ class LocalCluster:
         raise AssertionError("unreachable")
 
     def _start(self):
+        import tempfile
+
         import ray
         from ray import serve
         from ray.cluster_utils import Cluster
@@ -171,13 +175,12 @@ class LocalCluster:
         from facecapges.serving.ray_app import build_app, wait_ready
 
         t = time.monotonic()
-        if self.env is None:  # serve --ray's ingress, nothing of it shared with another cluster on this machine
-            import tempfile
-
+        # Ray's session files and HAProxy's, nothing shared with another cluster on this machine; short:
+        # HAProxy takes socket paths of at most 97 characters, and Ray puts the node's id in them
+        self._files = d = tempfile.mkdtemp(prefix="fcg-", dir="/tmp")
+        if self.env is None:  # serve --ray's ingress
             from facecapges.serving.ray_app import INGRESS_ENV
 
-            # short: HAProxy takes socket paths of at most 97 characters, and Ray puts the node's id in them
-            self._files = d = tempfile.mkdtemp(prefix="fcg-", dir="/tmp")
             self.env = {
                 **INGRESS_ENV,
                 "RAY_SERVE_HAPROXY_STATS_PORT": str(_free_port()),
@@ -192,9 +195,9 @@ class LocalCluster:
         fast = {"health_check_period_ms": 500, "health_check_failure_threshold": 2}
         self.cluster = Cluster(
             initialize_head=True,
-            head_node_args={"num_cpus": 1, "include_dashboard": False, "_system_config": fast},
+            head_node_args={"num_cpus": 1, "include_dashboard": False, "_system_config": fast, "temp_dir": d},
         )
-        self.workers = [self.cluster.add_node(num_cpus=1) for _ in range(self.nodes - 1)]
+        self.workers = [self.cluster.add_node(num_cpus=1, temp_dir=d) for _ in range(self.nodes - 1)]
         ray.init(address=self.cluster.address, log_to_driver=False)  # stdout is the bench's JSON
         serve.start(
             http_options={"host": "127.0.0.1", "port": self.port},
@@ -305,6 +308,9 @@ def failover(
         "failover_s_median": round(float(np.median(back)), 3) if back else None,
         "within_2s": bool(back) and len(back) == len(moved) and max(back) <= 2.0,
         "detect_s_median": round(float(np.median([r.drops[0] - t_kill for r in moved])), 3) if moved else None,
+        "detect_s_max": round(max(r.drops[0] - t_kill for r in moved), 3) if moved else None,
+        # noticed by the client's own no-pose rule (loadgen.STALL_S), not by the connection's close
+        "detect_by_rule": sum(r.drops[0] in r.stalls for r in moved),
         "hello_s_median": round(float(np.median([r.hellos[1] - t_kill for r in moved if len(r.hellos) > 1])), 3)
         if any(len(r.hellos) > 1 for r in moved)
         else None,

@@ -257,6 +257,7 @@ class ResumeResult:
     sent: dict[int, float] = field(default_factory=dict)  # frame → send time (perf_counter)
     got: dict[int, tuple[float, list]] = field(default_factory=dict)  # frame → (arrival, pose 47 × 4 flat)
     drops: list[float] = field(default_factory=list)  # when a connection dropped
+    stalls: list[float] = field(default_factory=list)  # those of drops the no-pose rule made (stall_s)
     back: list[float] = field(default_factory=list)  # the first pose after each drop
     hellos: list[float] = field(default_factory=list)  # each connection's hello
     errors: list[str] = field(default_factory=list)
@@ -264,6 +265,9 @@ class ResumeResult:
 
 
 STALL_S = 0.8  # no pose for this long while frames are due: the connection is taken as dead
+# a connection given up is closed without waiting long for the server's close frame: behind a proxy a
+# dead server's never comes (websockets' default waits 10 s)
+CLOSE_TIMEOUT_S = 0.2
 
 
 async def run_resuming_client(
@@ -300,6 +304,8 @@ async def run_resuming_client(
             await asyncio.sleep(0.05)
             k = max(k, int((time.perf_counter() - start) * fps))
             continue
+        ws.close_timeout = CLOSE_TIMEOUT_S
+        dropped_at = 0.0  # when the no-pose rule gave the connection up (its close may take a moment)
         try:
             hello = await ws.recv(decode=True)
             while '"status"' in hello[:40]:
@@ -340,6 +346,8 @@ async def run_resuming_client(
                 if delay > 0:
                     await asyncio.sleep(delay)
                 if time.perf_counter() - last_rx > stall_s:  # frames go out, nothing comes back
+                    dropped_at = time.perf_counter()
+                    res.stalls.append(dropped_at)
                     rtask.cancel()
                     await ws.close()
                     raise ConnectionClosed(None, None)
@@ -357,5 +365,5 @@ async def run_resuming_client(
             await rtask  # it ended: the connection dropped
         except ConnectionClosed:
             pass
-        res.drops.append(time.perf_counter())
+        res.drops.append(dropped_at or time.perf_counter())
     return res

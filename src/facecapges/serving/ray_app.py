@@ -14,9 +14,11 @@ stream with one and runs them as one batched ``step``. Ray places the replicas o
 most ``max_per_node`` a node) and tells HAProxy when one comes or goes.
 
 The protocol is ``serve``'s (:mod:`facecapges.runtime.outputs.protocol`): ``hello``, ``input`` →
-``pose``, ``intensity``, ``ping``, and ``resume``. When a node dies its streams' connections drop;
-a client reconnects (through HAProxy, to a replica that lives) and sends ``resume`` with the
-last pose it got: the new stream starts from that pose (docs/serve-cluster.md).
+``pose``, ``intensity``, ``ping``, and ``resume``. When a node dies its streams' connections drop:
+a replica whose raylet died shuts its connections down itself before it ends (:func:`watch_raylet`),
+and HAProxy closes the clients' side at once. A client reconnects (through HAProxy, to a replica that
+lives: a refused connection marks the dead one down and is answered at once, :data:`INGRESS_ENV`) and
+sends ``resume`` with the last pose it got: the new stream starts from that pose (docs/serve-cluster.md).
 
 Admission and limits are ``serve``'s, from the same code (:mod:`facecapges.serving.admission`):
 ``--max-streams``, ``--max-per-address`` (with fair admission: a newcomer on probation evicts the
@@ -35,6 +37,7 @@ that stops reading (a replica's backlog is bounded by ``max_pending`` "busy" dro
 import asyncio
 import collections
 import gc
+import os
 import threading
 import time
 from dataclasses import dataclass, field
@@ -58,6 +61,7 @@ from facecapges.serving.config import ServeConfig
 DEFAULT_PORT = 8000  # HAProxy's port on each proxy node: clients connect there
 LOAD_POLL_S = 0.1  # a client that connected while the style loads looks this often
 LOOPBACK = "127.0.0.1"
+RAYLET_POLL_S = 0.05  # without process descriptors, a replica looks this often whether its raylet lives
 STREAM_LIFE_S = 24 * 3600  # the longest a stream is expected to last (HAProxy's hard stop below)
 # Ray Serve's throughput mode with its HAProxy ingress (module docs), for the Serve controller (and
 # through it the HAProxy manager it starts on each proxy node) and for every replica; passed as their
@@ -78,10 +82,92 @@ INGRESS_ENV = {
     # within ~4 s (default ~10 s) if Ray has not removed it by then
     "RAY_SERVE_HAPROXY_TIMEOUT_CONNECT_S": "1",
     "RAY_SERVE_HAPROXY_HEALTH_CHECK_INTER": "2s",
+    # a client reconnecting after its replica died: HAProxy's fewest-connections choice is the dead replica
+    # (its streams are gone) until it is marked down. Its first refused connection marks it down (Ray's
+    # default: the third), and is answered at once (HTTP 503, the client tries again and reaches a live
+    # replica) instead of retried on the same replica after HAProxy's turn-around of min(timeout connect,
+    # 1 s): measured, that second was the reconnection of 1 client in 5 (docs/serve-cluster.md)
+    "RAY_SERVE_HAPROXY_OBSERVE_ERROR_LIMIT": "1",
+    "RAY_SERVE_HAPROXY_RETRIES": "0",
     # the replicas' HTTP server (uvicorn) would take a loopback peer's X-Forwarded-For as the client's
     # address, and HAProxy on the same node is such a peer: the header counts only with --trust-proxy
     "FORWARDED_ALLOW_IPS": "",
 }
+
+
+# a replica's own environment, beside INGRESS_ENV: Ray's check that ends a worker whose raylet died
+# (every 1 s by default) is left to watch_raylet, which closes the connections before the process ends;
+# Ray's, every 10 s, is the fallback
+REPLICA_ENV = {"RAY_raylet_death_check_interval_milliseconds": "10000"}
+
+
+def _drop_connections_and_exit() -> None:
+    """End this process at once, its TCP connections first (:func:`shutdown_tcp`): HAProxy closes the
+    clients' side and they reconnect. (Left to the kernel, a killed process closes its sockets only
+    after its memory is torn down: 0.1–1 s measured for a replica on a loaded machine.)"""
+    shutdown_tcp()
+    os._exit(1)
+
+
+def shutdown_tcp() -> int:
+    """Shut down every TCP socket of this process, both ways (a FIN to each peer now, a listening one
+    refuses from now on); its descriptors stay open. The number shut down."""
+    import socket
+
+    done = 0
+    try:
+        fds = [int(fd) for fd in os.listdir("/proc/self/fd")]
+    except OSError:  # no /proc: the process's end closes them
+        fds = []
+    for fd in fds:
+        try:
+            sock = socket.socket(fileno=fd)
+        except OSError:  # not a socket, or already closed
+            continue
+        try:
+            if sock.family in (socket.AF_INET, socket.AF_INET6) and sock.type == socket.SOCK_STREAM:
+                sock.shutdown(socket.SHUT_RDWR)
+                done += 1
+        except OSError:  # not connected
+            pass
+        finally:
+            sock.detach()  # the descriptor is not ours to close
+    return done
+
+
+def watch_raylet(poll_s: float = RAYLET_POLL_S, on_death=_drop_connections_and_exit) -> None:
+    """Fate-share with this node's raylet, in a replica's thread for its life: when the raylet dies (the
+    node's Ray killed), ``on_death`` — by default the connections shut down, then the process ends
+    (:func:`_drop_connections_and_exit`). Ray's own check of it ends the process and leaves the sockets to
+    the kernel (every 1 s by default; 10 s for the replicas, :data:`REPLICA_ENV`). The raylet is
+    ``RAY_RAYLET_PID``, else this process's parent (the raylet started it); its process descriptor becomes
+    readable when it ends, and the thread waits on it in a system call: no wake-up, no GIL taken meanwhile.
+    Without descriptors (Linux < 5.3) it looks every ``poll_s`` whether the parent changed or the raylet is
+    gone."""
+    import select
+
+    parent = os.getppid()
+    raylet = int(os.environ.get("RAY_RAYLET_PID") or 0) or parent
+    try:
+        fd = os.pidfd_open(raylet)
+    except (AttributeError, OSError):
+        fd = -1
+    if fd >= 0:
+        select.select([fd], [], [])
+    else:
+        while os.getppid() == parent and _pid_alive(raylet):
+            time.sleep(poll_s)
+    on_death()
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, someone else's
+        pass
+    return True
 
 
 def _require_ray():
@@ -145,7 +231,7 @@ def build_app(
         # on probation (or waiting for the style); the replica's admission refuses the rest (1013)
         max_ongoing_requests=2 * cfg.max_streams,
         **per_node,
-        ray_actor_options={"num_cpus": num_cpus, **({"runtime_env": {"env_vars": dict(env)}} if env else {})},
+        ray_actor_options={"num_cpus": num_cpus, "runtime_env": {"env_vars": {**(env or {}), **REPLICA_ENV}}},
         health_check_period_s=1.0,
         health_check_timeout_s=5.0,
     )
@@ -167,17 +253,25 @@ def build_app(
             self.stats: collections.Counter[str] = collections.Counter()
             # the replica answers at once; the style loads meanwhile (clients get "loading")
             threading.Thread(target=self._load, name="load-style", daemon=True).start()
+            threading.Thread(target=watch_raylet, name="watch-raylet", daemon=True).start()
 
         def _load(self) -> None:
             try:
+                from facecapges import timing
                 from facecapges.engine.threads import limit_threads
+                from facecapges.serving.model_process import _warm
                 from facecapges.styles import load_style, resolve
 
                 ckpt = load_style(resolve(checkpoint, style))
                 limit_threads(1)  # torch's only if the style loaded it (a network style); NumPy's BLAS alike
                 self.fps = int(ckpt.fps)
                 self.policy.fps = self.fps
-                self.gen = ckpt.batched(capacity=64)
+                gen = ckpt.batched(capacity=64)
+                # the engine's lazy imports now, as serve's model process does (scipy's FFT from 16 streams a
+                # tick on): not when a dead node's streams arrive here all at once (measured: 0.37 s of this
+                # replica's event loop, its streams' frames waiting, at load 11)
+                _warm(gen, timing.samples_per_frame(self.fps))
+                self.gen = gen
                 # the style lives as long as the replica: out of the collector's scans (Ray freezes
                 # what __init__ made; the style loads after it, in this thread)
                 gc.collect()
