@@ -145,7 +145,7 @@ def run(quick: bool, shared: Path, threads: int = 1) -> dict:
         return s["ok"]
 
     try:
-        # no uncounted warm-up: the model process runs one tick before ``ready:`` (model_process._warm)
+        # no uncounted warm-up: the model process runs one tick before ``ready:`` (model_process.warm_engine)
         best, fail, n = 0, None, 20 if quick else 40
         while n <= 1024:
             if trial(n):

@@ -36,7 +36,7 @@ against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (serve
 model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
 Before it answers ``ready`` the child runs a tick of 1 and one of 32 streams on slots it closes again
-(:func:`_warm`): the engines import some modules at their first tick of a size (scipy's FFT from 16 streams
+(:func:`warm_engine`): the engines import some modules at their first tick of a size (scipy's FFT from 16 streams
 on, ~190 modules with it), which took seconds on a busy machine while the first streams' frames were dropped.
 
 It offers what the server uses: :attr:`open_slots`, :meth:`sync` (opening, closing and
@@ -104,7 +104,7 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
         return
     a, f, h, p, q = arrays
     try:
-        _warm(gen, a.shape[1])
+        warm_engine(gen, a.shape[1])
     except Exception as exc:  # noqa: BLE001  as a failed load
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
@@ -134,7 +134,7 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
             conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
 
 
-def _warm(gen, samples_per_frame: int, sizes: tuple[int, ...] = (1, 32)) -> None:
+def warm_engine(gen, samples_per_frame: int, sizes: tuple[int, ...] = (1, 32)) -> None:
     """A tick of 1 and one of 32 streams (a quiet tone, a neutral face, the head straight) on slots closed
     again, before the server says ``ready:``, so that the first real ticks run warm: the engine's lazy imports
     happen here (scipy's FFT, taken from 16 streams a tick on, and the ~190 modules it pulls in: seconds on a

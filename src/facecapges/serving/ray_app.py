@@ -259,7 +259,7 @@ def build_app(
             try:
                 from facecapges import timing
                 from facecapges.engine.threads import limit_threads
-                from facecapges.serving.model_process import _warm
+                from facecapges.serving.model_process import warm_engine
                 from facecapges.styles import load_style, resolve
 
                 ckpt = load_style(resolve(checkpoint, style))
@@ -270,7 +270,7 @@ def build_app(
                 # the engine's lazy imports now, as serve's model process does (scipy's FFT from 16 streams a
                 # tick on): not when a dead node's streams arrive here all at once (measured: 0.37 s of this
                 # replica's event loop, its streams' frames waiting, at load 11)
-                _warm(gen, timing.samples_per_frame(self.fps))
+                warm_engine(gen, timing.samples_per_frame(self.fps))
                 self.gen = gen
                 # the style lives as long as the replica: out of the collector's scans (Ray freezes
                 # what __init__ made; the style loads after it, in this thread)
