@@ -497,22 +497,26 @@ class BatchedMatchingStreams(SlotOwner):
         )
         self.since_search[ids[searching]] = 0
         if switch.any():  # every switching stream at once (elementwise: the same values as one by one)
-            k = np.flatnonzero(switch)
-            s, b, src = ids[searching[k]], best[k], nxt[searching[k]]
-            self.off_x[s], self.off_v[s] = inz.transition(
-                self.off_x[s],
-                self.off_v[s],
-                self.row_quaternions[src],
-                self.row_velocities[src],
-                self.row_quaternions[b],
-                self.row_velocities[b],
-            )
-            self.row[s] = b
-            self.direction[s] = 1
-            self.switches[s] += 1
-            self.since_switch[s] = 0
-            self.run_start[s] = self.t[s]
-            self.halflife[s] = np.where(idle_only[searching[k]], cfg.pause_halflife_s, cfg.halflife_s)
+            k = searching[np.flatnonzero(switch)]
+            self._switch(ids[k], nxt[k], best[switch], idle_only[k])
+
+    def _switch(self, s: np.ndarray, src: np.ndarray, b: np.ndarray, idle: np.ndarray) -> None:
+        """Streams ``s`` leave row ``src`` for row ``b``: the offsets carry the jump (inertialization), the new
+        run starts there (``idle``: in a pause, with the pause's half-life)."""
+        self.off_x[s], self.off_v[s] = inz.transition(
+            self.off_x[s],
+            self.off_v[s],
+            self.row_quaternions[src],
+            self.row_velocities[src],
+            self.row_quaternions[b],
+            self.row_velocities[b],
+        )
+        self.row[s] = b
+        self.direction[s] = 1
+        self.switches[s] += 1
+        self.since_switch[s] = 0
+        self.run_start[s] = self.t[s]
+        self.halflife[s] = np.where(idle, self.config.pause_halflife_s, self.config.halflife_s)
 
     def _query(
         self, ids: np.ndarray, rows: np.ndarray, cues, searching: np.ndarray, pred: np.ndarray | None
