@@ -148,7 +148,7 @@ def test_metrics_means_and_norms_keep_numpys_bits():
     """``metrics._mean`` and the norms it uses are ``mean(axis=-1)`` and ``np.linalg.norm(axis=-1)``'s own arithmetic:
     the same bits on one frame's points and on batches (issue 36)."""
     from facecapges.capture import metrics as M
-    from facecapges.rotations import _vector_norm
+    from facecapges.rotations import vector_norm
 
     rng = np.random.default_rng(3)
     for shape in [(2,), (3,), (4,), (6,), (9,), (5, 4), (2, 3, 7)]:
@@ -156,4 +156,4 @@ def test_metrics_means_and_norms_keep_numpys_bits():
         assert M._mean(x).tobytes() == x.mean(axis=-1).tobytes()
     for shape in [(3,), (8, 3), (2, 4, 3)]:
         v = rng.normal(size=shape)
-        assert _vector_norm(v).tobytes() == np.linalg.norm(v, axis=-1).tobytes()
+        assert vector_norm(v).tobytes() == np.linalg.norm(v, axis=-1).tobytes()

@@ -421,7 +421,7 @@ def _check_hamilton(m: np.ndarray, q: np.ndarray) -> None:
 
 
 def test_vector_norm_keeps_numpys_bits():
-    """``_vector_norm`` sums fewer than 8 squares by explicit additions (left to right, as ``add.reduce`` does
+    """``vector_norm`` sums fewer than 8 squares by explicit additions (left to right, as ``add.reduce`` does
     there): the bits of ``np.linalg.norm(·, axis=-1)`` for the engine's shapes, float32 and float64."""
     rng = np.random.default_rng(11)
     for dtype in (np.float32, np.float64):
@@ -429,7 +429,7 @@ def test_vector_norm_keeps_numpys_bits():
             a = (rng.normal(size=shape) * 10.0 ** rng.uniform(-6, 6, size=shape)).astype(dtype)
             a.flat[0] = -0.0
             ref = np.linalg.norm(a, axis=-1)
-            got = rot._vector_norm(a)
+            got = rot.vector_norm(a)
             assert got.dtype == ref.dtype and np.asarray(got).tobytes() == np.asarray(ref).tobytes(), (dtype, shape)
 
 

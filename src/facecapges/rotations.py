@@ -79,10 +79,10 @@ def _cross(a: Array, b: Array) -> Array:
 def _norm(a: Array) -> Array:
     if _is_torch(a):
         return _torch().linalg.norm(a, dim=-1, keepdim=True)
-    return _vector_norm(a, keepdims=True)
+    return vector_norm(a, keepdims=True)
 
 
-def _vector_norm(a: np.ndarray, keepdims: bool = False) -> np.ndarray:
+def vector_norm(a: np.ndarray, keepdims: bool = False) -> np.ndarray:
     """``np.linalg.norm(a, axis=-1)``'s own arithmetic (``sqrt(add.reduce(a·a))``, the same bits) without
     its argument handling: on the engine's (1, 47, k) arrays that was most of its cost."""
     a = np.asarray(a)
@@ -398,7 +398,7 @@ def _matrix_to_quaternion_np(m: np.ndarray) -> np.ndarray:
     q = values[rows[:, None], _CAND_ROWS[best]]
     q = q / (np.sqrt(np.maximum(cands[rows, best][:, None], _EPS)) * 2.0)
     q = np.where(q[..., :1] < 0, -q, q)
-    q = q / np.maximum(_vector_norm(q, keepdims=True), _EPS)
+    q = q / np.maximum(vector_norm(q, keepdims=True), _EPS)
     return q.reshape(lead + (4,))
 
 
@@ -428,7 +428,7 @@ def quaternion_to_rot6d(quat: np.ndarray) -> np.ndarray:
     rot6d keeps), without the third column and the intermediate matrices: the matching engine's last step.
     """
     _check_last(quat, (4,), "quaternion")
-    q = quat / np.maximum(_vector_norm(quat, keepdims=True), _EPS)
+    q = quat / np.maximum(vector_norm(quat, keepdims=True), _EPS)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty(q.shape[:-1] + (6,), q.dtype)
     zz, xy, zw = z * z, x * y, z * w  # each used twice
@@ -530,7 +530,7 @@ def quaternion_log(q: np.ndarray) -> np.ndarray:
     """
     w = q[..., 0]
     v = q[..., 1:]
-    s = _vector_norm(v)
+    s = vector_norm(v)
     angle = 2.0 * np.arctan2(s, w)
     k = angle / np.maximum(s, 1e-12)
     big = s > 1e-9
@@ -545,7 +545,7 @@ def quaternion_exp(r: np.ndarray) -> np.ndarray:
     The inverse of :func:`quaternion_log`; the quaternion form of :func:`exp_so3`, batched.
     """
     r = np.asarray(r)
-    angle = _vector_norm(r)
+    angle = vector_norm(r)
     half = 0.5 * angle
     k = np.sin(half) / np.maximum(angle, 1e-12)
     big = angle > 1e-9
@@ -713,7 +713,7 @@ def quaternion_power_about(q: np.ndarray, ref: np.ndarray, power) -> np.ndarray:
     else:  # the same numbers without the linear blend's branch
         a, b = np.sin((1.0 - p) * theta) / s, np.sin(p * theta) / s
     out = a * ref + b * q
-    return out / _vector_norm(out, keepdims=True)  # np.linalg.norm's own arithmetic
+    return out / vector_norm(out, keepdims=True)  # np.linalg.norm's own arithmetic
 
 
 def rotation_power_about(R: np.ndarray, ref: np.ndarray | None, power) -> np.ndarray:

@@ -56,7 +56,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from facecapges.rotations import _vector_norm
+from facecapges.rotations import vector_norm
 
 INNER_EYE_R, INNER_EYE_L = 133, 362
 OUTER_EYE_R, OUTER_EYE_L = 33, 263
@@ -118,7 +118,7 @@ def _pairs_height(P: np.ndarray, pairs) -> np.ndarray:
 
 def eye_corner_distance(P: np.ndarray) -> np.ndarray:
     """Inner eye-corner distance ``w`` of head-frame points (..., N, 3)."""
-    return _vector_norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :])
+    return vector_norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :])
 
 
 def compute_metrics(P: np.ndarray) -> np.ndarray:
@@ -129,7 +129,7 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     eyes_L = _mean(y[..., _EYES_L])
     eyes_R = _mean(y[..., _EYES_R])
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
-    mouth_width = _vector_norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :])
+    mouth_width = vector_norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :])
     g = np.stack(
         [
             _pairs_height(P, LIP_PAIRS),
