@@ -30,9 +30,8 @@ its start line and :data:`WARMUP_S` of warm-up this process samples it for ``sec
 ``landmarker`` is the floor: the MediaPipe face landmarker alone (the same model, VIDEO
 mode, the options :class:`~facecapges.capture.landmarks.LandmarkDetector` sets) in its
 own process on the same clip's frames, decoded and converted to RGB beforehand, paced at
-15 fps for the same time, called the cheapest way ``live`` calls it: its C function on the calling thread and its
-results read from the C structs (``capture.landmarks._raw_results`` with ``_DirectCalls``; where this MediaPipe
-lacks them, its Python API's ``detect_for_video``): the model's own cost on this machine. (Before 2026-12-04 17:40
+15 fps for the same time, called the way ``live`` calls it (``LandmarkDetector.run_model``: its C function on the calling thread, its
+results read from the C structs; where this MediaPipe lacks them, its Python API's ``detect_for_video``): the model's own cost on this machine. (Before 2026-12-04 17:40
 the floor went through the Python API — a dispatcher thread and one Python object per landmark, ~1.3 ms a frame
 that ``live`` no longer pays — so earlier ratios in docs/performance.md are against a floor that high.)
 
@@ -303,7 +302,7 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
     import cv2
     import numpy as np
 
-    from facecapges.capture.landmarks import LandmarkDetector, _raw_results, mp_image
+    from facecapges.capture.landmarks import LandmarkDetector, mp_image
     from facecapges.capture.models import resolve_model
 
     cap = cv2.VideoCapture(video)
@@ -315,7 +314,6 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
         frames.append(mp_image(np.ascontiguousarray(cv2.cvtColor(img, cv2.COLOR_BGR2RGB))))
     cap.release()
     det = LandmarkDetector(resolve_model(None))
-    task = det._task  # the MediaPipe task itself: none of our per-frame code
     ms = []
     n = int((seconds + warmup_s) * FPS)
     t_start = time.monotonic()
@@ -325,11 +323,7 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
         if c0 is None and k >= warmup_s * FPS:
             c0, t0 = time.process_time(), time.monotonic()
         t = time.perf_counter()
-        image, ts = frames[k % len(frames)], int(k * 1000 / FPS)
-        if det.raw_results:
-            found = len(_raw_results(task, image, ts, direct=det.direct))
-        else:
-            found = len(task.detect_for_video(image, ts).face_landmarks)
+        found = det.run_model(frames[k % len(frames)], int(k * 1000 / FPS))
         ms.append((time.perf_counter() - t) * 1000.0)
     time.sleep(max(0.0, t_start + n / FPS - time.monotonic()))  # the last frame's period
     c1, t1 = time.process_time(), time.monotonic()

@@ -406,6 +406,13 @@ class LandmarkDetector:
             out.append((pts, scores, names, mats[k] if k < len(mats) else None))
         return out
 
+    def run_model(self, image, timestamp_ms: int) -> int:
+        """MediaPipe's face landmarker alone on ``image`` (a MediaPipe SRGB image), called as :meth:`detect` calls
+        it, none of our per-frame code: the number of faces found (``bench --only live``'s floor)."""
+        if self.raw_results:
+            return len(_raw_results(self._task, image, int(timestamp_ms), False, self.direct))
+        return len(self._task.detect_for_video(image, int(timestamp_ms)).face_landmarks)
+
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
         """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
         if frame_bgr is None or frame_bgr.ndim != 3 or frame_bgr.shape[2] != 3:
