@@ -71,7 +71,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from facecapges.benchmarks.runtime import CLIP, looped_video, shared_file
+from facecapges.benchmarks.runtime import CLIP, looped_video, shared_file, stat_cpu
 
 FPS = 15.0
 RATE_HZ = 30
@@ -100,9 +100,7 @@ TARGETS = {"cpu_ratio_to_landmarker": 1.3, "rss_mb": 500.0, "engine_and_outputs_
 
 def _cpu_s(pid: int) -> float:
     """User + system CPU seconds of process ``pid`` (all its threads)."""
-    with open(f"/proc/{pid}/stat") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return stat_cpu(f"/proc/{pid}/stat")[1]
 
 
 # what each thread of ``live`` does, by its OS name (:mod:`facecapges.runtime.os_threads`; MediaPipe and FFmpeg
@@ -125,11 +123,11 @@ def _threads_cpu(pid: int) -> dict[int, tuple[str, float]]:
     for task in Path(f"/proc/{pid}/task").iterdir():
         try:
             comm = (task / "comm").read_text().strip()
-            fields = (task / "stat").read_text().rsplit(")", 1)[1].split()
+            _, cpu = stat_cpu(task / "stat")
         except OSError:  # ended meanwhile
             continue
         tid = int(task.name)
-        out[tid] = ("main" if tid == pid else comm, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK"))
+        out[tid] = ("main" if tid == pid else comm, cpu)
     return out
 
 

@@ -69,6 +69,13 @@ def rss_mb(pid: int | None = None) -> float:
     return float("nan")
 
 
+def stat_cpu(path: str | Path) -> tuple[list[str], float]:
+    """A Linux ``/proc/…/stat`` file (a process's or a thread's): its fields after the command name, and its
+    user + system CPU seconds."""
+    fields = Path(path).read_text().rsplit(")", 1)[1].split()
+    return fields, (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _checkpoint():
     from facecapges.styles import load_style
 

@@ -31,6 +31,7 @@ import sys
 import time
 from pathlib import Path
 
+from facecapges.benchmarks.runtime import stat_cpu
 from facecapges.timing import MODEL_FPS
 
 TARGET = 300  # concurrent real-time streams with p99 ≤ P99_LIMIT_MS (issue 36 part 2, on the quiet machine)
@@ -94,11 +95,11 @@ def proc_cpu_s(pid: int) -> float:
     total = 0.0
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
+            fields, cpu = stat_cpu(stat)
         except OSError:
             continue
         if stat.parent.name == str(pid) or fields[1] == str(pid):  # fields[1]: the parent's pid
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+            total += cpu
     return total
 
 
