@@ -388,10 +388,11 @@ class LandmarkDetector:
                 m[i] = k
         return m
 
-    def _results(self, image, ts: int) -> list[tuple[np.ndarray, np.ndarray | None, list | None, np.ndarray | None]]:
-        """Per face: landmarks (n, 3) float32, blendshape scores (float32) or None, their names (until the
-        blendshape map is made, else None), the transformation matrix or None."""
-        want_names = self._bs_map is None
+    def _results(
+        self, image, ts: int, want_names: bool
+    ) -> list[tuple[np.ndarray, np.ndarray | None, list | None, np.ndarray | None]]:
+        """Per face: landmarks (n, 3) float32, blendshape scores (float32) or None, their names (with
+        ``want_names``, else None), the transformation matrix or None."""
         if self.raw_results:
             return _raw_results(self._task, image, ts, want_names, self.direct)
         res = self._task.detect_for_video(image, ts)
@@ -409,9 +410,7 @@ class LandmarkDetector:
     def run_model(self, image, timestamp_ms: int) -> int:
         """MediaPipe's face landmarker alone on ``image`` (a MediaPipe SRGB image), called as :meth:`detect` calls
         it, none of our per-frame code: the number of faces found (``bench --only live``'s floor)."""
-        if self.raw_results:
-            return len(_raw_results(self._task, image, int(timestamp_ms), False, self.direct))
-        return len(self._task.detect_for_video(image, int(timestamp_ms)).face_landmarks)
+        return len(self._results(image, int(timestamp_ms), want_names=False))
 
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> list[FaceObservation]:
         """Faces in one BGR uint8 frame. Timestamps must increase; equal or older ones are bumped by 1 ms."""
@@ -424,7 +423,8 @@ class LandmarkDetector:
         image = self._image(frame_bgr)
         t0 = time.perf_counter()
         faces = []
-        for pts, scores, names, matrix in self._results(image, ts):
+        # the blendshapes' names until their map is made (the first frame with a face)
+        for pts, scores, names, matrix in self._results(image, ts, want_names=self._bs_map is None):
             bs = np.zeros(len(ARKIT_NAMES), np.float32)
             if scores is not None:
                 if self._bs_map is None:
