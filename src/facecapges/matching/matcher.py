@@ -62,6 +62,7 @@ own run began (within the memory) searches at once, and continuing pays the memo
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
@@ -133,6 +134,13 @@ class MatchingConfig:
     def from_dict(cls, d: dict) -> MatchingConfig:
         names = {f.name for f in fields(cls)}
         return cls(**{k: v for k, v in d.items() if k in names})
+
+
+@functools.lru_cache(maxsize=16)
+def _smoothing_rate(dt: float, tau_s: float) -> float:
+    """A first-order smoothing's share per frame of ``dt`` s with time constant ``tau_s`` (the dial's intensity
+    and deviation), computed once per frame length and constant (not on every step)."""
+    return 1.0 - np.exp(-dt / max(tau_s, 1e-3))
 
 
 def gain_of(intensity: float | np.ndarray) -> np.ndarray:
@@ -247,8 +255,6 @@ class BatchedMatchingStreams(SlotOwner):
         self.predictor = predictor.batched(max(1, capacity)) if (predictor is not None) else None
         self.fps = timing.MODEL_FPS
         self._lock = threading.RLock()
-        self._rates_key: tuple | None = None  # what _rates computed its two rates for
-        self._rates_of = (0.0, 0.0)
         self._prepare_db()
         self.speech = SpeechTracker(1)
         self.capacity = 0
@@ -568,12 +574,13 @@ class BatchedMatchingStreams(SlotOwner):
         x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
         self.off_x[ids], self.off_v[ids] = x, v
         q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
-        alpha, beta = self._rates(dt)
+        alpha = _smoothing_rate(dt, cfg.intensity_tau_s)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
         # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
         # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
         dev = self._deviation(q)
+        beta = _smoothing_rate(dt, cfg.intensity_smooth_s)
         slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
         self.slow_dev[ids] = slow
         g = gain = gain_of(now)
@@ -585,19 +592,6 @@ class BatchedMatchingStreams(SlotOwner):
             d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
             q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
         return q, gain
-
-    def _rates(self, dt: float) -> tuple[float, float]:
-        """The dial's smoothing per frame: the intensity's (``intensity_tau_s``) and the deviation's
-        (``intensity_smooth_s``), computed once per frame length and time constants (not on every step)."""
-        cfg = self.config
-        key = (dt, cfg.intensity_tau_s, cfg.intensity_smooth_s)
-        if self._rates_key != key:
-            self._rates_key = key
-            self._rates_of = (
-                1.0 - np.exp(-dt / max(cfg.intensity_tau_s, 1e-3)),
-                1.0 - np.exp(-dt / max(cfg.intensity_smooth_s, 1e-3)),
-            )
-        return self._rates_of
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
