@@ -142,10 +142,19 @@ def encode_pose(out: OutputFrame) -> str:
     )
 
 
-def encode_poses(*args, **kwargs) -> Iterator[str]:
+def encode_poses(
+    frames: Sequence[int],
+    times_s: Sequence[float],
+    quats: np.ndarray,
+    faces: np.ndarray,
+    heads: np.ndarray,
+    face_found: Sequence[bool],
+    latency_ms,
+    face_index: Sequence[int] | None = None,
+) -> Iterator[str]:
     """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
     one-frame use), as text: :func:`encode_poses_utf8`'s messages (the same arguments) decoded."""
-    for data in encode_poses_utf8(*args, **kwargs):
+    for data in encode_poses_utf8(frames, times_s, quats, faces, heads, face_found, latency_ms, face_index):
         yield data.decode()
 
 
