@@ -38,23 +38,6 @@ RANGE_DB = 24.0  # the jaw moves over the top 24 dB of the band's level
 FLOOR_RISE_DB_S, PEAK_DECAY_DB_S = 1.5, 3.0
 ATTACK, RELEASE = 0.7, 0.5  # share of the way to the target per frame, opening / closing
 _IDX = {n: ARKIT_NAMES.index(n) for n in ARKIT_NAMES}
-# where each frame's weights go, in the order :meth:`SpeechMouth.step` computes them
-_OUT_IDX = np.array(
-    [
-        _IDX[n]
-        for n in (
-            "jawOpen",
-            "mouthLowerDownLeft",
-            "mouthLowerDownRight",
-            "mouthUpperUpLeft",
-            "mouthUpperUpRight",
-            "mouthStretchLeft",
-            "mouthStretchRight",
-            "mouthFunnel",
-            "mouthPucker",
-        )
-    ]
-)
 _NO_SHAPE = np.zeros(3)  # (never written: a frame's shape is a new array)
 MOUTH_NAMES = (
     "jawOpen",
@@ -67,6 +50,7 @@ MOUTH_NAMES = (
     "mouthFunnel",
     "mouthPucker",
 )  # the weights it drives
+_OUT_IDX = np.array([_IDX[n] for n in MOUTH_NAMES])  # where each frame's weights go, in the order step computes them
 
 
 class SpeechMouth:

@@ -130,9 +130,7 @@ def encode_pose(out: OutputFrame) -> str:
     """One :class:`OutputFrame` as a ``pose`` message: :func:`encode_poses_utf8`'s text for one frame (the same
     rounding and the same message), without a batch of one around it (``live``'s viewer feed, once a model frame)."""
     q, w, h = _rounded(out.quats, out.face, out.head, 1)
-    return _pose_json(
-        out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms
-    ).decode()
+    return _pose_json(out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms).decode()
 
 
 def encode_poses(
