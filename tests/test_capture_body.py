@@ -328,3 +328,40 @@ def test_the_render_cache_key_changes_with_anything_that_changes_the_video(tmp_p
     assert _render_key([b], args) != key  # one digit of motion
     assert _render_key([a, c], [*args, "--audio", str(c)]) != key  # the speech (and the mouth it moves)
     assert _render_key([a], [*args, "--size", "320x240"]) != key
+
+
+def test_body_landmarkers_called_directly_give_mediapipes_own_results(beat_bvh, beat_wav, tmp_path):
+    """``BodyLandmarker`` calls the pose and hand landmarkers' C functions on its own thread and converts every frame
+    into one kept image (as the face landmarker does, issue 36): the same landmarks, visibilities and hand scores,
+    to the bit, as MediaPipe's own ``detect_for_video`` through its dispatcher on a new image a frame."""
+    from facecapges.capture.body import BodyLandmarker
+    from facecapges.capture.body_models import POSE_TASK, model_path
+    from facecapges.capture.landmarks import FrameImages
+    from facecapges.capture.video import open_source
+    from facecapges.evaluation.body_capture import render_truth
+
+    try:
+        model_path(POSE_TASK)
+    except UserError as exc:
+        pytest.skip(str(exc))
+    _, _, video, _ = render_truth(beat_bvh, tmp_path, wav=beat_wav)  # test_live_body.py's video (render cache)
+    src = open_source(str(video))
+    frames = [f for _, _, f in src.frames(max_frames=30)]
+    src.close()
+    got = []
+    for direct in (False, True):
+        with BodyLandmarker() as lm:
+            if direct:
+                assert lm._direct_pose is not None and lm._direct_hand is not None and lm._images.keep
+            else:
+                lm._direct_pose = lm._direct_hand = None  # MediaPipe's dispatcher, and a new image a frame
+                lm._images = FrameImages(False)
+            got.append([lm.detect(f, int(i * 1000 / 15)) for i, f in enumerate(frames)])
+            assert (lm._images.kept is not None) == direct
+    assert sum(d["pose"] is not None for d in got[0]) >= 25 and sum(len(d["hands"]) for d in got[0]) >= 10
+    for a, b in zip(*got):
+        for k in ("pose", "visibility", "pose_image"):
+            assert (a[k] is None) == (b[k] is None) and (a[k] is None or a[k].tobytes() == b[k].tobytes())
+        assert len(a["hands"]) == len(b["hands"])
+        for (wa, ia, sa), (wb, ib, sb) in zip(a["hands"], b["hands"]):
+            assert wa.tobytes() == wb.tobytes() and ia.tobytes() == ib.tobytes() and sa == sb

@@ -55,3 +55,27 @@ def test_generate_writes_the_speaking_face(unseen_wav, tmp_path):
     jaw = face.weights[:, JAW]
     # the face covers the whole speech, and the mouth speaks
     assert face.n_frames / face.fps >= 10 - 1 / 15 and jaw.max() > 0.3 and jaw.std() > 0.05
+
+
+def test_band_slices_pick_the_masks_bins():
+    """The vowel and centroid bands are taken as runs of bins made once per frame length (issue 36): the bins the
+    frequency masks pick, in the same order, so every sum is the masks' sum and the weights are the same bits."""
+    m = SpeechMouth()
+    for n in (64, 100, 1066, 1067, 2048):
+        f = np.fft.rfftfreq(n, 1.0 / m.sr)
+        vowel, band, f_band = m._band_slices(n, f)
+        for sl, lo, hi in ((vowel, 250.0, 1200.0), (band, 80, 5000)):
+            mask = (f >= lo) & (f <= hi)
+            assert np.array_equal(np.arange(len(f))[sl], np.flatnonzero(mask))
+        assert f_band.tobytes() == f[(f >= 80) & (f <= 5000)].tobytes()
+    rng = np.random.default_rng(3)
+    x = (rng.standard_normal(16000 * 6) * np.repeat(rng.uniform(0, 0.4, 6), 16000)).astype(np.float32)
+    mouth = SpeechMouth()
+    for a in frames(x):  # the masks' formula, step by step, beside the mouth
+        spec = np.abs(np.fft.rfft(a.astype(np.float64) * np.hanning(len(a)))) ** 2 / len(a)
+        f = np.fft.rfftfreq(len(a), 1.0 / mouth.sr)
+        was = (mouth.floor_db, mouth.peak_db)
+        w = mouth.step(a)
+        db = 10.0 * np.log10(spec[(f >= 250.0) & (f <= 1200.0)].sum() + 1e-10)
+        floor = db if db < was[0] else was[0] + mouth._rise
+        assert mouth.floor_db == min(floor, mouth.peak_db - 24.0) and w.dtype == np.float32

@@ -235,3 +235,19 @@ def test_face_hold_unit():
     wz, hz, _ = h.stale(2.6)
     assert not wz.any()
     np.testing.assert_allclose(hz, rot.identity_rot6d(), atol=1e-7)
+
+
+def test_head_driver_converts_the_head_and_the_spine_in_one_call_with_the_same_bits():
+    """While tracked, ``HeadDriver`` converts the captured head and the pose's Spine in one ``rot6d_to_matrix`` call
+    (issue 36): the same pose, to the bit, as converting each on its own (``set_head`` with the head's matrix)."""
+    from facecapges.runtime.head import HeadDriver, set_head
+
+    rng = np.random.default_rng(5)
+    drv = HeadDriver("capture")
+    for k in range(50):
+        pose = rng.normal(size=(47, 6)).astype(np.float32)
+        head = rng.normal(size=6).astype(np.float32)
+        shown = drv(pose, head, True, k / 15)
+        R = rot.rot6d_to_matrix(head.astype(np.float64))
+        assert shown.tobytes() == set_head(pose, R).tobytes()
+        assert drv._R.tobytes() == R.tobytes()

@@ -270,3 +270,22 @@ def test_non_loopback_needs_host(face_video):
     r = cli("live", "--video", str(face_video), "--web", "0.0.0.0:0", "--max-seconds", "1",
             timeout=120)
     assert r.returncode == 2 and "--host" in r.stderr
+
+
+def test_the_viewers_pose_message_is_the_batch_encoders_for_one_frame():
+    """``encode_pose`` (the viewer's feed, once a model frame) writes what ``encode_poses`` writes for a batch of one:
+    the same text but the send time (issue 36: no batch of one around each frame)."""
+    from facecapges import rotations as rot
+    from facecapges.runtime.frames import OutputFrame
+
+    rng = np.random.default_rng(1)
+    for k in range(20):
+        q = rot.rot6d_to_quaternion(rng.normal(size=(47, 6))).astype(np.float32)
+        face = rng.uniform(-0.1 if k % 3 == 0 else 0.0, 1.0, 52).astype(np.float32)  # out of [0, 1] sometimes
+        lat = {"model": 1.2345678, "total": 9.87654321}
+        out = OutputFrame(k, k / 15, rng.normal(size=(47, 6)), q, face, rng.normal(size=6), k % 2 == 0, lat, k % 3)
+        one = protocol.encode_pose(out)
+        (batch,) = protocol.encode_poses(
+            [k], [out.time_s], q[None], face[None], out.head[None], [out.face_found], [lat], [out.face_index]
+        )
+        assert one.split(',"sent_ms":')[0] == batch.split(',"sent_ms":')[0] and '"sent_ms":' in one

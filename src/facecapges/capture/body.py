@@ -68,28 +68,48 @@ class BodyLandmarker:
         )
         self._last_ts = -1
         self._first = True
+        # MediaPipe's C functions called on this thread (not through its dispatcher thread), every frame converted
+        # into one kept image, as the face landmarker does (capture.landmarks: _DirectCalls, FrameImages; issue 36)
+        from facecapges.capture.landmarks import FrameImages, _DirectCalls
+
+        self._direct_pose = _DirectCalls.of(self._pose, "MpPoseLandmarker")
+        self._direct_hand = _DirectCalls.of(self._hand, "MpHandLandmarker")
+        direct = self._direct_pose is not None and self._direct_hand is not None
+        if not direct:
+            self._direct_pose = self._direct_hand = None
+        self._images = FrameImages(direct)
+
+    def _detect(self, image, ts: int):
+        """Both landmarkers' results on ``image``: MediaPipe's ``detect_for_video`` of each (its C calls on this
+        thread where :class:`~facecapges.capture.landmarks._DirectCalls` has them: the same results)."""
+        if self._direct_pose is None or self._direct_hand is None:
+            return self._pose.detect_for_video(image, ts), self._hand.detect_for_video(image, ts)
+        from mediapipe.tasks.python.vision import hand_landmarker as hl
+        from mediapipe.tasks.python.vision import pose_landmarker as pl
+
+        pr = self._direct_pose.result(
+            self._pose, image, ts, pl.MpPoseLandmarkerResultC(), pl.PoseLandmarkerResult.from_ctypes
+        )
+        hr = self._direct_hand.result(
+            self._hand, image, ts, hl.MpHandLandmarkerResultC(), hl.HandLandmarkerResult.from_ctypes
+        )
+        return pr, hr
 
     def detect(self, frame_bgr: np.ndarray, timestamp_ms: int) -> dict:
         """One BGR frame → {'pose', 'visibility', 'pose_image', 'hands': [(world (21,3), image (21,3), score)]}."""
-        import cv2
-        import mediapipe as mp
-
         ts = max(int(timestamp_ms), self._last_ts + 1)
         self._last_ts = ts
-        rgb = np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB))
-        image = mp.Image(image_format=mp.ImageFormat.SRGB, data=rgb)
+        image = self._images(frame_bgr)
         if self._first:  # MediaPipe's C++ logs a projection warning on the first frame
             from facecapges.capture.landmarks import NativeStderrToFile
 
             with NativeStderrToFile() as log:
-                pr = self._pose.detect_for_video(image, ts)
-                hr = self._hand.detect_for_video(image, ts)
+                pr, hr = self._detect(image, ts)
             if log.errors:
                 sys.stderr.write(log.errors)
             self._first = False
         else:
-            pr = self._pose.detect_for_video(image, ts)
-            hr = self._hand.detect_for_video(image, ts)
+            pr, hr = self._detect(image, ts)
         out: dict = {"pose": None, "visibility": None, "pose_image": None, "hands": []}
         if pr.pose_world_landmarks:
             w = pr.pose_world_landmarks[0]
@@ -103,6 +123,9 @@ class BodyLandmarker:
         return out
 
     def close(self) -> None:
+        images = getattr(self, "_images", None)
+        if images is not None:
+            images.kept = None  # MediaPipe's image, freed with its task
         for t in (getattr(self, "_pose", None), getattr(self, "_hand", None)):
             if t is not None:
                 t.close()

@@ -122,6 +122,13 @@ def procrustes(
     return s, R, t
 
 
+def _norm(x: np.ndarray):
+    """``np.linalg.norm(x)`` of a float vector: its own arithmetic (the square root of ``x · x``, in ``x``'s dtype),
+    without its argument handling (twice a frame: issue 36)."""
+    x = np.asarray(x).ravel()
+    return np.sqrt(x.dot(x))
+
+
 def focal_from_vfov(height_px: float, vfov_deg: float = DEFAULT_VFOV_DEG) -> float:
     """Pinhole focal length in pixels for an image ``height_px`` tall."""
     return 0.5 * height_px / math.tan(math.radians(vfov_deg) / 2)
@@ -197,7 +204,7 @@ class HeadPose:
         face has the canonical mesh's size, and a fitted scale ≠ 1 means the lifting
         depth was off by that factor.
         """
-        return float(np.linalg.norm(self.t) / max(self.scale, 1e-9) / 100.0)
+        return float(_norm(self.t) / max(self.scale, 1e-9) / 100.0)
 
     @property
     def normal(self) -> np.ndarray:
@@ -258,7 +265,7 @@ class PoseSmoother:
 
     def __call__(self, pose: HeadPose) -> HeadPose:
         if self._R:
-            jump = np.linalg.norm(rot.log_so3(self._R[-1].T @ pose.R))
+            jump = _norm(rot.log_so3(self._R[-1].T @ pose.R))
             if jump > self.reset:
                 self.reset_state()
         self._R.append(pose.R.copy())

@@ -271,28 +271,29 @@ def _has_raw_results(task) -> bool:
 
 
 class _DirectCalls:
-    """The face landmarker's detect and close-result C functions, called on the caller's thread.
+    """A VIDEO-mode task's detect and close-result C functions, called on the caller's thread.
 
     MediaPipe's Python API sends every C call of a task through its ``SerialDispatcher``: a one-worker thread pool
     (``ThreadPoolExecutor-N_0``, one per task) that runs the call while the caller waits on a future — two thread
     hand-overs a frame (detect, close the result), ~0.3 ms of CPU on the two threads together (issue 36). The
-    dispatcher serialises calls from many threads; the detector is called from one thread at a time, so the same C
+    dispatcher serialises calls from many threads; a detector is called from one thread at a time, so the same C
     functions (the raw library under the dispatcher, their signatures as MediaPipe registered them) are called
-    directly. None of the numbers change: the same C calls with the same arguments."""
+    directly. None of the numbers change: the same C calls with the same arguments. ``name`` is the task's prefix
+    in MediaPipe's C API: ``MpFaceLandmarker`` (default), ``MpPoseLandmarker``, ``MpHandLandmarker``."""
 
-    def __init__(self, task):
+    def __init__(self, task, name: str = "MpFaceLandmarker"):
         raw = task._lib._lib  # the SerialDispatcher's ctypes.CDLL
         self.lib = raw
-        self.detect = raw.MpFaceLandmarkerDetectForVideo
-        self.close_result = raw.MpFaceLandmarkerCloseResult
+        self.detect = getattr(raw, f"{name}DetectForVideo")
+        self.close_result = getattr(raw, f"{name}CloseResult")
         n = len(self.detect.argtypes or ())
         if n != 6 or not self.close_result.argtypes:  # not the signatures this was written for
-            raise AttributeError("MpFaceLandmarkerDetectForVideo")
+            raise AttributeError(f"{name}DetectForVideo")
 
     @classmethod
-    def of(cls, task) -> _DirectCalls | None:
+    def of(cls, task, name: str = "MpFaceLandmarker") -> _DirectCalls | None:
         try:
-            return cls(task)
+            return cls(task, name)
         except (AttributeError, TypeError):
             return None
 
@@ -300,6 +301,37 @@ class _DirectCalls:
         err = ctypes.c_char_p()
         status = self.detect(handle, image_ptr, None, ts, ctypes.byref(result_c), ctypes.byref(err))
         _check_status(self.lib, status, err)
+
+    def result(self, task, image, ts: int, result_c, convert):
+        """MediaPipe's own ``task.detect_for_video(image, ts)`` with the C calls on this thread: ``convert`` (the
+        result class's ``from_ctypes``, as MediaPipe's method calls it) of the C result, then the result closed."""
+        self.detect_for_video(task._handle, image._image_ptr, ts, result_c)
+        try:
+            return convert(result_c)
+        finally:
+            self.close_result(ctypes.byref(result_c))
+
+
+class FrameImages:
+    """The MediaPipe image (SRGB) of each BGR frame a detector is given: with ``keep`` (its C functions called
+    directly in VIDEO mode: :class:`_DirectCalls`) every frame is converted into one kept image
+    (:class:`_FrameImage`), else into a new one."""
+
+    def __init__(self, keep: bool):
+        self.keep = keep
+        self.kept: _FrameImage | None = None  # made for the first frame's size
+
+    def __call__(self, frame_bgr: np.ndarray):
+        h, w = frame_bgr.shape[:2]
+        if self.keep and frame_bgr.dtype == np.uint8:
+            fi = self.kept
+            if fi is None or fi.pixels.shape[:2] != (h, w):
+                fi = self.kept = _FrameImage.of(h, w)
+            if fi is not None:
+                return fi.fill(frame_bgr)
+        import cv2
+
+        return mp_image(np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)))
 
 
 def _raw_results(task, image, ts: int, want_names: bool = False, direct: _DirectCalls | None = None) -> list:
@@ -377,7 +409,7 @@ class LandmarkDetector:
         self.raw_results = _has_raw_results(self._task)
         # ...and call its C functions on this thread, not through MediaPipe's dispatcher thread (_DirectCalls)
         self.direct = _DirectCalls.of(self._task) if self.raw_results else None
-        self._frame_image: _FrameImage | None = None  # made for the first frame's size (direct calls only)
+        self._images = FrameImages(self.direct is not None)  # every frame into one kept image (direct calls only)
 
     def _blendshape_map(self, names) -> np.ndarray:
         # index into MediaPipe's category list for every ARKit name (-1: absent)
@@ -438,20 +470,17 @@ class LandmarkDetector:
 
     def _image(self, frame_bgr: np.ndarray):
         """The MediaPipe image (RGB) of a BGR frame: written into the detector's own image when it calls MediaPipe
-        directly in VIDEO mode (:class:`_FrameImage`), else a new one."""
-        h, w = frame_bgr.shape[:2]
-        if self.direct is not None and frame_bgr.dtype == np.uint8:
-            fi = self._frame_image
-            if fi is None or fi.pixels.shape[:2] != (h, w):
-                fi = self._frame_image = _FrameImage.of(h, w)
-            if fi is not None:
-                return fi.fill(frame_bgr)
-        import cv2
+        directly in VIDEO mode (:class:`FrameImages`), else a new one."""
+        if self._images.keep != (self.direct is not None):
+            self._images = FrameImages(self.direct is not None)
+        return self._images(frame_bgr)
 
-        return mp_image(np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)))
+    @property
+    def _frame_image(self) -> _FrameImage | None:
+        return self._images.kept
 
     def close(self) -> None:
-        self._frame_image = None
+        self._images = FrameImages(False)
         if self._task is not None:
             self._task.close()
             self._task = None

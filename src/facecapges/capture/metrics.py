@@ -130,22 +130,19 @@ def compute_metrics(P: np.ndarray) -> np.ndarray:
     eyes_R = _mean(y[..., _EYES_R])
     lip_mid = 0.5 * (y[..., 13] + y[..., 14])
     mouth_width = vector_norm(P[..., MOUTH_CORNER_L, :] - P[..., MOUTH_CORNER_R, :])
-    g = np.stack(
-        [
-            _pairs_height(P, LIP_PAIRS),
-            mouth_width,
-            P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0],
-            _mean(y[..., _BROW_L]) - eyes_L,
-            _mean(y[..., _BROW_R]) - eyes_R,
-            _pairs_height(P, EYELID_PAIRS_L),
-            _pairs_height(P, EYELID_PAIRS_R),
-            y[..., INNER_EYE_L] - y[..., NOSTRIL_L],
-            y[..., INNER_EYE_R] - y[..., NOSTRIL_R],
-            _mean(y[..., _BROW_INNER]) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R]),
-            y[..., MOUTH_CORNER_L] - lip_mid,
-            y[..., MOUTH_CORNER_R] - lip_mid,
-            y[..., SUBNASALE] - _mean(y[..., _LOWER_LIP]) - JAW_STRETCH * mouth_width,
-        ],
-        axis=-1,
-    )
+    # the 13 metrics written into one array (what np.stack(…, axis=-1) of them makes, in fewer calls)
+    g = np.empty((*w.shape, 13))
+    g[..., 0] = _pairs_height(P, LIP_PAIRS)
+    g[..., 1] = mouth_width
+    g[..., 2] = P[..., LOWER_LIP_CENTER, 0] - P[..., UPPER_LIP_CENTER, 0]
+    g[..., 3] = _mean(y[..., _BROW_L]) - eyes_L
+    g[..., 4] = _mean(y[..., _BROW_R]) - eyes_R
+    g[..., 5] = _pairs_height(P, EYELID_PAIRS_L)
+    g[..., 6] = _pairs_height(P, EYELID_PAIRS_R)
+    g[..., 7] = y[..., INNER_EYE_L] - y[..., NOSTRIL_L]
+    g[..., 8] = y[..., INNER_EYE_R] - y[..., NOSTRIL_R]
+    g[..., 9] = _mean(y[..., _BROW_INNER]) - 0.5 * (y[..., INNER_EYE_L] + y[..., INNER_EYE_R])
+    g[..., 10] = y[..., MOUTH_CORNER_L] - lip_mid
+    g[..., 11] = y[..., MOUTH_CORNER_R] - lip_mid
+    g[..., 12] = y[..., SUBNASALE] - _mean(y[..., _LOWER_LIP]) - JAW_STRETCH * mouth_width
     return g / w[..., None]

@@ -92,7 +92,7 @@ class SampleSet:
 
     def add(self, v: np.ndarray, omega: float) -> bool:
         """Add a frame's metrics ``v`` (U,) with sample weight ``omega``; False when it was dropped."""
-        if not np.isfinite(omega) or omega < MIN_WEIGHT or not np.all(np.isfinite(v)):
+        if not np.isfinite(omega) or omega < MIN_WEIGHT or not np.isfinite(v).all():
             self.n_dropped += 1
             return False
         omega = min(float(omega), 1.0)
@@ -108,5 +108,5 @@ class SampleSet:
     def unit(self, u: int) -> tuple[np.ndarray, np.ndarray]:
         """(values, weights) of unit ``u``, sorted by value."""
         v = self.values[u, : self.size]
-        o = np.argsort(v, kind="stable")
+        o = v.argsort(kind="stable")
         return v[o], self.weights[u, : self.size][o]

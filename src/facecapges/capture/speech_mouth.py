@@ -38,6 +38,7 @@ RANGE_DB = 24.0  # the jaw moves over the top 24 dB of the band's level
 FLOOR_RISE_DB_S, PEAK_DECAY_DB_S = 1.5, 3.0
 ATTACK, RELEASE = 0.7, 0.5  # share of the way to the target per frame, opening / closing
 _IDX = {n: ARKIT_NAMES.index(n) for n in ARKIT_NAMES}
+_NO_SHAPE = np.zeros(3)  # (never written: a frame's shape is a new array)
 MOUTH_NAMES = (
     "jawOpen",
     "mouthLowerDownLeft",
@@ -49,6 +50,7 @@ MOUTH_NAMES = (
     "mouthFunnel",
     "mouthPucker",
 )  # the weights it drives
+_OUT_IDX = np.array([_IDX[n] for n in MOUTH_NAMES])  # where each frame's weights go, in the order step computes them
 
 
 class SpeechMouth:
@@ -62,6 +64,7 @@ class SpeechMouth:
         self._rise = FLOOR_RISE_DB_S / self.fps  # dB per frame
         self._decay = PEAK_DECAY_DB_S / self.fps
         self._window: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._bands: dict[int, tuple[slice, slice, np.ndarray]] = {}
 
     def reset(self) -> None:
         SpeechMouth.__init__(self, self.fps, self.sr)
@@ -73,13 +76,28 @@ class SpeechMouth:
         win, f = self._window[n]
         return np.abs(np.fft.rfft(x * win)) ** 2 / n, f
 
+    def _band_slices(self, n: int, f: np.ndarray) -> tuple[slice, slice, np.ndarray]:
+        """The vowel band's and the centroid band's bins of an ``n``-sample frame as slices (the frequencies rise, so
+        each band is one run of bins: the same bins, in the same order, as their masks pick), and the centroid
+        band's frequencies; made once per frame length."""
+        if n not in self._bands:
+
+            def run(mask: np.ndarray) -> slice:
+                i = np.flatnonzero(mask)
+                return slice(int(i[0]), int(i[-1]) + 1) if len(i) else slice(0, 0)
+
+            vowel = run((f >= VOWEL_BAND_HZ[0]) & (f <= VOWEL_BAND_HZ[1]))
+            band = run((f >= 80) & (f <= 5000))
+            self._bands[n] = (vowel, band, f[band].copy())
+        return self._bands[n]
+
     def step(self, audio: np.ndarray) -> np.ndarray:
         """The mouth weights for one frame of audio (float32 samples in [-1, 1])."""
         x = np.asarray(audio, np.float64)
-        target, shape = 0.0, np.zeros(3)
+        target, shape = 0.0, _NO_SHAPE
         if len(x) >= 64:
             spec, f = self._spectrum(x)
-            vowel = (f >= VOWEL_BAND_HZ[0]) & (f <= VOWEL_BAND_HZ[1])
+            vowel, band, f_band = self._band_slices(len(x), f)
             db = 10.0 * np.log10(spec[vowel].sum() + 1e-10)
             # causal level trackers (module docstring, step 1)
             self.floor_db = db if db < self.floor_db else self.floor_db + self._rise
@@ -89,23 +107,18 @@ class SpeechMouth:
             level = (db - low) / max(self.peak_db - low, 1e-6)
             target = 0.0 if level < GATE else min((level - GATE) / (1.0 - GATE), 1.0) ** 1.3
             if target > 0:
-                band = (f >= 80) & (f <= 5000)
                 p = spec[band]
-                c = float((f[band] * p).sum() / max(p.sum(), 1e-12))  # spectral centroid, Hz
-                dark = float(np.clip((1400.0 - c) / 900.0, 0.0, 1.0))
-                bright = float(np.clip((c - 2200.0) / 1800.0, 0.0, 1.0))
+                c = float((f_band * p).sum() / max(p.sum(), 1e-12))  # spectral centroid, Hz
+                # clipped to [0, 1] as np.clip does (a NaN stays NaN)
+                dark = min(max((1400.0 - c) / 900.0, 0.0), 1.0)
+                bright = min(max((c - 2200.0) / 1800.0, 0.0), 1.0)
                 shape = np.array([0.5 * dark, 0.3 * dark, 0.35 * bright])
         self.open += (target - self.open) * (ATTACK if target > self.open else RELEASE)
         self.shape += (shape - self.shape) * 0.5
         w = np.zeros(N_BLENDSHAPES, np.float32)
         o = self.open
-        w[_IDX["jawOpen"]] = JAW_MAX * o
-        for side in ("Left", "Right"):
-            w[_IDX[f"mouthLowerDown{side}"]] = 0.35 * o
-            w[_IDX[f"mouthUpperUp{side}"]] = 0.12 * o
-            w[_IDX[f"mouthStretch{side}"]] = self.shape[2] * o
-        w[_IDX["mouthFunnel"]] = self.shape[0] * o
-        w[_IDX["mouthPucker"]] = self.shape[1] * o
+        s = self.shape * o  # stretch, funnel, pucker: each its float64 product, rounded to float32 as it is stored
+        w[_OUT_IDX] = (JAW_MAX * o, 0.35 * o, 0.35 * o, 0.12 * o, 0.12 * o, s[2], s[2], s[0], s[1])
         return w
 
 

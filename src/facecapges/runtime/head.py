@@ -56,10 +56,12 @@ def avatar_head_matrix(pose: np.ndarray) -> np.ndarray:
     return M[..., _SPINE, :, :] @ M[..., _NECK, :, :] @ M[..., _NECK1, :, :]
 
 
-def set_head(pose: np.ndarray, R_head: np.ndarray) -> np.ndarray:
-    """A copy of ``pose`` (47, 6) whose global head rotation is ``R_head`` (module docstring)."""
-    M = rot.rot6d_to_matrix(np.asarray(pose[:3], np.float64))
-    L = M[_SPINE].T @ np.asarray(R_head, np.float64)
+def set_head(pose: np.ndarray, R_head: np.ndarray, spine: np.ndarray | None = None) -> np.ndarray:
+    """A copy of ``pose`` (47, 6) whose global head rotation is ``R_head`` (module docstring). ``spine``: the pose's
+    Spine as a matrix (``rot6d_to_matrix`` of its float64 row), when the caller has it."""
+    if spine is None:
+        spine = rot.rot6d_to_matrix(np.asarray(pose[_SPINE], np.float64))
+    L = spine.T @ np.asarray(R_head, np.float64)
     # rotation_power_about(L, None, 0.5) as rot6d: its quaternion path, rot6d taken straight from the quaternion
     # (quaternion_to_rot6d: matrix_to_rot6d(quaternion_to_matrix(·)) to the bit, in fewer calls: issue 36)
     half = rot.quaternion_to_rot6d(rot.quaternion_power_about(rot.matrix_to_quaternion(L), _IDENTITY_Q, 0.5))
@@ -86,8 +88,14 @@ class HeadDriver:
     def __call__(self, pose: np.ndarray, head_rot6d: np.ndarray, found: bool, t_s: float) -> np.ndarray:
         if self.share == 0.0:
             return pose
+        spine = None
         if found:
-            self._R = rot.rot6d_to_matrix(np.asarray(head_rot6d, np.float64))
+            # the captured head and the pose's Spine in one conversion (rot6d_to_matrix works row by row: the same
+            # numbers as one call each; issue 36, fewer NumPy calls a frame)
+            rows = np.empty((2, 6))
+            rows[0], rows[1] = head_rot6d, pose[_SPINE]
+            M = rot.rot6d_to_matrix(rows)
+            self._R, spine = M[0], M[1]
             if not self._tracking:
                 # the first face of the session is shown at once (there is no captured head to come from)
                 first = self._R_seen is False
@@ -103,7 +111,7 @@ class HeadDriver:
         if self._R is None or w <= 0.0:
             return pose
         if w >= 1.0:  # the captured head in full (tracking in ``capture`` mode: most frames)
-            return set_head(pose, self._R)
+            return set_head(pose, self._R, spine)
         return set_head(pose, rot.rotation_power_about(self._R, avatar_head_matrix(pose), w))
 
 

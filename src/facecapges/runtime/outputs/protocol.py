@@ -127,19 +127,10 @@ def encode_intensity(value: float) -> str:
 
 
 def encode_pose(out: OutputFrame) -> str:
-    """One :class:`OutputFrame` as a ``pose`` message."""
-    return next(
-        encode_poses(
-            [out.index],
-            [out.time_s],
-            np.asarray(out.quats)[None],
-            np.asarray(out.face)[None],
-            np.asarray(out.head)[None],
-            [out.face_found],
-            [out.latency_ms],
-            [out.face_index],
-        )
-    )
+    """One :class:`OutputFrame` as a ``pose`` message: :func:`encode_poses_utf8`'s text for one frame (the same
+    rounding and the same message), without a batch of one around it (``live``'s viewer feed, once a model frame)."""
+    q, w, h = _rounded(out.quats, out.face, out.head, 1)
+    return _pose_json(out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms).decode()
 
 
 def encode_poses(
@@ -176,6 +167,16 @@ def encode_poses_utf8(
     N``); 0 for all by default.
     """
     B = len(frames)
+    q, w, h = _rounded(quats, faces, heads, B)
+    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
+    for i in range(B):  # orjson: the same compact JSON as json.dumps, ~8x faster (it is serve's cost per frame)
+        face = face_index[i] if face_index is not None else 0
+        yield _pose_json(frames[i], times_s[i], q[i], w[i], h[i], face_found[i], face, lat(i))
+
+
+def _rounded(quats, faces, heads, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B frames' quaternions, weights and heads as the ``pose`` message writes them: (B, ·) rows rounded to 6, 5
+    and 6 decimals, the first two as float32 where every number is within [-1, 1] (below)."""
     # rows of C-contiguous arrays, written by orjson itself (OPT_SERIALIZE_NUMPY: the same text as the rows'
     # Python floats, without making ~250 float objects a frame: issue 36, serve's cost per stream-frame)
     q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6)
@@ -185,23 +186,26 @@ def encode_poses_utf8(
     # back as the same float64 — checked for every one of them (test_serve_server.py); the text differs only for
     # ±1e-6 … ±9e-6, written '0.000005' instead of '5e-6'. The head (a client's own numbers) stays float64.
     q, w = (a.astype(np.float32) if a.size and a.min() >= -1.0 and a.max() <= 1.0 else a for a in (q, w))
-    lat = latency_ms if callable(latency_ms) else latency_ms.__getitem__
-    for i in range(B):  # orjson: the same compact JSON as json.dumps, ~8x faster (it is serve's cost per frame)
-        yield orjson.dumps(
-            {
-                "type": "pose",
-                "frame": int(frames[i]),
-                "time": _r(times_s[i], 6),
-                "pose": q[i],
-                "weights": w[i],
-                "head": h[i],
-                "face_found": bool(face_found[i]),
-                "face": int(face_index[i]) if face_index is not None else 0,
-                "latency_ms": {k: _r(v, 3) for k, v in lat(i).items()},
-                "sent_ms": _r(time.time() * 1000.0, 1),
-            },
-            option=orjson.OPT_SERIALIZE_NUMPY,
-        )
+    return q, w, h
+
+
+def _pose_json(frame, time_s, q, w, h, face_found, face, latency: dict) -> bytes:
+    """One ``pose`` message as UTF-8 (``q``, ``w``, ``h``: a row of :func:`_rounded`)."""
+    return orjson.dumps(
+        {
+            "type": "pose",
+            "frame": int(frame),
+            "time": _r(time_s, 6),
+            "pose": q,
+            "weights": w,
+            "head": h,
+            "face_found": bool(face_found),
+            "face": int(face),
+            "latency_ms": {k: _r(v, 3) for k, v in latency.items()},
+            "sent_ms": _r(time.time() * 1000.0, 1),
+        },
+        option=orjson.OPT_SERIALIZE_NUMPY,
+    )
 
 
 def tick_latency(queued: float, t0: float, t1: float) -> dict:

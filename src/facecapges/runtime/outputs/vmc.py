@@ -327,6 +327,10 @@ class VmcMapping:
             )
             for d in range(1, depth)
         ]
+        # made once: every joint at rest (the matrices the pose's quaternions are written into) and Unity's X flip
+        self._rest = np.broadcast_to(np.eye(3), (skeleton.n_joints, 3, 3)).copy()
+        self._rest.flags.writeable = False
+        self._x = np.diag(_UNITY_X)
 
     def local_rotations(self, quats47: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per sent bone."""
@@ -335,13 +339,12 @@ class VmcMapping:
 
     def local_quaternions(self, quats47: np.ndarray) -> np.ndarray:
         """The Unity quaternions (w, x, y, z) of the sent bones, (bones, 4) in :attr:`bones` order."""
-        n = self.skeleton.n_joints
-        mats = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+        mats = self._rest.copy()
         mats[self.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
         R = mats[self._first]  # each bone's path product, one step of every path at a time
         for ks, js in self._steps:
             R[ks] = R[ks] @ mats[js]
-        X = np.diag(_UNITY_X)
+        X = self._x
         local = self._wp_inv @ (X @ R @ X) @ self._wb  # Wp⁻¹ · Q · Wb in Unity's frame (module docstring)
         return rot.matrix_to_quaternion(local)
 
