@@ -40,6 +40,9 @@ def test_quick_bench_runs_every_area(beat_bvh, beat_wav, unseen_wav, face_video)
     assert m["step_with_euler_ms_p50"] >= m["step_ms_p50"] > 0
     assert doc["serve"]["trials"] and doc["serve"]["trials"][0]["frames_returned"] > 0
     assert {"main", "viewer-server", "upsample"} <= set(doc["live"]["cpu_by_thread"])  # live's threads, by name
+    # the second reference (decoding + the landmarker) is the larger floor, so its ratio is the smaller
+    assert doc["live"]["landmarker"]["decode_cpu_ms_per_frame"] > 0
+    assert 0 < doc["live"]["cpu_ratio_to_decode_and_landmarker"] < doc["live"]["cpu_ratio_to_landmarker"]
 
 
 def test_bench_live_sums_cpu_per_thread_name():
