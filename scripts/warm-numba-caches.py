@@ -2,8 +2,9 @@
 
 Run once by ``make setup``, after the install. Two reasons:
 
-* our streaming kernel (:func:`facecapges.network.native.warm`) and the matching engine's speech predictor
-  (:func:`facecapges.matching.predictor.warm`): compiled here, not by a stream's first frame;
+* our streaming kernel (:func:`facecapges.network.native.warm`) and the matching engine's (its speech predictor,
+  :func:`facecapges.matching.predictor.warm`; its blend, :func:`facecapges.matching.inertialize.warm`): compiled
+  here, not by a stream's first frame;
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
   ``__pycache__``. Two processes doing that at the same time (the suite's two pytest-xdist workers on a fresh
@@ -19,9 +20,10 @@ import numpy as np
 
 
 def main() -> None:
-    from facecapges.matching import predictor
+    from facecapges.matching import inertialize, predictor
 
     predictor.warm()  # the streaming kernel's functions too (network.native.warm)
+    inertialize.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

@@ -257,6 +257,7 @@ class BatchedMatchingStreams(SlotOwner):
         self._lock = threading.RLock()
         self._prepare_db()
         self.speech = SpeechTracker(1)
+        inz.warm()  # the compiled blend's machine code now, not on a stream's first frame
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -570,10 +571,12 @@ class BatchedMatchingStreams(SlotOwner):
         gain now (B,) (:func:`gain_of` of the intensity reached)."""
         cfg = self.config
         dt = 1.0 / self.fps
-        hl = self.halflife[ids][:, None, None]
-        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
-        self.off_x[ids], self.off_v[ids] = x, v
-        q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
+        # the offsets decay one frame, then the acceleration cap: a larger step is shortened and the offset takes up
+        # the difference, so the played clip continues from the limited pose (a seam never pops)
+        q = np.empty((len(ids), N_JOINTS, 4))
+        cap = self.acc_cap if cfg.accel_cap_percentile > 0 else -1.0
+        base = self.row_quaternions[self.row[ids]]
+        inz.step_offsets(ids, self.off_x, self.off_v, self.halflife, base, self.prev_q, cap, float(self.fps), True, q)
         alpha = _smoothing_rate(dt, cfg.intensity_tau_s)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
@@ -600,21 +603,6 @@ class BatchedMatchingStreams(SlotOwner):
         self.slow_dev[ids] = self._deviation(q)
         if self.idle_layer is not None:
             self.idle_layer.restart(ids, q)
-
-    def _limit(self, ids: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Keep the blended pose's whole-body angular acceleration (against the last two outputs) below his
-        ``accel_cap_percentile``: a larger step is shortened and the offset takes up the difference, so the
-        played clip continues from the limited pose (a seam never pops)."""
-        p1, p2 = self.prev_q[ids, 1], self.prev_q[ids, 0]
-        if self.config.accel_cap_percentile > 0:
-            q, over = inz.limit_acceleration(q, p1, p2, self.acc_cap, self.fps)
-            if over.any():
-                k = np.flatnonzero(over)
-                self.off_x[ids[k]] = inz.qlog(
-                    inz.qabs(inz.qmul(q[k], inz.qconj(self.row_quaternions[self.row[ids[k]]])))
-                )
-        self.prev_q[ids, 0], self.prev_q[ids, 1] = p1, q
-        return q
 
     def _deviation(self, q: np.ndarray) -> np.ndarray:
         """Rotation vectors (B, 47, 3) of ``q`` (B, 47, 4) about the style's idle mean: log(m⁻¹ q)."""
