@@ -3,7 +3,8 @@
 Run once by ``make setup``, after the install. Two reasons:
 
 * our streaming kernel (:func:`facecapges.network.native.warm`) and the matching engine's (its speech predictor,
-  :func:`facecapges.matching.predictor.warm`; its blend, :func:`facecapges.matching.inertialize.warm`): compiled
+  :func:`facecapges.matching.predictor.warm`; its blend, :func:`facecapges.matching.inertialize.warm`; its speech tracker,
+  :func:`facecapges.matching.speech.warm`): compiled
   here, not by a stream's first frame;
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
@@ -20,10 +21,11 @@ import numpy as np
 
 
 def main() -> None:
-    from facecapges.matching import inertialize, predictor
+    from facecapges.matching import inertialize, predictor, speech
 
     predictor.warm()  # the streaming kernel's functions too (network.native.warm)
     inertialize.warm()
+    speech.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

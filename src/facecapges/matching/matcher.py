@@ -76,6 +76,7 @@ from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
+from facecapges.matching import speech
 from facecapges.matching.database import Database, idle_rows, mirror_twins, quaternions
 from facecapges.matching.features import LiveFrames, group_slices, live_query
 from facecapges.matching.idle import IdleLayer, IdleMotion
@@ -257,7 +258,8 @@ class BatchedMatchingStreams(SlotOwner):
         self._lock = threading.RLock()
         self._prepare_db()
         self.speech = SpeechTracker(1)
-        inz.warm()  # the compiled blend's machine code now, not on a stream's first frame
+        inz.warm()  # the compiled blend's and speech tracker's machine code now, not on a stream's first frame
+        speech.warm()
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))

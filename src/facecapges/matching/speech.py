@@ -41,11 +41,14 @@ Per frame and stream:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from facecapges import timing
+from facecapges.network import native
 
 SILENCE_DB = -50.0
 VAD_MARGIN_DB = 20.0
@@ -85,6 +88,11 @@ _FREQS = np.fft.rfftfreq(N_FFT, 1.0 / timing.AUDIO_SR)
 _VOICE_BAND = (_FREQS >= 100.0) & (_FREQS < 4000.0)
 _VOICE_BINS = slice(int(np.argmax(_VOICE_BAND)), len(_VOICE_BAND) - int(np.argmax(_VOICE_BAND[::-1])))  # as a slice
 _LAGS = slice(timing.AUDIO_SR // 400, timing.AUDIO_SR // 70 + 1)  # pitch 400 … 70 Hz
+_LAGS_0, _LAGS_1, _VOICE_0, _VOICE_1 = _LAGS.start, _LAGS.stop, _VOICE_BINS.start, _VOICE_BINS.stop
+_BAND_OF = np.where(_BANDS.any(1), np.argmax(_BANDS, 1), -1)  # each bin's band (-1: none; the bands do not overlap)
+_BAND_WEIGHT = _BANDS.max(1)  # and its weight there
+_LN2 = math.log(2.0)
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")  # machine code cached beside this file
 
 
 @dataclass
@@ -127,6 +135,19 @@ class SpeechTracker:
         self.run = grow("run", (), 0, np.int64)
         self.since_voice = grow("since_voice", (), SINCE_VOICE_CAP, np.int64)
         self.capacity = capacity
+        self.state = (  # what the compiled frame (track) reads and updates, in its order
+            self.floor,
+            self.hang,
+            self.prev_bands,
+            self.flux_hist,
+            self.since,
+            self.energy,
+            self.count,
+            self.talk_level,
+            self.tonal,
+            self.run,
+            self.since_voice,
+        )
 
     def ensure(self, capacity: int) -> None:
         if capacity > self.capacity:
@@ -141,74 +162,161 @@ class SpeechTracker:
 
     def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
         """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
-        # (means are written as ``add.reduce / count``: what ``ndarray.mean`` and ``np.nansum`` compute, the
-        # same bits without their Python-level cost — most of a one-stream step's)
-        a = np.asarray(audio, np.float32).reshape(len(idx), -1)
-        if a.shape[1]:
-            rms = np.sqrt(np.add.reduce(np.square(a, dtype=np.float64), axis=1) / a.shape[1] + 1e-20)
-        else:
-            rms = np.zeros(len(idx))
-        level = np.maximum(20.0 * np.log10(rms + 1e-12), -100.0).astype(np.float32)
-        first = self.count[idx] == 0
-        floor = np.where(first, level, np.minimum(level, self.floor[idx] + FLOOR_RISE_DB))
-        loud = level > np.maximum(SILENCE_DB, floor + VAD_MARGIN_DB)
-        bands, voicing, flat, top = self._spectrum(a)
-        tonal = np.concatenate([self.tonal[idx][:, 1:], top[:, None]], axis=1)
-        voice_like = loud & ((voicing >= VOICING) | (flat < FLAT_MAX))
-        voice_like &= np.add.reduce(tonal, axis=1) / TONAL_FRAMES < TONAL_SHARE
-        talk = np.maximum(self.talk_level[idx] - LEVEL_DECAY_DB, np.where(voice_like, level, -100.0))
-        like = voice_like & (level > talk - NEAR_DB)
-        run = np.where(like, self.run[idx] + 1, 0)
-        hang = np.where(run >= OPEN_FRAMES, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
-        speaking = (run >= OPEN_FRAMES) | (hang > 0)
-        prev = self.prev_bands[idx]
-        rise = np.maximum(bands - prev, 0.0)
-        flux = np.where(np.isnan(prev[:, 0]), 0.0, np.add.reduce(rise, axis=1) / rise.shape[1])
-        hist = self.flux_hist[idx]
-        valid = ~np.isnan(hist)
-        n = np.add.reduce(valid, axis=1, dtype=np.int64)  # valid.sum(axis=1)
-        some, count = n > 0, np.maximum(n, 1)
-        if valid.all():  # a full history (every stream past its first FLUX_HISTORY frames): no NaN to leave out
-            mean = np.add.reduce(hist, axis=1) / count
-            dev = (hist - mean[:, None]) ** 2
-            var = np.add.reduce(dev, axis=1) / count if not np.isnan(dev).any() else None
-        else:
-            mean = np.where(some, np.add.reduce(np.where(valid, hist, 0.0), axis=1) / count, 0.0)
-            dev = np.where(valid, (hist - mean[:, None]) ** 2, 0.0)
-            var = None
-        if var is None:
-            var = np.where(some, np.add.reduce(np.where(np.isnan(dev), 0.0, dev), axis=1) / count, 0.0)
-        since = np.minimum(self.since[idx] + 1, SINCE_CAP)
-        onset = speaking & (flux > np.maximum(mean + ONSET_K * np.sqrt(var), MIN_FLUX)) & (since >= REFRACTORY)
-        since = np.where(onset, 0, since)
-        energy = np.where(first, level, self.energy[idx] + ENERGY_ALPHA * (level - self.energy[idx]))
-        self.floor[idx], self.hang[idx], self.prev_bands[idx] = floor, hang, bands
-        self.talk_level[idx], self.tonal[idx], self.run[idx] = talk, tonal, run
-        self.flux_hist[idx] = np.concatenate([hist[:, 1:], flux[:, None]], axis=1)
-        self.since[idx], self.energy[idx], self.count[idx] = since, energy, self.count[idx] + 1
-        voice = np.where(like, 0, np.minimum(self.since_voice[idx] + 1, SINCE_VOICE_CAP))
-        self.since_voice[idx] = voice
-        return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32), voice)
-
-    @staticmethod
-    def _spectrum(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per stream: log band powers (B, N_BANDS), voicing, flatness and top-bin share (module docs)."""
+        a = np.ascontiguousarray(np.asarray(audio, np.float32).reshape(len(idx), -1))
+        B = len(a)
         if a.shape[1] >= N_FFT:  # the frame's last N_FFT samples
             x = a[:, a.shape[1] - N_FFT :]
         else:  # zeros before a short frame's samples
-            x = np.zeros((len(a), N_FFT), np.float32)
+            x = np.zeros((B, N_FFT), np.float32)
             if a.shape[1]:
                 x[:, N_FFT - a.shape[1] :] = a
-        spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32, copy=False)
-        bands = np.log(spec @ _BANDS + 1e-10)
-        ac = np.fft.irfft(spec, axis=1)  # the windowed frame's autocorrelation
-        voicing = np.maximum.reduce(ac[:, _LAGS], axis=1) / np.maximum(ac[:, 0], 1e-20)  # (ndarray.max's reduction)
-        w = spec[:, _VOICE_BINS].astype(np.float64) + 1e-12
-        total = np.add.reduce(w, axis=1)  # (w.mean is total / count, w.sum is total)
-        flat = np.exp(np.add.reduce(np.log(w), axis=1) / w.shape[1]) / (total / w.shape[1])
-        # the top bins in ascending order (as a full sort leaves them: the same sum), without sorting the rest
-        top = np.sort(np.partition(w, -TONAL_BINS, axis=1)[:, -TONAL_BINS:], axis=1)
-        return bands, voicing, flat, np.add.reduce(top, axis=1) / total
+        spec = np.fft.rfft(x * _WINDOW, axis=1)  # (B, 513) complex64
+        power = np.empty((B, spec.shape[1]), np.float32)
+        native.power_spectrum(spec.view(np.float32).reshape(B, spec.shape[1], 2), power)
+        ac = np.fft.irfft(power, axis=1)  # the windowed frame's autocorrelation
+        out = SpeechFrame(
+            np.empty(B, np.float32),
+            np.empty(B, np.bool_),
+            np.empty(B, np.bool_),
+            np.empty(B, np.int64),
+            np.empty(B, np.float32),
+            np.empty(B, np.int64),
+        )
+        o = out
+        track(
+            np.asarray(idx, np.int64),
+            a,
+            power,
+            ac,
+            self.state,
+            o.level,
+            o.speaking,
+            o.onset,
+            o.since_onset,
+            o.energy,
+            o.since_voice,
+        )
+        return out
+
+
+@_jit
+def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
+    """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
+    (1024,); → voicing, flatness and the top bins' share (module docs)."""
+    bands[:] = 0.0
+    for k in range(power.shape[0]):  # each bin is in one band or none: spec @ _BANDS's sums without its zeros
+        if _BAND_OF[k] >= 0:
+            bands[_BAND_OF[k]] += power[k] * _BAND_WEIGHT[k]
+    for b in range(N_BANDS):
+        bands[b] = np.log(bands[b] + np.float32(1e-10))
+    peak = ac[_LAGS_0]
+    for k in range(_LAGS_0 + 1, _LAGS_1):
+        peak = max(peak, ac[k])
+    voicing = peak / max(ac[0], np.float32(1e-20))
+    total, mantissas, exponents = 0.0, 1.0, 0
+    top = np.zeros(TONAL_BINS)  # the largest bins, ascending (as a full sort leaves them)
+    for k in range(_VOICE_0, _VOICE_1):
+        v = float(power[k]) + 1e-12
+        total += v
+        m, e = math.frexp(v)  # the logs' sum as one log: of the mantissas' product (≥ 2^-249), plus the exponents
+        mantissas *= m
+        exponents += e
+        if v > top[0]:
+            i = 1
+            while i < TONAL_BINS and top[i] < v:
+                top[i - 1] = top[i]
+                i += 1
+            top[i - 1] = v
+    n = _VOICE_1 - _VOICE_0
+    flat = np.exp((np.log(mantissas) + exponents * _LN2) / n) / (total / n)
+    share = 0.0
+    for v in top:
+        share += v
+    return voicing, flat, share / total
+
+
+@_jit
+def track(idx, a, power, ac, state, level, speaking, onset, since_onset, energy, since_voice) -> None:
+    """The tracker's frame (module docs) for streams ``idx`` (B,): samples ``a`` (B, S), power spectra (B, 513) and
+    autocorrelations (B, 1024) of the frames' last N_FFT samples (Hann); ``state`` :class:`SpeechTracker`'s arrays
+    (updated); the cues into the last six (B,) arrays (:class:`SpeechFrame`). One compiled loop per stream, in the
+    dtypes NumPy's formulas had (float32 levels, float64 sums): libm's log and exp and the sums in order, so the
+    values equal those formulas' to ~1 ulp."""
+    floor_, hang_, prev_bands, flux_hist, since_, energy_, count_, talk_, tonal_, run_, voice_ = state
+    f32 = np.float32
+    bands = np.empty(N_BANDS, np.float32)
+    for n in range(len(idx)):
+        s = idx[n]
+        sq, lanes, S = 0.0, np.zeros(8), a.shape[1]
+        for i in range(0, S - S % 8, 8):  # eight running sums (as NumPy's pairwise sum has): not one long chain
+            for j in range(8):
+                lanes[j] += float(a[n, i + j]) * float(a[n, i + j])
+        for i in range(S - S % 8, S):
+            sq += float(a[n, i]) * float(a[n, i])
+        sq += ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+        rms = np.sqrt(sq / a.shape[1] + 1e-20) if a.shape[1] else 0.0
+        lv = f32(max(20.0 * np.log10(rms + 1e-12), -100.0))
+        first = count_[s] == 0
+        floor = lv if first else min(lv, floor_[s] + f32(FLOOR_RISE_DB))
+        loud = lv > max(f32(SILENCE_DB), floor + f32(VAD_MARGIN_DB))
+        voicing, flat, top = _spectrum_cues(power[n], ac[n], bands)
+        tonal_sum = 0.0
+        for k in range(1, TONAL_FRAMES):
+            tonal_sum += tonal_[s, k]
+        voice_like = (
+            loud and (voicing >= f32(VOICING) or flat < FLAT_MAX) and (tonal_sum + top) / TONAL_FRAMES < TONAL_SHARE
+        )
+        talk = max(talk_[s] - f32(LEVEL_DECAY_DB), lv if voice_like else f32(-100.0))
+        like = voice_like and lv > talk - f32(NEAR_DB)
+        run = run_[s] + 1 if like else 0
+        hang = HANGOVER if run >= OPEN_FRAMES else max(hang_[s] - 1, 0)
+        talking = run >= OPEN_FRAMES or hang > 0
+        flux = f32(0.0)
+        if not np.isnan(prev_bands[s, 0]):
+            for b in range(N_BANDS):
+                flux += max(bands[b] - prev_bands[s, b], f32(0.0))
+            flux /= f32(N_BANDS)
+        valid, total = 0, f32(0.0)
+        for v in flux_hist[s]:
+            if not np.isnan(v):
+                valid += 1
+                total += v
+        mean, var = 0.0, 0.0
+        if valid:
+            mean = total / valid
+            for v in flux_hist[s]:
+                if not np.isnan(v):
+                    var += (v - mean) ** 2
+            var /= valid
+        since = min(since_[s] + 1, SINCE_CAP)
+        fired = talking and flux > max(mean + ONSET_K * np.sqrt(var), MIN_FLUX) and since >= REFRACTORY
+        since = 0 if fired else since
+        en = lv if first else energy_[s] + f32(ENERGY_ALPHA) * (lv - energy_[s])
+        floor_[s], hang_[s], prev_bands[s] = floor, hang, bands
+        talk_[s], run_[s] = talk, run
+        for k in range(TONAL_FRAMES - 1):
+            tonal_[s, k] = tonal_[s, k + 1]
+        tonal_[s, TONAL_FRAMES - 1] = top
+        for k in range(FLUX_HISTORY - 1):
+            flux_hist[s, k] = flux_hist[s, k + 1]
+        flux_hist[s, FLUX_HISTORY - 1] = flux
+        since_[s], energy_[s], count_[s] = since, en, count_[s] + 1
+        voice = 0 if like else min(voice_[s] + 1, SINCE_VOICE_CAP)
+        voice_[s] = voice
+        level[n], speaking[n], onset[n], since_onset[n], energy[n], since_voice[n] = (
+            lv,
+            talking,
+            fired,
+            since,
+            en,
+            voice,
+        )
+
+
+def warm() -> None:
+    """Load (or compile, once: ``make setup``) :func:`track`'s machine code for the types the tracker passes."""
+    tr = SpeechTracker(1)
+    tr.step(np.zeros(1, np.int64), np.zeros((1, N_FFT), np.float32))
 
 
 def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:
