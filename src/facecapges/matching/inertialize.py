@@ -163,10 +163,36 @@ def step_offsets(
             prev[s, 1] = out[n]
 
 
+@_jit
+def dial(slots: np.ndarray, q: np.ndarray, mean: np.ndarray, slow: np.ndarray, beta: float, gain: np.ndarray) -> None:
+    """The matcher's intensity dial on poses ``q`` (n, J, 4) of streams ``slots`` (n,), in place: each joint's
+    deviation ``d = log(m⁻¹ q)`` from the style's idle mean ``mean`` (J, 4), its smoothing ``slow`` (S, J, 3) ←
+    ``slow + beta · (d − slow)``, and where ``gain`` (n,) is not 1 (beyond 1e-9) ``q ← m · exp(d + (gain − 1) ·
+    slow)`` (:mod:`facecapges.matching.matcher`, step 6). ``beta`` = 1 with ``slow`` zero and ``gain`` 1 sets the
+    smoothing to the deviation itself (a stream's restart)."""
+    t, inv, d = np.empty(4), np.empty((mean.shape[0], 4)), np.empty(3)
+    for j in range(mean.shape[0]):
+        inv[j, 0], inv[j, 1], inv[j, 2], inv[j, 3] = mean[j, 0], -mean[j, 1], -mean[j, 2], -mean[j, 3]
+    for n in range(len(slots)):
+        s, g = slots[n], gain[n]
+        for j in range(mean.shape[0]):
+            _qmul(inv[j], q[n, j], t)
+            _qlog_abs(t, d)
+            for c in range(3):
+                slow[s, j, c] = slow[s, j, c] + beta * (d[c] - slow[s, j, c])
+            if abs(g - 1.0) > 1e-9:
+                for c in range(3):
+                    d[c] = d[c] + (g - 1.0) * slow[s, j, c]
+                _qexp(d, t)
+                _qmul(mean[j], t, q[n, j])
+
+
 def warm() -> None:
-    """Load (or compile, once: ``make setup``) :func:`step_offsets`' machine code for the types its callers pass."""
+    """Load (or compile, once: ``make setup``) the machine code of :func:`step_offsets` and :func:`dial` for the
+    types their callers pass."""
     ids, one, z3, z4 = np.zeros(1, np.int64), np.ones(1), np.zeros((1, 1, 3)), np.zeros((1, 1, 4))
     step_offsets(ids, z3, z3.copy(), one, z4, np.zeros((1, 2, 1, 4)), 1.0, 15.0, True, z4.copy())
+    dial(ids, z4.copy(), z4[0].copy(), z3.copy(), 0.5, one)
 
 
 def qpow_about(q: np.ndarray, mean: np.ndarray, g: np.ndarray | float) -> np.ndarray:

@@ -292,8 +292,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
         if not self.idle.any():
             self.idle = db.searchable.copy()
-        self.idle_mean = inz.quaternion_mean(self.row_quaternions[self.idle])  # (47, 4)
-        self.idle_mean_inv = inz.qconj(self.idle_mean)
+        self.idle_mean = np.ascontiguousarray(inz.quaternion_mean(self.row_quaternions[self.idle]))  # (47, 4)
         self.canon = mirror_twins(db)  # a row and its mirror image share one memory entry
         rest = self.idle & (db.phase == 0)  # his rest: idle rows in the rest phase (slow, wrists low)
         fut = db.features[rest if rest.any() else self.idle][:, group_slices()["future"]]
@@ -582,33 +581,22 @@ class BatchedMatchingStreams(SlotOwner):
         alpha = _smoothing_rate(dt, cfg.intensity_tau_s)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
-        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
-        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
-        dev = self._deviation(q)
-        beta = _smoothing_rate(dt, cfg.intensity_smooth_s)
-        slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
-        self.slow_dev[ids] = slow
         g = gain = gain_of(now)
         if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
             g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
-        scale = np.abs(g - 1.0) > 1e-9
-        if scale.any():
-            k = np.flatnonzero(scale)
-            d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
-            q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
+        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
+        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
+        inz.dial(ids, q, self.idle_mean, self.slow_dev, _smoothing_rate(dt, cfg.intensity_smooth_s), g)
         return q, gain
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
         q = inz.qmul(inz.qexp(self.off_x[ids]), self.row_quaternions[self.row[ids]])
         self.prev_q[ids] = q[:, None]
-        self.slow_dev[ids] = self._deviation(q)
+        self.slow_dev[ids] = 0.0  # then the deviation itself (the dial's first step with gain 1: q unchanged)
+        inz.dial(ids, np.ascontiguousarray(q), self.idle_mean, self.slow_dev, 1.0, np.ones(len(ids)))
         if self.idle_layer is not None:
             self.idle_layer.restart(ids, q)
-
-    def _deviation(self, q: np.ndarray) -> np.ndarray:
-        """Rotation vectors (B, 47, 3) of ``q`` (B, 47, 4) about the style's idle mean: log(m⁻¹ q)."""
-        return inz.qlog(inz.qabs(inz.qmul(self.idle_mean_inv[None], q)))
 
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame whose pose is known per stream: the cues and predictor see its inputs, and
