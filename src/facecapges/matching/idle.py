@@ -212,6 +212,9 @@ class IdleLayer:
         self.enter_hl, self.release_hl, self.amplitude = enter_halflife_s, release_halflife_s, amplitude
         self.capacity = 0
         self.grow(1)
+        from facecapges.matching import kernels  # Numba: loaded when a layer is built, not with this module
+
+        self._step_offsets = kernels.step_offsets
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -309,7 +312,7 @@ class IdleLayer:
             shown = np.empty_like(base)
             # decay, exp(x) · base and the matcher's acceleration cap on what is shown (the offset takes up the rest)
             cap = self.acc_cap if self.acc_cap > 0 else -1.0
-            inz.step_offsets(s, self.x, self.v, self.hl, base, self.prev_out, cap, float(self.fps), False, shown)
+            self._step_offsets(s, self.x, self.v, self.hl, base, self.prev_out, cap, float(self.fps), False, shown)
             out[k] = shown
         out = inz.qabs(out)
         self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, p1, out

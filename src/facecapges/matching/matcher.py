@@ -76,7 +76,6 @@ from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
 from facecapges.engine.slots import SlotOwner, Slots
 from facecapges.matching import inertialize as inz
-from facecapges.matching import speech
 from facecapges.matching.database import Database, idle_rows, mirror_twins, quaternions
 from facecapges.matching.features import LiveFrames, group_slices, live_query
 from facecapges.matching.idle import IdleLayer, IdleMotion
@@ -258,8 +257,10 @@ class BatchedMatchingStreams(SlotOwner):
         self._lock = threading.RLock()
         self._prepare_db()
         self.speech = SpeechTracker(1)
-        inz.warm()  # the compiled blend's and speech tracker's machine code now, not on a stream's first frame
-        speech.warm()
+        from facecapges.matching import kernels  # Numba: loaded when an engine is built, not with this module
+
+        kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
+        self._step_offsets, self._dial = kernels.step_offsets, kernels.dial
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -577,7 +578,7 @@ class BatchedMatchingStreams(SlotOwner):
         q = np.empty((len(ids), N_JOINTS, 4))
         cap = self.acc_cap if cfg.accel_cap_percentile > 0 else -1.0
         base = self.row_quaternions[self.row[ids]]
-        inz.step_offsets(ids, self.off_x, self.off_v, self.halflife, base, self.prev_q, cap, float(self.fps), True, q)
+        self._step_offsets(ids, self.off_x, self.off_v, self.halflife, base, self.prev_q, cap, float(self.fps), True, q)
         alpha = _smoothing_rate(dt, cfg.intensity_tau_s)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
@@ -586,7 +587,7 @@ class BatchedMatchingStreams(SlotOwner):
             g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
         # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
         # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
-        inz.dial(ids, q, self.idle_mean, self.slow_dev, _smoothing_rate(dt, cfg.intensity_smooth_s), g)
+        self._dial(ids, q, self.idle_mean, self.slow_dev, _smoothing_rate(dt, cfg.intensity_smooth_s), g)
         return q, gain
 
     def _restart_history(self, ids: np.ndarray) -> None:
@@ -594,7 +595,7 @@ class BatchedMatchingStreams(SlotOwner):
         q = inz.qmul(inz.qexp(self.off_x[ids]), self.row_quaternions[self.row[ids]])
         self.prev_q[ids] = q[:, None]
         self.slow_dev[ids] = 0.0  # then the deviation itself (the dial's first step with gain 1: q unchanged)
-        inz.dial(ids, np.ascontiguousarray(q), self.idle_mean, self.slow_dev, 1.0, np.ones(len(ids)))
+        self._dial(ids, np.ascontiguousarray(q), self.idle_mean, self.slow_dev, 1.0, np.ones(len(ids)))
         if self.idle_layer is not None:
             self.idle_layer.restart(ids, q)
 

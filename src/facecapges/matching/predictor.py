@@ -26,9 +26,9 @@ head into it, as the thesis trainer does).
 **Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs without torch (:class:`SpeechKernel`:
 the weights read from the style file; the TCNs as shift registers, all layers of every stream in one call of the
 streaming kernel's compiled :func:`~facecapges.network.native.tcn_taps`; each run of linear layers in one call of
-:func:`dense_chain`; the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` and ``serve``
+:func:`~facecapges.matching.kernels.dense_chain`; the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` and ``serve``
 do not load torch (~85 MB of libraries) but do load Numba (~70 MB), whose machine code ``make setup`` caches and
-:func:`warm` loads when a kernel is built (docs/performance.md, "Engine step, third pass"). Its outputs equal the
+:func:`~facecapges.matching.kernels.warm` loads when a kernel is built (docs/performance.md, "Engine step, third pass"). Its outputs equal the
 torch network's over the whole sequence to float32 rounding (``test_matching_predictor``). The network itself (a
 torch module, :class:`~facecapges.matching.predictor_training.SpeechReader`) lives with its training in
 :mod:`facecapges.matching.predictor_training`, with :func:`~facecapges.matching.predictor_training.predict`
@@ -39,18 +39,17 @@ How the sizes were chosen, and the validation and held-out figures: docs/matchin
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
-import numba
 import numpy as np
 
 from facecapges.engine.inputs import finite, pack_audio
 from facecapges.engine.slots import Slots
 from facecapges.matching.targets import TARGET_NAMES
-from facecapges.network import native
 from facecapges.network.config import ModelConfig
 
 K = len(TARGET_NAMES)
@@ -152,10 +151,9 @@ def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
     return out
 
 
-# --------------------------------------------------------------------------- the compiled kernel
-_LEAK = np.float32(0.2)
+# --------------------------------------------------------------------------- the kernel
+_LEAK = np.float32(0.2)  # (the compiled dense_chain's: matching.kernels)
 _ACTIVATION = {"": 0, "leaky": 1, "relu": 2}
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")  # machine code cached beside this file
 
 
 def _leaky(y: np.ndarray) -> np.ndarray:
@@ -163,54 +161,10 @@ def _leaky(y: np.ndarray) -> np.ndarray:
     return np.maximum(y, _LEAK * y)
 
 
-@_jit
-def dense_chain(x: np.ndarray, buf: np.ndarray, table: np.ndarray, out: np.ndarray, col: int) -> None:
-    """Linear layers in a row over the rows of ``x`` (B, n_in) → ``out[:, col : col + n_out]``.
-
-    Layer ``l`` is ``table[l]`` = (offset of its weights (n_in, n_out) in ``buf``, offset of its bias, n_in,
-    n_out, activation: 0 none, 1 leaky ReLU 0.2, 2 ReLU), applied to every row before the next layer; each
-    output is the sum over the inputs in their order, then the bias (float32, as ``x @ W + b``: the values
-    equal NumPy's to float32 rounding, not bit for bit: BLAS sums in another order)."""
-    B, width = x.shape[0], x.shape[1]
-    for n_out in table[:, 3]:
-        width = max(width, n_out)
-    cur, nxt = np.empty((B, width), np.float32), np.empty((B, width), np.float32)
-    n = x.shape[1]
-    cur[:, :n] = x
-    for layer in range(table.shape[0]):
-        w_at, b_at, n_in, n = table[layer, 0], table[layer, 1], table[layer, 2], table[layer, 3]
-        W, bias, act = buf[w_at : w_at + n_in * n].reshape((n_in, n)), buf[b_at : b_at + n], table[layer, 4]
-        for b in range(B):
-            acc, src = nxt[b, :n], cur[b]
-            acc[:] = 0.0
-            for i in range(n_in):
-                xi, w_i = src[i], W[i]
-                for o in range(n):
-                    acc[o] += xi * w_i[o]
-            for o in range(n):
-                v = acc[o] + bias[o]
-                if v < 0 and act == 1:
-                    v = _LEAK * v
-                elif v < 0 and act == 2:
-                    v = np.float32(0.0)
-                acc[o] = v
-        cur, nxt = nxt, cur
-    out[:, col : col + n] = cur[:, :n]
-
-
-def warm() -> None:
-    """Load (or, on a fresh machine, compile) the machine code of the kernel's compiled functions for the
-    argument types it passes, at start-up (``make setup``'s ``scripts/warm-numba-caches.py``, and every
-    :class:`SpeechKernel` built), never on a stream's first frame."""
-    native.warm()
-    one = np.zeros((1, 1), np.float32)
-    dense_chain(one, np.zeros(2, np.float32), np.array([[0, 1, 1, 1, 0]], np.int64), one.copy(), 0)
-
-
 class _Chain:
     """Linear layers in a row (optionally over a standardised input, folded in as ``affine_chain`` does:
     ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``), their weights transposed once into one buffer, run
-    by :func:`dense_chain` in one call."""
+    by :func:`facecapges.matching.kernels.dense_chain` in one call."""
 
     def __init__(self, w: dict[str, np.ndarray], layers: Sequence[tuple[str, str]]):
         parts, table, at = [], [], 0
@@ -228,12 +182,15 @@ class _Chain:
         self.buf = np.ascontiguousarray(np.concatenate(parts), np.float32)
         self.table = np.array(table, np.int64)
         self.n_out = int(self.table[-1, 3])
+        from facecapges.matching import kernels  # Numba: loaded when a kernel is built, not with this module
+
+        self._run = kernels.dense_chain
 
     def __call__(self, x: np.ndarray, out: np.ndarray | None = None, col: int = 0) -> np.ndarray:
         """Rows ``x`` (B, n_in) float32 → (B, n_out), or into ``out``'s columns from ``col``."""
         if out is None:
             out = np.empty((len(x), self.n_out), np.float32)
-        dense_chain(np.ascontiguousarray(x, np.float32), self.buf, self.table, out, col)  # one compiled variant
+        self._run(np.ascontiguousarray(x, np.float32), self.buf, self.table, out, col)  # one compiled variant
         return out
 
 
@@ -252,6 +209,9 @@ class _Taps:
         self.b = np.ascontiguousarray(np.stack([w[f"{name}.layers.{i}.bias"] for i in range(L)]), np.float32)
         self.rows = np.array([d - 1 for d in dilations], np.int64)
         self.no_extra = np.zeros((0, C), np.float32)
+        from facecapges.network import native  # Numba: loaded when a kernel is built, not with this module
+
+        self._taps = native.tcn_taps
 
     def register(self, capacity: int) -> np.ndarray:
         return np.zeros((capacity, self.R, self.L, self.C), np.float32)
@@ -260,7 +220,7 @@ class _Taps:
         """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
         skip = np.empty_like(x)
         extra = self.no_extra if extra is None else extra
-        native.tcn_taps(reg, idx, np.ascontiguousarray(x), self.w_past, self.w_now, self.b, self.rows, extra, skip)
+        self._taps(reg, idx, np.ascontiguousarray(x), self.w_past, self.w_now, self.b, self.rows, extra, skip)
         return skip
 
 
@@ -270,7 +230,9 @@ class SpeechKernel:
 
     def __init__(self, cfg: ModelConfig, hidden: int, w: dict[str, np.ndarray]):
         self.cfg = cfg
-        warm()
+        from facecapges.matching import kernels
+
+        kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
         if cfg.audio_repr == "raw":
             self.mel = None
             p = "audio_enc.frontend"
@@ -347,7 +309,12 @@ class Predictor:
         self.config = config
         self.mean = np.asarray(config["target_mean"], np.float32)
         self.sd = np.asarray(config["target_sd"], np.float32)
-        self.kernel = SpeechKernel(self.cfg, self.hidden, w)
+
+    @functools.cached_property
+    def kernel(self) -> SpeechKernel:
+        """The inference kernel, built on first use (what only loads a style — ``serve``'s server process — never
+        loads its compiled loops)."""
+        return SpeechKernel(self.cfg, self.hidden, self.weights)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {k: v.copy() for k, v in self.weights.items()}

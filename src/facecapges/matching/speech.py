@@ -44,11 +44,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from facecapges import timing
-from facecapges.network import native
 
 SILENCE_DB = -50.0
 VAD_MARGIN_DB = 20.0
@@ -92,7 +90,6 @@ _LAGS_0, _LAGS_1, _VOICE_0, _VOICE_1 = _LAGS.start, _LAGS.stop, _VOICE_BINS.star
 _BAND_OF = np.where(_BANDS.any(1), np.argmax(_BANDS, 1), -1)  # each bin's band (-1: none; the bands do not overlap)
 _BAND_WEIGHT = _BANDS.max(1)  # and its weight there
 _LN2 = math.log(2.0)
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")  # machine code cached beside this file
 
 
 @dataclass
@@ -111,6 +108,10 @@ class SpeechTracker:
     """Causal speaking/onset/loudness state of ``capacity`` streams (module docs)."""
 
     def __init__(self, capacity: int = 1):
+        from facecapges.matching import kernels  # Numba: loaded when a tracker is built, not with this module
+        from facecapges.network import native
+
+        self._track, self._power = kernels.track, native.power_spectrum
         self.capacity = 0
         self._alloc(capacity)
 
@@ -172,7 +173,7 @@ class SpeechTracker:
                 x[:, N_FFT - a.shape[1] :] = a
         spec = np.fft.rfft(x * _WINDOW, axis=1)  # (B, 513) complex64
         power = np.empty((B, spec.shape[1]), np.float32)
-        native.power_spectrum(spec.view(np.float32).reshape(B, spec.shape[1], 2), power)
+        self._power(spec.view(np.float32).reshape(B, spec.shape[1], 2), power)
         ac = np.fft.irfft(power, axis=1)  # the windowed frame's autocorrelation
         out = SpeechFrame(
             np.empty(B, np.float32),
@@ -183,7 +184,7 @@ class SpeechTracker:
             np.empty(B, np.int64),
         )
         o = out
-        track(
+        self._track(
             np.asarray(idx, np.int64),
             a,
             power,
@@ -197,126 +198,6 @@ class SpeechTracker:
             o.since_voice,
         )
         return out
-
-
-@_jit
-def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
-    """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
-    (1024,); → voicing, flatness and the top bins' share (module docs)."""
-    bands[:] = 0.0
-    for k in range(power.shape[0]):  # each bin is in one band or none: spec @ _BANDS's sums without its zeros
-        if _BAND_OF[k] >= 0:
-            bands[_BAND_OF[k]] += power[k] * _BAND_WEIGHT[k]
-    for b in range(N_BANDS):
-        bands[b] = np.log(bands[b] + np.float32(1e-10))
-    peak = ac[_LAGS_0]
-    for k in range(_LAGS_0 + 1, _LAGS_1):
-        peak = max(peak, ac[k])
-    voicing = peak / max(ac[0], np.float32(1e-20))
-    total, mantissas, exponents = 0.0, 1.0, 0
-    top = np.zeros(TONAL_BINS)  # the largest bins, ascending (as a full sort leaves them)
-    for k in range(_VOICE_0, _VOICE_1):
-        v = float(power[k]) + 1e-12
-        total += v
-        m, e = math.frexp(v)  # the logs' sum as one log: of the mantissas' product (≥ 2^-249), plus the exponents
-        mantissas *= m
-        exponents += e
-        if v > top[0]:
-            i = 1
-            while i < TONAL_BINS and top[i] < v:
-                top[i - 1] = top[i]
-                i += 1
-            top[i - 1] = v
-    n = _VOICE_1 - _VOICE_0
-    flat = np.exp((np.log(mantissas) + exponents * _LN2) / n) / (total / n)
-    share = 0.0
-    for v in top:
-        share += v
-    return voicing, flat, share / total
-
-
-@_jit
-def track(idx, a, power, ac, state, level, speaking, onset, since_onset, energy, since_voice) -> None:
-    """The tracker's frame (module docs) for streams ``idx`` (B,): samples ``a`` (B, S), power spectra (B, 513) and
-    autocorrelations (B, 1024) of the frames' last N_FFT samples (Hann); ``state`` :class:`SpeechTracker`'s arrays
-    (updated); the cues into the last six (B,) arrays (:class:`SpeechFrame`). One compiled loop per stream, in the
-    dtypes NumPy's formulas had (float32 levels, float64 sums): libm's log and exp and the sums in order, so the
-    values equal those formulas' to ~1 ulp."""
-    floor_, hang_, prev_bands, flux_hist, since_, energy_, count_, talk_, tonal_, run_, voice_ = state
-    f32 = np.float32
-    bands = np.empty(N_BANDS, np.float32)
-    for n in range(len(idx)):
-        s = idx[n]
-        sq, lanes, S = 0.0, np.zeros(8), a.shape[1]
-        for i in range(0, S - S % 8, 8):  # eight running sums (as NumPy's pairwise sum has): not one long chain
-            for j in range(8):
-                lanes[j] += float(a[n, i + j]) * float(a[n, i + j])
-        for i in range(S - S % 8, S):
-            sq += float(a[n, i]) * float(a[n, i])
-        sq += ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
-        rms = np.sqrt(sq / a.shape[1] + 1e-20) if a.shape[1] else 0.0
-        lv = f32(max(20.0 * np.log10(rms + 1e-12), -100.0))
-        first = count_[s] == 0
-        floor = lv if first else min(lv, floor_[s] + f32(FLOOR_RISE_DB))
-        loud = lv > max(f32(SILENCE_DB), floor + f32(VAD_MARGIN_DB))
-        voicing, flat, top = _spectrum_cues(power[n], ac[n], bands)
-        tonal_sum = 0.0
-        for k in range(1, TONAL_FRAMES):
-            tonal_sum += tonal_[s, k]
-        voice_like = (
-            loud and (voicing >= f32(VOICING) or flat < FLAT_MAX) and (tonal_sum + top) / TONAL_FRAMES < TONAL_SHARE
-        )
-        talk = max(talk_[s] - f32(LEVEL_DECAY_DB), lv if voice_like else f32(-100.0))
-        like = voice_like and lv > talk - f32(NEAR_DB)
-        run = run_[s] + 1 if like else 0
-        hang = HANGOVER if run >= OPEN_FRAMES else max(hang_[s] - 1, 0)
-        talking = run >= OPEN_FRAMES or hang > 0
-        flux = f32(0.0)
-        if not np.isnan(prev_bands[s, 0]):
-            for b in range(N_BANDS):
-                flux += max(bands[b] - prev_bands[s, b], f32(0.0))
-            flux /= f32(N_BANDS)
-        valid, total = 0, f32(0.0)
-        for v in flux_hist[s]:
-            if not np.isnan(v):
-                valid += 1
-                total += v
-        mean, var = 0.0, 0.0
-        if valid:
-            mean = total / valid
-            for v in flux_hist[s]:
-                if not np.isnan(v):
-                    var += (v - mean) ** 2
-            var /= valid
-        since = min(since_[s] + 1, SINCE_CAP)
-        fired = talking and flux > max(mean + ONSET_K * np.sqrt(var), MIN_FLUX) and since >= REFRACTORY
-        since = 0 if fired else since
-        en = lv if first else energy_[s] + f32(ENERGY_ALPHA) * (lv - energy_[s])
-        floor_[s], hang_[s], prev_bands[s] = floor, hang, bands
-        talk_[s], run_[s] = talk, run
-        for k in range(TONAL_FRAMES - 1):
-            tonal_[s, k] = tonal_[s, k + 1]
-        tonal_[s, TONAL_FRAMES - 1] = top
-        for k in range(FLUX_HISTORY - 1):
-            flux_hist[s, k] = flux_hist[s, k + 1]
-        flux_hist[s, FLUX_HISTORY - 1] = flux
-        since_[s], energy_[s], count_[s] = since, en, count_[s] + 1
-        voice = 0 if like else min(voice_[s] + 1, SINCE_VOICE_CAP)
-        voice_[s] = voice
-        level[n], speaking[n], onset[n], since_onset[n], energy[n], since_voice[n] = (
-            lv,
-            talking,
-            fired,
-            since,
-            en,
-            voice,
-        )
-
-
-def warm() -> None:
-    """Load (or compile, once: ``make setup``) :func:`track`'s machine code for the types the tracker passes."""
-    tr = SpeechTracker(1)
-    tr.step(np.zeros(1, np.int64), np.zeros((1, N_FFT), np.float32))
 
 
 def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:

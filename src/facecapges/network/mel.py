@@ -19,8 +19,6 @@ from pathlib import Path
 
 import numpy as np
 
-from facecapges.network import native
-
 N_FFT = 512
 HOP = 128
 N_MELS = 40
@@ -92,6 +90,9 @@ class MelFeatures:
     def __init__(self, sr: int, samples_per_frame: int):
         if samples_per_frame < N_FFT:
             raise ValueError(f"a frame of {samples_per_frame} samples is shorter than the {N_FFT}-sample FFT")
+        from facecapges.network import native  # Numba: loaded when features are made, not with this module
+
+        self._mel_energy, self._power, self._pitch = native.mel_energy, native.power_spectrum, native.pitch
         self.mel_t64 = np.ascontiguousarray(mel_basis(sr).astype(np.float32).T, np.float64)  # (257, 40)
         n = np.arange(N_FFT)
         # torch.hann_window(N_FFT, periodic=True), in float32 as the torch module holds it
@@ -118,10 +119,10 @@ class MelFeatures:
         frames = np.ndarray((B, W, N_FFT), np.float32, buffer=x, strides=(4 * n, 4 * HOP, 4))
         spec = fft.rfft(frames * self.window)  # (B, 5, 257) complex64
         x0 = np.empty((B, self.n_ac), np.float32)
-        native.mel_energy(spec.view(np.float32).reshape(B, W, spec.shape[2], 2), x, self.mel_t64, out, x0)
+        self._mel_energy(spec.view(np.float32).reshape(B, W, spec.shape[2], 2), x, self.mel_t64, out, x0)
         f = fft.rfft(x0)
         power = np.empty((B, f.shape[1]), np.float32)
-        native.power_spectrum(f.view(np.float32).reshape(B, f.shape[1], 2), power)
+        self._power(f.view(np.float32).reshape(B, f.shape[1], 2), power)
         ac = fft.irfft(power, n=self.n_ac)
-        native.pitch(ac, self.lag_min, self.lag_max, self.log_f0_of_lag, np.float32(VOICED_MIN), out)
+        self._pitch(ac, self.lag_min, self.lag_max, self.log_f0_of_lag, np.float32(VOICED_MIN), out)
         return out
