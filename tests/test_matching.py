@@ -289,18 +289,8 @@ def test_styles_build_of_a_retargeted_zeggs_take_in_a_pipe(tmp_path, zeggs_piece
     p = cli("retarget", str(bvh), "--out", str(d / "piece_beat.bvh"))
     assert p.returncode == 0, p.stderr[-2000:]
     env = {**os.environ, "FACECAPGES_STYLES": str(tmp_path / "styles"), "FACECAPGES_PROGRESS_SECONDS": "0"}
-    p = cli_process(
-        "styles",
-        "build",
-        "zeggs-beat",
-        "--take",
-        str(d / "piece_beat.bvh"),
-        str(d / "piece.wav"),
-        "--steps",
-        "12",
-        env=env,
-        timeout=900,
-    )
+    p = cli_process("styles", "build", "zeggs-beat", "--take", str(d / "piece_beat.bvh"), str(d / "piece.wav"),
+                    "--steps", "12", env=env, timeout=900)
     assert p.returncode == 0, p.stderr[-3000:]
     lines = [x for x in p.stderr.splitlines() if x.startswith("speech predictor: ")]
     assert len(lines) >= 3 and "12/12 (100 %)" in lines[-1] and lines[-1].endswith(("done", ")")), p.stderr[-2000:]
