@@ -36,7 +36,6 @@ from facecapges.matching.speech import (
     ENERGY_ALPHA,
     FLAT_MAX,
     FLOOR_RISE_DB,
-    FLUX_HISTORY,
     HANGOVER,
     LEVEL_DECAY_DB,
     MIN_FLUX,
@@ -258,6 +257,52 @@ def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tupl
 
 
 @_jit
+def _level(x: np.ndarray) -> np.float32:
+    """A frame's RMS level in dBFS (floor −100), float32, of its samples ``x`` (S,) (the sum in float64)."""
+    sq, lanes, S = 0.0, np.zeros(8), len(x)
+    for i in range(0, S - S % 8, 8):  # eight running sums (as NumPy's pairwise sum has): not one long chain
+        for j in range(8):
+            lanes[j] += float(x[i + j]) * float(x[i + j])
+    for i in range(S - S % 8, S):
+        sq += float(x[i]) * float(x[i])
+    sq += ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+    rms = np.sqrt(sq / S + 1e-20) if S else 0.0
+    return np.float32(max(20.0 * np.log10(rms + 1e-12), -100.0))
+
+
+@_jit
+def _flux(bands: np.ndarray, prev: np.ndarray, hist: np.ndarray) -> tuple[np.float32, float, float]:
+    """The spectral flux of ``bands`` (N_BANDS,) against the last frame's ``prev`` (NaN: none, flux 0), and the mean
+    and variance of the flux history ``hist`` (FLUX_HISTORY,) over its entries that are not NaN (0, 0: none)."""
+    flux = np.float32(0.0)
+    if not np.isnan(prev[0]):
+        for b in range(N_BANDS):
+            flux += max(bands[b] - prev[b], np.float32(0.0))
+        flux /= np.float32(N_BANDS)
+    valid, total = 0, np.float32(0.0)
+    for v in hist:
+        if not np.isnan(v):
+            valid += 1
+            total += v
+    mean, var = 0.0, 0.0
+    if valid:
+        mean = total / valid
+        for v in hist:
+            if not np.isnan(v):
+                var += (v - mean) ** 2
+        var /= valid
+    return flux, mean, var
+
+
+@_jit
+def _shift_in(row: np.ndarray, value: float) -> None:
+    """``row`` (k,) one place to the left, ``value`` last (a history)."""
+    for k in range(len(row) - 1):
+        row[k] = row[k + 1]
+    row[len(row) - 1] = value
+
+
+@_jit
 def track(idx, a, power, ac, state, level, speaking, onset, since_onset, energy, since_voice) -> None:
     """The tracker's frame (module docs) for streams ``idx`` (B,): samples ``a`` (B, S), power spectra (B, 513) and
     autocorrelations (B, 1024) of the frames' last N_FFT samples (Hann); ``state`` :class:`SpeechTracker`'s arrays
@@ -269,62 +314,30 @@ def track(idx, a, power, ac, state, level, speaking, onset, since_onset, energy,
     bands = np.empty(N_BANDS, np.float32)
     for n in range(len(idx)):
         s = idx[n]
-        sq, lanes, S = 0.0, np.zeros(8), a.shape[1]
-        for i in range(0, S - S % 8, 8):  # eight running sums (as NumPy's pairwise sum has): not one long chain
-            for j in range(8):
-                lanes[j] += float(a[n, i + j]) * float(a[n, i + j])
-        for i in range(S - S % 8, S):
-            sq += float(a[n, i]) * float(a[n, i])
-        sq += ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
-        rms = np.sqrt(sq / a.shape[1] + 1e-20) if a.shape[1] else 0.0
-        lv = f32(max(20.0 * np.log10(rms + 1e-12), -100.0))
-        first = count_[s] == 0
+        lv, first = _level(a[n]), count_[s] == 0
         floor = lv if first else min(lv, floor_[s] + f32(FLOOR_RISE_DB))
         loud = lv > max(f32(SILENCE_DB), floor + f32(VAD_MARGIN_DB))
         voicing, flat, top = _spectrum_cues(power[n], ac[n], bands)
-        tonal_sum = 0.0
+        tonal = 0.0
         for k in range(1, TONAL_FRAMES):
-            tonal_sum += tonal_[s, k]
-        voice_like = (
-            loud and (voicing >= f32(VOICING) or flat < FLAT_MAX) and (tonal_sum + top) / TONAL_FRAMES < TONAL_SHARE
-        )
+            tonal += tonal_[s, k]
+        tonal = (tonal + top) / TONAL_FRAMES
+        voice_like = loud and (voicing >= f32(VOICING) or flat < FLAT_MAX) and tonal < TONAL_SHARE
         talk = max(talk_[s] - f32(LEVEL_DECAY_DB), lv if voice_like else f32(-100.0))
         like = voice_like and lv > talk - f32(NEAR_DB)
         run = run_[s] + 1 if like else 0
         hang = HANGOVER if run >= OPEN_FRAMES else max(hang_[s] - 1, 0)
         talking = run >= OPEN_FRAMES or hang > 0
-        flux = f32(0.0)
-        if not np.isnan(prev_bands[s, 0]):
-            for b in range(N_BANDS):
-                flux += max(bands[b] - prev_bands[s, b], f32(0.0))
-            flux /= f32(N_BANDS)
-        valid, total = 0, f32(0.0)
-        for v in flux_hist[s]:
-            if not np.isnan(v):
-                valid += 1
-                total += v
-        mean, var = 0.0, 0.0
-        if valid:
-            mean = total / valid
-            for v in flux_hist[s]:
-                if not np.isnan(v):
-                    var += (v - mean) ** 2
-            var /= valid
+        flux, mean, var = _flux(bands, prev_bands[s], flux_hist[s])
         since = min(since_[s] + 1, SINCE_CAP)
         fired = talking and flux > max(mean + ONSET_K * np.sqrt(var), MIN_FLUX) and since >= REFRACTORY
         since = 0 if fired else since
         en = lv if first else energy_[s] + f32(ENERGY_ALPHA) * (lv - energy_[s])
-        floor_[s], hang_[s], prev_bands[s] = floor, hang, bands
-        talk_[s], run_[s] = talk, run
-        for k in range(TONAL_FRAMES - 1):
-            tonal_[s, k] = tonal_[s, k + 1]
-        tonal_[s, TONAL_FRAMES - 1] = top
-        for k in range(FLUX_HISTORY - 1):
-            flux_hist[s, k] = flux_hist[s, k + 1]
-        flux_hist[s, FLUX_HISTORY - 1] = flux
-        since_[s], energy_[s], count_[s] = since, en, count_[s] + 1
         voice = 0 if like else min(voice_[s] + 1, SINCE_VOICE_CAP)
-        voice_[s] = voice
+        floor_[s], hang_[s], prev_bands[s], talk_[s], run_[s] = floor, hang, bands, talk, run
+        _shift_in(tonal_[s], top)
+        _shift_in(flux_hist[s], flux)
+        since_[s], energy_[s], count_[s], voice_[s] = since, en, count_[s] + 1, voice
         level[n], speaking[n], onset[n], since_onset[n], energy[n], since_voice[n] = (
             lv,
             talking,
