@@ -20,6 +20,7 @@ loaded by :func:`warm` when an engine is built, never on a stream's first frame.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba
 import numpy as np
@@ -271,7 +272,7 @@ def _level(x: np.ndarray) -> np.float32:
 
 
 @_jit
-def _flux(bands: np.ndarray, prev: np.ndarray, hist: np.ndarray) -> tuple[np.float32, float, float]:
+def _flux(bands: np.ndarray, prev: np.ndarray, hist: np.ndarray) -> tuple[Any, Any, Any]:
     """The spectral flux of ``bands`` (N_BANDS,) against the last frame's ``prev`` (NaN: none, flux 0), and the mean
     and variance of the flux history ``hist`` (FLUX_HISTORY,) over its entries that are not NaN (0, 0: none)."""
     flux = np.float32(0.0)
@@ -295,7 +296,7 @@ def _flux(bands: np.ndarray, prev: np.ndarray, hist: np.ndarray) -> tuple[np.flo
 
 
 @_jit
-def _shift_in(row: np.ndarray, value: float) -> None:
+def _shift_in(row: np.ndarray, value: Any) -> None:
     """``row`` (k,) one place to the left, ``value`` last (a history)."""
     for k in range(len(row) - 1):
         row[k] = row[k + 1]
