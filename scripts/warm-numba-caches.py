@@ -2,7 +2,8 @@
 
 Run once by ``make setup``, after the install. Two reasons:
 
-* our streaming kernel (:func:`facecapges.network.native.warm`): compiled here, not by a stream's first frame;
+* our streaming kernel (:func:`facecapges.network.native.warm`) and the matching engine's loops
+  (:func:`facecapges.matching.kernels.warm`): compiled here, not by a stream's first frame;
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
   ``__pycache__``. Two processes doing that at the same time (the suite's two pytest-xdist workers on a fresh
@@ -18,9 +19,9 @@ import numpy as np
 
 
 def main() -> None:
-    from facecapges.network import native
+    from facecapges.matching import kernels
 
-    native.warm()
+    kernels.warm()  # the streaming kernel's functions too (network.native.warm)
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

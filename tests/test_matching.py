@@ -317,3 +317,55 @@ def test_styles_build_refuses_bad_takes(tmp_path, args, words):
     p = cli("styles", "build", "bad", *args, "--out", str(tmp_path / "x.safetensors"))
     refused(p, *words)
     assert not (tmp_path / "x.safetensors").exists()
+
+
+def test_compiled_blend_equals_the_quaternion_formulas():
+    """``kernels.step_offsets`` (the matcher's and the idle layer's inertialized frame) and ``kernels.dial`` against
+    the same formulas in NumPy (``decay_spring``, :mod:`facecapges.rotations`): within 1e-12 (libm's exp, sin, cos
+    and atan2 against NumPy's own, a sum in another order), with and without the acceleration cap biting."""
+    from facecapges import rotations as rot
+    from facecapges.matching import kernels
+
+    rng = np.random.default_rng(4)
+    S, J = 5, 47
+    def unit(*shape):
+        q = rng.normal(size=(*shape, 4))
+        return rot.standardize_quaternion(q / np.linalg.norm(q, axis=-1, keepdims=True))
+
+    x, v, hl = rng.normal(0, 0.3, (S, J, 3)), rng.normal(0, 2.0, (S, J, 3)), rng.uniform(0.05, 0.6, S)
+    base, prev = unit(3, J), unit(S, 2, J)
+    slots = np.array([4, 0, 2])
+    for cap in (-1.0, 50.0):  # no cap; a cap every stream is over
+        x1, v1, prev1, out = x.copy(), v.copy(), prev.copy(), np.empty((3, J, 4))
+        kernels.step_offsets(slots, x1, v1, hl, base, prev1, cap, 15.0, True, out)
+        xs, vs = inz.decay_spring(x[slots], v[slots], hl[slots][:, None, None], 1.0 / 15.0)
+        want = rot.quaternion_multiply(rot.quaternion_exp(xs), base)
+        if cap > 0:
+            p1, p2 = prev[slots, 1], prev[slots, 0]
+            pred = rot.quaternion_multiply(rot.quaternion_multiply(p1, rot.quaternion_invert(p2)), p1)
+            d = rot.quaternion_log(
+                rot.standardize_quaternion(rot.quaternion_multiply(want, rot.quaternion_invert(pred)))
+            )
+            total = np.sqrt((d * d).sum(axis=(1, 2))) * 15.0**2
+            assert (total > cap).all()
+            want = rot.quaternion_multiply(rot.quaternion_exp(d * (cap / total)[:, None, None]), pred)
+            xs = rot.quaternion_log(
+                rot.standardize_quaternion(rot.quaternion_multiply(want, rot.quaternion_invert(base)))
+            )
+        np.testing.assert_allclose(out, want, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(x1[slots], xs, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(v1[slots], vs, rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(prev1[slots, 0], prev[slots, 1])  # shifted: the last, then the pose shown
+        np.testing.assert_array_equal(prev1[slots, 1], out)
+        np.testing.assert_array_equal(x1[[1, 3]], x[[1, 3]])  # other slots untouched
+    mean, slow, gain = unit(J), rng.normal(0, 0.2, (S, J, 3)), np.array([1.0, 1.3, 0.5])
+    q, slow1 = base.copy(), slow.copy()
+    kernels.dial(slots, q, mean, slow1, 0.2, gain)
+    dev = rot.quaternion_log(
+        rot.standardize_quaternion(rot.quaternion_multiply(rot.quaternion_invert(mean)[None], base))
+    )
+    smooth = slow[slots] + 0.2 * (dev - slow[slots])
+    np.testing.assert_allclose(slow1[slots], smooth, rtol=0, atol=1e-12)
+    want = rot.quaternion_multiply(mean[None], rot.quaternion_exp(dev + (gain - 1.0)[:, None, None] * smooth))
+    np.testing.assert_array_equal(q[0], base[0])  # gain 1: unchanged
+    np.testing.assert_allclose(q[1:], want[1:], rtol=0, atol=1e-12)

@@ -193,9 +193,10 @@ def test_numpy_kernel_equals_the_torch_network_for_both_front_ends(beat_take):
         Predictor.from_state(config, {**pred.state_dict(), "out.4.bias": np.zeros(3, np.float32)})
 
 
-def test_a_matching_style_runs_without_torch_or_numba():
-    """``live`` / ``serve`` with a matching style: loading it and stepping a stream (predictor included) imports
-    neither torch nor Numba (issue 36: ~155 MB of libraries a matching style does not need)."""
+def test_a_matching_style_runs_without_torch():
+    """``live`` / ``serve`` with a matching style: loading it and stepping a stream (predictor included) does not
+    import torch (issue 36: ~85 MB of libraries a matching style does not need); the compiled kernels' Numba it
+    does (docs/performance.md, "Engine step, third pass")."""
     import subprocess
     import sys
 
@@ -208,7 +209,7 @@ def test_a_matching_style_runs_without_torch_or_numba():
         "for i in range(20):\n"
         "    g.step(np.random.default_rng(i).normal(0, 0.1, 1067).astype(np.float32), np.zeros(52, np.float32),"
         " np.array([1, 0, 0, 0, 1, 0], np.float32))\n"
-        "print(sorted(m for m in ('torch', 'numba', 'llvmlite') if m in sys.modules))\n"
+        "print(sorted(m for m in ('torch', 'torchaudio') if m in sys.modules))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr[-2000:]
@@ -251,19 +252,3 @@ def test_trained_predictor_beats_the_mean_on_zeggs_validation(zeggs_take):
         assert f["r"] > 0.35, (name, f)
         assert f["r2_vs_training_mean"] > 0.1, (name, f)
     assert figures["speaking_auc"] > 0.9
-
-
-def test_mel_batch_sums_are_einsums_order():
-    """``MelFeatures`` above ``SCIPY_MIN_BATCH`` streams writes out the power's sums (re² + im² per window, the
-    windows left to right) instead of ``einsum``: the same bits as the einsum of one stream's path."""
-    rng = np.random.default_rng(3)
-    for B in (1, 16, 300):
-        re_im = (rng.normal(size=(B, 5, 257, 2)) * 10.0 ** rng.uniform(-3, 3, size=(B, 5, 257, 2))).astype(np.float32)
-        sq = re_im * re_im
-        per_window = sq[..., 0] + sq[..., 1]
-        power = per_window[:, 0] + per_window[:, 1]
-        for w in range(2, 5):
-            power += per_window[:, w]
-        assert power.tobytes() == np.einsum("bwfc,bwfc->bf", re_im, re_im).tobytes()
-        f2 = re_im[:, 0]
-        assert (f2[..., 0] ** 2 + f2[..., 1] ** 2).tobytes() == np.einsum("bfc,bfc->bf", f2, f2).tobytes()

@@ -212,6 +212,9 @@ class IdleLayer:
         self.enter_hl, self.release_hl, self.amplitude = enter_halflife_s, release_halflife_s, amplitude
         self.capacity = 0
         self.grow(1)
+        from facecapges.matching import kernels  # Numba: loaded when a layer is built, not with this module
+
+        self._step_offsets = kernels.step_offsets
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -302,18 +305,14 @@ class IdleLayer:
         k = np.flatnonzero(live)
         if len(k) < len(ids):
             self.x[ids[~live]], self.v[ids[~live]] = 0.0, 0.0
-        p1, p2 = self.prev_out[ids, 1], self.prev_out[ids, 0]
+        p1 = self.prev_out[ids, 1]
         if len(k):
             s = ids[k]
-            x, v = inz.decay_spring(xs[k], vs[k], self.hl[s][:, None, None], 1.0 / self.fps)
-            self.x[s], self.v[s] = x, v
             base = np.where(self.idle[s][:, None, None], idle_now[k], q[k])
-            shown = inz.qmul(inz.qexp(x), base)
-            if self.acc_cap > 0:  # the matcher's acceleration cap, on what is shown: the offset takes up the rest
-                shown, over = inz.limit_acceleration(shown, p1[k], p2[k], self.acc_cap, self.fps)
-                if over.any():
-                    o = np.flatnonzero(over)
-                    self.x[s[o]] = inz.qlog(inz.qabs(inz.qmul(shown[o], inz.qconj(base[o]))))
+            shown = np.empty_like(base)
+            # decay, exp(x) · base and the matcher's acceleration cap on what is shown (the offset takes up the rest)
+            cap = self.acc_cap if self.acc_cap > 0 else -1.0
+            self._step_offsets(s, self.x, self.v, self.hl, base, self.prev_out, cap, float(self.fps), False, shown)
             out[k] = shown
         out = inz.qabs(out)
         self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, p1, out

@@ -58,23 +58,6 @@ def transition(
     return qlog(q), v + src_v - dst_v
 
 
-def limit_acceleration(
-    q: np.ndarray, p1: np.ndarray, p2: np.ndarray, cap: float, fps: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Poses ``q`` (B, J, 4) whose whole-body angular acceleration against the last two outputs ``p1`` (the
-    last) and ``p2`` (B, J, 4) is above ``cap`` (rad/s², root sum of squares over the joints) shortened to
-    it along the step: (limited poses, which were over (B,) bool)."""
-    pred = qmul(qmul(p1, qconj(p2)), p1)  # constant angular velocity
-    d = qlog(qabs(qmul(q, qconj(pred))))  # (B, J, 3): acceleration · dt²
-    total = np.sqrt(np.add.reduce(d * d, axis=(1, 2))) * fps**2  # np.linalg.norm's own sum, without its overhead
-    over = total > cap
-    if over.any():
-        q = q.copy()
-        k = np.flatnonzero(over)
-        q[k] = qmul(qexp(d[k] * (cap / total[k])[:, None, None]), pred[k])
-    return q, over
-
-
 def qpow_about(q: np.ndarray, mean: np.ndarray, g: np.ndarray | float) -> np.ndarray:
     """``mean · (mean⁻¹ · q)^g``: rotations ``q`` (B, …, 4) scaled by ``g`` (a float or one per leading
     entry, (B,)) about ``mean`` (g = 1: unchanged) — :func:`facecapges.rotations.quaternion_power_about`."""

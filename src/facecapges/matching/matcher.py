@@ -257,6 +257,10 @@ class BatchedMatchingStreams(SlotOwner):
         self._lock = threading.RLock()
         self._prepare_db()
         self.speech = SpeechTracker(1)
+        from facecapges.matching import kernels  # Numba: loaded when an engine is built, not with this module
+
+        kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
+        self._step_offsets, self._dial = kernels.step_offsets, kernels.dial
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -289,8 +293,7 @@ class BatchedMatchingStreams(SlotOwner):
         self.idle = self.idle_play & db.searchable  # rows an idle search may jump to
         if not self.idle.any():
             self.idle = db.searchable.copy()
-        self.idle_mean = inz.quaternion_mean(self.row_quaternions[self.idle])  # (47, 4)
-        self.idle_mean_inv = inz.qconj(self.idle_mean)
+        self.idle_mean = np.ascontiguousarray(inz.quaternion_mean(self.row_quaternions[self.idle]))  # (47, 4)
         self.canon = mirror_twins(db)  # a row and its mirror image share one memory entry
         rest = self.idle & (db.phase == 0)  # his rest: idle rows in the rest phase (slow, wrists low)
         fut = db.features[rest if rest.any() else self.idle][:, group_slices()["future"]]
@@ -570,55 +573,31 @@ class BatchedMatchingStreams(SlotOwner):
         gain now (B,) (:func:`gain_of` of the intensity reached)."""
         cfg = self.config
         dt = 1.0 / self.fps
-        hl = self.halflife[ids][:, None, None]
-        x, v = inz.decay_spring(self.off_x[ids], self.off_v[ids], hl, dt)
-        self.off_x[ids], self.off_v[ids] = x, v
-        q = self._limit(ids, inz.qmul(inz.qexp(x), self.row_quaternions[self.row[ids]]))
+        # the offsets decay one frame, then the acceleration cap: a larger step is shortened and the offset takes up
+        # the difference, so the played clip continues from the limited pose (a seam never pops)
+        q = np.empty((len(ids), N_JOINTS, 4))
+        cap = self.acc_cap if cfg.accel_cap_percentile > 0 else -1.0
+        base = self.row_quaternions[self.row[ids]]
+        self._step_offsets(ids, self.off_x, self.off_v, self.halflife, base, self.prev_q, cap, float(self.fps), True, q)
         alpha = _smoothing_rate(dt, cfg.intensity_tau_s)
         now = self.intensity_now[ids] + alpha * (self.intensity_target[ids] - self.intensity_now[ids])
         self.intensity_now[ids] = now
-        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
-        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
-        dev = self._deviation(q)
-        beta = _smoothing_rate(dt, cfg.intensity_smooth_s)
-        slow = self.slow_dev[ids] + beta * (dev - self.slow_dev[ids])
-        self.slow_dev[ids] = slow
         g = gain = gain_of(now)
         if cfg.pause_gain != 1.0:  # a settled pause: the slow deviation from idle shrinks (his rest, calmer)
             g = g * (1.0 - self._settled(ids) * (1.0 - cfg.pause_gain))
-        scale = np.abs(g - 1.0) > 1e-9
-        if scale.any():
-            k = np.flatnonzero(scale)
-            d = dev[k] + (g[k] - 1.0)[:, None, None] * slow[k]
-            q[k] = inz.qmul(self.idle_mean[None], inz.qexp(d))
+        # the dial: the deviation from the idle mean, smoothed, scaled by gain − 1 and added; the recorded
+        # motion's accelerations stay his (only a slow part grows or shrinks), the spread follows the gain
+        self._dial(ids, q, self.idle_mean, self.slow_dev, _smoothing_rate(dt, cfg.intensity_smooth_s), g)
         return q, gain
 
     def _restart_history(self, ids: np.ndarray) -> None:
         """The blend's history (last outputs, smoothed deviation) of restarted streams: their pose now, at rest."""
         q = inz.qmul(inz.qexp(self.off_x[ids]), self.row_quaternions[self.row[ids]])
         self.prev_q[ids] = q[:, None]
-        self.slow_dev[ids] = self._deviation(q)
+        self.slow_dev[ids] = 0.0  # then the deviation itself (the dial's first step with gain 1: q unchanged)
+        self._dial(ids, np.ascontiguousarray(q), self.idle_mean, self.slow_dev, 1.0, np.ones(len(ids)))
         if self.idle_layer is not None:
             self.idle_layer.restart(ids, q)
-
-    def _limit(self, ids: np.ndarray, q: np.ndarray) -> np.ndarray:
-        """Keep the blended pose's whole-body angular acceleration (against the last two outputs) below his
-        ``accel_cap_percentile``: a larger step is shortened and the offset takes up the difference, so the
-        played clip continues from the limited pose (a seam never pops)."""
-        p1, p2 = self.prev_q[ids, 1], self.prev_q[ids, 0]
-        if self.config.accel_cap_percentile > 0:
-            q, over = inz.limit_acceleration(q, p1, p2, self.acc_cap, self.fps)
-            if over.any():
-                k = np.flatnonzero(over)
-                self.off_x[ids[k]] = inz.qlog(
-                    inz.qabs(inz.qmul(q[k], inz.qconj(self.row_quaternions[self.row[ids[k]]])))
-                )
-        self.prev_q[ids, 0], self.prev_q[ids, 1] = p1, q
-        return q
-
-    def _deviation(self, q: np.ndarray) -> np.ndarray:
-        """Rotation vectors (B, 47, 3) of ``q`` (B, 47, 4) about the style's idle mean: log(m⁻¹ q)."""
-        return inz.qlog(inz.qabs(inz.qmul(self.idle_mean_inv[None], q)))
 
     def warmup(self, slots: Sequence[int], audio, face, head, pose) -> None:
         """Push one frame whose pose is known per stream: the cues and predictor see its inputs, and

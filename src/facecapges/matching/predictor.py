@@ -23,12 +23,14 @@ head into it, as the thesis trainer does).
 **Speaking labels** (:func:`speaking_frames`): the engine's energy VAD with hangover
 (:mod:`facecapges.matching.speech`, the one the database annotates with) over the take's own audio.
 
-**Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs in NumPy (:class:`SpeechKernel`:
-the weights read from the style file, the TCNs as shift registers, so a frame costs one tap per TCN layer;
-the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` and ``serve`` load neither
-torch nor Numba (~155 MB of libraries, docs/performance.md). Its outputs equal the torch network's over the
-whole sequence to float32 rounding (``test_matching_predictor``). The network itself (a torch module,
-:class:`~facecapges.matching.predictor_training.SpeechReader`) lives with its training in
+**Streaming** (:class:`BatchedPredictor`, :class:`PredictorStream`) runs without torch (:class:`SpeechKernel`:
+the weights read from the style file; the TCNs as shift registers, all layers of every stream in one call of the
+streaming kernel's compiled :func:`~facecapges.network.native.tcn_taps`; each run of linear layers in one call of
+:func:`~facecapges.matching.kernels.dense_chain`; the Mel features of :mod:`facecapges.network.mel`): a matching style's ``live`` and ``serve``
+do not load torch (~85 MB of libraries) but do load Numba (~70 MB), whose machine code ``make setup`` caches and
+:func:`~facecapges.matching.kernels.warm` loads when a kernel is built (docs/performance.md, "Engine step, third pass"). Its outputs equal the
+torch network's over the whole sequence to float32 rounding (``test_matching_predictor``). The network itself (a
+torch module, :class:`~facecapges.matching.predictor_training.SpeechReader`) lives with its training in
 :mod:`facecapges.matching.predictor_training`, with :func:`~facecapges.matching.predictor_training.predict`
 (whole recordings: the figures), so this module never imports it.
 
@@ -37,6 +39,7 @@ How the sizes were chosen, and the validation and held-out figures: docs/matchin
 
 from __future__ import annotations
 
+import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
@@ -148,8 +151,9 @@ def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
     return out
 
 
-# --------------------------------------------------------------------------- the NumPy kernel
-_LEAK = np.float32(0.2)
+# --------------------------------------------------------------------------- the kernel
+_LEAK = np.float32(0.2)  # (the compiled dense_chain's: matching.kernels)
+_ACTIVATION = {"": 0, "leaky": 1, "relu": 2}
 
 
 def _leaky(y: np.ndarray) -> np.ndarray:
@@ -157,79 +161,78 @@ def _leaky(y: np.ndarray) -> np.ndarray:
     return np.maximum(y, _LEAK * y)
 
 
-class _Affine:
-    """A Linear (optionally over a standardised input, folded in as ``affine_chain`` does:
-    ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``) as one product on weights transposed once."""
+class _Chain:
+    """Linear layers in a row (optionally over a standardised input, folded in as ``affine_chain`` does:
+    ``W((x − m)·s) + b = (W·diag(s)) x + (b − W(m·s))``), their weights transposed once into one buffer, run
+    by :func:`facecapges.matching.kernels.dense_chain` in one call."""
 
-    def __init__(self, w: dict[str, np.ndarray], name: str):
-        W, b = w[f"{name}.weight"], w.get(f"{name}.bias")
-        b = np.zeros(W.shape[0], np.float32) if b is None else b
-        if f"{name}.in_mean" in w:
-            m, s = w[f"{name}.in_mean"], w[f"{name}.in_scale"]
-            b = b - W @ (m * s)
-            W = W * s
-        self.w_t = np.ascontiguousarray(W.T, np.float32)
-        self.b = np.ascontiguousarray(b, np.float32)
+    def __init__(self, w: dict[str, np.ndarray], layers: Sequence[tuple[str, str]]):
+        parts, table, at = [], [], 0
+        for name, act in layers:
+            W, b = w[f"{name}.weight"], w.get(f"{name}.bias")
+            b = np.zeros(W.shape[0], np.float32) if b is None else b
+            if f"{name}.in_mean" in w:
+                m, s = w[f"{name}.in_mean"], w[f"{name}.in_scale"]
+                b = b - W @ (m * s)
+                W = W * s
+            w_t = np.ascontiguousarray(W.T, np.float32)
+            parts += [w_t.reshape(-1), np.asarray(b, np.float32)]
+            table.append((at, at + w_t.size, w_t.shape[0], w_t.shape[1], _ACTIVATION[act]))
+            at += w_t.size + len(b)
+        self.buf = np.ascontiguousarray(np.concatenate(parts), np.float32)
+        self.table = np.array(table, np.int64)
+        self.n_out = int(self.table[-1, 3])
+        from facecapges.matching import kernels  # Numba: loaded when a kernel is built, not with this module
 
-    def __call__(self, x: np.ndarray) -> np.ndarray:
-        y = np.dot(x, self.w_t)
-        y += self.b
-        return y
+        self._run = kernels.dense_chain
+
+    def __call__(self, x: np.ndarray, out: np.ndarray | None = None, col: int = 0) -> np.ndarray:
+        """Rows ``x`` (B, n_in) float32 → (B, n_out), or into ``out``'s columns from ``col``."""
+        if out is None:
+            out = np.empty((len(x), self.n_out), np.float32)
+        self._run(np.ascontiguousarray(x, np.float32), self.buf, self.table, out, col)  # one compiled variant
+        return out
 
 
 class _Taps:
     """A CausalTCN one new frame at a time (the torch schedule of ``network.batched.TCNTaps``): layer i
-    reads its input d_i frames ago from a shift register ``reg`` (S, R, L, C), newest first."""
+    reads its input d_i frames ago from a shift register ``reg`` (S, R, L, C), newest first; the layers of
+    every stream in one call of :func:`facecapges.network.native.tcn_taps`."""
 
     def __init__(self, w: dict[str, np.ndarray], name: str, dilations: Sequence[int]):
         L = len(dilations)
         W = np.stack([w[f"{name}.layers.{i}.weight"] for i in range(L)])  # (L, C, 2C) = [past | now]
         C = W.shape[1]
         self.R, self.L, self.C = max(dilations), L, C
-        self.w_past = np.ascontiguousarray(W[:, :, :C].transpose(0, 2, 1))  # (L, C, C), acting on the right
-        self.w_now = [np.ascontiguousarray(W[i, :, C:].T) for i in range(L)]
-        self.b = np.stack([w[f"{name}.layers.{i}.bias"] for i in range(L)])[:, None]  # (L, 1, C)
-        self.rows = np.array([d - 1 for d in dilations], np.intp)
-        self.layers = np.arange(L)
+        self.w_past = np.ascontiguousarray(W[:, :, :C].transpose(0, 2, 1), np.float32)  # (L, C, C), on the right
+        self.w_now = np.ascontiguousarray(W[:, :, C:].transpose(0, 2, 1), np.float32)
+        self.b = np.ascontiguousarray(np.stack([w[f"{name}.layers.{i}.bias"] for i in range(L)]), np.float32)
+        self.rows = np.array([d - 1 for d in dilations], np.int64)
+        self.no_extra = np.zeros((0, C), np.float32)
+        from facecapges.network import native  # Numba: loaded when a kernel is built, not with this module
+
+        self._taps = native.tcn_taps
 
     def register(self, capacity: int) -> np.ndarray:
         return np.zeros((capacity, self.R, self.L, self.C), np.float32)
 
     def step(self, reg: np.ndarray, idx: np.ndarray, x: np.ndarray, extra: np.ndarray | None = None) -> np.ndarray:
         """New frames (B, C) of the streams in slots ``idx`` → the TCN's skip sum (B, C); shifts ``reg``."""
-        # (B, R, L, C); one stream: its rows of the register themselves (a view, shifted in place), not a copy
-        one = len(idx) == 1
-        held = reg[int(idx[0]) : int(idx[0]) + 1] if one else reg[idx]
-        pre = np.matmul(held[:, self.rows, self.layers].transpose(1, 0, 2), self.w_past)  # (L, B, C)
-        pre += self.b
-        held[:, 1:] = held[:, :-1]  # shifted by one frame; row 0 receives this frame's layer inputs below
-        now = held[:, 0]  # (B, L, C): layer i's input is written there, and read back as the next product's
-        now[:, 0] = x
-        last, x_out = self.L - 1, x
-        y, act = np.empty((2, len(held), self.C), np.float32)  # every layer's product and activation, in place
-        for i, w_now in enumerate(self.w_now):
-            xi = now[:, i]
-            np.dot(xi, w_now, out=y)
-            y += pre[i]
-            if extra is not None and i == last:
-                y += extra
-            # residual (leaky_relu 0.2: _leaky) into the next layer's input; the last: x_L − x0 is the skip sum
-            np.maximum(y, np.multiply(y, _LEAK, out=act), out=act)
-            if i < last:
-                np.add(xi, act, out=now[:, i + 1])
-            else:
-                x_out = xi + act
-        if not one:
-            reg[idx] = held
-        return x_out - x
+        skip = np.empty_like(x)
+        extra = self.no_extra if extra is None else extra
+        self._taps(reg, idx, np.ascontiguousarray(x), self.w_past, self.w_now, self.b, self.rows, extra, skip)
+        return skip
 
 
 class SpeechKernel:
-    """The speech reader's inference in NumPy (module docs): per frame of B streams, audio (B, S), face (B, 52),
+    """The speech reader's inference (module docs): per frame of B streams, audio (B, S), face (B, 52),
     camera-frame head (B, 6) → the network's raw outputs (B, K + 1); the TCN registers are the caller's."""
 
     def __init__(self, cfg: ModelConfig, hidden: int, w: dict[str, np.ndarray]):
         self.cfg = cfg
+        from facecapges.matching import kernels
+
+        kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
         if cfg.audio_repr == "raw":
             self.mel = None
             p = "audio_enc.frontend"
@@ -240,15 +243,16 @@ class SpeechKernel:
             from facecapges.network.mel import MelFeatures
 
             self.mel = MelFeatures(cfg.sr, cfg.samples_per_frame)
-            self.proj, self.front_out = _Affine(w, "audio_enc.frontend.proj"), _Affine(w, "audio_enc.frontend.out")
+            self.front = _Chain(w, (("audio_enc.frontend.proj", "leaky"), ("audio_enc.frontend.out", "")))
         self.audio_tcn = _Taps(w, "audio_enc.tcn", cfg.audio_tcn_dilations)
         self.face_tcn = _Taps(w, "face_enc.tcn", cfg.face_tcn_dilations)
-        self.audio_mlp = (_Affine(w, "audio_enc.mlp.0"), _Affine(w, "audio_enc.mlp.2"))
-        self.face_inp = _Affine(w, "face_enc.inp")
-        self.face_extra = _Affine(w, "face_enc.tcn.extra")
-        self.face_mlp = (_Affine(w, "face_enc.mlp.0"), _Affine(w, "face_enc.mlp.2"))
-        self.head = (_Affine(w, "head_enc.fc1"), _Affine(w, "head_enc.fc2")) if cfg.head_dim else None
-        self.out = (_Affine(w, "out.0"), _Affine(w, "out.2"), _Affine(w, "out.4"))
+        self.audio_mlp = _Chain(w, (("audio_enc.mlp.0", "leaky"), ("audio_enc.mlp.2", "")))
+        self.face_inp = _Chain(w, (("face_enc.inp", ""),))
+        self.face_extra = _Chain(w, (("face_enc.tcn.extra", ""),))
+        self.face_mlp = _Chain(w, (("face_enc.mlp.0", "leaky"), ("face_enc.mlp.2", "")))
+        self.head = _Chain(w, (("head_enc.fc1", "relu"), ("head_enc.fc2", ""))) if cfg.head_dim else None
+        self.out = _Chain(w, (("out.0", "leaky"), ("out.2", "leaky"), ("out.4", "")))
+        self.width = cfg.audio_dim + cfg.face_dim + cfg.head_dim
 
     def _raw_frontend(self, a: np.ndarray) -> np.ndarray:
         """``AudioFrontend``: strided convolutions over each frame's samples (B, S) → (B, C)."""
@@ -262,18 +266,15 @@ class SpeechKernel:
 
     def step(self, regs: tuple[np.ndarray, np.ndarray], idx: np.ndarray, a: np.ndarray, f: np.ndarray, h: np.ndarray):
         """One frame of the streams in slots ``idx`` (registers ``regs`` = audio, face) → raw outputs (B, K + 1)."""
-        if self.mel is not None:
-            feat = self.front_out(_leaky(self.proj(self.mel(a))))
-        else:
-            feat = self._raw_frontend(a)
-        z_a = self.audio_mlp[1](_leaky(self.audio_mlp[0](self.audio_tcn.step(regs[0], idx, feat))))
-        skip = self.face_tcn.step(regs[1], idx, self.face_inp(f), self.face_extra(z_a))
-        z_f = self.face_mlp[1](_leaky(self.face_mlp[0](skip)))
-        parts = [z_a, z_f]
+        idx = np.asarray(idx, np.int64)
+        feat = self.front(self.mel(a)) if self.mel is not None else self._raw_frontend(a)
+        z = np.empty((len(idx), self.width), np.float32)  # [z_A; z_F; z_H]
+        z_a = self.audio_mlp(self.audio_tcn.step(regs[0], idx, feat), z, 0)[:, : self.audio_mlp.n_out]
+        extra = self.face_extra(np.ascontiguousarray(z_a))
+        self.face_mlp(self.face_tcn.step(regs[1], idx, self.face_inp(f), extra), z, self.audio_mlp.n_out)
         if self.head is not None:
-            parts.append(self.head[1](np.maximum(self.head[0](h), np.float32(0.0))))
-        z = np.concatenate(parts, -1)
-        return self.out[2](_leaky(self.out[1](_leaky(self.out[0](z)))))
+            self.head(h, z, self.audio_mlp.n_out + self.face_mlp.n_out)
+        return self.out(z)
 
 
 # --------------------------------------------------------------------------- data
@@ -308,7 +309,12 @@ class Predictor:
         self.config = config
         self.mean = np.asarray(config["target_mean"], np.float32)
         self.sd = np.asarray(config["target_sd"], np.float32)
-        self.kernel = SpeechKernel(self.cfg, self.hidden, w)
+
+    @functools.cached_property
+    def kernel(self) -> SpeechKernel:
+        """The inference kernel, built on first use (what only loads a style — ``serve``'s server process — never
+        loads its compiled loops)."""
+        return SpeechKernel(self.cfg, self.hidden, self.weights)
 
     def state_dict(self) -> dict[str, np.ndarray]:
         return {k: v.copy() for k, v in self.weights.items()}

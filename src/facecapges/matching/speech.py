@@ -41,6 +41,7 @@ Per frame and stream:
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -85,6 +86,10 @@ _FREQS = np.fft.rfftfreq(N_FFT, 1.0 / timing.AUDIO_SR)
 _VOICE_BAND = (_FREQS >= 100.0) & (_FREQS < 4000.0)
 _VOICE_BINS = slice(int(np.argmax(_VOICE_BAND)), len(_VOICE_BAND) - int(np.argmax(_VOICE_BAND[::-1])))  # as a slice
 _LAGS = slice(timing.AUDIO_SR // 400, timing.AUDIO_SR // 70 + 1)  # pitch 400 … 70 Hz
+_LAGS_0, _LAGS_1, _VOICE_0, _VOICE_1 = _LAGS.start, _LAGS.stop, _VOICE_BINS.start, _VOICE_BINS.stop
+_BAND_OF = np.where(_BANDS.any(1), np.argmax(_BANDS, 1), -1)  # each bin's band (-1: none; the bands do not overlap)
+_BAND_WEIGHT = _BANDS.max(1)  # and its weight there
+_LN2 = math.log(2.0)
 
 
 @dataclass
@@ -103,6 +108,10 @@ class SpeechTracker:
     """Causal speaking/onset/loudness state of ``capacity`` streams (module docs)."""
 
     def __init__(self, capacity: int = 1):
+        from facecapges.matching import kernels  # Numba: loaded when a tracker is built, not with this module
+        from facecapges.network import native
+
+        self._track, self._power = kernels.track, native.power_spectrum
         self.capacity = 0
         self._alloc(capacity)
 
@@ -127,6 +136,19 @@ class SpeechTracker:
         self.run = grow("run", (), 0, np.int64)
         self.since_voice = grow("since_voice", (), SINCE_VOICE_CAP, np.int64)
         self.capacity = capacity
+        self.state = (  # what the compiled frame (track) reads and updates, in its order
+            self.floor,
+            self.hang,
+            self.prev_bands,
+            self.flux_hist,
+            self.since,
+            self.energy,
+            self.count,
+            self.talk_level,
+            self.tonal,
+            self.run,
+            self.since_voice,
+        )
 
     def ensure(self, capacity: int) -> None:
         if capacity > self.capacity:
@@ -141,74 +163,41 @@ class SpeechTracker:
 
     def step(self, idx: np.ndarray, audio: np.ndarray) -> SpeechFrame:
         """One frame of streams ``idx`` (B,) from their samples (B, ≤1067) → :class:`SpeechFrame`."""
-        # (means are written as ``add.reduce / count``: what ``ndarray.mean`` and ``np.nansum`` compute, the
-        # same bits without their Python-level cost — most of a one-stream step's)
-        a = np.asarray(audio, np.float32).reshape(len(idx), -1)
-        if a.shape[1]:
-            rms = np.sqrt(np.add.reduce(np.square(a, dtype=np.float64), axis=1) / a.shape[1] + 1e-20)
-        else:
-            rms = np.zeros(len(idx))
-        level = np.maximum(20.0 * np.log10(rms + 1e-12), -100.0).astype(np.float32)
-        first = self.count[idx] == 0
-        floor = np.where(first, level, np.minimum(level, self.floor[idx] + FLOOR_RISE_DB))
-        loud = level > np.maximum(SILENCE_DB, floor + VAD_MARGIN_DB)
-        bands, voicing, flat, top = self._spectrum(a)
-        tonal = np.concatenate([self.tonal[idx][:, 1:], top[:, None]], axis=1)
-        voice_like = loud & ((voicing >= VOICING) | (flat < FLAT_MAX))
-        voice_like &= np.add.reduce(tonal, axis=1) / TONAL_FRAMES < TONAL_SHARE
-        talk = np.maximum(self.talk_level[idx] - LEVEL_DECAY_DB, np.where(voice_like, level, -100.0))
-        like = voice_like & (level > talk - NEAR_DB)
-        run = np.where(like, self.run[idx] + 1, 0)
-        hang = np.where(run >= OPEN_FRAMES, HANGOVER, np.maximum(self.hang[idx] - 1, 0))
-        speaking = (run >= OPEN_FRAMES) | (hang > 0)
-        prev = self.prev_bands[idx]
-        rise = np.maximum(bands - prev, 0.0)
-        flux = np.where(np.isnan(prev[:, 0]), 0.0, np.add.reduce(rise, axis=1) / rise.shape[1])
-        hist = self.flux_hist[idx]
-        valid = ~np.isnan(hist)
-        n = np.add.reduce(valid, axis=1, dtype=np.int64)  # valid.sum(axis=1)
-        some, count = n > 0, np.maximum(n, 1)
-        if valid.all():  # a full history (every stream past its first FLUX_HISTORY frames): no NaN to leave out
-            mean = np.add.reduce(hist, axis=1) / count
-            dev = (hist - mean[:, None]) ** 2
-            var = np.add.reduce(dev, axis=1) / count if not np.isnan(dev).any() else None
-        else:
-            mean = np.where(some, np.add.reduce(np.where(valid, hist, 0.0), axis=1) / count, 0.0)
-            dev = np.where(valid, (hist - mean[:, None]) ** 2, 0.0)
-            var = None
-        if var is None:
-            var = np.where(some, np.add.reduce(np.where(np.isnan(dev), 0.0, dev), axis=1) / count, 0.0)
-        since = np.minimum(self.since[idx] + 1, SINCE_CAP)
-        onset = speaking & (flux > np.maximum(mean + ONSET_K * np.sqrt(var), MIN_FLUX)) & (since >= REFRACTORY)
-        since = np.where(onset, 0, since)
-        energy = np.where(first, level, self.energy[idx] + ENERGY_ALPHA * (level - self.energy[idx]))
-        self.floor[idx], self.hang[idx], self.prev_bands[idx] = floor, hang, bands
-        self.talk_level[idx], self.tonal[idx], self.run[idx] = talk, tonal, run
-        self.flux_hist[idx] = np.concatenate([hist[:, 1:], flux[:, None]], axis=1)
-        self.since[idx], self.energy[idx], self.count[idx] = since, energy, self.count[idx] + 1
-        voice = np.where(like, 0, np.minimum(self.since_voice[idx] + 1, SINCE_VOICE_CAP))
-        self.since_voice[idx] = voice
-        return SpeechFrame(level, speaking, onset, since, energy.astype(np.float32), voice)
-
-    @staticmethod
-    def _spectrum(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Per stream: log band powers (B, N_BANDS), voicing, flatness and top-bin share (module docs)."""
+        a = np.ascontiguousarray(np.asarray(audio, np.float32).reshape(len(idx), -1))
+        B = len(a)
         if a.shape[1] >= N_FFT:  # the frame's last N_FFT samples
             x = a[:, a.shape[1] - N_FFT :]
         else:  # zeros before a short frame's samples
-            x = np.zeros((len(a), N_FFT), np.float32)
+            x = np.zeros((B, N_FFT), np.float32)
             if a.shape[1]:
                 x[:, N_FFT - a.shape[1] :] = a
-        spec = (np.abs(np.fft.rfft(x * _WINDOW, axis=1)) ** 2).astype(np.float32, copy=False)
-        bands = np.log(spec @ _BANDS + 1e-10)
-        ac = np.fft.irfft(spec, axis=1)  # the windowed frame's autocorrelation
-        voicing = np.maximum.reduce(ac[:, _LAGS], axis=1) / np.maximum(ac[:, 0], 1e-20)  # (ndarray.max's reduction)
-        w = spec[:, _VOICE_BINS].astype(np.float64) + 1e-12
-        total = np.add.reduce(w, axis=1)  # (w.mean is total / count, w.sum is total)
-        flat = np.exp(np.add.reduce(np.log(w), axis=1) / w.shape[1]) / (total / w.shape[1])
-        # the top bins in ascending order (as a full sort leaves them: the same sum), without sorting the rest
-        top = np.sort(np.partition(w, -TONAL_BINS, axis=1)[:, -TONAL_BINS:], axis=1)
-        return bands, voicing, flat, np.add.reduce(top, axis=1) / total
+        spec = np.fft.rfft(x * _WINDOW, axis=1)  # (B, 513) complex64
+        power = np.empty((B, spec.shape[1]), np.float32)
+        self._power(spec.view(np.float32).reshape(B, spec.shape[1], 2), power)
+        ac = np.fft.irfft(power, axis=1)  # the windowed frame's autocorrelation
+        out = SpeechFrame(
+            np.empty(B, np.float32),
+            np.empty(B, np.bool_),
+            np.empty(B, np.bool_),
+            np.empty(B, np.int64),
+            np.empty(B, np.float32),
+            np.empty(B, np.int64),
+        )
+        o = out
+        self._track(
+            np.asarray(idx, np.int64),
+            a,
+            power,
+            ac,
+            self.state,
+            o.level,
+            o.speaking,
+            o.onset,
+            o.since_onset,
+            o.energy,
+            o.since_voice,
+        )
+        return out
 
 
 def speech_track(audio: np.ndarray, n_frames: int) -> SpeechFrame:

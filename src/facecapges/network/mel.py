@@ -2,11 +2,13 @@
 :func:`mel_features`, the same 43 numbers as :class:`facecapges.network.audio_features.AudioFeatures`
 (whose module docs define them) computed in NumPy.
 
-Why a second schedule of the same computation: the motion-matching engine's speech predictor runs in
-NumPy at ``live`` time (:mod:`facecapges.matching.predictor`), so a matching style never loads torch
-(~85 MB of libraries) nor Numba/llvmlite (~70 MB) for one 1067-sample frame a step. In float32 as the
-torch module (the energy's and the mean's sums in float64); the values equal the torch
-module's to float32 rounding (``test_matching_predictor``).
+Why a second schedule of the same computation: the motion-matching engine's speech predictor runs without torch
+at ``live`` time (:mod:`facecapges.matching.predictor`), so a matching style never loads torch (~85 MB of
+libraries) for one 1067-sample frame a step. The FFTs are NumPy's (SciPy's for batches); everything between them
+is the streaming kernel's compiled loops (:func:`~facecapges.network.native.mel_energy`,
+:func:`~facecapges.network.native.power_spectrum`, :func:`~facecapges.network.native.pitch`: what
+:meth:`~facecapges.network.audio_features.AudioFeatures.forward_native` runs between torch's FFTs), the sums in
+float64; the values equal the torch module's to float32 rounding (``test_matching_predictor``).
 """
 
 from __future__ import annotations
@@ -77,9 +79,10 @@ class MelFeatures:
     """(B, S) frames of samples → (B, 43) log-Mel, energy, log-F0, voicing, in NumPy (module docs).
 
     The FFTs: NumPy's for small batches (``live``: one stream; SciPy's FFT module is not loaded), SciPy's
-    above :attr:`SCIPY_MIN_BATCH` streams (``serve``): the same pocketfft algorithm, vectorised across the
+    from :attr:`SCIPY_MIN_BATCH` streams (``serve``): the same pocketfft algorithm, vectorised across the
     batch — at 256 streams NumPy's took 7.2 + 2.0 ms a frame for the windows' and the autocorrelation's
-    transforms, SciPy's 1.8 + 0.8 (torch's 1.7 + 0.8; one thread, same run).
+    transforms, SciPy's 1.8 + 0.8 (torch's 1.7 + 0.8; one thread, same run). Between them, for every batch,
+    the compiled loops of :mod:`facecapges.network.native` (module docs).
     """
 
     SCIPY_MIN_BATCH = 16
@@ -87,7 +90,10 @@ class MelFeatures:
     def __init__(self, sr: int, samples_per_frame: int):
         if samples_per_frame < N_FFT:
             raise ValueError(f"a frame of {samples_per_frame} samples is shorter than the {N_FFT}-sample FFT")
-        self.mel_t = np.ascontiguousarray(mel_basis(sr).astype(np.float32).T)  # (257, 40)
+        from facecapges.network import native  # Numba: loaded when features are made, not with this module
+
+        self._mel_energy, self._power, self._pitch = native.mel_energy, native.power_spectrum, native.pitch
+        self.mel_t64 = np.ascontiguousarray(mel_basis(sr).astype(np.float32).T, np.float64)  # (257, 40)
         n = np.arange(N_FFT)
         # torch.hann_window(N_FFT, periodic=True), in float32 as the torch module holds it
         self.window = (0.5 - 0.5 * np.cos(2.0 * np.pi * n / N_FFT)).astype(np.float32)
@@ -106,39 +112,17 @@ class MelFeatures:
         if n != self.n:
             raise ValueError(f"frames of {n} samples, expected {self.n}")
         out = np.empty((B, FEATURE_DIM), np.float32)
-        batch = B >= self.SCIPY_MIN_BATCH
-        fft = np.fft
-        if batch:
-            fft = _scipy_fft()
+        fft = _scipy_fft() if B >= self.SCIPY_MIN_BATCH else np.fft
         W = len(self.windows)
         # torch's unfold(-1, N_FFT, HOP): a view, no copy (an ndarray over x's buffer: as_strided's result
         # without its Python-level cost)
         frames = np.ndarray((B, W, N_FFT), np.float32, buffer=x, strides=(4 * n, 4 * HOP, 4))
         spec = fft.rfft(frames * self.window)  # (B, 5, 257) complex64
-        re_im = spec.view(np.float32).reshape(B, W, spec.shape[2], 2)
-        if batch:  # einsum's sums below written out (the same order: re² + im² per window, windows left to right)
-            sq = re_im * re_im
-            per_window = sq[..., 0] + sq[..., 1]
-            power = per_window[:, 0] + per_window[:, 1]
-            for w in range(2, W):
-                power += per_window[:, w]
-        else:  # one call: fewer for one stream
-            power = np.einsum("bwfc,bwfc->bf", re_im, re_im)
-        power *= np.float32(1.0 / W)  # |X|² over the windows
-        np.log10(np.maximum(np.dot(power, self.mel_t), np.float32(1e-10)), out=out[:, :N_MELS])
-        out[:, :N_MELS] *= 10.0
-        out[:, N_MELS] = 10.0 * np.log10(np.einsum("bs,bs->b", x, x, dtype=np.float64) / n + 1e-10)
-        f = fft.rfft(x - (np.add.reduce(x, 1, dtype=np.float64) / n).astype(np.float32)[:, None], n=self.n_ac)
-        f2 = f.view(np.float32).reshape(B, f.shape[1], 2)
-        if batch:
-            sq2 = f2 * f2
-            ac_power = sq2[..., 0] + sq2[..., 1]
-        else:
-            ac_power = np.einsum("bfc,bfc->bf", f2, f2)
-        ac = fft.irfft(ac_power, n=self.n_ac)[:, : self.lag_max + 1]
-        norm = ac[:, self.lag_min :] / np.maximum(ac[:, :1], np.float32(1e-8))
-        idx = norm.argmax(-1)
-        voicing = np.minimum(np.maximum(norm[np.arange(B), idx], 0.0), 1.0)
-        out[:, N_MELS + 1] = np.where(voicing >= VOICED_MIN, self.log_f0_of_lag[idx], 0.0)
-        out[:, N_MELS + 2] = voicing
+        x0 = np.empty((B, self.n_ac), np.float32)
+        self._mel_energy(spec.view(np.float32).reshape(B, W, spec.shape[2], 2), x, self.mel_t64, out, x0)
+        f = fft.rfft(x0)
+        power = np.empty((B, f.shape[1]), np.float32)
+        self._power(f.view(np.float32).reshape(B, f.shape[1], 2), power)
+        ac = fft.irfft(power, n=self.n_ac)
+        self._pitch(ac, self.lag_min, self.lag_max, self.log_f0_of_lag, np.float32(VOICED_MIN), out)
         return out

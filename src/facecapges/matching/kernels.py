@@ -1,0 +1,365 @@
+"""The matching engine's compiled loops (Numba): every batch size runs them, one stream (``live``) and a served
+batch (``serve``) alike (docs/performance.md, "Engine step, third pass").
+
+* :func:`dense_chain` — the speech predictor's runs of linear layers (:mod:`facecapges.matching.predictor`; its
+  TCNs are the streaming kernel's :func:`facecapges.network.native.tcn_taps`, its Mel features'
+  loops :mod:`facecapges.network.native`'s);
+* :func:`step_offsets` — inertialization's frame (decay, ``exp(x) · base``, the acceleration cap) for the matcher's
+  blend and the idle layer (:mod:`facecapges.matching.inertialize`, :mod:`facecapges.matching.idle`);
+* :func:`dial` — the matcher's intensity dial (:mod:`facecapges.matching.matcher`, step 6);
+* :func:`track` — the speech tracker's frame after its FFTs (:mod:`facecapges.matching.speech`).
+
+Each is one call for all the streams of a step instead of tens of NumPy calls on arrays of one stream. In the
+dtypes of the NumPy formulas they replace; libm's exp, log, sin, cos and atan2 (NumPy has its own SIMD ones) and
+sums in another order, so values agree to about one ulp, not bit for bit. Imported when an engine is built, not
+with the modules that use it (``serve``'s server process and a command's error path never load Numba); the machine
+code is cached beside this file (``cache=True``), filled by ``make setup`` (``scripts/warm-numba-caches.py``) and
+loaded by :func:`warm` when an engine is built, never on a stream's first frame.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+
+from facecapges.matching.inertialize import LN2
+from facecapges.matching.speech import (
+    _BAND_OF,
+    _BAND_WEIGHT,
+    _LAGS_0,
+    _LAGS_1,
+    _LN2,
+    _VOICE_0,
+    _VOICE_1,
+    ENERGY_ALPHA,
+    FLAT_MAX,
+    FLOOR_RISE_DB,
+    HANGOVER,
+    LEVEL_DECAY_DB,
+    MIN_FLUX,
+    N_BANDS,
+    NEAR_DB,
+    ONSET_K,
+    OPEN_FRAMES,
+    REFRACTORY,
+    SILENCE_DB,
+    SINCE_CAP,
+    SINCE_VOICE_CAP,
+    TONAL_BINS,
+    TONAL_FRAMES,
+    TONAL_SHARE,
+    VAD_MARGIN_DB,
+    VOICING,
+)
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_LEAK = np.float32(0.2)  # the predictor's leaky-ReLU slope
+
+
+@_jit
+def dense_chain(x: np.ndarray, buf: np.ndarray, table: np.ndarray, out: np.ndarray, col: int) -> None:
+    """Linear layers in a row over the rows of ``x`` (B, n_in) → ``out[:, col : col + n_out]``.
+
+    Layer ``l`` is ``table[l]`` = (offset of its weights (n_in, n_out) in ``buf``, offset of its bias, n_in,
+    n_out, activation: 0 none, 1 leaky ReLU 0.2, 2 ReLU), applied to every row before the next layer; each
+    output is the sum over the inputs in their order, then the bias (float32, as ``x @ W + b``: the values
+    equal NumPy's to float32 rounding, not bit for bit: BLAS sums in another order)."""
+    B, width = x.shape[0], x.shape[1]
+    for n_out in table[:, 3]:
+        width = max(width, n_out)
+    cur, nxt = np.empty((B, width), np.float32), np.empty((B, width), np.float32)
+    n = x.shape[1]
+    cur[:, :n] = x
+    for layer in range(table.shape[0]):
+        w_at, b_at, n_in, n = table[layer, 0], table[layer, 1], table[layer, 2], table[layer, 3]
+        W, bias, act = buf[w_at : w_at + n_in * n].reshape((n_in, n)), buf[b_at : b_at + n], table[layer, 4]
+        for b in range(B):
+            acc, src = nxt[b, :n], cur[b]
+            acc[:] = 0.0
+            for i in range(n_in):
+                xi, w_i = src[i], W[i]
+                for o in range(n):
+                    acc[o] += xi * w_i[o]
+            for o in range(n):
+                v = acc[o] + bias[o]
+                if v < 0 and act == 1:
+                    v = _LEAK * v
+                elif v < 0 and act == 2:
+                    v = np.float32(0.0)
+                acc[o] = v
+        cur, nxt = nxt, cur
+    out[:, col : col + n] = cur[:, :n]
+
+
+@_jit
+def _qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a · b`` of one pair of quaternions (4,): :func:`facecapges.rotations.quaternion_multiply`'s sums."""
+    aw, ax, ay, az, bw, bx, by, bz = a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]
+    out[0] = aw * bw - ax * bx - ay * by - az * bz
+    out[1] = aw * bx + ax * bw + ay * bz - az * by
+    out[2] = aw * by - ax * bz + ay * bw + az * bx
+    out[3] = aw * bz + ax * by - ay * bx + az * bw
+
+
+@_jit
+def _qmul_conj(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a · b⁻¹`` of unit quaternions (4,) (b's conjugate, then :func:`_qmul`)."""
+    c = np.empty(4)
+    c[0], c[1], c[2], c[3] = b[0], -b[1], -b[2], -b[3]
+    _qmul(a, c, out)
+
+
+@_jit
+def _qlog_abs(q: np.ndarray, out: np.ndarray) -> None:
+    """``out ← log(q)`` (3,) of ``q`` (4,) written with w ≥ 0: ``qlog(qabs(q))`` (:mod:`facecapges.rotations`)."""
+    sign = -1.0 if q[0] < 0 else 1.0
+    w, x, y, z = sign * q[0], sign * q[1], sign * q[2], sign * q[3]
+    s = np.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * np.arctan2(s, w)
+    k = angle / max(s, 1e-12)
+    if not s > 1e-9:
+        k = 2.0 / (w if abs(w) > 1e-12 else 1.0)
+    out[0], out[1], out[2] = x * k, y * k, z * k
+
+
+@_jit
+def _qexp(r: np.ndarray, out: np.ndarray) -> None:
+    """``out ← exp(r)`` (4,) of a rotation vector (3,) (:func:`facecapges.rotations.quaternion_exp`)."""
+    angle = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    half = 0.5 * angle
+    k = np.sin(half) / max(angle, 1e-12)
+    if not angle > 1e-9:
+        k = 0.5 - angle**2 / 48.0
+    out[0], out[1], out[2], out[3] = np.cos(half), r[0] * k, r[1] * k, r[2] * k
+
+
+@_jit
+def step_offsets(
+    slots: np.ndarray,
+    x: np.ndarray,
+    v: np.ndarray,
+    halflife: np.ndarray,
+    base: np.ndarray,
+    prev: np.ndarray,
+    cap: float,
+    fps: float,
+    shift: bool,
+    out: np.ndarray,
+) -> None:
+    """One frame of inertialized streams: the shown poses ``out`` (n, J, 4) = exp(x) · ``base`` (n, J, 4) after the
+    offsets ``x`` and velocities ``v`` (S, J, 3) of ``slots`` (n,) decay one frame (:func:`decay_spring`, half-life
+    ``halflife[slot]``); then, unless ``cap`` < 0 (no cap), the whole-body angular acceleration against the last two poses shown
+    (``prev[slot, 1]``, the last, and ``prev[slot, 0]``; (S, 2, J, 4)) stays below ``cap`` (rad/s², root sum of
+    squares over the joints): a larger step is shortened along itself and the offset takes up the difference
+    (``x ← log(shown · base⁻¹)``: the clip continues from the limited pose). ``shift``: ``prev[slot]`` ← (its last,
+    the pose shown now). The matcher's blend and the idle layer's (:mod:`facecapges.matching.idle`) in one compiled
+    loop: libm's exp, sin, cos and atan2 where NumPy has its own, and the acceleration's sum in order, so the values
+    equal the NumPy formulas' to ~1 ulp, not bit for bit."""
+    dt = 1.0 / fps
+    J = x.shape[1]
+    pred, t, d, e = np.empty(4), np.empty(4), np.empty((J, 3)), np.empty(4)
+    for n in range(len(slots)):
+        s = slots[n]
+        y = 2.0 * LN2 / max(halflife[s], 1e-5)  # half the damping 4·ln2/h
+        decay = np.exp(-y * dt)
+        for j in range(J):
+            for c in range(3):
+                xj, vj = x[s, j, c], v[s, j, c]
+                j1 = vj + xj * y
+                x[s, j, c] = decay * (xj + j1 * dt)
+                v[s, j, c] = decay * (vj - j1 * y * dt)
+            _qexp(x[s, j], e)
+            _qmul(e, base[n, j], out[n, j])
+        if cap >= 0:
+            total = 0.0
+            for j in range(J):
+                _qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
+                _qmul(t, prev[s, 1, j], pred)  # constant angular velocity
+                _qmul_conj(out[n, j], pred, t)
+                _qlog_abs(t, d[j])  # acceleration · dt²
+                total += d[j, 0] * d[j, 0] + d[j, 1] * d[j, 1] + d[j, 2] * d[j, 2]
+            total = np.sqrt(total) * fps**2
+            if total > cap:
+                for j in range(J):
+                    for c in range(3):
+                        d[j, c] *= cap / total
+                    _qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
+                    _qmul(t, prev[s, 1, j], pred)
+                    _qexp(d[j], e)
+                    _qmul(e, pred, out[n, j])
+                    _qmul_conj(out[n, j], base[n, j], t)
+                    _qlog_abs(t, x[s, j])
+        if shift:
+            prev[s, 0] = prev[s, 1]
+            prev[s, 1] = out[n]
+
+
+@_jit
+def dial(slots: np.ndarray, q: np.ndarray, mean: np.ndarray, slow: np.ndarray, beta: float, gain: np.ndarray) -> None:
+    """The matcher's intensity dial on poses ``q`` (n, J, 4) of streams ``slots`` (n,), in place: each joint's
+    deviation ``d = log(m⁻¹ q)`` from the style's idle mean ``mean`` (J, 4), its smoothing ``slow`` (S, J, 3) ←
+    ``slow + beta · (d − slow)``, and where ``gain`` (n,) is not 1 (beyond 1e-9) ``q ← m · exp(d + (gain − 1) ·
+    slow)`` (:mod:`facecapges.matching.matcher`, step 6). ``beta`` = 1 with ``slow`` zero and ``gain`` 1 sets the
+    smoothing to the deviation itself (a stream's restart)."""
+    t, inv, d = np.empty(4), np.empty((mean.shape[0], 4)), np.empty(3)
+    for j in range(mean.shape[0]):
+        inv[j, 0], inv[j, 1], inv[j, 2], inv[j, 3] = mean[j, 0], -mean[j, 1], -mean[j, 2], -mean[j, 3]
+    for n in range(len(slots)):
+        s, g = slots[n], gain[n]
+        for j in range(mean.shape[0]):
+            _qmul(inv[j], q[n, j], t)
+            _qlog_abs(t, d)
+            for c in range(3):
+                slow[s, j, c] = slow[s, j, c] + beta * (d[c] - slow[s, j, c])
+            if abs(g - 1.0) > 1e-9:
+                for c in range(3):
+                    d[c] = d[c] + (g - 1.0) * slow[s, j, c]
+                _qexp(d, t)
+                _qmul(mean[j], t, q[n, j])
+
+
+@_jit
+def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
+    """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
+    (1024,); → voicing, flatness and the top bins' share (module docs)."""
+    bands[:] = 0.0
+    for k in range(power.shape[0]):  # each bin is in one band or none: spec @ _BANDS's sums without its zeros
+        if _BAND_OF[k] >= 0:
+            bands[_BAND_OF[k]] += power[k] * _BAND_WEIGHT[k]
+    for b in range(N_BANDS):
+        bands[b] = np.log(bands[b] + np.float32(1e-10))
+    peak = ac[_LAGS_0]
+    for k in range(_LAGS_0 + 1, _LAGS_1):
+        peak = max(peak, ac[k])
+    voicing = peak / max(ac[0], np.float32(1e-20))
+    total, mantissas, exponents = 0.0, 1.0, 0
+    top = np.zeros(TONAL_BINS)  # the largest bins, ascending (as a full sort leaves them)
+    for k in range(_VOICE_0, _VOICE_1):
+        v = float(power[k]) + 1e-12
+        total += v
+        m, e = math.frexp(v)  # the logs' sum as one log: of the mantissas' product (≥ 2^-249), plus the exponents
+        mantissas *= m
+        exponents += e
+        if v > top[0]:
+            i = 1
+            while i < TONAL_BINS and top[i] < v:
+                top[i - 1] = top[i]
+                i += 1
+            top[i - 1] = v
+    n = _VOICE_1 - _VOICE_0
+    flat = np.exp((np.log(mantissas) + exponents * _LN2) / n) / (total / n)
+    share = 0.0
+    for v in top:
+        share += v
+    return voicing, flat, share / total
+
+
+@_jit
+def _level(x: np.ndarray) -> np.float32:
+    """A frame's RMS level in dBFS (floor −100), float32, of its samples ``x`` (S,) (the sum in float64)."""
+    sq, lanes, S = 0.0, np.zeros(8), len(x)
+    for i in range(0, S - S % 8, 8):  # eight running sums (as NumPy's pairwise sum has): not one long chain
+        for j in range(8):
+            lanes[j] += float(x[i + j]) * float(x[i + j])
+    for i in range(S - S % 8, S):
+        sq += float(x[i]) * float(x[i])
+    sq += ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3])) + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+    rms = np.sqrt(sq / S + 1e-20) if S else 0.0
+    return np.float32(max(20.0 * np.log10(rms + 1e-12), -100.0))
+
+
+@_jit
+def _flux(bands: np.ndarray, prev: np.ndarray, hist: np.ndarray) -> tuple[Any, Any, Any]:
+    """The spectral flux of ``bands`` (N_BANDS,) against the last frame's ``prev`` (NaN: none, flux 0), and the mean
+    and variance of the flux history ``hist`` (FLUX_HISTORY,) over its entries that are not NaN (0, 0: none)."""
+    flux = np.float32(0.0)
+    if not np.isnan(prev[0]):
+        for b in range(N_BANDS):
+            flux += max(bands[b] - prev[b], np.float32(0.0))
+        flux /= np.float32(N_BANDS)
+    valid, total = 0, np.float32(0.0)
+    for v in hist:
+        if not np.isnan(v):
+            valid += 1
+            total += v
+    mean, var = 0.0, 0.0
+    if valid:
+        mean = total / valid
+        for v in hist:
+            if not np.isnan(v):
+                var += (v - mean) ** 2
+        var /= valid
+    return flux, mean, var
+
+
+@_jit
+def _shift_in(row: np.ndarray, value: Any) -> None:
+    """``row`` (k,) one place to the left, ``value`` last (a history)."""
+    for k in range(len(row) - 1):
+        row[k] = row[k + 1]
+    row[len(row) - 1] = value
+
+
+@_jit
+def track(idx, a, power, ac, state, level, speaking, onset, since_onset, energy, since_voice) -> None:
+    """The tracker's frame (module docs) for streams ``idx`` (B,): samples ``a`` (B, S), power spectra (B, 513) and
+    autocorrelations (B, 1024) of the frames' last N_FFT samples (Hann); ``state`` :class:`SpeechTracker`'s arrays
+    (updated); the cues into the last six (B,) arrays (:class:`SpeechFrame`). One compiled loop per stream, in the
+    dtypes NumPy's formulas had (float32 levels, float64 sums): libm's log and exp and the sums in order, so the
+    values equal those formulas' to ~1 ulp."""
+    floor_, hang_, prev_bands, flux_hist, since_, energy_, count_, talk_, tonal_, run_, voice_ = state
+    f32 = np.float32
+    bands = np.empty(N_BANDS, np.float32)
+    for n in range(len(idx)):
+        s = idx[n]
+        lv, first = _level(a[n]), count_[s] == 0
+        floor = lv if first else min(lv, floor_[s] + f32(FLOOR_RISE_DB))
+        loud = lv > max(f32(SILENCE_DB), floor + f32(VAD_MARGIN_DB))
+        voicing, flat, top = _spectrum_cues(power[n], ac[n], bands)
+        tonal = 0.0
+        for k in range(1, TONAL_FRAMES):
+            tonal += tonal_[s, k]
+        tonal = (tonal + top) / TONAL_FRAMES
+        voice_like = loud and (voicing >= f32(VOICING) or flat < FLAT_MAX) and tonal < TONAL_SHARE
+        talk = max(talk_[s] - f32(LEVEL_DECAY_DB), lv if voice_like else f32(-100.0))
+        like = voice_like and lv > talk - f32(NEAR_DB)
+        run = run_[s] + 1 if like else 0
+        hang = HANGOVER if run >= OPEN_FRAMES else max(hang_[s] - 1, 0)
+        talking = run >= OPEN_FRAMES or hang > 0
+        flux, mean, var = _flux(bands, prev_bands[s], flux_hist[s])
+        since = min(since_[s] + 1, SINCE_CAP)
+        fired = talking and flux > max(mean + ONSET_K * np.sqrt(var), MIN_FLUX) and since >= REFRACTORY
+        since = 0 if fired else since
+        en = lv if first else energy_[s] + f32(ENERGY_ALPHA) * (lv - energy_[s])
+        voice = 0 if like else min(voice_[s] + 1, SINCE_VOICE_CAP)
+        floor_[s], hang_[s], prev_bands[s], talk_[s], run_[s] = floor, hang, bands, talk, run
+        _shift_in(tonal_[s], top)
+        _shift_in(flux_hist[s], flux)
+        since_[s], energy_[s], count_[s], voice_[s] = since, en, count_[s] + 1, voice
+        level[n], speaking[n], onset[n], since_onset[n], energy[n], since_voice[n] = (
+            lv,
+            talking,
+            fired,
+            since,
+            en,
+            voice,
+        )
+
+
+def warm() -> None:
+    """Load (or, on a fresh machine, compile: ``make setup`` does it once) the machine code of every function here
+    and of the streaming kernel's (:func:`facecapges.network.native.warm`) for the argument types the engine
+    passes."""
+    from facecapges.matching.speech import N_FFT, SpeechTracker
+    from facecapges.network import native
+
+    native.warm()
+    one = np.zeros((1, 1), np.float32)
+    dense_chain(one, np.zeros(2, np.float32), np.array([[0, 1, 1, 1, 0]], np.int64), one.copy(), 0)
+    ids, ones, z3, z4 = np.zeros(1, np.int64), np.ones(1), np.zeros((1, 1, 3)), np.zeros((1, 1, 4))
+    step_offsets(ids, z3, z3.copy(), ones, z4, np.zeros((1, 2, 1, 4)), 1.0, 15.0, True, z4.copy())
+    dial(ids, z4.copy(), z4[0].copy(), z3.copy(), 0.5, ones)
+    SpeechTracker(1).step(ids, np.zeros((1, N_FFT), np.float32))
