@@ -69,11 +69,11 @@ class BodyLandmarker:
         self._last_ts = -1
         self._first = True
         # MediaPipe's C functions called on this thread (not through its dispatcher thread), every frame converted
-        # into one kept image, as the face landmarker does (capture.landmarks: _DirectCalls, FrameImages; issue 36)
-        from facecapges.capture.landmarks import FrameImages, _DirectCalls
+        # into one kept image, as the face landmarker does (capture.landmarks: DirectCalls, FrameImages; issue 36)
+        from facecapges.capture.landmarks import DirectCalls, FrameImages
 
-        self._direct_pose = _DirectCalls.of(self._pose, "MpPoseLandmarker")
-        self._direct_hand = _DirectCalls.of(self._hand, "MpHandLandmarker")
+        self._direct_pose = DirectCalls.of(self._pose, "MpPoseLandmarker")
+        self._direct_hand = DirectCalls.of(self._hand, "MpHandLandmarker")
         direct = self._direct_pose is not None and self._direct_hand is not None
         if not direct:
             self._direct_pose = self._direct_hand = None
@@ -81,7 +81,7 @@ class BodyLandmarker:
 
     def _detect(self, image, ts: int):
         """Both landmarkers' results on ``image``: MediaPipe's ``detect_for_video`` of each (its C calls on this
-        thread where :class:`~facecapges.capture.landmarks._DirectCalls` has them: the same results)."""
+        thread where :class:`~facecapges.capture.landmarks.DirectCalls` has them: the same results)."""
         if self._direct_pose is None or self._direct_hand is None:
             return self._pose.detect_for_video(image, ts), self._hand.detect_for_video(image, ts)
         from mediapipe.tasks.python.vision import hand_landmarker as hl

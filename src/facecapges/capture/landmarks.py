@@ -270,7 +270,7 @@ def _has_raw_results(task) -> bool:
     return all(hasattr(task, a) for a in ("_lib", "_handle")) and hasattr(fl, "MpFaceLandmarkerResultC")
 
 
-class _DirectCalls:
+class DirectCalls:
     """A VIDEO-mode task's detect and close-result C functions, called on the caller's thread.
 
     MediaPipe's Python API sends every C call of a task through its ``SerialDispatcher``: a one-worker thread pool
@@ -291,7 +291,7 @@ class _DirectCalls:
             raise AttributeError(f"{name}DetectForVideo")
 
     @classmethod
-    def of(cls, task, name: str = "MpFaceLandmarker") -> _DirectCalls | None:
+    def of(cls, task, name: str = "MpFaceLandmarker") -> DirectCalls | None:
         try:
             return cls(task, name)
         except (AttributeError, TypeError):
@@ -314,7 +314,7 @@ class _DirectCalls:
 
 class FrameImages:
     """The MediaPipe image (SRGB) of each BGR frame a detector is given: with ``keep`` (its C functions called
-    directly in VIDEO mode: :class:`_DirectCalls`) every frame is converted into one kept image
+    directly in VIDEO mode: :class:`DirectCalls`) every frame is converted into one kept image
     (:class:`_FrameImage`), else into a new one."""
 
     def __init__(self, keep: bool):
@@ -334,12 +334,12 @@ class FrameImages:
         return mp_image(np.ascontiguousarray(cv2.cvtColor(frame_bgr, cv2.COLOR_BGR2RGB)))
 
 
-def _raw_results(task, image, ts: int, want_names: bool = False, direct: _DirectCalls | None = None) -> list:
+def _raw_results(task, image, ts: int, want_names: bool = False, direct: DirectCalls | None = None) -> list:
     """``task.detect_for_video(image, ts)``'s faces read from MediaPipe's C result structs: what
     :meth:`LandmarkDetector._results` makes of the Python result, the same numbers (the structs' float32 are
     what MediaPipe's Python objects hold as floats), without one Python object per landmark and blendshape
     (478 + 52 a face: ~1 ms a frame, issue 36). The same C calls as MediaPipe's own ``detect_for_video``; with
-    ``direct``, on this thread (:class:`_DirectCalls`)."""
+    ``direct``, on this thread (:class:`DirectCalls`)."""
     (fl,) = _mediapipe("mediapipe.tasks.python.vision.face_landmarker")
     from mediapipe.tasks.python.components.containers import category_c, landmark_c
 
@@ -407,8 +407,8 @@ class LandmarkDetector:
         self._bs_map: np.ndarray | None = None
         # read the results from MediaPipe's C structs (:func:`_raw_results`) where this MediaPipe has them
         self.raw_results = _has_raw_results(self._task)
-        # ...and call its C functions on this thread, not through MediaPipe's dispatcher thread (_DirectCalls)
-        self.direct = _DirectCalls.of(self._task) if self.raw_results else None
+        # ...and call its C functions on this thread, not through MediaPipe's dispatcher thread (DirectCalls)
+        self.direct = DirectCalls.of(self._task) if self.raw_results else None
         self._images = FrameImages(self.direct is not None)  # every frame into one kept image (direct calls only)
 
     def _blendshape_map(self, names) -> np.ndarray:

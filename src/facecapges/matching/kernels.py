@@ -27,17 +27,14 @@ import numpy as np
 
 from facecapges.matching.inertialize import LN2
 from facecapges.matching.speech import (
-    _BAND_OF,
-    _BAND_WEIGHT,
-    _LAGS_0,
-    _LAGS_1,
-    _LN2,
-    _VOICE_0,
-    _VOICE_1,
+    BAND_OF,
+    BAND_WEIGHT,
     ENERGY_ALPHA,
     FLAT_MAX,
     FLOOR_RISE_DB,
     HANGOVER,
+    LAGS_0,
+    LAGS_1,
     LEVEL_DECAY_DB,
     MIN_FLUX,
     N_BANDS,
@@ -52,6 +49,8 @@ from facecapges.matching.speech import (
     TONAL_FRAMES,
     TONAL_SHARE,
     VAD_MARGIN_DB,
+    VOICE_0,
+    VOICE_1,
     VOICING,
 )
 
@@ -227,17 +226,17 @@ def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tupl
     (1024,); → voicing, flatness and the top bins' share (module docs)."""
     bands[:] = 0.0
     for k in range(power.shape[0]):  # each bin is in one band or none: spec @ _BANDS's sums without its zeros
-        if _BAND_OF[k] >= 0:
-            bands[_BAND_OF[k]] += power[k] * _BAND_WEIGHT[k]
+        if BAND_OF[k] >= 0:
+            bands[BAND_OF[k]] += power[k] * BAND_WEIGHT[k]
     for b in range(N_BANDS):
         bands[b] = np.log(bands[b] + np.float32(1e-10))
-    peak = ac[_LAGS_0]
-    for k in range(_LAGS_0 + 1, _LAGS_1):
+    peak = ac[LAGS_0]
+    for k in range(LAGS_0 + 1, LAGS_1):
         peak = max(peak, ac[k])
     voicing = peak / max(ac[0], np.float32(1e-20))
     total, mantissas, exponents = 0.0, 1.0, 0
     top = np.zeros(TONAL_BINS)  # the largest bins, ascending (as a full sort leaves them)
-    for k in range(_VOICE_0, _VOICE_1):
+    for k in range(VOICE_0, VOICE_1):
         v = float(power[k]) + 1e-12
         total += v
         m, e = math.frexp(v)  # the logs' sum as one log: of the mantissas' product (≥ 2^-249), plus the exponents
@@ -249,8 +248,8 @@ def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tupl
                 top[i - 1] = top[i]
                 i += 1
             top[i - 1] = v
-    n = _VOICE_1 - _VOICE_0
-    flat = np.exp((np.log(mantissas) + exponents * _LN2) / n) / (total / n)
+    n = VOICE_1 - VOICE_0
+    flat = np.exp((np.log(mantissas) + exponents * LN2) / n) / (total / n)
     share = 0.0
     for v in top:
         share += v

@@ -41,7 +41,6 @@ Per frame and stream:
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,10 +85,9 @@ _FREQS = np.fft.rfftfreq(N_FFT, 1.0 / timing.AUDIO_SR)
 _VOICE_BAND = (_FREQS >= 100.0) & (_FREQS < 4000.0)
 _VOICE_BINS = slice(int(np.argmax(_VOICE_BAND)), len(_VOICE_BAND) - int(np.argmax(_VOICE_BAND[::-1])))  # as a slice
 _LAGS = slice(timing.AUDIO_SR // 400, timing.AUDIO_SR // 70 + 1)  # pitch 400 … 70 Hz
-_LAGS_0, _LAGS_1, _VOICE_0, _VOICE_1 = _LAGS.start, _LAGS.stop, _VOICE_BINS.start, _VOICE_BINS.stop
-_BAND_OF = np.where(_BANDS.any(1), np.argmax(_BANDS, 1), -1)  # each bin's band (-1: none; the bands do not overlap)
-_BAND_WEIGHT = _BANDS.max(1)  # and its weight there
-_LN2 = math.log(2.0)
+LAGS_0, LAGS_1, VOICE_0, VOICE_1 = _LAGS.start, _LAGS.stop, _VOICE_BINS.start, _VOICE_BINS.stop
+BAND_OF = np.where(_BANDS.any(1), np.argmax(_BANDS, 1), -1)  # each bin's band (-1: none; the bands do not overlap)
+BAND_WEIGHT = _BANDS.max(1)  # and its weight there
 
 
 @dataclass
