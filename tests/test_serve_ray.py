@@ -1,5 +1,5 @@
-"""``serve`` on Ray Serve: a two-node local Ray cluster (the head and one worker, both on
-127.0.0.1); the admission test's fixture starts one (~30–80 s) after the failover test's own has stopped.
+"""``serve`` on Ray Serve: local Ray clusters on 127.0.0.1 — the failover test's bench starts a two-node one (the
+head and one worker), the admission test's fixture a one-node one (~15 s) after the bench's has stopped.
 
 Admission: a second application on the same cluster (one replica, at most 2 streams per
 address) shows ``serve``'s per-address cap and the eviction of a slow holder on the Ray path —
@@ -224,12 +224,9 @@ def test_ray_replica_caps_an_address_and_evicts_its_slow_holder(cluster, capsys)
     from facecapges.benchmarks.cluster import _messages
 
     shared = shared_file("data/beat/2_scott_0_2_2.wav").parents[2]
-    from ray import serve
-
-    try:
-        r = asyncio.run(_admission(f"ws://127.0.0.1:{cluster.port}/admission/", _messages(shared, 60)))
-    finally:  # gone before the failover: Ray would restart it (load a style) while the streams move
-        serve.delete("admission")
+    # the application is not deleted after it (serve.delete waited 30 s for its replica's graceful stop): the
+    # fixture's cluster ends with the module, and no other test uses it (the failover's bench starts its own)
+    r = asyncio.run(_admission(f"ws://127.0.0.1:{cluster.port}/admission/", _messages(shared, 60)))
     with capsys.disabled():
         print("\nray admission:", json.dumps(r))
     cap = f"at most {PER_ADDRESS} streams per client address; try again later"
