@@ -316,10 +316,8 @@ def run_video(
     intensity: float = 1.0,
     face_track=None,
 ) -> dict:
-    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
-    (a file, or its VrmModel already read) shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view).
-    ``face_track``: a :class:`~facecapges.runtime.session.FaceTrack` the capture fills, or, filled by an
-    earlier run of the same video and frames, that gives the capture's results again instead of capturing."""
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB (a file,
+    or its VrmModel read) in avatar.mp4 instead of ours; ``face_track``: a ``runtime.session.FaceTrack`` to fill or replay."""
     from facecapges.runtime.head import check_head_mode
     from facecapges.runtime.session import build_session
 

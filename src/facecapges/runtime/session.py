@@ -298,6 +298,18 @@ class _ReplayedCapture:
         pass
 
 
+def _open_face(sess: Session, estimator: str, faces: int, face_track: FaceTrack | None, realtime: bool) -> None:
+    """The video's face capture (:func:`_open_capture`), kept in ``face_track``, or that track replayed."""
+    if face_track is not None and (realtime or sess.video is None):
+        raise ValueError("a face track is captured and replayed off line, from a video")
+    if face_track is not None and face_track.filled:
+        sess.capture = face_track.player(int(faces))
+    elif sess.video is not None:
+        _open_capture(sess, estimator, faces)
+        if face_track is not None:
+            sess.capture = face_track.recorder(sess.capture)
+
+
 def _build_scheduler(sess: Session, sinks, faces: int, intensity: float, realtime: bool, head: str) -> None:
     """One stream per face and the scheduler over the session's sources and ``sinks``."""
     from facecapges.runtime.inputs import sources as S
@@ -357,14 +369,10 @@ def build_session(
     gestures: bool = False,
     face_track: FaceTrack | None = None,
 ) -> Session:
-    """Open the sources and build the scheduler (sinks are added by the caller).
-
-    ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
-    how many faces of the video drive an avatar each (one generator per face); ``body``: the person's arms
-    where the camera sees them (``gestures``: the engine's, the body still captured); ``face_track``: a
-    :class:`FaceTrack` the video's capture fills, or replays when it is filled (off line only).
-    """
-
+    """Open the sources and build the scheduler (sinks are added by the caller). ``head``: what the avatar's head
+    shows (:mod:`facecapges.runtime.head`); ``faces``: how many faces of the video drive an avatar each (one generator
+    per face); ``body``: the person's arms where the camera sees them (``gestures``: the engine's, the body still
+    captured); ``face_track``: a :class:`FaceTrack` the capture fills, or replays when filled (off line only)."""
     check_inputs(
         video=video,
         camera=camera,
@@ -388,14 +396,7 @@ def build_session(
     try:
         _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host, realtime)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
-        if face_track is not None and (realtime or sess.video is None):
-            raise ValueError("a face track is captured and replayed off line, from a video")
-        if face_track is not None and face_track.filled:
-            sess.capture = face_track.player(int(faces))
-        elif sess.video is not None:
-            _open_capture(sess, estimator, faces)
-            if face_track is not None:
-                sess.capture = face_track.recorder(sess.capture)
+        _open_face(sess, estimator, faces, face_track, realtime)
         if body:
             _open_body(sess, gestures)
         _build_scheduler(sess, sinks, faces, intensity, realtime, head)
