@@ -19,11 +19,11 @@ from runtime_helpers import checkpoint, cli
 MEGAMIND_FRAMES = 168  # the clip's 11.3 s at 15 fps (it has no audio: a BEAT clip is the speech)
 
 
-def run_head(tmp_path, video, head, audio=None, frames=None) -> dict:
+def run_head(tmp_path, video, head, audio=None, frames=None, track=None) -> dict:
     from facecapges.runtime.run import run_video
 
     rep = run_video(video, tmp_path / head, checkpoint(), audio=audio, max_frames=frames, progress=False,
-                    videos=False, head=head)
+                    videos=False, head=head, face_track=track)
     return rep["head_follow"]
 
 
@@ -31,15 +31,42 @@ def run_head(tmp_path, video, head, audio=None, frames=None) -> dict:
 def test_avatar_head_follows_the_captured_head(tmp_path, clip, face_video, megamind_video, unseen_wav):
     video, audio, frames = (face_video, None, None) if clip == "katie" else (megamind_video, unseen_wav,
                                                                             MEGAMIND_FRAMES)
-    got = run_head(tmp_path, video, "capture", audio, frames)
+    from facecapges.runtime.session import FaceTrack
+
+    # the face is captured once, end to end, by the first run; the other two head modes replay its track (the
+    # same capture results, frame by frame: runtime/session.py) instead of capturing the same face again
+    track = FaceTrack()
+    got = run_head(tmp_path, video, "capture", audio, frames, track)
     assert got["frames"] > 100
     assert got["yaw_r"] >= 0.9 and got["pitch_r"] >= 0.9, got
     assert got["mean_error_deg"] < 3.0
     # the model's own neck (it gets the head as an input) follows the person less closely (the measure can fail)
-    old = run_head(tmp_path, video, "model", audio, frames)
+    old = run_head(tmp_path, video, "model", audio, frames, track)
     assert old["mean_error_deg"] > got["mean_error_deg"] + 2.0, old
-    half = run_head(tmp_path, video, "blend", audio, frames)
+    half = run_head(tmp_path, video, "blend", audio, frames, track)
     assert old["mean_error_deg"] > half["mean_error_deg"] > got["mean_error_deg"]
+
+
+def test_a_replayed_face_track_drives_the_avatar_as_a_new_capture_does(tmp_path, face_video):
+    """``run_video``'s ``face_track`` (what the test above shares between its three runs): a run replaying the track
+    writes the same motion and face files, byte for byte, as a run that captures the face itself; a run asking for
+    frames the track does not have (more of them) fails instead of guessing."""
+    from facecapges.runtime.run import run_video
+    from facecapges.runtime.session import FaceTrack
+
+    track = FaceTrack()
+
+    def run(name, **kw):
+        run_video(face_video, tmp_path / name, checkpoint(), max_frames=20, progress=False, videos=False,
+                  head="model", **kw)
+        return [(tmp_path / name / f).read_bytes() for f in ("motion.bvh", "face.json")]
+
+    run("capture", face_track=track)
+    assert len(track.frames) >= 20
+    assert run("replay", face_track=track) == run("again")
+    with pytest.raises(ValueError, match="face track has no frame"):
+        run_video(face_video, tmp_path / "longer", checkpoint(), max_frames=40, progress=False, videos=False,
+                  face_track=track)
 
 
 def test_set_head_puts_the_rotation_on_the_neck_chain():

@@ -1,5 +1,5 @@
-"""``serve`` on Ray Serve: a two-node local Ray cluster (the head and one worker, both on
-127.0.0.1); the admission test's fixture starts one (~30–80 s) after the failover test's own has stopped.
+"""``serve`` on Ray Serve: local Ray clusters on 127.0.0.1 — the failover test's bench starts a two-node one (the
+head and one worker), the admission test's fixture a one-node one (~15 s) after the bench's has stopped.
 
 Admission: a second application on the same cluster (one replica, at most 2 streams per
 address) shows ``serve``'s per-address cap and the eviction of a slow holder on the Ray path —
@@ -41,14 +41,65 @@ def cluster():
     from facecapges.serving.ray_app import build_app, wait_ready
 
     shared_file("data/beat/2_scott_0_1_1.bvh")
-    with LocalCluster(say=print) as lc:
-        # the admission test's own application: one replica, no CPU of its own (both are the failover's)
+    # one node: the admission test needs an application behind the cluster's HAProxy, not a second node
+    # (the failover test's bench starts its own two); the head takes this application's replica too
+    with LocalCluster(nodes=1, say=print) as lc:
+        files = lc._files
+        # the admission test's own application: one replica, no CPU of its own (the head's is the first application's)
         cfg = ServeConfig(max_per_address=PER_ADDRESS)
         # its replica in the cluster's environment: served through the same HAProxy
         app = build_app(replicas=1, config=cfg, num_cpus=0, env=lc.env)
         serve.run(app, name="admission", route_prefix="/admission")
         wait_ready(f"http://127.0.0.1:{lc.port}/admission", 1)
         yield lc
+        cluster_procs = _cluster_processes(files)  # its raylets, GCS and HAProxy, and their descendants
+        assert any("haproxy" in cmd for cmd in cluster_procs.values()), cluster_procs
+    # stopped without Serve's own shutdown (LocalCluster._stop): no process of the cluster is left, HAProxy and
+    # the replicas included
+    left = _still_running(cluster_procs)
+    assert not left, left
+
+
+def _command_lines() -> dict[int, tuple[int, str]]:
+    """Every process's parent and command line."""
+    import os
+
+    procs = {}
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                cmd = f.read().replace(b"\0", b" ").decode(errors="replace")
+            with open(f"/proc/{pid}/stat") as f:
+                ppid = int(f.read().rsplit(")", 1)[1].split()[1])
+        except (FileNotFoundError, ProcessLookupError, PermissionError):
+            continue
+        procs[int(pid)] = (ppid, cmd)
+    return procs
+
+
+def _cluster_processes(folder: str) -> dict[int, str]:
+    """The processes whose command line names ``folder`` (the cluster's own), and their descendants."""
+    procs = _command_lines()
+    found = {pid for pid, (_, cmd) in procs.items() if folder in cmd}
+    grew = True
+    while grew:
+        more = {pid for pid, (ppid, _) in procs.items() if ppid in found} - found
+        found |= more
+        grew = bool(more)
+    return {pid: procs[pid][1] for pid in found}
+
+
+def _still_running(procs: dict[int, str], wait_s: float = 10.0) -> dict[int, str]:
+    """Those of ``procs`` (pid → command line) still running after ``wait_s``."""
+    import time
+
+    end = time.monotonic() + wait_s
+    while True:
+        now = _command_lines()
+        left = {pid: cmd for pid, cmd in procs.items() if pid in now and now[pid][1] == cmd}
+        if not left or time.monotonic() > end:
+            return left
+        time.sleep(0.2)
 
 
 async def _admission(url: str, messages: list[str]) -> dict:
@@ -173,12 +224,9 @@ def test_ray_replica_caps_an_address_and_evicts_its_slow_holder(cluster, capsys)
     from facecapges.benchmarks.cluster import _messages
 
     shared = shared_file("data/beat/2_scott_0_2_2.wav").parents[2]
-    from ray import serve
-
-    try:
-        r = asyncio.run(_admission(f"ws://127.0.0.1:{cluster.port}/admission/", _messages(shared, 60)))
-    finally:  # gone before the failover: Ray would restart it (load a style) while the streams move
-        serve.delete("admission")
+    # the application is not deleted after it (serve.delete waited 30 s for its replica's graceful stop): the
+    # fixture's cluster ends with the module, and no other test uses it (the failover's bench starts its own)
+    r = asyncio.run(_admission(f"ws://127.0.0.1:{cluster.port}/admission/", _messages(shared, 60)))
     with capsys.disabled():
         print("\nray admission:", json.dumps(r))
     cap = f"at most {PER_ADDRESS} streams per client address; try again later"

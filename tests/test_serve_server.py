@@ -638,6 +638,30 @@ def _shared_blocks(pid: int) -> set[str]:
             if line.split()[-1].startswith("/dev/shm/")}
 
 
+def test_a_network_styles_model_process_forks_from_a_one_thread_forkserver(ckpt):
+    """A network style's model process is forked from multiprocessing's forkserver, which has imported torch
+    once (serving/model_process.py: no torch import per start) and which runs one thread when it forks (no pool
+    thread of OpenBLAS or torch is copied half-way into a child); the child steps the style."""
+    import os
+    from multiprocessing import forkserver
+
+    from facecapges.serving.model_process import ModelProcess
+
+    mp = ModelProcess(ckpt, max_rows=4)
+    try:
+        server = forkserver._forkserver._forkserver_pid
+        assert server is not None
+        stat = Path(f"/proc/{mp._proc.pid}/stat").read_text()
+        assert int(stat.rsplit(")", 1)[1].split()[1]) == server  # the child's parent: the forkserver
+        assert os.listdir(f"/proc/{server}/task") == [str(server)]  # one thread
+        assert "libtorch" in Path(f"/proc/{server}/maps").read_text()  # torch imported there once
+        (a,) = frames(1, seed=2)
+        (slot,) = mp.sync([], 1)
+        assert np.isfinite(mp.step([slot], [a[0]], a[1][None], a[2][None])).all()
+    finally:
+        mp.shutdown()
+
+
 def test_a_matching_style_serves_without_torch():
     """``serve`` with a matching style (issue 36): the server imports neither torch nor Numba, its model process
     maps no torch (the engine's compiled loops load Numba there: docs/performance.md, "Engine step, third pass"),

@@ -314,9 +314,10 @@ def run_video(
     avatar=None,
     face_layout: str = "beat",
     intensity: float = 1.0,
+    face_track=None,
 ) -> dict:
-    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB
-    (a file, or its VrmModel already read) shown in avatar.mp4 instead of ours (facecapges.avatar.vrm.view)."""
+    """The whole ``run`` command (module docstring); returns the report. ``avatar``: a VRM / humanoid GLB (a file,
+    or its VrmModel read) in avatar.mp4 instead of ours; ``face_track``: a ``runtime.session.FaceTrack`` to fill or replay."""
     from facecapges.runtime.head import check_head_mode
     from facecapges.runtime.session import build_session
 
@@ -339,6 +340,7 @@ def run_video(
         head=head,
         faces=faces,
         intensity=intensity,
+        face_track=face_track,
     )
     sched = sess.scheduler
     why, found, loop_s, input_audio = _run_frames(sess, video, out_dir, max_frames, progress)

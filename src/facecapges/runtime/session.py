@@ -9,6 +9,7 @@ Ctrl-C.
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -230,6 +231,85 @@ def _open_capture(sess: Session, estimator: str, faces: int) -> None:
         sess.capture.depth_tracker = DepthHeadTracker(sess.capture.mesh.vertices / 100.0, K)
 
 
+class FaceTrack:
+    """The face capture's results of one offline run over a video, to replay in another run of the same video
+    (:func:`facecapges.runtime.run.run_video`'s ``face_track``): the first run captures and fills it, a later one
+    gets the same results frame by frame instead of capturing the same face again. Off line the scheduler asks
+    the capture for the same frames in the same order each run (no clock decides), so a replay gives the generator
+    exactly what a new capture would; a frame asked for that the capture did not see (another video, another
+    ``--max-frames``) is an error, not a guess."""
+
+    def __init__(self) -> None:
+        self.frames: list[tuple[float, Any]] = []  # (timestamp in ms, the capture's result), in order
+        self.faces: int | None = None  # the capture's face count, once filled
+        self.filled = False
+
+    def recorder(self, capture):
+        """The capture that fills this track as it runs (once)."""
+        if self.filled:
+            raise ValueError("this face track is already filled")
+        self.filled, self.faces = True, capture.num_faces
+        return _RecordingCapture(capture, self.frames)
+
+    def player(self, faces: int):
+        """A stand-in for the capture, answering from this track."""
+        if not self.filled or self.faces != faces:
+            raise ValueError(f"no face track of {faces} face(s) was captured to replay")
+        return _ReplayedCapture(self.frames, faces)
+
+
+class _RecordingCapture:
+    """A :class:`FaceCapture` whose results are kept (copies: the capture's own objects stay its own)."""
+
+    def __init__(self, capture, frames: list) -> None:
+        self._capture, self._frames = capture, frames
+        self.num_faces, self.detector = capture.num_faces, capture.detector
+
+    def process(self, image, ts_ms: float, depth_mm=None):
+        r = self._capture.process(image, ts_ms, depth_mm)
+        self._frames.append((ts_ms, copy.deepcopy(r)))
+        return r
+
+    def process_slots(self, image, ts_ms: float, depth_mm=None):
+        r = self._capture.process_slots(image, ts_ms, depth_mm)
+        self._frames.append((ts_ms, copy.deepcopy(r)))
+        return r
+
+    def close(self) -> None:
+        self._capture.close()
+
+
+class _ReplayedCapture:
+    """The results of a :class:`FaceTrack`, frame by frame; a frame out of its order is an error."""
+
+    def __init__(self, frames: list, faces: int) -> None:
+        self._frames, self._k, self.num_faces = frames, 0, faces
+
+    def process(self, image, ts_ms: float, depth_mm=None):
+        if self._k >= len(self._frames) or self._frames[self._k][0] != ts_ms:
+            raise ValueError(f"the face track has no frame {self._k} at {ts_ms} ms: it is another video's or run's")
+        r = self._frames[self._k][1]
+        self._k += 1
+        return copy.deepcopy(r)
+
+    process_slots = process
+
+    def close(self) -> None:
+        pass
+
+
+def _open_face(sess: Session, estimator: str, faces: int, face_track: FaceTrack | None, realtime: bool) -> None:
+    """The video's face capture (:func:`_open_capture`), kept in ``face_track``, or that track replayed."""
+    if face_track is not None and (realtime or sess.video is None):
+        raise ValueError("a face track is captured and replayed off line, from a video")
+    if face_track is not None and face_track.filled:
+        sess.capture = face_track.player(int(faces))
+    elif sess.video is not None:
+        _open_capture(sess, estimator, faces)
+        if face_track is not None:
+            sess.capture = face_track.recorder(sess.capture)
+
+
 def _build_scheduler(sess: Session, sinks, faces: int, intensity: float, realtime: bool, head: str) -> None:
     """One stream per face and the scheduler over the session's sources and ``sinks``."""
     from facecapges.runtime.inputs import sources as S
@@ -287,14 +367,12 @@ def build_session(
     intensity: float = 1.0,
     body: bool = False,
     gestures: bool = False,
+    face_track: FaceTrack | None = None,
 ) -> Session:
-    """Open the sources and build the scheduler (sinks are added by the caller).
-
-    ``head``: what the avatar's head shows (:mod:`facecapges.runtime.head`); ``faces``:
-    how many faces of the video drive an avatar each (one generator per face); ``body``: the person's arms
-    where the camera sees them (``gestures``: the engine's, the body still captured).
-    """
-
+    """Open the sources and build the scheduler (sinks are added by the caller). ``head``: what the avatar's head
+    shows (:mod:`facecapges.runtime.head`); ``faces``: how many faces of the video drive an avatar each (one generator
+    per face); ``body``: the person's arms where the camera sees them (``gestures``: the engine's, the body still
+    captured); ``face_track``: a :class:`FaceTrack` the capture fills, or replays when filled (off line only)."""
     check_inputs(
         video=video,
         camera=camera,
@@ -318,8 +396,7 @@ def build_session(
     try:
         _open_video(sess, video, camera, livelink, depth_dir, intrinsics, host, realtime)
         _open_audio(sess, video, audio, mic, realtime, loop, silent_ok)
-        if sess.video is not None:
-            _open_capture(sess, estimator, faces)
+        _open_face(sess, estimator, faces, face_track, realtime)
         if body:
             _open_body(sess, gestures)
         _build_scheduler(sess, sinks, faces, intensity, realtime, head)

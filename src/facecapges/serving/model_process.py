@@ -35,6 +35,15 @@ alternately, 30 clients, four 5-s trials each (load 14–16): median p99 round t
 against 1,513 ms, frames lost 1,032 against 3,092, CPU per returned frame (server and
 model process) 0.40–0.48 ms against 0.52–0.83 ms.
 
+A network style's child is forked from a *forkserver* that has imported torch and the network's modules once
+(:func:`_context`): the spawned interpreter's torch import was 4–7 s of every such start (each test server of a
+network style, each ``serve`` reload), and a fork of that clean process takes a fraction of a second. The
+forkserver is started by multiprocessing as a new interpreter (not a fork of the server, whose event loop and
+pool threads must not be forked) with ``OPENBLAS_NUM_THREADS=1`` in its environment only, so it runs one thread
+when it forks (NumPy's OpenBLAS would otherwise start a pool thread on import; torch starts none until it
+computes); the child then sets its threads as before (:func:`~facecapges.engine.threads.limit_threads`). A
+matching style's child is still spawned: it must not get torch (the memory figures above).
+
 Before it answers ``ready`` the child runs a tick of 1 and one of 32 streams on slots it closes again
 (:func:`warm_engine`): the engines import some modules at their first tick of a size (scipy's FFT from 16 streams
 on, ~190 modules with it), which took seconds on a busy machine while the first streams' frames were dropped.
@@ -48,6 +57,7 @@ at a time (the server's event loop).
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 import threading
 from collections.abc import Sequence
@@ -62,6 +72,42 @@ from facecapges.engine.inputs import pack_audio
 from facecapges.skeleton import N_JOINTS
 
 _BLOCKS = ("audio", "face", "head", "pose", "quat")  # the order of the shared blocks, both sides
+
+# what a network style's forkserver imports once (module docs): torch and what unpickling and stepping the style
+# import, so that a forked child imports nothing heavy
+FORKSERVER_PRELOAD = [
+    "torch",
+    "facecapges.network.network",
+    "facecapges.network.batched",
+    "facecapges.network.style",
+    "facecapges.serving.model_process",
+]
+
+
+def _context(checkpoint):
+    """The start method of the style's model process: a forkserver with torch imported for a network style,
+    ``spawn`` for any other (module docs)."""
+    if getattr(checkpoint, "engine", None) != "network":
+        return multiprocessing.get_context("spawn")
+    from multiprocessing import forkserver
+
+    ctx = multiprocessing.get_context("forkserver")
+    ctx.set_forkserver_preload(FORKSERVER_PRELOAD)  # no effect once it runs: it has these already
+    before = os.environ.get("OPENBLAS_NUM_THREADS")
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"  # the forkserver's environment only: one thread when it forks
+    # started with SIGINT ignored, as the spawned child is (ModelProcess): its children ignore it from their start
+    main = threading.current_thread() is threading.main_thread()
+    before_int = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        forkserver.ensure_running()
+    finally:
+        if main and before_int is not None:
+            signal.signal(signal.SIGINT, before_int)
+        if before is None:
+            del os.environ["OPENBLAS_NUM_THREADS"]
+        else:
+            os.environ["OPENBLAS_NUM_THREADS"] = before
+    return ctx
 
 
 def _layouts(max_rows: int, samples_per_frame: int) -> list[tuple[tuple[int, ...], type]]:
@@ -174,7 +220,7 @@ class ModelProcess:
     """
 
     def __init__(self, checkpoint, threads: int = 1, max_rows: int = 256):
-        ctx = multiprocessing.get_context("spawn")
+        ctx = _context(checkpoint)
         self.samples_per_frame = timing.samples_per_frame(timing.MODEL_FPS, timing.AUDIO_SR)
         layouts = _layouts(max_rows, self.samples_per_frame)
         # the tick's arrays: blocks of shared memory (zero-filled when made), unlinked by shutdown();
