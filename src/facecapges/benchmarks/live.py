@@ -75,7 +75,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from facecapges.benchmarks.runtime import CLIP, looped_video, shared_file, stat_cpu
+from facecapges.benchmarks.runtime import CLIP, looped_video, rss_mb, shared_file, stat_cpu
 
 FPS = 15.0
 RATE_HZ = 30
@@ -153,14 +153,6 @@ def _cpu_by_thread(before: dict, after: dict, wall_s: float) -> dict:
         }
         for k, (c, n) in rows
     }
-
-
-def _status_mb(pid: int, key: str) -> float:
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith(key + ":"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
 
 
 class _VmcReceiver:
@@ -271,9 +263,9 @@ def live_run(video: Path, seconds: float, workdir: Path, extra: tuple[str, ...] 
         th0, c0, t0 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
         while time.monotonic() < t0 + seconds:
             time.sleep(0.5)
-            rss.append(_status_mb(p.pid, "VmRSS"))
+            rss.append(rss_mb(p.pid))
         th1, c1, t1 = _threads_cpu(p.pid), _cpu_s(p.pid), time.monotonic()
-        peak = _status_mb(p.pid, "VmHWM")
+        peak = rss_mb(p.pid, "VmHWM")
         p.stdout.read()
         p.wait(timeout=60)
     finally:
@@ -338,7 +330,7 @@ def _landmarker_main(video: str, seconds: float, warmup_s: float) -> dict:
     return {
         "cpu_share_of_core": round((c1 - c0) / (t1 - t0), 3),
         "ms_per_frame_p50": round(float(np.median(ms[int(warmup_s * FPS) :])), 2),
-        "rss_mb": round(_status_mb(os.getpid(), "VmRSS"), 1),
+        "rss_mb": round(rss_mb(), 1),
         "face_found_last_frame": bool(found),
         "calls": "C, caller's thread" if det.direct is not None else "Python API",
         "decode_cpu_ms_per_frame": round(decode_cpu * 1000.0 / max(len(frames), 1), 2),

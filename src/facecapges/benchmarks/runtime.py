@@ -57,12 +57,13 @@ def shared_file(shared: Path, rel: str) -> Path:
     return p
 
 
-def rss_mb(pid: int | None = None) -> float:
-    """Resident memory (MB) of this process, or of process ``pid``; NaN when it is gone."""
+def rss_mb(pid: int | None = None, key: str = "VmRSS") -> float:
+    """Resident memory (MB) of this process, or of process ``pid`` (``key``: ``VmRSS`` now, ``VmHWM`` its peak);
+    NaN when it is gone."""
     try:
         with open(f"/proc/{pid if pid is not None else 'self'}/status") as f:
             for line in f:
-                if line.startswith("VmRSS:"):
+                if line.startswith(key + ":"):
                     return int(line.split()[1]) / 1024.0
     except OSError:
         pass
