@@ -273,7 +273,7 @@ def test_non_loopback_needs_host(face_video):
 
 
 def test_the_viewers_pose_message_is_the_batch_encoders_for_one_frame():
-    """``encode_pose`` (the viewer's feed, once a model frame) writes what ``encode_poses`` writes for a batch of one:
+    """``encode_pose`` (the viewer's feed, once a model frame) writes what ``encode_poses_utf8`` writes for a batch of one:
     the same text but the send time (issue 36: no batch of one around each frame)."""
     from facecapges import rotations as rot
     from facecapges.runtime.frames import OutputFrame
@@ -285,7 +285,7 @@ def test_the_viewers_pose_message_is_the_batch_encoders_for_one_frame():
         lat = {"model": 1.2345678, "total": 9.87654321}
         out = OutputFrame(k, k / 15, rng.normal(size=(47, 6)), q, face, rng.normal(size=6), k % 2 == 0, lat, k % 3)
         one = protocol.encode_pose(out)
-        (batch,) = protocol.encode_poses(
+        (batch,) = protocol.encode_poses_utf8(
             [k], [out.time_s], q[None], face[None], out.head[None], [out.face_found], [lat], [out.face_index]
         )
-        assert one.split(',"sent_ms":')[0] == batch.split(',"sent_ms":')[0] and '"sent_ms":' in one
+        assert one.split(',"sent_ms":')[0] == batch.decode().split(',"sent_ms":')[0] and '"sent_ms":' in one

@@ -312,8 +312,8 @@ def test_pose_messages_are_the_runtime_format():
     pose = rng.normal(size=(2, 47, 6))
     q = rot.rot6d_to_quaternion(pose)
     face, head = rng.uniform(size=(2, 52)), rng.normal(size=(2, 6))
-    ours = list(protocol.encode_poses([7, 8], [7 / 15, 8 / 15], q, face, head, [True, False],
-                                      [{"model": 1.25}, {"model": 2.5}]))
+    ours = [m.decode() for m in protocol.encode_poses_utf8([7, 8], [7 / 15, 8 / 15], q, face, head, [True, False],
+                                                           [{"model": 1.25}, {"model": 2.5}])]
     ref = protocol.encode_pose(OutputFrame(7, 7 / 15, pose[0], q[0], face[0], head[0], True, {"model": 1.25}))
     a, b = protocol.decode_pose(ours[0]), protocol.decode_pose(ref)
     assert set(a) == set(b)
@@ -324,7 +324,7 @@ def test_pose_messages_are_the_runtime_format():
 
 
 def test_pose_numbers_written_from_float32_read_back_as_the_same_float64():
-    """``encode_poses`` writes rounded rows within [-1, 1] from float32 (half the cost): every number of 6
+    """``encode_poses_utf8`` writes rounded rows within [-1, 1] from float32 (half the cost): every number of 6
     decimals there reads back as the float64 it was; only ±1e-6 … ±9e-6 change text ('0.000005' for '5e-6')."""
     import orjson
 
@@ -338,7 +338,8 @@ def test_pose_numbers_written_from_float32_read_back_as_the_same_float64():
     # a row beyond [-1, 1] (a head, weights out of range) is written from float64 as before
     q = np.zeros((1, 47, 4))
     q[0, :, 0] = 1.0
-    msg = next(protocol.encode_poses([0], [0.0], q, np.full((1, 52), 1.5), np.full((1, 6), 2e-6), [True], [{}]))
+    msg = next(protocol.encode_poses_utf8([0], [0.0], q, np.full((1, 52), 1.5), np.full((1, 6), 2e-6), [True],
+                                          [{}])).decode()
     assert '"weights":[1.5,' in msg and '"head":[2e-6,' in msg and '"pose":[1.0,0.0,' in msg
 
 

@@ -492,14 +492,14 @@ def build_app(
                     return protocol.tick_latency(items[i][1], t0, t1)
 
                 index = [i.index for i in inputs]
-                texts = protocol.encode_poses(
+                texts = protocol.encode_poses_utf8(
                     index, [k / self.fps for k in index], quats, face, head, [i.face_found for i in inputs], latency
                 )
                 sends = []
                 for st, text in zip(due, texts):
                     if not st.closed:
                         st.frames += 1
-                        sends.append(st.ws.send_text(text))
+                        sends.append(st.ws.send_text(text.decode()))
                 self.stats["frames"] += len(due)
                 self.stats["ticks"] += 1
                 await asyncio.gather(*sends, return_exceptions=True)  # a client gone is its handler's to end

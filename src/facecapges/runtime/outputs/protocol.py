@@ -133,22 +133,6 @@ def encode_pose(out: OutputFrame) -> str:
     return _pose_json(out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms).decode()
 
 
-def encode_poses(
-    frames: Sequence[int],
-    times_s: Sequence[float],
-    quats: np.ndarray,
-    faces: np.ndarray,
-    heads: np.ndarray,
-    face_found: Sequence[bool],
-    latency_ms,
-    face_index: Sequence[int] | None = None,
-) -> Iterator[str]:
-    """The ``pose`` messages of B output frames (the one pose encoder; :func:`encode_pose` is its
-    one-frame use), as text: :func:`encode_poses_utf8`'s messages (the same arguments) decoded."""
-    for data in encode_poses_utf8(frames, times_s, quats, faces, heads, face_found, latency_ms, face_index):
-        yield data.decode()
-
-
 def encode_poses_utf8(
     frames: Sequence[int],
     times_s: Sequence[float],
@@ -160,7 +144,8 @@ def encode_poses_utf8(
     face_index: Sequence[int] | None = None,
 ) -> Iterator[bytes]:
     """The ``pose`` messages of B output frames as UTF-8 bytes, what a WebSocket text frame carries
-    (``serve`` writes them as they are: no decoding and encoding again). ``quats`` (B, 47, 4), ``faces``
+    (``serve`` writes them as they are: no decoding and encoding again; a sender that takes text decodes them).
+    The one pose encoder: :func:`encode_pose` is its one-frame use. ``quats`` (B, 47, 4), ``faces``
     (B, 52), ``heads`` (B, 6) are rounded at once (6, 5 and 6 decimals). ``latency_ms``: B dicts, or a
     function of the row called just before that row is encoded (so a caller that sends each message as
     it comes reports its true latency). ``face_index``: which face / avatar each row is (``live --faces
