@@ -26,6 +26,7 @@ import numba
 import numpy as np
 
 from facecapges.matching.inertialize import LN2
+from facecapges.matching.predictor import LEAK
 from facecapges.matching.speech import (
     BAND_OF,
     BAND_WEIGHT,
@@ -55,7 +56,6 @@ from facecapges.matching.speech import (
 )
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-_LEAK = np.float32(0.2)  # the predictor's leaky-ReLU slope
 
 
 @_jit
@@ -85,7 +85,7 @@ def dense_chain(x: np.ndarray, buf: np.ndarray, table: np.ndarray, out: np.ndarr
             for o in range(n):
                 v = acc[o] + bias[o]
                 if v < 0 and act == 1:
-                    v = _LEAK * v
+                    v = LEAK * v
                 elif v < 0 and act == 2:
                     v = np.float32(0.0)
                 acc[o] = v

@@ -152,13 +152,13 @@ def weight_shapes(cfg: ModelConfig, hidden: int) -> dict[str, tuple[int, ...]]:
 
 
 # --------------------------------------------------------------------------- the kernel
-_LEAK = np.float32(0.2)  # (the compiled dense_chain's: matching.kernels)
+LEAK = np.float32(0.2)  # the leaky-ReLU slope (also the compiled dense_chain's: matching.kernels)
 _ACTIVATION = {"": 0, "leaky": 1, "relu": 2}
 
 
 def _leaky(y: np.ndarray) -> np.ndarray:
     """``leaky_relu(y, 0.2)``: the same bits (y > 0: y; else 0.2·y, which is then the larger)."""
-    return np.maximum(y, _LEAK * y)
+    return np.maximum(y, LEAK * y)
 
 
 class _Chain:

@@ -181,19 +181,18 @@ class SpeechTracker:
             np.empty(B, np.float32),
             np.empty(B, np.int64),
         )
-        o = out
         self._track(
             np.asarray(idx, np.int64),
             a,
             power,
             ac,
             self.state,
-            o.level,
-            o.speaking,
-            o.onset,
-            o.since_onset,
-            o.energy,
-            o.since_voice,
+            out.level,
+            out.speaking,
+            out.onset,
+            out.since_onset,
+            out.energy,
+            out.since_voice,
         )
         return out
 
