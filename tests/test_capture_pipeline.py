@@ -130,7 +130,7 @@ def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_vi
     functions on this thread (not through MediaPipe's dispatcher thread) and converts every frame into one image
     of its own: the same landmarks, blendshapes and transforms, to the bit, as MediaPipe's own
     ``detect_for_video`` gives on a new image a frame."""
-    from facecapges.capture.landmarks import LandmarkDetector
+    from facecapges.capture.landmarks import FrameImages, LandmarkDetector
     from facecapges.capture.models import resolve_model
 
     src = open_source(str(face_video))
@@ -142,10 +142,10 @@ def test_landmarks_read_from_mediapipes_c_results_are_its_python_results(face_vi
             if raw:
                 assert det.raw_results and det.direct is not None  # this MediaPipe has them (the pinned one does)
             else:
-                det.direct = None  # MediaPipe's dispatcher, and a new image a frame
+                det.direct, det._images = None, FrameImages(False)  # MediaPipe's dispatcher, a new image a frame
             det.raw_results = raw
             got.append([det.detect(f, int(i * 40)) for i, f in enumerate(frames)])
-            assert (det._frame_image is not None) == raw  # the frames went through the detector's own image
+            assert (det._images.kept is not None) == raw  # the frames went through the detector's own image
     assert sum(len(faces) for faces in got[0]) == 20
     for public, raw in zip(*got):
         assert len(public) == len(raw)

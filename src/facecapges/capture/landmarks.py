@@ -452,7 +452,7 @@ class LandmarkDetector:
         if ts <= self._last_ts:
             ts = self._last_ts + 1
         self._last_ts = ts
-        image = self._image(frame_bgr)
+        image = self._images(frame_bgr)  # the detector's own image with direct calls, else a new one
         t0 = time.perf_counter()
         faces = []
         # the blendshapes' names until their map is made (the first frame with a face)
@@ -467,17 +467,6 @@ class LandmarkDetector:
             faces.append(FaceObservation(pts, bs, tf))
         self.last_ms = (time.perf_counter() - t0) * 1000.0  # model + result conversion
         return faces
-
-    def _image(self, frame_bgr: np.ndarray):
-        """The MediaPipe image (RGB) of a BGR frame: written into the detector's own image when it calls MediaPipe
-        directly in VIDEO mode (:class:`FrameImages`), else a new one."""
-        if self._images.keep != (self.direct is not None):
-            self._images = FrameImages(self.direct is not None)
-        return self._images(frame_bgr)
-
-    @property
-    def _frame_image(self) -> _FrameImage | None:
-        return self._images.kept
 
     def close(self) -> None:
         self._images = FrameImages(False)
