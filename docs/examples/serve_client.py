@@ -6,7 +6,8 @@ number, its round-trip time and the rotation of the right forearm. Started toget
 the server, it waits for it: it retries the connection for up to ``--wait`` seconds and
 reads the server's ``status`` messages ("loading") until the ``hello`` that says it is ready.
 When the connection drops (the server or its cluster node died: `serve --ray`, docs/serve-cluster.md)
-it reconnects and sends ``resume`` with the last pose it got, so the avatar goes on from where it
+or no pose comes for 1 s (a hung machine), it reconnects — a server that does not answer within 1 s is
+tried again — and sends ``resume`` with the last pose it got, so the avatar goes on from where it
 was instead of jumping back to the rest pose; the frames of the outage are skipped.
 
     facecapges serve --port 8780 &
@@ -32,27 +33,32 @@ from websockets.exceptions import ConnectionClosed, InvalidStatus
 IDENTITY_ROT6D = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0]  # first two columns of the identity matrix
 
 
-async def connect_when_up(url: str, wait: float):
-    """Connect, retrying while the server is not listening yet (for up to ``wait`` seconds)."""
+async def connect_when_up(url: str, wait: float, answer: float | None):
+    """Connect, retrying while the server is not listening yet (for up to ``wait`` seconds); a server
+    that does not answer within ``answer`` seconds (if given) is tried again."""
     deadline = time.monotonic() + wait
+    limit = answer or max(10.0, wait)
     while True:
         try:
             # close_timeout: a connection given up (no pose for 1 s) is not waited on for the server's
             # close frame, which a dead server behind a proxy never sends
-            return await connect(url, max_size=2**16, open_timeout=max(10.0, wait), close_timeout=0.2)
-        except (OSError, InvalidStatus) as exc:  # refused: not started yet; or a proxy's 5xx: try again
+            return await connect(url, max_size=2**16, open_timeout=limit, close_timeout=0.2)
+        except (OSError, InvalidStatus) as exc:  # refused or no answer (TimeoutError): try again; a proxy's 5xx too
             if isinstance(exc, InvalidStatus) and exc.response.status_code < 500:
                 raise SystemExit(f"{url}: {exc}") from None
+            if isinstance(exc, TimeoutError):
+                print(f"no answer within {limit:g} s; trying again", file=sys.stderr)
             if time.monotonic() > deadline:
                 raise SystemExit(f"{url}: no server answered within {wait:g} s") from None
             await asyncio.sleep(0.1)
 
 
-async def hello_of(ws) -> dict:
-    hello = json.loads(await ws.recv())
+async def hello_of(ws, answer: float | None) -> dict:
+    """The server's hello (after its status messages while it loads its style); ``answer``: seconds each may take."""
+    hello = json.loads(await asyncio.wait_for(ws.recv(), timeout=answer))
     while hello["type"] == "status":  # the server is loading its style: hello follows when ready
         print(f"server: {hello['message']}", file=sys.stderr)
-        hello = json.loads(await ws.recv())
+        hello = json.loads(await asyncio.wait_for(ws.recv(), timeout=answer))
     if hello["type"] != "hello":
         raise SystemExit(f"server said: {hello}")
     return hello
@@ -66,8 +72,11 @@ async def stream(url: str, wav: str, seconds: float, wait: float = 120.0) -> int
     t0 = None  # the stream's clock starts at the first hello and runs on through reconnects
     while n_frames is None or k < n_frames:
         try:
-            async with await connect_when_up(url, wait) as ws:
-                hello = await hello_of(ws)
+            # after a drop, a server that does not answer for 1 s is dead too (a hung machine's kernel may still
+            # accept the connection): the next try may reach a live one
+            answer = None if last_pose is None else 1.0
+            async with await connect_when_up(url, wait, answer) as ws:
+                hello = await hello_of(ws, answer)
                 fps, spf = hello["fps"], hello["samples_per_frame"]
                 if sr != hello["sr"]:
                     raise SystemExit(f"{wav}: {sr} Hz, the server wants {hello['sr']} Hz mono")

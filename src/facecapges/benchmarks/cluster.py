@@ -19,6 +19,10 @@ node is killed (its raylet and every process on it, no graceful stop). Reported:
   of each moved client's pose sequence as shown (last poses before the drop, first after) at the
   join, against the 99.9th percentile of the real motion (the BEAT take ``2_scott_0_1_1.bvh``,
   :func:`~facecapges.evaluation.realism.transition_threshold`): ``pops`` counts hand-overs above it;
+- ``failover_hung`` (full runs only): the same clients and figures when, after a new worker node has taken
+  the killed one's place, that worker node hangs instead (:meth:`LocalCluster.hang_worker`: its processes
+  stopped, SIGSTOP — nothing closes, its kernel still accepts connections and nothing answers);
+  ``failover_hung_s`` its worst freeze;
 - ``pairs``: short trials of the same clients against one ``facecapges serve`` process and the
   cluster, interleaved (one process, Ray, one process, Ray …; both running throughout), and
   ``ray_overhead_p50`` — the median over the pairs of the ratio of median round trips (Ray / one
@@ -37,12 +41,14 @@ suite starts fewer two-node Ray clusters.
 """
 
 import asyncio
+import contextlib
 import os
 import time
 from pathlib import Path
 
 import numpy as np
 
+from facecapges.benchmarks.runtime import stat_cpu
 from facecapges.timing import MODEL_FPS
 
 SPEECH = "data/beat/2_scott_0_2_2.wav"
@@ -52,6 +58,21 @@ HANDOVER_FRAMES = 3
 # clients arrive this far apart: Ray's router balances by the open streams it knows of, and 20
 # connections in the same instant all see the same (empty) replicas
 ARRIVAL_S = 0.05  # poses either side of a hand-over looked at
+
+
+def _descendants(pids: list[int]) -> list[int]:
+    """``pids`` and every process descended from them (``/proc``'s parent links)."""
+    kids: dict[int, list[int]] = {}
+    for d in os.listdir("/proc"):
+        if d.isdigit():
+            with contextlib.suppress(OSError, IndexError):
+                kids.setdefault(int(stat_cpu(f"/proc/{d}/stat")[0][1]), []).append(int(d))
+    out, todo = [], list(pids)
+    while todo:
+        p = todo.pop()
+        out.append(p)
+        todo += kids.get(p, [])
+    return out
 
 
 def _free_port() -> int:
@@ -140,6 +161,7 @@ class LocalCluster:
         self.port = _free_port()
         self.env = env
         self._files: str | None = None  # HAProxy's configuration, sockets and state
+        self._hung: list[int] = []  # the processes hang_worker stopped
 
     def __enter__(self):
         # Ray's processes and the driver's own threads print to stdout (a dead raylet's log tail,
@@ -229,13 +251,46 @@ class LocalCluster:
         assert self.cluster is not None
         self.cluster.remove_node(self.workers[0], allow_graceful=False)
 
+    def hang_worker(self) -> None:
+        """The worker node stops answering without closing anything, as a hung or cut-off machine does: every
+        process of it (its raylet and their descendants, the replica among them) stopped (SIGSTOP). Its
+        kernel still accepts connections to the replica's port (a machine gone from the network would not
+        even do that: HAProxy's connect would time out), and nothing answers them."""
+        import signal
+
+        self._hung = _descendants([p.pid for _, p in self.workers[0].live_processes()])
+        for pid in self._hung:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGSTOP)
+
+    def add_worker(self) -> None:
+        """A new worker node in place of the one killed or hung (whose processes are ended first); Serve places
+        the missing replica there: back when both replicas answer."""
+        import signal
+
+        from facecapges.serving.ray_app import wait_ready
+
+        assert self.cluster is not None
+        for pid in self._hung:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        self._hung = []
+        self.workers = [self.cluster.add_node(num_cpus=1, temp_dir=self._files)]
+        wait_ready(f"http://127.0.0.1:{self.port}", self.nodes)
+
     def _stop(self) -> None:
         """The whole cluster, at once. No ``serve.shutdown()`` first: the controller waits for the replicas'
         graceful stop, which ended only at its own 30-s limit every time ("Shutdown tier 0 did not drain within
         30.0s"), while stopping the nodes ends every process of the cluster — the replicas, the controller and
         the HAProxy they started — in about 1.5 s (tests/test_serve_ray.py checks that none is left)."""
+        import signal
+
         import ray
 
+        for pid in self._hung:  # stopped processes would never end on Ray's SIGTERM
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        self._hung = []
         ray.shutdown()
         if self.cluster is not None:
             self.cluster.shutdown()
@@ -268,12 +323,12 @@ def failover(
     checkpoint=None,
     say=print,
     cluster: "LocalCluster | None" = None,
+    how: str = "kill",
 ) -> dict:
     """Run ``streams`` resuming clients on a two-node cluster and kill the worker node after
     ``kill_at`` s (module docs); the figures as a dict. ``cluster``: one already running (it is
-    left running, without its worker), else one is started and stopped here."""
-    import contextlib
-
+    left running, without its worker), else one is started and stopped here. ``how="hang"``: the
+    worker node is stopped instead (:meth:`LocalCluster.hang_worker`)."""
     messages = _messages(shared, int(seconds * MODEL_FPS) + 1)
     threshold = pop_threshold(shared)
     with contextlib.nullcontext(cluster) if cluster is not None else LocalCluster(checkpoint, say=say) as lc:
@@ -282,8 +337,9 @@ def failover(
             task = asyncio.ensure_future(_clients(lc.url, streams, seconds, messages))
             await asyncio.sleep(kill_at + 0.2)
             t_kill = time.perf_counter()
-            await asyncio.get_running_loop().run_in_executor(None, lc.kill_worker)
-            say(f"cluster: worker node killed at {kill_at:g} s")
+            stop = lc.hang_worker if how == "hang" else lc.kill_worker
+            await asyncio.get_running_loop().run_in_executor(None, stop)
+            say(f"cluster: worker node {'hung' if how == 'hang' else 'killed'} at {kill_at:g} s")
             return t_kill, await task
 
         t_kill, results = asyncio.run(main())
@@ -297,6 +353,7 @@ def failover(
     good_lost = sum(len([k for k in r.sent if k not in r.got]) for r in good)
     before, after = _rtts(good, hi=t_kill), _rtts(good, lo=t_kill)
     out = {
+        "how": how,
         "streams": streams,
         "nodes": 2,
         "cluster_start_s": round(start_s, 1),
@@ -403,6 +460,10 @@ def run(quick: bool, shared: Path) -> dict:
                 )
             steps = _ladder(lc.url, ladder, trial_s, messages, say)
             fo = failover(shared, streams, seconds, kill_at=seconds * 0.4, checkpoint=checkpoint, say=say, cluster=lc)
+            hung = None
+            if not quick:  # a node that stops answering without closing anything (a new worker in the dead one's place)
+                lc.add_worker()
+                hung = failover(shared, streams, seconds, seconds * 0.4, checkpoint, say, cluster=lc, how="hang")
     finally:
         stop_server(proc)
     held = [r["streams"] for r in steps if _held(r)]
@@ -420,6 +481,8 @@ def run(quick: bool, shared: Path) -> dict:
         "ray_overhead_p50_each": ratios,
         "failover_s": fo["failover_s_max"],
         "handover_pops": fo["handover"]["pops"],
+        "failover_hung": hung,
+        "failover_hung_s": hung["failover_s_max"] if hung else None,
         "loadavg": [round(load0, 1), round(os.getloadavg()[0], 1)],
         "ingress": "haproxy",  # serve --ray's (serving/ray_app.py, INGRESS_ENV)
     }

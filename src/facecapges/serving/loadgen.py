@@ -296,9 +296,12 @@ async def run_resuming_client(
     await asyncio.sleep(max(0.0, start + connect_after - time.perf_counter()))
     k = int(connect_after * fps)
     while k < n:
+        # after a drop, a server that does not answer within the no-pose rule is given up as dead too (a hung
+        # node's kernel still accepts connections): the next attempt may reach a live replica
+        wait = stall_s if res.drops else 5.0
         try:
             ws = await connect(
-                url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None, open_timeout=5
+                url, max_size=protocol.MAX_MESSAGE_BYTES, ping_interval=None, compression=None, open_timeout=wait
             )
         except (TimeoutError, OSError, InvalidHandshake):
             await asyncio.sleep(0.05)
@@ -307,9 +310,13 @@ async def run_resuming_client(
         ws.close_timeout = CLOSE_TIMEOUT_S
         dropped_at = 0.0  # when the no-pose rule gave the connection up (its close may take a moment)
         try:
-            hello = await ws.recv(decode=True)
-            while '"status"' in hello[:40]:
-                hello = await ws.recv(decode=True)
+            try:
+                hello = await asyncio.wait_for(ws.recv(decode=True), wait)
+                while '"status"' in hello[:40]:
+                    hello = await asyncio.wait_for(ws.recv(decode=True), wait)
+            except TimeoutError:
+                await ws.close()
+                continue
             if '"hello"' not in hello:
                 res.errors.append(f"no hello: {hello[:80]}")
                 await ws.close()

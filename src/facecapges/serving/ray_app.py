@@ -78,10 +78,14 @@ INGRESS_ENV = {
     # keep-alive connections of an old HAProxy could still reach it, and those close after each response
     "RAY_SERVE_PORT_QUARANTINE_S": "180",
     # a replica on a machine that died answers nothing (no reset): a reconnecting client's connection
-    # goes to another replica after 1 s (Ray's default 5 s), and HAProxy's health checks mark it down
-    # within ~4 s (default ~10 s) if Ray has not removed it by then
+    # goes to another replica after 1 s (Ray's default 5 s)
     "RAY_SERVE_HAPROXY_TIMEOUT_CONNECT_S": "1",
-    "RAY_SERVE_HAPROXY_HEALTH_CHECK_INTER": "2s",
+    # a replica that stops answering (a hung node: its kernel still accepts connections, nothing replies) is
+    # marked down by HAProxy's health checks within ~1-1.5 s (a check's timeout is its interval; two fail,
+    # 250 ms apart); until then HAProxy's fewest-connections choice keeps sending reconnecting clients to it
+    # (it lost its streams). Ray's default interval, 5 s, held such clients ~5 s (measured: 2 s -> 5.3 s,
+    # 0.5 s -> 1.98 s, docs/serve-cluster.md); the checks are one small HTTP request a replica twice a second
+    "RAY_SERVE_HAPROXY_HEALTH_CHECK_INTER": "500ms",
     # a client reconnecting after its replica died: HAProxy's fewest-connections choice is the dead replica
     # (its streams are gone) until it is marked down. Its first refused connection marks it down (Ray's
     # default: the third), and is answered at once (HTTP 503, the client tries again and reaches a live
