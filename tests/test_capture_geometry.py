@@ -144,6 +144,43 @@ def test_smoother_has_no_lag_on_a_ramp_and_reduces_jitter():
     assert abs(head_angles(out.R)[0] - 1.5) < 1e-9
 
 
+def _smoothed_one_log_at_a_time(poses, window: int, reset_deg: float) -> list[np.ndarray]:
+    """PoseSmoother as it was before issue 36 (the jump and the window each their own log_so3 call)."""
+    from collections import deque
+
+    from facecapges.rotations import exp_so3, log_so3
+
+    Rs: deque = deque(maxlen=window)
+    ts: deque = deque(maxlen=window)
+    coef = {m: hp.PoseSmoother._endpoint_weights(m) for m in range(1, window + 1)}
+    out = []
+    for R_new, t_new in poses:
+        if Rs and hp._norm(log_so3(Rs[-1].T @ R_new)) > math.radians(reset_deg):
+            Rs.clear()
+            ts.clear()
+        Rs.append(R_new.copy())
+        ts.append(t_new.copy())
+        c = coef[len(Rs)]
+        out.append(np.concatenate([(R_new @ exp_so3(c @ log_so3(R_new.T @ np.stack(Rs)))).ravel(), c @ np.stack(ts)]))
+    return out
+
+
+@pytest.mark.parametrize("window", [1, 2, 5])
+def test_smoother_keeps_the_bits_of_one_log_call_at_a_time(window):
+    """The smoother's one log_so3 call a frame (the jump and the window together) makes the numbers the two calls
+    made, resets included (issue 36)."""
+    rng = np.random.default_rng(window)
+    poses, yaw = [], 0.0
+    for k in range(80):
+        yaw += 0.6 if k % 17 == 16 else 0.02  # a jump past reset_deg now and then
+        R = angles_to_matrix(yaw + rng.normal(0, 0.01), rng.normal(0, 0.02), rng.normal(0, 0.01))
+        poses.append((R, rng.normal(size=3) * 10.0))
+    sm = hp.PoseSmoother(window=window, reset_deg=20.0)
+    got = [np.concatenate([p.R.ravel(), p.t]) for p in (sm(hp.HeadPose(R, t)) for R, t in poses)]
+    want = _smoothed_one_log_at_a_time(poses, window, 20.0)
+    assert np.array_equal(np.array(got).view(np.int64), np.array(want).view(np.int64))
+
+
 def test_metrics_means_and_norms_keep_numpys_bits():
     """``metrics._mean`` and the norms it uses are ``mean(axis=-1)`` and ``np.linalg.norm(axis=-1)``'s own arithmetic:
     the same bits on one frame's points and on batches (issue 36)."""

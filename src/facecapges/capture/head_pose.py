@@ -264,16 +264,21 @@ class PoseSmoother:
         self._t.clear()
 
     def __call__(self, pose: HeadPose) -> HeadPose:
-        if self._R:
-            jump = _norm(rot.log_so3(self._R[-1].T @ pose.R))
-            if jump > self.reset:
-                self.reset_state()
-        self._R.append(pose.R.copy())
-        self._t.append(np.asarray(pose.t, np.float64).copy())
-        m = len(self._R)
-        c = self._coef[m]
         ref = pose.R
-        rv = rot.log_so3(ref.T @ np.stack(self._R))  # (m, 3) relative to newest
+        if self._R:
+            # the jump from the last pose and the window's rotations relative to the newest (as if the window goes on)
+            # in one log_so3 call: it works matrix by matrix, so the same numbers as a call each (issue 36)
+            kept = list(self._R)[len(self._R) - self.window + 1 :] if len(self._R) >= self.window else list(self._R)
+            logs = rot.log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
+            rv = logs[1:]  # (m, 3) relative to newest
+            if _norm(logs[0]) > self.reset:
+                self.reset_state()
+                rv = rot.log_so3(ref.T @ np.stack([ref]))
+        else:
+            rv = rot.log_so3(ref.T @ np.stack([ref]))
+        self._R.append(ref.copy())
+        self._t.append(np.asarray(pose.t, np.float64).copy())
+        c = self._coef[len(self._R)]
         R = ref @ rot.exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)

@@ -58,10 +58,12 @@ def scan_end(
     start = 0
     stop = n - 1
     count = scanned = 0.0
-    gaps = np.abs(np.diff(values))
+    # the scan over Python floats (the same numbers and sums as over NumPy's scalars, without making one a step)
+    gaps = np.abs(np.diff(values)).tolist()
+    ws = weights.tolist()
     for i in range(n - 1):
-        count += weights[i]
-        scanned += weights[i]
+        count += ws[i]
+        scanned += ws[i]
         if count >= k_w or scanned >= m_w:
             stop = i
             break
