@@ -105,6 +105,20 @@ def test_modes():
     assert units_to_arkit(a)[ARKIT_NAMES.index("jawOpen")] == 1.0
 
 
+def test_weighted_median_is_the_cumsum_and_searchsorted_one():
+    """The weighted median over Python floats picks what ``np.cumsum`` and ``np.searchsorted`` pick (issue 36),
+    zero weights and ties included."""
+    rng = np.random.default_rng(2)
+    for n in (1, 2, 3, 8, 32, 33):
+        for _ in range(50):
+            v = np.sort(rng.normal(size=n))
+            w = rng.choice([0.0, 0.1, 1 / 3, 0.5, 1.0], size=n) if n > 1 else np.array([0.7])
+            w[rng.integers(0, n)] = 1.0
+            c = np.cumsum(w)
+            want = float(v[min(int(np.searchsorted(c, 0.5 * c[-1])), n - 1)])
+            assert ranges.weighted_median(v, w) == want
+
+
 def _units_to_arkit_channel_by_channel(a: np.ndarray) -> np.ndarray:
     """units_to_arkit as it was before issue 36: the module docstring's table, one expression per channel."""
     from facecapges.capture import estimator as E

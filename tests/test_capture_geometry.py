@@ -144,6 +144,17 @@ def test_smoother_has_no_lag_on_a_ramp_and_reduces_jitter():
     assert abs(head_angles(out.R)[0] - 1.5) < 1e-9
 
 
+def test_the_fits_determinant_sign_is_lapacks():
+    """procrustes' reflection test (the sign of det(U Vᵀ), ±1 to rounding) by cofactors is LAPACK's sign (issue 36)."""
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        u, _, vt = np.linalg.svd(rng.normal(size=(3, 3)) * 10.0 ** rng.integers(-6, 6))
+        m = u @ vt
+        assert hp._det_sign(m) == np.sign(np.linalg.det(m)) and abs(hp._det_sign(m)) == 1.0
+    assert hp._det_sign(np.diag([1.0, 1.0, 0.0])) == 1.0  # 0 counts as no reflection, as before
+    assert math.isnan(hp._det_sign(np.full((3, 3), np.nan)))
+
+
 def _smoothed_one_log_at_a_time(poses, window: int, reset_deg: float) -> list[np.ndarray]:
     """PoseSmoother as it was before issue 36 (the jump and the window each their own log_so3 call)."""
     from collections import deque

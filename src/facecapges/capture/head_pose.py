@@ -108,10 +108,7 @@ def procrustes(
     b = dst - mu_d
     cov = (b * w[:, None]).T @ fit.a  # (3, 3) = Σ w b aᵀ
     u, sig, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    if d == 0:
-        d = 1.0
-    D = np.array([1.0, 1.0, d])
+    D = np.array([1.0, 1.0, _det_sign(u @ vt)])
     R = (u * D) @ vt
     if with_scale:
         var_s = fit.var if fit.var is not None else float(w @ (fit.a * fit.a).sum(axis=1))
@@ -120,6 +117,15 @@ def procrustes(
         s = 1.0
     t = mu_d - s * R @ fit.mu
     return s, R, t
+
+
+def _det_sign(m: np.ndarray) -> float:
+    """``np.sign(np.linalg.det(m))`` of an orthogonal 3×3 ``m`` (0 counted as +1, NaN kept): its determinant is
+    ±1 to rounding, so the cofactor expansion has the same sign as LAPACK's LU; in Python's floats, without
+    ``det``'s argument handling (twice a frame: issue 36)."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return 1.0 if det >= 0.0 else -1.0 if det < 0.0 else det
 
 
 def _norm(x: np.ndarray):
