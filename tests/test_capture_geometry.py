@@ -155,6 +155,24 @@ def test_the_fits_determinant_sign_is_lapacks():
     assert math.isnan(hp._det_sign(np.full((3, 3), np.nan)))
 
 
+def test_lifted_points_keep_the_stacked_formulas_bits(mesh):
+    """landmarks_to_camera writes its columns in place: the numbers of the np.stack formulas (issue 36)."""
+    rng = np.random.default_rng(6)
+    est = hp.HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+    for w, h in ((512, 512), (640, 480)):
+        lm = np.column_stack([rng.uniform(0.3, 0.7, 478), rng.uniform(0.3, 0.7, 478), rng.normal(0, 0.05, 478)])
+        lm[::9, 2] = 0.0  # signed zeros
+        got = hp.landmarks_to_camera(lm.astype(np.float32), w, h, est.canonical, est.weights, est.ids)
+        x = np.asarray(lm.astype(np.float32)[:468], np.float64)
+        px, py = x[:, 0] * w, x[:, 1] * h
+        ortho = np.stack([px, -py, -x[:, 2] * w], axis=1)
+        s, _, t = hp.procrustes(est.canonical[est.ids], ortho[est.ids], est.weights)
+        K = hp.Intrinsics.default(w, h)
+        z = K.fx / s - (ortho[:, 2] - t[2]) / s
+        want = np.stack([(px - K.cx) * z / K.fx, -(py - K.cy) * z / K.fy, -z], axis=1)
+        assert got.tobytes() == want.tobytes()
+
+
 def _smoothed_one_log_at_a_time(poses, window: int, reset_deg: float) -> list[np.ndarray]:
     """PoseSmoother as it was before issue 36 (the jump and the window each their own log_so3 call)."""
     from collections import deque

@@ -174,15 +174,21 @@ def landmarks_to_camera(
     lm = np.asarray(landmarks[:468], np.float64)
     px = lm[:, 0] * width
     py = lm[:, 1] * height
-    # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera)
-    ortho = np.stack([px, -py, -lm[:, 2] * width], axis=1)
+    # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera); columns written in place (what
+    # np.stack(…, axis=1) makes, without its Python layers: issue 36)
+    ortho = np.empty((len(lm), 3))
+    ortho[:, 0] = px
+    np.negative(py, out=ortho[:, 1])
+    np.multiply(lm[:, 2], -width, out=ortho[:, 2])
     s, _, t = procrustes(None, ortho[ids], fit=fit or SourceFit.of(canonical[ids], weights))
     depth = K.fx / s  # cm from the camera to the fitted head origin
     rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
     z = depth - rel / s  # cm, distance along the optical axis
-    X = (px - K.cx) * z / K.fx
-    Y = -(py - K.cy) * z / K.fy
-    return np.stack([X, Y, -z], axis=1)
+    out = np.empty((len(lm), 3))
+    out[:, 0] = (px - K.cx) * z / K.fx
+    out[:, 1] = -(py - K.cy) * z / K.fy
+    np.negative(z, out=out[:, 2])
+    return out
 
 
 @dataclass
