@@ -105,6 +105,62 @@ def test_modes():
     assert units_to_arkit(a)[ARKIT_NAMES.index("jawOpen")] == 1.0
 
 
+def test_weighted_median_is_the_cumsum_and_searchsorted_one():
+    """The weighted median over Python floats picks what ``np.cumsum`` and ``np.searchsorted`` pick (issue 36),
+    zero weights and ties included."""
+    rng = np.random.default_rng(2)
+    for n in (1, 2, 3, 8, 32, 33):
+        for _ in range(50):
+            v = np.sort(rng.normal(size=n))
+            w = rng.choice([0.0, 0.1, 1 / 3, 0.5, 1.0], size=n) if n > 1 else np.array([0.7])
+            w[rng.integers(0, n)] = 1.0
+            c = np.cumsum(w)
+            want = float(v[min(int(np.searchsorted(c, 0.5 * c[-1])), n - 1)])
+            assert ranges.weighted_median(v, w) == want
+
+
+def _units_to_arkit_channel_by_channel(a: np.ndarray) -> np.ndarray:
+    """units_to_arkit as it was before issue 36: the module docstring's table, one expression per channel."""
+    from facecapges.capture import estimator as E
+
+    U, A = {u.metric: i for i, u in enumerate(UNITS)}, {n: i for i, n in enumerate(ARKIT_NAMES)}
+    pos, neg = np.clip(a, 0.0, 1.0), np.clip(-a, 0.0, 1.0)
+    out = np.zeros(a.shape[:-1] + (len(ARKIT_NAMES),))
+    out[..., A["jawOpen"]] = pos[..., U["jaw_drop"]] ** E.JAW_GAMMA
+    lips, narrow, wide = pos[..., U["lip_gap"]], neg[..., U["mouth_width"]], pos[..., U["mouth_width"]]
+    out[..., A["mouthPucker"]] = narrow * (1.0 - lips)
+    out[..., A["mouthFunnel"]] = narrow * lips
+    lift = 0.5 * (pos[..., U["mouth_corner_L"]] + pos[..., U["mouth_corner_R"]])
+    for side in ("Left", "Right"):
+        s = side[0]
+        out[..., A[f"mouthSmile{side}"]] = (1.0 - E.SMILE_CORNER) * wide + E.SMILE_CORNER * lift
+        out[..., A[f"mouthFrown{side}"]] = neg[..., U[f"mouth_corner_{s}"]]
+        out[..., A[f"mouthStretch{side}"]] = wide * (1.0 - pos[..., U[f"mouth_corner_{s}"]])
+        out[..., A[f"browOuterUp{side}"]] = pos[..., U[f"brow_height_{s}"]]
+        out[..., A[f"browDown{side}"]] = neg[..., U[f"brow_height_{s}"]]
+        out[..., A[f"eyeBlink{side}"]] = neg[..., U[f"eyelid_{s}"]] ** E.BLINK_GAMMA
+        out[..., A[f"eyeWide{side}"]] = pos[..., U[f"eyelid_{s}"]]
+        out[..., A[f"noseSneer{side}"]] = neg[..., U[f"nose_{s}"]]
+    out[..., A["jawLeft"]] = pos[..., U["lip_offset"]]
+    out[..., A["jawRight"]] = neg[..., U["lip_offset"]]
+    out[..., A["browInnerUp"]] = pos[..., U["brow_inner"]]
+    return np.clip(out, 0.0, 1.0)
+
+
+def test_units_to_arkit_by_groups_keeps_the_channel_by_channel_bits():
+    """units_to_arkit's groups (one NumPy call each) make the numbers of one expression per channel, signed zeros
+    and NaN included, on one frame and on batches (issue 36)."""
+    rng = np.random.default_rng(5)
+    for shape in [(N_UNITS,), (7, N_UNITS), (2, 3, N_UNITS)]:
+        for scale in (0.3, 1.0, 3.0):
+            a = rng.normal(size=shape) * scale
+            a.flat[::5] = 0.0
+            a.flat[1::7] = -0.0
+            a.flat[3::11] = np.nan
+            got, want = units_to_arkit(a), _units_to_arkit_channel_by_channel(a)
+            assert got.shape == want.shape and got.tobytes() == want.tobytes()
+
+
 def test_synthetic_sequences_recover_known_parameters():
     from facecapges.capture.canonical_mesh import load_canonical_mesh
     from facecapges.capture.head_pose import HeadPoseEstimator

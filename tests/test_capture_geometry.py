@@ -144,6 +144,72 @@ def test_smoother_has_no_lag_on_a_ramp_and_reduces_jitter():
     assert abs(head_angles(out.R)[0] - 1.5) < 1e-9
 
 
+def test_the_fits_determinant_sign_is_lapacks():
+    """procrustes' reflection test (the sign of det(U Vᵀ), ±1 to rounding) by cofactors is LAPACK's sign (issue 36)."""
+    rng = np.random.default_rng(4)
+    for _ in range(300):
+        u, _, vt = np.linalg.svd(rng.normal(size=(3, 3)) * 10.0 ** rng.integers(-6, 6))
+        m = u @ vt
+        assert hp._det_sign(m) == np.sign(np.linalg.det(m)) and abs(hp._det_sign(m)) == 1.0
+    assert hp._det_sign(np.diag([1.0, 1.0, 0.0])) == 1.0  # 0 counts as no reflection, as before
+    assert math.isnan(hp._det_sign(np.full((3, 3), np.nan)))
+
+
+def test_lifted_points_keep_the_stacked_formulas_bits(mesh):
+    """landmarks_to_camera writes its columns in place: the numbers of the np.stack formulas (issue 36)."""
+    rng = np.random.default_rng(6)
+    est = hp.HeadPoseEstimator(mesh.vertices, mesh.procrustes_ids, mesh.procrustes_weights)
+    for w, h in ((512, 512), (640, 480)):
+        lm = np.column_stack([rng.uniform(0.3, 0.7, 478), rng.uniform(0.3, 0.7, 478), rng.normal(0, 0.05, 478)])
+        lm[::9, 2] = 0.0  # signed zeros
+        got = hp.landmarks_to_camera(lm.astype(np.float32), w, h, est.canonical, est.weights, est.ids)
+        x = np.asarray(lm.astype(np.float32)[:468], np.float64)
+        px, py = x[:, 0] * w, x[:, 1] * h
+        ortho = np.stack([px, -py, -x[:, 2] * w], axis=1)
+        s, _, t = hp.procrustes(est.canonical[est.ids], ortho[est.ids], est.weights)
+        K = hp.Intrinsics.default(w, h)
+        z = K.fx / s - (ortho[:, 2] - t[2]) / s
+        want = np.stack([(px - K.cx) * z / K.fx, -(py - K.cy) * z / K.fy, -z], axis=1)
+        assert got.tobytes() == want.tobytes()
+
+
+def _smoothed_one_log_at_a_time(poses, window: int, reset_deg: float) -> list[np.ndarray]:
+    """PoseSmoother as it was before issue 36 (the jump and the window each their own log_so3 call)."""
+    from collections import deque
+
+    from facecapges.rotations import exp_so3, log_so3
+
+    Rs: deque = deque(maxlen=window)
+    ts: deque = deque(maxlen=window)
+    coef = {m: hp.PoseSmoother._endpoint_weights(m) for m in range(1, window + 1)}
+    out = []
+    for R_new, t_new in poses:
+        if Rs and hp._norm(log_so3(Rs[-1].T @ R_new)) > math.radians(reset_deg):
+            Rs.clear()
+            ts.clear()
+        Rs.append(R_new.copy())
+        ts.append(t_new.copy())
+        c = coef[len(Rs)]
+        out.append(np.concatenate([(R_new @ exp_so3(c @ log_so3(R_new.T @ np.stack(Rs)))).ravel(), c @ np.stack(ts)]))
+    return out
+
+
+@pytest.mark.parametrize("window", [1, 2, 5])
+def test_smoother_keeps_the_bits_of_one_log_call_at_a_time(window):
+    """The smoother's one log_so3 call a frame (the jump and the window together) makes the numbers the two calls
+    made, resets included (issue 36)."""
+    rng = np.random.default_rng(window)
+    poses, yaw = [], 0.0
+    for k in range(80):
+        yaw += 0.6 if k % 17 == 16 else 0.02  # a jump past reset_deg now and then
+        R = angles_to_matrix(yaw + rng.normal(0, 0.01), rng.normal(0, 0.02), rng.normal(0, 0.01))
+        poses.append((R, rng.normal(size=3) * 10.0))
+    sm = hp.PoseSmoother(window=window, reset_deg=20.0)
+    got = [np.concatenate([p.R.ravel(), p.t]) for p in (sm(hp.HeadPose(R, t)) for R, t in poses)]
+    want = _smoothed_one_log_at_a_time(poses, window, 20.0)
+    assert np.array_equal(np.array(got).view(np.int64), np.array(want).view(np.int64))
+
+
 def test_metrics_means_and_norms_keep_numpys_bits():
     """``metrics._mean`` and the norms it uses are ``mean(axis=-1)`` and ``np.linalg.norm(axis=-1)``'s own arithmetic:
     the same bits on one frame's points and on batches (issue 36)."""

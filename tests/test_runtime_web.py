@@ -282,6 +282,8 @@ def test_the_viewers_pose_message_is_the_batch_encoders_for_one_frame():
     for k in range(20):
         q = rot.rot6d_to_quaternion(rng.normal(size=(47, 6))).astype(np.float32)
         face = rng.uniform(-0.1 if k % 3 == 0 else 0.0, 1.0, 52).astype(np.float32)  # out of [0, 1] sometimes
+        if k % 5 == 1:
+            face[k] = np.nan  # written as null by both
         lat = {"model": 1.2345678, "total": 9.87654321}
         out = OutputFrame(k, k / 15, rng.normal(size=(47, 6)), q, face, rng.normal(size=6), k % 2 == 0, lat, k % 3)
         one = protocol.encode_pose(out)
@@ -289,3 +291,4 @@ def test_the_viewers_pose_message_is_the_batch_encoders_for_one_frame():
             [k], [out.time_s], q[None], face[None], out.head[None], [out.face_found], [lat], [out.face_index]
         )
         assert one.split(',"sent_ms":')[0] == batch.decode().split(',"sent_ms":')[0] and '"sent_ms":' in one
+        assert protocol.encode_pose_utf8(out).split(b',"sent_ms":')[0] == batch.split(b',"sent_ms":')[0]

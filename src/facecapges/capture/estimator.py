@@ -162,36 +162,69 @@ GEOMETRIC_MASK = np.zeros(N_BLENDSHAPES, bool)
 GEOMETRIC_MASK[[_A[n] for n in GEOMETRIC_CHANNELS]] = True
 
 
+def _arkit_tables() -> tuple[np.ndarray, ...]:
+    """The index tables of :func:`units_to_arkit`: which ARKit channel takes which clipped activation
+    (``pos`` units 0–12, ``neg`` units 13–25 of one array), made once."""
+    n = N_UNITS
+    copy = []  # (channel, activation): the channel is the clipped activation itself
+    for side in ("Left", "Right"):
+        s = side[0]
+        copy += [
+            (f"mouthFrown{side}", n + _U[f"mouth_corner_{s}"]),
+            (f"browOuterUp{side}", _U[f"brow_height_{s}"]),
+            (f"browDown{side}", n + _U[f"brow_height_{s}"]),
+            (f"eyeWide{side}", _U[f"eyelid_{s}"]),
+            (f"noseSneer{side}", n + _U[f"nose_{s}"]),
+        ]
+    copy += [("jawLeft", _U["lip_offset"]), ("jawRight", n + _U["lip_offset"]), ("browInnerUp", _U["brow_inner"])]
+    # (channel, activation, γ): the activation to a power
+    power = [("jawOpen", _U[JAW_UNIT], JAW_GAMMA)]
+    power += [(f"eyeBlink{side}", n + _U[f"eyelid_{side[0]}"], BLINK_GAMMA) for side in ("Left", "Right")]
+    # (channel, a, b, one_minus): a · b, or a · (1 − b)
+    product = [
+        ("mouthPucker", n + _U["mouth_width"], _U["lip_gap"], True),
+        ("mouthFunnel", n + _U["mouth_width"], _U["lip_gap"], False),
+        ("mouthStretchLeft", _U["mouth_width"], _U["mouth_corner_L"], True),
+        ("mouthStretchRight", _U["mouth_width"], _U["mouth_corner_R"], True),
+    ]
+
+    def idx(rows, k: int) -> np.ndarray:
+        return np.array([_A[r[0]] if k == 0 else r[k] for r in rows])
+
+    return (
+        idx(copy, 0),
+        idx(copy, 1),
+        idx(power, 0),
+        idx(power, 1),
+        np.array([r[2] for r in power], np.float64),
+        idx(product, 0),
+        idx(product, 1),
+        idx(product, 2),
+        np.array([r[3] for r in product]),
+    )
+
+
+_COPY_TO, _COPY_FROM, _POW_TO, _POW_FROM, _POW_GAMMA, _PROD_TO, _PROD_A, _PROD_B, _PROD_ONE_MINUS = _arkit_tables()
+_SMILE_TO = np.array([_A["mouthSmileLeft"], _A["mouthSmileRight"]])
+
+
 def units_to_arkit(a: np.ndarray) -> np.ndarray:
     """Unit activations (..., 13) (unclipped, :data:`UNITS` order) → (..., 52) ARKit weights in [0, 1].
 
-    Channels not in :data:`GEOMETRIC_CHANNELS` are 0.
+    Channels not in :data:`GEOMETRIC_CHANNELS` are 0. The table in the module docstring, written by channel
+    groups (:func:`_arkit_tables`: a copy, a power, a product each, one NumPy call per group; the same operations
+    on the same numbers as one expression per channel, issue 36).
     """
     a = np.asarray(a, np.float64)
-    pos = np.clip(a, 0.0, 1.0)
-    neg = np.clip(-a, 0.0, 1.0)
+    pn = np.clip(np.concatenate([a, -a], axis=-1), 0.0, 1.0)  # pos (13), then neg (13)
     out = np.zeros(a.shape[:-1] + (N_BLENDSHAPES,))
-    out[..., _A["jawOpen"]] = pos[..., _U[JAW_UNIT]] ** JAW_GAMMA
-    lips = pos[..., _U["lip_gap"]]
-    narrow = neg[..., _U["mouth_width"]]
-    wide = pos[..., _U["mouth_width"]]
-    out[..., _A["mouthPucker"]] = narrow * (1.0 - lips)
-    out[..., _A["mouthFunnel"]] = narrow * lips
-    lift = 0.5 * (pos[..., _U["mouth_corner_L"]] + pos[..., _U["mouth_corner_R"]])  # both corners' mean lift
-    for side in ("Left", "Right"):
-        s = side[0]
-        corner_up = pos[..., _U[f"mouth_corner_{s}"]]
-        out[..., _A[f"mouthSmile{side}"]] = (1.0 - SMILE_CORNER) * wide + SMILE_CORNER * lift
-        out[..., _A[f"mouthFrown{side}"]] = neg[..., _U[f"mouth_corner_{s}"]]
-        out[..., _A[f"mouthStretch{side}"]] = wide * (1.0 - corner_up)
-        out[..., _A[f"browOuterUp{side}"]] = pos[..., _U[f"brow_height_{s}"]]
-        out[..., _A[f"browDown{side}"]] = neg[..., _U[f"brow_height_{s}"]]
-        out[..., _A[f"eyeBlink{side}"]] = neg[..., _U[f"eyelid_{s}"]] ** BLINK_GAMMA
-        out[..., _A[f"eyeWide{side}"]] = pos[..., _U[f"eyelid_{s}"]]
-        out[..., _A[f"noseSneer{side}"]] = neg[..., _U[f"nose_{s}"]]
-    out[..., _A["jawLeft"]] = pos[..., _U["lip_offset"]]
-    out[..., _A["jawRight"]] = neg[..., _U["lip_offset"]]
-    out[..., _A["browInnerUp"]] = pos[..., _U["brow_inner"]]
+    out[..., _COPY_TO] = pn[..., _COPY_FROM]
+    out[..., _POW_TO] = pn[..., _POW_FROM] ** _POW_GAMMA
+    b = pn[..., _PROD_B]
+    out[..., _PROD_TO] = pn[..., _PROD_A] * np.where(_PROD_ONE_MINUS, 1.0 - b, b)
+    corner_l, corner_r = pn[..., _U["mouth_corner_L"]], pn[..., _U["mouth_corner_R"]]
+    lift = 0.5 * (corner_l + corner_r)  # both corners' mean lift
+    out[..., _SMILE_TO] = ((1.0 - SMILE_CORNER) * pn[..., _U["mouth_width"]] + SMILE_CORNER * lift)[..., None]
     return np.clip(out, 0.0, 1.0)
 
 

@@ -108,10 +108,7 @@ def procrustes(
     b = dst - mu_d
     cov = (b * w[:, None]).T @ fit.a  # (3, 3) = Σ w b aᵀ
     u, sig, vt = np.linalg.svd(cov)
-    d = np.sign(np.linalg.det(u @ vt))
-    if d == 0:
-        d = 1.0
-    D = np.array([1.0, 1.0, d])
+    D = np.array([1.0, 1.0, _det_sign(u @ vt)])
     R = (u * D) @ vt
     if with_scale:
         var_s = fit.var if fit.var is not None else float(w @ (fit.a * fit.a).sum(axis=1))
@@ -120,6 +117,15 @@ def procrustes(
         s = 1.0
     t = mu_d - s * R @ fit.mu
     return s, R, t
+
+
+def _det_sign(m: np.ndarray) -> float:
+    """``np.sign(np.linalg.det(m))`` of an orthogonal 3×3 ``m`` (0 counted as +1, NaN kept): its determinant is
+    ±1 to rounding, so the cofactor expansion has the same sign as LAPACK's LU; in Python's floats, without
+    ``det``'s argument handling (twice a frame: issue 36)."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    det = a * (e * i - f * h) - b * (d * i - f * g) + c * (d * h - e * g)
+    return 1.0 if det >= 0.0 else -1.0 if det < 0.0 else det
 
 
 def _norm(x: np.ndarray):
@@ -168,15 +174,21 @@ def landmarks_to_camera(
     lm = np.asarray(landmarks[:468], np.float64)
     px = lm[:, 0] * width
     py = lm[:, 1] * height
-    # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera)
-    ortho = np.stack([px, -py, -lm[:, 2] * width], axis=1)
+    # scaled-orthographic points in pixels, camera axes (Y up, Z towards the camera); columns written in place (what
+    # np.stack(…, axis=1) makes, without its Python layers: issue 36)
+    ortho = np.empty((len(lm), 3))
+    ortho[:, 0] = px
+    np.negative(py, out=ortho[:, 1])
+    np.multiply(lm[:, 2], -width, out=ortho[:, 2])
     s, _, t = procrustes(None, ortho[ids], fit=fit or SourceFit.of(canonical[ids], weights))
     depth = K.fx / s  # cm from the camera to the fitted head origin
     rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
     z = depth - rel / s  # cm, distance along the optical axis
-    X = (px - K.cx) * z / K.fx
-    Y = -(py - K.cy) * z / K.fy
-    return np.stack([X, Y, -z], axis=1)
+    out = np.empty((len(lm), 3))
+    out[:, 0] = (px - K.cx) * z / K.fx
+    out[:, 1] = -(py - K.cy) * z / K.fy
+    np.negative(z, out=out[:, 2])
+    return out
 
 
 @dataclass
@@ -264,16 +276,21 @@ class PoseSmoother:
         self._t.clear()
 
     def __call__(self, pose: HeadPose) -> HeadPose:
-        if self._R:
-            jump = _norm(rot.log_so3(self._R[-1].T @ pose.R))
-            if jump > self.reset:
-                self.reset_state()
-        self._R.append(pose.R.copy())
-        self._t.append(np.asarray(pose.t, np.float64).copy())
-        m = len(self._R)
-        c = self._coef[m]
         ref = pose.R
-        rv = rot.log_so3(ref.T @ np.stack(self._R))  # (m, 3) relative to newest
+        if self._R:
+            # the jump from the last pose and the window's rotations relative to the newest (as if the window goes on)
+            # in one log_so3 call: it works matrix by matrix, so the same numbers as a call each (issue 36)
+            kept = list(self._R)[len(self._R) - self.window + 1 :] if len(self._R) >= self.window else list(self._R)
+            logs = rot.log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
+            rv = logs[1:]  # (m, 3) relative to newest
+            if _norm(logs[0]) > self.reset:
+                self.reset_state()
+                rv = rot.log_so3(ref.T @ np.stack([ref]))
+        else:
+            rv = rot.log_so3(ref.T @ np.stack([ref]))
+        self._R.append(ref.copy())
+        self._t.append(np.asarray(pose.t, np.float64).copy())
+        c = self._coef[len(self._R)]
         R = ref @ rot.exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)

@@ -35,7 +35,8 @@ always a pair of sorted neighbours.
 
 from __future__ import annotations
 
-from itertools import pairwise
+from bisect import bisect_left
+from itertools import accumulate, pairwise
 
 import numpy as np
 
@@ -58,10 +59,12 @@ def scan_end(
     start = 0
     stop = n - 1
     count = scanned = 0.0
-    gaps = np.abs(np.diff(values))
+    # the scan over Python floats (the same numbers and sums as over NumPy's scalars, without making one a step)
+    gaps = np.abs(np.diff(values)).tolist()
+    ws = weights.tolist()
     for i in range(n - 1):
-        count += weights[i]
-        scanned += weights[i]
+        count += ws[i]
+        scanned += ws[i]
         if count >= k_w or scanned >= m_w:
             stop = i
             break
@@ -112,9 +115,10 @@ def merge_to_three(values: np.ndarray, weights: np.ndarray) -> tuple[float, floa
 
 
 def weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
-    """Weighted median of sorted ``values``."""
-    c = np.cumsum(weights)
-    return float(values[min(int(np.searchsorted(c, 0.5 * c[-1])), len(values) - 1)])
+    """Weighted median of sorted ``values``: the first value whose running weight reaches half the total (the
+    running sums added left to right, as ``np.cumsum``; found as ``np.searchsorted`` does, by ``bisect_left``)."""
+    c = list(accumulate(np.asarray(weights, np.float64).tolist()))
+    return float(values[min(bisect_left(c, 0.5 * c[-1]), len(values) - 1)])
 
 
 def two_directional_range(values: np.ndarray, weights: np.ndarray) -> tuple[float, float, float]:

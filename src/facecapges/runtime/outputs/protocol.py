@@ -128,9 +128,39 @@ def encode_intensity(value: float) -> str:
 
 def encode_pose(out: OutputFrame) -> str:
     """One :class:`OutputFrame` as a ``pose`` message: :func:`encode_poses_utf8`'s text for one frame (the same
-    rounding and the same message), without a batch of one around it (``live``'s viewer feed, once a model frame)."""
-    q, w, h = _rounded(out.quats, out.face, out.head, 1)
-    return _pose_json(out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms).decode()
+    rounding and the same message), without a batch of one around it."""
+    return encode_pose_utf8(out).decode()
+
+
+def encode_pose_utf8(out: OutputFrame) -> bytes:
+    """:func:`encode_pose`'s message as UTF-8, what ``live``'s viewer feed sends as a text frame once a model frame
+    (no decoding here and encoding again in the server's thread, issue 36)."""
+    q, w, h = _rounded_frame(out.quats, out.face, out.head)
+    return _pose_json(out.index, out.time_s, q, w, h, out.face_found, out.face_index, out.latency_ms)
+
+
+_FRAME_SCALES: dict[tuple[int, int, int], np.ndarray] = {}  # 10**decimals of each number of a frame, by the sizes
+
+
+def _rounded_frame(quats, face, head) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_rounded` of one frame, its three parts in one array: ``np.round(x, d)`` is ``rint(x · 10**d) / 10**d``
+    (NumPy's own steps), so one multiply, rint and divide by each number's own 10**d make the same numbers; the
+    quaternions and weights become float32 in one call when all of them are within [-1, 1] (else part by part, as
+    :func:`_rounded` decides)."""
+    nq, nw, nh = np.size(quats), np.size(face), np.size(head)
+    scale = _FRAME_SCALES.get((nq, nw, nh))
+    if scale is None:
+        scale = _FRAME_SCALES[nq, nw, nh] = np.repeat([1e6, 1e5, 1e6], [nq, nw, nh])
+    parts = (np.ravel(quats), np.ravel(face), np.ravel(head))
+    r = np.rint(np.concatenate(parts, dtype=np.float64) * scale)
+    r /= scale
+    n = nq + nw
+    qw = r[:n]
+    if nq and nw and qw.min() >= -1.0 and qw.max() <= 1.0:
+        f = qw.astype(np.float32)
+        return f[:nq], f[nq:], r[n:]
+    q, w = (a.astype(np.float32) if a.size and a.min() >= -1.0 and a.max() <= 1.0 else a for a in (r[:nq], qw[nq:]))
+    return q, w, r[n:]
 
 
 def encode_poses_utf8(

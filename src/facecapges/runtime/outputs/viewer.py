@@ -206,14 +206,15 @@ class ViewerServer(ServerThread):
         host = self.host if ":" not in self.host else f"[{self.host}]"
         return f"http://{host}:{self.port}/"
 
-    def broadcast(self, text: str) -> None:
-        """Send ``text`` to every connected viewer (thread-safe, never blocks the caller)."""
+    def broadcast(self, text: str | bytes) -> None:
+        """Send ``text`` to every connected viewer as a text frame (thread-safe, never blocks the caller); ``bytes``
+        are its UTF-8, sent as they are."""
         if self._loop is None or not self.clients:
             return
         from websockets.asyncio.server import broadcast
 
         def send():
-            broadcast(set(self.clients), text)
+            broadcast(set(self.clients), text, text=True)
 
         if self.call_soon(send):
             self.frames_sent += 1
@@ -227,7 +228,7 @@ class WebFeed:
 
     def write(self, out: OutputFrame) -> None:
         if self.server.clients:
-            self.server.broadcast(protocol.encode_pose(out))
+            self.server.broadcast(protocol.encode_pose_utf8(out))
 
     def close(self) -> None:
         pass
