@@ -39,7 +39,7 @@ from __future__ import annotations
 import secrets
 import struct
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from websockets.asyncio.client import ClientConnection
 from websockets.asyncio.server import ServerConnection
@@ -150,7 +150,7 @@ class _Delivering(_Connection):
         protocol = self.protocol
         if protocol.state is not State.OPEN or protocol.extensions or protocol.debug or protocol.reader.buffer:
             return False
-        gen = protocol.parser  # the innermost generator it waits in: reader.at_eof() between frames (parse())
+        gen: Any = protocol.parser  # the innermost generator it waits in: reader.at_eof() between frames (parse())
         while getattr(gen, "gi_yieldfrom", None) is not None:
             gen = gen.gi_yieldfrom
         self._direct = getattr(gen, "gi_code", None) is _AT_EOF
