@@ -2,8 +2,9 @@
 
 Run once by ``make setup``, after the install. Two reasons:
 
-* our streaming kernel (:func:`facecapges.network.native.warm`) and the matching engine's loops
-  (:func:`facecapges.matching.kernels.warm`): compiled here, not by a stream's first frame;
+* our streaming kernel (:func:`facecapges.network.native.warm`), the matching engine's loops
+  (:func:`facecapges.matching.kernels.warm`) and ``serve``'s quaternions (:func:`facecapges.serving.quaternions.converter`):
+  compiled here, not by a stream's first frame;
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
   ``__pycache__``. Two processes doing that at the same time (the suite's two pytest-xdist workers on a fresh
@@ -22,6 +23,9 @@ def main() -> None:
     from facecapges.matching import kernels
 
     kernels.warm()  # the streaming kernel's functions too (network.native.warm)
+    from facecapges.serving import quaternions
+
+    quaternions.converter()  # serve's model process: a tick's quaternions
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

@@ -9,7 +9,8 @@ it waiting at each one: measured on this 2-core machine, 80 clients, one run (lo
 loop 44, and the kernel in this separate process never waits for the loop at all. So
 the kernel runs here, in a child process (``spawn``), and the server talks to it over
 a pipe; the inputs and outputs of a tick (poses as rot6d and as the quaternions the
-``pose`` messages carry, converted here, beside the kernel) travel through blocks of
+``pose`` messages carry, converted here, beside the kernel, by a compiled loop that gives NumPy's
+``rot6d_to_quaternion`` to the bit: :mod:`facecapges.serving.quaternions`) travel through blocks of
 shared memory (the standard library's ``multiprocessing.shared_memory``, seen as NumPy
 arrays on both sides), so a tick costs one small message each way. The server makes the
 blocks and unlinks them when it stops, also after the child crashed; should the server
@@ -151,6 +152,9 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
     a, f, h, p, q = arrays
     try:
         warm_engine(gen, a.shape[1])
+        from facecapges.serving.quaternions import converter
+
+        to_quaternions = converter()  # NumPy's rot6d_to_quaternion to the bit, compiled (serving.quaternions)
     except Exception as exc:  # noqa: BLE001  as a failed load
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
@@ -168,7 +172,7 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
             if kind == "step":
                 B = len(msg[1])
                 p[:B] = gen.step(msg[1], a[:B], f[:B], h[:B])
-                q[:B] = rot.rot6d_to_quaternion(p[:B].astype(np.float64))
+                to_quaternions(p[:B].reshape(-1, 6), q[:B].reshape(-1, 4))
                 res = None
             elif kind == "sync":
                 res = _sync(gen, *msg[1:])

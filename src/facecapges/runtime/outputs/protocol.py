@@ -90,8 +90,22 @@ class ProtocolError(ValueError):
     """A client message that is not a valid protocol message."""
 
 
+_SCALE = tuple(10.0**nd for nd in range(7))  # exact powers of ten (_r)
+
+
 def _r(x: float, nd: int) -> float:
-    return round(float(x), nd)
+    """``round(float(x), nd)`` (0 ≤ nd ≤ 6), the same float, without its decimal conversion (3.5 K instructions of
+    ``serve``'s per stream-frame cost, six per ``pose``): ``round`` takes the integer k nearest to x·10^nd (half to
+    even, on x's exact value) and returns the float nearest to k / 10^nd, which the division gives (both exact,
+    IEEE rounds it correctly). x·10^nd is off by at most half an ulp, so k is the same unless that product lies
+    within a few ulps of a half — then, and for huge or non-finite values, ``round`` itself decides."""
+    x = float(x)
+    y = x * _SCALE[nd]
+    if -1e15 < y < 1e15:
+        k = round(y)
+        if abs(abs(y - k) - 0.5) > 1e-15 * abs(y) + 1e-300:
+            return k / _SCALE[nd] if k else math.copysign(0.0, x)
+    return round(x, nd)
 
 
 def encode_hello(fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, intensity: float = 1.0) -> str:
