@@ -134,3 +134,28 @@ def test_a_frame_cut_short_by_the_end_of_the_stream_is_reported_as_before():
 
     asyncio.run(main())
     assert done["code"] == 1006 and "stream ends after 3 bytes" in str(done["reason"].__cause__ or done["reason"])
+
+
+def test_a_frame_sent_a_byte_at_a_time_is_looked_at_only_when_it_can_be_whole(monkeypatch):
+    """A slow sender's frame (here 2,000 bytes, one per write) is collected until its length is reached, not
+    parsed and copied again at each piece (that is quadratic in the frame's size: a client could spend the
+    server's CPU with 64 KiB frames sent a byte at a time)."""
+    calls = {"cut": 0, "received": 0}
+    cut, received = MessageConnection._cut, MessageConnection.data_received
+
+    def counting_cut(self, data):
+        calls["cut"] += 1
+        return cut(self, data)
+
+    def counting_received(self, data):
+        calls["received"] += 1
+        return received(self, data)
+
+    monkeypatch.setattr(MessageConnection, "_cut", counting_cut)
+    monkeypatch.setattr(MessageConnection, "data_received", counting_received)
+    payload = b"z" * 2000
+    raw = frame(payload)
+    got, replies, code, _ = exchange([raw[k : k + 1] for k in range(len(raw))], pause=0.001)
+    assert got == [payload.decode()] and replies == [payload] and code is None
+    assert calls["received"] > 100, calls  # it did arrive in pieces
+    assert calls["cut"] <= 6, calls  # its first bytes, its header, its length known, the whole frame (not 2,000)

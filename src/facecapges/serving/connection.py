@@ -67,7 +67,8 @@ class _Delivering(_Connection):
         self._inbox: list[str | bytes] = []  # messages before a callback was set
         self._parts: list[Frame] = []  # the frames of a fragmented message so far
         self._paused = False
-        self._tail = b""  # the start of a frame not fully received (the direct path: module docs)
+        self._tail = bytearray()  # the start of a frame not fully received (the direct path: module docs)
+        self._need = 0  # the bytes it must reach before it is looked at again (a frame sent in pieces)
         self._direct = False  # websockets' parser is known to stand between frames with nothing buffered
         self._masked = 0x80 if self.protocol.side is Side.SERVER else 0  # the mask bit a received frame has
 
@@ -123,16 +124,19 @@ class _Delivering(_Connection):
 
     def data_received(self, data: bytes) -> None:
         """Complete text frames straight to :meth:`_message`, anything else to ``websockets`` (module docs)."""
-        if self._tail:
-            data, self._tail = self._tail + data, b""
+        if self._tail:  # collected, not re-parsed, until it can be a whole frame (or a whole header)
+            self._tail += data
+            if len(self._tail) < self._need:
+                return
+            data, self._tail = bytes(self._tail), bytearray()
         cut = self._cut(data) if self._direct or self._between_frames() else None
         if cut is None:  # websockets' own parsing, as before, until its parser stands between frames again
             self._direct = False
             super().data_received(data)
             return
-        frames, rest = cut
+        frames, rest, self._need = cut
         if rest < len(data):
-            self._tail = data[rest:]
+            self._tail = bytearray(data[rest:])
         for start, end in frames:  # a masked frame's key is the 4 bytes before its payload
             self._message(
                 True, apply_mask(data[start:end], data[start - 4 : start]) if self._masked else data[start:end]
@@ -140,7 +144,7 @@ class _Delivering(_Connection):
 
     def eof_received(self) -> None:
         if self._tail:  # a frame cut short: websockets' parser sees its bytes and fails as it did before
-            tail, self._tail = self._tail, b""
+            tail, self._tail = bytes(self._tail), bytearray()
             super().data_received(tail)
         super().eof_received()
 
@@ -156,8 +160,10 @@ class _Delivering(_Connection):
         self._direct = getattr(gen, "gi_code", None) is _AT_EOF
         return self._direct
 
-    def _cut(self, data: bytes) -> tuple[list[tuple[int, int]], int] | None:
-        """The payloads (start, end) of the complete frames of ``data`` and where the incomplete rest starts;
+    def _cut(self, data: bytes) -> tuple[list[tuple[int, int]], int, int] | None:
+        """The payloads (start, end) of the complete frames of ``data``, where the incomplete rest starts and how
+        many bytes that rest needs before it is worth looking at again (its frame's, or its header's, while its
+        length is not known: so a frame sent a byte at a time is not parsed and copied again at each byte);
         None if any frame is not for the direct path (module docs: websockets' parser takes ``data`` whole)."""
         protocol = self.protocol
         if protocol.state is not State.OPEN or protocol.current_size is not None:
@@ -166,6 +172,7 @@ class _Delivering(_Connection):
         if protocol.max_fragment_size is not None:
             limit = protocol.max_fragment_size if limit is None else min(limit, protocol.max_fragment_size)
         frames, pos, end, masked = [], 0, len(data), self._masked
+        need = 2
         while end - pos >= 2:
             head, length = data[pos], data[pos + 1]
             if head != 0x81 or length & 0x80 != masked:  # not a final text frame, masked as this side's
@@ -175,6 +182,7 @@ class _Delivering(_Connection):
             if length >= 126:
                 size = 2 if length == 126 else 8
                 if end - start < size:
+                    need = start + size - pos
                     break
                 length = int.from_bytes(data[start : start + size], "big")
                 start += size
@@ -182,10 +190,12 @@ class _Delivering(_Connection):
                 return None
             start += 4 if masked else 0
             if end - start < length:
+                need = start + length - pos
                 break
             frames.append((start, start + length))
             pos = start + length
-        return frames, pos
+            need = 2
+        return frames, pos, need
 
     def _message(self, text: bool, data) -> None:
         """A complete message: to the callback (or the inbox while there is none; module docs)."""
