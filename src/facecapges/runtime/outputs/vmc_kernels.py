@@ -22,7 +22,9 @@ import numpy as np
 
 from facecapges import rotations_compiled as rc
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+# the GIL kept: a call of a few µs that released it waited up to the switch interval (5 ms) to take it back from a
+# busy thread (a tick behind a model step: the steady-rate tests failed under load)
+_jit = numba.njit(cache=True, error_model="numpy")
 
 
 @_jit
