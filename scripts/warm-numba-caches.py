@@ -3,8 +3,9 @@
 Run once by ``make setup``, after the install. Two reasons:
 
 * our streaming kernel (:func:`facecapges.network.native.warm`), the matching engine's loops
-  (:func:`facecapges.matching.kernels.warm`) and ``serve``'s quaternions (:func:`facecapges.serving.quaternions.converter`):
-  compiled here, not by a stream's first frame;
+  (:func:`facecapges.matching.kernels.warm`), ``serve``'s quaternions (:func:`facecapges.serving.quaternions.converter`)
+  and the VMC sender's (:func:`facecapges.runtime.outputs.vmc_kernels.warm`): compiled here, not by a stream's first
+  frame (nor by a sender's construction in ``live``);
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
   ``__pycache__``. Two processes doing that at the same time (the suite's two pytest-xdist workers on a fresh
@@ -21,11 +22,13 @@ import numpy as np
 
 def main() -> None:
     from facecapges.matching import kernels
+    from facecapges.runtime.outputs import vmc_kernels
 
     kernels.warm()  # the streaming kernel's functions too (network.native.warm)
     from facecapges.serving import quaternions
 
     quaternions.converter()  # serve's model process: a tick's quaternions
+    vmc_kernels.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

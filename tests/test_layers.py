@@ -2,7 +2,8 @@
 
 The layers follow the data path a user's frame takes (README "Layout"):
 
-0. conventions — ``errors``, ``rotations``, ``skeleton``, ``timing``, ``arkit``, ``progress``
+0. conventions — ``errors``, ``rotations`` (``rotations_compiled``: its Numba form), ``skeleton``, ``timing``,
+   ``arkit``, ``progress``
 1. ``io`` — file formats
 2. ``capture`` (camera → face), ``data`` (datasets, the cache)
 3. ``engine`` — the contract both engines meet: style and stream interfaces, the batched protocol,
@@ -31,7 +32,7 @@ import pytest
 PKG = Path(__file__).resolve().parents[1] / "src" / "facecapges"
 
 LAYERS: dict[str, int] = {
-    "errors": 0, "rotations": 0, "skeleton": 0, "timing": 0, "arkit": 0, "progress": 0,
+    "errors": 0, "rotations": 0, "rotations_compiled": 0, "skeleton": 0, "timing": 0, "arkit": 0, "progress": 0,
     "io": 1,
     "capture": 2, "data": 2,
     "engine": 3,

@@ -634,3 +634,69 @@ def test_live_reads_the_vmc_avatar_once_for_every_face(skeleton, vrm_files, monk
         np.testing.assert_array_equal(senders[0].mapping.rig.positions[bone], pos)
     for s in senders:
         s.close()
+
+
+def _numpy_bones(mapping: VmcMapping, quats47: np.ndarray) -> np.ndarray:
+    """The bones' Unity quaternions (x, y, z, w) by :mod:`facecapges.rotations`' NumPy formulas, batched as the
+    sender computed them before its compiled form (:func:`vmc_kernels.bone_quaternions`): the test's oracle."""
+    mats = np.broadcast_to(np.eye(3), (mapping.skeleton.n_joints, 3, 3)).copy()
+    mats[mapping.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
+    paths = [path for _, path, _ in mapping.bones]
+    R = mats[[p[0] for p in paths]]
+    for d in range(1, max(len(p) for p in paths)):
+        ks = np.array([k for k, p in enumerate(paths) if len(p) > d], np.int64)
+        R[ks] = R[ks] @ mats[[p[d] for p in paths if len(p) > d]]
+    X = np.diag([-1.0, 1.0, 1.0])
+    wp_inv = np.array([mapping.rig.parent_rest[u].T for u, _, _ in mapping.bones]).reshape(-1, 3, 3)
+    wb = np.array([mapping.rig.bone_rest[u] for u, _, _ in mapping.bones]).reshape(-1, 3, 3)
+    return rot.matrix_to_quaternion(wp_inv @ (X @ R @ X) @ wb)[:, [1, 2, 3, 0]]
+
+
+def _numpy_datagrams(sender: VmcSender, q: np.ndarray, face: np.ndarray, time_s: float) -> list[bytes]:
+    numbers = np.concatenate([q.reshape(-1), face, (time_s,)]).astype(">f4")  # struct.pack(">f")'s rounding
+    buf = sender._template.copy()
+    buf[(sender._at[:, None] + np.arange(4)).reshape(-1)] = numbers.view(np.uint8)
+    data = buf.tobytes()
+    return [data[a:b] for a, b in sender._spans]
+
+
+@pytest.mark.parametrize(("blend", "parts", "avatar"), [("both", "all", None), ("vrm", "upper", "vrm0"),
+                                                        ("perfect-sync", "arms", "tilted")])  # fmt: skip
+def test_ticks_are_the_numpy_formulas_bytes(beat_take, skeleton, vrm_files, blend, parts, avatar):
+    """Every datagram of a model frame and of the ticks between two (the compiled bones, slerp, lerp and packing:
+    vmc_kernels) is the bytes of :mod:`facecapges.rotations`' NumPy formulas — on the BEAT take's frames (as the
+    engine gives them, float32) with random face weights and fractions; our rig, a VRM 0.x's and one whose bones
+    all have rest rotations."""
+    from facecapges.runtime.outputs.vmc import our_rig
+    from facecapges.skeleton import motion_to_pose
+
+    pose, _ = motion_to_pose(beat_take.skeleton, beat_take.motion[::7][:60])
+    quats = rot.rot6d_to_quaternion(pose).astype(np.float32)
+    rng = np.random.default_rng(7)
+    faces = rng.uniform(-0.1, 1.1, (len(quats), 52)).astype(np.float32)
+    rig = {None: None, "vrm0": vrm_files[1], "tilted": our_rig(skeleton)}[avatar]
+    if avatar == "tilted":
+        for rest in (rig.parent_rest, rig.bone_rest):
+            for bone in rest:
+                rest[bone] = rot.quaternion_to_matrix(rng.standard_normal(4))
+    sender = VmcSender(skeleton, "127.0.0.1", 9, blend=blend, parts=parts, avatar=rig)
+    sender.sock.close()
+    sender.sock = rx = _Datagrams()  # type: ignore[assignment]
+    prev = None
+    for k in range(len(quats)):
+        out = OutputFrame(k, k / 15, pose[k], quats[k], faces[k], rot.identity_rot6d(), True, {})
+        fr = sender.model_frame(out)
+        want_q = _numpy_bones(sender.mapping, quats[k])
+        np.testing.assert_array_equal(fr[0].view(np.int64), want_q.view(np.int64))
+        sender.send(fr, out.time_s)
+        assert rx.frames[-2] == _numpy_datagrams(sender, want_q, fr[1], out.time_s)
+        if prev is not None:
+            for w in (*rng.uniform(0, 1, 3), 0.5, 1.0 / 3):
+                q, face = sender.between(prev, fr, w)
+                want = rot.quaternion_slerp(prev[0], fr[0], w), (1.0 - w) * prev[1] + w * fr[1]
+                np.testing.assert_array_equal(q.view(np.int64), want[0].view(np.int64))
+                np.testing.assert_array_equal(face.view(np.int64), want[1].view(np.int64))
+                t = out.time_s + rng.uniform(0, 0.05)
+                sender.send((q, face), t)
+                assert rx.frames[-2] == _numpy_datagrams(sender, *want, t)
+        prev = fr

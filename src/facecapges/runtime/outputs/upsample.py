@@ -38,8 +38,8 @@ to ``b``) and ``send(frame, time_s)``. The upsampler keeps, per sink, what it sh
 start and end of its blend, and calls those from its thread; a model frame is sent as
 ``model_frame`` gives it (the same bytes as the sink's ``write`` of that frame). The VMC sender
 (:class:`~facecapges.runtime.outputs.vmc.VmcSender`) is one: a tick slerps its bones' Unity
-quaternions and lerps its clips' weights and packs them, where converting a blended
-:class:`OutputFrame` cost three times as much (issue 36). Any other sink (``write(out)``) gets
+quaternions and lerps its clips' weights and packs them (compiled: :mod:`.vmc_kernels`), where
+converting a blended :class:`OutputFrame` cost three times as much as the NumPy form of that (issue 36). Any other sink (``write(out)``) gets
 :func:`blend_frames` of the frames (:class:`FrameBlend`). Slerp commutes with the fixed rest
 frames on both sides (``Wp⁻¹ · Q · Wb``), so a bone that carries one BEAT joint moves the same
 in either form; a bone that carries several (folded joints: Head ← Neck1, a proximal finger

@@ -23,7 +23,9 @@ sends: a model frame's bone quaternions and clip weights are computed once
 between two model frames slerps those quaternions and lerps those weights
 (:meth:`VmcSender.between`): for the bones carrying folded BEAT joints and the VRM preset clips
 a slightly different path between the same two frames than converting a blended pose would
-take (:mod:`.upsample`, "Between model frames").
+take (:mod:`.upsample`, "Between model frames"). The bones of a model frame, a tick's slerp and
+lerp and the packing of a frame's numbers are compiled (:mod:`.vmc_kernels`, Numba, loaded when a
+sender is built): the bits of :mod:`facecapges.rotations`' NumPy formulas, in a few calls.
 
 Face clips (``blend``, ``live --vmc-blend``)
 --------------------------------------------
@@ -299,7 +301,7 @@ class VmcMapping:
             )
         self.rig = rig if rig is not None else our_rig(skeleton)
         table = {b: u for b, u in BEAT_TO_UNITY.items() if u in self.rig.positions}
-        self.upper_idx = np.array([names.index(n) for n in UPPER_BODY])
+        self.upper_idx = np.array([names.index(n) for n in UPPER_BODY], np.int64)
         self.bones: list[tuple[str, list[int], np.ndarray]] = []
         rest_p, rest_b = [], []
         for beat, unity in table.items():
@@ -317,36 +319,31 @@ class VmcMapping:
             rest_b.append(self.rig.bone_rest[unity])
         self._wp_inv = np.asarray(rest_p).reshape(-1, 3, 3)
         self._wb = np.asarray(rest_b).reshape(-1, 3, 3)
-        # the paths as index arrays: R = mats[first]; then, step d, R[bones with a d-th joint] @= mats[that joint]
-        self._first = np.array([path[0] for _, path, _ in self.bones], np.int64)
-        depth = max((len(path) for _, path, _ in self.bones), default=1)
-        self._steps = [
-            (
-                np.array([k for k, (_, path, _) in enumerate(self.bones) if len(path) > d], np.int64),
-                np.array([path[d] for _, path, _ in self.bones if len(path) > d], np.int64),
-            )
-            for d in range(1, depth)
-        ]
-        # made once: every joint at rest (the matrices the pose's quaternions are written into) and Unity's X flip
-        self._rest = np.broadcast_to(np.eye(3), (skeleton.n_joints, 3, 3)).copy()
-        self._rest.flags.writeable = False
-        self._x = np.diag(_UNITY_X)
+        # the paths as one index array: bone k's joints are _path[_starts[k] : _starts[k + 1]]
+        self._path = np.array([j for _, path, _ in self.bones for j in path], np.int64)
+        self._starts = np.cumsum([0] + [len(path) for _, path, _ in self.bones]).astype(np.int64)
+        self._x = np.diag(_UNITY_X)  # Unity's X flip
+        from facecapges.runtime.outputs import vmc_kernels  # Numba: loaded when a mapping is built (vmc_kernels)
+
+        vmc_kernels.warm()  # (once a process) the machine code loaded now, not on the first frame
+        self._kernels = vmc_kernels
 
     def local_rotations(self, quats47: np.ndarray) -> list[tuple[str, np.ndarray, np.ndarray]]:
         """(Unity bone name, Unity position (3,), Unity quaternion (w, x, y, z)) per sent bone."""
-        q = self.local_quaternions(quats47)
+        q = self.local_quaternions(quats47)[:, [3, 0, 1, 2]]
         return [(unity, pos, q[k]) for k, (unity, _, pos) in enumerate(self.bones)]
 
     def local_quaternions(self, quats47: np.ndarray) -> np.ndarray:
-        """The Unity quaternions (w, x, y, z) of the sent bones, (bones, 4) in :attr:`bones` order."""
-        mats = self._rest.copy()
-        mats[self.upper_idx] = rot.quaternion_to_matrix(np.asarray(quats47, np.float64))
-        R = mats[self._first]  # each bone's path product, one step of every path at a time
-        for ks, js in self._steps:
-            R[ks] = R[ks] @ mats[js]
-        X = self._x
-        local = self._wp_inv @ (X @ R @ X) @ self._wb  # Wp⁻¹ · Q · Wb in Unity's frame (module docstring)
-        return rot.matrix_to_quaternion(local)
+        """The Unity quaternions of the sent bones as sent, (x, y, z, w), (bones, 4) in :attr:`bones` order: each
+        bone's path product ``Q`` (the pose's quaternions as matrices), ``Wp⁻¹ · (X · Q · X) · Wb`` in Unity's frame
+        (module docstring), as a quaternion — one compiled call (:func:`.vmc_kernels.bone_quaternions`: the bits
+        of :mod:`facecapges.rotations`' ``quaternion_to_matrix``, ``@`` and ``matrix_to_quaternion``)."""
+        out = np.empty((len(self.bones), 4))
+        self._kernels.bone_quaternions(
+            np.ascontiguousarray(quats47, np.float64), self.upper_idx, self.skeleton.n_joints, self._path, self._starts,
+            self._wp_inv, self._wb, self._x, out,
+        )  # fmt: skip
+        return out
 
 
 def vmc_note(avatar: str | Path | None, parts: str = "all") -> str:
@@ -489,19 +486,23 @@ class VmcSender:
         self._bone_prefix = [_prefix("/VMC/Ext/Bone/Pos", ",sfffffff", name) for name, _, _ in bones]
         self._bone_pos = np.array([pos for _, _, pos in bones], np.float64).reshape(-1, 3)
         self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
-        self._template, self._slots, self._spans = self._layout()
+        self._template, self._at, self._spans = self._layout()
+        self._buf = self._template.copy()  # what send packs into
+        self._kernels = self.mapping._kernels
+        self._arc: tuple = (None, None, None)  # the last blend's pair and its arcs' angles (between)
         self.sent = 0  # frames
         self.datagrams = 0
         self.largest_datagram = 0
         self.errors = 0
 
     def _layout(self) -> tuple[np.ndarray, np.ndarray, list[tuple[int, int]]]:
-        """The frame's datagrams with their changing numbers blank, where those go and each datagram's span.
+        """The frame's datagrams with their changing numbers blank, where each number's 4 bytes go and each
+        datagram's span.
 
         Every message but its numbers is the same each frame and so is its length, hence the way
         :func:`pack_bundles` packs them: packed once here (the bones' positions, which never change, in place;
-        zeros for the rest), a frame is then one scatter of its packed rotations, weights and time into a copy
-        (:meth:`send`; the same bytes as packing its messages)."""
+        zeros for the rest), a frame is then its rotations, weights and time packed at their offsets
+        (:func:`.vmc_kernels.pack`, one compiled call; the same bytes as packing its messages)."""
         xyz = self._bone_pos.astype(">f4").tobytes()
         pieces = [(_ROOT, 0)] if self.parts == "all" else []
         pieces += [(pre + xyz[12 * k : 12 * k + 12], 16) for k, pre in enumerate(self._bone_prefix)]
@@ -520,41 +521,51 @@ class VmcSender:
             while pos < end:
                 pre, n = pieces[k]
                 start = pos + 4 + len(pre)
-                slots += range(start, start + n)
+                slots += range(start, start + n, 4)  # each number's first byte
                 pos += 4 + len(msgs[k])
                 k += 1
         assert k == len(pieces) and pos == sum(len(g) for g in grams)
-        return np.frombuffer(b"".join(grams), np.uint8), np.array(slots, np.intp), spans
+        return np.frombuffer(b"".join(grams), np.uint8).copy(), np.array(slots, np.int64), spans
 
     # ------------------------------------------------------------------ the upsampler's interpolating sink
     def model_frame(self, out: OutputFrame) -> tuple[np.ndarray, np.ndarray]:
         """The sender's own form of a model frame (:mod:`.upsample`, module docstring "Between model frames"):
         its bones' Unity quaternions as sent, (bones, 4) (x, y, z, w), and its clips' weights, float64."""
-        q = self.mapping.local_quaternions(np.asarray(out.quats))[:, [1, 2, 3, 0]]
+        q = self.mapping.local_quaternions(out.quats)
         face = blend_weights(out.face, self.blend) if self.parts != "arms" else np.empty(0)
         return q, face
 
     def between(self, a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], w: float):
         """``w`` of the way from ``a`` to ``b`` (:meth:`model_frame` forms): the bones' slerp (the same arc in any
-        order of the components), the clips' weights linearly."""
-        return rot.quaternion_slerp(a[0], b[0], w), (1.0 - w) * a[1] + w * b[1]
+        order of the components; :func:`facecapges.rotations.quaternion_slerp`'s bits), the clips' weights linearly,
+        in one compiled call (:func:`.vmc_kernels.between`). The arcs' angles are taken once per pair ``a``, ``b``
+        (the ticks of one blend share them): with NumPy's own ``arccos``, as the slerp's formula has it."""
+        arc = self._arc
+        if arc[0] is not a or arc[1] is not b:
+            cos = np.empty(len(a[0]))
+            self._kernels.arcs(a[0], b[0], cos)
+            self._arc = arc = (a, b, np.arccos(cos))
+        q, face = np.empty_like(a[0]), np.empty_like(a[1])
+        self._kernels.between(a[0], b[0], arc[2], a[1], b[1], float(w), q, face)
+        return q, face
 
     def send(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> None:
         """Send a frame in the sender's own form (:meth:`model_frame`, :meth:`between`) at stream time ``time_s``."""
+        buf = self._buf  # (this thread's: the sink's send is called from one thread)
+        self._kernels.pack(frame[0], frame[1], float(time_s), buf, self._at)
+        data = buf.tobytes()
         try:
-            for d in self._datagrams(frame, time_s):
-                self.sock.sendto(d, self.address)
+            for a, b in self._spans:
+                self.sock.sendto(data[a:b], self.address)
                 self.datagrams += 1
-                self.largest_datagram = max(self.largest_datagram, len(d))
+                self.largest_datagram = max(self.largest_datagram, b - a)
             self.sent += 1
         except OSError:  # receiver not there (ICMP port unreachable): UDP is fire-and-forget
             self.errors += 1
 
     def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> list[bytes]:
-        q, face = frame
-        numbers = np.concatenate([q.reshape(-1), face, (time_s,)]).astype(">f4")  # struct.pack(">f")'s rounding
         buf = self._template.copy()
-        buf[self._slots] = numbers.view(np.uint8)
+        self._kernels.pack(frame[0], frame[1], float(time_s), buf, self._at)
         data = buf.tobytes()
         return [data[a:b] for a, b in self._spans]
 

@@ -1,0 +1,185 @@
+"""The rotation maths of the compiled loops (Numba), one copy: the conventions of :mod:`facecapges.rotations`.
+
+Quaternions are ``(w, x, y, z)`` as there. Each function here is the scalar form of one of
+:mod:`facecapges.rotations`' NumPy formulas, for compiled callers (the matching engine's
+:mod:`facecapges.matching.kernels`): the same expressions in the same order, so the same values — to ~1 ulp where
+libm's transcendental functions stand in for NumPy's own SIMD ones.
+
+Numba is imported here: a module that only converts rotations imports :mod:`facecapges.rotations`; the compiled
+callers import this one when they are built (``serve``'s server process and a command's error path never load
+Numba). The machine code is cached beside the callers' files (``cache=True``; Numba re-checks only the caller's own
+file: after an edit here, clear the callers' ``__pycache__`` or run ``make setup``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numba
+import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+
+@_jit
+def qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a · b`` of one pair of quaternions (4,): :func:`facecapges.rotations.quaternion_multiply`'s sums."""
+    aw, ax, ay, az, bw, bx, by, bz = a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]
+    out[0] = aw * bw - ax * bx - ay * by - az * bz
+    out[1] = aw * bx + ax * bw + ay * bz - az * by
+    out[2] = aw * by - ax * bz + ay * bw + az * bx
+    out[3] = aw * bz + ax * by - ay * bx + az * bw
+
+
+@_jit
+def qmul_conj(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a · b⁻¹`` of unit quaternions (4,) (b's conjugate, then :func:`qmul`)."""
+    c = np.empty(4)
+    c[0], c[1], c[2], c[3] = b[0], -b[1], -b[2], -b[3]
+    qmul(a, c, out)
+
+
+@_jit
+def qlog_abs(q: np.ndarray, out: np.ndarray) -> None:
+    """``out ← log(q)`` (3,) of ``q`` (4,) written with w ≥ 0: ``qlog(qabs(q))`` (:mod:`facecapges.rotations`)."""
+    sign = -1.0 if q[0] < 0 else 1.0
+    w, x, y, z = sign * q[0], sign * q[1], sign * q[2], sign * q[3]
+    s = np.sqrt(x * x + y * y + z * z)
+    angle = 2.0 * np.arctan2(s, w)
+    k = angle / max(s, 1e-12)
+    if not s > 1e-9:
+        k = 2.0 / (w if abs(w) > 1e-12 else 1.0)
+    out[0], out[1], out[2] = x * k, y * k, z * k
+
+
+@_jit
+def qexp(r: np.ndarray, out: np.ndarray) -> None:
+    """``out ← exp(r)`` (4,) of a rotation vector (3,) (:func:`facecapges.rotations.quaternion_exp`)."""
+    angle = np.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    half = 0.5 * angle
+    k = np.sin(half) / max(angle, 1e-12)
+    if not angle > 1e-9:
+        k = 0.5 - angle**2 / 48.0
+    out[0], out[1], out[2], out[3] = np.cos(half), r[0] * k, r[1] * k, r[2] * k
+
+
+_EPS = 1e-8  # :mod:`facecapges.rotations`' floor of a norm
+
+
+@_jit
+def quaternion_to_matrix(q: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (3, 3) ← the rotation of the quaternion ``q`` (4,), normalised first: the bits of
+    :func:`facecapges.rotations.quaternion_to_matrix` (its norm summed left to right, its nine expressions)."""
+    n = np.sqrt(((q[0] * q[0] + q[1] * q[1]) + q[2] * q[2]) + q[3] * q[3])
+    if n < _EPS:  # np.maximum(n, _EPS) (a NaN stays)
+        n = _EPS
+    w, x, y, z = q[0] / n, q[1] / n, q[2] / n, q[3] / n
+    out[0, 0] = 1 - 2 * (y * y + z * z)
+    out[0, 1] = 2 * (x * y - z * w)
+    out[0, 2] = 2 * (x * z + y * w)
+    out[1, 0] = 2 * (x * y + z * w)
+    out[1, 1] = 1 - 2 * (x * x + z * z)
+    out[1, 2] = 2 * (y * z - x * w)
+    out[2, 0] = 2 * (x * z - y * w)
+    out[2, 1] = 2 * (y * z + x * w)
+    out[2, 2] = 1 - 2 * (x * x + y * y)
+
+
+def _fma_intrinsic(typingctx, a, b, c):
+    """``a · b + c`` rounded once (LLVM's ``llvm.fma.f64``: the FMA instruction where the CPU has one)."""
+    sig = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, signature, args):
+        d = ir.DoubleType()
+        return builder.call(builder.module.declare_intrinsic("llvm.fma", [d], ir.FunctionType(d, [d, d, d])), args)
+
+    return sig, codegen
+
+
+_fma: Any = intrinsic(_fma_intrinsic)  # called in compiled code as _fma(a, b, c)
+
+
+@_jit
+def matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a @ b`` of 3 × 3 matrices (``out`` not ``a`` or ``b``) as NumPy's ``@`` computes it here (OpenBLAS's
+    kernel): each entry from ``+0``, then ``+ a_i0 b_0j``, ``+ a_i1 b_1j`` and ``+ a_i2 b_2j``, each fused (one rounding;
+    the ``+0`` makes a product's ``−0`` a ``+0``): its bits,
+    held by ``tests/test_rotations_compiled.py`` (a machine whose BLAS sums otherwise would fail that test)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = _fma(a[i, 2], b[2, j], _fma(a[i, 1], b[1, j], _fma(a[i, 0], b[0, j], 0.0)))
+
+
+@_jit
+def matrix_to_quaternion(m: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (4,) ← the unit quaternion, w ≥ 0, of the matrix ``m`` (3, 3): the bits of
+    :func:`facecapges.rotations.matrix_to_quaternion` (the four candidates ``1 ± m00 ± m11 ± m22`` left to right, the
+    largest's four numbers, scaled, made w ≥ 0, normalised)."""
+    m00, m11, m22 = m[0, 0], m[1, 1], m[2, 2]
+    c = np.empty(4)
+    c[0] = ((1 + m00) + m11) + m22
+    c[1] = ((1 + m00) + -m11) + -m22
+    c[2] = ((1 + -m00) + m11) + -m22
+    c[3] = ((1 + -m00) + -m11) + m22
+    best = 0
+    for k in range(1, 4):  # np.argmax: the first largest
+        if c[k] > c[best]:
+            best = k
+    a, b, d = m[2, 1] + -m[1, 2], m[0, 2] + -m[2, 0], m[1, 0] + -m[0, 1]
+    e, f, g = m[0, 1] + m[1, 0], m[0, 2] + m[2, 0], m[1, 2] + m[2, 1]
+    if best == 0:
+        out[0], out[1], out[2], out[3] = c[0], a, b, d
+    elif best == 1:
+        out[0], out[1], out[2], out[3] = a, c[1], e, f
+    elif best == 2:
+        out[0], out[1], out[2], out[3] = b, e, c[2], g
+    else:
+        out[0], out[1], out[2], out[3] = d, f, g, c[3]
+    s = c[best]
+    if s < _EPS:
+        s = _EPS
+    s = np.sqrt(s) * 2.0
+    for k in range(4):
+        out[k] = out[k] / s
+    if out[0] < 0:
+        for k in range(4):
+            out[k] = -out[k]
+    n = np.sqrt(((out[0] * out[0] + out[1] * out[1]) + out[2] * out[2]) + out[3] * out[3])
+    if n < _EPS:
+        n = _EPS
+    for k in range(4):
+        out[k] = out[k] / n
+
+
+@_jit
+def slerp(q0: np.ndarray, q1: np.ndarray, theta: float, t: float, out: np.ndarray) -> None:
+    """``out`` (4,) ← the slerp ``t`` of the way from ``q0`` to ``q1`` (4,, any one order of the components), ``theta``
+    the angle :func:`slerp_cosine` gives (its ``arccos``): the bits of :func:`facecapges.rotations.quaternion_slerp`
+    (``quaternion_power_about``'s closed form)."""
+    dot = 0.0
+    for k in range(4):
+        dot += q0[k] * q1[k]
+    sign = -1.0 if dot < 0.0 else 1.0
+    s = np.sin(theta)
+    if s < 1e-6:  # nearly equal rotations: the linear blend, normalised
+        a, b = 1.0 - t, t
+    else:
+        a, b = np.sin((1.0 - t) * theta) / s, np.sin(t * theta) / s
+    for k in range(4):
+        out[k] = a * q0[k] + b * (-q1[k] if sign < 0 else q1[k])
+    n = np.sqrt(((out[0] * out[0] + out[1] * out[1]) + out[2] * out[2]) + out[3] * out[3])
+    for k in range(4):
+        out[k] = out[k] / n
+
+
+@_jit
+def slerp_cosine(q0: np.ndarray, q1: np.ndarray) -> float:
+    """``min(|q0 · q1|, 1)`` of two quaternions (4,): the cosine whose ``np.arccos`` is :func:`slerp`'s ``theta``
+    (NumPy's arccos here is its own SIMD one, not libm's: the caller takes it, to keep its bits)."""
+    dot = 0.0
+    for k in range(4):
+        dot += q0[k] * q1[k]
+    return min(abs(dot), 1.0)
