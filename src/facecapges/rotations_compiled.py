@@ -114,44 +114,75 @@ def matmul3(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
 
 
 @_jit
+def _maximum(x: float, y: float) -> float:
+    """``np.maximum`` of two floats: a NaN wins."""
+    if np.isnan(x) or x >= y:
+        return x
+    return y
+
+
+@_jit
 def matrix_to_quaternion(m: np.ndarray, out: np.ndarray) -> None:
     """``out`` (4,) ← the unit quaternion, w ≥ 0, of the matrix ``m`` (3, 3): the bits of
     :func:`facecapges.rotations.matrix_to_quaternion` (the four candidates ``1 ± m00 ± m11 ± m22`` left to right, the
-    largest's four numbers, scaled, made w ≥ 0, normalised)."""
+    first largest — a NaN first, as ``np.argmax`` — its four numbers, scaled, made w ≥ 0, normalised)."""
     m00, m11, m22 = m[0, 0], m[1, 1], m[2, 2]
-    c = np.empty(4)
-    c[0] = ((1 + m00) + m11) + m22
-    c[1] = ((1 + m00) + -m11) + -m22
-    c[2] = ((1 + -m00) + m11) + -m22
-    c[3] = ((1 + -m00) + -m11) + m22
-    best = 0
-    for k in range(1, 4):  # np.argmax: the first largest
-        if c[k] > c[best]:
-            best = k
+    cw = ((1 + m00) + m11) + m22
+    cx = ((1 + m00) + -m11) + -m22
+    cy = ((1 + -m00) + m11) + -m22
+    cz = ((1 + -m00) + -m11) + m22
+    best, top = 0, cw  # np.argmax: the first largest; a NaN is taken at once
+    if not np.isnan(top) and (np.isnan(cx) or cx > top):
+        best, top = 1, cx
+    if not np.isnan(top) and (np.isnan(cy) or cy > top):
+        best, top = 2, cy
+    if not np.isnan(top) and (np.isnan(cz) or cz > top):
+        best, top = 3, cz
     a, b, d = m[2, 1] + -m[1, 2], m[0, 2] + -m[2, 0], m[1, 0] + -m[0, 1]
     e, f, g = m[0, 1] + m[1, 0], m[0, 2] + m[2, 0], m[1, 2] + m[2, 1]
     if best == 0:
-        out[0], out[1], out[2], out[3] = c[0], a, b, d
+        q0, q1, q2, q3 = cw, a, b, d
     elif best == 1:
-        out[0], out[1], out[2], out[3] = a, c[1], e, f
+        q0, q1, q2, q3 = a, cx, e, f
     elif best == 2:
-        out[0], out[1], out[2], out[3] = b, e, c[2], g
+        q0, q1, q2, q3 = b, e, cy, g
     else:
-        out[0], out[1], out[2], out[3] = d, f, g, c[3]
-    s = c[best]
-    if s < _EPS:
-        s = _EPS
-    s = np.sqrt(s) * 2.0
-    for k in range(4):
-        out[k] = out[k] / s
-    if out[0] < 0:
-        for k in range(4):
-            out[k] = -out[k]
-    n = np.sqrt(((out[0] * out[0] + out[1] * out[1]) + out[2] * out[2]) + out[3] * out[3])
-    if n < _EPS:
-        n = _EPS
-    for k in range(4):
-        out[k] = out[k] / n
+        q0, q1, q2, q3 = d, f, g, cz
+    s = np.sqrt(_maximum(top, _EPS)) * 2.0
+    q0, q1, q2, q3 = q0 / s, q1 / s, q2 / s, q3 / s
+    if q0 < 0:
+        q0, q1, q2, q3 = -q0, -q1, -q2, -q3
+    n = _maximum(np.sqrt(((q0 * q0 + q1 * q1) + q2 * q2) + q3 * q3), _EPS)
+    out[0], out[1], out[2], out[3] = q0 / n, q1 / n, q2 / n, q3 / n
+
+
+@_jit
+def rot6d_to_matrix(r6: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (3, 3) ← the rotation of one rot6d row ``r6`` (6,), any float dtype, in float64: the bits of
+    :func:`facecapges.rotations.rot6d_to_matrix` (Gram–Schmidt, each dot product summed as NumPy's ``einsum`` does
+    here: ``0 + ((x0 + x2) + x1)``, then the cross product; the columns are the two vectors and their cross)."""
+    a0, a1, a2 = np.float64(r6[0]), np.float64(r6[1]), np.float64(r6[2])
+    b0, b1, b2 = np.float64(r6[3]), np.float64(r6[4]), np.float64(r6[5])
+    d = _maximum(np.sqrt(0.0 + ((a0 * a0 + a2 * a2) + a1 * a1)), _EPS)
+    u0, u1, u2 = a0 / d, a1 / d, a2 / d  # the first column
+    dot = 0.0 + ((u0 * b0 + u2 * b2) + u1 * b1)
+    v0, v1, v2 = b0 - dot * u0, b1 - dot * u1, b2 - dot * u2
+    d = _maximum(np.sqrt(0.0 + ((v0 * v0 + v2 * v2) + v1 * v1)), _EPS)
+    w0, w1, w2 = v0 / d, v1 / d, v2 / d  # the second
+    out[0, 0], out[1, 0], out[2, 0] = u0, u1, u2
+    out[0, 1], out[1, 1], out[2, 1] = w0, w1, w2
+    out[0, 2], out[1, 2], out[2, 2] = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+
+
+@_jit
+def rot6d_to_quaternions(r6: np.ndarray, out: np.ndarray) -> None:
+    """Rows of rot6d ``r6`` (n, 6), any float dtype → unit quaternions ``out`` (n, 4) float64, (w, x, y, z), w ≥ 0:
+    ``rotations.rot6d_to_quaternion(r6.astype(np.float64))``'s numbers (:func:`rot6d_to_matrix`, then
+    :func:`matrix_to_quaternion`)."""
+    m = np.empty((3, 3))
+    for n in range(r6.shape[0]):
+        rot6d_to_matrix(r6[n], m)
+        matrix_to_quaternion(m, out[n])
 
 
 @_jit
