@@ -38,10 +38,11 @@ $(STAMP): pyproject.toml package.json package-lock.json scripts/setup-capture.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e '.[test,ray]'
-	PYTHON=$(PY) bash scripts/setup-capture.sh
-	PYTHON=$(PY) bash scripts/setup-avatar.sh
-	bash scripts/setup-runtime.sh
-	$(PY) scripts/warm-numba-caches.py  # fill Numba's on-disk caches in one process (ours and librosa's; see the script)
+	# Numba's on-disk caches filled in one process (ours and librosa's; see the script), beside the other set-up
+	# scripts (none of them runs Numba or librosa): its compiles take a core while they install and unpack
+	$(PY) scripts/warm-numba-caches.py & warm=$$!; \
+	PYTHON=$(PY) bash scripts/setup-capture.sh && PYTHON=$(PY) bash scripts/setup-avatar.sh && \
+	bash scripts/setup-runtime.sh; status=$$?; wait $$warm && exit $$status
 	touch $(STAMP)
 
 clean:
