@@ -62,6 +62,17 @@ def render_cache(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.fixture(scope="session", autouse=True)
+def avatar_cache(render_cache) -> Path:
+    """One folder per pytest session for the avatar's 52 ARKit targets ($FACECAPGES_AVATAR_CACHE, keyed by every
+    file of the package and the face model: ``avatar.blendshapes.arkit_blendshapes``): built once (1.3-1.8 s), not
+    at every ``live --web`` start, ``run`` with the avatar video and ``default_avatar`` call (docs/testing.md)."""
+    d = render_cache.parent / "avatar-cache"
+    d.mkdir(exist_ok=True)
+    os.environ["FACECAPGES_AVATAR_CACHE"] = str(d)  # the tests' subprocesses inherit it
+    return d
+
+
 @pytest.fixture(scope="session")
 def beat_bvh() -> Path:
     return shared_file("data/beat/2_scott_0_1_1.bvh")

@@ -9,7 +9,7 @@ import pytest
 
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.avatar import blendshape_table as bt
-from facecapges.avatar.blendshapes import arkit_blendshapes
+from facecapges.avatar.blendshapes import AVATAR_CACHE_ENV, arkit_blendshapes
 from facecapges.avatar.mesh import TriMesh, canonical_face, read_obj, write_obj
 from facecapges.errors import UserError
 from runtime_helpers import cli
@@ -22,6 +22,26 @@ def shapes():
 
 def _target(shapes, name):
     return shapes.targets[shapes.names.index(name)]
+
+
+def test_the_suites_avatar_cache_gives_the_built_targets_bit_for_bit(shapes, tmp_path, monkeypatch):
+    """$FACECAPGES_AVATAR_CACHE (the suite's, tests/conftest.py): the first call builds and keeps the targets, the
+    next reads them back — the same bytes as a build (``shapes``: built with ``compare``, so never from a cache)."""
+    import pickle
+
+    monkeypatch.setenv(AVATAR_CACHE_ENV, str(tmp_path))
+    first = arkit_blendshapes()
+    kept = list(tmp_path.glob("arkit-*.pickle"))
+    assert len(kept) == 1 and not list(tmp_path.glob("*.part"))
+    again = arkit_blendshapes()
+    for got in (first, again):
+        assert got.names == shapes.names and got.targets.tobytes() == shapes.targets.tobytes()
+        assert got.neutral.vertices.tobytes() == shapes.neutral.vertices.tobytes()
+        assert got.neutral.faces.tobytes() == shapes.neutral.faces.tobytes()
+    changed = pickle.loads(kept[0].read_bytes())
+    changed.targets[:] = 0.0
+    kept[0].write_bytes(pickle.dumps(changed))
+    assert not arkit_blendshapes().targets.any()  # read from the folder, not built again
 
 
 def test_canonical_face_is_the_468_vertex_mediapipe_mesh():

@@ -15,7 +15,10 @@ whole table) and measures what the issue asks to see:
 
 from __future__ import annotations
 
+import os
+import pickle
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -161,9 +164,54 @@ def _report(
     return report
 
 
+AVATAR_CACHE_ENV = "FACECAPGES_AVATAR_CACHE"  # set by the test suite only (tests/conftest.py, docs/testing.md)
+
+
 def arkit_blendshapes(aoi: bool = True, compare: bool = False, progress=None) -> Blendshapes:
     """The 52 ARKit targets of MediaPipe's canonical face from the shipped control table,
-    in :data:`facecapges.arkit.ARKIT_NAMES` order."""
+    in :data:`facecapges.arkit.ARKIT_NAMES` order.
+
+    With ``$FACECAPGES_AVATAR_CACHE`` set (the test suite only) a build without ``compare`` or ``progress`` is kept
+    in that folder, keyed by what decides it (:func:`_arkit_key`), and read back by later calls and processes: the
+    same arrays, built once per session instead of at every ``live --web`` start and ``default_avatar`` call."""
+    cache = os.environ.get(AVATAR_CACHE_ENV)
+    if not cache or compare or progress is not None:
+        return _build_arkit(aoi, compare, progress)
+    path = Path(cache) / f"arkit-{_arkit_key(aoi)}.pickle"
+    if path.is_file():
+        with path.open("rb") as f:
+            return pickle.load(f)
+    shapes = _build_arkit(aoi, compare, progress)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    part = path.with_name(f"{path.name}.{os.getpid()}.part")  # written under another name, then renamed: a reader
+    with part.open("wb") as f:  # never sees half a file (two processes building at once each write a whole one)
+        pickle.dump(shapes, f, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(part, path)
+    return shapes
+
+
+def package_digest(h) -> None:
+    """Feed every file of the installed package (code and assets, with their paths) to the hash ``h``."""
+    package = Path(__file__).resolve().parents[1]
+    for f in sorted(package.rglob("*")):
+        if f.is_file() and "__pycache__" not in f.parts:
+            h.update(str(f.relative_to(package)).encode() + f.read_bytes())
+
+
+def _arkit_key(aoi: bool) -> str:
+    """What decides :func:`arkit_blendshapes`'s result: ``aoi``, every file of the package (the code, the control
+    table) and the face model the canonical face is read from."""
+    import hashlib
+
+    from facecapges.capture.models import resolve_model
+
+    h = hashlib.sha256(repr(("arkit", aoi)).encode())
+    package_digest(h)
+    h.update(Path(resolve_model(None)).read_bytes())
+    return h.hexdigest()[:32]
+
+
+def _build_arkit(aoi: bool, compare: bool, progress) -> Blendshapes:
     from facecapges.arkit import ARKIT_NAMES
     from facecapges.avatar.blendshape_table import default_table_path, load_table, require_arkit
     from facecapges.avatar.mesh import canonical_face

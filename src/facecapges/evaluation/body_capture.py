@@ -158,16 +158,14 @@ def _render_key(inputs: list[Path], args: list[str]) -> str:
     the installed package (code, web page, avatar assets) and three.js's version."""
     import hashlib
 
+    from facecapges.avatar.blendshapes import package_digest
     from facecapges.avatar.render.browser import three_dir
 
     h = hashlib.sha256()
     for f in inputs:
         h.update(f.read_bytes())
     h.update(repr([a for a in args if not a.endswith((".bvh", ".mp4", ".wav"))]).encode())
-    package = Path(__file__).resolve().parents[1]
-    for f in sorted(package.rglob("*")):
-        if f.is_file() and "__pycache__" not in f.parts:
-            h.update(str(f.relative_to(package)).encode() + f.read_bytes())
+    package_digest(h)
     h.update((three_dir() / "package.json").read_bytes())
     return h.hexdigest()[:32]
 
