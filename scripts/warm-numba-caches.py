@@ -3,7 +3,7 @@
 Run once by ``make setup``, after the install. Two reasons:
 
 * our streaming kernel (:func:`facecapges.network.native.warm`), the matching engine's loops
-  (:func:`facecapges.matching.kernels.warm`), ``serve``'s quaternions (:func:`facecapges.serving.quaternions.converter`)
+  (:func:`facecapges.matching.kernels.warm`), the rotations' (:func:`facecapges.rotations_compiled.checked_rot6d_to_quaternions`)
   and the VMC sender's (:func:`facecapges.runtime.outputs.vmc_kernels.warm`): compiled here, not by a stream's first
   frame (nor by a sender's construction in ``live``);
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
@@ -25,9 +25,9 @@ def main() -> None:
     from facecapges.runtime.outputs import vmc_kernels
 
     kernels.warm()  # the streaming kernel's functions too (network.native.warm)
-    from facecapges.serving import quaternions
+    from facecapges.rotations_compiled import checked_rot6d_to_quaternions
 
-    quaternions.converter()  # serve's model process: a tick's quaternions
+    checked_rot6d_to_quaternions()  # serve's model process: a tick's quaternions
     vmc_kernels.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 

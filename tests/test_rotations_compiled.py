@@ -68,3 +68,38 @@ def test_slerp_is_quaternion_slerp():
         for i in range(len(q0)):
             rc.slerp(q0[i], q1[i], theta[i], t, got[i])
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
+
+
+def same_quaternion_bits(r6: np.ndarray) -> None:
+    want = rot.rot6d_to_quaternion(np.asarray(r6, np.float64)).reshape(-1, 4)
+    got = np.empty_like(want)
+    rc.rot6d_to_quaternions(np.ascontiguousarray(r6).reshape(-1, 6), got)
+    differ = ~((want.view(np.uint64) == got.view(np.uint64)) | (np.isnan(want) & np.isnan(got))).all(axis=1)
+    assert not differ.any(), (np.flatnonzero(differ)[:5], want[differ][:3], got[differ][:3])
+
+
+@pytest.mark.parametrize("B", [1, 7, 100, 300])
+def test_rot6d_rows_of_a_ticks_poses(B):
+    """A tick's layout (B, 47, 6) float32, as the engines return it, from random rotations."""
+    q = np.random.default_rng(B).standard_normal((B, 47, 4))
+    same_quaternion_bits(rot.quaternion_to_rot6d(q / np.linalg.norm(q, axis=-1, keepdims=True)).astype(np.float32))
+
+
+def test_rot6d_rows_any_signed_zeros_tiny_and_half_turns():
+    rng = np.random.default_rng(0)
+    same_quaternion_bits(rng.standard_normal((50_000, 6)).astype(np.float32))
+    same_quaternion_bits(rng.choice(np.array([0.0, -0.0, 1.0, -1.0, 0.5, -0.5, 1e-9, -1e-9], np.float32), size=(50_000, 6)))
+    same_quaternion_bits((rng.standard_normal((20_000, 6)) * 1e-5).astype(np.float32))
+    angle = rng.uniform(np.pi - 1e-3, np.pi, 20_000)  # near 180°: the largest candidate changes
+    axis = rng.standard_normal((20_000, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    q = np.concatenate([np.cos(angle / 2)[:, None], np.sin(angle / 2)[:, None] * axis], 1)
+    same_quaternion_bits(rot.quaternion_to_rot6d(q).astype(np.float32))
+    with np.errstate(invalid="ignore"):
+        same_quaternion_bits(np.array([[np.nan, 0, 0, 0, 1, 0], [np.inf, 0, 0, 0, 1, 0], [0, 0, 0, 0, 0, 0]], np.float32))
+
+
+def test_the_checked_conversion_is_the_compiled_loop_here():
+    """:func:`checked_rot6d_to_quaternions` checks the loop against NumPy on this machine and keeps it (else NumPy's
+    own): here it is the loop (serve's model process converts a tick with it)."""
+    assert rc.checked_rot6d_to_quaternions() is rc.rot6d_to_quaternions

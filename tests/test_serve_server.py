@@ -443,7 +443,7 @@ def test_model_process_sync_and_split_step(ckpt):
             want = gen.step([ga, gb], audio2, face2, head2)
             # the same batch in another process: float32 rounding may differ there (threads), 0.01° (tolerances.py)
             assert_rotations_close(poses, want, what="the model process's poses")
-            # the same float64 function of the same poses, compiled there (serving/quaternions.py): the same bits
+            # the same float64 function of the same poses, compiled there (rotations_compiled.checked_rot6d_to_quaternions): the same bits
             np.testing.assert_array_equal(quats, rot.rot6d_to_quaternion(poses.astype(np.float64)), strict=True)
         (c,) = mp.sync([a], 1, [])
         assert mp.open_slots == {b, c}

@@ -10,7 +10,7 @@ loop 44, and the kernel in this separate process never waits for the loop at all
 the kernel runs here, in a child process (``spawn``), and the server talks to it over
 a pipe; the inputs and outputs of a tick (poses as rot6d and as the quaternions the
 ``pose`` messages carry, converted here, beside the kernel, by a compiled loop that gives NumPy's
-``rot6d_to_quaternion`` to the bit: :mod:`facecapges.serving.quaternions`) travel through blocks of
+``rot6d_to_quaternion`` to the bit: :func:`facecapges.rotations_compiled.checked_rot6d_to_quaternions`) travel through blocks of
 shared memory (the standard library's ``multiprocessing.shared_memory``, seen as NumPy
 arrays on both sides), so a tick costs one small message each way. The server makes the
 blocks and unlinks them when it stops, also after the child crashed; should the server
@@ -152,9 +152,9 @@ def _run(conn, checkpoint, arrays: list[np.ndarray]) -> None:
     a, f, h, p, q = arrays
     try:
         warm_engine(gen, a.shape[1])
-        from facecapges.serving.quaternions import converter
+        from facecapges.rotations_compiled import checked_rot6d_to_quaternions
 
-        to_quaternions = converter()  # NumPy's rot6d_to_quaternion to the bit, compiled (serving.quaternions)
+        to_quaternions = checked_rot6d_to_quaternions()  # NumPy's rot6d_to_quaternion to the bit, compiled
     except Exception as exc:  # noqa: BLE001  as a failed load
         conn.send(("error", f"{exc.__class__.__name__}: {exc}"))
         return
