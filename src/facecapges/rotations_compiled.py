@@ -237,7 +237,11 @@ def checked_rot6d_to_quaternions() -> Callable[[np.ndarray, np.ndarray], None]:
     want = rot.rot6d_to_quaternion(r6.astype(np.float64))
     got = np.empty_like(want)
     rot6d_to_quaternions(r6, got)
-    if np.array_equal(want.view(np.uint64), got.view(np.uint64)):
+    wide = np.empty_like(want)
+    rot6d_to_quaternions(r6.astype(np.float64), wide)  # float64 rows too (live's poses): loaded here, not at a frame
+    if np.array_equal(want.view(np.uint64), got.view(np.uint64)) and np.array_equal(
+        want.view(np.uint64), wide.view(np.uint64)
+    ):
         return rot6d_to_quaternions
     return _numpy_rot6d_to_quaternions
 

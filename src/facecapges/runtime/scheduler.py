@@ -271,6 +271,9 @@ class Scheduler:
         self._stage: dict[str, float] = {}  # the current frame's stage times
         self._t_input = 0.0
         self._c_input = 0.0  # the scheduler thread's CPU clock then
+        from facecapges.rotations_compiled import checked_rot6d_to_quaternions  # Numba: the engines load it anyway
+
+        self._to_quaternions = checked_rot6d_to_quaternions()  # each frame's quaternions, one call, NumPy's bits
         for st in self.streams:
             st.gen.reset()
 
@@ -403,7 +406,9 @@ class Scheduler:
             if mouth is not None and not inp.face_found:
                 # no face track: the speech moves the mouth, as much as the held face has gone
                 shown = np.clip(inp.face + (1.0 - st.hold.remaining) * mouth, 0.0, 1.0).astype(np.float32)
-            quats = rot.rot6d_to_quaternion(pose.astype(np.float64)).astype(np.float32)
+            q64 = np.empty((len(pose), 4))
+            self._to_quaternions(np.ascontiguousarray(pose, np.float64), q64)
+            quats = q64.astype(np.float32)
             outs.append(OutputFrame(k, k / self.fps, pose, quats, shown, inp.head, inp.face_found, stage, st.index))
         return outs
 
