@@ -108,6 +108,8 @@ def test_control_frames_fragments_and_binary_keep_their_order():
         (frame(b"a", head=0xC1), 1002),  # a reserved bit without an extension
         (frame(b"a", head=0x83), 1002),  # an unknown opcode
     ],
+    # named: the frames' masks are random, and pytest-xdist's workers must collect the same test ids
+    ids=["not-utf8", "above-max-size", "unmasked", "reserved-bit", "unknown-opcode"],
 )
 def test_faults_close_as_websockets_does(raw, code):
     got, _, seen_code, _ = exchange([frame(b"ok") + raw], max_size=256)
