@@ -22,6 +22,7 @@ import numpy as np
 import pytest
 
 from _study_media import make_clips
+from facecapges.serving.admission import GRACE_S
 from facecapges.study.build import create_study, open_study
 from facecapges.study.server import make_server, serve_in_thread
 
@@ -398,6 +399,9 @@ def test_slow_rate_holders_do_not_lock_out_a_live_client(stream_server):
     assert s.get("evicted_slow", 0) >= 4
 
 
+LIVE_INPUTS = 45  # the live newcomer's inputs (3 s at 15 a second) in the loopback cap's test
+
+
 @pytest.mark.serial
 def test_one_loopback_address_is_capped_and_its_slow_streams_make_room(stream_server):
     """The per-address cap holds on loopback too (16 by default): 24 slow holders from 127.0.0.1 get
@@ -410,7 +414,7 @@ def test_one_loopback_address_is_capped_and_its_slow_streams_make_room(stream_se
         attack = asyncio.ensure_future(_slow_holders(srv.url, 24, 0.9, stop))
         await asyncio.sleep(3.0)
         held = len([st for st in list(srv.streams.values()) if not st.probation and st.address == "127.0.0.1"])
-        same = await _live_client(srv.url, 30)
+        same = await _live_client(srv.url, LIVE_INPUTS)
         stop.set()
         await asyncio.wait_for(attack, 10)
         return held, same
@@ -418,7 +422,10 @@ def test_one_loopback_address_is_capped_and_its_slow_streams_make_room(stream_se
     held, same = asyncio.run(asyncio.wait_for(main(), 60))
     s = srv.summary()
     assert held <= 16, (held, s)
-    assert same >= 20, (same, s)  # admitted and served (a loaded machine may drop a few frames as busy)
+    # admitted and served: it may wait on probation up to the holders' grace second (its inputs dropped meanwhile,
+    # the admission policy's own bound: 15 frames), and a loaded machine may drop a few more as busy (5). With 30
+    # inputs and 20 asked, 11 dropped in the wait failed it now and then, with the code before and after 2026-12-04
+    assert same >= LIVE_INPUTS - GRACE_S * 15 - 5, (same, s)
     assert s.get("refused_address", 0) + s.get("evicted_slow", 0) >= 8, s
 
 
