@@ -149,32 +149,8 @@ def encode_pose(out: OutputFrame) -> str:
 def encode_pose_utf8(out: OutputFrame) -> bytes:
     """:func:`encode_pose`'s message as UTF-8, what ``live``'s viewer feed sends as a text frame once a model frame
     (no decoding here and encoding again in the server's thread, issue 36)."""
-    q, w, h = _rounded_frame(out.quats, out.face, out.head)
-    return _pose_json(out.index, out.time_s, q, w, h, out.face_found, out.face_index, out.latency_ms)
-
-
-_FRAME_SCALES: dict[tuple[int, int, int], np.ndarray] = {}  # 10**decimals of each number of a frame, by the sizes
-
-
-def _rounded_frame(quats, face, head) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_rounded` of one frame, its three parts in one array: ``np.round(x, d)`` is ``rint(x · 10**d) / 10**d``
-    (NumPy's own steps), so one multiply, rint and divide by each number's own 10**d make the same numbers; the
-    quaternions and weights become float32 in one call when all of them are within [-1, 1] (else part by part, as
-    :func:`_rounded` decides)."""
-    nq, nw, nh = np.size(quats), np.size(face), np.size(head)
-    scale = _FRAME_SCALES.get((nq, nw, nh))
-    if scale is None:
-        scale = _FRAME_SCALES[nq, nw, nh] = np.repeat([1e6, 1e5, 1e6], [nq, nw, nh])
-    parts = (np.ravel(quats), np.ravel(face), np.ravel(head))
-    r = np.rint(np.concatenate(parts, dtype=np.float64) * scale)
-    r /= scale
-    n = nq + nw
-    qw = r[:n]
-    if nq and nw and qw.min() >= -1.0 and qw.max() <= 1.0:
-        f = qw.astype(np.float32)
-        return f[:nq], f[nq:], r[n:]
-    q, w = (a.astype(np.float32) if a.size and a.min() >= -1.0 and a.max() <= 1.0 else a for a in (r[:nq], qw[nq:]))
-    return q, w, r[n:]
+    q, w, h = _rounded(out.quats, out.face, out.head, 1)
+    return _pose_json(out.index, out.time_s, q[0], w[0], h[0], out.face_found, out.face_index, out.latency_ms)
 
 
 def encode_poses_utf8(
@@ -203,14 +179,23 @@ def encode_poses_utf8(
         yield _pose_json(frames[i], times_s[i], q[i], w[i], h[i], face_found[i], face, lat(i))
 
 
+_SCALES: dict[tuple[int, int, int], np.ndarray] = {}  # 10**decimals of each number of a row, by the parts' widths
+
+
 def _rounded(quats, faces, heads, B: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """B frames' quaternions, weights and heads as the ``pose`` message writes them: (B, ·) rows rounded to 6, 5
     and 6 decimals, the first two as float32 where every number is within [-1, 1] (below)."""
     # rows of C-contiguous arrays, written by orjson itself (OPT_SERIALIZE_NUMPY: the same text as the rows'
     # Python floats, without making ~250 float objects a frame: issue 36, serve's cost per stream-frame)
-    q = np.round(np.asarray(quats, np.float64).reshape(B, -1), 6)
-    w = np.round(np.asarray(faces, np.float64).reshape(B, -1), 5)
-    h = np.round(np.asarray(heads, np.float64).reshape(B, -1), 6)
+    parts = [np.asarray(a, np.float64).reshape(B, -1) for a in (quats, faces, heads)]
+    nq, nw, nh = (p.shape[1] for p in parts)
+    scale = _SCALES.get((nq, nw, nh))
+    if scale is None:
+        scale = _SCALES[nq, nw, nh] = np.repeat([1e6, 1e5, 1e6], [nq, nw, nh])
+    # np.round(x, d) is rint(x · 10**d) / 10**d (NumPy's own steps): the three parts at once, each by its own 10**d
+    r = np.rint(np.concatenate(parts, axis=1) * scale)
+    r /= scale
+    q, w, h = r[:, :nq], r[:, nq : nq + nw], r[:, nq + nw :]
     # within [-1, 1] a number of 6 decimals written from float32 (half the cost of float64's shortest text) reads
     # back as the same float64 — checked for every one of them (test_serve_server.py); the text differs only for
     # ±1e-6 … ±9e-6, written '0.000005' instead of '5e-6'. The head (a client's own numbers) stays float64.
