@@ -551,20 +551,19 @@ class VmcSender:
 
     def send(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> None:
         """Send a frame in the sender's own form (:meth:`model_frame`, :meth:`between`) at stream time ``time_s``."""
-        buf = self._buf  # (this thread's: the sink's send is called from one thread)
-        self._kernels.pack(frame[0], frame[1], float(time_s), buf, self._at)
-        data = buf.tobytes()
         try:
-            for a, b in self._spans:
-                self.sock.sendto(data[a:b], self.address)
+            # packed into the sender's own buffer: the sink's send is called from one thread
+            for d in self._datagrams(frame, time_s, self._buf):
+                self.sock.sendto(d, self.address)
                 self.datagrams += 1
-                self.largest_datagram = max(self.largest_datagram, b - a)
+                self.largest_datagram = max(self.largest_datagram, len(d))
             self.sent += 1
         except OSError:  # receiver not there (ICMP port unreachable): UDP is fire-and-forget
             self.errors += 1
 
-    def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> list[bytes]:
-        buf = self._template.copy()
+    def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float, buf=None) -> list[bytes]:
+        """The frame's datagrams, its numbers packed into ``buf`` (default: a copy of the template)."""
+        buf = self._template.copy() if buf is None else buf
         self._kernels.pack(frame[0], frame[1], float(time_s), buf, self._at)
         data = buf.tobytes()
         return [data[a:b] for a, b in self._spans]
