@@ -277,16 +277,17 @@ class PoseSmoother:
 
     def __call__(self, pose: HeadPose) -> HeadPose:
         ref = pose.R
+        rv = None  # (m, 3) the window's rotations relative to the newest
         if self._R:
             # the jump from the last pose and the window's rotations relative to the newest (as if the window goes on)
             # in one log_so3 call: it works matrix by matrix, so the same numbers as a call each (issue 36)
-            kept = list(self._R)[len(self._R) - self.window + 1 :] if len(self._R) >= self.window else list(self._R)
+            kept = list(self._R)[max(0, len(self._R) - self.window + 1) :]
             logs = rot.log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
-            rv = logs[1:]  # (m, 3) relative to newest
             if _norm(logs[0]) > self.reset:
                 self.reset_state()
-                rv = rot.log_so3(ref.T @ np.stack([ref]))
-        else:
+            else:
+                rv = logs[1:]
+        if rv is None:  # a new window: the newest pose alone
             rv = rot.log_so3(ref.T @ np.stack([ref]))
         self._R.append(ref.copy())
         self._t.append(np.asarray(pose.t, np.float64).copy())
