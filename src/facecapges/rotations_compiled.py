@@ -26,9 +26,9 @@ _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
 @_jit
-def qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """``out ← a · b`` of one pair of quaternions (4,): :func:`facecapges.rotations.quaternion_multiply`'s sums."""
-    aw, ax, ay, az, bw, bx, by, bz = a[0], a[1], a[2], a[3], b[0], b[1], b[2], b[3]
+def _qmul(a: np.ndarray, bw: float, bx: float, by: float, bz: float, out: np.ndarray) -> None:
+    """``out ← a · (bw, bx, by, bz)``: :func:`facecapges.rotations.quaternion_multiply`'s sums."""
+    aw, ax, ay, az = a[0], a[1], a[2], a[3]
     out[0] = aw * bw - ax * bx - ay * by - az * bz
     out[1] = aw * bx + ax * bw + ay * bz - az * by
     out[2] = aw * by - ax * bz + ay * bw + az * bx
@@ -36,11 +36,16 @@ def qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
 
 
 @_jit
+def qmul(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← a · b`` of one pair of quaternions (4,)."""
+    _qmul(a, b[0], b[1], b[2], b[3], out)
+
+
+@_jit
 def qmul_conj(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
-    """``out ← a · b⁻¹`` of unit quaternions (4,) (b's conjugate, then :func:`qmul`)."""
-    c = np.empty(4)
-    c[0], c[1], c[2], c[3] = b[0], -b[1], -b[2], -b[3]
-    qmul(a, c, out)
+    """``out ← a · b⁻¹`` of unit quaternions (4,): :func:`qmul` with b's conjugate (no array made: it runs in the
+    engine's per-row loops)."""
+    _qmul(a, b[0], -b[1], -b[2], -b[3], out)
 
 
 @_jit
