@@ -13,6 +13,7 @@ file: after an edit here, clear the callers' ``__pycache__`` or run ``make setup
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -222,6 +223,7 @@ def slerp_cosine(q0: np.ndarray, q1: np.ndarray) -> float:
     return min(abs(dot), 1.0)
 
 
+@functools.cache  # the check once a process (every scheduler, model process and replica asks)
 def checked_rot6d_to_quaternions() -> Callable[[np.ndarray, np.ndarray], None]:
     """What a caller converts many rows with, ``(rot6d (n, 6), out (n, 4) float64)``: :func:`rot6d_to_quaternions`
     once it has given NumPy's bits on this machine — checked here on 4,000 rows (random rotations, any 6-vectors,
