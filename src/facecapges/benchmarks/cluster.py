@@ -263,18 +263,22 @@ class LocalCluster:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGSTOP)
 
-    def add_worker(self) -> None:
-        """A new worker node in place of the one killed or hung (whose processes are ended first); Serve places
-        the missing replica there: back when both replicas answer."""
+    def _kill_hung(self) -> None:
+        """End the processes :meth:`hang_worker` stopped."""
         import signal
 
-        from facecapges.serving.ray_app import wait_ready
-
-        assert self.cluster is not None
         for pid in self._hung:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(pid, signal.SIGKILL)
         self._hung = []
+
+    def add_worker(self) -> None:
+        """A new worker node in place of the one killed or hung (whose processes are ended first); Serve places
+        the missing replica there: back when both replicas answer."""
+        from facecapges.serving.ray_app import wait_ready
+
+        assert self.cluster is not None
+        self._kill_hung()
         self.workers = [self.cluster.add_node(num_cpus=1, temp_dir=self._files)]
         wait_ready(f"http://127.0.0.1:{self.port}", self.nodes)
 
@@ -283,14 +287,9 @@ class LocalCluster:
         graceful stop, which ended only at its own 30-s limit every time ("Shutdown tier 0 did not drain within
         30.0s"), while stopping the nodes ends every process of the cluster — the replicas, the controller and
         the HAProxy they started — in about 1.5 s (tests/test_serve_ray.py checks that none is left)."""
-        import signal
-
         import ray
 
-        for pid in self._hung:  # stopped processes would never end on Ray's SIGTERM
-            with contextlib.suppress(ProcessLookupError):
-                os.kill(pid, signal.SIGKILL)
-        self._hung = []
+        self._kill_hung()  # stopped processes would never end on Ray's SIGTERM
         ray.shutdown()
         if self.cluster is not None:
             self.cluster.shutdown()
