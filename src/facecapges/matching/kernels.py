@@ -54,10 +54,7 @@ from facecapges.matching.speech import (
     VOICE_1,
     VOICING,
 )
-from facecapges.rotations_compiled import qexp as _qexp
-from facecapges.rotations_compiled import qlog_abs as _qlog_abs
-from facecapges.rotations_compiled import qmul as _qmul
-from facecapges.rotations_compiled import qmul_conj as _qmul_conj
+from facecapges.rotations_compiled import qexp, qlog_abs, qmul, qmul_conj
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -132,27 +129,27 @@ def step_offsets(
                 j1 = vj + xj * y
                 x[s, j, c] = decay * (xj + j1 * dt)
                 v[s, j, c] = decay * (vj - j1 * y * dt)
-            _qexp(x[s, j], e)
-            _qmul(e, base[n, j], out[n, j])
+            qexp(x[s, j], e)
+            qmul(e, base[n, j], out[n, j])
         if cap >= 0:
             total = 0.0
             for j in range(J):
-                _qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
-                _qmul(t, prev[s, 1, j], pred)  # constant angular velocity
-                _qmul_conj(out[n, j], pred, t)
-                _qlog_abs(t, d[j])  # acceleration · dt²
+                qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
+                qmul(t, prev[s, 1, j], pred)  # constant angular velocity
+                qmul_conj(out[n, j], pred, t)
+                qlog_abs(t, d[j])  # acceleration · dt²
                 total += d[j, 0] * d[j, 0] + d[j, 1] * d[j, 1] + d[j, 2] * d[j, 2]
             total = np.sqrt(total) * fps**2
             if total > cap:
                 for j in range(J):
                     for c in range(3):
                         d[j, c] *= cap / total
-                    _qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
-                    _qmul(t, prev[s, 1, j], pred)
-                    _qexp(d[j], e)
-                    _qmul(e, pred, out[n, j])
-                    _qmul_conj(out[n, j], base[n, j], t)
-                    _qlog_abs(t, x[s, j])
+                    qmul_conj(prev[s, 1, j], prev[s, 0, j], t)
+                    qmul(t, prev[s, 1, j], pred)
+                    qexp(d[j], e)
+                    qmul(e, pred, out[n, j])
+                    qmul_conj(out[n, j], base[n, j], t)
+                    qlog_abs(t, x[s, j])
         if shift:
             prev[s, 0] = prev[s, 1]
             prev[s, 1] = out[n]
@@ -171,15 +168,15 @@ def dial(slots: np.ndarray, q: np.ndarray, mean: np.ndarray, slow: np.ndarray, b
     for n in range(len(slots)):
         s, g = slots[n], gain[n]
         for j in range(mean.shape[0]):
-            _qmul(inv[j], q[n, j], t)
-            _qlog_abs(t, d)
+            qmul(inv[j], q[n, j], t)
+            qlog_abs(t, d)
             for c in range(3):
                 slow[s, j, c] = slow[s, j, c] + beta * (d[c] - slow[s, j, c])
             if abs(g - 1.0) > 1e-9:
                 for c in range(3):
                     d[c] = d[c] + (g - 1.0) * slow[s, j, c]
-                _qexp(d, t)
-                _qmul(mean[j], t, q[n, j])
+                qexp(d, t)
+                qmul(mean[j], t, q[n, j])
 
 
 @_jit
