@@ -107,13 +107,13 @@ def main() -> None:
     args = ap.parse_args()
 
     from facecapges.data.cache import Cache
+    from facecapges.engine.generate import generate_poses
     from facecapges.evaluation.fgd import find_fgd, load_fgd
     from facecapges.evaluation.run import engine_database, heldout_inputs
     from facecapges.evaluation.synchrony import motion_stats, pooled_stats, stouffer_z, wrist_positions
     from facecapges.evaluation.timing import timing_row
-    from facecapges.styles import load_style
-    from facecapges.engine.generate import generate_poses
     from facecapges.rotations import identity_rot6d
+    from facecapges.styles import load_style
     from facecapges.timing import AUDIO_SR
 
     ck = load_style(args.checkpoint)

@@ -13,7 +13,7 @@ was instead of jumping back to the rest pose; the frames of the outage are skipp
     facecapges serve --port 8780 &
     python docs/examples/serve_client.py ws://127.0.0.1:8780 speech.wav --seconds 5
 
-Needs only numpy, soundfile and websockets (all installed with facecapges).
+Needs only soundfile and websockets (all installed with facecapges).
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ import json
 import sys
 import time
 
-import numpy as np
 import soundfile as sf
 from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
