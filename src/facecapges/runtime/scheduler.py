@@ -248,8 +248,8 @@ class Scheduler:
             raise ValueError("the body capture needs a video source and one face")
         self.body = body
         policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
-        self.streams = [
-            FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
+        self.streams = [  # the head's chain compiled (Numba: the engines load it anyway), where it keeps the bits
+            FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy, True), SpeechMouth(self.fps, self.sr))
             for i, g in enumerate(gens)
         ]
         self.spf = timing.samples_per_frame(self.fps, self.sr)
