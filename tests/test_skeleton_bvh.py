@@ -147,3 +147,34 @@ def test_bvh_errors_name_the_file(sample, tmp_path, beat_bvh):
     junk.write_text("hello\n")
     with pytest.raises(UserError, match=r"junk\.bvh.*not a BVH"):
         read_bvh(junk)
+
+
+@pytest.mark.parametrize("fps", [15.0, 4.0])
+def test_the_recorder_writes_each_second_as_the_writer_did(sample, tmp_path, fps):
+    """``live``'s BVH recorder converts and writes a second over the next second's frames (a step a frame): the same
+    file as each second written at once (its Euler angles unwrapped within the second), a second behind while it
+    records; at 4 fps a second is shorter than its steps (finished when the next one is full); a last part second."""
+    from facecapges.io.bvh import BvhWriter
+    from facecapges.rotations import normalize_rot6d
+    from facecapges.runtime.outputs.recorders import BvhRecorder
+
+    class Frame:
+        def __init__(self, pose):
+            self.pose = pose
+
+    rng = np.random.default_rng(0)
+    poses = motion_to_pose(sample.skeleton, sample.motion[:100])[0].astype(np.float32)
+    poses[40:50] += rng.standard_normal(poses[40:50].shape).astype(np.float32)  # not orthonormal: normalised
+    poses[60:70, 5] = -poses[60:70, 5]  # jumps past 180°: unwrapped within the second
+    block = max(1, round(fps))
+    with BvhWriter(tmp_path / "want.bvh", sample.skeleton, None, fps) as w:
+        for i in range(0, len(poses), block):
+            w.write(pose_to_motion(sample.skeleton, normalize_rot6d(poses[i : i + block].astype(np.float64))))
+            w.flush()
+    rec = BvhRecorder(tmp_path / "got.bvh", sample.skeleton, fps)
+    for k, p in enumerate(poses):
+        rec.write(Frame(p))
+        if fps == 15.0 and k == 2 * block - 1:  # the first second on disk, the second one not yet
+            assert read_bvh(tmp_path / "got.bvh").motion.shape[0] == block
+    rec.close()
+    assert (tmp_path / "got.bvh").read_bytes() == (tmp_path / "want.bvh").read_bytes()
