@@ -18,9 +18,6 @@ import numpy as np
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
-MAX_SUM = 1800  # the longest run :func:`pairwise_sum` takes (its four levels of halves; a 16 kHz frame at ≥ 4.5 fps)
-
-
 @_jit
 def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
     """NumPy's pairwise sum of at most 128 numbers: fewer than 8 left to right from −0.0; else eight running sums
@@ -41,45 +38,32 @@ def _block_sum(a: np.ndarray, lo: int, n: int) -> float:
     return res
 
 
-# NumPy's halving above 128 numbers, the first half a multiple of 8: four levels written out (Numba's cache of a
-# recursive function crashed on loading, and closures made by one factory share one cache entry)
-@_jit
-def _sum1(a: np.ndarray, lo: int, n: int) -> float:  # up to 242 numbers
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    n2 = n // 2 - (n // 2) % 8
-    return _block_sum(a, lo, n2) + _block_sum(a, lo + n2, n - n2)
-
-
-@_jit
-def _sum2(a: np.ndarray, lo: int, n: int) -> float:  # 470
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    n2 = n // 2 - (n // 2) % 8
-    return _sum1(a, lo, n2) + _sum1(a, lo + n2, n - n2)
-
-
-@_jit
-def _sum3(a: np.ndarray, lo: int, n: int) -> float:  # 930
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    n2 = n // 2 - (n // 2) % 8
-    return _sum2(a, lo, n2) + _sum2(a, lo + n2, n - n2)
-
-
-@_jit
-def _sum4(a: np.ndarray, lo: int, n: int) -> float:  # 1850
-    if n <= 128:
-        return _block_sum(a, lo, n)
-    n2 = n // 2 - (n // 2) % 8
-    return _sum3(a, lo, n2) + _sum3(a, lo + n2, n - n2)
-
-
 @_jit
 def pairwise_sum(a: np.ndarray, lo: int, n: int) -> float:
-    """``a[lo : lo + n].sum()`` of float64 (``n`` ≤ :data:`MAX_SUM`) as NumPy sums a contiguous run
-    (``pairwise_sum`` of its ``loops_utils.h``: blocks of at most 128, halved above, the first half a multiple of 8)."""
-    return _sum4(a, lo, n)
+    """``a[lo : lo + n].sum()`` of float64 as NumPy sums a contiguous run (``pairwise_sum`` of its ``loops_utils.h``):
+    blocks of at most 128 numbers (:func:`_block_sum`), a longer run the sum of its two halves (the first a multiple
+    of 8), left + right. Its recursion walked with a stack (Numba's cache of a recursive function crashed on
+    loading): a run is pushed, then its halves; a run met again after its halves adds their two sums."""
+    los, ns = np.empty(64, np.int64), np.empty(64, np.int64)  # the runs to do (a run's depth ≤ log2(n / 64))
+    split = np.zeros(64, np.bool_)  # whether the run's halves are done
+    sums = np.empty(64)
+    los[0], ns[0], top, k = lo, n, 1, 0
+    while top:
+        top -= 1
+        s_lo, s_n = los[top], ns[top]
+        if s_n <= 128:
+            sums[k] = _block_sum(a, s_lo, s_n)
+            k += 1
+        elif split[top]:
+            k -= 1
+            sums[k - 1] = sums[k - 1] + sums[k]  # left + right
+        else:
+            half = s_n // 2 - (s_n // 2) % 8
+            split[top] = True
+            los[top + 1], ns[top + 1], split[top + 1] = s_lo + half, s_n - half, False  # the right half after
+            los[top + 2], ns[top + 2], split[top + 2] = s_lo, half, False  # the left
+            top += 3
+    return sums[0]
 
 
 @_jit

@@ -65,7 +65,6 @@ class SpeechMouth:
             from facecapges.capture import mouth_kernels
 
             self._kernel = mouth_kernels.mouth_sums if mouth_kernels.checked() else None
-            self._max_sum = mouth_kernels.MAX_SUM
         self.floor_db, self.peak_db = -70.0, -30.0
         self.open = 0.0
         self.shape = np.zeros(3)  # funnel, pucker, stretch
@@ -86,7 +85,7 @@ class SpeechMouth:
         win, f = self._window[n]
         vowel, band, f_band = self._band_slices(n, f)
         mag = np.abs(np.fft.rfft(x * win))
-        if self._kernel is not None and len(mag) <= self._max_sum:
+        if self._kernel is not None:
             return self._kernel(mag, n, vowel.start, vowel.stop, band.start, band.stop, f_band)
         spec = mag**2 / n
         p = spec[band]
