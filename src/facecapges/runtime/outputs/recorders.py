@@ -48,8 +48,15 @@ class BvhRecorder:
 
     ROWS_A_STEP = 2  # 15 rows in 8 steps, 11 steps in all: done before the next second is full
 
-    def __init__(self, path: str | Path, skeleton, fps: float):
+    def __init__(self, path: str | Path, skeleton, fps: float, compiled: bool = False):
+        """``compiled``: the text by :mod:`facecapges.io.bvh_text` (Numba: ``live`` and ``run``, which load it
+        anyway), a second's rows in one step, where it writes ``%``'s text on this machine."""
         self.path, self.skeleton, self.fps = Path(path), skeleton, fps
+        self._lines: Callable[[np.ndarray], list[str]] | None = None
+        if compiled:
+            from facecapges.io import bvh_text
+
+            self._lines = bvh_text.motion_lines if bvh_text.checked() else None
         self.poses: list[np.ndarray] = []  # the frames of the current second, not yet on disk
         self.block = max(1, int(round(fps)))
         self.writer: BvhWriter | None = None
@@ -80,12 +87,17 @@ class BvhRecorder:
             self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
         p = normalize_rot6d(np.stack(poses).astype(np.float64))
         yield
-        fmt, rows = motion_rows(pose_to_motion(self.skeleton, p))
+        motion = pose_to_motion(self.skeleton, p)
         yield
         lines: list[str] = []
-        for i in range(0, len(rows), self.ROWS_A_STEP):
-            lines += [fmt % tuple(row) for row in rows[i : i + self.ROWS_A_STEP]]
+        if self._lines is not None:
+            lines = self._lines(motion)
             yield
+        else:
+            fmt, rows = motion_rows(motion)
+            for i in range(0, len(rows), self.ROWS_A_STEP):
+                lines += [fmt % tuple(row) for row in rows[i : i + self.ROWS_A_STEP]]
+                yield
         self.writer.write_lines(lines)
         self.writer.flush()
 
@@ -192,7 +204,7 @@ def file_recorders(folder: Path, skeleton, fps: float, face_layout: str, index: 
     """Face ``index``'s motion BVH and face JSON in ``folder`` (``_{index+1}`` suffixed when ``faces`` > 1)."""
     sfx = "" if faces == 1 else f"_{index + 1}"
     return [
-        BvhRecorder(folder / f"motion{sfx}.bvh", skeleton, fps),
+        BvhRecorder(folder / f"motion{sfx}.bvh", skeleton, fps, compiled=True),  # (Numba: loaded by the engines)
         FaceJsonRecorder(folder / f"face{sfx}.json", fps, face_layout),
     ]
 
