@@ -175,6 +175,8 @@ def test_the_recorder_writes_each_second_as_the_writer_did(sample, tmp_path, fps
     rec = BvhRecorder(tmp_path / "got.bvh", sample.skeleton, fps, compiled=compiled)
     for k, p in enumerate(poses):
         rec.write(Frame(p))
+        if fps == 15.0 and k == block:  # the first second full, its steps to come: no file of no frame yet
+            assert not (tmp_path / "got.bvh").exists()
         if fps == 15.0 and k == 2 * block - 1:  # the first second on disk, the second one not yet
             assert read_bvh(tmp_path / "got.bvh").motion.shape[0] == block
     rec.close()

@@ -83,8 +83,6 @@ class BvhRecorder:
         from facecapges.rotations import normalize_rot6d
         from facecapges.skeleton import pose_to_motion
 
-        if self.writer is None:
-            self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
         p = normalize_rot6d(np.stack(poses).astype(np.float64))
         yield
         motion = pose_to_motion(self.skeleton, p)
@@ -98,6 +96,8 @@ class BvhRecorder:
             for i in range(0, len(rows), self.ROWS_A_STEP):
                 lines += [fmt % tuple(row) for row in rows[i : i + self.ROWS_A_STEP]]
                 yield
+        if self.writer is None:  # the file appears with its first second (a BVH of no frame is not valid)
+            self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
         self.writer.write_lines(lines)
         self.writer.flush()
 
