@@ -33,6 +33,9 @@ def main() -> None:
 
     compiled_head()  # live's output stage: the head's chain
     mouth_kernels.checked()  # and the speech mouth's sums
+    from facecapges.io import bvh_text
+
+    bvh_text.checked()  # the BVH recorder's text (live, run)
     vmc_kernels.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
