@@ -28,6 +28,14 @@ def main() -> None:
     from facecapges.rotations_compiled import checked_rot6d_to_quaternions
 
     checked_rot6d_to_quaternions()  # serve's model process: a tick's quaternions
+    from facecapges.capture import mouth_kernels
+    from facecapges.runtime.head import compiled_head
+
+    compiled_head()  # live's output stage: the head's chain
+    mouth_kernels.checked()  # and the speech mouth's sums
+    from facecapges.io import bvh_text
+
+    bvh_text.checked()  # the BVH recorder's text (live, run)
     vmc_kernels.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from facecapges import timing
 from facecapges.arkit import ARKIT_NAMES
@@ -29,6 +30,32 @@ def test_jaw_follows_the_speech_on_unseen_audio(unseen_wav):
     others = np.setdiff1d(np.arange(52), [ARKIT_NAMES.index(n) for n in MOUTH_NAMES])
     assert not m[:, others].any()  # only the mouth moves
     assert np.isfinite(m).all() and m.min() >= 0 and m.max() <= 1
+
+
+def test_the_compiled_sums_keep_numpys_bits(unseen_wav):
+    """``live``'s mouth (``SpeechMouth(compiled=True)``: the spectrum's sums in one compiled call) gives the same
+    weights to the bit as NumPy's: unseen speech, loud noise, quiet noise, silence, short frames, 30 and 5 fps."""
+    from facecapges.capture import mouth_kernels
+
+    if not mouth_kernels.checked():
+        pytest.skip("this machine's NumPy sums otherwise than the compiled loops: NumPy's are used")
+    rng = np.random.default_rng(0)
+    speech = frames(load_audio(unseen_wav, timing.AUDIO_SR))[:400]
+    noise = [rng.standard_normal(len(f)).astype(np.float32) * 10.0 ** rng.uniform(-5, 0) for f in speech[:100]]
+    odd = [np.zeros(1066, np.float32), np.zeros(40, np.float32), speech[5][:300], speech[6][:64]]
+    audio = speech + noise + odd + speech[:50]
+    for fps in (timing.MODEL_FPS, 30.0, 5.0):
+        a, b = SpeechMouth(fps), SpeechMouth(fps, compiled=True)
+        for x in audio if fps == timing.MODEL_FPS else [rng.standard_normal(int(16000 / fps)).astype(np.float32)] * 30:
+            np.testing.assert_array_equal(a.step(x).view(np.uint32), b.step(x).view(np.uint32))
+    sums = mouth_kernels.mouth_sums  # every run length to the longest it takes
+    for n in (*range(1, 300), 511, 512, 1000, 1799, 4097, 70_000):
+        mag = np.abs(rng.standard_normal(n + 2))
+        f = rng.uniform(0, 5000, n)
+        spec = mag**2 / 1066
+        got = sums(mag.copy(), 1066, 0, n, 2, n + 2, f[:n])
+        want = (spec[:n].sum(), spec[2 : n + 2].sum(), (f[:n] * spec[2 : n + 2]).sum())
+        assert [np.float64(v).tobytes() for v in got] == [np.float64(v).tobytes() for v in want], n
 
 
 def test_causal_and_closed_in_silence(unseen_wav):

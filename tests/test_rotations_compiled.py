@@ -51,6 +51,17 @@ def test_matmul3_is_numpys_matmul():
         np.testing.assert_array_equal(got.view(np.int64), want.view(np.int64))
 
 
+def test_matmul3_tn_is_numpys_transposed_matmul():
+    """``a.T @ b`` (the head driver's ``spineᵀ · R``): random entries and rotations."""
+    rng = np.random.default_rng(6)
+    a = np.concatenate([rng.standard_normal((500, 3, 3)), rot.quaternion_to_matrix(_quaternions(rng, 500))])
+    b = np.concatenate([rng.standard_normal((500, 3, 3)), rot.quaternion_to_matrix(_quaternions(rng, 500))])
+    got = np.empty((3, 3))
+    for i in range(len(a)):
+        rc.matmul3_tn(a[i], b[i], got)
+        np.testing.assert_array_equal(got.view(np.int64), (a[i].T @ b[i]).view(np.int64))
+
+
 def test_slerp_is_quaternion_slerp():
     """The slerp of every pair (opposite hemispheres, nearly equal, equal, any order of the components) at
     fractions in and beyond [0, 1]: :func:`facecapges.rotations.quaternion_slerp`'s bits, ``theta`` from NumPy's

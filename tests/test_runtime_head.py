@@ -103,6 +103,34 @@ def test_face_lost_falls_back_to_the_model_head_and_comes_back_smoothly():
     assert HeadDriver("model")(model_pose, cap, True, 0.0) is model_pose
 
 
+def test_the_compiled_head_chain_keeps_numpys_bits():
+    """``HeadDriver(compiled=True)`` (``live``'s scheduler) shows the same poses to the bit as NumPy's chain: 3,000
+    frames of random poses and heads (float32, as ``live``'s), a third of them with the head on the Spine or a hair
+    off it (the slerp's linear branch), the face found, lost (held, easing) and found again."""
+    from facecapges.runtime import head
+
+    rc = head.compiled_head()
+    if rc is None:
+        pytest.skip("this machine's NumPy sums or rounds otherwise than the compiled chain: NumPy's is used")
+    rng = np.random.default_rng(7)
+    n = 3000
+    poses = rng.standard_normal((n, 47, 6)).astype(np.float32)
+    heads = rot.quaternion_to_rot6d(rng.standard_normal((n, 4))).astype(np.float32)
+    poses[: n // 3, 0] = heads[: n // 3] + (rng.standard_normal((n // 3, 6)) * 1e-7).astype(np.float32)
+    poses[: n // 6, 0] = heads[: n // 6]
+    R = np.empty((3, 3))
+    for pose, h in zip(poses, heads):  # the chain alone, on every kind of pair
+        rc.rot6d_to_matrix(h, R)
+        got = head._set_head_compiled(rc, pose, R)
+        np.testing.assert_array_equal(got.view(np.uint32), head._numpy_capture_head(pose, h).view(np.uint32))
+    fast, slow = HeadDriver("capture", compiled=True), HeadDriver("capture")
+    order = rng.permutation(n)
+    for k, i in enumerate(order[:600]):  # a session: found, lost for 2 s (held, eased), found again
+        found = not (100 <= k < 130 or 300 <= k < 400)
+        a, b = fast(poses[i], heads[i], found, k / 15.0), slow(poses[i], heads[i], found, k / 15.0)
+        np.testing.assert_array_equal(a.view(np.uint32), b.view(np.uint32))
+
+
 def test_head_follow_measures_disagreement():
     T = 60
     yaw = 0.4 * np.sin(np.arange(T) / 6)

@@ -147,3 +147,57 @@ def test_bvh_errors_name_the_file(sample, tmp_path, beat_bvh):
     junk.write_text("hello\n")
     with pytest.raises(UserError, match=r"junk\.bvh.*not a BVH"):
         read_bvh(junk)
+
+
+@pytest.mark.parametrize("compiled", [False, True])
+@pytest.mark.parametrize("fps", [15.0, 4.0])
+def test_the_recorder_writes_each_second_as_the_writer_did(sample, tmp_path, fps, compiled):
+    """``live``'s BVH recorder converts and writes a second over the next second's frames (a step a frame): the same
+    file as each second written at once (its Euler angles unwrapped within the second), a second behind while it
+    records; at 4 fps a second is shorter than its steps (finished when the next one is full); a last part second."""
+    from facecapges.io.bvh import BvhWriter
+    from facecapges.rotations import normalize_rot6d
+    from facecapges.runtime.outputs.recorders import BvhRecorder
+
+    class Frame:
+        def __init__(self, pose):
+            self.pose = pose
+
+    rng = np.random.default_rng(0)
+    poses = motion_to_pose(sample.skeleton, sample.motion[:100])[0].astype(np.float32)
+    poses[40:50] += rng.standard_normal(poses[40:50].shape).astype(np.float32)  # not orthonormal: normalised
+    poses[60:70, 5] = -poses[60:70, 5]  # jumps past 180°: unwrapped within the second
+    block = max(1, round(fps))
+    with BvhWriter(tmp_path / "want.bvh", sample.skeleton, None, fps) as w:
+        for i in range(0, len(poses), block):
+            w.write(pose_to_motion(sample.skeleton, normalize_rot6d(poses[i : i + block].astype(np.float64))))
+            w.flush()
+    rec = BvhRecorder(tmp_path / "got.bvh", sample.skeleton, fps, compiled=compiled)
+    for k, p in enumerate(poses):
+        rec.write(Frame(p))
+        if fps == 15.0 and k == block:  # the first second full, its steps to come: no file of no frame yet
+            assert not (tmp_path / "got.bvh").exists()
+        if fps == 15.0 and k == 2 * block - 1:  # the first second on disk, the second one not yet
+            assert read_bvh(tmp_path / "got.bvh").motion.shape[0] == block
+    rec.close()
+    assert (tmp_path / "got.bvh").read_bytes() == (tmp_path / "want.bvh").read_bytes()
+
+
+def test_the_compiled_motion_text_is_percent_formats():
+    """:mod:`facecapges.io.bvh_text` writes ``"%.6f" % v`` of every value: 2 million of every scale, ties in
+    binary (``k + 0.5`` millionths), values rounded to 5–7 decimals, signed zeros, tiny negatives, huge ones, NaN and
+    infinities (a row with one of those is written by ``%`` itself)."""
+    from facecapges.io import bvh_text
+
+    rng = np.random.default_rng(11)
+    for i in range(40):
+        m = rng.standard_normal((50, 1000)) * 10.0 ** rng.uniform(-9, 5, (50, 1000))
+        if i % 4 == 1:
+            m = np.round(m, int(rng.integers(5, 8)))
+        elif i % 4 == 2:
+            m = (rng.integers(-(10**10), 10**10, (50, 1000)) + 0.5) / 1e6
+        elif i % 4 == 3:
+            m[:, ::7] = rng.choice([0.0, -0.0, -1e-9, 5e-7, -5e-7, 1e15, np.nan, np.inf, -np.inf, 180.0], (50, 143))
+        want = [" ".join([f"{v:.6f}" for v in row]) for row in m.tolist()]
+        assert bvh_text.motion_lines(m) == want
+    assert bvh_text.motion_lines(np.zeros((0, 5))) == []

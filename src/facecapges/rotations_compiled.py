@@ -223,6 +223,57 @@ def slerp_cosine(q0: np.ndarray, q1: np.ndarray) -> float:
     return min(abs(dot), 1.0)
 
 
+@_jit
+def matmul3_tn(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> None:
+    """``out ← aᵀ @ b`` of 3 × 3 matrices (``out`` not ``a`` or ``b``): NumPy's ``a.T @ b`` (OpenBLAS's kernel with
+    the first matrix transposed) as :func:`matmul3` sums it, each entry ``+0`` then ``+ a_0i b_0j``, ``+ a_1i b_1j``,
+    ``+ a_2i b_2j`` fused (held by ``tests/test_rotations_compiled.py``)."""
+    for i in range(3):
+        for j in range(3):
+            out[i, j] = _fma(a[2, i], b[2, j], _fma(a[1, i], b[1, j], _fma(a[0, i], b[0, j], 0.0)))
+
+
+@_jit
+def relative_quaternion(ref6: np.ndarray, r: np.ndarray, ref: np.ndarray, lq: np.ndarray, q: np.ndarray) -> float:
+    """``ref`` (3, 3) ← the rotation of the rot6d row ``ref6``, ``lq`` (3, 3) ← ``refᵀ · r`` and ``q`` (4,) ← its unit
+    quaternion (:func:`rot6d_to_matrix`, :func:`matmul3_tn`, :func:`matrix_to_quaternion`); returns the cosine
+    ``min(|q · (1, 0, 0, 0)|, 1)`` whose ``np.arccos`` is the angle :func:`power_about_identity_rot6d` takes — the
+    first steps of :func:`facecapges.rotations.quaternion_power_about` about the identity (NumPy's arccos is its
+    own SIMD one, not libm's: the caller takes it, to keep its bits)."""
+    rot6d_to_matrix(ref6, ref)
+    matmul3_tn(ref, r, lq)
+    matrix_to_quaternion(lq, q)
+    dot = ((q[0] * 1.0 + q[1] * 0.0) + q[2] * 0.0) + q[3] * 0.0
+    if dot < 0.0:  # np.where(dot < 0, -q, q) (w >= 0 already: never, but the formula's)
+        q[0], q[1], q[2], q[3] = -q[0], -q[1], -q[2], -q[3]
+    c = abs(dot)
+    return 1.0 if c > 1.0 else c  # np.minimum(·, 1.0): a NaN stays
+
+
+@_jit
+def power_about_identity_rot6d(q: np.ndarray, theta: float, power: float, out: np.ndarray) -> None:
+    """Every row of ``out`` (n, 6) ← the rot6d of ``q`` (4,) raised to ``power`` about the identity, ``theta`` the
+    ``np.arccos`` of :func:`relative_quaternion`'s cosine: the bits of
+    ``rotations.quaternion_to_rot6d(rotations.quaternion_power_about(q, (1, 0, 0, 0), power))`` (the closed form of
+    the slerp, its linear blend when ``sin θ < 1e-6``, the norm summed left to right; then the six entries),
+    rounded to ``out``'s dtype as NumPy stores them."""
+    s = np.sin(theta)
+    if s < 1e-6:  # nearly the identity: the linear blend, normalised
+        a, b = 1.0 - power, power
+    else:
+        a, b = np.sin((1.0 - power) * theta) / s, np.sin(power * theta) / s
+    o0, o1, o2, o3 = a * 1.0 + b * q[0], a * 0.0 + b * q[1], a * 0.0 + b * q[2], a * 0.0 + b * q[3]
+    n = np.sqrt(((o0 * o0 + o1 * o1) + o2 * o2) + o3 * o3)
+    o0, o1, o2, o3 = o0 / n, o1 / n, o2 / n, o3 / n
+    n = _maximum(np.sqrt(((o0 * o0 + o1 * o1) + o2 * o2) + o3 * o3), _EPS)  # quaternion_to_rot6d normalises again
+    w, x, y, z = o0 / n, o1 / n, o2 / n, o3 / n
+    zz, xy, zw = z * z, x * y, z * w
+    r0, r1, r2 = 1 - 2 * (y * y + zz), 2 * (xy + zw), 2 * (x * z - y * w)
+    r3, r4, r5 = 2 * (xy - zw), 1 - 2 * (x * x + zz), 2 * (y * z + x * w)
+    for k in range(out.shape[0]):
+        out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = r0, r1, r2, r3, r4, r5
+
+
 @functools.cache  # the check once a process (every scheduler, model process and replica asks)
 def checked_rot6d_to_quaternions() -> Callable[[np.ndarray, np.ndarray], None]:
     """What a caller converts many rows with, ``(rot6d (n, 6), out (n, 4) float64)``: :func:`rot6d_to_quaternions`

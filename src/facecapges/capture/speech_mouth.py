@@ -56,8 +56,15 @@ _OUT_IDX = np.array([_IDX[n] for n in MOUTH_NAMES])  # where each frame's weight
 class SpeechMouth:
     """Per-frame mouth weights (52,) from that frame's audio (module docstring)."""
 
-    def __init__(self, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR):
-        self.fps, self.sr = float(fps), int(sr)
+    def __init__(self, fps: float = timing.MODEL_FPS, sr: int = timing.AUDIO_SR, compiled: bool = False):
+        """``compiled``: the sums over the spectrum in one compiled call (:mod:`.mouth_kernels`, Numba: ``live``'s
+        scheduler, which loads it anyway) where they give NumPy's numbers."""
+        self.fps, self.sr, self.compiled = float(fps), int(sr), compiled
+        self._kernel = None
+        if compiled:
+            from facecapges.capture import mouth_kernels
+
+            self._kernel = mouth_kernels.mouth_sums if mouth_kernels.checked() else None
         self.floor_db, self.peak_db = -70.0, -30.0
         self.open = 0.0
         self.shape = np.zeros(3)  # funnel, pucker, stretch
@@ -67,14 +74,22 @@ class SpeechMouth:
         self._bands: dict[int, tuple[slice, slice, np.ndarray]] = {}
 
     def reset(self) -> None:
-        SpeechMouth.__init__(self, self.fps, self.sr)
+        SpeechMouth.__init__(self, self.fps, self.sr, self.compiled)
 
-    def _spectrum(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _sums(self, x: np.ndarray) -> tuple[float, float, float]:
+        """The frame's power (Hann window) summed over the vowel band, over the centroid's band, and weighted by
+        frequency over the centroid's band."""
         n = len(x)
         if n not in self._window:
             self._window[n] = (np.hanning(n), np.fft.rfftfreq(n, 1.0 / self.sr))
         win, f = self._window[n]
-        return np.abs(np.fft.rfft(x * win)) ** 2 / n, f
+        vowel, band, f_band = self._band_slices(n, f)
+        mag = np.abs(np.fft.rfft(x * win))
+        if self._kernel is not None:
+            return self._kernel(mag, n, vowel.start, vowel.stop, band.start, band.stop, f_band)
+        spec = mag**2 / n
+        p = spec[band]
+        return spec[vowel].sum(), p.sum(), (f_band * p).sum()
 
     def _band_slices(self, n: int, f: np.ndarray) -> tuple[slice, slice, np.ndarray]:
         """The vowel band's and the centroid band's bins of an ``n``-sample frame as slices (the frequencies rise, so
@@ -96,9 +111,8 @@ class SpeechMouth:
         x = np.asarray(audio, np.float64)
         target, shape = 0.0, _NO_SHAPE
         if len(x) >= 64:
-            spec, f = self._spectrum(x)
-            vowel, band, f_band = self._band_slices(len(x), f)
-            db = 10.0 * np.log10(spec[vowel].sum() + 1e-10)
+            vowel_power, band_power, weighted = self._sums(x)
+            db = 10.0 * np.log10(vowel_power + 1e-10)
             # causal level trackers (module docstring, step 1)
             self.floor_db = db if db < self.floor_db else self.floor_db + self._rise
             self.peak_db = db if db > self.peak_db else self.peak_db - self._decay
@@ -107,8 +121,7 @@ class SpeechMouth:
             level = (db - low) / max(self.peak_db - low, 1e-6)
             target = 0.0 if level < GATE else min((level - GATE) / (1.0 - GATE), 1.0) ** 1.3
             if target > 0:
-                p = spec[band]
-                c = float((f_band * p).sum() / max(p.sum(), 1e-12))  # spectral centroid, Hz
+                c = float(weighted / max(band_power, 1e-12))  # spectral centroid, Hz
                 # clipped to [0, 1] as np.clip does (a NaN stays NaN)
                 dark = min(max((1400.0 - c) / 900.0, 0.0), 1.0)
                 bright = min(max((c - 2200.0) / 1800.0, 0.0), 1.0)

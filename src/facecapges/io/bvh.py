@@ -229,15 +229,17 @@ class BvhWriter:
             raise ValueError(f"motion must be (n, {self.skeleton.n_channels}), got {motion.shape}")
         if not self.growing and self.written + len(motion) > self.n_frames:
             raise ValueError(f"more than the {self.n_frames} frames declared")
-        if len(motion):
-            # one %-format per row (the text of f"{v:.6f}" for each value, ~3x faster: live's recorder, issue 36);
-            # a column that is +0.0 in every row of the block (the joints at rest: 87 of BEAT's 228) is the
-            # literal "0.000000" in the format, so only the others are converted (the same text, issue 36)
-            zero = ~(motion.any(axis=0) | np.signbit(motion).any(axis=0))
-            fmt = " ".join(["0.000000" if z else "%.6f" for z in zero.tolist()])
-            rows = (motion[:, ~zero] if zero.any() else motion).tolist()
-            self._f.write("\n".join(fmt % tuple(row) for row in rows) + "\n")
-        self.written += len(motion)
+        fmt, rows = motion_rows(motion)
+        self.write_lines([fmt % tuple(row) for row in rows])
+
+    def write_lines(self, lines: list[str]) -> None:
+        """Frames already written as text, one line each (:func:`motion_rows`' format of each row): ``live``'s
+        recorder formats a second of frames over the next second's frames (issue 36: no frame pays for all 15)."""
+        if not self.growing and self.written + len(lines) > self.n_frames:
+            raise ValueError(f"more than the {self.n_frames} frames declared")
+        if lines:
+            self._f.write("\n".join(lines) + "\n")
+        self.written += len(lines)
 
     def close(self) -> Path:
         if self.growing:
@@ -266,6 +268,16 @@ class BvhWriter:
             self.close()
         else:
             self.abort()
+
+
+def motion_rows(motion: np.ndarray) -> tuple[str, list[list[float]]]:
+    """A block of motion (n, C) float64 as a row format and the rows' numbers: ``fmt % tuple(row)`` is a row's line
+    of the MOTION section. One %-format per row (the text of f"{v:.6f}" for each value, ~3x faster: live's recorder,
+    issue 36); a column that is +0.0 in every row of the block (the joints at rest: 87 of BEAT's 228) is the literal
+    "0.000000" in the format, so only the others are converted (the same text, issue 36)."""
+    zero = ~(motion.any(axis=0) | np.signbit(motion).any(axis=0))
+    fmt = " ".join(["0.000000" if z else "%.6f" for z in zero.tolist()])
+    return fmt, (motion[:, ~zero] if zero.any() else motion).tolist()
 
 
 def _header_lines(skeleton: Skeleton, n_frames: int, fps: float) -> list[str]:

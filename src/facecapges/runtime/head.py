@@ -31,6 +31,9 @@ spine (Hips, Spine1–3) are at rest in the model's output, so ``G(Spine3)`` is 
 
 from __future__ import annotations
 
+import functools
+from types import ModuleType
+
 import numpy as np
 
 from facecapges import rotations as rot
@@ -71,10 +74,56 @@ def set_head(pose: np.ndarray, R_head: np.ndarray, spine: np.ndarray | None = No
     return out
 
 
-class HeadDriver:
-    """Per stream: the model's pose in, the pose the avatar shows out (module docstring)."""
+def _set_head_compiled(rc: ModuleType, pose: np.ndarray, R_head: np.ndarray) -> np.ndarray:
+    """:func:`set_head` through :mod:`facecapges.rotations_compiled` (two compiled calls and NumPy's ``arccos``
+    between them, instead of ~50 NumPy calls on one row: issue 36, the output stage's largest part)."""
+    ref, lq, q, theta = np.empty((3, 3)), np.empty((3, 3)), np.empty(4), np.empty(1)
+    theta[0] = rc.relative_quaternion(pose[_SPINE], R_head, ref, lq, q)
+    np.arccos(theta, out=theta)  # NumPy's own (SIMD) arccos, not libm's: its bits
+    out = np.array(pose, copy=True)
+    rc.power_about_identity_rot6d(q, theta[0], 0.5, out[_NECK : _NECK1 + 1])
+    return out
 
-    def __init__(self, mode: str = "capture", policy: FaceLostPolicy | None = None):
+
+def _numpy_capture_head(pose: np.ndarray, head_rot6d: np.ndarray) -> np.ndarray:
+    """What :class:`HeadDriver` shows in full capture with NumPy alone (the captured head and the Spine converted
+    in one call, as it does)."""
+    rows = np.empty((2, 6))
+    rows[0], rows[1] = head_rot6d, pose[_SPINE]
+    M = rot.rot6d_to_matrix(rows)
+    return set_head(pose, M[0], M[1])
+
+
+@functools.cache  # once a process
+def compiled_head() -> ModuleType | None:
+    """:mod:`facecapges.rotations_compiled` when its head chain gives :func:`set_head`'s bits on this machine —
+    checked here on 400 random poses and heads (float32, as ``live``'s; a third with the head on the Spine or a
+    hair off it: the linear blend's branch) — else ``None`` (NumPy's own chain; a build whose ``einsum``, BLAS or
+    ``sin`` sum or round otherwise than the compiled loops falls back rather than change a bit)."""
+    from facecapges import rotations_compiled as rc
+
+    rng = np.random.default_rng(0)
+    n = 400  # ~30 ms a process (tests/test_runtime_head.py checks more)
+    poses = rng.standard_normal((n, 47, 6)).astype(np.float32)
+    heads = rot.quaternion_to_rot6d(rng.standard_normal((n, 4))).astype(np.float32)
+    poses[: n // 3, _SPINE] = heads[: n // 3] + (rng.standard_normal((n // 3, 6)) * 1e-7).astype(np.float32)
+    poses[: n // 6, _SPINE] = heads[: n // 6]
+    R = np.empty((3, 3))
+    for pose, head in zip(poses, heads):
+        rc.rot6d_to_matrix(head, R)
+        got, want = _set_head_compiled(rc, pose, R), _numpy_capture_head(pose, head)
+        if not np.array_equal(got.view(np.uint32), want.view(np.uint32)):
+            return None
+    return rc
+
+
+class HeadDriver:
+    """Per stream: the model's pose in, the pose the avatar shows out (module docstring). ``compiled``: the full
+    capture's chain through :func:`compiled_head` (Numba: ``live``'s scheduler, which loads it anyway), where it
+    keeps NumPy's bits."""
+
+    def __init__(self, mode: str = "capture", policy: FaceLostPolicy | None = None, compiled: bool = False):
+        self._rc = compiled_head() if compiled else None
         self.mode = check_head_mode(mode)
         self.policy = policy or FaceLostPolicy()
         self.share = _BLEND[mode]
@@ -90,12 +139,16 @@ class HeadDriver:
             return pose
         spine = None
         if found:
-            # the captured head and the pose's Spine in one conversion (rot6d_to_matrix works row by row: the same
-            # numbers as one call each; issue 36, fewer NumPy calls a frame)
-            rows = np.empty((2, 6))
-            rows[0], rows[1] = head_rot6d, pose[_SPINE]
-            M = rot.rot6d_to_matrix(rows)
-            self._R, spine = M[0], M[1]
+            if self._rc is not None:  # its Spine in the compiled chain below
+                self._R = np.empty((3, 3))
+                self._rc.rot6d_to_matrix(head_rot6d, self._R)
+            else:
+                # the captured head and the pose's Spine in one conversion (rot6d_to_matrix works row by row: the
+                # same numbers as one call each; issue 36, fewer NumPy calls a frame)
+                rows = np.empty((2, 6))
+                rows[0], rows[1] = head_rot6d, pose[_SPINE]
+                M = rot.rot6d_to_matrix(rows)
+                self._R, spine = M[0], M[1]
             if not self._tracking:
                 # the first face of the session is shown at once (there is no captured head to come from)
                 first = self._R_seen is False
@@ -111,6 +164,8 @@ class HeadDriver:
         if self._R is None or w <= 0.0:
             return pose
         if w >= 1.0:  # the captured head in full (tracking in ``capture`` mode: most frames)
+            if self._rc is not None:
+                return _set_head_compiled(self._rc, pose, self._R)
             return set_head(pose, self._R, spine)
         return set_head(pose, rot.rotation_power_about(self._R, avatar_head_matrix(pose), w))
 

@@ -247,9 +247,9 @@ class Scheduler:
         if body is not None and (video is None or len(gens) > 1):
             raise ValueError("the body capture needs a video source and one face")
         self.body = body
-        policy = FaceLostPolicy.from_ms(hold_ms, ease_ms)
-        self.streams = [
-            FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy), SpeechMouth(self.fps, self.sr))
+        policy, fps, sr = FaceLostPolicy.from_ms(hold_ms, ease_ms), self.fps, self.sr
+        self.streams = [  # the head's chain and the mouth's sums compiled (Numba: the engines load it), keeping the bits
+            FaceChain(i, g, FaceHold(hold_ms, ease_ms), HeadDriver(head, policy, True), SpeechMouth(fps, sr, True))
             for i, g in enumerate(gens)
         ]
         self.spf = timing.samples_per_frame(self.fps, self.sr)

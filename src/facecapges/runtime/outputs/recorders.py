@@ -27,7 +27,7 @@ Every sink satisfies :class:`facecapges.runtime.interfaces.Sink`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
@@ -41,37 +41,74 @@ if TYPE_CHECKING:
 
 
 class BvhRecorder:
-    def __init__(self, path: str | Path, skeleton, fps: float):
+    """The BVH of the frames shown, a second (``block`` frames) at a time. A full second is converted and written
+    over the next second's frames, a step a frame (:meth:`_steps`: the rotations, the Euler angles, then two rows
+    of text a frame, then the write), so no frame pays for all of it (issue 36: the frame that wrote a second took
+    ~1 ms, the output stage's p99); the file on disk is then one second behind, and valid, as before."""
+
+    ROWS_A_STEP = 2  # 15 rows in 8 steps, 11 steps in all: done before the next second is full
+
+    def __init__(self, path: str | Path, skeleton, fps: float, compiled: bool = False):
+        """``compiled``: the text by :mod:`facecapges.io.bvh_text` (Numba: ``live`` and ``run``, which load it
+        anyway), a second's rows in one step, where it writes ``%``'s text on this machine."""
         self.path, self.skeleton, self.fps = Path(path), skeleton, fps
+        self._lines: Callable[[np.ndarray], list[str]] | None = None
+        if compiled:
+            from facecapges.io import bvh_text
+
+            self._lines = bvh_text.motion_lines if bvh_text.checked() else None
         self.poses: list[np.ndarray] = []  # the frames of the current second, not yet on disk
         self.block = max(1, int(round(fps)))
         self.writer: BvhWriter | None = None
+        self.pending: Iterator[None] | None = None  # the last full second's steps not yet taken
         self.closed = False
 
     def write(self, out: OutputFrame) -> None:
         self.poses.append(np.asarray(out.pose, np.float32))
         if len(self.poses) >= self.block:
-            self._flush()
+            self._finish()  # (done already unless a second is shorter than its steps)
+            self.pending, self.poses = self._steps(self.poses), []
+        elif self.pending is not None and next(self.pending, True):
+            self.pending = None
 
-    def _flush(self) -> None:
-        from facecapges.io.bvh import BvhWriter
+    def _finish(self) -> None:
+        if self.pending is not None:
+            for _ in self.pending:
+                pass
+            self.pending = None
+
+    def _steps(self, poses: list[np.ndarray]) -> Iterator[None]:
+        """Converts and writes ``poses``, yielding between steps (a generator: one ``next`` a frame)."""
+        from facecapges.io.bvh import BvhWriter, motion_rows
         from facecapges.rotations import normalize_rot6d
         from facecapges.skeleton import pose_to_motion
 
-        if not self.poses:
-            return
-        if self.writer is None:
+        p = normalize_rot6d(np.stack(poses).astype(np.float64))
+        yield
+        motion = pose_to_motion(self.skeleton, p)
+        yield
+        lines: list[str] = []
+        if self._lines is not None:
+            lines = self._lines(motion)
+            yield
+        else:
+            fmt, rows = motion_rows(motion)
+            for i in range(0, len(rows), self.ROWS_A_STEP):
+                lines += [fmt % tuple(row) for row in rows[i : i + self.ROWS_A_STEP]]
+                yield
+        if self.writer is None:  # the file appears with its first second (a BVH of no frame is not valid)
             self.writer = BvhWriter(self.path, self.skeleton, None, self.fps)
-        poses = normalize_rot6d(np.stack(self.poses).astype(np.float64))
-        self.writer.write(pose_to_motion(self.skeleton, poses))
+        self.writer.write_lines(lines)
         self.writer.flush()
-        self.poses = []
 
     def close(self) -> Path | None:
         if self.closed:
             return None
         self.closed = True
-        self._flush()
+        self._finish()
+        if self.poses:
+            self.pending, self.poses = self._steps(self.poses), []
+            self._finish()
         return self.writer.close() if self.writer is not None else None
 
 
@@ -167,7 +204,7 @@ def file_recorders(folder: Path, skeleton, fps: float, face_layout: str, index: 
     """Face ``index``'s motion BVH and face JSON in ``folder`` (``_{index+1}`` suffixed when ``faces`` > 1)."""
     sfx = "" if faces == 1 else f"_{index + 1}"
     return [
-        BvhRecorder(folder / f"motion{sfx}.bvh", skeleton, fps),
+        BvhRecorder(folder / f"motion{sfx}.bvh", skeleton, fps, compiled=True),  # (Numba: loaded by the engines)
         FaceJsonRecorder(folder / f"face{sfx}.json", fps, face_layout),
     ]
 
