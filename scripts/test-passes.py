@@ -56,8 +56,6 @@ def back_to_normal(root: int) -> int:
     """Every thread of ``root``'s tree that is still ``SCHED_IDLE`` set to ``SCHED_OTHER``; twice over, for the
     processes forked while the first walk ran. The number of threads changed."""
     changed = 0
-    if not hasattr(os, "SCHED_IDLE"):
-        return changed
     for _ in range(2):
         for pid in _tree(root):
             try:
@@ -88,8 +86,9 @@ def main(argv: list[str]) -> int:
     serial = [*pytest, "-m", "serial and not slow" if fast else "serial", "--durations=5"]
     serial += ["-o", "cache_dir=.pytest_cache/serial", *serial_files()]
     t0 = time.monotonic()
-    # Ctrl-C reaches both: one process group. SCHED_IDLE is Linux's; elsewhere the passes share the CPU as equals
-    par = subprocess.Popen(parallel, cwd=REPO, preexec_fn=_idle if hasattr(os, "SCHED_IDLE") else None)
+    if not hasattr(os, "SCHED_IDLE"):  # Linux's: elsewhere one pass after the other, as before
+        return subprocess.run(parallel, cwd=REPO).returncode or subprocess.run(serial, cwd=REPO).returncode
+    par = subprocess.Popen(parallel, cwd=REPO, preexec_fn=_idle)  # Ctrl-C reaches both: one process group
     with tempfile.TemporaryFile("w+") as log:
         ser = subprocess.run(serial, cwd=REPO, stdout=log, stderr=subprocess.STDOUT)
         t_serial = time.monotonic() - t0
