@@ -12,24 +12,23 @@ WARM := $(VENV)/.numba-warm
 demo: setup $(WARM)
 	$(VENV)/bin/facecapges demo --out out --force
 
-# Both run the suite in two passes (docs/testing.md): on two pytest-xdist workers, then the tests
-# marked `serial` (they assert a rate or a wall-clock bound) alone, collected from their files only.
+# Both run the suite in two passes side by side (scripts/test-passes.py, docs/testing.md): the tests marked
+# `serial` (they assert a rate or a wall-clock bound), collected from their files only, at the normal CPU
+# policy, and beside them the rest on two pytest-xdist workers under SCHED_IDLE — it runs on the CPU time the
+# serial tests leave unused, and goes back to the normal policy when they end.
 # `--dist worksteal`: a worker that runs out takes half of the other's queue (tests/conftest.py puts the
 # files with long tests first), so the pass does not end on one worker finishing a long test alone.
-SERIAL_FILES = $(shell grep -l 'mark\.serial' tests/test_*.py)
 test: setup
 	bash scripts/setup-test.sh
 	$(MAKE) --no-print-directory -j 2 $(WARM) check
-	$(PY) -m pytest -q -n 2 --dist worksteal -m "not serial" --durations=15
-	$(PY) -m pytest -q -m serial --durations=5 $(SERIAL_FILES)
+	$(PY) scripts/test-passes.py
 
 # The inner loop (docs/testing.md): lint and every test not marked `slow` (Chromium, Blender,
 # torchrun, training runs, the bench). `make test` and CI still run everything.
 test-fast: setup $(WARM)
 	$(VENV)/bin/ruff check src tests
 	$(VENV)/bin/ruff format --check src
-	$(PY) -m pytest -q -n 2 --dist worksteal -m "not slow and not serial" --durations=10
-	$(PY) -m pytest -q -m "serial and not slow" $(SERIAL_FILES)
+	$(PY) scripts/test-passes.py --fast
 
 setup: $(STAMP)
 
