@@ -214,7 +214,7 @@ class IdleLayer:
         self.grow(1)
         from facecapges.matching import kernels  # Numba: loaded when a layer is built, not with this module
 
-        self._step_offsets = kernels.step_offsets
+        self._step_offsets, self._pass = kernels.step_offsets, kernels.idle_pass
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -269,14 +269,24 @@ class IdleLayer:
         """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
         their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
         frame counts ``t`` (B,) and the dial's gains (B,)."""
+        # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what the
+        # steps below give then, in one compiled call: most frames of speech)
+        out = np.empty(np.shape(q), np.float64)
+        if self._pass(
+            ids,
+            np.asarray(q, np.float64),
+            since_voice,
+            self.after,
+            self.idle,
+            self.x,
+            self.v,
+            self.prev_in,
+            self.prev_out,
+            out,
+        ):
+            return out
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]
-        if not (want.any() or was.any() or self.x[ids].any() or self.v[ids].any()):
-            # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what
-            # the steps below give then, in a few calls: most frames of speech)
-            out = inz.qabs(np.asarray(q, np.float64))
-            self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, self.prev_out[ids, 1], out
-            return out
         m = self.motion
         scale = self.amplitude * np.asarray(gain, np.float64)
         enter, leave = want & ~was, ~want & was

@@ -70,7 +70,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
@@ -201,11 +200,28 @@ def search(
     # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
     # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
     q32, q_sq = queries.astype(np.float32, copy=False), np.einsum("bf,bf->b", queries, queries)
-    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == np.float32:
+    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == lead.dtype == np.float32:
         # the engine's float32 arrays, in place in one buffer: the same operations in the same order as below
         cost = np.empty((n, len(row_features)), np.float32)
         for i, query in enumerate(q32):
             np.matmul(row_features, query, out=cost[i])
+        consts = np.array([cfg.onset_bonus, cfg.memory_penalty, cfg.memory_penalty, cfg.margin], np.float32)
+        if float(consts[1]) == float(cfg.memory_penalty):  # the rest in one compiled pass: the bits of the below
+            return _search_rows(
+                cost,
+                row_features_sq,
+                q_sq,
+                playing,
+                segment,
+                lead,
+                onset_now,
+                played_recently,
+                blocked,
+                forced,
+                stale,
+                cfg.near_frames,
+                consts,
+            )
         np.multiply(cost, 2.0, out=cost)
         np.subtract(row_features_sq[None], cost, out=cost)
         cost += q_sq[:, None]  # (B, N)
@@ -238,6 +254,32 @@ def search(
     return SearchResult(best, best_cost, continue_cost, switch)
 
 
+def _search_rows(cost, row_sq, q_sq, playing, segment, lead, onset, recent, blocked, forced, stale, near, consts):
+    """:func:`search`'s float32 rules after its products, by the compiled
+    :func:`facecapges.matching.kernels.search_rows` (imported here: loaded when an engine is built)."""
+    from facecapges.matching import kernels
+
+    n = len(playing)
+    out = (np.empty(n, np.intp), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_))
+    kernels.search_rows(
+        cost,
+        row_sq,
+        q_sq,
+        np.asarray(playing, np.int64),
+        segment,
+        lead,
+        onset,
+        recent,
+        blocked,
+        forced,
+        stale,
+        int(near),
+        consts,
+        out,
+    )
+    return SearchResult(*out)
+
+
 class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
@@ -260,7 +302,7 @@ class BatchedMatchingStreams(SlotOwner):
         from facecapges.matching import kernels  # Numba: loaded when an engine is built, not with this module
 
         kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
-        self._step_offsets, self._dial = kernels.step_offsets, kernels.dial
+        self._step_offsets, self._dial, self._rot6d32 = kernels.step_offsets, kernels.dial, kernels.rot6d32
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -459,7 +501,9 @@ class BatchedMatchingStreams(SlotOwner):
                 q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
-            return rot.quaternion_to_rot6d(q).astype(np.float32)
+            out = np.empty((B, N_JOINTS, 6), np.float32)
+            self._rot6d32(np.ascontiguousarray(q, np.float64), out)  # rot.quaternion_to_rot6d(q) in float32's bits
+            return out
 
     def _advance_and_search(self, ids: np.ndarray, cues, pred: np.ndarray | None) -> None:
         cfg = self.config

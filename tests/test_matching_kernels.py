@@ -1,0 +1,133 @@
+"""The matching step's compiled pieces that keep the NumPy formulas' bits (docs/performance.md, "Engine step, fourth
+pass"): the search's rules after its products, the idle layer's frame outside a pause, the last rot6d conversion,
+and the FFTs called as ``numpy.fft`` calls them. Synthetic arrays, bytes compared."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from facecapges.matching import kernels
+from facecapges.matching.matcher import MatchingConfig, search
+from facecapges.network.mel import irfft, rfft
+from facecapges.rotations import quaternion_to_rot6d, standardize_quaternion
+
+
+@pytest.mark.parametrize("shape", [(1, 1024), (3, 5, 512), (300, 1536), (2, 1067), (4, 3)])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_ffts_are_numpys_bits(shape, dtype):
+    x = (np.random.default_rng(1).standard_normal(shape) * 3.0).astype(dtype)
+    spec = rfft(x)
+    assert spec.dtype == np.fft.rfft(x).dtype and spec.tobytes() == np.fft.rfft(x).tobytes()
+    power = (spec.real**2 + spec.imag**2).astype(dtype)
+    for n in (None, 2 * (shape[-1] // 2 + 1) - 1, 1536):
+        assert irfft(power, n).tobytes() == np.fft.irfft(power, n).tobytes()
+        assert irfft(spec, n).tobytes() == np.fft.irfft(spec, n).tobytes()
+
+
+def _quaternions(rng, n):
+    q = rng.standard_normal((n, 47, 4)) * rng.uniform(1e-10, 1e3, (n, 47, 1))
+    q[0, :4] = [[0.0, 0.0, 0.0, 0.0], [-0.0, 1.0, -0.0, 0.0], [np.nan, 1.0, 0.0, 0.0], [-1.0, 1e-9, -1e-9, 0.0]]
+    q[0, 4] = [1e-9, 0.0, 0.0, 0.0]
+    return q
+
+
+def test_rot6d32_is_the_numpy_formulas_bits():
+    rng = np.random.default_rng(2)
+    for n in (1, 300):
+        q = _quaternions(rng, n)
+        out = np.empty((n, 47, 6), np.float32)
+        kernels.rot6d32(q, out)
+        assert out.tobytes() == quaternion_to_rot6d(q).astype(np.float32).tobytes()
+
+
+def test_idle_pass_is_the_fast_paths_bits_and_declines_a_pause():
+    rng = np.random.default_rng(3)
+    S, J = 5, 47
+    ids = np.array([3, 0, 4])
+    q = _quaternions(rng, 3)
+    x, v = np.zeros((S, J, 3)), np.zeros((S, J, 3))
+    x[1, 2, 0] = 1e-30  # a slot not stepped
+    prev_in, prev_out = rng.standard_normal((S, J, 4)), rng.standard_normal((S, 2, J, 4))
+    want_in, want_out = prev_in.copy(), prev_out.copy()
+    out = np.empty_like(q)
+    quiet, idle = np.array([0, 3, 6]), np.zeros(S, bool)
+    assert kernels.idle_pass(ids, q, quiet, 7, idle, x, v, prev_in, prev_out, out)
+    shown = standardize_quaternion(q)
+    want_in[ids], want_out[ids, 0], want_out[ids, 1] = q, want_out[ids, 1], shown
+    assert out.tobytes() == shown.tobytes()
+    assert prev_in.tobytes() == want_in.tobytes() and prev_out.tobytes() == want_out.tobytes()
+    for case in ("pause", "idle", "x", "v"):
+        sv, idl, xx, vv = quiet.copy(), idle.copy(), x.copy(), v.copy()
+        if case == "pause":
+            sv[2] = 7
+        elif case == "idle":
+            idl[0] = True
+        else:
+            (xx if case == "x" else vv)[4, 46, 2] = -1e-300
+        before = (prev_in.copy(), prev_out.copy())
+        assert not kernels.idle_pass(ids, q, sv, 7, idl, xx, vv, prev_in, prev_out, out)
+        assert prev_in.tobytes() == before[0].tobytes() and prev_out.tobytes() == before[1].tobytes()
+
+
+def _numpy_search(feats, sq, queries, playing, segment, lead, onset, recent, blocked, forced, stale, cfg):
+    """The NumPy formulas the compiled search keeps (main's ``search`` before the kernel, its float32 path)."""
+    n = len(playing)
+    q_sq = np.einsum("bf,bf->b", queries, queries)
+    cost = np.empty((n, len(feats)), np.float32)
+    for i, query in enumerate(queries):
+        np.matmul(feats, query, out=cost[i])
+    np.multiply(cost, 2.0, out=cost)
+    np.subtract(sq[None], cost, out=cost)
+    cost += q_sq[:, None]
+    continue_cost = cost[np.arange(n), playing].copy()
+    if onset.any():
+        cost[onset] -= cfg.onset_bonus * lead[None]
+        continue_cost[onset] -= cfg.onset_bonus * lead[playing[onset]]
+    np.add(cost, np.float32(cfg.memory_penalty), out=cost, where=recent)
+    np.copyto(cost, np.inf, where=blocked)
+    near = playing[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
+    inside = (near >= 0) & (near < len(feats))
+    near = np.where(inside, near, playing[:, None])
+    inside &= segment[near] == segment[playing][:, None]
+    cost[np.nonzero(inside)[0], near[inside]] = np.inf
+    best = np.argmin(cost, axis=1)
+    best_cost = cost[np.arange(n), best]
+    continue_cost = np.where(forced, np.inf, continue_cost)
+    continue_cost = np.where(stale, continue_cost + cfg.memory_penalty, continue_cost)
+    switch = np.isfinite(best_cost) & (best_cost < continue_cost - cfg.margin)
+    return best, best_cost, continue_cost, switch
+
+
+@pytest.mark.parametrize("B", [1, 7, 300])
+def test_compiled_search_is_the_numpy_formulas_bits(B):
+    rng = np.random.default_rng(B)
+    N, F = 400, 30
+    feats = rng.standard_normal((N, F)).astype(np.float32)
+    feats[200:210] = feats[100]  # ties: the first smallest wins
+    sq = np.einsum("nf,nf->n", feats, feats)
+    segment = np.repeat(np.arange(8), N // 8).astype(np.int32)
+    lead = rng.uniform(0, 3, N).astype(np.float32)
+    cfg = MatchingConfig(onset_bonus=2.0, memory_penalty=100.0, near_frames=8, margin=3.0)
+    for trial in range(6):
+        queries = feats[rng.integers(0, N, B)] + rng.normal(0, 0.3, (B, F)).astype(np.float32)
+        if trial == 1:
+            queries[0] = feats[100]  # exactly the tied rows
+        playing = rng.integers(0, N, B)
+        playing[0] = 0 if trial == 2 else N - 1 if trial == 3 else playing[0]  # near rows at the ends
+        args = (
+            rng.random(B) < 0.4,  # onset
+            rng.random((B, N)) < 0.3,  # played recently
+            rng.random((B, N)) < (0.99 if trial == 4 else 0.2),  # blocked
+            rng.random(B) < 0.2,  # forced
+            rng.random(B) < 0.3,  # stale
+        )
+        if trial == 5:
+            args[2][0] = True  # every row blocked: cost inf, row 0
+        got = search(
+            feats, sq, queries, playing, segment, lead, onset_now=args[0], played_recently=args[1],
+            blocked=args[2], forced=args[3], stale=args[4], config=cfg,
+        )  # fmt: skip
+        want = _numpy_search(feats, sq, queries, playing, segment, lead, *args, cfg)
+        for g, w in zip(got, want, strict=True):
+            assert g.dtype == w.dtype and g.tobytes() == w.tobytes()
