@@ -10,7 +10,7 @@ import pytest
 from facecapges.matching import kernels
 from facecapges.matching.matcher import MatchingConfig, search
 from facecapges.network.mel import irfft, rfft
-from facecapges.rotations import quaternion_to_rot6d, standardize_quaternion
+from facecapges.rotations import quaternion_exp, quaternion_multiply, quaternion_to_rot6d, standardize_quaternion
 
 
 @pytest.mark.parametrize("shape", [(1, 1024), (3, 5, 512), (300, 1536), (2, 1067), (4, 3)])
@@ -131,3 +131,51 @@ def test_compiled_search_is_the_numpy_formulas_bits(B):
         want = _numpy_search(feats, sq, queries, playing, segment, lead, *args, cfg)
         for g, w in zip(got, want, strict=True):
             assert g.dtype == w.dtype and g.tobytes() == w.tobytes()
+
+
+def _layers(acc_cap: float):
+    from facecapges.matching.idle import IDLE_JOINTS, IdleLayer, IdleMotion
+    from facecapges.skeleton import TORSO, UPPER_BODY
+
+    rng = np.random.default_rng(5)
+    K = len(IDLE_JOINTS)
+    rest = standardize_quaternion(rng.standard_normal((4, 47, 4)))
+    rest /= np.linalg.norm(rest, axis=-1, keepdims=True)
+    motion = IdleMotion(
+        np.array([UPPER_BODY.index(j) for j in IDLE_JOINTS]),
+        rng.uniform(0.0, 0.2, (K, 3)),
+        rng.uniform(0.1, 1.0, (K, 3)),
+        rest,
+        rng.uniform(0.0, 2.0 * np.pi, (2, K, 3)),
+    )
+    kw = dict(after_frames=3, enter_halflife_s=0.2, release_halflife_s=0.1, amplitude=1.1, acc_cap=acc_cap)
+    return [IdleLayer(motion, 15, keep=TORSO[1:], enter_velocity=0.0, **kw) for _ in range(2)]
+
+
+@pytest.mark.parametrize("acc_cap", [0.0, 40.0])
+def test_idle_frame_is_the_numpy_paths_bits(acc_cap):
+    """The idle layer with its compiled frames (idle_pass, idle_frame) against its NumPy path alone, 3 streams of
+    a batch of 4 through pauses that start and end at different frames, bytes of every pose and of the state."""
+    compiled, numpy_only = _layers(acc_cap)
+    numpy_only._pass = numpy_only._frame = lambda *args: False
+    rng = np.random.default_rng(6)
+    for layer in (compiled, numpy_only):
+        layer.grow(4)
+    ids = np.array([2, 0, 3])
+    q = standardize_quaternion(rng.standard_normal((3, 47, 4)))
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    for layer in (compiled, numpy_only):
+        layer.restart(ids, q)
+    since = np.zeros(3, np.int64)
+    for t in range(120):
+        step = np.zeros((3, 47, 3))
+        step[:, :, rng.integers(0, 3)] = rng.normal(0, 0.05, (3, 47))  # the matched motion moves on
+        q = quaternion_multiply(quaternion_exp(step), q)
+        voice = rng.random(3) < (0.9 if (t // 25) % 2 == 0 else 0.05)
+        since = np.where(voice, 0, since + 1)
+        gain = 1.0 + 0.3 * rng.random(3)
+        got = compiled.apply(ids, q, since, np.full(3, t), gain)
+        want = numpy_only.apply(ids, q, since, np.full(3, t), gain)
+        assert got.tobytes() == want.tobytes(), t
+    for name in ("idle", "target", "x", "v", "hl", "prev_in", "prev_out"):
+        assert getattr(compiled, name).tobytes() == getattr(numpy_only, name).tobytes(), name

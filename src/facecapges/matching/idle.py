@@ -214,7 +214,17 @@ class IdleLayer:
         self.grow(1)
         from facecapges.matching import kernels  # Numba: loaded when a layer is built, not with this module
 
-        self._step_offsets, self._pass = kernels.step_offsets, kernels.idle_pass
+        self._step_offsets, self._pass, self._frame = kernels.step_offsets, kernels.idle_pass, kernels.idle_frame
+        cap = self.acc_cap if self.acc_cap > 0 else -1.0
+        self._layer = (self.after, float(self.fps), SPENT, cap, float(self.amplitude))  # idle_frame's constants
+        w0, w1 = (w[0] for w in motion._angular)
+        self._motion = np.ascontiguousarray(np.stack([motion.amplitude, w0, w1, motion.phase[0], motion.phase[1]]))
+
+    def _state(self) -> tuple:
+        """What :func:`facecapges.matching.kernels.idle_frame` reads and updates, in its order."""
+        m = self.motion
+        return (self.idle, self.target, self.x, self.v, self.hl, self.prev_in, self.prev_out, m.rest, m.joints,
+                self.keep)  # fmt: skip
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -284,6 +294,9 @@ class IdleLayer:
             self.prev_out,
             out,
         ):
+            return out
+        # no stream enters or leaves a pause (most frames of one): the steps below in one compiled call, same bits
+        if self._frame(ids, q, since_voice, t, gain, self._layer, self._state(), self._motion, out):
             return out
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]

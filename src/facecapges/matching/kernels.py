@@ -9,9 +9,11 @@ batch (``serve``) alike (docs/performance.md, "Engine step, third pass").
 * :func:`dial` — the matcher's intensity dial (:mod:`facecapges.matching.matcher`, step 6);
 * :func:`track` — the speech tracker's frame after its FFTs (:mod:`facecapges.matching.speech`);
 * :func:`search_rows` — the search's costs and choice after its matrix-vector products
-  (:func:`facecapges.matching.matcher.search`), :func:`idle_pass` — the idle layer's frame outside a pause,
-  :func:`rot6d32` — the step's last conversion: unlike the others, these three give the NumPy formulas' bits
-  (only +, −, ·, /, sqrt and comparisons, in the formulas' order).
+  (:func:`facecapges.matching.matcher.search`), :func:`idle_pass` and :func:`idle_frame` — the idle layer's frame outside a pause and
+  while no stream enters or leaves one,
+  :func:`rot6d32` — the step's last conversion: unlike the others, these give the NumPy formulas' bits
+  (only +, −, ·, /, sqrt, comparisons and float64 sin and cos — libm's and NumPy's agree here — in the formulas'
+  order).
 
 Each is one call for all the streams of a step instead of tens of NumPy calls on arrays of one stream. In the
 dtypes of the NumPy formulas they replace; libm's exp, log, sin, cos and atan2 (NumPy has its own SIMD ones) and
@@ -283,6 +285,76 @@ def idle_pass(ids, q, since_voice, after, idle, x, v, prev_in, prev_out, out) ->
 
 
 @_jit
+def _spent_max(a: np.ndarray, spent: float) -> bool:
+    """``np.maximum.reduce(np.abs(a)) > spent`` of one stream's offsets (J, 3) (a NaN makes the maximum NaN: False)."""
+    m = 0.0
+    for j in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            v = abs(a[j, c])
+            if np.isnan(v):
+                return False
+            m = max(m, v)
+    return m > spent
+
+
+@_jit
+def _idle_pose(rest, joints, motion, secs, scale, base) -> None:
+    """``IdleMotion.pose`` of one stream into ``base`` (J, 4): the rest pose ``rest`` (J, 4) with the idle of
+    ``secs`` on ``joints``; ``motion`` (5, K, 3) = amplitude, the two sines' angular frequencies and phases.
+    ``(amplitude · ((0 + sin(w₀ t + φ₀)) + sin(w₁ t + φ₁))) · scale``, then ``rest · exp(·)``: NumPy's operations
+    in its order (its float64 ``sin`` and ``cos`` are libm's here: tests/test_matching_kernels.py)."""
+    r, e = np.empty(3), np.empty(4)
+    base[:] = rest
+    for i in range(len(joints)):
+        for c in range(3):
+            s0 = np.sin(motion[1, i, c] * secs + motion[3, i, c])
+            s1 = np.sin(motion[2, i, c] * secs + motion[4, i, c])
+            r[c] = (motion[0, i, c] * ((0.0 + s0) + s1)) * scale
+        qexp(r, e)
+        qmul(rest[joints[i]], e, base[joints[i]])
+
+
+@_jit
+def idle_frame(ids, q, since_voice, t, gain, layer, state, motion, out) -> bool:
+    """:meth:`facecapges.matching.idle.IdleLayer.apply`'s frame when no stream of ``ids`` (n,) enters or leaves a
+    pause (else nothing is written and False): per stream the rest pose with the idle (in a pause) or the matched
+    pose ``q`` (n, J, 4) as the base, the offset decayed and applied (:func:`step_offsets`, under the cap) while it
+    is live (in a pause, or beyond ``SPENT``; else zeroed and ``q`` shown), w ≥ 0, the history shifted; True.
+    ``layer`` = (after, fps, spent, cap, amplitude), ``state`` = the layer's (idle, target, x, v, hl, prev_in,
+    prev_out, rest poses, idle joints, kept joints), ``motion`` as :func:`_idle_pose`'s. The NumPy formulas' bits."""
+    after, fps, spent, cap, amplitude = layer
+    idle, target, x, v, hl, prev_in, prev_out, rest, joints, keep = state
+    for n in range(len(ids)):
+        if (since_voice[n] >= after) != idle[ids[n]]:
+            return False
+    J = q.shape[1]
+    base, shown, one = np.empty((1, J, 4)), np.empty((1, J, 4)), np.empty(1, np.int64)
+    for n in range(len(ids)):
+        s = ids[n]
+        if idle[s]:
+            _idle_pose(rest[target[s]], joints, motion, t[n] / fps, amplitude * gain[n], base[0])
+            for j in range(J):
+                if keep[j]:
+                    base[0, j] = q[n, j]
+        else:
+            base[0] = q[n]
+        if idle[s] or _spent_max(x[s], spent) or _spent_max(v[s], spent):
+            one[0] = s
+            step_offsets(one, x, v, hl, base, prev_out, cap, fps, False, shown)
+        else:
+            x[s], v[s] = 0.0, 0.0
+            shown[0] = q[n]
+        for j in range(J):
+            neg = shown[0, j, 0] < 0.0
+            for c in range(4):
+                out[n, j, c] = -shown[0, j, c] if neg else shown[0, j, c]
+                prev_in[s, j, c] = q[n, j, c]
+                prev_out[s, 0, j, c] = prev_out[s, 1, j, c]
+                prev_out[s, 1, j, c] = out[n, j, c]
+    return True
+
+
+@_jit
 def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
     """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
     (1024,); → voicing, flatness and the top bins' share (module docs)."""
@@ -428,4 +500,6 @@ def warm() -> None:
     search_rows(f2[None].copy(), f2, f2[:1], ids, np.zeros(2, np.int32), f2, b1, b2, b2, b1, b1, 1, f2.repeat(2), out)
     rot6d32(z4, np.empty((1, 1, 6), np.float32))
     idle_pass(ids, z4, ids, 1, b1, z3, z3, z4, np.zeros((1, 2, 1, 4)), z4.copy())
+    state = (b1, ids, z3, z3, ones, z4, np.zeros((1, 2, 1, 4)), z4, ids, b1)
+    idle_frame(ids, z4, ids, ids, ones, (1, 15.0, 1e-6, -1.0, 1.0), state, np.zeros((5, 1, 3)), z4.copy())
     SpeechTracker(1).step(ids, np.zeros((1, N_FFT), np.float32))
