@@ -206,3 +206,66 @@ def test_speech_tail_is_the_chains_and_taps_one_by_one():
                 kernel.head(h, z, n_a + kernel.face_mlp.n_out)
             assert got.tobytes() == kernel.out(z).tobytes()
         assert all(r.tobytes() == s.tobytes() for r, s in zip(regs, ref, strict=True))
+
+
+def _numpy_advance(ids, speaking, onset, st, consts):
+    """The matcher's advance as NumPy formulas (main's ``_advance_and_search`` before the kernel)."""
+    row_a, next_row, prev_row, direction, idle_play, since_search, since_switch = st[:7]
+    was_speaking, quiet, last_used, canon, t, run_start, intensity = st[7:]
+    idle_below, idle_loop, min_play, interval, memory = consts
+    row = row_a[ids]
+    idle_only = (~speaking) | (intensity[ids] < idle_below)
+    fwd, bwd = next_row[row], prev_row[row]
+    back = idle_only & (direction[ids] < 0)
+    nxt = np.where(back, bwd, fwd)
+    if idle_loop:
+        alt = np.where(back, fwd, bwd)
+        bounce = idle_only & ((nxt < 0) | ~idle_play[nxt]) & (alt >= 0) & idle_play[alt]
+        nxt = np.where(bounce, alt, nxt)
+        back = back ^ bounce
+    direction[ids] = np.where(back, -1, 1)
+    ended = nxt < 0
+    nxt = np.where(ended, row, nxt)
+    off_state = idle_only & ~idle_play[nxt]
+    was = was_speaking[ids]
+    ss, sw = since_search[ids] + 1, since_switch[ids] + 1
+    since_search[ids], since_switch[ids] = ss, sw
+    periodic = (speaking != was) | onset | (ss >= interval)
+    last = last_used[ids, canon[nxt]]
+    into_recent = (last > t[ids] - memory) & (last < run_start[ids])
+    need = ended | off_state | (speaking & ~was) | into_recent | ((sw >= min_play) & periodic)
+    was_speaking[ids] = speaking
+    quiet[ids] = np.where(speaking, 0, quiet[ids] + 1)
+    row_a[ids] = nxt
+    return nxt, idle_only, ended | off_state, into_recent, need
+
+
+@pytest.mark.parametrize("idle_loop", [False, True])
+def test_advance_is_the_numpy_formulas(idle_loop):
+    rng = np.random.default_rng(8)
+    N, S = 60, 9
+    seg = np.repeat(np.arange(4), N // 4)
+    next_row, prev_row = np.arange(1, N + 1), np.arange(-1, N - 1)
+    next_row[np.r_[seg[1:] != seg[:-1], True]] = -1
+    prev_row[np.r_[True, seg[1:] != seg[:-1]]] = -1
+    canon = np.arange(N) % 30
+    st = [
+        rng.integers(0, N, S), next_row, prev_row, rng.choice([-1, 1], S), rng.random(N) < 0.6,
+        rng.integers(0, 4, S), rng.integers(0, 8, S), rng.random(S) < 0.5, rng.integers(0, 5, S),
+        rng.integers(-100, 200, (S, N)), canon, rng.integers(100, 200, S), rng.integers(0, 200, S),
+        rng.choice([0.0, 0.04, 1.0, 1.3], S),
+    ]  # fmt: skip
+    ref = [a.copy() for a in st]
+    consts = (0.05, idle_loop, 6, 2, 60.0)
+    for _ in range(200):
+        ids = rng.permutation(S)[: rng.integers(1, S + 1)]
+        speaking, onset = rng.random(len(ids)) < 0.5, rng.random(len(ids)) < 0.2
+        out = tuple(np.empty(len(ids), t) for t in (np.int64,) + (np.bool_,) * 4)
+        anyone = kernels.advance(ids, speaking, onset, tuple(st), consts, out)
+        want = _numpy_advance(ids, speaking, onset, ref, consts)
+        assert anyone == bool(want[4].any())
+        assert all(np.array_equal(g, w) for g, w in zip(out, want, strict=True))
+        assert all(np.array_equal(a, b) for a, b in zip(st, ref, strict=True))
+        for a in (st, ref):  # a search now and then: the run restarts, the memory moves on
+            a[11][ids] += 1
+            a[9][ids[0], canon[a[0][ids[0]]]] = a[11][ids[0]]

@@ -9,6 +9,7 @@ batch (``serve``) alike (docs/performance.md, "Engine step, third pass").
   blend and the idle layer (:mod:`facecapges.matching.inertialize`, :mod:`facecapges.matching.idle`);
 * :func:`dial` — the matcher's intensity dial (:mod:`facecapges.matching.matcher`, step 6);
 * :func:`track` — the speech tracker's frame after its FFTs (:mod:`facecapges.matching.speech`);
+* :func:`advance` — the matcher's advance to each stream's next row and its search triggers;
 * :func:`search_rows` — the search's costs and choice after its matrix-vector products
   (:func:`facecapges.matching.matcher.search`), :func:`idle_pass` and :func:`idle_frame` — the idle layer's frame outside a pause and
   while no stream enters or leaves one,
@@ -394,6 +395,59 @@ def idle_frame(ids, q, since_voice, t, gain, layer, state, motion, out) -> bool:
 
 
 @_jit
+def advance(ids, speaking, onset, state, consts, out) -> bool:
+    """The matcher's advance (step 3 of :mod:`facecapges.matching.matcher`) for streams ``ids`` (n,) with their
+    speech cues ``speaking``, ``onset`` (n,): each plays its next row (backwards in an idle run played back; the
+    same row at a clip's end), its counters move on, and whether it must search. ``state`` = the matcher's (row,
+    next_row, prev_row, direction, idle_play, since_search, since_switch, was_speaking, quiet, last_used, canon, t,
+    run_start, intensity_target), updated; ``consts`` = (idle-only intensity, idle_loop, min_play_frames,
+    search_interval, memory in frames); ``out`` (n,) each = the next row, idle only, forced (the clip ended or left
+    idle motion in a pause), into a recent stretch, must search. True if any stream must search. Integer and
+    boolean rules and one float64 comparison: the NumPy formulas' values."""
+    row, next_row, prev_row, direction, idle_play, since_search, since_switch = state[:7]
+    was_speaking, quiet, last_used, canon, t, run_start, intensity = state[7:]
+    idle_below, idle_loop, min_play, interval, memory = consts
+    nxt_out, idle_out, forced_out, recent_out, need_out = out
+    anyone = False
+    for n in range(len(ids)):
+        s, sp = ids[n], speaking[n]
+        r = row[s]
+        idle_only = (not sp) or intensity[s] < idle_below
+        fwd, bwd = next_row[r], prev_row[r]
+        back = idle_only and direction[s] < 0  # speech always plays forwards
+        nxt = bwd if back else fwd
+        if idle_loop:  # in a pause an idle run that ends plays back the way it came
+            alt = fwd if back else bwd
+            if idle_only and (nxt < 0 or not idle_play[nxt]) and alt >= 0 and idle_play[alt]:
+                nxt, back = alt, not back
+        direction[s] = -1 if back else 1
+        ended = nxt < 0
+        if ended:
+            nxt = r
+        off_state = idle_only and not idle_play[nxt]
+        was = was_speaking[s]
+        since_search[s] += 1
+        since_switch[s] += 1
+        settled = since_switch[s] >= min_play  # a clip plays a while before a search leaves it
+        periodic = sp != was or onset[n] or since_search[s] >= interval
+        last = last_used[s, canon[nxt]]
+        into_recent = last > t[s] - memory and last < run_start[s]
+        need = ended or off_state or (sp and not was) or into_recent or (settled and periodic)
+        was_speaking[s] = sp
+        quiet[s] = 0 if sp else quiet[s] + 1
+        row[s] = nxt
+        nxt_out[n], idle_out[n], forced_out[n], recent_out[n], need_out[n] = (
+            nxt,
+            idle_only,
+            ended or off_state,
+            into_recent,
+            need,
+        )
+        anyone = anyone or need
+    return anyone
+
+
+@_jit
 def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
     """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
     (1024,); → voicing, flatness and the top bins' share (module docs)."""
@@ -543,6 +597,9 @@ def warm() -> None:
     out = (np.empty(1, np.intp), np.empty(1, np.float32), np.empty(1, np.float32), np.empty(1, np.bool_))
     search_rows(f2[None].copy(), f2, f2[:1], ids, np.zeros(2, np.int32), f2, b1, b2, b2, b1, b1, 1, f2.repeat(2), out)
     rot6d32(z4, np.empty((1, 1, 6), np.float32))
+    i1, b1s = np.zeros(1, np.int64), np.zeros(1, np.bool_)
+    state = (i1, i1, i1, i1, b1s, i1, i1, b1s, i1, np.zeros((1, 1), np.int64), i1, i1, i1, ones)
+    advance(ids, b1s, b1s, state, (0.05, False, 1, 1, 900.0), (i1, b1s, b1s, b1s, b1s))
     idle_pass(ids, z4, ids, 1, b1, z3, z3, z4, np.zeros((1, 2, 1, 4)), z4.copy())
     state = (b1, ids, z3, z3, ones, z4, np.zeros((1, 2, 1, 4)), z4, ids, b1)
     idle_frame(ids, z4, ids, ids, ones, (1, 15.0, 1e-6, -1.0, 1.0), state, np.zeros((5, 1, 3)), z4.copy())

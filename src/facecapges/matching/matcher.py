@@ -303,6 +303,7 @@ class BatchedMatchingStreams(SlotOwner):
 
         kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
         self._step_offsets, self._dial, self._rot6d32 = kernels.step_offsets, kernels.dial, kernels.rot6d32
+        self._advance = kernels.advance
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -507,35 +508,15 @@ class BatchedMatchingStreams(SlotOwner):
 
     def _advance_and_search(self, ids: np.ndarray, cues, pred: np.ndarray | None) -> None:
         cfg = self.config
-        row = self.row[ids]
-        idle_only = (~cues.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
-        fwd, bwd = self.next_row[row], self.prev_row[row]
-        back = idle_only & (self.direction[ids] < 0)  # speech always plays forwards
-        nxt = np.where(back, bwd, fwd)
-        if cfg.idle_loop:  # in a pause an idle run that ends plays back the way it came (no forced switch)
-            alt = np.where(back, fwd, bwd)
-            bounce = idle_only & ((nxt < 0) | ~self.idle_play[nxt]) & (alt >= 0) & self.idle_play[alt]
-            nxt = np.where(bounce, alt, nxt)
-            back = back ^ bounce
-        self.direction[ids] = np.where(back, -1, 1)
-        ended = nxt < 0
-        nxt = np.where(ended, row, nxt)
-        off_state = idle_only & ~self.idle_play[nxt]
-        was = self.was_speaking[ids]
-        changed = cues.speaking != was
-        since_search, since_switch = self.since_search[ids] + 1, self.since_switch[ids] + 1
-        self.since_search[ids], self.since_switch[ids] = since_search, since_switch
-        settled = since_switch >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        started = cues.speaking & ~was  # speech resumes: search now (resume within 0.3 s)
-        periodic = changed | cues.onset | (since_search >= cfg.search_interval)
-        # continuing into a stretch (or its mirror image) played before this run began, within the memory
-        last = self.last_used[ids, self.canon[nxt]]
-        into_recent = (last > self.t[ids] - cfg.memory_s * self.fps) & (last < self.run_start[ids])
-        need = ended | off_state | started | into_recent | (settled & periodic)
-        self.was_speaking[ids] = cues.speaking
-        self.quiet[ids] = np.where(cues.speaking, 0, self.quiet[ids] + 1)
-        self.row[ids] = nxt
-        if not need.any():
+        B = len(ids)
+        nxt, idle_only, forced, into_recent, need = out = tuple(np.empty(B, t) for t in (np.int64,) + (np.bool_,) * 4)
+        state = (self.row, self.next_row, self.prev_row, self.direction, self.idle_play, self.since_search)
+        state += (self.since_switch, self.was_speaking, self.quiet, self.last_used, self.canon, self.t, self.run_start)
+        state += (self.intensity_target,)
+        consts = (IDLE_ONLY_BELOW, bool(cfg.idle_loop), int(cfg.min_play_frames), int(cfg.search_interval))
+        consts += (float(cfg.memory_s * self.fps),)  # (one compiled variant: the same comparisons of integers)
+        # each stream's next row, its counters and whether it searches (module docs, 3-4): one compiled call
+        if not self._advance(ids, cues.speaking, cues.onset, state, consts, out):
             return
         searching = np.flatnonzero(need)
         best, switch = self._search(
@@ -545,7 +526,7 @@ class BatchedMatchingStreams(SlotOwner):
             searching,
             pred,
             idle_only[searching],
-            ended[searching] | off_state[searching],
+            forced[searching],
             into_recent[searching],
         )
         self.since_search[ids[searching]] = 0
