@@ -220,6 +220,18 @@ class IdleLayer:
         w0, w1 = (w[0] for w in motion._angular)
         self._motion = np.ascontiguousarray(np.stack([motion.amplitude, w0, w1, motion.phase[0], motion.phase[1]]))
 
+    def _compiled(self, ids, q, since_voice, t, gain) -> np.ndarray | None:
+        """:meth:`apply`'s frame by a compiled call when it can (the same bits), else None: no stream in or
+        entering a pause and every offset spent (zero: the matched poses as they are, most frames of speech), or no
+        stream entering or leaving one (most frames of a pause)."""
+        out = np.empty(q.shape, np.float64)
+        state = (self.idle, self.x, self.v, self.prev_in, self.prev_out)
+        if self._pass(ids, q, since_voice, self.after, *state, out):
+            return out
+        if self._frame(ids, q, since_voice, t, gain, self._layer, self._state(), self._motion, out):
+            return out
+        return None
+
     def _state(self) -> tuple:
         """What :func:`facecapges.matching.kernels.idle_frame` reads and updates, in its order."""
         m = self.motion
@@ -279,24 +291,8 @@ class IdleLayer:
         """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
         their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
         frame counts ``t`` (B,) and the dial's gains (B,)."""
-        # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what the
-        # steps below give then, in one compiled call: most frames of speech)
-        out = np.empty(np.shape(q), np.float64)
-        if self._pass(
-            ids,
-            np.asarray(q, np.float64),
-            since_voice,
-            self.after,
-            self.idle,
-            self.x,
-            self.v,
-            self.prev_in,
-            self.prev_out,
-            out,
-        ):
-            return out
-        # no stream enters or leaves a pause (most frames of one): the steps below in one compiled call, same bits
-        if self._frame(ids, q, since_voice, t, gain, self._layer, self._state(), self._motion, out):
+        out = self._compiled(ids, np.asarray(q, np.float64), since_voice, t, gain)
+        if out is not None:
             return out
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]

@@ -207,21 +207,8 @@ def search(
             np.matmul(row_features, query, out=cost[i])
         consts = np.array([cfg.onset_bonus, cfg.memory_penalty, cfg.memory_penalty, cfg.margin], np.float32)
         if float(consts[1]) == float(cfg.memory_penalty):  # the rest in one compiled pass: the bits of the below
-            return _search_rows(
-                cost,
-                row_features_sq,
-                q_sq,
-                playing,
-                segment,
-                lead,
-                onset_now,
-                played_recently,
-                blocked,
-                forced,
-                stale,
-                cfg.near_frames,
-                consts,
-            )
+            rows, masks = (row_features_sq, q_sq, playing, segment, lead), (onset_now, played_recently, blocked)
+            return _search_rows(cost, rows, (*masks, forced, stale), cfg.near_frames, consts)
         np.multiply(cost, 2.0, out=cost)
         np.subtract(row_features_sq[None], cost, out=cost)
         cost += q_sq[:, None]  # (B, N)
@@ -254,29 +241,15 @@ def search(
     return SearchResult(best, best_cost, continue_cost, switch)
 
 
-def _search_rows(cost, row_sq, q_sq, playing, segment, lead, onset, recent, blocked, forced, stale, near, consts):
-    """:func:`search`'s float32 rules after its products, by the compiled
-    :func:`facecapges.matching.kernels.search_rows` (imported here: loaded when an engine is built)."""
+def _search_rows(cost: np.ndarray, rows: tuple, masks: tuple, near: int, consts: np.ndarray) -> SearchResult:
+    """:func:`search`'s float32 rules after its products (``rows`` = the rows' squared norms, the queries', the
+    playing rows, the segments, the leads; ``masks`` = onset, played recently, blocked, forced, stale) by the
+    compiled :func:`facecapges.matching.kernels.search_rows` (imported here: loaded when an engine is built)."""
     from facecapges.matching import kernels
 
-    n = len(playing)
+    n = len(rows[2])
     out = (np.empty(n, np.intp), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_))
-    kernels.search_rows(
-        cost,
-        row_sq,
-        q_sq,
-        np.asarray(playing, np.int64),
-        segment,
-        lead,
-        onset,
-        recent,
-        blocked,
-        forced,
-        stale,
-        int(near),
-        consts,
-        out,
-    )
+    kernels.search_rows(cost, *rows[:2], np.asarray(rows[2], np.int64), *rows[3:], *masks, int(near), consts, out)
     return SearchResult(*out)
 
 
