@@ -66,7 +66,7 @@ import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -249,7 +249,8 @@ def _search_rows(cost: np.ndarray, rows: tuple, masks: tuple, near: int, consts:
 
     n = len(rows[2])
     out = (np.empty(n, np.intp), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_))
-    kernels.search_rows(cost, *rows[:2], np.asarray(rows[2], np.int64), *rows[3:], *masks, int(near), consts, out)
+    run: Any = kernels.search_rows  # (a Numba dispatcher: its arguments are checked when it compiles)
+    run(cost, *rows[:2], np.asarray(rows[2], np.int64), *rows[3:], *masks, int(near), consts, out)
     return SearchResult(*out)
 
 

@@ -14,9 +14,11 @@ float64; the values equal the torch module's to float32 rounding (``test_matchin
 from __future__ import annotations
 
 import functools
+import importlib
 import math
 from pathlib import Path
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 
@@ -68,7 +70,7 @@ def autocorrelation_length(samples_per_frame: int, lag_max: int) -> int:
 
 
 try:  # NumPy's FFT gufuncs (numpy.fft's own, pinned NumPy 2.4): the call np.fft.rfft / irfft make, without them
-    from numpy.fft import _pocketfft_umath as _pfu
+    _pfu: Any = importlib.import_module("numpy.fft._pocketfft_umath")
 except ImportError:  # pragma: no cover - another NumPy: its public functions
     _pfu = None
 _INVERSE_SCALE: dict[tuple[int, str], np.generic] = {}  # (n, dtype) → 1/n in the real dtype, as np.fft.irfft's
