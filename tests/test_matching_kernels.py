@@ -70,35 +70,6 @@ def test_idle_pass_is_the_fast_paths_bits_and_declines_a_pause():
         assert prev_in.tobytes() == before[0].tobytes() and prev_out.tobytes() == before[1].tobytes()
 
 
-def _numpy_search(feats, sq, queries, playing, segment, lead, onset, recent, blocked, forced, stale, cfg):
-    """The NumPy formulas the compiled search keeps (main's ``search`` before the kernel, its float32 path)."""
-    n = len(playing)
-    q_sq = np.einsum("bf,bf->b", queries, queries)
-    cost = np.empty((n, len(feats)), np.float32)
-    for i, query in enumerate(queries):
-        np.matmul(feats, query, out=cost[i])
-    np.multiply(cost, 2.0, out=cost)
-    np.subtract(sq[None], cost, out=cost)
-    cost += q_sq[:, None]
-    continue_cost = cost[np.arange(n), playing].copy()
-    if onset.any():
-        cost[onset] -= cfg.onset_bonus * lead[None]
-        continue_cost[onset] -= cfg.onset_bonus * lead[playing[onset]]
-    np.add(cost, np.float32(cfg.memory_penalty), out=cost, where=recent)
-    np.copyto(cost, np.inf, where=blocked)
-    near = playing[:, None] + np.arange(1 - cfg.near_frames, cfg.near_frames)
-    inside = (near >= 0) & (near < len(feats))
-    near = np.where(inside, near, playing[:, None])
-    inside &= segment[near] == segment[playing][:, None]
-    cost[np.nonzero(inside)[0], near[inside]] = np.inf
-    best = np.argmin(cost, axis=1)
-    best_cost = cost[np.arange(n), best]
-    continue_cost = np.where(forced, np.inf, continue_cost)
-    continue_cost = np.where(stale, continue_cost + cfg.memory_penalty, continue_cost)
-    switch = np.isfinite(best_cost) & (best_cost < continue_cost - cfg.margin)
-    return best, best_cost, continue_cost, switch
-
-
 @pytest.mark.parametrize("B", [1, 7, 300])
 def test_compiled_search_is_the_numpy_formulas_bits(B):
     rng = np.random.default_rng(B)
@@ -128,7 +99,10 @@ def test_compiled_search_is_the_numpy_formulas_bits(B):
             feats, sq, queries, playing, segment, lead, onset_now=args[0], played_recently=args[1],
             blocked=args[2], forced=args[3], stale=args[4], config=cfg,
         )  # fmt: skip
-        want = _numpy_search(feats, sq, queries, playing, segment, lead, *args, cfg)
+        want = search(
+            feats, sq, queries, playing, segment, lead, onset_now=args[0], played_recently=args[1],
+            blocked=args[2], forced=args[3], stale=args[4], config=cfg, compiled=False,
+        )  # fmt: skip
         for g, w in zip(got, want, strict=True):
             assert g.dtype == w.dtype and g.tobytes() == w.tobytes()
 

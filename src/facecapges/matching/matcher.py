@@ -182,6 +182,7 @@ def search(
     forced: np.ndarray,
     stale: np.ndarray,
     config: MatchingConfig,
+    compiled: bool = True,
 ) -> SearchResult:
     """The motion-matching search, a pure function of its inputs (step 4 of the module docs).
 
@@ -193,7 +194,9 @@ def search(
     (B, N) rows may not be jumped to, rows within ``near_frames`` of ``playing`` in its segment are not
     candidates; ``forced`` streams must leave their row, ``stale`` ones pay the memory penalty to continue.
     The cost of a row is the squared distance of its features to the query plus those terms; a stream
-    switches when the best row beats continuing by ``margin``.
+    switches when the best row beats continuing by ``margin``. With float32 arrays and penalty everything after the
+    products is one compiled pass (:func:`facecapges.matching.kernels.search_rows`, the same bits; ``compiled=False``:
+    the NumPy formulas below, which it is tested against).
     """
     cfg = config
     n = len(playing)
@@ -206,7 +209,7 @@ def search(
         for i, query in enumerate(q32):
             np.matmul(row_features, query, out=cost[i])
         consts = np.array([cfg.onset_bonus, cfg.memory_penalty, cfg.memory_penalty, cfg.margin], np.float32)
-        if float(consts[1]) == float(cfg.memory_penalty):  # the rest in one compiled pass: the bits of the below
+        if compiled and float(consts[1]) == float(cfg.memory_penalty):  # the rest in one pass: the bits of below
             rows, masks = (row_features_sq, q_sq, playing, segment, lead), (onset_now, played_recently, blocked)
             return _search_rows(cost, rows, (*masks, forced, stale), cfg.near_frames, consts)
         np.multiply(cost, 2.0, out=cost)
