@@ -155,33 +155,6 @@ def test_idle_frame_is_the_numpy_paths_bits(acc_cap):
         assert getattr(compiled, name).tobytes() == getattr(numpy_only, name).tobytes(), name
 
 
-def test_speech_tail_is_the_chains_and_taps_one_by_one():
-    """The predictor's frame after its audio features in one compiled call (kernels.speech_tail) against its chains
-    and TCN taps called one by one from Python (the glue it replaced): the same bytes, B = 1 and 5, 30 frames."""
-    from facecapges.styles import load_style
-
-    kernel = load_style(style="beat2-scott-mm").predictor.kernel
-    rng = np.random.default_rng(7)
-    for B in (1, 5):
-        regs = (kernel.audio_tcn.register(B + 2), kernel.face_tcn.register(B + 2))
-        ref = tuple(r.copy() for r in regs)
-        idx = np.arange(B)[::-1] + 1
-        for _ in range(30):
-            a = rng.normal(0, 0.1, (B, kernel.cfg.samples_per_frame)).astype(np.float32)
-            f = rng.uniform(0, 1, (B, 52)).astype(np.float32)
-            h = rng.normal(0, 0.3, (B, 6)).astype(np.float32)
-            got = kernel.step(regs, idx, a, f, h)
-            z = np.empty((B, kernel.width), np.float32)
-            n_a = kernel.audio_mlp.n_out
-            z_a = kernel.audio_mlp(kernel.audio_tcn.step(ref[0], idx, kernel.front(kernel.mel(a))), z, 0)[:, :n_a]
-            extra = kernel.face_extra(np.ascontiguousarray(z_a))
-            kernel.face_mlp(kernel.face_tcn.step(ref[1], idx, kernel.face_inp(f), extra), z, n_a)
-            if kernel.head is not None:
-                kernel.head(h, z, n_a + kernel.face_mlp.n_out)
-            assert got.tobytes() == kernel.out(z).tobytes()
-        assert all(r.tobytes() == s.tobytes() for r, s in zip(regs, ref, strict=True))
-
-
 def _numpy_advance(ids, speaking, onset, st, consts):
     """The matcher's advance as NumPy formulas (main's ``_advance_and_search`` before the kernel)."""
     row_a, next_row, prev_row, direction, idle_play, since_search, since_switch = st[:7]

@@ -3,8 +3,7 @@ batch (``serve``) alike (docs/performance.md, "Engine step, third pass").
 
 * :func:`dense_chain` — the speech predictor's runs of linear layers (:mod:`facecapges.matching.predictor`; its
   TCNs are the streaming kernel's :func:`facecapges.network.native.tcn_taps`, its Mel features'
-  loops :mod:`facecapges.network.native`'s), all of them after the audio features in one call by
-  :func:`speech_tail`;
+  loops :mod:`facecapges.network.native`'s);
 * :func:`step_offsets` — inertialization's frame (decay, ``exp(x) · base``, the acceleration cap) for the matcher's
   blend and the idle layer (:mod:`facecapges.matching.inertialize`, :mod:`facecapges.matching.idle`);
 * :func:`dial` — the matcher's intensity dial (:mod:`facecapges.matching.matcher`, step 6);
@@ -62,7 +61,6 @@ from facecapges.matching.speech import (
     VOICE_1,
     VOICING,
 )
-from facecapges.network.native import tcn_taps
 from facecapges.rotations_compiled import qexp, qlog_abs, qmul, qmul_conj
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -101,43 +99,6 @@ def dense_chain(x: np.ndarray, buf: np.ndarray, table: np.ndarray, out: np.ndarr
                 acc[o] = v
         cur, nxt = nxt, cur
     out[:, col : col + n] = cur[:, :n]
-
-
-@_jit
-def _chain(x: np.ndarray, chain: tuple, out: np.ndarray, col: int) -> None:
-    dense_chain(np.ascontiguousarray(x), chain[0], chain[1], out, col)
-
-
-@_jit
-def speech_tail(idx, feat, f, h, regs, chains, taps, raw) -> None:
-    """The speech predictor's frame after its audio features, in one call (:class:`facecapges.matching.predictor.
-    SpeechKernel.step`): ``feat`` (B, F) → the audio front end's chain (none for raw audio), the audio TCN
-    (:func:`facecapges.network.native.tcn_taps`), its MLP into ``z``'s first columns, the face's input layer and
-    TCN (with the audio's extra term), its MLP, the head's (if its chain has layers) and the output chain into
-    ``raw`` (B, K + 1). ``chains`` = (buffer, table) of front, audio MLP, face extra, face input, face MLP, head,
-    out; ``taps`` = (w_past, w_now, bias, rows, no extra) of the audio and the face TCN; ``regs`` their
-    registers. The functions and inputs the NumPy glue passes, so the same bits; one dispatch instead of nine.
-    (Numba checks only this file for a stale cache: after editing ``network/native.py``, run ``make setup``.)"""
-    B = feat.shape[0]
-    front, audio_mlp, face_extra, face_inp, face_mlp, head, out = chains
-    ta, tf = taps
-    x = np.empty((B, front[1][-1, 3] if front[1].shape[0] else feat.shape[1]), np.float32)
-    _chain(feat, front, x, 0)
-    skip = np.empty_like(x)
-    tcn_taps(regs[0], idx, x, ta[0], ta[1], ta[2], ta[3], ta[4], skip)
-    n_a, n_f = audio_mlp[1][-1, 3], face_mlp[1][-1, 3]
-    z = np.empty((B, n_a + n_f + (head[1][-1, 3] if head[1].shape[0] else 0)), np.float32)
-    _chain(skip, audio_mlp, z, 0)
-    extra = np.empty((B, face_extra[1][-1, 3]), np.float32)
-    _chain(z[:, :n_a], face_extra, extra, 0)
-    fi = np.empty((B, face_inp[1][-1, 3]), np.float32)
-    _chain(f, face_inp, fi, 0)
-    skip_f = np.empty_like(fi)
-    tcn_taps(regs[1], idx, fi, tf[0], tf[1], tf[2], tf[3], extra, skip_f)
-    _chain(skip_f, face_mlp, z, n_a)
-    if head[1].shape[0]:
-        _chain(h, head, z, n_a + n_f)
-    _chain(z, out, raw, 0)
 
 
 @_jit
@@ -584,12 +545,7 @@ def warm() -> None:
 
     native.warm()
     one = np.zeros((1, 1), np.float32)
-    chain = (np.zeros(2, np.float32), np.array([[0, 1, 1, 1, 0]], np.int64))
-    dense_chain(one, chain[0], chain[1], one.copy(), 0)
-    w3, r1 = np.zeros((1, 1, 1), np.float32), np.zeros(1, np.int64)
-    taps = ((w3, w3, one, r1, one[:0]),) * 2
-    regs = (np.zeros((1, 1, 1, 1), np.float32), np.zeros((1, 1, 1, 1), np.float32))
-    speech_tail(r1, one, one, one, regs, (chain,) * 7, taps, np.empty((1, 1), np.float32))
+    dense_chain(one, np.zeros(2, np.float32), np.array([[0, 1, 1, 1, 0]], np.int64), one.copy(), 0)
     ids, ones, z3, z4 = np.zeros(1, np.int64), np.ones(1), np.zeros((1, 1, 3)), np.zeros((1, 1, 4))
     step_offsets(ids, z3, z3.copy(), ones, z4, np.zeros((1, 2, 1, 4)), 1.0, 15.0, True, z4.copy())
     dial(ids, z4.copy(), z4[0].copy(), z3.copy(), 0.5, ones)

@@ -253,14 +253,6 @@ class SpeechKernel:
         self.head = _Chain(w, (("head_enc.fc1", "relu"), ("head_enc.fc2", ""))) if cfg.head_dim else None
         self.out = _Chain(w, (("out.0", "leaky"), ("out.2", "leaky"), ("out.4", "")))
         self.width = cfg.audio_dim + cfg.face_dim + cfg.head_dim
-        # everything after the audio features in one compiled call (kernels.speech_tail): the chains' buffers and
-        # tables (an absent front end or head: no layers) and the TCNs' weights, in its order
-        none = (np.zeros(0, np.float32), np.zeros((0, 5), np.int64))
-        chains = (self.front if self.mel is not None else None, self.audio_mlp, self.face_extra, self.face_inp)
-        chains += (self.face_mlp, self.head, self.out)
-        self._chains = tuple(none if c is None else (c.buf, c.table) for c in chains)
-        self._taps = tuple((t.w_past, t.w_now, t.b, t.rows, t.no_extra) for t in (self.audio_tcn, self.face_tcn))
-        self._tail = kernels.speech_tail
 
     def _raw_frontend(self, a: np.ndarray) -> np.ndarray:
         """``AudioFrontend``: strided convolutions over each frame's samples (B, S) → (B, C)."""
@@ -275,11 +267,14 @@ class SpeechKernel:
     def step(self, regs: tuple[np.ndarray, np.ndarray], idx: np.ndarray, a: np.ndarray, f: np.ndarray, h: np.ndarray):
         """One frame of the streams in slots ``idx`` (registers ``regs`` = audio, face) → raw outputs (B, K + 1)."""
         idx = np.asarray(idx, np.int64)
-        feat = self.mel(a) if self.mel is not None else self._raw_frontend(a)
-        raw = np.empty((len(idx), self.out.n_out), np.float32)
-        f, h = np.ascontiguousarray(f, np.float32), np.ascontiguousarray(h, np.float32)
-        self._tail(idx, feat, f, h, regs, self._chains, self._taps, raw)  # front, TCNs, MLPs: [z_A; z_F; z_H] → out
-        return raw
+        feat = self.front(self.mel(a)) if self.mel is not None else self._raw_frontend(a)
+        z = np.empty((len(idx), self.width), np.float32)  # [z_A; z_F; z_H]
+        z_a = self.audio_mlp(self.audio_tcn.step(regs[0], idx, feat), z, 0)[:, : self.audio_mlp.n_out]
+        extra = self.face_extra(np.ascontiguousarray(z_a))
+        self.face_mlp(self.face_tcn.step(regs[1], idx, self.face_inp(f), extra), z, self.audio_mlp.n_out)
+        if self.head is not None:
+            self.head(h, z, self.audio_mlp.n_out + self.face_mlp.n_out)
+        return self.out(z)
 
 
 # --------------------------------------------------------------------------- data
