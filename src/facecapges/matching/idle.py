@@ -214,7 +214,29 @@ class IdleLayer:
         self.grow(1)
         from facecapges.matching import kernels  # Numba: loaded when a layer is built, not with this module
 
-        self._step_offsets = kernels.step_offsets
+        self._step_offsets, self._pass, self._frame = kernels.step_offsets, kernels.idle_pass, kernels.idle_frame
+        cap = self.acc_cap if self.acc_cap > 0 else -1.0
+        self._layer = (self.after, float(self.fps), SPENT, cap, float(self.amplitude))  # idle_frame's constants
+        w0, w1 = (w[0] for w in motion._angular)
+        self._motion = np.ascontiguousarray(np.stack([motion.amplitude, w0, w1, motion.phase[0], motion.phase[1]]))
+
+    def _compiled(self, ids, q, since_voice, t, gain) -> np.ndarray | None:
+        """:meth:`apply`'s frame by a compiled call when it can (the same bits), else None: no stream in or
+        entering a pause and every offset spent (zero: the matched poses as they are, most frames of speech), or no
+        stream entering or leaving one (most frames of a pause)."""
+        out = np.empty(q.shape, np.float64)
+        state = (self.idle, self.x, self.v, self.prev_in, self.prev_out)
+        if self._pass(ids, q, since_voice, self.after, *state, out):
+            return out
+        if self._frame(ids, q, since_voice, t, gain, self._layer, self._state(), self._motion, out):
+            return out
+        return None
+
+    def _state(self) -> tuple:
+        """What :func:`facecapges.matching.kernels.idle_frame` reads and updates, in its order."""
+        m = self.motion
+        return (self.idle, self.target, self.x, self.v, self.hl, self.prev_in, self.prev_out, m.rest, m.joints,
+                self.keep)  # fmt: skip
 
     def grow(self, capacity: int) -> None:
         old = self.capacity
@@ -269,14 +291,11 @@ class IdleLayer:
         """The shown poses (B, 47, 4) of streams ``ids`` from the matcher's ``q`` (B, 47, 4), the frames since
         their last speech-like frame ``since_voice`` (B,: :class:`facecapges.matching.speech.SpeechFrame`),
         frame counts ``t`` (B,) and the dial's gains (B,)."""
+        out = self._compiled(ids, np.asarray(q, np.float64), since_voice, t, gain)
+        if out is not None:
+            return out
         want = np.asarray(since_voice) >= self.after
         was = self.idle[ids]
-        if not (want.any() or was.any() or self.x[ids].any() or self.v[ids].any()):
-            # no stream in or entering a pause, every offset spent (zero): the matched poses as they are (what
-            # the steps below give then, in a few calls: most frames of speech)
-            out = inz.qabs(np.asarray(q, np.float64))
-            self.prev_in[ids], self.prev_out[ids, 0], self.prev_out[ids, 1] = q, self.prev_out[ids, 1], out
-            return out
         m = self.motion
         scale = self.amplitude * np.asarray(gain, np.float64)
         enter, leave = want & ~was, ~want & was

@@ -7,7 +7,14 @@ batch (``serve``) alike (docs/performance.md, "Engine step, third pass").
 * :func:`step_offsets` — inertialization's frame (decay, ``exp(x) · base``, the acceleration cap) for the matcher's
   blend and the idle layer (:mod:`facecapges.matching.inertialize`, :mod:`facecapges.matching.idle`);
 * :func:`dial` — the matcher's intensity dial (:mod:`facecapges.matching.matcher`, step 6);
-* :func:`track` — the speech tracker's frame after its FFTs (:mod:`facecapges.matching.speech`).
+* :func:`track` — the speech tracker's frame after its FFTs (:mod:`facecapges.matching.speech`);
+* :func:`advance` — the matcher's advance to each stream's next row and its search triggers;
+* :func:`search_rows` — the search's costs and choice after its matrix-vector products
+  (:func:`facecapges.matching.matcher.search`), :func:`idle_pass` and :func:`idle_frame` — the idle layer's frame outside a pause and
+  while no stream enters or leaves one,
+  :func:`rot6d32` — the step's last conversion: unlike the others, these give the NumPy formulas' bits
+  (only +, −, ·, /, sqrt, comparisons and float64 sin and cos — libm's and NumPy's agree here — in the formulas'
+  order).
 
 Each is one call for all the streams of a step instead of tens of NumPy calls on arrays of one stream. In the
 dtypes of the NumPy formulas they replace; libm's exp, log, sin, cos and atan2 (NumPy has its own SIMD ones) and
@@ -180,6 +187,228 @@ def dial(slots: np.ndarray, q: np.ndarray, mean: np.ndarray, slow: np.ndarray, b
 
 
 @_jit
+def search_rows(
+    cost, row_sq, q_sq, playing, segment, lead, onset, recent, blocked, forced, stale, near, consts, out
+) -> None:
+    """:func:`facecapges.matching.matcher.search` after its matrix-vector products, for float32 costs: ``cost``
+    (B, N) holds each query's products with the rows and becomes its costs; ``consts`` (4,) float32 = onset bonus,
+    memory penalty (a float32 number), memory penalty of continuing, margin; ``out`` = best (B,) int64, its cost
+    and the continuing cost (B,) float32, switch (B,) bool. Per query one pass over the rows instead of one NumPy
+    call per rule: the same float32 operations in the same order (``sq − dot·2 + |q|²``, − the onset's bonus · lead,
+    + the penalty, inf where blocked or continuing), and ``argmin``'s first smallest (a NaN first: itself), so the
+    bits of the NumPy formulas."""
+    best, best_cost, continue_cost, switch = out
+    bonus, pen, stale_pen, margin = consts[0], consts[1], consts[2], consts[3]
+    B, N = cost.shape
+    two, inf = np.float32(2.0), np.float32(np.inf)
+    for b in range(B):
+        c, qs, p = cost[b], q_sq[b], playing[b]
+        for r in range(N):
+            c[r] = (row_sq[r] - c[r] * two) + qs
+        cc = c[p]
+        if onset[b]:
+            for r in range(N):
+                c[r] = c[r] - bonus * lead[r]
+            cc = cc - bonus * lead[p]
+        for r in range(N):
+            if recent[b, r]:
+                c[r] = c[r] + pen
+            if blocked[b, r]:
+                c[r] = inf
+        for k in range(1 - near, near):
+            r = p + k
+            if r >= 0 and r < N and segment[r] == segment[p]:
+                c[r] = inf
+        at, v = 0, c[0]
+        if not np.isnan(v):
+            for r in range(1, N):
+                if np.isnan(c[r]):
+                    at = r
+                    break
+                if c[r] < v:
+                    at, v = r, c[r]
+        best[b], best_cost[b] = at, c[at]
+        if forced[b]:
+            cc = inf
+        elif stale[b]:
+            cc = cc + stale_pen
+        continue_cost[b] = cc
+        switch[b] = np.isfinite(c[at]) and c[at] < cc - margin
+
+
+@_jit
+def rot6d32(q: np.ndarray, out: np.ndarray) -> None:
+    """``quaternion_to_rot6d(q).astype(np.float32)`` (:mod:`facecapges.rotations`) of poses ``q`` (B, J, 4) float64
+    into ``out`` (B, J, 6) float32 in one call (the matcher's last step): its norm (``sqrt`` of the squares summed
+    left to right, at least 1e-8, NaN kept), division and six expressions in its order, each rounded to float32
+    once, so the same bits."""
+    for b in range(q.shape[0]):
+        for j in range(q.shape[1]):
+            w0, x0, y0, z0 = q[b, j, 0], q[b, j, 1], q[b, j, 2], q[b, j, 3]
+            n = np.sqrt(((w0 * w0 + x0 * x0) + y0 * y0) + z0 * z0)
+            if not (n >= 1e-8 or np.isnan(n)):  # np.maximum(n, 1e-8)
+                n = 1e-8
+            w, x, y, z = w0 / n, x0 / n, y0 / n, z0 / n
+            zz, xy, zw = z * z, x * y, z * w
+            out[b, j, 0] = np.float32(1.0 - 2.0 * (y * y + zz))
+            out[b, j, 1] = np.float32(2.0 * (xy + zw))
+            out[b, j, 2] = np.float32(2.0 * (x * z - y * w))
+            out[b, j, 3] = np.float32(2.0 * (xy - zw))
+            out[b, j, 4] = np.float32(1.0 - 2.0 * (x * x + zz))
+            out[b, j, 5] = np.float32(2.0 * (y * z + x * w))
+
+
+@_jit
+def idle_pass(ids, q, since_voice, after, idle, x, v, prev_in, prev_out, out) -> bool:
+    """The idle layer's frame when no stream of ``ids`` (n,) is in or entering a pause and every offset ``x``, ``v``
+    (S, J, 3) is spent (zero): ``out`` (n, J, 4) ← the matched poses ``q`` with w ≥ 0 (``standardize_quaternion``:
+    negated where w < 0), ``prev_in[slot]`` ← ``q``, ``prev_out[slot]`` ← (its last, ``out``); True. Else nothing
+    is written and False (:meth:`facecapges.matching.idle.IdleLayer.apply` takes its general path)."""
+    J = q.shape[1]
+    for n in range(len(ids)):
+        s = ids[n]
+        if since_voice[n] >= after or idle[s]:
+            return False
+        for j in range(J):
+            for c in range(3):
+                if x[s, j, c] != 0.0 or v[s, j, c] != 0.0:
+                    return False
+    for n in range(len(ids)):
+        s = ids[n]
+        for j in range(J):
+            neg = q[n, j, 0] < 0.0
+            for c in range(4):
+                out[n, j, c] = -q[n, j, c] if neg else q[n, j, c]
+                prev_in[s, j, c] = q[n, j, c]
+                prev_out[s, 0, j, c] = prev_out[s, 1, j, c]
+                prev_out[s, 1, j, c] = out[n, j, c]
+    return True
+
+
+@_jit
+def _spent_max(a: np.ndarray, spent: float) -> bool:
+    """``np.maximum.reduce(np.abs(a)) > spent`` of one stream's offsets (J, 3) (a NaN makes the maximum NaN: False)."""
+    m = 0.0
+    for j in range(a.shape[0]):
+        for c in range(a.shape[1]):
+            v = abs(a[j, c])
+            if np.isnan(v):
+                return False
+            m = max(m, v)
+    return m > spent
+
+
+@_jit
+def _idle_pose(rest, joints, motion, secs, scale, base) -> None:
+    """``IdleMotion.pose`` of one stream into ``base`` (J, 4): the rest pose ``rest`` (J, 4) with the idle of
+    ``secs`` on ``joints``; ``motion`` (5, K, 3) = amplitude, the two sines' angular frequencies and phases.
+    ``(amplitude · ((0 + sin(w₀ t + φ₀)) + sin(w₁ t + φ₁))) · scale``, then ``rest · exp(·)``: NumPy's operations
+    in its order (its float64 ``sin`` and ``cos`` are libm's here: tests/test_matching_kernels.py)."""
+    r, e = np.empty(3), np.empty(4)
+    base[:] = rest
+    for i in range(len(joints)):
+        for c in range(3):
+            s0 = np.sin(motion[1, i, c] * secs + motion[3, i, c])
+            s1 = np.sin(motion[2, i, c] * secs + motion[4, i, c])
+            r[c] = (motion[0, i, c] * ((0.0 + s0) + s1)) * scale
+        qexp(r, e)
+        qmul(rest[joints[i]], e, base[joints[i]])
+
+
+@_jit
+def idle_frame(ids, q, since_voice, t, gain, layer, state, motion, out) -> bool:
+    """:meth:`facecapges.matching.idle.IdleLayer.apply`'s frame when no stream of ``ids`` (n,) enters or leaves a
+    pause (else nothing is written and False): per stream the rest pose with the idle (in a pause) or the matched
+    pose ``q`` (n, J, 4) as the base, the offset decayed and applied (:func:`step_offsets`, under the cap) while it
+    is live (in a pause, or beyond ``SPENT``; else zeroed and ``q`` shown), w ≥ 0, the history shifted; True.
+    ``layer`` = (after, fps, spent, cap, amplitude), ``state`` = the layer's (idle, target, x, v, hl, prev_in,
+    prev_out, rest poses, idle joints, kept joints), ``motion`` as :func:`_idle_pose`'s. The NumPy formulas' bits."""
+    after, fps, spent, cap, amplitude = layer
+    idle, target, x, v, hl, prev_in, prev_out, rest, joints, keep = state
+    for n in range(len(ids)):
+        if (since_voice[n] >= after) != idle[ids[n]]:
+            return False
+    J = q.shape[1]
+    base, shown, one = np.empty((1, J, 4)), np.empty((1, J, 4)), np.empty(1, np.int64)
+    for n in range(len(ids)):
+        s = ids[n]
+        if idle[s]:
+            _idle_pose(rest[target[s]], joints, motion, t[n] / fps, amplitude * gain[n], base[0])
+            for j in range(J):
+                if keep[j]:
+                    base[0, j] = q[n, j]
+        else:
+            base[0] = q[n]
+        if idle[s] or _spent_max(x[s], spent) or _spent_max(v[s], spent):
+            one[0] = s
+            step_offsets(one, x, v, hl, base, prev_out, cap, fps, False, shown)
+        else:
+            x[s], v[s] = 0.0, 0.0
+            shown[0] = q[n]
+        for j in range(J):
+            neg = shown[0, j, 0] < 0.0
+            for c in range(4):
+                out[n, j, c] = -shown[0, j, c] if neg else shown[0, j, c]
+                prev_in[s, j, c] = q[n, j, c]
+                prev_out[s, 0, j, c] = prev_out[s, 1, j, c]
+                prev_out[s, 1, j, c] = out[n, j, c]
+    return True
+
+
+@_jit
+def advance(ids, speaking, onset, state, consts, out) -> bool:
+    """The matcher's advance (step 3 of :mod:`facecapges.matching.matcher`) for streams ``ids`` (n,) with their
+    speech cues ``speaking``, ``onset`` (n,): each plays its next row (backwards in an idle run played back; the
+    same row at a clip's end), its counters move on, and whether it must search. ``state`` = the matcher's (row,
+    next_row, prev_row, direction, idle_play, since_search, since_switch, was_speaking, quiet, last_used, canon, t,
+    run_start, intensity_target), updated; ``consts`` = (idle-only intensity, idle_loop, min_play_frames,
+    search_interval, memory in frames); ``out`` (n,) each = the next row, idle only, forced (the clip ended or left
+    idle motion in a pause), into a recent stretch, must search. True if any stream must search. Integer and
+    boolean rules and one float64 comparison: the NumPy formulas' values."""
+    row, next_row, prev_row, direction, idle_play, since_search, since_switch = state[:7]
+    was_speaking, quiet, last_used, canon, t, run_start, intensity = state[7:]
+    idle_below, idle_loop, min_play, interval, memory = consts
+    nxt_out, idle_out, forced_out, recent_out, need_out = out
+    anyone = False
+    for n in range(len(ids)):
+        s, sp = ids[n], speaking[n]
+        r = row[s]
+        idle_only = (not sp) or intensity[s] < idle_below
+        fwd, bwd = next_row[r], prev_row[r]
+        back = idle_only and direction[s] < 0  # speech always plays forwards
+        nxt = bwd if back else fwd
+        if idle_loop:  # in a pause an idle run that ends plays back the way it came
+            alt = fwd if back else bwd
+            if idle_only and (nxt < 0 or not idle_play[nxt]) and alt >= 0 and idle_play[alt]:
+                nxt, back = alt, not back
+        direction[s] = -1 if back else 1
+        ended = nxt < 0
+        if ended:
+            nxt = r
+        off_state = idle_only and not idle_play[nxt]
+        was = was_speaking[s]
+        since_search[s] += 1
+        since_switch[s] += 1
+        settled = since_switch[s] >= min_play  # a clip plays a while before a search leaves it
+        periodic = sp != was or onset[n] or since_search[s] >= interval
+        last = last_used[s, canon[nxt]]
+        into_recent = last > t[s] - memory and last < run_start[s]
+        need = ended or off_state or (sp and not was) or into_recent or (settled and periodic)
+        was_speaking[s] = sp
+        quiet[s] = 0 if sp else quiet[s] + 1
+        row[s] = nxt
+        nxt_out[n], idle_out[n], forced_out[n], recent_out[n], need_out[n] = (
+            nxt,
+            idle_only,
+            ended or off_state,
+            into_recent,
+            need,
+        )
+        anyone = anyone or need
+    return anyone
+
+
+@_jit
 def _spectrum_cues(power: np.ndarray, ac: np.ndarray, bands: np.ndarray) -> tuple[float, float, float]:
     """One frame's log band powers into ``bands`` (N_BANDS,) from its power spectrum (513,) and autocorrelation
     (1024,); → voicing, flatness and the top bins' share (module docs)."""
@@ -320,4 +549,14 @@ def warm() -> None:
     ids, ones, z3, z4 = np.zeros(1, np.int64), np.ones(1), np.zeros((1, 1, 3)), np.zeros((1, 1, 4))
     step_offsets(ids, z3, z3.copy(), ones, z4, np.zeros((1, 2, 1, 4)), 1.0, 15.0, True, z4.copy())
     dial(ids, z4.copy(), z4[0].copy(), z3.copy(), 0.5, ones)
+    f2, b1, b2 = np.zeros(2, np.float32), np.zeros(1, np.bool_), np.zeros((1, 2), np.bool_)
+    out = (np.empty(1, np.intp), np.empty(1, np.float32), np.empty(1, np.float32), np.empty(1, np.bool_))
+    search_rows(f2[None].copy(), f2, f2[:1], ids, np.zeros(2, np.int32), f2, b1, b2, b2, b1, b1, 1, f2.repeat(2), out)
+    rot6d32(z4, np.empty((1, 1, 6), np.float32))
+    i1, b1s = np.zeros(1, np.int64), np.zeros(1, np.bool_)
+    state = (i1, i1, i1, i1, b1s, i1, i1, b1s, i1, np.zeros((1, 1), np.int64), i1, i1, i1, ones)
+    advance(ids, b1s, b1s, state, (0.05, False, 1, 1, 900.0), (i1, b1s, b1s, b1s, b1s))
+    idle_pass(ids, z4, ids, 1, b1, z3, z3, z4, np.zeros((1, 2, 1, 4)), z4.copy())
+    state = (b1, ids, z3, z3, ones, z4, np.zeros((1, 2, 1, 4)), z4, ids, b1)
+    idle_frame(ids, z4, ids, ids, ones, (1, 15.0, 1e-6, -1.0, 1.0), state, np.zeros((5, 1, 3)), z4.copy())
     SpeechTracker(1).step(ids, np.zeros((1, N_FFT), np.float32))

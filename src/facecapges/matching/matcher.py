@@ -66,11 +66,10 @@ import functools
 import threading
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from facecapges import rotations as rot
 from facecapges import timing
 from facecapges.engine.inputs import finite
 from facecapges.engine.intensity import MAX_INTENSITY, MIN_INTENSITY, check_intensity
@@ -183,6 +182,7 @@ def search(
     forced: np.ndarray,
     stale: np.ndarray,
     config: MatchingConfig,
+    compiled: bool = True,
 ) -> SearchResult:
     """The motion-matching search, a pure function of its inputs (step 4 of the module docs).
 
@@ -194,18 +194,24 @@ def search(
     (B, N) rows may not be jumped to, rows within ``near_frames`` of ``playing`` in its segment are not
     candidates; ``forced`` streams must leave their row, ``stale`` ones pay the memory penalty to continue.
     The cost of a row is the squared distance of its features to the query plus those terms; a stream
-    switches when the best row beats continuing by ``margin``.
+    switches when the best row beats continuing by ``margin``. With float32 arrays and penalty everything after the
+    products is one compiled pass (:func:`facecapges.matching.kernels.search_rows`, the same bits; ``compiled=False``:
+    the NumPy formulas below, which it is tested against).
     """
     cfg = config
     n = len(playing)
     # one matrix-vector product per query: a BLAS matrix-matrix product of this size spawns threads
     # that cost 10-100 ms on a loaded machine (measured), the products 0.03 ms each
     q32, q_sq = queries.astype(np.float32, copy=False), np.einsum("bf,bf->b", queries, queries)
-    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == np.float32:
+    if row_features.dtype == row_features_sq.dtype == q_sq.dtype == lead.dtype == np.float32:
         # the engine's float32 arrays, in place in one buffer: the same operations in the same order as below
         cost = np.empty((n, len(row_features)), np.float32)
         for i, query in enumerate(q32):
             np.matmul(row_features, query, out=cost[i])
+        consts = np.array([cfg.onset_bonus, cfg.memory_penalty, cfg.memory_penalty, cfg.margin], np.float32)
+        if compiled and float(consts[1]) == float(cfg.memory_penalty):  # the rest in one pass: the bits of below
+            rows, masks = (row_features_sq, q_sq, playing, segment, lead), (onset_now, played_recently, blocked)
+            return _search_rows(cost, rows, (*masks, forced, stale), cfg.near_frames, consts)
         np.multiply(cost, 2.0, out=cost)
         np.subtract(row_features_sq[None], cost, out=cost)
         cost += q_sq[:, None]  # (B, N)
@@ -238,6 +244,19 @@ def search(
     return SearchResult(best, best_cost, continue_cost, switch)
 
 
+def _search_rows(cost: np.ndarray, rows: tuple, masks: tuple, near: int, consts: np.ndarray) -> SearchResult:
+    """:func:`search`'s float32 rules after its products (``rows`` = the rows' squared norms, the queries', the
+    playing rows, the segments, the leads; ``masks`` = onset, played recently, blocked, forced, stale) by the
+    compiled :func:`facecapges.matching.kernels.search_rows` (imported here: loaded when an engine is built)."""
+    from facecapges.matching import kernels
+
+    n = len(rows[2])
+    out = (np.empty(n, np.intp), np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.bool_))
+    run: Any = kernels.search_rows  # (a Numba dispatcher: its arguments are checked when it compiles)
+    run(cost, *rows[:2], np.asarray(rows[2], np.int64), *rows[3:], *masks, int(near), consts, out)
+    return SearchResult(*out)
+
+
 class BatchedMatchingStreams(SlotOwner):
     """Independent causal matching streams over one database (module docs)."""
 
@@ -260,7 +279,8 @@ class BatchedMatchingStreams(SlotOwner):
         from facecapges.matching import kernels  # Numba: loaded when an engine is built, not with this module
 
         kernels.warm()  # the compiled loops' machine code now, not on a stream's first frame
-        self._step_offsets, self._dial = kernels.step_offsets, kernels.dial
+        self._step_offsets, self._dial, self._rot6d32 = kernels.step_offsets, kernels.dial, kernels.rot6d32
+        self._advance = kernels.advance
         self.capacity = 0
         self.slots = Slots()
         self._alloc(max(1, capacity))
@@ -459,39 +479,21 @@ class BatchedMatchingStreams(SlotOwner):
                 q = self.idle_layer.apply(ids, q, cues.since_voice, self.t[ids], gain)
             self.last_used[ids, self.canon[self.row[ids]]] = self.t[ids]
             self.t[ids] += 1
-            return rot.quaternion_to_rot6d(q).astype(np.float32)
+            out = np.empty((B, N_JOINTS, 6), np.float32)
+            self._rot6d32(np.ascontiguousarray(q, np.float64), out)  # rot.quaternion_to_rot6d(q) in float32's bits
+            return out
 
     def _advance_and_search(self, ids: np.ndarray, cues, pred: np.ndarray | None) -> None:
         cfg = self.config
-        row = self.row[ids]
-        idle_only = (~cues.speaking) | (self.intensity_target[ids] < IDLE_ONLY_BELOW)
-        fwd, bwd = self.next_row[row], self.prev_row[row]
-        back = idle_only & (self.direction[ids] < 0)  # speech always plays forwards
-        nxt = np.where(back, bwd, fwd)
-        if cfg.idle_loop:  # in a pause an idle run that ends plays back the way it came (no forced switch)
-            alt = np.where(back, fwd, bwd)
-            bounce = idle_only & ((nxt < 0) | ~self.idle_play[nxt]) & (alt >= 0) & self.idle_play[alt]
-            nxt = np.where(bounce, alt, nxt)
-            back = back ^ bounce
-        self.direction[ids] = np.where(back, -1, 1)
-        ended = nxt < 0
-        nxt = np.where(ended, row, nxt)
-        off_state = idle_only & ~self.idle_play[nxt]
-        was = self.was_speaking[ids]
-        changed = cues.speaking != was
-        since_search, since_switch = self.since_search[ids] + 1, self.since_switch[ids] + 1
-        self.since_search[ids], self.since_switch[ids] = since_search, since_switch
-        settled = since_switch >= cfg.min_play_frames  # a clip plays a while before a search leaves it
-        started = cues.speaking & ~was  # speech resumes: search now (resume within 0.3 s)
-        periodic = changed | cues.onset | (since_search >= cfg.search_interval)
-        # continuing into a stretch (or its mirror image) played before this run began, within the memory
-        last = self.last_used[ids, self.canon[nxt]]
-        into_recent = (last > self.t[ids] - cfg.memory_s * self.fps) & (last < self.run_start[ids])
-        need = ended | off_state | started | into_recent | (settled & periodic)
-        self.was_speaking[ids] = cues.speaking
-        self.quiet[ids] = np.where(cues.speaking, 0, self.quiet[ids] + 1)
-        self.row[ids] = nxt
-        if not need.any():
+        B = len(ids)
+        nxt, idle_only, forced, into_recent, need = out = tuple(np.empty(B, t) for t in (np.int64,) + (np.bool_,) * 4)
+        state = (self.row, self.next_row, self.prev_row, self.direction, self.idle_play, self.since_search)
+        state += (self.since_switch, self.was_speaking, self.quiet, self.last_used, self.canon, self.t, self.run_start)
+        state += (self.intensity_target,)
+        consts = (IDLE_ONLY_BELOW, bool(cfg.idle_loop), int(cfg.min_play_frames), int(cfg.search_interval))
+        consts += (float(cfg.memory_s * self.fps),)  # (one compiled variant: the same comparisons of integers)
+        # each stream's next row, its counters and whether it searches (module docs, 3-4): one compiled call
+        if not self._advance(ids, cues.speaking, cues.onset, state, consts, out):
             return
         searching = np.flatnonzero(need)
         best, switch = self._search(
@@ -501,7 +503,7 @@ class BatchedMatchingStreams(SlotOwner):
             searching,
             pred,
             idle_only[searching],
-            ended[searching] | off_state[searching],
+            forced[searching],
             into_recent[searching],
         )
         self.since_search[ids[searching]] = 0

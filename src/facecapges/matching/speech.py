@@ -46,6 +46,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from facecapges import timing
+from facecapges.network.mel import irfft, rfft
 
 SILENCE_DB = -50.0
 VAD_MARGIN_DB = 20.0
@@ -169,10 +170,10 @@ class SpeechTracker:
             x = np.zeros((B, N_FFT), np.float32)
             if a.shape[1]:
                 x[:, N_FFT - a.shape[1] :] = a
-        spec = np.fft.rfft(x * _WINDOW, axis=1)  # (B, 513) complex64
+        spec = rfft(x * _WINDOW)  # (B, 513) complex64: np.fft.rfft's bits (network.mel.rfft)
         power = np.empty((B, spec.shape[1]), np.float32)
         self._power(spec.view(np.float32).reshape(B, spec.shape[1], 2), power)
-        ac = np.fft.irfft(power, axis=1)  # the windowed frame's autocorrelation
+        ac = irfft(power)  # the windowed frame's autocorrelation (np.fft.irfft's bits)
         out = SpeechFrame(
             np.empty(B, np.float32),
             np.empty(B, np.bool_),
