@@ -377,13 +377,11 @@ def blend_weights(face52: np.ndarray, blend: str = "vrm") -> np.ndarray:
     """The weights (float64) :func:`blend_values` sends with ``blend``, in :func:`blend_names` order."""
     if blend not in BLEND_MODES:
         raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
-    w = np.clip(np.asarray(face52, np.float64).reshape(-1), 0.0, 1.0)
-    parts = []
-    if blend in ("vrm", "both"):
-        parts.append(vrm0_weights(w))
-    if blend in ("perfect-sync", "both"):
-        parts.append(w)
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+    w = np.asarray(face52, np.float64).reshape(-1)
+    if blend == "vrm":  # a VMC tick's case: the presets clip the weights themselves (one compiled call)
+        return vrm0_weights(w)
+    w = np.clip(w, 0.0, 1.0)
+    return np.concatenate([vrm0_weights(w), w]) if blend == "both" else w
 
 
 def _osc_string(x: str) -> bytes:
@@ -479,7 +477,7 @@ class VmcSender:
         self.address: tuple  # (host, port[, flow, scope]) as getaddrinfo gives it
         family, _, _, _, self.address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
-        blend_values(np.zeros(len(PERFECT_SYNC_NAMES)), blend)  # its first call loads SciPy: not on the first frame
+        blend_values(np.full(len(PERFECT_SYNC_NAMES), 0.5), blend)  # the presets' machine code loaded: not on a frame
         # what is the same every frame, built once: each bone's and each clip's message up to its numbers, and
         # the bones' positions (issue 36: a 30 Hz tick built ~70 messages one struct.pack at a time)
         bones = self.mapping.bones
