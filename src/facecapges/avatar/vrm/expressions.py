@@ -35,7 +35,9 @@ Per frame, every value in [0, 1]:
   A > O > E > I > U, lip rounding U and O (pucker, funnel), lip spreading I and E
   (stretch), lips parted from the teeth in A/E/I (:data:`VISEME_PROTOTYPES`). The
   viseme weights are the non-negative least-squares combination of the prototypes
-  that best reproduces the frame's features (``scipy.optimize.nnls``: 5 unknowns), each
+  that best reproduces the frame's features (5 unknowns: solved exactly over the 31
+  non-empty sets of prototypes, compiled, :func:`.expressions_compiled.nnls`; SciPy's
+  ``nnls``'s solution to ~1e-15, the same float32 values on every frame tried), each
   clipped to 1 and scaled so that their sum is at most 1 (receivers add the clips; a sum
   above 1 over-opens the mouth). A closed, relaxed mouth gives all zeros. Smiles are not
   a viseme feature: they drive ``Joy``/``Fun``.
@@ -70,6 +72,11 @@ Per frame, every value in [0, 1]:
   ``LookLeft = mean(eyeLookOutLeft, eyeLookInRight)``,
   ``LookRight = mean(eyeLookInLeft, eyeLookOutRight)``.
 * ``Neutral`` is the rest face (all 0): not sent.
+
+The 17 presets of a frame are one compiled call (:mod:`.expressions_compiled`, Numba, imported
+on the first frame's presets, not with this module): a VMC tick computes them once per model
+frame (issue 36). :func:`vrm0_weights_array` is the NumPy form (weights that are not finite
+take it; the compiled form gives its bits).
 
 The thresholds are engineering choices (no published reference maps ARKit to VRM
 presets); they are here, once, for every consumer.
