@@ -4,7 +4,8 @@ Run once by ``make setup``, after the install. Two reasons:
 
 * our streaming kernel (:func:`facecapges.network.native.warm`), the matching engine's loops
   (:func:`facecapges.matching.kernels.warm`), the rotations' (:func:`facecapges.rotations_compiled.checked_rot6d_to_quaternions`)
-  and the VMC sender's (:func:`facecapges.runtime.outputs.vmc_kernels.warm`): compiled here, not by a stream's first
+  the VMC sender's (:func:`facecapges.runtime.outputs.vmc_kernels.warm`) and the VRM presets'
+  (:func:`facecapges.avatar.vrm.expressions_compiled.warm`): compiled here, not by a stream's first
   frame (nor by a sender's construction in ``live``);
 * librosa's Numba functions (``cache=True``): its ufuncs and gufuncs with explicit signatures compile when
   librosa is imported, the others on their first call, and each writes its cache into librosa's own
@@ -21,6 +22,7 @@ import numpy as np
 
 
 def main() -> None:
+    from facecapges.avatar.vrm import expressions_compiled
     from facecapges.matching import kernels
     from facecapges.runtime.outputs import vmc_kernels
 
@@ -37,6 +39,7 @@ def main() -> None:
 
     bvh_text.checked()  # the BVH recorder's text (live, run)
     vmc_kernels.warm()
+    expressions_compiled.warm()
     import librosa  # compiles the eager-signature (g)ufuncs into the cache
 
     rng = np.random.default_rng(0)

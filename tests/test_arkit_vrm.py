@@ -8,10 +8,14 @@ import pytest
 from facecapges.arkit import ARKIT_NAMES
 from facecapges.avatar.vrm.expressions import (
     PERFECT_SYNC_NAMES,
+    VISEME_PROTOTYPES,
     VRM0_PRESETS,
     VRM1_EXPRESSIONS,
+    viseme_solver,
+    viseme_weights,
     vrm0_presets,
     vrm0_weights,
+    vrm0_weights_array,
     vrm1_expressions,
 )
 
@@ -103,18 +107,79 @@ def test_batched_equals_per_frame_and_vrm1():
         vrm0_weights(w[:, :51])
 
 
-def test_one_frame_path_is_the_array_path_to_the_bit():
-    """A VMC tick's single frame takes a Python-float path (issue 36): the same bytes as the (…, 52) array
-    path, on random frames and on frames made of the ramps' bounds, 0, −0, 1 and out-of-range values."""
+def test_compiled_presets_are_the_array_path_to_the_bit():
+    """The compiled presets (one frame, a VMC tick's, and batches; issue 36) give the bytes of the NumPy form, on
+    random frames and on frames made of the ramps' bounds, 0, −0, 1 and out-of-range values; weights that are not
+    finite take the NumPy form."""
     rng = np.random.default_rng(3)
     edges = np.array([0.0, -0.0, 1.0, 0.3, 0.7, 0.15, 0.5, 0.2, 1e-4, -0.2, 1.3])
     frames = [rng.uniform(0, 1, 52), np.zeros(52), np.full(52, -0.0), (rng.random(52) ** 3).astype(np.float32)]
     frames += [np.where(rng.random(52) < 0.5, rng.choice(edges, 52), rng.random(52)) for _ in range(3000)]
     for f in frames:
-        assert vrm0_weights(f).tobytes() == vrm0_weights(f[None])[0].tobytes()
+        assert vrm0_weights(f).tobytes() == vrm0_weights_array(f).tobytes()
+    batch = np.array(frames[4:]).reshape(2, -1, 52)
+    assert vrm0_weights(batch).tobytes() == vrm0_weights_array(batch).tobytes()
     nan = np.full(52, 0.5)
     nan[0] = np.nan  # not finite: the array path
-    assert vrm0_weights(nan).tobytes() == vrm0_weights(nan[None])[0].tobytes()
+    assert vrm0_weights(nan).tobytes() == vrm0_weights_array(nan).tobytes() == vrm0_weights(nan[None])[0].tobytes()
+    assert np.isnan(vrm0_weights(nan)[VRM0_PRESETS.index("Angry")])  # browDownLeft NaN: as NumPy gives it
+    mouth_nan = face(jawOpen=0.5).astype(np.float64)
+    mouth_nan[ARKIT_NAMES.index("mouthFunnel")] = np.nan
+    assert not vrm0_weights(mouth_nan)[3:8].any()  # a NaN mouth feature: no viseme, as before
+
+
+def _scipy_visemes(features: np.ndarray) -> np.ndarray:
+    from scipy.optimize import nnls
+
+    out = np.zeros((len(features), 5))
+    for k, f in enumerate(features):
+        out[k] = nnls(VISEME_PROTOTYPES.T, f)[0]
+    return out
+
+
+def _nnls(features: np.ndarray) -> np.ndarray:
+    kernels, A, pinv, _ = viseme_solver()
+    out = np.zeros((len(features), 5))
+    for k, f in enumerate(features):
+        kernels.nnls(A, pinv, np.ascontiguousarray(f, np.float64), out[k])
+    return out
+
+
+def test_nnls_is_scipys_solution_and_meets_kkt():
+    """The exact 5-unknown solve (every passive set) is SciPy's Lawson–Hanson solution to ~1e-15, and meets the
+    KKT conditions: x ≥ 0, no gradient where x > 0, none pointing into x < 0 where x = 0."""
+    rng = np.random.default_rng(7)
+    feats = np.concatenate([
+        rng.uniform(0, 1, (3000, 6)),
+        rng.uniform(0, 1, (1000, 6)) ** 4 * (rng.random((1000, 6)) < 0.5),  # sparse: exact zeros
+        rng.uniform(0, 1, (500, 5)) @ VISEME_PROTOTYPES,  # inside the cone: exact fits
+        np.eye(6), VISEME_PROTOTYPES, np.zeros((1, 6)),
+    ])  # fmt: skip
+    x, ref = _nnls(feats), _scipy_visemes(feats)
+    np.testing.assert_allclose(x, ref, rtol=0, atol=1e-12)
+    A = VISEME_PROTOTYPES.T
+    grad = (feats - x @ A.T) @ A  # Aᵀ(f − Ax): the objective's descent direction per unknown
+    assert (x >= 0).all()
+    assert np.abs(np.where(x > 0, grad, 0)).max() < 1e-12
+    assert np.where(x == 0, grad, 0).max() < 1e-12
+    np.testing.assert_allclose(_nnls(VISEME_PROTOTYPES), np.eye(5), atol=1e-14)  # a vowel's own prototype
+    assert not _nnls(np.zeros((1, 6))).any()
+
+
+def test_visemes_keep_their_rules():
+    """Below 1e-4 everywhere or NaN: no viseme; each weight ≤ 1 and their sum ≤ 1 (scaled, not clipped)."""
+    kernels, A, pinv, _ = viseme_solver()
+    feats = np.array([np.full(6, 1e-4), np.full(6, 0.9), [np.nan, 0.5, 0.5, 0.5, 0.5, 0.5], VISEME_PROTOTYPES[0]])
+    out = np.empty((len(feats), 5))
+    kernels.visemes(A, pinv, feats, out)
+    assert not out[[0, 2]].any()
+    assert out[1].sum() == pytest.approx(1.0) and (out <= 1).all()
+    np.testing.assert_allclose(out[3], [1, 0, 0, 0, 0], atol=1e-14)
+    clipped = np.minimum(_nnls(feats[1:2])[0], 1.0)
+    assert clipped.sum() > 1.0
+    np.testing.assert_allclose(out[1], clipped / clipped.sum(), rtol=1e-15)
+    w = np.random.default_rng(1).uniform(0, 1, (4, 3, 52))
+    assert viseme_weights(w).shape == (4, 3, 5)
 
 
 def test_real_iphone_face_blinks_are_exact():

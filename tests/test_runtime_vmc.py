@@ -415,10 +415,13 @@ class _Datagrams:
     def __init__(self):
         self.frames: list[list[bytes]] = [[]]
 
-    def sendto(self, d: bytes, _address) -> None:
+    def send(self, d: bytes) -> None:  # the sender's socket is connected
         self.frames[-1].append(d)
         if b"/VMC/Ext/T" in d:
             self.frames.append([])
+
+    def sendto(self, d: bytes, _address) -> None:
+        self.send(d)
 
     def close(self) -> None:
         pass

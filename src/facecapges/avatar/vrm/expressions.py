@@ -35,7 +35,9 @@ Per frame, every value in [0, 1]:
   A > O > E > I > U, lip rounding U and O (pucker, funnel), lip spreading I and E
   (stretch), lips parted from the teeth in A/E/I (:data:`VISEME_PROTOTYPES`). The
   viseme weights are the non-negative least-squares combination of the prototypes
-  that best reproduces the frame's features (``scipy.optimize.nnls``: 5 unknowns), each
+  that best reproduces the frame's features (5 unknowns: solved exactly over the 31
+  non-empty sets of prototypes, compiled, :func:`.expressions_compiled.nnls`; SciPy's
+  ``nnls``'s solution to ~1e-15, the same float32 values on every frame tried), each
   clipped to 1 and scaled so that their sum is at most 1 (receivers add the clips; a sum
   above 1 over-opens the mouth). A closed, relaxed mouth gives all zeros. Smiles are not
   a viseme feature: they drive ``Joy``/``Fun``.
@@ -71,6 +73,11 @@ Per frame, every value in [0, 1]:
   ``LookRight = mean(eyeLookInLeft, eyeLookOutRight)``.
 * ``Neutral`` is the rest face (all 0): not sent.
 
+The 17 presets of a frame are one compiled call (:mod:`.expressions_compiled`, Numba, imported
+on the first frame's presets, not with this module): a VMC tick computes them once per model
+frame (issue 36). :func:`vrm0_weights_array` is the NumPy form (weights that are not finite
+take it; the compiled form gives its bits).
+
 The thresholds are engineering choices (no published reference maps ARKit to VRM
 presets); they are here, once, for every consumer.
 
@@ -85,6 +92,7 @@ The other way and on a model
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import numpy as np
@@ -180,100 +188,69 @@ def mouth_features(face52: np.ndarray) -> np.ndarray:
     )
 
 
+PRESET_INPUTS: tuple[str, ...] = (
+    "jawOpen", "mouthClose", "mouthFunnel", "mouthPucker",
+    "mouthStretchLeft", "mouthStretchRight", "mouthLowerDownLeft", "mouthLowerDownRight",
+    "mouthUpperUpLeft", "mouthUpperUpRight", "eyeBlinkLeft", "eyeBlinkRight",
+    "mouthSmileLeft", "mouthSmileRight", "cheekSquintLeft", "cheekSquintRight",
+    "eyeSquintLeft", "eyeSquintRight", "mouthPressLeft", "mouthPressRight", "noseSneerLeft", "noseSneerRight",
+    "browDownLeft", "browDownRight", "browInnerUp", "mouthFrownLeft", "mouthFrownRight",
+    "browOuterUpLeft", "browOuterUpRight", "eyeWideLeft", "eyeWideRight",
+    "eyeLookUpLeft", "eyeLookUpRight", "eyeLookDownLeft", "eyeLookDownRight",
+    "eyeLookOutLeft", "eyeLookInRight", "eyeLookInLeft", "eyeLookOutRight",
+)  # fmt: skip
+"""The ARKit weights the presets read, in the order the compiled form takes their indices
+(:func:`.expressions_compiled.presets`; left/right pairs side by side)."""
+
+
+@functools.cache
+def viseme_solver():
+    """The compiled form (:mod:`.expressions_compiled`, Numba: imported here, on the first frame's presets, never
+    with this module) and its tables: the prototypes as columns ``A`` (6, 5), per set of them (a bit mask) its
+    columns' pseudo-inverse in their rows (32, 5, 6), the :data:`PRESET_INPUTS` indices."""
+    from facecapges.avatar.vrm import expressions_compiled
+
+    A = np.ascontiguousarray(VISEME_PROTOTYPES.T)
+    n = A.shape[1]
+    pinv = np.zeros((1 << n, n, A.shape[0]))
+    for s in range(1, 1 << n):
+        cols = [i for i in range(n) if (s >> i) & 1]
+        pinv[s, cols] = np.linalg.pinv(A[:, cols])
+    idx = np.array([_I[name] for name in PRESET_INPUTS], np.int64)
+    return expressions_compiled, A, pinv, idx
+
+
 def viseme_weights(face52: np.ndarray) -> np.ndarray:
     """(..., 52) ARKit weights → (..., 5) A, I, U, E, O weights (NNLS on the prototypes; sum ≤ 1)."""
-    from scipy.optimize import nnls
-
+    kernels, A, pinv, _ = viseme_solver()
     feats = mouth_features(face52)
-    flat = feats.reshape(-1, feats.shape[-1])
-    out = np.zeros((flat.shape[0], len(VISEMES)), np.float64)
-    A = VISEME_PROTOTYPES.T  # (6, 5)
-    for k, f in enumerate(flat):
-        if f.max() > 1e-4:
-            out[k] = nnls(A, f)[0]
-    out = np.minimum(out, 1.0)
-    total = out.sum(axis=-1, keepdims=True)
-    out = np.where(total > 1.0, out / np.maximum(total, 1e-12), out)
+    flat = np.ascontiguousarray(feats.reshape(-1, feats.shape[-1]))
+    out = np.empty((flat.shape[0], len(VISEMES)))
+    kernels.visemes(A, pinv, flat, out)
     return out.reshape(feats.shape[:-1] + (len(VISEMES),))
 
 
-def _max(a: float, b: float) -> float:
-    return a if a > b else b  # np.maximum's pick on floats that are not NaN (a tie gives b: 0.0 vs -0.0)
-
-
-def _min(a: float, b: float) -> float:
-    return a if a < b else b  # np.minimum's (a tie gives b)
-
-
-def _ramp1(x: float, lo: float, hi: float) -> float:
-    return _min(_max((x - lo) / (hi - lo), 0.0), 1.0)
-
-
-def _vrm0_weights_one(w: np.ndarray) -> np.ndarray:
-    """:func:`vrm0_weights` of one clipped, finite (52,) frame in Python floats: the same IEEE operations in the
-    same order, so the same bits (tested on random and edge frames), in a quarter of the time — a VMC tick
-    calls it once per 30/60 Hz tick, and on one frame the array path is all call overhead (issue 36)."""
-    from scipy.optimize import nnls
-
-    x = w.tolist()
-    i = _I
-
-    def mean(a: str, b: str) -> float:
-        return (x[i[a]] + x[i[b]]) * 0.5
-
-    def both(stem: str) -> float:
-        return _min(x[i[stem + "Left"]], x[i[stem + "Right"]])
-
-    f = np.array(
-        [
-            _max(x[i["jawOpen"]] - x[i["mouthClose"]], 0.0),
-            x[i["mouthFunnel"]],
-            x[i["mouthPucker"]],
-            mean("mouthStretchLeft", "mouthStretchRight"),
-            mean("mouthLowerDownLeft", "mouthLowerDownRight"),
-            mean("mouthUpperUpLeft", "mouthUpperUpRight"),
-        ]
-    )
-    vis = nnls(VISEME_PROTOTYPES.T, f)[0] if f.max() > 1e-4 else np.zeros(len(VISEMES))
-    vis = np.minimum(vis, 1.0)
-    total = vis.sum(axis=-1, keepdims=True)
-    vis = np.where(total > 1.0, vis / np.maximum(total, 1e-12), vis)
-    left, right = x[i["eyeBlinkLeft"]], x[i["eyeBlinkRight"]]
-    blink = _min(left, right)
-    smile = _ramp1(both("mouthSmile"), 0.3, 0.7)
-    joy = smile * _ramp1(mean("cheekSquintLeft", "cheekSquintRight"), 0.15, 0.5)
-    tense = _max(
-        _max(mean("eyeSquintLeft", "eyeSquintRight"), mean("mouthPressLeft", "mouthPressRight")),
-        mean("noseSneerLeft", "noseSneerRight"),
-    )
-    angry = _ramp1(both("browDown"), 0.3, 0.7) * _ramp1(tense, 0.2, 0.5) * (1.0 - smile)
-    sorrow = _ramp1(x[i["browInnerUp"]], 0.3, 0.7) * _ramp1(both("mouthFrown"), 0.3, 0.7) * (1.0 - smile)
-    surprised = _ramp1(both("browOuterUp"), 0.3, 0.7) * _ramp1(mean("eyeWideLeft", "eyeWideRight"), 0.2, 0.5)
-    cols = [
-        blink,
-        left - blink,
-        right - blink,
-        *vis.tolist(),
-        joy,
-        angry,
-        sorrow,
-        smile - joy,
-        surprised,
-        mean("eyeLookUpLeft", "eyeLookUpRight"),
-        mean("eyeLookDownLeft", "eyeLookDownRight"),
-        mean("eyeLookOutLeft", "eyeLookInRight"),
-        mean("eyeLookInLeft", "eyeLookOutRight"),
-    ]
-    return np.clip(np.array(cols), 0.0, 1.0)
-
-
 def vrm0_weights(face52: np.ndarray) -> np.ndarray:
-    """(..., 52) ARKit weights → (..., 17) VRM 0.x preset weights in :data:`VRM0_PRESETS` order."""
+    """(..., 52) ARKit weights → (..., 17) VRM 0.x preset weights in :data:`VRM0_PRESETS` order.
+
+    Finite weights go through the compiled form (:func:`.expressions_compiled.presets`: one call, a VMC tick's
+    frame in a few µs; issue 36), any other through :func:`vrm0_weights_array` — the same bits."""
+    w = np.asarray(face52, np.float64)
+    if w.shape[-1:] != (N_BLENDSHAPES,):
+        raise ValueError(f"face weights must be (..., {N_BLENDSHAPES}), got {w.shape}")
+    kernels, A, pinv, idx = viseme_solver()
+    out = np.empty(w.shape[:-1] + (len(VRM0_PRESETS),))
+    if kernels.presets(w.reshape(-1, N_BLENDSHAPES), idx, A, pinv, out.reshape(-1, len(VRM0_PRESETS))):
+        return out
+    return vrm0_weights_array(w)
+
+
+def vrm0_weights_array(face52: np.ndarray) -> np.ndarray:
+    """:func:`vrm0_weights` in NumPy (its visemes compiled: :func:`viseme_weights`): the form of weights that are not
+    all finite, and the reference the compiled form is held to, bit for bit (tests)."""
     w = np.clip(np.asarray(face52, np.float64), 0.0, 1.0)
     if w.shape[-1] != N_BLENDSHAPES:
         raise ValueError(f"face weights must be (..., {N_BLENDSHAPES}), got {w.shape}")
-    if w.ndim == 1 and np.isfinite(w).all():
-        return _vrm0_weights_one(w)
     left, right = w[..., _I["eyeBlinkLeft"]], w[..., _I["eyeBlinkRight"]]
     both = np.minimum(left, right)
     vis = viseme_weights(w)

@@ -25,7 +25,10 @@ between two model frames slerps those quaternions and lerps those weights
 a slightly different path between the same two frames than converting a blended pose would
 take (:mod:`.upsample`, "Between model frames"). The bones of a model frame, a tick's slerp and
 lerp and the packing of a frame's numbers are compiled (:mod:`.vmc_kernels`, Numba, loaded when a
-sender is built): the bits of :mod:`facecapges.rotations`' NumPy formulas, in a few calls.
+sender is built): the bits of :mod:`facecapges.rotations`' NumPy formulas, in a few calls; so are the
+VRM presets (:mod:`facecapges.avatar.vrm.expressions_compiled`). The socket is connected to the
+receiver (the route looked up once, not per datagram; a missing receiver's ICMP error then
+comes back on a later send and is counted in ``errors``).
 
 Face clips (``blend``, ``live --vmc-blend``)
 --------------------------------------------
@@ -377,13 +380,11 @@ def blend_weights(face52: np.ndarray, blend: str = "vrm") -> np.ndarray:
     """The weights (float64) :func:`blend_values` sends with ``blend``, in :func:`blend_names` order."""
     if blend not in BLEND_MODES:
         raise ValueError(f"blend must be one of {BLEND_MODES}, got {blend!r}")
-    w = np.clip(np.asarray(face52, np.float64).reshape(-1), 0.0, 1.0)
-    parts = []
-    if blend in ("vrm", "both"):
-        parts.append(vrm0_weights(w))
-    if blend in ("perfect-sync", "both"):
-        parts.append(w)
-    return np.concatenate(parts) if len(parts) > 1 else parts[0]
+    w = np.asarray(face52, np.float64).reshape(-1)
+    if blend == "vrm":  # a VMC tick's case: the presets clip the weights themselves (one compiled call)
+        return vrm0_weights(w)
+    w = np.clip(w, 0.0, 1.0)
+    return np.concatenate([vrm0_weights(w), w]) if blend == "both" else w
 
 
 def _osc_string(x: str) -> bytes:
@@ -479,7 +480,15 @@ class VmcSender:
         self.address: tuple  # (host, port[, flow, scope]) as getaddrinfo gives it
         family, _, _, _, self.address = socket.getaddrinfo(host, port, type=socket.SOCK_DGRAM)[0]
         self.sock = socket.socket(family, socket.SOCK_DGRAM)
-        blend_values(np.zeros(len(PERFECT_SYNC_NAMES)), blend)  # its first call loads SciPy: not on the first frame
+        try:  # connected: the route is looked up once, not for every datagram (a tick's sends: −30 % CPU, issue 36)
+            self.sock.connect(self.address)
+            self._connected = True
+        except OSError:  # no route now (a network not up yet): each datagram addressed, as UDP allows
+            self._connected = False
+        if blend != "perfect-sync":  # the presets' machine code (Numba) loaded now, never on a frame
+            from facecapges.avatar.vrm import expressions_compiled
+
+            expressions_compiled.warm()
         # what is the same every frame, built once: each bone's and each clip's message up to its numbers, and
         # the bones' positions (issue 36: a 30 Hz tick built ~70 messages one struct.pack at a time)
         bones = self.mapping.bones
@@ -554,11 +563,14 @@ class VmcSender:
         try:
             # packed into the sender's own buffer: the sink's send is called from one thread
             for d in self._datagrams(frame, time_s, self._buf):
-                self.sock.sendto(d, self.address)
+                if self._connected:
+                    self.sock.send(d)
+                else:
+                    self.sock.sendto(d, self.address)
                 self.datagrams += 1
                 self.largest_datagram = max(self.largest_datagram, len(d))
             self.sent += 1
-        except OSError:  # receiver not there (ICMP port unreachable): UDP is fire-and-forget
+        except OSError:  # receiver not there (ICMP port unreachable, reported by the next send): fire-and-forget
             self.errors += 1
 
     def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float, buf=None) -> list[bytes]:
