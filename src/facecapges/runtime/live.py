@@ -476,16 +476,19 @@ def run_live(o: LiveOptions, say: Callable[..., None] = echo, warn: Callable[[st
     summary; ``warn(text)`` the warnings and notes. The report is also written to
     ``--record``'s ``report.json``.
     """
+    from facecapges.runtime.os_memory import limit_malloc_arenas, release_free_memory
     from facecapges.styles import load_style
 
     o = replace(o)  # _check fills in the defaults it decides (camera 0, the viewer)
     outs = _check(o)
+    limit_malloc_arenas()  # before MediaPipe's and our threads start (runtime/os_memory.py)
     ckpt = load_style(o.checkpoint, o.style)
     _check_rate(o.rate, ckpt.fps)
     sess = _open_session(o, outs, ckpt)
     feed, body = sess.face_feed, sess.body  # close() forgets them; the report asks them for their stats
     try:
         _announce(o, outs, sess, say, warn)
+        release_free_memory()  # what the start-up freed
         max_frames = int(round(o.max_seconds * ckpt.fps)) if o.max_seconds else None
         why = sess.scheduler.run(max_frames=max_frames, on_frame=_status(sess, outs, say))
     except KeyboardInterrupt:
