@@ -96,8 +96,9 @@ def test_live_behind_real_time_drops_camera_frames_never_audio(face_video_3s, tm
     """A machine too busy to capture every frame: ``live --realtime`` drops camera frames (and says so once in its
     status line), yet every frame of the audio is computed and recorded — no audio dropped, no underrun.
 
-    The load is real: ``live`` shares one CPU with two spinning processes at a lower priority (nice 5 against
-    their 0: about 1/7 of that CPU), started once ``live`` has printed its start line."""
+    The load is real: ``live`` shares one CPU with two spinning processes at a lower priority (nice 8 against
+    their 0: about 1/13 of that CPU, a third of what ``live`` needs), started once ``live`` has printed its start
+    line. (At nice 5, 1/7, ``live`` grew cheap enough to drop 14-20 camera frames of 75, at the bound's edge.)"""
     import json
     import os
     import subprocess
@@ -112,7 +113,7 @@ def test_live_behind_real_time_drops_camera_frames_never_audio(face_video_3s, tm
     rec = tmp_path / "rec"
     face_video = face_video_3s
     proc = cli_process("live", "--video", str(face_video), "--realtime", "--record", str(rec), "--web", "127.0.0.1:0",
-                       background=True, preexec_fn=_pinned(cpu, 5))
+                       background=True, preexec_fn=_pinned(cpu, 8))
     spin = []
     try:
         for line in proc.stdout:
