@@ -250,6 +250,9 @@ def relative_quaternion(ref6: np.ndarray, r: np.ndarray, ref: np.ndarray, lq: np
     return 1.0 if c > 1.0 else c  # np.minimum(·, 1.0): a NaN stays
 
 
+_IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])  # (a constant of the compiled code)
+
+
 @_jit
 def power_about_identity_rot6d(q: np.ndarray, theta: float, power: float, out: np.ndarray) -> None:
     """Every row of ``out`` (n, 6) ← the rot6d of ``q`` (4,) raised to ``power`` about the identity, ``theta`` the
@@ -257,14 +260,9 @@ def power_about_identity_rot6d(q: np.ndarray, theta: float, power: float, out: n
     ``rotations.quaternion_to_rot6d(rotations.quaternion_power_about(q, (1, 0, 0, 0), power))`` (the closed form of
     the slerp, its linear blend when ``sin θ < 1e-6``, the norm summed left to right; then the six entries),
     rounded to ``out``'s dtype as NumPy stores them."""
-    s = np.sin(theta)
-    if s < 1e-6:  # nearly the identity: the linear blend, normalised
-        a, b = 1.0 - power, power
-    else:
-        a, b = np.sin((1.0 - power) * theta) / s, np.sin(power * theta) / s
-    o0, o1, o2, o3 = a * 1.0 + b * q[0], a * 0.0 + b * q[1], a * 0.0 + b * q[2], a * 0.0 + b * q[3]
-    n = np.sqrt(((o0 * o0 + o1 * o1) + o2 * o2) + o3 * o3)
-    o0, o1, o2, o3 = o0 / n, o1 / n, o2 / n, o3 / n
+    o = np.empty(4)
+    slerp(_IDENTITY, q, theta, power, o)  # (q · identity ≥ 0: relative_quaternion made it so)
+    o0, o1, o2, o3 = o[0], o[1], o[2], o[3]
     n = _maximum(np.sqrt(((o0 * o0 + o1 * o1) + o2 * o2) + o3 * o3), _EPS)  # quaternion_to_rot6d normalises again
     w, x, y, z = o0 / n, o1 / n, o2 / n, o3 / n
     zz, xy, zw = z * z, x * y, z * w
