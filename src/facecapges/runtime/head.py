@@ -85,12 +85,17 @@ def _set_head_compiled(rc: ModuleType, pose: np.ndarray, R_head: np.ndarray) -> 
     return out
 
 
-def _numpy_capture_head(pose: np.ndarray, head_rot6d: np.ndarray) -> np.ndarray:
-    """What :class:`HeadDriver` shows in full capture with NumPy alone (the captured head and the Spine converted
-    in one call, as it does)."""
+def _head_and_spine(head_rot6d: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """The captured head's and the pose's Spine's matrices (2, 3, 3) in one conversion (rot6d_to_matrix works row
+    by row: the same numbers as one call each; issue 36, fewer NumPy calls a frame)."""
     rows = np.empty((2, 6))
     rows[0], rows[1] = head_rot6d, pose[_SPINE]
-    M = rot.rot6d_to_matrix(rows)
+    return rot.rot6d_to_matrix(rows)
+
+
+def _numpy_capture_head(pose: np.ndarray, head_rot6d: np.ndarray) -> np.ndarray:
+    """What :class:`HeadDriver` shows in full capture with NumPy alone."""
+    M = _head_and_spine(head_rot6d, pose)
     return set_head(pose, M[0], M[1])
 
 
@@ -143,11 +148,7 @@ class HeadDriver:
                 self._R = np.empty((3, 3))
                 self._rc.rot6d_to_matrix(head_rot6d, self._R)
             else:
-                # the captured head and the pose's Spine in one conversion (rot6d_to_matrix works row by row: the
-                # same numbers as one call each; issue 36, fewer NumPy calls a frame)
-                rows = np.empty((2, 6))
-                rows[0], rows[1] = head_rot6d, pose[_SPINE]
-                M = rot.rot6d_to_matrix(rows)
+                M = _head_and_spine(head_rot6d, pose)
                 self._R, spine = M[0], M[1]
             if not self._tracking:
                 # the first face of the session is shown at once (there is no captured head to come from)
