@@ -250,6 +250,24 @@ def relative_quaternion(ref6: np.ndarray, r: np.ndarray, ref: np.ndarray, lq: np
     return 1.0 if c > 1.0 else c  # np.minimum(·, 1.0): a NaN stays
 
 
+@_jit
+def quaternion_to_rot6d(w0: float, x0: float, y0: float, z0: float) -> tuple:
+    """The rot6d (six numbers) of the quaternion ``(w0, x0, y0, z0)``, normalised first: the bits of
+    :func:`facecapges.rotations.quaternion_to_rot6d` (its norm summed left to right, at least 1e-8 with a NaN kept,
+    the division, its six expressions)."""
+    n = _maximum(np.sqrt(((w0 * w0 + x0 * x0) + y0 * y0) + z0 * z0), _EPS)
+    w, x, y, z = w0 / n, x0 / n, y0 / n, z0 / n
+    zz, xy, zw = z * z, x * y, z * w
+    return (
+        1.0 - 2.0 * (y * y + zz),
+        2.0 * (xy + zw),
+        2.0 * (x * z - y * w),
+        2.0 * (xy - zw),
+        1.0 - 2.0 * (x * x + zz),
+        2.0 * (y * z + x * w),
+    )
+
+
 _IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])  # (a constant of the compiled code)
 
 
@@ -262,12 +280,7 @@ def power_about_identity_rot6d(q: np.ndarray, theta: float, power: float, out: n
     rounded to ``out``'s dtype as NumPy stores them."""
     o = np.empty(4)
     slerp(_IDENTITY, q, theta, power, o)  # (q · identity ≥ 0: relative_quaternion made it so)
-    o0, o1, o2, o3 = o[0], o[1], o[2], o[3]
-    n = _maximum(np.sqrt(((o0 * o0 + o1 * o1) + o2 * o2) + o3 * o3), _EPS)  # quaternion_to_rot6d normalises again
-    w, x, y, z = o0 / n, o1 / n, o2 / n, o3 / n
-    zz, xy, zw = z * z, x * y, z * w
-    r0, r1, r2 = 1 - 2 * (y * y + zz), 2 * (xy + zw), 2 * (x * z - y * w)
-    r3, r4, r5 = 2 * (xy - zw), 1 - 2 * (x * x + zz), 2 * (y * z + x * w)
+    r0, r1, r2, r3, r4, r5 = quaternion_to_rot6d(o[0], o[1], o[2], o[3])  # (it normalises again)
     for k in range(out.shape[0]):
         out[k, 0], out[k, 1], out[k, 2], out[k, 3], out[k, 4], out[k, 5] = r0, r1, r2, r3, r4, r5
 

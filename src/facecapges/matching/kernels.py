@@ -61,7 +61,7 @@ from facecapges.matching.speech import (
     VOICE_1,
     VOICING,
 )
-from facecapges.rotations_compiled import qexp, qlog_abs, qmul, qmul_conj
+from facecapges.rotations_compiled import qexp, qlog_abs, qmul, qmul_conj, quaternion_to_rot6d
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
@@ -239,23 +239,13 @@ def search_rows(
 @_jit
 def rot6d32(q: np.ndarray, out: np.ndarray) -> None:
     """``quaternion_to_rot6d(q).astype(np.float32)`` (:mod:`facecapges.rotations`) of poses ``q`` (B, J, 4) float64
-    into ``out`` (B, J, 6) float32 in one call (the matcher's last step): its norm (``sqrt`` of the squares summed
-    left to right, at least 1e-8, NaN kept), division and six expressions in its order, each rounded to float32
-    once, so the same bits."""
+    into ``out`` (B, J, 6) float32 in one call (the matcher's last step): each row by
+    :func:`facecapges.rotations_compiled.quaternion_to_rot6d` (its bits), rounded to float32 once."""
     for b in range(q.shape[0]):
         for j in range(q.shape[1]):
-            w0, x0, y0, z0 = q[b, j, 0], q[b, j, 1], q[b, j, 2], q[b, j, 3]
-            n = np.sqrt(((w0 * w0 + x0 * x0) + y0 * y0) + z0 * z0)
-            if not (n >= 1e-8 or np.isnan(n)):  # np.maximum(n, 1e-8)
-                n = 1e-8
-            w, x, y, z = w0 / n, x0 / n, y0 / n, z0 / n
-            zz, xy, zw = z * z, x * y, z * w
-            out[b, j, 0] = np.float32(1.0 - 2.0 * (y * y + zz))
-            out[b, j, 1] = np.float32(2.0 * (xy + zw))
-            out[b, j, 2] = np.float32(2.0 * (x * z - y * w))
-            out[b, j, 3] = np.float32(2.0 * (xy - zw))
-            out[b, j, 4] = np.float32(1.0 - 2.0 * (x * x + zz))
-            out[b, j, 5] = np.float32(2.0 * (y * z + x * w))
+            r = quaternion_to_rot6d(q[b, j, 0], q[b, j, 1], q[b, j, 2], q[b, j, 3])
+            for k in range(6):
+                out[b, j, k] = np.float32(r[k])
 
 
 @_jit
