@@ -80,7 +80,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from facecapges.benchmarks.runtime import CLIP, looped_video, rss_mb, shared_file, stat_cpu
+from facecapges.benchmarks.runtime import CLIP, ffmpeg, looped_video, rss_mb, shared_file, stat_cpu
 
 FPS = 15.0
 RATE_HZ = 30
@@ -411,8 +411,9 @@ def _last_frames(video: Path, frames: int, out: Path) -> Path:
 
     n, _ = imageio_ffmpeg.count_frames_and_secs(str(video))
     start = f"{max(n - frames, 0) / FPS:.6f}"  # an output -ss: decoded up to that frame exactly
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-i", str(video), "-ss", start]
-    subprocess.run([*cmd, "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "aac", str(out)], check=True)
+    ffmpeg(
+        "-i", str(video), "-ss", start, "-c:v", "libx264", "-preset", "veryfast", "-crf", "18", "-c:a", "aac", str(out)
+    )
     return out
 
 
@@ -459,11 +460,7 @@ def body_run(shared: Path, seconds: float, tmp: Path, quick: bool = False) -> di
 
 def camera_like_video(video: Path, out: Path) -> Path:
     """``video``'s frames as a UVC webcam sends them at this size: Motion JPEG (FFmpeg's ``-q:v 3``), sound as PCM."""
-    import imageio_ffmpeg
-
-    cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", "-i", str(video)]
-    cmd += ["-c:v", "mjpeg", "-q:v", "3", "-pix_fmt", "yuvj420p", "-c:a", "pcm_s16le", str(out)]
-    subprocess.run(cmd, check=True)
+    ffmpeg("-i", str(video), "-c:v", "mjpeg", "-q:v", "3", "-pix_fmt", "yuvj420p", "-c:a", "pcm_s16le", str(out))
     return out
 
 

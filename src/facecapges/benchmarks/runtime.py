@@ -102,15 +102,16 @@ def per_frame(ckpt, video: Path, max_frames: int | None = None) -> dict:
     }
 
 
-def looped_video(src: Path, seconds: float, out: Path, fps: float | None = None) -> Path:
-    """``src`` looped to ``seconds`` (H.264 + AAC), resampled to ``fps`` when given."""
+def ffmpeg(*args: str) -> None:
+    """Run the ffmpeg of ``imageio-ffmpeg`` with ``args``, overwriting its output, printing only errors."""
     import imageio_ffmpeg
 
-    cmd = [
-        imageio_ffmpeg.get_ffmpeg_exe(),
-        "-y",
-        "-loglevel",
-        "error",
+    subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-loglevel", "error", *args], check=True)
+
+
+def looped_video(src: Path, seconds: float, out: Path, fps: float | None = None) -> Path:
+    """``src`` looped to ``seconds`` (H.264 + AAC), resampled to ``fps`` when given."""
+    ffmpeg(
         "-stream_loop",
         "-1",
         "-i",
@@ -127,8 +128,7 @@ def looped_video(src: Path, seconds: float, out: Path, fps: float | None = None)
         "-c:a",
         "aac",
         str(out),
-    ]
-    subprocess.run(cmd, check=True)
+    )
     return out
 
 
