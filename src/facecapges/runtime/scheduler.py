@@ -38,7 +38,7 @@ Fallbacks (each counted in :attr:`Scheduler.events`)
   frame period after its scheduled time (the machine was busy, or the capture is slower
   than the frame rate). It is still computed (the model needs every frame's audio, in
   order), so output continues without a gap, but **its camera frames are dropped**
-  (``camera_frames_dropped``: read past without decoding or capture, the held face
+  (``camera_frames_dropped``: read past without conversion or capture, the held face
   reused): the expensive stage is skipped until the clock has caught up, so a machine
   that cannot capture every frame captures as many as it can and the output stays on
   time. Audio is never dropped. ``live`` says so in its status line.

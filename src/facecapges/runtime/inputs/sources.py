@@ -14,7 +14,8 @@ Visual sources (one per session)
   file, millimetres, read by :mod:`facecapges.capture.depth`) and optionally looped;
   ``decode_threads`` sets FFmpeg's decoding threads (one for a file played in real time).
   :meth:`~FileVideo.next_frame` returns the newest unread frame before the deadline
-  and *skips* older ones without decoding them (``grab``): a live system processes the
+  and *skips* older ones (``grab``: FFmpeg still decodes each, later frames are predicted
+  from it, but not its conversion to BGR nor the copy out): a live system processes the
   freshest frame, and MediaPipe's tracker copes with the gap. Skips are counted.
 * :class:`CameraVideo` — an OpenCV camera read by a thread that keeps the last three
   frames stamped with the stream clock; a camera that cannot open is a
@@ -140,7 +141,7 @@ class FileVideo:
                 continue
             if self._ts(self._i) >= deadline_s:
                 return None
-            # is the frame after this one also due? then skip this one without decoding it
+            # is the frame after this one also due? then skip this one: decoded (grab), not converted
             if (
                 self._in_loop(self._i + 1)
                 and self._ts(self._i + 1) < deadline_s
@@ -169,8 +170,8 @@ class FileVideo:
         return None
 
     def drop(self, deadline_s: float) -> int:
-        """Read past every unread frame with time < ``deadline_s`` without decoding it; how many (the
-        scheduler, behind the clock, drops them)."""
+        """Read past every unread frame with time < ``deadline_s`` (``grab``: decoded, not converted); how many
+        (the scheduler, behind the clock, drops them)."""
         n = 0
         while not self.ended:
             if not self._in_loop(self._i):
