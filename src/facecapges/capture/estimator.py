@@ -303,7 +303,7 @@ class ExpressionEstimator:
     # -------------------------------------------------------------- ranges
     def update_ranges(self, units=None, compiled: bool = True) -> None:
         """Re-estimate the nodes of ``units`` (default all) from the sample set (with the min-span prior): in one
-        compiled call where the sample set has its kernels (:mod:`.estimator_kernels`, the same bits) and
+        compiled call where the sample set has its kernels (:mod:`.kernels`, the same bits) and
         ``compiled``, else unit by unit here."""
         ss = self.samples
         if ss.size == 0:

@@ -135,6 +135,31 @@ def _norm(x: np.ndarray):
     return np.sqrt(x.dot(x))
 
 
+def _log_so3(M: np.ndarray) -> np.ndarray:
+    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3): its ufuncs on the same arrays (the skew
+    part written into one array where it stacks three, ``np.linalg.norm``'s own ``sqrt(add.reduce(v·v))``), the same
+    bits without its argument handling (issue 36); within 1e-4 rad of π (rare) its own."""
+    v = np.empty((len(M), 3))
+    np.subtract(M[:, 2, 1], M[:, 1, 2], out=v[:, 0])
+    np.subtract(M[:, 0, 2], M[:, 2, 0], out=v[:, 1])
+    np.subtract(M[:, 1, 0], M[:, 0, 1], out=v[:, 2])
+    sn = np.sqrt(np.add.reduce(v * v, axis=-1)) / 2
+    ang = np.arctan2(sn, (M.trace(axis1=-2, axis2=-1) - 1) / 2)
+    if (np.pi - ang < 1e-4).any():
+        return rot.log_so3(M)
+    return v * np.where(sn > 1e-12, ang / np.maximum(2 * sn, 1e-300), 0.5)[:, None]
+
+
+def _exp_so3(v: np.ndarray) -> np.ndarray:
+    """:func:`facecapges.rotations.exp_so3` of one float64 rotation vector (3,): its arithmetic (the skew matrix
+    written out where it stacks it, the angle a scalar where it is a (1, 1) array: the same ``sin``/``cos`` bits),
+    without its argument handling (issue 36)."""
+    ang = np.sqrt(np.add.reduce(v * v, axis=-1))  # np.linalg.norm(v, axis=-1)
+    kx, ky, kz = (v / np.maximum(ang, 1e-300)).tolist()
+    K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * (K @ K)
+
+
 def focal_from_vfov(height_px: float, vfov_deg: float = DEFAULT_VFOV_DEG) -> float:
     """Pinhole focal length in pixels for an image ``height_px`` tall."""
     return 0.5 * height_px / math.tan(math.radians(vfov_deg) / 2)
@@ -282,17 +307,17 @@ class PoseSmoother:
             # the jump from the last pose and the window's rotations relative to the newest (as if the window goes on)
             # in one log_so3 call: it works matrix by matrix, so the same numbers as a call each (issue 36)
             kept = list(self._R)[max(0, len(self._R) - self.window + 1) :]
-            logs = rot.log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
+            logs = _log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
             if _norm(logs[0]) > self.reset:
                 self.reset_state()
             else:
                 rv = logs[1:]
         if rv is None:  # a new window: the newest pose alone
-            rv = rot.log_so3(ref.T @ np.stack([ref]))
+            rv = _log_so3(ref.T @ np.stack([ref]))
         self._R.append(ref.copy())
         self._t.append(np.asarray(pose.t, np.float64).copy())
         c = self._coef[len(self._R)]
-        R = ref @ rot.exp_so3(c @ rv)
+        R = ref @ _exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)
 

@@ -26,7 +26,7 @@ keeps learning, and its weights reflect the density of values seen so far.
 
 All units are stored in one (U, capacity) array and updated together, so adding a frame
 costs a handful of numpy operations whatever the number of units; a sample's merge is one compiled call where
-:mod:`facecapges.capture.estimator_kernels` keeps NumPy's bits on this machine (its NumPy form otherwise).
+:mod:`facecapges.capture.kernels` keeps NumPy's bits on this machine (its NumPy form otherwise).
 """
 
 from __future__ import annotations
@@ -76,11 +76,11 @@ class SampleSet:
         self.n_frames = 0  # frames accepted
         self.n_dropped = 0  # frames with ω < 1/3
         self._rows = np.arange(n_units)
-        self.kernels = None  # estimator_kernels where it keeps NumPy's bits (``compiled``)
+        self.kernels = None  # kernels where it keeps NumPy's bits (``compiled``)
         if compiled:
-            from facecapges.capture.estimator_kernels import compiled as _compiled_kernels
+            from facecapges.capture import kernels
 
-            self.kernels = _compiled_kernels()
+            self.kernels = kernels.compiled()
 
     def insert(self, v: np.ndarray, w: float) -> None:
         """Insert one sample per unit, all with weight ``w`` (merging when full, eq. 6–7)."""

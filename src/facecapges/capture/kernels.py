@@ -1,12 +1,15 @@
-"""The expression estimator's sample set and range estimates, compiled (Numba): a frame's merges into the bounded
-sample set (:meth:`facecapges.capture.samples.SampleSet.insert`) and its units' nodes
+"""The face capture's per-frame steps after MediaPipe that compile without changing a bit (Numba), one call each:
+a face's geometric metrics (:func:`facecapges.capture.metrics.compute_metrics` of one face), a frame's merges into
+the bounded sample set (:meth:`facecapges.capture.samples.SampleSet.insert`) and its units' nodes
 (:meth:`facecapges.capture.estimator.ExpressionEstimator.update_ranges`: :mod:`facecapges.capture.ranges`' scans
-and merges) in one call each instead of a Python loop over ~30 samples a unit (issue 36: ~0.1 ms a frame).
+and merges) — a dozen NumPy calls on a few numbers, or a Python loop over ~30 samples a unit (issue 36: ~0.15 ms
+of the scheduler's CPU a frame).
 
-Every number is the NumPy/Python path's: the same operations on the same float64s in the same order (a sample
-set's sort is a stable one, as ``argsort(kind="stable")``; a sum over samples is NumPy's pairwise summation,
+Every number is the NumPy/Python path's: the same operations on the same float64s in the same order (a mean of
+fewer than 8 numbers is NumPy's ``add.reduce``, left to right; a sample set's sort is a stable one, as ``argsort(kind="stable")``; a sum over samples is NumPy's pairwise summation,
 :func:`facecapges.capture.mouth_kernels.pairwise_sum`; Python's ``min``/``max`` keep their first argument on a
-tie). Finite samples only: :func:`insert` and :func:`estimate_ranges` return False, untouched, when a value or
+tie). No transcendental function nor BLAS call is here: their results could differ. Finite samples only:
+:func:`insert` and :func:`estimate_ranges` return False, untouched, when a value or
 weight they read is not finite, and the caller takes the NumPy path. :func:`checked` holds both against that path
 on this machine once a process, else it is used throughout. Imported lazily (:func:`compiled`): a process that
 never estimates expressions does not load Numba.
@@ -20,10 +23,65 @@ from types import ModuleType
 import numba
 import numpy as np
 
+from facecapges.capture import metrics as m
 from facecapges.capture.mouth_kernels import pairwise_sum
 from facecapges.capture.ranges import K_PCT, L_PCT, M_PCT
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_LOWER_LIP = tuple(b for _, b in m.LIP_PAIRS)
+_BROW_INNER = m.BROW_INNER_L + m.BROW_INNER_R
+
+
+@_jit
+def _norm3(P: np.ndarray, a: int, b: int) -> float:
+    """``vector_norm(P[a] - P[b])``: the squares summed left to right, the square root."""
+    dx, dy, dz = P[a, 0] - P[b, 0], P[a, 1] - P[b, 1], P[a, 2] - P[b, 2]
+    return np.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@_jit
+def _mean_y(P: np.ndarray, idx: tuple) -> float:
+    """``P[idx, 1].mean()`` of fewer than 8 rows: the sum left to right, divided by the count."""
+    s = P[idx[0], 1]
+    for i in idx[1:]:
+        s += P[i, 1]
+    return s / len(idx)
+
+
+@_jit
+def _pairs_height(P: np.ndarray, pairs: tuple) -> float:
+    """``_pairs_height``: the mean of the pairs' height differences, summed left to right."""
+    s = P[pairs[0][0], 1] - P[pairs[0][1], 1]
+    for a, b in pairs[1:]:
+        s += P[a, 1] - P[b, 1]
+    return s / len(pairs)
+
+
+@_jit
+def metrics(P: np.ndarray, g: np.ndarray) -> None:
+    """``g`` (13,) ← :func:`facecapges.capture.metrics.compute_metrics` of one face's head-frame points (N, 3)."""
+    w = _norm3(P, m.INNER_EYE_R, m.INNER_EYE_L)
+    if w < 1e-9:  # np.maximum(w, 1e-9) (NaN kept)
+        w = 1e-9
+    eyes_l = (P[m.INNER_EYE_L, 1] + P[m.OUTER_EYE_L, 1]) / 2
+    eyes_r = (P[m.INNER_EYE_R, 1] + P[m.OUTER_EYE_R, 1]) / 2
+    lip_mid = 0.5 * (P[13, 1] + P[14, 1])
+    mouth_width = _norm3(P, m.MOUTH_CORNER_L, m.MOUTH_CORNER_R)
+    g[0] = _pairs_height(P, m.LIP_PAIRS)
+    g[1] = mouth_width
+    g[2] = P[m.LOWER_LIP_CENTER, 0] - P[m.UPPER_LIP_CENTER, 0]
+    g[3] = _mean_y(P, m.BROW_L) - eyes_l
+    g[4] = _mean_y(P, m.BROW_R) - eyes_r
+    g[5] = _pairs_height(P, m.EYELID_PAIRS_L)
+    g[6] = _pairs_height(P, m.EYELID_PAIRS_R)
+    g[7] = P[m.INNER_EYE_L, 1] - P[m.NOSTRIL_L, 1]
+    g[8] = P[m.INNER_EYE_R, 1] - P[m.NOSTRIL_R, 1]
+    g[9] = _mean_y(P, _BROW_INNER) - 0.5 * (P[m.INNER_EYE_L, 1] + P[m.INNER_EYE_R, 1])
+    g[10] = P[m.MOUTH_CORNER_L, 1] - lip_mid
+    g[11] = P[m.MOUTH_CORNER_R, 1] - lip_mid
+    g[12] = P[m.SUBNASALE, 1] - _mean_y(P, _LOWER_LIP) - m.JAW_STRETCH * mouth_width
+    for i in range(13):
+        g[i] = g[i] / w
 
 
 @_jit
@@ -210,5 +268,19 @@ def checked() -> bool:
         estimate_ranges(values, weights, ss.size, np.arange(len(values)), est.two_dir, est.min_span, nodes)
         est.update_ranges(compiled=False)
         if not np.array_equal(nodes.view(np.uint64), est.nodes.view(np.uint64)):
+            return False
+    return _metrics_checked(rng)
+
+
+def _metrics_checked(rng: np.random.Generator) -> bool:
+    """:func:`metrics` against :func:`facecapges.capture.metrics.compute_metrics`'s NumPy on random faces (points
+    of cm scales, and one with its eye corners on each other: the floor of ``w``)."""
+    g = np.empty(13)
+    for trial in range(200):
+        P = rng.standard_normal((478, 3)) * 10.0 ** rng.uniform(-1, 1.5)
+        if trial == 0:
+            P[m.INNER_EYE_L] = P[m.INNER_EYE_R]
+        metrics(P, g)
+        if not np.array_equal(g.view(np.uint64), m.compute_metrics(P, compiled=False).view(np.uint64)):
             return False
     return True
