@@ -49,9 +49,11 @@ unlike a moving average, which lags by ``(window − 1) / 2`` frames. A jump lar
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
@@ -107,7 +109,7 @@ def procrustes(
     mu_d = w @ dst
     b = dst - mu_d
     cov = (b * w[:, None]).T @ fit.a  # (3, 3) = Σ w b aᵀ
-    u, sig, vt = np.linalg.svd(cov)
+    u, sig, vt = _svd(cov)
     D = np.array([1.0, 1.0, _det_sign(u @ vt)])
     R = (u * D) @ vt
     if with_scale:
@@ -117,6 +119,18 @@ def procrustes(
         s = 1.0
     t = mu_d - s * R @ fit.mu
     return s, R, t
+
+
+_SVD_F = getattr(getattr(np.linalg, "_umath_linalg", None), "svd_f", None)  # np.linalg.svd's own gufunc
+
+
+def _svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.linalg.svd(a)`` of a finite float64 (3, 3): its gufunc (LAPACK's ``dgesdd``, the same bits) called
+    without its argument handling, half its cost (twice a frame: issue 36). Anything else — a NaN or an infinity, where
+    it raises LinAlgError — goes through ``np.linalg.svd`` itself."""
+    if _SVD_F is None or not math.isfinite(np.add.reduce(a, axis=None)):
+        return np.linalg.svd(a)
+    return _SVD_F(a, signature="d->ddd")
 
 
 def _det_sign(m: np.ndarray) -> float:
@@ -189,13 +203,23 @@ def landmarks_to_camera(
     ids: np.ndarray,
     K: Intrinsics | None = None,
     fit: SourceFit | None = None,
+    compiled: bool | ModuleType = True,
 ) -> np.ndarray:
     """Normalised MediaPipe landmarks (N ≥ 468, 3) → camera-frame points (468, 3) in cm.
 
     See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis; ``fit``:
-    ``SourceFit.of(canonical[ids], weights)``, made once (:class:`HeadPoseEstimator` does).
-    """
+    ``SourceFit.of(canonical[ids], weights)``, made once (:class:`HeadPoseEstimator` does). The points before and
+    after the fit in one compiled call each where :mod:`facecapges.capture.kernels` keeps these bits on this machine
+    and ``compiled`` (issue 36; or ``compiled`` is that module, unchecked: its own check), else the NumPy below."""
     K = K or Intrinsics.default(width, height)
+    fit = fit or SourceFit.of(canonical[ids], weights)
+    k = _kernels() if compiled is True else compiled or None
+    if k is not None:
+        ortho, out = np.empty((468, 3)), np.empty((468, 3))
+        k.ortho_points(landmarks, int(width), int(height), ortho)
+        s, _, t = procrustes(None, ortho[ids], fit=fit)
+        k.lift_points(ortho, s, float(t[2]), float(K.fx), float(K.fy), float(K.cx), float(K.cy), out)
+        return out
     lm = np.asarray(landmarks[:468], np.float64)
     px = lm[:, 0] * width
     py = lm[:, 1] * height
@@ -205,7 +229,7 @@ def landmarks_to_camera(
     ortho[:, 0] = px
     np.negative(py, out=ortho[:, 1])
     np.multiply(lm[:, 2], -width, out=ortho[:, 2])
-    s, _, t = procrustes(None, ortho[ids], fit=fit or SourceFit.of(canonical[ids], weights))
+    s, _, t = procrustes(None, ortho[ids], fit=fit)
     depth = K.fx / s  # cm from the camera to the fitted head origin
     rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
     z = depth - rel / s  # cm, distance along the optical axis
@@ -214,6 +238,13 @@ def landmarks_to_camera(
     out[:, 1] = -(py - K.cy) * z / K.fy
     np.negative(z, out=out[:, 2])
     return out
+
+
+@functools.cache
+def _kernels():
+    from facecapges.capture import kernels
+
+    return kernels.compiled()
 
 
 @dataclass

@@ -18,6 +18,7 @@ never estimates expressions does not load Numba.
 from __future__ import annotations
 
 import functools
+import sys
 from types import ModuleType
 
 import numba
@@ -30,6 +31,32 @@ from facecapges.capture.ranges import K_PCT, L_PCT, M_PCT
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _LOWER_LIP = tuple(b for _, b in m.LIP_PAIRS)
 _BROW_INNER = m.BROW_INNER_L + m.BROW_INNER_R
+
+
+@_jit
+def ortho_points(lm: np.ndarray, width: int, height: int, ortho: np.ndarray) -> None:
+    """``ortho`` (n, 3) ← :func:`facecapges.capture.head_pose.landmarks_to_camera`'s scaled-orthographic points of
+    the first n landmarks ``lm`` (in pixels, camera axes: ``x·width``, ``−(y·height)``, ``z·−width``)."""
+    for i in range(len(ortho)):
+        ortho[i, 0] = np.float64(lm[i, 0]) * width
+        ortho[i, 1] = -(np.float64(lm[i, 1]) * height)
+        ortho[i, 2] = np.float64(lm[i, 2]) * -width
+
+
+@_jit
+def lift_points(
+    ortho: np.ndarray, s: float, t_z: float, fx: float, fy: float, cx: float, cy: float, out: np.ndarray
+) -> None:
+    """``out`` ← :func:`facecapges.capture.head_pose.landmarks_to_camera`'s camera-frame points (cm) of
+    :func:`ortho_points`' ``ortho`` after the similarity fit's scale ``s`` and depth offset ``t_z``: each point at the
+    head's depth ``fx / s`` plus its own, along its ray."""
+    depth = fx / s
+    for i in range(len(ortho)):
+        px, py = ortho[i, 0], -ortho[i, 1]
+        z = depth - (ortho[i, 2] - t_z) / s
+        out[i, 0] = (px - cx) * z / fx
+        out[i, 1] = -(py - cy) * z / fy
+        out[i, 2] = -z
 
 
 @_jit
@@ -241,8 +268,6 @@ def estimate_ranges(
 @functools.cache  # once a process
 def compiled() -> ModuleType | None:
     """This module when its kernels give the NumPy path's numbers on this machine (:func:`checked`), else None."""
-    import sys
-
     return sys.modules[__name__] if checked() else None
 
 
@@ -269,7 +294,7 @@ def checked() -> bool:
         est.update_ranges(compiled=False)
         if not np.array_equal(nodes.view(np.uint64), est.nodes.view(np.uint64)):
             return False
-    return _metrics_checked(rng)
+    return _metrics_checked(rng) and _camera_checked(rng)
 
 
 def _metrics_checked(rng: np.random.Generator) -> bool:
@@ -282,5 +307,24 @@ def _metrics_checked(rng: np.random.Generator) -> bool:
             P[m.INNER_EYE_L] = P[m.INNER_EYE_R]
         metrics(P, g)
         if not np.array_equal(g.view(np.uint64), m.compute_metrics(P, compiled=False).view(np.uint64)):
+            return False
+    return True
+
+
+def _camera_checked(rng: np.random.Generator) -> bool:
+    """:func:`ortho_points` and :func:`lift_points` against :func:`facecapges.capture.head_pose.landmarks_to_camera`'s
+    NumPy on random landmarks (float32, as MediaPipe's), image sizes and intrinsics."""
+    from facecapges.capture.head_pose import Intrinsics, SourceFit, landmarks_to_camera
+
+    canonical = rng.standard_normal((468, 3)) * 5.0
+    ids, weights = np.arange(0, 468, 7), rng.uniform(0.1, 1.0, 67)
+    fit = SourceFit.of(canonical[ids], weights)
+    for trial in range(50):
+        w, h = int(rng.integers(64, 2000)), int(rng.integers(64, 2000))
+        K = None if trial % 2 else Intrinsics(*rng.uniform(100.0, 1500.0, 4).tolist())
+        lm = (rng.uniform(0.2, 0.8, (478, 3)) * [1.0, 1.0, 0.1]).astype(np.float32)
+        got = landmarks_to_camera(lm, w, h, canonical, weights, ids, K, fit, compiled=sys.modules[__name__])
+        want = landmarks_to_camera(lm, w, h, canonical, weights, ids, K, fit, compiled=False)
+        if not np.array_equal(got.view(np.uint64), want.view(np.uint64)):
             return False
     return True
