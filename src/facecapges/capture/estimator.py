@@ -326,8 +326,14 @@ class ExpressionEstimator:
                 lo, hi = one_directional_range(v, w)
                 self.nodes[u] = (lo, lo, max(hi, lo + span))
 
-    def activation(self, g: np.ndarray) -> np.ndarray:
-        """Unclipped unit activations (13,) for metrics ``g`` (eq. 8–9)."""
+    def activation(self, g: np.ndarray, compiled: bool = True) -> np.ndarray:
+        """Unclipped unit activations (13,) for metrics ``g`` (eq. 8–9): one compiled call where the sample set has
+        its kernels (:mod:`.kernels`) and ``compiled``, else the NumPy below."""
+        k = self.samples.kernels if compiled else None
+        if k is not None:
+            out = np.empty(N_UNITS)
+            k.activations(np.ascontiguousarray(g, np.float64), self.signs, self.nodes, self.two_dir, out)
+            return out
         x = self.signs * np.asarray(g, np.float64)
         g0, g1, g2 = self.nodes[:, 0], self.nodes[:, 1], self.nodes[:, 2]
         up = (x - g1) / (g2 - g1)

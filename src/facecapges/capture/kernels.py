@@ -265,6 +265,17 @@ def estimate_ranges(
     return True
 
 
+@_jit
+def activations(g: np.ndarray, signs: np.ndarray, nodes: np.ndarray, two_dir: np.ndarray, out: np.ndarray) -> None:
+    """``out`` (U,) ← :meth:`facecapges.capture.estimator.ExpressionEstimator.activation` of metrics ``g``: eq. 9
+    on the side of the rest node (two-directional units), eq. 8 (one-directional)."""
+    for u in range(len(g)):
+        x = signs[u] * g[u]
+        g0, g1, g2 = nodes[u, 0], nodes[u, 1], nodes[u, 2]
+        up = (x - g1) / (g2 - g1)
+        out[u] = up if x >= g1 or not two_dir[u] else (x - g1) / (g1 - g0)
+
+
 @functools.cache  # once a process
 def compiled() -> ModuleType | None:
     """This module when its kernels give the NumPy path's numbers on this machine (:func:`checked`), else None."""
@@ -293,6 +304,11 @@ def checked() -> bool:
         estimate_ranges(values, weights, ss.size, np.arange(len(values)), est.two_dir, est.min_span, nodes)
         est.update_ranges(compiled=False)
         if not np.array_equal(nodes.view(np.uint64), est.nodes.view(np.uint64)):
+            return False
+        g, a = rng.standard_normal(len(values)) * 0.3, np.empty(len(values))
+        g[trial % len(g)] = est.nodes[trial % len(g), 1]  # on a rest node
+        activations(g, est.signs, est.nodes, est.two_dir, a)
+        if not np.array_equal(a.view(np.uint64), est.activation(g, compiled=False).view(np.uint64)):
             return False
     return _metrics_checked(rng) and _camera_checked(rng)
 
