@@ -206,6 +206,20 @@ def _arkit_tables() -> tuple[np.ndarray, ...]:
 
 _COPY_TO, _COPY_FROM, _POW_TO, _POW_FROM, _POW_GAMMA, _PROD_TO, _PROD_A, _PROD_B, _PROD_ONE_MINUS = _arkit_tables()
 _SMILE_TO = np.array([_A["mouthSmileLeft"], _A["mouthSmileRight"]])
+# the same tables for the compiled weights (:func:`facecapges.capture.kernels.arkit_weights`)
+_KERNEL_TABLES = (
+    _COPY_TO,
+    _COPY_FROM,
+    _POW_TO,
+    _PROD_TO,
+    _PROD_A,
+    _PROD_B,
+    _PROD_ONE_MINUS,
+    _SMILE_TO,
+    np.array([_U["mouth_width"], _U["mouth_corner_L"], _U["mouth_corner_R"]]),
+    GEOMETRIC_MASK,
+)
+_NO_BLENDSHAPES = np.zeros(N_BLENDSHAPES, np.float32)
 
 
 def units_to_arkit(a: np.ndarray) -> np.ndarray:
@@ -368,8 +382,16 @@ class ExpressionEstimator:
         self._frame += 1
         return self.activations
 
-    def weights(self, mp_blendshapes: np.ndarray | None = None) -> np.ndarray:
-        """The 52 ARKit weights for the last :meth:`update` (float32, [0, 1])."""
+    def weights(self, mp_blendshapes: np.ndarray | None = None, compiled: bool = True) -> np.ndarray:
+        """The 52 ARKit weights for the last :meth:`update` (float32, [0, 1]); where the sample set has its kernels
+        (:mod:`.kernels`) and ``compiled``, in two compiled calls around NumPy's own powers."""
+        k = self.samples.kernels if compiled else None
+        if k is not None and self.mode != "mediapipe":  # one face's weights in two compiled calls, NumPy's bits
+            pn, out = np.empty(2 * N_UNITS), np.empty(N_BLENDSHAPES, np.float32)
+            k.clipped_units(np.ascontiguousarray(self.activations, np.float64), pn)
+            mp_in = _NO_BLENDSHAPES if mp_blendshapes is None else np.ascontiguousarray(mp_blendshapes)
+            k.arkit_weights(pn, pn[_POW_FROM] ** _POW_GAMMA, mp_in, self.mode == "hybrid", _KERNEL_TABLES, out)
+            return out
         mp = np.zeros(N_BLENDSHAPES) if mp_blendshapes is None else np.asarray(mp_blendshapes, np.float64)
         if self.mode == "mediapipe":
             return np.clip(mp, 0, 1).astype(np.float32)

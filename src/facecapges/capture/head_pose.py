@@ -150,9 +150,16 @@ def _norm(x: np.ndarray):
 
 
 def _log_so3(M: np.ndarray) -> np.ndarray:
-    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3): its ufuncs on the same arrays (the skew
-    part written into one array where it stacks three, ``np.linalg.norm``'s own ``sqrt(add.reduce(v·v))``), the same
-    bits without its argument handling (issue 36); within 1e-4 rad of π (rare) its own."""
+    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3): its arithmetic, the same bits without
+    its argument handling (issue 36) — around NumPy's own ``arctan2``, in two compiled calls where
+    :mod:`facecapges.capture.kernels` keeps these bits, else its ufuncs on the same arrays (the skew part written
+    into one array where it stacks three, ``np.linalg.norm``'s own ``sqrt(add.reduce(v·v))``); within 1e-4 rad of π
+    (rare) its own."""
+    k = _kernels()
+    if k is not None:
+        v, sn, c = np.empty((len(M), 3)), np.empty(len(M)), np.empty(len(M))
+        k.skew_parts(M, v, sn, c)
+        return v if k.scale_skew(v, sn, np.arctan2(sn, c)) else rot.log_so3(M)
     v = np.empty((len(M), 3))
     np.subtract(M[:, 2, 1], M[:, 1, 2], out=v[:, 0])
     np.subtract(M[:, 0, 2], M[:, 2, 0], out=v[:, 1])

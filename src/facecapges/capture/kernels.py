@@ -25,12 +25,20 @@ import numba
 import numpy as np
 
 from facecapges.capture import metrics as m
+from facecapges.capture.estimator import SMILE_CORNER
 from facecapges.capture.mouth_kernels import pairwise_sum
 from facecapges.capture.ranges import K_PCT, L_PCT, M_PCT
 
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 _LOWER_LIP = tuple(b for _, b in m.LIP_PAIRS)
 _BROW_INNER = m.BROW_INNER_L + m.BROW_INNER_R
+
+
+@_jit
+def _sum(a: np.ndarray, lo: int, n: int) -> float:
+    """``a[lo : lo + n].sum()`` of float64: NumPy's reduction adds the pairwise sum to its identity, +0.0 (a sum of
+    −0.0s is +0.0)."""
+    return 0.0 + pairwise_sum(a, lo, n)
 
 
 @_jit
@@ -68,20 +76,21 @@ def _norm3(P: np.ndarray, a: int, b: int) -> float:
 
 @_jit
 def _mean_y(P: np.ndarray, idx: tuple) -> float:
-    """``P[idx, 1].mean()`` of fewer than 8 rows: the sum left to right, divided by the count."""
+    """``P[idx, 1].mean()`` of fewer than 8 rows: the sum left to right (to +0.0, NumPy's identity), divided by the
+    count."""
     s = P[idx[0], 1]
     for i in idx[1:]:
         s += P[i, 1]
-    return s / len(idx)
+    return (0.0 + s) / len(idx)
 
 
 @_jit
 def _pairs_height(P: np.ndarray, pairs: tuple) -> float:
-    """``_pairs_height``: the mean of the pairs' height differences, summed left to right."""
+    """``_pairs_height``: the mean of the pairs' height differences, summed as :func:`_mean_y`."""
     s = P[pairs[0][0], 1] - P[pairs[0][1], 1]
     for a, b in pairs[1:]:
         s += P[a, 1] - P[b, 1]
-    return s / len(pairs)
+    return (0.0 + s) / len(pairs)
 
 
 @_jit
@@ -150,7 +159,7 @@ def _scan_end(v: np.ndarray, w: np.ndarray) -> float:
     if n == 1:
         return v[0]
     width = abs(v[n - 1] - v[0])
-    total = pairwise_sum(w, 0, n)
+    total = _sum(w, 0, n)
     gap_limit = width * L_PCT / 100.0
     k_w, m_w = total * K_PCT / 100.0, total * M_PCT / 100.0
     start, stop = 0, n - 1
@@ -170,7 +179,7 @@ def _scan_end(v: np.ndarray, w: np.ndarray) -> float:
     prod = np.empty(m)
     for i in range(m):
         prod[i] = v[start + i] * w[start + i]
-    return pairwise_sum(prod, 0, m) / pairwise_sum(w, start, m)
+    return _sum(prod, 0, m) / _sum(w, start, m)
 
 
 @_jit
@@ -276,18 +285,88 @@ def activations(g: np.ndarray, signs: np.ndarray, nodes: np.ndarray, two_dir: np
         out[u] = up if x >= g1 or not two_dir[u] else (x - g1) / (g1 - g0)
 
 
+@_jit
+def skew_parts(M: np.ndarray, v: np.ndarray, half_sin: np.ndarray, half_cos: np.ndarray) -> None:
+    """:func:`facecapges.rotations.log_so3`'s parts before its ``arctan2`` of rotations ``M`` (m, 3, 3): the skew
+    part ``v`` (m, 3), ``|v| / 2`` (the squares summed left to right) and ``(tr M − 1) / 2`` (the diagonal summed
+    left to right, as ``trace``)."""
+    for i in range(len(M)):
+        v[i, 0] = M[i, 2, 1] - M[i, 1, 2]
+        v[i, 1] = M[i, 0, 2] - M[i, 2, 0]
+        v[i, 2] = M[i, 1, 0] - M[i, 0, 1]
+        half_sin[i] = np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1] + v[i, 2] * v[i, 2]) / 2
+        half_cos[i] = (M[i, 0, 0] + M[i, 1, 1] + M[i, 2, 2] - 1) / 2
+
+
+@_jit
+def scale_skew(v: np.ndarray, half_sin: np.ndarray, ang: np.ndarray) -> bool:
+    """``v`` (m, 3) ← :func:`facecapges.rotations.log_so3`'s rotation vectors from :func:`skew_parts` and the angles
+    ``ang``; False, ``v`` untouched, when an angle is within 1e-4 rad of π (its diagonal case)."""
+    for i in range(len(v)):
+        if np.pi - ang[i] < 1e-4:
+            return False
+    for i in range(len(v)):
+        sn = half_sin[i]
+        two = 2 * sn
+        k = ang[i] / (two if two >= 1e-300 or two != two else 1e-300) if sn > 1e-12 else 0.5
+        v[i, 0], v[i, 1], v[i, 2] = v[i, 0] * k, v[i, 1] * k, v[i, 2] * k
+    return True
+
+
+@_jit
+def _clip01(x: float) -> float:
+    """``np.clip(x, 0, 1)`` of one float64 (NaN and −0.0 kept, as NumPy's clip keeps them here)."""
+    if x < 0.0:
+        return 0.0
+    return 1.0 if x > 1.0 else x
+
+
+@_jit
+def clipped_units(a: np.ndarray, pn: np.ndarray) -> None:
+    """``pn`` (2U,) ← :func:`facecapges.capture.estimator.units_to_arkit`'s clipped activations of one face's
+    ``a`` (U,): the positive sides, then the negative ones."""
+    n = len(a)
+    for u in range(n):
+        pn[u] = _clip01(a[u])
+        pn[n + u] = _clip01(-a[u])
+
+
+@_jit
+def arkit_weights(pn: np.ndarray, powers: np.ndarray, mp: np.ndarray, hybrid: bool, tables: tuple, out: np.ndarray):
+    """``out`` (52,) float32 ← :meth:`facecapges.capture.estimator.ExpressionEstimator.weights` of one face:
+    :func:`facecapges.capture.estimator.units_to_arkit` from :func:`clipped_units`' ``pn`` and its powers
+    ``powers`` (NumPy's own ``**``), MediaPipe's ``mp`` in the other channels (``hybrid``, else 0), clipped."""
+    copy_to, copy_from, pow_to, prod_to, prod_a, prod_b, one_minus, smile_to, smile, mask = tables
+    w = np.zeros(len(out))
+    for i in range(len(copy_to)):
+        w[copy_to[i]] = pn[copy_from[i]]
+    for i in range(len(pow_to)):
+        w[pow_to[i]] = powers[i]
+    for i in range(len(prod_to)):
+        b = pn[prod_b[i]]
+        w[prod_to[i]] = pn[prod_a[i]] * (1.0 - b if one_minus[i] else b)
+    lift = 0.5 * (pn[smile[1]] + pn[smile[2]])  # both corners' mean lift
+    for i in range(len(smile_to)):
+        w[smile_to[i]] = (1.0 - SMILE_CORNER) * pn[smile[0]] + SMILE_CORNER * lift
+    for i in range(len(out)):
+        x = _clip01(w[i])
+        if not mask[i]:
+            x = _clip01(mp[i]) if hybrid else 0.0
+        out[i] = np.float32(x)
+
+
 @functools.cache  # once a process
 def compiled() -> ModuleType | None:
     """This module when its kernels give the NumPy path's numbers on this machine (:func:`checked`), else None."""
     return sys.modules[__name__] if checked() else None
 
 
-def checked() -> bool:
+def checked(seed: int = 0) -> bool:
     """Whether :func:`insert` and :func:`estimate_ranges` give the NumPy path's bits: random sample sets (capacities
     4-40, rounded values: ties; weights over decades) filled and merged both ways, then every unit's nodes."""
     from facecapges.capture.estimator import ExpressionEstimator
 
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     for trial in range(60):
         est = ExpressionEstimator("geometric", capacity=4 + trial % 37, compiled=False)
         ss = est.samples
@@ -310,7 +389,9 @@ def checked() -> bool:
         activations(g, est.signs, est.nodes, est.two_dir, a)
         if not np.array_equal(a.view(np.uint64), est.activation(g, compiled=False).view(np.uint64)):
             return False
-    return _metrics_checked(rng) and _camera_checked(rng)
+        if not _weights_checked(est, rng):
+            return False
+    return _metrics_checked(rng) and _camera_checked(rng) and _log_checked(rng)
 
 
 def _metrics_checked(rng: np.random.Generator) -> bool:
@@ -321,6 +402,8 @@ def _metrics_checked(rng: np.random.Generator) -> bool:
         P = rng.standard_normal((478, 3)) * 10.0 ** rng.uniform(-1, 1.5)
         if trial == 0:
             P[m.INNER_EYE_L] = P[m.INNER_EYE_R]
+        if trial == 1:
+            P[:400] = -0.0  # signed zeros: NumPy's sums start from +0.0
         metrics(P, g)
         if not np.array_equal(g.view(np.uint64), m.compute_metrics(P, compiled=False).view(np.uint64)):
             return False
@@ -342,5 +425,40 @@ def _camera_checked(rng: np.random.Generator) -> bool:
         got = landmarks_to_camera(lm, w, h, canonical, weights, ids, K, fit, compiled=sys.modules[__name__])
         want = landmarks_to_camera(lm, w, h, canonical, weights, ids, K, fit, compiled=False)
         if not np.array_equal(got.view(np.uint64), want.view(np.uint64)):
+            return False
+    return True
+
+
+def _log_checked(rng: np.random.Generator) -> bool:
+    """:func:`skew_parts` and :func:`scale_skew` against :func:`facecapges.rotations.log_so3` on random rotations
+    (small angles as a head's frame to frame, and any, near π among them)."""
+    from facecapges import rotations as rot
+
+    for trial in range(40):
+        r = rng.standard_normal((6, 3)) * 10.0 ** rng.uniform(-9, 0.5)
+        if trial % 4 == 0:
+            r[0] *= (np.pi - 10.0 ** rng.uniform(-7, -2)) / np.linalg.norm(r[0])
+        M = rot.exp_so3(r)
+        v, sn, c = np.empty((6, 3)), np.empty(6), np.empty(6)
+        skew_parts(M, v, sn, c)
+        if scale_skew(v, sn, np.arctan2(sn, c)) and not np.array_equal(v.view(np.uint64), rot.log_so3(M).view(np.uint64)):
+            return False
+    return True
+
+
+def _weights_checked(est, rng: np.random.Generator) -> bool:
+    """:func:`clipped_units` and :func:`arkit_weights` against the NumPy weights of ``est``'s modes: activations
+    in and around [−1, 1] (signed zeros, NaN among them), MediaPipe's blendshapes or none."""
+    from facecapges.capture.estimator import _KERNEL_TABLES, _POW_FROM, _POW_GAMMA
+
+    a = rng.uniform(-1.5, 1.5, len(est.activations))
+    a[rng.integers(0, len(a), 3)] = (0.0, -0.0, np.nan)
+    mp = rng.uniform(-0.1, 1.1, 52).astype(np.float32)
+    pn, out = np.empty(2 * len(a)), np.empty(52, np.float32)
+    for mode in ("geometric", "hybrid"):
+        est.mode, est.activations = mode, a
+        clipped_units(a, pn)
+        arkit_weights(pn, pn[_POW_FROM] ** _POW_GAMMA, mp, mode == "hybrid", _KERNEL_TABLES, out)
+        if not np.array_equal(out.view(np.uint32), est.weights(mp, compiled=False).view(np.uint32)):
             return False
     return True
