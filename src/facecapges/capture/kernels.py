@@ -441,24 +441,27 @@ def _log_checked(rng: np.random.Generator) -> bool:
         M = rot.exp_so3(r)
         v, sn, c = np.empty((6, 3)), np.empty(6), np.empty(6)
         skew_parts(M, v, sn, c)
-        if scale_skew(v, sn, np.arctan2(sn, c)) and not np.array_equal(v.view(np.uint64), rot.log_so3(M).view(np.uint64)):
+        if scale_skew(v, sn, np.arctan2(sn, c)) and not np.array_equal(
+            v.view(np.uint64), rot.log_so3(M).view(np.uint64)
+        ):
             return False
     return True
 
 
 def _weights_checked(est, rng: np.random.Generator) -> bool:
-    """:func:`clipped_units` and :func:`arkit_weights` against the NumPy weights of ``est``'s modes: activations
-    in and around [−1, 1] (signed zeros, NaN among them), MediaPipe's blendshapes or none."""
-    from facecapges.capture.estimator import _KERNEL_TABLES, _POW_FROM, _POW_GAMMA
-
+    """:func:`clipped_units` and :func:`arkit_weights` (the estimator's compiled weights, its sample set given this
+    module) against its NumPy weights in its two modes: activations in and around [−1, 1] (signed zeros, NaN among
+    them), MediaPipe's blendshapes or none."""
     a = rng.uniform(-1.5, 1.5, len(est.activations))
     a[rng.integers(0, len(a), 3)] = (0.0, -0.0, np.nan)
     mp = rng.uniform(-0.1, 1.1, 52).astype(np.float32)
-    pn, out = np.empty(2 * len(a)), np.empty(52, np.float32)
-    for mode in ("geometric", "hybrid"):
-        est.mode, est.activations = mode, a
-        clipped_units(a, pn)
-        arkit_weights(pn, pn[_POW_FROM] ** _POW_GAMMA, mp, mode == "hybrid", _KERNEL_TABLES, out)
-        if not np.array_equal(out.view(np.uint32), est.weights(mp, compiled=False).view(np.uint32)):
-            return False
+    kept, est.samples.kernels = est.samples.kernels, sys.modules[__name__]
+    try:
+        for mode in ("geometric", "hybrid"):
+            est.mode, est.activations = mode, a
+            for bs in (mp, None):
+                if not np.array_equal(est.weights(bs).view(np.uint32), est.weights(bs, compiled=False).view(np.uint32)):
+                    return False
+    finally:
+        est.samples.kernels = kept
     return True
