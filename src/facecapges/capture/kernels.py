@@ -1,18 +1,22 @@
-"""The face capture's per-frame steps after MediaPipe that compile without changing a bit (Numba), one call each:
-a face's geometric metrics (:func:`facecapges.capture.metrics.compute_metrics` of one face), a frame's merges into
-the bounded sample set (:meth:`facecapges.capture.samples.SampleSet.insert`) and its units' nodes
+"""The face capture's per-frame steps after MediaPipe that compile without changing a bit (Numba), one call each
+where NumPy made a dozen calls on a few numbers or Python looped over ~30 samples a unit (issue 36): the landmarks'
+points before and after the head's first fit (:func:`facecapges.capture.head_pose.landmarks_to_camera`), the pose
+smoother's rotation logs around NumPy's own ``arctan2``, a face's geometric metrics
+(:func:`facecapges.capture.metrics.compute_metrics` of one face), a frame's merges into the bounded sample set
+(:meth:`facecapges.capture.samples.SampleSet.insert`), its units' nodes
 (:meth:`facecapges.capture.estimator.ExpressionEstimator.update_ranges`: :mod:`facecapges.capture.ranges`' scans
-and merges) — a dozen NumPy calls on a few numbers, or a Python loop over ~30 samples a unit (issue 36: ~0.15 ms
-of the scheduler's CPU a frame).
+and merges), the units' activations and the 52 ARKit weights around NumPy's own powers.
 
 Every number is the NumPy/Python path's: the same operations on the same float64s in the same order (a mean of
-fewer than 8 numbers is NumPy's ``add.reduce``, left to right; a sample set's sort is a stable one, as ``argsort(kind="stable")``; a sum over samples is NumPy's pairwise summation,
-:func:`facecapges.capture.mouth_kernels.pairwise_sum`; Python's ``min``/``max`` keep their first argument on a
-tie). No transcendental function nor BLAS call is here: their results could differ. Finite samples only:
-:func:`insert` and :func:`estimate_ranges` return False, untouched, when a value or
-weight they read is not finite, and the caller takes the NumPy path. :func:`checked` holds both against that path
-on this machine once a process, else it is used throughout. Imported lazily (:func:`compiled`): a process that
-never estimates expressions does not load Numba.
+fewer than 8 numbers is NumPy's ``add.reduce``, left to right, and a longer sum its pairwise summation,
+:func:`facecapges.capture.mouth_kernels.pairwise_sum`, both from NumPy's identity +0.0; a sample set's sort is a
+stable one, as ``argsort(kind="stable")``; ``np.clip`` keeps NaN and −0.0; Python's ``min``/``max`` keep their
+first argument on a tie). No transcendental function, SVD nor BLAS call is here: NumPy's (SVML, OpenBLAS) could
+round otherwise than compiled code, so they stay NumPy's between the calls. Finite samples only: :func:`insert`
+and :func:`estimate_ranges` return False, untouched, when a value or weight they read is not finite, and the
+caller takes the NumPy path. :func:`checked` holds every kernel against its NumPy path on this machine once a
+process (:func:`compiled`, ~40 ms), else the NumPy path is used throughout. Imported lazily: a process that
+never captures a face does not load Numba here.
 """
 
 from __future__ import annotations
