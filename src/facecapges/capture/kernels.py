@@ -15,7 +15,7 @@ first argument on a tie). No transcendental function, SVD nor BLAS call is here:
 round otherwise than compiled code, so they stay NumPy's between the calls. Finite samples only: :func:`insert`
 and :func:`estimate_ranges` return False, untouched, when a value or weight they read is not finite, and the
 caller takes the NumPy path. :func:`checked` holds every kernel against its NumPy path on this machine once a
-process (:func:`compiled`, ~40 ms), else the NumPy path is used throughout. Imported lazily: a process that
+process (:func:`compiled`, ~55 ms), else the NumPy path is used throughout. Imported lazily: a process that
 never captures a face does not load Numba here.
 """
 
