@@ -35,6 +35,9 @@ def main() -> None:
 
     compiled_head()  # live's output stage: the head's chain
     mouth_kernels.checked()  # and the speech mouth's sums
+    from facecapges.capture import kernels as capture_kernels
+
+    capture_kernels.compiled()  # the face capture's steps after MediaPipe (live, capture)
     from facecapges.io import bvh_text
 
     bvh_text.checked()  # the BVH recorder's text (live, run)

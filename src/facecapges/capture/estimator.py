@@ -206,6 +206,20 @@ def _arkit_tables() -> tuple[np.ndarray, ...]:
 
 _COPY_TO, _COPY_FROM, _POW_TO, _POW_FROM, _POW_GAMMA, _PROD_TO, _PROD_A, _PROD_B, _PROD_ONE_MINUS = _arkit_tables()
 _SMILE_TO = np.array([_A["mouthSmileLeft"], _A["mouthSmileRight"]])
+# the same tables for the compiled weights (:func:`facecapges.capture.kernels.arkit_weights`)
+_KERNEL_TABLES = (
+    _COPY_TO,
+    _COPY_FROM,
+    _POW_TO,
+    _PROD_TO,
+    _PROD_A,
+    _PROD_B,
+    _PROD_ONE_MINUS,
+    _SMILE_TO,
+    np.array([_U["mouth_width"], _U["mouth_corner_L"], _U["mouth_corner_R"]]),
+    GEOMETRIC_MASK,
+)
+_NO_BLENDSHAPES = np.zeros(N_BLENDSHAPES, np.float32)
 
 
 def units_to_arkit(a: np.ndarray) -> np.ndarray:
@@ -241,20 +255,27 @@ class ExpressionEstimator:
             slowly, so this only bounds the per-frame cost.
     """
 
-    def __init__(self, mode: str = "hybrid", capacity: int = 32, update_every: int = 6, warmup: int = 12):
+    def __init__(
+        self, mode: str = "hybrid", capacity: int = 32, update_every: int = 6, warmup: int = 12, compiled: bool = True
+    ):
         if mode not in MODES:
             raise ValueError(f"estimator mode must be one of {MODES}, got {mode!r}")
         self.mode = mode
         self.signs = np.array([u.sign for u in UNITS])
+        self._signs_positive = bool((self.signs > 0).all())  # the compiled ranges' case
         self.min_span = np.array([u.min_span for u in UNITS])
         self.two_dir = np.array([u.two_directional for u in UNITS])
-        self.samples = SampleSet(N_UNITS, capacity, scales=np.array([u.scale for u in UNITS]))
+        self.samples = SampleSet(N_UNITS, capacity, scales=np.array([u.scale for u in UNITS]), compiled=compiled)
         self.update_every = max(1, int(update_every))
         self.warmup = warmup
         # nodes per unit in sign-adjusted metric space: (g_min, g_rest, g_max); one-dir units use g_min, g_max
         self.nodes = np.full((N_UNITS, 3), np.nan)
         self.activations = np.zeros(N_UNITS)
         self._frame = 0
+        # the units re-estimated a frame, by turn (``update``), as index arrays made once
+        per = -(-N_UNITS // self.update_every)  # ceil
+        self._turns = [np.array([(start + i) % N_UNITS for i in range(per)]) for start in range(N_UNITS)]
+        self._all_units = np.arange(N_UNITS)
         self._yaw_units = [_U[m] for m in YAW_DECORRELATED]
         # weighted sums of the line metric ~ s (s: the face normal's sideways part): Σω, Σω·s, Σω·s², per unit Σω·g, Σω·s·g
         self._yaw_sums = [0.0, 0.0, 0.0]
@@ -294,10 +315,18 @@ class ExpressionEstimator:
         return g
 
     # -------------------------------------------------------------- ranges
-    def update_ranges(self, units=None) -> None:
-        """Re-estimate the nodes of ``units`` (default all) from the sample set (with the min-span prior)."""
-        if self.samples.size == 0:
+    def update_ranges(self, units=None, compiled: bool = True) -> None:
+        """Re-estimate the nodes of ``units`` (default all) from the sample set (with the min-span prior): in one
+        compiled call where the sample set has its kernels (:mod:`.kernels`, the same bits) and
+        ``compiled``, else unit by unit here."""
+        ss = self.samples
+        if ss.size == 0:
             return
+        k = ss.kernels if compiled and self._signs_positive else None
+        if k is not None:
+            ids = self._all_units if units is None else np.asarray(units, np.int64)
+            if k.estimate_ranges(ss.values, ss.weights, ss.size, ids, self.two_dir, self.min_span, self.nodes):
+                return
         for u in range(N_UNITS) if units is None else units:
             v, w = self.samples.unit(u)
             if self.signs[u] < 0:
@@ -311,8 +340,14 @@ class ExpressionEstimator:
                 lo, hi = one_directional_range(v, w)
                 self.nodes[u] = (lo, lo, max(hi, lo + span))
 
-    def activation(self, g: np.ndarray) -> np.ndarray:
-        """Unclipped unit activations (13,) for metrics ``g`` (eq. 8–9)."""
+    def activation(self, g: np.ndarray, compiled: bool = True) -> np.ndarray:
+        """Unclipped unit activations (13,) for metrics ``g`` (eq. 8–9): one compiled call where the sample set has
+        its kernels (:mod:`.kernels`) and ``compiled``, else the NumPy below."""
+        k = self.samples.kernels if compiled else None
+        if k is not None:
+            out = np.empty(N_UNITS)
+            k.activations(np.ascontiguousarray(g, np.float64), self.signs, self.nodes, self.two_dir, out)
+            return out
         x = self.signs * np.asarray(g, np.float64)
         g0, g1, g2 = self.nodes[:, 0], self.nodes[:, 1], self.nodes[:, 2]
         up = (x - g1) / (g2 - g1)
@@ -341,15 +376,22 @@ class ExpressionEstimator:
             if first or self._frame < self.warmup:
                 self.update_ranges()
             else:
-                per = -(-N_UNITS // self.update_every)  # ceil
-                start = (self._frame * per) % N_UNITS
-                self.update_ranges([(start + i) % N_UNITS for i in range(per)])
+                per = len(self._turns[0])
+                self.update_ranges(self._turns[(self._frame * per) % N_UNITS])
             self.activations = self.activation(g)
         self._frame += 1
         return self.activations
 
-    def weights(self, mp_blendshapes: np.ndarray | None = None) -> np.ndarray:
-        """The 52 ARKit weights for the last :meth:`update` (float32, [0, 1])."""
+    def weights(self, mp_blendshapes: np.ndarray | None = None, compiled: bool = True) -> np.ndarray:
+        """The 52 ARKit weights for the last :meth:`update` (float32, [0, 1]); where the sample set has its kernels
+        (:mod:`.kernels`) and ``compiled``, in two compiled calls around NumPy's own powers."""
+        k = self.samples.kernels if compiled else None
+        if k is not None and self.mode != "mediapipe":  # one face's weights in two compiled calls, NumPy's bits
+            pn, out = np.empty(2 * N_UNITS), np.empty(N_BLENDSHAPES, np.float32)
+            k.clipped_units(np.ascontiguousarray(self.activations, np.float64), pn)
+            mp_in = _NO_BLENDSHAPES if mp_blendshapes is None else np.ascontiguousarray(mp_blendshapes)
+            k.arkit_weights(pn, pn[_POW_FROM] ** _POW_GAMMA, mp_in, self.mode == "hybrid", _KERNEL_TABLES, out)
+            return out
         mp = np.zeros(N_BLENDSHAPES) if mp_blendshapes is None else np.asarray(mp_blendshapes, np.float64)
         if self.mode == "mediapipe":
             return np.clip(mp, 0, 1).astype(np.float32)

@@ -49,9 +49,11 @@ unlike a moving average, which lags by ``(window − 1) / 2`` frames. A jump lar
 
 from __future__ import annotations
 
+import functools
 import math
 from collections import deque
 from dataclasses import dataclass
+from types import ModuleType
 
 import numpy as np
 
@@ -107,7 +109,7 @@ def procrustes(
     mu_d = w @ dst
     b = dst - mu_d
     cov = (b * w[:, None]).T @ fit.a  # (3, 3) = Σ w b aᵀ
-    u, sig, vt = np.linalg.svd(cov)
+    u, sig, vt = _svd(cov)
     D = np.array([1.0, 1.0, _det_sign(u @ vt)])
     R = (u * D) @ vt
     if with_scale:
@@ -117,6 +119,18 @@ def procrustes(
         s = 1.0
     t = mu_d - s * R @ fit.mu
     return s, R, t
+
+
+_SVD_F = getattr(getattr(np.linalg, "_umath_linalg", None), "svd_f", None)  # np.linalg.svd's own gufunc
+
+
+def _svd(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``np.linalg.svd(a)`` of a finite float64 (3, 3): its gufunc (LAPACK's ``dgesdd``, the same bits) called
+    without its argument handling, half its cost (twice a frame: issue 36). Anything else — a NaN or an infinity, where
+    it raises LinAlgError — goes through ``np.linalg.svd`` itself."""
+    if _SVD_F is None or not math.isfinite(np.add.reduce(a, axis=None)):
+        return np.linalg.svd(a)
+    return _SVD_F(a, signature="d->ddd")
 
 
 def _det_sign(m: np.ndarray) -> float:
@@ -133,6 +147,38 @@ def _norm(x: np.ndarray):
     without its argument handling (twice a frame: issue 36)."""
     x = np.asarray(x).ravel()
     return np.sqrt(x.dot(x))
+
+
+def _log_so3(M: np.ndarray) -> np.ndarray:
+    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3): its arithmetic, the same bits without
+    its argument handling (issue 36) — around NumPy's own ``arctan2``, in two compiled calls where
+    :mod:`facecapges.capture.kernels` keeps these bits, else its ufuncs on the same arrays (the skew part written
+    into one array where it stacks three, ``np.linalg.norm``'s own ``sqrt(add.reduce(v·v))``); within 1e-4 rad of π
+    (rare) its own."""
+    k = _kernels()
+    if k is not None:
+        v, sn, c = np.empty((len(M), 3)), np.empty(len(M)), np.empty(len(M))
+        k.skew_parts(M, v, sn, c)
+        return v if k.scale_skew(v, sn, np.arctan2(sn, c)) else rot.log_so3(M)
+    v = np.empty((len(M), 3))
+    np.subtract(M[:, 2, 1], M[:, 1, 2], out=v[:, 0])
+    np.subtract(M[:, 0, 2], M[:, 2, 0], out=v[:, 1])
+    np.subtract(M[:, 1, 0], M[:, 0, 1], out=v[:, 2])
+    sn = np.sqrt(np.add.reduce(v * v, axis=-1)) / 2
+    ang = np.arctan2(sn, (M.trace(axis1=-2, axis2=-1) - 1) / 2)
+    if (np.pi - ang < 1e-4).any():
+        return rot.log_so3(M)
+    return v * np.where(sn > 1e-12, ang / np.maximum(2 * sn, 1e-300), 0.5)[:, None]
+
+
+def _exp_so3(v: np.ndarray) -> np.ndarray:
+    """:func:`facecapges.rotations.exp_so3` of one float64 rotation vector (3,): its arithmetic (the skew matrix
+    written out where it stacks it, the angle a scalar where it is a (1, 1) array: the same ``sin``/``cos`` bits),
+    without its argument handling (issue 36)."""
+    ang = np.sqrt(np.add.reduce(v * v, axis=-1))  # np.linalg.norm(v, axis=-1)
+    kx, ky, kz = (v / np.maximum(ang, 1e-300)).tolist()
+    K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * (K @ K)
 
 
 def focal_from_vfov(height_px: float, vfov_deg: float = DEFAULT_VFOV_DEG) -> float:
@@ -164,13 +210,23 @@ def landmarks_to_camera(
     ids: np.ndarray,
     K: Intrinsics | None = None,
     fit: SourceFit | None = None,
+    compiled: bool | ModuleType = True,
 ) -> np.ndarray:
     """Normalised MediaPipe landmarks (N ≥ 468, 3) → camera-frame points (468, 3) in cm.
 
     See the module docstring. ``canonical`` (468, 3) cm, ``ids``/``weights`` the fit basis; ``fit``:
-    ``SourceFit.of(canonical[ids], weights)``, made once (:class:`HeadPoseEstimator` does).
-    """
+    ``SourceFit.of(canonical[ids], weights)``, made once (:class:`HeadPoseEstimator` does). The points before and
+    after the fit in one compiled call each where :mod:`facecapges.capture.kernels` keeps these bits on this machine
+    and ``compiled`` (issue 36; or ``compiled`` is that module, unchecked: its own check), else the NumPy below."""
     K = K or Intrinsics.default(width, height)
+    fit = fit or SourceFit.of(canonical[ids], weights)
+    k = _kernels() if compiled is True else compiled or None
+    if k is not None:
+        ortho, out = np.empty((468, 3)), np.empty((468, 3))
+        k.ortho_points(landmarks, int(width), int(height), ortho)
+        s, _, t = procrustes(None, ortho[ids], fit=fit)
+        k.lift_points(ortho, s, float(t[2]), float(K.fx), float(K.fy), float(K.cx), float(K.cy), out)
+        return out
     lm = np.asarray(landmarks[:468], np.float64)
     px = lm[:, 0] * width
     py = lm[:, 1] * height
@@ -180,7 +236,7 @@ def landmarks_to_camera(
     ortho[:, 0] = px
     np.negative(py, out=ortho[:, 1])
     np.multiply(lm[:, 2], -width, out=ortho[:, 2])
-    s, _, t = procrustes(None, ortho[ids], fit=fit or SourceFit.of(canonical[ids], weights))
+    s, _, t = procrustes(None, ortho[ids], fit=fit)
     depth = K.fx / s  # cm from the camera to the fitted head origin
     rel = ortho[:, 2] - t[2]  # pixels, + towards the camera
     z = depth - rel / s  # cm, distance along the optical axis
@@ -189,6 +245,13 @@ def landmarks_to_camera(
     out[:, 1] = -(py - K.cy) * z / K.fy
     np.negative(z, out=out[:, 2])
     return out
+
+
+@functools.cache
+def _kernels():
+    from facecapges.capture import kernels
+
+    return kernels.compiled()
 
 
 @dataclass
@@ -282,17 +345,17 @@ class PoseSmoother:
             # the jump from the last pose and the window's rotations relative to the newest (as if the window goes on)
             # in one log_so3 call: it works matrix by matrix, so the same numbers as a call each (issue 36)
             kept = list(self._R)[max(0, len(self._R) - self.window + 1) :]
-            logs = rot.log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
+            logs = _log_so3(np.concatenate([(self._R[-1].T @ ref)[None], ref.T @ np.stack([*kept, ref])]))
             if _norm(logs[0]) > self.reset:
                 self.reset_state()
             else:
                 rv = logs[1:]
         if rv is None:  # a new window: the newest pose alone
-            rv = rot.log_so3(ref.T @ np.stack([ref]))
+            rv = _log_so3(ref.T @ np.stack([ref]))
         self._R.append(ref.copy())
         self._t.append(np.asarray(pose.t, np.float64).copy())
         c = self._coef[len(self._R)]
-        R = ref @ rot.exp_so3(c @ rv)
+        R = ref @ _exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)
 

@@ -54,6 +54,8 @@ chosen from {0, 0.05, 0.1, 0.15, 0.2} on one set of videos and checked on anothe
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from facecapges.rotations import vector_norm
@@ -105,6 +107,13 @@ _BROW_INNER = np.array(BROW_INNER_L + BROW_INNER_R)
 _LOWER_LIP = np.array([b for _, b in LIP_PAIRS])
 
 
+@functools.cache
+def _kernels():
+    from facecapges.capture import kernels
+
+    return kernels.compiled()
+
+
 def _mean(x: np.ndarray) -> np.ndarray:
     """``x.mean(axis=-1)`` of float64 ``x``: its own arithmetic (the sum by ``add.reduce``, divided by the count),
     the same bits, without its Python layers (a dozen means a frame, issue 36)."""
@@ -121,9 +130,17 @@ def eye_corner_distance(P: np.ndarray) -> np.ndarray:
     return vector_norm(P[..., INNER_EYE_R, :] - P[..., INNER_EYE_L, :])
 
 
-def compute_metrics(P: np.ndarray) -> np.ndarray:
-    """Head-frame landmarks (..., N ≥ 468, 3) → metrics (..., 13) in :data:`METRIC_NAMES` order."""
+def compute_metrics(P: np.ndarray, compiled: bool = True) -> np.ndarray:
+    """Head-frame landmarks (..., N ≥ 468, 3) → metrics (..., 13) in :data:`METRIC_NAMES` order.
+
+    One face's (N, 3) float64 points in one compiled call where :mod:`facecapges.capture.kernels` keeps these
+    bits on this machine and ``compiled`` (a live frame's, issue 36); else the NumPy below."""
     P = np.asarray(P, np.float64)
+    k = _kernels() if compiled and P.ndim == 2 and P.flags.c_contiguous else None
+    if k is not None:
+        g = np.empty(13)
+        k.metrics(P, g)
+        return g
     w = np.maximum(eye_corner_distance(P), 1e-9)
     y = P[..., 1]
     eyes_L = _mean(y[..., _EYES_L])

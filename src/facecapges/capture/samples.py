@@ -25,7 +25,8 @@ sample ``(v1, ω1)`` is merged with its nearest neighbour ``(v2, ω2)`` (eq. 6�
 keeps learning, and its weights reflect the density of values seen so far.
 
 All units are stored in one (U, capacity) array and updated together, so adding a frame
-costs a handful of numpy operations whatever the number of units.
+costs a handful of numpy operations whatever the number of units; a sample's merge is one compiled call where
+:mod:`facecapges.capture.kernels` keeps NumPy's bits on this machine (its NumPy form otherwise).
 """
 
 from __future__ import annotations
@@ -64,7 +65,7 @@ class SampleSet:
         values, weights: (U, capacity) arrays; only the first :attr:`size` columns are used.
     """
 
-    def __init__(self, n_units: int, capacity: int = 64, scales: np.ndarray | None = None):
+    def __init__(self, n_units: int, capacity: int = 64, scales: np.ndarray | None = None, compiled: bool = True):
         if capacity < 4:
             raise ValueError(f"capacity must be at least 4, got {capacity}")
         self.capacity = int(capacity)
@@ -75,10 +76,19 @@ class SampleSet:
         self.n_frames = 0  # frames accepted
         self.n_dropped = 0  # frames with ω < 1/3
         self._rows = np.arange(n_units)
+        self.kernels = None  # kernels where it keeps NumPy's bits (``compiled``)
+        if compiled:
+            from facecapges.capture import kernels
+
+            self.kernels = kernels.compiled()
 
     def insert(self, v: np.ndarray, w: float) -> None:
         """Insert one sample per unit, all with weight ``w`` (merging when full, eq. 6–7)."""
         v = np.asarray(v, np.float64)
+        k = self.kernels
+        if k is not None and v.flags.c_contiguous and k.insert(self.values, self.weights, self.size, v, w):
+            self.size = min(self.size + 1, self.capacity)
+            return
         if self.size < self.capacity:
             self.values[:, self.size] = v
             self.weights[:, self.size] = w
