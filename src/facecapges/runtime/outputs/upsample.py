@@ -27,7 +27,10 @@ at ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
 A tick that comes late (the machine busy) is sent at once and the schedule kept, so the
 delivered rate stays the asked one; only a lag above :data:`MAX_LAG_S` (a stall) drops
 the missed ticks and restarts the schedule (counted in ``resyncs``).
-:meth:`Upsampler.close` shows the last frame, stops the thread and closes the sinks.
+Between ticks the thread sleeps once, to the next tick's due time (no lock, no condition: the scheduler's
+:meth:`Upsampler.write` hands a frame over under a lock the tick takes once).
+:meth:`Upsampler.close` stops the thread (when its sleep ends: at most one tick), shows the last frame and closes
+the sinks.
 
 Between model frames, in each sink's own form
 ---------------------------------------------
