@@ -27,7 +27,10 @@ at ``rate = fps`` (``n = 1``) frames pass through untouched, no delay.
 A tick that comes late (the machine busy) is sent at once and the schedule kept, so the
 delivered rate stays the asked one; only a lag above :data:`MAX_LAG_S` (a stall) drops
 the missed ticks and restarts the schedule (counted in ``resyncs``).
-:meth:`Upsampler.close` shows the last frame, stops the thread and closes the sinks.
+Between ticks the thread sleeps once, to the next tick's due time (no lock, no condition: the scheduler's
+:meth:`Upsampler.write` hands a frame over under a lock the tick takes once).
+:meth:`Upsampler.close` stops the thread (when its sleep ends: at most one tick), shows the last frame and closes
+the sinks.
 
 Between model frames, in each sink's own form
 ---------------------------------------------
@@ -170,7 +173,8 @@ class Upsampler:
         self._blends = False  # the newest model frame came after a tick: its blend starts from what was shown
         self._last_time = -np.inf  # the stream time sent last
         self._reached: OutputFrame | None = None  # the model frame shown in full last
-        self._cond = threading.Condition()
+        self._lock = threading.Lock()  # the hand-over: write (the scheduler) against a tick's blend
+        self._started = threading.Event()  # the first model frame came (or close: nothing to tick)
         self._stop = False
         self._closed = False
         self._thread = None
@@ -180,7 +184,7 @@ class Upsampler:
 
     def add_sink(self, sink) -> None:
         """One more sink fed from the same clock (it starts on the newest model frame)."""
-        with self._cond:
+        with self._lock:
             self.sinks.append(sink)
             self._feeds.append(_Feed(sink))
 
@@ -197,21 +201,20 @@ class Upsampler:
         if self.n == 1:
             self._emit(out)
             return
-        with self._cond:
+        with self._lock:
             self._blends = self._sent
             for f in self._feeds:
                 f.start, f.target = f.shown, None
-            first = self._target is None
             self._target = out
             self._t0 = time.monotonic()
-            if first:  # the clock starts; later frames wait for their tick (a wake-up now would only wait again)
-                self._cond.notify()
+        if not self._started.is_set():  # the clock starts; later frames wait for their tick (never a wake-up)
+            self._started.set()
 
     def _tick(self, due: float) -> None:
         """Tick ``due``: each sink's blend towards the newest model frame and the stream time (module docstring),
         computed and recorded as shown in one hold of the lock (a frame written meanwhile would start from what
         was shown before this tick, and the output would step back), then sent."""
-        with self._cond:
+        with self._lock:
             target, t0 = self._target, self._t0
             assert target is not None  # ticks start with the first frame
             # a late tick (due before the frame came: the machine was busy) shows where it was, never behind it
@@ -232,39 +235,38 @@ class Upsampler:
         self.emitted += 1
 
     def _run(self) -> None:
+        """The clock: one sleep to each tick's due time (``time.sleep``: one absolute ``clock_nanosleep``, the GIL
+        released), then the tick. No lock or condition between ticks (issue 36: a ``Condition.wait`` per tick, its
+        lock made and its waiter list, cost more CPU than the sleep); ``close`` is seen when the sleep ends (at most
+        one tick later)."""
         name_os_thread("upsample")
+        self._started.wait()
         tick = 1.0 / self.rate_hz
-        due: float | None = None
-        while True:
-            with self._cond:
-                while not self._stop and self._target is None:
-                    self._cond.wait()
-                if self._stop:
-                    return
-                now = time.monotonic()
-                if due is None:
-                    due = now
-                if due - now > 0:
-                    self._cond.wait(due - now)  # close() may cut the wait short
-                    continue
-                if now - due > MAX_LAG_S:  # a stall: drop the missed ticks
-                    self.resyncs += 1
-                    due = now
-                elif now - due > tick:
-                    self.late += 1
-            t_work, c_work = time.perf_counter(), time.thread_time()
+        due = time.monotonic()
+        monotonic, sleep, perf_counter, thread_time = time.monotonic, time.sleep, time.perf_counter, time.thread_time
+        tick_ms, tick_cpu_ms = self.tick_ms.append, self.tick_cpu_ms.append
+        while not self._stop:
+            now = monotonic()
+            if due - now > 0:
+                sleep(due - now)
+                continue
+            if now - due > MAX_LAG_S:  # a stall: drop the missed ticks
+                self.resyncs += 1
+                due = now
+            elif now - due > tick:
+                self.late += 1
+            t_work, c_work = perf_counter(), thread_time()
             self._tick(due)
-            self.tick_ms.append((time.perf_counter() - t_work) * 1000.0)
-            self.tick_cpu_ms.append((time.thread_time() - c_work) * 1000.0)
+            tick_ms((perf_counter() - t_work) * 1000.0)
+            tick_cpu_ms((thread_time() - c_work) * 1000.0)
             due += tick
 
     def close(self) -> None:
         if self._closed:
             return
         self._closed = True
-        with self._cond:
-            self._stop = True
-            self._cond.notify()
+        self._stop = True
+        self._started.set()  # a clock that never started ends at once
         if self._thread is not None:
             self._thread.join(timeout=2)
             target = self._target

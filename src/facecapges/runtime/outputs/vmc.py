@@ -497,6 +497,7 @@ class VmcSender:
         self._blend_prefix = [_prefix("/VMC/Ext/Blend/Val", ",sf", n) for n in blend_names(blend)]
         self._template, self._at, self._spans = self._layout()
         self._buf = self._template.copy()  # what send packs into
+        self._largest = [max([0] + [b - a for a, b in self._spans[:k]]) for k in range(len(self._spans) + 1)]
         self._kernels = self.mapping._kernels
         self._arc: tuple = (None, None, None)  # the last blend's pair and its arcs' angles (between)
         self.sent = 0  # frames
@@ -560,18 +561,23 @@ class VmcSender:
 
     def send(self, frame: tuple[np.ndarray, np.ndarray], time_s: float) -> None:
         """Send a frame in the sender's own form (:meth:`model_frame`, :meth:`between`) at stream time ``time_s``."""
+        # packed into the sender's own buffer: the sink's send is called from one thread
+        grams, sock, went = self._datagrams(frame, time_s, self._buf), self.sock, 0
         try:
-            # packed into the sender's own buffer: the sink's send is called from one thread
-            for d in self._datagrams(frame, time_s, self._buf):
-                if self._connected:
-                    self.sock.send(d)
-                else:
-                    self.sock.sendto(d, self.address)
-                self.datagrams += 1
-                self.largest_datagram = max(self.largest_datagram, len(d))
+            if self._connected:
+                for d in grams:
+                    sock.send(d)
+                    went += 1
+            else:
+                for d in grams:
+                    sock.sendto(d, self.address)
+                    went += 1
             self.sent += 1
         except OSError:  # receiver not there (ICMP port unreachable, reported by the next send): fire-and-forget
             self.errors += 1
+        if went:  # the counters once a frame, not once a datagram
+            self.datagrams += went
+            self.largest_datagram = max(self.largest_datagram, self._largest[went])
 
     def _datagrams(self, frame: tuple[np.ndarray, np.ndarray], time_s: float, buf=None) -> list[bytes]:
         """The frame's datagrams, its numbers packed into ``buf`` (default: a copy of the template)."""
