@@ -624,8 +624,14 @@ def log_so3(R: np.ndarray) -> np.ndarray:
 
 
 def exp_so3(v: np.ndarray) -> np.ndarray:
-    """Rotation vectors (…, 3) (axis × angle, radians) → rotation matrices (…, 3, 3) (Rodrigues)."""
+    """Rotation vectors (…, 3) (axis × angle, radians) → rotation matrices (…, 3, 3) (Rodrigues). One vector (3,)
+    takes the same arithmetic without the stacking (the capture's pose smoother, once a frame: issue 36)."""
     v = np.asarray(v, np.float64)
+    if v.shape == (3,):
+        a = np.sqrt(np.add.reduce(v * v))  # np.linalg.norm(v)
+        kx, ky, kz = (v / np.maximum(a, 1e-300)).tolist()
+        K1 = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+        return np.eye(3) + np.sin(a) * K1 + (1 - np.cos(a)) * (K1 @ K1)
     ang = np.linalg.norm(v, axis=-1)[..., None, None]
     k = v / np.maximum(ang[..., 0], 1e-300)
     zero = np.zeros_like(k[..., 0])

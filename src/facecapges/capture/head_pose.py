@@ -150,35 +150,15 @@ def _norm(x: np.ndarray):
 
 
 def _log_so3(M: np.ndarray) -> np.ndarray:
-    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3): its arithmetic, the same bits without
-    its argument handling (issue 36) — around NumPy's own ``arctan2``, in two compiled calls where
-    :mod:`facecapges.capture.kernels` keeps these bits, else its ufuncs on the same arrays (the skew part written
-    into one array where it stacks three, ``np.linalg.norm``'s own ``sqrt(add.reduce(v·v))``); within 1e-4 rad of π
-    (rare) its own."""
+    """:func:`facecapges.rotations.log_so3` of float64 rotations (m, 3, 3), in two compiled calls around NumPy's own
+    ``arctan2`` where :mod:`facecapges.capture.kernels` keeps its bits (issue 36), else (and within 1e-4 rad of π)
+    its own."""
     k = _kernels()
-    if k is not None:
-        v, sn, c = np.empty((len(M), 3)), np.empty(len(M)), np.empty(len(M))
-        k.skew_parts(M, v, sn, c)
-        return v if k.scale_skew(v, sn, np.arctan2(sn, c)) else rot.log_so3(M)
-    v = np.empty((len(M), 3))
-    np.subtract(M[:, 2, 1], M[:, 1, 2], out=v[:, 0])
-    np.subtract(M[:, 0, 2], M[:, 2, 0], out=v[:, 1])
-    np.subtract(M[:, 1, 0], M[:, 0, 1], out=v[:, 2])
-    sn = np.sqrt(np.add.reduce(v * v, axis=-1)) / 2
-    ang = np.arctan2(sn, (M.trace(axis1=-2, axis2=-1) - 1) / 2)
-    if (np.pi - ang < 1e-4).any():
+    if k is None:
         return rot.log_so3(M)
-    return v * np.where(sn > 1e-12, ang / np.maximum(2 * sn, 1e-300), 0.5)[:, None]
-
-
-def _exp_so3(v: np.ndarray) -> np.ndarray:
-    """:func:`facecapges.rotations.exp_so3` of one float64 rotation vector (3,): its arithmetic (the skew matrix
-    written out where it stacks it, the angle a scalar where it is a (1, 1) array: the same ``sin``/``cos`` bits),
-    without its argument handling (issue 36)."""
-    ang = np.sqrt(np.add.reduce(v * v, axis=-1))  # np.linalg.norm(v, axis=-1)
-    kx, ky, kz = (v / np.maximum(ang, 1e-300)).tolist()
-    K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
-    return np.eye(3) + np.sin(ang) * K + (1 - np.cos(ang)) * (K @ K)
+    v, sn, c = np.empty((len(M), 3)), np.empty(len(M)), np.empty(len(M))
+    k.skew_parts(M, v, sn, c)
+    return v if k.scale_skew(v, sn, np.arctan2(sn, c)) else rot.log_so3(M)
 
 
 def focal_from_vfov(height_px: float, vfov_deg: float = DEFAULT_VFOV_DEG) -> float:
@@ -355,7 +335,7 @@ class PoseSmoother:
         self._R.append(ref.copy())
         self._t.append(np.asarray(pose.t, np.float64).copy())
         c = self._coef[len(self._R)]
-        R = ref @ _exp_so3(c @ rv)
+        R = ref @ rot.exp_so3(c @ rv)
         t = c @ np.stack(self._t)
         return HeadPose(R, t, pose.scale)
 
